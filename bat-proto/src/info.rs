@@ -1,0 +1,67 @@
+//! Battery pack info frame, ID 0x620.
+
+use crate::{DecodeError, FRAME_LEN, INFO_ID, frame_bytes};
+
+/// Battery pack info, sent on [`INFO_ID`] (0x620).
+///
+/// Layout (seed table, spec-notes section 2):
+///
+/// | bytes | field |
+/// |---|---|
+/// | 0-1 | voltage, u16 little-endian, 0.1 V (`A4 01` = 0x01A4 = 42.0 V) |
+/// | 2-3 | pack current, i16 little-endian, 0.1 A (newer firmware only) |
+/// | 4 | charge, 0..=100 % |
+/// | 5 | unused: sent as 0, ignored on receipt |
+/// | 6-7 | temperature, i16 little-endian, 0.1 °C (filled from the BMS board) |
+///
+/// The seed's layout sends zeros in bytes 2-3 and 6-7; only newer firmware fills them (spec-notes). A 0 there
+/// therefore reads as `None` ("not reported"), and `None` encodes as 0. A real reading of exactly 0 is
+/// indistinguishable from "not reported": encoding `Some(0)` writes 0, which reads back as `None`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BatteryInfo {
+    /// Pack voltage in 0.1 V.
+    pub voltage_decivolts: u16,
+    /// State of charge in percent, 0..=100.
+    pub charge_percent: u8,
+    /// Pack current in 0.1 A, `None` when not reported (sent as 0). The sign convention is the firmware's;
+    /// a negative value is read as charging.
+    pub current_deciamps: Option<i16>,
+    /// Pack temperature in 0.1 °C, `None` when not reported (sent as 0).
+    pub temperature_decicelsius: Option<i16>,
+}
+
+impl BatteryInfo {
+    /// Encodes the 8 data bytes of a 0x620 frame.
+    ///
+    /// The charge is written as given: a value above 100 produces a frame that [`BatteryInfo::decode`] rejects
+    /// (useful to a simulator that wants to send a faulty frame). `Some(0)` and `None` both write 0.
+    pub fn encode(&self) -> [u8; FRAME_LEN] {
+        let [v0, v1] = self.voltage_decivolts.to_le_bytes();
+        let [c0, c1] = self.current_deciamps.unwrap_or(0).to_le_bytes();
+        let [t0, t1] = self.temperature_decicelsius.unwrap_or(0).to_le_bytes();
+        [v0, v1, c0, c1, self.charge_percent, 0, t0, t1]
+    }
+
+    /// Decodes the data bytes of a 0x620 frame.
+    ///
+    /// Errors: [`DecodeError::Length`] unless exactly 8 bytes; [`DecodeError::ChargeOutOfRange`] if byte 4 is
+    /// above 100. Byte 5 is ignored.
+    pub fn decode(data: &[u8]) -> Result<Self, DecodeError> {
+        let [v0, v1, c0, c1, charge, _unused, t0, t1] = frame_bytes(INFO_ID, data)?;
+        if charge > 100 {
+            return Err(DecodeError::ChargeOutOfRange(charge));
+        }
+        Ok(Self {
+            voltage_decivolts: u16::from_le_bytes([v0, v1]),
+            charge_percent: charge,
+            current_deciamps: non_zero(i16::from_le_bytes([c0, c1])),
+            temperature_decicelsius: non_zero(i16::from_le_bytes([t0, t1])),
+        })
+    }
+}
+
+/// 0 on the wire means "not reported" (older firmware sends zeros).
+const fn non_zero(value: i16) -> Option<i16> {
+    if value == 0 { None } else { Some(value) }
+}

@@ -1,0 +1,9 @@
+//! The LBV master node's hardware-free core.
+//!
+//! Everything here runs unchanged on the STM32 (through the binding in `main.rs`) and on the host, where tests
+//! drive it through simulated buses. It never touches a register and never panics on bus input.
+#![cfg_attr(not(test), no_std)]
+
+pub mod poll;
+
+pub use poll::{PollError, poll_thruster};

@@ -1,0 +1,16 @@
+//! lbv-master-fw: the STM32G431 image of the LBV master node.
+//!
+//! The binding (`stm32.rs`) exists only for the firmware target; on the host this binary is a stub and the
+//! node's logic is tested through the library.
+#![cfg_attr(target_os = "none", no_std, no_main)]
+
+#[cfg(target_os = "none")]
+mod stm32;
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!(
+        "lbv-master-fw runs on the STM32G431: cargo run --release -p lbv-master-fw --target thumbv7em-none-eabihf"
+    );
+    std::process::exit(2);
+}

@@ -1,0 +1,137 @@
+//! One exchange with a thruster: send the order, read the status (IDS 6.6.1, 8.3, 8.4).
+
+use embedded_hal_async::i2c::I2c;
+use tmc_proto::{DecodeError, Family, MAX_STATUS_LEN, Order, Status};
+
+/// Why a poll failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum PollError<E> {
+    /// Writing the order failed on the bus (a missing thruster NACKs its address).
+    Order(E),
+    /// Reading the status failed on the bus.
+    Status(E),
+    /// The status arrived but is not a valid frame of the thruster's family.
+    Decode(DecodeError),
+}
+
+/// Send `order` to the thruster of `family` and read back its status.
+///
+/// The order and the read are separate transfers, each ended by STOP, as the IDS describes them (write at
+/// 0x52/0x54, read at 0x53/0x55).
+pub async fn poll_thruster<I: I2c>(i2c: &mut I, family: Family, order: Order) -> Result<Status, PollError<I::Error>> {
+    let address = family.address();
+    i2c.write(address, &order.encode(family))
+        .await
+        .map_err(PollError::Order)?;
+    let mut buffer = [0; MAX_STATUS_LEN];
+    // Never empty: status_len() is at most MAX_STATUS_LEN.
+    let reply = buffer.get_mut(..family.status_len()).unwrap_or_default();
+    i2c.read(address, reply).await.map_err(PollError::Status)?;
+    Status::decode(family, reply).map_err(PollError::Decode)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embassy_futures::block_on;
+    use embedded_hal_async::i2c::{ErrorKind, ErrorType, NoAcknowledgeSource, Operation};
+    use thruster_fw::Link;
+    use tmc_proto::{MotorKind, SeaBotixStatus, Speed};
+
+    /// A bus with one thruster on it, served by the thruster firmware's own core. `corrupt` flips bits of
+    /// every status byte read, as a noisy line would.
+    struct Bus {
+        thruster: Link,
+        corrupt: u8,
+        transfers: usize,
+    }
+
+    impl Bus {
+        fn with(family: Family) -> Self {
+            Self {
+                thruster: Link::new(family, MotorKind::Brushless),
+                corrupt: 0,
+                transfers: 0,
+            }
+        }
+    }
+
+    impl ErrorType for Bus {
+        type Error = ErrorKind;
+    }
+
+    impl I2c for Bus {
+        async fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), ErrorKind> {
+            self.transfers += 1;
+            if address != self.thruster.family().address() {
+                return Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address));
+            }
+            for operation in operations {
+                match operation {
+                    Operation::Write(bytes) => {
+                        let _ = self.thruster.accept(bytes);
+                    }
+                    Operation::Read(buffer) => {
+                        let frame = self.thruster.frame().as_bytes();
+                        for (i, byte) in buffer.iter_mut().enumerate() {
+                            // A slave with nothing more to send leaves SDA high: 0xFF.
+                            *byte = frame.get(i).copied().unwrap_or(0xFF) ^ self.corrupt;
+                        }
+                    }
+                }
+            }
+            Ok(())
+        }
+    }
+
+    fn forward(step: i8) -> Order {
+        Order::new(Speed::new(step).unwrap())
+    }
+
+    #[test]
+    fn polls_each_family_and_decodes_the_reply() {
+        for family in Family::ALL {
+            let mut bus = Bus::with(family);
+            let status = block_on(poll_thruster(&mut bus, family, forward(25))).unwrap();
+            assert_eq!(status.family(), family);
+            assert_eq!(bus.thruster.order(), forward(25), "the order reached the thruster");
+            assert_eq!(bus.transfers, 2, "one write and one read");
+        }
+    }
+
+    #[test]
+    fn the_status_reports_the_order_just_sent() {
+        let mut bus = Bus::with(Family::SeaBotix);
+        let status = block_on(poll_thruster(&mut bus, Family::SeaBotix, forward(-60))).unwrap();
+        let Status::SeaBotix(SeaBotixStatus { speed, .. }) = status else {
+            panic!("wrong family")
+        };
+        assert_eq!(speed.step(), -60);
+    }
+
+    #[test]
+    fn a_missing_thruster_is_a_nack_on_the_order() {
+        let mut bus = Bus::with(Family::Legacy);
+        let error = block_on(poll_thruster(&mut bus, Family::SeaBotix, Order::STOP)).unwrap_err();
+        assert_eq!(
+            error,
+            PollError::Order(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address))
+        );
+        assert_eq!(bus.transfers, 1, "no read after a failed order");
+    }
+
+    #[test]
+    fn a_corrupted_status_is_a_decode_error() {
+        let mut bus = Bus::with(Family::SeaBotix);
+        bus.corrupt = 0x01;
+        let error = block_on(poll_thruster(&mut bus, Family::SeaBotix, Order::STOP)).unwrap_err();
+        assert!(matches!(
+            error,
+            PollError::Decode(DecodeError::MessageType {
+                expected: 0x53,
+                actual: 0x52
+            })
+        ));
+    }
+}

@@ -1,0 +1,74 @@
+#!/usr/bin/env bash
+# The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
+# tests, both firmware images in release and their size report against the flash / RAM budgets.
+# Usage: ./test.sh        (CI runs exactly this through .ci/run)
+set -euo pipefail
+cd "$(dirname "$0")"
+
+TARGET=thumbv7em-none-eabihf
+
+step() { printf '\n=== %s\n' "$*"; }
+as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
+
+step "toolchain"
+rustup component add rustfmt clippy >/dev/null 2>&1 || true
+rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
+if ! command -v arm-none-eabi-size >/dev/null; then
+  as_root apt-get update -qq
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq binutils-arm-none-eabi >/dev/null
+fi
+cargo --version
+
+step "rustfmt"
+cargo fmt --all -- --check
+
+step "clippy (host)"
+cargo clippy --workspace --all-targets --locked -- -D warnings
+cargo clippy -p tmc-proto -p bat-proto --all-targets --features defmt --locked -- -D warnings
+
+step "clippy ($TARGET)"
+cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
+
+step "host tests"
+cargo test --workspace --locked
+
+if rustup toolchain list | grep -q '^nightly'; then
+  step "fuzz targets build (nightly)"
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz; do
+    cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
+  done
+fi
+
+step "firmware images (release, $TARGET)"
+# Each image is kept under target/images/ (the legacy thruster build overwrites the default one's ELF).
+release="target/$TARGET/release"
+mkdir -p target/images
+cargo build --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked
+cp "$release/thruster-fw" target/images/thruster-fw
+cp "$release/lbv-master-fw" target/images/lbv-master-fw
+cargo build --release --target "$TARGET" -p thruster-fw --features legacy --locked
+cp "$release/thruster-fw" target/images/thruster-fw-legacy
+
+step "image sizes"
+# Flash holds code, constants and the initial values of .data; static RAM is .data + .bss + .uninit.
+# Budgets in KiB: image flash ram
+failed=0
+while read -r image flash_kib ram_kib; do
+  arm-none-eabi-size -A "target/images/$image" | awk -v name="$image" -v fb="$flash_kib" -v rb="$ram_kib" '
+    $1 ~ /^\.(vector_table|text|rodata|data)$/ { flash += $2 }
+    $1 ~ /^\.(data|bss|uninit)$/ { ram += $2 }
+    END {
+      ok = flash <= fb * 1024 && ram <= rb * 1024
+      printf "%-20s flash %6d B = %5.1f of %2d KiB   static RAM %6d B = %5.1f of %2d KiB   %s\n",
+        name, flash, flash / 1024, fb, ram, ram / 1024, rb, ok ? "ok" : "OVER BUDGET"
+      exit !ok
+    }' || failed=1
+done <<'BUDGETS'
+thruster-fw        48 16
+thruster-fw-legacy 48 16
+lbv-master-fw      96 24
+BUDGETS
+[ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
+
+step "all checks passed"

@@ -1,0 +1,9 @@
+//! The thruster motor controller's hardware-free core.
+//!
+//! Everything here runs unchanged on the STM32 (through the binding in `main.rs`) and on the host, where tests
+//! drive it through simulated ports. It never touches a register and never panics on bus input.
+#![cfg_attr(not(test), no_std)]
+
+pub mod i2c_slave;
+
+pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve_once};

@@ -1,0 +1,16 @@
+//! thruster-fw: the STM32G431 image of the thruster motor controller.
+//!
+//! The binding (`stm32.rs`, `board.rs`) exists only for the firmware target; on the host this binary is a stub
+//! and the controller's logic is tested through the library.
+#![cfg_attr(target_os = "none", no_std, no_main)]
+
+#[cfg(target_os = "none")]
+mod board;
+#[cfg(target_os = "none")]
+mod stm32;
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("thruster-fw runs on the STM32G431: cargo run --release -p thruster-fw --target thumbv7em-none-eabihf");
+    std::process::exit(2);
+}

@@ -1,0 +1,26 @@
+//! SeaBotix status decoder on arbitrary bytes: never panics, and whatever decodes re-encodes to the same status.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use tmc_proto::{Family, SeaBotixStatus, Status, checksum};
+
+fuzz_target!(|data: &[u8]| {
+    let decoded = SeaBotixStatus::decode(data);
+    assert_eq!(Status::decode(Family::SeaBotix, data), decoded.map(Status::SeaBotix));
+    if let Ok(status) = decoded {
+        let bytes = status.encode();
+        assert_eq!(SeaBotixStatus::decode(&bytes), Ok(status));
+        assert_eq!(Status::SeaBotix(status).encode().as_bytes(), bytes);
+        // Same bytes up to the normalisations: reserved STATUS bits 2-3 and FAULT bits 5-7 zeroed, zero speed as
+        // 0x80, checksum recomputed.
+        let input: [u8; 7] = data.try_into().expect("decoded, so 7 bytes");
+        let mut expected = input;
+        expected[1] &= 0xF3;
+        expected[2] &= 0x1F;
+        if expected[4] == 0x7F {
+            expected[4] = 0x80;
+        }
+        expected[6] = checksum(&expected[..6]);
+        assert_eq!(bytes, expected);
+    }
+});

@@ -1,0 +1,347 @@
+//! The status messages, thruster -> master (IDS 8.4).
+
+use crate::{DecodeError, Family, Faults, MAX_STATUS_LEN, Speed, checksum};
+
+/// Motor technology a controller drives.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MotorKind {
+    /// Brushless DC motor; speeds are rpm, full scale 4500 (IDS 8.3.2).
+    Brushless,
+    /// Brushed DC motor; speeds are PWM values (IDS 8.3.2).
+    Brushed,
+}
+
+/// SeaBotix status, 7 bytes: MT=0x53 STATUS FAULT CURRENT SPEED TEMPERATURE CSUM (IDS 8.4.2).
+///
+/// STATUS bits 2-3 and FAULT bits 5-7 are reserved: sent as zero, ignored on decode (IDS 8.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SeaBotixStatus {
+    /// Software revision, STATUS bits 4-7 (0..=15; 0 is the original brushless software). Encode keeps 4 bits.
+    pub revision: u8,
+    /// Motor kind, STATUS bit 1: 1 brushless, 0 brushed.
+    pub motor: MotorKind,
+    /// Current-limited software version: true when STATUS bit 0 is 0.
+    pub current_limited: bool,
+    /// FAULT byte, bits 0-4.
+    pub faults: Faults,
+    /// CURRENT, motor current in 0.1 A.
+    pub current_deciamps: u8,
+    /// SPEED, actual speed in the order's encoding (brushed: the PWM value).
+    pub speed: Speed,
+    /// TEMPERATURE in degrees C: the motor's (brushless) or the controller's (brushed).
+    pub temperature_c: u8,
+}
+
+impl SeaBotixStatus {
+    /// Message length in bytes.
+    pub const LEN: usize = 7;
+
+    const STATUS_BRUSHLESS: u8 = 1 << 1;
+    const STATUS_NOT_CURRENT_LIMITED: u8 = 1 << 0;
+
+    /// Encode with MT 0x53. The revision is masked to 4 bits; reserved bits are sent as zero.
+    pub fn encode(&self) -> [u8; Self::LEN] {
+        let mut status = (self.revision & 0x0F) << 4;
+        if self.motor == MotorKind::Brushless {
+            status |= Self::STATUS_BRUSHLESS;
+        }
+        if !self.current_limited {
+            status |= Self::STATUS_NOT_CURRENT_LIMITED;
+        }
+        let body = [
+            Family::SeaBotix.status_type(),
+            status,
+            self.faults.bits(),
+            self.current_deciamps,
+            self.speed.to_byte(),
+            self.temperature_c,
+        ];
+        let [b0, b1, b2, b3, b4, b5] = body;
+        [b0, b1, b2, b3, b4, b5, checksum(&body)]
+    }
+
+    /// Decode. Checks, in this order: length 7, MT 0x53, CSUM, SPEED range. Reserved bits are masked.
+    pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let [mt, status, fault, current, speed, temperature, csum] =
+            <[u8; Self::LEN]>::try_from(bytes).map_err(|_| DecodeError::Length {
+                expected: Self::LEN as u8,
+                actual: bytes.len(),
+            })?;
+        check_type_and_sum(
+            Family::SeaBotix,
+            mt,
+            &[mt, status, fault, current, speed, temperature],
+            csum,
+        )?;
+        Ok(SeaBotixStatus {
+            revision: status >> 4,
+            motor: if status & Self::STATUS_BRUSHLESS != 0 {
+                MotorKind::Brushless
+            } else {
+                MotorKind::Brushed
+            },
+            current_limited: status & Self::STATUS_NOT_CURRENT_LIMITED == 0,
+            faults: Faults::from_bits_truncate(fault),
+            current_deciamps: current,
+            speed: Speed::from_byte(speed)?,
+            temperature_c: temperature,
+        })
+    }
+}
+
+/// Legacy controller software revision, STATUS bits 5-7 read as a 3-bit number (IDS 8.4.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LegacyRevision(u8);
+
+impl LegacyRevision {
+    /// 0: original thruster software.
+    pub const ORIGINAL: Self = Self(0);
+    /// 1: brushless DC software, first revision (Aveox).
+    pub const AVEOX_BRUSHLESS: Self = Self(1);
+    /// 2: brushed DC software, first revision (SeaBotix Legacy).
+    pub const LEGACY_BRUSHED: Self = Self(2);
+    /// 4: brushed DC software, revision 4.
+    pub const BRUSHED_REV4: Self = Self(4);
+
+    /// Revision of a number; `None` above 7 (3 bits).
+    pub const fn new(rev: u8) -> Option<Self> {
+        if rev <= 7 { Some(Self(rev)) } else { None }
+    }
+
+    /// Revision number, 0..=7.
+    pub const fn number(self) -> u8 {
+        self.0
+    }
+
+    /// Motor kind the revision implies: 1 brushless; 2 and 4 brushed; `None` for 0 (original) and the
+    /// undefined 3, 5, 6, 7.
+    pub const fn motor_kind(self) -> Option<MotorKind> {
+        match self.0 {
+            1 => Some(MotorKind::Brushless),
+            2 | 4 => Some(MotorKind::Brushed),
+            _ => None,
+        }
+    }
+}
+
+/// MAX POWER byte, read according to the revision's motor kind (IDS 8.4.1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum MaxPower {
+    /// Brushless: motor current.
+    Current {
+        /// Motor current in 0.1 A (12 is 1.2 A).
+        deciamps: u8,
+    },
+    /// Brushed: power set into the motor, in SPEED encoding; equals the ordered speed unless the controller
+    /// reduced it.
+    Power(Speed),
+    /// Revision with no defined motor kind: the byte as received.
+    Raw(u8),
+}
+
+impl MaxPower {
+    /// The MAX POWER byte as sent.
+    const fn to_byte(self) -> u8 {
+        match self {
+            MaxPower::Current { deciamps } => deciamps,
+            MaxPower::Power(speed) => speed.to_byte(),
+            MaxPower::Raw(byte) => byte,
+        }
+    }
+}
+
+/// Legacy (Aveox / Legacy SeaBotix) status, 4 bytes: MT=0x55 STATUS MAX_POWER CSUM (IDS 8.4.1).
+///
+/// STATUS holds the revision in bits 5-7 and the faults in bits 0-4.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LegacyStatus {
+    /// Software revision, STATUS bits 5-7.
+    pub revision: LegacyRevision,
+    /// Faults, STATUS bits 0-4.
+    pub faults: Faults,
+    /// MAX POWER.
+    pub max_power: MaxPower,
+}
+
+impl LegacyStatus {
+    /// Message length in bytes.
+    pub const LEN: usize = 4;
+
+    /// Encode with MT 0x55.
+    ///
+    /// MAX POWER is written from whichever variant `max_power` holds (current, speed byte or raw byte), even if it
+    /// does not match the revision's motor kind; [`LegacyStatus::decode`] reads it back per the revision.
+    pub fn encode(&self) -> [u8; Self::LEN] {
+        let mt = Family::Legacy.status_type();
+        let status = (self.revision.number() << 5) | self.faults.bits();
+        let max_power = self.max_power.to_byte();
+        [mt, status, max_power, checksum(&[mt, status, max_power])]
+    }
+
+    /// Decode. Checks, in this order: length 4, MT 0x55, CSUM, then MAX POWER as a speed for brushed revisions
+    /// (out of range gives [`DecodeError::SpeedOutOfRange`]).
+    pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let [mt, status, max_power, csum] = <[u8; Self::LEN]>::try_from(bytes).map_err(|_| DecodeError::Length {
+            expected: Self::LEN as u8,
+            actual: bytes.len(),
+        })?;
+        check_type_and_sum(Family::Legacy, mt, &[mt, status, max_power], csum)?;
+        let revision = LegacyRevision(status >> 5);
+        let max_power = match revision.motor_kind() {
+            Some(MotorKind::Brushless) => MaxPower::Current { deciamps: max_power },
+            Some(MotorKind::Brushed) => MaxPower::Power(Speed::from_byte(max_power)?),
+            None => MaxPower::Raw(max_power),
+        };
+        Ok(LegacyStatus {
+            revision,
+            faults: Faults::from_bits_truncate(status),
+            max_power,
+        })
+    }
+}
+
+/// Status of either family, for code that handles both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Status {
+    /// SeaBotix controller status (IDS 8.4.2).
+    SeaBotix(SeaBotixStatus),
+    /// Aveox / Legacy SeaBotix controller status (IDS 8.4.1).
+    Legacy(LegacyStatus),
+}
+
+impl Status {
+    /// Family whose layout this status uses.
+    pub const fn family(&self) -> Family {
+        match self {
+            Status::SeaBotix(_) => Family::SeaBotix,
+            Status::Legacy(_) => Family::Legacy,
+        }
+    }
+
+    /// Reported faults.
+    pub const fn faults(&self) -> Faults {
+        match self {
+            Status::SeaBotix(status) => status.faults,
+            Status::Legacy(status) => status.faults,
+        }
+    }
+
+    /// Encode in the family's layout.
+    pub fn encode(&self) -> StatusFrame {
+        match self {
+            Status::SeaBotix(status) => StatusFrame {
+                bytes: status.encode(),
+                len: SeaBotixStatus::LEN as u8,
+            },
+            Status::Legacy(status) => {
+                let [b0, b1, b2, b3] = status.encode();
+                StatusFrame {
+                    bytes: [b0, b1, b2, b3, 0, 0, 0],
+                    len: LegacyStatus::LEN as u8,
+                }
+            }
+        }
+    }
+
+    /// Decode a family's status layout.
+    pub fn decode(family: Family, bytes: &[u8]) -> Result<Status, DecodeError> {
+        match family {
+            Family::SeaBotix => SeaBotixStatus::decode(bytes).map(Status::SeaBotix),
+            Family::Legacy => LegacyStatus::decode(bytes).map(Status::Legacy),
+        }
+    }
+}
+
+impl From<SeaBotixStatus> for Status {
+    fn from(status: SeaBotixStatus) -> Status {
+        Status::SeaBotix(status)
+    }
+}
+
+impl From<LegacyStatus> for Status {
+    fn from(status: LegacyStatus) -> Status {
+        Status::Legacy(status)
+    }
+}
+
+/// An encoded status of either length, ready to hand to the I2C peripheral.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StatusFrame {
+    /// Message bytes; those past `len` are zero.
+    bytes: [u8; MAX_STATUS_LEN],
+    /// Message length: 4 or 7.
+    len: u8,
+}
+
+impl StatusFrame {
+    /// The message bytes, CSUM included.
+    pub fn as_bytes(&self) -> &[u8] {
+        self.bytes.get(..usize::from(self.len)).unwrap_or(&[])
+    }
+}
+
+impl AsRef<[u8]> for StatusFrame {
+    fn as_ref(&self) -> &[u8] {
+        self.as_bytes()
+    }
+}
+
+/// MT and CSUM checks shared by the status decoders.
+fn check_type_and_sum(family: Family, mt: u8, body: &[u8], csum: u8) -> Result<(), DecodeError> {
+    let expected = family.status_type();
+    if mt != expected {
+        return Err(DecodeError::MessageType { expected, actual: mt });
+    }
+    let sum = checksum(body);
+    if sum != csum {
+        return Err(DecodeError::Checksum {
+            expected: sum,
+            actual: csum,
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn legacy_revision_range() {
+        assert_eq!(LegacyRevision::new(7).map(LegacyRevision::number), Some(7));
+        assert_eq!(LegacyRevision::new(8), None);
+        assert_eq!(LegacyRevision::new(3).and_then(LegacyRevision::motor_kind), None);
+        assert_eq!(LegacyRevision::ORIGINAL.motor_kind(), None);
+    }
+
+    #[test]
+    fn frame_lengths() {
+        let seabotix = SeaBotixStatus {
+            revision: 0,
+            motor: MotorKind::Brushless,
+            current_limited: true,
+            faults: Faults::NONE,
+            current_deciamps: 0,
+            speed: Speed::ZERO,
+            temperature_c: 20,
+        };
+        let frame = Status::from(seabotix).encode();
+        assert_eq!(frame.as_bytes().len(), 7);
+        assert_eq!(frame.as_bytes(), seabotix.encode());
+        let legacy = LegacyStatus {
+            revision: LegacyRevision::ORIGINAL,
+            faults: Faults::NONE,
+            max_power: MaxPower::Raw(0),
+        };
+        let frame = Status::from(legacy).encode();
+        assert_eq!(frame.as_bytes(), [0x55, 0x00, 0x00, 0x55]);
+        assert_eq!(frame.as_ref(), legacy.encode());
+    }
+}
