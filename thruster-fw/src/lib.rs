@@ -4,6 +4,15 @@
 //! drive it through simulated ports. It never touches a register and never panics on bus input.
 #![cfg_attr(not(test), no_std)]
 
+pub mod commutation;
+pub mod drive;
+pub mod failsafe;
+pub mod faults;
+pub mod hall;
+pub mod health;
 pub mod i2c_slave;
+pub mod sensors;
+pub mod speed;
 
+pub use drive::{Direction, Duty};
 pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve_once};
