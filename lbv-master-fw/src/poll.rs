@@ -37,10 +37,10 @@ mod tests {
     use embassy_futures::block_on;
     use embedded_hal_async::i2c::{ErrorKind, ErrorType, NoAcknowledgeSource, Operation};
     use thruster_fw::Link;
-    use tmc_proto::{MotorKind, SeaBotixStatus, Speed};
+    use tmc_proto::{Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Speed, StatusFrame};
 
-    /// A bus with one thruster on it, served by the thruster firmware's own core. `corrupt` flips bits of
-    /// every status byte read, as a noisy line would.
+    /// A bus with one thruster on it: the thruster firmware's own link core takes the orders, and the status
+    /// reports the ordered speed as reached. `corrupt` flips bits of every status byte read, as a noisy line would.
     struct Bus {
         thruster: Link,
         corrupt: u8,
@@ -50,10 +50,32 @@ mod tests {
     impl Bus {
         fn with(family: Family) -> Self {
             Self {
-                thruster: Link::new(family, MotorKind::Brushless),
+                thruster: Link::new(family),
                 corrupt: 0,
                 transfers: 0,
             }
+        }
+
+        fn status(&self) -> StatusFrame {
+            let faults = Faults::NONE;
+            let speed = self.thruster.order().speed;
+            let status = match self.thruster.family() {
+                Family::SeaBotix => Status::SeaBotix(SeaBotixStatus {
+                    revision: 0,
+                    motor: MotorKind::Brushless,
+                    current_limited: true,
+                    faults,
+                    current_deciamps: 0,
+                    speed,
+                    temperature_c: 20,
+                }),
+                Family::Legacy => Status::Legacy(LegacyStatus {
+                    revision: LegacyRevision::LEGACY_BRUSHED,
+                    faults,
+                    max_power: MaxPower::Power(speed),
+                }),
+            };
+            status.encode()
         }
     }
 
@@ -73,7 +95,8 @@ mod tests {
                         let _ = self.thruster.accept(bytes);
                     }
                     Operation::Read(buffer) => {
-                        let frame = self.thruster.frame().as_bytes();
+                        let frame = self.status();
+                        let frame = frame.as_bytes();
                         for (i, byte) in buffer.iter_mut().enumerate() {
                             // A slave with nothing more to send leaves SDA high: 0xFF.
                             *byte = frame.get(i).copied().unwrap_or(0xFF) ^ self.corrupt;

@@ -1,18 +1,92 @@
-//! NUCLEO-G431RB wiring of the thruster controller and the adapters from embassy-stm32 to the core's ports.
+//! NUCLEO-G431RB + X-NUCLEO-IHM08M1 wiring of the thruster controller, the controller's build-time settings,
+//! and the adapters from embassy-stm32 peripherals to the core's ports.
+//!
+//! | function | pin | peripheral |
+//! |---|---|---|
+//! | I2C slave SCL / SDA | PC8 / PC9 (CN10 2 / 1) | I2C3 |
+//! | phase A high / low | PA8 / PA7 | TIM1 CH1 / CH1N |
+//! | phase B high / low | PA9 / PB0 | TIM1 CH2 / CH2N |
+//! | phase C high / low | PA10 / PB1 | TIM1 CH3 / CH3N |
+//! | overcurrent (break) | PA6 | TIM1 BKIN, active low |
+//! | halls H1 / H2 / H3 | PA15 / PB3 / PB10 | EXTI 15 / 3 / 10 |
+//! | motor current | PA0 | ADC1 IN1 |
+//! | bus voltage | PA1 | ADC1 IN2 |
+//! | power-stage NTC | PC2 | ADC1 IN8 |
+//! | water-sensor electrodes | PC3 | ADC1 IN9 |
+//! | motor NTC | PB12 | ADC1 IN11 |
 
+use embassy_embedded_hal::SetConfig;
+use embassy_futures::select::select3;
+use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
+use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::i2c::{self, I2c, SlaveCommandKind};
 use embassy_stm32::mode::Async;
-use thruster_fw::{I2cTarget, Request};
-use tmc_proto::Family;
+use embassy_stm32::peripherals::{ADC1, IWDG, TIM1};
+use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::Channel;
+use embassy_stm32::timer::complementary_pwm::ComplementaryPwm;
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_time::Duration;
+use thruster_fw::commutation::{BridgeDrive, PhaseDrive};
+use thruster_fw::failsafe::LinkFailsafe;
+use thruster_fw::faults::Thresholds;
+use thruster_fw::hall::HallState;
+use thruster_fw::sensors::{CurrentSense, Ntc, WaterSensor};
+use thruster_fw::speed::SpeedConfig;
+use thruster_fw::tasks::{Bridge, Config, HallSensors, RawSample, Sensors, Watchdog};
+use thruster_fw::{Duty, I2cTarget, Request};
+use tmc_proto::{Family, MotorKind};
 
-/// The controller family this image answers as (Cargo feature `legacy`).
+/// The controller family (Cargo feature `legacy`) and motor kind (Cargo feature `brushed`).
 pub const FAMILY: Family = if cfg!(feature = "legacy") {
     Family::Legacy
 } else {
     Family::SeaBotix
 };
+const MOTOR: MotorKind = if cfg!(feature = "brushed") {
+    MotorKind::Brushed
+} else {
+    MotorKind::Brushless
+};
 
-/// I2C3 as the thruster interface's slave port: SCL on PC8 (CN10 pin 2), SDA on PC9 (CN10 pin 1).
+/// Everything fixed at build time.
+pub static CONFIG: Config = Config {
+    family: FAMILY,
+    motor: MOTOR,
+    pole_pairs: 4,
+    link_timeout: LinkFailsafe::DEFAULT_TIMEOUT,
+    speed: match MOTOR {
+        MotorKind::Brushless => SpeedConfig::BRUSHLESS_DEFAULT,
+        MotorKind::Brushed => SpeedConfig::BRUSHED_DEFAULT,
+    },
+    thresholds: Thresholds::SPEC,
+    // 1 Mohm pull-down: the 1 Mohm water threshold sits at mid-scale, where the divider resolves best.
+    water: WaterSensor {
+        pull_down_ohms: 1_000_000,
+    },
+    // 10 kohm B3435 NTC in the winding, 10 kohm pull-up.
+    ntc: Ntc {
+        r25_ohms: 10_000,
+        beta: 3435,
+        pull_up_ohms: 10_000,
+    },
+    // IHM08M1: 10 mohm shunt, amplifier gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 * 5.18) = 15.6 mA/count.
+    current: CurrentSense {
+        offset_raw: 2048,
+        milliamps_per_count: 16,
+    },
+};
+
+/// How often the watchdog is fed (when every task reports) and how long it waits before it resets the chip.
+pub const WATCHDOG_FEED: Duration = Duration::from_millis(50);
+pub const WATCHDOG_TIMEOUT_US: u32 = 250_000;
+
+/// The thruster interface runs at 100 kbit/s (IDS 6.4.1).
+pub const BUS_SPEED: Hertz = Hertz::khz(100);
+/// A slave transfer stalled this long (SMBus's SCL-low timeout) is abandoned and the peripheral re-initialised.
+pub const TRANSFER_TIMEOUT: Duration = Duration::from_millis(25);
+
+/// I2C3 as the thruster interface's slave port.
 pub struct SlavePort(pub I2c<'static, Async, i2c::MultiMaster>);
 
 impl I2cTarget for SlavePort {
@@ -33,5 +107,86 @@ impl I2cTarget for SlavePort {
 
     async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), i2c::Error> {
         self.0.respond_to_read(data).await.map(|_| ())
+    }
+
+    fn reset(&mut self) {
+        // Re-applying the configuration turns the peripheral off and on, which clears its state machine and
+        // releases SCL and SDA.
+        let _ = self
+            .0
+            .set_config(&(BUS_SPEED, i2c::SlaveAddrConfig::basic(FAMILY.address())));
+    }
+}
+
+/// The three hall inputs.
+pub struct Halls {
+    pub h1: ExtiInput<'static, Async>,
+    pub h2: ExtiInput<'static, Async>,
+    pub h3: ExtiInput<'static, Async>,
+}
+
+impl HallSensors for Halls {
+    async fn wait_for_edge(&mut self) {
+        let Self { h1, h2, h3 } = self;
+        select3(h1.wait_for_any_edge(), h2.wait_for_any_edge(), h3.wait_for_any_edge()).await;
+    }
+
+    fn read(&mut self) -> HallState {
+        HallState::from_pins(self.h1.is_high(), self.h2.is_high(), self.h3.is_high())
+    }
+}
+
+/// TIM1's three complementary pairs. Off-state selection (OSSR) holds both switches of a disabled phase off,
+/// so a floating phase is really floating.
+pub struct PowerStage {
+    pub pwm: ComplementaryPwm<'static, TIM1>,
+}
+
+impl Bridge for PowerStage {
+    fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
+        let period = u16::try_from(self.pwm.get_max_duty()).unwrap_or(u16::MAX);
+        let compare = u32::from(duty.compare(period));
+        for (channel, phase) in [Channel::Ch1, Channel::Ch2, Channel::Ch3].into_iter().zip(drive) {
+            match phase {
+                PhaseDrive::Pwm => {
+                    self.pwm.set_duty(channel, compare);
+                    self.pwm.enable(channel);
+                }
+                PhaseDrive::Low => {
+                    self.pwm.set_duty(channel, 0);
+                    self.pwm.enable(channel);
+                }
+                PhaseDrive::Float => self.pwm.disable(channel),
+            }
+        }
+    }
+}
+
+/// ADC1 and the fault / telemetry inputs.
+pub struct AnalogInputs {
+    pub adc: Adc<'static, ADC1>,
+    pub water: AnyAdcChannel<'static, ADC1>,
+    pub motor_ntc: AnyAdcChannel<'static, ADC1>,
+    pub current: AnyAdcChannel<'static, ADC1>,
+}
+
+impl Sensors for AnalogInputs {
+    async fn sample(&mut self) -> RawSample {
+        // Three blocking conversions take about 5 us in all: not worth a DMA round trip at 1 kHz.
+        const SAMPLE: SampleTime = SampleTime::CYCLES47_5;
+        RawSample {
+            water: self.adc.blocking_read(&mut self.water, SAMPLE),
+            temperature: self.adc.blocking_read(&mut self.motor_ntc, SAMPLE),
+            current: self.adc.blocking_read(&mut self.current, SAMPLE),
+        }
+    }
+}
+
+/// The independent watchdog.
+pub struct Iwdg(pub IndependentWatchdog<'static, IWDG>);
+
+impl Watchdog for Iwdg {
+    fn feed(&mut self) {
+        self.0.pet();
     }
 }

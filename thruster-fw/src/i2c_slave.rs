@@ -1,9 +1,6 @@
 //! The I2C slave side of the thruster interface (IDS 6.4.2, 6.6): take orders, answer status reads.
 
-use tmc_proto::{
-    DecodeError, Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, Order, SeaBotixStatus, Status,
-    StatusFrame,
-};
+use tmc_proto::{DecodeError, Family, Order, StatusFrame};
 
 /// What the master asked for once it matched this controller's address.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,6 +26,8 @@ pub trait I2cTarget {
     async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, Self::Error>;
     /// Send `data` to the reading master.
     async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), Self::Error>;
+    /// Re-initialise the peripheral after an error, so that it releases SCL and SDA whatever state it was in.
+    fn reset(&mut self);
 }
 
 /// Writes are taken into a buffer longer than an order, so an over-long write is seen and rejected instead of
@@ -69,31 +68,25 @@ impl OrderErrors {
     }
 }
 
-/// This controller's side of the link: its identity, the last valid order, the discard counters and the
-/// status frame kept ready for the next read.
-///
-/// No power stage is driven yet, so the controller reports the ordered speed as reached, no current and no
-/// faults; the temperature reads 0 until a sensor is wired in.
+/// This controller's side of the link: its family, the last valid order and what was received.
 #[derive(Debug, Clone)]
 pub struct Link {
     family: Family,
-    motor: MotorKind,
     order: Order,
+    orders: u32,
+    zero_orders: u32,
     errors: OrderErrors,
-    frame: StatusFrame,
 }
 
 impl Link {
-    /// A controller of `family` driving a `motor`, stopped until the first valid order.
-    pub fn new(family: Family, motor: MotorKind) -> Self {
-        let order = Order::STOP;
-        let frame = status(family, motor, order).encode();
+    /// A controller of `family`, stopped until the first valid order.
+    pub fn new(family: Family) -> Self {
         Self {
             family,
-            motor,
-            order,
+            order: Order::STOP,
+            orders: 0,
+            zero_orders: 0,
             errors: OrderErrors::default(),
-            frame,
         }
     }
 
@@ -107,14 +100,19 @@ impl Link {
         self.order
     }
 
+    /// Valid orders received (wrapping).
+    pub fn orders(&self) -> u32 {
+        self.orders
+    }
+
+    /// Valid zero-speed orders received (wrapping).
+    pub fn zero_orders(&self) -> u32 {
+        self.zero_orders
+    }
+
     /// Orders discarded so far.
     pub fn errors(&self) -> OrderErrors {
         self.errors
-    }
-
-    /// The status frame the next read gets.
-    pub fn frame(&self) -> &StatusFrame {
-        &self.frame
     }
 
     /// Take a write from the master: a valid order replaces the last one; anything else is counted and changes
@@ -123,7 +121,10 @@ impl Link {
         match Order::decode(self.family, bytes) {
             Ok(order) => {
                 self.order = order;
-                self.frame = status(self.family, self.motor, order).encode();
+                self.orders = self.orders.wrapping_add(1);
+                if order.speed.is_zero() {
+                    self.zero_orders = self.zero_orders.wrapping_add(1);
+                }
                 Ok(order)
             }
             Err(error) => {
@@ -131,34 +132,6 @@ impl Link {
                 Err(error)
             }
         }
-    }
-}
-
-/// The status this controller reports for an applied `order`.
-fn status(family: Family, motor: MotorKind, order: Order) -> Status {
-    let faults = Faults::NONE;
-    match family {
-        Family::SeaBotix => Status::SeaBotix(SeaBotixStatus {
-            revision: 0,
-            motor,
-            current_limited: true,
-            faults,
-            current_deciamps: 0,
-            speed: order.speed,
-            temperature_c: 0,
-        }),
-        Family::Legacy => Status::Legacy(match motor {
-            MotorKind::Brushless => LegacyStatus {
-                revision: LegacyRevision::AVEOX_BRUSHLESS,
-                faults,
-                max_power: MaxPower::Current { deciamps: 0 },
-            },
-            MotorKind::Brushed => LegacyStatus {
-                revision: LegacyRevision::BRUSHED_REV4,
-                faults,
-                max_power: MaxPower::Power(order.speed),
-            },
-        }),
     }
 }
 
@@ -174,9 +147,15 @@ pub enum ServeEvent {
     StatusSent,
 }
 
-/// Serve one transfer: wait to be addressed, then take the order or send the ready status frame.
-pub async fn serve_once<T: I2cTarget>(target: &mut T, link: &mut Link) -> Result<ServeEvent, T::Error> {
-    match target.listen().await? {
+/// Serve one transfer the master started with `request`: take the order, or send the status frame `status`
+/// gives, which must be ready at once (SCL is stretched until it is sent).
+pub async fn serve<T: I2cTarget>(
+    target: &mut T,
+    link: &mut Link,
+    request: Request,
+    status: impl FnOnce() -> StatusFrame,
+) -> Result<ServeEvent, T::Error> {
+    match request {
         Request::Write => {
             let mut buffer = [0; WRITE_BUFFER_LEN];
             let received = target.respond_to_write(&mut buffer).await?;
@@ -188,7 +167,7 @@ pub async fn serve_once<T: I2cTarget>(target: &mut T, link: &mut Link) -> Result
             })
         }
         Request::Read => {
-            target.respond_to_read(link.frame().as_bytes()).await?;
+            target.respond_to_read(status().as_bytes()).await?;
             Ok(ServeEvent::StatusSent)
         }
     }
@@ -199,7 +178,9 @@ mod tests {
     use super::*;
     use embassy_futures::block_on;
     use std::collections::VecDeque;
-    use tmc_proto::{Speed, checksum};
+    use tmc_proto::{
+        Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Speed, Status, checksum,
+    };
 
     /// A master's transfers, played one by one against the core.
     enum Transfer {
@@ -242,6 +223,29 @@ mod tests {
             self.replies.push(data.to_vec());
             Ok(())
         }
+
+        fn reset(&mut self) {}
+    }
+
+    /// A status frame with a recognisable speed, standing in for the one the control side keeps ready.
+    fn frame(family: Family) -> StatusFrame {
+        let status = match family {
+            Family::SeaBotix => Status::SeaBotix(SeaBotixStatus {
+                revision: 0,
+                motor: MotorKind::Brushless,
+                current_limited: true,
+                faults: Faults::WATER,
+                current_deciamps: 12,
+                speed: Speed::new(33).unwrap(),
+                temperature_c: 41,
+            }),
+            Family::Legacy => Status::Legacy(LegacyStatus {
+                revision: LegacyRevision::AVEOX_BRUSHLESS,
+                faults: Faults::WATER,
+                max_power: MaxPower::Current { deciamps: 12 },
+            }),
+        };
+        status.encode()
     }
 
     fn run(link: &mut Link, script: Vec<Transfer>) -> (Vec<ServeEvent>, Vec<Vec<u8>>) {
@@ -250,8 +254,9 @@ mod tests {
             ..Default::default()
         };
         let mut events = Vec::new();
-        while let Ok(event) = block_on(serve_once(&mut master, link)) {
-            events.push(event);
+        let family = link.family();
+        while let Ok(request) = block_on(master.listen()) {
+            events.push(block_on(serve(&mut master, link, request, || frame(family))).unwrap());
         }
         (events, master.replies)
     }
@@ -261,49 +266,45 @@ mod tests {
     }
 
     #[test]
-    fn starts_stopped_and_answers_with_a_valid_status_of_its_family() {
+    fn starts_stopped_and_answers_reads_with_the_frame_kept_ready() {
         for family in Family::ALL {
-            let mut link = Link::new(family, MotorKind::Brushless);
+            let mut link = Link::new(family);
             let (events, replies) = run(&mut link, vec![Transfer::Read]);
             assert_eq!(events, [ServeEvent::StatusSent]);
+            assert_eq!(replies, [frame(family).as_bytes().to_vec()]);
             assert_eq!(replies[0].len(), family.status_len());
-            let status = Status::decode(family, &replies[0]).unwrap();
-            assert_eq!(status.family(), family);
-            assert!(status.faults().is_empty());
             assert_eq!(link.order(), Order::STOP);
+            assert_eq!(link.orders(), 0);
         }
     }
 
     #[test]
-    fn a_valid_order_is_applied_and_reported_in_the_next_status() {
-        let mut link = Link::new(Family::SeaBotix, MotorKind::Brushless);
-        let (events, replies) = run(
-            &mut link,
-            vec![Transfer::Write(order(Family::SeaBotix, 40)), Transfer::Read],
-        );
-        let expected = Order::new(Speed::new(40).unwrap());
-        assert_eq!(events, [ServeEvent::Order(expected), ServeEvent::StatusSent]);
-        match Status::decode(Family::SeaBotix, &replies[0]).unwrap() {
-            Status::SeaBotix(status) => {
-                assert_eq!(status.speed.step(), 40);
-                assert_eq!(status.motor, MotorKind::Brushless);
-            }
-            other => panic!("wrong family: {other:?}"),
-        }
+    fn a_valid_order_is_taken_and_counted() {
+        let mut link = Link::new(Family::SeaBotix);
+        let script = vec![
+            Transfer::Write(order(Family::SeaBotix, 40)),
+            Transfer::Write(order(Family::SeaBotix, 0)),
+            Transfer::Write(order(Family::SeaBotix, -7)),
+        ];
+        let (events, _) = run(&mut link, script);
+        assert_eq!(events[0], ServeEvent::Order(Order::new(Speed::new(40).unwrap())));
+        assert_eq!(link.order().speed.step(), -7);
+        assert_eq!((link.orders(), link.zero_orders()), (3, 1));
     }
 
     #[test]
-    fn legacy_brushed_reports_the_power_set_into_the_motor() {
-        let mut link = Link::new(Family::Legacy, MotorKind::Brushed);
-        let (_, replies) = run(
+    fn a_zero_order_sent_as_0x7f_counts_as_zero() {
+        let mut link = Link::new(Family::Legacy);
+        run(
             &mut link,
-            vec![Transfer::Write(order(Family::Legacy, -30)), Transfer::Read],
+            vec![Transfer::Write(vec![
+                0x54,
+                0x7F,
+                100,
+                0x54u8.wrapping_add(0x7F).wrapping_add(100),
+            ])],
         );
-        let Status::Legacy(status) = Status::decode(Family::Legacy, &replies[0]).unwrap() else {
-            panic!("wrong family")
-        };
-        assert_eq!(status.revision, LegacyRevision::BRUSHED_REV4);
-        assert_eq!(status.max_power, MaxPower::Power(Speed::new(-30).unwrap()));
+        assert_eq!((link.orders(), link.zero_orders()), (1, 1));
     }
 
     #[test]
@@ -324,7 +325,7 @@ mod tests {
             Transfer::Write(vec![0; 12]),
             Transfer::Read,
         ];
-        let mut link = Link::new(family, MotorKind::Brushless);
+        let mut link = Link::new(family);
         let (events, replies) = run(&mut link, script);
 
         assert_eq!(events.len(), 8);
@@ -334,11 +335,8 @@ mod tests {
                 .all(|event| matches!(event, ServeEvent::Rejected(_)))
         );
         assert_eq!(link.order().speed.step(), 20, "the last valid order stands");
-        let status = Status::decode(family, &replies[0]).unwrap();
-        let Status::SeaBotix(status) = status else {
-            panic!("wrong family")
-        };
-        assert_eq!(status.speed.step(), 20);
+        assert_eq!(link.orders(), 1);
+        assert_eq!(replies.len(), 1, "the read after the bad writes is still answered");
         assert_eq!(
             link.errors(),
             OrderErrors {
@@ -355,7 +353,7 @@ mod tests {
     #[test]
     fn the_latest_valid_order_wins() {
         let family = Family::Legacy;
-        let mut link = Link::new(family, MotorKind::Brushless);
+        let mut link = Link::new(family);
         let script = (1..=5).map(|step| Transfer::Write(order(family, -step * 20))).collect();
         run(&mut link, script);
         assert_eq!(link.order().speed.step(), -100);

@@ -4,7 +4,11 @@
 //! drive it through simulated ports. It never touches a register and never panics on bus input.
 #![cfg_attr(not(test), no_std)]
 
+#[macro_use]
+mod fmt;
+
 pub mod commutation;
+pub mod control;
 pub mod drive;
 pub mod failsafe;
 pub mod faults;
@@ -13,6 +17,7 @@ pub mod health;
 pub mod i2c_slave;
 pub mod sensors;
 pub mod speed;
+pub mod tasks;
 
 pub use drive::{Direction, Duty};
-pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve_once};
+pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve};

@@ -1,1 +1,358 @@
-//! (being written)
+//! Conversions of the analog sensor readings (12-bit ADC, raw 0..=4095, full scale = VDDA) to physical units.
+//!
+//! The fault monitor works in ohms and tenths of a degree (spec-notes section 1, "Faults"); the status message
+//! reports the motor current in 0.1 A (IDS 8.4.1 MAX POWER, 8.4.2 CURRENT). Every conversion accepts any `u16`,
+//! including readings above the ADC's range, and never panics.
+
+/// Largest reading of the 12-bit ADC: the input is at VDDA.
+pub const ADC_MAX: u16 = 4095;
+
+/// Water sensor: the two electrodes inside the thruster housing connect VDDA to the ADC node; a pull-down resistor
+/// goes from the node to ground. Dry electrodes read ~0; water between them raises the node voltage.
+///
+/// raw = 4095 * R_pd / (R_pd + R), R being the resistance between the electrodes. The water fault is R < 1 Mohm,
+/// the ground fault R < 100 kohm (IDS 8.4.1 remark 6, 8.4.2 remarks 2-3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct WaterSensor {
+    /// The pull-down from the ADC node to ground, in ohms.
+    pub pull_down_ohms: u32,
+}
+
+impl WaterSensor {
+    /// Resistance between the electrodes: R = R_pd * (4095 - raw) / raw, rounded to the nearest ohm.
+    /// raw 0 (open, dry) -> `u32::MAX`; larger values saturate at `u32::MAX`; raw >= 4095 (short) -> 0.
+    pub const fn resistance_ohms(&self, raw: u16) -> u32 {
+        if raw == 0 {
+            return u32::MAX;
+        }
+        if raw >= ADC_MAX {
+            return 0;
+        }
+        let raw = raw as u64;
+        // R_pd < 2^32 and 4095 - raw < 2^12: the product and the rounding term fit in u64.
+        let ohms = (self.pull_down_ohms as u64 * (ADC_MAX as u64 - raw) + raw / 2) / raw;
+        if ohms > u32::MAX as u64 { u32::MAX } else { ohms as u32 }
+    }
+
+    /// The raw reading at which the electrodes measure `ohms` (for thresholds and for simulation): inverse of
+    /// [`WaterSensor::resistance_ohms`], raw = 4095 * R_pd / (R_pd + R) rounded to the nearest count (0..=4095).
+    ///
+    /// With a 1 Mohm pull-down, 1 Mohm reads 2048 and 100 kohm reads 3723: the first counts that
+    /// `resistance_ohms` puts below those thresholds. A zero pull-down always reads 0.
+    pub const fn raw_at(&self, ohms: u32) -> u16 {
+        let pull_down = self.pull_down_ohms as u64;
+        let den = pull_down + ohms as u64;
+        if den == 0 {
+            return 0;
+        }
+        // The quotient is at most 4095 because R_pd <= R_pd + R.
+        ((2 * ADC_MAX as u64 * pull_down + den) / (2 * den)) as u16
+    }
+}
+
+/// 0 degrees Celsius in kelvin.
+const ZERO_CELSIUS_K: f32 = 273.15;
+/// The NTC's reference temperature, 25 degrees Celsius, in kelvin.
+const T25_K: f32 = 298.15;
+
+/// NTC thermistor to ground with a pull-up to VDDA (motor winding sensor), Beta model:
+/// 1/T = 1/T25 + ln(R / R25) / Beta, with raw = 4095 * R / (R + R_pu).
+///
+/// Feeds the overtemp fault (set at 110 C, cleared at 100 C, IDS 8.4 remarks) and the SeaBotix status
+/// TEMPERATURE byte (IDS 8.4.2). Single-precision floats: the Cortex-M4F computes them in hardware.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Ntc {
+    /// Resistance at 25 degrees Celsius, in ohms.
+    pub r25_ohms: u32,
+    /// The Beta constant, in kelvin.
+    pub beta: u16,
+    /// The pull-up from the ADC node to VDDA, in ohms.
+    pub pull_up_ohms: u32,
+}
+
+impl Ntc {
+    /// Temperature in 0.1 deg C, rounded to the nearest tenth and saturated to the `i16` range.
+    ///
+    /// The ends fail towards the overtemp fault's safe side where they can: raw 0 (thermistor shorted) and
+    /// readings beyond the model's range read very hot, `i16::MAX`; raw >= 4095 (thermistor open or
+    /// disconnected) reads very cold, `i16::MIN`. Zero parameters give meaningless values but never panic.
+    pub fn decicelsius(&self, raw: u16) -> i16 {
+        if raw == 0 {
+            return i16::MAX;
+        }
+        if raw >= ADC_MAX {
+            return i16::MIN;
+        }
+        let ohms = self.pull_up_ohms as f32 * f32::from(raw) / f32::from(ADC_MAX - raw);
+        let inverse_kelvin = 1.0 / T25_K + libm::logf(ohms / self.r25_ohms as f32) / f32::from(self.beta);
+        // A non-positive 1/T (or NaN from zero parameters) lies beyond the hot end of the model.
+        if inverse_kelvin.is_nan() || inverse_kelvin <= 0.0 {
+            return i16::MAX;
+        }
+        let tenths = libm::roundf((1.0 / inverse_kelvin - ZERO_CELSIUS_K) * 10.0);
+        // `as` saturates at the i16 range ends.
+        if tenths.is_nan() { i16::MAX } else { tenths as i16 }
+    }
+
+    /// Inverse of [`Ntc::decicelsius`], for simulation and tests: the reading at `decicelsius`, rounded to the
+    /// nearest count (0..=4095). At or below absolute zero it reads 4095, like an open thermistor.
+    pub fn raw_at(&self, decicelsius: i16) -> u16 {
+        let kelvin = f32::from(decicelsius) / 10.0 + ZERO_CELSIUS_K;
+        if kelvin.is_nan() || kelvin <= 0.0 {
+            return ADC_MAX;
+        }
+        let ohms = self.r25_ohms as f32 * libm::expf(f32::from(self.beta) * (1.0 / kelvin - 1.0 / T25_K));
+        // R / (R + R_pu) written so that an infinite R gives 1 and a zero R gives 0.
+        let fraction = 1.0 / (1.0 + self.pull_up_ohms as f32 / ohms);
+        let raw = libm::roundf(f32::from(ADC_MAX) * fraction);
+        // `as` saturates (NaN gives 0); the fraction is at most 1, so this only guards rounding.
+        (raw as u16).min(ADC_MAX)
+    }
+}
+
+/// Motor current from a shunt amplifier: I = (raw - offset) * milliamps_per_count.
+///
+/// Reported in 0.1 A, the unit of the status messages (IDS 8.4.1 MAX POWER, 8.4.2 CURRENT).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct CurrentSense {
+    /// The reading at zero current.
+    pub offset_raw: u16,
+    /// Milliamps per ADC count above the offset.
+    pub milliamps_per_count: u16,
+}
+
+impl CurrentSense {
+    /// Current magnitude in 0.1 A, rounded to the nearest tenth and saturating at `u16::MAX`; readings at or
+    /// below the offset give 0.
+    pub const fn deciamps(&self, raw: u16) -> u16 {
+        let counts = raw.saturating_sub(self.offset_raw) as u32;
+        // Both factors are below 2^16, so the product fits in u32.
+        let milliamps = counts * self.milliamps_per_count as u32;
+        let deciamps = milliamps.saturating_add(50) / 100;
+        if deciamps > u16::MAX as u32 {
+            u16::MAX
+        } else {
+            deciamps as u16
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const WATER: WaterSensor = WaterSensor {
+        pull_down_ohms: 1_000_000,
+    };
+
+    /// A common 10 kohm, B 3435 winding thermistor with a 4.7 kohm pull-up.
+    const NTC: Ntc = Ntc {
+        r25_ohms: 10_000,
+        beta: 3435,
+        pull_up_ohms: 4_700,
+    };
+
+    #[test]
+    fn water_resistance_known_points() {
+        // Node at half scale: the electrodes equal the pull-down.
+        assert_eq!(WATER.resistance_ohms(2048), 999_512);
+        assert_eq!(WATER.resistance_ohms(2047), 1_000_489);
+        assert_eq!(WATER.resistance_ohms(819), 4_000_000);
+        assert_eq!(WATER.resistance_ohms(4094), 244);
+        assert_eq!(WATER.resistance_ohms(1), 4_094_000_000);
+        assert_eq!(
+            WaterSensor {
+                pull_down_ohms: 2_000_000
+            }
+            .resistance_ohms(1),
+            u32::MAX
+        );
+    }
+
+    #[test]
+    fn water_edges_do_not_panic() {
+        for sensor in [
+            WATER,
+            WaterSensor { pull_down_ohms: 0 },
+            WaterSensor {
+                pull_down_ohms: u32::MAX,
+            },
+        ] {
+            assert_eq!(sensor.resistance_ohms(0), u32::MAX);
+            assert_eq!(sensor.resistance_ohms(4095), 0);
+            assert_eq!(sensor.resistance_ohms(4096), 0);
+            assert_eq!(sensor.resistance_ohms(u16::MAX), 0);
+            for ohms in [0, 1, 1_000_000, u32::MAX] {
+                assert!(sensor.raw_at(ohms) <= ADC_MAX);
+            }
+        }
+        assert_eq!(WaterSensor { pull_down_ohms: 0 }.raw_at(0), 0);
+        assert_eq!(WaterSensor { pull_down_ohms: 0 }.resistance_ohms(1), 0);
+        assert_eq!(WATER.raw_at(0), 4095);
+        assert_eq!(WATER.raw_at(u32::MAX), 1);
+        assert_eq!(
+            WaterSensor {
+                pull_down_ohms: u32::MAX
+            }
+            .resistance_ohms(1),
+            u32::MAX
+        );
+    }
+
+    #[test]
+    fn water_thresholds_land_on_the_first_fault_count() {
+        // 1 Mohm water threshold, 100 kohm ground threshold, 1 Mohm pull-down.
+        let water = WATER.raw_at(1_000_000);
+        let ground = WATER.raw_at(100_000);
+        assert_eq!(water, 2048);
+        assert_eq!(ground, 3723);
+        assert!(WATER.resistance_ohms(water) < 1_000_000);
+        assert!(WATER.resistance_ohms(water - 1) >= 1_000_000);
+        assert!(WATER.resistance_ohms(ground) < 100_000);
+        assert!(WATER.resistance_ohms(ground - 1) >= 100_000);
+        // Wetter reads higher.
+        assert!(WATER.raw_at(0) > ground && ground > water && water > WATER.raw_at(u32::MAX));
+    }
+
+    #[test]
+    fn water_round_trip_and_monotonic() {
+        let mut previous = u32::MAX;
+        for raw in 1..ADC_MAX {
+            let ohms = WATER.resistance_ohms(raw);
+            assert!(ohms < previous, "raw {raw}");
+            previous = ohms;
+            assert_eq!(WATER.raw_at(ohms), raw, "raw {raw}");
+        }
+    }
+
+    #[test]
+    fn ntc_reads_25_c_at_r25() {
+        // Pull-ups that put R25 exactly on a count: 40 k -> 4095 / 5, 20 k -> 4095 / 3.
+        let fifth = Ntc {
+            pull_up_ohms: 40_000,
+            ..NTC
+        };
+        assert_eq!(fifth.decicelsius(819), 250);
+        assert_eq!(fifth.raw_at(250), 819);
+        let third = Ntc {
+            pull_up_ohms: 20_000,
+            ..NTC
+        };
+        assert_eq!(third.decicelsius(1365), 250);
+        assert_eq!(third.raw_at(250), 1365);
+        assert_eq!(NTC.decicelsius(NTC.raw_at(250)), 250);
+    }
+
+    #[test]
+    fn ntc_known_points() {
+        // Beta model for 10 k / B 3435: R(100 C) = 10 k * exp(3435 * (1/373.15 - 1/298.15)) = 987.0 ohm,
+        // R(0 C) = 28 704 ohm. raw = 4095 R / (R + 4700).
+        assert_eq!(NTC.raw_at(1000), 711);
+        assert_eq!(NTC.raw_at(0), 3519);
+        assert!((NTC.decicelsius(711) - 1000).abs() <= 1);
+        assert!(NTC.decicelsius(3519).abs() <= 1);
+        // Hotter reads lower.
+        assert!(NTC.raw_at(1100) < NTC.raw_at(1000));
+    }
+
+    /// Largest |decicelsius(raw_at(t)) - t| over -20.0..=150.0 C, in 0.1 C.
+    fn worst_round_trip(ntc: &Ntc) -> i16 {
+        (-200..=1500_i16)
+            .map(|t| (ntc.decicelsius(ntc.raw_at(t)) - t).abs())
+            .max()
+            .unwrap()
+    }
+
+    #[test]
+    fn ntc_round_trips_within_a_tenth() {
+        assert!(worst_round_trip(&NTC) <= 1);
+        assert!(worst_round_trip(&Ntc { beta: 3950, ..NTC }) <= 1);
+        // A pull-up equal to R25 loses resolution at the hot end: 1 count is about 0.4 C at 150 C.
+        assert!(
+            worst_round_trip(&Ntc {
+                pull_up_ohms: 10_000,
+                ..NTC
+            }) <= 2
+        );
+    }
+
+    #[test]
+    fn ntc_is_monotonic() {
+        let mut previous = i16::MAX;
+        for raw in 0..=ADC_MAX {
+            let t = NTC.decicelsius(raw);
+            assert!(t <= previous, "raw {raw}");
+            previous = t;
+        }
+    }
+
+    #[test]
+    fn ntc_edges_saturate() {
+        assert_eq!(NTC.decicelsius(0), i16::MAX);
+        assert_eq!(NTC.decicelsius(4095), i16::MIN);
+        assert_eq!(NTC.decicelsius(4096), i16::MIN);
+        assert_eq!(NTC.decicelsius(u16::MAX), i16::MIN);
+        // One count off either end stays inside the model.
+        assert!(NTC.decicelsius(1) > 1500);
+        assert!(NTC.decicelsius(4094) < -200);
+        assert_eq!(NTC.raw_at(i16::MIN), 4095);
+        assert!(NTC.raw_at(i16::MAX) <= 1);
+        assert!(NTC.raw_at(-2732) == 4095);
+    }
+
+    #[test]
+    fn ntc_degenerate_parameters_do_not_panic() {
+        let params = [0, 1, u32::MAX];
+        for r25_ohms in params {
+            for pull_up_ohms in params {
+                for beta in [0, 1, u16::MAX] {
+                    let ntc = Ntc {
+                        r25_ohms,
+                        beta,
+                        pull_up_ohms,
+                    };
+                    for raw in [0, 1, 2048, 4094, 4095, u16::MAX] {
+                        let _ = ntc.decicelsius(raw);
+                    }
+                    for t in [i16::MIN, -2732, -2731, 0, 250, 1100, i16::MAX] {
+                        assert!(ntc.raw_at(t) <= ADC_MAX);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn current_examples() {
+        let sense = CurrentSense {
+            offset_raw: 2048,
+            milliamps_per_count: 40,
+        };
+        assert_eq!(sense.deciamps(2048), 0);
+        assert_eq!(sense.deciamps(0), 0);
+        assert_eq!(sense.deciamps(2047), 0);
+        // 1 count = 40 mA rounds to 0.0 A; 2 counts = 80 mA to 0.1 A; 3 counts = 120 mA to 0.1 A.
+        assert_eq!(sense.deciamps(2049), 0);
+        assert_eq!(sense.deciamps(2050), 1);
+        assert_eq!(sense.deciamps(2051), 1);
+        // 30 counts = 1.2 A, the IDS example value 12.
+        assert_eq!(sense.deciamps(2078), 12);
+        assert_eq!(sense.deciamps(4095), 819);
+        assert_eq!(sense.deciamps(u16::MAX), 25395);
+        let big = CurrentSense {
+            offset_raw: 0,
+            milliamps_per_count: u16::MAX,
+        };
+        assert_eq!(big.deciamps(u16::MAX), u16::MAX);
+        assert_eq!(big.deciamps(1), 655);
+        assert_eq!(big.deciamps(0), 0);
+        let none = CurrentSense {
+            offset_raw: u16::MAX,
+            milliamps_per_count: 0,
+        };
+        assert_eq!(none.deciamps(u16::MAX), 0);
+    }
+}

@@ -1,0 +1,329 @@
+//! The controller's task bodies and the ports they drive. Each task owns its state machines and talks to the
+//! others only through [`Shared`]; the STM32 binding and the host tests run these same functions.
+
+use embassy_futures::select::select;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+use embassy_sync::watch::Watch;
+use embassy_time::{Duration, Instant, Ticker, with_timeout};
+use tmc_proto::{Family, MotorKind, StatusFrame};
+
+use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
+use crate::control::{Control, LinkUpdate, Sensed, idle_status};
+use crate::drive::{Direction, Duty};
+use crate::faults::{FaultMonitor, Sample, StallDetector, Thresholds};
+use crate::hall::{HallState, HallTracker};
+use crate::health::Health;
+use crate::i2c_slave::{I2cTarget, Link, ServeEvent, serve};
+use crate::sensors::{CurrentSense, Ntc, WaterSensor};
+use crate::speed::SpeedConfig;
+
+/// The three hall sensor inputs.
+#[allow(async_fn_in_trait)]
+pub trait HallSensors {
+    /// Wait until any hall input changes.
+    async fn wait_for_edge(&mut self);
+    /// The hall inputs now.
+    fn read(&mut self) -> HallState;
+}
+
+/// The three half-bridges.
+pub trait Bridge {
+    /// Drive the phases; `duty` sets the PWM of the phase marked [`PhaseDrive::Pwm`].
+    fn apply(&mut self, drive: BridgeDrive, duty: Duty);
+}
+
+/// Raw ADC readings (12-bit) of the fault and telemetry inputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RawSample {
+    /// Water-sensor node.
+    pub water: u16,
+    /// Motor temperature NTC node.
+    pub temperature: u16,
+    /// Motor current amplifier.
+    pub current: u16,
+}
+
+/// The ADC inputs.
+#[allow(async_fn_in_trait)]
+pub trait Sensors {
+    /// Convert every input once.
+    async fn sample(&mut self) -> RawSample;
+}
+
+/// The independent watchdog.
+pub trait Watchdog {
+    /// Restart the watchdog's countdown.
+    fn feed(&mut self);
+}
+
+/// Everything fixed at build time for one controller.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// Controller family, which sets the address, the message types and the fault semantics.
+    pub family: Family,
+    /// Brushless (hall commutation, closed speed loop) or brushed (H-bridge, open loop).
+    pub motor: MotorKind,
+    /// Motor pole pairs, for rpm from hall edges.
+    pub pole_pairs: u8,
+    /// Link failsafe timeout.
+    pub link_timeout: Duration,
+    /// Speed loop tuning.
+    pub speed: SpeedConfig,
+    /// Fault thresholds.
+    pub thresholds: Thresholds,
+    /// Water-sensor divider.
+    pub water: WaterSensor,
+    /// Motor temperature sensor.
+    pub ntc: Ntc,
+    /// Motor current sense.
+    pub current: CurrentSense,
+}
+
+/// The tasks that report to the watchdog.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum TaskId {
+    /// The I2C slave.
+    I2c = 0,
+    /// Commutation.
+    Commutation = 1,
+    /// Fault sampling.
+    Faults = 2,
+    /// Speed control.
+    Control = 3,
+}
+
+/// How many tasks report to the watchdog.
+pub const TASKS: u8 = 4;
+
+/// Fault inputs are sampled at 1 kHz (IDS faults must be seen within one sample).
+pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+/// The speed loop runs at 1 kHz.
+pub const CONTROL_PERIOD: Duration = Duration::from_millis(1);
+/// How long the I2C task waits for its address before it reports itself alive anyway.
+const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
+
+type Mutex = CriticalSectionRawMutex;
+
+/// The channels between one controller's tasks. Every field holds the latest value: a task reads what it needs
+/// when it needs it, and nobody waits on a slower task.
+pub struct Shared {
+    /// I2C -> control, faults: the master's last order and when it last spoke.
+    pub link: Watch<Mutex, LinkUpdate, 1>,
+    /// Commutation -> control, faults: the hall tracker after the latest edge.
+    pub hall: Watch<Mutex, HallTracker, 1>,
+    /// Faults -> control, commutation: the fault verdict and measurements.
+    pub sensed: Watch<Mutex, Sensed, 1>,
+    /// Control -> commutation, faults: the duty to apply.
+    pub duty: Watch<Mutex, Duty, 1>,
+    /// Control -> I2C: the status frame for the next read.
+    pub status: Watch<Mutex, StatusFrame, 1>,
+    /// Wakes the commutation task when the duty or the fault verdict changed.
+    pub wake: Signal<Mutex, ()>,
+    /// Task heartbeats for the watchdog.
+    pub health: Health,
+}
+
+impl Shared {
+    /// Empty channels.
+    pub const fn new() -> Self {
+        Self {
+            link: Watch::new(),
+            hall: Watch::new(),
+            sensed: Watch::new(),
+            duty: Watch::new(),
+            status: Watch::new(),
+            wake: Signal::new(),
+            health: Health::new(TASKS),
+        }
+    }
+}
+
+impl core::fmt::Debug for Shared {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Shared").finish_non_exhaustive()
+    }
+}
+
+impl Default for Shared {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The I2C slave: takes orders, answers reads with the frame the control task keeps ready, re-initialises the
+/// peripheral after any error (including a transfer stalled past the peripheral's timeout).
+pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: MotorKind, shared: &Shared) -> ! {
+    let mut link = Link::new(family);
+    let idle = idle_status(family, motor).encode();
+    loop {
+        shared.health.report(TaskId::I2c as u8);
+        // Only the wait for an address is cut short, never a transfer under way.
+        let request = match with_timeout(LISTEN_HEARTBEAT, target.listen()).await {
+            Err(_) => continue,
+            Ok(Ok(request)) => request,
+            Ok(Err(_)) => {
+                warn!("I2C error while listening: re-initialising the slave");
+                target.reset();
+                continue;
+            }
+        };
+        match serve(target, &mut link, request, || shared.status.try_get().unwrap_or(idle)).await {
+            Ok(ServeEvent::Order(_) | ServeEvent::StatusSent) => shared.link.sender().send(LinkUpdate {
+                order: link.order(),
+                orders: link.orders(),
+                zero_orders: link.zero_orders(),
+                at: Instant::now(),
+            }),
+            Ok(ServeEvent::Rejected(error)) => {
+                warn!("order discarded: {} ({} so far)", error, link.errors().total());
+            }
+            Err(_) => {
+                warn!("I2C transfer failed: re-initialising the slave");
+                target.reset();
+            }
+        }
+    }
+}
+
+/// Commutation: on every hall edge, and whenever the duty or the fault verdict changes, drive the bridge from
+/// the hall state. Runs at the highest priority so that no other work delays a commutation. Coasts whenever
+/// driving must stop: zero duty, a fault, or an invalid hall state.
+pub async fn commutation_task<H: HallSensors, B: Bridge>(
+    halls: &mut H,
+    bridge: &mut B,
+    motor: MotorKind,
+    pole_pairs: u8,
+    shared: &Shared,
+) -> ! {
+    let mut tracker = HallTracker::new(pole_pairs, halls.read(), Instant::now());
+    bridge.apply(COAST, Duty::ZERO);
+    loop {
+        let state = halls.read();
+        tracker.on_edge(state, Instant::now());
+        shared.hall.sender().send(tracker);
+        let allowed = shared.sensed.try_get().is_some_and(|sensed| sensed.drive_allowed);
+        let duty = if allowed {
+            shared.duty.try_get().unwrap_or(Duty::ZERO)
+        } else {
+            Duty::ZERO
+        };
+        let drive = match motor {
+            MotorKind::Brushless => drive_for(state, duty),
+            MotorKind::Brushed => h_bridge(duty),
+        };
+        bridge.apply(drive, duty);
+        shared.health.report(TaskId::Commutation as u8);
+        select(halls.wait_for_edge(), shared.wake.wait()).await;
+    }
+}
+
+/// A brushed motor between phases A and B, as an H-bridge: A switched and B low forward, the reverse backward.
+pub const fn h_bridge(duty: Duty) -> BridgeDrive {
+    match duty.direction() {
+        Some(Direction::Forward) => [PhaseDrive::Pwm, PhaseDrive::Low, PhaseDrive::Float],
+        Some(Direction::Reverse) => [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
+        None => COAST,
+    }
+}
+
+/// Faults: sample the ADC at 1 kHz, follow the hall pulses and errors, apply the fault table, publish the
+/// verdict, and wake the commutation task at once when the verdict changes.
+pub async fn fault_task<S: Sensors>(sensors: &mut S, config: &Config, shared: &Shared) -> ! {
+    let mut monitor = FaultMonitor::new(config.family, config.thresholds);
+    let mut stall = StallDetector::new(&config.thresholds);
+    let mut seen_pulses = None;
+    let mut seen_illegal = None;
+    let mut seen_zero_orders = 0;
+    let mut allowed = false;
+    let mut ticker = Ticker::every(SAMPLE_PERIOD);
+    loop {
+        let raw = sensors.sample().await;
+        let now = Instant::now();
+
+        if let Some(link) = shared.link.try_get()
+            && link.zero_orders != seen_zero_orders
+        {
+            seen_zero_orders = link.zero_orders;
+            monitor.on_order(tmc_proto::Speed::ZERO);
+            stall.reset();
+        }
+
+        let brushless = config.motor == MotorKind::Brushless;
+        let mut halls_normal = true;
+        let mut stalled = false;
+        if brushless && let Some(hall) = shared.hall.try_get() {
+            // Each new legal edge is a pulse for the stall window; a few are enough to know the motor turns.
+            let new_pulses = seen_pulses.map_or(0, |seen: u32| hall.pulses().wrapping_sub(seen));
+            for _ in 0..new_pulses.min(u32::from(config.thresholds.stall_min_pulses)) {
+                stall.on_pulse(now);
+            }
+            seen_pulses = Some(hall.pulses());
+            let illegal = hall.illegal_transitions();
+            halls_normal = hall.state().is_valid() && seen_illegal.is_none_or(|seen| seen == illegal);
+            seen_illegal = Some(illegal);
+            stalled = stall.update(now, shared.duty.try_get().unwrap_or(Duty::ZERO));
+        }
+
+        let sample = Sample {
+            water_ohms: config.water.resistance_ohms(raw.water),
+            temperature_decicelsius: config.ntc.decicelsius(raw.temperature),
+            halls_normal,
+        };
+        let faults = monitor.update(sample, stalled);
+        let sensed = Sensed {
+            faults,
+            drive_allowed: monitor.drive_allowed(),
+            current_deciamps: config.current.deciamps(raw.current),
+            temperature_decicelsius: sample.temperature_decicelsius,
+        };
+        shared.sensed.sender().send(sensed);
+        if sensed.drive_allowed != allowed {
+            allowed = sensed.drive_allowed;
+            if !allowed {
+                warn!("fault: stopping the motor ({})", faults.bits());
+            }
+            shared.wake.signal(());
+        }
+        shared.health.report(TaskId::Faults as u8);
+        ticker.next().await;
+    }
+}
+
+/// Speed control at 1 kHz: orders and the link failsafe in, duty out to the commutation task, and the status
+/// frame kept ready for the I2C task.
+pub async fn control_task(config: &Config, shared: &Shared) -> ! {
+    let mut control = Control::new(config.family, config.speed, config.link_timeout, Instant::now());
+    let mut ticker = Ticker::every(CONTROL_PERIOD);
+    loop {
+        let now = Instant::now();
+        let rpm = shared.hall.try_get().map_or(0, |hall| hall.rpm(now));
+        let sensed = shared.sensed.try_get().unwrap_or(Sensed::UNKNOWN);
+        let duty = control.tick(now, shared.link.try_get(), sensed, rpm);
+        shared.duty.sender().send(duty);
+        shared.wake.signal(());
+        shared.status.sender().send(control.status(sensed, rpm).encode());
+        shared.health.report(TaskId::Control as u8);
+        ticker.next().await;
+    }
+}
+
+/// Feed the watchdog every `period`, but only while every task keeps reporting progress.
+pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared: &Shared) -> ! {
+    let mut ticker = Ticker::every(period);
+    loop {
+        ticker.next().await;
+        if shared.health.check_and_clear() {
+            watchdog.feed();
+        } else {
+            warn!(
+                "tasks not reporting (mask {=u32:#x}): the watchdog will reset",
+                shared.health.missing()
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,386 @@
+//! The tasks together, on virtual time: a scripted master, simulated halls, bridge and ADC inputs.
+
+use super::*;
+use crate::failsafe::LinkFailsafe;
+use crate::hall::FORWARD_SEQUENCE;
+use crate::i2c_slave::Request;
+use core::cell::{Cell, RefCell};
+use embassy_futures::block_on;
+use embassy_futures::join::join5;
+use embassy_futures::select::{Either, select};
+use embassy_futures::yield_now;
+use embassy_time::MockDriver;
+use std::collections::VecDeque;
+use std::sync::Mutex as StdMutex;
+use tmc_proto::{Faults, Order, Speed, Status};
+
+/// The mock time driver is one clock for the whole process: tests that move it take turns.
+static CLOCK: StdMutex<()> = StdMutex::new(());
+
+/// The master's side of the bus: transfers queued by the test, status replies collected.
+#[derive(Default)]
+struct Master {
+    queue: RefCell<VecDeque<Vec<u8>>>,
+    replies: RefCell<Vec<Vec<u8>>>,
+    resets: Cell<u32>,
+}
+
+/// An empty transfer stands for a read.
+const READ: Vec<u8> = Vec::new();
+
+struct MasterPort<'a> {
+    master: &'a Master,
+    pending: Option<Vec<u8>>,
+}
+
+impl I2cTarget for MasterPort<'_> {
+    type Error = ();
+
+    async fn listen(&mut self) -> Result<Request, ()> {
+        loop {
+            if let Some(transfer) = self.master.queue.borrow_mut().pop_front() {
+                let request = if transfer.is_empty() {
+                    Request::Read
+                } else {
+                    Request::Write
+                };
+                self.pending = Some(transfer);
+                return Ok(request);
+            }
+            yield_now().await;
+        }
+    }
+
+    async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, ()> {
+        let bytes = self.pending.take().ok_or(())?;
+        let stored = bytes.len().min(buffer.len());
+        buffer[..stored].copy_from_slice(&bytes[..stored]);
+        Ok(stored)
+    }
+
+    async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), ()> {
+        self.master.replies.borrow_mut().push(data.to_vec());
+        Ok(())
+    }
+
+    fn reset(&mut self) {
+        self.master.resets.set(self.master.resets.get() + 1);
+    }
+}
+
+/// Hall inputs the test sets; every change is an edge.
+struct TestHalls<'a>(&'a Cell<HallState>, HallState);
+
+impl HallSensors for TestHalls<'_> {
+    async fn wait_for_edge(&mut self) {
+        while self.0.get() == self.1 {
+            yield_now().await;
+        }
+        self.1 = self.0.get();
+    }
+
+    fn read(&mut self) -> HallState {
+        self.1 = self.0.get();
+        self.1
+    }
+}
+
+/// The bridge as last driven.
+struct TestBridge<'a>(&'a Cell<(BridgeDrive, Duty)>);
+
+impl Bridge for TestBridge<'_> {
+    fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
+        self.0.set((drive, duty));
+    }
+}
+
+struct TestSensors<'a>(&'a Cell<RawSample>);
+
+impl Sensors for TestSensors<'_> {
+    async fn sample(&mut self) -> RawSample {
+        self.0.get()
+    }
+}
+
+fn config(family: Family) -> Config {
+    Config {
+        family,
+        motor: MotorKind::Brushless,
+        pole_pairs: 4,
+        link_timeout: LinkFailsafe::DEFAULT_TIMEOUT,
+        speed: SpeedConfig::BRUSHLESS_DEFAULT,
+        thresholds: Thresholds::SPEC,
+        water: WaterSensor {
+            pull_down_ohms: 1_000_000,
+        },
+        ntc: Ntc {
+            r25_ohms: 10_000,
+            beta: 3435,
+            pull_up_ohms: 10_000,
+        },
+        current: CurrentSense {
+            offset_raw: 2048,
+            milliamps_per_count: 16,
+        },
+    }
+}
+
+/// A healthy controller's inputs: dry, 25 C, no current.
+fn dry(config: &Config) -> RawSample {
+    RawSample {
+        water: 0,
+        temperature: config.ntc.raw_at(250),
+        current: config.current.offset_raw,
+    }
+}
+
+/// One controller with its five tasks, and what a test can see and touch.
+struct Bench {
+    config: Config,
+    shared: Shared,
+    master: Master,
+    halls: Cell<HallState>,
+    bridge: Cell<(BridgeDrive, Duty)>,
+    inputs: Cell<RawSample>,
+    fed: Cell<u32>,
+}
+
+struct CountingWatchdog<'a>(&'a Cell<u32>);
+
+impl Watchdog for CountingWatchdog<'_> {
+    fn feed(&mut self) {
+        self.0.set(self.0.get() + 1);
+    }
+}
+
+impl Bench {
+    fn new(family: Family) -> Self {
+        let config = config(family);
+        let inputs = Cell::new(dry(&config));
+        Self {
+            config,
+            shared: Shared::new(),
+            master: Master::default(),
+            halls: Cell::new(FORWARD_SEQUENCE[0]),
+            bridge: Cell::new((COAST, Duty::ZERO)),
+            inputs,
+            fed: Cell::new(0),
+        }
+    }
+
+    /// Run the controller's tasks alongside `script` until the script ends; virtual time starts at 0.
+    fn run(&self, script: impl Future<Output = ()>) {
+        let _clock = CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        MockDriver::get().reset();
+        let mut port = MasterPort {
+            master: &self.master,
+            pending: None,
+        };
+        let mut halls = TestHalls(&self.halls, self.halls.get());
+        let mut bridge = TestBridge(&self.bridge);
+        let mut sensors = TestSensors(&self.inputs);
+        let mut watchdog = CountingWatchdog(&self.fed);
+        let tasks = join5(
+            i2c_task(&mut port, self.config.family, self.config.motor, &self.shared),
+            commutation_task(
+                &mut halls,
+                &mut bridge,
+                self.config.motor,
+                self.config.pole_pairs,
+                &self.shared,
+            ),
+            fault_task(&mut sensors, &self.config, &self.shared),
+            control_task(&self.config, &self.shared),
+            health_task(&mut watchdog, Duration::from_millis(50), &self.shared),
+        );
+        match block_on(select(tasks, script)) {
+            Either::First(_) => unreachable!("the tasks never end"),
+            Either::Second(()) => {}
+        }
+    }
+
+    fn send(&self, bytes: Vec<u8>) {
+        self.master.queue.borrow_mut().push_back(bytes);
+    }
+
+    fn order(&self, step: i8) {
+        self.send(
+            Order::new(Speed::new(step).unwrap())
+                .encode(self.config.family)
+                .to_vec(),
+        );
+    }
+
+    fn last_status(&self) -> Status {
+        let replies = self.master.replies.borrow();
+        Status::decode(self.config.family, replies.last().expect("a status was read")).expect("status decodes")
+    }
+
+    fn duty(&self) -> Duty {
+        self.bridge.get().1
+    }
+}
+
+/// Let virtual time pass in 100 us steps, giving every task its turn at each step.
+async fn elapse(duration: Duration) {
+    let step = Duration::from_micros(100);
+    let mut left = duration;
+    while left > Duration::from_ticks(0) {
+        let now = step.min(left);
+        MockDriver::get().advance(now);
+        left -= now;
+        for _ in 0..4 {
+            yield_now().await;
+        }
+    }
+}
+
+/// Let virtual time pass with the motor turning forward at 1250 rpm (4 pole pairs: a hall edge every 2 ms),
+/// until `done` says stop; returns how long that took.
+async fn turn_until(bench: &Bench, mut done: impl FnMut() -> bool) -> Duration {
+    let start = Instant::now();
+    while !done() {
+        elapse(Duration::from_micros(100)).await;
+        let sector = (Instant::now().as_micros() / 2000 % 6) as usize;
+        bench.halls.set(FORWARD_SEQUENCE[sector]);
+    }
+    Instant::now() - start
+}
+
+/// Turn the motor for `duration`.
+async fn turn(bench: &Bench, duration: Duration) {
+    let end = Instant::now() + duration;
+    turn_until(bench, || Instant::now() >= end).await;
+}
+
+/// Milliseconds since the run started.
+fn now_ms() -> u64 {
+    Instant::now().as_millis()
+}
+
+#[test]
+fn an_order_drives_the_bridge_forward_and_the_status_says_so() {
+    let bench = Bench::new(Family::SeaBotix);
+    bench.run(async {
+        elapse(Duration::from_millis(5)).await;
+        assert_eq!(bench.bridge.get().0, COAST, "stopped until ordered");
+        bench.order(51);
+        elapse(Duration::from_millis(20)).await;
+        let (drive, duty) = bench.bridge.get();
+        assert!(duty.value() > 0, "forward duty, got {duty:?}");
+        assert_eq!(drive, drive_for(bench.halls.get(), duty));
+        bench.send(READ);
+        elapse(Duration::from_millis(1)).await;
+        assert!(bench.last_status().faults().is_empty());
+    });
+}
+
+#[test]
+fn the_failsafe_stops_the_motor_after_exactly_one_second_of_silence() {
+    let bench = Bench::new(Family::SeaBotix);
+    bench.run(async {
+        bench.order(51);
+        // The order is taken within the first 100 us step.
+        elapse(Duration::from_micros(100)).await;
+        assert_eq!(bench.shared.link.try_get().map(|link| link.orders), Some(1));
+        let ordered_at = now_ms();
+        turn(&bench, Duration::from_millis(990)).await;
+        assert!(
+            bench.duty().value() > 0,
+            "still driving at {} ms",
+            now_ms() - ordered_at
+        );
+        turn_until(&bench, || bench.duty() == Duty::ZERO).await;
+        let stopped_after = now_ms() - ordered_at;
+        assert!(
+            (1000..=1001).contains(&stopped_after),
+            "stopped after {stopped_after} ms"
+        );
+        assert_eq!(bench.bridge.get().0, COAST);
+
+        // The motor coasts to a stop. A read keeps the link alive but does not restart the motor; the next valid
+        // order does.
+        elapse(Duration::from_millis(200)).await;
+        bench.send(READ);
+        elapse(Duration::from_millis(20)).await;
+        assert_eq!(bench.duty(), Duty::ZERO);
+        bench.order(20);
+        elapse(Duration::from_millis(20)).await;
+        assert!(bench.duty().value() > 0);
+    });
+}
+
+#[test]
+fn reads_alone_keep_the_link_alive() {
+    let bench = Bench::new(Family::Legacy);
+    bench.run(async {
+        bench.order(30);
+        for _ in 0..30 {
+            turn(&bench, Duration::from_millis(100)).await;
+            bench.send(READ);
+        }
+        assert!(bench.duty().value() > 0, "still driving after 3 s of reads");
+    });
+}
+
+#[test]
+fn a_ground_fault_coasts_the_bridge_within_one_sample_and_latches() {
+    for family in Family::ALL {
+        let bench = Bench::new(family);
+        bench.run(async {
+            bench.order(60);
+            turn(&bench, Duration::from_millis(100)).await;
+            assert!(bench.duty().value() > 0);
+            let wet = RawSample {
+                water: bench.config.water.raw_at(50_000),
+                ..bench.inputs.get()
+            };
+            bench.inputs.set(wet);
+            let reaction = turn_until(&bench, || bench.bridge.get().0 == COAST).await;
+            assert!(reaction <= SAMPLE_PERIOD, "coasted after {reaction:?}");
+
+            // Dry again: the ground fault stays until power is cycled, and the master still gets answers.
+            bench.inputs.set(dry(&bench.config));
+            bench.order(60);
+            elapse(Duration::from_millis(50)).await;
+            bench.send(READ);
+            elapse(Duration::from_millis(1)).await;
+            assert!(bench.last_status().faults().contains(Faults::GROUND));
+            assert_eq!(bench.bridge.get().0, COAST);
+        });
+    }
+}
+
+#[test]
+fn status_reads_always_decode_and_bad_orders_change_nothing() {
+    let bench = Bench::new(Family::SeaBotix);
+    bench.run(async {
+        bench.order(40);
+        let mut bad = Order::new(Speed::new(-90).unwrap()).encode(Family::SeaBotix).to_vec();
+        bad[3] ^= 0xFF;
+        bench.send(bad);
+        bench.send(vec![0x52, 0xF0, 100, 0x52u8.wrapping_add(0xF0).wrapping_add(100)]);
+        elapse(Duration::from_millis(10)).await;
+        assert_eq!(
+            bench.shared.link.try_get().map(|link| link.order.speed.step()),
+            Some(40)
+        );
+        for _ in 0..20 {
+            bench.send(READ);
+            elapse(Duration::from_millis(1)).await;
+        }
+        assert_eq!(bench.master.replies.borrow().len(), 20);
+        for reply in bench.master.replies.borrow().iter() {
+            Status::decode(Family::SeaBotix, reply).expect("every status decodes");
+        }
+    });
+}
+
+#[test]
+fn the_watchdog_is_fed_only_while_every_task_reports() {
+    let bench = Bench::new(Family::SeaBotix);
+    bench.run(async {
+        elapse(Duration::from_millis(500)).await;
+        assert!(bench.fed.get() >= 9, "fed {} times in 500 ms", bench.fed.get());
+    });
+}
