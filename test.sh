@@ -29,6 +29,7 @@ cargo clippy -p tmc-proto -p bat-proto --all-targets --features defmt --locked -
 step "clippy ($TARGET)"
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
 
 step "host tests"
 cargo test --workspace --locked
@@ -41,14 +42,16 @@ if rustup toolchain list | grep -q '^nightly'; then
 fi
 
 step "firmware images (release, $TARGET)"
-# Each image is kept under target/images/ (the legacy thruster build overwrites the default one's ELF).
+# Each image is kept under target/images/ (the thruster's feature builds overwrite one another's ELF).
 release="target/$TARGET/release"
 mkdir -p target/images
 cargo build --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked
 cp "$release/thruster-fw" target/images/thruster-fw
 cp "$release/lbv-master-fw" target/images/lbv-master-fw
-cargo build --release --target "$TARGET" -p thruster-fw --features legacy --locked
-cp "$release/thruster-fw" target/images/thruster-fw-legacy
+for features in legacy brushed; do
+  cargo build --release --target "$TARGET" -p thruster-fw --features "$features" --locked
+  cp "$release/thruster-fw" "target/images/thruster-fw-$features"
+done
 
 step "image sizes"
 # Flash holds code, constants and the initial values of .data; static RAM is .data + .bss + .uninit.
@@ -67,6 +70,7 @@ while read -r image flash_kib ram_kib; do
 done <<'BUDGETS'
 thruster-fw        48 16
 thruster-fw-legacy 48 16
+thruster-fw-brushed 48 16
 lbv-master-fw      96 24
 BUDGETS
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }

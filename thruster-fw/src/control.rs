@@ -165,3 +165,198 @@ fn duty_as_speed(duty: Duty) -> Speed {
 fn celsius_byte(decicelsius: i16) -> u8 {
     u8::try_from(decicelsius.max(0) / 10).unwrap_or(u8::MAX)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    const TIMEOUT: Duration = Duration::from_secs(1);
+    const HEALTHY: Sensed = Sensed {
+        faults: Faults::NONE,
+        drive_allowed: true,
+        current_deciamps: 0,
+        temperature_decicelsius: 250,
+    };
+
+    fn ms(value: u64) -> Instant {
+        Instant::from_millis(value)
+    }
+
+    fn update(step: i8, orders: u32, at: Instant) -> Option<LinkUpdate> {
+        let order = Order::new(Speed::new(step).unwrap());
+        Some(LinkUpdate {
+            order,
+            orders,
+            zero_orders: 0,
+            at,
+        })
+    }
+
+    fn brushless(family: Family) -> Control {
+        Control::new(family, SpeedConfig::BRUSHLESS_DEFAULT, TIMEOUT, ms(0))
+    }
+
+    #[test]
+    fn follows_a_new_order_and_only_a_new_one() {
+        let mut control = brushless(Family::SeaBotix);
+        // The ramp starts from zero at the first step.
+        assert_eq!(control.tick(ms(1), update(40, 1, ms(1)), HEALTHY, 0), Duty::ZERO);
+        assert!(control.tick(ms(2), update(40, 1, ms(1)), HEALTHY, 0).value() > 0);
+        assert_eq!(control.order().speed.step(), 40);
+        // The same count again (a read) leaves the order alone even if it carried another speed.
+        control.tick(ms(3), update(-40, 1, ms(3)), HEALTHY, 0);
+        assert_eq!(control.order().speed.step(), 40);
+    }
+
+    #[test]
+    fn a_fault_verdict_stops_at_once_and_the_order_resumes_after_it() {
+        let mut control = brushless(Family::SeaBotix);
+        let link = update(60, 1, ms(1));
+        for t in 1..100 {
+            control.tick(ms(t), link, HEALTHY, 1000);
+        }
+        let stopped = Sensed {
+            faults: Faults::OVERTEMP,
+            drive_allowed: false,
+            ..HEALTHY
+        };
+        assert_eq!(control.tick(ms(100), link, stopped, 1000), Duty::ZERO);
+        // Overtemp clears: the order still stands and the ramp starts again from zero.
+        assert_eq!(control.tick(ms(101), link, HEALTHY, 0), Duty::ZERO);
+        let duty = control.tick(ms(102), link, HEALTHY, 0);
+        assert!(
+            duty.value() > 0 && duty.value() < 1500,
+            "restarts from the ramp's start: {duty:?}"
+        );
+    }
+
+    #[test]
+    fn the_failsafe_trips_at_the_timeout_and_a_new_order_resumes() {
+        let mut control = brushless(Family::Legacy);
+        let link = update(50, 1, ms(10));
+        control.tick(ms(10), link, HEALTHY, 0);
+        assert!(control.tick(ms(11), link, HEALTHY, 0).value() > 0);
+        assert!(
+            control.tick(ms(1009), link, HEALTHY, 0).value() > 0,
+            "999 ms after the last life"
+        );
+        assert_eq!(control.tick(ms(1010), link, HEALTHY, 0), Duty::ZERO, "1000 ms");
+        assert_eq!(control.failsafe_trips(), 1);
+        assert_eq!(control.order(), Order::STOP);
+        // A read (same order count, new time) is life but not an order.
+        assert_eq!(control.tick(ms(1500), update(50, 1, ms(1500)), HEALTHY, 0), Duty::ZERO);
+        control.tick(ms(1501), update(50, 2, ms(1501)), HEALTHY, 0);
+        assert!(control.tick(ms(1502), update(50, 2, ms(1501)), HEALTHY, 0).value() > 0);
+        assert_eq!(control.failsafe_trips(), 1);
+    }
+
+    #[test]
+    fn the_info_byte_caps_the_duty() {
+        let mut control = brushless(Family::SeaBotix);
+        let order = Order {
+            speed: Speed::MAX_FORWARD,
+            info: 25,
+        };
+        let link = Some(LinkUpdate {
+            order,
+            orders: 1,
+            zero_orders: 0,
+            at: ms(0),
+        });
+        let mut highest = 0;
+        for t in 0..900 {
+            highest = highest.max(control.tick(ms(t), link, HEALTHY, 0).value());
+        }
+        assert_eq!(highest, 2500, "25 % of full scale with the motor not turning");
+    }
+
+    #[test]
+    fn status_fields_for_each_family_and_motor() {
+        let sensed = Sensed {
+            faults: Faults::WATER,
+            drive_allowed: true,
+            current_deciamps: 42,
+            temperature_decicelsius: 567,
+        };
+        let Status::SeaBotix(status) = brushless(Family::SeaBotix).status(sensed, 2250) else {
+            panic!()
+        };
+        assert_eq!(
+            status,
+            SeaBotixStatus {
+                revision: 0,
+                motor: MotorKind::Brushless,
+                current_limited: true,
+                faults: Faults::WATER,
+                current_deciamps: 42,
+                speed: Speed::new(51).unwrap(),
+                temperature_c: 56,
+            }
+        );
+        let Status::Legacy(status) = brushless(Family::Legacy).status(sensed, 0) else {
+            panic!()
+        };
+        assert_eq!(status.revision, LegacyRevision::AVEOX_BRUSHLESS);
+        assert_eq!(status.max_power, MaxPower::Current { deciamps: 42 });
+
+        // Brushed: the power set into the motor, in the SPEED encoding.
+        let mut brushed = Control::new(Family::Legacy, SpeedConfig::BRUSHED_DEFAULT, TIMEOUT, ms(0));
+        let link = update(51, 1, ms(0));
+        for t in 0..1000 {
+            brushed.tick(ms(t), link, HEALTHY, 0);
+        }
+        let Status::Legacy(status) = brushed.status(sensed, 0) else {
+            panic!()
+        };
+        assert_eq!(status.revision, LegacyRevision::BRUSHED_REV4);
+        assert_eq!(status.max_power, MaxPower::Power(Speed::new(51).unwrap()));
+    }
+
+    #[test]
+    fn out_of_range_readings_saturate_in_the_status() {
+        let sensed = Sensed {
+            current_deciamps: 9999,
+            temperature_decicelsius: -400,
+            ..HEALTHY
+        };
+        let Status::SeaBotix(status) = brushless(Family::SeaBotix).status(sensed, i32::MAX) else {
+            panic!()
+        };
+        assert_eq!(
+            (status.current_deciamps, status.temperature_c, status.speed),
+            (255, 0, Speed::MAX_FORWARD)
+        );
+        let hot = Sensed {
+            temperature_decicelsius: i16::MAX,
+            ..HEALTHY
+        };
+        let Status::SeaBotix(status) = brushless(Family::SeaBotix).status(hot, i32::MIN) else {
+            panic!()
+        };
+        assert_eq!((status.temperature_c, status.speed), (255, Speed::MAX_REVERSE));
+    }
+
+    proptest! {
+        #[test]
+        fn every_status_decodes_with_tmc_proto(
+            family in prop::sample::select(&Family::ALL[..]),
+            faults in any::<u8>(),
+            current in any::<u16>(),
+            temperature in any::<i16>(),
+            rpm in any::<i32>(),
+        ) {
+            let sensed = Sensed {
+                faults: Faults::from_bits_truncate(faults),
+                drive_allowed: false,
+                current_deciamps: current,
+                temperature_decicelsius: temperature,
+            };
+            for control in [brushless(family), Control::new(family, SpeedConfig::BRUSHED_DEFAULT, TIMEOUT, ms(0))] {
+                let status = control.status(sensed, rpm);
+                prop_assert_eq!(Status::decode(family, status.encode().as_bytes()), Ok(status));
+                prop_assert_eq!(status.faults(), sensed.faults);
+            }
+        }
+    }
+}

@@ -155,7 +155,18 @@ impl Watchdog for CountingWatchdog<'_> {
 
 impl Bench {
     fn new(family: Family) -> Self {
-        let config = config(family);
+        Self::with(config(family))
+    }
+
+    fn brushed(family: Family) -> Self {
+        Self::with(Config {
+            motor: MotorKind::Brushed,
+            speed: SpeedConfig::BRUSHED_DEFAULT,
+            ..config(family)
+        })
+    }
+
+    fn with(config: Config) -> Self {
         let inputs = Cell::new(dry(&config));
         Self {
             config,
@@ -382,5 +393,173 @@ fn the_watchdog_is_fed_only_while_every_task_reports() {
     bench.run(async {
         elapse(Duration::from_millis(500)).await;
         assert!(bench.fed.get() >= 9, "fed {} times in 500 ms", bench.fed.get());
+    });
+}
+
+/// Drive forward, then `inject` a condition; returns how long the bridge took to coast (None: it kept driving
+/// for 50 ms) and the faults then reported.
+fn inject(family: Family, inject: impl Fn(&Bench)) -> (Option<Duration>, Faults, Bench) {
+    let bench = Bench::new(family);
+    let mut reaction = None;
+    bench.run(async {
+        bench.order(60);
+        turn(&bench, Duration::from_millis(100)).await;
+        assert!(bench.duty().value() > 0, "driving before the fault");
+        inject(&bench);
+        // The halls now hold still (the condition is not overwritten), well short of the 400 ms stall window.
+        let start = Instant::now();
+        while bench.bridge.get().0 != COAST && Instant::now() - start < Duration::from_millis(50) {
+            elapse(Duration::from_micros(100)).await;
+        }
+        let took = Instant::now() - start;
+        if bench.bridge.get().0 == COAST {
+            reaction = Some(took);
+        }
+        // The status frame follows within a fault sample and a control step.
+        elapse(SAMPLE_PERIOD + CONTROL_PERIOD).await;
+        bench.send(READ);
+        elapse(Duration::from_millis(1)).await;
+    });
+    let faults = bench.last_status().faults();
+    (reaction, faults, bench)
+}
+
+fn set_water(bench: &Bench, ohms: u32) {
+    bench.inputs.set(RawSample {
+        water: bench.config.water.raw_at(ohms),
+        ..bench.inputs.get()
+    });
+}
+
+fn set_temperature(bench: &Bench, decicelsius: i16) {
+    bench.inputs.set(RawSample {
+        temperature: bench.config.ntc.raw_at(decicelsius),
+        ..bench.inputs.get()
+    });
+}
+
+#[test]
+fn water_stops_a_legacy_controller_but_only_warns_on_a_seabotix_one() {
+    let (reaction, faults, _) = inject(Family::Legacy, |bench| set_water(bench, 500_000));
+    assert!(
+        reaction.is_some_and(|took| took <= SAMPLE_PERIOD),
+        "legacy reaction {reaction:?}"
+    );
+    assert_eq!(faults, Faults::WATER);
+
+    let (reaction, faults, _) = inject(Family::SeaBotix, |bench| set_water(bench, 500_000));
+    assert_eq!(reaction, None, "SeaBotix keeps driving on water");
+    assert_eq!(faults, Faults::WATER);
+}
+
+#[test]
+fn overtemperature_stops_within_one_sample_and_resumes_after_cooling_to_100_c() {
+    for family in Family::ALL {
+        let (reaction, faults, bench) = inject(family, |bench| set_temperature(bench, 1105));
+        assert!(
+            reaction.is_some_and(|took| took <= SAMPLE_PERIOD),
+            "{family:?}: {reaction:?}"
+        );
+        assert_eq!(faults, Faults::OVERTEMP);
+        bench.run(async {
+            set_temperature(&bench, 1010);
+            bench.order(60);
+            elapse(Duration::from_millis(20)).await;
+            assert_eq!(bench.duty(), Duty::ZERO, "101 C is still too hot");
+            set_temperature(&bench, 995);
+            elapse(Duration::from_millis(20)).await;
+            assert!(bench.duty().value() > 0, "resumes below 100 C");
+        });
+    }
+}
+
+#[test]
+fn a_stalled_propeller_stops_the_motor_400_ms_after_the_duty_passes_8_percent_until_a_zero_order() {
+    let bench = Bench::new(Family::SeaBotix);
+    bench.run(async {
+        // The halls never move: the rotor is held.
+        bench.order(60);
+        let mut above_8_percent = None;
+        while bench.bridge.get().0 != COAST || above_8_percent.is_none() {
+            elapse(Duration::from_micros(100)).await;
+            if above_8_percent.is_none() && bench.duty().magnitude() > 800 {
+                above_8_percent = Some(Instant::now());
+            }
+        }
+        let stalled_after = Instant::now() - above_8_percent.unwrap();
+        assert!(
+            (Duration::from_millis(400)..=Duration::from_millis(402)).contains(&stalled_after),
+            "stalled after {stalled_after:?}"
+        );
+        bench.send(READ);
+        elapse(Duration::from_millis(1)).await;
+        assert_eq!(bench.last_status().faults(), Faults::STALL);
+
+        // Another non-zero order does not clear the stall; a zero order does, and the next order drives again.
+        bench.order(30);
+        elapse(Duration::from_millis(20)).await;
+        assert_eq!(bench.duty(), Duty::ZERO);
+        bench.order(0);
+        elapse(Duration::from_millis(5)).await;
+        bench.order(30);
+        elapse(Duration::from_millis(20)).await;
+        assert!(bench.duty().value() > 0);
+        bench.send(READ);
+        elapse(Duration::from_millis(1)).await;
+        assert!(bench.last_status().faults().is_empty());
+    });
+}
+
+#[test]
+fn an_invalid_hall_state_coasts_at_once_and_clears_when_the_halls_read_normal() {
+    for family in Family::ALL {
+        let (reaction, faults, bench) = inject(family, |bench| bench.halls.set(HallState::from_bits(0b000)));
+        assert!(
+            reaction.is_some_and(|took| took <= Duration::from_micros(100)),
+            "{family:?}: {reaction:?}"
+        );
+        assert_eq!(faults, Faults::HALL);
+        bench.run(async {
+            bench.halls.set(FORWARD_SEQUENCE[2]);
+            elapse(Duration::from_millis(5)).await;
+            bench.order(60);
+            elapse(Duration::from_millis(20)).await;
+            assert!(bench.duty().value() > 0, "drives again once the halls read normal");
+            assert_eq!(bench.bridge.get().0, drive_for(FORWARD_SEQUENCE[2], bench.duty()));
+        });
+    }
+}
+
+#[test]
+fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed() {
+    let bench = Bench::brushed(Family::SeaBotix);
+    bench.run(async {
+        bench.order(51);
+        // No halls on a brushed motor, so no stall or hall fault either: the order holds.
+        elapse(Duration::from_millis(600)).await;
+        assert_eq!(
+            bench.bridge.get(),
+            (
+                [PhaseDrive::Pwm, PhaseDrive::Low, PhaseDrive::Float],
+                Duty::new_saturating(5000)
+            )
+        );
+        bench.send(READ);
+        elapse(Duration::from_millis(1)).await;
+        let Status::SeaBotix(status) = bench.last_status() else {
+            panic!("wrong family")
+        };
+        assert_eq!((status.motor, status.speed.step()), (MotorKind::Brushed, 51));
+
+        bench.order(-102);
+        // +50 % to -100 % at 200 % per second: 750 ms, well inside the link timeout.
+        elapse(Duration::from_millis(900)).await;
+        assert_eq!(
+            bench.bridge.get(),
+            (
+                [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
+                Duty::new_saturating(-10_000)
+            )
+        );
     });
 }
