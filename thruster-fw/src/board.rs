@@ -28,11 +28,7 @@ use embassy_stm32::timer::complementary_pwm::ComplementaryPwm;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_time::Duration;
 use thruster_fw::commutation::{BridgeDrive, PhaseDrive};
-use thruster_fw::failsafe::LinkFailsafe;
-use thruster_fw::faults::Thresholds;
 use thruster_fw::hall::HallState;
-use thruster_fw::sensors::{CurrentSense, Ntc, WaterSensor};
-use thruster_fw::speed::SpeedConfig;
 use thruster_fw::tasks::{Bridge, Config, HallSensors, RawSample, Sensors, Watchdog};
 use thruster_fw::{Duty, I2cTarget, Request};
 use tmc_proto::{Family, MotorKind};
@@ -49,33 +45,8 @@ const MOTOR: MotorKind = if cfg!(feature = "brushed") {
     MotorKind::Brushless
 };
 
-/// Everything fixed at build time.
-pub static CONFIG: Config = Config {
-    family: FAMILY,
-    motor: MOTOR,
-    pole_pairs: 4,
-    link_timeout: LinkFailsafe::DEFAULT_TIMEOUT,
-    speed: match MOTOR {
-        MotorKind::Brushless => SpeedConfig::BRUSHLESS_DEFAULT,
-        MotorKind::Brushed => SpeedConfig::BRUSHED_DEFAULT,
-    },
-    thresholds: Thresholds::SPEC,
-    // 1 Mohm pull-down: the 1 Mohm water threshold sits at mid-scale, where the divider resolves best.
-    water: WaterSensor {
-        pull_down_ohms: 1_000_000,
-    },
-    // 10 kohm B3435 NTC in the winding, 10 kohm pull-up.
-    ntc: Ntc {
-        r25_ohms: 10_000,
-        beta: 3435,
-        pull_up_ohms: 10_000,
-    },
-    // IHM08M1: 10 mohm shunt, amplifier gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 * 5.18) = 15.6 mA/count.
-    current: CurrentSense {
-        offset_raw: 2048,
-        milliamps_per_count: 16,
-    },
-};
+/// Everything fixed at build time: the reference hardware of the pin table above.
+pub static CONFIG: Config = Config::reference(FAMILY, MOTOR);
 
 /// How often the watchdog is fed (when every task reports) and how long it waits before it resets the chip.
 pub const WATCHDOG_FEED: Duration = Duration::from_millis(50);

@@ -101,7 +101,8 @@ impl SpeedController {
     ///
     /// Brushless: the target rpm slews towards `target.rpm()` at `ramp_per_s`; duty = feed-forward + PI on
     /// (ramped target - measured), clamped to ±100 % and to the cap. The integrator does not grow while the
-    /// output is clamped (anti-windup). A zero ramped target gives exactly [`Duty::ZERO`] and resets the
+    /// output is clamped (anti-windup), and while the cap holds the output the ramp holds too, so lifting the cap
+    /// raises the speed at the ramp rate. A zero ramped target gives exactly [`Duty::ZERO`] and resets the
     /// integrator, so a stopped motor is never driven.
     ///
     /// Brushed: open loop, duty proportional to the step (step 102 = 100 %), slewed at `ramp_per_s`, capped.
@@ -149,6 +150,7 @@ impl SpeedController {
 
     fn update_brushless(&mut self, dt_us: i64, target: Speed, limit: i64, measured_rpm: i32) -> Duty {
         let order = i64::from(target.rpm()).saturating_mul(MICROS_PER_S);
+        let previous_ramp = self.ramp_micro;
         self.ramp_micro = slew(self.ramp_micro, order, self.max_step(dt_us));
         if self.ramp_micro == 0 {
             self.integral_q16 = 0;
@@ -165,6 +167,11 @@ impl SpeedController {
         // Conditional integration: no growth while the output is already clamped in the error's direction.
         let before = fixed.saturating_add(self.integral_q16 / Q16);
         let winding_up = (before > limit && error > 0) || (before < -limit && error < 0);
+        if winding_up && limit < FULL {
+            // The INFO cap holds the output: the ramp waits where it is, so lifting the cap later raises the
+            // speed at the ramp rate instead of stepping the duty to the cap's far side.
+            self.ramp_micro = previous_ramp;
+        }
         if !winding_up {
             let delta = i64::from(self.config.ki_q16_per_s)
                 .saturating_mul(error)
@@ -432,6 +439,24 @@ mod tests {
             peak = peak.max(rig.motor.rpm);
         }
         assert!(peak < 4500.0 * 1.05, "overshoot to {peak}");
+        assert!(within_2_percent(rig.motor.rpm, 4500));
+    }
+
+    #[test]
+    fn lifting_the_cap_raises_the_duty_at_the_ramp_rate() {
+        let mut rig = Rig::new(SpeedConfig::BRUSHLESS_DEFAULT, 8_000);
+        rig.run(102, Some(20), 2_000);
+        let mut previous = rig.step(102, Some(20)).value();
+        assert_eq!(previous, 2_000);
+        let mut largest_rise = 0;
+        for _ in 0..2_000 {
+            let duty = rig.step(102, None).value();
+            largest_rise = largest_rise.max(duty - previous);
+            previous = duty;
+        }
+        // Without the held ramp the duty steps from the cap to full scale (8000 units) at once; with it, only the
+        // proportional term's margin over the cap is released (under 2.5 %), then the ramp takes over.
+        assert!(largest_rise <= 250, "duty rose by {largest_rise} in one step");
         assert!(within_2_percent(rig.motor.rpm, 4500));
     }
 

@@ -11,6 +11,7 @@ use tmc_proto::{Family, MotorKind, StatusFrame};
 use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
+use crate::failsafe::LinkFailsafe;
 use crate::faults::{FaultMonitor, Sample, StallDetector, Thresholds};
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
@@ -78,6 +79,38 @@ pub struct Config {
     pub ntc: Ntc,
     /// Motor current sense.
     pub current: CurrentSense,
+}
+
+impl Config {
+    /// The reference hardware: a 4-pole-pair hall-sensored motor on an X-NUCLEO-IHM08M1, the water-sensor
+    /// electrodes over a 1 Mohm pull-down (the 1 Mohm water threshold sits at mid-scale, where the divider resolves
+    /// best), a 10 kohm B3435 NTC in the winding with a 10 kohm pull-up, the spec's thresholds and a 1 s failsafe.
+    pub const fn reference(family: Family, motor: MotorKind) -> Config {
+        Config {
+            family,
+            motor,
+            pole_pairs: 4,
+            link_timeout: LinkFailsafe::DEFAULT_TIMEOUT,
+            speed: match motor {
+                MotorKind::Brushless => SpeedConfig::BRUSHLESS_DEFAULT,
+                MotorKind::Brushed => SpeedConfig::BRUSHED_DEFAULT,
+            },
+            thresholds: Thresholds::SPEC,
+            water: WaterSensor {
+                pull_down_ohms: 1_000_000,
+            },
+            ntc: Ntc {
+                r25_ohms: 10_000,
+                beta: 3435,
+                pull_up_ohms: 10_000,
+            },
+            // IHM08M1: 10 mohm shunt, gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 ohm * 5.18) = 15.6 mA per count.
+            current: CurrentSense {
+                offset_raw: 2048,
+                milliamps_per_count: 16,
+            },
+        }
+    }
 }
 
 /// The tasks that report to the watchdog.

@@ -1,7 +1,6 @@
 //! The tasks together, on virtual time: a scripted master, simulated halls, bridge and ADC inputs.
 
 use super::*;
-use crate::failsafe::LinkFailsafe;
 use crate::hall::FORWARD_SEQUENCE;
 use crate::i2c_slave::Request;
 use core::cell::{Cell, RefCell};
@@ -102,29 +101,6 @@ impl Sensors for TestSensors<'_> {
     }
 }
 
-fn config(family: Family) -> Config {
-    Config {
-        family,
-        motor: MotorKind::Brushless,
-        pole_pairs: 4,
-        link_timeout: LinkFailsafe::DEFAULT_TIMEOUT,
-        speed: SpeedConfig::BRUSHLESS_DEFAULT,
-        thresholds: Thresholds::SPEC,
-        water: WaterSensor {
-            pull_down_ohms: 1_000_000,
-        },
-        ntc: Ntc {
-            r25_ohms: 10_000,
-            beta: 3435,
-            pull_up_ohms: 10_000,
-        },
-        current: CurrentSense {
-            offset_raw: 2048,
-            milliamps_per_count: 16,
-        },
-    }
-}
-
 /// A healthy controller's inputs: dry, 25 C, no current.
 fn dry(config: &Config) -> RawSample {
     RawSample {
@@ -155,15 +131,11 @@ impl Watchdog for CountingWatchdog<'_> {
 
 impl Bench {
     fn new(family: Family) -> Self {
-        Self::with(config(family))
+        Self::with(Config::reference(family, MotorKind::Brushless))
     }
 
     fn brushed(family: Family) -> Self {
-        Self::with(Config {
-            motor: MotorKind::Brushed,
-            speed: SpeedConfig::BRUSHED_DEFAULT,
-            ..config(family)
-        })
+        Self::with(Config::reference(family, MotorKind::Brushed))
     }
 
     fn with(config: Config) -> Self {
