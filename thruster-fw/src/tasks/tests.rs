@@ -22,6 +22,8 @@ struct Master {
     queue: RefCell<VecDeque<Vec<u8>>>,
     replies: RefCell<Vec<Vec<u8>>>,
     resets: Cell<u32>,
+    /// The next transfer fails on the bus (a glitch, a master reset mid-transfer, a stalled clock).
+    fail_next: Cell<bool>,
 }
 
 /// An empty transfer stands for a read.
@@ -52,12 +54,18 @@ impl I2cTarget for MasterPort<'_> {
 
     async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, ()> {
         let bytes = self.pending.take().ok_or(())?;
+        if self.master.fail_next.replace(false) {
+            return Err(());
+        }
         let stored = bytes.len().min(buffer.len());
         buffer[..stored].copy_from_slice(&bytes[..stored]);
         Ok(stored)
     }
 
     async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), ()> {
+        if self.master.fail_next.replace(false) {
+            return Err(());
+        }
         self.master.replies.borrow_mut().push(data.to_vec());
         Ok(())
     }
@@ -532,6 +540,44 @@ fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed(
                 [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
                 Duty::new_saturating(-10_000)
             )
+        );
+    });
+}
+
+#[test]
+fn a_failed_transfer_reinitialises_the_slave_and_changes_nothing() {
+    let bench = Bench::new(Family::SeaBotix);
+    bench.run(async {
+        bench.order(25);
+        elapse(Duration::from_millis(2)).await;
+        bench.master.fail_next.set(true);
+        bench.order(-80);
+        elapse(Duration::from_millis(2)).await;
+        assert_eq!(bench.master.resets.get(), 1);
+        assert_eq!(
+            bench
+                .shared
+                .link
+                .try_get()
+                .map(|link| (link.orders, link.order.speed.step())),
+            Some((1, 25))
+        );
+
+        bench.master.fail_next.set(true);
+        bench.send(READ);
+        bench.send(READ);
+        elapse(Duration::from_millis(2)).await;
+        assert_eq!(bench.master.resets.get(), 2);
+        assert_eq!(
+            bench.master.replies.borrow().len(),
+            1,
+            "the read after the failed one is answered"
+        );
+        bench.order(-80);
+        elapse(Duration::from_millis(2)).await;
+        assert_eq!(
+            bench.shared.link.try_get().map(|link| link.order.speed.step()),
+            Some(-80)
         );
     });
 }
