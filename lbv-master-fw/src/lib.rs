@@ -4,6 +4,13 @@
 //! drive it through simulated buses. It never touches a register and never panics on bus input.
 #![cfg_attr(not(test), no_std)]
 
+pub mod battery;
+pub mod console;
+pub mod mixer;
 pub mod poll;
+pub mod shared;
+pub mod tasks;
+pub mod thrusters;
+pub mod vehicle;
 
 pub use poll::{PollError, poll_thruster};

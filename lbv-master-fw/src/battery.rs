@@ -1,0 +1,3 @@
+//! (being written)
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BatterySummary;

@@ -1,0 +1,205 @@
+//! What the master's tasks tell one another: the console's commands, the vehicle's orders, the thrusters' and
+//! the battery's reports, and the messages queued for the console. Every task owns its own state machines and
+//! talks to the others only through [`Shared`].
+
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_sync::watch::Watch;
+use embassy_time::Duration;
+use tmc_proto::{Order, Status};
+
+use crate::battery::BatterySummary;
+use crate::thrusters::LinkHealth;
+
+/// Most thrusters one master drives (the LBV300 has 6; two spare).
+pub const MAX_THRUSTERS: usize = 8;
+
+/// A STATUSTEXT's text: at most 50 bytes (MAVLink STATUSTEXT.text).
+pub type Text = heapless::String<50>;
+
+/// The pilot's sticks, as MAVLink MANUAL_CONTROL carries them: x forward, y right, r yaw clockwise, each
+/// -1000..=1000; z vertical thrust 0..=1000 with 500 neutral (the ArduSub convention; 1000 = up).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct ManualInput {
+    /// Surge, -1000 (astern) ..= 1000 (ahead).
+    pub x: i16,
+    /// Sway, -1000 (left) ..= 1000 (right).
+    pub y: i16,
+    /// Heave, 0 (down) ..= 1000 (up), 500 neutral.
+    pub z: i16,
+    /// Yaw, -1000 (counter-clockwise) ..= 1000 (clockwise), seen from above.
+    pub r: i16,
+}
+
+/// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
+pub type ParamId = [u8; 16];
+
+/// What the console asked for, decoded from MAVLink by the console task.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Command {
+    /// A HEARTBEAT from the ground station: the console is alive.
+    Heartbeat,
+    /// MANUAL_CONTROL.
+    Manual(ManualInput),
+    /// COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM (400): arm (param1 = 1) or disarm (0).
+    Arm(bool),
+    /// COMMAND_LONG MAV_CMD_DO_MOTOR_TEST (209), as QGroundControl's motor test page sends it: thruster
+    /// `motor` (1-based, param1), throttle in percent -100..=100 (param2 type MOTOR_TEST_THROTTLE_PERCENT,
+    /// param3, signed for ArduSub's bidirectional thrusters), for `duration` (param4 seconds).
+    MotorTest {
+        /// Thruster number, 1-based.
+        motor: u8,
+        /// Throttle, percent of full speed, -100..=100.
+        percent: i8,
+        /// How long to run it.
+        duration: Duration,
+    },
+    /// Any other COMMAND_LONG: answered MAV_RESULT_UNSUPPORTED.
+    Unsupported {
+        /// The MAV_CMD number.
+        command: u16,
+    },
+    /// PARAM_REQUEST_LIST.
+    ParamRequestList,
+    /// PARAM_REQUEST_READ by name (index -1) or index.
+    ParamRequestRead {
+        /// The name, when asked by name.
+        id: ParamId,
+        /// The index, or -1 to look up `id`.
+        index: i16,
+    },
+    /// PARAM_SET.
+    ParamSet {
+        /// The name.
+        id: ParamId,
+        /// The new value.
+        value: f32,
+    },
+}
+
+/// MAVLink MAV_RESULT values the master answers with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum AckResult {
+    /// MAV_RESULT_ACCEPTED (0).
+    Accepted,
+    /// MAV_RESULT_TEMPORARILY_REJECTED (1): e.g. a motor test while armed.
+    TemporarilyRejected,
+    /// MAV_RESULT_DENIED (2): e.g. a motor test of a thruster that does not exist.
+    Denied,
+    /// MAV_RESULT_UNSUPPORTED (3).
+    Unsupported,
+    /// MAV_RESULT_FAILED (4).
+    Failed,
+}
+
+/// STATUSTEXT severities used (MAV_SEVERITY).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Severity {
+    /// MAV_SEVERITY_CRITICAL (2): a thruster fault that stops it, a failsafe.
+    Critical,
+    /// MAV_SEVERITY_ERROR (3).
+    Error,
+    /// MAV_SEVERITY_WARNING (4): a thruster went offline, stale battery data, a warning fault.
+    Warning,
+    /// MAV_SEVERITY_NOTICE (5).
+    Notice,
+    /// MAV_SEVERITY_INFO (6): arming, a thruster online, battery bit reports.
+    Info,
+}
+
+/// A message for the console that is not periodic telemetry.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outgoing {
+    /// COMMAND_ACK for a COMMAND_LONG.
+    CommandAck {
+        /// The MAV_CMD answered.
+        command: u16,
+        /// The result.
+        result: AckResult,
+    },
+    /// PARAM_VALUE.
+    ParamValue {
+        /// The name.
+        id: ParamId,
+        /// The value.
+        value: f32,
+        /// Its index.
+        index: u16,
+        /// How many parameters there are.
+        count: u16,
+    },
+    /// STATUSTEXT.
+    Text(Severity, Text),
+}
+
+/// What the master knows of one thruster, published by its bus task after every poll.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ThrusterReport {
+    /// Link health and error counters.
+    pub health: LinkHealth,
+    /// The last valid status, if any came.
+    pub status: Option<Status>,
+}
+
+/// The vehicle's state for telemetry: published by the vehicle task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct VehicleState {
+    /// Armed: thrusters follow the pilot.
+    pub armed: bool,
+    /// The console has been heard within its timeout.
+    pub console_alive: bool,
+}
+
+type Mutex = CriticalSectionRawMutex;
+
+/// The channels between the master's tasks.
+pub struct Shared {
+    /// Console -> vehicle: decoded commands, in order.
+    pub commands: Channel<Mutex, Command, 8>,
+    /// Vehicle -> bus tasks: the order for every thruster (STOP when disarmed).
+    pub orders: Watch<Mutex, [Order; MAX_THRUSTERS], 1>,
+    /// Vehicle -> console: armed and console state.
+    pub vehicle: Watch<Mutex, VehicleState, 1>,
+    /// Bus tasks -> console, vehicle: each thruster's latest report.
+    pub thrusters: [Watch<Mutex, ThrusterReport, 1>; MAX_THRUSTERS],
+    /// CAN task -> console: the battery summary.
+    pub battery: Watch<Mutex, BatterySummary, 1>,
+    /// Everyone -> console: acknowledgements, parameter values and texts, sent in order.
+    pub outbox: Channel<Mutex, Outgoing, 16>,
+}
+
+impl Shared {
+    /// Empty channels.
+    pub const fn new() -> Self {
+        Self {
+            commands: Channel::new(),
+            orders: Watch::new(),
+            vehicle: Watch::new(),
+            thrusters: [const { Watch::new() }; MAX_THRUSTERS],
+            battery: Watch::new(),
+            outbox: Channel::new(),
+        }
+    }
+
+    /// Queue a text for the console; when the outbox is full the text is dropped rather than stalling a task.
+    pub fn say(&self, severity: Severity, text: Text) {
+        let _ = self.outbox.try_send(Outgoing::Text(severity, text));
+    }
+}
+
+impl Default for Shared {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl core::fmt::Debug for Shared {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Shared").finish_non_exhaustive()
+    }
+}
