@@ -17,6 +17,8 @@ if ! command -v arm-none-eabi-size >/dev/null; then
   as_root apt-get update -qq
   as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq binutils-arm-none-eabi >/dev/null
 fi
+# pymavlink: the independent MAVLink implementation the console is tested against.
+python3 -c 'import pymavlink' 2>/dev/null || python3 -m pip install --quiet pymavlink
 cargo --version
 
 step "rustfmt"

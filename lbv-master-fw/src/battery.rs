@@ -1,3 +1,979 @@
-//! (being written)
+//! The battery monitor: the BAT board's CAN frames (spec-notes section 2) to a summary for telemetry and texts
+//! for the console.
+//!
+//! What the console hears:
+//! - Start-up report: on the first status frame (0x629) after the master powers up, every one of the 12 status
+//!   bits in words, one STATUSTEXT each (the seed: "at start-up the monitor reports every bit's state in words").
+//! - Change report: on each later status frame that differs from the last one, only the bits that switched.
+//!   After a stale period the first status frame is compared with the last one known before it: a loose
+//!   connector does not repeat all 12 lines, and a BAT board that restarted shows up as the bits that differ.
+//! - BMS alarms (0x628) that appear (Warning) and clear (Info); alarms already set in the first BMS frame
+//!   count as appearing.
+//! - "BAT data stale" when no good BAT frame came for [`BatteryMonitor::STALE_AFTER`] (also when none came at
+//!   all within that time of the monitor starting), and "BAT data resumed" on the next good frame.
+//!
+//! Texts are at most 50 bytes (STATUSTEXT): `BAT <name>=<0|1> <meaning>`, e.g. `BAT HSM_PG=1 HSM power good
+//! (output stable)`. The meanings are bat-proto's words, shortened ("hot swap manager" to "HSM", the FLT pin
+//! and firmware threshold sources in brackets) where the full form would not fit. Severity is Warning for a
+//! fault bit that is set, for power good lost, for a BMS alarm that appears and for stale data; Info otherwise.
+//!
+//! Frames: the three BAT IDs (0x620 info, 0x628 BMS, 0x629 status) are decoded with bat-proto. A BAT-source ID
+//! (0x620..=0x62F, iCub's class 6, source 2) that bat-proto does not know, a BAT frame with a length other than
+//! 8 and a frame that fails its own checks (charge above 100 %) are counted in `errors` and change nothing else:
+//! they do not even keep the data fresh. Frames of other sources are normal on a shared bus and only counted
+//! as ignored.
+
+use core::fmt::{self, Write as _};
+
+use bat_proto::{BatteryInfo, BitReport, BmsAlarms, DcdcStatus, Frame, StatusBit};
+use embassy_time::{Duration, Instant, Timer, with_deadline};
+
+use crate::shared::{Outgoing, Severity, Shared, Text};
+
+/// A received classic CAN frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct CanFrame {
+    /// Standard 11-bit identifier.
+    pub id: u16,
+    /// Data length code, 0..=8 (a larger value is a bad frame).
+    pub len: u8,
+    /// Data bytes; only the first `len` count.
+    pub data: [u8; 8],
+}
+
+impl CanFrame {
+    /// The data bytes that count, or `None` if `len` is above 8.
+    pub fn payload(&self) -> Option<&[u8]> {
+        self.data.get(..usize::from(self.len))
+    }
+}
+
+/// The CAN receive port.
+///
+/// `receive` must be cancel-safe: when its future is dropped before completing, no frame is lost (embassy-stm32's
+/// FDCAN `read` is). The monitor drops it to wake up on time when the bus is silent.
+#[allow(async_fn_in_trait)]
+pub trait CanReceiver {
+    /// Why a receive failed (bus off, error passive, overrun...): counted, never fatal.
+    type Error;
+    /// The next frame.
+    async fn receive(&mut self) -> Result<CanFrame, Self::Error>;
+}
+
+/// What the master knows of the battery (published to `shared.battery`).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct BatterySummary;
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct BatterySummary {
+    /// The last pack info (0x620).
+    pub info: Option<BatteryInfo>,
+    /// The last DCDC status (0x629).
+    pub status: Option<DcdcStatus>,
+    /// The last BMS alarms (0x628).
+    pub alarms: Option<BmsAlarms>,
+    /// No good BAT frame for [`BatteryMonitor::STALE_AFTER`], or none yet: the values above are old or absent.
+    pub stale: bool,
+    /// Good BAT frames received.
+    pub frames: u32,
+    /// Bad BAT frames (unknown BAT ID, bad length, failed check) and receive errors.
+    pub errors: u32,
+}
+
+/// What one good BAT frame means for the console.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum News {
+    /// The first status since power-up: report every bit.
+    StartUp(DcdcStatus),
+    /// The status changed: report the bits that switched.
+    Changed {
+        /// The status before.
+        previous: DcdcStatus,
+        /// The status now.
+        current: DcdcStatus,
+    },
+    /// BMS alarms appeared or cleared.
+    Alarms {
+        /// Alarms newly set.
+        raised: BmsAlarms,
+        /// Alarms newly clear.
+        cleared: BmsAlarms,
+    },
+}
+
+/// What a frame or the passing of time means for the console.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Report {
+    /// Nothing to say.
+    Nothing,
+    /// A good frame with news.
+    News(News),
+    /// The data went stale (said once per stale period).
+    Stale,
+    /// A good frame after a stale period, with that frame's own news if any.
+    Resumed(Option<News>),
+}
+
+/// Most texts one report gives: "resumed" and the 12 bits of a start-up report.
+pub const MAX_REPORT_TEXTS: usize = 13;
+
+impl Report {
+    /// The STATUSTEXTs for the console, in order.
+    pub fn texts(&self, mut say: impl FnMut(Severity, Text)) {
+        match self {
+            Self::Nothing => {}
+            Self::News(news) => news.texts(&mut say),
+            Self::Stale => say(Severity::Warning, text(format_args!("BAT data stale"))),
+            Self::Resumed(news) => {
+                say(Severity::Info, text(format_args!("BAT data resumed")));
+                if let Some(news) = news {
+                    news.texts(&mut say);
+                }
+            }
+        }
+    }
+
+    /// The `n`th text of [`Report::texts`], so that a task can send them one by one without a buffer.
+    pub fn nth_text(&self, n: usize) -> Option<(Severity, Text)> {
+        let mut index = 0;
+        let mut found = None;
+        self.texts(|severity, text| {
+            if index == n {
+                found = Some((severity, text));
+            }
+            index += 1;
+        });
+        found
+    }
+}
+
+impl News {
+    fn texts(&self, say: &mut impl FnMut(Severity, Text)) {
+        match *self {
+            Self::StartUp(status) => status.describe_all().for_each(|report| say_bit(report, say)),
+            Self::Changed { previous, current } => {
+                current
+                    .describe_changes(previous)
+                    .for_each(|report| say_bit(report, say));
+            }
+            Self::Alarms { raised, cleared } => {
+                for alarm in raised.iter() {
+                    say(Severity::Warning, text(format_args!("BAT BMS alarm: {}", alarm.name())));
+                }
+                for alarm in cleared.iter() {
+                    say(
+                        Severity::Info,
+                        text(format_args!("BAT BMS alarm cleared: {}", alarm.name())),
+                    );
+                }
+            }
+        }
+    }
+}
+
+fn say_bit(report: BitReport, say: &mut impl FnMut(Severity, Text)) {
+    let severity = if bit_is_warning(report) {
+        Severity::Warning
+    } else {
+        Severity::Info
+    };
+    say(severity, bit_text(report));
+}
+
+/// A set fault bit, or power good lost.
+fn bit_is_warning(report: BitReport) -> bool {
+    if report.bit == StatusBit::HsmPowerGood {
+        !report.set
+    } else {
+        report.bit.is_fault() && report.set
+    }
+}
+
+/// `BAT <name>=<0|1> <meaning>`, at most 50 bytes for every bit and state.
+pub fn bit_text(report: BitReport) -> Text {
+    text(format_args!(
+        "BAT {}={} {}",
+        report.bit.name(),
+        u8::from(report.set),
+        short_meaning(report.bit, report.set)
+    ))
+}
+
+/// bat-proto's meaning, shortened where `BAT <name>=<state> <meaning>` would exceed 50 bytes.
+fn short_meaning(bit: StatusBit, set: bool) -> &'static str {
+    match (bit, set) {
+        (StatusBit::HsmBroken, true) => "HSM MOSFETs probably damaged",
+        (StatusBit::HsmFault, true) => "HSM overcurrent / overvoltage fault",
+        (StatusBit::HsmPowerGood, true) => "HSM power good (output stable)",
+        (StatusBit::HsmHwFault, true) => "HSM overcurrent fault (FLT pin)",
+        (StatusBit::HsmSwFault, true) => "HSM overcurrent fault (firmware)",
+        _ => bit.meaning(set),
+    }
+}
+
+/// Formats into a STATUSTEXT, cutting what does not fit (never fails).
+fn text(args: fmt::Arguments<'_>) -> Text {
+    let mut writer = Truncating(Text::new());
+    let _ = writer.write_fmt(args);
+    writer.0
+}
+
+struct Truncating(Text);
+
+impl fmt::Write for Truncating {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        for c in s.chars() {
+            if self.0.push(c).is_err() {
+                break;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// IDs of the BAT board's source (iCub class 6, source 2): 0x620..=0x62F.
+const BAT_SOURCE: core::ops::RangeInclusive<u16> = 0x620..=0x62F;
+
+/// The monitor's state machine (pure, explicit time).
+#[derive(Debug, Clone, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct BatteryMonitor {
+    info: Option<BatteryInfo>,
+    status: Option<DcdcStatus>,
+    alarms: Option<BmsAlarms>,
+    /// When the last good BAT frame came.
+    last_frame: Option<Instant>,
+    /// When the monitor was first used: staleness counts from here until a frame comes.
+    started: Option<Instant>,
+    /// "Stale" has been reported and no good frame came since.
+    stale_reported: bool,
+    frames: u32,
+    errors: u32,
+    ignored: u32,
+}
+
+impl BatteryMonitor {
+    /// No good BAT frame for this long: the data is stale. The BAT sends each ID every 200 ms (spec-notes).
+    pub const STALE_AFTER: Duration = Duration::from_secs(1);
+
+    /// Nothing known yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// One frame at `now`. Returns what to report.
+    pub fn on_frame(&mut self, now: Instant, frame: &CanFrame) -> Report {
+        self.start(now);
+        if !BAT_SOURCE.contains(&frame.id) {
+            self.ignored = self.ignored.wrapping_add(1);
+            return Report::Nothing;
+        }
+        let decoded = frame.payload().map(|data| Frame::decode(frame.id, data));
+        let Some(Ok(decoded)) = decoded else {
+            self.errors = self.errors.wrapping_add(1);
+            return Report::Nothing;
+        };
+        // A gap that went unnoticed (no tick in between) is a stale period too.
+        let resumed = self.stale_reported || (self.last_frame.is_some() && self.stale_at().is_some_and(|at| now >= at));
+        self.stale_reported = false;
+        self.last_frame = Some(now);
+        self.frames = self.frames.wrapping_add(1);
+        let news = match decoded {
+            Frame::Info(info) => {
+                self.info = Some(info);
+                None
+            }
+            Frame::Status(current) => match self.status.replace(current) {
+                None => Some(News::StartUp(current)),
+                Some(previous) if previous != current => Some(News::Changed { previous, current }),
+                Some(_) => None,
+            },
+            Frame::Bms(current) => {
+                let previous = self.alarms.replace(current).unwrap_or(BmsAlarms::NONE);
+                let raised = BmsAlarms::from_bits_truncate(current.bits() & !previous.bits());
+                let cleared = BmsAlarms::from_bits_truncate(previous.bits() & !current.bits());
+                (!raised.is_empty() || !cleared.is_empty()).then_some(News::Alarms { raised, cleared })
+            }
+        };
+        match (resumed, news) {
+            (true, news) => Report::Resumed(news),
+            (false, Some(news)) => Report::News(news),
+            (false, None) => Report::Nothing,
+        }
+    }
+
+    /// The passing of time at `now`: reports [`Report::Stale`] once when no good frame came for
+    /// [`Self::STALE_AFTER`] (counted from the first use of the monitor when none came at all).
+    pub fn on_tick(&mut self, now: Instant) -> Report {
+        self.start(now);
+        match self.stale_at() {
+            Some(at) if now >= at => {
+                self.stale_reported = true;
+                Report::Stale
+            }
+            _ => Report::Nothing,
+        }
+    }
+
+    /// A failed receive: counted in `errors`.
+    pub fn on_receive_error(&mut self) {
+        self.errors = self.errors.wrapping_add(1);
+    }
+
+    /// When [`Self::on_tick`] will next report stale, if it is still to come.
+    pub fn stale_at(&self) -> Option<Instant> {
+        if self.stale_reported {
+            return None;
+        }
+        self.last_frame
+            .or(self.started)
+            .map(|from| from.saturating_add(Self::STALE_AFTER))
+    }
+
+    /// The summary at `now` (stale when no good BAT frame for [`Self::STALE_AFTER`], or none yet).
+    pub fn summary(&self, now: Instant) -> BatterySummary {
+        BatterySummary {
+            info: self.info,
+            status: self.status,
+            alarms: self.alarms,
+            stale: self
+                .last_frame
+                .is_none_or(|last| now.saturating_duration_since(last) >= Self::STALE_AFTER),
+            frames: self.frames,
+            errors: self.errors,
+        }
+    }
+
+    /// Frames of other sources seen on the bus.
+    pub fn ignored(&self) -> u32 {
+        self.ignored
+    }
+
+    fn start(&mut self, now: Instant) {
+        if self.started.is_none() {
+            self.started = Some(now);
+        }
+    }
+}
+
+/// How often the summary is published when nothing else happens.
+pub const PUBLISH_PERIOD: Duration = Duration::from_secs(1);
+
+/// How long one report's texts may wait for room in the outbox before the rest are dropped: the console
+/// drains it, and a silent console must not stop the monitor.
+pub const TEXT_DEADLINE: Duration = Duration::from_millis(100);
+
+/// After a receive error, wait this long before the next receive, so a bus that keeps failing at once cannot
+/// starve the other tasks.
+pub const ERROR_BACKOFF: Duration = Duration::from_millis(10);
+
+/// Receive frames forever; publish the summary at 1 Hz and on each report; queue the reports' texts.
+pub async fn can_task<C: CanReceiver>(can: &mut C, shared: &Shared) -> ! {
+    let publisher = shared.battery.sender();
+    let mut monitor = BatteryMonitor::new();
+    let mut next_publish = Instant::now();
+    loop {
+        let now = Instant::now();
+        let report = monitor.on_tick(now);
+        if report != Report::Nothing || now >= next_publish {
+            publisher.send(monitor.summary(now));
+        }
+        if now >= next_publish {
+            next_publish = next_publish.saturating_add(PUBLISH_PERIOD);
+            if next_publish <= now {
+                // Fell behind (a long stall): keep the rhythm from now rather than catching up in a burst.
+                next_publish = now.saturating_add(PUBLISH_PERIOD);
+            }
+        }
+        say(shared, &report, now).await;
+
+        let wake = monitor.stale_at().map_or(next_publish, |at| at.min(next_publish));
+        match with_deadline(wake, can.receive()).await {
+            Ok(Ok(frame)) => {
+                let now = Instant::now();
+                let report = monitor.on_frame(now, &frame);
+                if report != Report::Nothing {
+                    publisher.send(monitor.summary(now));
+                    say(shared, &report, now).await;
+                }
+            }
+            Ok(Err(_)) => {
+                monitor.on_receive_error();
+                Timer::after(ERROR_BACKOFF).await;
+            }
+            Err(_timeout) => {}
+        }
+    }
+}
+
+/// Queue a report's texts, waiting at most [`TEXT_DEADLINE`] in all for room.
+async fn say(shared: &Shared, report: &Report, now: Instant) {
+    let deadline = now.saturating_add(TEXT_DEADLINE);
+    let mut n = 0;
+    while let Some((severity, text)) = report.nth_text(n) {
+        n += 1;
+        if with_deadline(deadline, shared.outbox.send(Outgoing::Text(severity, text)))
+            .await
+            .is_err()
+        {
+            break;
+        }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use bat_proto::{BMS_ID, INFO_ID, STATUS_ID};
+    use core::cell::RefCell;
+    use embassy_futures::block_on;
+    use embassy_futures::select::{Either, select};
+    use embassy_futures::yield_now;
+    use embassy_time::MockDriver;
+    use std::collections::VecDeque;
+
+    /// Let virtual time pass in 1 ms steps, giving every task its turn at each step.
+    pub(crate) async fn elapse(duration: Duration) {
+        let end = Instant::now() + duration;
+        while Instant::now() < end {
+            MockDriver::get().advance(Duration::from_millis(1));
+            for _ in 0..8 {
+                yield_now().await;
+            }
+        }
+    }
+
+    fn t(ms: u64) -> Instant {
+        Instant::from_millis(ms)
+    }
+
+    fn can(id: u16, data: [u8; 8]) -> CanFrame {
+        CanFrame { id, len: 8, data }
+    }
+
+    fn bat(frame: Frame) -> CanFrame {
+        let (id, data) = frame.encode();
+        can(id, data)
+    }
+
+    fn status(word: u16) -> CanFrame {
+        bat(Frame::Status(DcdcStatus::from_word(word)))
+    }
+
+    fn bms(alarms: BmsAlarms) -> CanFrame {
+        bat(Frame::Bms(alarms))
+    }
+
+    fn info(decivolts: u16, charge: u8) -> CanFrame {
+        bat(Frame::Info(BatteryInfo {
+            voltage_decivolts: decivolts,
+            charge_percent: charge,
+            ..BatteryInfo::default()
+        }))
+    }
+
+    fn texts(report: &Report) -> Vec<(Severity, String)> {
+        let mut all = Vec::new();
+        report.texts(|severity, text| all.push((severity, text.to_string())));
+        all
+    }
+
+    #[test]
+    fn every_bit_text_fits_untruncated_and_names_the_bit() {
+        for bit in StatusBit::ALL {
+            for set in [false, true] {
+                let report = BitReport { bit, set };
+                let full = format!("BAT {}={} {}", bit.name(), u8::from(set), short_meaning(bit, set));
+                assert!(full.len() <= 50, "{full} is {} bytes", full.len());
+                assert_eq!(bit_text(report).as_str(), full);
+            }
+        }
+    }
+
+    #[test]
+    fn start_up_report_gives_all_12_bits_in_words() {
+        let mut monitor = BatteryMonitor::new();
+        // The seed's example: 172 = HSM_PG, HSM, V12motor, V12board.
+        let report = monitor.on_frame(t(0), &status(172));
+        assert_eq!(report, Report::News(News::StartUp(DcdcStatus::from_word(172))));
+        let lines = texts(&report);
+        assert_eq!(
+            lines,
+            [
+                (Severity::Info, "BAT HSM_broken=0 normal"),
+                (Severity::Info, "BAT HSM_F=0 normal"),
+                (Severity::Info, "BAT HSM_PG=1 HSM power good (output stable)"),
+                (Severity::Info, "BAT HSM=1 hot swap manager on"),
+                (Severity::Info, "BAT V12motor_F=0 normal"),
+                (Severity::Info, "BAT V12motor=1 12 V motor regulator on"),
+                (Severity::Info, "BAT V12board_F=0 normal"),
+                (Severity::Info, "BAT V12board=1 12 V board regulator on"),
+                (Severity::Info, "BAT PB2_restart=0 stable operation"),
+                (Severity::Info, "BAT PB1_restart=0 stable operation"),
+                (Severity::Info, "BAT HSM_HW_F=0 no fault"),
+                (Severity::Info, "BAT HSM_SW_F=0 no fault"),
+            ]
+            .map(|(severity, text)| (severity, text.to_string()))
+        );
+        assert_eq!(
+            report.nth_text(2).map(|(_, text)| text.to_string()),
+            Some(lines[2].1.clone())
+        );
+        assert_eq!(report.nth_text(12), None);
+        // Every bit set: the faults are warnings, the longest texts still fit.
+        let mut monitor = BatteryMonitor::new();
+        let report = monitor.on_frame(t(0), &status(0x0FFF));
+        let lines = texts(&report);
+        assert_eq!(lines.len(), 12);
+        assert!(
+            lines
+                .iter()
+                .all(|(_, text)| text.len() <= 50 && text.ends_with(|c: char| c != ' '))
+        );
+        let warnings: Vec<&str> = lines
+            .iter()
+            .filter(|(severity, _)| *severity == Severity::Warning)
+            .map(|(_, text)| text.as_str())
+            .collect();
+        assert_eq!(
+            warnings,
+            [
+                "BAT HSM_broken=1 HSM MOSFETs probably damaged",
+                "BAT HSM_F=1 HSM overcurrent / overvoltage fault",
+                "BAT V12motor_F=1 12 V motor regulator overcurrent",
+                "BAT V12board_F=1 12 V board regulator overcurrent",
+                "BAT HSM_HW_F=1 HSM overcurrent fault (FLT pin)",
+                "BAT HSM_SW_F=1 HSM overcurrent fault (firmware)",
+            ]
+        );
+    }
+
+    #[test]
+    fn change_report_names_only_the_switched_bits() {
+        let mut monitor = BatteryMonitor::new();
+        monitor.on_frame(t(0), &status(172));
+        // The same status again: nothing.
+        assert_eq!(monitor.on_frame(t(100), &status(172)), Report::Nothing);
+        // Only bits 10 and 11 switch on: named, not "no faults".
+        let report = monitor.on_frame(t(200), &status(172 | 0x0C00));
+        assert_eq!(
+            report,
+            Report::News(News::Changed {
+                previous: DcdcStatus::from_word(172),
+                current: DcdcStatus::from_word(172 | 0x0C00)
+            })
+        );
+        assert_eq!(
+            texts(&report),
+            [
+                (
+                    Severity::Warning,
+                    "BAT HSM_HW_F=1 HSM overcurrent fault (FLT pin)".to_string()
+                ),
+                (
+                    Severity::Warning,
+                    "BAT HSM_SW_F=1 HSM overcurrent fault (firmware)".to_string()
+                ),
+            ]
+        );
+        // Bit 11 clears and power good is lost.
+        let report = monitor.on_frame(t(300), &status((172 | 0x0400) & !0x0004));
+        assert_eq!(
+            texts(&report),
+            [
+                (
+                    Severity::Warning,
+                    "BAT HSM_PG=0 output voltage not guaranteed".to_string()
+                ),
+                (Severity::Info, "BAT HSM_SW_F=0 no fault".to_string()),
+            ]
+        );
+        assert_eq!(monitor.summary(t(300)).status, Some(DcdcStatus::from_word(0x04A8)));
+    }
+
+    #[test]
+    fn staleness_at_exactly_one_second_and_resumption() {
+        let mut monitor = BatteryMonitor::new();
+        assert!(monitor.summary(t(0)).stale, "stale until a frame comes");
+        monitor.on_frame(t(0), &status(172));
+        monitor.on_frame(t(10), &info(420, 80));
+        assert!(!monitor.summary(t(10)).stale);
+        assert_eq!(monitor.stale_at(), Some(t(1010)));
+        assert_eq!(monitor.on_tick(t(1009)), Report::Nothing);
+        assert!(!monitor.summary(t(1009)).stale);
+        assert_eq!(monitor.on_tick(t(1010)), Report::Stale);
+        assert!(monitor.summary(t(1010)).stale);
+        assert_eq!(
+            texts(&Report::Stale),
+            [(Severity::Warning, "BAT data stale".to_string())]
+        );
+        // Said once.
+        assert_eq!(monitor.on_tick(t(1500)), Report::Nothing);
+        assert_eq!(monitor.on_tick(t(5000)), Report::Nothing);
+        assert_eq!(monitor.stale_at(), None);
+        // The values are kept while stale.
+        let summary = monitor.summary(t(5000));
+        assert_eq!(summary.info.map(|info| info.voltage_decivolts), Some(420));
+        assert_eq!(summary.status, Some(DcdcStatus::from_word(172)));
+        // Resumption with an info frame: no other news.
+        let report = monitor.on_frame(t(5100), &info(419, 79));
+        assert_eq!(report, Report::Resumed(None));
+        assert_eq!(texts(&report), [(Severity::Info, "BAT data resumed".to_string())]);
+        assert!(!monitor.summary(t(5100)).stale);
+        assert_eq!(monitor.stale_at(), Some(t(6100)));
+        // Stale again; the status that resumes is compared with the last one known, not reported in full.
+        assert_eq!(monitor.on_tick(t(6100)), Report::Stale);
+        let report = monitor.on_frame(t(7000), &status(172 | 0x0001));
+        assert_eq!(
+            texts(&report),
+            [
+                (Severity::Info, "BAT data resumed".to_string()),
+                (
+                    Severity::Warning,
+                    "BAT HSM_broken=1 HSM MOSFETs probably damaged".to_string()
+                ),
+            ]
+        );
+    }
+
+    #[test]
+    fn a_gap_without_ticks_still_counts_as_resumption() {
+        let mut monitor = BatteryMonitor::new();
+        monitor.on_frame(t(0), &info(420, 80));
+        assert_eq!(monitor.on_frame(t(999), &info(420, 80)), Report::Nothing);
+        assert_eq!(monitor.on_frame(t(1999), &info(420, 80)), Report::Resumed(None));
+    }
+
+    #[test]
+    fn stale_when_nothing_ever_comes() {
+        let mut monitor = BatteryMonitor::new();
+        assert_eq!(monitor.stale_at(), None, "not started");
+        assert_eq!(monitor.on_tick(t(50)), Report::Nothing);
+        assert_eq!(monitor.stale_at(), Some(t(1050)));
+        assert_eq!(monitor.on_tick(t(1049)), Report::Nothing);
+        assert_eq!(monitor.on_tick(t(1050)), Report::Stale);
+        // The first frame after that: resumed, and the start-up report.
+        let report = monitor.on_frame(t(1200), &status(172));
+        assert_eq!(report, Report::Resumed(Some(News::StartUp(DcdcStatus::from_word(172)))));
+        assert_eq!(texts(&report).len(), 13);
+    }
+
+    #[test]
+    fn bms_alarms_appear_and_clear() {
+        let mut monitor = BatteryMonitor::new();
+        assert_eq!(monitor.on_frame(t(0), &bms(BmsAlarms::NONE)), Report::Nothing);
+        assert_eq!(monitor.summary(t(0)).alarms, Some(BmsAlarms::NONE));
+        let both = BmsAlarms::LOW_VOLTAGE | BmsAlarms::HIGH_TEMPERATURE;
+        let report = monitor.on_frame(t(200), &bms(both));
+        assert_eq!(
+            report,
+            Report::News(News::Alarms {
+                raised: both,
+                cleared: BmsAlarms::NONE
+            })
+        );
+        assert_eq!(
+            texts(&report),
+            [
+                (Severity::Warning, "BAT BMS alarm: low voltage".to_string()),
+                (Severity::Warning, "BAT BMS alarm: high temperature".to_string()),
+            ]
+        );
+        assert_eq!(monitor.on_frame(t(400), &bms(both)), Report::Nothing);
+        let report = monitor.on_frame(t(600), &bms(BmsAlarms::HIGH_TEMPERATURE | BmsAlarms::LOW_CHARGE));
+        assert_eq!(
+            texts(&report),
+            [
+                (Severity::Warning, "BAT BMS alarm: low state of charge".to_string()),
+                (Severity::Info, "BAT BMS alarm cleared: low voltage".to_string()),
+            ]
+        );
+        // Alarms already set in the first BMS frame are reported.
+        let mut monitor = BatteryMonitor::new();
+        let report = monitor.on_frame(t(0), &bms(BmsAlarms::OVERCURRENT_DISCHARGE));
+        assert_eq!(
+            texts(&report),
+            [(Severity::Warning, "BAT BMS alarm: overcurrent discharge".to_string())]
+        );
+        // Every alarm text fits.
+        for alarm in BmsAlarms::ALL {
+            let report = Report::News(News::Alarms {
+                raised: alarm,
+                cleared: alarm,
+            });
+            for (_, text) in texts(&report) {
+                assert!(text.len() <= 50 && text.ends_with(alarm.name()), "{text}");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_frames_are_counted_and_change_nothing() {
+        let mut monitor = BatteryMonitor::new();
+        monitor.on_frame(t(0), &status(172));
+        monitor.on_frame(t(0), &info(420, 80));
+        monitor.on_frame(t(0), &bms(BmsAlarms::NONE));
+        let before = monitor.summary(t(0));
+        assert_eq!((before.frames, before.errors), (3, 0));
+        let bad = [
+            // A BAT ID with 7 bytes.
+            CanFrame {
+                len: 7,
+                ..status(0x0FFF)
+            },
+            // A length code above 8.
+            CanFrame {
+                len: 9,
+                ..bms(BmsAlarms::LOW_VOLTAGE)
+            },
+            CanFrame { len: 0, ..info(1, 1) },
+            // Charge above 100 %.
+            can(INFO_ID, [0xA4, 0x01, 0, 0, 101, 0, 0, 0]),
+            // A BAT-source ID that the protocol does not define.
+            can(0x62A, [0xFF; 8]),
+            can(0x621, [0; 8]),
+        ];
+        for (n, frame) in bad.iter().enumerate() {
+            assert_eq!(monitor.on_frame(t(900), frame), Report::Nothing, "{frame:?}");
+            let after = monitor.summary(t(900));
+            assert_eq!(after.errors, n as u32 + 1);
+            assert_eq!(
+                BatterySummary {
+                    errors: before.errors,
+                    ..after
+                },
+                before
+            );
+        }
+        // They do not keep the data fresh.
+        assert_eq!(monitor.on_tick(t(1000)), Report::Stale);
+        monitor.on_receive_error();
+        assert_eq!(monitor.summary(t(1000)).errors, bad.len() as u32 + 1);
+        assert_eq!(monitor.ignored(), 0);
+    }
+
+    #[test]
+    fn frames_of_other_ids_are_ignored() {
+        let mut monitor = BatteryMonitor::new();
+        monitor.on_frame(t(0), &status(172));
+        for id in [0x000, 0x123, 0x61F, 0x630, 0x7FF, 0xFFFF] {
+            assert_eq!(monitor.on_frame(t(500), &can(id, [0xFF; 8])), Report::Nothing);
+            assert_eq!(
+                monitor.on_frame(
+                    t(500),
+                    &CanFrame {
+                        id,
+                        len: 3,
+                        data: [0; 8]
+                    }
+                ),
+                Report::Nothing
+            );
+        }
+        let summary = monitor.summary(t(500));
+        assert_eq!((summary.frames, summary.errors), (1, 0));
+        assert_eq!(monitor.ignored(), 12);
+        assert_eq!(summary.status, Some(DcdcStatus::from_word(172)));
+        assert_eq!(
+            monitor.on_tick(t(1000)),
+            Report::Stale,
+            "other IDs do not keep the data fresh"
+        );
+    }
+
+    #[test]
+    fn summary_carries_the_decoded_frames() {
+        let mut monitor = BatteryMonitor::new();
+        monitor.on_frame(t(0), &can(INFO_ID, [0xA4, 0x01, 0xF6, 0xFF, 80, 0, 0xFA, 0x00]));
+        monitor.on_frame(t(0), &can(STATUS_ID, [0xAC, 0x04, 0, 0, 0, 0, 0, 0]));
+        monitor.on_frame(t(0), &can(BMS_ID, [0x81, 0, 0, 0, 0, 0, 0, 0]));
+        assert_eq!(
+            monitor.summary(t(0)),
+            BatterySummary {
+                info: Some(BatteryInfo {
+                    voltage_decivolts: 420,
+                    charge_percent: 80,
+                    current_deciamps: Some(-10),
+                    temperature_decicelsius: Some(250),
+                }),
+                status: Some(DcdcStatus::from_word(0x04AC)),
+                alarms: Some(BmsAlarms::LOW_VOLTAGE),
+                stale: false,
+                frames: 3,
+                errors: 0,
+            }
+        );
+    }
+
+    /// A CAN port fed by the test: frames (or errors) are taken when queued.
+    #[derive(Default)]
+    struct TestCan {
+        queue: RefCell<VecDeque<Result<CanFrame, ()>>>,
+    }
+
+    struct TestPort<'a>(&'a TestCan);
+
+    impl CanReceiver for TestPort<'_> {
+        type Error = ();
+
+        async fn receive(&mut self) -> Result<CanFrame, ()> {
+            loop {
+                if let Some(item) = self.0.queue.borrow_mut().pop_front() {
+                    return item;
+                }
+                yield_now().await;
+            }
+        }
+    }
+
+    fn drain(shared: &Shared) -> Vec<(u64, Severity, String)> {
+        let mut all = Vec::new();
+        while let Ok(message) = shared.outbox.try_receive() {
+            match message {
+                Outgoing::Text(severity, text) => all.push((Instant::now().as_millis(), severity, text.to_string())),
+                other => panic!("unexpected {other:?}"),
+            }
+        }
+        all
+    }
+
+    /// Let time pass like [`elapse`], taking the texts as they are queued, with the time they were taken.
+    async fn collect(shared: &Shared, duration: Duration) -> Vec<(u64, Severity, String)> {
+        let mut all = Vec::new();
+        let end = Instant::now() + duration;
+        while Instant::now() < end {
+            elapse(Duration::from_millis(1)).await;
+            all.extend(drain(shared));
+        }
+        all
+    }
+
+    #[test]
+    fn can_task_reports_start_up_changes_staleness_and_publishes_at_1_hz() {
+        let _clock = crate::test_clock::lock();
+        let shared = Shared::new();
+        let bus = TestCan::default();
+        let mut port = TestPort(&bus);
+        let script = async {
+            let push = |item| bus.queue.borrow_mut().push_back(item);
+            elapse(Duration::from_millis(5)).await;
+            let first = shared.battery.try_get().expect("published at once");
+            assert!(first.stale);
+            assert_eq!(first.frames, 0);
+
+            push(Ok(status(172)));
+            push(Ok(info(420, 80)));
+            elapse(Duration::from_millis(5)).await;
+            let texts = drain(&shared);
+            assert_eq!(texts.len(), 12, "{texts:?}");
+            assert_eq!(texts[2].2, "BAT HSM_PG=1 HSM power good (output stable)");
+            let summary = shared.battery.try_get().unwrap();
+            assert!(!summary.stale);
+            assert_eq!(summary.status, Some(DcdcStatus::from_word(172)));
+
+            // Frames every 200 ms for 3 s: the summary is published once a second, plus for each report.
+            let id = shared.battery.get_msg_id();
+            for _ in 0..15 {
+                push(Ok(info(420, 80)));
+                elapse(Duration::from_millis(200)).await;
+            }
+            let published = shared.battery.get_msg_id() - id;
+            assert!((3..=4).contains(&published), "{published} publications in 3 s");
+            assert!(drain(&shared).is_empty());
+            assert_eq!(shared.battery.try_get().unwrap().frames, 17);
+
+            // Bits 10-11 switch: two lines.
+            push(Ok(status(172 | 0x0C00)));
+            elapse(Duration::from_millis(5)).await;
+            let texts: Vec<String> = drain(&shared).into_iter().map(|(_, _, text)| text).collect();
+            assert_eq!(
+                texts,
+                [
+                    "BAT HSM_HW_F=1 HSM overcurrent fault (FLT pin)",
+                    "BAT HSM_SW_F=1 HSM overcurrent fault (firmware)"
+                ]
+            );
+
+            // Silence: "stale" exactly 1 s after the last frame, without any frame arriving.
+            let pushed = Instant::now().as_millis();
+            push(Ok(info(420, 80)));
+            let texts = collect(&shared, Duration::from_millis(1500)).await;
+            // Received on the first 1 ms step after the push.
+            assert_eq!(
+                texts,
+                [(pushed + 1 + 1000, Severity::Warning, "BAT data stale".to_string())]
+            );
+            assert!(shared.battery.try_get().unwrap().stale);
+
+            // A receive error is counted and the task goes on.
+            push(Err(()));
+            push(Ok(bms(BmsAlarms::LOW_CHARGE)));
+            elapse(Duration::from_millis(20)).await;
+            let texts: Vec<(Severity, String)> = drain(&shared).into_iter().map(|(_, s, text)| (s, text)).collect();
+            assert_eq!(
+                texts,
+                [
+                    (Severity::Info, "BAT data resumed".to_string()),
+                    (Severity::Warning, "BAT BMS alarm: low state of charge".to_string())
+                ]
+            );
+            let summary = shared.battery.try_get().unwrap();
+            assert!(!summary.stale);
+            assert_eq!((summary.frames, summary.errors), (20, 1));
+            assert_eq!(summary.alarms, Some(BmsAlarms::LOW_CHARGE));
+        };
+        match block_on(select(can_task(&mut port, &shared), script)) {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    }
+
+    #[test]
+    fn can_task_reports_stale_when_the_bus_is_silent_from_the_start() {
+        let _clock = crate::test_clock::lock();
+        let shared = Shared::new();
+        let bus = TestCan::default();
+        let mut port = TestPort(&bus);
+        let script = async {
+            let texts = collect(&shared, Duration::from_millis(4000)).await;
+            assert_eq!(
+                texts,
+                [(1000, Severity::Warning, "BAT data stale".to_string())],
+                "at 1 s, once"
+            );
+        };
+        match block_on(select(can_task(&mut port, &shared), script)) {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    }
+
+    #[test]
+    fn can_task_does_not_stall_when_the_outbox_is_full() {
+        let _clock = crate::test_clock::lock();
+        let shared = Shared::new();
+        let bus = TestCan::default();
+        let mut port = TestPort(&bus);
+        let script = async {
+            // Nobody drains the outbox: the start-up report fills it, the rest is dropped after 100 ms.
+            bus.queue.borrow_mut().push_back(Ok(status(0)));
+            elapse(Duration::from_millis(1)).await;
+            for _ in 0..4 {
+                shared.say(Severity::Info, Text::try_from("filler").unwrap());
+            }
+            // A change report waits for room at most 100 ms, then the next frame is taken.
+            bus.queue.borrow_mut().push_back(Ok(status(1)));
+            bus.queue.borrow_mut().push_back(Ok(status(3)));
+            elapse(Duration::from_millis(50)).await;
+            assert_eq!(shared.battery.try_get().unwrap().frames, 2, "waiting for room");
+            elapse(Duration::from_millis(100)).await;
+            assert_eq!(shared.battery.try_get().unwrap().frames, 3, "frames still received");
+            assert_eq!(shared.outbox.len(), 16);
+        };
+        match block_on(select(can_task(&mut port, &shared), script)) {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+    }
+}

@@ -9,8 +9,25 @@ pub mod console;
 pub mod mixer;
 pub mod poll;
 pub mod shared;
-pub mod tasks;
 pub mod thrusters;
 pub mod vehicle;
 
 pub use poll::{PollError, poll_thruster};
+
+/// Virtual time for the host tests.
+#[cfg(test)]
+pub(crate) mod test_clock {
+    use embassy_time::MockDriver;
+    use std::sync::{Mutex, MutexGuard};
+
+    /// embassy-time's mock driver is one clock for the whole test process: every test that moves it, in any
+    /// module, holds this lock.
+    static CLOCK: Mutex<()> = Mutex::new(());
+
+    /// Take the virtual clock and set it to 0.
+    pub(crate) fn lock() -> MutexGuard<'static, ()> {
+        let guard = CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        MockDriver::get().reset();
+        guard
+    }
+}

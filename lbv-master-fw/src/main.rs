@@ -1,9 +1,11 @@
 //! lbv-master-fw: the STM32G431 image of the LBV master node.
 //!
-//! The binding (`stm32.rs`) exists only for the firmware target; on the host this binary is a stub and the
+//! The binding (`stm32.rs`, `board.rs`) exists only for the firmware target; on the host this binary is a stub and the
 //! node's logic is tested through the library.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
+#[cfg(target_os = "none")]
+mod board;
 #[cfg(target_os = "none")]
 mod stm32;
 

@@ -1,70 +1,155 @@
-//! Interrupts, peripheral set-up and tasks of the master image.
+//! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
-use defmt::{info, unwrap, warn};
+use defmt::{info, unwrap};
 use embassy_executor::Spawner;
-use embassy_stm32::i2c::{self, I2c, Master};
-use embassy_stm32::mode::Async;
-use embassy_stm32::time::Hertz;
-use embassy_stm32::{bind_interrupts, dma, peripherals};
-use embassy_time::{Duration, Ticker};
-use lbv_master_fw::poll_thruster;
-use tmc_proto::{Family, Order};
+use embassy_stm32::can::{self, CanConfigurator};
+use embassy_stm32::i2c::{self, I2c};
+use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllQDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
+use lbv_master_fw::console::{self, ConsoleConfig, ConsoleStats};
+use lbv_master_fw::shared::Shared;
+use lbv_master_fw::vehicle::{self, VehicleConfig};
+use lbv_master_fw::{battery, thrusters};
+use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
+use crate::board::{self, BatteryCan, Pin, ThrusterBus};
+
 bind_interrupts!(struct Irqs {
+    I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
+    I2C1_ER => i2c::ErrorInterruptHandler<peripherals::I2C1>;
     I2C2_EV => i2c::EventInterruptHandler<peripherals::I2C2>;
     I2C2_ER => i2c::ErrorInterruptHandler<peripherals::I2C2>;
+    I2C3_EV => i2c::EventInterruptHandler<peripherals::I2C3>;
+    I2C3_ER => i2c::ErrorInterruptHandler<peripherals::I2C3>;
+    DMA1_CHANNEL1 => dma::InterruptHandler<peripherals::DMA1_CH1>;
+    DMA1_CHANNEL2 => dma::InterruptHandler<peripherals::DMA1_CH2>;
     DMA1_CHANNEL3 => dma::InterruptHandler<peripherals::DMA1_CH3>;
     DMA1_CHANNEL4 => dma::InterruptHandler<peripherals::DMA1_CH4>;
+    DMA1_CHANNEL5 => dma::InterruptHandler<peripherals::DMA1_CH5>;
+    DMA1_CHANNEL6 => dma::InterruptHandler<peripherals::DMA1_CH6>;
+    FDCAN1_IT0 => can::IT0InterruptHandler<peripherals::FDCAN1>;
+    FDCAN1_IT1 => can::IT1InterruptHandler<peripherals::FDCAN1>;
+    LPUART1 => usart::BufferedInterruptHandler<peripherals::LPUART1>;
 });
 
-/// IDS 6.4.1: the motherboard is an I2C master at 100 kbit/s.
-const BUS_SPEED: Hertz = Hertz::khz(100);
-/// A transfer stalled for this long (SMBus's SCL-low timeout) is abandoned; embassy's default is 1 s.
-const TRANSFER_TIMEOUT: Duration = Duration::from_millis(25);
-/// Each thruster is polled at 50 Hz.
-const POLL_PERIOD: Duration = Duration::from_millis(20);
-/// The family of the one thruster this image polls (Cargo feature `legacy`).
-const THRUSTER: Family = if cfg!(feature = "legacy") {
-    Family::Legacy
-} else {
-    Family::SeaBotix
-};
+static SHARED: Shared = Shared::new();
+static CONSOLE: ConsoleConfig = ConsoleConfig::DEFAULT;
+static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    let p = embassy_stm32::init(Default::default());
-    info!(
-        "lbv-master-fw: polling the {} thruster at {=u8:#x}",
-        THRUSTER.name(),
-        THRUSTER.address()
-    );
+    let p = embassy_stm32::init(clocks());
+    info!("lbv-master-fw: {} thrusters", board::THRUSTERS.len());
 
-    let mut config = i2c::Config::default();
-    config.frequency = BUS_SPEED;
-    config.timeout = TRANSFER_TIMEOUT;
-    // I2C2: SCL on PA9 (Arduino D8), SDA on PA8 (Arduino D7).
-    let bus = I2c::new(p.I2C2, p.PA9, p.PA8, p.DMA1_CH3, p.DMA1_CH4, Irqs, config);
+    let mut i2c_config = i2c::Config::default();
+    i2c_config.frequency = board::BUS_SPEED;
+    i2c_config.timeout = board::TRANSFER_TIMEOUT;
+    let bus1 = ThrusterBus {
+        i2c: I2c::new(p.I2C1, p.PA15, p.PB7, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config),
+        scl: Pin {
+            port: pac::GPIOA,
+            number: 15,
+        },
+        sda: Pin {
+            port: pac::GPIOB,
+            number: 7,
+        },
+    };
+    let bus2 = ThrusterBus {
+        i2c: I2c::new(p.I2C2, p.PA9, p.PA8, p.DMA1_CH3, p.DMA1_CH4, Irqs, i2c_config),
+        scl: Pin {
+            port: pac::GPIOA,
+            number: 9,
+        },
+        sda: Pin {
+            port: pac::GPIOA,
+            number: 8,
+        },
+    };
+    let bus3 = ThrusterBus {
+        i2c: I2c::new(p.I2C3, p.PC8, p.PC9, p.DMA1_CH5, p.DMA1_CH6, Irqs, i2c_config),
+        scl: Pin {
+            port: pac::GPIOC,
+            number: 8,
+        },
+        sda: Pin {
+            port: pac::GPIOC,
+            number: 9,
+        },
+    };
 
-    spawner.spawn(unwrap!(poll_task(bus)));
+    let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
+    can.set_bitrate(board::CAN_BITRATE);
+    let can = BatteryCan(can.into_normal_mode());
+
+    static TX_BUFFER: StaticCell<[u8; 512]> = StaticCell::new();
+    static RX_BUFFER: StaticCell<[u8; 256]> = StaticCell::new();
+    let mut uart_config = usart::Config::default();
+    uart_config.baudrate = board::CONSOLE_BAUD;
+    let uart = unwrap!(BufferedUart::new(
+        p.LPUART1,
+        p.PA3,
+        p.PA2,
+        TX_BUFFER.init([0; 512]),
+        RX_BUFFER.init([0; 256]),
+        Irqs,
+        uart_config,
+    ));
+    let (console_tx, console_rx) = uart.split();
+
+    for (index, bus) in [bus1, bus2, bus3].into_iter().enumerate() {
+        let index = index as u8;
+        if board::THRUSTERS.iter().any(|slot| slot.bus == index) {
+            spawner.spawn(unwrap!(bus_task(bus, index)));
+        }
+    }
+    spawner.spawn(unwrap!(battery_task(can)));
+    spawner.spawn(unwrap!(console_rx_task(console_rx)));
+    spawner.spawn(unwrap!(console_tx_task(console_tx)));
+    spawner.spawn(unwrap!(vehicle_task()));
+}
+
+/// 170 MHz from the internal 16 MHz oscillator (HSI / 4 * 85 / 2), and 85 MHz from PLL Q for FDCAN, whose
+/// default kernel clock (HSE) is not running on this board.
+fn clocks() -> embassy_stm32::Config {
+    let mut config = embassy_stm32::Config::default();
+    config.rcc.pll = Some(Pll {
+        source: PllSource::HSI,
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL85,
+        divp: None,
+        divq: Some(PllQDiv::DIV4),
+        divr: Some(PllRDiv::DIV2),
+    });
+    config.rcc.sys = Sysclk::PLL1_R;
+    config.rcc.boost = true;
+    config.rcc.mux.fdcansel = rcc::mux::Fdcansel::PLL1_Q;
+    config
+}
+
+#[embassy_executor::task(pool_size = 3)]
+async fn bus_task(mut bus: ThrusterBus, index: u8) -> ! {
+    thrusters::bus_task(&mut bus, index, board::THRUSTERS, &board::POLL, &SHARED).await
 }
 
 #[embassy_executor::task]
-async fn poll_task(mut bus: I2c<'static, Async, Master>) -> ! {
-    // No console link yet: the thruster is ordered to stay stopped.
-    let order = Order::STOP;
-    let mut ticker = Ticker::every(POLL_PERIOD);
-    let mut last = None;
-    loop {
-        let result = poll_thruster(&mut bus, THRUSTER, order).await;
-        // Log changes only: at 50 Hz a line per poll would drown the log.
-        if last.as_ref() != Some(&result) {
-            match &result {
-                Ok(status) => info!("status: {}", status),
-                Err(error) => warn!("poll failed: {}", error),
-            }
-        }
-        last = Some(result);
-        ticker.next().await;
-    }
+async fn battery_task(mut can: BatteryCan) -> ! {
+    battery::can_task(&mut can, &SHARED).await
+}
+
+#[embassy_executor::task]
+async fn console_rx_task(mut rx: BufferedUartRx<'static>) -> ! {
+    console::console_rx_task(&mut rx, &CONSOLE, &SHARED, &CONSOLE_STATS).await
+}
+
+#[embassy_executor::task]
+async fn console_tx_task(mut tx: BufferedUartTx<'static>) -> ! {
+    console::console_tx_task(&mut tx, &CONSOLE, &SHARED, &CONSOLE_STATS).await
+}
+
+#[embassy_executor::task]
+async fn vehicle_task() -> ! {
+    vehicle::vehicle_task(VehicleConfig::DEFAULT, &SHARED).await
 }

@@ -1,3 +1,702 @@
-//! (being written)
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct LinkHealth;
+//! Thruster polling: one task per I2C bus sends every thruster on it its order, reads its status and keeps its
+//! link health.
+//!
+//! The thruster table ([`ThrusterSlot`]s) is fixed at build time: each entry names the bus (I2C1..3), the
+//! TCA9548A channel when the thruster sits behind the multiplexer, and the controller family, so Legacy and
+//! SeaBotix controllers can share a bus. A thruster's index in the table is its index in `Shared::orders` and
+//! `Shared::thrusters`, and its number in console texts is that index plus one.
+//!
+//! The decisions live in small synchronous state machines that the virtual bench can reuse:
+//! - [`Failure`] classifies a failed poll (NACK, timeout, bus error, mux, decode errors);
+//! - [`Link`] keeps one thruster's health, its last valid status and its retry back-off;
+//! - [`FaultWatch`] turns the status's fault bits into changes worth a console text.
+//!
+//! [`bus_task`] wires them to a bus: every poll period it polls each due thruster once, in table order. A missing
+//! thruster (its first NACK) is taken offline at once and retried with a doubling back-off, skipped between
+//! retries so it never slows the others. After a timeout or a bus error the bus is recovered (up to 9 SCL pulses,
+//! then STOP) and polling goes on with the next thruster.
+
+use core::fmt::Write as _;
+
+use embassy_futures::yield_now;
+use embassy_time::{Duration, Instant, Timer};
+use embedded_hal::i2c::ErrorKind;
+use embedded_hal_async::i2c::I2c;
+use tmc_proto::{DecodeError, Family, Faults, Order, Status};
+
+use crate::poll::{PollError, poll_thruster};
+use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport};
+
+#[cfg(test)]
+mod sim;
+#[cfg(test)]
+mod tests;
+
+/// TCA9548A address (A0..A2 low).
+pub const MUX_ADDRESS: u8 = 0x70;
+
+/// TCA9548A channels.
+pub const MUX_CHANNELS: u8 = 8;
+
+/// Bus clock: the IDS's motherboard is a 100 kbit/s I2C master (IDS 6.4.1).
+pub const BUS_FREQUENCY_HZ: u32 = 100_000;
+
+/// Give up on a transfer stalled this long: SMBus's SCL-low timeout (embassy-stm32's default is 1 s).
+pub const BUS_TIMEOUT: Duration = Duration::from_millis(25);
+
+/// Bit times of one I2C transfer of `bytes` data bytes: START, the address byte and its ACK, 9 bits per data
+/// byte (8 + ACK), STOP. An order (4 bytes) is 47; a SeaBotix status read (7 bytes) 74; a Legacy one 47.
+pub const fn transfer_bits(bytes: u32) -> u32 {
+    1 + 9 + 9 * bytes + 1
+}
+
+/// Bit times of one poll of a `family` thruster: the order write and the status read.
+pub const fn poll_bits(family: Family) -> u32 {
+    transfer_bits(tmc_proto::ORDER_LEN as u32) + transfer_bits(family.status_len() as u32)
+}
+
+/// One thruster in the table: which bus (0 = I2C1, 1 = I2C2, 2 = I2C3), which TCA9548A channel (None when wired
+/// directly), which family.
+///
+/// The family fixes the address, so a bus holds at most one directly wired thruster per family, and a thruster
+/// of a family wired directly excludes that family from the bus's mux channels; [`check_table`] checks this.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct ThrusterSlot {
+    /// Bus index: 0 = I2C1, 1 = I2C2, 2 = I2C3.
+    pub bus: u8,
+    /// TCA9548A channel 0..=7 the thruster hangs on, or None when it is wired to the bus directly.
+    pub mux_channel: Option<u8>,
+    /// Controller family: sets the address and the status length.
+    pub family: tmc_proto::Family,
+}
+
+impl ThrusterSlot {
+    /// A thruster wired to `bus` directly.
+    pub const fn direct(bus: u8, family: Family) -> Self {
+        Self {
+            bus,
+            mux_channel: None,
+            family,
+        }
+    }
+
+    /// A thruster on TCA9548A channel `channel` of `bus`.
+    pub const fn behind_mux(bus: u8, channel: u8, family: Family) -> Self {
+        Self {
+            bus,
+            mux_channel: Some(channel),
+            family,
+        }
+    }
+}
+
+/// Buses a master has: I2C1..3.
+pub const BUSES: u8 = 3;
+
+/// What is wrong with a thruster table; thrusters are named by their index in the table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum TableError {
+    /// More thrusters than `Shared` has room for ([`MAX_THRUSTERS`]).
+    TooMany,
+    /// A bus index beyond I2C3.
+    Bus(usize),
+    /// A TCA9548A channel beyond 7.
+    Channel(usize),
+    /// Two thrusters would answer the same transfer: same bus, same family (hence address), and either the same
+    /// mux channel or one of them wired directly (a direct thruster hears every transfer of the bus).
+    SharedAddress(usize, usize),
+}
+
+/// Check a thruster table; meant for build time: `const _: () = assert!(check_table(&TABLE).is_ok());`.
+pub const fn check_table(table: &[ThrusterSlot]) -> Result<(), TableError> {
+    if table.len() > MAX_THRUSTERS {
+        return Err(TableError::TooMany);
+    }
+    let mut rest = table;
+    let mut i = 0;
+    while let [slot, tail @ ..] = rest {
+        if slot.bus >= BUSES {
+            return Err(TableError::Bus(i));
+        }
+        if let Some(channel) = slot.mux_channel
+            && channel >= MUX_CHANNELS
+        {
+            return Err(TableError::Channel(i));
+        }
+        let mut others = tail;
+        let mut j = i + 1;
+        while let [other, more @ ..] = others {
+            let same_wire = match (slot.mux_channel, other.mux_channel) {
+                (Some(a), Some(b)) => a == b,
+                _ => true,
+            };
+            if other.bus == slot.bus && other.family.address() == slot.family.address() && same_wire {
+                return Err(TableError::SharedAddress(i, j));
+            }
+            others = more;
+            j += 1;
+        }
+        rest = tail;
+        i += 1;
+    }
+    Ok(())
+}
+
+/// Link health and error counters of one thruster. Counters saturate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct LinkHealth {
+    /// Answering: true from the first good poll until the thruster is taken offline.
+    pub online: bool,
+    /// Failed polls since the last good one.
+    pub consecutive_failures: u16,
+    /// Polls attempted, retries of an offline thruster included.
+    pub polls: u32,
+    /// Polls that returned a valid status.
+    pub good: u32,
+    /// The thruster did not acknowledge (missing or unpowered).
+    pub nack: u32,
+    /// A transfer timed out (SCL held low past [`BUS_TIMEOUT`]).
+    pub timeout: u32,
+    /// The status's checksum did not match.
+    pub bad_checksum: u32,
+    /// The status's message type was not the family's.
+    pub bad_type: u32,
+    /// The status had the wrong length.
+    pub bad_length: u32,
+    /// A status field was out of range (the speed byte).
+    pub bad_range: u32,
+    /// Bus error, arbitration loss, overrun, or a failed mux selection.
+    pub bus_error: u32,
+    /// Bus recoveries run after this thruster's timeouts and bus errors.
+    pub recoveries: u32,
+}
+
+/// Clearing a stuck bus: the binding clocks SCL up to 9 times until SDA is released, then sends STOP and
+/// re-initialises the peripheral.
+#[allow(async_fn_in_trait)]
+pub trait BusRecovery {
+    /// Run the recovery; true when SDA is high afterwards.
+    async fn recover(&mut self) -> bool;
+}
+
+/// How often thrusters are polled and how offline ones are retried.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct PollConfig {
+    /// Per-thruster poll period; `Duration::from_ticks(0)` polls back to back, limited only by the bus.
+    pub period: Duration,
+    /// First retry of an offline thruster comes this long after it went offline.
+    pub retry_min: Duration,
+    /// The retry interval doubles after each failed retry, up to this.
+    pub retry_max: Duration,
+    /// Consecutive failures other than a NACK before a thruster is taken offline (a NACK does it at once).
+    pub offline_after: u16,
+}
+
+impl PollConfig {
+    /// 20 ms (50 Hz per thruster); retries 100 ms doubling up to 2 s; offline after 3 failures in a row.
+    pub const DEFAULT: PollConfig = PollConfig {
+        period: Duration::from_millis(20),
+        retry_min: Duration::from_millis(100),
+        retry_max: Duration::from_secs(2),
+        offline_after: 3,
+    };
+}
+
+impl Default for PollConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Why one poll failed, as the link health counts it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Failure {
+    /// The thruster did not acknowledge: it is missing or unpowered.
+    Nack,
+    /// The transfer timed out. embedded-hal has no timeout kind: embassy-stm32 reports its timeout as
+    /// `ErrorKind::Other` (as it does its unused PEC and zero-length errors), so every `Other` counts here.
+    Timeout,
+    /// Bus error, arbitration loss or overrun: something disturbed SDA or SCL.
+    Bus,
+    /// Selecting the thruster's TCA9548A channel failed (or the table names a channel the mux does not have).
+    /// Counted as a bus error.
+    Mux,
+    /// The status had the wrong length.
+    BadLength,
+    /// The status's MT byte was not the family's.
+    BadType,
+    /// The status's checksum did not match.
+    BadChecksum,
+    /// A status field was out of range.
+    BadRange,
+}
+
+impl Failure {
+    /// Class of a bus error, by its embedded-hal kind.
+    pub fn of_bus_error<E: embedded_hal::i2c::Error>(error: &E) -> Failure {
+        match error.kind() {
+            ErrorKind::NoAcknowledge(_) => Failure::Nack,
+            ErrorKind::Other => Failure::Timeout,
+            _ => Failure::Bus,
+        }
+    }
+
+    /// Class of a status that failed to decode.
+    pub const fn of_decode_error(error: DecodeError) -> Failure {
+        match error {
+            DecodeError::Length { .. } => Failure::BadLength,
+            DecodeError::MessageType { .. } => Failure::BadType,
+            DecodeError::Checksum { .. } => Failure::BadChecksum,
+            DecodeError::SpeedOutOfRange(_) => Failure::BadRange,
+        }
+    }
+
+    /// Class of a failed [`poll_thruster`].
+    pub fn of_poll_error<E: embedded_hal::i2c::Error>(error: &PollError<E>) -> Failure {
+        match error {
+            PollError::Order(error) | PollError::Status(error) => Failure::of_bus_error(error),
+            PollError::Decode(error) => Failure::of_decode_error(*error),
+        }
+    }
+
+    /// Whether the bus may be left stuck, so a recovery should follow.
+    pub const fn needs_recovery(self) -> bool {
+        matches!(self, Failure::Timeout | Failure::Bus | Failure::Mux)
+    }
+
+    /// Short words for console texts.
+    pub const fn reason(self) -> &'static str {
+        match self {
+            Failure::Nack => "no answer",
+            Failure::Timeout => "timeout",
+            Failure::Bus => "bus error",
+            Failure::Mux => "mux error",
+            Failure::BadLength => "bad length",
+            Failure::BadType => "bad message type",
+            Failure::BadChecksum => "bad checksum",
+            Failure::BadRange => "value out of range",
+        }
+    }
+}
+
+/// Where a thruster's link stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum LinkState {
+    /// Not polled yet, or only failures short of the offline threshold so far.
+    Unknown,
+    /// Answered; any failures since are short of the offline threshold.
+    Online,
+    /// Missing or failing: polled only when its retry is due.
+    Offline,
+}
+
+/// A change of a thruster's link worth telling the console.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum LinkChange {
+    /// The first good poll after start-up or after being offline.
+    Online,
+    /// Taken offline, for this last failure.
+    Offline(Failure),
+}
+
+/// One thruster's link: health counters, the last valid status and the retry schedule while offline.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Link {
+    health: LinkHealth,
+    state: LinkState,
+    status: Option<Status>,
+    /// While offline: when the next retry is due.
+    retry_at: Instant,
+    /// While offline: the interval after the next failed retry.
+    next_backoff: Duration,
+    retry_min: Duration,
+    retry_max: Duration,
+    offline_after: u16,
+}
+
+impl Link {
+    /// A thruster not polled yet.
+    pub const fn new(config: &PollConfig) -> Self {
+        Self {
+            health: LinkHealth {
+                online: false,
+                consecutive_failures: 0,
+                polls: 0,
+                good: 0,
+                nack: 0,
+                timeout: 0,
+                bad_checksum: 0,
+                bad_type: 0,
+                bad_length: 0,
+                bad_range: 0,
+                bus_error: 0,
+                recoveries: 0,
+            },
+            state: LinkState::Unknown,
+            status: None,
+            retry_at: Instant::from_ticks(0),
+            next_backoff: config.retry_min,
+            retry_min: config.retry_min,
+            retry_max: config.retry_max,
+            offline_after: config.offline_after,
+        }
+    }
+
+    /// Health and counters.
+    pub const fn health(&self) -> LinkHealth {
+        self.health
+    }
+
+    /// Where the link stands.
+    pub const fn state(&self) -> LinkState {
+        self.state
+    }
+
+    /// The last valid status, kept across failures.
+    pub const fn status(&self) -> Option<Status> {
+        self.status
+    }
+
+    /// What the bus task publishes.
+    pub const fn report(&self) -> ThrusterReport {
+        ThrusterReport {
+            health: self.health,
+            status: self.status,
+        }
+    }
+
+    /// When an offline thruster is next retried; None while it is polled every period.
+    pub const fn retry_at(&self) -> Option<Instant> {
+        match self.state {
+            LinkState::Offline => Some(self.retry_at),
+            LinkState::Unknown | LinkState::Online => None,
+        }
+    }
+
+    /// Whether to poll the thruster in the cycle starting at `now`: always, unless it is offline and its retry
+    /// is not due yet.
+    pub fn due(&self, now: Instant) -> bool {
+        self.retry_at().is_none_or(|at| now >= at)
+    }
+
+    /// Count a poll's result; `now` is the start of the poll cycle, which retries are scheduled from.
+    pub fn on_result<E: embedded_hal::i2c::Error>(
+        &mut self,
+        now: Instant,
+        result: &Result<Status, PollError<E>>,
+    ) -> Option<LinkChange> {
+        self.on_outcome(now, result.as_ref().copied().map_err(Failure::of_poll_error))
+    }
+
+    /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
+    pub fn on_outcome(&mut self, now: Instant, outcome: Result<Status, Failure>) -> Option<LinkChange> {
+        let health = &mut self.health;
+        health.polls = health.polls.saturating_add(1);
+        match outcome {
+            Ok(status) => {
+                health.good = health.good.saturating_add(1);
+                health.consecutive_failures = 0;
+                health.online = true;
+                self.status = Some(status);
+                self.next_backoff = self.retry_min;
+                let was = core::mem::replace(&mut self.state, LinkState::Online);
+                (was != LinkState::Online).then_some(LinkChange::Online)
+            }
+            Err(failure) => {
+                let counter = match failure {
+                    Failure::Nack => &mut health.nack,
+                    Failure::Timeout => &mut health.timeout,
+                    Failure::Bus | Failure::Mux => &mut health.bus_error,
+                    Failure::BadLength => &mut health.bad_length,
+                    Failure::BadType => &mut health.bad_type,
+                    Failure::BadChecksum => &mut health.bad_checksum,
+                    Failure::BadRange => &mut health.bad_range,
+                };
+                *counter = counter.saturating_add(1);
+                health.consecutive_failures = health.consecutive_failures.saturating_add(1);
+                match self.state {
+                    LinkState::Offline => {
+                        // A failed retry: wait longer before the next.
+                        self.retry_at = now + self.next_backoff;
+                        self.next_backoff = self.doubled(self.next_backoff);
+                        None
+                    }
+                    LinkState::Unknown | LinkState::Online => {
+                        let missing = failure == Failure::Nack;
+                        if missing || health.consecutive_failures >= self.offline_after.max(1) {
+                            health.online = false;
+                            self.state = LinkState::Offline;
+                            let first = self.retry_min.min(self.retry_max);
+                            self.retry_at = now + first;
+                            self.next_backoff = self.doubled(first);
+                            Some(LinkChange::Offline(failure))
+                        } else {
+                            None
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Count a bus recovery run after this thruster's failure.
+    pub fn on_recovery(&mut self) {
+        self.health.recoveries = self.health.recoveries.saturating_add(1);
+    }
+
+    fn doubled(&self, interval: Duration) -> Duration {
+        Duration::from_ticks(interval.as_ticks().saturating_mul(2)).min(self.retry_max)
+    }
+}
+
+/// A change of a thruster's fault bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct FaultChange {
+    /// Faults newly set.
+    pub raised: Faults,
+    /// Faults newly cleared.
+    pub cleared: Faults,
+    /// All faults now set.
+    pub now: Faults,
+}
+
+/// The fault bits last reported by one thruster, to report only their changes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct FaultWatch {
+    faults: Faults,
+}
+
+impl FaultWatch {
+    /// No fault seen yet.
+    pub const fn new() -> Self {
+        Self { faults: Faults::NONE }
+    }
+
+    /// The faults last reported.
+    pub const fn faults(&self) -> Faults {
+        self.faults
+    }
+
+    /// Take the faults of a valid status; returns what changed, if anything.
+    pub fn update(&mut self, faults: Faults) -> Option<FaultChange> {
+        let before = core::mem::replace(&mut self.faults, faults);
+        (before != faults).then_some(FaultChange {
+            raised: faults.difference(before),
+            cleared: before.difference(faults),
+            now: faults,
+        })
+    }
+}
+
+/// Severity of one fault flag: Critical when the controller stops for it, Warning for water on a SeaBotix
+/// controller, which only warns and keeps driving (IDS 8.4 remarks).
+pub fn fault_severity(family: Family, fault: Faults) -> Severity {
+    if family == Family::SeaBotix && fault == Faults::WATER {
+        Severity::Warning
+    } else {
+        Severity::Critical
+    }
+}
+
+/// The console text for a link change of thruster `index` (0-based; texts count from 1).
+pub fn link_text(index: usize, change: LinkChange) -> (Severity, Text) {
+    let number = index.saturating_add(1);
+    match change {
+        LinkChange::Online => (Severity::Info, text(format_args!("T{number} online"))),
+        LinkChange::Offline(failure) => (
+            Severity::Warning,
+            text(format_args!("T{number} offline: {}", failure.reason())),
+        ),
+    }
+}
+
+/// The console texts for a fault change of thruster `index` (0-based): one per cleared fault, or "faults
+/// cleared" when none is left, then one per raised fault.
+pub fn fault_texts(index: usize, family: Family, change: FaultChange) -> impl Iterator<Item = (Severity, Text)> {
+    let number = index.saturating_add(1);
+    let all_clear = change.now.is_empty() && !change.cleared.is_empty();
+    let cleared_all = all_clear.then(|| (Severity::Notice, text(format_args!("T{number} faults cleared"))));
+    let cleared = change.cleared.iter().filter(move |_| !all_clear).map(move |fault| {
+        (
+            Severity::Notice,
+            text(format_args!("T{number} fault cleared: {}", fault.name())),
+        )
+    });
+    let raised = change.raised.iter().map(move |fault| {
+        (
+            fault_severity(family, fault),
+            text(format_args!("T{number} fault: {}", fault.name())),
+        )
+    });
+    cleared_all.into_iter().chain(cleared).chain(raised)
+}
+
+/// Format a text; one that does not fit is cut short.
+fn text(args: core::fmt::Arguments<'_>) -> Text {
+    let mut text = Text::new();
+    let _ = text.write_fmt(args);
+    text
+}
+
+/// The TCA9548A control byte a slot needs before its poll: `Ok(Some(mask))` to select its channel, `Ok(None)`
+/// for a thruster wired directly (any selection will do), `Err(())` for a channel the mux does not have.
+fn mux_mask(slot: &ThrusterSlot) -> Result<Option<u8>, ()> {
+    match slot.mux_channel {
+        Some(channel) if channel < MUX_CHANNELS => Ok(Some(1 << channel)),
+        Some(_) => Err(()),
+        None => Ok(None),
+    }
+}
+
+/// Select the slot's mux channel if needed, then poll the thruster.
+///
+/// `selected` is the control byte last written to the mux, None when unknown; it is forgotten after any error so
+/// the next poll writes it again.
+async fn poll_slot<B: I2c>(
+    bus: &mut B,
+    slot: &ThrusterSlot,
+    selected: &mut Option<u8>,
+    order: Order,
+) -> Result<Status, Failure> {
+    let mask = mux_mask(slot).map_err(|()| Failure::Mux)?;
+    if let Some(mask) = mask
+        && *selected != Some(mask)
+    {
+        *selected = None;
+        bus.write(MUX_ADDRESS, &[mask]).await.map_err(|_| Failure::Mux)?;
+        *selected = Some(mask);
+    }
+    let result = poll_thruster(bus, slot.family, order).await;
+    result.map_err(|error| {
+        *selected = None;
+        Failure::of_poll_error(&error)
+    })
+}
+
+/// What one bus task keeps between cycles.
+struct BusState {
+    links: [Link; MAX_THRUSTERS],
+    faults: [FaultWatch; MAX_THRUSTERS],
+    /// The mux control byte last written, None when unknown.
+    mux: Option<u8>,
+}
+
+impl BusState {
+    /// Poll every due thruster of bus `bus_index` once, in table order; `cycle` is the cycle's start. Returns
+    /// how many were polled.
+    async fn cycle<B: I2c + BusRecovery>(
+        &mut self,
+        bus: &mut B,
+        bus_index: u8,
+        table: &[ThrusterSlot],
+        cycle: Instant,
+        shared: &Shared,
+    ) -> usize {
+        // STOP until the vehicle has published orders.
+        let orders = shared.orders.try_get().unwrap_or([Order::STOP; MAX_THRUSTERS]);
+        let mut polled = 0;
+        for (index, slot) in table.iter().enumerate() {
+            if slot.bus != bus_index {
+                continue;
+            }
+            let (Some(link), Some(faults), Some(order), Some(report)) = (
+                self.links.get_mut(index),
+                self.faults.get_mut(index),
+                orders.get(index),
+                shared.thrusters.get(index),
+            ) else {
+                // Beyond MAX_THRUSTERS: nowhere to publish it.
+                continue;
+            };
+            if !link.due(cycle) {
+                continue;
+            }
+            polled += 1;
+            let outcome = poll_slot(bus, slot, &mut self.mux, *order).await;
+            let change = link.on_outcome(cycle, outcome);
+            // A bad channel number in the table never reached the bus: nothing to recover.
+            let on_bus = mux_mask(slot).is_ok();
+            if let Err(failure) = outcome
+                && failure.needs_recovery()
+                && on_bus
+            {
+                self.mux = None;
+                // Whether SDA came free or not, go on: the next transfer tells, and recovers again if needed.
+                let _ = bus.recover().await;
+                link.on_recovery();
+            }
+            report.sender().send(link.report());
+            if let Some(change) = change {
+                let (severity, text) = link_text(index, change);
+                shared.say(severity, text);
+            }
+            if let Ok(status) = outcome
+                && let Some(change) = faults.update(status.faults())
+            {
+                for (severity, text) in fault_texts(index, slot.family, change) {
+                    shared.say(severity, text);
+                }
+            }
+        }
+        polled
+    }
+
+    /// The earliest retry of an offline thruster of the bus.
+    fn next_retry(&self, bus_index: u8, table: &[ThrusterSlot]) -> Option<Instant> {
+        table
+            .iter()
+            .zip(self.links.iter())
+            .filter(|(slot, _)| slot.bus == bus_index)
+            .filter_map(|(_, link)| link.retry_at())
+            .min()
+    }
+}
+
+/// Poll every thruster of `table` whose `bus` is `bus_index`, forever. The thruster's index in `table` is its
+/// index in `shared.thrusters` and in the orders array.
+///
+/// Every `config.period` each due thruster of the bus is polled once, in table order, on a fixed schedule (like
+/// embassy's `Ticker`; after an overrun the next cycle starts at once and the schedule restarts from there). With
+/// a zero period the cycles run back to back, yielding between cycles so other tasks run, and sleeping until the
+/// next retry when every thruster of the bus is offline. Each poll's report goes to `shared.thrusters[i]`; link
+/// and fault changes go to the console as texts.
+pub async fn bus_task<B>(bus: &mut B, bus_index: u8, table: &[ThrusterSlot], config: &PollConfig, shared: &Shared) -> !
+where
+    B: I2c + BusRecovery,
+{
+    let mut state = BusState {
+        links: [Link::new(config); MAX_THRUSTERS],
+        faults: [FaultWatch::new(); MAX_THRUSTERS],
+        mux: None,
+    };
+    let back_to_back = config.period == Duration::from_ticks(0);
+    let mut next = Instant::now();
+    loop {
+        let cycle = if back_to_back { Instant::now() } else { next };
+        let polled = state.cycle(bus, bus_index, table, cycle, shared).await;
+        if back_to_back {
+            if polled > 0 {
+                yield_now().await;
+            } else if let Some(at) = state.next_retry(bus_index, table) {
+                Timer::at(at).await;
+            } else {
+                // No thruster on this bus.
+                core::future::pending::<()>().await;
+            }
+        } else {
+            next += config.period;
+            next = next.max(Instant::now());
+            Timer::at(next).await;
+        }
+    }
+}

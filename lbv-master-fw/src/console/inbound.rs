@@ -1,0 +1,349 @@
+//! What the console's MAVLink messages ask for: one [`Command`] per message addressed to this vehicle.
+
+use embassy_time::Duration;
+use mavlink_core::MessageData;
+use mavlink_core::error::ParserError;
+
+use super::ConsoleConfig;
+use super::frame::{Frame, Version};
+use super::lbv::{
+    BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_LONG_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA,
+    HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
+    PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+};
+use crate::shared::{Command, ManualInput};
+
+/// MAV_CMD_COMPONENT_ARM_DISARM.
+pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
+/// MAV_CMD_DO_MOTOR_TEST.
+pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
+/// MOTOR_TEST_THROTTLE_PERCENT, the only motor test throttle type supported.
+const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
+/// Longest motor test run.
+const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
+
+/// Message id and CRC_EXTRA of every message of the dialect.
+const MESSAGES: [(u32, u8); 13] = [
+    (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
+    (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
+    (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
+    (PARAM_REQUEST_LIST_DATA::ID, PARAM_REQUEST_LIST_DATA::EXTRA_CRC),
+    (PARAM_VALUE_DATA::ID, PARAM_VALUE_DATA::EXTRA_CRC),
+    (PARAM_SET_DATA::ID, PARAM_SET_DATA::EXTRA_CRC),
+    (MANUAL_CONTROL_DATA::ID, MANUAL_CONTROL_DATA::EXTRA_CRC),
+    (COMMAND_LONG_DATA::ID, COMMAND_LONG_DATA::EXTRA_CRC),
+    (COMMAND_ACK_DATA::ID, COMMAND_ACK_DATA::EXTRA_CRC),
+    (BATTERY_STATUS_DATA::ID, BATTERY_STATUS_DATA::EXTRA_CRC),
+    (STATUSTEXT_DATA::ID, STATUSTEXT_DATA::EXTRA_CRC),
+    (ESC_TELEMETRY_1_TO_4_DATA::ID, ESC_TELEMETRY_1_TO_4_DATA::EXTRA_CRC),
+    (ESC_TELEMETRY_5_TO_8_DATA::ID, ESC_TELEMETRY_5_TO_8_DATA::EXTRA_CRC),
+];
+
+/// CRC_EXTRA of a message id of the dialect; `None` for any other id.
+pub fn extra_crc(message_id: u32) -> Option<u8> {
+    MESSAGES.iter().find(|(id, _)| *id == message_id).map(|&(_, crc)| crc)
+}
+
+/// A decoded message that asks something of the vehicle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Inbound {
+    /// The command for the vehicle task.
+    pub command: Command,
+    /// Sender (system, component) of a COMMAND_LONG, which its COMMAND_ACK is addressed to.
+    pub commander: Option<(u8, u8)>,
+}
+
+impl From<Command> for Inbound {
+    fn from(command: Command) -> Self {
+        Self {
+            command,
+            commander: None,
+        }
+    }
+}
+
+/// Decode a CRC-valid frame. `Ok(None)` for messages that ask nothing of this vehicle: telemetry from other
+/// systems, messages addressed to another system or component, HEARTBEATs that are not from a ground station.
+/// `Err` when the payload does not decode (an enum value that does not exist).
+///
+/// Mapping:
+/// - HEARTBEAT with type MAV_TYPE_GCS, from any system: [`Command::Heartbeat`]. Other components' heartbeats
+///   (a companion computer, another vehicle, our own echo) do not prove that the pilot is there.
+/// - MANUAL_CONTROL to our system (or 0): [`Command::Manual`]; x, y, r clamped to -1000..=1000, z to 0..=1000
+///   (ArduSub's 500-neutral heave); an axis sent as INT16_MAX ("invalid") reads as neutral.
+/// - COMMAND_LONG to our system and component (or 0): 400 gives [`Command::Arm`] (arm when param1 is exactly 1,
+///   disarm otherwise); 209 gives [`Command::MotorTest`] for throttle type MOTOR_TEST_THROTTLE_PERCENT (param1
+///   motor number, param3 percent clamped to -100..=100, param4 seconds clamped to 0..=10, NaN reads as 0), and
+///   [`Command::Unsupported`] for the other throttle types; any other command gives [`Command::Unsupported`].
+///   The vehicle task answers every one with a COMMAND_ACK.
+/// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
+///   command; the value is taken as a float whatever param_type says.
+pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Inbound>, ParserError> {
+    let version = match frame.version {
+        Version::V1 => mavlink_core::MavlinkVersion::V1,
+        Version::V2 => mavlink_core::MavlinkVersion::V2,
+    };
+    let payload = frame.payload;
+    let for_us = |system: u8, component: u8| {
+        (system == 0 || system == config.system_id) && (component == 0 || component == config.component_id)
+    };
+    let inbound = match frame.message_id {
+        HEARTBEAT_DATA::ID => {
+            let m = HEARTBEAT_DATA::deser(version, payload)?;
+            (m.mavtype == MavType::MAV_TYPE_GCS).then_some(Command::Heartbeat.into())
+        }
+        MANUAL_CONTROL_DATA::ID => {
+            let m = MANUAL_CONTROL_DATA::deser(version, payload)?;
+            (m.target == 0 || m.target == config.system_id).then(|| Command::Manual(manual_input(&m)).into())
+        }
+        COMMAND_LONG_DATA::ID => {
+            let m = COMMAND_LONG_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then(|| Inbound {
+                command: command_long(&m),
+                commander: Some((frame.system_id, frame.component_id)),
+            })
+        }
+        PARAM_REQUEST_LIST_DATA::ID => {
+            let m = PARAM_REQUEST_LIST_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then_some(Command::ParamRequestList.into())
+        }
+        PARAM_REQUEST_READ_DATA::ID => {
+            let m = PARAM_REQUEST_READ_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then(|| {
+                Command::ParamRequestRead {
+                    id: *m.param_id,
+                    index: m.param_index,
+                }
+                .into()
+            })
+        }
+        PARAM_SET_DATA::ID => {
+            let m = PARAM_SET_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then(|| {
+                Command::ParamSet {
+                    id: *m.param_id,
+                    value: m.param_value,
+                }
+                .into()
+            })
+        }
+        _ => None,
+    };
+    Ok(inbound)
+}
+
+/// The sticks of a MANUAL_CONTROL, with invalid axes neutral.
+fn manual_input(m: &MANUAL_CONTROL_DATA) -> ManualInput {
+    let axis = |v: i16| if v == i16::MAX { 0 } else { v.clamp(-1000, 1000) };
+    ManualInput {
+        x: axis(m.x),
+        y: axis(m.y),
+        z: if m.z == i16::MAX { 500 } else { m.z.clamp(0, 1000) },
+        r: axis(m.r),
+    }
+}
+
+/// The command a COMMAND_LONG asks for.
+fn command_long(m: &COMMAND_LONG_DATA) -> Command {
+    match m.command {
+        MAV_CMD_COMPONENT_ARM_DISARM => Command::Arm(m.param1 == 1.0),
+        MAV_CMD_DO_MOTOR_TEST if m.param2 == MOTOR_TEST_THROTTLE_PERCENT => {
+            // Float to integer casts saturate and read NaN as 0; `max`/`min` would turn NaN into the bound.
+            let percent = if m.param3.is_nan() {
+                0
+            } else {
+                m.param3.clamp(-100.0, 100.0) as i8
+            };
+            let seconds = if m.param4.is_nan() {
+                0.0
+            } else {
+                m.param4.clamp(0.0, MOTOR_TEST_MAX_SECONDS)
+            };
+            Command::MotorTest {
+                motor: m.param1 as u8,
+                percent,
+                duration: Duration::from_millis(u64::from((seconds * 1000.0) as u32)),
+            }
+        }
+        command => Command::Unsupported { command },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(message_id: u32, payload: &[u8]) -> Frame<'_> {
+        Frame {
+            version: Version::V2,
+            sequence: 0,
+            system_id: 255,
+            component_id: 190,
+            message_id,
+            payload,
+        }
+    }
+
+    fn encode<D: MessageData>(m: &D) -> Vec<u8> {
+        let mut buf = [0u8; 255];
+        let len = m.ser(mavlink_core::MavlinkVersion::V2, &mut buf);
+        buf[..len].to_vec()
+    }
+
+    fn long(command: u16, params: [f32; 4]) -> COMMAND_LONG_DATA {
+        COMMAND_LONG_DATA {
+            target_system: 1,
+            target_component: 1,
+            command,
+            confirmation: 0,
+            param1: params[0],
+            param2: params[1],
+            param3: params[2],
+            param4: params[3],
+            param5: 0.0,
+            param6: 0.0,
+            param7: 0.0,
+        }
+    }
+
+    fn decode_long(m: &COMMAND_LONG_DATA) -> Option<Command> {
+        let payload = encode(m);
+        decode(&frame(COMMAND_LONG_DATA::ID, &payload), &ConsoleConfig::DEFAULT)
+            .unwrap()
+            .map(|i| i.command)
+    }
+
+    #[test]
+    fn every_message_has_its_official_crc_extra() {
+        // From the official common.xml / ardupilotmega.xml (pymavlink's tables).
+        for (id, crc) in [
+            (0, 50),
+            (1, 124),
+            (20, 214),
+            (21, 159),
+            (22, 220),
+            (23, 168),
+            (69, 243),
+            (76, 152),
+            (77, 143),
+            (147, 154),
+            (253, 83),
+            (11030, 144),
+            (11031, 133),
+        ] {
+            assert_eq!(extra_crc(id), Some(crc), "message {id}");
+        }
+        assert_eq!(extra_crc(30), None);
+    }
+
+    #[test]
+    fn motor_test_parameters_are_clamped() {
+        let test = |p: [f32; 4]| decode_long(&long(MAV_CMD_DO_MOTOR_TEST, p));
+        assert_eq!(
+            test([3.0, 0.0, 25.0, 2.5]),
+            Some(Command::MotorTest {
+                motor: 3,
+                percent: 25,
+                duration: Duration::from_millis(2500)
+            })
+        );
+        assert_eq!(
+            test([1.0, 0.0, -250.0, 99.0]),
+            Some(Command::MotorTest {
+                motor: 1,
+                percent: -100,
+                duration: Duration::from_secs(10)
+            })
+        );
+        assert_eq!(
+            test([f32::NAN, 0.0, f32::NAN, f32::NAN]),
+            Some(Command::MotorTest {
+                motor: 0,
+                percent: 0,
+                duration: Duration::from_secs(0)
+            })
+        );
+        assert_eq!(
+            test([1.0, 0.0, 10.0, -3.0]),
+            Some(Command::MotorTest {
+                motor: 1,
+                percent: 10,
+                duration: Duration::from_secs(0)
+            })
+        );
+        // PWM throttle type: not supported.
+        assert_eq!(
+            test([1.0, 1.0, 1500.0, 1.0]),
+            Some(Command::Unsupported { command: 209 })
+        );
+    }
+
+    #[test]
+    fn arm_disarm_and_unknown_commands() {
+        assert_eq!(decode_long(&long(400, [1.0, 0.0, 0.0, 0.0])), Some(Command::Arm(true)));
+        assert_eq!(decode_long(&long(400, [0.0, 0.0, 0.0, 0.0])), Some(Command::Arm(false)));
+        assert_eq!(
+            decode_long(&long(400, [f32::NAN, 0.0, 0.0, 0.0])),
+            Some(Command::Arm(false))
+        );
+        assert_eq!(
+            decode_long(&long(520, [0.0; 4])),
+            Some(Command::Unsupported { command: 520 })
+        );
+    }
+
+    #[test]
+    fn commands_for_other_systems_or_components_are_ignored() {
+        let mut m = long(400, [1.0, 0.0, 0.0, 0.0]);
+        m.target_system = 2;
+        assert_eq!(decode_long(&m), None);
+        m.target_system = 0;
+        assert_eq!(decode_long(&m), Some(Command::Arm(true)));
+        m.target_component = 154;
+        assert_eq!(decode_long(&m), None);
+        m.target_component = 0;
+        assert_eq!(decode_long(&m), Some(Command::Arm(true)));
+    }
+
+    #[test]
+    fn manual_control_axes() {
+        let m = MANUAL_CONTROL_DATA {
+            target: 1,
+            x: 2000,
+            y: -2000,
+            z: i16::MAX,
+            r: i16::MAX,
+            ..MANUAL_CONTROL_DATA::DEFAULT
+        };
+        let payload = encode(&m);
+        let got = decode(&frame(MANUAL_CONTROL_DATA::ID, &payload), &ConsoleConfig::DEFAULT).unwrap();
+        assert_eq!(
+            got.map(|i| i.command),
+            Some(Command::Manual(ManualInput {
+                x: 1000,
+                y: -1000,
+                z: 500,
+                r: 0
+            }))
+        );
+        let other = encode(&MANUAL_CONTROL_DATA { target: 7, ..m });
+        assert_eq!(
+            decode(&frame(MANUAL_CONTROL_DATA::ID, &other), &ConsoleConfig::DEFAULT).unwrap(),
+            None
+        );
+    }
+
+    #[test]
+    fn a_bad_enum_value_is_an_error_not_a_panic() {
+        // HEARTBEAT with type 250 (no such MAV_TYPE).
+        let payload = [0, 0, 0, 0, 250, 8, 0, 0, 3];
+        assert!(decode(&frame(HEARTBEAT_DATA::ID, &payload), &ConsoleConfig::DEFAULT).is_err());
+        // Any length, any bytes: no panic.
+        for len in 0..60 {
+            let payload: Vec<u8> = (0..len).map(|i| (i * 37 + 11) as u8).collect();
+            for (id, _) in MESSAGES {
+                let _ = decode(&frame(id, &payload), &ConsoleConfig::DEFAULT);
+            }
+        }
+    }
+}

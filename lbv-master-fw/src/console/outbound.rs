@@ -1,0 +1,643 @@
+//! The console's outgoing MAVLink messages, built from the vehicle's state, and their MAVLink 2 framing.
+//!
+//! Every field of every message is set here on purpose: the generated `Default` of a bit-flag field is its first
+//! flag, not empty (a default HEARTBEAT would claim to be armed).
+
+use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
+use tmc_proto::{MaxPower, MotorKind, Status};
+
+use super::lbv::{
+    BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, HEARTBEAT_DATA,
+    MavAutopilot, MavBatteryChargeState, MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType,
+    MavModeFlag, MavParamType, MavResult, MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended,
+    MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+};
+use crate::battery::BatterySummary;
+use crate::shared::{AckResult, MAX_THRUSTERS, ParamId, Severity, Text, ThrusterReport, VehicleState};
+use bat_proto::BmsAlarms;
+use tmc_proto::Faults;
+
+/// ArduSub's MANUAL flight mode, reported as HEARTBEAT.custom_mode.
+pub const ARDUSUB_MODE_MANUAL: u32 = 19;
+/// HEARTBEAT.mavlink_version: MAVLink protocol version 3 of the XML definitions.
+const MAVLINK_VERSION: u8 = 3;
+
+/// The latest thruster reports, one per configured thruster (`None`: not configured or not yet heard).
+pub type Reports = [Option<ThrusterReport>; MAX_THRUSTERS];
+
+/// HEARTBEAT: a submarine with an ArduPilot autopilot (so QGroundControl shows its ArduSub views and pilots see
+/// the familiar mode), in ArduSub's MANUAL mode, armed or not as the vehicle task says (not armed when it has not
+/// said anything yet).
+pub fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
+    let armed = vehicle.is_some_and(|v| v.armed);
+    let mut base_mode =
+        MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MavModeFlag::MAV_MODE_FLAG_MANUAL_INPUT_ENABLED;
+    base_mode.set(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED, armed);
+    HEARTBEAT_DATA {
+        custom_mode: ARDUSUB_MODE_MANUAL,
+        mavtype: MavType::MAV_TYPE_SUBMARINE,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA,
+        base_mode,
+        system_status: if armed {
+            MavState::MAV_STATE_ACTIVE
+        } else {
+            MavState::MAV_STATE_STANDBY
+        },
+        mavlink_version: MAVLINK_VERSION,
+    }
+}
+
+/// Console link quality over the last telemetry period, for SYS_STATUS.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LinkQuality {
+    /// Corrupt frames as a share of all frames received, in 0.01 % (0..=10000).
+    pub drop_rate: u16,
+    /// Corrupt frames since start (wrapping).
+    pub errors: u16,
+}
+
+/// The battery's fresh reading: `None` when there is none or it is stale.
+fn fresh(battery: Option<&BatterySummary>) -> Option<&BatterySummary> {
+    battery.filter(|b| !b.stale && b.info.is_some())
+}
+
+/// Whether the battery reports an alarm or a DCDC fault.
+fn battery_faulty(battery: &BatterySummary) -> bool {
+    battery.alarms.is_some_and(|a| !a.is_empty()) || battery.status.is_some_and(|s| s.has_fault())
+}
+
+/// Thruster link errors of every kind, summed.
+fn link_errors(report: &ThrusterReport) -> u32 {
+    let h = &report.health;
+    [
+        h.nack,
+        h.timeout,
+        h.bad_checksum,
+        h.bad_type,
+        h.bad_length,
+        h.bad_range,
+        h.bus_error,
+    ]
+    .into_iter()
+    .fold(0u32, u32::wrapping_add)
+}
+
+/// SYS_STATUS.
+///
+/// - Sensors: MOTOR_OUTPUTS (present and enabled when thrusters are configured, healthy when every configured
+///   thruster is online), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
+///   enabled always, healthy with a fresh reading and no BMS alarm nor DCDC fault) and, in the extended bits,
+///   LEAK (healthy when no thruster reports its water sensor).
+/// - voltage_battery mV, current_battery cA, battery_remaining %: from a fresh battery reading, else the
+///   "unknown" values UINT16_MAX, -1, -1.
+/// - drop_rate_comm, errors_comm: the console link ([`LinkQuality`]).
+/// - errors_count1: thruster link errors (NACK, timeout, checksum, type, length, range, bus), summed over the
+///   configured thrusters; errors_count2: battery CAN frames that did not decode; errors_count3/4: 0.
+/// - load: 0 (not measured).
+pub fn sys_status(
+    thrusters: usize,
+    reports: &Reports,
+    battery: Option<&BatterySummary>,
+    link: LinkQuality,
+) -> SYS_STATUS_DATA {
+    let configured = reports.iter().take(thrusters);
+    let all_online = configured.clone().all(|r| r.is_some_and(|r| r.health.online));
+    let faults = configured
+        .clone()
+        .flatten()
+        .filter_map(|r| r.status)
+        .fold(Faults::NONE, |all, s| all.union(s.faults()));
+    let errors = configured.flatten().map(link_errors).fold(0u32, u32::wrapping_add);
+
+    let motors = if thrusters > 0 {
+        MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_PROPULSION
+    } else {
+        MavSysStatusSensor::empty()
+    };
+    let present = motors | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
+    let mut health = present;
+    health.set(MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS, all_online);
+    health.set(
+        MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_PROPULSION,
+        faults.difference(Faults::WATER).is_empty(),
+    );
+    let fresh = fresh(battery);
+    health.set(
+        MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY,
+        fresh.is_some_and(|b| !battery_faulty(b)),
+    );
+    let leak = if thrusters > 0 {
+        MavSysStatusSensorExtended::MAV_SYS_STATUS_SENSOR_LEAK
+    } else {
+        MavSysStatusSensorExtended::empty()
+    };
+    let mut leak_health = leak;
+    leak_health.set(
+        MavSysStatusSensorExtended::MAV_SYS_STATUS_SENSOR_LEAK,
+        !faults.contains(Faults::WATER),
+    );
+    let present = if leak.is_empty() {
+        present
+    } else {
+        present | MavSysStatusSensor::MAV_SYS_STATUS_EXTENSION_USED
+    };
+
+    let info = fresh.and_then(|b| b.info);
+    SYS_STATUS_DATA {
+        onboard_control_sensors_present: present,
+        onboard_control_sensors_enabled: present,
+        onboard_control_sensors_health: health,
+        load: 0,
+        voltage_battery: info.map_or(u16::MAX, |i| millivolts(i.voltage_decivolts)),
+        current_battery: info.and_then(|i| i.current_deciamps).map_or(-1, centiamps),
+        battery_remaining: info.map_or(-1, |i| i.charge_percent.min(100) as i8),
+        drop_rate_comm: link.drop_rate,
+        errors_comm: link.errors,
+        errors_count1: errors as u16,
+        errors_count2: battery.map_or(0, |b| b.errors as u16),
+        errors_count3: 0,
+        errors_count4: 0,
+        onboard_control_sensors_present_extended: leak,
+        onboard_control_sensors_enabled_extended: leak,
+        onboard_control_sensors_health_extended: leak_health,
+    }
+}
+
+/// 0.1 V to mV, below UINT16_MAX (which means "unknown").
+fn millivolts(decivolts: u16) -> u16 {
+    (u32::from(decivolts) * 100).min(u32::from(u16::MAX - 1)) as u16
+}
+
+/// 0.1 A to cA; -1 means "unknown" and cannot come out of a multiple of 10.
+fn centiamps(deciamps: i16) -> i16 {
+    (i32::from(deciamps) * 10).clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16
+}
+
+/// MAVLink battery faults of the BMS alarms that have one.
+fn battery_faults(alarms: BmsAlarms) -> MavBatteryFault {
+    let mut faults = MavBatteryFault::empty();
+    faults.set(
+        MavBatteryFault::MAV_BATTERY_FAULT_DEEP_DISCHARGE,
+        alarms.contains(BmsAlarms::LOW_VOLTAGE),
+    );
+    faults.set(
+        MavBatteryFault::MAV_BATTERY_FAULT_OVER_CURRENT,
+        alarms.contains(BmsAlarms::OVERCURRENT_DISCHARGE) || alarms.contains(BmsAlarms::OVERCURRENT_CHARGE),
+    );
+    faults.set(
+        MavBatteryFault::MAV_BATTERY_FAULT_OVER_TEMPERATURE,
+        alarms.contains(BmsAlarms::HIGH_TEMPERATURE),
+    );
+    faults.set(
+        MavBatteryFault::MAV_BATTERY_FAULT_UNDER_TEMPERATURE,
+        alarms.contains(BmsAlarms::LOW_TEMPERATURE),
+    );
+    faults
+}
+
+/// BATTERY_STATUS of the BAT board's pack: id 0, function ALL, chemistry LION.
+///
+/// From a fresh reading: temperature cdegC (INT16_MAX when the board does not report it), `voltages[0]` the pack
+/// voltage in mV (no cell voltages: the others UINT16_MAX), current cA (-1 when not reported), remaining %.
+/// Without a fresh reading every value is "unknown". current_consumed and energy_consumed are -1 (not
+/// estimated), time_remaining 0 (not estimated), mode UNKNOWN.
+///
+/// charge_state: UNDEFINED without a fresh reading; UNHEALTHY with a BMS alarm or a DCDC fault (fault_bitmask
+/// names the alarms MAVLink has a bit for: low voltage as DEEP_DISCHARGE, over-current, over- and
+/// under-temperature); LOW with only the BMS low-charge alarm; CHARGING when the current is negative; else OK.
+pub fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
+    let fresh = fresh(battery);
+    let info = fresh.and_then(|b| b.info);
+    let alarms = fresh.and_then(|b| b.alarms).unwrap_or(BmsAlarms::NONE);
+    let dcdc_fault = fresh.and_then(|b| b.status).is_some_and(|s| s.has_fault());
+    let current = info.and_then(|i| i.current_deciamps).map_or(-1, centiamps);
+    let serious_alarm = alarms.bits() & !BmsAlarms::LOW_CHARGE.bits() != 0;
+    let charge_state = match info {
+        None => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNDEFINED,
+        Some(_) if dcdc_fault || serious_alarm => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNHEALTHY,
+        Some(_) if alarms.contains(BmsAlarms::LOW_CHARGE) => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_LOW,
+        Some(i) if i.current_deciamps.is_some_and(|c| c < 0) => {
+            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_CHARGING
+        }
+        Some(_) => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_OK,
+    };
+    let mut voltages = [u16::MAX; 10];
+    if let (Some(i), Some(first)) = (info, voltages.first_mut()) {
+        *first = millivolts(i.voltage_decivolts);
+    }
+    BATTERY_STATUS_DATA {
+        id: 0,
+        battery_function: MavBatteryFunction::MAV_BATTERY_FUNCTION_ALL,
+        mavtype: MavBatteryType::MAV_BATTERY_TYPE_LION,
+        temperature: info.and_then(|i| i.temperature_decicelsius).map_or(i16::MAX, |t| {
+            (i32::from(t) * 10).clamp(i32::from(i16::MIN), i32::from(i16::MAX - 1)) as i16
+        }),
+        voltages,
+        current_battery: current,
+        current_consumed: -1,
+        energy_consumed: -1,
+        battery_remaining: info.map_or(-1, |i| i.charge_percent.min(100) as i8),
+        time_remaining: 0,
+        charge_state,
+        voltages_ext: [0; 4],
+        mode: MavBatteryMode::MAV_BATTERY_MODE_UNKNOWN,
+        fault_bitmask: battery_faults(alarms),
+    }
+}
+
+/// One thruster's ESC_TELEMETRY entry.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EscEntry {
+    /// Temperature, °C.
+    pub temperature: u8,
+    /// Motor current, cA.
+    pub current: u16,
+    /// Speed magnitude, rpm.
+    pub rpm: u16,
+    /// Good polls (wrapping).
+    pub count: u16,
+}
+
+/// A thruster's ESC entry: rpm from a brushless SeaBotix status (a brushed one reports PWM, not rpm: 0); current
+/// from the SeaBotix CURRENT or the brushless Legacy MAX POWER byte; temperature from SeaBotix (Legacy has
+/// none: 0); count the good polls. Voltage and total current are not measured (0). Offline or absent
+/// thrusters read all zeros.
+pub fn esc_entry(report: Option<&ThrusterReport>) -> EscEntry {
+    let Some(report) = report.filter(|r| r.health.online) else {
+        return EscEntry::default();
+    };
+    let count = report.health.good as u16;
+    match report.status {
+        Some(Status::SeaBotix(s)) => EscEntry {
+            temperature: s.temperature_c,
+            current: u16::from(s.current_deciamps) * 10,
+            rpm: match s.motor {
+                MotorKind::Brushless => u16::try_from(s.speed.rpm().unsigned_abs()).unwrap_or(u16::MAX),
+                MotorKind::Brushed => 0,
+            },
+            count,
+        },
+        Some(Status::Legacy(s)) => EscEntry {
+            current: match s.max_power {
+                MaxPower::Current { deciamps } => u16::from(deciamps) * 10,
+                MaxPower::Power(_) | MaxPower::Raw(_) => 0,
+            },
+            count,
+            ..EscEntry::default()
+        },
+        None => EscEntry {
+            count,
+            ..EscEntry::default()
+        },
+    }
+}
+
+/// The four ESC entries of thrusters `first..first + 4`, zero beyond the configured ones.
+fn esc_block(thrusters: usize, reports: &Reports, first: usize) -> [EscEntry; 4] {
+    core::array::from_fn(|i| {
+        let n = first + i;
+        if n < thrusters {
+            esc_entry(reports.get(n).and_then(Option::as_ref))
+        } else {
+            EscEntry::default()
+        }
+    })
+}
+
+/// ESC_TELEMETRY_1_TO_4 of thrusters 1..=4.
+pub fn esc_telemetry_1_to_4(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_1_TO_4_DATA {
+    let e = esc_block(thrusters, reports, 0);
+    ESC_TELEMETRY_1_TO_4_DATA {
+        temperature: e.map(|e| e.temperature),
+        voltage: [0; 4],
+        current: e.map(|e| e.current),
+        totalcurrent: [0; 4],
+        rpm: e.map(|e| e.rpm),
+        count: e.map(|e| e.count),
+    }
+}
+
+/// ESC_TELEMETRY_5_TO_8 of thrusters 5..=8.
+pub fn esc_telemetry_5_to_8(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_5_TO_8_DATA {
+    let e = esc_block(thrusters, reports, 4);
+    ESC_TELEMETRY_5_TO_8_DATA {
+        temperature: e.map(|e| e.temperature),
+        voltage: [0; 4],
+        current: e.map(|e| e.current),
+        totalcurrent: [0; 4],
+        rpm: e.map(|e| e.rpm),
+        count: e.map(|e| e.count),
+    }
+}
+
+/// MAV_SEVERITY of a [`Severity`].
+pub fn severity(severity: Severity) -> MavSeverity {
+    match severity {
+        Severity::Critical => MavSeverity::MAV_SEVERITY_CRITICAL,
+        Severity::Error => MavSeverity::MAV_SEVERITY_ERROR,
+        Severity::Warning => MavSeverity::MAV_SEVERITY_WARNING,
+        Severity::Notice => MavSeverity::MAV_SEVERITY_NOTICE,
+        Severity::Info => MavSeverity::MAV_SEVERITY_INFO,
+    }
+}
+
+/// MAV_RESULT of an [`AckResult`].
+pub fn result(result: AckResult) -> MavResult {
+    match result {
+        AckResult::Accepted => MavResult::MAV_RESULT_ACCEPTED,
+        AckResult::TemporarilyRejected => MavResult::MAV_RESULT_TEMPORARILY_REJECTED,
+        AckResult::Denied => MavResult::MAV_RESULT_DENIED,
+        AckResult::Unsupported => MavResult::MAV_RESULT_UNSUPPORTED,
+        AckResult::Failed => MavResult::MAV_RESULT_FAILED,
+    }
+}
+
+/// STATUSTEXT: one chunk (id 0), the text NUL-padded to 50 bytes.
+pub fn statustext(level: Severity, text: &Text) -> STATUSTEXT_DATA {
+    let mut bytes = [0u8; 50];
+    for (dst, src) in bytes.iter_mut().zip(text.as_bytes()) {
+        *dst = *src;
+    }
+    STATUSTEXT_DATA {
+        severity: severity(level),
+        text: bytes.into(),
+        id: 0,
+        chunk_seq: 0,
+    }
+}
+
+/// COMMAND_ACK, addressed to the command's sender (`commander`, 0/0 when unknown). Progress and result_param2
+/// are 0 (the master never answers IN_PROGRESS).
+pub fn command_ack(command: u16, answer: AckResult, commander: (u8, u8)) -> COMMAND_ACK_DATA {
+    COMMAND_ACK_DATA {
+        command,
+        result: result(answer),
+        progress: 0,
+        result_param2: 0,
+        target_system: commander.0,
+        target_component: commander.1,
+    }
+}
+
+/// PARAM_VALUE: every parameter is a MAV_PARAM_TYPE_REAL32.
+pub fn param_value(id: &ParamId, value: f32, index: u16, count: u16) -> PARAM_VALUE_DATA {
+    PARAM_VALUE_DATA {
+        param_id: (*id).into(),
+        param_value: value,
+        param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+        param_count: count,
+        param_index: index,
+    }
+}
+
+/// MAVLink 2 framing of outgoing messages: this system's header and a sequence number that counts every frame.
+#[derive(Debug)]
+pub struct Framer {
+    header: MavHeader,
+    raw: MAVLinkV2MessageRaw,
+}
+
+impl Framer {
+    /// Frames from `system_id` / `component_id`, starting at sequence 0.
+    pub const fn new(system_id: u8, component_id: u8) -> Self {
+        Self {
+            header: MavHeader {
+                system_id: system_id as u32,
+                component_id,
+                sequence: 0,
+            },
+            raw: MAVLinkV2MessageRaw::new(),
+        }
+    }
+
+    /// Frame one message (MAVLink 2, unsigned) and return its bytes.
+    pub fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
+        self.raw.serialize_message_data(self.header, message);
+        self.header.sequence = self.header.sequence.wrapping_add(1);
+        self.raw.raw_bytes()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::thrusters::LinkHealth;
+    use bat_proto::{BatteryInfo, DcdcStatus, StatusBit};
+    use tmc_proto::{LegacyRevision, LegacyStatus, SeaBotixStatus, Speed};
+
+    fn seabotix(speed: i8, current: u8, temperature: u8) -> Status {
+        Status::SeaBotix(SeaBotixStatus {
+            revision: 0,
+            motor: MotorKind::Brushless,
+            current_limited: false,
+            faults: Faults::NONE,
+            current_deciamps: current,
+            speed: Speed::new(speed).unwrap(),
+            temperature_c: temperature,
+        })
+    }
+
+    fn online(status: Option<Status>, good: u32) -> Option<ThrusterReport> {
+        Some(ThrusterReport {
+            health: LinkHealth {
+                online: true,
+                good,
+                ..LinkHealth::default()
+            },
+            status,
+        })
+    }
+
+    fn battery() -> BatterySummary {
+        BatterySummary {
+            info: Some(BatteryInfo {
+                voltage_decivolts: 252,
+                charge_percent: 80,
+                current_deciamps: Some(-35),
+                temperature_decicelsius: Some(215),
+            }),
+            status: Some(DcdcStatus::from_word(0)),
+            alarms: Some(BmsAlarms::NONE),
+            stale: false,
+            frames: 10,
+            errors: 2,
+        }
+    }
+
+    #[test]
+    fn heartbeat_is_disarmed_unless_the_vehicle_says_armed() {
+        for vehicle in [
+            None,
+            Some(VehicleState {
+                armed: false,
+                console_alive: true,
+            }),
+        ] {
+            let hb = heartbeat(vehicle);
+            assert_eq!(hb.base_mode.bits(), 0x41);
+            assert_eq!(hb.system_status, MavState::MAV_STATE_STANDBY);
+        }
+        let hb = heartbeat(Some(VehicleState {
+            armed: true,
+            console_alive: true,
+        }));
+        assert_eq!(hb.base_mode.bits(), 0xC1);
+        assert_eq!(hb.system_status, MavState::MAV_STATE_ACTIVE);
+        assert_eq!((hb.mavtype as u8, hb.autopilot as u8, hb.custom_mode), (12, 3, 19));
+    }
+
+    #[test]
+    fn esc_entries() {
+        let r = online(Some(seabotix(-102, 23, 41)), 70_000).unwrap();
+        assert_eq!(
+            esc_entry(Some(&r)),
+            EscEntry {
+                temperature: 41,
+                current: 230,
+                rpm: 4500,
+                count: (70_000u32 % 65_536) as u16
+            }
+        );
+        let legacy = Status::Legacy(LegacyStatus {
+            revision: LegacyRevision::AVEOX_BRUSHLESS,
+            faults: Faults::NONE,
+            max_power: MaxPower::Current { deciamps: 12 },
+        });
+        let r = online(Some(legacy), 5).unwrap();
+        assert_eq!(
+            esc_entry(Some(&r)),
+            EscEntry {
+                temperature: 0,
+                current: 120,
+                rpm: 0,
+                count: 5
+            }
+        );
+        let mut off = online(Some(seabotix(50, 10, 30)), 9).unwrap();
+        off.health.online = false;
+        assert_eq!(esc_entry(Some(&off)), EscEntry::default());
+        assert_eq!(esc_entry(None), EscEntry::default());
+    }
+
+    #[test]
+    fn esc_blocks_stop_at_the_configured_thrusters() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        for r in &mut reports {
+            *r = online(Some(seabotix(51, 5, 20)), 1);
+        }
+        let a = esc_telemetry_1_to_4(6, &reports);
+        let b = esc_telemetry_5_to_8(6, &reports);
+        assert_eq!(a.rpm, [2250; 4]);
+        assert_eq!(b.rpm, [2250, 2250, 0, 0]);
+        assert_eq!(b.count, [1, 1, 0, 0]);
+        assert_eq!((a.voltage, a.totalcurrent), ([0; 4], [0; 4]));
+    }
+
+    #[test]
+    fn sys_status_health_and_battery() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        for r in reports.iter_mut().take(6) {
+            *r = online(Some(seabotix(0, 0, 20)), 1);
+        }
+        let link = LinkQuality {
+            drop_rate: 250,
+            errors: 3,
+        };
+        let s = sys_status(6, &reports, Some(&battery()), link);
+        let motors = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
+        let bat = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
+        assert!(s.onboard_control_sensors_present.contains(motors | bat));
+        assert!(s.onboard_control_sensors_health.contains(motors | bat));
+        assert_eq!(
+            (s.voltage_battery, s.current_battery, s.battery_remaining),
+            (25_200, -350, 80)
+        );
+        assert_eq!((s.drop_rate_comm, s.errors_comm, s.errors_count2), (250, 3, 2));
+
+        // One thruster offline with errors, a stale battery.
+        if let Some(r) = reports[2].as_mut() {
+            r.health.online = false;
+            r.health.timeout = 7;
+            r.health.nack = 1;
+        }
+        let stale = BatterySummary {
+            stale: true,
+            ..battery()
+        };
+        let s = sys_status(6, &reports, Some(&stale), link);
+        assert!(!s.onboard_control_sensors_health.contains(motors));
+        assert!(!s.onboard_control_sensors_health.contains(bat));
+        assert_eq!(
+            (s.voltage_battery, s.current_battery, s.battery_remaining),
+            (u16::MAX, -1, -1)
+        );
+        assert_eq!(s.errors_count1, 8);
+
+        // A thruster beyond the configured ones does not count; a DCDC fault makes the battery unhealthy.
+        let faulty = BatterySummary {
+            status: Some(DcdcStatus::from_word(0).with(StatusBit::HsmFault, true)),
+            ..battery()
+        };
+        let s = sys_status(2, &reports, Some(&faulty), link);
+        assert!(s.onboard_control_sensors_health.contains(motors));
+        assert!(!s.onboard_control_sensors_health.contains(bat));
+    }
+
+    #[test]
+    fn battery_status_known_and_unknown() {
+        let b = battery_status(Some(&battery()));
+        assert_eq!(b.voltages[0], 25_200);
+        assert!(b.voltages[1..].iter().all(|&v| v == u16::MAX));
+        assert_eq!(
+            (b.temperature, b.current_battery, b.battery_remaining),
+            (2150, -350, 80)
+        );
+        assert_eq!(b.charge_state, MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_CHARGING);
+        assert_eq!(b.fault_bitmask, MavBatteryFault::empty());
+        assert_eq!((b.current_consumed, b.energy_consumed), (-1, -1));
+
+        let u = battery_status(None);
+        assert_eq!(u.voltages, [u16::MAX; 10]);
+        assert_eq!(
+            (u.temperature, u.current_battery, u.battery_remaining),
+            (i16::MAX, -1, -1)
+        );
+        assert_eq!(
+            u.charge_state,
+            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNDEFINED
+        );
+
+        let hot = BatterySummary {
+            alarms: Some(BmsAlarms::HIGH_TEMPERATURE.union(BmsAlarms::LOW_VOLTAGE)),
+            ..battery()
+        };
+        let h = battery_status(Some(&hot));
+        assert_eq!(
+            h.charge_state,
+            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNHEALTHY
+        );
+        assert_eq!(
+            h.fault_bitmask,
+            MavBatteryFault::MAV_BATTERY_FAULT_OVER_TEMPERATURE | MavBatteryFault::MAV_BATTERY_FAULT_DEEP_DISCHARGE
+        );
+        let low = BatterySummary {
+            alarms: Some(BmsAlarms::LOW_CHARGE),
+            ..battery()
+        };
+        assert_eq!(
+            battery_status(Some(&low)).charge_state,
+            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_LOW
+        );
+    }
+
+    #[test]
+    fn framer_counts_sequence_numbers() {
+        let mut framer = Framer::new(1, 1);
+        let a = framer.frame(&heartbeat(None)).to_vec();
+        let b = framer.frame(&heartbeat(None)).to_vec();
+        assert_eq!((a[0], a[4], a[5], a[6]), (0xFD, 0, 1, 1));
+        assert_eq!(b[4], 1);
+        // Header 10 + payload 9 + CRC 2.
+        assert_eq!(a.len(), 21);
+    }
+}

@@ -1,0 +1,966 @@
+//! The state machines alone, then the bus task on a simulated bus on virtual time.
+
+use super::sim::{BIT, Mode, SimBus, SimThruster, World, speed};
+use super::*;
+use crate::shared::Outgoing;
+use core::cell::RefCell;
+use embassy_futures::block_on;
+use embassy_futures::join::join;
+use embassy_futures::select::{Either, select};
+use embassy_time::MockDriver;
+use embedded_hal::i2c::NoAcknowledgeSource;
+use tmc_proto::{MotorKind, SeaBotixStatus, Speed};
+
+const MS: Duration = Duration::from_millis(1);
+
+fn at_ms(ms: u64) -> Instant {
+    Instant::from_millis(ms)
+}
+
+fn seabotix_status(faults: Faults) -> Status {
+    Status::SeaBotix(SeaBotixStatus {
+        revision: 0,
+        motor: MotorKind::Brushless,
+        current_limited: true,
+        faults,
+        current_deciamps: 0,
+        speed: Speed::ZERO,
+        temperature_c: 20,
+    })
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Failure classification
+
+#[test]
+fn bus_errors_are_classified_by_kind() {
+    use ErrorKind::*;
+    assert_eq!(
+        Failure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Address)),
+        Failure::Nack
+    );
+    assert_eq!(
+        Failure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Data)),
+        Failure::Nack
+    );
+    assert_eq!(
+        Failure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Unknown)),
+        Failure::Nack
+    );
+    // embassy-stm32 reports its timeout as Other.
+    assert_eq!(Failure::of_bus_error(&Other), Failure::Timeout);
+    assert_eq!(Failure::of_bus_error(&Bus), Failure::Bus);
+    assert_eq!(Failure::of_bus_error(&ArbitrationLoss), Failure::Bus);
+    assert_eq!(Failure::of_bus_error(&Overrun), Failure::Bus);
+}
+
+#[test]
+fn decode_errors_are_classified_by_variant() {
+    let cases = [
+        (DecodeError::Length { expected: 7, actual: 4 }, Failure::BadLength),
+        (
+            DecodeError::MessageType {
+                expected: 0x53,
+                actual: 0x55,
+            },
+            Failure::BadType,
+        ),
+        (DecodeError::Checksum { expected: 1, actual: 2 }, Failure::BadChecksum),
+        (DecodeError::SpeedOutOfRange(0), Failure::BadRange),
+    ];
+    for (error, failure) in cases {
+        assert_eq!(Failure::of_decode_error(error), failure);
+        assert_eq!(Failure::of_poll_error::<ErrorKind>(&PollError::Decode(error)), failure);
+        assert!(!failure.needs_recovery());
+    }
+    assert_eq!(
+        Failure::of_poll_error(&PollError::Order(ErrorKind::Other)),
+        Failure::Timeout
+    );
+    assert_eq!(Failure::of_poll_error(&PollError::Status(ErrorKind::Bus)), Failure::Bus);
+    assert!(Failure::Timeout.needs_recovery() && Failure::Bus.needs_recovery() && Failure::Mux.needs_recovery());
+    assert!(!Failure::Nack.needs_recovery());
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Link
+
+#[test]
+fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
+    let mut link = Link::new(&PollConfig::DEFAULT);
+    assert_eq!(link.state(), LinkState::Unknown);
+    assert!(link.due(at_ms(0)));
+    assert_eq!(
+        link.on_outcome(at_ms(0), Err(Failure::Nack)),
+        Some(LinkChange::Offline(Failure::Nack))
+    );
+    assert_eq!(link.state(), LinkState::Offline);
+    let mut retries = Vec::new();
+    let mut now = 0;
+    while retries.len() < 8 {
+        now += 20;
+        if link.due(at_ms(now)) {
+            retries.push(now);
+            assert_eq!(link.on_outcome(at_ms(now), Err(Failure::Nack)), None, "already offline");
+        }
+    }
+    assert_eq!(retries, [100, 300, 700, 1500, 3100, 5100, 7100, 9100]);
+    let health = link.health();
+    assert_eq!((health.polls, health.nack, health.consecutive_failures), (9, 9, 9));
+    assert!(!health.online);
+
+    // The first good retry brings it back; the back-off starts again from the minimum.
+    now += 2000;
+    assert!(link.due(at_ms(now)));
+    assert_eq!(
+        link.on_outcome(at_ms(now), Ok(seabotix_status(Faults::NONE))),
+        Some(LinkChange::Online)
+    );
+    assert!(link.health().online && link.health().consecutive_failures == 0);
+    assert!(link.due(at_ms(now + 1)), "online thrusters are always due");
+    assert_eq!(
+        link.on_outcome(at_ms(now), Err(Failure::Nack)),
+        Some(LinkChange::Offline(Failure::Nack))
+    );
+    assert_eq!(link.retry_at(), Some(at_ms(now + 100)));
+}
+
+#[test]
+fn other_failures_take_a_thruster_offline_after_three_in_a_row() {
+    for failure in [
+        Failure::Timeout,
+        Failure::Bus,
+        Failure::Mux,
+        Failure::BadLength,
+        Failure::BadType,
+        Failure::BadChecksum,
+        Failure::BadRange,
+    ] {
+        let mut link = Link::new(&PollConfig::DEFAULT);
+        let good = seabotix_status(Faults::NONE);
+        assert_eq!(link.on_outcome(at_ms(0), Ok(good)), Some(LinkChange::Online));
+        assert_eq!(link.on_outcome(at_ms(20), Err(failure)), None);
+        assert_eq!(link.on_outcome(at_ms(40), Err(failure)), None);
+        // A good poll in between resets the run.
+        assert_eq!(link.on_outcome(at_ms(60), Ok(good)), None);
+        assert_eq!(link.on_outcome(at_ms(80), Err(failure)), None);
+        assert_eq!(link.on_outcome(at_ms(100), Err(failure)), None);
+        assert!(link.health().online);
+        assert_eq!(link.health().consecutive_failures, 2);
+        assert_eq!(
+            link.on_outcome(at_ms(120), Err(failure)),
+            Some(LinkChange::Offline(failure))
+        );
+        assert_eq!(link.retry_at(), Some(at_ms(220)));
+        assert_eq!(link.status(), Some(good), "the last valid status is kept");
+        let h = link.health();
+        let counted = match failure {
+            Failure::Timeout => h.timeout,
+            Failure::Bus | Failure::Mux => h.bus_error,
+            Failure::BadLength => h.bad_length,
+            Failure::BadType => h.bad_type,
+            Failure::BadChecksum => h.bad_checksum,
+            Failure::BadRange => h.bad_range,
+            Failure::Nack => unreachable!(),
+        };
+        assert_eq!((h.polls, h.good, counted, h.nack), (7, 2, 5, 0), "{failure:?}");
+        let total = h.timeout + h.bus_error + h.bad_length + h.bad_type + h.bad_checksum + h.bad_range;
+        assert_eq!(total, 5, "only {failure:?} counted");
+    }
+}
+
+#[test]
+fn failures_before_the_first_answer_go_offline_from_unknown() {
+    let mut link = Link::new(&PollConfig::DEFAULT);
+    assert_eq!(link.on_outcome(at_ms(0), Err(Failure::BadChecksum)), None);
+    assert_eq!(link.state(), LinkState::Unknown);
+    assert_eq!(link.on_outcome(at_ms(20), Err(Failure::BadChecksum)), None);
+    assert_eq!(
+        link.on_outcome(at_ms(40), Err(Failure::BadChecksum)),
+        Some(LinkChange::Offline(Failure::BadChecksum))
+    );
+    link.on_recovery();
+    assert_eq!(link.health().recoveries, 1);
+    assert_eq!(link.report().status, None);
+}
+
+#[test]
+fn a_link_can_take_a_poll_result_directly() {
+    let mut link = Link::new(&PollConfig::DEFAULT);
+    let result: Result<Status, PollError<ErrorKind>> = Err(PollError::Order(ErrorKind::Other));
+    assert_eq!(link.on_result(at_ms(0), &result), None);
+    assert_eq!(link.health().timeout, 1);
+    let result: Result<Status, PollError<ErrorKind>> = Ok(seabotix_status(Faults::NONE));
+    assert_eq!(link.on_result(at_ms(20), &result), Some(LinkChange::Online));
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// Faults and texts
+
+#[test]
+fn fault_changes_and_their_texts() {
+    let mut watch = FaultWatch::new();
+    assert_eq!(watch.update(Faults::NONE), None);
+    let change = watch.update(Faults::WATER).unwrap();
+    assert_eq!((change.raised, change.cleared), (Faults::WATER, Faults::NONE));
+    let texts = |family, change| -> Vec<(Severity, String)> {
+        fault_texts(2, family, change)
+            .map(|(severity, text)| (severity, text.as_str().to_owned()))
+            .collect()
+    };
+    // Water only warns on a SeaBotix controller; it stops a Legacy one.
+    assert_eq!(
+        texts(Family::SeaBotix, change),
+        [(Severity::Warning, "T3 fault: water detect".to_owned())]
+    );
+    assert_eq!(
+        texts(Family::Legacy, change),
+        [(Severity::Critical, "T3 fault: water detect".to_owned())]
+    );
+    assert_eq!(watch.update(Faults::WATER), None, "no change, no text");
+    let change = watch.update(Faults::GROUND | Faults::OVERTEMP).unwrap();
+    assert_eq!(
+        texts(Family::SeaBotix, change),
+        [
+            (Severity::Notice, "T3 fault cleared: water detect".to_owned()),
+            (Severity::Critical, "T3 fault: overtemp".to_owned()),
+            (Severity::Critical, "T3 fault: ground fault".to_owned()),
+        ]
+    );
+    let change = watch.update(Faults::NONE).unwrap();
+    assert_eq!(
+        texts(Family::SeaBotix, change),
+        [(Severity::Notice, "T3 faults cleared".to_owned())]
+    );
+    for fault in [Faults::OVERTEMP, Faults::STALL, Faults::HALL, Faults::GROUND] {
+        for family in Family::ALL {
+            assert_eq!(fault_severity(family, fault), Severity::Critical);
+        }
+    }
+}
+
+#[test]
+fn link_texts() {
+    assert_eq!(
+        link_text(2, LinkChange::Online),
+        (Severity::Info, Text::try_from("T3 online").unwrap())
+    );
+    assert_eq!(
+        link_text(2, LinkChange::Offline(Failure::Nack)),
+        (Severity::Warning, Text::try_from("T3 offline: no answer").unwrap())
+    );
+    assert_eq!(
+        link_text(7, LinkChange::Offline(Failure::BadChecksum)).1.as_str(),
+        "T8 offline: bad checksum"
+    );
+}
+
+#[test]
+fn mux_masks() {
+    assert_eq!(mux_mask(&ThrusterSlot::direct(0, Family::SeaBotix)), Ok(None));
+    assert_eq!(
+        mux_mask(&ThrusterSlot::behind_mux(0, 3, Family::SeaBotix)),
+        Ok(Some(0x08))
+    );
+    assert_eq!(
+        mux_mask(&ThrusterSlot::behind_mux(1, 7, Family::Legacy)),
+        Ok(Some(0x80))
+    );
+    assert_eq!(
+        mux_mask(&ThrusterSlot::behind_mux(0, 8, Family::Legacy)),
+        Err(()),
+        "channels 0..=7"
+    );
+    assert_eq!(poll_bits(Family::SeaBotix), 121);
+    assert_eq!(poll_bits(Family::Legacy), 94);
+}
+
+#[test]
+fn thruster_tables_are_checked() {
+    const LBV300: [ThrusterSlot; 6] = [
+        ThrusterSlot::behind_mux(1, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(1, 1, Family::SeaBotix),
+        ThrusterSlot::behind_mux(1, 2, Family::SeaBotix),
+        ThrusterSlot::behind_mux(1, 3, Family::SeaBotix),
+        ThrusterSlot::behind_mux(1, 4, Family::Legacy),
+        ThrusterSlot::behind_mux(1, 4, Family::SeaBotix),
+    ];
+    const _: () = assert!(check_table(&LBV300).is_ok());
+    let ok = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+        ThrusterSlot::direct(1, Family::SeaBotix),
+        ThrusterSlot::behind_mux(2, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(2, 1, Family::SeaBotix),
+        ThrusterSlot::behind_mux(2, 0, Family::Legacy),
+    ];
+    assert_eq!(check_table(&ok), Ok(()));
+    assert_eq!(check_table(&[]), Ok(()));
+    let direct_twins = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+        ThrusterSlot::direct(0, Family::SeaBotix),
+    ];
+    assert_eq!(check_table(&direct_twins), Err(TableError::SharedAddress(0, 2)));
+    let channel_twins = [
+        ThrusterSlot::behind_mux(0, 5, Family::Legacy),
+        ThrusterSlot::behind_mux(0, 5, Family::Legacy),
+    ];
+    assert_eq!(check_table(&channel_twins), Err(TableError::SharedAddress(0, 1)));
+    let direct_and_muxed = [
+        ThrusterSlot::behind_mux(0, 5, Family::Legacy),
+        ThrusterSlot::direct(1, Family::Legacy),
+        ThrusterSlot::direct(0, Family::Legacy),
+    ];
+    assert_eq!(check_table(&direct_and_muxed), Err(TableError::SharedAddress(0, 2)));
+    assert_eq!(
+        check_table(&[ThrusterSlot::direct(3, Family::Legacy)]),
+        Err(TableError::Bus(0))
+    );
+    assert_eq!(
+        check_table(&[
+            ThrusterSlot::direct(0, Family::Legacy),
+            ThrusterSlot::behind_mux(0, 8, Family::SeaBotix)
+        ]),
+        Err(TableError::Channel(1))
+    );
+    assert_eq!(
+        check_table(&[ThrusterSlot::direct(0, Family::Legacy); 9]),
+        Err(TableError::TooMany)
+    );
+}
+
+// ---------------------------------------------------------------------------------------------------------------
+// The bus task on a simulated bus
+
+/// One simulated bus, the shared channels and the texts the console would have received.
+struct Bench {
+    world: RefCell<World>,
+    shared: Shared,
+    texts: RefCell<Vec<(Severity, String)>>,
+}
+
+impl Bench {
+    fn new(thrusters: Vec<SimThruster>) -> Self {
+        Self {
+            world: RefCell::new(World::with(thrusters)),
+            shared: Shared::new(),
+            texts: RefCell::new(Vec::new()),
+        }
+    }
+
+    /// `count` thrusters of `family` on mux channels 0, 1, ...
+    fn muxed(count: u8, family: Family) -> (Self, Vec<ThrusterSlot>) {
+        let bench = Self::new((0..count).map(|ch| SimThruster::new(family, Some(ch))).collect());
+        let table = (0..count).map(|ch| ThrusterSlot::behind_mux(0, ch, family)).collect();
+        (bench, table)
+    }
+
+    /// Run bus 0's task alongside `script` until the script ends; virtual time starts at 0.
+    fn run(&self, table: &[ThrusterSlot], config: &PollConfig, script: impl Future<Output = ()>) {
+        let _clock = crate::test_clock::lock();
+        let mut bus = SimBus(&self.world);
+        match block_on(select(bus_task(&mut bus, 0, table, config, &self.shared), script)) {
+            Either::First(never) => never,
+            Either::Second(()) => {}
+        }
+    }
+
+    /// Let virtual time pass one bit time at a time, collecting the texts.
+    async fn elapse(&self, duration: Duration) {
+        elapse(duration, || self.collect()).await;
+    }
+
+    fn collect(&self) {
+        while let Ok(message) = self.shared.outbox.try_receive() {
+            if let Outgoing::Text(severity, text) = message {
+                self.texts.borrow_mut().push((severity, text.as_str().to_owned()));
+            }
+        }
+    }
+
+    fn take_texts(&self) -> Vec<(Severity, String)> {
+        self.collect();
+        self.texts.take()
+    }
+
+    fn health(&self, index: usize) -> LinkHealth {
+        self.report(index).health
+    }
+
+    fn report(&self, index: usize) -> ThrusterReport {
+        self.shared.thrusters[index].try_get().expect("a report was published")
+    }
+
+    fn orders(&self, index: usize) -> Vec<Instant> {
+        self.world.borrow().thrusters[index].orders.clone()
+    }
+}
+
+/// Let virtual time pass in bit-time steps (every transfer and schedule is a whole number of them), giving every
+/// task its turns at each step.
+async fn elapse(duration: Duration, mut each: impl FnMut()) {
+    let end = Instant::now() + duration;
+    while Instant::now() < end {
+        MockDriver::get().advance(BIT);
+        for _ in 0..3 {
+            yield_now().await;
+        }
+        each();
+    }
+}
+
+/// How many of `times` fall in [from, to) milliseconds.
+fn count(times: &[Instant], from_ms: u64, to_ms: u64) -> usize {
+    times
+        .iter()
+        .filter(|t| (at_ms(from_ms)..at_ms(to_ms)).contains(t))
+        .count()
+}
+
+/// Each second of `seconds`, every thruster but `except` got 50 +- 1 orders.
+fn assert_50_hz(bench: &Bench, thrusters: usize, seconds: u64, except: Option<usize>) {
+    for index in (0..thrusters).filter(|i| Some(*i) != except) {
+        let orders = bench.orders(index);
+        for second in 0..seconds {
+            let n = count(&orders, second * 1000, (second + 1) * 1000);
+            assert!(
+                (49..=51).contains(&n),
+                "T{} got {n} orders in second {second}",
+                index + 1
+            );
+        }
+    }
+}
+
+fn utilisation(bits: u64, elapsed: Duration) -> f64 {
+    (bits * BIT.as_micros()) as f64 / elapsed.as_micros() as f64
+}
+
+#[test]
+fn six_thrusters_at_50_hz_are_polled_in_table_order_50_times_a_second() {
+    let (bench, table) = Bench::muxed(6, Family::SeaBotix);
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        // Up to the last instant before the 501st cycle.
+        bench.elapse(Duration::from_secs(10) - BIT).await;
+    });
+    assert_50_hz(&bench, 6, 10, None);
+    let world = bench.world.borrow();
+    // Within each cycle: T1..T6 in table order, each after selecting its channel.
+    let masks: Vec<u8> = world.mux_writes.iter().map(|(_, mask)| *mask).collect();
+    assert_eq!(masks.len(), 6 * 500);
+    for (i, mask) in masks.iter().enumerate() {
+        assert_eq!(*mask, 1 << (i % 6));
+    }
+    for index in 0..6 {
+        let first = world.thrusters[index].orders[0];
+        let expected = index as u64 * (poll_bits(Family::SeaBotix) as u64 + 20) + 20;
+        assert_eq!(
+            first.as_micros(),
+            expected * 10,
+            "T{} polled {}th in the cycle",
+            index + 1,
+            index + 1
+        );
+    }
+    for index in 0..6 {
+        let h = bench.health(index);
+        assert!(h.online);
+        assert_eq!((h.polls, h.good), (500, 500));
+    }
+    // Each cycle: 6 x (mux select 20 bits + order 47 + status 74) = 846 bits.
+    assert_eq!(world.bits, 500 * 846);
+    let load = utilisation(world.bits, Duration::from_secs(10));
+    println!(
+        "50 Hz, 6 SeaBotix thrusters behind a TCA9548A on one bus: {} polls per thruster in 10 s, \
+         bus utilisation {:.1} % ({} bit times per cycle)",
+        world.thrusters[0].orders.len(),
+        load * 100.0,
+        world.bits / 500
+    );
+    assert!((0.40..0.45).contains(&load));
+}
+
+#[test]
+fn back_to_back_polling_is_limited_only_by_the_bus() {
+    let (bench, table) = Bench::muxed(6, Family::SeaBotix);
+    let config = PollConfig {
+        period: Duration::from_ticks(0),
+        ..PollConfig::DEFAULT
+    };
+    let seconds = 10;
+    bench.run(&table, &config, async {
+        bench.elapse(Duration::from_secs(seconds)).await;
+    });
+    let world = bench.world.borrow();
+    let rates: Vec<f64> = world
+        .thrusters
+        .iter()
+        .map(|t| t.orders.len() as f64 / seconds as f64)
+        .collect();
+    let load = utilisation(world.bits, Duration::from_secs(seconds));
+    // One cycle: 6 x 141 bit times = 8.46 ms, so 118.2 polls a second per thruster.
+    let cycle = 6 * (poll_bits(Family::SeaBotix) + transfer_bits(1));
+    let expected = 1e6 / (cycle as f64 * 10.0);
+    println!(
+        "back to back, 6 SeaBotix thrusters behind a TCA9548A on one bus: {:.1} polls/s per thruster \
+         (cycle {} bit times = {:.2} ms; without the mux selects it would be {} bit times = {:.1} Hz), \
+         bus utilisation {:.1} %",
+        rates[0],
+        cycle,
+        cycle as f64 / 100.0,
+        6 * poll_bits(Family::SeaBotix),
+        1e6 / (6.0 * poll_bits(Family::SeaBotix) as f64 * 10.0),
+        load * 100.0
+    );
+    for rate in &rates {
+        assert!((rate - expected).abs() <= 0.2, "{rate} polls/s, expected {expected:.1}");
+        assert!((100.0..150.0).contains(rate));
+    }
+    assert!(load > 0.99, "back to back keeps the bus busy: {load}");
+    assert!(world.log.iter().all(|t| t.ok));
+}
+
+#[test]
+fn back_to_back_with_one_thruster_per_family_on_a_direct_bus() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::SeaBotix, None),
+        SimThruster::new(Family::Legacy, None),
+    ]);
+    let table = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+    ];
+    let config = PollConfig {
+        period: Duration::from_ticks(0),
+        ..PollConfig::DEFAULT
+    };
+    bench.run(&table, &config, async {
+        bench.elapse(Duration::from_secs(1)).await;
+    });
+    let world = bench.world.borrow();
+    let cycle = poll_bits(Family::SeaBotix) + poll_bits(Family::Legacy);
+    let expected = 100_000 / cycle as usize;
+    println!(
+        "back to back, one SeaBotix and one Legacy thruster wired directly: {} and {} polls/s ({} bit times a cycle)",
+        world.thrusters[0].orders.len(),
+        world.thrusters[1].orders.len(),
+        cycle
+    );
+    for thruster in &world.thrusters {
+        assert!(thruster.orders.len().abs_diff(expected) <= 1);
+    }
+    assert!(world.mux_writes.is_empty());
+}
+
+#[test]
+fn a_missing_thruster_is_found_by_its_first_nack_and_retried_with_back_off_without_slowing_the_others() {
+    let (bench, table) = Bench::muxed(6, Family::SeaBotix);
+    bench.world.borrow_mut().thrusters[2].mode = Mode::Silent;
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_secs(10)).await;
+        assert_50_hz(&bench, 6, 10, Some(2));
+        let h = bench.health(2);
+        assert!(!h.online);
+        assert_eq!((h.good, h.nack), (0, h.polls));
+        assert_eq!(h.recoveries, 0, "a NACK needs no recovery");
+        let texts = bench.take_texts();
+        let offline: Vec<_> = texts.iter().filter(|(_, t)| t.starts_with("T3")).collect();
+        assert_eq!(offline, [&(Severity::Warning, "T3 offline: no answer".to_owned())]);
+        assert_eq!(texts.iter().filter(|(_, t)| t.ends_with("online")).count(), 5);
+
+        // It turns up: the next retry finds it.
+        bench.world.borrow_mut().thrusters[2].mode = Mode::Good;
+        bench.elapse(Duration::from_millis(2100)).await;
+        assert!(bench.health(2).online);
+        assert_eq!(bench.take_texts(), [(Severity::Info, "T3 online".to_owned())]);
+        bench.elapse(Duration::from_secs(1)).await;
+    });
+    // Its attempts: the first cycle, then 100, 200, 400 ... ms apart, capped at 2 s.
+    let attempts = bench.world.borrow().thrusters[2].addressed.clone();
+    let start = attempts[0];
+    // Two thrusters, each with its mux select, and T3's own select, come before it in the cycle.
+    assert_eq!(start.as_micros(), (2 * 141 + 20) * 10);
+    let gaps: Vec<u64> = attempts.windows(2).map(|w| (w[1] - w[0]).as_millis()).take(8).collect();
+    assert_eq!(gaps, [100, 200, 400, 800, 1600, 2000, 2000, 2000]);
+    let orders = bench.orders(2);
+    let n = count(&orders, 12_100, 13_100);
+    assert!((49..=51).contains(&n), "back at 50 Hz: {n}");
+    assert_50_hz(&bench, 6, 13, Some(2));
+}
+
+#[test]
+fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
+    let cases = [
+        (Mode::BadChecksum, "T1 offline: bad checksum"),
+        (Mode::BadType, "T1 offline: bad message type"),
+        (Mode::BadRange, "T1 offline: value out of range"),
+        (Mode::Stretch, "T1 offline: timeout"),
+    ];
+    for family in Family::ALL {
+        for (mode, text) in cases {
+            let mut faulty = SimThruster::new(family, Some(0));
+            faulty.mode = mode;
+            let other = match family {
+                Family::SeaBotix => Family::Legacy,
+                Family::Legacy => Family::SeaBotix,
+            };
+            let bench = Bench::new(vec![faulty, SimThruster::new(other, Some(1))]);
+            let table = [
+                ThrusterSlot::behind_mux(0, 0, family),
+                ThrusterSlot::behind_mux(0, 1, other),
+            ];
+            bench.run(&table, &PollConfig::DEFAULT, async {
+                bench.elapse(Duration::from_millis(100)).await;
+                let h = bench.health(0);
+                assert!(!h.online);
+                let counted = match mode {
+                    Mode::BadChecksum => h.bad_checksum,
+                    Mode::BadType => h.bad_type,
+                    Mode::BadRange => h.bad_range,
+                    Mode::Stretch => h.timeout,
+                    _ => unreachable!(),
+                };
+                assert_eq!((h.polls, counted, h.consecutive_failures), (3, 3, 3), "{mode:?}");
+                assert_eq!(h.nack + h.bus_error + h.bad_length, 0);
+                let recoveries = if mode == Mode::Stretch { 3 } else { 0 };
+                assert_eq!(h.recoveries, recoveries);
+                assert_eq!(bench.world.borrow().recoveries, recoveries);
+                let texts = bench.take_texts();
+                assert_eq!(
+                    texts,
+                    [
+                        (Severity::Info, "T2 online".to_owned()),
+                        (Severity::Warning, text.to_owned())
+                    ],
+                    "{family:?} {mode:?}"
+                );
+                // The other one works on.
+                let h = bench.health(1);
+                assert!(h.online && h.good == h.polls && h.polls >= 3);
+            });
+        }
+    }
+}
+
+#[test]
+fn a_missing_mux_counts_as_a_bus_error_of_the_thrusters_behind_it() {
+    let (bench, table) = Bench::muxed(2, Family::Legacy);
+    bench.world.borrow_mut().mux_fitted = false;
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_millis(100)).await;
+    });
+    for index in 0..2 {
+        let h = bench.health(index);
+        assert_eq!((h.polls, h.bus_error, h.recoveries, h.nack), (3, 3, 3, 0));
+    }
+    assert_eq!(
+        bench.take_texts(),
+        [
+            (Severity::Warning, "T1 offline: mux error".to_owned()),
+            (Severity::Warning, "T2 offline: mux error".to_owned()),
+        ]
+    );
+    assert!(bench.world.borrow().thrusters.iter().all(|t| t.addressed.is_empty()));
+}
+
+#[test]
+fn a_stuck_sda_is_recovered_and_polling_resumes() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::SeaBotix, None),
+        SimThruster::new(Family::Legacy, None),
+    ]);
+    let table = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_millis(105)).await;
+        bench.world.borrow_mut().stuck = true;
+        bench.elapse(Duration::from_millis(895)).await;
+        // T1's poll in the 120 ms cycle met the stuck bus; one recovery freed it; T2 went on in the same cycle.
+        let world = bench.world.borrow();
+        assert_eq!(world.recoveries, 1);
+        assert!(!world.stuck);
+        drop(world);
+        let h = bench.health(0);
+        assert_eq!((h.bus_error, h.recoveries, h.polls, h.good), (1, 1, 50, 49));
+        assert!(h.online, "one failure is not enough to go offline");
+        let h = bench.health(1);
+        assert_eq!((h.bus_error, h.recoveries, h.good), (0, 0, 50));
+        assert_eq!(
+            count(&bench.orders(1), 120, 121),
+            1,
+            "T2 polled in the cycle of the recovery"
+        );
+        assert_eq!(count(&bench.orders(0), 120, 140), 0);
+        assert_eq!(count(&bench.orders(0), 140, 141), 1, "T1 polled again the next cycle");
+        let texts = bench.take_texts();
+        assert!(texts.iter().all(|(_, t)| !t.contains("offline")), "{texts:?}");
+    });
+}
+
+#[test]
+fn a_bus_stuck_through_recoveries_takes_everyone_offline_until_it_frees() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::SeaBotix, None),
+        SimThruster::new(Family::Legacy, None),
+    ]);
+    let table = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_millis(10)).await;
+        {
+            let mut world = bench.world.borrow_mut();
+            world.stuck = true;
+            world.stuck_hard = true;
+        }
+        bench.elapse(Duration::from_millis(100)).await;
+        let texts = bench.take_texts();
+        assert_eq!(
+            texts,
+            [
+                (Severity::Info, "T1 online".to_owned()),
+                (Severity::Info, "T2 online".to_owned()),
+                (Severity::Warning, "T1 offline: bus error".to_owned()),
+                (Severity::Warning, "T2 offline: bus error".to_owned()),
+            ]
+        );
+        for index in 0..2 {
+            let h = bench.health(index);
+            assert_eq!((h.bus_error, h.recoveries), (3, 3));
+        }
+        // Freed (the next recovery works): both come back with their next retry.
+        bench.world.borrow_mut().stuck_hard = false;
+        bench.elapse(Duration::from_millis(300)).await;
+        let texts = bench.take_texts();
+        assert_eq!(
+            texts,
+            [
+                (Severity::Info, "T2 online".to_owned()),
+                (Severity::Info, "T1 online".to_owned()),
+            ],
+            "T1's retry met the stuck bus and recovered it; T2's then went through"
+        );
+        assert!(bench.health(0).online && bench.health(1).online);
+        assert!(!bench.world.borrow().stuck);
+    });
+}
+
+#[test]
+fn the_mux_is_written_only_when_the_channel_changes() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::SeaBotix, Some(0)),
+        SimThruster::new(Family::Legacy, Some(0)),
+        SimThruster::new(Family::SeaBotix, Some(1)),
+    ]);
+    let table = [
+        ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(0, 0, Family::Legacy),
+        ThrusterSlot::behind_mux(0, 1, Family::SeaBotix),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_millis(99)).await;
+        let masks: Vec<u8> = bench.world.borrow().mux_writes.iter().map(|(_, m)| *m).collect();
+        assert_eq!(
+            masks,
+            [1, 2].repeat(5),
+            "T1 and T2 share channel 0: one select for both"
+        );
+        for index in 0..3 {
+            assert_eq!(bench.orders(index).len(), 5);
+        }
+        // After an error the selection is forgotten and written again, even for the same channel.
+        bench.world.borrow_mut().thrusters[0].mode = Mode::BadChecksum;
+        bench.world.borrow_mut().mux_writes.clear();
+        bench.elapse(Duration::from_millis(40)).await;
+        let masks: Vec<u8> = bench.world.borrow().mux_writes.iter().map(|(_, m)| *m).collect();
+        assert_eq!(masks, [1, 1, 2].repeat(2));
+        assert_eq!(bench.orders(1).len(), 7);
+        assert_eq!(bench.orders(2).len(), 7);
+    });
+}
+
+#[test]
+fn thrusters_wired_directly_share_the_bus_with_the_mux_channels() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::Legacy, None),
+        SimThruster::new(Family::SeaBotix, Some(4)),
+        SimThruster::new(Family::SeaBotix, Some(6)),
+    ]);
+    let table = [
+        ThrusterSlot::direct(0, Family::Legacy),
+        ThrusterSlot::behind_mux(0, 4, Family::SeaBotix),
+        ThrusterSlot::behind_mux(0, 6, Family::SeaBotix),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_millis(99)).await;
+    });
+    let world = bench.world.borrow();
+    let masks: Vec<u8> = world.mux_writes.iter().map(|(_, m)| *m).collect();
+    // The one wired directly needs no selection.
+    assert_eq!(masks, [0x10, 0x40].repeat(5));
+    assert_eq!(world.collisions, 0, "never two thrusters answering at once");
+    for thruster in &world.thrusters {
+        assert_eq!(thruster.orders.len(), 5);
+        assert_eq!(
+            thruster.addressed.len(),
+            10,
+            "each addressed only by its own order and status"
+        );
+    }
+}
+
+#[test]
+fn legacy_and_seabotix_mixed_on_one_bus_follow_their_orders() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::SeaBotix, None),
+        SimThruster::new(Family::Legacy, None),
+    ]);
+    let table = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(Duration::from_millis(50)).await;
+        // Until the vehicle publishes orders, every thruster is sent STOP.
+        {
+            let world = bench.world.borrow();
+            assert!(
+                world
+                    .thrusters
+                    .iter()
+                    .all(|t| t.link.order() == Order::STOP && t.link.orders() == 3)
+            );
+        }
+        let mut orders = [Order::STOP; MAX_THRUSTERS];
+        orders[0] = Order::new(speed(20));
+        orders[1] = Order::new(speed(-30));
+        bench.shared.orders.sender().send(orders);
+        bench.elapse(Duration::from_millis(950) - BIT).await;
+        let world = bench.world.borrow();
+        assert_eq!(world.thrusters[0].link.order(), orders[0]);
+        assert_eq!(world.thrusters[1].link.order(), orders[1]);
+        assert_eq!(world.bits, 50 * (121 + 94));
+    });
+    match bench.report(0).status {
+        Some(Status::SeaBotix(status)) => assert_eq!(status.speed.step(), 20),
+        other => panic!("{other:?}"),
+    }
+    match bench.report(1).status {
+        Some(Status::Legacy(status)) => assert_eq!(status.max_power, tmc_proto::MaxPower::Power(speed(-30))),
+        other => panic!("{other:?}"),
+    }
+    assert_50_hz(&bench, 2, 1, None);
+    assert_eq!(bench.health(1).good, 50);
+}
+
+#[test]
+fn texts_on_link_and_fault_changes_and_the_others_keep_working() {
+    let bench = Bench::new(vec![
+        SimThruster::new(Family::SeaBotix, Some(0)),
+        SimThruster::new(Family::Legacy, Some(1)),
+        SimThruster::new(Family::SeaBotix, Some(2)),
+    ]);
+    let table = [
+        ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(0, 1, Family::Legacy),
+        ThrusterSlot::behind_mux(0, 2, Family::SeaBotix),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, async {
+        bench.elapse(MS * 10).await;
+        assert_eq!(
+            bench.take_texts(),
+            [
+                (Severity::Info, "T1 online".to_owned()),
+                (Severity::Info, "T2 online".to_owned()),
+                (Severity::Info, "T3 online".to_owned()),
+            ]
+        );
+        bench.world.borrow_mut().thrusters[0].faults = Faults::WATER;
+        bench.world.borrow_mut().thrusters[1].faults = Faults::WATER;
+        bench.elapse(MS * 20).await;
+        assert_eq!(
+            bench.take_texts(),
+            [
+                (Severity::Warning, "T1 fault: water detect".to_owned()),
+                (Severity::Critical, "T2 fault: water detect".to_owned()),
+            ]
+        );
+        bench.world.borrow_mut().thrusters[0].faults = Faults::WATER | Faults::GROUND;
+        bench.elapse(MS * 100).await;
+        assert_eq!(
+            bench.take_texts(),
+            [(Severity::Critical, "T1 fault: ground fault".to_owned())],
+            "one text per change, not per poll"
+        );
+        bench.world.borrow_mut().thrusters[0].faults = Faults::NONE;
+        bench.world.borrow_mut().thrusters[2].mode = Mode::Silent;
+        bench.elapse(MS * 20).await;
+        assert_eq!(
+            bench.take_texts(),
+            [
+                (Severity::Notice, "T1 faults cleared".to_owned()),
+                (Severity::Warning, "T3 offline: no answer".to_owned()),
+            ]
+        );
+        let status = bench.report(0).status.expect("a status");
+        assert_eq!(status.faults(), Faults::NONE);
+        assert_eq!(bench.report(1).status.expect("a status").faults(), Faults::WATER);
+        // The last valid status of the missing one is kept.
+        assert!(bench.report(2).status.is_some());
+    });
+    assert_eq!(bench.health(0).polls, 8);
+    assert_eq!(bench.health(1).polls, 8);
+}
+
+#[test]
+fn each_bus_task_polls_only_its_own_bus() {
+    let _clock = crate::test_clock::lock();
+    let table = [
+        ThrusterSlot::direct(0, Family::SeaBotix),
+        ThrusterSlot::direct(1, Family::SeaBotix),
+        ThrusterSlot::direct(0, Family::Legacy),
+        ThrusterSlot::behind_mux(1, 3, Family::Legacy),
+    ];
+    let bus0 = RefCell::new(World::with(vec![
+        SimThruster::new(Family::SeaBotix, None),
+        SimThruster::new(Family::Legacy, None),
+    ]));
+    let bus1 = RefCell::new(World::with(vec![
+        SimThruster::new(Family::SeaBotix, None),
+        SimThruster::new(Family::Legacy, Some(3)),
+    ]));
+    let shared = Shared::new();
+    let mut orders = [Order::STOP; MAX_THRUSTERS];
+    for (i, order) in orders.iter_mut().enumerate().take(4) {
+        *order = Order::new(speed(10 * (i as i8 + 1)));
+    }
+    shared.orders.sender().send(orders);
+    let (mut a, mut b) = (SimBus(&bus0), SimBus(&bus1));
+    let config = PollConfig::DEFAULT;
+    let tasks = join(
+        bus_task(&mut a, 0, &table, &config, &shared),
+        bus_task(&mut b, 1, &table, &config, &shared),
+    );
+    let script = elapse(Duration::from_secs(1), || {});
+    match block_on(select(tasks, script)) {
+        Either::First((never, _)) => never,
+        Either::Second(()) => {}
+    }
+    let (bus0, bus1) = (bus0.borrow(), bus1.borrow());
+    assert_eq!(bus0.thrusters[0].link.order(), orders[0]);
+    assert_eq!(bus0.thrusters[1].link.order(), orders[2]);
+    assert_eq!(bus1.thrusters[0].link.order(), orders[1]);
+    assert_eq!(bus1.thrusters[1].link.order(), orders[3]);
+    for thruster in bus0.thrusters.iter().chain(bus1.thrusters.iter()) {
+        assert!(thruster.orders.len().abs_diff(50) <= 1);
+    }
+    for index in 0..4 {
+        let h = shared.thrusters[index].try_get().unwrap().health;
+        assert!(h.online && h.polls == h.good);
+    }
+    assert!(shared.thrusters[4].try_get().is_none());
+}

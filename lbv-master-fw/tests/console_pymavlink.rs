@@ -1,0 +1,354 @@
+//! Cross-check against an independent MAVLink implementation: pymavlink (`tests/mav_peer.py`) builds the frames
+//! a ground station sends, and decodes the frames the console sends.
+//!
+//! Needs python3 with pymavlink (`pip install pymavlink`); without it these tests fail, they do not skip.
+#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
+
+mod console_support;
+
+use std::collections::BTreeMap;
+use std::io::Write as _;
+use std::process::{Command as Process, Stdio};
+
+use console_support::{clock, run_rx, run_tx};
+use embassy_time::{Duration, MockDriver};
+use lbv_master_fw::battery::BatterySummary;
+use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
+use lbv_master_fw::shared::{
+    AckResult, Command, ManualInput, Outgoing, Severity, Shared, Text, ThrusterReport, VehicleState,
+};
+use lbv_master_fw::thrusters::LinkHealth;
+use serde_json::Value;
+use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
+
+const PEER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mav_peer.py");
+
+/// Run the peer with `args` and `input` on stdin; its stdout. Panics (fails the test) when python3 or pymavlink
+/// is missing.
+fn peer(args: &[&str], input: &str) -> String {
+    let child = Process::new("python3")
+        .arg(PEER)
+        .args(args)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let mut child = match child {
+        Ok(child) => child,
+        Err(error) => panic!("cannot run python3 ({error}): install Python 3 and `pip install pymavlink`"),
+    };
+    // A peer that exits early (pymavlink missing) closes its stdin: its exit status tells why.
+    if let Some(mut stdin) = child.stdin.take() {
+        let _ = stdin.write_all(input.as_bytes());
+    }
+    let output = child.wait_with_output().unwrap();
+    assert!(
+        output.status.success(),
+        "mav_peer.py {args:?} failed (is pymavlink installed? `pip install pymavlink`): {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    String::from_utf8(output.stdout).unwrap()
+}
+
+fn hex_decode(hex: &str) -> Vec<u8> {
+    (0..hex.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).unwrap())
+        .collect()
+}
+
+fn hex_encode(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The frames pymavlink built, by name.
+fn pymavlink_frames() -> BTreeMap<String, Vec<u8>> {
+    let out = peer(&["emit"], "");
+    let json: BTreeMap<String, String> = serde_json::from_str::<Value>(&out)
+        .unwrap()
+        .as_object()
+        .unwrap()
+        .iter()
+        .map(|(k, v)| (k.clone(), v.as_str().unwrap().to_owned()))
+        .collect();
+    json.into_iter().map(|(k, v)| (k, hex_decode(&v))).collect()
+}
+
+fn param_id(name: &str) -> [u8; 16] {
+    let mut id = [0u8; 16];
+    id[..name.len()].copy_from_slice(name.as_bytes());
+    id
+}
+
+#[test]
+fn pymavlink_is_installed() {
+    peer(&["check"], "");
+}
+
+#[test]
+fn frames_built_by_pymavlink_give_the_right_commands() {
+    let frames = pymavlink_frames();
+    let expected: Vec<(&str, Option<Command>)> = vec![
+        ("heartbeat_gcs", Some(Command::Heartbeat)),
+        ("heartbeat_vehicle", None),
+        (
+            "manual",
+            Some(Command::Manual(ManualInput {
+                x: 100,
+                y: -200,
+                z: 700,
+                r: -300,
+            })),
+        ),
+        ("manual_other", None),
+        ("arm", Some(Command::Arm(true))),
+        ("disarm", Some(Command::Arm(false))),
+        (
+            "motor_test",
+            Some(Command::MotorTest {
+                motor: 3,
+                percent: -40,
+                duration: Duration::from_millis(4500),
+            }),
+        ),
+        ("motor_test_pwm", Some(Command::Unsupported { command: 209 })),
+        ("unknown_command", Some(Command::Unsupported { command: 31010 })),
+        ("arm_other_system", None),
+        ("param_list", Some(Command::ParamRequestList)),
+        (
+            "param_read_name",
+            Some(Command::ParamRequestRead {
+                id: param_id("THR_MAX"),
+                index: -1,
+            }),
+        ),
+        (
+            "param_read_index",
+            Some(Command::ParamRequestRead { id: [0; 16], index: 3 }),
+        ),
+        (
+            "param_set",
+            Some(Command::ParamSet {
+                id: param_id("THR_MAX"),
+                value: 0.75,
+            }),
+        ),
+        ("arm_v1", Some(Command::Arm(true))),
+        (
+            "manual_v1",
+            Some(Command::Manual(ManualInput {
+                x: -1000,
+                y: 1000,
+                z: 0,
+                r: 1000,
+            })),
+        ),
+    ];
+    assert_eq!(frames.len(), expected.len() + 1, "one unknown message besides");
+    for (name, command) in &expected {
+        let frame = &frames[*name];
+        let (commands, counters) = run_rx(frame, 64, &ConsoleConfig::DEFAULT);
+        assert_eq!(commands, command.iter().copied().collect::<Vec<_>>(), "{name}");
+        assert_eq!((counters.frames_in, counters.bad_frames), (1, 0), "{name}");
+    }
+
+    // All of them in one stream, with noise and a message outside the dialect (skipped whole, since a frame
+    // follows it) in between.
+    let mut stream = vec![];
+    for (name, _) in &expected {
+        stream.extend(&frames[*name]);
+        stream.extend([0x00, 0xFD, 0x13, 0x37]);
+        stream.extend(&frames["system_time"]);
+    }
+    stream.extend(&frames["param_list"]);
+    let (commands, counters) = run_rx(&stream, 7, &ConsoleConfig::DEFAULT);
+    let mut want: Vec<Command> = expected.iter().filter_map(|(_, c)| *c).collect();
+    want.push(Command::ParamRequestList);
+    assert_eq!(commands, want);
+    assert_eq!(counters.frames_in as usize, expected.len() + 1);
+    assert_eq!(counters.unknown_messages as usize, expected.len());
+    assert!(counters.corrupt() as usize >= expected.len(), "{counters:?}");
+}
+
+fn thruster(step: i8, current: u8, temperature: u8, good: u32) -> ThrusterReport {
+    ThrusterReport {
+        health: LinkHealth {
+            online: true,
+            good,
+            timeout: 2,
+            ..LinkHealth::default()
+        },
+        status: Some(Status::SeaBotix(SeaBotixStatus {
+            revision: 0,
+            motor: MotorKind::Brushless,
+            current_limited: false,
+            faults: Faults::NONE,
+            current_deciamps: current,
+            speed: Speed::new(step).unwrap(),
+            temperature_c: temperature,
+        })),
+    }
+}
+
+/// Messages of type `name` in pymavlink's decoding.
+fn of_type<'a>(decoded: &'a [Value], name: &str) -> Vec<&'a Value> {
+    decoded.iter().filter(|m| m["_type"] == name).collect()
+}
+
+#[test]
+fn pymavlink_decodes_what_the_console_sends() {
+    let _clock = clock();
+    MockDriver::get().reset();
+    let shared = Shared::new();
+    let stats = ConsoleStats::new();
+    for (i, watch) in shared.thrusters.iter().enumerate().take(6) {
+        watch.sender().send(thruster(
+            -102 + 20 * i as i8,
+            10 + i as u8,
+            30 + i as u8,
+            1000 * i as u32,
+        ));
+    }
+    shared.battery.sender().send(BatterySummary {
+        info: Some(bat_proto::BatteryInfo {
+            voltage_decivolts: 252,
+            charge_percent: 87,
+            current_deciamps: Some(123),
+            temperature_decicelsius: Some(-15),
+        }),
+        status: None,
+        alarms: Some(bat_proto::BmsAlarms::NONE),
+        stale: false,
+        frames: 40,
+        errors: 1,
+    });
+    let mut text = Text::new();
+    text.push_str("LBV master ready").unwrap();
+    let bytes = run_tx(
+        &ConsoleConfig::DEFAULT,
+        &shared,
+        &stats,
+        Duration::from_millis(1100),
+        |elapsed| {
+            if elapsed == Duration::from_millis(100) {
+                shared
+                    .outbox
+                    .try_send(Outgoing::CommandAck {
+                        command: 209,
+                        result: AckResult::Denied,
+                    })
+                    .unwrap();
+                shared.say(Severity::Critical, text.clone());
+                shared
+                    .outbox
+                    .try_send(Outgoing::ParamValue {
+                        id: param_id("SIXTEEN_CHARS_ID"),
+                        value: -2.5,
+                        index: 4,
+                        count: 9,
+                    })
+                    .unwrap();
+            }
+            if elapsed == Duration::from_millis(600) {
+                shared.vehicle.sender().send(VehicleState {
+                    armed: true,
+                    console_alive: true,
+                });
+            }
+        },
+    );
+    let decoded: Vec<Value> = serde_json::from_str(&peer(&["decode"], &hex_encode(&bytes))).unwrap();
+    assert!(
+        of_type(&decoded, "BAD_DATA").is_empty(),
+        "pymavlink rejected frames: {decoded:#?}"
+    );
+    assert_eq!(decoded.len() as u32, stats.snapshot().frames_out);
+    for (n, m) in decoded.iter().enumerate() {
+        assert_eq!((m["_sys"].as_u64(), m["_comp"].as_u64()), (Some(1), Some(1)));
+        assert_eq!(m["_seq"].as_u64(), Some(n as u64 % 256));
+    }
+
+    let heartbeats = of_type(&decoded, "HEARTBEAT");
+    assert_eq!(heartbeats.len(), 2);
+    for (hb, armed) in heartbeats.iter().zip([false, true]) {
+        assert_eq!(hb["type"], 12, "MAV_TYPE_SUBMARINE");
+        assert_eq!(hb["autopilot"], 3, "MAV_AUTOPILOT_ARDUPILOTMEGA");
+        assert_eq!(hb["custom_mode"], 19, "ArduSub MANUAL");
+        assert_eq!(hb["mavlink_version"], 3);
+        let base_mode = hb["base_mode"].as_u64().unwrap();
+        assert_eq!(base_mode & 0x80 != 0, armed, "MAV_MODE_FLAG_SAFETY_ARMED");
+        assert_eq!(base_mode & 0x7F, 0x41, "CUSTOM_MODE_ENABLED | MANUAL_INPUT_ENABLED");
+        assert_eq!(hb["system_status"], if armed { 4 } else { 3 });
+    }
+
+    let sys = of_type(&decoded, "SYS_STATUS");
+    assert_eq!(sys.len(), 2);
+    let sys = sys[0];
+    assert_eq!(sys["voltage_battery"], 25_200);
+    assert_eq!(sys["current_battery"], 1230);
+    assert_eq!(sys["battery_remaining"], 87);
+    assert_eq!(sys["errors_count1"], 12, "6 thrusters x 2 timeouts");
+    let motor_outputs = 0x8000u64;
+    let battery = 0x0200_0000u64;
+    for field in [
+        "onboard_control_sensors_present",
+        "onboard_control_sensors_enabled",
+        "onboard_control_sensors_health",
+    ] {
+        let bits = sys[field].as_u64().unwrap();
+        assert_eq!(bits & (motor_outputs | battery), motor_outputs | battery, "{field}");
+    }
+
+    let bat = of_type(&decoded, "BATTERY_STATUS");
+    assert_eq!(bat.len(), 2);
+    let bat = bat[0];
+    assert_eq!(bat["id"], 0);
+    assert_eq!(bat["battery_function"], 1, "MAV_BATTERY_FUNCTION_ALL");
+    assert_eq!(bat["type"], 3, "MAV_BATTERY_TYPE_LION");
+    assert_eq!(bat["temperature"], -150);
+    let mut voltages = vec![Value::from(25_200)];
+    voltages.extend(std::iter::repeat_n(Value::from(u16::MAX), 9));
+    assert_eq!(bat["voltages"], Value::Array(voltages));
+    assert_eq!(bat["current_battery"], 1230);
+    assert_eq!(
+        (&bat["current_consumed"], &bat["energy_consumed"]),
+        (&Value::from(-1), &Value::from(-1))
+    );
+    assert_eq!(bat["battery_remaining"], 87);
+    assert_eq!(bat["charge_state"], 1, "MAV_BATTERY_CHARGE_STATE_OK");
+
+    let esc = of_type(&decoded, "ESC_TELEMETRY_1_TO_4");
+    assert_eq!(esc.len(), 5, "4 Hz over 1.1 s");
+    let esc = esc[0];
+    // Steps -102, -82, -62, -42: |rpm| 4500, 3618, 2735, 1853.
+    assert_eq!(esc["rpm"], serde_json::json!([4500, 3618, 2735, 1853]));
+    assert_eq!(esc["current"], serde_json::json!([100, 110, 120, 130]));
+    assert_eq!(esc["temperature"], serde_json::json!([30, 31, 32, 33]));
+    assert_eq!(esc["count"], serde_json::json!([0, 1000, 2000, 3000]));
+    assert_eq!(esc["voltage"], serde_json::json!([0, 0, 0, 0]));
+    let esc = of_type(&decoded, "ESC_TELEMETRY_5_TO_8");
+    assert_eq!(esc.len(), 5);
+    assert_eq!(esc[0]["rpm"], serde_json::json!([971, 88, 0, 0]));
+
+    let acks = of_type(&decoded, "COMMAND_ACK");
+    assert_eq!(acks.len(), 1);
+    assert_eq!(
+        (&acks[0]["command"], &acks[0]["result"]),
+        (&Value::from(209), &Value::from(2))
+    );
+
+    let texts = of_type(&decoded, "STATUSTEXT");
+    assert_eq!(texts.len(), 1);
+    assert_eq!(texts[0]["severity"], 2, "MAV_SEVERITY_CRITICAL");
+    assert_eq!(texts[0]["text"], "LBV master ready");
+
+    let params = of_type(&decoded, "PARAM_VALUE");
+    assert_eq!(params.len(), 1);
+    assert_eq!(params[0]["param_id"], "SIXTEEN_CHARS_ID");
+    assert_eq!(params[0]["param_value"], -2.5);
+    assert_eq!(params[0]["param_type"], 9, "MAV_PARAM_TYPE_REAL32");
+    assert_eq!(
+        (&params[0]["param_index"], &params[0]["param_count"]),
+        (&Value::from(4), &Value::from(9))
+    );
+}

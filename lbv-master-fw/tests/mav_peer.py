@@ -1,0 +1,92 @@
+#!/usr/bin/env python3
+"""An independent MAVLink peer for the console tests, built on pymavlink (dialect ardupilotmega).
+
+    mav_peer.py check    exit 0 when pymavlink is importable
+    mav_peer.py emit     print a JSON object {name: hex frame} of frames a ground station sends
+    mav_peer.py decode   read hex frames on stdin, print a JSON list of the decoded messages
+                         (fields of each message plus "_sys", "_comp", "_seq", "_type")
+"""
+import json
+import os
+import sys
+
+os.environ["MAVLINK20"] = "1"
+try:
+    from pymavlink.dialects.v10 import ardupilotmega as mav1
+    from pymavlink.dialects.v20 import ardupilotmega as mav2
+except ImportError as error:
+    print(f"pymavlink is missing ({error}): pip install pymavlink", file=sys.stderr)
+    sys.exit(3)
+
+GCS_SYSTEM, GCS_COMPONENT = 255, 190
+
+
+def link(module, system=GCS_SYSTEM, component=GCS_COMPONENT):
+    return module.MAVLink(None, srcSystem=system, srcComponent=component)
+
+
+def emit():
+    g = link(mav2)
+    v = link(mav2, system=2, component=1)
+    g1 = link(mav1)
+    frames = {
+        "heartbeat_gcs": g.heartbeat_encode(
+            mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 192, 0, mav2.MAV_STATE_ACTIVE
+        ).pack(g),
+        "heartbeat_vehicle": v.heartbeat_encode(
+            mav2.MAV_TYPE_SUBMARINE, mav2.MAV_AUTOPILOT_ARDUPILOTMEGA, 81, 19, mav2.MAV_STATE_STANDBY
+        ).pack(v),
+        "manual": g.manual_control_encode(1, 100, -200, 700, -300, 5).pack(g),
+        "manual_other": g.manual_control_encode(2, 100, -200, 700, -300, 0).pack(g),
+        "arm": g.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
+        "disarm": g.command_long_encode(1, 0, 400, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
+        "motor_test": g.command_long_encode(1, 1, 209, 0, 3, 0, -40, 4.5, 0, 0, 0).pack(g),
+        "motor_test_pwm": g.command_long_encode(1, 1, 209, 0, 3, 1, 1600, 2, 0, 0, 0).pack(g),
+        "unknown_command": g.command_long_encode(1, 1, 31010, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
+        "arm_other_system": g.command_long_encode(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
+        "param_list": g.param_request_list_encode(1, 1).pack(g),
+        "param_read_name": g.param_request_read_encode(1, 1, b"THR_MAX", -1).pack(g),
+        "param_read_index": g.param_request_read_encode(1, 0, b"", 3).pack(g),
+        "param_set": g.param_set_encode(1, 1, b"THR_MAX", 0.75, mav2.MAV_PARAM_TYPE_REAL32).pack(g),
+        "arm_v1": g1.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g1),
+        "manual_v1": g1.manual_control_encode(1, -1000, 1000, 0, 1000, 0).pack(g1),
+        # Not in the console's dialect.
+        "system_time": g.system_time_encode(1234567, 890).pack(g),
+    }
+    print(json.dumps({name: frame.hex() for name, frame in frames.items()}))
+
+
+def plain(value):
+    if isinstance(value, (bytes, bytearray)):
+        return value.decode("latin-1")
+    if isinstance(value, list):
+        return [plain(v) for v in value]
+    return value
+
+
+def decode():
+    data = bytes.fromhex("".join(sys.stdin.read().split()))
+    parser = link(mav2)
+    parser.robust_parsing = True
+    out = []
+    for msg in parser.parse_buffer(data) or []:
+        fields = {k: plain(v) for k, v in msg.to_dict().items() if k != "mavpackettype"}
+        fields["_type"] = msg.get_type()
+        fields["_sys"] = msg.get_srcSystem()
+        fields["_comp"] = msg.get_srcComponent()
+        fields["_seq"] = msg.get_seq()
+        out.append(fields)
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    command = sys.argv[1] if len(sys.argv) > 1 else ""
+    if command == "check":
+        sys.exit(0)
+    elif command == "emit":
+        emit()
+    elif command == "decode":
+        decode()
+    else:
+        print(__doc__, file=sys.stderr)
+        sys.exit(2)
