@@ -32,6 +32,7 @@ step "clippy ($TARGET)"
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p lbv-master-fw --features devkit,legacy --locked -- -D warnings
 
 step "host tests"
 cargo test --workspace --locked

@@ -14,6 +14,9 @@ pub mod vehicle;
 
 pub use poll::{PollError, poll_thruster};
 
+#[cfg(test)]
+mod tests;
+
 /// Virtual time for the host tests.
 #[cfg(test)]
 pub(crate) mod test_clock {

@@ -28,7 +28,7 @@ use crate::poll::{PollError, poll_thruster};
 use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport};
 
 #[cfg(test)]
-mod sim;
+pub(crate) mod sim;
 #[cfg(test)]
 mod tests;
 

@@ -5,6 +5,9 @@
     mav_peer.py emit     print a JSON object {name: hex frame} of frames a ground station sends
     mav_peer.py decode   read hex frames on stdin, print a JSON list of the decoded messages
                          (fields of each message plus "_sys", "_comp", "_seq", "_type")
+    mav_peer.py session  print a JSON list of [time_ms, name, hex frame]: a pilot's dive as a ground
+                         station sends it (heartbeats at 1 Hz, arm, the stick pushed forward step by step
+                         at about 10 Hz, disarm)
 """
 import json
 import os
@@ -56,6 +59,23 @@ def emit():
     print(json.dumps({name: frame.hex() for name, frame in frames.items()}))
 
 
+def session():
+    g = link(mav2)
+    heartbeat = lambda: g.heartbeat_encode(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 192, 0, mav2.MAV_STATE_ACTIVE)
+    events = []
+    for t in range(0, 3001, 1000):
+        events.append((t, "heartbeat", heartbeat()))
+    events.append((100, "arm", g.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)))
+    # The stick moves forward a little more with every frame; the frames come at uneven times, so they meet the
+    # master's 50 Hz polling at every phase.
+    for k in range(18):
+        t = 300 + 100 * k + (k * 7) % 20
+        events.append((t, "manual", g.manual_control_encode(1, 100 + 50 * k, 0, 500, 0, 0)))
+    events.append((2500, "disarm", g.command_long_encode(1, 1, 400, 0, 0, 0, 0, 0, 0, 0, 0)))
+    events.sort(key=lambda event: event[0])
+    print(json.dumps([[t, name, message.pack(g).hex()] for t, name, message in events]))
+
+
 def plain(value):
     if isinstance(value, (bytes, bytearray)):
         return value.decode("latin-1")
@@ -87,6 +107,8 @@ if __name__ == "__main__":
         emit()
     elif command == "decode":
         decode()
+    elif command == "session":
+        session()
     else:
         print(__doc__, file=sys.stderr)
         sys.exit(2)
