@@ -80,6 +80,12 @@ pub const THRUSTERS: &[ThrusterSlot] = &[ThrusterSlot {
     },
 }];
 
+// Two thrusters that would answer the same transfer, or a bus or channel that does not exist, fail the build.
+const _: () = assert!(lbv_master_fw::thrusters::check_table(THRUSTERS).is_ok());
+
+/// How many thrusters the table holds.
+pub const THRUSTER_COUNT: u8 = THRUSTERS.len() as u8;
+
 /// One GPIO pin, named for the bus recovery's bit-banging.
 #[derive(Clone, Copy)]
 pub struct Pin {

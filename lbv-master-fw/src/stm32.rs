@@ -35,7 +35,10 @@ bind_interrupts!(struct Irqs {
 });
 
 static SHARED: Shared = Shared::new();
-static CONSOLE: ConsoleConfig = ConsoleConfig::DEFAULT;
+static CONSOLE: ConsoleConfig = ConsoleConfig {
+    thrusters: board::THRUSTER_COUNT,
+    ..ConsoleConfig::DEFAULT
+};
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
 
 #[embassy_executor::main]
@@ -151,5 +154,9 @@ async fn console_tx_task(mut tx: BufferedUartTx<'static>) -> ! {
 
 #[embassy_executor::task]
 async fn vehicle_task() -> ! {
-    vehicle::vehicle_task(VehicleConfig::DEFAULT, &SHARED).await
+    let config = VehicleConfig {
+        thrusters: board::THRUSTER_COUNT,
+        ..VehicleConfig::DEFAULT
+    };
+    vehicle::vehicle_task(config, &SHARED).await
 }
