@@ -23,12 +23,10 @@
 //! they do not even keep the data fresh. Frames of other sources are normal on a shared bus and only counted
 //! as ignored.
 
-use core::fmt::{self, Write as _};
-
 use bat_proto::{BatteryInfo, BitReport, BmsAlarms, DcdcStatus, Frame, StatusBit};
 use embassy_time::{Duration, Instant, Timer, with_deadline};
 
-use crate::shared::{Outgoing, Severity, Shared, Text};
+use crate::shared::{Outgoing, Severity, Shared, Text, text};
 
 /// A received classic CAN frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -209,26 +207,6 @@ fn short_meaning(bit: StatusBit, set: bool) -> &'static str {
         (StatusBit::HsmHwFault, true) => "HSM overcurrent fault (FLT pin)",
         (StatusBit::HsmSwFault, true) => "HSM overcurrent fault (firmware)",
         _ => bit.meaning(set),
-    }
-}
-
-/// Formats into a STATUSTEXT, cutting what does not fit (never fails).
-fn text(args: fmt::Arguments<'_>) -> Text {
-    let mut writer = Truncating(Text::new());
-    let _ = writer.write_fmt(args);
-    writer.0
-}
-
-struct Truncating(Text);
-
-impl fmt::Write for Truncating {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        for c in s.chars() {
-            if self.0.push(c).is_err() {
-                break;
-            }
-        }
-        Ok(())
     }
 }
 

@@ -17,6 +17,26 @@ pub const MAX_THRUSTERS: usize = 8;
 /// A STATUSTEXT's text: at most 50 bytes (MAVLink STATUSTEXT.text).
 pub type Text = heapless::String<50>;
 
+/// Format a text; what does not fit in 50 bytes is cut off at a character boundary.
+pub fn text(args: core::fmt::Arguments<'_>) -> Text {
+    let mut writer = Truncating(Text::new());
+    let _ = core::fmt::Write::write_fmt(&mut writer, args);
+    writer.0
+}
+
+struct Truncating(Text);
+
+impl core::fmt::Write for Truncating {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for c in s.chars() {
+            if self.0.push(c).is_err() {
+                break;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The pilot's sticks, as MAVLink MANUAL_CONTROL carries them: x forward, y right, r yaw clockwise, each
 /// -1000..=1000; z vertical thrust 0..=1000 with 500 neutral (the ArduSub convention; 1000 = up).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

@@ -16,8 +16,6 @@
 //! retries so it never slows the others. After a timeout or a bus error the bus is recovered (up to 9 SCL pulses,
 //! then STOP) and polling goes on with the next thruster.
 
-use core::fmt::Write as _;
-
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::i2c::ErrorKind;
@@ -25,7 +23,7 @@ use embedded_hal_async::i2c::I2c;
 use tmc_proto::{DecodeError, Family, Faults, Order, Status};
 
 use crate::poll::{PollError, poll_thruster};
-use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport};
+use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
 
 #[cfg(test)]
 pub(crate) mod sim;
@@ -539,13 +537,6 @@ pub fn fault_texts(index: usize, family: Family, change: FaultChange) -> impl It
         )
     });
     cleared_all.into_iter().chain(cleared).chain(raised)
-}
-
-/// Format a text; one that does not fit is cut short.
-fn text(args: core::fmt::Arguments<'_>) -> Text {
-    let mut text = Text::new();
-    let _ = text.write_fmt(args);
-    text
 }
 
 /// The TCA9548A control byte a slot needs before its poll: `Ok(Some(mask))` to select its channel, `Ok(None)`

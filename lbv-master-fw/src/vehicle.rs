@@ -31,7 +31,7 @@
 //! - Answer order: texts of what time did before the command (failsafe, end of a motor test), then the
 //!   COMMAND_ACK, then the command's own texts.
 
-use core::fmt::{self, Write as _};
+use core::fmt;
 
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Ticker, with_deadline};
@@ -39,7 +39,7 @@ use tmc_proto::{Order, Speed};
 
 use crate::mixer::{FrameKind, mix};
 use crate::shared::{
-    AckResult, Command, MAX_THRUSTERS, ManualInput, Outgoing, ParamId, Severity, Shared, Text, VehicleState,
+    AckResult, Command, MAX_THRUSTERS, ManualInput, Outgoing, ParamId, Severity, Shared, VehicleState, text,
 };
 
 /// MAV_CMD_COMPONENT_ARM_DISARM.
@@ -527,23 +527,7 @@ fn ack(out: &mut impl FnMut(Outgoing), command: u16, result: AckResult) {
 }
 
 fn say(out: &mut impl FnMut(Outgoing), severity: Severity, args: fmt::Arguments<'_>) {
-    let mut writer = Truncating(Text::new());
-    let _ = writer.write_fmt(args);
-    out(Outgoing::Text(severity, writer.0));
-}
-
-/// Writes into a STATUSTEXT, cutting what does not fit.
-struct Truncating(Text);
-
-impl fmt::Write for Truncating {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        for c in s.chars() {
-            if self.0.push(c).is_err() {
-                break;
-            }
-        }
-        Ok(())
-    }
+    out(Outgoing::Text(severity, text(args)));
 }
 
 /// The vehicle task's period: 50 Hz.
@@ -643,7 +627,7 @@ mod tests {
     }
 
     fn text(severity: Severity, text: &str) -> Outgoing {
-        Outgoing::Text(severity, Text::try_from(text).unwrap())
+        Outgoing::Text(severity, crate::shared::Text::try_from(text).unwrap())
     }
 
     fn value(param: Param, value: f32) -> Outgoing {
