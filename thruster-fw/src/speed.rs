@@ -102,7 +102,8 @@ impl SpeedController {
     /// Brushless: the target rpm slews towards `target.rpm()` at `ramp_per_s`; duty = feed-forward + PI on
     /// (ramped target - measured), clamped to ±100 % and to the cap. The integrator does not grow while the
     /// output is clamped (anti-windup), and while the cap holds the output the ramp holds too, so lifting the cap
-    /// raises the speed at the ramp rate. A zero ramped target gives exactly [`Duty::ZERO`] and resets the
+    /// raises the speed at the ramp rate. The output never opposes the ramped target's direction: a slowing
+    /// propeller is braked by the water, not by reverse torque. A zero ramped target gives exactly [`Duty::ZERO`] and resets the
     /// integrator, so a stopped motor is never driven.
     ///
     /// Brushed: open loop, duty proportional to the step (step 102 = 100 %), slewed at `ramp_per_s`, capped.
@@ -164,10 +165,13 @@ impl SpeedController {
         let proportional = i64::from(self.config.kp_q16).saturating_mul(error) / Q16;
         let fixed = feed_forward.saturating_add(proportional);
 
+        // The output never drives against the ramped target's direction: slowing down is left to the water's drag
+        // rather than to reverse torque, which would overshoot into reverse when the target reaches zero.
+        let (low, high) = if self.ramp_micro > 0 { (0, limit) } else { (-limit, 0) };
         // Conditional integration: no growth while the output is already clamped in the error's direction.
         let before = fixed.saturating_add(self.integral_q16 / Q16);
-        let winding_up = (before > limit && error > 0) || (before < -limit && error < 0);
-        if winding_up && limit < FULL {
+        let winding_up = (before > high && error > 0) || (before < low && error < 0);
+        if winding_up && limit < FULL && (before > limit || before < -limit) {
             // The INFO cap holds the output: the ramp waits where it is, so lifting the cap later raises the
             // speed at the ramp rate instead of stepping the duty to the cap's far side.
             self.ramp_micro = previous_ramp;
@@ -183,7 +187,7 @@ impl SpeedController {
                 .clamp(-INTEGRAL_LIMIT, INTEGRAL_LIMIT);
         }
 
-        let output = fixed.saturating_add(self.integral_q16 / Q16).clamp(-limit, limit);
+        let output = fixed.saturating_add(self.integral_q16 / Q16).clamp(low, high);
         Duty::new_saturating(saturate_i32(output))
     }
 
@@ -458,6 +462,17 @@ mod tests {
         // proportional term's margin over the cap is released (under 2.5 %), then the ramp takes over.
         assert!(largest_rise <= 250, "duty rose by {largest_rise} in one step");
         assert!(within_2_percent(rig.motor.rpm, 4500));
+    }
+
+    #[test]
+    fn slowing_down_never_drives_in_reverse() {
+        let mut rig = Rig::new(SpeedConfig::BRUSHLESS_DEFAULT, 8_000);
+        rig.run(102, None, 2_000);
+        for _ in 0..2_000 {
+            let duty = rig.step(0, None);
+            assert!(duty.value() >= 0, "reverse torque while stopping: {duty:?}");
+        }
+        assert!(rig.motor.rpm >= 0.0, "overshot into reverse: {}", rig.motor.rpm);
     }
 
     #[test]
