@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
-# tests, both firmware images in release and their size report against the flash / RAM budgets.
+# tests, every virtual-bench scenario, both firmware images in release and their size report against the flash /
+# RAM budgets.
 # Usage: ./test.sh        (CI runs exactly this through .ci/run)
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -43,6 +44,9 @@ if rustup toolchain list | grep -q '^nightly'; then
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
   done
 fi
+
+step "virtual bench: every scenario (release)"
+cargo run --release --locked -p lbv -- bench --all --quiet --json target/bench-report.json
 
 step "firmware images (release, $TARGET)"
 # Each image is kept under target/images/ (the thruster's feature builds overwrite one another's ELF).

@@ -36,7 +36,10 @@ struct Options {
 }
 
 fn parse(args: &[String]) -> Result<Options, String> {
-    let mut options = Options { seed: 1, ..Options::default() };
+    let mut options = Options {
+        seed: 1,
+        ..Options::default()
+    };
     let mut args = args.iter();
     while let Some(arg) = args.next() {
         let mut value = |name: &str| args.next().cloned().ok_or(format!("{name} needs a value"));
@@ -112,7 +115,10 @@ fn main() -> ExitCode {
         let (report, bench) = scenarios::run_with(scenario, options.seed, options.duration, live.then(live_view));
         summarise(&report);
         if let Some(file) = &options.plot {
-            let svg = bench::plot::svg(&bench.trace, &format!("lbv bench: {} (seed {})", report.scenario, report.seed));
+            let svg = bench::plot::svg(
+                &bench.trace,
+                &format!("lbv bench: {} (seed {})", report.scenario, report.seed),
+            );
             if let Err(error) = std::fs::write(file, svg) {
                 eprintln!("lbv: cannot write {file}: {error}");
                 return ExitCode::from(2);
@@ -121,8 +127,14 @@ fn main() -> ExitCode {
         reports.push(report);
     }
     if let Some(file) = &options.json {
-        let json = if options.all { serde_json::to_string_pretty(&reports) } else { serde_json::to_string_pretty(&reports[0]) };
-        let written = json.map_err(|error| error.to_string()).and_then(|json| std::fs::write(file, json).map_err(|e| e.to_string()));
+        let json = if options.all {
+            serde_json::to_string_pretty(&reports)
+        } else {
+            serde_json::to_string_pretty(&reports[0])
+        };
+        let written = json
+            .map_err(|error| error.to_string())
+            .and_then(|json| std::fs::write(file, json).map_err(|e| e.to_string()));
         if let Err(error) = written {
             eprintln!("lbv: cannot write {file}: {error}");
             return ExitCode::from(2);
@@ -130,13 +142,22 @@ fn main() -> ExitCode {
     }
     let failed = reports.iter().filter(|report| !report.passed).count();
     if reports.len() > 1 {
-        println!("\n{} scenarios: {} passed, {} failed", reports.len(), reports.len() - failed, failed);
+        println!(
+            "\n{} scenarios: {} passed, {} failed",
+            reports.len(),
+            reports.len() - failed,
+            failed
+        );
     }
-    if failed == 0 { ExitCode::SUCCESS } else { ExitCode::FAILURE }
+    if failed == 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    }
 }
 
 /// A compact view redrawn once per simulated second: one line per thruster and one for the battery.
-fn live_view() -> Box<dyn FnMut(&Sample)> {
+fn live_view() -> bench::Monitor {
     let mut next = 0.0;
     let mut lines = 0;
     Box::new(move |sample: &Sample| {
@@ -175,7 +196,11 @@ fn live_view() -> Box<dyn FnMut(&Sample)> {
 
 fn fault_names(bits: u8) -> String {
     let faults = tmc_proto::Faults::from_bits_truncate(bits);
-    if faults.is_empty() { "ok".into() } else { faults.iter().map(|f| f.name()).collect::<Vec<_>>().join(", ") }
+    if faults.is_empty() {
+        "ok".into()
+    } else {
+        faults.iter().map(|f| f.name()).collect::<Vec<_>>().join(", ")
+    }
 }
 
 fn summarise(report: &Report) {
@@ -188,9 +213,19 @@ fn summarise(report: &Report) {
         report.wall_seconds
     );
     for check in &report.checks {
-        println!("  {} {:<48} {}", if check.passed { "ok  " } else { "FAIL" }, check.name, check.detail);
+        println!(
+            "  {} {:<48} {}",
+            if check.passed { "ok  " } else { "FAIL" },
+            check.name,
+            check.detail
+        );
     }
-    for key in ["real_time_factor", "poll_rate_hz", "bus_utilisation", "console_to_wire_latency_ms"] {
+    for key in [
+        "real_time_factor",
+        "poll_rate_hz",
+        "bus_utilisation",
+        "console_to_wire_latency_ms",
+    ] {
         if let Some(value) = report.metrics.get(key) {
             println!("  {key}: {value}");
         }

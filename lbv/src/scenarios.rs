@@ -64,7 +64,11 @@ pub struct Run {
 
 impl Run {
     fn check(&mut self, name: &str, passed: bool, detail: impl Into<String>) {
-        self.checks.push(Check { name: name.to_string(), passed, detail: detail.into() });
+        self.checks.push(Check {
+            name: name.to_string(),
+            passed,
+            detail: detail.into(),
+        });
     }
 
     fn metric(&mut self, name: &str, value: Value) {
@@ -114,32 +118,59 @@ impl Run {
 
     /// The duty thruster `index`'s bridge applies now (0: coasting).
     fn duty(&self, index: usize) -> i16 {
-        self.bench.thrusters.get(index).map_or(0, |thruster| thruster.drive().1.value())
+        self.bench
+            .thrusters
+            .get(index)
+            .map_or(0, |thruster| thruster.drive().1.value())
     }
 
     fn rpm(&self, index: usize) -> f64 {
-        self.bench.thrusters.get(index).map_or(0.0, |thruster| thruster.plant.borrow().rpm())
+        self.bench
+            .thrusters
+            .get(index)
+            .map_or(0.0, |thruster| thruster.plant.borrow().rpm())
     }
 
     /// Whether the master has seen a STATUSTEXT containing `needle`.
     fn said(&self, needle: &str) -> bool {
-        self.bench.ground.seen.texts.iter().any(|(_, text)| text.contains(needle))
+        self.bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(_, text)| text.contains(needle))
     }
 }
 
-const NEUTRAL: ManualInput = ManualInput { x: 0, y: 0, z: 500, r: 0 };
-const AHEAD: ManualInput = ManualInput { x: 600, y: 0, z: 500, r: 0 };
+const NEUTRAL: ManualInput = ManualInput {
+    x: 0,
+    y: 0,
+    z: 500,
+    r: 0,
+};
+const AHEAD: ManualInput = ManualInput {
+    x: 600,
+    y: 0,
+    z: 500,
+    r: 0,
+};
 
 fn lbv300(seed: u64) -> BenchConfig {
     BenchConfig::lbv300(seed)
 }
 
 fn legacy6(seed: u64) -> BenchConfig {
-    BenchConfig { families: vec![Family::Legacy; 6], seed }
+    BenchConfig {
+        families: vec![Family::Legacy; 6],
+        seed,
+    }
 }
 
 fn mixed(seed: u64) -> BenchConfig {
-    BenchConfig { families: [Family::SeaBotix, Family::Legacy].repeat(3), seed }
+    BenchConfig {
+        families: [Family::SeaBotix, Family::Legacy].repeat(3),
+        seed,
+    }
 }
 
 /// Every scenario, in the order `--list` and `--all` use.
@@ -289,7 +320,7 @@ pub fn run_with(
     scenario: &Scenario,
     seed: u64,
     seconds: Option<f64>,
-    monitor: Option<Box<dyn FnMut(&crate::bench::trace::Sample)>>,
+    monitor: Option<crate::bench::Monitor>,
 ) -> (Report, Bench) {
     let wall = std::time::Instant::now();
     let seconds = seconds.unwrap_or(scenario.seconds).max(0.1);
@@ -309,7 +340,10 @@ pub fn run_with(
     common_checks(&mut run);
     let sim_seconds = run.bench.seconds();
     let wall_seconds = wall.elapsed().as_secs_f64();
-    run.metric("real_time_factor", json!(round(sim_seconds / wall_seconds.max(1e-9), 1)));
+    run.metric(
+        "real_time_factor",
+        json!(round(sim_seconds / wall_seconds.max(1e-9), 1)),
+    );
     let passed = run.checks.iter().all(|check| check.passed);
     let report = Report {
         scenario: scenario.name.to_string(),
@@ -331,8 +365,17 @@ fn round(value: f64, places: i32) -> f64 {
 /// Checks and figures every run gets: no task stalled, link statistics.
 fn common_checks(run: &mut Run) {
     let (steps, busy_rounds, polls) = run.bench.counters();
-    let bites: u32 = run.bench.thrusters.iter().map(|thruster| thruster.watchdog_bites.get()).sum();
-    run.check("no task stalled", busy_rounds == 0 && bites == 0, format!("watchdog bites {bites}, busy rounds {busy_rounds}"));
+    let bites: u32 = run
+        .bench
+        .thrusters
+        .iter()
+        .map(|thruster| thruster.watchdog_bites.get())
+        .sum();
+    run.check(
+        "no task stalled",
+        busy_rounds == 0 && bites == 0,
+        format!("watchdog bites {bites}, busy rounds {busy_rounds}"),
+    );
     let seconds = run.bench.seconds().max(1e-9);
     let bus = run.bench.bus().borrow();
     let utilisation = bus.bits as f64 * 10e-6 / seconds;
@@ -340,7 +383,15 @@ fn common_checks(run: &mut Run) {
     drop(bus);
     let mut rates = Vec::new();
     let mut errors = json!({});
-    for (i, watch) in run.bench.master.shared.thrusters.iter().take(run.bench.thrusters.len()).enumerate() {
+    for (i, watch) in run
+        .bench
+        .master
+        .shared
+        .thrusters
+        .iter()
+        .take(run.bench.thrusters.len())
+        .enumerate()
+    {
         let health = watch.try_get().map(|report| report.health).unwrap_or_default();
         rates.push(round(f64::from(health.good) / seconds, 1));
         errors[format!("T{}", i + 1)] = json!({
@@ -349,7 +400,12 @@ fn common_checks(run: &mut Run) {
             "bus_error": health.bus_error, "recoveries": health.recoveries,
         });
     }
-    let rejected: u32 = run.bench.thrusters.iter().map(|thruster| thruster.line.resets.get()).sum();
+    let rejected: u32 = run
+        .bench
+        .thrusters
+        .iter()
+        .map(|thruster| thruster.line.resets.get())
+        .sum();
     run.metric("poll_rate_hz", json!(rates));
     run.metric("bus_utilisation", json!(round(utilisation, 3)));
     run.metric("bus_transfers", json!(transfers));
@@ -364,28 +420,54 @@ fn common_checks(run: &mut Run) {
 fn dive(run: &mut Run) {
     run.arm_and_go(AHEAD);
     let acked = run.bench.ground.seen.acks.first().copied();
-    run.check("arming accepted", acked == Some((400, 0)), format!("first COMMAND_ACK {acked:?}"));
+    run.check(
+        "arming accepted",
+        acked == Some((400, 0)),
+        format!("first COMMAND_ACK {acked:?}"),
+    );
 
     // Console to wire: a new stick position reaches thruster 1's controller.
     let before = run.bench.thrusters[0].shared().link.try_get().map(|link| link.order);
-    let latency = run.run_until(0.5, |bench| bench.thrusters[0].shared().link.try_get().map(|link| link.order) != before);
+    let latency = run.run_until(0.5, |bench| {
+        bench.thrusters[0].shared().link.try_get().map(|link| link.order) != before
+    });
     let latency_ms = latency.map(|s| round(s * 1e3, 2));
     run.metric("console_to_wire_latency_ms", json!(latency_ms));
-    run.check("stick reaches the thruster within 40 ms", latency.is_some_and(|s| s <= 0.04), format!("{latency_ms:?} ms"));
+    run.check(
+        "stick reaches the thruster within 40 ms",
+        latency.is_some_and(|s| s <= 0.04),
+        format!("{latency_ms:?} ms"),
+    );
 
     run.run_for(3.0);
     let rpm: Vec<f64> = (0..4).map(|i| round(run.rpm(i), 0)).collect();
-    run.check("the horizontal thrusters turn ahead", rpm.iter().all(|r| *r > 800.0), format!("rpm {rpm:?}"));
+    run.check(
+        "the horizontal thrusters turn ahead",
+        rpm.iter().all(|r| *r > 800.0),
+        format!("rpm {rpm:?}"),
+    );
     // SeaBotix thrusters report their speed; Legacy ones only their current (IDS 8.4.1).
     let seen = run.bench.ground.seen.clone();
-    let moving = run.bench.thrusters.iter().zip(seen.rpm.iter().zip(seen.current_ca)).take(4).all(|(thruster, (rpm, ca))| {
-        match thruster.config.family {
+    let moving = run
+        .bench
+        .thrusters
+        .iter()
+        .zip(seen.rpm.iter().zip(seen.current_ca))
+        .take(4)
+        .all(|(thruster, (rpm, ca))| match thruster.config.family {
             Family::SeaBotix => *rpm > 500,
             Family::Legacy => ca > 0,
-        }
-    });
-    run.check("ESC telemetry reaches the console", moving, format!("telemetry rpm {:?}, cA {:?}", seen.rpm, seen.current_ca));
-    run.check("the ground station sees it armed", run.bench.ground.seen.armed, "HEARTBEAT armed flag");
+        });
+    run.check(
+        "ESC telemetry reaches the console",
+        moving,
+        format!("telemetry rpm {:?}, cA {:?}", seen.rpm, seen.current_ca),
+    );
+    run.check(
+        "the ground station sees it armed",
+        run.bench.ground.seen.armed,
+        "HEARTBEAT armed flag",
+    );
 
     run.bench.ground.sticks = Some(ManualInput { r: 500, ..AHEAD });
     run.run_for(3.0);
@@ -395,7 +477,12 @@ fn dive(run: &mut Run) {
 
     run.disarm();
     run.run_for(2.0);
-    let duties: Vec<i16> = run.bench.thrusters.iter().map(|thruster| thruster.drive().1.value()).collect();
+    let duties: Vec<i16> = run
+        .bench
+        .thrusters
+        .iter()
+        .map(|thruster| thruster.drive().1.value())
+        .collect();
     let still: Vec<f64> = (0..run.bench.thrusters.len()).map(|i| round(run.rpm(i), 0)).collect();
     run.check(
         "disarmed, every thruster stops driving and slows",
@@ -403,7 +490,11 @@ fn dive(run: &mut Run) {
         format!("duty {duties:?}, rpm {still:?}"),
     );
     let faults: Vec<u8> = (0..run.bench.thrusters.len()).map(|i| run.faults(i).bits()).collect();
-    run.check("no faults in a clean dive", faults.iter().all(|f| *f == 0), format!("fault bits {faults:?}"));
+    run.check(
+        "no faults in a clean dive",
+        faults.iter().all(|f| *f == 0),
+        format!("fault bits {faults:?}"),
+    );
     run.metric("battery_v_at_end", json!(round(run.bench.battery.voltage, 2)));
 }
 
@@ -419,12 +510,20 @@ fn inject_and_time(run: &mut Run, inject: impl FnOnce(&mut Bench)) -> Option<f64
 fn coasted_within_a_sample(run: &mut Run, took: Option<f64>) {
     let ms = took.map(|s| round(s * 1e3, 2));
     run.metric("reaction_ms", json!(ms));
-    run.check("T1 stops within one 1 ms sample", took.is_some_and(|s| s <= 0.0011), format!("coasted after {ms:?} ms"));
+    run.check(
+        "T1 stops within one 1 ms sample",
+        took.is_some_and(|s| s <= 0.0011),
+        format!("coasted after {ms:?} ms"),
+    );
 }
 
 fn others_keep_working(run: &mut Run) {
     let rpm: Vec<f64> = (1..4).map(|i| round(run.rpm(i), 0)).collect();
-    run.check("the other thrusters keep working", rpm.iter().all(|r| *r > 800.0), format!("T2-T4 rpm {rpm:?}"));
+    run.check(
+        "the other thrusters keep working",
+        rpm.iter().all(|r| *r > 800.0),
+        format!("T2-T4 rpm {rpm:?}"),
+    );
 }
 
 fn family(run: &Run) -> Family {
@@ -437,10 +536,18 @@ fn water(run: &mut Run) {
     if legacy {
         coasted_within_a_sample(run, took);
     } else {
-        run.check("SeaBotix keeps driving on water", took.is_none(), format!("coasted after {took:?} s"));
+        run.check(
+            "SeaBotix keeps driving on water",
+            took.is_none(),
+            format!("coasted after {took:?} s"),
+        );
     }
     run.run_for(0.5);
-    run.check("WATER reported", run.faults(0).contains(Faults::WATER), format!("faults {:#04x}", run.faults(0).bits()));
+    run.check(
+        "WATER reported",
+        run.faults(0).contains(Faults::WATER),
+        format!("faults {:#04x}", run.faults(0).bits()),
+    );
     run.check("the console hears of it", run.said("T1 fault: water"), "STATUSTEXT");
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().water_ohms = 20_000_000;
@@ -448,9 +555,17 @@ fn water(run: &mut Run) {
     let still = run.faults(0).contains(Faults::WATER);
     if legacy {
         let duty = run.duty(0);
-        run.check("Legacy: water latched until power cycle", still && duty == 0, format!("duty {duty} after drying"));
+        run.check(
+            "Legacy: water latched until power cycle",
+            still && duty == 0,
+            format!("duty {duty} after drying"),
+        );
     } else {
-        run.check("SeaBotix: the warning clears when dry", !still && run.rpm(0) > 800.0, format!("rpm {:.0}", run.rpm(0)));
+        run.check(
+            "SeaBotix: the warning clears when dry",
+            !still && run.rpm(0) > 800.0,
+            format!("rpm {:.0}", run.rpm(0)),
+        );
     }
 }
 
@@ -458,14 +573,22 @@ fn ground_fault(run: &mut Run) {
     let took = inject_and_time(run, |bench| bench.thrusters[0].plant.borrow_mut().water_ohms = 50_000);
     coasted_within_a_sample(run, took);
     run.run_for(0.5);
-    run.check("GROUND reported", run.faults(0).contains(Faults::GROUND), format!("faults {:#04x}", run.faults(0).bits()));
+    run.check(
+        "GROUND reported",
+        run.faults(0).contains(Faults::GROUND),
+        format!("faults {:#04x}", run.faults(0).bits()),
+    );
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().water_ohms = 20_000_000;
     run.run_for(1.5);
     run.check(
         "latched until power cycle",
         run.faults(0).contains(Faults::GROUND) && run.duty(0) == 0,
-        format!("faults {:#04x}, duty {} after drying", run.faults(0).bits(), run.duty(0)),
+        format!(
+            "faults {:#04x}, duty {} after drying",
+            run.faults(0).bits(),
+            run.duty(0)
+        ),
     );
 }
 
@@ -483,7 +606,11 @@ fn overtemp(run: &mut Run) {
         stopped.is_some() && (109.9..111.0).contains(&at),
         format!("coasted after {stopped:?} s at {at:.2} C"),
     );
-    run.check("OVERTEMP reported", run.faults(0).contains(Faults::OVERTEMP), format!("faults {:#04x}", run.faults(0).bits()));
+    run.check(
+        "OVERTEMP reported",
+        run.faults(0).contains(Faults::OVERTEMP),
+        format!("faults {:#04x}", run.faults(0).bits()),
+    );
     run.bench.thrusters[0].plant.borrow_mut().ambient_c = 15.0;
     run.bench.note("T1: surroundings back to 15 C");
     let resumed = run.run_until(20.0, |bench| bench.thrusters[0].drive().1.value() != 0);
@@ -503,14 +630,26 @@ fn stall(run: &mut Run) {
     let ms = took.map(|s| round(s * 1e3, 1));
     run.metric("stall_detected_after_ms", json!(ms));
     // The window counts pulses over the last 400 ms: the last pulses before the block are in it at first.
-    run.check("stall stops it within the 400 ms window", took.is_some_and(|s| (0.39..=0.41).contains(&s)), format!("{ms:?} ms"));
+    run.check(
+        "stall stops it within the 400 ms window",
+        took.is_some_and(|s| (0.39..=0.41).contains(&s)),
+        format!("{ms:?} ms"),
+    );
     run.run_for(0.2);
-    run.check("STALL reported", run.faults(0).contains(Faults::STALL), format!("faults {:#04x}", run.faults(0).bits()));
+    run.check(
+        "STALL reported",
+        run.faults(0).contains(Faults::STALL),
+        format!("faults {:#04x}", run.faults(0).bits()),
+    );
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().blocked = false;
     run.bench.note("T1: propeller freed");
     run.run_for(1.0);
-    run.check("still stopped until a zero order", run.rpm(0).abs() < 100.0, format!("rpm {:.0}", run.rpm(0)));
+    run.check(
+        "still stopped until a zero order",
+        run.rpm(0).abs() < 100.0,
+        format!("rpm {:.0}", run.rpm(0)),
+    );
     run.bench.ground.sticks = Some(NEUTRAL);
     run.run_for(0.5);
     run.bench.ground.sticks = Some(AHEAD);
@@ -529,9 +668,17 @@ fn hall(run: &mut Run) {
     });
     let ms = took.map(|s| round(s * 1e3, 2));
     run.metric("reaction_ms", json!(ms));
-    run.check("coasts at once", took.is_some_and(|s| s <= 0.0011), format!("{ms:?} ms"));
+    run.check(
+        "coasts at once",
+        took.is_some_and(|s| s <= 0.0011),
+        format!("{ms:?} ms"),
+    );
     run.run_for(0.2);
-    run.check("HALL reported", run.faults(0).contains(Faults::HALL), format!("faults {:#04x}", run.faults(0).bits()));
+    run.check(
+        "HALL reported",
+        run.faults(0).contains(Faults::HALL),
+        format!("faults {:#04x}", run.faults(0).bits()),
+    );
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().hall_fault = None;
     run.bench.note("T1: halls plugged in");
@@ -549,26 +696,63 @@ fn bad_frames(run: &mut Run) {
     run.bench.bus().borrow_mut().slaves[1].corrupt = 0x01;
     run.bench.note("T2: status bytes corrupted");
     run.run_for(1.0);
-    let health = |run: &Run, i: usize| run.bench.master.shared.thrusters[i].try_get().map(|r| r.health).unwrap_or_default();
+    let health = |run: &Run, i: usize| {
+        run.bench.master.shared.thrusters[i]
+            .try_get()
+            .map(|r| r.health)
+            .unwrap_or_default()
+    };
     let h = health(run, 1);
-    run.check("bad status frames are counted", h.bad_type + h.bad_checksum > 0, format!("{h:?}"));
-    run.check("and mark the thruster offline", !h.online, format!("online {}", h.online));
+    run.check(
+        "bad status frames are counted",
+        h.bad_type + h.bad_checksum > 0,
+        format!("{h:?}"),
+    );
+    run.check(
+        "and mark the thruster offline",
+        !h.online,
+        format!("online {}", h.online),
+    );
     run.bench.bus().borrow_mut().slaves[1].corrupt = 0;
     run.run_for(1.0);
-    run.check("it comes back once the line is clean", health(run, 1).online, "online again");
+    run.check(
+        "it comes back once the line is clean",
+        health(run, 1).online,
+        "online again",
+    );
 
     // Orders with a bad checksum: the thruster discards them and keeps its last valid order.
-    let before = run.bench.thrusters[2].shared().link.try_get().map(|link| (link.orders, link.order));
+    let before = run.bench.thrusters[2]
+        .shared()
+        .link
+        .try_get()
+        .map(|link| (link.orders, link.order));
     run.bench.bus().borrow_mut().slaves[2].corrupt_orders = 0x55;
     run.bench.note("T3: orders corrupted");
     run.bench.ground.sticks = Some(ManualInput { x: -600, ..AHEAD });
     run.run_for(1.0);
-    let after = run.bench.thrusters[2].shared().link.try_get().map(|link| (link.orders, link.order));
-    run.check("corrupted orders change nothing", before == after, format!("before {before:?}, after {after:?}"));
-    run.check("T3 keeps its last valid order", run.rpm(2) > 800.0, format!("T3 rpm {:.0}", run.rpm(2)));
+    let after = run.bench.thrusters[2]
+        .shared()
+        .link
+        .try_get()
+        .map(|link| (link.orders, link.order));
+    run.check(
+        "corrupted orders change nothing",
+        before == after,
+        format!("before {before:?}, after {after:?}"),
+    );
+    run.check(
+        "T3 keeps its last valid order",
+        run.rpm(2) > 800.0,
+        format!("T3 rpm {:.0}", run.rpm(2)),
+    );
     run.bench.bus().borrow_mut().slaves[2].corrupt_orders = 0;
     run.run_for(1.5);
-    run.check("valid orders apply again", run.rpm(2) < -800.0, format!("T3 rpm {:.0}", run.rpm(2)));
+    run.check(
+        "valid orders apply again",
+        run.rpm(2) < -800.0,
+        format!("T3 rpm {:.0}", run.rpm(2)),
+    );
 }
 
 fn missing_thruster(run: &mut Run) {
@@ -576,18 +760,42 @@ fn missing_thruster(run: &mut Run) {
     run.bench.note("T4 unpowered");
     run.arm_and_go(AHEAD);
     run.run_for(4.0);
-    let health = |run: &Run, i: usize| run.bench.master.shared.thrusters[i].try_get().map(|r| r.health).unwrap_or_default();
+    let health = |run: &Run, i: usize| {
+        run.bench.master.shared.thrusters[i]
+            .try_get()
+            .map(|r| r.health)
+            .unwrap_or_default()
+    };
     let missing = health(run, 3);
-    run.check("the missing thruster is offline", !missing.online && missing.nack > 0, format!("{missing:?}"));
-    run.check("retried with back-off", (3..=12).contains(&missing.nack), format!("{} NACKs in ~4.7 s", missing.nack));
+    run.check(
+        "the missing thruster is offline",
+        !missing.online && missing.nack > 0,
+        format!("{missing:?}"),
+    );
+    run.check(
+        "retried with back-off",
+        (3..=12).contains(&missing.nack),
+        format!("{} NACKs in ~4.7 s", missing.nack),
+    );
     let seconds = run.bench.seconds();
-    let rates: Vec<f64> = [0usize, 1, 2, 4, 5].iter().map(|i| f64::from(health(run, *i).good) / seconds).collect();
-    run.check("the others still poll at ~50 Hz", rates.iter().all(|r| *r > 45.0), format!("{rates:?} Hz"));
+    let rates: Vec<f64> = [0usize, 1, 2, 4, 5]
+        .iter()
+        .map(|i| f64::from(health(run, *i).good) / seconds)
+        .collect();
+    run.check(
+        "the others still poll at ~50 Hz",
+        rates.iter().all(|r| *r > 45.0),
+        format!("{rates:?} Hz"),
+    );
     run.check("the console hears of it", run.said("T4 offline"), "STATUSTEXT");
     run.bench.bus().borrow_mut().slaves[3].powered = true;
     run.bench.note("T4 powered");
     run.run_for(3.0);
-    run.check("it joins when it answers", health(run, 3).online && run.rpm(3) > 800.0, format!("rpm {:.0}", run.rpm(3)));
+    run.check(
+        "it joins when it answers",
+        health(run, 3).online && run.rpm(3) > 800.0,
+        format!("rpm {:.0}", run.rpm(3)),
+    );
 }
 
 fn stuck_sda(run: &mut Run) {
@@ -597,11 +805,23 @@ fn stuck_sda(run: &mut Run) {
     run.bench.bus().borrow_mut().sda_stuck = true;
     run.bench.note("SDA held low");
     let freed = run.run_until(1.0, |bench| !bench.bus().borrow().sda_stuck);
-    run.check("the master clocks the bus free", freed.is_some(), format!("after {freed:?} s"));
+    run.check(
+        "the master clocks the bus free",
+        freed.is_some(),
+        format!("after {freed:?} s"),
+    );
     run.run_for(1.0);
     let recoveries = run.bench.bus().borrow().recoveries - before;
-    let online = (0..6).all(|i| run.bench.master.shared.thrusters[i].try_get().is_some_and(|r| r.health.online));
-    run.check("polling resumes", online && recoveries >= 1, format!("{recoveries} recoveries, all online {online}"));
+    let online = (0..6).all(|i| {
+        run.bench.master.shared.thrusters[i]
+            .try_get()
+            .is_some_and(|r| r.health.online)
+    });
+    run.check(
+        "polling resumes",
+        online && recoveries >= 1,
+        format!("{recoveries} recoveries, all online {online}"),
+    );
 }
 
 fn reset_mid_transfer(run: &mut Run) {
@@ -613,9 +833,16 @@ fn reset_mid_transfer(run: &mut Run) {
     run.bench.power_cycle(2, Duration::from_millis(30));
     run.bench.note("T3 power back");
     run.run_for(2.0);
-    let h = run.bench.master.shared.thrusters[2].try_get().map(|r| r.health).unwrap_or_default();
+    let h = run.bench.master.shared.thrusters[2]
+        .try_get()
+        .map(|r| r.health)
+        .unwrap_or_default();
     run.check("the master rides it out", h.online, format!("{h:?}"));
-    run.check("the thruster rejoins and follows its order", run.rpm(2) > 800.0, format!("rpm {:.0}", run.rpm(2)));
+    run.check(
+        "the thruster rejoins and follows its order",
+        run.rpm(2) > 800.0,
+        format!("rpm {:.0}", run.rpm(2)),
+    );
     others_keep_working(run);
 }
 
@@ -624,7 +851,9 @@ fn console_silence(run: &mut Run) {
     run.run_for(1.0);
     run.bench.ground.connected = false;
     run.bench.note("console link lost");
-    let disarmed = run.run_until(2.0, |bench| !bench.master.shared.vehicle.try_get().is_some_and(|v| v.armed));
+    let disarmed = run.run_until(2.0, |bench| {
+        !bench.master.shared.vehicle.try_get().is_some_and(|v| v.armed)
+    });
     run.check(
         "disarms after 1 s of silence",
         disarmed.is_some_and(|s| (0.85..=1.15).contains(&s)),
@@ -632,12 +861,20 @@ fn console_silence(run: &mut Run) {
     );
     run.run_for(0.5);
     let duties: Vec<i16> = (0..6).map(|i| run.duty(i)).collect();
-    run.check("every thruster stops driving", duties.iter().all(|d| *d == 0), format!("duty {duties:?}"));
+    run.check(
+        "every thruster stops driving",
+        duties.iter().all(|d| *d == 0),
+        format!("duty {duties:?}"),
+    );
     run.bench.ground.connected = true;
     run.bench.note("console link back");
     run.run_for(1.5);
     let duties: Vec<i16> = (0..6).map(|i| run.duty(i)).collect();
-    run.check("no restart until re-armed", duties.iter().all(|d| *d == 0), format!("duty {duties:?}"));
+    run.check(
+        "no restart until re-armed",
+        duties.iter().all(|d| *d == 0),
+        format!("duty {duties:?}"),
+    );
     run.check("the console hears why", run.said("Failsafe"), "STATUSTEXT");
 }
 
@@ -647,8 +884,14 @@ fn battery_lost(run: &mut Run) {
     run.check("battery data fresh at first", fresh, "");
     run.bench.battery.sending = false;
     run.bench.note("BAT frames lost");
-    let stale = run.run_until(2.0, |bench| bench.master.shared.battery.try_get().is_some_and(|b| b.stale));
-    run.check("flagged stale after 1 s", stale.is_some_and(|s| (0.9..=1.2).contains(&s)), format!("after {stale:?} s"));
+    let stale = run.run_until(2.0, |bench| {
+        bench.master.shared.battery.try_get().is_some_and(|b| b.stale)
+    });
+    run.check(
+        "flagged stale after 1 s",
+        stale.is_some_and(|s| (0.9..=1.2).contains(&s)),
+        format!("after {stale:?} s"),
+    );
     run.run_for(2.0);
     run.bench.battery.sending = true;
     run.bench.note("BAT frames back");
@@ -660,15 +903,38 @@ fn battery_lost(run: &mut Run) {
 
 fn battery_bits(run: &mut Run) {
     run.run_for(1.0);
-    let startup = run.bench.ground.seen.texts.iter().filter(|(_, text)| text.starts_with("BAT ") && text.contains('=')).count();
-    run.check("start-up report names every bit", startup == 12, format!("{startup} bit texts"));
+    let startup = run
+        .bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .filter(|(_, text)| text.starts_with("BAT ") && text.contains('='))
+        .count();
+    run.check(
+        "start-up report names every bit",
+        startup == 12,
+        format!("{startup} bit texts"),
+    );
     let before = run.bench.ground.seen.texts.len();
     run.bench.battery.status = run.bench.battery.status.with(bat_proto::StatusBit::HsmSwFault, true);
     run.bench.note("BAT: HSM_SW_F set");
     run.run_for(1.0);
-    let new: Vec<String> = run.bench.ground.seen.texts.iter().skip(before).map(|(_, text)| text.clone()).collect();
+    let new: Vec<String> = run
+        .bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .skip(before)
+        .map(|(_, text)| text.clone())
+        .collect();
     let bits: Vec<&String> = new.iter().filter(|text| text.contains('=')).collect();
-    run.check("only the switched bit is reported", bits.len() == 1 && bits[0].contains("HSM_SW_F=1"), format!("{new:?}"));
+    run.check(
+        "only the switched bit is reported",
+        bits.len() == 1 && bits[0].contains("HSM_SW_F=1"),
+        format!("{new:?}"),
+    );
 }
 
 fn soak(run: &mut Run) {
@@ -706,7 +972,9 @@ fn soak(run: &mut Run) {
         // Once the links settle, every online thruster holds the order the master sends it.
         let orders = run.bench.master.shared.orders.try_get();
         for (i, thruster) in run.bench.thrusters.iter().enumerate() {
-            let online = run.bench.master.shared.thrusters[i].try_get().is_some_and(|r| r.health.online);
+            let online = run.bench.master.shared.thrusters[i]
+                .try_get()
+                .is_some_and(|r| r.health.online);
             let held = thruster.shared().link.try_get().map(|link| link.order);
             let sent = orders.and_then(|orders| orders.get(i).copied());
             if online && held.is_some() {
@@ -724,4 +992,41 @@ fn soak(run: &mut Run) {
         format!("{mismatches} of {comparisons} snapshots differed"),
     );
     run.disarm();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Mutex;
+
+    /// The virtual clock is one per process: bench runs take turns.
+    static CLOCK: Mutex<()> = Mutex::new(());
+
+    fn trace_of(seed: u64) -> String {
+        let _clock = CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let (report, bench) = run_with(find("dive").unwrap(), seed, Some(4.0), None);
+        assert!(report.sim_seconds >= 4.0);
+        serde_json::to_string(&bench.trace).unwrap()
+    }
+
+    #[test]
+    fn the_same_seed_gives_the_same_trace_bit_for_bit() {
+        let first = trace_of(7);
+        assert_eq!(first, trace_of(7));
+        assert_ne!(first, trace_of(8), "the seed sets the motors' starting positions");
+    }
+
+    #[test]
+    fn scenario_names_are_unique_and_cover_every_fault_on_both_families() {
+        let names: Vec<&str> = SCENARIOS.iter().map(|scenario| scenario.name).collect();
+        let mut unique = names.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), names.len());
+        for fault in ["water", "ground-fault", "overtemp", "stall", "hall"] {
+            for family in ["legacy", "seabotix"] {
+                assert!(find(&format!("{fault}-{family}")).is_some(), "{fault}-{family}");
+            }
+        }
+    }
 }

@@ -48,7 +48,11 @@ impl<'a> Executor<'a> {
     pub fn spawn(&mut self, task: impl Future<Output = ()> + 'a) -> TaskId {
         let flag = Arc::new(Flag(AtomicBool::new(true)));
         let waker = Waker::from(flag.clone());
-        self.slots.push(Slot { task: Some(Box::pin(task)), flag, waker });
+        self.slots.push(Slot {
+            task: Some(Box::pin(task)),
+            flag,
+            waker,
+        });
         TaskId(self.slots.len() - 1)
     }
 

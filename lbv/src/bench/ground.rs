@@ -65,7 +65,11 @@ impl Default for GroundStation {
 impl GroundStation {
     fn frame<D: MessageData>(&mut self, message: &D) -> Vec<u8> {
         let mut raw = MAVLinkV2MessageRaw::new();
-        let header = MavHeader { system_id: u32::from(SYSTEM), component_id: COMPONENT, sequence: self.sequence };
+        let header = MavHeader {
+            system_id: u32::from(SYSTEM),
+            component_id: COMPONENT,
+            sequence: self.sequence,
+        };
         self.sequence = self.sequence.wrapping_add(1);
         raw.serialize_message_data(header, message);
         raw.raw_bytes().to_vec()
@@ -151,12 +155,30 @@ impl GroundStation {
                         self.seen.texts.push((now, text));
                     }
                     MavMessage::ESC_TELEMETRY_1_TO_4(esc) => {
-                        self.seen.rpm.iter_mut().zip(esc.rpm).for_each(|(slot, rpm)| *slot = rpm);
-                        self.seen.current_ca.iter_mut().zip(esc.current).for_each(|(slot, ca)| *slot = ca);
+                        self.seen
+                            .rpm
+                            .iter_mut()
+                            .zip(esc.rpm)
+                            .for_each(|(slot, rpm)| *slot = rpm);
+                        self.seen
+                            .current_ca
+                            .iter_mut()
+                            .zip(esc.current)
+                            .for_each(|(slot, ca)| *slot = ca);
                     }
                     MavMessage::ESC_TELEMETRY_5_TO_8(esc) => {
-                        self.seen.rpm.iter_mut().skip(4).zip(esc.rpm).for_each(|(slot, rpm)| *slot = rpm);
-                        self.seen.current_ca.iter_mut().skip(4).zip(esc.current).for_each(|(slot, ca)| *slot = ca);
+                        self.seen
+                            .rpm
+                            .iter_mut()
+                            .skip(4)
+                            .zip(esc.rpm)
+                            .for_each(|(slot, rpm)| *slot = rpm);
+                        self.seen
+                            .current_ca
+                            .iter_mut()
+                            .skip(4)
+                            .zip(esc.current)
+                            .for_each(|(slot, ca)| *slot = ca);
                     }
                     MavMessage::SYS_STATUS(status) => self.seen.battery_mv = status.voltage_battery,
                     _ => {}

@@ -125,12 +125,16 @@ pub struct BusWorld {
 
 impl BusWorld {
     fn reachable(&self, slave: &BusSlave) -> bool {
-        slave.channel.is_none_or(|channel| self.mux_fitted && self.mux_mask & (1 << channel) != 0)
+        slave
+            .channel
+            .is_none_or(|channel| self.mux_fitted && self.mux_mask & (1 << channel) != 0)
     }
 
     /// The powered slave that answers `address`, if any.
     fn addressed(&self, address: u8) -> Option<&BusSlave> {
-        self.slaves.iter().find(|slave| slave.powered && slave.family.address() == address && self.reachable(slave))
+        self.slaves
+            .iter()
+            .find(|slave| slave.powered && slave.family.address() == address && self.reachable(slave))
     }
 }
 
@@ -159,7 +163,9 @@ impl MasterPort<'_> {
         let (stuck, mux, slave) = {
             let mut world = self.0.borrow_mut();
             world.transfers += 1;
-            let slave = world.addressed(address).map(|slave| (slave.line, slave.corrupt, slave.corrupt_orders));
+            let slave = world
+                .addressed(address)
+                .map(|slave| (slave.line, slave.corrupt, slave.corrupt_orders));
             (world.sda_stuck, world.mux_fitted && address == MUX_ADDRESS, slave)
         };
         if stuck {
@@ -168,10 +174,10 @@ impl MasterPort<'_> {
             return Err(ErrorKind::Bus);
         }
         if mux {
-            if let Operation::Write(bytes) = operation {
-                if let Some(mask) = bytes.first() {
-                    self.0.borrow_mut().mux_mask = *mask;
-                }
+            if let Operation::Write(bytes) = operation
+                && let Some(mask) = bytes.first()
+            {
+                self.0.borrow_mut().mux_mask = *mask;
             }
             self.charge(FRAME_BITS + data_bits).await;
             return Ok(());

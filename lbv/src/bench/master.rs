@@ -118,7 +118,10 @@ impl Master {
             can: Box::leak(Box::default()),
             console_stats: Box::leak(Box::new(ConsoleStats::new())),
         }));
-        let console: &'static ConsoleConfig = Box::leak(Box::new(ConsoleConfig { thrusters, ..ConsoleConfig::DEFAULT }));
+        let console: &'static ConsoleConfig = Box::leak(Box::new(ConsoleConfig {
+            thrusters,
+            ..ConsoleConfig::DEFAULT
+        }));
         let shared = master.shared;
         executor.spawn(async move {
             bus_task(&mut MasterPort(master.bus), 0, table, &PollConfig::DEFAULT, shared).await;
@@ -130,10 +133,23 @@ impl Master {
             console_rx_task(&mut ConsoleRx(master.console_in), console, shared, master.console_stats).await;
         });
         executor.spawn(async move {
-            console_tx_task(&mut ConsoleTx(master.console_out), console, shared, master.console_stats).await;
+            console_tx_task(
+                &mut ConsoleTx(master.console_out),
+                console,
+                shared,
+                master.console_stats,
+            )
+            .await;
         });
         executor.spawn(async move {
-            vehicle_task(VehicleConfig { thrusters, ..VehicleConfig::DEFAULT }, shared).await;
+            vehicle_task(
+                VehicleConfig {
+                    thrusters,
+                    ..VehicleConfig::DEFAULT
+                },
+                shared,
+            )
+            .await;
         });
         master
     }

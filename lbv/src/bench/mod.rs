@@ -48,7 +48,10 @@ pub struct BenchConfig {
 impl BenchConfig {
     /// An LBV300-6: six SeaBotix thrusters.
     pub fn lbv300(seed: u64) -> Self {
-        Self { families: vec![Family::SeaBotix; 6], seed }
+        Self {
+            families: vec![Family::SeaBotix; 6],
+            seed,
+        }
     }
 }
 
@@ -81,6 +84,9 @@ impl Random {
     }
 }
 
+/// Something that watches the samples as they are recorded.
+pub type Monitor = Box<dyn FnMut(&Sample)>;
+
 /// One vehicle on the bench.
 pub struct Bench {
     executor: Executor<'static>,
@@ -103,7 +109,7 @@ pub struct Bench {
     /// Extra ground-station bytes a UDP link or a scenario queued.
     outgoing: Vec<u8>,
     /// Called with every sample as it is recorded (the live view).
-    pub monitor: Option<Box<dyn FnMut(&Sample)>>,
+    pub monitor: Option<Monitor>,
 }
 
 impl Bench {
@@ -191,7 +197,9 @@ impl Bench {
 
     /// Cut a thruster's power now (its controller stops mid-whatever it was doing) and restore it after `off`.
     pub fn power_cycle(&mut self, index: usize, off: Duration) {
-        let Some(thruster) = self.thrusters.get(index).copied() else { return };
+        let Some(thruster) = self.thrusters.get(index).copied() else {
+            return;
+        };
         thruster.power_off(&mut self.executor);
         self.set_powered(index, false);
         self.run_for(off);
@@ -246,7 +254,10 @@ impl Bench {
         if !received.is_empty() {
             self.ground.receive(now, &received);
             for (at, text) in self.ground.seen.texts.iter().skip(self.texts_seen) {
-                self.trace.events.push(Event { t: at.as_micros() as f64 / 1e6, text: format!("STATUSTEXT {text}") });
+                self.trace.events.push(Event {
+                    t: at.as_micros() as f64 / 1e6,
+                    text: format!("STATUSTEXT {text}"),
+                });
             }
             self.texts_seen = self.ground.seen.texts.len();
         }
@@ -276,7 +287,11 @@ impl Bench {
                     rpm: plant.rpm(),
                     current_a: plant.phase_current_a(),
                     temperature_c: plant.winding_c(),
-                    faults: thruster.shared().sensed.try_get().map_or(0, |sensed| sensed.faults.bits()),
+                    faults: thruster
+                        .shared()
+                        .sensed
+                        .try_get()
+                        .map_or(0, |sensed| sensed.faults.bits()),
                     online: self
                         .master
                         .shared
@@ -284,7 +299,9 @@ impl Bench {
                         .get(i)
                         .and_then(|watch| watch.try_get())
                         .is_some_and(|report| report.health.online),
-                    ordered_step: orders.and_then(|orders| orders.get(i).map(|order| order.speed.step())).unwrap_or(0),
+                    ordered_step: orders
+                        .and_then(|orders| orders.get(i).map(|order| order.speed.step()))
+                        .unwrap_or(0),
                 }
             })
             .collect();

@@ -54,7 +54,9 @@ const ROW_H: f64 = LANE_H * 5.0 + 5.0;
 const ARMED_H: f64 = 40.0;
 const LABEL_ROW_H: f64 = 13.0;
 const MAX_LABEL_ROWS: usize = 4;
-const LABEL_CHARS: usize = 28;
+const LABEL_CHARS: usize = 36;
+/// Events closer than this share a label, px.
+const GROUP_PX: f64 = 4.0;
 /// Rough width of one character at the label font size, px.
 const CHAR_W: f64 = 5.9;
 
@@ -161,6 +163,8 @@ struct Label {
     row: usize,
     text: String,
     anchor_end: bool,
+    /// How many events (from this one on) the label stands for.
+    covers: usize,
 }
 
 /// Everything needed to draw one trace.
@@ -431,7 +435,7 @@ impl<'a> Plot<'a> {
         if self.skipped > 0 {
             notes.push(format!("{} non-finite value(s) skipped", self.skipped));
         }
-        let hidden = labels.iter().filter(|l| l.is_none()).count();
+        let hidden = self.events.len() - labels.iter().flatten().map(|l| l.covers).sum::<usize>();
         if hidden > 0 {
             notes.push(format!(
                 "{hidden} event label(s) hidden where events crowd; hover a marker for its text"
@@ -754,14 +758,31 @@ impl<'a> Plot<'a> {
         }
     }
 
-    /// Decide each event's label row: the first of [`MAX_LABEL_ROWS`] rows where it overlaps nothing; `None`
-    /// where every row is taken (the marker stays, with its text on hover).
+    /// Decide each event's label. Events within [`GROUP_PX`] of each other share one label, the first one's
+    /// text with "(+N)"; each label goes in the first of [`MAX_LABEL_ROWS`] rows where it overlaps nothing. The
+    /// result lines up with `self.events`: `None` for an event in another's group, or whose label found no room
+    /// (its marker stays, with its text on hover).
     fn place_labels(&self) -> Vec<Option<Label>> {
         let mut rows: Vec<Vec<(f64, f64)>> = vec![Vec::new(); MAX_LABEL_ROWS];
-        let mut labels = Vec::new();
-        for event in &self.events {
-            let x = self.frame.x(event.t);
-            let text = one_line(&event.text, LABEL_CHARS);
+        let mut labels: Vec<Option<Label>> = Vec::with_capacity(self.events.len());
+        let xs: Vec<f64> = self.events.iter().map(|e| self.frame.x(e.t)).collect();
+        let mut i = 0;
+        while let Some(&x) = xs.get(i) {
+            let group = xs
+                .iter()
+                .skip(i)
+                .take_while(|&&other| other - x <= GROUP_PX)
+                .count()
+                .max(1);
+            let text = self.events.get(i).map_or(String::new(), |event| {
+                if group > 1 {
+                    let more = format!(" (+{})", group - 1);
+                    let first = one_line(&event.text, LABEL_CHARS.saturating_sub(more.chars().count()).max(8));
+                    first + &more
+                } else {
+                    one_line(&event.text, LABEL_CHARS)
+                }
+            });
             let w = text.chars().count() as f64 * CHAR_W + 6.0;
             let anchor_end = x + w > WIDTH - RIGHT;
             let span = if anchor_end { (x - w, x + 1.0) } else { (x - 1.0, x + w) };
@@ -772,8 +793,15 @@ impl<'a> Plot<'a> {
                 if let Some(taken) = rows.get_mut(row) {
                     taken.push(span);
                 }
-                Label { row, text, anchor_end }
+                Label {
+                    row,
+                    text,
+                    anchor_end,
+                    covers: group,
+                }
             }));
+            labels.extend(std::iter::repeat_n(None, group - 1));
+            i += group;
         }
         labels
     }
@@ -1648,15 +1676,17 @@ mod tests {
     #[test]
     fn close_event_labels_are_staggered_and_crowds_hidden() {
         let mut trace = demo(1, 10.0);
+        // 12 events about 10 px apart: four rows of labels, then no room.
         trace.events = (0..12)
             .map(|i| Event {
-                t: 4.0 + f64::from(i) * 0.01,
-                text: format!("event {i} with a long text to cut short"),
+                t: 4.0 + f64::from(i) * 0.1,
+                text: format!("event {i} with a long text to cut it short"),
             })
             .collect();
         let plot_samples: Vec<&Sample> = trace.samples.iter().collect();
         let plot = Plot::new(&trace, &plot_samples);
         let labels = plot.place_labels();
+        assert_eq!(labels.len(), 12);
         let rows: Vec<usize> = labels.iter().flatten().map(|l| l.row).collect();
         assert_eq!(rows, (0..MAX_LABEL_ROWS).collect::<Vec<_>>());
         assert!(
@@ -1669,6 +1699,27 @@ mod tests {
         check_xml(&doc).expect("well-formed");
         assert_eq!(count(&doc, "<g class=\"event\">"), 12);
         assert!(doc.contains("8 event label(s) hidden"));
+    }
+
+    #[test]
+    fn simultaneous_events_share_a_label() {
+        let mut trace = demo(1, 10.0);
+        trace.events = (1..=5)
+            .map(|k| Event {
+                t: 0.0,
+                text: format!("T{k} online"),
+            })
+            .collect();
+        trace.events.push(Event {
+            t: 0.5,
+            text: "armed".to_string(),
+        });
+        let doc = svg(&trace, "together");
+        check_xml(&doc).expect("well-formed");
+        assert!(doc.contains(">T1 online (+4)</text>"));
+        assert!(doc.contains(">armed</text>"));
+        assert!(!doc.contains("hidden"));
+        assert_eq!(count(&doc, "<g class=\"event\">"), 6);
     }
 
     #[test]

@@ -6,13 +6,13 @@ use core::cell::{Cell, RefCell};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant};
+use thruster_fw::Duty;
 use thruster_fw::commutation::{BridgeDrive, COAST};
 use thruster_fw::hall::HallState;
 use thruster_fw::tasks::{
     Bridge, Config, HallSensors, RawSample, Sensors, Shared, Watchdog, commutation_task, control_task, fault_task,
     health_task, i2c_task,
 };
-use thruster_fw::Duty;
 use tmc_proto::{Family, MotorKind};
 
 use super::executor::{Executor, TaskId};
@@ -66,7 +66,13 @@ impl Thruster {
         self.last_feed.set(Instant::now());
         let ids = [
             executor.spawn(async move {
-                i2c_task(&mut SlavePort::new(self.line), self.config.family, self.config.motor, shared).await;
+                i2c_task(
+                    &mut SlavePort::new(self.line),
+                    self.config.family,
+                    self.config.motor,
+                    shared,
+                )
+                .await;
             }),
             executor.spawn(async move {
                 let (motor, pole_pairs) = (self.config.motor, self.config.pole_pairs);
@@ -144,12 +150,16 @@ impl Sensors for Adc {
     async fn sample(&mut self) -> RawSample {
         let plant = self.0.plant.borrow();
         let config = &self.0.config;
-        let decicelsius = (plant.winding_c() * 10.0).round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        let decicelsius = (plant.winding_c() * 10.0)
+            .round()
+            .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
         let counts = plant.phase_current_a() * 1000.0 / f64::from(config.current.milliamps_per_count);
         RawSample {
             water: config.water.raw_at(plant.water_ohms),
             temperature: config.ntc.raw_at(decicelsius),
-            current: (f64::from(config.current.offset_raw) + counts).round().clamp(0.0, 4095.0) as u16,
+            current: (f64::from(config.current.offset_raw) + counts)
+                .round()
+                .clamp(0.0, 4095.0) as u16,
         }
     }
 }
@@ -161,4 +171,3 @@ impl Watchdog for Dog {
         self.0.last_feed.set(Instant::now());
     }
 }
-
