@@ -215,8 +215,8 @@ impl Bench {
 
     /// Let `duration` of virtual time pass.
     pub fn run_for(&mut self, duration: Duration) {
-        let end = Instant::now() + duration;
-        while Instant::now() < end {
+        let steps = duration.as_ticks().div_ceil(STEP.as_ticks());
+        for _ in 0..steps {
             self.step();
         }
     }
@@ -236,7 +236,7 @@ impl Bench {
         let supply = self.battery.voltage;
         let mut drawn = HOTEL_LOAD_A;
         for thruster in &self.thrusters {
-            thruster.step(dt, supply);
+            thruster.step(now, dt, supply);
             drawn += thruster.plant.borrow().supply_current_a();
         }
         self.battery.step(dt, drawn);

@@ -809,14 +809,29 @@ impl<'a> Plot<'a> {
     /// Event markers across all panels, with their labels in the band above.
     fn events_layer(&self, out: &mut Svg, labels: &[Option<Label>], band_top: f64, plot_top: f64, plot_bottom: f64) {
         out.0.push_str("<g class=\"events\">\n");
-        for (event, label) in self.events.iter().zip(labels) {
+        let mut in_group = 0;
+        for (i, (event, label)) in self.events.iter().zip(labels).enumerate() {
             let x = self.frame.x(event.t);
+            // A shared label's marker tells every event of its group on hover.
+            let covers = label.as_ref().map_or(1, |l| l.covers);
+            let tooltip: Vec<String> = self
+                .events
+                .iter()
+                .skip(i)
+                .take(covers)
+                .map(|e| format!("{} s: {}", fmt_time(e.t), e.text))
+                .collect();
             let _ = write!(
                 out.0,
-                "<g class=\"event\"><title>{} s: {}</title>",
-                fmt_time(event.t),
-                escape(&event.text)
+                "<g class=\"event\"><title>{}</title>",
+                escape(&tooltip.join("\n"))
             );
+            let grouped = in_group > 0;
+            in_group = if covers > 1 {
+                covers - 1
+            } else {
+                in_group.saturating_sub(1)
+            };
             let line_top = match label {
                 Some(l) => band_top + l.row as f64 * LABEL_ROW_H + 3.0,
                 None => plot_top,
@@ -828,14 +843,17 @@ impl<'a> Plot<'a> {
                 plot_bottom,
                 "stroke=\"#343a40\" stroke-opacity=\"0.55\" stroke-width=\"1\"",
             );
-            // A wider invisible line makes the marker easy to hover.
-            out.line(
-                x,
-                line_top,
-                x,
-                plot_bottom,
-                "stroke=\"#000\" stroke-opacity=\"0\" stroke-width=\"6\"",
-            );
+            // A wider invisible line makes the marker easy to hover (the group's first one only, so that it
+            // is the one to answer).
+            if !grouped {
+                out.line(
+                    x,
+                    line_top,
+                    x,
+                    plot_bottom,
+                    "stroke=\"#000\" stroke-opacity=\"0\" stroke-width=\"6\"",
+                );
+            }
             if let Some(l) = label {
                 let base = band_top + (l.row + 1) as f64 * LABEL_ROW_H - 2.0;
                 let (tx, anchor) = if l.anchor_end {
@@ -1717,6 +1735,11 @@ mod tests {
         let doc = svg(&trace, "together");
         check_xml(&doc).expect("well-formed");
         assert!(doc.contains(">T1 online (+4)</text>"));
+        assert!(
+            doc.contains(
+                "<title>0 s: T1 online\n0 s: T2 online\n0 s: T3 online\n0 s: T4 online\n0 s: T5 online</title>"
+            )
+        );
         assert!(doc.contains(">armed</text>"));
         assert!(!doc.contains("hidden"));
         assert_eq!(count(&doc, "<g class=\"event\">"), 6);

@@ -106,15 +106,15 @@ impl Thruster {
         self.drive.get()
     }
 
-    /// Advance the motor by `dt` on `supply_v`, raising a hall edge when the halls change.
-    pub fn step(&self, dt: f64, supply_v: f64) {
+    /// Advance the motor by `dt` on `supply_v` at `now`, raising a hall edge when the halls change.
+    pub fn step(&self, now: Instant, dt: f64, supply_v: f64) {
         let (drive, duty) = self.drive.get();
         if self.plant.borrow_mut().step(dt, drive, duty, supply_v) {
             self.hall_edge.signal(());
         }
-        if Instant::now() - self.last_feed.get() > WATCHDOG_TIMEOUT && !self.tasks.borrow().is_empty() {
+        if now - self.last_feed.get() > WATCHDOG_TIMEOUT && !self.tasks.borrow().is_empty() {
             self.watchdog_bites.set(self.watchdog_bites.get() + 1);
-            self.last_feed.set(Instant::now());
+            self.last_feed.set(now);
         }
     }
 
