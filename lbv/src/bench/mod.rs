@@ -14,6 +14,7 @@ pub mod plant;
 pub mod plot;
 pub mod thruster;
 pub mod trace;
+pub mod udp;
 
 use core::cell::RefCell;
 
@@ -87,6 +88,9 @@ impl Random {
 /// Something that watches the samples as they are recorded.
 pub type Monitor = Box<dyn FnMut(&Sample)>;
 
+/// Where the master's console output goes when an outside ground station has the link.
+pub type ConsoleSink = Box<dyn FnMut(&[u8])>;
+
 /// One vehicle on the bench.
 pub struct Bench {
     executor: Executor<'static>,
@@ -110,6 +114,10 @@ pub struct Bench {
     outgoing: Vec<u8>,
     /// Called with every sample as it is recorded (the live view).
     pub monitor: Option<Monitor>,
+    /// Set when an outside ground station has the console link (`lbv bench --udp`): the master's output goes
+    /// here instead of to [`Bench::ground`], which then sends nothing; the outside station's bytes come in
+    /// through [`Bench::send`].
+    pub console_sink: Option<ConsoleSink>,
 }
 
 impl Bench {
@@ -166,6 +174,7 @@ impl Bench {
             busy_rounds: 0,
             outgoing: Vec::new(),
             monitor: None,
+            console_sink: None,
         }
     }
 
@@ -246,12 +255,18 @@ impl Bench {
         }
 
         let mut outgoing = core::mem::take(&mut self.outgoing);
-        outgoing.extend(self.ground.periodic(now));
+        if self.console_sink.is_none() {
+            outgoing.extend(self.ground.periodic(now));
+        }
         if !outgoing.is_empty() && self.ground.connected {
             self.master.console_in.send(outgoing);
         }
         let received = core::mem::take(&mut *self.master.console_out.borrow_mut());
-        if !received.is_empty() {
+        if let Some(sink) = self.console_sink.as_mut() {
+            if !received.is_empty() {
+                sink(&received);
+            }
+        } else if !received.is_empty() {
             self.ground.receive(now, &received);
             for (at, text) in self.ground.seen.texts.iter().skip(self.texts_seen) {
                 self.trace.events.push(Event {

@@ -254,7 +254,6 @@ impl<'a> Plot<'a> {
                 if iter.peek().is_none() {
                     runs.push((start, end));
                 }
-                open = Some(start);
             } else if let Some(start) = open.take() {
                 runs.push((start, s.t));
             }

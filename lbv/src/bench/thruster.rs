@@ -19,6 +19,10 @@ use super::executor::{Executor, TaskId};
 use super::i2c::{SlaveLine, SlavePort};
 use super::plant::{MotorParams, Plant};
 
+/// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
+/// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
+const CURRENT_LIMIT_A: f64 = 8.0;
+
 /// How often the watchdog task checks; the independent watchdog bites after `WATCHDOG_TIMEOUT` unfed.
 const WATCHDOG_FEED: Duration = Duration::from_millis(50);
 const WATCHDOG_TIMEOUT: Duration = Duration::from_millis(250);
@@ -41,6 +45,10 @@ pub struct Thruster {
     last_feed: Cell<Instant>,
     /// Times the watchdog would have reset the controller.
     pub watchdog_bites: Cell<u32>,
+    /// The fraction of the commanded duty the break input lets through (1.0 when not limiting).
+    current_limit: Cell<f64>,
+    /// Steps during which the break input limited the current.
+    pub limited_steps: Cell<u64>,
     tasks: RefCell<Vec<TaskId>>,
 }
 
@@ -56,6 +64,8 @@ impl Thruster {
             hall_edge: Signal::new(),
             last_feed: Cell::new(Instant::from_ticks(0)),
             watchdog_bites: Cell::new(0),
+            current_limit: Cell::new(1.0),
+            limited_steps: Cell::new(0),
             tasks: RefCell::new(Vec::new()),
         }))
     }
@@ -109,8 +119,20 @@ impl Thruster {
     /// Advance the motor by `dt` on `supply_v` at `now`, raising a hall edge when the halls change.
     pub fn step(&self, now: Instant, dt: f64, supply_v: f64) {
         let (drive, duty) = self.drive.get();
-        if self.plant.borrow_mut().step(dt, drive, duty, supply_v) {
+        let passed = Duty::new_saturating((f64::from(duty.value()) * self.current_limit.get()).round() as i32);
+        let mut plant = self.plant.borrow_mut();
+        if plant.step(dt, drive, passed, supply_v) {
             self.hall_edge.signal(());
+        }
+        // The hardware break acts within the PWM period; on average it scales the duty to hold the limit.
+        let current = plant.phase_current_a();
+        drop(plant);
+        let scale = self.current_limit.get();
+        if current > CURRENT_LIMIT_A {
+            self.current_limit.set((scale * CURRENT_LIMIT_A / current).max(0.0));
+            self.limited_steps.set(self.limited_steps.get() + 1);
+        } else {
+            self.current_limit.set((scale * 1.05).min(1.0));
         }
         if now - self.last_feed.get() > WATCHDOG_TIMEOUT && !self.tasks.borrow().is_empty() {
             self.watchdog_bites.set(self.watchdog_bites.get() + 1);
