@@ -1,10 +1,12 @@
 //! `lbv`: host tools for the LBV propulsion. `lbv bench` runs the whole vehicle (the real master and thruster
-//! firmware cores, a battery board, simulated buses and motors) on virtual time.
+//! firmware cores, a battery board, simulated buses and motors) on virtual time; `lbv bench --udp` runs it in real
+//! time with its MAVLink console on UDP, for a ground station to fly.
 
 mod bench;
 mod scenarios;
 
 use std::io::{IsTerminal, Write};
+use std::net::SocketAddr;
 use std::process::ExitCode;
 
 use bench::trace::Sample;
@@ -14,13 +16,23 @@ const USAGE: &str = "\
 usage: lbv bench [--scenario NAME] [--seed N] [--duration SECONDS] [--json FILE] [--plot FILE.svg] [--quiet]
        lbv bench --all [--seed N] [--json FILE]
        lbv bench --list
+       lbv bench --udp [--udp-send ADDR:PORT] [--udp-listen ADDR:PORT] [--udp-any] [--seed N] [--duration S] [--quiet]
 
 With no options: the dive scenario, with a live view of the thrusters and a summary at the end.
 --list       name every scenario
 --all        run every scenario; the exit status is non-zero if any check fails
 --json FILE  write the report (a list of reports with --all) as JSON
 --plot FILE  draw rpm, current, temperature and faults over time as SVG
---quiet      no live view";
+--quiet      no live view (with --udp: no status lines)
+
+--udp        the dive scenario's vehicle with no scripted pilot, in real time, its MAVLink console on UDP for a
+             ground station (QGroundControl, pymavlink) to arm and fly it; runs until interrupted, or for
+             --duration seconds. A status line every second: armed, each thruster's rpm, datagrams.
+--udp-send ADDR:PORT    where the master's MAVLink goes (default 127.0.0.1:14550, where QGroundControl and
+                        `pymavlink udpin:0.0.0.0:14550` listen)
+--udp-listen ADDR:PORT  where the bench receives the station's MAVLink (default 127.0.0.1:14551); a loopback
+                        address only, unless --udp-any
+--udp-any    allow --udp-listen on an address other than loopback (exposes the vehicle to the network)";
 
 /// What the command line asked for.
 #[derive(Debug, Default)]
@@ -33,6 +45,10 @@ struct Options {
     json: Option<String>,
     plot: Option<String>,
     quiet: bool,
+    udp: bool,
+    udp_send: Option<SocketAddr>,
+    udp_listen: Option<SocketAddr>,
+    udp_any: bool,
 }
 
 fn parse(args: &[String]) -> Result<Options, String> {
@@ -64,11 +80,44 @@ fn parse(args: &[String]) -> Result<Options, String> {
                 }
                 options.plot = Some(file);
             }
+            "--udp" => options.udp = true,
+            "--udp-any" => options.udp_any = true,
+            "--udp-send" => options.udp_send = Some(address("--udp-send", &value("--udp-send")?)?),
+            "--udp-listen" => options.udp_listen = Some(address("--udp-listen", &value("--udp-listen")?)?),
             "-h" | "--help" => return Err(String::new()),
             other => return Err(format!("unknown option {other}")),
         }
     }
+    if options.udp {
+        if options.all {
+            return Err("--udp runs one vehicle: it does not go with --all".into());
+        }
+        if let Some(name) = options.scenario.as_deref().filter(|name| *name != "dive") {
+            return Err(format!(
+                "--udp flies the dive scenario's vehicle with the ground station as pilot: --scenario {name} does \
+                 not go with it"
+            ));
+        }
+        if options.json.is_some() || options.plot.is_some() {
+            return Err("--json and --plot report scripted scenarios: they do not go with --udp".into());
+        }
+        if let Some(listen) = options.udp_listen
+            && !listen.ip().is_loopback()
+            && !options.udp_any
+        {
+            return Err(format!(
+                "--udp-listen {listen} is not a loopback address: add --udp-any to listen on the network"
+            ));
+        }
+    } else if options.udp_send.is_some() || options.udp_listen.is_some() || options.udp_any {
+        return Err("--udp-send, --udp-listen and --udp-any go with --udp".into());
+    }
     Ok(options)
+}
+
+fn address(option: &str, text: &str) -> Result<SocketAddr, String> {
+    text.parse()
+        .map_err(|_| format!("{option} needs an address and port such as 127.0.0.1:14550, not {text}"))
 }
 
 fn main() -> ExitCode {
@@ -95,6 +144,9 @@ fn main() -> ExitCode {
             println!("{:<22} {:>5.0} s  {}", scenario.name, scenario.seconds, scenario.about);
         }
         return ExitCode::SUCCESS;
+    }
+    if options.udp {
+        return udp(&options);
     }
     let chosen: Vec<&Scenario> = if options.all {
         SCENARIOS.iter().collect()
@@ -154,6 +206,61 @@ fn main() -> ExitCode {
     } else {
         ExitCode::FAILURE
     }
+}
+
+/// `--udp`: the dive vehicle, no scripted pilot, its console bridged to UDP, paced to the wall clock.
+fn udp(options: &Options) -> ExitCode {
+    let send = options.udp_send.unwrap_or(bench::udp::DEFAULT_SEND);
+    let listen = options.udp_listen.unwrap_or(bench::udp::DEFAULT_LISTEN);
+    let Some(dive) = scenarios::find("dive") else {
+        eprintln!("lbv: no dive scenario to take the vehicle from");
+        return ExitCode::from(2);
+    };
+    let link = match bench::udp::UdpLink::open(listen, send) {
+        Ok(link) => link,
+        Err(error) => {
+            eprintln!("lbv: cannot listen on {listen}: {error}");
+            return ExitCode::from(2);
+        }
+    };
+    let listening = link.local_addr().unwrap_or(listen);
+    let config = (dive.vehicle)(options.seed);
+    let vehicle: Vec<String> = config.families.iter().map(|family| format!("{family:?}")).collect();
+    println!(
+        "lbv bench: MAVLink console on UDP, sending to {send}, listening on {listening}; vehicle {} (seed {}); \
+         real time, {}",
+        vehicle.join(" "),
+        options.seed,
+        match options.duration {
+            Some(seconds) => format!("for {seconds} s"),
+            None => "until interrupted (Ctrl-C)".into(),
+        }
+    );
+    let mut bench = bench::Bench::new(&config);
+    let duration = options
+        .duration
+        .map(|seconds| embassy_time::Duration::from_micros((seconds * 1e6) as u64));
+    let clock = match bench::udp::serve(&mut bench, &link, duration, !options.quiet) {
+        Ok(clock) => clock,
+        Err(error) => {
+            eprintln!("lbv: the UDP link failed: {error}");
+            return ExitCode::from(2);
+        }
+    };
+    let (simulated, wall) = (bench.seconds(), clock.elapsed().as_secs_f64());
+    let counters = link.counters();
+    println!(
+        "lbv bench: {simulated:.1} s simulated in {wall:.1} s; datagrams in {}, out {}, errors {}",
+        counters.datagrams_in, counters.datagrams_out, counters.errors
+    );
+    if !clock.lost().is_zero() {
+        println!(
+            "lbv bench: could not keep pace with the wall clock (machine too slow or busy): virtual time fell \
+             {:.2} s behind; it ran as fast as it could",
+            clock.lost().as_secs_f64()
+        );
+    }
+    ExitCode::SUCCESS
 }
 
 /// A compact view redrawn once per simulated second: one line per thruster and one for the battery.

@@ -412,8 +412,12 @@ fn common_checks(run: &mut Run) {
     run.metric("bus_recoveries", json!(recoveries));
     run.metric("link_errors", errors);
     run.metric("slave_reinits", json!(rejected));
-    let limited: Vec<f64> =
-        run.bench.thrusters.iter().map(|thruster| round(thruster.limited_steps.get() as f64 * 50e-6, 3)).collect();
+    let limited: Vec<f64> = run
+        .bench
+        .thrusters
+        .iter()
+        .map(|thruster| round(thruster.limited_steps.get() as f64 * 50e-6, 3))
+        .collect();
     run.metric("current_limited_seconds", json!(limited));
     run.metric("steps", json!(steps));
     run.metric("task_polls", json!(polls));
