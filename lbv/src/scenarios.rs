@@ -254,8 +254,8 @@ pub const SCENARIOS: &[Scenario] = &[
     },
     Scenario {
         name: "bad-frames",
-        about: "corrupted status checksums and corrupted orders on one thruster: counted, nothing else changes",
-        seconds: 6.0,
+        about: "corrupted status frames, orders with bad checksums and out-of-range orders: counted, change nothing",
+        seconds: 8.0,
         vehicle: mixed,
         run: bad_frames,
     },
@@ -760,6 +760,28 @@ fn bad_frames(run: &mut Run) {
         run.rpm(2) < -800.0,
         format!("T3 rpm {:.0}", run.rpm(2)),
     );
+
+    // Orders with a good checksum but an out-of-range SPEED byte: discarded the same way.
+    let before = run.bench.thrusters[2]
+        .shared()
+        .link
+        .try_get()
+        .map(|link| (link.orders, link.order));
+    run.bench.bus().borrow_mut().slaves[2].out_of_range_orders = true;
+    run.bench.note("T3: orders out of range");
+    run.bench.ground.sticks = Some(AHEAD);
+    run.run_for(1.0);
+    let after = run.bench.thrusters[2]
+        .shared()
+        .link
+        .try_get()
+        .map(|link| (link.orders, link.order));
+    run.check(
+        "out-of-range orders change nothing",
+        before == after,
+        format!("before {before:?}, after {after:?}"),
+    );
+    run.bench.bus().borrow_mut().slaves[2].out_of_range_orders = false;
 }
 
 fn missing_thruster(run: &mut Run) {

@@ -102,6 +102,8 @@ pub struct BusSlave {
     pub corrupt: u8,
     /// Flip these bits of the last byte the master writes to it (the order's checksum arrives wrong).
     pub corrupt_orders: u8,
+    /// Replace the SPEED byte of every order it receives by 0x00, out of range, with a checksum that matches.
+    pub out_of_range_orders: bool,
 }
 
 /// The bus, its multiplexer, and what the bench counts.
@@ -163,9 +165,14 @@ impl MasterPort<'_> {
         let (stuck, mux, slave) = {
             let mut world = self.0.borrow_mut();
             world.transfers += 1;
-            let slave = world
-                .addressed(address)
-                .map(|slave| (slave.line, slave.corrupt, slave.corrupt_orders));
+            let slave = world.addressed(address).map(|slave| {
+                (
+                    slave.line,
+                    slave.corrupt,
+                    slave.corrupt_orders,
+                    slave.out_of_range_orders,
+                )
+            });
             (world.sda_stuck, world.mux_fitted && address == MUX_ADDRESS, slave)
         };
         if stuck {
@@ -182,7 +189,7 @@ impl MasterPort<'_> {
             self.charge(FRAME_BITS + data_bits).await;
             return Ok(());
         }
-        let Some((line, corrupt, corrupt_orders)) = slave else {
+        let Some((line, corrupt, corrupt_orders, out_of_range)) = slave else {
             self.charge(FRAME_BITS).await;
             return Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address));
         };
@@ -191,6 +198,10 @@ impl MasterPort<'_> {
         line.transfer.signal(match operation {
             Operation::Write(bytes) => {
                 let mut bytes = bytes.to_vec();
+                if out_of_range && let [mt, speed, info, csum] = bytes.as_mut_slice() {
+                    *speed = 0x00;
+                    *csum = tmc_proto::checksum(&[*mt, *speed, *info]);
+                }
                 if let Some(last) = bytes.last_mut() {
                     *last ^= corrupt_orders;
                 }

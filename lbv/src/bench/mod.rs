@@ -149,6 +149,7 @@ impl Bench {
                     powered: true,
                     corrupt: 0,
                     corrupt_orders: 0,
+                    out_of_range_orders: false,
                 })
                 .collect(),
             mux_fitted: true,
