@@ -3,6 +3,8 @@
 //! time with its MAVLink console on UDP, for a ground station to fly.
 
 mod bench;
+mod decode;
+mod hil;
 mod scenarios;
 
 use std::io::{IsTerminal, Write};
@@ -122,14 +124,21 @@ fn address(option: &str, text: &str) -> Result<SocketAddr, String> {
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    let rest = args.get(1..).unwrap_or_default();
     match args.first().map(String::as_str) {
-        Some("bench") => {}
+        Some("bench") => bench_main(rest),
+        Some("decode") => decode::main(rest),
+        Some("hil") => hil::main(rest),
         _ => {
-            eprintln!("{USAGE}");
-            return ExitCode::from(2);
+            eprintln!("{USAGE}\n{}\n{}", decode::USAGE, hil::USAGE);
+            ExitCode::from(2)
         }
     }
-    let options = match parse(args.get(1..).unwrap_or_default()) {
+}
+
+/// `lbv bench ...`
+fn bench_main(args: &[String]) -> ExitCode {
+    let options = match parse(args) {
         Ok(options) => options,
         Err(message) => {
             if !message.is_empty() {
