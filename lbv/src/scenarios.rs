@@ -416,7 +416,12 @@ fn common_checks(run: &mut Run) {
         .bench
         .thrusters
         .iter()
-        .map(|thruster| round(thruster.limited_steps.get() as f64 * 50e-6, 3))
+        .map(|thruster| {
+            round(
+                thruster.limited_steps.get() as f64 * crate::bench::STEP.as_micros() as f64 / 1e6,
+                3,
+            )
+        })
         .collect();
     run.metric("current_limited_seconds", json!(limited));
     run.metric("steps", json!(steps));
