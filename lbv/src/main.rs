@@ -23,6 +23,7 @@ usage: lbv bench [--scenario NAME] [--seed N] [--duration SECONDS] [--json FILE]
 With no options: the dive scenario, with a live view of the thrusters and a summary at the end.
 --list       name every scenario
 --all        run every scenario; the exit status is non-zero if any check fails
+--duration S the soak's length; other scenarios run their script to the end, then on to S if it is longer
 --json FILE  write the report (a list of reports with --all) as JSON
 --plot FILE  draw rpm, current, temperature and faults over time as SVG
 --quiet      no live view (with --udp: no status lines)
