@@ -133,7 +133,7 @@ fn stick(value: i16) -> i32 {
 }
 
 /// `numerator / denominator` rounded to nearest, half away from zero; `denominator` is positive.
-fn round_div(numerator: i32, denominator: i32) -> i32 {
+pub(crate) fn round_div(numerator: i32, denominator: i32) -> i32 {
     let half = denominator / 2;
     if numerator >= 0 {
         (numerator + half) / denominator

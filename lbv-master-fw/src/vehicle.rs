@@ -37,7 +37,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Ticker, with_deadline};
 use tmc_proto::{Order, Speed};
 
-use crate::mixer::{FrameKind, mix};
+use crate::mixer::{FrameKind, mix, round_div};
 use crate::shared::{
     AckResult, Command, MAX_THRUSTERS, ManualInput, Outgoing, ParamId, Severity, Shared, VehicleState, text,
 };
@@ -510,16 +510,6 @@ fn to_integer(value: f32) -> Option<i32> {
     let rounded = if value >= 0.0 { value + 0.5 } else { value - 0.5 };
     // Saturating conversion; out-of-range values stay out of range.
     Some(rounded as i32)
-}
-
-/// `numerator / denominator` rounded to nearest, half away from zero; `denominator` is positive.
-fn round_div(numerator: i32, denominator: i32) -> i32 {
-    let half = denominator / 2;
-    if numerator >= 0 {
-        (numerator + half) / denominator
-    } else {
-        -((-numerator + half) / denominator)
-    }
 }
 
 fn ack(out: &mut impl FnMut(Outgoing), command: u16, result: AckResult) {

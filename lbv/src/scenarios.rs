@@ -529,6 +529,16 @@ fn coasted_within_a_sample(run: &mut Run, took: Option<f64>) {
     );
 }
 
+/// Thruster 1 reports `fault` in its status.
+fn reported(run: &mut Run, fault: Faults) {
+    let faults = run.faults(0);
+    run.check(
+        &format!("{} reported", fault.name()),
+        faults.contains(fault),
+        format!("faults {:#04x}", faults.bits()),
+    );
+}
+
 fn others_keep_working(run: &mut Run) {
     let rpm: Vec<f64> = (1..4).map(|i| round(run.rpm(i), 0)).collect();
     run.check(
@@ -555,11 +565,7 @@ fn water(run: &mut Run) {
         );
     }
     run.run_for(0.5);
-    run.check(
-        "WATER reported",
-        run.faults(0).contains(Faults::WATER),
-        format!("faults {:#04x}", run.faults(0).bits()),
-    );
+    reported(run, Faults::WATER);
     run.check("the console hears of it", run.said("T1 fault: water"), "STATUSTEXT");
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().water_ohms = 20_000_000;
@@ -585,11 +591,7 @@ fn ground_fault(run: &mut Run) {
     let took = inject_and_time(run, |bench| bench.thrusters[0].plant.borrow_mut().water_ohms = 50_000);
     coasted_within_a_sample(run, took);
     run.run_for(0.5);
-    run.check(
-        "GROUND reported",
-        run.faults(0).contains(Faults::GROUND),
-        format!("faults {:#04x}", run.faults(0).bits()),
-    );
+    reported(run, Faults::GROUND);
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().water_ohms = 20_000_000;
     run.run_for(1.5);
@@ -618,11 +620,7 @@ fn overtemp(run: &mut Run) {
         stopped.is_some() && (109.9..111.0).contains(&at),
         format!("coasted after {stopped:?} s at {at:.2} C"),
     );
-    run.check(
-        "OVERTEMP reported",
-        run.faults(0).contains(Faults::OVERTEMP),
-        format!("faults {:#04x}", run.faults(0).bits()),
-    );
+    reported(run, Faults::OVERTEMP);
     run.bench.thrusters[0].plant.borrow_mut().ambient_c = 15.0;
     run.bench.note("T1: surroundings back to 15 C");
     let resumed = run.run_until(20.0, |bench| bench.thrusters[0].drive().1.value() != 0);
@@ -648,11 +646,7 @@ fn stall(run: &mut Run) {
         format!("{ms:?} ms"),
     );
     run.run_for(0.2);
-    run.check(
-        "STALL reported",
-        run.faults(0).contains(Faults::STALL),
-        format!("faults {:#04x}", run.faults(0).bits()),
-    );
+    reported(run, Faults::STALL);
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().blocked = false;
     run.bench.note("T1: propeller freed");
@@ -686,11 +680,7 @@ fn hall(run: &mut Run) {
         format!("{ms:?} ms"),
     );
     run.run_for(0.2);
-    run.check(
-        "HALL reported",
-        run.faults(0).contains(Faults::HALL),
-        format!("faults {:#04x}", run.faults(0).bits()),
-    );
+    reported(run, Faults::HALL);
     others_keep_working(run);
     run.bench.thrusters[0].plant.borrow_mut().hall_fault = None;
     run.bench.note("T1: halls plugged in");
