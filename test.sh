@@ -14,12 +14,16 @@ as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 step "toolchain"
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
-if ! command -v arm-none-eabi-size >/dev/null; then
+# Debian packages: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use.
+packages=()
+command -v arm-none-eabi-size >/dev/null || packages+=(binutils-arm-none-eabi)
+command -v sigrok-cli >/dev/null || packages+=(sigrok-cli)
+if [ ${#packages[@]} -gt 0 ]; then
   as_root apt-get update -qq
-  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq binutils-arm-none-eabi >/dev/null
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${packages[@]}" >/dev/null
 fi
-# pymavlink: the independent MAVLink implementation the console is tested against.
-python3 -c 'import pymavlink' 2>/dev/null || python3 -m pip install --quiet pymavlink
+# Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against.
+python3 -c 'import pymavlink, cantools' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools
 cargo --version
 
 step "rustfmt"
