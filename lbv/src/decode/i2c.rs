@@ -1,0 +1,1315 @@
+//! `lbv decode i2c`: read what sigrok's I2C protocol decoder made of a logic capture (sigrok-cli's annotation
+//! output or a PulseView annotation export) and print each transfer on the thruster bus decoded with `tmc-proto`.
+//!
+//! The input is one annotation per line. Three layouts are read, each with or without the sample range in front:
+//! - sigrok-cli `-A i2c`: `i2c-1: Address write: 29`; with `--protocol-decoder-samplenum`:
+//!   `35-105 i2c-1: Address write: 29`; at log level 4 or more (`-l 4`) the annotation class and every text,
+//!   quoted: `35-105 i2c-1: address-write: "Address write: 29" "AW: 29" "29"`.
+//! - PulseView "Export all annotations" / "Export annotations for this row": its default format `%s %d: %r: %1`
+//!   gives `35-105 I²C: Address/Data: Address write: 29`; any format built from `%s` (if there, first), `%d`,
+//!   `%r`, `%c`, `%1` or `%a`, with fields separated by `: `, `,`, `;` or tabs, and with or without `%q` quotes,
+//!   is read.
+//! - sigrok-cli `--protocol-decoder-jsontrace` (Google trace events): times come from its `ts` field (µs).
+//!
+//! Of each line only the annotation text counts: `Start`, `Start repeat`, `Stop`, `ACK`, `NACK`,
+//! `Address read: HH`, `Address write: HH`, `Data read: HH`, `Data write: HH` (hex; any letter case), and the
+//! bit and read/write marker annotations (`0`, `1`, `Read`, `Write`), which are ignored. Other lines are reported
+//! on standard error with their line number and skipped.
+//!
+//! Transfers: a START (or repeated START) followed by an address and data bytes, ended by STOP or the next
+//! repeated START. Writes to 0x29 / 0x2A are orders of the SeaBotix / Legacy family, reads from them statuses;
+//! anything else is printed raw (a TCA9548A mux at 0x70..=0x77 is named, with its channel mask).
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{self, BufRead, BufReader, Write};
+use std::process::ExitCode;
+
+use serde::Serialize;
+use tmc_proto::{DecodeError, Family, Faults, MaxPower, MotorKind, ORDER_LEN, Order, Speed, Status, checksum};
+
+/// One-line usage, shown by `lbv decode` and on errors.
+pub const USAGE: &str = "usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]";
+
+const HELP: &str = "\
+usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]
+
+Reads the output of sigrok's I2C protocol decoder from FILE, or standard input when FILE is - or absent, one
+annotation per line, in any of these layouts:
+  sigrok-cli -i capture.sr -P i2c:scl=D0:sda=D1 -A i2c          i2c-1: Address write: 29
+    ... with --protocol-decoder-samplenum                      35-105 i2c-1: Address write: 29
+    ... with -l 4 (class and all texts, quoted)                35-105 i2c-1: address-write: \"Address write: 29\" ...
+    ... --protocol-decoder-jsontrace (times in the ts field)   {\"ph\": \"B\", \"ts\": 35.0, \"name\": \"Address write: 29\", ...}
+  PulseView export of annotations, default format %s %d: %r: %1:
+                                                               35-105 I²C: Address/Data: Address write: 29
+    any format of %s (if there, first), %d, %r, %c, %1 or %a, separated by ': ' , ; or tabs, with or without %q
+Bit and read/write annotations are ignored; other lines are reported (with their line number) and skipped.
+
+Prints one line per transfer (START or repeated START to STOP or the next repeated START): start time, time since
+the previous transfer, address, W/R, then the thruster order or status decoded with tmc-proto (0x29 SeaBotix,
+0x2A Legacy: speed, INFO, faults, current, temperature, checksum verdict), a mux select at 0x70-0x77, or the raw
+bytes; NACKed addresses as NACK (no thruster). At the end, time since the last transfer to the same address.
+
+--json          one JSON object per transfer and line: time, address, direction, ack, bytes, family, kind
+                (order, status, other), the decoded fields, checksum_ok, error, since_prev_s,
+                since_prev_same_address_s, duration_s
+--samplerate HZ turn sample numbers into seconds (1000000, 1e6, 1M and 1MHz are the same). Without it, and
+                without trace times, time is null; the human line then shows the start sample @N or the
+                transfer number #N
+--unshifted     the addresses were exported unshifted (sigrok's address_format=unshifted: R/W bit included)
+
+A summary goes to standard error. Exit status 0, also with skipped lines; 1 if the input cannot be read; 2 for
+usage errors.";
+
+/// What the command line asked for.
+#[derive(Debug, Default)]
+struct Options {
+    input: Option<String>,
+    json: bool,
+    samplerate: Option<f64>,
+    unshifted: bool,
+    help: bool,
+}
+
+fn parse_options(args: &[String]) -> Result<Options, String> {
+    let mut options = Options::default();
+    let mut args = args.iter();
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--json" => options.json = true,
+            "--unshifted" => options.unshifted = true,
+            "-h" | "--help" => options.help = true,
+            "--samplerate" => {
+                let value = args
+                    .next()
+                    .ok_or("--samplerate needs a rate in Hz, such as 1000000 or 1M")?;
+                options.samplerate = Some(parse_rate(value)?);
+            }
+            other if other.starts_with("--samplerate=") => {
+                options.samplerate = Some(parse_rate(other.trim_start_matches("--samplerate="))?);
+            }
+            other if other.starts_with('-') && other != "-" => return Err(format!("unknown option {other}")),
+            file => {
+                if let Some(first) = &options.input {
+                    return Err(format!("one input at a time: {first} or {file}"));
+                }
+                options.input = Some(file.to_string());
+            }
+        }
+    }
+    Ok(options)
+}
+
+/// A sample rate in Hz: a number with an optional k / M / G multiplier and an optional `Hz`.
+fn parse_rate(text: &str) -> Result<f64, String> {
+    let bad = || format!("--samplerate needs a positive rate in Hz, such as 1000000 or 1M, not {text}");
+    let mut number = text.trim();
+    if number.len() >= 2
+        && number
+            .get(number.len() - 2..)
+            .is_some_and(|tail| tail.eq_ignore_ascii_case("hz"))
+    {
+        number = number.get(..number.len() - 2).unwrap_or_default().trim_end();
+    }
+    let (digits, scale) = match number.chars().last() {
+        Some('k' | 'K') => (number.get(..number.len() - 1), 1e3),
+        Some('M') => (number.get(..number.len() - 1), 1e6),
+        Some('G' | 'g') => (number.get(..number.len() - 1), 1e9),
+        _ => (Some(number), 1.0),
+    };
+    let value: f64 = digits.unwrap_or_default().trim().parse().map_err(|_| bad())?;
+    let rate = value * scale;
+    if rate.is_finite() && rate > 0.0 {
+        Ok(rate)
+    } else {
+        Err(bad())
+    }
+}
+
+/// `lbv decode i2c ...`
+pub fn main(args: &[String]) -> ExitCode {
+    let options = match parse_options(args) {
+        Ok(options) => options,
+        Err(message) => {
+            eprintln!("lbv decode i2c: {message}\n{USAGE}");
+            return ExitCode::from(2);
+        }
+    };
+    if options.help {
+        println!("{HELP}");
+        return ExitCode::SUCCESS;
+    }
+    let input: Box<dyn BufRead> = match options.input.as_deref() {
+        None | Some("-") => Box::new(io::stdin().lock()),
+        Some(path) => match File::open(path) {
+            Ok(file) => Box::new(BufReader::new(file)),
+            Err(error) => {
+                eprintln!("lbv decode i2c: cannot open {path}: {error}");
+                return ExitCode::from(2);
+            }
+        },
+    };
+    let stdout = io::stdout().lock();
+    let mut out = io::BufWriter::new(stdout);
+    let mut decoder = Decoder::new(&options);
+    let result = decoder.run(input, &mut out, &mut io::stderr());
+    let flushed = out.flush();
+    decoder.summary(&mut io::stderr());
+    match result.and(flushed) {
+        Ok(()) => ExitCode::SUCCESS,
+        // A reader that stopped early (`| head`) is not an error.
+        Err(error) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("lbv decode i2c: {error}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// What one annotation says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Event {
+    Start,
+    RepeatStart,
+    Stop,
+    Ack,
+    Nack,
+    /// Slave address as exported (shifted, 7-bit, unless `--unshifted`).
+    Address {
+        read: bool,
+        value: u8,
+    },
+    Data {
+        read: bool,
+        byte: u8,
+    },
+    /// Bits and the read/write marker: carried by the other annotations too, so not needed.
+    Ignored,
+}
+
+/// Where an annotation sits in time, as the export gives it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Stamp {
+    None,
+    /// Start and end sample numbers.
+    Samples(u64, u64),
+    /// Start time in seconds (trace events).
+    Seconds(f64),
+}
+
+/// One annotation line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Annotation {
+    event: Event,
+    stamp: Stamp,
+}
+
+/// Longest line read; annotation lines are far shorter.
+const MAX_LINE: usize = 1000;
+
+/// Read one line: `Ok(None)` for lines with nothing to read (blank, `#` comments, trace header and footer, trace
+/// end events), an error saying why for lines that are not I2C annotations.
+fn parse_line(line: &str) -> Result<Option<Annotation>, String> {
+    let text = line.trim_matches(|c: char| c.is_whitespace() || c == '\u{feff}');
+    if text.is_empty() || text.starts_with('#') {
+        return Ok(None);
+    }
+    if text.len() > MAX_LINE {
+        return Err(format!("line longer than {MAX_LINE} bytes"));
+    }
+    if text.starts_with('{') || text.starts_with(']') {
+        return parse_trace_event(text);
+    }
+    let (stamp, rest) = split_samples(text)?;
+    let event = if rest.contains('"') {
+        // Quoted texts (sigrok-cli -l 4, PulseView %q): the first quoted text that is an annotation.
+        rest.split('"').skip(1).step_by(2).find_map(parse_text)
+    } else {
+        // The annotation text is a field between the decoder, row and class names and anything after it: the
+        // leftmost, shortest run of fields that reads as an annotation.
+        let separators: Vec<(usize, usize)> = rest
+            .char_indices()
+            .filter(|(_, c)| matches!(c, ':' | ',' | ';' | '\t'))
+            .map(|(at, c)| (at, at + c.len_utf8()))
+            .collect();
+        let mut starts = std::iter::once(0).chain(separators.iter().map(|(_, after)| *after));
+        let ends: Vec<usize> = separators.iter().map(|(at, _)| *at).chain([rest.len()]).collect();
+        starts.find_map(|start| {
+            ends.iter()
+                .filter(|end| **end > start)
+                .find_map(|end| rest.get(start..*end).and_then(parse_text))
+        })
+    };
+    match event {
+        Some(event) => Ok(Some(Annotation { event, stamp })),
+        None => Err("not an I2C annotation".into()),
+    }
+}
+
+/// A leading `START-END` sample range, if any, and the rest of the line.
+fn split_samples(text: &str) -> Result<(Stamp, &str), String> {
+    let digits = |s: &str| s.find(|c: char| !c.is_ascii_digit()).unwrap_or(s.len());
+    let first = digits(text);
+    let Some(after_dash) = text.get(first..).and_then(|rest| rest.strip_prefix('-')) else {
+        return Ok((Stamp::None, text));
+    };
+    let second = digits(after_dash);
+    let (Some(start), Some(end), Some(rest)) = (text.get(..first), after_dash.get(..second), after_dash.get(second..))
+    else {
+        return Ok((Stamp::None, text));
+    };
+    let separated = rest.is_empty() || rest.starts_with(|c: char| c.is_whitespace() || matches!(c, ',' | ';' | ':'));
+    if start.is_empty() || end.is_empty() || !separated {
+        return Ok((Stamp::None, text));
+    }
+    let number = |s: &str| s.parse::<u64>().map_err(|_| format!("sample number {s} too large"));
+    let rest = rest.trim_start_matches(|c: char| c.is_whitespace() || matches!(c, ',' | ';' | ':'));
+    Ok((Stamp::Samples(number(start)?, number(end)?), rest))
+}
+
+/// One line of sigrok-cli's `--protocol-decoder-jsontrace` output.
+fn parse_trace_event(text: &str) -> Result<Option<Annotation>, String> {
+    if text.starts_with("{\"traceEvents\"") || text.starts_with(']') {
+        return Ok(None);
+    }
+    let body = text.strip_suffix(',').unwrap_or(text);
+    let value: serde_json::Value = serde_json::from_str(body).map_err(|_| "not a trace event".to_string())?;
+    if value.get("ph").and_then(serde_json::Value::as_str) != Some("B") {
+        // End events repeat the begin event's text.
+        return if value.get("ph").is_some() {
+            Ok(None)
+        } else {
+            Err("trace event without a phase".into())
+        };
+    }
+    let name = value
+        .get("name")
+        .and_then(serde_json::Value::as_str)
+        .unwrap_or_default();
+    let event = parse_text(name).ok_or("trace event that is not an I2C annotation")?;
+    let micros = value
+        .get("ts")
+        .and_then(serde_json::Value::as_f64)
+        .filter(|ts| ts.is_finite())
+        .ok_or("trace event without a time")?;
+    Ok(Some(Annotation {
+        event,
+        stamp: Stamp::Seconds(micros / 1e6),
+    }))
+}
+
+/// The event an annotation text stands for, if it is one of the I2C decoder's (longest) texts.
+fn parse_text(text: &str) -> Option<Event> {
+    let lower = text.trim().to_ascii_lowercase();
+    let event = match lower.as_str() {
+        "start" => Event::Start,
+        "start repeat" => Event::RepeatStart,
+        "stop" => Event::Stop,
+        "ack" => Event::Ack,
+        "nack" => Event::Nack,
+        "read" | "write" | "0" | "1" => Event::Ignored,
+        _ => {
+            let (head, value) = lower.split_once(':')?;
+            let value = value.trim();
+            let value = value.strip_prefix("0x").unwrap_or(value);
+            if value.is_empty() || value.len() > 2 || !value.bytes().all(|b| b.is_ascii_hexdigit()) {
+                return None;
+            }
+            let value = u8::from_str_radix(value, 16).ok()?;
+            match head.trim() {
+                "address read" => Event::Address { read: true, value },
+                "address write" => Event::Address { read: false, value },
+                "data read" => Event::Data {
+                    read: true,
+                    byte: value,
+                },
+                "data write" => Event::Data {
+                    read: false,
+                    byte: value,
+                },
+                _ => return None,
+            }
+        }
+    };
+    Some(event)
+}
+
+/// A moment: the sample number and / or the time in seconds, whichever the export gives.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct When {
+    sample: Option<u64>,
+    seconds: Option<f64>,
+}
+
+/// One transfer being put together: address, direction, data bytes and their acknowledges.
+#[derive(Debug, Clone, Default)]
+struct Transfer {
+    start: When,
+    end: When,
+    address: u8,
+    read: bool,
+    /// The address byte's acknowledge; `None` when the capture stops before it.
+    address_ack: Option<bool>,
+    bytes: Vec<u8>,
+    byte_acks: Vec<Option<bool>>,
+    problems: Vec<String>,
+}
+
+/// Groups annotations into transfers.
+#[derive(Debug, Default)]
+struct Assembler {
+    unshifted: bool,
+    samplerate: Option<f64>,
+    current: Option<Transfer>,
+    /// A START whose address has not come yet.
+    pending_start: Option<When>,
+}
+
+impl Assembler {
+    fn when(&self, stamp: Stamp) -> (When, When) {
+        match stamp {
+            Stamp::None => (When::default(), When::default()),
+            Stamp::Seconds(seconds) => {
+                let when = When {
+                    sample: None,
+                    seconds: Some(seconds),
+                };
+                (when, when)
+            }
+            Stamp::Samples(start, end) => {
+                let at = |sample: u64| When {
+                    sample: Some(sample),
+                    seconds: self.samplerate.map(|rate| sample as f64 / rate),
+                };
+                (at(start), at(end))
+            }
+        }
+    }
+
+    /// Take one annotation; returns the transfer it ends, if any, or why the annotation makes no sense here.
+    fn feed(&mut self, annotation: Annotation) -> Result<Option<Transfer>, String> {
+        let (start, end) = self.when(annotation.stamp);
+        match annotation.event {
+            Event::Ignored => Ok(None),
+            Event::Start | Event::RepeatStart => {
+                let finished = self.current.take().map(|mut transfer| {
+                    if annotation.event == Event::Start {
+                        transfer.problems.push("no STOP before the next START".into());
+                    }
+                    transfer.end = start;
+                    transfer
+                });
+                self.pending_start = Some(start);
+                Ok(finished)
+            }
+            Event::Stop => {
+                self.pending_start = None;
+                Ok(self.current.take().map(|mut transfer| {
+                    transfer.end = end;
+                    transfer
+                }))
+            }
+            Event::Address { read, value } => {
+                let address = if self.unshifted { value >> 1 } else { value };
+                if address > 0x7F {
+                    return Err(format!(
+                        "address {value:#04x} is not a 7-bit address (10-bit addressing is not read; an unshifted \
+                         export needs --unshifted)"
+                    ));
+                }
+                let finished = self.current.take().map(|mut transfer| {
+                    transfer
+                        .problems
+                        .push("no STOP or repeated START before the next address".into());
+                    transfer
+                });
+                self.current = Some(Transfer {
+                    start: self.pending_start.take().unwrap_or(start),
+                    end,
+                    address,
+                    read,
+                    ..Transfer::default()
+                });
+                Ok(finished)
+            }
+            Event::Ack | Event::Nack => {
+                let ack = annotation.event == Event::Ack;
+                let Some(transfer) = self.current.as_mut() else {
+                    return Err(format!("{} outside a transfer", if ack { "ACK" } else { "NACK" }));
+                };
+                transfer.end = end;
+                if transfer.bytes.is_empty() && transfer.address_ack.is_none() {
+                    transfer.address_ack = Some(ack);
+                    return Ok(None);
+                }
+                match transfer.byte_acks.last_mut() {
+                    Some(slot @ None) => {
+                        *slot = Some(ack);
+                        Ok(None)
+                    }
+                    _ => Err(format!("{} with no byte before it", if ack { "ACK" } else { "NACK" })),
+                }
+            }
+            Event::Data { read, byte } => {
+                let Some(transfer) = self.current.as_mut() else {
+                    return Err(format!(
+                        "data byte {byte:02X} outside a transfer (does the capture start in the middle of one?)"
+                    ));
+                };
+                if read != transfer.read {
+                    transfer.problems.push(format!(
+                        "data byte {byte:02X} goes the other way from the address's R/W bit"
+                    ));
+                }
+                transfer.end = end;
+                transfer.bytes.push(byte);
+                transfer.byte_acks.push(None);
+                Ok(None)
+            }
+        }
+    }
+
+    /// The transfer still open at the end of the input.
+    fn finish(&mut self) -> Option<Transfer> {
+        self.current.take().map(|mut transfer| {
+            transfer.problems.push("the capture ends before the STOP".into());
+            transfer
+        })
+    }
+}
+
+/// What kind of transfer a record is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+enum Kind {
+    Order,
+    Status,
+    #[default]
+    Other,
+}
+
+/// One transfer as printed: the JSON object, and the source of the human line.
+#[derive(Debug, Default, Serialize)]
+struct Record {
+    /// Start (START condition) in seconds from the start of the capture; null when the export gives no time.
+    time: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sample: Option<u64>,
+    /// Transfer number, from 0.
+    index: usize,
+    /// 7-bit address.
+    address: u8,
+    direction: &'static str,
+    /// Whether a device acknowledged the address; null when the capture stops before.
+    ack: Option<bool>,
+    bytes: Vec<u8>,
+    family: Option<&'static str>,
+    kind: Kind,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    device: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    mux_channels: Option<Vec<u8>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    speed_step: Option<i8>,
+    /// Brushless reading of the speed (full scale 4500 rpm; IDS 8.3.2).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    speed_rpm: Option<i32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    info: Option<u8>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    revision: Option<u8>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    motor: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    current_limited: Option<bool>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    faults: Option<Vec<&'static str>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    current_a: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    temperature_c: Option<u8>,
+    /// Legacy brushed status: the power set into the motor, as a speed step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    power_step: Option<i8>,
+    /// Legacy status: the MAX POWER byte as received.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    max_power: Option<u8>,
+    /// Whether CSUM matches the bytes before it; null when there is no thruster message of the right length.
+    checksum_ok: Option<bool>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    error: Option<String>,
+    /// Seconds since the previous transfer started (any address).
+    since_prev_s: Option<f64>,
+    /// Seconds since the previous transfer to the same address started.
+    since_prev_same_address_s: Option<f64>,
+    /// Seconds from START to STOP (or to the repeated START that ends it).
+    duration_s: Option<f64>,
+}
+
+/// The TCA9548A I2C multiplexer's address range.
+const MUX_ADDRESSES: std::ops::RangeInclusive<u8> = 0x70..=0x77;
+
+/// Build the record of a finished transfer.
+fn record(transfer: Transfer, index: usize) -> Record {
+    let mut record = Record {
+        time: transfer.start.seconds,
+        sample: transfer.start.sample,
+        index,
+        address: transfer.address,
+        direction: if transfer.read { "read" } else { "write" },
+        ack: transfer.address_ack,
+        family: Family::from_address(transfer.address).map(Family::name),
+        duration_s: transfer
+            .start
+            .seconds
+            .zip(transfer.end.seconds)
+            .map(|(start, end)| round_ns(end - start)),
+        ..Record::default()
+    };
+    let mut problems = transfer.problems;
+    if !transfer.read
+        && let Some(at) = transfer.byte_acks.iter().position(|ack| *ack == Some(false))
+        && at + 1 < transfer.bytes.len()
+    {
+        problems.push(format!("the slave NACKed data byte {at} and the master wrote on"));
+    }
+    let bytes = transfer.bytes;
+    match Family::from_address(transfer.address) {
+        Some(family) if transfer.address_ack != Some(false) => {
+            if transfer.read {
+                decode_status(&mut record, family, &bytes);
+            } else {
+                decode_order(&mut record, family, &bytes);
+            }
+        }
+        Some(_) => record.kind = if transfer.read { Kind::Status } else { Kind::Order },
+        None => {
+            if MUX_ADDRESSES.contains(&transfer.address) {
+                record.device = Some("TCA9548A mux");
+                if let [mask] = bytes[..] {
+                    record.mux_channels = Some((0..8).filter(|bit| mask & (1 << bit) != 0).collect());
+                }
+            }
+        }
+    }
+    if transfer.address_ack == Some(false) {
+        problems.insert(0, nack_text(record.family.is_some()).into());
+    }
+    if let Some(error) = record.error.take() {
+        problems.insert(0, error);
+    }
+    if !problems.is_empty() {
+        record.error = Some(problems.join("; "));
+    }
+    record.bytes = bytes;
+    record
+}
+
+/// The error of a transfer whose address no device acknowledged.
+fn nack_text(thruster: bool) -> &'static str {
+    if thruster {
+        "address NACKed: no thruster answered"
+    } else {
+        "address NACKed: no device answered"
+    }
+}
+
+/// Round a duration to the nanosecond, so differences of sample times print short.
+fn round_ns(seconds: f64) -> f64 {
+    (seconds * 1e9).round() / 1e9
+}
+
+/// Whether the last byte is the checksum of the others, for a message of the expected length.
+fn checksum_verdict(bytes: &[u8], expected_len: usize) -> Option<bool> {
+    match bytes.split_last() {
+        Some((csum, body)) if bytes.len() == expected_len => Some(checksum(body) == *csum),
+        _ => None,
+    }
+}
+
+/// An order to a thruster: decoded with `tmc-proto`; when that fails, the fields are still read where the layout
+/// allows (right length and message type), so a bad checksum shows what was sent.
+fn decode_order(record: &mut Record, family: Family, bytes: &[u8]) {
+    record.kind = Kind::Order;
+    record.checksum_ok = checksum_verdict(bytes, ORDER_LEN);
+    match Order::decode(family, bytes) {
+        Ok(order) => set_order(record, Some(order.speed), order.info),
+        Err(error) => {
+            record.error = Some(error.to_string());
+            if let [mt, speed, info, _] = bytes[..]
+                && mt == family.order_type()
+            {
+                set_order(record, Speed::from_byte(speed).ok(), info);
+            }
+        }
+    }
+}
+
+fn set_order(record: &mut Record, speed: Option<Speed>, info: u8) {
+    record.speed_step = speed.map(Speed::step);
+    record.speed_rpm = speed.map(Speed::rpm);
+    record.info = Some(info);
+}
+
+/// A status from a thruster: decoded with `tmc-proto`; when that fails, read again with the checksum (and an
+/// out-of-range speed byte) mended, so every field that can be read is shown.
+fn decode_status(record: &mut Record, family: Family, bytes: &[u8]) {
+    record.kind = Kind::Status;
+    record.checksum_ok = checksum_verdict(bytes, family.status_len());
+    let decoded = match Status::decode(family, bytes) {
+        Ok(status) => Some((status, true)),
+        Err(error) => {
+            record.error = Some(error.to_string());
+            salvage_status(family, bytes)
+        }
+    };
+    if let Some((status, speed_read)) = decoded {
+        set_status(record, status, speed_read);
+        if family == Family::Legacy {
+            // As received, even when the speed it holds was out of range.
+            record.max_power = bytes.get(2).copied();
+        }
+    }
+}
+
+/// The status as far as it can be read: right length and message type needed; the checksum is mended, and an
+/// out-of-range speed byte is replaced by zero (the second value then says the speed could not be read).
+fn salvage_status(family: Family, bytes: &[u8]) -> Option<(Status, bool)> {
+    if bytes.len() != family.status_len() || bytes.first() != Some(&family.status_type()) {
+        return None;
+    }
+    let mut mended = bytes.to_vec();
+    let mend = |mended: &mut Vec<u8>| {
+        if let Some((csum, body)) = mended.split_last_mut() {
+            *csum = checksum(body);
+        }
+    };
+    mend(&mut mended);
+    match Status::decode(family, &mended) {
+        Ok(status) => Some((status, true)),
+        Err(DecodeError::SpeedOutOfRange(_)) => {
+            let speed_at = match family {
+                Family::SeaBotix => 4,
+                Family::Legacy => 2,
+            };
+            *mended.get_mut(speed_at)? = Speed::ZERO.to_byte();
+            mend(&mut mended);
+            Status::decode(family, &mended).ok().map(|status| (status, false))
+        }
+        Err(_) => None,
+    }
+}
+
+fn motor_name(motor: MotorKind) -> &'static str {
+    match motor {
+        MotorKind::Brushless => "brushless",
+        MotorKind::Brushed => "brushed",
+    }
+}
+
+fn fault_names(faults: Faults) -> Vec<&'static str> {
+    faults.iter().map(Faults::name).collect()
+}
+
+fn set_status(record: &mut Record, status: Status, speed_read: bool) {
+    record.faults = Some(fault_names(status.faults()));
+    match status {
+        Status::SeaBotix(status) => {
+            record.revision = Some(status.revision);
+            record.motor = Some(motor_name(status.motor));
+            record.current_limited = Some(status.current_limited);
+            record.current_a = Some(f64::from(status.current_deciamps) / 10.0);
+            if speed_read {
+                record.speed_step = Some(status.speed.step());
+                // Brushed controllers report a PWM value, not a speed.
+                record.speed_rpm = (status.motor == MotorKind::Brushless).then(|| status.speed.rpm());
+            }
+            record.temperature_c = Some(status.temperature_c);
+        }
+        Status::Legacy(status) => {
+            record.revision = Some(status.revision.number());
+            record.motor = status.revision.motor_kind().map(motor_name);
+            match status.max_power {
+                MaxPower::Current { deciamps } => record.current_a = Some(f64::from(deciamps) / 10.0),
+                MaxPower::Power(speed) => record.power_step = speed_read.then(|| speed.step()),
+                MaxPower::Raw(_) => {}
+            }
+        }
+    }
+}
+
+/// A signed speed step: `+51`, `-20`, `0`.
+fn step_text(step: i8) -> String {
+    if step == 0 { "0".into() } else { format!("{step:+}") }
+}
+
+fn millis_text(seconds: f64) -> String {
+    format!("+{:.3} ms", seconds * 1e3)
+}
+
+/// The human line of a record.
+fn human(record: &Record) -> String {
+    let mut words: Vec<String> = Vec::new();
+    words.push(match (record.time, record.sample) {
+        (Some(time), _) => format!("{time:.6}"),
+        (None, Some(sample)) => format!("@{sample}"),
+        (None, None) => format!("#{}", record.index),
+    });
+    if let Some(gap) = record.since_prev_s {
+        words.push(millis_text(gap));
+    }
+    words.push(format!("0x{:02X}", record.address));
+    words.push(if record.direction == "read" { "R" } else { "W" }.into());
+    if record.ack == Some(false) {
+        words.push(
+            if record.family.is_some() {
+                "NACK (no thruster)"
+            } else {
+                "NACK (no device)"
+            }
+            .into(),
+        );
+    } else {
+        if let Some(family) = record.family {
+            words.push(family.into());
+        }
+        words.push(
+            match record.kind {
+                Kind::Order => "order",
+                Kind::Status => "status",
+                Kind::Other => record.device.unwrap_or("other"),
+            }
+            .into(),
+        );
+        describe_fields(record, &mut words);
+        match record.checksum_ok {
+            Some(true) => words.push("csum ok".into()),
+            Some(false) => words.push("csum BAD".into()),
+            None => {}
+        }
+        let hex: Vec<String> = record.bytes.iter().map(|byte| format!("{byte:02X}")).collect();
+        words.push(format!("[{}]", hex.join(" ")));
+    }
+    let mut error = record.error.as_deref().unwrap_or_default();
+    if record.ack == Some(false) {
+        // The NACK is in the line already.
+        error = error.trim_start_matches(nack_text(record.family.is_some()));
+        error = error.trim_start_matches("; ");
+    }
+    if !error.is_empty() {
+        words.push(format!("({error})"));
+    }
+    if let Some(gap) = record.since_prev_same_address_s {
+        words.push(format!("| 0x{:02X} {}", record.address, millis_text(gap)));
+    }
+    words.join(" ")
+}
+
+/// The decoded fields, in words.
+fn describe_fields(record: &Record, words: &mut Vec<String>) {
+    if let Some(channels) = &record.mux_channels {
+        let list: Vec<String> = channels.iter().map(u8::to_string).collect();
+        let verb = if record.direction == "read" { "reads" } else { "selects" };
+        words.push(match list.len() {
+            0 => format!("{verb} no channel"),
+            1 => format!("{verb} channel {}", list.join(",")),
+            _ => format!("{verb} channels {}", list.join(",")),
+        });
+    }
+    if let Some(faults) = &record.faults {
+        let names = if faults.is_empty() {
+            "none".to_string()
+        } else {
+            faults.join(", ")
+        };
+        words.push(format!("faults: {names}"));
+    }
+    if record.kind == Kind::Status
+        && let (Some(revision), Some(motor)) = (record.revision, record.motor)
+    {
+        words.push(format!("rev {revision} {motor}"));
+    } else if let Some(revision) = record.revision {
+        words.push(format!("rev {revision}"));
+    }
+    if let Some(current) = record.current_a {
+        words.push(format!("current {current:.1} A"));
+    }
+    if let Some(step) = record.speed_step {
+        match record.speed_rpm {
+            Some(rpm) => words.push(format!("speed {} ({rpm} rpm)", step_text(step))),
+            None => words.push(format!("speed {}", step_text(step))),
+        }
+    }
+    if let Some(step) = record.power_step {
+        words.push(format!("power {}", step_text(step)));
+    } else if let (Some(byte), None) = (record.max_power, record.current_a) {
+        words.push(format!("max power {byte:#04x}"));
+    }
+    if let Some(info) = record.info {
+        words.push(format!("info {info}"));
+    }
+    if let Some(temperature) = record.temperature_c {
+        words.push(format!("temp {temperature} C"));
+    }
+}
+
+/// Counts for the summary.
+#[derive(Debug, Default)]
+struct Counts {
+    transfers: usize,
+    orders: usize,
+    statuses: usize,
+    others: usize,
+    nacked: usize,
+    bad_checksums: usize,
+    annotations: usize,
+    skipped: usize,
+}
+
+/// Reads the lines, assembles the transfers, prints them.
+#[derive(Debug)]
+struct Decoder {
+    json: bool,
+    assembler: Assembler,
+    counts: Counts,
+    last_start: Option<f64>,
+    last_start_by_address: HashMap<u8, f64>,
+}
+
+impl Decoder {
+    fn new(options: &Options) -> Decoder {
+        Decoder {
+            json: options.json,
+            assembler: Assembler {
+                unshifted: options.unshifted,
+                samplerate: options.samplerate,
+                ..Assembler::default()
+            },
+            counts: Counts::default(),
+            last_start: None,
+            last_start_by_address: HashMap::new(),
+        }
+    }
+
+    /// Decode every line of `input`; transfers go to `out`, bad lines to `err`.
+    fn run(&mut self, mut input: impl BufRead, out: &mut impl Write, err: &mut impl Write) -> io::Result<()> {
+        let mut buffer = Vec::new();
+        let mut number = 0usize;
+        loop {
+            buffer.clear();
+            if input.read_until(b'\n', &mut buffer)? == 0 {
+                break;
+            }
+            number += 1;
+            let line = String::from_utf8_lossy(&buffer);
+            let outcome = parse_line(&line).and_then(|annotation| match annotation {
+                Some(annotation) => {
+                    self.counts.annotations += 1;
+                    self.assembler.feed(annotation)
+                }
+                None => Ok(None),
+            });
+            match outcome {
+                Ok(Some(transfer)) => self.emit(transfer, out)?,
+                Ok(None) => {}
+                Err(reason) => {
+                    self.counts.skipped += 1;
+                    let excerpt: String = line.trim_end().chars().take(60).collect();
+                    writeln!(err, "lbv decode i2c: line {number}: {reason}, skipped: {excerpt:?}")?;
+                }
+            }
+        }
+        if let Some(transfer) = self.assembler.finish() {
+            self.emit(transfer, out)?;
+        }
+        Ok(())
+    }
+
+    fn emit(&mut self, transfer: Transfer, out: &mut impl Write) -> io::Result<()> {
+        let mut record = record(transfer, self.counts.transfers);
+        if let Some(time) = record.time {
+            record.since_prev_s = self.last_start.map(|last| round_ns(time - last));
+            record.since_prev_same_address_s = self
+                .last_start_by_address
+                .get(&record.address)
+                .map(|last| round_ns(time - last));
+            self.last_start = Some(time);
+            self.last_start_by_address.insert(record.address, time);
+        }
+        self.counts.transfers += 1;
+        if record.ack == Some(false) {
+            self.counts.nacked += 1;
+        } else {
+            match record.kind {
+                Kind::Order => self.counts.orders += 1,
+                Kind::Status => self.counts.statuses += 1,
+                Kind::Other => self.counts.others += 1,
+            }
+        }
+        if record.checksum_ok == Some(false) {
+            self.counts.bad_checksums += 1;
+        }
+        if self.json {
+            let line = serde_json::to_string(&record).map_err(io::Error::other)?;
+            writeln!(out, "{line}")
+        } else {
+            writeln!(out, "{}", human(&record))
+        }
+    }
+
+    fn summary(&self, err: &mut impl Write) {
+        let c = &self.counts;
+        let _ = writeln!(
+            err,
+            "lbv decode i2c: {} transfers: {} orders, {} statuses, {} other, {} NACKed, {} bad checksums; {} lines \
+             skipped",
+            c.transfers, c.orders, c.statuses, c.others, c.nacked, c.bad_checksums, c.skipped
+        );
+        if c.annotations == 0 {
+            let _ = writeln!(
+                err,
+                "lbv decode i2c: no I2C annotations found (expected sigrok-cli -A i2c output or a PulseView export)"
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn event(line: &str) -> Event {
+        parse_line(line).unwrap().unwrap().event
+    }
+
+    #[test]
+    fn every_layout_reads_the_same_annotation() {
+        let address = Event::Address {
+            read: false,
+            value: 0x29,
+        };
+        for line in [
+            "i2c-1: Address write: 29",
+            "35-105 i2c-1: Address write: 29",
+            "35-105 i2c-1: address-write: \"Address write: 29\" \"AW: 29\" \"29\"",
+            "35-105 I²C: Address/Data: Address write: 29",
+            "35-105 \"I²C\": \"Address/Data\": \"Address write: 29\"",
+            "35-105 \"I²C\": \"Address/data\": \"Address write: 29\",\"AW: 29\",\"29\"",
+            "35-105,I²C,Address/Data,Address write: 29",
+            "35-105\tI²C\taddress-write\tAddress write: 29",
+            "35-105 I²C: Address/Data: Address write: 29,AW: 29,29",
+            "I²C;Address/Data;Address write: 29;35",
+            "35-105 I2C: ADDRESS WRITE: 0x29\r\n",
+            "Address write: 29",
+            "{\"ph\": \"B\", \"ts\": 35.000000, \"pid\": \"i2c-1\", \"tid\": \"Address/Data\", \"name\": \"Address write: 29\"},",
+        ] {
+            assert_eq!(event(line), address, "{line}");
+        }
+    }
+
+    #[test]
+    fn stamps() {
+        assert_eq!(
+            parse_line("35-105 i2c-1: Start").unwrap().unwrap().stamp,
+            Stamp::Samples(35, 105)
+        );
+        assert_eq!(parse_line("i2c-1: Start").unwrap().unwrap().stamp, Stamp::None);
+        assert_eq!(
+            parse_line("{\"ph\": \"B\", \"ts\": 25.5, \"name\": \"Start\"}")
+                .unwrap()
+                .unwrap()
+                .stamp,
+            Stamp::Seconds(25.5e-6)
+        );
+        assert!(parse_line("99999999999999999999999-1 i2c-1: Start").is_err());
+    }
+
+    #[test]
+    fn every_event() {
+        assert_eq!(event("i2c-1: Start"), Event::Start);
+        assert_eq!(event("i2c-1: Start repeat"), Event::RepeatStart);
+        assert_eq!(event("i2c-1: Stop"), Event::Stop);
+        assert_eq!(event("i2c-1: ACK"), Event::Ack);
+        assert_eq!(event("i2c-1: NACK"), Event::Nack);
+        assert_eq!(event("i2c-1: Read"), Event::Ignored);
+        assert_eq!(event("i2c-1: Write"), Event::Ignored);
+        assert_eq!(event("105-115 i2c-1: 0"), Event::Ignored);
+        assert_eq!(event("105-115 i2c-1: bit: \"1\""), Event::Ignored);
+        assert_eq!(event("i2c-1: Data read: 0C"), Event::Data { read: true, byte: 0x0C });
+        assert_eq!(
+            event("i2c-1: Data write: b3"),
+            Event::Data {
+                read: false,
+                byte: 0xB3
+            }
+        );
+        assert_eq!(
+            event("i2c-1: Address read: 2A"),
+            Event::Address {
+                read: true,
+                value: 0x2A
+            }
+        );
+    }
+
+    #[test]
+    fn nothing_to_read() {
+        for line in [
+            "",
+            "   \r\n",
+            "# a comment",
+            "{\"traceEvents\": [",
+            "]}",
+            "{\"ph\": \"E\", \"name\": \"Start\"}",
+        ] {
+            assert_eq!(parse_line(line), Ok(None), "{line:?}");
+        }
+    }
+
+    #[test]
+    fn not_annotations() {
+        for line in [
+            "hello",
+            "i2c-1: Data write: 123",
+            "i2c-1: Data write: ZZ",
+            "i2c-1: Data write:",
+            "i2c-1: Packet: 29",
+            "uart-1: RX: 41",
+            "{not json",
+            "{\"ph\": \"B\", \"name\": \"Start\"}",
+            "{\"ph\": \"B\", \"ts\": 1, \"name\": \"TX: 41\"}",
+            "12-",
+        ] {
+            assert!(parse_line(line).is_err(), "{line:?}");
+        }
+        let long = format!("i2c-1: Start{}", " ".repeat(MAX_LINE));
+        assert_eq!(event(&long), Event::Start);
+        assert!(parse_line(&format!("{long}x")).is_err());
+    }
+
+    #[test]
+    fn sample_rates() {
+        assert_eq!(parse_rate("1000000"), Ok(1e6));
+        assert_eq!(parse_rate("1M"), Ok(1e6));
+        assert_eq!(parse_rate("1MHz"), Ok(1e6));
+        assert_eq!(parse_rate("24 MHz"), Ok(24e6));
+        assert_eq!(parse_rate("500k"), Ok(5e5));
+        assert_eq!(parse_rate("1e6"), Ok(1e6));
+        assert_eq!(parse_rate("1G"), Ok(1e9));
+        for bad in ["", "0", "-5", "fast", "inf", "NaN", "Hz", "M"] {
+            assert!(parse_rate(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn options() {
+        let args = |list: &[&str]| list.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let options = parse_options(&args(&["cap.txt", "--json", "--samplerate", "2M", "--unshifted"])).unwrap();
+        assert_eq!(options.input.as_deref(), Some("cap.txt"));
+        assert!(options.json && options.unshifted);
+        assert_eq!(options.samplerate, Some(2e6));
+        assert_eq!(
+            parse_options(&args(&["--samplerate=4k"])).unwrap().samplerate,
+            Some(4e3)
+        );
+        assert_eq!(parse_options(&args(&["-"])).unwrap().input.as_deref(), Some("-"));
+        assert!(parse_options(&args(&["--samplerate"])).is_err());
+        assert!(parse_options(&args(&["--frobnicate"])).is_err());
+        assert!(parse_options(&args(&["a", "b"])).is_err());
+    }
+
+    fn records(text: &str, samplerate: Option<f64>) -> (Vec<serde_json::Value>, String) {
+        let options = Options {
+            json: true,
+            samplerate,
+            ..Options::default()
+        };
+        let mut decoder = Decoder::new(&options);
+        let (mut out, mut err) = (Vec::new(), Vec::new());
+        decoder.run(text.as_bytes(), &mut out, &mut err).unwrap();
+        decoder.summary(&mut err);
+        let records = String::from_utf8(out)
+            .unwrap()
+            .lines()
+            .map(|line| serde_json::from_str(line).unwrap())
+            .collect();
+        (records, String::from_utf8(err).unwrap())
+    }
+
+    #[test]
+    fn order_status_and_gaps() {
+        let text = "\
+10-10 i2c-1: Start
+20-90 i2c-1: Address write: 29
+90-100 i2c-1: ACK
+100-180 i2c-1: Data write: 52
+180-190 i2c-1: ACK
+190-270 i2c-1: Data write: B3
+270-280 i2c-1: ACK
+280-360 i2c-1: Data write: 64
+360-370 i2c-1: ACK
+370-450 i2c-1: Data write: 69
+450-460 i2c-1: ACK
+470-470 i2c-1: Stop
+1010-1010 i2c-1: Start
+1020-1090 i2c-1: Address read: 2A
+1090-1100 i2c-1: ACK
+1100-1180 i2c-1: Data read: 55
+1180-1190 i2c-1: ACK
+1190-1270 i2c-1: Data read: 20
+1270-1280 i2c-1: ACK
+1280-1360 i2c-1: Data read: 22
+1360-1370 i2c-1: ACK
+1370-1450 i2c-1: Data read: 97
+1450-1460 i2c-1: NACK
+1470-1470 i2c-1: Stop
+";
+        let (records, err) = records(text, Some(1e6));
+        assert_eq!(records.len(), 2, "{err}");
+        let order = &records[0];
+        assert_eq!(order["time"], 10e-6);
+        assert_eq!(order["address"], 0x29);
+        assert_eq!(order["direction"], "write");
+        assert_eq!(order["kind"], "order");
+        assert_eq!(order["family"], "SeaBotix");
+        assert_eq!(order["speed_step"], 51);
+        assert_eq!(order["speed_rpm"], 2250);
+        assert_eq!(order["info"], 100);
+        assert_eq!(order["checksum_ok"], true);
+        assert_eq!(order["duration_s"], 460e-6);
+        assert_eq!(order["since_prev_s"], serde_json::Value::Null);
+        let status = &records[1];
+        assert_eq!(status["family"], "Legacy");
+        assert_eq!(status["kind"], "status");
+        assert_eq!(status["revision"], 1);
+        assert_eq!(status["motor"], "brushless");
+        assert_eq!(status["current_a"], 3.4);
+        assert_eq!(status["faults"], serde_json::json!([]));
+        assert_eq!(status["checksum_ok"], true);
+        assert_eq!(status["since_prev_s"], 1000e-6);
+        assert_eq!(status["since_prev_same_address_s"], serde_json::Value::Null);
+        assert!(err.contains("0 lines skipped"), "{err}");
+    }
+
+    #[test]
+    fn repeated_start_splits_and_orphans_are_skipped() {
+        let text = "\
+i2c-1: Data write: 01
+i2c-1: ACK
+i2c-1: Start
+i2c-1: Address write: 70
+i2c-1: ACK
+i2c-1: Data write: 04
+i2c-1: ACK
+i2c-1: Start repeat
+i2c-1: Address read: 70
+i2c-1: ACK
+i2c-1: Data read: 04
+i2c-1: NACK
+i2c-1: Stop
+garbage
+i2c-1: Start
+i2c-1: Address write: 2A
+i2c-1: NACK
+i2c-1: Stop
+i2c-1: Start
+i2c-1: Address read: 29
+i2c-1: ACK
+i2c-1: Data read: 53
+";
+        let (records, err) = records(text, None);
+        assert_eq!(records.len(), 4, "{err}");
+        assert_eq!(records[0]["device"], "TCA9548A mux");
+        assert_eq!(records[0]["mux_channels"], serde_json::json!([2]));
+        assert_eq!(records[0]["kind"], "other");
+        assert_eq!(records[0]["time"], serde_json::Value::Null);
+        assert_eq!(records[1]["direction"], "read");
+        assert_eq!(records[1]["mux_channels"], serde_json::json!([2]));
+        assert_eq!(records[2]["ack"], false);
+        assert_eq!(records[2]["family"], "Legacy");
+        assert!(records[2]["error"].as_str().unwrap().contains("no thruster"));
+        assert_eq!(records[3]["bytes"], serde_json::json!([0x53]));
+        assert!(records[3]["error"].as_str().unwrap().contains("before the STOP"));
+        assert_eq!(records[3]["checksum_ok"], serde_json::Value::Null);
+        for line in ["line 1:", "line 2:", "line 14:"] {
+            assert!(err.contains(line), "{line} in {err}");
+        }
+        assert!(err.contains("3 lines skipped"), "{err}");
+    }
+
+    #[test]
+    fn bad_checksum_still_shows_the_fields() {
+        let (records, _) = records(
+            "i2c-1: Start\ni2c-1: Address write: 29\ni2c-1: ACK\ni2c-1: Data write: 52\ni2c-1: ACK\n\
+             i2c-1: Data write: 8A\ni2c-1: ACK\ni2c-1: Data write: 64\ni2c-1: ACK\ni2c-1: Data write: 41\n\
+             i2c-1: ACK\ni2c-1: Stop\n",
+            None,
+        );
+        let order = &records[0];
+        assert_eq!(order["checksum_ok"], false);
+        assert_eq!(order["speed_step"], 10);
+        assert_eq!(order["info"], 100);
+        assert_eq!(order["error"], "bad checksum: computed 0x40, received 0x41");
+    }
+
+    #[test]
+    fn status_salvage() {
+        // SeaBotix status, speed byte 0x05 out of range and a bad checksum: the rest is still read.
+        let bytes = [0x53, 0x02, 0x10, 12, 0x05, 21, 0x00];
+        let mut record = Record::default();
+        decode_status(&mut record, Family::SeaBotix, &bytes);
+        assert_eq!(record.checksum_ok, Some(false));
+        assert_eq!(record.speed_step, None);
+        assert_eq!(record.faults, Some(vec!["water detect"]));
+        assert_eq!(record.temperature_c, Some(21));
+        assert_eq!(record.current_a, Some(1.2));
+        // Wrong message type: nothing to read.
+        let mut record = Record::default();
+        decode_status(&mut record, Family::SeaBotix, &[0xFF; 7]);
+        assert_eq!(record.faults, None);
+        assert!(record.error.unwrap().contains("message type"));
+        let mut record = Record::default();
+        decode_status(&mut record, Family::Legacy, &[0xFF; 4]);
+        assert_eq!((record.faults, record.max_power), (None, None));
+        // Legacy brushed, power byte out of range.
+        let mut record = Record::default();
+        decode_status(&mut record, Family::Legacy, &[0x55, 0x40, 0x05, 0x9A]);
+        assert_eq!(record.motor, Some("brushed"));
+        assert_eq!(record.power_step, None);
+        assert_eq!(record.max_power, Some(0x05));
+        assert_eq!(record.checksum_ok, Some(true));
+    }
+
+    #[test]
+    fn human_lines() {
+        let options = Options::default();
+        let mut decoder = Decoder::new(&options);
+        let (mut out, mut err) = (Vec::new(), Vec::new());
+        let text = "\
+0-0 i2c-1: Start
+1-2 i2c-1: Address write: 29
+2-3 i2c-1: ACK
+3-4 i2c-1: Data write: 52
+4-5 i2c-1: ACK
+5-6 i2c-1: Data write: B3
+6-7 i2c-1: ACK
+7-8 i2c-1: Data write: 64
+8-9 i2c-1: ACK
+9-10 i2c-1: Data write: 69
+10-11 i2c-1: ACK
+12-12 i2c-1: Stop
+900-900 i2c-1: Start
+901-902 i2c-1: Address write: 29
+902-903 i2c-1: NACK
+904-904 i2c-1: Stop
+";
+        decoder.run(text.as_bytes(), &mut out, &mut err).unwrap();
+        let out = String::from_utf8(out).unwrap();
+        let lines: Vec<&str> = out.lines().collect();
+        assert_eq!(
+            lines[0],
+            "@0 0x29 W SeaBotix order speed +51 (2250 rpm) info 100 csum ok [52 B3 64 69]"
+        );
+        assert_eq!(lines[1], "@900 0x29 W NACK (no thruster)");
+    }
+}
