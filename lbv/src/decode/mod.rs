@@ -6,7 +6,8 @@ pub mod i2c;
 
 use std::process::ExitCode;
 
-pub const USAGE: &str = "usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]   (lbv decode i2c --help for more)
+pub const USAGE: &str =
+    "usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]   (lbv decode i2c --help for more)
        lbv decode can [FILE|-] [--json]
 
 lbv decode can: candump logs (`candump -l`: `(TIME) IFACE ID#DATA`) from FILE or standard input: the BAT board's
