@@ -38,6 +38,11 @@ cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --lock
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p lbv-master-fw --features devkit,legacy --locked -- -D warnings
+# The bench test between two dev kits: the master's acceptance image and the motor-less thruster image.
+for family in "" ",legacy"; do
+  cargo clippy --release --target "$TARGET" -p lbv-master-fw --features "acceptance$family" --locked -- -D warnings
+  cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
+done
 
 step "host tests"
 cargo test --workspace --locked
@@ -59,10 +64,12 @@ mkdir -p target/images
 cargo build --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked
 cp "$release/thruster-fw" target/images/thruster-fw
 cp "$release/lbv-master-fw" target/images/lbv-master-fw
-for features in legacy brushed; do
+for features in legacy brushed motorless; do
   cargo build --release --target "$TARGET" -p thruster-fw --features "$features" --locked
   cp "$release/thruster-fw" "target/images/thruster-fw-$features"
 done
+cargo build --release --target "$TARGET" -p lbv-master-fw --features acceptance --locked
+cp "$release/lbv-master-fw" target/images/lbv-master-fw-acceptance
 
 step "image sizes"
 # Flash holds code, constants and the initial values of .data; static RAM is .data + .bss + .uninit.
@@ -82,7 +89,9 @@ done <<'BUDGETS'
 thruster-fw        48 16
 thruster-fw-legacy 48 16
 thruster-fw-brushed 48 16
+thruster-fw-motorless 48 16
 lbv-master-fw      96 24
+lbv-master-fw-acceptance 96 24
 BUDGETS
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 

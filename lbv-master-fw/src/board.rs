@@ -18,6 +18,8 @@ use embassy_stm32::pac::gpio::vals::Moder;
 use embassy_stm32::time::Hertz;
 use embassy_time::{Duration, Timer};
 use embedded_hal_async::i2c::{ErrorType, Operation};
+#[cfg(feature = "acceptance")]
+use lbv_master_fw::acceptance::{AcceptanceConfig, Prompt};
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::thrusters::{BusRecovery, PollConfig, ThrusterSlot};
 use tmc_proto::Family;
@@ -31,6 +33,10 @@ pub const CAN_BITRATE: u32 = 1_000_000;
 /// The console's serial link (the ST-LINK virtual COM port).
 pub const CONSOLE_BAUD: u32 = 115_200;
 /// Thruster polling: 50 Hz per thruster, retries of a missing one from 100 ms doubling to 2 s.
+#[cfg_attr(
+    feature = "acceptance",
+    allow(dead_code, reason = "the acceptance image runs its script, not the poll")
+)]
 pub const POLL: PollConfig = PollConfig::DEFAULT;
 
 /// The thruster table. The vehicle (default): an LBV300-6, six SeaBotix thrusters behind a TCA9548A on bus 2,
@@ -85,6 +91,35 @@ const _: () = assert!(lbv_master_fw::thrusters::check_table(THRUSTERS).is_ok());
 
 /// How many thrusters the table holds.
 pub const THRUSTER_COUNT: u8 = THRUSTERS.len() as u8;
+
+/// The acceptance test (feature `acceptance`): the script's defaults, expecting the dev kit's family.
+#[cfg(feature = "acceptance")]
+pub const ACCEPTANCE: AcceptanceConfig = AcceptanceConfig {
+    expect: Some(if cfg!(feature = "legacy") {
+        Family::Legacy
+    } else {
+        Family::SeaBotix
+    }),
+    ..AcceptanceConfig::DEFAULT
+};
+
+/// The acceptance test waits this long after boot, so that a thruster board powered up at the same time is
+/// running and the host has attached to the log.
+#[cfg(feature = "acceptance")]
+pub const ACCEPTANCE_START: Duration = Duration::from_secs(3);
+
+/// How long the person at the bench gets for each prompt before the script goes on. The reset is pressed while
+/// the script keeps the bus busy (for `reset_window`, 15 s), so its prompt only gives time to reach the button.
+#[cfg(feature = "acceptance")]
+pub const fn prompt_wait(prompt: Prompt) -> Duration {
+    match prompt {
+        Prompt::FitWaterResistor => Duration::from_secs(15),
+        Prompt::RemoveWaterResistor => Duration::from_secs(10),
+        Prompt::HoldRotor => Duration::from_secs(8),
+        Prompt::ReleaseRotor => Duration::from_secs(5),
+        Prompt::ResetThruster => Duration::from_secs(2),
+    }
+}
 
 /// One GPIO pin, named for the bus recovery's bit-banging.
 #[derive(Clone, Copy)]

@@ -4,6 +4,7 @@
 //! drive it through simulated buses. It never touches a register and never panics on bus input.
 #![cfg_attr(not(test), no_std)]
 
+pub mod acceptance;
 pub mod battery;
 pub mod console;
 pub mod mixer;

@@ -7,10 +7,10 @@ use embassy_stm32::i2c::{self, I2c};
 use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllQDiv, PllRDiv, PllSource, Sysclk};
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
+use lbv_master_fw::battery;
 use lbv_master_fw::console::{self, ConsoleConfig, ConsoleStats};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::vehicle::{self, VehicleConfig};
-use lbv_master_fw::{battery, thrusters};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
@@ -102,11 +102,18 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
+    #[cfg(not(feature = "acceptance"))]
     for (index, bus) in [bus1, bus2, bus3].into_iter().enumerate() {
         let index = index as u8;
         if board::THRUSTERS.iter().any(|slot| slot.bus == index) {
             spawner.spawn(unwrap!(bus_task(bus, index)));
         }
+    }
+    // The bench test takes the dev kit's bus (I2C2) instead of the polling task; the other buses stay idle.
+    #[cfg(feature = "acceptance")]
+    {
+        drop((bus1, bus3));
+        spawner.spawn(unwrap!(acceptance::task(bus2)));
     }
     spawner.spawn(unwrap!(battery_task(can)));
     spawner.spawn(unwrap!(console_rx_task(console_rx)));
@@ -132,9 +139,10 @@ fn clocks() -> embassy_stm32::Config {
     config
 }
 
+#[cfg(not(feature = "acceptance"))]
 #[embassy_executor::task(pool_size = 3)]
 async fn bus_task(mut bus: ThrusterBus, index: u8) -> ! {
-    thrusters::bus_task(&mut bus, index, board::THRUSTERS, &board::POLL, &SHARED).await
+    lbv_master_fw::thrusters::bus_task(&mut bus, index, board::THRUSTERS, &board::POLL, &SHARED).await
 }
 
 #[embassy_executor::task]
@@ -159,4 +167,70 @@ async fn vehicle_task() -> ! {
         ..VehicleConfig::DEFAULT
     };
     vehicle::vehicle_task(config, &SHARED).await
+}
+
+/// The acceptance test's binding: its report lines over defmt and the console, its prompts as a log line and a
+/// wait.
+#[cfg(feature = "acceptance")]
+mod acceptance {
+    use core::fmt::Write;
+
+    use defmt::{info, warn};
+    use embassy_time::Timer;
+    use lbv_master_fw::acceptance::{
+        Operator, Prompt, StepResult, acceptance_test, family_token, prompt_text, step_text, verdict_text,
+    };
+    use tmc_proto::Family;
+
+    use super::SHARED;
+    use crate::board::{self, ThrusterBus};
+
+    /// A report line's body; the longest step has 8 figures of ~20 characters.
+    type Line = heapless::String<224>;
+
+    fn line(args: core::fmt::Arguments<'_>) -> Line {
+        let mut line = Line::new();
+        // A line that does not fit is cut short; the parser still finds step, family and result first.
+        let _ = line.write_fmt(args);
+        line
+    }
+
+    /// The person at the bench: told what to do in the log and on the console, then given time to do it.
+    struct Person;
+
+    impl Operator for Person {
+        async fn prompt(&mut self, what: Prompt, family: Family) {
+            let wait = board::prompt_wait(what);
+            info!(
+                "ACCEPT prompt={=str} family={=str} wait_s={=u64}: {=str}",
+                what.name(),
+                family_token(family),
+                wait.as_secs(),
+                what.instruction()
+            );
+            let (severity, text) = prompt_text(what);
+            SHARED.say(severity, text);
+            Timer::after(wait).await;
+        }
+    }
+
+    #[embassy_executor::task]
+    pub async fn task(mut bus: ThrusterBus) {
+        Timer::after(board::ACCEPTANCE_START).await;
+        info!("ACCEPT start");
+        let mut report = |result: StepResult| {
+            let body = line(format_args!("{result}"));
+            if result.passed {
+                info!("ACCEPT {=str}", body.as_str());
+            } else {
+                warn!("ACCEPT {=str}", body.as_str());
+            }
+            let (severity, text) = step_text(&result);
+            SHARED.say(severity, text);
+        };
+        let verdict = acceptance_test(&mut bus, &mut Person, &board::ACCEPTANCE, &mut report).await;
+        info!("ACCEPT {=str}", line(format_args!("{verdict}")).as_str());
+        let (severity, text) = verdict_text(&verdict);
+        SHARED.say(severity, text);
+    }
 }

@@ -1,12 +1,931 @@
 //! `lbv hil`: the bench test between two dev kits, run from the host.
+//!
+//! It builds the motor-less thruster image and the master's acceptance image, flashes the thruster board and
+//! starts it, then flashes and runs the master board with `probe-rs run`, following its defmt log: the master's
+//! acceptance test (`lbv_master_fw::acceptance`) reports every step as a line
+//! `ACCEPT step=<name> [family=<family>] result=PASS|FAIL <figure>=<value> ...`, every prompt to the person at the
+//! bench as `ACCEPT prompt=<name> family=<family> wait_s=<s>: <instruction>`, and ends with
+//! `ACCEPT verdict=PASS|FAIL passed=<n> failed=<m>`.
+//!
+//! The pieces are separate so that they can be tested without boards: [`plan`] builds the commands, [`parse_line`]
+//! and [`Outcome`] read the log, [`follow`] runs the log through them against the clock, [`judge`] turns the
+//! outcome into the exit status; [`main`] only starts processes and wires them together. `--replay LOG` follows a
+//! recorded log instead of a board's, `--dry-run` prints the commands without running them.
 
-use std::process::ExitCode;
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ExitCode, Stdio};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::time::{Duration, Instant};
 
-pub const USAGE: &str = "usage: lbv hil ...";
+use tmc_proto::Family;
+
+pub const USAGE: &str = "\
+usage: lbv hil --master-probe SERIAL --thruster-probe SERIAL [--family seabotix|legacy] [--timeout S] [--log FILE]
+               [--dry-run]
+       lbv hil --replay LOG [--timeout S]
+
+The bench test between two NUCLEO-G431RB dev kits (README: \"Bench test between two dev kits\"): builds the
+motor-less thruster image and the master's acceptance image, flashes the thruster board and starts it, flashes and
+runs the master board with probe-rs, and follows the master's log until the test's verdict.
+--master-probe, --thruster-probe  each board's ST-LINK, by serial number (`probe-rs list` shows them), or as
+             VID:PID:SERIAL
+--family     the thruster image's controller family (default seabotix)
+--timeout S  give up after S seconds without a verdict (default 300)
+--log FILE   keep the master's whole log
+--dry-run    print the commands and run nothing
+--replay LOG follow a recorded log instead of a board's
+Exit status: 0 verdict PASS; 1 verdict FAIL or a failed step; 2 bad usage, or a build or flash failed;
+3 no verdict before the timeout; 4 the log ended without a verdict.";
+
+/// The firmware target.
+const TARGET: &str = "thumbv7em-none-eabihf";
+/// The chip of both NUCLEO-G431RB boards, as probe-rs names it.
+pub const CHIP: &str = "STM32G431RBTx";
+/// The NUCLEO-G431RB's on-board ST-LINK/V3E, as probe-rs selects probes: VID:PID.
+pub const ST_LINK_V3E: &str = "0483:374e";
+/// The defmt line format asked of probe-rs: level and message, one line per log frame.
+const LOG_FORMAT: &str = "{L} {s}";
+
+/// Exit status: the verdict was PASS.
+pub const EXIT_PASS: u8 = 0;
+/// Exit status: the verdict was FAIL, or a step failed.
+pub const EXIT_FAIL: u8 = 1;
+/// Exit status: bad usage, or a build or flash command failed.
+pub const EXIT_SETUP: u8 = 2;
+/// Exit status: no verdict before the timeout.
+pub const EXIT_TIMEOUT: u8 = 3;
+/// Exit status: the log ended without a verdict.
+pub const EXIT_NO_VERDICT: u8 = 4;
+
+/// What the command line asked for.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Options {
+    /// The master board's probe, as given.
+    pub master_probe: String,
+    /// The thruster board's probe, as given.
+    pub thruster_probe: String,
+    /// The thruster image's family.
+    pub family: Family,
+    /// How long to wait for the verdict.
+    pub timeout: Duration,
+    /// Where to keep the master's log.
+    pub log: Option<PathBuf>,
+    /// Print the commands only.
+    pub dry_run: bool,
+    /// Follow this recorded log instead of running anything.
+    pub replay: Option<PathBuf>,
+}
+
+/// Read the command line.
+pub fn parse(args: &[String]) -> Result<Options, String> {
+    let (mut master, mut thruster, mut family, mut timeout) = (None, None, Family::SeaBotix, Duration::from_secs(300));
+    let (mut log, mut dry_run, mut replay) = (None, false, None);
+    let mut args = args.iter();
+    while let Some(arg) = args.next() {
+        let mut value = |name: &str| args.next().cloned().ok_or(format!("{name} needs a value"));
+        match arg.as_str() {
+            "--master-probe" => master = Some(probe_arg("--master-probe", value("--master-probe")?)?),
+            "--thruster-probe" => thruster = Some(probe_arg("--thruster-probe", value("--thruster-probe")?)?),
+            "--family" => {
+                family = match value("--family")?.as_str() {
+                    "seabotix" => Family::SeaBotix,
+                    "legacy" => Family::Legacy,
+                    other => return Err(format!("--family is seabotix or legacy, not {other}")),
+                }
+            }
+            "--timeout" => {
+                let seconds: f64 = value("--timeout")?.parse().map_err(|_| "--timeout needs seconds")?;
+                if !(seconds.is_finite() && seconds > 0.0) {
+                    return Err("--timeout needs a positive number of seconds".into());
+                }
+                timeout = Duration::from_secs_f64(seconds);
+            }
+            "--log" => log = Some(PathBuf::from(value("--log")?)),
+            "--dry-run" => dry_run = true,
+            "--replay" => replay = Some(PathBuf::from(value("--replay")?)),
+            "-h" | "--help" => return Err(String::new()),
+            other => return Err(format!("unknown option {other}")),
+        }
+    }
+    if replay.is_some() {
+        return Ok(Options {
+            master_probe: master.unwrap_or_default(),
+            thruster_probe: thruster.unwrap_or_default(),
+            family,
+            timeout,
+            log,
+            dry_run,
+            replay,
+        });
+    }
+    let (Some(master_probe), Some(thruster_probe)) = (master, thruster) else {
+        return Err("--master-probe and --thruster-probe are needed (probe-rs list shows the serial numbers)".into());
+    };
+    if master_probe == thruster_probe {
+        return Err("the two boards need two probes: --master-probe and --thruster-probe are the same".into());
+    }
+    Ok(Options {
+        master_probe,
+        thruster_probe,
+        family,
+        timeout,
+        log,
+        dry_run,
+        replay,
+    })
+}
+
+/// A probe argument: a serial number, or VID:PID:SERIAL; nothing that a shell or probe-rs would read otherwise.
+fn probe_arg(option: &str, text: String) -> Result<String, String> {
+    let fine = !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || c == ':');
+    if fine {
+        Ok(text)
+    } else {
+        Err(format!(
+            "{option} takes a serial number (or VID:PID:SERIAL), not {text:?}"
+        ))
+    }
+}
+
+/// The probe selector probe-rs takes: VID:PID:SERIAL, the NUCLEO's ST-LINK/V3E unless the VID:PID is given.
+pub fn probe_selector(probe: &str) -> String {
+    if probe.contains(':') {
+        probe.to_string()
+    } else {
+        format!("{ST_LINK_V3E}:{probe}")
+    }
+}
+
+/// One command of the plan.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Command {
+    /// What it is for, in words.
+    pub what: &'static str,
+    /// Where it runs, when that matters (Cargo reads the workspace's `.cargo/config.toml` from there).
+    pub dir: Option<PathBuf>,
+    /// The program.
+    pub program: String,
+    /// Its arguments.
+    pub args: Vec<String>,
+}
+
+impl Command {
+    fn new(what: &'static str, program: &str, args: &[&str]) -> Self {
+        Self {
+            what,
+            dir: None,
+            program: program.to_string(),
+            args: args.iter().map(|arg| arg.to_string()).collect(),
+        }
+    }
+
+    /// The command as a shell line (arguments with spaces or braces quoted).
+    pub fn line(&self) -> String {
+        let mut line = self
+            .dir
+            .as_ref()
+            .map_or_else(String::new, |dir| format!("cd {} && ", dir.display()));
+        line.push_str(&self.program);
+        for arg in &self.args {
+            line.push(' ');
+            if arg.contains([' ', '{', '}']) {
+                line.push_str(&format!("'{arg}'"));
+            } else {
+                line.push_str(arg);
+            }
+        }
+        line
+    }
+
+    fn process(&self) -> std::process::Command {
+        let mut command = std::process::Command::new(&self.program);
+        command.args(&self.args);
+        if let Some(dir) = &self.dir {
+            command.current_dir(dir);
+        }
+        command
+    }
+}
+
+/// The images' ELF files in `target_dir` (Cargo's target directory).
+pub fn elf(target_dir: &Path, binary: &str) -> PathBuf {
+    target_dir.join(TARGET).join("release").join(binary)
+}
+
+/// The commands, in order: build the thruster image (motor-less, of the chosen family) and the master image
+/// (acceptance, expecting that family) in `workspace`, flash the thruster board and reset it so that it runs, then
+/// flash and run the master board, streaming its defmt log. Only the last one's output is followed.
+pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Command> {
+    let legacy = options.family == Family::Legacy;
+    let thruster_features = if legacy { "motorless,legacy" } else { "motorless" };
+    let master_features = if legacy { "acceptance,legacy" } else { "acceptance" };
+    let thruster_elf = elf(target_dir, "thruster-fw").display().to_string();
+    let master_elf = elf(target_dir, "lbv-master-fw").display().to_string();
+    let thruster_probe = probe_selector(&options.thruster_probe);
+    let master_probe = probe_selector(&options.master_probe);
+    let build = |package: &str, features: &str| Command {
+        dir: Some(workspace.to_path_buf()),
+        ..Command::new(
+            "build",
+            "cargo",
+            &[
+                "build",
+                "--release",
+                "--target",
+                TARGET,
+                "-p",
+                package,
+                "--features",
+                features,
+            ],
+        )
+    };
+    vec![
+        Command {
+            what: "build the thruster image",
+            ..build("thruster-fw", thruster_features)
+        },
+        Command {
+            what: "build the master image",
+            ..build("lbv-master-fw", master_features)
+        },
+        Command::new(
+            "flash the thruster board",
+            "probe-rs",
+            &["download", "--chip", CHIP, "--probe", &thruster_probe, &thruster_elf],
+        ),
+        Command::new(
+            "start the thruster board",
+            "probe-rs",
+            &["reset", "--chip", CHIP, "--probe", &thruster_probe],
+        ),
+        Command::new(
+            "flash and run the master board, following its log",
+            "probe-rs",
+            &[
+                "run",
+                "--chip",
+                CHIP,
+                "--probe",
+                &master_probe,
+                "--log-format",
+                LOG_FORMAT,
+                &master_elf,
+            ],
+        ),
+    ]
+}
+
+/// A step's report line, as read.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepLine {
+    /// The step's name.
+    pub step: String,
+    /// The thruster's family, when the step tests one.
+    pub family: Option<String>,
+    /// PASS.
+    pub passed: bool,
+    /// Its figures, in order, as written.
+    pub figures: Vec<(String, String)>,
+}
+
+/// The verdict line, as read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VerdictLine {
+    /// verdict=PASS.
+    pub pass: bool,
+    /// Steps that passed.
+    pub passed: u32,
+    /// Steps that failed.
+    pub failed: u32,
+}
+
+/// One line of the test's report.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Event {
+    /// The test started.
+    Start,
+    /// A step ended.
+    Step(StepLine),
+    /// The person at the bench is asked to do something.
+    Prompt {
+        /// The prompt's name.
+        name: String,
+        /// The thruster it concerns.
+        family: String,
+        /// What to do.
+        instruction: String,
+    },
+    /// The verdict.
+    Verdict(VerdictLine),
+}
+
+/// `line` without terminal colour codes.
+fn plain(line: &str) -> String {
+    let mut out = String::with_capacity(line.len());
+    let mut chars = line.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            // CSI: ESC [ parameters final-byte.
+            if chars.next() == Some('[') {
+                for c in chars.by_ref() {
+                    if c.is_ascii_alphabetic() {
+                        break;
+                    }
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// Read one log line: an [`Event`] when it is one of the test's report lines, None for anything else (probe-rs's
+/// own output, other log lines, a line cut off).
+pub fn parse_line(line: &str) -> Option<Event> {
+    let line = plain(line);
+    let at = line.find("ACCEPT ")?;
+    let body = line.get(at + "ACCEPT ".len()..)?.trim();
+    if body == "start" || body.starts_with("start ") {
+        return Some(Event::Start);
+    }
+    // key=value tokens; anything else (a location suffix, the prompt's words) is not a field.
+    let (fields, rest) = match body.split_once(": ") {
+        Some((fields, rest)) if body.starts_with("prompt=") => (fields, rest.trim()),
+        _ => (body, ""),
+    };
+    let pairs: Vec<(&str, &str)> = fields
+        .split_whitespace()
+        .filter_map(|token| token.split_once('='))
+        .collect();
+    let get = |key: &str| pairs.iter().find(|(k, _)| *k == key).map(|(_, v)| *v);
+    if let Some(verdict) = get("verdict") {
+        let pass = match verdict {
+            "PASS" => true,
+            "FAIL" => false,
+            _ => return None,
+        };
+        return Some(Event::Verdict(VerdictLine {
+            pass,
+            passed: get("passed")?.parse().ok()?,
+            failed: get("failed")?.parse().ok()?,
+        }));
+    }
+    if let Some(name) = get("prompt") {
+        return Some(Event::Prompt {
+            name: name.to_string(),
+            family: get("family").unwrap_or_default().to_string(),
+            instruction: rest.to_string(),
+        });
+    }
+    let step = get("step")?;
+    let passed = match get("result")? {
+        "PASS" => true,
+        "FAIL" => false,
+        _ => return None,
+    };
+    let figures = pairs
+        .iter()
+        .filter(|(key, _)| !matches!(*key, "step" | "family" | "result"))
+        .map(|(key, value)| (key.to_string(), value.to_string()))
+        .collect();
+    Some(Event::Step(StepLine {
+        step: step.to_string(),
+        family: get("family").map(str::to_string),
+        passed,
+        figures,
+    }))
+}
+
+/// What a log said, line by line.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Outcome {
+    /// The test's start line was seen.
+    pub started: bool,
+    /// Every step's line, in order.
+    pub steps: Vec<StepLine>,
+    /// Prompts seen.
+    pub prompts: usize,
+    /// The verdict, once seen.
+    pub verdict: Option<VerdictLine>,
+    /// The firmware panicked (panic-probe's message).
+    pub panicked: bool,
+}
+
+impl Outcome {
+    /// Take one log line; returns the report line it held, if any.
+    pub fn feed(&mut self, line: &str) -> Option<Event> {
+        if line.contains("panicked at") {
+            self.panicked = true;
+        }
+        let event = parse_line(line)?;
+        match &event {
+            Event::Start => self.started = true,
+            Event::Step(step) => self.steps.push(step.clone()),
+            Event::Prompt { .. } => self.prompts += 1,
+            Event::Verdict(verdict) => self.verdict = Some(*verdict),
+        }
+        Some(event)
+    }
+
+    /// Read a whole log.
+    #[cfg(test)]
+    pub fn of_log(log: &str) -> Outcome {
+        let mut outcome = Outcome::default();
+        for line in log.lines() {
+            outcome.feed(line);
+        }
+        outcome
+    }
+
+    /// Steps that failed.
+    pub fn failed_steps(&self) -> impl Iterator<Item = &StepLine> {
+        self.steps.iter().filter(|step| !step.passed)
+    }
+}
+
+/// How following the log ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ending {
+    /// The verdict line came.
+    Verdict,
+    /// The timeout passed first.
+    Timeout,
+    /// The log ended first (probe-rs exited, the probe was unplugged, the recording ended).
+    LogEnded,
+}
+
+/// The exit status and a one-line summary for an outcome.
+///
+/// PASS needs the verdict PASS, no failed step line, step counts that match the verdict's, and no panic; a
+/// verdict that contradicts the step lines is a FAIL.
+pub fn judge(outcome: &Outcome, ending: Ending, timeout: Duration) -> (u8, String) {
+    let passed = outcome.steps.iter().filter(|step| step.passed).count();
+    let failed = outcome.steps.len() - passed;
+    if outcome.panicked {
+        return (EXIT_FAIL, "FAIL: the master panicked".into());
+    }
+    match outcome.verdict {
+        Some(verdict) => {
+            let consistent = usize::try_from(verdict.passed).is_ok_and(|n| n == passed)
+                && usize::try_from(verdict.failed).is_ok_and(|n| n == failed);
+            if verdict.pass && failed == 0 && consistent {
+                (EXIT_PASS, format!("PASS: {passed} steps passed"))
+            } else if !consistent {
+                (
+                    EXIT_FAIL,
+                    format!(
+                        "FAIL: the verdict counts {} passed and {} failed, the log shows {passed} and {failed}",
+                        verdict.passed, verdict.failed
+                    ),
+                )
+            } else {
+                (EXIT_FAIL, format!("FAIL: {failed} of {} steps failed", passed + failed))
+            }
+        }
+        None if failed > 0 => {
+            let code = if ending == Ending::Timeout {
+                EXIT_TIMEOUT
+            } else {
+                EXIT_NO_VERDICT
+            };
+            (code, format!("FAIL: {failed} steps failed, and no verdict came"))
+        }
+        None => match ending {
+            Ending::Timeout => (
+                EXIT_TIMEOUT,
+                format!(
+                    "FAIL: no verdict within {} s ({} steps reported)",
+                    timeout.as_secs(),
+                    outcome.steps.len()
+                ),
+            ),
+            Ending::LogEnded | Ending::Verdict => (
+                EXIT_NO_VERDICT,
+                format!(
+                    "FAIL: the log ended without a verdict ({} steps reported)",
+                    outcome.steps.len()
+                ),
+            ),
+        },
+    }
+}
+
+/// A report line for the terminal.
+pub fn describe(event: &Event) -> String {
+    match event {
+        Event::Start => "acceptance test started".into(),
+        Event::Step(step) => {
+            let figures: Vec<String> = step.figures.iter().map(|(k, v)| format!("{k}={v}")).collect();
+            format!(
+                "  {} {:<9} {:<14} {}",
+                if step.passed { "ok  " } else { "FAIL" },
+                step.family.as_deref().unwrap_or(""),
+                step.step,
+                figures.join(" ")
+            )
+        }
+        Event::Prompt {
+            name,
+            family,
+            instruction,
+        } => format!(">>> {family} thruster: {instruction} ({name})"),
+        Event::Verdict(verdict) => format!(
+            "verdict {}: {} passed, {} failed",
+            if verdict.pass { "PASS" } else { "FAIL" },
+            verdict.passed,
+            verdict.failed
+        ),
+    }
+}
+
+/// Follow log lines as they arrive until the verdict, the end of the log or `timeout`: every line goes to `log`
+/// (when given), every report line to `out`.
+pub fn follow(
+    lines: &Receiver<String>,
+    timeout: Duration,
+    mut log: Option<&mut dyn Write>,
+    out: &mut dyn Write,
+) -> (Outcome, Ending) {
+    let deadline = Instant::now() + timeout;
+    let mut outcome = Outcome::default();
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        let line = match lines.recv_timeout(left) {
+            Ok(line) => line,
+            Err(RecvTimeoutError::Timeout) => return (outcome, Ending::Timeout),
+            Err(RecvTimeoutError::Disconnected) => return (outcome, Ending::LogEnded),
+        };
+        if let Some(log) = log.as_mut() {
+            let _ = writeln!(log, "{line}");
+        }
+        if let Some(event) = outcome.feed(&line) {
+            let _ = writeln!(out, "{}", describe(&event));
+            if matches!(event, Event::Verdict(_)) {
+                return (outcome, Ending::Verdict);
+            }
+        }
+    }
+}
+
+/// Send every line of `source` to a channel from a thread of its own; the channel closes at the end.
+fn lines_of(source: impl Read + Send + 'static, to: mpsc::Sender<String>) {
+    std::thread::spawn(move || {
+        for line in BufReader::new(source).lines() {
+            let Ok(line) = line else { break };
+            if to.send(line).is_err() {
+                break;
+            }
+        }
+    });
+}
+
+/// The workspace this tool was built in.
+fn workspace() -> PathBuf {
+    let lbv = Path::new(env!("CARGO_MANIFEST_DIR"));
+    lbv.parent().unwrap_or(lbv).to_path_buf()
+}
+
+/// Cargo's target directory: `CARGO_TARGET_DIR` (relative to the workspace), else the workspace's `target`.
+fn target_dir(workspace: &Path) -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| workspace.join("target"), |dir| workspace.join(dir))
+}
 
 /// `lbv hil ...`
 pub fn main(args: &[String]) -> ExitCode {
-    let _ = args;
-    eprintln!("{USAGE}");
-    ExitCode::from(2)
+    let options = match parse(args) {
+        Ok(options) => options,
+        Err(message) => {
+            if !message.is_empty() {
+                eprintln!("lbv: {message}");
+            }
+            eprintln!("{USAGE}");
+            return ExitCode::from(EXIT_SETUP);
+        }
+    };
+    let mut log = match options.log.as_ref().map(File::create).transpose() {
+        Ok(log) => log,
+        Err(error) => {
+            eprintln!("lbv: cannot write the log: {error}");
+            return ExitCode::from(EXIT_SETUP);
+        }
+    };
+    let (sender, receiver) = mpsc::channel();
+    let mut child: Option<Child> = None;
+    if let Some(replay) = &options.replay {
+        match File::open(replay) {
+            Ok(file) => lines_of(file, sender),
+            Err(error) => {
+                eprintln!("lbv: cannot read {}: {error}", replay.display());
+                return ExitCode::from(EXIT_SETUP);
+            }
+        }
+    } else {
+        let workspace = workspace();
+        let commands = plan(&options, &workspace, &target_dir(&workspace));
+        if options.dry_run {
+            for command in &commands {
+                println!("# {}\n{}", command.what, command.line());
+            }
+            return ExitCode::SUCCESS;
+        }
+        let Some((run, setup)) = commands.split_last() else {
+            return ExitCode::from(EXIT_SETUP);
+        };
+        for command in setup {
+            println!("lbv hil: {}: {}", command.what, command.line());
+            match command.process().status() {
+                Ok(status) if status.success() => {}
+                Ok(status) => {
+                    eprintln!("lbv: {} failed ({status})", command.what);
+                    return ExitCode::from(EXIT_SETUP);
+                }
+                Err(error) => {
+                    eprintln!("lbv: cannot run {}: {error}", command.program);
+                    return ExitCode::from(EXIT_SETUP);
+                }
+            }
+        }
+        println!("lbv hil: {}: {}", run.what, run.line());
+        let spawned = run.process().stdout(Stdio::piped()).stderr(Stdio::piped()).spawn();
+        let mut process = match spawned {
+            Ok(process) => process,
+            Err(error) => {
+                eprintln!("lbv: cannot run {}: {error}", run.program);
+                return ExitCode::from(EXIT_SETUP);
+            }
+        };
+        // probe-rs writes the target's log on stdout and its own messages on stderr: follow both.
+        if let Some(stdout) = process.stdout.take() {
+            lines_of(stdout, sender.clone());
+        }
+        if let Some(stderr) = process.stderr.take() {
+            lines_of(stderr, sender);
+        }
+        child = Some(process);
+    }
+    let mut stdout = std::io::stdout();
+    let (outcome, ending) = follow(
+        &receiver,
+        options.timeout,
+        log.as_mut().map(|file| file as &mut dyn Write),
+        &mut stdout,
+    );
+    if let Some(mut process) = child {
+        // probe-rs run keeps streaming until stopped.
+        let _ = process.kill();
+        let _ = process.wait();
+    }
+    let (code, summary) = judge(&outcome, ending, options.timeout);
+    for step in outcome.failed_steps() {
+        println!("failed: {} {}", step.family.as_deref().unwrap_or(""), step.step);
+    }
+    println!("lbv hil: {summary}");
+    ExitCode::from(code)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PASS_LOG: &str = include_str!("../tests/fixtures/hil-pass.log");
+    const FAIL_LOG: &str = include_str!("../tests/fixtures/hil-fail.log");
+    const CUT_LOG: &str = include_str!("../tests/fixtures/hil-no-verdict.log");
+
+    fn args(line: &str) -> Vec<String> {
+        line.split_whitespace().map(str::to_string).collect()
+    }
+
+    fn options(line: &str) -> Options {
+        parse(&args(line)).unwrap()
+    }
+
+    #[test]
+    fn the_command_line_names_both_probes() {
+        let o = options("--master-probe 0671FF3 --thruster-probe 066DFF4 --family legacy --timeout 90 --log x.log");
+        assert_eq!(o.master_probe, "0671FF3");
+        assert_eq!(o.thruster_probe, "066DFF4");
+        assert_eq!(o.family, Family::Legacy);
+        assert_eq!(o.timeout, Duration::from_secs(90));
+        assert_eq!(o.log, Some(PathBuf::from("x.log")));
+        assert_eq!(options("--master-probe A --thruster-probe B").family, Family::SeaBotix);
+        for (bad, why) in [
+            ("--master-probe A", "--thruster-probe"),
+            ("--master-probe A --thruster-probe A", "same"),
+            (
+                "--master-probe A --thruster-probe B --family aveox",
+                "seabotix or legacy",
+            ),
+            ("--master-probe A --thruster-probe B --timeout -1", "positive"),
+            ("--master-probe A --thruster-probe 'B;rm'", "serial number"),
+            ("--master-probe", "needs a value"),
+            ("--frobnicate", "unknown option"),
+        ] {
+            let error = parse(&args(bad)).unwrap_err();
+            assert!(error.contains(why), "{bad}: {error}");
+        }
+        assert_eq!(parse(&args("--help")), Err(String::new()));
+        let replay = options("--replay fixtures/hil-pass.log");
+        assert_eq!(replay.replay, Some(PathBuf::from("fixtures/hil-pass.log")));
+    }
+
+    #[test]
+    fn the_plan_builds_flashes_the_thruster_then_runs_the_master() {
+        let o = options("--master-probe 0671FF3 --thruster-probe 0483:3748:066DFF4");
+        let commands = plan(&o, Path::new("/w"), Path::new("/t"));
+        let lines: Vec<String> = commands.iter().map(Command::line).collect();
+        assert_eq!(
+            lines,
+            [
+                "cd /w && cargo build --release --target thumbv7em-none-eabihf -p thruster-fw --features motorless",
+                "cd /w && cargo build --release --target thumbv7em-none-eabihf -p lbv-master-fw --features acceptance",
+                "probe-rs download --chip STM32G431RBTx --probe 0483:3748:066DFF4 \
+                 /t/thumbv7em-none-eabihf/release/thruster-fw",
+                "probe-rs reset --chip STM32G431RBTx --probe 0483:3748:066DFF4",
+                "probe-rs run --chip STM32G431RBTx --probe 0483:374e:0671FF3 --log-format '{L} {s}' \
+                 /t/thumbv7em-none-eabihf/release/lbv-master-fw",
+            ]
+        );
+        // The log format is one argument, not split at its space.
+        assert!(commands[4].args.contains(&"{L} {s}".to_string()));
+        let legacy = plan(
+            &options("--master-probe A --thruster-probe B --family legacy"),
+            Path::new("/w"),
+            Path::new("/t"),
+        );
+        assert_eq!(legacy[0].args.last().map(String::as_str), Some("motorless,legacy"));
+        assert_eq!(legacy[1].args.last().map(String::as_str), Some("acceptance,legacy"));
+        assert!(legacy[2].args.contains(&"0483:374e:B".to_string()));
+    }
+
+    #[test]
+    fn report_lines_are_read_whatever_surrounds_them() {
+        let step = parse_line(
+            "\u{1b}[32mINFO \u{1b}[0m ACCEPT step=failsafe family=seabotix result=PASS ready=1 rest_ms=112 \
+             (lbv-master-fw/src/stm32.rs:201)",
+        );
+        assert_eq!(
+            step,
+            Some(Event::Step(StepLine {
+                step: "failsafe".into(),
+                family: Some("seabotix".into()),
+                passed: true,
+                figures: vec![("ready".into(), "1".into()), ("rest_ms".into(), "112".into())],
+            }))
+        );
+        let discovery = parse_line("0.412 WARN  ACCEPT step=discovery result=FAIL seabotix=0 legacy=0 found=0");
+        let Some(Event::Step(discovery)) = discovery else {
+            panic!()
+        };
+        assert_eq!((discovery.family, discovery.passed), (None, false));
+        assert_eq!(
+            parse_line("INFO  ACCEPT verdict=FAIL passed=16 failed=1"),
+            Some(Event::Verdict(VerdictLine {
+                pass: false,
+                passed: 16,
+                failed: 1
+            }))
+        );
+        assert_eq!(
+            parse_line(
+                "INFO  ACCEPT prompt=hold-rotor family=legacy wait_s=8: press and hold B1 on the thruster board"
+            ),
+            Some(Event::Prompt {
+                name: "hold-rotor".into(),
+                family: "legacy".into(),
+                instruction: "press and hold B1 on the thruster board".into(),
+            })
+        );
+        assert_eq!(parse_line("INFO  ACCEPT start"), Some(Event::Start));
+        for noise in [
+            "      Erasing ✔ 100% [####################]  48.00 KiB @  41.62 KiB/s",
+            "INFO  lbv-master-fw: 1 thrusters",
+            "└─ lbv_master_fw::stm32::acceptance::__task_task::{async_fn#0} @ lbv-master-fw/src/stm32.rs:201",
+            "INFO  ACCEPT step=speed-forward family=seabotix result=PA",
+            "INFO  ACCEPT verdict=PASS passed=9",
+            "INFO  ACCEPT verdict=MAYBE passed=9 failed=0",
+            "INFO  ACCEPTANCE step=x result=PASS",
+            "",
+        ] {
+            assert_eq!(parse_line(noise), None, "{noise}");
+        }
+    }
+
+    #[test]
+    fn a_recorded_passing_run_passes() {
+        let outcome = Outcome::of_log(PASS_LOG);
+        assert!(outcome.started);
+        assert_eq!(outcome.steps.len(), 9);
+        assert_eq!(outcome.prompts, 5);
+        assert_eq!(
+            outcome.verdict,
+            Some(VerdictLine {
+                pass: true,
+                passed: 9,
+                failed: 0
+            })
+        );
+        let (code, summary) = judge(&outcome, Ending::Verdict, Duration::from_secs(300));
+        assert_eq!(code, EXIT_PASS, "{summary}");
+    }
+
+    #[test]
+    fn a_recorded_failing_run_fails_and_names_the_step() {
+        let outcome = Outcome::of_log(FAIL_LOG);
+        let failed: Vec<&str> = outcome.failed_steps().map(|step| step.step.as_str()).collect();
+        assert_eq!(failed, ["held-rotor"]);
+        let (code, summary) = judge(&outcome, Ending::Verdict, Duration::from_secs(300));
+        assert_eq!(code, EXIT_FAIL);
+        assert!(summary.contains("1 of 9 steps failed"), "{summary}");
+    }
+
+    #[test]
+    fn a_log_without_a_verdict_fails() {
+        let outcome = Outcome::of_log(CUT_LOG);
+        assert!(outcome.verdict.is_none());
+        assert!(!outcome.steps.is_empty());
+        let (code, _) = judge(&outcome, Ending::LogEnded, Duration::from_secs(300));
+        assert_eq!(code, EXIT_NO_VERDICT);
+        let (code, summary) = judge(&outcome, Ending::Timeout, Duration::from_secs(300));
+        assert_eq!(code, EXIT_TIMEOUT);
+        assert!(summary.contains("300 s"), "{summary}");
+    }
+
+    #[test]
+    fn a_verdict_that_contradicts_the_steps_or_a_panic_is_a_fail() {
+        let contradicting = PASS_LOG.replace("result=PASS water_ms=", "result=FAIL water_ms=");
+        let (code, summary) = judge(
+            &Outcome::of_log(&contradicting),
+            Ending::Verdict,
+            Duration::from_secs(1),
+        );
+        assert_eq!(code, EXIT_FAIL, "{summary}");
+        let miscounted = PASS_LOG.replace("passed=9 failed=0", "passed=12 failed=0");
+        let (code, summary) = judge(&Outcome::of_log(&miscounted), Ending::Verdict, Duration::from_secs(1));
+        assert_eq!(code, EXIT_FAIL);
+        assert!(summary.contains("log shows 9"), "{summary}");
+        let panicked = format!("{PASS_LOG}\nERROR panicked at 'index out of bounds', src/x.rs:1:1\n");
+        assert_eq!(
+            judge(&Outcome::of_log(&panicked), Ending::Verdict, Duration::from_secs(1)).0,
+            EXIT_FAIL
+        );
+        assert_eq!(
+            judge(&Outcome::default(), Ending::LogEnded, Duration::from_secs(1)).0,
+            EXIT_NO_VERDICT,
+            "an empty log"
+        );
+    }
+
+    #[test]
+    fn following_stops_at_the_verdict_and_keeps_the_whole_log() {
+        let (sender, receiver) = mpsc::channel();
+        for line in PASS_LOG.lines() {
+            sender.send(line.to_string()).unwrap();
+        }
+        sender.send("INFO  something after the verdict".into()).unwrap();
+        let (mut log, mut out) = (Vec::new(), Vec::new());
+        let (outcome, ending) = follow(&receiver, Duration::from_secs(5), Some(&mut log), &mut out);
+        assert_eq!(ending, Ending::Verdict);
+        assert!(outcome.verdict.is_some_and(|v| v.pass));
+        let log = String::from_utf8(log).unwrap();
+        assert!(
+            log.ends_with("ACCEPT verdict=PASS passed=9 failed=0\n"),
+            "stops at the verdict"
+        );
+        let out = String::from_utf8(out).unwrap();
+        assert_eq!(
+            out.lines().count(),
+            1 + 9 + 5 + 1,
+            "start, steps, prompts, verdict:\n{out}"
+        );
+        assert!(
+            out.contains(">>> seabotix thruster: press RESET (B2) on the thruster board now"),
+            "{out}"
+        );
+    }
+
+    #[test]
+    fn following_ends_with_the_log_or_the_timeout() {
+        let (sender, receiver) = mpsc::channel();
+        for line in CUT_LOG.lines() {
+            sender.send(line.to_string()).unwrap();
+        }
+        drop(sender);
+        let (outcome, ending) = follow(&receiver, Duration::from_secs(5), None, &mut Vec::new());
+        assert_eq!(ending, Ending::LogEnded);
+        assert!(!outcome.steps.is_empty());
+
+        // A board that goes quiet: the sender stays open, nothing comes.
+        let (sender, receiver) = mpsc::channel::<String>();
+        sender.send("INFO  ACCEPT start".into()).unwrap();
+        let started = Instant::now();
+        let (outcome, ending) = follow(&receiver, Duration::from_millis(100), None, &mut Vec::new());
+        assert_eq!(ending, Ending::Timeout);
+        assert!(outcome.started);
+        assert!(started.elapsed() >= Duration::from_millis(100));
+        drop(sender);
+    }
 }

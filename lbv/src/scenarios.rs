@@ -6,7 +6,9 @@ use serde::Serialize;
 use serde_json::{Map, Value, json};
 use tmc_proto::{Family, Faults};
 
+use crate::bench::plant::DRY_WATER_OHMS;
 use crate::bench::{Bench, BenchConfig};
+use lbv_master_fw::acceptance::{Prompt, Step, family_token};
 use lbv_master_fw::shared::ManualInput;
 
 /// One check of a scenario.
@@ -163,6 +165,7 @@ fn legacy6(seed: u64) -> BenchConfig {
     BenchConfig {
         families: vec![Family::Legacy; 6],
         seed,
+        acceptance: false,
     }
 }
 
@@ -170,6 +173,16 @@ fn mixed(seed: u64) -> BenchConfig {
     BenchConfig {
         families: [Family::SeaBotix, Family::Legacy].repeat(3),
         seed,
+        acceptance: false,
+    }
+}
+
+/// The two-board bench, with a thruster of each family wired directly to the master's bus.
+fn dev_kits(seed: u64) -> BenchConfig {
+    BenchConfig {
+        families: vec![Family::SeaBotix, Family::Legacy],
+        seed,
+        acceptance: true,
     }
 }
 
@@ -300,6 +313,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 5.0,
         vehicle: lbv300,
         run: battery_bits,
+    },
+    Scenario {
+        name: "acceptance",
+        about: "the master's acceptance test against a SeaBotix and a Legacy thruster, the bench acting as operator",
+        seconds: 60.0,
+        vehicle: dev_kits,
+        run: acceptance,
     },
     Scenario {
         name: "soak",
@@ -1018,6 +1038,87 @@ fn soak(run: &mut Run) {
     run.disarm();
 }
 
+/// The master image's acceptance test, the same script as on the dev kits, with the bench doing what it asks of
+/// the person at the bench: the water-sensor resistor is 500 kohm, the held rotor a blocked propeller, the reset a
+/// power cycle of the thruster started during a transfer.
+fn acceptance(run: &mut Run) {
+    let Some(desk) = run.bench.master.desk else {
+        run.check("the master runs the acceptance test", false, "no acceptance desk");
+        return;
+    };
+    let end = Instant::from_ticks(0) + run.duration;
+    let mut reset: Option<usize> = None;
+    let mut transfers = run.bench.bus().borrow().transfers;
+    while desk.verdict.get().is_none() && run.bench.now() < end {
+        run.bench.run_for(crate::bench::STEP);
+        if let Some((prompt, family)) = desk.request.take() {
+            let index = run
+                .bench
+                .thrusters
+                .iter()
+                .position(|thruster| thruster.config.family == family);
+            run.bench.note(format!(
+                "operator: {} on the {} thruster",
+                prompt.name(),
+                family_token(family)
+            ));
+            if let Some(thruster) = index.and_then(|i| run.bench.thrusters.get(i)) {
+                let mut plant = thruster.plant.borrow_mut();
+                match prompt {
+                    Prompt::FitWaterResistor => plant.water_ohms = 500_000,
+                    Prompt::RemoveWaterResistor => plant.water_ohms = DRY_WATER_OHMS,
+                    Prompt::HoldRotor => plant.blocked = true,
+                    Prompt::ReleaseRotor => plant.blocked = false,
+                    Prompt::ResetThruster => reset = index,
+                }
+            }
+            if !prompt.during_traffic() {
+                desk.done.signal(());
+            }
+        }
+        // The reset lands in the transfer that has just begun.
+        let now = run.bench.bus().borrow().transfers;
+        if now != transfers
+            && let Some(index) = reset.take()
+        {
+            run.bench.note("operator: reset pressed mid-transfer");
+            run.bench.power_cycle(index, Duration::from_millis(30));
+        }
+        transfers = run.bench.bus().borrow().transfers;
+    }
+    let results = desk.results.borrow().clone();
+    for result in &results {
+        let name = match result.family {
+            Some(family) => format!("{} {}", family_token(family), result.step.name()),
+            None => result.step.name().to_string(),
+        };
+        let figures: Vec<String> = result
+            .figures
+            .iter()
+            .map(|figure| format!("{}={}", figure.name, figure.value))
+            .collect();
+        run.check(&name, result.passed, figures.join(" "));
+    }
+    let families = run.bench.thrusters.len();
+    run.check(
+        "every step ran on every thruster",
+        results.len() == 1 + (Step::ALL.len() - 1) * families,
+        format!("{} step results for {families} thrusters", results.len()),
+    );
+    let verdict = desk.verdict.get();
+    run.check(
+        "verdict PASS",
+        verdict.is_some_and(|verdict| verdict.pass()),
+        verdict.map_or("no verdict before the end of the run".to_string(), |v| v.to_string()),
+    );
+    run.check(
+        "the console hears the verdict",
+        run.said("acceptance PASS"),
+        "STATUSTEXT",
+    );
+    run.metric("acceptance_seconds", json!(round(run.bench.seconds(), 1)));
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1047,6 +1148,10 @@ mod tests {
         unique.sort_unstable();
         unique.dedup();
         assert_eq!(unique.len(), names.len());
+        assert!(
+            find("acceptance").is_some(),
+            "the dev kits' acceptance test runs with --all"
+        );
         for fault in ["water", "ground-fault", "overtemp", "stall", "hall"] {
             for family in ["legacy", "seabotix"] {
                 assert!(find(&format!("{fault}-{family}")).is_some(), "{fault}-{family}");

@@ -32,6 +32,11 @@ use thruster_fw::hall::HallState;
 use thruster_fw::tasks::{Bridge, Config, HallSensors, RawSample, Sensors, Watchdog};
 use thruster_fw::{Duty, I2cTarget, Request};
 use tmc_proto::{Family, MotorKind};
+#[cfg(feature = "motorless")]
+use {
+    embassy_stm32::gpio::Input,
+    thruster_fw::motorless::{HoldInput, ModelSensors, MotorModel, Motorless, WaterInput},
+};
 
 /// The controller family (Cargo feature `legacy`) and motor kind (Cargo feature `brushed`).
 pub const FAMILY: Family = if cfg!(feature = "legacy") {
@@ -47,6 +52,16 @@ const MOTOR: MotorKind = if cfg!(feature = "brushed") {
 
 /// Everything fixed at build time: the reference hardware of the pin table above.
 pub static CONFIG: Config = Config::reference(FAMILY, MOTOR);
+
+/// The motor-less controller's model motor (Cargo feature `motorless`), for the same configuration.
+#[cfg(feature = "motorless")]
+pub static MOTORLESS: Motorless = Motorless::new(MotorModel::new(&Config::reference(FAMILY, MOTOR)));
+
+/// What the fault task samples: the ADC inputs, or in the motor-less controller the model and the water pin.
+#[cfg(not(feature = "motorless"))]
+pub type Analog = AnalogInputs;
+#[cfg(feature = "motorless")]
+pub type Analog = ModelSensors<'static, WaterPin, UserButton>;
 
 /// How often the watchdog is fed (when every task reports) and how long it waits before it resets the chip.
 pub const WATCHDOG_FEED: Duration = Duration::from_millis(50);
@@ -90,6 +105,10 @@ impl I2cTarget for SlavePort {
 }
 
 /// The three hall inputs.
+#[cfg_attr(
+    feature = "motorless",
+    allow(dead_code, reason = "the motor-less controller's halls are modelled")
+)]
 pub struct Halls {
     pub h1: ExtiInput<'static, Async>,
     pub h2: ExtiInput<'static, Async>,
@@ -109,6 +128,7 @@ impl HallSensors for Halls {
 
 /// TIM1's three complementary pairs. Off-state selection (OSSR) holds both switches of a disabled phase off,
 /// so a floating phase is really floating.
+#[cfg_attr(feature = "motorless", allow(dead_code, reason = "no power stage is fitted"))]
 pub struct PowerStage {
     pub pwm: ComplementaryPwm<'static, TIM1>,
 }
@@ -134,6 +154,10 @@ impl Bridge for PowerStage {
 }
 
 /// ADC1 and the fault / telemetry inputs.
+#[cfg_attr(
+    feature = "motorless",
+    allow(dead_code, reason = "the motor-less controller reads only the water pin")
+)]
 pub struct AnalogInputs {
     pub adc: Adc<'static, ADC1>,
     pub water: AnyAdcChannel<'static, ADC1>,
@@ -141,15 +165,42 @@ pub struct AnalogInputs {
     pub current: AnyAdcChannel<'static, ADC1>,
 }
 
+/// ADC sample time of every input: 47.5 cycles suit the water sensor's 1 Mohm divider.
+const SAMPLE: SampleTime = SampleTime::CYCLES47_5;
+
 impl Sensors for AnalogInputs {
     async fn sample(&mut self) -> RawSample {
         // Three blocking conversions take about 5 us in all: not worth a DMA round trip at 1 kHz.
-        const SAMPLE: SampleTime = SampleTime::CYCLES47_5;
         RawSample {
             water: self.adc.blocking_read(&mut self.water, SAMPLE),
             temperature: self.adc.blocking_read(&mut self.motor_ntc, SAMPLE),
             current: self.adc.blocking_read(&mut self.current, SAMPLE),
         }
+    }
+}
+
+/// The water-sensor pin of the motor-less controller: the one input that stays real.
+#[cfg(feature = "motorless")]
+pub struct WaterPin {
+    pub adc: Adc<'static, ADC1>,
+    pub pin: AnyAdcChannel<'static, ADC1>,
+}
+
+#[cfg(feature = "motorless")]
+impl WaterInput for WaterPin {
+    async fn water(&mut self) -> u16 {
+        self.adc.blocking_read(&mut self.pin, SAMPLE)
+    }
+}
+
+/// The NUCLEO's blue user button B1 (PC13, high while pressed): holds the motor-less controller's model rotor.
+#[cfg(feature = "motorless")]
+pub struct UserButton(pub Input<'static>);
+
+#[cfg(feature = "motorless")]
+impl HoldInput for UserButton {
+    fn held(&mut self) -> bool {
+        self.0.is_high()
     }
 }
 

@@ -3,21 +3,36 @@
 use defmt::{info, unwrap};
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_stm32::adc::{Adc, AdcChannel, AdcConfig};
-use embassy_stm32::exti::{self, ExtiInput};
-use embassy_stm32::gpio::{OutputType, Pull};
+use embassy_stm32::exti;
+use embassy_stm32::gpio::Pull;
 use embassy_stm32::i2c::{self, I2c, SlaveAddrConfig};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
-use embassy_stm32::time::Hertz;
-use embassy_stm32::timer::complementary_pwm::{BreakInputPolarity, ComplementaryPwm, ComplementaryPwmPin, Ossr};
-use embassy_stm32::timer::low_level::CountingMode;
-use embassy_stm32::timer::simple_pwm::PwmPin;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
 use thruster_fw::tasks::{self, Config, Shared};
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::board::{self, AnalogInputs, FAMILY, Halls, Iwdg, PowerStage, SlavePort};
+use crate::board::{self, FAMILY, Iwdg, SlavePort};
+
+// The power stage, the halls and the analog inputs of a controller with a motor.
+#[cfg(not(feature = "motorless"))]
+use {
+    crate::board::{AnalogInputs, Halls, PowerStage},
+    embassy_stm32::exti::ExtiInput,
+    embassy_stm32::gpio::OutputType,
+    embassy_stm32::time::Hertz,
+    embassy_stm32::timer::complementary_pwm::{BreakInputPolarity, ComplementaryPwm, ComplementaryPwmPin, Ossr},
+    embassy_stm32::timer::low_level::CountingMode,
+    embassy_stm32::timer::simple_pwm::PwmPin,
+};
+// The motor-less controller: the model's ports, the real water-sensor pin and the user button.
+#[cfg(feature = "motorless")]
+use {
+    crate::board::{UserButton, WaterPin},
+    embassy_stm32::gpio::Input,
+    thruster_fw::motorless::{ModelBridge, ModelHalls, ModelSensors},
+};
 
 bind_interrupts!(struct Irqs {
     I2C3_EV => i2c::EventInterruptHandler<peripherals::I2C3>;
@@ -39,8 +54,10 @@ unsafe fn UART4() {
 }
 
 /// PWM frequency: above hearing, and 4250 counts of resolution at 170 MHz center-aligned.
+#[cfg(not(feature = "motorless"))]
 const PWM_FREQUENCY: Hertz = Hertz::khz(20);
 /// Dead time between a phase's high and low switch: 170 counts of 5.9 ns = 1 us (IHM08M1's MOSFETs need ~500 ns).
+#[cfg(not(feature = "motorless"))]
 const DEAD_TIME: u16 = 170;
 
 static SHARED: Shared = Shared::new();
@@ -56,36 +73,53 @@ async fn main(spawner: Spawner) {
         FAMILY.address()
     );
 
-    // The bridge first, coasting, before anything can ask it to drive.
-    let mut pwm = ComplementaryPwm::new(
-        p.TIM1,
-        Some(PwmPin::new(p.PA8, OutputType::PushPull)),
-        Some(ComplementaryPwmPin::new(p.PA7, OutputType::PushPull)),
-        Some(PwmPin::new(p.PA9, OutputType::PushPull)),
-        Some(ComplementaryPwmPin::new(p.PB0, OutputType::PushPull)),
-        Some(PwmPin::new(p.PA10, OutputType::PushPull)),
-        Some(ComplementaryPwmPin::new(p.PB1, OutputType::PushPull)),
-        None,
-        None,
-        PWM_FREQUENCY,
-        CountingMode::CenterAlignedBothInterrupts,
-    );
-    pwm.set_dead_time(DEAD_TIME);
-    pwm.set_off_state_selection_run(Ossr::IDLE_LEVEL);
-    arm_overcurrent_break(&mut pwm);
-    let bridge = PowerStage { pwm };
+    #[cfg(not(feature = "motorless"))]
+    let (halls, bridge, analog) = {
+        // The bridge first, coasting, before anything can ask it to drive.
+        let mut pwm = ComplementaryPwm::new(
+            p.TIM1,
+            Some(PwmPin::new(p.PA8, OutputType::PushPull)),
+            Some(ComplementaryPwmPin::new(p.PA7, OutputType::PushPull)),
+            Some(PwmPin::new(p.PA9, OutputType::PushPull)),
+            Some(ComplementaryPwmPin::new(p.PB0, OutputType::PushPull)),
+            Some(PwmPin::new(p.PA10, OutputType::PushPull)),
+            Some(ComplementaryPwmPin::new(p.PB1, OutputType::PushPull)),
+            None,
+            None,
+            PWM_FREQUENCY,
+            CountingMode::CenterAlignedBothInterrupts,
+        );
+        pwm.set_dead_time(DEAD_TIME);
+        pwm.set_off_state_selection_run(Ossr::IDLE_LEVEL);
+        arm_overcurrent_break(&mut pwm);
+        let bridge = PowerStage { pwm };
 
-    let halls = Halls {
-        h1: ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
-        h2: ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
-        h3: ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
+        let halls = Halls {
+            h1: ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
+            h2: ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
+            h3: ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
+        };
+
+        let analog = AnalogInputs {
+            adc: Adc::new(p.ADC1, AdcConfig::default()),
+            water: p.PC3.degrade_adc(),
+            motor_ntc: p.PB12.degrade_adc(),
+            current: p.PA0.degrade_adc(),
+        };
+        (halls, bridge, analog)
     };
-
-    let analog = AnalogInputs {
-        adc: Adc::new(p.ADC1, AdcConfig::default()),
-        water: p.PC3.degrade_adc(),
-        motor_ntc: p.PB12.degrade_adc(),
-        current: p.PA0.degrade_adc(),
+    // No power stage fitted: TIM1 and its pins are never touched, the halls and the current come from the model,
+    // the water sensor is the real pin (a resistor across it provokes the fault), and B1 holds the model's rotor.
+    #[cfg(feature = "motorless")]
+    let analog = {
+        info!("motor-less: no power stage, the motor is a model; B1 holds its rotor");
+        let water = WaterPin {
+            adc: Adc::new(p.ADC1, AdcConfig::default()),
+            pin: p.PC3.degrade_adc(),
+        };
+        // NUCLEO-64 (MB1367): B1 connects PC13 to 3V3 when pressed.
+        let button = UserButton(Input::new(p.PC13, Pull::Down));
+        ModelSensors::new(&board::MOTORLESS, config, water, button)
     };
 
     let mut i2c_config = i2c::Config::default();
@@ -99,7 +133,10 @@ async fn main(spawner: Spawner) {
 
     interrupt::UART4.set_priority(Priority::P1);
     let high = COMMUTATION_EXECUTOR.start(interrupt::UART4);
+    #[cfg(not(feature = "motorless"))]
     high.spawn(unwrap!(commutation(halls, bridge, config)));
+    #[cfg(feature = "motorless")]
+    high.spawn(unwrap!(commutation(config)));
     spawner.spawn(unwrap!(faults(analog, config)));
     spawner.spawn(unwrap!(control(config)));
     spawner.spawn(unwrap!(i2c_slave(SlavePort(slave), config)));
@@ -123,6 +160,7 @@ fn clocks() -> embassy_stm32::Config {
     config
 }
 
+#[cfg(not(feature = "motorless"))]
 /// The IHM08M1's overcurrent comparator pulls PA6 low: as TIM1's break input it turns the bridge off in hardware,
 /// without waiting for software. Automatic output enable restarts the PWM at the next period once the current
 /// has fallen: cycle-by-cycle current limiting.
@@ -162,13 +200,22 @@ fn log_reset_cause() {
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
 }
 
+#[cfg(not(feature = "motorless"))]
 #[embassy_executor::task]
 async fn commutation(mut halls: Halls, mut bridge: PowerStage, config: &'static Config) -> ! {
     tasks::commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, &SHARED).await
 }
 
+#[cfg(feature = "motorless")]
 #[embassy_executor::task]
-async fn faults(mut analog: AnalogInputs, config: &'static Config) -> ! {
+async fn commutation(config: &'static Config) -> ! {
+    let mut halls = ModelHalls::new(&board::MOTORLESS);
+    let mut bridge = ModelBridge(&board::MOTORLESS);
+    tasks::commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, &SHARED).await
+}
+
+#[embassy_executor::task]
+async fn faults(mut analog: board::Analog, config: &'static Config) -> ! {
     tasks::fault_task(&mut analog, config, &SHARED).await
 }
 

@@ -1,17 +1,22 @@
 //! The master on the bench: the real master core (lbv-master-fw's tasks) with its thruster bus, its CAN
-//! receiver and its console link simulated.
+//! receiver and its console link simulated. Its thruster bus runs either the vehicle's polling task or the
+//! acceptance test, whose operator is the scenario (through a [`Desk`]).
 
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
 use core::convert::Infallible;
 use std::collections::VecDeque;
 
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
+use lbv_master_fw::acceptance::{
+    AcceptanceConfig, Operator, Prompt, StepResult, Verdict, acceptance_test, step_text, verdict_text,
+};
 use lbv_master_fw::battery::{CanFrame, CanReceiver, can_task};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::thrusters::{PollConfig, ThrusterSlot, bus_task};
 use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
+use tmc_proto::Family;
 
 use super::executor::Executor;
 use super::i2c::{BusWorld, MasterPort};
@@ -90,6 +95,34 @@ impl CanReceiver for Can {
     }
 }
 
+/// Between the master's acceptance test and the scenario acting as the person at the bench: the steps reported,
+/// the verdict, and the prompt waiting to be acted on.
+#[derive(Default)]
+pub struct Desk {
+    /// Each step's result, in order.
+    pub results: RefCell<Vec<StepResult>>,
+    /// The verdict, once the script has ended.
+    pub verdict: Cell<Option<Verdict>>,
+    /// A prompt the scenario has not acted on yet.
+    pub request: Cell<Option<(Prompt, Family)>>,
+    /// Raised by the scenario once it has done what was asked.
+    pub done: Signal<CriticalSectionRawMutex, ()>,
+}
+
+/// The test's operator: hands the prompt to the scenario and waits until it is done (a prompt acted on during the
+/// traffic returns at once).
+struct DeskOperator(&'static Desk);
+
+impl Operator for DeskOperator {
+    async fn prompt(&mut self, what: Prompt, family: Family) {
+        self.0.done.reset();
+        self.0.request.set(Some((what, family)));
+        if !what.during_traffic() {
+            self.0.done.wait().await;
+        }
+    }
+}
+
 /// The master node and its links.
 pub struct Master {
     /// The master's task channels: orders, thruster reports, battery summary, vehicle state.
@@ -104,11 +137,32 @@ pub struct Master {
     pub can: &'static Pipe<CanFrame>,
     /// The console's counters.
     pub console_stats: &'static ConsoleStats,
+    /// With the acceptance test instead of the polling task: its results and prompts.
+    pub desk: Option<&'static Desk>,
 }
 
 impl Master {
     /// The master with the thruster `table` on one bus, its tasks started.
     pub fn start(table: &'static [ThrusterSlot], bus: BusWorld, executor: &mut Executor<'static>) -> &'static Master {
+        Self::start_with(table, bus, executor, None)
+    }
+
+    /// The master image built for the acceptance test: the test runs on the bus instead of the polling task.
+    pub fn start_acceptance(
+        table: &'static [ThrusterSlot],
+        bus: BusWorld,
+        executor: &mut Executor<'static>,
+        config: AcceptanceConfig,
+    ) -> &'static Master {
+        Self::start_with(table, bus, executor, Some(config))
+    }
+
+    fn start_with(
+        table: &'static [ThrusterSlot],
+        bus: BusWorld,
+        executor: &mut Executor<'static>,
+        acceptance: Option<AcceptanceConfig>,
+    ) -> &'static Master {
         let thrusters = u8::try_from(table.len()).unwrap_or(u8::MAX);
         let master: &'static Master = Box::leak(Box::new(Master {
             shared: Box::leak(Box::new(Shared::new())),
@@ -117,15 +171,30 @@ impl Master {
             console_out: Box::leak(Box::default()),
             can: Box::leak(Box::default()),
             console_stats: Box::leak(Box::new(ConsoleStats::new())),
+            desk: acceptance.map(|_| &*Box::leak(Box::default())),
         }));
         let console: &'static ConsoleConfig = Box::leak(Box::new(ConsoleConfig {
             thrusters,
             ..ConsoleConfig::DEFAULT
         }));
         let shared = master.shared;
-        executor.spawn(async move {
-            bus_task(&mut MasterPort(master.bus), 0, table, &PollConfig::DEFAULT, shared).await;
-        });
+        match (acceptance, master.desk) {
+            (Some(config), Some(desk)) => executor.spawn(async move {
+                let mut report = |result: StepResult| {
+                    let (severity, text) = step_text(&result);
+                    shared.say(severity, text);
+                    desk.results.borrow_mut().push(result);
+                };
+                let mut operator = DeskOperator(desk);
+                let verdict = acceptance_test(&mut MasterPort(master.bus), &mut operator, &config, &mut report).await;
+                let (severity, text) = verdict_text(&verdict);
+                shared.say(severity, text);
+                desk.verdict.set(Some(verdict));
+            }),
+            _ => executor.spawn(async move {
+                bus_task(&mut MasterPort(master.bus), 0, table, &PollConfig::DEFAULT, shared).await;
+            }),
+        };
         executor.spawn(async move {
             can_task(&mut Can(master.can), shared).await;
         });

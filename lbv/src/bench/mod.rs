@@ -19,6 +19,7 @@ pub mod udp;
 use core::cell::RefCell;
 
 use embassy_time::{Duration, Instant, MockDriver};
+use lbv_master_fw::acceptance::AcceptanceConfig;
 use lbv_master_fw::thrusters::ThrusterSlot;
 use tmc_proto::Family;
 
@@ -44,6 +45,9 @@ pub struct BenchConfig {
     pub families: Vec<Family>,
     /// Seeds the motors' starting positions and any random choices of a scenario.
     pub seed: u64,
+    /// The two-board bench instead of the vehicle: every thruster wired to the bus directly (no TCA9548A) and the
+    /// master running its acceptance test instead of polling.
+    pub acceptance: bool,
 }
 
 impl BenchConfig {
@@ -52,6 +56,7 @@ impl BenchConfig {
         Self {
             families: vec![Family::SeaBotix; 6],
             seed,
+            acceptance: false,
         }
     }
 }
@@ -132,19 +137,23 @@ impl Bench {
             .iter()
             .map(|family| Thruster::new(*family, random.unit() * core::f64::consts::TAU))
             .collect();
+        let channel = |channel: u8| (!config.acceptance).then_some(channel);
         let table: &'static [ThrusterSlot] = Box::leak(
             (0u8..)
                 .zip(&config.families)
-                .map(|(channel, family)| ThrusterSlot::behind_mux(0, channel, *family))
+                .map(|(index, family)| match channel(index) {
+                    Some(channel) => ThrusterSlot::behind_mux(0, channel, *family),
+                    None => ThrusterSlot::direct(0, *family),
+                })
                 .collect::<Vec<_>>()
                 .into_boxed_slice(),
         );
         let bus = BusWorld {
             slaves: (0u8..)
                 .zip(&thrusters)
-                .map(|(channel, thruster)| BusSlave {
+                .map(|(index, thruster)| BusSlave {
                     family: thruster.config.family,
-                    channel: Some(channel),
+                    channel: channel(index),
                     line: thruster.line,
                     powered: true,
                     corrupt: 0,
@@ -152,10 +161,14 @@ impl Bench {
                     out_of_range_orders: false,
                 })
                 .collect(),
-            mux_fitted: true,
+            mux_fitted: !config.acceptance,
             ..BusWorld::default()
         };
-        let master = Master::start(table, bus, &mut executor);
+        let master = if config.acceptance {
+            Master::start_acceptance(table, bus, &mut executor, AcceptanceConfig::DEFAULT)
+        } else {
+            Master::start(table, bus, &mut executor)
+        };
         for thruster in &thrusters {
             thruster.start(&mut executor);
         }

@@ -10,11 +10,7 @@ use embassy_futures::select::{Either, select};
 use embassy_futures::yield_now;
 use embassy_time::MockDriver;
 use std::collections::VecDeque;
-use std::sync::Mutex as StdMutex;
 use tmc_proto::{Faults, Order, Speed, Status};
-
-/// The mock time driver is one clock for the whole process: tests that move it take turns.
-static CLOCK: StdMutex<()> = StdMutex::new(());
 
 /// The master's side of the bus: transfers queued by the test, status replies collected.
 #[derive(Default)]
@@ -161,8 +157,7 @@ impl Bench {
 
     /// Run the controller's tasks alongside `script` until the script ends; virtual time starts at 0.
     fn run(&self, script: impl Future<Output = ()>) {
-        let _clock = CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        MockDriver::get().reset();
+        let _clock = crate::test_clock::lock();
         let mut port = MasterPort {
             master: &self.master,
             pending: None,

@@ -1,0 +1,947 @@
+//! The acceptance test of the thruster(s) wired to the master on the bench: one fixed script, run by the master
+//! image built with feature `acceptance` and by the virtual bench's `acceptance` scenario.
+//!
+//! The script writes raw bytes on the bus itself (it must send orders that `poll_thruster` would never build) and
+//! judges each step from the status frames the thruster answers with:
+//!
+//! | step | what it does | passes when |
+//! |---|---|---|
+//! | `discovery` | reads a status at 0x29 (SeaBotix) and 0x2A (Legacy) | at least one answers with a valid status (the expected family, when one is set); every one that answers is tested in turn |
+//! | `speed-forward`, `speed-reverse` | orders every step 1..=102 (then -1..=-102), one after the other | each step's status *follows* it within `settle`, and no fault is reported |
+//! | `bad-checksum` | holds a stop, then the drive step, sending for `settle` each time a stop and the opposite drive step with their checksums off by one | every status still shows the order held |
+//! | `out-of-range` | the same with SPEED bytes 0x00, 0x18, 0xE7, 0xFF and good checksums | every status still shows the order held |
+//! | `failsafe` | holds a valid order, then leaves the bus silent for `silence` (1.5 s) and only reads after it | the first read shows the drive off, the speed reaches 0 within `coast`, stays there while only reads come, and the same order sent again drives |
+//! | `held-rotor` | prompts the operator to hold the rotor, orders the drive step | STALL within `fault_within` and the drive off; after the release a zero order clears it and the drive step drives again |
+//! | `water` | prompts the operator to fit the test resistor on the water sensor | WATER within `fault_within`; SeaBotix keeps driving and clears the bit once the resistor is removed, Legacy stops and keeps the bit latched |
+//! | `reset` | prompts the operator to reset the thruster board while polling back to back | a failure is seen (NACK, timeout, bus error or a torn frame), the recoveries free the bus, `recovered_polls` good polls follow, and the thruster drives again without fault (a latched Legacy water fault is gone) |
+//!
+//! What *follows* an order means per family (IDS 8.4.1, 8.4.2):
+//! - SeaBotix: the status's SPEED (measured speed for brushless, PWM for brushed) is within `tolerance` steps of
+//!   the order.
+//! - Legacy brushed (revisions 2 and 4): MAX POWER, the power set into the motor in the SPEED encoding, likewise.
+//! - Legacy brushless (Aveox, revision 1) reports no speed, only the motor current in MAX POWER: at a zero order the
+//!   current must read 0; at `drive_step` and beyond it must read at least `min_current_deciamps`; in between any
+//!   valid status will do.
+//!
+//! The drive is *off* when the reported current is 0 (for Legacy brushed, which reports none: when MAX POWER is 0);
+//! the thruster is *at rest* when the drive is off and any reported speed is 0.
+
+use core::fmt;
+
+use embassy_time::{Duration, Instant, Timer};
+use embedded_hal_async::i2c::I2c;
+use tmc_proto::{Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
+
+use crate::shared::{Severity, Text, text};
+use crate::thrusters::{BusRecovery, Failure};
+
+/// The steps of the script, in the order they run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Step {
+    /// Which of the two family addresses answers.
+    Discovery,
+    /// Every forward speed step, with the status echo checked.
+    SpeedForward,
+    /// Every reverse speed step, with the status echo checked.
+    SpeedReverse,
+    /// Orders with a corrupted checksum change nothing.
+    BadChecksum,
+    /// Orders with an out-of-range SPEED byte change nothing.
+    OutOfRange,
+    /// The link failsafe stops the thruster after 1 s of silence, and only a new order restarts it.
+    Failsafe,
+    /// A held rotor is reported as STALL and stops the drive.
+    HeldRotor,
+    /// The water-sensor test resistor is reported as WATER.
+    Water,
+    /// The bus recovers after the thruster board is reset mid-transfer.
+    Reset,
+}
+
+impl Step {
+    /// Every step, in the order they run.
+    pub const ALL: [Step; 9] = [
+        Step::Discovery,
+        Step::SpeedForward,
+        Step::SpeedReverse,
+        Step::BadChecksum,
+        Step::OutOfRange,
+        Step::Failsafe,
+        Step::HeldRotor,
+        Step::Water,
+        Step::Reset,
+    ];
+
+    /// The step's name in the report lines.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Step::Discovery => "discovery",
+            Step::SpeedForward => "speed-forward",
+            Step::SpeedReverse => "speed-reverse",
+            Step::BadChecksum => "bad-checksum",
+            Step::OutOfRange => "out-of-range",
+            Step::Failsafe => "failsafe",
+            Step::HeldRotor => "held-rotor",
+            Step::Water => "water",
+            Step::Reset => "reset",
+        }
+    }
+}
+
+/// A family's name in the report lines.
+pub const fn family_token(family: Family) -> &'static str {
+    match family {
+        Family::SeaBotix => "seabotix",
+        Family::Legacy => "legacy",
+    }
+}
+
+/// One measured figure of a step: a name and a whole number (milliseconds, counts, steps, 0.1 A).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Figure {
+    /// Its name, one word.
+    pub name: &'static str,
+    /// Its value.
+    pub value: i32,
+}
+
+/// Most figures a step reports.
+pub const MAX_FIGURES: usize = 8;
+
+/// The outcome of one step.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepResult {
+    /// Which step.
+    pub step: Step,
+    /// The thruster it tested; None for the discovery.
+    pub family: Option<Family>,
+    /// Whether it passed.
+    pub passed: bool,
+    /// What it measured.
+    pub figures: heapless::Vec<Figure, MAX_FIGURES>,
+}
+
+impl StepResult {
+    fn new(step: Step, family: Option<Family>) -> Self {
+        Self {
+            step,
+            family,
+            passed: true,
+            figures: heapless::Vec::new(),
+        }
+    }
+
+    /// Add a figure; beyond [`MAX_FIGURES`] it is dropped.
+    fn figure(&mut self, name: &'static str, value: impl TryInto<i32>) {
+        let value = value.try_into().unwrap_or(i32::MAX);
+        let _ = self.figures.push(Figure { name, value });
+    }
+
+    /// Add a duration in whole milliseconds, or -1 when the thing never happened.
+    fn millis(&mut self, name: &'static str, took: Option<Duration>) {
+        self.figure(
+            name,
+            took.map_or(-1, |took| i64::try_from(took.as_millis()).unwrap_or(i64::MAX)),
+        );
+    }
+
+    /// Fail the step unless `ok`.
+    fn require(&mut self, ok: bool) {
+        self.passed &= ok;
+    }
+
+    /// The value of the figure called `name`.
+    pub fn figure_value(&self, name: &str) -> Option<i32> {
+        self.figures
+            .iter()
+            .find(|figure| figure.name == name)
+            .map(|figure| figure.value)
+    }
+}
+
+/// The report line's body: `step=<name> [family=<family>] result=PASS|FAIL <figure>=<value> ...`.
+impl fmt::Display for StepResult {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "step={}", self.step.name())?;
+        if let Some(family) = self.family {
+            write!(f, " family={}", family_token(family))?;
+        }
+        write!(f, " result={}", if self.passed { "PASS" } else { "FAIL" })?;
+        for figure in &self.figures {
+            write!(f, " {}={}", figure.name, figure.value)?;
+        }
+        Ok(())
+    }
+}
+
+/// The final verdict: how many steps passed and failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Verdict {
+    /// Steps that passed.
+    pub passed: u8,
+    /// Steps that failed.
+    pub failed: u8,
+}
+
+impl Verdict {
+    /// PASS: at least one step ran and none failed.
+    pub const fn pass(&self) -> bool {
+        self.failed == 0 && self.passed > 0
+    }
+
+    fn count(&mut self, result: &StepResult) {
+        if result.passed {
+            self.passed = self.passed.saturating_add(1);
+        } else {
+            self.failed = self.failed.saturating_add(1);
+        }
+    }
+}
+
+/// The report line's body: `verdict=PASS|FAIL passed=<n> failed=<m>`.
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "verdict={} passed={} failed={}",
+            if self.pass() { "PASS" } else { "FAIL" },
+            self.passed,
+            self.failed
+        )
+    }
+}
+
+/// A step's result as a console text (STATUSTEXT holds 50 bytes: figures that do not fit are cut off):
+/// `<step> [<family>] PASS|FAIL <figure>=<value> ...`, Info when it passed, Error when it failed.
+pub fn step_text(result: &StepResult) -> (Severity, Text) {
+    struct Compact<'a>(&'a StepResult);
+    impl fmt::Display for Compact<'_> {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            let result = self.0;
+            write!(f, "{}", result.step.name())?;
+            if let Some(family) = result.family {
+                write!(f, " {}", family_token(family))?;
+            }
+            write!(f, " {}", if result.passed { "PASS" } else { "FAIL" })?;
+            for figure in &result.figures {
+                write!(f, " {}={}", figure.name, figure.value)?;
+            }
+            Ok(())
+        }
+    }
+    let severity = if result.passed { Severity::Info } else { Severity::Error };
+    (severity, text(format_args!("{}", Compact(result))))
+}
+
+/// The verdict as a console text: `acceptance PASS|FAIL passed=<n> failed=<m>`.
+pub fn verdict_text(verdict: &Verdict) -> (Severity, Text) {
+    let (severity, word) = if verdict.pass() {
+        (Severity::Notice, "PASS")
+    } else {
+        (Severity::Critical, "FAIL")
+    };
+    let line = text(format_args!(
+        "acceptance {word} passed={} failed={}",
+        verdict.passed, verdict.failed
+    ));
+    (severity, line)
+}
+
+/// A prompt as a console text: `DO: <instruction>`.
+pub fn prompt_text(prompt: Prompt) -> (Severity, Text) {
+    (Severity::Warning, text(format_args!("DO: {}", prompt.instruction())))
+}
+
+/// What the script needs a person (or the bench) to do to the thruster board.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Prompt {
+    /// Fit the water-sensor test resistor (470 kohm from PC3 to 3V3): the sensor reads water (< 1 Mohm) but no
+    /// ground fault (> 100 kohm).
+    FitWaterResistor,
+    /// Remove the test resistor.
+    RemoveWaterResistor,
+    /// Hold the rotor: with the motor-less image, press and hold the blue user button B1.
+    HoldRotor,
+    /// Let the rotor go (release B1).
+    ReleaseRotor,
+    /// Press the thruster board's reset button while the test keeps the bus busy.
+    ResetThruster,
+}
+
+impl Prompt {
+    /// The prompt's name in the report lines.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Prompt::FitWaterResistor => "fit-water-resistor",
+            Prompt::RemoveWaterResistor => "remove-water-resistor",
+            Prompt::HoldRotor => "hold-rotor",
+            Prompt::ReleaseRotor => "release-rotor",
+            Prompt::ResetThruster => "reset-thruster",
+        }
+    }
+
+    /// What to do, in words for the person at the bench (short enough for a console text).
+    pub const fn instruction(self) -> &'static str {
+        match self {
+            Prompt::FitWaterResistor => "fit 470k from PC3 to 3V3 on the thruster board",
+            Prompt::RemoveWaterResistor => "remove the resistor from PC3",
+            Prompt::HoldRotor => "press and hold B1 on the thruster board",
+            Prompt::ReleaseRotor => "release B1 on the thruster board",
+            Prompt::ResetThruster => "press RESET (B2) on the thruster board now",
+        }
+    }
+
+    /// The operator acts while the test keeps the bus busy: the prompt returns as soon as the operator is told,
+    /// not once it is done.
+    pub const fn during_traffic(self) -> bool {
+        matches!(self, Prompt::ResetThruster)
+    }
+}
+
+/// The person at the bench (or the virtual bench acting for one).
+#[allow(async_fn_in_trait)]
+pub trait Operator {
+    /// Ask for `what` on the thruster of `family`. Return once it is done; for a prompt that is
+    /// [`Prompt::during_traffic`], once the operator has been told and is about to act.
+    async fn prompt(&mut self, what: Prompt, family: Family);
+}
+
+/// Timings and limits of the script.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct AcceptanceConfig {
+    /// The family the build expects to find (the dev kit's `legacy` feature); None: whichever answers.
+    pub expect: Option<Family>,
+    /// Time between polls within a step.
+    pub period: Duration,
+    /// How long a status may take to follow a new order.
+    pub settle: Duration,
+    /// How far (in speed steps) a reported speed may be from the order.
+    pub tolerance: u8,
+    /// The step used wherever the thruster must visibly drive (failsafe, faults, bad orders).
+    pub drive_step: i8,
+    /// The least current (0.1 A) a Legacy brushless thruster must report at `drive_step` and beyond.
+    pub min_current_deciamps: u8,
+    /// How long the bus stays silent in the failsafe step (the thruster's failsafe trips at 1 s).
+    pub silence: Duration,
+    /// How long a stopped thruster may take to report speed 0 (a propeller in water coasts for seconds).
+    pub coast: Duration,
+    /// How long a stopped thruster must stay stopped while only reads reach it.
+    pub stay_stopped: Duration,
+    /// How long a provoked fault may take to be reported, and to clear.
+    pub fault_within: Duration,
+    /// How long the reset step keeps the bus busy waiting for the reset and the recovery.
+    pub reset_window: Duration,
+    /// Good polls in a row that count as recovered after a failure.
+    pub recovered_polls: u16,
+}
+
+impl AcceptanceConfig {
+    /// The script's defaults: polls every 10 ms, 1 s to follow an order within 1 step, drive step 60, 1.5 s of
+    /// silence, 10 s to coast to rest, faults within 2 s, 15 s for the operator to reset the board.
+    pub const DEFAULT: AcceptanceConfig = AcceptanceConfig {
+        expect: None,
+        period: Duration::from_millis(10),
+        settle: Duration::from_secs(1),
+        tolerance: 1,
+        drive_step: 60,
+        min_current_deciamps: 1,
+        silence: Duration::from_millis(1500),
+        coast: Duration::from_secs(10),
+        stay_stopped: Duration::from_millis(500),
+        fault_within: Duration::from_secs(2),
+        reset_window: Duration::from_secs(15),
+        recovered_polls: 20,
+    };
+}
+
+impl Default for AcceptanceConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// The speed a status reports, in steps: SeaBotix SPEED; Legacy brushed MAX POWER (the power set into the
+/// motor). None for Legacy brushless, which reports only its current.
+pub fn reported_speed(status: &Status) -> Option<i8> {
+    match status {
+        Status::SeaBotix(status) => Some(status.speed.step()),
+        Status::Legacy(status) => match status.max_power {
+            MaxPower::Power(speed) => Some(speed.step()),
+            MaxPower::Current { .. } | MaxPower::Raw(_) => None,
+        },
+    }
+}
+
+/// The motor current a status reports, in 0.1 A: SeaBotix CURRENT; Legacy brushless MAX POWER. None for Legacy
+/// brushed.
+pub fn reported_current(status: &Status) -> Option<u8> {
+    match status {
+        Status::SeaBotix(status) => Some(status.current_deciamps),
+        Status::Legacy(status) => match status.max_power {
+            MaxPower::Current { deciamps } => Some(deciamps),
+            MaxPower::Power(_) | MaxPower::Raw(_) => None,
+        },
+    }
+}
+
+/// Whether a status follows the order `step` (see the module's documentation); faults are judged separately.
+pub fn follows(status: &Status, step: i8, config: &AcceptanceConfig) -> bool {
+    if let Some(speed) = reported_speed(status) {
+        return (i16::from(speed) - i16::from(step)).unsigned_abs() <= u16::from(config.tolerance);
+    }
+    match (status, reported_current(status)) {
+        (Status::Legacy(_), Some(current)) => {
+            if step == 0 {
+                current == 0
+            } else if step.unsigned_abs() >= config.drive_step.unsigned_abs() {
+                current >= config.min_current_deciamps
+            } else {
+                true
+            }
+        }
+        _ => false,
+    }
+}
+
+/// Whether the status shows the drive off: no current (Legacy brushed: no power set into the motor).
+pub fn drive_off(status: &Status) -> bool {
+    match reported_current(status) {
+        Some(current) => current == 0,
+        None => reported_speed(status) == Some(0),
+    }
+}
+
+/// Whether the status shows the thruster at rest: the drive off and any reported speed 0.
+pub fn at_rest(status: &Status) -> bool {
+    drive_off(status) && reported_speed(status).is_none_or(|speed| speed == 0)
+}
+
+/// The order for `step`, encoded for `family`.
+fn order_bytes(family: Family, step: i8) -> [u8; ORDER_LEN] {
+    Order::new(Speed::new_saturating(i32::from(step))).encode(family)
+}
+
+/// The out-of-range SPEED bytes sent, each with a matching checksum: both ends of both gaps.
+pub const OUT_OF_RANGE_SPEEDS: [u8; 4] = [0x00, 0x18, 0xE7, 0xFF];
+
+/// Bus failures seen, by kind, and the recoveries run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct Failures {
+    nack: u32,
+    timeout: u32,
+    bus: u32,
+    frame: u32,
+    recoveries: u32,
+    recoveries_failed: u32,
+}
+
+impl Failures {
+    fn total(&self) -> u32 {
+        self.nack
+            .saturating_add(self.timeout)
+            .saturating_add(self.bus)
+            .saturating_add(self.frame)
+    }
+}
+
+/// What a run of polls saw.
+#[derive(Debug, Clone, Copy, Default)]
+struct Polled {
+    /// How long until the condition held; None if it never did.
+    took: Option<Duration>,
+    /// The last valid status.
+    last: Option<Status>,
+    /// Every fault bit any status reported.
+    faults: Faults,
+    /// Polls made.
+    polls: u32,
+    /// Valid statuses for which `condition` did not hold.
+    misses: u32,
+    /// Polls that failed on the bus or with an invalid frame.
+    failures: u32,
+}
+
+/// The script's state: the bus, the operator, the tally.
+struct Tester<'a, B, O, R> {
+    bus: &'a mut B,
+    operator: &'a mut O,
+    config: &'a AcceptanceConfig,
+    report: &'a mut R,
+    verdict: Verdict,
+    failures: Failures,
+}
+
+impl<B, O, R> Tester<'_, B, O, R>
+where
+    B: I2c + BusRecovery,
+    O: Operator,
+    R: FnMut(StepResult),
+{
+    fn finish(&mut self, result: StepResult) {
+        self.verdict.count(&result);
+        (self.report)(result);
+    }
+
+    /// Count a failure and recover the bus when it may be stuck.
+    async fn failed(&mut self, failure: Failure) -> Failure {
+        let counter = match failure {
+            Failure::Nack => &mut self.failures.nack,
+            Failure::Timeout => &mut self.failures.timeout,
+            Failure::Bus | Failure::Mux => &mut self.failures.bus,
+            Failure::BadLength | Failure::BadType | Failure::BadChecksum | Failure::BadRange => {
+                &mut self.failures.frame
+            }
+        };
+        *counter = counter.saturating_add(1);
+        if failure.needs_recovery() {
+            self.failures.recoveries = self.failures.recoveries.saturating_add(1);
+            if !self.bus.recover().await {
+                self.failures.recoveries_failed = self.failures.recoveries_failed.saturating_add(1);
+            }
+        }
+        failure
+    }
+
+    /// Write `order` (any bytes, when given) to the thruster of `family`, then read its status.
+    async fn exchange(&mut self, family: Family, order: Option<&[u8]>) -> Result<Status, Failure> {
+        let address = family.address();
+        if let Some(bytes) = order
+            && let Err(error) = self.bus.write(address, bytes).await
+        {
+            return Err(self.failed(Failure::of_bus_error(&error)).await);
+        }
+        let mut buffer = [0; MAX_STATUS_LEN];
+        // Never empty: status_len() is at most MAX_STATUS_LEN.
+        let reply = buffer.get_mut(..family.status_len()).unwrap_or_default();
+        if let Err(error) = self.bus.read(address, reply).await {
+            return Err(self.failed(Failure::of_bus_error(&error)).await);
+        }
+        match Status::decode(family, reply) {
+            Ok(status) => Ok(status),
+            Err(error) => Err(self.failed(Failure::of_decode_error(error)).await),
+        }
+    }
+
+    /// Poll every `period` with `order` (or reads only) until `condition` holds for a valid status, or `within`
+    /// has passed. With `whole` the polls go on for all of `within` and every status is judged.
+    async fn poll(
+        &mut self,
+        family: Family,
+        order: Option<&[u8]>,
+        within: Duration,
+        whole: bool,
+        mut condition: impl FnMut(&Status) -> bool,
+    ) -> Polled {
+        let start = Instant::now();
+        let mut polled = Polled::default();
+        loop {
+            polled.polls = polled.polls.saturating_add(1);
+            match self.exchange(family, order).await {
+                Ok(status) => {
+                    polled.faults = polled.faults.union(status.faults());
+                    polled.last = Some(status);
+                    if condition(&status) {
+                        polled.took.get_or_insert(start.elapsed());
+                        if !whole {
+                            return polled;
+                        }
+                    } else {
+                        polled.misses = polled.misses.saturating_add(1);
+                    }
+                }
+                Err(_) => polled.failures = polled.failures.saturating_add(1),
+            }
+            if start.elapsed() >= within {
+                return polled;
+            }
+            Timer::after(self.config.period).await;
+        }
+    }
+
+    /// Order `step` and wait until the status follows it.
+    async fn drive(&mut self, family: Family, step: i8) -> Polled {
+        let config = self.config;
+        let order = order_bytes(family, step);
+        self.poll(family, Some(&order), config.settle, false, |status| {
+            follows(status, step, config)
+        })
+        .await
+    }
+
+    /// Order zero and give the thruster `settle` to stop driving (not judged).
+    async fn stop(&mut self, family: Family) {
+        let order = order_bytes(family, 0);
+        self.poll(family, Some(&order), self.config.settle, false, drive_off)
+            .await;
+    }
+
+    async fn discovery(&mut self) -> heapless::Vec<Family, 2> {
+        let mut result = StepResult::new(Step::Discovery, None);
+        let mut found = heapless::Vec::new();
+        for family in Family::ALL {
+            let answer = self.exchange(family, None).await;
+            let figure = match answer {
+                Ok(_) => {
+                    let _ = found.push(family);
+                    1
+                }
+                Err(Failure::Nack) => 0,
+                // Something answered, but not with a valid status of the family.
+                Err(_) => -1,
+            };
+            result.figure(family_token(family), figure);
+            result.require(figure >= 0);
+        }
+        result.figure("found", found.len());
+        result.require(!found.is_empty());
+        if let Some(expected) = self.config.expect {
+            result.require(found.contains(&expected));
+        }
+        self.finish(result);
+        found
+    }
+
+    async fn sweep(&mut self, family: Family, step: Step, sign: i8) {
+        let mut result = StepResult::new(step, Some(family));
+        let (mut ok, mut worst, mut first_bad, mut faults) = (0u8, Duration::from_ticks(0), None, Faults::NONE);
+        let mut at_full = None;
+        for magnitude in 1..=Speed::MAX_STEP {
+            let target = sign.saturating_mul(magnitude);
+            let polled = self.drive(family, target).await;
+            faults = faults.union(polled.faults);
+            match polled.took {
+                Some(took) => {
+                    ok = ok.saturating_add(1);
+                    worst = worst.max(took);
+                }
+                None => {
+                    first_bad.get_or_insert(target);
+                }
+            }
+            at_full = polled.last;
+        }
+        result.figure("steps", Speed::MAX_STEP);
+        result.figure("ok", ok);
+        result.millis("worst_ms", Some(worst));
+        if let Some(status) = at_full {
+            match reported_speed(&status) {
+                Some(speed) => result.figure("speed_at_full", speed),
+                None => result.figure("current_da", reported_current(&status).unwrap_or(0)),
+            }
+        }
+        if let Some(bad) = first_bad {
+            result.figure("first_bad", bad);
+        }
+        result.figure("faults", faults.bits());
+        result.require(ok == Speed::MAX_STEP.unsigned_abs() && faults.is_empty());
+        self.finish(result);
+        self.stop(family).await;
+    }
+
+    /// Send each of `bad` in turn (with a read after each) for `settle` while the thruster holds a stop, then
+    /// again while it holds the drive step, each time once it has held the order for `settle`: every status must still show the order held (the drive off, then
+    /// following the drive step). Taking a bad order shows in one phase or the other whatever the family reports.
+    async fn bad_orders(&mut self, family: Family, step: Step, bad: &[[u8; ORDER_LEN]]) {
+        let config = self.config;
+        let drive = config.drive_step;
+        let mut result = StepResult::new(step, Some(family));
+        let (mut ready, mut sent, mut held, mut failures, mut faults) = (true, 0u32, 0u32, 0u32, Faults::NONE);
+        let mut last = None;
+        // The speeds reported while the drive step was held, for the families that report one.
+        let (mut lowest, mut highest) = (i8::MAX, i8::MIN);
+        for hold in [0, drive] {
+            let holds = |status: &Status| {
+                if hold == 0 {
+                    drive_off(status)
+                } else {
+                    follows(status, hold, config)
+                }
+            };
+            let order = order_bytes(family, hold);
+            ready &= self
+                .poll(family, Some(&order), config.settle, false, holds)
+                .await
+                .took
+                .is_some();
+            // Let the speed loop settle (a propeller's loop overshoots a little after a step).
+            self.poll(family, Some(&order), config.settle, true, holds).await;
+            let start = Instant::now();
+            for order in bad.iter().cycle() {
+                if start.elapsed() >= config.settle {
+                    break;
+                }
+                sent = sent.saturating_add(1);
+                match self.exchange(family, Some(order)).await {
+                    Ok(status) => {
+                        faults = faults.union(status.faults());
+                        if holds(&status) {
+                            held = held.saturating_add(1);
+                        }
+                        if hold != 0
+                            && let Some(speed) = reported_speed(&status)
+                        {
+                            (lowest, highest) = (lowest.min(speed), highest.max(speed));
+                        }
+                        last = Some(status);
+                    }
+                    Err(_) => failures = failures.saturating_add(1),
+                }
+                Timer::after(config.period).await;
+            }
+        }
+        result.figure("ready", u8::from(ready));
+        result.figure("sent", sent);
+        result.figure("held", held);
+        if let Some(status) = last {
+            match reported_speed(&status) {
+                Some(speed) => result.figure("speed", speed),
+                None => result.figure("current_da", reported_current(&status).unwrap_or(0)),
+            }
+        }
+        result.figure("failures", failures);
+        if lowest <= highest {
+            result.figure("min", lowest);
+            result.figure("max", highest);
+        }
+        result.require(ready && sent > 0 && held == sent && faults.is_empty());
+        self.finish(result);
+        self.stop(family).await;
+    }
+
+    async fn bad_checksum(&mut self, family: Family) {
+        // A stop and the opposite of the drive step, each with its checksum off by one: taking either would show.
+        let corrupt = |step: i8| {
+            let mut order = order_bytes(family, step);
+            if let Some(sum) = order.last_mut() {
+                *sum = sum.wrapping_add(1);
+            }
+            order
+        };
+        let drive = self.config.drive_step;
+        self.bad_orders(
+            family,
+            Step::BadChecksum,
+            &[corrupt(drive.saturating_neg()), corrupt(0)],
+        )
+        .await;
+    }
+
+    async fn out_of_range(&mut self, family: Family) {
+        let mt = family.order_type();
+        let info = Order::INFO_NO_CAP;
+        let orders = OUT_OF_RANGE_SPEEDS.map(|speed| [mt, speed, info, checksum(&[mt, speed, info])]);
+        self.bad_orders(family, Step::OutOfRange, &orders).await;
+    }
+
+    async fn failsafe(&mut self, family: Family) {
+        let config = self.config;
+        let drive = config.drive_step;
+        let mut result = StepResult::new(Step::Failsafe, Some(family));
+        let ready = self.drive(family, drive).await.took.is_some();
+        result.figure("ready", u8::from(ready));
+        Timer::after(config.silence).await;
+        let first = self.exchange(family, None).await;
+        let off = first.as_ref().is_ok_and(drive_off);
+        result.figure("off_at_first_read", u8::from(off));
+        if let Ok(status) = first {
+            match reported_speed(&status) {
+                Some(speed) => result.figure("speed_at_first_read", speed),
+                None => result.figure("current_da", reported_current(&status).unwrap_or(0)),
+            }
+        }
+        let rest = self.poll(family, None, config.coast, false, at_rest).await;
+        result.millis("rest_ms", rest.took);
+        // Reads are life for the link, but only a new order may restart the motor.
+        let stayed = self.poll(family, None, config.stay_stopped, true, at_rest).await;
+        let stayed = stayed.misses == 0 && stayed.failures == 0;
+        result.figure("stayed", u8::from(stayed));
+        let restarted = self.drive(family, drive).await;
+        result.millis("restart_ms", restarted.took);
+        result.require(ready && off && rest.took.is_some() && stayed && restarted.took.is_some());
+        self.finish(result);
+        self.stop(family).await;
+    }
+
+    async fn held_rotor(&mut self, family: Family) {
+        let config = self.config;
+        let drive = config.drive_step;
+        let mut result = StepResult::new(Step::HeldRotor, Some(family));
+        self.operator.prompt(Prompt::HoldRotor, family).await;
+        let order = order_bytes(family, drive);
+        let stall = self
+            .poll(family, Some(&order), config.fault_within, false, |status| {
+                status.faults().contains(Faults::STALL)
+            })
+            .await;
+        result.millis("stall_ms", stall.took);
+        // Stalled, the controller stops driving although the order stands.
+        let stopped = self.poll(family, Some(&order), config.settle, false, drive_off).await;
+        result.figure("stopped", u8::from(stopped.took.is_some()));
+        self.operator.prompt(Prompt::ReleaseRotor, family).await;
+        let zero = order_bytes(family, 0);
+        let cleared = self
+            .poll(family, Some(&zero), config.fault_within, false, |status| {
+                !status.faults().contains(Faults::STALL)
+            })
+            .await;
+        result.millis("cleared_ms", cleared.took);
+        let resumed = self.drive(family, drive).await;
+        result.millis("resumed_ms", resumed.took);
+        let faults = resumed.last.map_or(Faults::NONE, |status| status.faults());
+        result.figure("faults", faults.bits());
+        result.require(
+            stall.took.is_some()
+                && stopped.took.is_some()
+                && cleared.took.is_some()
+                && resumed.took.is_some()
+                && faults.is_empty(),
+        );
+        self.finish(result);
+        self.stop(family).await;
+    }
+
+    async fn water(&mut self, family: Family) {
+        let config = self.config;
+        let drive = config.drive_step;
+        let mut result = StepResult::new(Step::Water, Some(family));
+        self.operator.prompt(Prompt::FitWaterResistor, family).await;
+        let order = order_bytes(family, drive);
+        let wet = |status: &Status| status.faults().contains(Faults::WATER);
+        let seen = self.poll(family, Some(&order), config.fault_within, false, wet).await;
+        result.millis("water_ms", seen.took);
+        // IDS 8.4: water is a warning on a SeaBotix controller (it keeps driving) and stops a Legacy one.
+        let keeps_driving = family == Family::SeaBotix;
+        let behaves = self
+            .poll(family, Some(&order), config.settle, false, |status| {
+                if keeps_driving {
+                    follows(status, drive, config)
+                } else {
+                    drive_off(status)
+                }
+            })
+            .await;
+        result.figure("driving", u8::from(behaves.took.is_some() == keeps_driving));
+        self.operator.prompt(Prompt::RemoveWaterResistor, family).await;
+        let after = if keeps_driving {
+            // The warning clears once the resistance is back above 1 Mohm.
+            let cleared = self
+                .poll(family, Some(&order), config.fault_within, false, |status| !wet(status))
+                .await;
+            result.millis("cleared_ms", cleared.took);
+            cleared.took.is_some()
+        } else {
+            // Latched until power cycle: still set, still stopped, after the resistor is gone.
+            let latched = self
+                .poll(family, Some(&order), config.fault_within, true, |status| {
+                    wet(status) && drive_off(status)
+                })
+                .await;
+            let latched = latched.took.is_some() && latched.misses == 0;
+            result.figure("latched", u8::from(latched));
+            latched
+        };
+        result.require(seen.took.is_some() && behaves.took.is_some() && after);
+        self.finish(result);
+        self.stop(family).await;
+    }
+
+    async fn reset(&mut self, family: Family) {
+        let config = self.config;
+        let drive = config.drive_step;
+        let mut result = StepResult::new(Step::Reset, Some(family));
+        let order = order_bytes(family, drive);
+        self.operator.prompt(Prompt::ResetThruster, family).await;
+        let before = self.failures;
+        let start = Instant::now();
+        let (mut first_failure, mut recovered, mut good_run) = (None, None, 0u16);
+        // Back to back, so that the reset lands in a transfer.
+        while start.elapsed() < config.reset_window {
+            match self.exchange(family, Some(&order)).await {
+                Ok(_) => {
+                    good_run = good_run.saturating_add(1);
+                    if first_failure.is_some() && good_run >= config.recovered_polls {
+                        recovered = Some(start.elapsed());
+                        break;
+                    }
+                }
+                Err(_) => {
+                    good_run = 0;
+                    first_failure.get_or_insert(start.elapsed());
+                }
+            }
+            // Let other work run between polls without leaving the bus idle.
+            embassy_futures::yield_now().await;
+        }
+        let seen = Failures {
+            nack: self.failures.nack.wrapping_sub(before.nack),
+            timeout: self.failures.timeout.wrapping_sub(before.timeout),
+            bus: self.failures.bus.wrapping_sub(before.bus),
+            frame: self.failures.frame.wrapping_sub(before.frame),
+            recoveries: self.failures.recoveries.wrapping_sub(before.recoveries),
+            recoveries_failed: self.failures.recoveries_failed.wrapping_sub(before.recoveries_failed),
+        };
+        result.figure("nack", seen.nack);
+        result.figure("timeout", seen.timeout);
+        result.figure("bus_error", seen.bus);
+        result.figure("bad_frame", seen.frame);
+        result.figure("recoveries", seen.recoveries);
+        let outage = first_failure
+            .zip(recovered)
+            .map(|(failed, back)| Duration::from_ticks(back.as_ticks().saturating_sub(failed.as_ticks())));
+        result.millis("recovered_ms", outage);
+        // A fresh controller: no fault left (a latched water fault is gone) and it takes orders again.
+        let again = self.drive(family, drive).await;
+        let clean = again.took.is_some() && again.last.is_some_and(|status| status.faults().is_empty());
+        result.figure("drives_again", u8::from(clean));
+        result.require(seen.total() > 0 && recovered.is_some() && seen.recoveries_failed == 0 && clean);
+        self.finish(result);
+        self.stop(family).await;
+    }
+
+    async fn thruster(&mut self, family: Family) {
+        self.sweep(family, Step::SpeedForward, 1).await;
+        self.sweep(family, Step::SpeedReverse, -1).await;
+        self.bad_checksum(family).await;
+        self.out_of_range(family).await;
+        self.failsafe(family).await;
+        self.held_rotor(family).await;
+        self.water(family).await;
+        self.reset(family).await;
+    }
+}
+
+/// Run the whole script against whatever answers on `bus`, reporting each step to `report` as it ends, and return
+/// the verdict. Discovery finds the thrusters; every one found is tested in turn (SeaBotix first). Leaves every
+/// thruster ordered to stop.
+pub async fn acceptance_test<B, O>(
+    bus: &mut B,
+    operator: &mut O,
+    config: &AcceptanceConfig,
+    report: &mut impl FnMut(StepResult),
+) -> Verdict
+where
+    B: I2c + BusRecovery,
+    O: Operator,
+{
+    let mut tester = Tester {
+        bus,
+        operator,
+        config,
+        report,
+        verdict: Verdict::default(),
+        failures: Failures::default(),
+    };
+    let found = tester.discovery().await;
+    for family in found {
+        tester.thruster(family).await;
+    }
+    tester.verdict
+}
+
+#[cfg(test)]
+mod tests;
