@@ -598,13 +598,7 @@ fn target_dir(workspace: &Path) -> PathBuf {
 pub fn main(args: &[String]) -> ExitCode {
     let options = match parse(args) {
         Ok(options) => options,
-        Err(message) => {
-            if !message.is_empty() {
-                eprintln!("lbv: {message}");
-            }
-            eprintln!("{USAGE}");
-            return ExitCode::from(EXIT_SETUP);
-        }
+        Err(message) => return crate::usage_error(&message, USAGE, ExitCode::from(EXIT_SETUP)),
     };
     let mut log = match options.log.as_ref().map(File::create).transpose() {
         Ok(log) => log,

@@ -137,17 +137,20 @@ fn main() -> ExitCode {
     }
 }
 
+/// Say what was wrong with the command line (nothing for `--help`), show the usage, and exit with `code`.
+fn usage_error(message: &str, usage: &str, code: ExitCode) -> ExitCode {
+    if !message.is_empty() {
+        eprintln!("lbv: {message}");
+    }
+    eprintln!("{usage}");
+    code
+}
+
 /// `lbv bench ...`
 fn bench_main(args: &[String]) -> ExitCode {
     let options = match parse(args) {
         Ok(options) => options,
-        Err(message) => {
-            if !message.is_empty() {
-                eprintln!("lbv: {message}");
-            }
-            eprintln!("{USAGE}");
-            return ExitCode::from(2);
-        }
+        Err(message) => return usage_error(&message, USAGE, ExitCode::from(2)),
     };
     if options.list {
         for scenario in SCENARIOS {

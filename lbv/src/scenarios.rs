@@ -559,6 +559,16 @@ fn reported(run: &mut Run, fault: Faults) {
     );
 }
 
+/// Thruster 1 reports no fault and drives ahead again.
+fn drives_again(run: &mut Run, name: &str) {
+    let (faults, rpm) = (run.faults(0), run.rpm(0));
+    run.check(
+        name,
+        faults.is_empty() && rpm > 800.0,
+        format!("faults {:#04x}, rpm {rpm:.0}", faults.bits()),
+    );
+}
+
 fn others_keep_working(run: &mut Run) {
     let rpm: Vec<f64> = (1..4).map(|i| round(run.rpm(i), 0)).collect();
     run.check(
@@ -680,11 +690,7 @@ fn stall(run: &mut Run) {
     run.run_for(0.5);
     run.bench.ground.sticks = Some(AHEAD);
     run.run_for(1.5);
-    run.check(
-        "a zero order clears it and the next order drives",
-        run.faults(0).is_empty() && run.rpm(0) > 800.0,
-        format!("faults {:#04x}, rpm {:.0}", run.faults(0).bits(), run.rpm(0)),
-    );
+    drives_again(run, "a zero order clears it and the next order drives");
 }
 
 fn hall(run: &mut Run) {
@@ -705,11 +711,7 @@ fn hall(run: &mut Run) {
     run.bench.thrusters[0].plant.borrow_mut().hall_fault = None;
     run.bench.note("T1: halls plugged in");
     run.run_for(1.5);
-    run.check(
-        "clears and drives when the halls read normal",
-        run.faults(0).is_empty() && run.rpm(0) > 800.0,
-        format!("faults {:#04x}, rpm {:.0}", run.faults(0).bits(), run.rpm(0)),
-    );
+    drives_again(run, "clears and drives when the halls read normal");
 }
 
 fn bad_frames(run: &mut Run) {
