@@ -32,8 +32,11 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
 use tmc_proto::{Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
-use crate::shared::{Severity, Text, text};
-use crate::thrusters::{BusRecovery, Failure};
+use crate::BusWork;
+use crate::config::MasterConfig;
+use crate::recovery::BusRecovery;
+use crate::shared::{Severity, Shared, Text, text};
+use crate::thrusters::{BUSES, Failure};
 
 /// The steps of the script, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -302,12 +305,76 @@ impl Prompt {
     }
 }
 
-/// The person at the bench (or the virtual bench acting for one).
+/// The person at the bench (or the virtual bench acting for one), who is also told how the script goes. The
+/// console hears every prompt, step and verdict anyway ([`Script`]); these are for the report's other readers.
 #[allow(async_fn_in_trait)]
 pub trait Operator {
     /// Ask for `what` on the thruster of `family`. Return once it is done; for a prompt that is
     /// [`Prompt::during_traffic`], once the operator has been told and is about to act.
     async fn prompt(&mut self, what: Prompt, family: Family);
+    /// The script starts.
+    fn started(&mut self) {}
+    /// A step ended.
+    fn reported(&mut self, result: &StepResult) {
+        let _ = result;
+    }
+    /// The script ended.
+    fn concluded(&mut self, verdict: &Verdict) {
+        let _ = verdict;
+    }
+}
+
+/// The acceptance image's work on the thruster buses: `config.acceptance.start` after boot, the script on the dev
+/// kit's bus, with every prompt, step and verdict said on the console as well as told to the operator; the other
+/// buses stay idle.
+#[derive(Debug)]
+pub struct Script<O>(pub O);
+
+impl<O: Operator> BusWork for Script<O> {
+    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
+        let setup = &config.acceptance;
+        Timer::after(setup.start).await;
+        let Some(bus) = buses.get_mut(usize::from(setup.bus)) else {
+            return;
+        };
+        let mut operator = Announced {
+            operator: self.0,
+            shared,
+        };
+        operator.started();
+        let verdict = acceptance_test(bus, &mut operator, &setup.script).await;
+        operator.concluded(&verdict);
+    }
+}
+
+/// An operator whose prompts, steps and verdict the console hears too.
+struct Announced<'a, O> {
+    operator: O,
+    shared: &'a Shared,
+}
+
+impl<O: Operator> Operator for Announced<'_, O> {
+    async fn prompt(&mut self, what: Prompt, family: Family) {
+        let (severity, text) = prompt_text(what);
+        self.shared.say(severity, text);
+        self.operator.prompt(what, family).await;
+    }
+
+    fn started(&mut self) {
+        self.operator.started();
+    }
+
+    fn reported(&mut self, result: &StepResult) {
+        let (severity, text) = step_text(result);
+        self.shared.say(severity, text);
+        self.operator.reported(result);
+    }
+
+    fn concluded(&mut self, verdict: &Verdict) {
+        let (severity, text) = verdict_text(verdict);
+        self.shared.say(severity, text);
+        self.operator.concluded(verdict);
+    }
 }
 
 /// Timings and limits of the script.
@@ -467,24 +534,22 @@ struct Polled {
 }
 
 /// The script's state: the bus, the operator, the tally.
-struct Tester<'a, B, O, R> {
+struct Tester<'a, B, O> {
     bus: &'a mut B,
     operator: &'a mut O,
     config: &'a AcceptanceConfig,
-    report: &'a mut R,
     verdict: Verdict,
     failures: Failures,
 }
 
-impl<B, O, R> Tester<'_, B, O, R>
+impl<B, O> Tester<'_, B, O>
 where
     B: I2c + BusRecovery,
     O: Operator,
-    R: FnMut(StepResult),
 {
     fn finish(&mut self, result: StepResult) {
         self.verdict.count(&result);
-        (self.report)(result);
+        self.operator.reported(&result);
     }
 
     /// Count a failure and recover the bus when it may be stuck.
@@ -915,15 +980,10 @@ where
     }
 }
 
-/// Run the whole script against whatever answers on `bus`, reporting each step to `report` as it ends, and return
-/// the verdict. Discovery finds the thrusters; every one found is tested in turn (SeaBotix first). Leaves every
-/// thruster ordered to stop.
-pub async fn acceptance_test<B, O>(
-    bus: &mut B,
-    operator: &mut O,
-    config: &AcceptanceConfig,
-    report: &mut impl FnMut(StepResult),
-) -> Verdict
+/// Run the whole script against whatever answers on `bus`, telling the operator each step's result as it ends, and
+/// return the verdict. Discovery finds the thrusters; every one found is tested in turn (SeaBotix first). Leaves
+/// every thruster ordered to stop.
+pub async fn acceptance_test<B, O>(bus: &mut B, operator: &mut O, config: &AcceptanceConfig) -> Verdict
 where
     B: I2c + BusRecovery,
     O: Operator,
@@ -932,7 +992,6 @@ where
         bus,
         operator,
         config,
-        report,
         verdict: Verdict::default(),
         failures: Failures::default(),
     };

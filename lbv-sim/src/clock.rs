@@ -42,8 +42,21 @@ impl Clock {
 
 /// Move the clock on by `duration`, waking every timer that falls due. Only whoever holds the [`Clock`] calls this
 /// (the executor does, in its runs).
-pub(crate) fn advance(duration: Duration) {
+pub fn advance(duration: Duration) {
     MockDriver::get().advance(duration);
+}
+
+/// For a test that polls its tasks with embassy-futures' `block_on` over a `join` / `select` rather than on an
+/// [`Executor`](crate::Executor): let `duration` pass in `step`s, yielding `turns` times after each step so that
+/// what the step woke runs before the next. The caller holds the clock.
+pub async fn elapse(duration: Duration, step: Duration, turns: u32) {
+    let end = Instant::now() + duration;
+    while Instant::now() < end {
+        advance(step.min(end - Instant::now()));
+        for _ in 0..turns {
+            embassy_futures::yield_now().await;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -7,9 +7,10 @@
 //!   peripheral (SCL is stretched until it answers; one that does not answer within the master's timeout times the
 //!   master out, as embassy-stm32 does).
 //! - Addresses nobody acknowledges (absent, unpowered, behind an unselected multiplexer channel) NACK.
-//! - Faults: a device's bytes can be corrupted both ways ([`Tamper`]); a slave can hold SDA low for a number of SCL
-//!   clocks ([`Bus::hold_sda`]), which fails every transfer until the master clocks it free on the lines
-//!   ([`Scl`], [`Sda`]: open-drain pins as embedded-hal sees them, for the UM10204 3.1.16 recovery).
+//! - Faults: a device's bytes can be corrupted both ways ([`Tamper`]); a transfer to firmware can be torn by a
+//!   glitch ([`Bus::disturb`]); a slave can hold SDA low for a number of SCL clocks ([`Bus::hold_sda`]), which fails
+//!   every transfer until the master clocks it free on the lines ([`Scl`], [`Sda`]: open-drain pins as
+//!   embedded-hal sees them, for the UM10204 3.1.16 recovery).
 
 use std::cell::{Cell, RefCell};
 use std::convert::Infallible;
@@ -65,6 +66,9 @@ pub enum Reply {
     /// Acknowledged, then SCL held low this long before the data moved; as long as the master's timeout or longer,
     /// the master gives up.
     Stretch(Duration),
+    /// The device went wrong mid-byte and holds SDA low until it has seen this many SCL clocks (`u32::MAX`: never):
+    /// the master sees a bus error, and so does every transfer after it until the bus is clocked free.
+    HoldSda(u32),
 }
 
 /// A device the simulation answers for at once: it gets every transfer to its address while it is reachable.
@@ -127,7 +131,7 @@ pub struct Stats {
     pub nacks: u64,
     /// Transfers the master abandoned at its timeout.
     pub timeouts: u64,
-    /// Transfers that could not start: SDA was held low.
+    /// Transfers that failed on the bus: SDA held low (before or during the transfer), or a glitch.
     pub bus_errors: u64,
     /// Transfers that two devices answered at once (their bytes would collide on SDA).
     pub collisions: u64,
@@ -183,6 +187,8 @@ enum Handoff {
 enum Answer {
     Written,
     Read(Vec<u8>),
+    /// The transfer was torn: both ends saw a bus error.
+    Torn,
 }
 
 /// The wires between the bus and one firmware slave port.
@@ -191,6 +197,21 @@ struct TargetLine {
     handoff: Signal<NoopRawMutex, Handoff>,
     answer: Signal<NoopRawMutex, Answer>,
     resets: Cell<u32>,
+    /// The next transfer is torn by a glitch.
+    disturbed: Cell<bool>,
+}
+
+impl TargetLine {
+    /// Answer the transfer under way, unless a glitch tears it.
+    fn answer(&self, answer: Answer) -> Result<(), TargetError> {
+        if self.disturbed.replace(false) {
+            self.answer.signal(Answer::Torn);
+            Err(TargetError)
+        } else {
+            self.answer.signal(answer);
+            Ok(())
+        }
+    }
 }
 
 enum Endpoint {
@@ -230,6 +251,8 @@ struct Wire {
     /// The master's pins: driving SCL low, driving SDA low.
     scl_low: bool,
     sda_low: bool,
+    /// The device the master's transfer under way addressed.
+    busy_with: Option<usize>,
     stats: Stats,
     log: Option<Vec<Transfer>>,
 }
@@ -282,6 +305,7 @@ impl Bus {
             sda_hold: None,
             scl_low: false,
             sda_low: false,
+            busy_with: None,
             stats: Stats::default(),
             log: None,
         })))
@@ -353,6 +377,14 @@ impl Bus {
         }
     }
 
+    /// Tear the next transfer to the firmware at `id` with a glitch: its port reports an error, the master a bus
+    /// error.
+    pub fn disturb(&self, id: DeviceId) {
+        if let Some(Endpoint::Target { line, .. }) = self.0.borrow().slots.get(id.0).map(|slot| &slot.endpoint) {
+            line.disturbed.set(true);
+        }
+    }
+
     /// Power a device on or off: unpowered, it acknowledges nothing.
     pub fn set_powered(&self, id: DeviceId, powered: bool) {
         if let Some(slot) = self.0.borrow_mut().slots.get_mut(id.0) {
@@ -385,6 +417,12 @@ impl Bus {
     /// The transfers logged so far, taken out of the log.
     pub fn take_log(&self) -> Vec<Transfer> {
         self.0.borrow_mut().log.as_mut().map(std::mem::take).unwrap_or_default()
+    }
+
+    /// Whether the master's transfer under way is addressed to the device at `id` (a fault that lands now lands
+    /// mid-transfer).
+    pub fn in_transfer_with(&self, id: DeviceId) -> bool {
+        self.0.borrow().busy_with == Some(id.0)
     }
 
     /// What the bus counted so far.
@@ -443,7 +481,6 @@ impl Master {
         let mut wire = self.0.0.borrow_mut();
         wire.stats.transfers += 1;
         if wire.sda_hold.is_some() {
-            wire.stats.bus_errors += 1;
             return Plan::Stuck;
         }
         if let Some(mux) = wire.mux.as_mut()
@@ -469,6 +506,7 @@ impl Master {
         if hearing.len() > 1 {
             wire.stats.collisions += 1;
         }
+        wire.busy_with = hearing.first().copied();
         let mut plan = Plan::Nack;
         for (n, slot) in hearing.iter().filter_map(|&i| wire.slots.get(i)).enumerate() {
             let first = n == 0;
@@ -523,6 +561,11 @@ impl Master {
                 self.charge(ADDRESS_BITS + data_bits, Duration::from_ticks(0)).await;
                 (Ok(()), Some(data))
             }
+            Plan::Device(Reply::HoldSda(clocks), _) => {
+                self.0.hold_sda(clocks);
+                self.charge(ADDRESS_BITS, Duration::from_ticks(0)).await;
+                (Err(ErrorKind::Bus), None)
+            }
             Plan::Device(Reply::Stretch(stretch), data) => {
                 let timeout = self.0.timing().timeout;
                 if stretch >= timeout {
@@ -541,10 +584,12 @@ impl Master {
             }
         }
         let mut wire = self.0.0.borrow_mut();
+        wire.busy_with = None;
         match result {
             Err(ErrorKind::NoAcknowledge(_)) => wire.stats.nacks += 1,
             Err(ErrorKind::Other) => wire.stats.timeouts += 1,
-            _ => {}
+            Err(_) => wire.stats.bus_errors += 1,
+            Ok(()) => {}
         }
         let data = match operation {
             Operation::Write(bytes) => Data::Write(bytes.to_vec()),
@@ -707,18 +752,17 @@ impl Target {
     /// is acknowledged and dropped.
     pub async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, TargetError> {
         let bytes = self.pending.take().ok_or(TargetError)?;
+        self.line.answer(Answer::Written)?;
         let stored = bytes.len().min(buffer.len());
         for (slot, byte) in buffer.iter_mut().zip(&bytes) {
             *slot = *byte;
         }
-        self.line.answer.signal(Answer::Written);
         Ok(stored)
     }
 
     /// Send `data` to the reading master.
     pub async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), TargetError> {
-        self.line.answer.signal(Answer::Read(data.to_vec()));
-        Ok(())
+        self.line.answer(Answer::Read(data.to_vec()))
     }
 
     /// Re-initialise the port: anything half-received is forgotten.

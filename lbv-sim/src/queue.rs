@@ -149,9 +149,16 @@ impl embedded_io_async::Read for SerialRx {
 }
 
 /// A serial port's transmit side (`embedded_io_async::Write`): every byte written is queued at once for the other
-/// end, which reads it with [`Queue::take`] (a capture) or through a [`SerialRx`].
-#[derive(Debug, Clone)]
+/// end, which reads it through a [`SerialRx`], or takes it all as a capture ([`SerialTx::take`] on a clone).
+#[derive(Debug, Clone, Default)]
 pub struct SerialTx(pub Queue<u8>);
+
+impl SerialTx {
+    /// Everything written and not yet read, oldest first.
+    pub fn take(&self) -> Vec<u8> {
+        self.0.take()
+    }
+}
 
 impl embedded_io_async::ErrorType for SerialTx {
     type Error = Infallible;

@@ -1,5 +1,5 @@
-//! NUCLEO-G431RB + X-NUCLEO-IHM08M1 wiring of the thruster controller, the controller's build-time settings,
-//! and the adapters from embassy-stm32 peripherals to the core's ports.
+//! NUCLEO-G431RB + X-NUCLEO-IHM08M1 wiring of the thruster controller and the adapters from embassy-stm32
+//! peripherals to the core's ports; the settings they are configured with are the core's (`thruster_fw::CONFIG`).
 //!
 //! | function | pin | peripheral |
 //! |---|---|---|
@@ -26,36 +26,19 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::Channel;
 use embassy_stm32::timer::complementary_pwm::ComplementaryPwm;
 use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_time::Duration;
 use thruster_fw::commutation::{BridgeDrive, PhaseDrive};
 use thruster_fw::hall::HallState;
-use thruster_fw::tasks::{Bridge, Config, HallSensors, RawSample, Sensors, Watchdog};
-use thruster_fw::{Duty, I2cTarget, Request};
-use tmc_proto::{Family, MotorKind};
+use thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors, Watchdog};
+use thruster_fw::{CONFIG, Duty, FAMILY, I2cTarget, Request};
 #[cfg(feature = "motorless")]
 use {
     embassy_stm32::gpio::Input,
     thruster_fw::motorless::{HoldInput, ModelSensors, MotorModel, Motorless, WaterInput},
 };
 
-/// The controller family (Cargo feature `legacy`) and motor kind (Cargo feature `brushed`).
-pub const FAMILY: Family = if cfg!(feature = "legacy") {
-    Family::Legacy
-} else {
-    Family::SeaBotix
-};
-const MOTOR: MotorKind = if cfg!(feature = "brushed") {
-    MotorKind::Brushed
-} else {
-    MotorKind::Brushless
-};
-
-/// Everything fixed at build time: the reference hardware of the pin table above.
-pub static CONFIG: Config = Config::reference(FAMILY, MOTOR);
-
-/// The motor-less controller's model motor (Cargo feature `motorless`), for the same configuration.
+/// The motor-less controller's model motor (Cargo feature `motorless`), for the image's configuration.
 #[cfg(feature = "motorless")]
-pub static MOTORLESS: Motorless = Motorless::new(MotorModel::new(&Config::reference(FAMILY, MOTOR)));
+pub static MOTORLESS: Motorless = Motorless::new(MotorModel::new(&CONFIG));
 
 /// What the fault task samples: the ADC inputs, or in the motor-less controller the model and the water pin.
 #[cfg(not(feature = "motorless"))]
@@ -63,14 +46,15 @@ pub type Analog = AnalogInputs;
 #[cfg(feature = "motorless")]
 pub type Analog = ModelSensors<'static, WaterPin, UserButton>;
 
-/// How often the watchdog is fed (when every task reports) and how long it waits before it resets the chip.
-pub const WATCHDOG_FEED: Duration = Duration::from_millis(50);
-pub const WATCHDOG_TIMEOUT_US: u32 = 250_000;
-
-/// The thruster interface runs at 100 kbit/s (IDS 6.4.1).
-pub const BUS_SPEED: Hertz = Hertz::khz(100);
-/// A slave transfer stalled this long (SMBus's SCL-low timeout) is abandoned and the peripheral re-initialised.
-pub const TRANSFER_TIMEOUT: Duration = Duration::from_millis(25);
+/// What commutation reads and drives: the halls and the power stage, or in the motor-less controller the model's.
+#[cfg(not(feature = "motorless"))]
+pub type HallInputs = Halls;
+#[cfg(not(feature = "motorless"))]
+pub type Stage = PowerStage;
+#[cfg(feature = "motorless")]
+pub type HallInputs = thruster_fw::motorless::ModelHalls<'static>;
+#[cfg(feature = "motorless")]
+pub type Stage = thruster_fw::motorless::ModelBridge<'static>;
 
 /// I2C3 as the thruster interface's slave port.
 pub struct SlavePort(pub I2c<'static, Async, i2c::MultiMaster>);
@@ -98,9 +82,10 @@ impl I2cTarget for SlavePort {
     fn reset(&mut self) {
         // Re-applying the configuration turns the peripheral off and on, which clears its state machine and
         // releases SCL and SDA.
-        let _ = self
-            .0
-            .set_config(&(BUS_SPEED, i2c::SlaveAddrConfig::basic(FAMILY.address())));
+        let _ = self.0.set_config(&(
+            Hertz(CONFIG.bus.frequency_hz),
+            i2c::SlaveAddrConfig::basic(FAMILY.address()),
+        ));
     }
 }
 

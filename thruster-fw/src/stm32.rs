@@ -8,12 +8,14 @@ use embassy_stm32::gpio::Pull;
 use embassy_stm32::i2c::{self, I2c, SlaveAddrConfig};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::time::Hertz;
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
-use thruster_fw::tasks::{self, Config, Shared};
+use thruster_fw::tasks::Shared;
+use thruster_fw::{CONFIG, FAMILY, Ports};
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::board::{self, FAMILY, Iwdg, SlavePort};
+use crate::board::{self, Iwdg, SlavePort};
 
 // The power stage, the halls and the analog inputs of a controller with a motor.
 #[cfg(not(feature = "motorless"))]
@@ -21,7 +23,6 @@ use {
     crate::board::{AnalogInputs, Halls, PowerStage},
     embassy_stm32::exti::ExtiInput,
     embassy_stm32::gpio::OutputType,
-    embassy_stm32::time::Hertz,
     embassy_stm32::timer::complementary_pwm::{BreakInputPolarity, ComplementaryPwm, ComplementaryPwmPin, Ossr},
     embassy_stm32::timer::low_level::CountingMode,
     embassy_stm32::timer::simple_pwm::PwmPin,
@@ -66,7 +67,6 @@ static SHARED: Shared = Shared::new();
 async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
     log_reset_cause();
-    let config = &board::CONFIG;
     info!(
         "thruster-fw: {} controller at I2C address {=u8:#x}",
         FAMILY.name(),
@@ -119,28 +119,28 @@ async fn main(spawner: Spawner) {
         };
         // NUCLEO-64 (MB1367): B1 connects PC13 to 3V3 when pressed.
         let button = UserButton(Input::new(p.PC13, Pull::Down));
-        ModelSensors::new(&board::MOTORLESS, config, water, button)
+        ModelSensors::new(&board::MOTORLESS, &CONFIG, water, button)
     };
 
     let mut i2c_config = i2c::Config::default();
-    i2c_config.frequency = board::BUS_SPEED;
-    i2c_config.timeout = board::TRANSFER_TIMEOUT;
+    i2c_config.frequency = Hertz(CONFIG.bus.frequency_hz);
+    i2c_config.timeout = CONFIG.bus.timeout;
     let slave = I2c::new(p.I2C3, p.PC8, p.PC9, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config)
         .into_slave_multimaster(SlaveAddrConfig::basic(FAMILY.address()));
 
-    let mut watchdog = IndependentWatchdog::new(p.IWDG, board::WATCHDOG_TIMEOUT_US);
+    let mut watchdog = IndependentWatchdog::new(p.IWDG, CONFIG.watchdog.timeout_us());
     watchdog.unleash();
 
     interrupt::UART4.set_priority(Priority::P1);
     let high = COMMUTATION_EXECUTOR.start(interrupt::UART4);
-    #[cfg(not(feature = "motorless"))]
-    high.spawn(unwrap!(commutation(halls, bridge, config)));
     #[cfg(feature = "motorless")]
-    high.spawn(unwrap!(commutation(config)));
-    spawner.spawn(unwrap!(faults(analog, config)));
-    spawner.spawn(unwrap!(control(config)));
-    spawner.spawn(unwrap!(i2c_slave(SlavePort(slave), config)));
-    spawner.spawn(unwrap!(health(Iwdg(watchdog))));
+    let (halls, bridge) = (ModelHalls::new(&board::MOTORLESS), ModelBridge(&board::MOTORLESS));
+    high.spawn(unwrap!(commutation(halls, bridge)));
+    spawner.spawn(unwrap!(controller(Ports {
+        i2c: SlavePort(slave),
+        sensors: analog,
+        watchdog: Iwdg(watchdog),
+    })));
 }
 
 /// 170 MHz from the internal 16 MHz oscillator: HSI / 4 * 85 / 2.
@@ -200,36 +200,14 @@ fn log_reset_cause() {
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
 }
 
-#[cfg(not(feature = "motorless"))]
+/// Commutation, on the high-priority interrupt executor.
 #[embassy_executor::task]
-async fn commutation(mut halls: Halls, mut bridge: PowerStage, config: &'static Config) -> ! {
-    tasks::commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, &SHARED).await
+async fn commutation(halls: board::HallInputs, bridge: board::Stage) -> ! {
+    thruster_fw::run_commutation(halls, bridge, &CONFIG, &SHARED).await
 }
 
-#[cfg(feature = "motorless")]
+/// The controller's other tasks, on the thread-mode executor.
 #[embassy_executor::task]
-async fn commutation(config: &'static Config) -> ! {
-    let mut halls = ModelHalls::new(&board::MOTORLESS);
-    let mut bridge = ModelBridge(&board::MOTORLESS);
-    tasks::commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn faults(mut analog: board::Analog, config: &'static Config) -> ! {
-    tasks::fault_task(&mut analog, config, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn control(config: &'static Config) -> ! {
-    tasks::control_task(config, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn i2c_slave(mut port: SlavePort, config: &'static Config) -> ! {
-    tasks::i2c_task(&mut port, config.family, config.motor, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn health(mut watchdog: Iwdg) -> ! {
-    tasks::health_task(&mut watchdog, board::WATCHDOG_FEED, &SHARED).await
+async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg>) -> ! {
+    thruster_fw::run(ports, &CONFIG, &SHARED).await
 }

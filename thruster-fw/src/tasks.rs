@@ -1,6 +1,8 @@
-//! The controller's task bodies and the ports they drive. Each task owns its state machines and talks to the
-//! others only through [`Shared`]; the STM32 binding and the host tests run these same functions.
+//! The controller's task bodies, the ports they drive, and [`run`], which joins them: each task owns its state
+//! machines and talks to the others only through [`Shared`]. The STM32 binding, the bench and the host tests all
+//! run the controller through [`run`] and [`run_commutation`].
 
+use embassy_futures::join::join4;
 use embassy_futures::select::select;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
@@ -79,6 +81,38 @@ pub struct Config {
     pub ntc: Ntc,
     /// Motor current sense.
     pub current: CurrentSense,
+    /// The I2C slave port.
+    pub bus: SlaveBus,
+    /// The independent watchdog.
+    pub watchdog: WatchdogTiming,
+}
+
+/// The thruster interface's bus as the slave sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlaveBus {
+    /// SCL frequency, Hz (IDS 6.4.1: 100 kbit/s).
+    pub frequency_hz: u32,
+    /// A transfer stalled this long (SMBus's SCL-low timeout) is abandoned and the port re-initialised, so the
+    /// controller never holds the bus (IDS 6.6.2). embassy-stm32's default is 1 s.
+    pub timeout: Duration,
+}
+
+/// The independent watchdog's timing: fed every `feed` while every task reports progress; a chip left unfed for
+/// `timeout` resets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WatchdogTiming {
+    /// How often the health task checks the tasks and feeds the watchdog.
+    pub feed: Duration,
+    /// How long the watchdog waits unfed before it resets the chip.
+    pub timeout: Duration,
+}
+
+impl WatchdogTiming {
+    /// The timeout in microseconds, as the IWDG driver takes it (saturated).
+    pub const fn timeout_us(&self) -> u32 {
+        let us = self.timeout.as_micros();
+        if us > u32::MAX as u64 { u32::MAX } else { us as u32 }
+    }
 }
 
 impl Config {
@@ -108,6 +142,15 @@ impl Config {
             current: CurrentSense {
                 offset_raw: 2048,
                 milliamps_per_count: 16,
+            },
+            bus: SlaveBus {
+                frequency_hz: 100_000,
+                timeout: Duration::from_millis(25),
+            },
+            // Five feeds per timeout: one late feed is not yet a reset.
+            watchdog: WatchdogTiming {
+                feed: Duration::from_millis(50),
+                timeout: Duration::from_millis(250),
             },
         }
     }
@@ -356,6 +399,47 @@ pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared
             );
         }
     }
+}
+
+/// What the controller's thread-mode tasks are wired to.
+#[derive(Debug)]
+pub struct Ports<T, S, W> {
+    /// The I2C slave port of the thruster interface.
+    pub i2c: T,
+    /// The ADC inputs.
+    pub sensors: S,
+    /// The independent watchdog.
+    pub watchdog: W,
+}
+
+/// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control and health. Commutation runs
+/// apart ([`run_commutation`]), on an executor of its own above these. They talk only through `shared`, which
+/// lives as long as the controller: a reset starts again from a fresh one.
+pub async fn run<T: I2cTarget, S: Sensors, W: Watchdog>(ports: Ports<T, S, W>, config: &Config, shared: &Shared) -> ! {
+    let Ports {
+        mut i2c,
+        mut sensors,
+        mut watchdog,
+    } = ports;
+    let (never, ..) = join4(
+        i2c_task(&mut i2c, config.family, config.motor, shared),
+        fault_task(&mut sensors, config, shared),
+        control_task(config, shared),
+        health_task(&mut watchdog, config.watchdog.feed, shared),
+    )
+    .await;
+    never
+}
+
+/// Commutation: the halls drive the bridge (see [`commutation_task`]). It runs on the highest-priority executor so
+/// that no other work delays a commutation.
+pub async fn run_commutation<H: HallSensors, B: Bridge>(
+    mut halls: H,
+    mut bridge: B,
+    config: &Config,
+    shared: &Shared,
+) -> ! {
+    commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, shared).await
 }
 
 #[cfg(test)]

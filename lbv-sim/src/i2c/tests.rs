@@ -205,9 +205,45 @@ fn a_firmware_port_takes_writes_and_answers_reads_and_a_silent_one_times_out() {
 }
 
 #[test]
+fn a_glitch_tears_one_transfer_at_both_ends() {
+    let bus = Bus::new(TIMING);
+    let id = bus.attach_target(0x29, Route::Direct);
+    let mut target = bus.target(id).unwrap();
+    let mut master = bus.master();
+    let clock = clock::take();
+    let seen = RefCell::new(Vec::new());
+    let results = RefCell::new(Vec::new());
+    let mut executor = Executor::new();
+    executor.spawn(async {
+        loop {
+            let request = target.listen().await;
+            let mut buffer = [0; 4];
+            let answer = match request {
+                Ok(Request::Write) => target.respond_to_write(&mut buffer).await.map(|_| ()),
+                Ok(Request::Read) => target.respond_to_read(&[1]).await,
+                Err(error) => Err(error),
+            };
+            seen.borrow_mut().push(answer);
+        }
+    });
+    bus.disturb(id);
+    executor.spawn(async {
+        for _ in 0..2 {
+            let result = master.write(0x29, &[5]).await;
+            results.borrow_mut().push(result);
+        }
+    });
+    executor.run_for(&clock, Duration::from_millis(2), BIT);
+    assert_eq!(*results.borrow(), [Err(ErrorKind::Bus), Ok(())]);
+    assert_eq!(*seen.borrow(), [Err(TargetError), Ok(())]);
+}
+
+#[test]
 fn sda_held_low_fails_every_transfer_until_enough_clocks_free_it() {
     let bus = Bus::new(TIMING);
-    bus.attach(Register::at(0x29), Route::Direct);
+    let register = Register::at(0x29);
+    bus.attach(register.clone(), Route::Direct);
+    let register_reply = |_: &Bus, reply| register.borrow_mut().reply = reply;
     let (mut scl, mut sda, mut master) = (bus.scl(), bus.sda(), bus.master());
     bus.hold_sda(3);
     run(async {
@@ -232,12 +268,17 @@ fn sda_held_low_fails_every_transfer_until_enough_clocks_free_it() {
         master.write(0x29, &[1]).await.unwrap();
     });
 
-    bus.hold_sda(u32::MAX);
+    // A device that goes wrong mid-transfer.
+    register_reply(&bus, Reply::HoldSda(u32::MAX));
+    run(async {
+        assert_eq!(master.write(0x29, &[1]).await, Err(ErrorKind::Bus));
+    });
     for _ in 0..20 {
         scl.set_low().unwrap();
         scl.set_high().unwrap();
     }
     assert!(bus.sda_held(), "a slave that never lets go");
+    assert_eq!(bus.stats().bus_errors, 2);
     bus.hold_sda(0);
     assert!(!bus.sda_held());
 }
