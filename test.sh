@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
-# tests, every virtual-bench scenario, both firmware images in release and their size report against the flash /
-# RAM budgets.
+# tests (every virtual-bench scenario among them), both firmware images in release and their size report against
+# the flash / RAM budgets.
 # Usage: ./test.sh        (CI runs exactly this through .ci/run)
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -44,7 +44,7 @@ for family in "" ",legacy"; do
   cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
 done
 
-step "host tests"
+step "host tests (every bench scenario is one)"
 cargo test --workspace --locked
 
 if rustup toolchain list | grep -q '^nightly'; then
@@ -53,9 +53,6 @@ if rustup toolchain list | grep -q '^nightly'; then
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
   done
 fi
-
-step "virtual bench: every scenario (release)"
-cargo run --release --locked -p lbv -- bench --all --quiet --json target/bench-report.json
 
 step "firmware images (release, $TARGET)"
 # Each image is kept under target/images/ (the thruster's feature builds overwrite one another's ELF).
