@@ -1,10 +1,11 @@
 //! Thruster polling: one task per I2C bus sends every thruster on it its order, reads its status and keeps its
 //! link health.
 //!
-//! The thruster table ([`ThrusterTable`] of [`ThrusterSlot`]s, the production ones in [`crate::config`]) is fixed at
-//! build time: each entry names the bus (I2C1..3), the TCA9548A channel when the thruster sits behind the
-//! multiplexer, and the controller family, so Legacy and SeaBotix controllers can share a bus. A thruster's index in the table is its index in `Shared::orders` and
-//! `Shared::thrusters`, and its number in console texts is that index plus one.
+//! The thruster table ([`ThrusterTable`] of [`ThrusterSlot`]s, the production ones in [`crate::config`]) is fixed
+//! at build time: each entry names the bus (I2C1..3), the TCA9548A channel when the thruster sits behind the
+//! multiplexer, and the controller family, so Legacy and SeaBotix controllers can share a bus. A thruster's index
+//! in the table is its index in `Shared::orders` and `Shared::thrusters`, and its number in console texts is that
+//! index plus one.
 //!
 //! The decisions live in small synchronous state machines that the virtual bench can reuse:
 //! - [`Failure`] classifies a failed poll (NACK, timeout, bus error, mux, decode errors);

@@ -332,6 +332,19 @@ fn thruster_tables_are_checked() {
         check_table(&[ThrusterSlot::direct(0, Family::Legacy); 9]),
         Err(TableError::TooMany)
     );
+
+    // A table kept by value holds the slots in order, and still knows when it was given too many.
+    let table = ThrusterTable::new(&ok);
+    assert_eq!(table.as_slice(), ok);
+    assert_eq!((table.count(), table.check()), (6, Ok(())));
+    assert!(table.uses_bus(2) && !ThrusterTable::new(&[]).uses_bus(0));
+    let too_many = ThrusterTable::new(&[ThrusterSlot::direct(0, Family::Legacy); 9]);
+    assert_eq!(too_many.as_slice().len(), MAX_THRUSTERS);
+    assert_eq!(too_many.check(), Err(TableError::TooMany));
+    assert_eq!(
+        ThrusterTable::new(&channel_twins).check(),
+        Err(TableError::SharedAddress(0, 1))
+    );
 }
 
 // ---------------------------------------------------------------------------------------------------------------

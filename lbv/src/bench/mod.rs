@@ -236,16 +236,9 @@ impl Bench {
         self.outgoing.extend(bytes);
     }
 
-    /// The bus the thrusters hang on.
+    /// The bus the thrusters hang on (I2C2, in the vehicle's table and on the dev kit).
     pub fn thruster_bus(&self) -> &Bus {
-        let bus = self
-            .master
-            .config
-            .thrusters
-            .as_slice()
-            .first()
-            .map_or(THRUSTER_BUS, |slot| slot.bus);
-        &self.wiring.buses[usize::from(bus)]
+        &self.wiring.buses[usize::from(THRUSTER_BUS)]
     }
 
     /// Cut thruster `index`'s power (its controller stops mid-whatever it was doing), or restore it (it boots).

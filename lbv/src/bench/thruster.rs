@@ -89,8 +89,12 @@ impl ThrusterBoard {
         }
     }
 
-    /// Power up: the controller boots with fresh state and its slave port answers again.
+    /// Power up: the controller boots with fresh state and its slave port answers again. A powered controller is
+    /// left as it is.
     pub fn boot(&mut self, executor: &mut Executor<'static>) {
+        if self.powered() {
+            return;
+        }
         self.bus.set_powered(self.device, true);
         self.io.last_feed.set(Instant::now());
         let Some(port) = self.bus.target(self.device) else {
