@@ -2,7 +2,7 @@
 //! against simulated ports, on virtual time. The bench (`lbv bench`) and every host test of the cores build on it;
 //! nothing else models a bus, a link, a flash or the clock.
 //!
-//! - [`clock`]: the virtual clock (embassy-time's mock driver, taken by one run at a time);
+//! - [`clock`]: the virtual clock (embassy-time's time driver on the host, one per thread);
 //! - [`Executor`]: polls the woken tasks, removes tasks (a reset), moves the clock in steps;
 //! - [`i2c`]: I2C buses with bit-time accounting, devices and firmware slave ports, a TCA9548A, NACKs, clock
 //!   stretching, corruption, SDA held low, and the lines as GPIOs for the bus recovery;
