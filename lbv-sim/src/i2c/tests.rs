@@ -121,6 +121,18 @@ fn a_device_stretching_past_the_timeout_times_the_master_out() {
     });
     assert_eq!(end, Instant::from_ticks(0) + BIT * 20 + Duration::from_millis(1));
     assert_eq!(bus.stats().timeouts, 1);
+
+    // While the transfer is under way, the bus says with whom.
+    let id = DeviceId(0);
+    let clock = clock::take();
+    let mut executor = Executor::new();
+    executor.spawn(async move {
+        let _ = master.write(0x29, &[1]).await;
+    });
+    executor.run_for(&clock, Duration::from_micros(500), BIT);
+    assert!(bus.in_transfer_with(id));
+    executor.run_for(&clock, Duration::from_millis(2), BIT);
+    assert!(!bus.in_transfer_with(id));
 }
 
 #[test]

@@ -540,3 +540,24 @@ fn a_failed_transfer_reinitialises_the_slave_and_changes_nothing() {
         Some(-80)
     );
 }
+
+#[test]
+fn the_image_configuration_is_the_reference_hardware_with_the_spec_timings() {
+    for family in Family::ALL {
+        let config = Config::reference(family, MotorKind::Brushless);
+        assert_eq!(
+            (config.bus.frequency_hz, config.bus.timeout),
+            (100_000, Duration::from_millis(25))
+        );
+        assert_eq!(config.link_timeout, Duration::from_secs(1));
+        // The watchdog is fed five times per timeout; the IWDG driver takes the timeout in microseconds.
+        assert_eq!(config.watchdog.feed * 5, config.watchdog.timeout);
+        assert_eq!(config.watchdog.timeout_us(), 250_000);
+    }
+    assert_eq!(crate::CONFIG.family, crate::FAMILY);
+    let forever = WatchdogTiming {
+        feed: Duration::from_secs(1),
+        timeout: Duration::from_secs(10_000),
+    };
+    assert_eq!(forever.timeout_us(), u32::MAX, "saturates");
+}
