@@ -30,31 +30,6 @@ pub trait I2cTarget {
     fn reset(&mut self);
 }
 
-/// The slave port of lbv-sim's simulated bus, for the bench and the host tests (Cargo feature `sim`).
-#[cfg(any(test, feature = "sim"))]
-impl I2cTarget for lbv_sim::i2c::Target {
-    type Error = lbv_sim::i2c::TargetError;
-
-    async fn listen(&mut self) -> Result<Request, Self::Error> {
-        Ok(match lbv_sim::i2c::Target::listen(self).await? {
-            lbv_sim::i2c::Request::Write => Request::Write,
-            lbv_sim::i2c::Request::Read => Request::Read,
-        })
-    }
-
-    async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, Self::Error> {
-        lbv_sim::i2c::Target::respond_to_write(self, buffer).await
-    }
-
-    async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), Self::Error> {
-        lbv_sim::i2c::Target::respond_to_read(self, data).await
-    }
-
-    fn reset(&mut self) {
-        lbv_sim::i2c::Target::reset(self);
-    }
-}
-
 /// Writes are taken into a buffer longer than an order, so an over-long write is seen and rejected instead of
 /// being cut down to a plausible four bytes.
 const WRITE_BUFFER_LEN: usize = 8;

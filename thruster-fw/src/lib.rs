@@ -20,6 +20,8 @@ pub mod health;
 pub mod i2c_slave;
 pub mod motorless;
 pub mod sensors;
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;
 pub mod speed;
 pub mod tasks;
 
