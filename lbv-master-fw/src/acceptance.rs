@@ -30,7 +30,7 @@ use core::fmt;
 
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
+use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
 use crate::shared::{Severity, Text, text};
 use crate::thrusters::{BusRecovery, Failure};
@@ -522,7 +522,9 @@ where
             return Err(self.failed(Failure::of_bus_error(&error)).await);
         }
         match Status::decode(family, reply) {
-            Ok(status) => Ok(status),
+            Ok(Decoded { status, warning: None }) => Ok(status),
+            // The thruster under test must send only values its encoding defines.
+            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(Failure::BadRange).await),
             Err(error) => Err(self.failed(Failure::of_decode_error(error)).await),
         }
     }

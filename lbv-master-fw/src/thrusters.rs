@@ -568,7 +568,8 @@ async fn poll_slot<B: I2c>(
         *selected = Some(mask);
     }
     let result = poll_thruster(bus, slot.family, order).await;
-    result.map_err(|error| {
+    // A status with an odd field still reports its faults; the field itself is not used here.
+    result.map(|decoded| decoded.status).map_err(|error| {
         *selected = None;
         Failure::of_poll_error(&error)
     })
