@@ -12,7 +12,7 @@ use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
 use crate::failsafe::LinkFailsafe;
-use crate::faults::{FaultMonitor, Sample, StallDetector, Thresholds};
+use crate::faults::{FaultMonitor, LatchStore, Sample, StallDetector, Thresholds};
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
 use crate::i2c_slave::{I2cTarget, Link, ServeEvent, serve};
@@ -39,7 +39,7 @@ pub trait Bridge {
 pub struct RawSample {
     /// Water-sensor node.
     pub water: u16,
-    /// Motor temperature NTC node.
+    /// The NTC node of the temperature the status reports: the motor's (brushless), the controller's (brushed).
     pub temperature: u16,
     /// Motor current amplifier.
     pub current: u16,
@@ -75,7 +75,7 @@ pub struct Config {
     pub thresholds: Thresholds,
     /// Water-sensor divider.
     pub water: WaterSensor,
-    /// Motor temperature sensor.
+    /// The sensor of the temperature the status reports (IDS 8.4.2 TEMPERATURE).
     pub ntc: Ntc,
     /// Motor current sense.
     pub current: CurrentSense,
@@ -84,7 +84,8 @@ pub struct Config {
 impl Config {
     /// The reference hardware: a 4-pole-pair hall-sensored motor on an X-NUCLEO-IHM08M1, the water-sensor
     /// electrodes over a 1 Mohm pull-down (the 1 Mohm water threshold sits at mid-scale, where the divider resolves
-    /// best), a 10 kohm B3435 NTC in the winding with a 10 kohm pull-up, the spec's thresholds and a 1 s failsafe.
+    /// best), the winding's NTC for a brushless motor and the power stage's for a brushed one, the spec's
+    /// thresholds and a 1 s failsafe.
     pub const fn reference(family: Family, motor: MotorKind) -> Config {
         Config {
             family,
@@ -99,10 +100,9 @@ impl Config {
             water: WaterSensor {
                 pull_down_ohms: 1_000_000,
             },
-            ntc: Ntc {
-                r25_ohms: 10_000,
-                beta: 3435,
-                pull_up_ohms: 10_000,
+            ntc: match motor {
+                MotorKind::Brushless => Ntc::MOTOR,
+                MotorKind::Brushed => Ntc::IHM08M1,
             },
             // IHM08M1: 10 mohm shunt, gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 ohm * 5.18) = 15.6 mA per count.
             current: CurrentSense {
@@ -135,7 +135,7 @@ pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 /// The speed loop runs at 1 kHz.
 pub const CONTROL_PERIOD: Duration = Duration::from_millis(1);
 /// How long the I2C task waits for its address before it reports itself alive anyway.
-const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
+pub const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
 
 type Mutex = CriticalSectionRawMutex;
 
@@ -262,9 +262,12 @@ pub const fn h_bridge(duty: Duty) -> BridgeDrive {
 }
 
 /// Faults: sample the ADC at 1 kHz, follow the hall pulses and errors, apply the fault table, publish the
-/// verdict, and wake the commutation task at once when the verdict changes.
-pub async fn fault_task<S: Sensors>(sensors: &mut S, config: &Config, shared: &Shared) -> ! {
+/// verdict, and wake the commutation task at once when the verdict changes. The power-cycle latches come from
+/// `latch` at start and go back to it whenever they change, so they outlast any reset but a power cycle.
+pub async fn fault_task<S: Sensors, L: LatchStore>(sensors: &mut S, latch: &mut L, config: &Config, shared: &Shared) -> ! {
     let mut monitor = FaultMonitor::new(config.family, config.thresholds);
+    monitor.restore(latch.load());
+    let mut saved = monitor.latched();
     let mut stall = StallDetector::new(&config.thresholds);
     let mut seen_pulses = None;
     let mut seen_illegal = None;
@@ -305,6 +308,10 @@ pub async fn fault_task<S: Sensors>(sensors: &mut S, config: &Config, shared: &S
             halls_normal,
         };
         let faults = monitor.update(sample, stalled);
+        if monitor.latched() != saved {
+            saved = monitor.latched();
+            latch.save(saved);
+        }
         let sensed = Sensed {
             faults,
             drive_allowed: monitor.drive_allowed(),

@@ -8,6 +8,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant};
 use thruster_fw::Duty;
 use thruster_fw::commutation::{BridgeDrive, COAST};
+use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
 use thruster_fw::tasks::{
     Bridge, Config, HallSensors, RawSample, Sensors, Shared, Watchdog, commutation_task, control_task, fault_task,
@@ -89,7 +90,8 @@ impl Thruster {
                 commutation_task(&mut Halls(self), &mut Stage(self), motor, pole_pairs, shared).await;
             }),
             executor.spawn(async move {
-                fault_task(&mut Adc(self), &self.config, shared).await;
+                // A bench reset is a power cycle: the latches start empty.
+                fault_task(&mut Adc(self), &mut VolatileLatch::default(), &self.config, shared).await;
             }),
             executor.spawn(async move {
                 control_task(&self.config, shared).await;

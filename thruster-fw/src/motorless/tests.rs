@@ -4,6 +4,7 @@ use super::*;
 use crate::commutation::drive_for;
 use crate::control::LinkUpdate;
 use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
+use crate::faults::VolatileLatch;
 use crate::tasks::{Shared, commutation_task, control_task, fault_task};
 use embassy_futures::block_on;
 use embassy_futures::join::join3;
@@ -166,9 +167,10 @@ impl Rig {
         let mut halls = ModelHalls::new(&self.motorless);
         let mut bridge = ModelBridge(&self.motorless);
         let mut sensors = ModelSensors::new(&self.motorless, &CONFIG, Dry, Button(&self.button));
+        let mut latch = VolatileLatch::default();
         let tasks = join3(
             commutation_task(&mut halls, &mut bridge, CONFIG.motor, CONFIG.pole_pairs, &self.shared),
-            fault_task(&mut sensors, &CONFIG, &self.shared),
+            fault_task(&mut sensors, &mut latch, &CONFIG, &self.shared),
             control_task(&CONFIG, &self.shared),
         );
         match block_on(select(tasks, script)) {
@@ -194,7 +196,7 @@ impl Rig {
     /// The status the I2C task would answer with now.
     fn status(&self) -> Status {
         let frame = self.shared.status.try_get().expect("a status is ready");
-        Status::decode(Family::SeaBotix, frame.as_bytes()).unwrap()
+        Status::decode(Family::SeaBotix, frame.as_bytes()).unwrap().status
     }
 
     fn speed(&self) -> i8 {

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::hall::FORWARD_SEQUENCE;
+use crate::faults::VolatileLatch;
 use crate::i2c_slave::Request;
 use core::cell::{Cell, RefCell};
 use embassy_futures::block_on;
@@ -123,6 +124,8 @@ struct Bench {
     bridge: Cell<(BridgeDrive, Duty)>,
     inputs: Cell<RawSample>,
     fed: Cell<u32>,
+    /// The latch store, carried from one run to the next as a backup register is over a reset.
+    latch: Cell<VolatileLatch>,
 }
 
 struct CountingWatchdog<'a>(&'a Cell<u32>);
@@ -152,6 +155,7 @@ impl Bench {
             bridge: Cell::new((COAST, Duty::ZERO)),
             inputs,
             fed: Cell::new(0),
+            latch: Cell::new(VolatileLatch::default()),
         }
     }
 
@@ -166,6 +170,7 @@ impl Bench {
         let mut bridge = TestBridge(&self.bridge);
         let mut sensors = TestSensors(&self.inputs);
         let mut watchdog = CountingWatchdog(&self.fed);
+        let mut latch = self.latch.get();
         let tasks = join5(
             i2c_task(&mut port, self.config.family, self.config.motor, &self.shared),
             commutation_task(
@@ -175,7 +180,7 @@ impl Bench {
                 self.config.pole_pairs,
                 &self.shared,
             ),
-            fault_task(&mut sensors, &self.config, &self.shared),
+            fault_task(&mut sensors, &mut latch, &self.config, &self.shared),
             control_task(&self.config, &self.shared),
             health_task(&mut watchdog, Duration::from_millis(50), &self.shared),
         );
@@ -183,6 +188,7 @@ impl Bench {
             Either::First(_) => unreachable!("the tasks never end"),
             Either::Second(()) => {}
         }
+        self.latch.set(latch);
     }
 
     fn send(&self, bytes: Vec<u8>) {
@@ -199,7 +205,10 @@ impl Bench {
 
     fn last_status(&self) -> Status {
         let replies = self.master.replies.borrow();
-        Status::decode(self.config.family, replies.last().expect("a status was read")).expect("status decodes")
+        let decoded = Status::decode(self.config.family, replies.last().expect("a status was read"));
+        let decoded = decoded.expect("status decodes");
+        assert_eq!(decoded.warning, None);
+        decoded.status
     }
 
     fn duty(&self) -> Duty {
@@ -333,6 +342,43 @@ fn a_ground_fault_coasts_the_bridge_within_one_sample_and_latches() {
             elapse(Duration::from_millis(1)).await;
             assert!(bench.last_status().faults().contains(Faults::GROUND));
             assert_eq!(bench.bridge.get().0, COAST);
+        });
+    }
+}
+
+#[test]
+fn latches_outlast_a_reset_but_not_a_power_cycle() {
+    for family in Family::ALL {
+        let before = Bench::new(family);
+        before.run(async {
+            before.inputs.set(RawSample {
+                water: before.config.water.raw_at(50_000),
+                ..dry(&before.config)
+            });
+            elapse(Duration::from_millis(5)).await;
+        });
+        let stored = before.latch.get();
+        // The same controller after a watchdog or pin reset: fresh tasks, the store kept, dry electrodes.
+        let after = Bench::new(family);
+        after.latch.set(stored);
+        after.run(async {
+            after.order(60);
+            elapse(Duration::from_millis(100)).await;
+            after.send(READ);
+            elapse(Duration::from_millis(1)).await;
+            assert!(after.last_status().faults().contains(Faults::GROUND), "{family:?}");
+            assert_eq!(
+                after.last_status().faults().contains(Faults::WATER),
+                family == Family::Legacy
+            );
+            assert_eq!(after.bridge.get().0, COAST);
+        });
+        // After a power cycle the store is empty and the controller drives.
+        let cycled = Bench::new(family);
+        cycled.run(async {
+            cycled.order(60);
+            elapse(Duration::from_millis(100)).await;
+            assert!(cycled.duty().value() > 0);
         });
     }
 }
@@ -510,13 +556,15 @@ fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed(
     let bench = Bench::brushed(Family::SeaBotix);
     bench.run(async {
         bench.order(51);
-        // No halls on a brushed motor, so no stall or hall fault either: the order holds.
+        // No halls on a brushed motor, so no stall or hall fault either: the order holds. Step 102 is the power
+        // stage's largest duty, so step 51 is half of it.
+        let max = i32::from(crate::speed::MAX_DUTY);
         elapse(Duration::from_millis(600)).await;
         assert_eq!(
             bench.bridge.get(),
             (
                 [PhaseDrive::Pwm, PhaseDrive::Low, PhaseDrive::Float],
-                Duty::new_saturating(5000)
+                Duty::new_saturating(max / 2)
             )
         );
         bench.send(READ);
@@ -527,13 +575,13 @@ fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed(
         assert_eq!((status.motor, status.speed.step()), (MotorKind::Brushed, 51));
 
         bench.order(-102);
-        // +50 % to -100 % at 200 % per second: 750 ms, well inside the link timeout.
+        // Half to all of it in reverse at 200 % per second: under 750 ms, well inside the link timeout.
         elapse(Duration::from_millis(900)).await;
         assert_eq!(
             bench.bridge.get(),
             (
                 [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
-                Duty::new_saturating(-10_000)
+                Duty::new_saturating(-max)
             )
         );
     });
