@@ -187,7 +187,14 @@ mod tests {
     #[test]
     fn formula_reproduces_the_datasheet_table() {
         // DS5319 (STM32F103x4/x6) Table 47, R_AIN max for f_ADC = 14 MHz: cycles -> kohm.
-        let table = [(1.5, 0.4), (7.5, 5.9), (13.5, 11.4), (28.5, 25.2), (41.5, 37.2), (55.5, 50.0)];
+        let table = [
+            (1.5, 0.4),
+            (7.5, 5.9),
+            (13.5, 11.4),
+            (28.5, 25.2),
+            (41.5, 37.2),
+            (55.5, 50.0),
+        ];
         for (cycles, kohm) in table {
             let r = cycles / (14e6 * F103.c_adc_pf * 1e-12 * F103.settling()) - F103.r_adc_ohms;
             assert!((r / 1000.0 - kohm).abs() < 0.1, "{cycles}: {r}");

@@ -45,13 +45,17 @@ impl Pll {
             && self.n >= 8
             && self.n <= 127
             && matches!(self.r, 2 | 4 | 6 | 8)
-            && input_hz % self.m == 0;
+            && input_hz.is_multiple_of(self.m);
         if !dividers {
             return false;
         }
         let vco_in = self.vco_input_hz(input_hz);
         let vco = self.vco_hz(input_hz);
-        vco_in >= 2_660_000 && vco_in <= 16_000_000 && vco >= 96_000_000 && vco <= 344_000_000 && self.r_hz(input_hz) <= 170_000_000
+        vco_in >= 2_660_000
+            && vco_in <= 16_000_000
+            && vco >= 96_000_000
+            && vco <= 344_000_000
+            && self.r_hz(input_hz) <= 170_000_000
     }
 }
 
@@ -150,7 +154,15 @@ mod tests {
             8..=9 => 10,
             _ => 12,
         };
-        for f in [16_000_000, 60_000_000, 60_000_001, 120_000_000, 150_000_000, 170_000_000, 240_000_000] {
+        for f in [
+            16_000_000,
+            60_000_000,
+            60_000_001,
+            120_000_000,
+            150_000_000,
+            170_000_000,
+            240_000_000,
+        ] {
             assert_eq!(adc_prescaler(f).map(|(_, d)| d), Some(embassy(f)), "{f}");
         }
         assert_eq!(adc_prescaler(170_000_000), Some((2, 4)));

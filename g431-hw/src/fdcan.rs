@@ -109,7 +109,7 @@ pub const fn nominal(
     let mut prescaler: u32 = 1;
     while prescaler <= 512 {
         let per_bit = prescaler * bitrate;
-        if kernel_hz % per_bit == 0 {
+        if kernel_hz.is_multiple_of(per_bit) {
             let quanta = kernel_hz / per_bit;
             if quanta >= MIN_QUANTA && quanta <= MAX_QUANTA {
                 // 1 + TSEG1 = SP * NBT, rounded to the nearest quantum; TSEG2 at least 1.
@@ -222,7 +222,10 @@ mod tests {
         // 24 MHz is not a whole number of quanta per bit at 7 Mbit/s.
         assert_eq!(nominal(FDCAN_KERNEL_HZ, 7_000_000, 800, 0), Err(TimingError::NoQuanta));
         // 4 us of round trip at 1 Mbit/s.
-        assert_eq!(nominal(FDCAN_KERNEL_HZ, BITRATE, 800, 4_000), Err(TimingError::NoPhaseSegment));
+        assert_eq!(
+            nominal(FDCAN_KERNEL_HZ, BITRATE, 800, 4_000),
+            Err(TimingError::NoPhaseSegment)
+        );
         // Other bit rates from the crystal.
         for bitrate in [125_000, 250_000, 500_000] {
             let timing = nominal(FDCAN_KERNEL_HZ, bitrate, 875, BUS_DELAY_NS).unwrap();

@@ -144,6 +144,13 @@ impl Timing {
     }
 }
 
+/// TIMINGR for standard mode at the kernel clock both images give their I2C peripherals (HSI16).
+pub const TIMINGR: u32 = match standard_mode(crate::clock::I2C_KERNEL_HZ) {
+    Ok(timing) => timing.timingr(),
+    Err(_) => 0,
+};
+const _: () = assert!(standard_mode(crate::clock::I2C_KERNEL_HZ).is_ok());
+
 /// `a / b` rounded up, for positive values.
 const fn ceil_div(a: i64, b: i64) -> i64 {
     if a <= 0 { 0 } else { (a + b - 1) / b }
@@ -250,6 +257,7 @@ mod tests {
             }
         );
         assert_eq!(timing.timingr(), 0x1091_2329);
+        assert_eq!(TIMINGR, 0x1091_2329);
         assert_eq!(Timing::from_timingr(timing.timingr()), timing);
     }
 
@@ -258,11 +266,23 @@ mod tests {
         // RM0440's example for f_I2CCLK = 16 MHz, standard mode 100 kHz: PRESC 3, SCLL 0x13, SCLH 0xF,
         // SDADEL 0x2, SCLDEL 0x4.
         let example = Timing::from_timingr(0x3042_0F13);
-        assert_eq!((example.presc, example.scll, example.sclh, example.sdadel, example.scldel), (3, 0x13, 0xF, 2, 4));
+        assert_eq!(
+            (
+                example.presc,
+                example.scll,
+                example.sclh,
+                example.sdadel,
+                example.scldel
+            ),
+            (3, 0x13, 0xF, 2, 4)
+        );
         // Its counted low and high times sum to 9 us: with ideal edges SCL would run above 100 kHz, so this
         // crate's stricter period rule rejects it while every other rule passes.
         assert_eq!(example.check_standard_mode(16_000_000), Err(Violation::Frequency));
-        let stretched = Timing { scll: 0x13 + 3, ..example };
+        let stretched = Timing {
+            scll: 0x13 + 3,
+            ..example
+        };
         assert_eq!(stretched.check_standard_mode(16_000_000), Ok(()));
     }
 

@@ -101,7 +101,10 @@ mod tests {
     use std::collections::BTreeSet;
 
     fn pins_of(images: &[&Image]) -> BTreeSet<Pin> {
-        images.iter().flat_map(|image| image.uses.iter().map(|used| used.pin)).collect()
+        images
+            .iter()
+            .flat_map(|image| image.uses.iter().map(|used| used.pin))
+            .collect()
     }
 
     /// Every `p.PXn` in a binding's source: the pins it takes from embassy-stm32.
@@ -200,7 +203,10 @@ mod tests {
             })
         );
         // The motor NTC on PB11 needs R60 out.
-        const WITH_R60: Image = Image { removed: &[], ..THRUSTER };
+        const WITH_R60: Image = Image {
+            removed: &[],
+            ..THRUSTER
+        };
         assert_eq!(
             check(&WITH_R60),
             Err(Conflict::Occupied {

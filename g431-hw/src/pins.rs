@@ -12,7 +12,7 @@
 //!
 //! ```compile_fail
 //! use g431_hw::pins::{self, Image, Port::C, Use, pin};
-//! use g431_hw::{images, pins::IHM08M1, pins::NUCLEO_G431RB};
+//! use g431_hw::pins::{IHM08M1, NUCLEO_G431RB};
 //! const OLD: Image = Image {
 //!     name: "thruster with SDA on PC9",
 //!     boards: &[&NUCLEO_G431RB, &IHM08M1],

@@ -132,7 +132,9 @@ mod tests {
     #[test]
     fn the_status_reports_the_order_just_sent() {
         let mut bus = Bus::with(Family::SeaBotix);
-        let status = block_on(poll_thruster(&mut bus, Family::SeaBotix, forward(-60))).unwrap().status;
+        let status = block_on(poll_thruster(&mut bus, Family::SeaBotix, forward(-60)))
+            .unwrap()
+            .status;
         let Status::SeaBotix(SeaBotixStatus { speed, .. }) = status else {
             panic!("wrong family")
         };

@@ -354,7 +354,12 @@ mod tests {
             assert_eq!(latch_from_word(latch_word(faults)), faults);
         }
         // Zero (a backup register after a power-on), all ones, and near misses.
-        for word in [0, u32::MAX, latch_word(Faults::GROUND) ^ 1, latch_word(Faults::GROUND) ^ 0x1_0000] {
+        for word in [
+            0,
+            u32::MAX,
+            latch_word(Faults::GROUND) ^ 1,
+            latch_word(Faults::GROUND) ^ 0x1_0000,
+        ] {
             assert_eq!(latch_from_word(word), Faults::NONE, "{word:#x}");
         }
         let mut store = VolatileLatch::default();

@@ -235,13 +235,19 @@ fn duty_limit(power_cap_percent: Option<u8>) -> i64 {
 /// Open-loop brushed duty of a step: step * max_duty / 102, rounded half away from zero (step 102 = max_duty).
 /// [`step_of_brushed_duty`] reads it back exactly for every step while max_duty > 102.
 pub fn brushed_duty(target: Speed, max_duty: u16) -> i64 {
-    divide_rounded(i64::from(target.step()) * i64::from(max_duty), i64::from(Speed::MAX_STEP))
+    divide_rounded(
+        i64::from(target.step()) * i64::from(max_duty),
+        i64::from(Speed::MAX_STEP),
+    )
 }
 
 /// The SPEED step a brushed duty corresponds to: duty * 102 / max_duty, rounded half away from zero, saturated to
 /// the step range (the status's readback of [`brushed_duty`]).
 pub fn step_of_brushed_duty(duty: Duty, max_duty: u16) -> Speed {
-    let step = divide_rounded(i64::from(duty.value()) * i64::from(Speed::MAX_STEP), i64::from(max_duty.max(1)));
+    let step = divide_rounded(
+        i64::from(duty.value()) * i64::from(Speed::MAX_STEP),
+        i64::from(max_duty.max(1)),
+    );
     Speed::new_saturating(saturate_i32(step))
 }
 

@@ -264,7 +264,12 @@ pub const fn h_bridge(duty: Duty) -> BridgeDrive {
 /// Faults: sample the ADC at 1 kHz, follow the hall pulses and errors, apply the fault table, publish the
 /// verdict, and wake the commutation task at once when the verdict changes. The power-cycle latches come from
 /// `latch` at start and go back to it whenever they change, so they outlast any reset but a power cycle.
-pub async fn fault_task<S: Sensors, L: LatchStore>(sensors: &mut S, latch: &mut L, config: &Config, shared: &Shared) -> ! {
+pub async fn fault_task<S: Sensors, L: LatchStore>(
+    sensors: &mut S,
+    latch: &mut L,
+    config: &Config,
+    shared: &Shared,
+) -> ! {
     let mut monitor = FaultMonitor::new(config.family, config.thresholds);
     monitor.restore(latch.load());
     let mut saved = monitor.latched();

@@ -95,7 +95,10 @@ fn every_legacy_status_with_a_good_checksum() {
             // The faults are always read, whatever MAX POWER holds.
             assert_eq!(decoded.status.revision.number(), status >> 5);
             assert_eq!(decoded.status.faults.bits(), status & 0x1F);
-            assert_eq!(LegacyStatus::decode(&decoded.status.encode()).map(|d| d.status), Ok(decoded.status));
+            assert_eq!(
+                LegacyStatus::decode(&decoded.status.encode()).map(|d| d.status),
+                Ok(decoded.status)
+            );
             if let Some(warning) = decoded.warning {
                 // Only brushed revisions (2, 4) read MAX POWER as a speed.
                 assert!(matches!(status >> 5, 2 | 4));
@@ -120,7 +123,10 @@ fn every_seabotix_speed_byte_keeps_the_faults() {
             bytes[6] = checksum(&body);
             let decoded = SeaBotixStatus::decode(&bytes).expect("every framed SeaBotix status decodes");
             assert_eq!(decoded.status.faults.bits(), fault & 0x1F);
-            assert_eq!((decoded.status.current_deciamps, decoded.status.temperature_c), (12, 25));
+            assert_eq!(
+                (decoded.status.current_deciamps, decoded.status.temperature_c),
+                (12, 25)
+            );
             match Speed::from_byte(speed) {
                 Ok(reading) => assert_eq!((decoded.status.speed, decoded.warning), (reading, None)),
                 Err(_) => assert_eq!(

@@ -274,7 +274,10 @@ fn legacy_status_each_fault_bit_alone_and_all() {
         };
         assert_eq!(status.encode(), bytes, "{faults:?}");
         assert_eq!(LegacyStatus::decode(&bytes), Ok(Decoded::clean(status)), "{faults:?}");
-        assert_eq!(Status::decode(Family::Legacy, &bytes), Ok(Decoded::clean(Status::Legacy(status))));
+        assert_eq!(
+            Status::decode(Family::Legacy, &bytes),
+            Ok(Decoded::clean(Status::Legacy(status)))
+        );
         assert_eq!(Status::Legacy(status).faults(), faults);
     }
 }
@@ -434,7 +437,10 @@ fn seabotix_status_each_fault_bit_alone_and_all() {
         };
         assert_eq!(status.encode(), bytes, "{faults:?}");
         assert_eq!(SeaBotixStatus::decode(&bytes), Ok(Decoded::clean(status)), "{faults:?}");
-        assert_eq!(Status::decode(Family::SeaBotix, &bytes), Ok(Decoded::clean(Status::SeaBotix(status))));
+        assert_eq!(
+            Status::decode(Family::SeaBotix, &bytes),
+            Ok(Decoded::clean(Status::SeaBotix(status)))
+        );
         assert_eq!(Status::SeaBotix(status).faults(), faults);
         assert_eq!(Status::SeaBotix(status).encode().as_bytes(), bytes);
     }
@@ -482,7 +488,9 @@ fn seabotix_status_revision_is_bits_4_to_7() {
 fn seabotix_reserved_bits_are_masked_not_rejected() {
     // STATUS 0x0E (bits 2-3 reserved set, bit 1 brushless), FAULT 0xE0 (bits 5-7 reserved set).
     // 0x53 + 0x0E + 0xE0 + 0x00 + 0x80 + 0x14 = 0x1D5 -> 0xD5
-    let status = SeaBotixStatus::decode(&[0x53, 0x0E, 0xE0, 0x00, 0x80, 0x14, 0xD5]).unwrap().status;
+    let status = SeaBotixStatus::decode(&[0x53, 0x0E, 0xE0, 0x00, 0x80, 0x14, 0xD5])
+        .unwrap()
+        .status;
     assert_eq!(
         status,
         SeaBotixStatus {
@@ -499,7 +507,9 @@ fn seabotix_reserved_bits_are_masked_not_rejected() {
     assert_eq!(status.encode(), [0x53, 0x02, 0x00, 0x00, 0x80, 0x14, 0xE9]);
 
     // FAULT 0xE3: reserved bits plus overtemp and stall. 0xE9 + 0xE3 = 0x1CC -> 0xCC
-    let status = SeaBotixStatus::decode(&[0x53, 0x02, 0xE3, 0x00, 0x80, 0x14, 0xCC]).unwrap().status;
+    let status = SeaBotixStatus::decode(&[0x53, 0x02, 0xE3, 0x00, 0x80, 0x14, 0xCC])
+        .unwrap()
+        .status;
     assert_eq!(status.faults, Faults::OVERTEMP | Faults::STALL);
 }
 
@@ -560,7 +570,9 @@ fn status_family_and_frames() {
     // 0x55 + 0x90 + 0xE6 = 0x1CB -> 0xCB
     assert_eq!(legacy.encode().as_bytes(), [0x55, 0x90, 0xE6, 0xCB]);
     assert_eq!(checksum(&[0x55, 0x90, 0xE6]), 0xCB);
-    let seabotix = Status::decode(Family::SeaBotix, &SEABOTIX_FAULT_VECTORS[0].1).unwrap().status;
+    let seabotix = Status::decode(Family::SeaBotix, &SEABOTIX_FAULT_VECTORS[0].1)
+        .unwrap()
+        .status;
     assert_eq!(seabotix.family(), Family::SeaBotix);
     assert_eq!(seabotix.faults(), Faults::OVERTEMP);
 }

@@ -2,7 +2,7 @@
 //! the register layouts of stm32-metapac (generated from ST's SVD files).
 
 use super::*;
-use stm32_metapac::timer::regs::{BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv, Af1Adv};
+use stm32_metapac::timer::regs::{Af1Adv, BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv};
 use stm32_metapac::timer::vals::{Bkp, FilterValue, Ocm, Ossi, Ossr};
 
 const TIM_HZ: u32 = 170_000_000;
@@ -45,7 +45,11 @@ struct Channel {
 
 fn channel(commutation: Commutation, cr2: u32, index: u32) -> Channel {
     let nibble = commutation.ccer >> (4 * index);
-    let ccmr = if index < 2 { commutation.ccmr1 } else { commutation.ccmr2 };
+    let ccmr = if index < 2 {
+        commutation.ccmr1
+    } else {
+        commutation.ccmr2
+    };
     let shift = 8 * (index % 2);
     let ocm = ((ccmr >> (4 + shift)) & 0b111) | (((ccmr >> (16 + shift)) & 1) << 3);
     assert!(ocm == OCM_PWM1 || ocm == OCM_FORCE_INACTIVE, "unexpected OCxM {ocm:#b}");
@@ -150,7 +154,10 @@ fn each_mode_drives_the_l6398_as_intended() {
                 assert_eq!(got, want, "{step:?} phase {index} {reference:?}");
                 // Never both on, and the MCU drives both inputs: nothing is left to the driver's pulls.
                 let (hin, lin) = outputs(&channel(commutation, cr2, index), armed, reference);
-                assert!(hin != Level::Floating && lin != Level::Floating, "{step:?} phase {index} floats");
+                assert!(
+                    hin != Level::Floating && lin != Level::Floating,
+                    "{step:?} phase {index} floats"
+                );
             }
         }
     }
@@ -216,14 +223,20 @@ fn the_previous_safe_state_floated_the_gate_inputs() {
         ois: false,
         oisn: false,
     };
-    assert_eq!(outputs(&disabled, armed_old, Ref::Active), (Level::Floating, Level::Floating));
+    assert_eq!(
+        outputs(&disabled, armed_old, Ref::Active),
+        (Level::Floating, Level::Floating)
+    );
     // And a break with OSSI = 0 floats even an enabled pair.
     let enabled = Channel {
         cce: true,
         ccne: true,
         ..disabled
     };
-    assert_eq!(outputs(&enabled, armed_old & !MOE, Ref::Active), (Level::Floating, Level::Floating));
+    assert_eq!(
+        outputs(&enabled, armed_old & !MOE, Ref::Active),
+        (Level::Floating, Level::Floating)
+    );
 }
 
 #[test]
@@ -265,7 +278,13 @@ fn the_break_input_is_filtered() {
         assert_eq!(break_filter_ticks(code as u8), ticks);
     }
     // The binding before: no filter at all.
-    assert!(!Bridge { break_glitch_ns: 0, ..IHM08M1 }.is_valid(TIM_HZ));
+    assert!(
+        !Bridge {
+            break_glitch_ns: 0,
+            ..IHM08M1
+        }
+        .is_valid(TIM_HZ)
+    );
     assert!(IHM08M1.is_valid(TIM_HZ));
 }
 
@@ -277,13 +296,20 @@ fn duty_is_capped_for_the_bootstrap() {
     assert_eq!(IHM08M1.compare(0, arr), 0);
     assert_eq!(IHM08M1.compare(5_000, arr), 2125);
     assert_eq!(IHM08M1.compare(9_500, arr), 4037);
-    assert_eq!(IHM08M1.compare(FULL_DUTY, arr), 4037, "100 % is never asked of the stage");
+    assert_eq!(
+        IHM08M1.compare(FULL_DUTY, arr),
+        4037,
+        "100 % is never asked of the stage"
+    );
     assert_eq!(IHM08M1.compare(u16::MAX, arr), 4037);
     assert!(IHM08M1.compare(FULL_DUTY, arr) < arr);
     // The low switch still conducts 1.5 us per period at the cap.
     assert_eq!(ticks_to_ns(IHM08M1.low_side_ticks(TIM_HZ), TIM_HZ), 1_505);
     // Without the cap (CCR = ARR) it never does.
-    let uncapped = Bridge { max_duty: FULL_DUTY, ..IHM08M1 };
+    let uncapped = Bridge {
+        max_duty: FULL_DUTY,
+        ..IHM08M1
+    };
     assert_eq!(uncapped.low_side_ticks(TIM_HZ), 0);
     assert!(!uncapped.is_valid(TIM_HZ));
 }
@@ -311,7 +337,11 @@ fn bit_positions_agree_with_the_pac() {
             ccer.set_ccne(index, mode != PhaseMode::Off);
             ccer.set_ccnp(index, true);
         }
-        assert_eq!((ours.ccmr1, ours.ccmr2, ours.ccer), (ccmr[0].0, ccmr[1].0, ccer.0), "{step:?}");
+        assert_eq!(
+            (ours.ccmr1, ours.ccmr2, ours.ccer),
+            (ccmr[0].0, ccmr[1].0, ccer.0),
+            "{step:?}"
+        );
     }
 
     let mut cr2 = Cr2Adv(0);

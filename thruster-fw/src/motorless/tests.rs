@@ -3,8 +3,8 @@
 use super::*;
 use crate::commutation::drive_for;
 use crate::control::LinkUpdate;
-use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
 use crate::faults::VolatileLatch;
+use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
 use crate::tasks::{Shared, commutation_task, control_task, fault_task};
 use embassy_futures::block_on;
 use embassy_futures::join::join3;

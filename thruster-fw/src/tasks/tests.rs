@@ -1,8 +1,8 @@
 //! The tasks together, on virtual time: a scripted master, simulated halls, bridge and ADC inputs.
 
 use super::*;
-use crate::hall::FORWARD_SEQUENCE;
 use crate::faults::VolatileLatch;
+use crate::hall::FORWARD_SEQUENCE;
 use crate::i2c_slave::Request;
 use core::cell::{Cell, RefCell};
 use embassy_futures::block_on;
