@@ -98,14 +98,12 @@ const SCHEDULE: iwdg::Schedule = iwdg::Schedule {
 };
 const _: () = assert!(SCHEDULE.check().is_ok());
 
-/// The power stage and TIM1's clock.
-#[cfg(not(feature = "motorless"))]
-pub const BRIDGE: tim1::Bridge = tim1::IHM08M1;
-#[cfg(not(feature = "motorless"))]
+/// The power stage on TIM1.
+pub const BRIDGE: g431_hw::tim1::Bridge = g431_hw::tim1::IHM08M1;
 const _: () = assert!(BRIDGE.is_valid(clock::TIM1_HZ));
 
 /// TIM1 BDTR with the outputs stopped for good (MOE = 0, AOE = 0): both switches of every phase off.
-const BDTR_STOPPED: u32 = g431_hw::tim1::IHM08M1.bdtr_stopped(clock::TIM1_HZ);
+const BDTR_STOPPED: u32 = BRIDGE.bdtr_stopped(clock::TIM1_HZ);
 
 /// Stop the bridge from any context (panic, hard fault): the outputs drop to their idle levels, both switches of
 /// every phase off, and stay there. Harmless when TIM1 is not clocked (writes to it are ignored).
@@ -158,14 +156,26 @@ impl I2cTarget for SlavePort {
 /// The three hall inputs, and the state last read.
 #[cfg(not(feature = "motorless"))]
 pub struct Halls {
-    pub h1: ExtiInput<'static, Async>,
-    pub h2: ExtiInput<'static, Async>,
-    pub h3: ExtiInput<'static, Async>,
-    pub last: HallState,
+    h1: ExtiInput<'static, Async>,
+    h2: ExtiInput<'static, Async>,
+    h3: ExtiInput<'static, Async>,
+    last: HallState,
 }
 
 #[cfg(not(feature = "motorless"))]
 impl Halls {
+    /// The halls on their EXTI lines, read once.
+    pub fn new(h1: ExtiInput<'static, Async>, h2: ExtiInput<'static, Async>, h3: ExtiInput<'static, Async>) -> Self {
+        let mut halls = Halls {
+            h1,
+            h2,
+            h3,
+            last: HallState::from_bits(0),
+        };
+        halls.last = halls.pins();
+        halls
+    }
+
     fn pins(&self) -> HallState {
         HallState::from_pins(self.h1.is_high(), self.h2.is_high(), self.h3.is_high())
     }

@@ -61,7 +61,7 @@ impl Thresholds {
 pub struct Sample {
     /// Resistance between the water-sensor electrodes, in ohms (see `sensors::WaterSensor`).
     pub water_ohms: u32,
-    /// Motor temperature in 0.1 C (see `sensors::Ntc`).
+    /// The temperature the status reports, the motor's or the controller's, in 0.1 C (see `sensors::Ntc`).
     pub temperature_decicelsius: i16,
     /// The hall state is valid (not 000/111) and no illegal transition happened since the previous sample.
     pub halls_normal: bool,

@@ -30,7 +30,6 @@ use {
     embassy_stm32::timer::{BkIn1, BreakInputPin},
     thruster_fw::Duty,
     thruster_fw::commutation::COAST,
-    thruster_fw::hall::HallState,
     thruster_fw::tasks::Bridge,
 };
 // The motor-less controller: the model's ports, the real water-sensor pin and the user button.
@@ -142,13 +141,11 @@ async fn main(spawner: Spawner) {
         };
         arm_power_stage(&mut bridge);
 
-        let mut halls = Halls {
-            h1: ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
-            h2: ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
-            h3: ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
-            last: HallState::from_bits(0),
-        };
-        halls.last = thruster_fw::tasks::HallSensors::read(&mut halls);
+        let halls = Halls::new(
+            ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
+            ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
+            ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
+        );
 
         let adc = Adc::new(p.ADC1, AdcConfig::default());
         check_adc_clock();
