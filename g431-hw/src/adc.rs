@@ -1,8 +1,8 @@
 //! ADC sample times against the impedance of what is sampled.
 //!
 //! The ADC charges its sample-and-hold capacitor C_ADC from the source during the sampling time T_S. STM32
-//! datasheets bound the source for an error under 1/4 LSB ("Equation 1: R_AIN max formula", e.g. DS5319 for the
-//! STM32F103, whose table this module reproduces in its tests):
+//! datasheets bound the source for an error under 1/4 LSB ("Equation 1: R_AIN max formula", e.g. the
+//! STM32F103x4/x6 datasheet, Doc ID 15060, whose table 47 this module reproduces in its tests):
 //! R_AIN < T_S / (f_ADC * C_ADC * ln(2^(N + 2))) - R_ADC, T_S in ADC clock cycles.
 //! For the STM32G431 this module takes C_ADC = 5 pF (DS12589's ADC characteristics as recalled; the datasheet
 //! could not be read here) and R_ADC = 0, which only errs towards allowing slightly larger sources; the margins
@@ -177,7 +177,7 @@ mod tests {
     use crate::clock::ADC_HZ;
     use stm32_metapac::adc::vals::SampleTime as PacSampleTime;
 
-    /// The STM32F103's ADC: C_ADC 8 pF, R_ADC 1 kohm (DS5319 ADC characteristics).
+    /// The STM32F103's ADC: C_ADC 8 pF, R_ADC 1 kohm (its datasheets' ADC characteristics).
     const F103: Adc = Adc {
         c_adc_pf: 8.0,
         r_adc_ohms: 1_000.0,
@@ -186,7 +186,7 @@ mod tests {
 
     #[test]
     fn formula_reproduces_the_datasheet_table() {
-        // DS5319 (STM32F103x4/x6) Table 47, R_AIN max for f_ADC = 14 MHz: cycles -> kohm.
+        // STM32F103x4/x6 (Doc ID 15060) table 47, R_AIN max for f_ADC = 14 MHz: cycles -> kohm.
         let table = [
             (1.5, 0.4),
             (7.5, 5.9),

@@ -3,11 +3,12 @@
 //!
 //! The X-NUCLEO-IHM08M1 drives each MOSFET pair through an L6398, whose low-side input LIN is *active low* with an
 //! internal pull-up and whose high-side input HIN is active high with an internal pull-down; with both inputs
-//! asking for their switch, its interlock turns both off (DS18199, Doc ID 18199: DC characteristics give LIN's
-//! bias current at LIN = 0 V and HIN's at HIN = 15 V; ST's answer on the L6398 input logic: HIN high + LIN high
-//! turns the high side on, HIN low + LIN low the low side). NuttX's IHM08M1 board support requires CHxN inverted
-//! for the same reason (`boards/arm/stm32/common/src/stm32_ihm08m1.c`: "L6398: PWM complementary channels must
-//! have inverted polarity"). So CCxP = 0 and CCxNP = 1, and every idle and off level below derives from them.
+//! asking for their switch, its interlock turns both off. Sources: the L6398 datasheet (Doc ID 18199), whose DC
+//! characteristics give LIN's bias current at LIN = 0 V and HIN's at HIN = 15 V; ST's answer on the ST community
+//! forum about the L6398 input logic on the IHM08M1 (HIN high + LIN high turns the high side on, HIN low + LIN low
+//! the low side; output LIN inverted); and NuttX's IHM08M1 board support, which requires CHxN inverted for it
+//! (`boards/arm/stm32/common/src/stm32_ihm08m1.c`: "PWM complementary channels must have inverted polarity"). So
+//! CCxP = 0 and CCxNP = 1, and every idle and off level below derives from them.
 //!
 //! The safe state: both switches of every phase off, *driven* by the MCU (not left to the driver's pulls):
 //! - a phase that floats is `CCxE = 1, CCxNE = 0, OCxREF forced inactive` with OSSR = 1: CHx = CCxP and CHxN sits
@@ -81,8 +82,8 @@ pub struct Bridge {
 
 /// The X-NUCLEO-IHM08M1 as the thruster drives it.
 ///
-/// - 1 us dead time in TIM1, on top of the L6398's own (320 ns typical, DS18199; NuttX's IHM08M1 support also
-///   keeps a timer dead time "for sure").
+/// - 1 us dead time in TIM1, on top of the L6398's own fixed 320 ns (NuttX's IHM08M1 support, which also keeps a
+///   timer dead time "for sure").
 /// - The overcurrent comparator pulls BKIN low (the binding's PA6); pulses under 400 ns are taken as switching
 ///   noise (an engineering margin over the MOSFETs' switching transients, to confirm on the scope at first
 ///   power-up); the filter still reacts well within a microsecond.
