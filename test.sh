@@ -14,6 +14,8 @@ as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 step "toolchain"
 rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
+# flip-link links the firmware images (.cargo/config.toml): a stack overflow faults instead of corrupting RAM.
+command -v flip-link >/dev/null || cargo install flip-link --locked
 # Debian packages: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use.
 packages=()
 command -v arm-none-eabi-size >/dev/null || packages+=(binutils-arm-none-eabi)
@@ -37,6 +39,8 @@ step "clippy ($TARGET)"
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
+# The first power-up build: duty limited to 10 %.
+cargo clippy --release --target "$TARGET" -p thruster-fw --features bringup --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p lbv-master-fw --features devkit,legacy --locked -- -D warnings
 # The bench test between two dev kits: the master's acceptance image and the motor-less thruster image.
 for family in "" ",legacy"; do
@@ -61,7 +65,7 @@ mkdir -p target/images
 cargo build --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked
 cp "$release/thruster-fw" target/images/thruster-fw
 cp "$release/lbv-master-fw" target/images/lbv-master-fw
-for features in legacy brushed motorless; do
+for features in legacy brushed motorless bringup; do
   cargo build --release --target "$TARGET" -p thruster-fw --features "$features" --locked
   cp "$release/thruster-fw" "target/images/thruster-fw-$features"
 done
@@ -87,6 +91,7 @@ thruster-fw        48 16
 thruster-fw-legacy 48 16
 thruster-fw-brushed 48 16
 thruster-fw-motorless 48 16
+thruster-fw-bringup 48 16
 lbv-master-fw      96 24
 lbv-master-fw-acceptance 96 24
 BUDGETS

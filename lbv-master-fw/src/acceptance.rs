@@ -13,7 +13,7 @@
 //! | `failsafe` | holds a valid order, then leaves the bus silent for `silence` (1.5 s) and only reads after it | the first read shows the drive off, the speed reaches 0 within `coast`, stays there while only reads come, and the same order sent again drives |
 //! | `held-rotor` | prompts the operator to hold the rotor, orders the drive step | STALL within `fault_within` and the drive off; after the release a zero order clears it and the drive step drives again |
 //! | `water` | prompts the operator to fit the test resistor on the water sensor | WATER within `fault_within`; SeaBotix keeps driving and clears the bit once the resistor is removed, Legacy stops and keeps the bit latched |
-//! | `reset` | prompts the operator to reset the thruster board while polling back to back | a failure is seen (NACK, timeout, bus error or a torn frame), the recoveries free the bus, `recovered_polls` good polls follow, and the thruster drives again without fault (a latched Legacy water fault is gone) |
+//! | `reset` | prompts the operator to power-cycle the thruster board while polling back to back | a failure is seen (NACK, timeout, bus error or a torn frame), the recoveries free the bus, `recovered_polls` good polls follow, and the thruster drives again without fault (a latched Legacy water fault is gone) |
 //!
 //! What *follows* an order means per family (IDS 8.4.1, 8.4.2):
 //! - SeaBotix: the status's SPEED (measured speed for brushless, PWM for brushed) is within `tolerance` steps of
@@ -30,7 +30,7 @@ use core::fmt;
 
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
+use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
 use crate::BusWork;
 use crate::config::MasterConfig;
@@ -262,7 +262,7 @@ pub fn prompt_text(prompt: Prompt) -> (Severity, Text) {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum Prompt {
-    /// Fit the water-sensor test resistor (470 kohm from PC3 to 3V3): the sensor reads water (< 1 Mohm) but no
+    /// Fit the water-sensor test resistor (470 kohm from PB12 to 3V3): the sensor reads water (< 1 Mohm) but no
     /// ground fault (> 100 kohm).
     FitWaterResistor,
     /// Remove the test resistor.
@@ -271,7 +271,8 @@ pub enum Prompt {
     HoldRotor,
     /// Let the rotor go (release B1).
     ReleaseRotor,
-    /// Press the thruster board's reset button while the test keeps the bus busy.
+    /// Power-cycle the thruster board while the test keeps the bus busy. A power cycle, not the reset button:
+    /// the IDS latches (a Legacy water fault) outlast every other reset.
     ResetThruster,
 }
 
@@ -290,11 +291,11 @@ impl Prompt {
     /// What to do, in words for the person at the bench (short enough for a console text).
     pub const fn instruction(self) -> &'static str {
         match self {
-            Prompt::FitWaterResistor => "fit 470k from PC3 to 3V3 on the thruster board",
-            Prompt::RemoveWaterResistor => "remove the resistor from PC3",
+            Prompt::FitWaterResistor => "fit 470k from PB12 to 3V3 on the thruster",
+            Prompt::RemoveWaterResistor => "remove the resistor from PB12",
             Prompt::HoldRotor => "press and hold B1 on the thruster board",
             Prompt::ReleaseRotor => "release B1 on the thruster board",
-            Prompt::ResetThruster => "press RESET (B2) on the thruster board now",
+            Prompt::ResetThruster => "power-cycle the thruster board (USB) now",
         }
     }
 
@@ -587,7 +588,9 @@ where
             return Err(self.failed(Failure::of_bus_error(&error)).await);
         }
         match Status::decode(family, reply) {
-            Ok(status) => Ok(status),
+            Ok(Decoded { status, warning: None }) => Ok(status),
+            // The thruster under test must send only values its encoding defines.
+            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(Failure::BadRange).await),
             Err(error) => Err(self.failed(Failure::of_decode_error(error)).await),
         }
     }

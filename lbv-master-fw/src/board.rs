@@ -1,13 +1,8 @@
 //! NUCLEO-G431RB wiring of the master node and the adapters from embassy-stm32 peripherals to the core's ports;
 //! the settings they are configured with are the core's (`lbv_master_fw::CONFIG`).
 //!
-//! | function | pins | peripheral |
-//! |---|---|---|
-//! | thruster bus 1 SCL / SDA | PA15 / PB7 (CN7 17 / 21) | I2C1 |
-//! | thruster bus 2 SCL / SDA | PA9 / PA8 (Arduino D8 / D7) | I2C2 |
-//! | thruster bus 3 SCL / SDA | PC8 / PC9 (CN10 2 / 1) | I2C3 |
-//! | battery CAN RX / TX (to a 3.3 V transceiver) | PA11 / PA12 (CN10 14 / 12) | FDCAN1 |
-//! | operator console (ST-LINK virtual COM port) | PA2 TX / PA3 RX | LPUART1 |
+//! The pins are `g431_hw::images::MASTER`, checked at build time against what the NUCLEO puts on each pin; the
+//! I2C and CAN timings come from `g431_hw`.
 
 use core::convert::Infallible;
 
@@ -18,12 +13,47 @@ use embassy_stm32::mode::Async;
 use embassy_stm32::pac;
 use embassy_stm32::pac::gpio::vals::Moder;
 use embassy_stm32::time::Hertz;
-use embassy_time::Delay;
+use embassy_time::{Delay, Duration, Instant, Timer};
 use embedded_hal::digital::{ErrorType as PinErrorType, InputPin, OutputPin};
 use embedded_hal_async::i2c::{ErrorType, Operation};
+use g431_hw::{fdcan, images, pins};
 use lbv_master_fw::CONFIG;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::{BusRecovery, clear_bus};
+
+/// The battery bus's nominal bit timing, from the 24 MHz crystal: 24 tq, sample point 79 %, SJW 5, which
+/// tolerates 0.81 % of clock error per node (`g431_hw::fdcan`).
+pub const CAN_TIMING: fdcan::BitTiming = match fdcan::nominal(
+    g431_hw::clock::FDCAN_KERNEL_HZ,
+    CONFIG.can_bitrate,
+    fdcan::SAMPLE_POINT_PERMILLE,
+    fdcan::BUS_DELAY_NS,
+) {
+    Ok(timing) => timing,
+    Err(_) => fdcan::BitTiming {
+        prescaler: 1,
+        tseg1: 1,
+        tseg2: 1,
+        sjw: 1,
+    },
+};
+const _: () = assert!(
+    CAN_TIMING.is_valid()
+        && CAN_TIMING.bitrate(g431_hw::clock::FDCAN_KERNEL_HZ) == CONFIG.can_bitrate
+        && CAN_TIMING.tolerance_ppm(g431_hw::clock::FDCAN_KERNEL_HZ, fdcan::BUS_DELAY_NS) >= 10 * fdcan::CRYSTAL_PPM
+);
+
+// A pin used twice, or one the NUCLEO drives or loads, fails the build.
+const _: () = assert!(pins::check(&images::MASTER).is_ok());
+
+/// Write a standard-mode TIMINGR (`g431_hw::i2c`) into an I2C peripheral, over embassy-stm32's own value,
+/// disabling it meanwhile as RM0440 requires.
+pub fn set_i2c_timing(regs: pac::i2c::I2c) {
+    regs.cr1().modify(|w| w.set_pe(false));
+    regs.timingr()
+        .write_value(pac::i2c::regs::Timingr(g431_hw::i2c::TIMINGR));
+    regs.cr1().modify(|w| w.set_pe(true));
+}
 
 /// One GPIO pin, named for the bus recovery's bit-banging.
 #[derive(Clone, Copy)]
@@ -66,11 +96,31 @@ impl InputPin for Pin {
     }
 }
 
-/// A thruster bus: embassy-stm32's I2C master, plus the pins for clearing a stuck bus.
+/// How often a busy bus is looked at again.
+const BUSY_POLL: Duration = Duration::from_micros(100);
+
+/// A thruster bus: embassy-stm32's I2C master, its registers, and the pins for clearing a stuck bus.
 pub struct ThrusterBus {
     pub i2c: I2c<'static, Async, Master>,
+    pub regs: pac::i2c::I2c,
     pub scl: Pin,
     pub sda: Pin,
+}
+
+impl ThrusterBus {
+    /// Wait, yielding, until the bus is free (ISR.BUSY clear), for at most a transfer's timeout. embassy-stm32
+    /// waits for BUSY in a blocking loop before a write's START, which would stall every task of the executor for
+    /// as long as another master or a stuck slave holds the bus.
+    async fn bus_free(&self) -> Result<(), i2c::Error> {
+        let start = Instant::now();
+        while self.regs.isr().read().busy() {
+            if start.elapsed() >= CONFIG.bus.timeout {
+                return Err(i2c::Error::Timeout);
+            }
+            Timer::after(BUSY_POLL).await;
+        }
+        Ok(())
+    }
 }
 
 impl ErrorType for ThrusterBus {
@@ -79,14 +129,17 @@ impl ErrorType for ThrusterBus {
 
 impl embedded_hal_async::i2c::I2c for ThrusterBus {
     async fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), i2c::Error> {
+        self.bus_free().await?;
         self.i2c.transaction(address, operations).await
     }
 }
 
 impl BusRecovery for ThrusterBus {
     /// The core's UM10204 3.1.16 recovery with the pins taken from the peripheral as GPIOs; then the pins go back
-    /// to the peripheral, which is re-initialised.
+    /// to the peripheral, which is re-initialised. The peripheral is disabled (PE = 0) meanwhile, so it neither
+    /// drives the lines nor takes the bit-banged edges for traffic.
     async fn recover(&mut self) -> bool {
+        self.regs.cr1().modify(|w| w.set_pe(false));
         // Released (high) before they become outputs, so that switching them does not pull a line low.
         let _ = self.scl.set_high();
         let _ = self.sda.set_high();
@@ -95,8 +148,9 @@ impl BusRecovery for ThrusterBus {
         let released = clear_bus(&mut self.scl, &mut self.sda, &mut Delay, &CONFIG.bus).await;
         self.scl.set_mode(Moder::ALTERNATE);
         self.sda.set_mode(Moder::ALTERNATE);
-        // Re-applying the bus speed turns the peripheral off and on, clearing its state machine.
+        // Re-applying the bus speed turns the peripheral on again with a clean state machine; then our timing.
         let _ = self.i2c.set_config(&Hertz(CONFIG.bus.frequency_hz));
+        set_i2c_timing(self.regs);
         released
     }
 }

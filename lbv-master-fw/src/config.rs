@@ -53,15 +53,15 @@ pub struct AcceptanceSetup {
 }
 
 impl AcceptanceSetup {
-    /// How long the person at the bench gets for each prompt before the script goes on. The reset is pressed while
-    /// the script keeps the bus busy (for `reset_window`, 15 s), so its prompt only gives time to reach the button.
+    /// How long the person at the bench gets for each prompt before the script goes on. The power cycle happens while
+    /// the script keeps the bus busy (for `reset_window`, 15 s), so its prompt only gives time to reach the cable.
     pub const fn prompt_wait(&self, prompt: Prompt) -> Duration {
         match prompt {
             Prompt::FitWaterResistor => Duration::from_secs(15),
             Prompt::RemoveWaterResistor => Duration::from_secs(10),
             Prompt::HoldRotor => Duration::from_secs(8),
             Prompt::ReleaseRotor => Duration::from_secs(5),
-            Prompt::ResetThruster => Duration::from_secs(2),
+            Prompt::ResetThruster => Duration::from_secs(5),
         }
     }
 }

@@ -1,7 +1,7 @@
 //! One exchange with a thruster: send the order, read the status (IDS 6.6.1, 8.3, 8.4).
 
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Family, MAX_STATUS_LEN, Order, Status};
+use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, Status};
 
 /// Why a poll failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -11,15 +11,20 @@ pub enum PollError<E> {
     Order(E),
     /// Reading the status failed on the bus.
     Status(E),
-    /// The status arrived but is not a valid frame of the thruster's family.
+    /// The status arrived but is not a valid frame of the thruster's family (wrong length, type or checksum).
     Decode(DecodeError),
 }
 
 /// Send `order` to the thruster of `family` and read back its status.
 ///
 /// The order and the read are separate transfers, each ended by STOP, as the IDS describes them (write at
-/// 0x52/0x54, read at 0x53/0x55).
-pub async fn poll_thruster<I: I2c>(i2c: &mut I, family: Family, order: Order) -> Result<Status, PollError<I::Error>> {
+/// 0x52/0x54, read at 0x53/0x55). A valid frame with an out-of-range field is a status (its faults count) with a
+/// warning, not a failure.
+pub async fn poll_thruster<I: I2c>(
+    i2c: &mut I,
+    family: Family,
+    order: Order,
+) -> Result<Decoded<Status>, PollError<I::Error>> {
     let address = family.address();
     i2c.write(address, &order.encode(family))
         .await
@@ -37,12 +42,13 @@ mod tests {
     use crate::config::BusConfig;
     use crate::sim::scripted::SimThruster;
     use core::cell::{Cell, RefCell};
+    use embassy_futures::block_on;
     use embassy_time::Duration;
-    use embedded_hal_async::i2c::{ErrorKind, NoAcknowledgeSource};
+    use embedded_hal_async::i2c::{ErrorKind, ErrorType, NoAcknowledgeSource, Operation};
     use lbv_sim::i2c::{Bus, DeviceId, Master, Route, Tamper, Timing};
     use lbv_sim::{Executor, clock};
     use std::rc::Rc;
-    use tmc_proto::{SeaBotixStatus, Speed};
+    use tmc_proto::{Faults, SeaBotixStatus, Speed};
 
     /// A bus with one scripted thruster of `family` on it (its status reports the ordered speed as reached).
     fn bus_with(family: Family) -> (Bus, Rc<RefCell<SimThruster>>, DeviceId) {
@@ -56,7 +62,7 @@ mod tests {
     }
 
     /// One poll on `bus`, on virtual time.
-    fn poll(bus: &Bus, family: Family, order: Order) -> Result<Status, PollError<ErrorKind>> {
+    fn poll(bus: &Bus, family: Family, order: Order) -> Result<Decoded<Status>, PollError<ErrorKind>> {
         let clock = clock::take();
         let result = Cell::new(None);
         let mut master: Master = bus.master();
@@ -79,8 +85,9 @@ mod tests {
     fn polls_each_family_and_decodes_the_reply() {
         for family in Family::ALL {
             let (bus, thruster, _) = bus_with(family);
-            let status = poll(&bus, family, forward(25)).unwrap();
-            assert_eq!(status.family(), family);
+            let decoded = poll(&bus, family, forward(25)).unwrap();
+            assert_eq!(decoded.warning, None);
+            assert_eq!(decoded.status.family(), family);
             assert_eq!(
                 thruster.borrow().link.order(),
                 forward(25),
@@ -93,7 +100,7 @@ mod tests {
     #[test]
     fn the_status_reports_the_order_just_sent() {
         let (bus, ..) = bus_with(Family::SeaBotix);
-        let status = poll(&bus, Family::SeaBotix, forward(-60)).unwrap();
+        let status = poll(&bus, Family::SeaBotix, forward(-60)).unwrap().status;
         let Status::SeaBotix(SeaBotixStatus { speed, .. }) = status else {
             panic!("wrong family")
         };
@@ -109,6 +116,30 @@ mod tests {
             PollError::Order(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address))
         );
         assert_eq!(bus.stats().transfers, 1, "no read after a failed order");
+    }
+
+    #[test]
+    fn an_odd_field_keeps_the_faults() {
+        // A brushed Legacy controller reporting WATER with MAX POWER 0x00, outside the SPEED range.
+        struct Odd;
+        impl ErrorType for Odd {
+            type Error = ErrorKind;
+        }
+        impl I2c for Odd {
+            async fn transaction(&mut self, _: u8, operations: &mut [Operation<'_>]) -> Result<(), ErrorKind> {
+                for operation in operations {
+                    if let Operation::Read(buffer) = operation {
+                        for (slot, byte) in buffer.iter_mut().zip([0x55, 0x50, 0x00, 0xA5]) {
+                            *slot = byte;
+                        }
+                    }
+                }
+                Ok(())
+            }
+        }
+        let decoded = block_on(poll_thruster(&mut Odd, Family::Legacy, Order::STOP)).unwrap();
+        assert_eq!(decoded.status.faults(), Faults::WATER);
+        assert_eq!(decoded.warning, Some(tmc_proto::FieldWarning::MaxPower(0x00)));
     }
 
     #[test]

@@ -176,7 +176,7 @@ pub struct LinkHealth {
     pub bad_type: u32,
     /// The status had the wrong length.
     pub bad_length: u32,
-    /// A status field was out of range (the speed byte).
+    /// A status field was out of range (the speed byte); the status itself still counted, faults included.
     pub bad_range: u32,
     /// Bus error, arbitration loss, overrun, or a failed mux selection.
     pub bus_error: u32,

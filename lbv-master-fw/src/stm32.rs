@@ -1,20 +1,24 @@
 //! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
+use core::num::{NonZeroU8, NonZeroU16};
+
 use defmt::{info, unwrap};
 use embassy_executor::Spawner;
+use embassy_stm32::can::config::NominalBitTiming;
 use embassy_stm32::can::{self, CanConfigurator};
 use embassy_stm32::i2c::{self, I2c};
-use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllQDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
+use g431_hw::clock;
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, Ports};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::board::{BatteryCan, Pin, ThrusterBus};
+use crate::board::{self, BatteryCan, Pin, ThrusterBus, set_i2c_timing};
 
 bind_interrupts!(struct Irqs {
     I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
@@ -57,6 +61,7 @@ async fn main(spawner: Spawner) {
     i2c_config.timeout = CONFIG.bus.timeout;
     let bus1 = ThrusterBus {
         i2c: I2c::new(p.I2C1, p.PA15, p.PB7, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config),
+        regs: pac::I2C1,
         scl: Pin {
             port: pac::GPIOA,
             number: 15,
@@ -68,6 +73,7 @@ async fn main(spawner: Spawner) {
     };
     let bus2 = ThrusterBus {
         i2c: I2c::new(p.I2C2, p.PA9, p.PA8, p.DMA1_CH3, p.DMA1_CH4, Irqs, i2c_config),
+        regs: pac::I2C2,
         scl: Pin {
             port: pac::GPIOA,
             number: 9,
@@ -79,6 +85,7 @@ async fn main(spawner: Spawner) {
     };
     let bus3 = ThrusterBus {
         i2c: I2c::new(p.I2C3, p.PC8, p.PC9, p.DMA1_CH5, p.DMA1_CH6, Irqs, i2c_config),
+        regs: pac::I2C3,
         scl: Pin {
             port: pac::GPIOC,
             number: 8,
@@ -89,8 +96,12 @@ async fn main(spawner: Spawner) {
         },
     };
 
+    for bus in [&bus1, &bus2, &bus3] {
+        set_i2c_timing(bus.regs);
+    }
+
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
-    can.set_bitrate(CONFIG.can_bitrate);
+    can.set_config(can.config().set_nominal_bit_timing(nominal_bit_timing()));
     let can = BatteryCan(can.into_normal_mode());
 
     static TX_BUFFER: StaticCell<[u8; 512]> = StaticCell::new();
@@ -117,22 +128,45 @@ async fn main(spawner: Spawner) {
     })));
 }
 
-/// 170 MHz from the internal 16 MHz oscillator (HSI / 4 * 85 / 2), and 85 MHz from PLL Q for FDCAN, whose
-/// default kernel clock (HSE) is not running on this board.
+/// 170 MHz from the NUCLEO's 24 MHz crystal (`g431_hw::clock::PLL`); FDCAN on the crystal itself, which its bit
+/// timing needs (`g431_hw::fdcan`: HSI16's 1 % is more than 1 Mbit/s tolerates); the I2C buses on HSI16, the clock
+/// their timing is computed for.
 fn clocks() -> embassy_stm32::Config {
+    const PLL: clock::Pll = clock::PLL;
+    const _: () = assert!(PLL.is_valid(clock::HSE_HZ));
     let mut config = embassy_stm32::Config::default();
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(clock::HSE_HZ),
+        mode: HseMode::Oscillator,
+    });
     config.rcc.pll = Some(Pll {
-        source: PllSource::HSI,
-        prediv: PllPreDiv::DIV4,
-        mul: PllMul::MUL85,
+        source: PllSource::HSE,
+        prediv: PllPreDiv::from_bits((PLL.m - 1) as u8),
+        mul: PllMul::from_bits(PLL.n as u8),
         divp: None,
-        divq: Some(PllQDiv::DIV4),
-        divr: Some(PllRDiv::DIV2),
+        divq: None,
+        divr: Some(PllRDiv::from_bits((PLL.r / 2 - 1) as u8)),
     });
     config.rcc.sys = Sysclk::PLL1_R;
     config.rcc.boost = true;
-    config.rcc.mux.fdcansel = rcc::mux::Fdcansel::PLL1_Q;
+    config.rcc.mux.fdcansel = rcc::mux::Fdcansel::HSE;
+    config.rcc.mux.i2c1sel = rcc::mux::I2csel::HSI;
+    config.rcc.mux.i2c2sel = rcc::mux::I2csel::HSI;
+    config.rcc.mux.i2c3sel = rcc::mux::I2csel::HSI;
     config
+}
+
+/// `board::CAN_TIMING` in embassy-stm32's terms (it writes each field less one into FDCAN_NBTP).
+fn nominal_bit_timing() -> NominalBitTiming {
+    let timing = board::CAN_TIMING;
+    // `CAN_TIMING.is_valid()` is asserted at build time, so no field is zero.
+    let one = NonZeroU8::MIN;
+    NominalBitTiming {
+        prescaler: NonZeroU16::new(timing.prescaler).unwrap_or(NonZeroU16::MIN),
+        seg1: NonZeroU8::new(timing.tseg1).unwrap_or(one),
+        seg2: NonZeroU8::new(timing.tseg2).unwrap_or(one),
+        sync_jump_width: NonZeroU8::new(timing.sjw).unwrap_or(one),
+    }
 }
 
 /// The whole node, on the thread-mode executor.

@@ -21,7 +21,7 @@ use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::i2c::ErrorKind;
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Family, Faults, Order, Status};
+use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status};
 
 use crate::poll::{PollError, poll_thruster};
 use crate::recovery::BusRecovery;
@@ -469,6 +469,12 @@ impl Link {
         }
     }
 
+    /// Count a status that decoded with an out-of-range field: the poll still counts as good (its faults are
+    /// read), the field's oddity goes to `bad_range`.
+    pub fn on_odd_field(&mut self) {
+        self.health.bad_range = self.health.bad_range.saturating_add(1);
+    }
+
     /// Count a bus recovery run after this thruster's failure.
     pub fn on_recovery(&mut self) {
         self.health.recoveries = self.health.recoveries.saturating_add(1);
@@ -582,7 +588,7 @@ async fn poll_slot<B: I2c>(
     slot: &ThrusterSlot,
     selected: &mut Option<u8>,
     order: Order,
-) -> Result<Status, Failure> {
+) -> Result<Decoded<Status>, Failure> {
     let mask = mux_mask(slot).map_err(|()| Failure::Mux)?;
     if let Some(mask) = mask
         && *selected != Some(mask)
@@ -638,6 +644,11 @@ impl BusState {
             }
             polled += 1;
             let outcome = poll_slot(bus, slot, &mut self.mux, *order).await;
+            // A status with an odd field still reports its faults.
+            if let Ok(Decoded { warning: Some(_), .. }) = outcome {
+                link.on_odd_field();
+            }
+            let outcome = outcome.map(|decoded| decoded.status);
             let change = link.on_outcome(cycle, outcome);
             // A bad channel number in the table never reached the bus: nothing to recover.
             let on_bus = mux_mask(slot).is_ok();

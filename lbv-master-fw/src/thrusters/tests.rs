@@ -650,11 +650,26 @@ fn a_missing_thruster_is_found_by_its_first_nack_and_retried_with_back_off_witho
 }
 
 #[test]
+fn an_out_of_range_field_is_counted_but_the_status_and_its_faults_are_kept() {
+    for family in Family::ALL {
+        let bench = Bench::new(&[(family, Some(0))]);
+        bench.thruster(0).mode = Mode::BadRange;
+        let table = [ThrusterSlot::behind_mux(0, 0, family)];
+        bench.run(&table, &PollConfig::DEFAULT, |sim| {
+            sim.elapse(Duration::from_millis(100));
+            let h = bench.health(0);
+            assert!(h.online, "{family:?}");
+            assert_eq!((h.good, h.bad_range, h.consecutive_failures), (h.polls, h.polls, 0));
+            assert_eq!(bench.take_texts(), [(Severity::Info, "T1 online".to_owned())]);
+        });
+    }
+}
+
+#[test]
 fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
     let cases = [
         (Mode::BadChecksum, "T1 offline: bad checksum"),
         (Mode::BadType, "T1 offline: bad message type"),
-        (Mode::BadRange, "T1 offline: value out of range"),
         (Mode::Stretch, "T1 offline: timeout"),
     ];
     for family in Family::ALL {
@@ -676,7 +691,6 @@ fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
                 let counted = match mode {
                     Mode::BadChecksum => h.bad_checksum,
                     Mode::BadType => h.bad_type,
-                    Mode::BadRange => h.bad_range,
                     Mode::Stretch => h.timeout,
                     _ => unreachable!(),
                 };

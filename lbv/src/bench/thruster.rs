@@ -15,6 +15,7 @@ use embassy_time::Instant;
 use lbv_sim::i2c::{Bus, DeviceId};
 use lbv_sim::{Executor, TaskId};
 use thruster_fw::commutation::{BridgeDrive, COAST};
+use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
 use thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors, Shared, Watchdog};
 use thruster_fw::{Config, Duty, Ports};
@@ -107,6 +108,8 @@ impl ThrusterBoard {
                 config: self.config.clone(),
             },
             watchdog: Dog(self.io.clone()),
+            // Every bench boot follows a power cut: the latches start empty.
+            latch: VolatileLatch::default(),
         };
         let (config, shared) = (self.config.clone(), self.shared.clone());
         let run = executor.spawn(async move {

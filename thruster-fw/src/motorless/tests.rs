@@ -3,6 +3,7 @@
 use super::*;
 use crate::commutation::drive_for;
 use crate::control::LinkUpdate;
+use crate::faults::VolatileLatch;
 use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
 use crate::tasks::{Ports, Shared, Watchdog};
 use core::ops::Deref;
@@ -194,6 +195,7 @@ impl Rig {
                 i2c: port,
                 sensors: ModelSensors::new(&controller.motorless, &CONFIG, Dry, Button(controller.clone())),
                 watchdog: Unwatched,
+                latch: VolatileLatch::default(),
             };
             crate::run(ports, &CONFIG, &controller.shared).await;
         });
@@ -228,7 +230,7 @@ impl Rig {
     /// The status the I2C task would answer with now.
     fn status(&self) -> Status {
         let frame = self.shared.status.try_get().expect("a status is ready");
-        Status::decode(Family::SeaBotix, frame.as_bytes()).unwrap()
+        Status::decode(Family::SeaBotix, frame.as_bytes()).unwrap().status
     }
 
     fn speed(&self) -> i8 {

@@ -2,6 +2,7 @@
 //! halls, bridge and ADC inputs set by the test.
 
 use super::*;
+use crate::faults::VolatileLatch;
 use crate::hall::FORWARD_SEQUENCE;
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
@@ -47,6 +48,8 @@ struct Io {
     bridge: Cell<(BridgeDrive, Duty)>,
     inputs: Cell<RawSample>,
     fed: Cell<u32>,
+    /// The latch store, kept as a backup register keeps it over a reset.
+    latch: Cell<VolatileLatch>,
     /// Every status the master read.
     replies: RefCell<Vec<Vec<u8>>>,
 }
@@ -77,6 +80,20 @@ struct TestSensors(Rc<Io>);
 impl Sensors for TestSensors {
     async fn sample(&mut self) -> RawSample {
         self.0.inputs.get()
+    }
+}
+
+struct TestLatch(Rc<Io>);
+
+impl LatchStore for TestLatch {
+    fn load(&mut self) -> Faults {
+        self.0.latch.get().load()
+    }
+
+    fn save(&mut self, latched: Faults) {
+        let mut store = self.0.latch.get();
+        store.save(latched);
+        self.0.latch.set(store);
     }
 }
 
@@ -117,15 +134,18 @@ impl Deref for Bench {
 
 impl Bench {
     fn new(family: Family) -> Self {
-        Self::with(Config::reference(family, MotorKind::Brushless))
+        Self::with(
+            Config::reference(family, MotorKind::Brushless),
+            VolatileLatch::default(),
+        )
     }
 
     fn brushed(family: Family) -> Self {
-        Self::with(Config::reference(family, MotorKind::Brushed))
+        Self::with(Config::reference(family, MotorKind::Brushed), VolatileLatch::default())
     }
 
-    /// Start the controller at virtual time 0.
-    fn with(config: Config) -> Self {
+    /// Start the controller at virtual time 0, with the latches a reset left in `latch`.
+    fn with(config: Config, latch: VolatileLatch) -> Self {
         let clock = clock::take();
         let io = Rc::new(Io {
             inputs: Cell::new(dry(&config)),
@@ -134,6 +154,7 @@ impl Bench {
             halls: HallInputs::new(FORWARD_SEQUENCE[0]),
             bridge: Cell::new((COAST, Duty::ZERO)),
             fed: Cell::new(0),
+            latch: Cell::new(latch),
             replies: RefCell::new(Vec::new()),
         });
         let bus = Bus::new(Timing::new(io.config.bus.frequency_hz, io.config.bus.timeout));
@@ -146,6 +167,7 @@ impl Bench {
             i2c: port,
             sensors: TestSensors(io.clone()),
             watchdog: CountingWatchdog(io.clone()),
+            latch: TestLatch(io.clone()),
         };
         let (halls, bridge) = (TestHalls(io.clone()), TestBridge(io.clone()));
         let controller = io.clone();
@@ -194,7 +216,10 @@ impl Bench {
 
     fn last_status(&self) -> Status {
         let replies = self.replies.borrow();
-        Status::decode(self.config.family, replies.last().expect("a status was read")).expect("status decodes")
+        let decoded = Status::decode(self.config.family, replies.last().expect("a status was read"));
+        let decoded = decoded.expect("status decodes");
+        assert_eq!(decoded.warning, None);
+        decoded.status
     }
 
     fn duty(&self) -> Duty {
@@ -316,6 +341,38 @@ fn a_ground_fault_coasts_the_bridge_within_one_sample_and_latches() {
 }
 
 #[test]
+fn latches_outlast_a_reset_but_not_a_power_cycle() {
+    for family in Family::ALL {
+        let mut before = Bench::new(family);
+        before.inputs.set(RawSample {
+            water: before.config.water.raw_at(50_000),
+            ..dry(&before.config)
+        });
+        before.elapse(Duration::from_millis(5));
+        let stored = before.latch.get();
+        drop(before);
+        // The same controller after a watchdog or pin reset: fresh tasks, the store kept, dry electrodes.
+        let mut after = Bench::with(Config::reference(family, MotorKind::Brushless), stored);
+        after.order(60);
+        after.elapse(Duration::from_millis(100));
+        after.send(READ);
+        after.elapse(Duration::from_millis(1));
+        assert!(after.last_status().faults().contains(Faults::GROUND), "{family:?}");
+        assert_eq!(
+            after.last_status().faults().contains(Faults::WATER),
+            family == Family::Legacy
+        );
+        assert_eq!(after.bridge.get().0, COAST);
+        drop(after);
+        // After a power cycle the store is empty and the controller drives.
+        let mut cycled = Bench::new(family);
+        cycled.order(60);
+        cycled.elapse(Duration::from_millis(100));
+        assert!(cycled.duty().value() > 0);
+    }
+}
+
+#[test]
 fn status_reads_always_decode_and_bad_orders_change_nothing() {
     let mut bench = Bench::new(Family::SeaBotix);
     bench.order(40);
@@ -342,7 +399,9 @@ fn status_reads_always_decode_and_bad_orders_change_nothing() {
 fn the_watchdog_is_fed_only_while_every_task_reports() {
     let mut bench = Bench::new(Family::SeaBotix);
     bench.elapse(Duration::from_millis(500));
-    assert!(bench.fed.get() >= 9, "fed {} times in 500 ms", bench.fed.get());
+    // Fed at every feed period: no task misses a check.
+    let periods = (500 / bench.config.watchdog.feed.as_millis()) as u32;
+    assert_eq!(bench.fed.get(), periods, "fed {} times in 500 ms", bench.fed.get());
 }
 
 /// Drive forward, then `inject` a condition; returns how long the bridge took to coast (None: it kept driving
@@ -477,13 +536,15 @@ fn an_invalid_hall_state_coasts_at_once_and_clears_when_the_halls_read_normal() 
 fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed() {
     let mut bench = Bench::brushed(Family::SeaBotix);
     bench.order(51);
-    // No halls on a brushed motor, so no stall or hall fault either: the order holds.
+    // No halls on a brushed motor, so no stall or hall fault either: the order holds. Step 102 is the power
+    // stage's largest duty, so step 51 is half of it.
+    let max = i32::from(crate::speed::MAX_DUTY);
     bench.elapse(Duration::from_millis(600));
     assert_eq!(
         bench.bridge.get(),
         (
             [PhaseDrive::Pwm, PhaseDrive::Low, PhaseDrive::Float],
-            Duty::new_saturating(5000)
+            Duty::new_saturating(max / 2)
         )
     );
     bench.send(READ);
@@ -494,13 +555,13 @@ fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed(
     assert_eq!((status.motor, status.speed.step()), (MotorKind::Brushed, 51));
 
     bench.order(-102);
-    // +50 % to -100 % at 200 % per second: 750 ms, well inside the link timeout.
+    // Half to all of it in reverse at 200 % per second: under 750 ms, well inside the link timeout.
     bench.elapse(Duration::from_millis(900));
     assert_eq!(
         bench.bridge.get(),
         (
             [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
-            Duty::new_saturating(-10_000)
+            Duty::new_saturating(-max)
         )
     );
 }
@@ -550,9 +611,19 @@ fn the_image_configuration_is_the_reference_hardware_with_the_spec_timings() {
             (100_000, Duration::from_millis(25))
         );
         assert_eq!(config.link_timeout, Duration::from_secs(1));
-        // The watchdog is fed five times per timeout; the IWDG driver takes the timeout in microseconds.
-        assert_eq!(config.watchdog.feed * 5, config.watchdog.timeout);
+        // Every task reports within a feed period and the IWDG outlasts two of them at the fastest LSI; the IWDG
+        // driver takes the timeout in microseconds.
+        assert_eq!(config.watchdog.schedule(&config.bus).check().map(|_| ()), Ok(()));
         assert_eq!(config.watchdog.timeout_us(), 250_000);
+        // A 50 ms feed would miss the I2C task's reports (50 ms heartbeat + 25 ms transfer) and warn falsely.
+        let eager = WatchdogTiming {
+            feed: Duration::from_millis(50),
+            ..config.watchdog
+        };
+        assert_eq!(
+            eager.schedule(&config.bus).check().map(|_| ()),
+            Err(g431_hw::iwdg::ScheduleError::ReportSlowerThanFeed)
+        );
     }
     assert_eq!(crate::CONFIG.family, crate::FAMILY);
     let forever = WatchdogTiming {
