@@ -1050,4 +1050,39 @@ mod tests {
                 .starts_with("lbv decode can: line 1: line too long")
         );
     }
+
+    /// A log with more interfaces than [`MAX_INTERFACES`]: the boards remembered stay bounded, the least recently
+    /// heard is forgotten, and the summary says so.
+    #[test]
+    fn interfaces_beyond_the_limit_are_forgotten_least_recent_first() {
+        let status = |iface: &str| format!("(1.0) {iface} 629#AC00000000000000\n");
+        let mut log = String::new();
+        for i in 0..10 * MAX_INTERFACES {
+            log.push_str(&status(&format!("can{i}")));
+        }
+        // can0 .. can{MAX-1} were pushed out long ago; the last MAX_INTERFACES are remembered.
+        let last = format!("can{}", 10 * MAX_INTERFACES - 1);
+        log.push_str(&status(&last));
+        log.push_str(&status("can0"));
+        let mut decoder = Decoder::new(false);
+        let mut lines = crate::lines::Lines::new(log.as_bytes(), MAX_LINE);
+        let mut outputs = Vec::new();
+        while let Some((number, line)) = lines.next_line().unwrap() {
+            let Ok(Line::Frame { time, iface, frame }) = parse_line(line.bytes()) else {
+                panic!("a frame")
+            };
+            decoder.frame(number, time, iface, frame);
+            outputs.push(String::from_utf8(std::mem::take(&mut decoder.out)).unwrap());
+        }
+        assert_eq!(decoder.boards.len(), MAX_INTERFACES);
+        let last_two: Vec<&String> = outputs.iter().rev().take(2).collect();
+        assert!(!last_two[1].contains("start-up"), "still remembered: {}", last_two[1]);
+        assert!(
+            last_two[0].contains("start-up: "),
+            "forgotten, so a start-up again: {}",
+            last_two[0]
+        );
+        assert_eq!(decoder.summary.forgotten, 9 * MAX_INTERFACES as u64 + 1);
+        assert!(decoder.summary.to_string().contains("forgotten"));
+    }
 }

@@ -1391,4 +1391,70 @@ i2c-1: Data read: 53
         );
         assert_eq!(lines[1], "@900 0x29 W NACK (no thruster)");
     }
+
+    fn feed(assembler: &mut Assembler, event: Event) -> Option<Transfer> {
+        assembler
+            .feed(Annotation {
+                event,
+                stamp: Stamp::None,
+            })
+            .unwrap_or(None)
+    }
+
+    /// A transfer that never ends, with data going the wrong way and every byte NACKed, keeps a bounded size.
+    #[test]
+    fn an_endless_transfer_keeps_bounded_state() {
+        let mut assembler = Assembler::default();
+        feed(&mut assembler, Event::Start);
+        feed(
+            &mut assembler,
+            Event::Address {
+                read: false,
+                value: 0x29,
+            },
+        );
+        feed(&mut assembler, Event::Ack);
+        for i in 0..200_000u32 {
+            let byte = i as u8;
+            feed(&mut assembler, Event::Data { read: i % 2 == 0, byte });
+            feed(&mut assembler, Event::Nack);
+        }
+        let transfer = assembler.current.as_ref().unwrap();
+        assert_eq!(transfer.bytes.len(), MAX_TRANSFER_BYTES);
+        assert_eq!(transfer.count, 200_000);
+        assert!(transfer.problems.is_empty());
+        let transfer = assembler.finish().unwrap();
+        let record = record(transfer, 0);
+        assert_eq!(record.bytes.len(), MAX_TRANSFER_BYTES);
+        let error = record.error.unwrap();
+        for says in [
+            "100000 data bytes go the other way from the address's R/W bit, the first 00",
+            "the capture ends before the STOP",
+            "the slave NACKed data byte 0 and the master wrote on",
+            "200000 data bytes, the first 64 shown",
+        ] {
+            assert!(error.contains(says), "{says:?} in {error}");
+        }
+        assert!(error.len() < 400, "{error}");
+    }
+
+    /// Starts and addresses with no STOP: every transfer is printed as it ends, none is kept.
+    #[test]
+    fn transfers_without_a_stop_are_not_kept() {
+        let mut assembler = Assembler::default();
+        let mut printed = 0;
+        for i in 0..10_000u32 {
+            let event = match i % 3 {
+                0 => Event::Start,
+                1 => Event::Address {
+                    read: true,
+                    value: 0x2A,
+                },
+                _ => Event::Data { read: true, byte: 0x55 },
+            };
+            printed += usize::from(feed(&mut assembler, event).is_some());
+        }
+        assert_eq!(printed, 3333);
+        assert!(assembler.current.as_ref().map_or(0, |t| t.bytes.len()) <= 1);
+    }
 }
