@@ -831,3 +831,158 @@ fn decimate(points: &[(f64, f64)], max: usize) -> Vec<(f64, f64)> {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench::trace::ThrusterSample;
+
+    /// Two thrusters over 20 s at 100 Hz: T1 runs and stalls, T2 drops offline; armed from 1 s; a few events.
+    fn trace() -> Trace {
+        let samples = (0..2000)
+            .map(|i| {
+                let t = f64::from(i) / 100.0;
+                let stalled = (8.0..10.0).contains(&t);
+                let thruster = |k: usize| ThrusterSample {
+                    rpm: if stalled && k == 0 {
+                        0.0
+                    } else {
+                        1500.0 * (t / 3.0).min(1.0)
+                    },
+                    current_a: if stalled && k == 0 { 8.0 } else { 0.5 },
+                    temperature_c: 20.0 + t,
+                    faults: if stalled && k == 0 { Faults::STALL.bits() } else { 0 },
+                    online: !(k == 1 && (12.0..13.0).contains(&t)),
+                    ordered_step: 34,
+                };
+                Sample {
+                    t,
+                    thrusters: vec![thruster(0), thruster(1)],
+                    battery_v: 28.5 - if stalled { 0.3 } else { 0.0 },
+                    armed: t >= 1.0,
+                }
+            })
+            .collect();
+        let events = [
+            (1.0, "armed"),
+            (8.0, "T1: propeller blocked"),
+            (12.0, "T2 offline"),
+            (f64::NAN, "lost"),
+        ]
+        .iter()
+        .map(|&(t, text)| Event { t, text: text.into() })
+        .collect();
+        Trace { samples, events }
+    }
+
+    fn temp(name: &str) -> std::path::PathBuf {
+        std::env::temp_dir().join(format!("lbv-plot-{}-{name}", std::process::id()))
+    }
+
+    #[test]
+    fn svg_names_the_panels_the_limits_and_the_faults() {
+        let path = temp("run.svg");
+        write(&trace(), "a run", &path, Format::Svg).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        assert!(svg.starts_with("<svg"), "{}", &svg[..80]);
+        for text in [
+            "a run",
+            "speed (rpm)",
+            "current (A)",
+            "winding temp (°C)",
+            "battery (V)",
+            "time (s)",
+            "110 °C set",
+            "100 °C clear",
+            "ordered (step × 4500/102 rpm)",
+            "T1: propeller blocked",
+            "1 non-finite values skipped",
+        ] {
+            assert!(svg.contains(text), "{text:?} missing");
+        }
+        for fault in Faults::ALL.iter() {
+            assert!(svg.contains(fault.name()), "{}", fault.name());
+        }
+    }
+
+    /// The PNG's text is drawn from the font in the binary: the title's band has ink, and each thruster's colour
+    /// shows in the speed panel.
+    #[test]
+    fn png_draws_text_and_series() {
+        let path = temp("run.png");
+        write(&trace(), "a run", &path, Format::Png).unwrap();
+        let image = image::open(&path).unwrap().to_rgb8();
+        let _ = std::fs::remove_file(&path);
+        assert_eq!(image.width(), WIDTH);
+        let ink = |x0: u32, y0: u32, x1: u32, y1: u32, pick: &dyn Fn(&image::Rgb<u8>) -> bool| {
+            (y0..y1)
+                .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                .filter(|&(x, y)| pick(image.get_pixel(x, y)))
+                .count()
+        };
+        let dark = |p: &image::Rgb<u8>| p.0.iter().all(|&c| c < 100);
+        assert!(ink(LEFT, 10, LEFT + 200, 44, &dark) > 200, "the title is drawn");
+        let speed = (LEFT, HEADER_H + BAND_H, WIDTH - RIGHT, HEADER_H + BAND_H + RPM_H);
+        for k in 0..2 {
+            let RGBColor(r, g, b) = colour(k);
+            let same = move |p: &image::Rgb<u8>| p.0 == [r, g, b];
+            assert!(
+                ink(speed.0, speed.1, speed.2, speed.3, &same) > 100,
+                "thruster {k}'s line"
+            );
+        }
+    }
+
+    #[test]
+    fn a_trace_without_samples_still_draws() {
+        let path = temp("empty.svg");
+        let trace = Trace {
+            samples: Vec::new(),
+            events: vec![Event {
+                t: 0.5,
+                text: "nothing ran".into(),
+            }],
+        };
+        write(&trace, "empty", &path, Format::Svg).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        assert!(svg.contains("no samples") && svg.contains("nothing ran"));
+    }
+
+    #[test]
+    fn the_same_trace_gives_the_same_picture() {
+        let (a, b) = (temp("a.svg"), temp("b.svg"));
+        write(&trace(), "t", &a, Format::Svg).unwrap();
+        write(&trace(), "t", &b, Format::Svg).unwrap();
+        let same = std::fs::read(&a).unwrap() == std::fs::read(&b).unwrap();
+        let _ = (std::fs::remove_file(&a), std::fs::remove_file(&b));
+        assert!(same);
+    }
+
+    #[test]
+    fn decimation_keeps_a_one_sample_spike_and_the_order() {
+        let mut points: Vec<(f64, f64)> = (0..100_000).map(|i| (f64::from(i), 0.0)).collect();
+        points[54_321].1 = 9.0;
+        let kept = decimate(&points, MAX_POINTS);
+        assert!(kept.len() <= MAX_POINTS);
+        assert!(kept.contains(&(54_321.0, 9.0)));
+        assert!(kept.windows(2).all(|w| w[0].0 < w[1].0));
+        assert_eq!(decimate(&points[..10], MAX_POINTS), &points[..10]);
+    }
+
+    #[test]
+    fn runs_last_until_the_next_sample() {
+        let trace = trace();
+        let plot = Plot::new(&trace);
+        let stalls = plot.runs(|s| s.thrusters[0].faults != 0);
+        assert_eq!(stalls.len(), 1);
+        let (a, b) = stalls[0];
+        assert!((a - 8.0).abs() < 1e-9 && (b - 10.0).abs() < 1e-9, "{a} {b}");
+        let armed = plot.runs(|s| s.armed);
+        assert!(
+            (armed[0].1 - 20.0).abs() < 1e-9,
+            "the last sample lasts one period: {armed:?}"
+        );
+    }
+}
