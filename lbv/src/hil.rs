@@ -677,10 +677,7 @@ fn target_dir(workspace: &Path) -> PathBuf {
 pub fn main(args: Args) -> ExitCode {
     let options = match Options::try_from(args) {
         Ok(options) => options,
-        Err(message) => {
-            let mut command = <Args as clap::CommandFactory>::command().bin_name("lbv hil");
-            command.error(clap::error::ErrorKind::ArgumentConflict, message).exit();
-        }
+        Err(message) => crate::refuse::<Args>("lbv hil", message),
     };
     let mut log = match options.log.as_ref().map(File::create).transpose() {
         Ok(log) => log,
@@ -756,14 +753,13 @@ pub fn main(args: Args) -> ExitCode {
         let _ = process.wait();
     }
     let (code, summary) = judge(&outcome, ending, options.timeout);
+    // Written, not printed: a reader that went away (`| head`) is no reason to stop before the exit status.
     for step in &outcome.failures {
-        println!("failed: {} {}", step.family.as_deref().unwrap_or(""), step.step);
+        let _ = writeln!(stdout, "failed: {} {}", step.family.as_deref().unwrap_or(""), step.step);
     }
     if outcome.failed > outcome.failures.len() as u64 {
-        println!(
-            "failed: ... and {} more",
-            outcome.failed - outcome.failures.len() as u64
-        );
+        let more = outcome.failed - outcome.failures.len() as u64;
+        let _ = writeln!(stdout, "failed: ... and {more} more");
     }
     if outcome.cut_lines > 0 {
         eprintln!(
@@ -771,7 +767,7 @@ pub fn main(args: Args) -> ExitCode {
             outcome.cut_lines
         );
     }
-    println!("lbv hil: {summary}");
+    let _ = writeln!(stdout, "lbv hil: {summary}");
     ExitCode::from(code)
 }
 

@@ -6,6 +6,15 @@ pub mod decode;
 pub mod hil;
 pub mod lines;
 
+/// Refuse a command line as clap does (the message, the command's usage, exit status 2): for the rules between
+/// options that clap's attributes do not say.
+pub fn refuse<C: clap::CommandFactory>(bin_name: &'static str, message: impl std::fmt::Display) -> ! {
+    C::command()
+        .bin_name(bin_name)
+        .error(clap::error::ErrorKind::ArgumentConflict, message)
+        .exit()
+}
+
 /// Exit statuses shared by every `lbv` command.
 pub mod exit {
     /// The command did its job and all was well: every check passed, every line decoded, the verdict PASS.

@@ -10,8 +10,7 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::error::ErrorKind;
-use clap::{CommandFactory, Parser, Subcommand};
+use clap::{Parser, Subcommand};
 use lbv::{decode, exit, hil};
 
 use bench::plot::Format;
@@ -52,7 +51,7 @@ Exit status: 0 every check passed; 1 a check failed; 2 bad command line, an unkn
 file that cannot be written, a UDP port that cannot be opened.";
 
 /// `lbv bench`: what to run and what to write.
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Parser)]
 #[command(after_help = BENCH_HELP)]
 struct BenchArgs {
     /// Name every scenario, with its default length and what it checks
@@ -148,14 +147,7 @@ fn main() -> ExitCode {
     match Cli::parse().command {
         Command::Bench(args) => {
             if let Err(message) = args.check() {
-                // Said like clap's own errors: the message, bench's usage, exit status 2.
-                let mut command = Cli::command();
-                command.build();
-                let error = match command.find_subcommand_mut("bench") {
-                    Some(bench) => bench.error(ErrorKind::ArgumentConflict, message),
-                    None => command.error(ErrorKind::ArgumentConflict, message),
-                };
-                error.exit();
+                lbv::refuse::<BenchArgs>("lbv bench", message);
             }
             bench_main(&args)
         }
