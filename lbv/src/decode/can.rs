@@ -23,7 +23,8 @@
 //!
 //! Status reports mirror the master's battery monitor: the first 0x629 frame on an interface reports every one
 //! of the 12 bits in words (start-up report), later ones the bits that switched since the previous frame on that
-//! interface (change report); BMS alarms already set in the first 0x628 frame count as raised.
+//! interface (change report); BMS alarms already set in the first 0x628 frame count as raised. The boards of at
+//! most [`MAX_INTERFACES`] interfaces are remembered, so that memory stays bounded on any log.
 //!
 //! Human output, one line per BAT frame (`C` is degrees Celsius; a current or temperature that the frame does
 //! not report, sent as 0, is left out):
