@@ -342,13 +342,20 @@ impl<'a> Plot<'a> {
 
     /// Width and height of the picture.
     fn size(&self) -> (u32, u32) {
-        let strip = if self.samples.is_empty() {
+        let listed = self.events.len().min(MAX_LISTED) as u32;
+        (
+            WIDTH,
+            HEADER_H + BAND_H + self.panels_height() + (listed.div_ceil(2) + 3) * LINE_H,
+        )
+    }
+
+    /// The panels' height, time axis included; none without samples.
+    fn panels_height(&self) -> u32 {
+        if self.samples.is_empty() {
             0
         } else {
             RPM_H + 2 * VALUE_H + BATTERY_H + self.strip_height() + AXIS_H
-        };
-        let listed = self.events.len().min(MAX_LISTED) as u32;
-        (WIDTH, HEADER_H + BAND_H + strip + (listed.div_ceil(2) + 3) * LINE_H)
+        }
     }
 
     fn strip_height(&self) -> u32 {
@@ -403,7 +410,6 @@ impl<'a> Plot<'a> {
         let (header, body) = root.split_vertically(HEADER_H);
         self.header(&header, title)?;
         let (band, body) = body.split_vertically(BAND_H);
-        let mut y = HEADER_H + BAND_H;
         if !self.samples.is_empty() {
             let panels = body.split_by_breakpoints(
                 [0; 0],
@@ -412,7 +418,7 @@ impl<'a> Plot<'a> {
                     RPM_H + VALUE_H,
                     RPM_H + 2 * VALUE_H,
                     RPM_H + 2 * VALUE_H + BATTERY_H,
-                    RPM_H + 2 * VALUE_H + BATTERY_H + self.strip_height() + AXIS_H,
+                    self.panels_height(),
                 ],
             );
             let [rpm, current, temperature, battery, strip, ..] = panels.as_slice() else {
@@ -424,12 +430,11 @@ impl<'a> Plot<'a> {
             self.temperature(temperature)?;
             self.battery(battery)?;
             self.strip(strip)?;
-            y += RPM_H + 2 * VALUE_H + BATTERY_H + self.strip_height() + AXIS_H;
         } else {
             band.draw_text("no samples", &text(20).color(&MUTED), (LEFT as i32, 10))
                 .map_err(error)?;
         }
-        self.footer(root, y)?;
+        self.footer(root, HEADER_H + BAND_H + self.panels_height())?;
         root.present().map_err(error)
     }
 
