@@ -55,8 +55,10 @@ const LOG_FORMAT: &str = "{L} {s}";
 const MAX_TIMEOUT_S: f64 = 86_400.0;
 /// Longest log line read whole; a longer one is cut, written to the log as cut, and never read as a report line.
 pub const MAX_LINE: usize = 8192;
-/// Log lines in flight between the thread that reads them and the one that follows them.
-const IN_FLIGHT: usize = 256;
+/// Batches of log lines in flight between the thread that reads them and the one that follows them.
+const IN_FLIGHT: usize = 16;
+/// A batch holds the lines read without waiting, up to about this many bytes of text.
+const BATCH_BYTES: usize = 64 * 1024;
 
 /// `lbv hil`'s command line.
 #[derive(Debug, Clone, PartialEq, clap::Parser)]
@@ -623,7 +625,7 @@ pub fn describe(event: &Event) -> String {
 /// Follow log lines as they arrive until the verdict, the end of the log or `timeout`: every line goes to `log`
 /// (when given), every report line to `out`.
 pub fn follow(
-    lines: &Receiver<LogLine>,
+    lines: &Receiver<Vec<LogLine>>,
     timeout: Duration,
     mut log: Option<&mut dyn Write>,
     out: &mut dyn Write,
@@ -632,32 +634,46 @@ pub fn follow(
     let mut outcome = Outcome::default();
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
-        let line = match lines.recv_timeout(left) {
-            Ok(line) => line,
+        let batch = match lines.recv_timeout(left) {
+            Ok(batch) => batch,
             Err(RecvTimeoutError::Timeout) => return (outcome, Ending::Timeout),
             Err(RecvTimeoutError::Disconnected) => return (outcome, Ending::LogEnded),
         };
-        if let Some(log) = log.as_mut() {
-            let _ = writeln!(log, "{}", line.text);
-        }
-        if let Some(event) = outcome.feed(&line) {
-            let _ = writeln!(out, "{}", describe(&event));
-            if matches!(event, Event::Verdict(_)) {
-                return (outcome, Ending::Verdict);
+        for line in batch {
+            if let Some(log) = log.as_mut() {
+                let _ = writeln!(log, "{}", line.text);
+            }
+            if let Some(event) = outcome.feed(&line) {
+                let _ = writeln!(out, "{}", describe(&event));
+                if matches!(event, Event::Verdict(_)) {
+                    return (outcome, Ending::Verdict);
+                }
             }
         }
     }
 }
 
-/// Send every line of `source` to a channel from a thread of its own; the channel closes at the end of the
-/// input (or at a read error). The channel is bounded: the reader waits while the follower is behind.
-fn lines_of(source: impl Read + Send + 'static, to: SyncSender<LogLine>) {
+/// Send every line of `source` to a channel from a thread of its own, in batches: a batch goes as soon as the
+/// reader would wait for more input (so a live log is followed line by line) or holds [`BATCH_BYTES`]. The
+/// channel closes at the end of the input (or at a read error); it is bounded, so the reader waits while the
+/// follower is behind.
+fn lines_of(source: impl Read + Send + 'static, to: SyncSender<Vec<LogLine>>) {
     std::thread::spawn(move || {
         let mut lines = Lines::new(BufReader::new(source), MAX_LINE);
+        let (mut batch, mut bytes) = (Vec::new(), 0);
         while let Ok(Some((_, line))) = lines.next_line() {
-            if to.send(line.into()).is_err() {
-                break;
+            let line = LogLine::from(line);
+            bytes += line.text.len();
+            batch.push(line);
+            if lines.get_ref().buffer().is_empty() || bytes >= BATCH_BYTES {
+                if to.send(std::mem::take(&mut batch)).is_err() {
+                    return;
+                }
+                bytes = 0;
             }
+        }
+        if !batch.is_empty() {
+            let _ = to.send(batch);
         }
     });
 }
@@ -979,10 +995,8 @@ mod tests {
     #[test]
     fn following_stops_at_the_verdict_and_keeps_the_whole_log() {
         let (sender, receiver) = mpsc::channel();
-        for line in PASS_LOG.lines() {
-            sender.send(line.into()).unwrap();
-        }
-        sender.send("INFO  something after the verdict".into()).unwrap();
+        sender.send(PASS_LOG.lines().map(LogLine::from).collect()).unwrap();
+        sender.send(vec!["INFO  something after the verdict".into()]).unwrap();
         let (mut log, mut out) = (Vec::new(), Vec::new());
         let (outcome, ending) = follow(&receiver, Duration::from_secs(5), Some(&mut log), &mut out);
         assert_eq!(ending, Ending::Verdict);
@@ -1008,7 +1022,7 @@ mod tests {
     fn following_ends_with_the_log_or_the_timeout() {
         let (sender, receiver) = mpsc::channel();
         for line in CUT_LOG.lines() {
-            sender.send(line.into()).unwrap();
+            sender.send(vec![line.into()]).unwrap();
         }
         drop(sender);
         let (outcome, ending) = follow(&receiver, Duration::from_secs(5), None, &mut Vec::new());
@@ -1016,8 +1030,8 @@ mod tests {
         assert!(outcome.steps() > 0);
 
         // A board that goes quiet: the sender stays open, nothing comes.
-        let (sender, receiver) = mpsc::channel::<LogLine>();
-        sender.send("INFO  ACCEPT start".into()).unwrap();
+        let (sender, receiver) = mpsc::channel::<Vec<LogLine>>();
+        sender.send(vec!["INFO  ACCEPT start".into()]).unwrap();
         let started = Instant::now();
         let (outcome, ending) = follow(&receiver, Duration::from_millis(100), None, &mut Vec::new());
         assert_eq!(ending, Ending::Timeout);

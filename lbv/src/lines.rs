@@ -46,6 +46,11 @@ impl<R: BufRead> Lines<R> {
         }
     }
 
+    /// The input.
+    pub fn get_ref(&self) -> &R {
+        &self.input
+    }
+
     /// How many lines were read.
     pub fn number(&self) -> u64 {
         self.number
