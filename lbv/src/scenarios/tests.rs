@@ -92,3 +92,37 @@ fn scenario_names_are_unique_and_cover_every_fault_on_both_families() {
         }
     }
 }
+
+/// FNV-1a, 64 bits: a hash whose value does not depend on the Rust release.
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |hash, byte| {
+        (hash ^ u64::from(*byte)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// Everything a run produced but its wall-clock figures: the checks, the metrics and the whole trace.
+fn outputs_hash(name: &str, seed: u64, seconds: Option<f64>) -> u64 {
+    let (mut report, bench) = run_with(find(name).unwrap(), seed, seconds, None);
+    report.metrics.remove("real_time_factor");
+    let outputs = serde_json::to_string(&(&report.checks, &report.metrics, &bench.trace)).unwrap();
+    fnv1a(outputs.as_bytes())
+}
+
+/// The fixed-step engine's outputs, bit for bit, as they were before its speed-ups: a change that is only meant to
+/// make the bench faster must leave these alone.
+#[test]
+fn the_fixed_step_engine_gives_the_same_outputs_bit_for_bit() {
+    let hashes = [
+        ("dive", outputs_hash("dive", 1, None)),
+        ("soak", outputs_hash("soak", 3, Some(30.0))),
+        ("acceptance", outputs_hash("acceptance", 1, None)),
+    ];
+    assert_eq!(
+        hashes,
+        [
+            ("dive", 9_844_564_844_389_151_203),
+            ("soak", 16_384_389_492_537_483_070),
+            ("acceptance", 3_271_198_744_697_640_550),
+        ]
+    );
+}
