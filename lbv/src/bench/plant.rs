@@ -198,6 +198,8 @@ pub struct Plant {
     torque: f64,
     /// The hall state at the end of the last step (what the controller last saw), for edge reporting.
     last_hall: HallState,
+    /// The last thermal decay: its exponent `-h / tau` and `exp` of it.
+    decay: Memo<(f64, f64)>,
 }
 
 /// The electrical solution at one instant.
@@ -228,6 +230,7 @@ impl Plant {
             supply_a: 0.0,
             torque: 0.0,
             last_hall: HallState::from_bits(0),
+            decay: Memo((0.0, 1.0)),
         };
         plant.last_hall = plant.hall_state();
         plant
@@ -270,10 +273,11 @@ impl Plant {
             // At least 1 and at most MAX_STEP_S / MAX_SUBSTEP_S (+1 for rounding) sub-steps.
             let substeps = (dt / MAX_SUBSTEP_S).ceil().clamp(1.0, MAX_STEP_S / MAX_SUBSTEP_S + 1.0);
             let h = dt / substeps;
+            let decay = self.thermal_decay(&p, h);
             let mut remaining = substeps as u32;
             while remaining > 0 {
                 remaining -= 1;
-                self.substep(&p, h, drive, pwm_fraction * supply, pwm_fraction, ambient);
+                self.substep(&p, h, decay, drive, pwm_fraction * supply, pwm_fraction, ambient);
             }
         } else {
             self.apply(self.electrical(&p, drive, pwm_fraction * supply, pwm_fraction));
@@ -328,13 +332,37 @@ impl Plant {
     /// Electrical angle, degrees, in [0, 360).
     fn electrical_deg(&self) -> f64 {
         let pole_pairs = f64::from(self.params.pole_pairs.max(1));
-        let deg = (pole_pairs * self.angle_rad).rem_euclid(TAU) * (180.0 / PI);
+        let deg = rem_euclid(pole_pairs * self.angle_rad, TAU) * (180.0 / PI);
         // rem_euclid may round up to exactly 360.
         if deg.is_finite() && deg < 360.0 { deg } else { 0.0 }
     }
 
-    /// One sub-step of `h` seconds (h > 0): electrical solution at the start, then speed, angle and temperature.
-    fn substep(&mut self, p: &Sane, h: f64, drive: BridgeDrive, pwm_v: f64, pwm_fraction: f64, ambient: f64) {
+    /// How much of the winding's distance from its settling temperature is left after `h` seconds:
+    /// `exp(-h / tau)`. The bench steps with one `h` all along, so the last value is kept.
+    fn thermal_decay(&mut self, p: &Sane, h: f64) -> f64 {
+        let exponent = -h / (p.r_th * p.c_th);
+        let (last, decay) = self.decay.0;
+        if exponent.to_bits() == last.to_bits() {
+            return decay;
+        }
+        let decay = exponent.exp();
+        self.decay = Memo((exponent, decay));
+        decay
+    }
+
+    /// One sub-step of `h` seconds (h > 0): electrical solution at the start, then speed, angle and temperature
+    /// (`decay` is [`Plant::thermal_decay`] of `h`).
+    #[allow(clippy::too_many_arguments, reason = "the sub-step's inputs, computed once per step by the caller")]
+    fn substep(
+        &mut self,
+        p: &Sane,
+        h: f64,
+        decay: f64,
+        drive: BridgeDrive,
+        pwm_v: f64,
+        pwm_fraction: f64,
+        ambient: f64,
+    ) {
         let el = self.electrical(p, drive, pwm_v, pwm_fraction);
         self.apply(el);
 
@@ -356,9 +384,8 @@ impl Plant {
         }
 
         // Exact solution of the first-order thermal model with the loss held over the sub-step.
-        let tau = p.r_th * p.c_th;
         let settled = ambient + el.copper_w * p.r_th;
-        let next = settled + (self.winding_c - settled) * (-h / tau).exp();
+        let next = settled + (self.winding_c - settled) * decay;
         self.winding_c = if next.is_finite() {
             next.clamp(ABSOLUTE_ZERO_C, MAX_WINDING_C)
         } else {
@@ -422,7 +449,7 @@ impl Plant {
 /// Phase A's back-EMF for forward rotation at electrical angle `deg` (any value), in units of its plateau: +1 on
 /// [30, 150), -1 on [210, 330), linear between (zero crossings at 0 and 180).
 fn emf_shape(deg: f64) -> f64 {
-    let t = deg.rem_euclid(360.0);
+    let t = rem_euclid(deg, 360.0);
     if t < 30.0 {
         t / 30.0
     } else if t < 150.0 {
@@ -439,9 +466,49 @@ fn emf_shape(deg: f64) -> f64 {
     }
 }
 
+/// `x.rem_euclid(m)` for a finite `m > 0`, bit for bit, without the generic `fmod` it calls (a long loop over the
+/// bits, the plant's largest cost). For `|x| < 256 m`, `|x| - q m` is found by subtracting `m 2^k` wherever it fits,
+/// from the largest `k` down: each subtraction is exact (Sterbenz: `m 2^k <= r < m 2^(k+1)`), so the remainder is
+/// exact, as `fmod`'s is. Anything else (NaN, infinities, far-out values) goes to the library.
+fn rem_euclid(x: f64, m: f64) -> f64 {
+    let a = x.abs();
+    if !(a < 256.0 * m) {
+        return x.rem_euclid(m);
+    }
+    let mut r = a;
+    if a >= m {
+        let mut k = m;
+        while 2.0 * k <= a {
+            k *= 2.0;
+        }
+        loop {
+            if r >= k {
+                r -= k;
+            }
+            if k <= m {
+                break;
+            }
+            k *= 0.5;
+        }
+    }
+    // `fmod` keeps the sign of x; `rem_euclid` then lifts a negative remainder by m.
+    let r = if x.is_sign_negative() { -r } else { r };
+    if r < 0.0 { r + m } else { r }
+}
+
+/// A value kept to save recomputing it: never part of what the plant is, so any two compare equal.
+#[derive(Debug, Clone, Copy)]
+struct Memo<T>(T);
+
+impl<T> PartialEq for Memo<T> {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
 /// A mechanical angle in [0, 2 pi); non-finite reads 0.
 fn wrap_angle(rad: f64) -> f64 {
-    let wrapped = rad.rem_euclid(TAU);
+    let wrapped = rem_euclid(rad, TAU);
     if wrapped.is_finite() && wrapped < TAU {
         wrapped
     } else {
@@ -1009,6 +1076,47 @@ mod tests {
                     assert_finite(&plant, &format!("params {value} dt {dt} V {v}"));
                     plant.hall_state();
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn rem_euclid_is_the_library_s_bit_for_bit() {
+        let mut random = crate::bench::Random::new(5);
+        let mut values: Vec<f64> = vec![
+            0.0,
+            -0.0,
+            1e-300,
+            -1e-300,
+            f64::MIN_POSITIVE,
+            TAU,
+            -TAU,
+            TAU - 1e-15,
+            4.0 * TAU,
+            360.0,
+            -360.0,
+            359.999_999_999_999_94,
+            -1e-17,
+            255.9 * 360.0,
+            256.0 * 360.0,
+            1e300,
+            f64::MAX,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for _ in 0..200_000 {
+            let scale = [1.0, 10.0, 400.0, 3000.0, 1e6][random.below(5) as usize];
+            values.push((random.unit() - 0.3) * scale);
+            values.push(f64::from_bits(random.next_u64()));
+        }
+        for m in [TAU, 360.0, 1.0, 0.3] {
+            for &x in &values {
+                let (ours, library) = (rem_euclid(x, m), x.rem_euclid(m));
+                assert!(
+                    ours.to_bits() == library.to_bits() || (ours.is_nan() && library.is_nan()),
+                    "{x:e} rem {m}: {ours:e} != {library:e}"
+                );
             }
         }
     }
