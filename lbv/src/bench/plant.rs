@@ -472,7 +472,8 @@ fn emf_shape(deg: f64) -> f64 {
 /// exact, as `fmod`'s is. Anything else (NaN, infinities, far-out values) goes to the library.
 fn rem_euclid(x: f64, m: f64) -> f64 {
     let a = x.abs();
-    if !(a < 256.0 * m) {
+    // NaN fails this comparison too.
+    if a.is_nan() || a >= 256.0 * m {
         return x.rem_euclid(m);
     }
     let mut r = a;
