@@ -23,7 +23,12 @@ struct Alarm {
 #[derive(Default)]
 struct State {
     now: u64,
+    /// In the order they were set: timers due at the same time wake in this order.
     alarms: Vec<Alarm>,
+    /// When the earliest of `alarms` is due, so that a step with nothing due costs nothing.
+    earliest: Option<u64>,
+    /// The timers a step made due, kept to reuse its allocation.
+    due: Vec<Alarm>,
 }
 
 thread_local! {
@@ -54,6 +59,7 @@ impl embassy_time_driver::Driver for Driver {
                     waker: waker.clone(),
                 }),
             }
+            state.earliest = Some(state.earliest.map_or(at, |earliest| earliest.min(at)));
             false
         });
         if due {
@@ -103,32 +109,32 @@ impl Clock {
 /// Move this thread's clock on by `duration`, waking every timer that falls due, earliest first. Only whoever
 /// holds the [`Clock`] calls this (the executor does, in its runs).
 pub fn advance(duration: Duration) {
-    let mut due = STATE.with(|state| {
+    let due = STATE.with(|state| {
         let mut state = state.borrow_mut();
         state.now = state.now.saturating_add(duration.as_ticks());
-        let now = state.now;
-        let (due, pending): (Vec<Alarm>, Vec<Alarm>) = state.alarms.drain(..).partition(|alarm| alarm.at <= now);
-        state.alarms = pending;
-        due
+        if state.earliest.is_none_or(|earliest| earliest > state.now) {
+            return None;
+        }
+        let state = &mut *state;
+        let (now, mut due) = (state.now, std::mem::take(&mut state.due));
+        // Both keep their order: the due ones for waking, the pending ones for the next time.
+        due.extend(state.alarms.extract_if(.., |alarm| alarm.at <= now));
+        state.earliest = state.alarms.iter().map(|alarm| alarm.at).min();
+        Some(due)
     });
-    // Woken outside the borrow: a waker may schedule again at once.
+    let Some(mut due) = due else { return };
+    // Woken outside the borrow: a waker may schedule again at once. The sort is stable: timers due at the same
+    // time wake in the order they were set.
     due.sort_by_key(|alarm| alarm.at);
-    for alarm in due {
+    for alarm in due.drain(..) {
         alarm.waker.wake();
     }
+    STATE.with(|state| state.borrow_mut().due = due);
 }
 
 /// When the earliest pending timer is due, if any is.
 pub fn next_alarm() -> Option<Instant> {
-    STATE.with(|state| {
-        state
-            .borrow()
-            .alarms
-            .iter()
-            .map(|alarm| alarm.at)
-            .min()
-            .map(Instant::from_ticks)
-    })
+    STATE.with(|state| state.borrow().earliest.map(Instant::from_ticks))
 }
 
 /// For a test that polls its tasks with embassy-futures' `block_on` over a `join` / `select` rather than on an

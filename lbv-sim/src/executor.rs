@@ -37,11 +37,22 @@ impl ReadyQueue {
             .push_back(id);
     }
 
-    fn pop(&self) -> Option<TaskId> {
-        self.0
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-            .pop_front()
+    /// Move everything queued to the end of `batch`, keeping the order (one lock for the lot).
+    fn take_into(&self, batch: &mut VecDeque<TaskId>) {
+        let mut queue = self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if batch.is_empty() {
+            core::mem::swap(&mut *queue, batch);
+        } else {
+            batch.extend(queue.drain(..));
+        }
+    }
+
+    /// Put `ids` back in front of what is queued, in their order.
+    fn put_back(&self, ids: &mut VecDeque<TaskId>) {
+        let mut queue = self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        while let Some(id) = ids.pop_back() {
+            queue.push_front(id);
+        }
     }
 }
 
@@ -69,6 +80,8 @@ struct Slot<'a> {
     task: Option<Task<'a>>,
     generation: u32,
     waker: Arc<TaskWaker>,
+    /// `waker` as a [`Waker`], made once: polls borrow it.
+    handle: Waker,
 }
 
 /// Polls woken tasks; see the module documentation.
@@ -76,6 +89,8 @@ pub struct Executor<'a> {
     slots: Vec<Slot<'a>>,
     free: Vec<usize>,
     ready: Arc<ReadyQueue>,
+    /// The woken tasks being polled, taken from `ready` a batch at a time (kept for its allocation).
+    batch: VecDeque<TaskId>,
     polls: u64,
     busy_runs: u32,
 }
@@ -106,6 +121,7 @@ impl<'a> Executor<'a> {
             slots: Vec::new(),
             free: Vec::new(),
             ready: Arc::default(),
+            batch: VecDeque::new(),
             polls: 0,
             busy_runs: 0,
         }
@@ -124,6 +140,7 @@ impl<'a> Executor<'a> {
         let slot = Slot {
             task: Some(Box::pin(task)),
             generation,
+            handle: Waker::from(Arc::clone(&waker)),
             waker,
         };
         match self.slots.get_mut(index) {
@@ -154,29 +171,37 @@ impl<'a> Executor<'a> {
     /// Poll woken tasks until none is left woken. Returns false if tasks were still waking one another after
     /// [`MAX_POLLS_PER_RUN`] polls (a busy loop in a task); the next run goes on from there.
     pub fn run_until_idle(&mut self) -> bool {
-        for _ in 0..MAX_POLLS_PER_RUN {
-            let Some(id) = self.ready.pop() else {
+        let mut budget = MAX_POLLS_PER_RUN;
+        loop {
+            self.ready.take_into(&mut self.batch);
+            if self.batch.is_empty() {
                 return true;
-            };
-            let Some(slot) = self.slots.get_mut(id.index) else {
-                continue;
-            };
-            if slot.generation != id.generation {
-                continue;
             }
-            // Cleared before the poll: a wake during the poll queues the task again.
-            slot.waker.queued.store(false, Ordering::Relaxed);
-            let Some(task) = slot.task.as_mut() else {
-                continue;
-            };
-            self.polls += 1;
-            let waker = Waker::from(Arc::clone(&slot.waker));
-            if task.as_mut().poll(&mut Context::from_waker(&waker)).is_ready() {
-                Self::retire(slot, &mut self.free, id.index);
+            while let Some(id) = self.batch.pop_front() {
+                if budget == 0 {
+                    self.batch.push_front(id);
+                    self.ready.put_back(&mut self.batch);
+                    self.busy_runs += 1;
+                    return false;
+                }
+                budget -= 1;
+                let Some(slot) = self.slots.get_mut(id.index) else {
+                    continue;
+                };
+                if slot.generation != id.generation {
+                    continue;
+                }
+                // Cleared before the poll: a wake during the poll queues the task again.
+                slot.waker.queued.store(false, Ordering::Relaxed);
+                let Some(task) = slot.task.as_mut() else {
+                    continue;
+                };
+                self.polls += 1;
+                if task.as_mut().poll(&mut Context::from_waker(&slot.handle)).is_ready() {
+                    Self::retire(slot, &mut self.free, id.index);
+                }
             }
         }
-        self.busy_runs += 1;
-        false
     }
 
     /// Run the woken tasks, then move the clock on in steps of `step` (the last one shorter if need be) until
