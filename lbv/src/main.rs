@@ -13,6 +13,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use lbv::{decode, exit, hil};
 
+use bench::Engine;
 use bench::plot::Format;
 use bench::trace::Sample;
 use scenarios::{Report, SCENARIOS, Scenario};
@@ -79,6 +80,10 @@ struct BenchArgs {
     /// No live view (with --udp: no status lines)
     #[arg(long)]
     quiet: bool,
+    /// Move time in fixed 50 us steps, every motor stepped every time (the reference the default event-driven
+    /// engine is held against; several times slower)
+    #[arg(long)]
+    exact: bool,
     /// Run the dive vehicle in real time with its MAVLink console on UDP (see below)
     #[arg(long, conflicts_with_all = ["all", "json", "plot"])]
     udp: bool,
@@ -120,6 +125,11 @@ fn plot_file(text: &str) -> Result<(PathBuf, Format), String> {
 }
 
 impl BenchArgs {
+    /// The engine asked for.
+    fn engine(&self) -> Engine {
+        if self.exact { Engine::Exact } else { Engine::Events }
+    }
+
     /// The rules between options that clap's attributes do not say.
     fn check(&self) -> Result<(), String> {
         if !self.udp {
@@ -183,7 +193,13 @@ fn bench_main(options: &BenchArgs) -> ExitCode {
     let live = !options.quiet && !options.all && std::io::stdout().is_terminal();
     let mut reports = Vec::new();
     for scenario in chosen {
-        let (report, bench) = scenarios::run_with(scenario, options.seed, options.duration, live.then(live_view));
+        let (report, bench) = scenarios::run_with(
+            scenario,
+            options.seed,
+            options.duration,
+            live.then(live_view),
+            options.engine(),
+        );
         summarise(&report);
         if let Some((file, format)) = &options.plot {
             let title = format!("lbv bench: {} (seed {})", report.scenario, report.seed);
@@ -252,7 +268,7 @@ fn udp(options: &BenchArgs) -> ExitCode {
             None => "until interrupted (Ctrl-C)".into(),
         }
     );
-    let mut bench = bench::Bench::new(&config);
+    let mut bench = bench::Bench::new(&config, options.engine());
     let duration = options
         .duration
         .map(|seconds| embassy_time::Duration::from_micros((seconds * 1e6) as u64));

@@ -134,6 +134,13 @@ impl GroundStation {
         out
     }
 
+    /// When [`GroundStation::periodic`] next has something to send (the event engine wakes for it).
+    pub fn next_due(&self) -> Option<Instant> {
+        let sticks = self.sticks.is_some().then_some(self.next_stick);
+        self.connected
+            .then(|| sticks.map_or(self.next_heartbeat, |at| at.min(self.next_heartbeat)))
+    }
+
     /// Read what the master sent.
     pub fn receive(&mut self, now: Instant, mut bytes: &[u8]) {
         while !bytes.is_empty() {

@@ -2,9 +2,14 @@
 //! configurations: the LBV300-6 table, the bus speed and timeouts, the watchdog and task timings) and a battery
 //! board, wired by lbv-sim's buses, with a plant model behind every thruster, all on one virtual clock.
 //!
-//! Each step of [`STEP`] of virtual time: the firmware tasks that were woken run until none is ready, then the
-//! motors, the battery and the ground station move by one step, then the clock advances. The same seed gives the
-//! same run, bit for bit.
+//! Two engines move time ([`Engine`]); the same seed gives the same run on each, bit for bit:
+//! - the event engine (the default) goes from one event to the next: the next timer of any task, the next hall edge
+//!   a plant predicts, the next step of a current limiter that acts, a watchdog's deadline, the battery's next
+//!   frame, the ground station's next message, the next sample. A plant is advanced only when the firmware reads
+//!   it, changes its drive or reaches a moment it asked for; each instant, the woken tasks run until none is ready.
+//! - the fixed-step engine (`--exact`) takes steps of [`STEP`]: the firmware tasks that were woken run until none
+//!   is ready, then the motors, the battery and the ground station move by one step, then the clock advances. It
+//!   is the reference the event engine's fidelity is held against (`scenarios::fidelity`).
 
 pub mod battery;
 pub mod ground;
@@ -24,7 +29,9 @@ use lbv_sim::i2c::{Bus, Route, Timing};
 use lbv_sim::{CanBus, Clock, Executor, Queue};
 use tmc_proto::Family;
 
-use battery::BatteryBoard;
+use std::rc::Rc;
+
+use battery::{BatteryBoard, Rail};
 use ground::GroundStation;
 use master::{MasterBoard, Wiring};
 use thruster::ThrusterBoard;
@@ -36,6 +43,26 @@ pub const STEP: Duration = Duration::from_micros(50);
 pub const SAMPLE_PERIOD: Duration = Duration::from_millis(10);
 /// What the vehicle's electronics draw besides the thrusters, A.
 const HOTEL_LOAD_A: f64 = 0.6;
+
+/// How the bench moves time (see the module documentation).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Engine {
+    /// From one event to the next, each plant advanced when something needs it.
+    #[default]
+    Events,
+    /// In fixed steps of [`STEP`], every plant stepped every time.
+    Exact,
+}
+
+impl Engine {
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Engine::Events => "events",
+            Engine::Exact => "exact",
+        }
+    }
+}
 
 /// What to build.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -122,6 +149,7 @@ pub type ConsoleSink = Box<dyn FnMut(&[u8])>;
 
 /// One vehicle on the bench.
 pub struct Bench {
+    engine: Engine,
     executor: Executor<'static>,
     /// The virtual clock, held while the bench exists: one bench at a time per process.
     clock: Clock,
@@ -143,7 +171,11 @@ pub struct Bench {
     pub random: Random,
     texts_seen: usize,
     next_sample: Instant,
+    /// Steps taken (fixed-step engine) or instants run (event engine).
     steps: u64,
+    /// Event engine: the pack's terminals as the thrusters see them, and when the battery last took their draw.
+    rail: Rc<Rail>,
+    settled: Instant,
     /// Extra ground-station bytes a UDP link or a scenario queued.
     outgoing: Vec<u8>,
     /// Called with every sample as it is recorded (the live view).
@@ -155,13 +187,15 @@ pub struct Bench {
 }
 
 impl Bench {
-    /// Build the vehicle and power it up at virtual time 0. It holds the virtual clock (one per process) until it
-    /// is dropped: a second bench in the same process waits for it.
-    pub fn new(config: &BenchConfig) -> Self {
+    /// Build the vehicle and power it up at virtual time 0, to run on `engine`. It holds its thread's virtual clock
+    /// until it is dropped: one bench at a time per thread.
+    pub fn new(config: &BenchConfig, engine: Engine) -> Self {
         let clock = lbv_sim::clock::take();
         let mut random = Random::new(config.seed);
         let mut executor = Executor::new();
         let (master_config, table) = config.master();
+        let mut battery = BatteryBoard::default();
+        let rail = Rc::new(Rail::new(&battery, table.as_slice().len(), HOTEL_LOAD_A));
         let timing = Timing::new(master_config.bus.frequency_hz, master_config.bus.timeout);
         let buses = [Bus::new(timing), Bus::new(timing), Bus::new(timing)];
         let mut thrusters = Vec::new();
@@ -180,7 +214,8 @@ impl Bench {
             };
             let device = bus.attach_target(slot.family.address(), route);
             let angle = random.unit() * core::f64::consts::TAU;
-            thrusters.push(ThrusterBoard::new(slot.family, bus, device, angle));
+            let lazy = (engine == Engine::Events).then(|| (rail.clone(), thrusters.len()));
+            thrusters.push(ThrusterBoard::new(slot.family, bus, device, angle, lazy));
         }
         let mut can = CanBus::default();
         let wiring = Wiring {
@@ -193,9 +228,9 @@ impl Bench {
         for thruster in &mut thrusters {
             thruster.boot(&mut executor);
         }
-        let mut battery = BatteryBoard::default();
         battery.step(0.0, HOTEL_LOAD_A);
         Self {
+            engine,
             executor,
             clock,
             wiring,
@@ -209,6 +244,8 @@ impl Bench {
             texts_seen: 0,
             next_sample: Instant::from_ticks(0),
             steps: 0,
+            rail,
+            settled: Instant::from_ticks(0),
             outgoing: Vec::new(),
             monitor: None,
             console_sink: None,
@@ -258,19 +295,55 @@ impl Bench {
         self.master.reboot(&self.wiring, &mut self.executor);
     }
 
-    /// Let `duration` of virtual time pass.
+    /// The engine it runs on.
+    pub fn engine(&self) -> Engine {
+        self.engine
+    }
+
+    /// Let `duration` of virtual time pass. The fixed-step engine takes whole steps (rounding `duration` up); on
+    /// the event engine the clock ends exactly `duration` on, with what falls due then left for the next run.
     pub fn run_for(&mut self, duration: Duration) {
-        let steps = duration.as_ticks().div_ceil(STEP.as_ticks());
-        for _ in 0..steps {
-            self.step();
+        match self.engine {
+            Engine::Exact => {
+                let steps = duration.as_ticks().div_ceil(STEP.as_ticks());
+                for _ in 0..steps {
+                    self.step();
+                }
+            }
+            Engine::Events => {
+                let end = self.now() + duration;
+                self.run_events(end, &mut |_| false);
+            }
         }
     }
 
-    /// Steps run so far, runs where tasks kept waking one another (should stay 0), and task polls.
+    /// Run until `done` holds, at most `limit`; returns how long that took, None if it did not happen. `done` is
+    /// asked after every step (fixed-step engine) or every instant at which anything happened (event engine); it
+    /// sees the firmware as it is then, while the plants are brought up to date only on return.
+    pub fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Bench) -> bool) -> Option<Duration> {
+        let start = self.now();
+        let end = start + limit;
+        match self.engine {
+            Engine::Exact => {
+                while self.now() < end {
+                    if done(self) {
+                        return Some(self.now() - start);
+                    }
+                    self.run_for(STEP);
+                }
+                None
+            }
+            Engine::Events => self.run_events(end, &mut done).then(|| self.now() - start),
+        }
+    }
+
+    /// Steps (fixed-step engine) or instants (event engine) run so far, runs where tasks kept waking one another
+    /// (should stay 0), and task polls.
     pub fn counters(&self) -> (u64, u32, u64) {
         (self.steps, self.executor.busy_runs(), self.executor.polls())
     }
 
+    /// Fixed-step engine: one step.
     fn step(&mut self) {
         self.executor.run_until_idle();
         let now = self.clock.now();
@@ -283,9 +356,106 @@ impl Bench {
             drawn += thruster.plant.borrow().supply_current_a();
         }
         self.battery.step(dt, drawn);
+        self.exchange(now);
+        self.steps += 1;
+        self.clock.advance(STEP);
+    }
+
+    /// Event engine: run every instant from now until `end` (the instant at `end` itself is left for the next
+    /// run, as the fixed-step engine leaves it), asking `done` after each; returns whether it held, the clock then
+    /// standing at that instant. The plants and the battery are up to date on return.
+    fn run_events(&mut self, end: Instant, done: &mut dyn FnMut(&Bench) -> bool) -> bool {
+        // What the caller changed (a fault in a plant, a power cut) is looked at before anything runs.
+        for thruster in &self.thrusters {
+            thruster.disturbed();
+            thruster.plan(self.now());
+        }
+        let mut held = false;
+        loop {
+            let now = self.now();
+            if now >= end {
+                break;
+            }
+            self.steps += 1;
+            loop {
+                self.executor.run_until_idle();
+                for thruster in &self.thrusters {
+                    thruster.watch(now);
+                }
+                if !self.exchange(now) {
+                    break;
+                }
+            }
+            for thruster in &self.thrusters {
+                thruster.plan(now);
+            }
+            if done(self) {
+                held = true;
+                break;
+            }
+            let next = self
+                .next_event()
+                .map_or(end, |next| next.min(end))
+                .max(now + Duration::from_ticks(1));
+            self.clock.advance(next - now);
+            for thruster in &self.thrusters {
+                thruster.wake(next);
+            }
+        }
+        self.settle();
+        held
+    }
+
+    /// Event engine: the earliest moment anything on the bench is due.
+    fn next_event(&self) -> Option<Instant> {
+        let mut next = [
+            lbv_sim::clock::next_alarm(),
+            Some(self.battery.next_frame()),
+            Some(self.next_sample),
+            if self.console_sink.is_none() {
+                self.ground.next_due()
+            } else {
+                None
+            },
+        ]
+        .into_iter()
+        .flatten()
+        .min();
+        for thruster in &self.thrusters {
+            if let Some(at) = thruster.next_event() {
+                next = Some(next.map_or(at, |next| next.min(at)));
+            }
+        }
+        next
+    }
+
+    /// Event engine: bring every plant up to now and let the battery take what they drew. Nothing on the
+    /// fixed-step engine, where both are always up to date.
+    fn settle(&mut self) {
+        if self.engine != Engine::Events {
+            return;
+        }
+        let now = self.now();
+        for thruster in &self.thrusters {
+            thruster.catch_up(now);
+            thruster.plan(now);
+        }
+        self.battery
+            .settle((now - self.settled).as_micros() as f64 / 1e6, &self.rail);
+        self.settled = now;
+    }
+
+    /// What passes at `now` between the tasks and the bench: the battery's frames, the console both ways, the
+    /// trace's sample. Returns whether it handed the tasks anything (which may wake them).
+    fn exchange(&mut self, now: Instant) -> bool {
+        if self.engine == Engine::Events && (now >= self.battery.next_frame() || now >= self.next_sample) {
+            self.settle();
+        }
+        let mut handed = false;
         let frames = self.battery.frames(now);
         if !frames.is_empty() {
             self.can.send(&frames);
+            handed = true;
         }
 
         let mut outgoing = core::mem::take(&mut self.outgoing);
@@ -294,6 +464,7 @@ impl Bench {
         }
         if !outgoing.is_empty() && self.ground.connected {
             self.wiring.console_in.send(outgoing);
+            handed = true;
         }
         let received = self.wiring.console_out.take();
         if let Some(sink) = self.console_sink.as_mut() {
@@ -319,8 +490,7 @@ impl Bench {
             }
             self.trace.samples.push(sample);
         }
-        self.steps += 1;
-        self.clock.advance(STEP);
+        handed
     }
 
     /// Every thruster and the battery now.

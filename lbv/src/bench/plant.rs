@@ -155,7 +155,7 @@ impl MotorParams {
 }
 
 /// [`MotorParams`] checked for use.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 struct Sane {
     resistance: f64,
     ke: f64,
@@ -174,8 +174,10 @@ fn finite_clamp(x: f64, min: f64, max: f64, fallback: f64) -> f64 {
 /// The motor, propeller, winding temperature and water sensor of one thruster, with fault injection.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plant {
-    /// Motor constants; may be changed between steps.
-    pub params: MotorParams,
+    /// Motor constants.
+    params: MotorParams,
+    /// `params` as used.
+    sane: Sane,
     /// Resistance between the water-sensor electrodes, ohms ([`DRY_WATER_OHMS`] at first). No dynamics.
     pub water_ohms: u32,
     /// Water (ambient) temperature, deg C ([`DEFAULT_AMBIENT_C`] at first).
@@ -200,10 +202,13 @@ pub struct Plant {
     last_hall: HallState,
     /// The last thermal decay: its exponent `-h / tau` and `exp` of it.
     decay: Memo<(f64, f64)>,
+    /// The electrical solution at the present state for this drive and duty, while nothing has moved since
+    /// [`Plant::evaluate`] found it: the next [`Plant::advance`] starts from it.
+    evaluated: Memo<Option<(BridgeDrive, Duty, Electrical)>>,
 }
 
 /// The electrical solution at one instant.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 struct Electrical {
     currents: [f64; 3],
     supply_a: f64,
@@ -218,6 +223,7 @@ impl Plant {
     /// A plant at rest, at angle 0, winding and water at 15 C, dry, no fault.
     pub fn new(params: MotorParams) -> Self {
         let mut plant = Plant {
+            sane: params.sane(),
             params,
             water_ohms: DRY_WATER_OHMS,
             ambient_c: DEFAULT_AMBIENT_C,
@@ -231,6 +237,7 @@ impl Plant {
             torque: 0.0,
             last_hall: HallState::from_bits(0),
             decay: Memo((0.0, 1.0)),
+            evaluated: Memo(None),
         };
         plant.last_hall = plant.hall_state();
         plant
@@ -252,7 +259,28 @@ impl Plant {
     /// in equal sub-steps with the drive held (so a long step may run past commutation points, as a real motor
     /// would under a frozen drive).
     pub fn step(&mut self, dt_s: f64, drive: BridgeDrive, duty: Duty, supply_v: f64) -> bool {
-        let p = self.params.sane();
+        self.step_within(dt_s, MAX_SUBSTEP_S, drive, duty, supply_v)
+    }
+
+    /// [`Plant::step`] with sub-steps of at most `max_substep_s` instead of [`MAX_SUBSTEP_S`] (the event engine
+    /// takes whole stretches between commutations as one sub-step: `max_substep_s` = `dt_s`). At most
+    /// [`MAX_STEP_S`] / `max_substep_s` + 1 sub-steps are taken; a non-positive or non-finite `max_substep_s`
+    /// reads [`MAX_SUBSTEP_S`].
+    pub fn step_within(
+        &mut self,
+        dt_s: f64,
+        max_substep_s: f64,
+        drive: BridgeDrive,
+        duty: Duty,
+        supply_v: f64,
+    ) -> bool {
+        let max_substep = if max_substep_s.is_finite() && max_substep_s > 0.0 {
+            max_substep_s
+        } else {
+            MAX_SUBSTEP_S
+        };
+        let p = self.sane;
+        self.evaluated = Memo(None);
         let supply = if supply_v.is_nan() {
             0.0
         } else {
@@ -270,8 +298,8 @@ impl Plant {
             0.0
         };
         if dt > 0.0 {
-            // At least 1 and at most MAX_STEP_S / MAX_SUBSTEP_S (+1 for rounding) sub-steps.
-            let substeps = (dt / MAX_SUBSTEP_S).ceil().clamp(1.0, MAX_STEP_S / MAX_SUBSTEP_S + 1.0);
+            // At least 1 and at most MAX_STEP_S / max_substep (+1 for rounding) sub-steps.
+            let substeps = (dt / max_substep).ceil().clamp(1.0, MAX_STEP_S / max_substep + 1.0);
             let h = dt / substeps;
             let decay = self.thermal_decay(&p, h);
             let mut remaining = substeps as u32;
@@ -283,10 +311,109 @@ impl Plant {
             self.apply(self.electrical(&p, drive, pwm_fraction * supply, pwm_fraction));
         }
 
+        self.halls_changed()
+    }
+
+    /// Whether the hall state differs from the one last reported, which it becomes.
+    fn halls_changed(&mut self) -> bool {
         let hall = self.hall_state();
         let changed = hall != self.last_hall;
         self.last_hall = hall;
         changed
+    }
+
+    /// The event engine's look at the plant: the currents, torque and supply current at the present state with
+    /// `drive` applied at `duty` on `supply_v`, as a zero [`Plant::step`] finds them; the next
+    /// [`Plant::advance`] with the same drive and duty starts from this solution. Returns whether the halls
+    /// changed without the rotor moving (a hall fault set or cleared).
+    pub fn evaluate(&mut self, drive: BridgeDrive, duty: Duty, supply_v: f64) -> bool {
+        if self.blocked {
+            self.omega = 0.0;
+        }
+        let el = self.solve(drive, duty, supply_v);
+        self.apply(el);
+        self.evaluated = Memo(Some((drive, duty, el)));
+        self.halls_changed()
+    }
+
+    /// The event engine's step: advance by `h_s` seconds in one sub-step (at most [`MAX_STEP_S`]; a non-finite or
+    /// non-positive one advances nothing), starting from the electrical solution of the last
+    /// [`Plant::evaluate`] if nothing moved since and the drive and duty are the same. The thermal decay comes
+    /// from a short series (exact to the last bit for such steps) instead of `exp`. Returns whether the halls
+    /// changed, as [`Plant::step`] does.
+    pub fn advance(&mut self, h_s: f64, drive: BridgeDrive, duty: Duty, supply_v: f64) -> bool {
+        let h = if h_s.is_finite() && h_s > 0.0 {
+            h_s.min(MAX_STEP_S)
+        } else {
+            0.0
+        };
+        if h > 0.0 {
+            if self.blocked {
+                self.omega = 0.0;
+            }
+            let el = match self.evaluated.0 {
+                Some((d, u, el)) if d == drive && u == duty => el,
+                _ => self.solve(drive, duty, supply_v),
+            };
+            let p = self.sane;
+            let ambient = finite_clamp(self.ambient_c, ABSOLUTE_ZERO_C, MAX_WINDING_C, DEFAULT_AMBIENT_C);
+            let decay = short_exp(-h / (p.r_th * p.c_th));
+            self.integrate(&p, h, decay, el, ambient);
+            self.evaluated = Memo(None);
+        }
+        self.halls_changed()
+    }
+
+    /// The electrical solution for `drive` at `duty` on `supply_v` at the present state.
+    fn solve(&self, drive: BridgeDrive, duty: Duty, supply_v: f64) -> Electrical {
+        let supply = if supply_v.is_nan() {
+            0.0
+        } else {
+            supply_v.clamp(0.0, MAX_SUPPLY_V)
+        };
+        let pwm_fraction = f64::from(duty.magnitude()) / f64::from(Duty::FULL);
+        self.electrical(&self.sane, drive, pwm_fraction * supply, pwm_fraction)
+    }
+
+    /// Seconds until the halls next change if the drive is held: the rotor reaching the next sector boundary in
+    /// the direction it turns (or, at rest, is pushed), at its present speed and acceleration. None when they will
+    /// not change by themselves: a hall fault holds them, the rotor is held, at rest with no torque, or slowing to
+    /// turn back before the boundary (then the boundary behind it comes next, which a later look finds). Needs the
+    /// currents and torque evaluated at the present state (any [`Plant::step`] leaves them so for a zero step).
+    pub fn time_to_edge(&self) -> Option<f64> {
+        if self.hall_fault.is_some() || self.blocked {
+            return None;
+        }
+        let p = self.sane;
+        let w = self.omega;
+        let acceleration = (self.torque - (p.prop_k * w * w.abs() + p.friction * w)) / p.inertia;
+        let direction = if w != 0.0 { w.signum() } else { acceleration.signum() };
+        if w == 0.0 && acceleration == 0.0 {
+            return None;
+        }
+        // Sector boundaries sit at 30 + 60 k electrical degrees.
+        let into_sector = rem_euclid(self.electrical_deg() - 30.0, 60.0);
+        let to_boundary_deg = if direction > 0.0 {
+            60.0 - into_sector
+        } else {
+            into_sector
+        };
+        let pole_pairs = f64::from(self.params.pole_pairs.max(1));
+        let distance = to_boundary_deg * (PI / 180.0) / pole_pairs;
+        // distance = v t + a t^2 / 2 along the direction of travel.
+        let (v, a) = (w.abs(), acceleration * direction);
+        let discriminant = v * v + 2.0 * a * distance;
+        // Negative (or NaN): it turns back first.
+        if discriminant.is_nan() || discriminant < 0.0 {
+            return None;
+        }
+        let denominator = v + discriminant.sqrt();
+        let t = if denominator > 0.0 {
+            2.0 * distance / denominator
+        } else {
+            0.0
+        };
+        t.is_finite().then_some(t)
     }
 
     /// The hall lines: `hall_fault` if set, else the state at the rotor's electrical angle.
@@ -352,7 +479,10 @@ impl Plant {
 
     /// One sub-step of `h` seconds (h > 0): electrical solution at the start, then speed, angle and temperature
     /// (`decay` is [`Plant::thermal_decay`] of `h`).
-    #[allow(clippy::too_many_arguments, reason = "the sub-step's inputs, computed once per step by the caller")]
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the sub-step's inputs, computed once per step by the caller"
+    )]
     fn substep(
         &mut self,
         p: &Sane,
@@ -364,6 +494,11 @@ impl Plant {
         ambient: f64,
     ) {
         let el = self.electrical(p, drive, pwm_v, pwm_fraction);
+        self.integrate(p, h, decay, el, ambient);
+    }
+
+    /// Speed, angle and temperature over `h` seconds from the electrical solution `el` at the start.
+    fn integrate(&mut self, p: &Sane, h: f64, decay: f64, el: Electrical, ambient: f64) {
         self.apply(el);
 
         if self.blocked {
@@ -472,29 +607,39 @@ fn emf_shape(deg: f64) -> f64 {
 /// exact, as `fmod`'s is. Anything else (NaN, infinities, far-out values) goes to the library.
 fn rem_euclid(x: f64, m: f64) -> f64 {
     let a = x.abs();
-    // NaN fails this comparison too.
+    if a < m {
+        // `fmod` returns x itself.
+        return if x < 0.0 { x + m } else { x };
+    }
     if a.is_nan() || a >= 256.0 * m {
         return x.rem_euclid(m);
     }
-    let mut r = a;
-    if a >= m {
-        let mut k = m;
-        while 2.0 * k <= a {
-            k *= 2.0;
+    let (mut r, mut k) = (a, m);
+    while 2.0 * k <= a {
+        k *= 2.0;
+    }
+    loop {
+        if r >= k {
+            r -= k;
         }
-        loop {
-            if r >= k {
-                r -= k;
-            }
-            if k <= m {
-                break;
-            }
-            k *= 0.5;
+        if k <= m {
+            break;
         }
+        k *= 0.5;
     }
     // `fmod` keeps the sign of x; `rem_euclid` then lifts a negative remainder by m.
     let r = if x.is_sign_negative() { -r } else { r };
     if r < 0.0 { r + m } else { r }
+}
+
+/// `exp(x)` for the event engine's thermal decay: four terms of the series for `|x| <= 1e-3` (a sub-step of up to
+/// 30 ms at the 30 s time constant; the next term is below 1e-17 of the result), the library beyond.
+fn short_exp(x: f64) -> f64 {
+    if x.abs() <= 1e-3 {
+        1.0 + x * (1.0 + x * (0.5 + x * (1.0 / 6.0 + x * (1.0 / 24.0))))
+    } else {
+        x.exp()
+    }
 }
 
 /// A value kept to save recomputing it: never part of what the plant is, so any two compare equal.

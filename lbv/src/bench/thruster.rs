@@ -11,7 +11,7 @@ use std::rc::Rc;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::Instant;
+use embassy_time::{Duration, Instant};
 use lbv_sim::i2c::{Bus, DeviceId};
 use lbv_sim::{Executor, TaskId};
 use thruster_fw::commutation::{BridgeDrive, COAST};
@@ -21,11 +21,25 @@ use thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors, Shared, Watchd
 use thruster_fw::{Config, Duty, Ports};
 use tmc_proto::{Family, MotorKind};
 
+use super::STEP;
+use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
 
 /// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
 /// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
 const CURRENT_LIMIT_A: f64 = 8.0;
+/// The event engine advances a plant on the fixed-step engine's grid while the current limiter acts, and from
+/// this phase current up: the limiter's discrete dynamics are those of the 50 us steps, and a current rising
+/// towards the limit between two looks (at most a millisecond apart) is caught before it passes it.
+const LIMITER_WATCH_A: f64 = 0.75 * CURRENT_LIMIT_A;
+/// The event engine's longest sub-step of a plant between two looks. Between commutations the driven pair sees a
+/// constant back-EMF shape, so the speed follows a smooth first-order law that one implicit step of this length
+/// tracks closely; see the fidelity test for what the bench's figures make of it.
+const EVENT_SUBSTEP: Duration = Duration::from_micros(500);
+/// The longest the event engine goes on with a plant's prediction: a look after this works it out again from the
+/// plant's present speed and acceleration (and a turning plant with no edge ahead, slowing to turn back, is looked
+/// at again after this).
+const EVENT_HORIZON: Duration = Duration::from_millis(1);
 
 /// What is around one controller: the motor and its sensors, the bridge, the watchdog.
 pub struct ThrusterIo {
@@ -43,6 +57,37 @@ pub struct ThrusterIo {
     current_limit: Cell<f64>,
     /// Steps during which the break input limited the current.
     pub limited_steps: Cell<u64>,
+    /// On the event engine: how the plant is advanced between events (None: the fixed-step engine steps it).
+    lazy: Option<Lazy>,
+}
+
+/// The event engine's hold on one plant: the plant is advanced only when something reads it, changes its drive or
+/// reaches a moment the bench was told of (a predicted hall edge, a step of the current limiter).
+struct Lazy {
+    /// The pack's terminals, shared by every thruster.
+    rail: Rc<Rail>,
+    /// This thruster's place on the rail.
+    index: usize,
+    /// Virtual time the plant has been advanced to.
+    synced: Cell<Instant>,
+    /// When the bench must next advance the plant.
+    next: Cell<Option<Instant>>,
+    /// The current limiter acts or may soon: the plant is advanced on the 50 us grid, the limiter at its points.
+    limiting: Cell<bool>,
+    /// Its drive changed, its halls changed or it reached its moment since `next` was worked out: the bench works
+    /// it out again once the instant's tasks are done.
+    dirty: Cell<bool>,
+    /// When `next` was last worked out.
+    planned: Cell<Instant>,
+}
+
+/// The first point of the fixed-step engine's grid after `t`.
+fn next_grid_point(t: Instant) -> Instant {
+    Instant::from_ticks((t.as_ticks() / STEP.as_ticks() + 1) * STEP.as_ticks())
+}
+
+fn seconds(duration: Duration) -> f64 {
+    duration.as_micros() as f64 / 1e6
 }
 
 /// A thruster: its controller's configuration, its place on the bus, what is around it and, while powered, the
@@ -70,8 +115,10 @@ impl Deref for ThrusterBoard {
 }
 
 impl ThrusterBoard {
-    /// A thruster of `family` at `device` on `bus`, its motor at `angle` (mechanical radians); not powered yet.
-    pub fn new(family: Family, bus: &Bus, device: DeviceId, angle: f64) -> Self {
+    /// A thruster of `family` at `device` on `bus`, its motor at `angle` (mechanical radians); not powered yet. On
+    /// the event engine `rail` is the pack's terminals and `index` its place there; without, the fixed-step engine
+    /// steps the plant.
+    pub fn new(family: Family, bus: &Bus, device: DeviceId, angle: f64, rail: Option<(Rc<Rail>, usize)>) -> Self {
         Self {
             config: Config::reference(family, MotorKind::Brushless),
             io: Rc::new(ThrusterIo {
@@ -82,6 +129,15 @@ impl ThrusterBoard {
                 watchdog_bites: Cell::new(0),
                 current_limit: Cell::new(1.0),
                 limited_steps: Cell::new(0),
+                lazy: rail.map(|(rail, index)| Lazy {
+                    rail,
+                    index,
+                    synced: Cell::new(Instant::from_ticks(0)),
+                    next: Cell::new(None),
+                    limiting: Cell::new(false),
+                    dirty: Cell::new(true),
+                    planned: Cell::new(Instant::from_ticks(0)),
+                }),
             }),
             bus: bus.clone(),
             device,
@@ -130,7 +186,9 @@ impl ThrusterBoard {
             executor.remove(task);
         }
         self.bus.set_powered(self.device, false);
+        self.io.catch_up(Instant::now());
         self.io.drive.set((COAST, Duty::ZERO));
+        self.io.disturbed();
         self.shared = Rc::new(Shared::new());
     }
 
@@ -149,14 +207,32 @@ impl ThrusterBoard {
         self.bus.target_resets(self.device)
     }
 
-    /// Advance the motor by `dt` on `supply_v` at `now`, raising a hall edge when the halls change; keep the
-    /// watchdog's count.
+    /// Fixed-step engine: advance the motor by `dt` on `supply_v` at `now`, raising a hall edge when the halls
+    /// change; keep the watchdog's count.
     pub fn step(&self, now: Instant, dt: f64, supply_v: f64) {
         self.io.step(dt, supply_v);
+        self.watch(now);
+    }
+
+    /// Count a watchdog reset if the controller has gone unfed past its timeout at `now`.
+    pub fn watch(&self, now: Instant) {
         let io = &self.io;
         if self.powered() && now - io.last_feed.get() > self.config.watchdog.timeout {
             io.watchdog_bites.set(io.watchdog_bites.get() + 1);
             io.last_feed.set(now);
+        }
+    }
+
+    /// Event engine: when the bench must next look at this thruster (its plant's next moment, its watchdog's
+    /// deadline).
+    pub fn next_event(&self) -> Option<Instant> {
+        let plant = self.io.lazy.as_ref().and_then(|lazy| lazy.next.get());
+        let watchdog = self
+            .powered()
+            .then(|| self.io.last_feed.get() + self.config.watchdog.timeout + Duration::from_ticks(1));
+        match (plant, watchdog) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         }
     }
 }
@@ -167,23 +243,140 @@ impl ThrusterIo {
         self.drive.get()
     }
 
-    fn step(&self, dt: f64, supply_v: f64) {
-        let (drive, duty) = self.drive.get();
-        let passed = Duty::new_saturating((f64::from(duty.value()) * self.current_limit.get()).round() as i32);
-        let mut plant = self.plant.borrow_mut();
-        if plant.step(dt, drive, passed, supply_v) {
-            self.hall_edge.signal(());
-        }
-        // The hardware break acts within the PWM period; on average it scales the duty to hold the limit.
-        let current = plant.phase_current_a();
-        drop(plant);
+    /// The duty the bridge passes: the commanded one, scaled by the break input while it limits the current.
+    fn passed(&self, duty: Duty) -> Duty {
         let scale = self.current_limit.get();
+        if scale == 1.0 {
+            return duty;
+        }
+        Duty::new_saturating(round(f64::from(duty.value()) * scale))
+    }
+
+    /// One step of the break input's limiting, after a step at `current`: on average it scales the duty to hold
+    /// the limit.
+    fn limit(&self, current: f64) {
+        let scale = self.current_limit.get();
+
         if current > CURRENT_LIMIT_A {
             self.current_limit.set((scale * CURRENT_LIMIT_A / current).max(0.0));
             self.limited_steps.set(self.limited_steps.get() + 1);
         } else {
             self.current_limit.set((scale * 1.05).min(1.0));
         }
+    }
+
+    fn step(&self, dt: f64, supply_v: f64) {
+        let (drive, duty) = self.drive.get();
+        let passed = self.passed(duty);
+        let mut plant = self.plant.borrow_mut();
+        if plant.step(dt, drive, passed, supply_v) {
+            self.hall_edge.signal(());
+        }
+        // The hardware break acts within the PWM period.
+        let current = plant.phase_current_a();
+        drop(plant);
+        self.limit(current);
+    }
+
+    /// Event engine: advance the plant from where it was left to `now` under the drive held since, in sub-steps of
+    /// at most [`EVENT_SUBSTEP`] (on the 50 us grid while the limiter acts), each on the pack's voltage at its
+    /// start; raise a hall edge where the halls changed. Nothing on the fixed-step engine, which steps the plant
+    /// itself.
+    pub fn catch_up(&self, now: Instant) {
+        let Some(lazy) = &self.lazy else { return };
+        let mut t = lazy.synced.get();
+        if t >= now {
+            return;
+        }
+        let mut plant = self.plant.borrow_mut();
+        let grid = lazy.limiting.get();
+        let (drive, duty) = self.drive.get();
+        while t < now {
+            let mut end = now.min(t + EVENT_SUBSTEP);
+            if grid {
+                end = end.min(next_grid_point(t));
+            }
+            let h = seconds(end - t);
+            let passed = self.passed(duty);
+            if plant.advance(h, drive, passed, lazy.rail.voltage()) {
+                self.hall_edge.signal(());
+                lazy.dirty.set(true);
+            }
+            lazy.rail.draw(lazy.index, plant.supply_current_a(), h);
+            if grid && end.as_ticks().is_multiple_of(STEP.as_ticks()) {
+                // A step of the limiter at the end of a step of the grid, on the current the step started with
+                // (as the fixed-step engine's limiter takes it).
+                self.limit(plant.phase_current_a());
+                lazy.dirty.set(true);
+            }
+            t = end;
+        }
+        lazy.synced.set(now);
+        if now - lazy.planned.get() >= EVENT_HORIZON {
+            lazy.dirty.set(true);
+        }
+    }
+
+    /// Event engine: the plant's state was changed from outside (a fault, a power cut): have its next moment
+    /// worked out again.
+    pub fn disturbed(&self) {
+        if let Some(lazy) = &self.lazy {
+            lazy.dirty.set(true);
+        }
+    }
+
+    /// Event engine: if the plant moved or its drive changed, evaluate its currents at `now` for the drive
+    /// applied now (raising a hall edge if the halls changed without moving, as when a fault takes them) and work
+    /// out when the bench must next advance it: at its next hall edge, and on every point of the 50 us grid while
+    /// the current limiter acts or the current nears the limit.
+    pub fn plan(&self, now: Instant) {
+        let Some(lazy) = self.lazy.as_ref().filter(|lazy| lazy.dirty.replace(false)) else {
+            return;
+        };
+        lazy.planned.set(now);
+        let mut plant = self.plant.borrow_mut();
+        let (drive, duty) = self.drive.get();
+        // The pack sees the new current from the sub-step that carries it (as on the fixed-step engine, where the
+        // voltage of a step follows the currents of the one before).
+        if plant.evaluate(drive, self.passed(duty), lazy.rail.voltage()) {
+            self.hall_edge.signal(());
+        }
+        let limiting = self.current_limit.get() < 1.0 || plant.phase_current_a() > LIMITER_WATCH_A;
+        lazy.limiting.set(limiting);
+        let edge = match plant.time_to_edge() {
+            Some(s) => Some(now + Duration::from_micros((s * 1e6).ceil().clamp(1.0, 1e12) as u64)),
+            None if plant.rpm() != 0.0 => Some(now + EVENT_HORIZON),
+            None => None,
+        };
+        let next = match (edge, limiting.then(|| next_grid_point(now))) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        lazy.next.set(next);
+    }
+
+    /// Event engine: the bench reached `now`; advance the plant if this is its moment.
+    pub fn wake(&self, now: Instant) {
+        if let Some(lazy) = &self.lazy
+            && lazy.next.get().is_some_and(|next| next <= now)
+        {
+            self.catch_up(now);
+            lazy.dirty.set(true);
+        }
+    }
+}
+
+/// `x` rounded half away from zero, as `f64::round`, without the library call (x86-64's baseline has no rounding
+/// instruction): the fraction `x - trunc(x)` is exact. Saturates like `as i32`.
+fn round(x: f64) -> i32 {
+    let whole = x as i32;
+    let fraction = x - f64::from(whole);
+    if fraction >= 0.5 {
+        whole.saturating_add(1)
+    } else if fraction <= -0.5 {
+        whole.saturating_sub(1)
+    } else {
+        whole
     }
 }
 
@@ -195,6 +388,7 @@ impl HallSensors for Halls {
     }
 
     fn read(&mut self) -> HallState {
+        self.0.catch_up(Instant::now());
         self.0.plant.borrow().hall_state()
     }
 }
@@ -203,7 +397,10 @@ struct Stage(Rc<ThrusterIo>);
 
 impl Bridge for Stage {
     fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
-        self.0.drive.set((drive, duty));
+        self.0.catch_up(Instant::now());
+        if self.0.drive.replace((drive, duty)) != (drive, duty) {
+            self.0.disturbed();
+        }
     }
 }
 
@@ -215,6 +412,7 @@ struct Adc {
 
 impl Sensors for Adc {
     async fn sample(&mut self) -> RawSample {
+        self.io.catch_up(Instant::now());
         let plant = self.io.plant.borrow();
         let config = &self.config;
         let decicelsius = (plant.winding_c() * 10.0)

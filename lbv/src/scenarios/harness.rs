@@ -7,7 +7,7 @@ use serde_json::{Map, Value, json};
 use tmc_proto::{Family, Faults};
 
 use super::fault::Fault;
-use crate::bench::{Bench, BenchConfig, STEP};
+use crate::bench::{Bench, BenchConfig, Engine, STEP};
 use lbv_master_fw::shared::{LinkHealth, ManualInput};
 
 /// One check of a scenario.
@@ -28,6 +28,8 @@ pub struct Report {
     pub scenario: String,
     /// The seed.
     pub seed: u64,
+    /// The engine that moved time: "events" or "exact".
+    pub engine: &'static str,
     /// Whether every check held.
     pub passed: bool,
     /// Virtual time run, s.
@@ -85,16 +87,10 @@ impl Run {
     }
 
     /// Run until `done` or `limit` seconds; returns the seconds it took, None if it never happened.
-    pub fn run_until(&mut self, limit: f64, mut done: impl FnMut(&Bench) -> bool) -> Option<f64> {
-        let start = self.bench.now();
-        let end = start + Duration::from_micros((limit * 1e6) as u64);
-        while self.bench.now() < end {
-            if done(&self.bench) {
-                return Some((self.bench.now() - start).as_micros() as f64 / 1e6);
-            }
-            self.bench.run_for(STEP);
-        }
-        None
+    pub fn run_until(&mut self, limit: f64, done: impl FnMut(&Bench) -> bool) -> Option<f64> {
+        self.bench
+            .run_until(Duration::from_micros((limit * 1e6) as u64), done)
+            .map(|took| took.as_micros() as f64 / 1e6)
     }
 
     /// Let the thrusters come online, arm, and push the sticks forward.
@@ -218,16 +214,18 @@ pub fn dev_kits(seed: u64) -> BenchConfig {
     }
 }
 
-/// Run a scenario for `seconds` (its default when None), with `monitor` watching every sample, and report.
+/// Run a scenario on `engine` for `seconds` (its default when None), with `monitor` watching every sample, and
+/// report.
 pub fn run_with(
     scenario: &Scenario,
     seed: u64,
     seconds: Option<f64>,
     monitor: Option<crate::bench::Monitor>,
+    engine: Engine,
 ) -> (Report, Bench) {
     let wall = std::time::Instant::now();
     let seconds = seconds.unwrap_or(scenario.seconds).max(0.1);
-    let mut bench = Bench::new(&(scenario.vehicle)(seed));
+    let mut bench = Bench::new(&(scenario.vehicle)(seed), engine);
     bench.monitor = monitor;
     let mut run = Run {
         bench,
@@ -251,6 +249,7 @@ pub fn run_with(
     let report = Report {
         scenario: scenario.name.to_string(),
         seed,
+        engine: run.bench.engine().name(),
         passed,
         sim_seconds: round(sim_seconds, 3),
         wall_seconds: round(wall_seconds, 3),
