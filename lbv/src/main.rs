@@ -9,6 +9,7 @@ use std::io::{IsTerminal, Write};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
 use lbv::{decode, exit, hil};
@@ -38,7 +39,27 @@ enum Command {
     Hil(hil::Args),
 }
 
-/// The longest run --duration asks for: a simulated day (the trace of a run grows with its length).
+/// Set once standard output is gone (a reader that stopped early, as `lbv bench --all | head -1`): the run goes
+/// on to its end, its files and exit status, without the lines nobody reads.
+static STDOUT_GONE: AtomicBool = AtomicBool::new(false);
+
+/// A line on standard output, unless it is gone.
+macro_rules! say {
+    ($($arg:tt)*) => {
+        say(format_args!($($arg)*))
+    };
+}
+
+fn say(line: std::fmt::Arguments<'_>) {
+    if STDOUT_GONE.load(Ordering::Relaxed) {
+        return;
+    }
+    if writeln!(std::io::stdout().lock(), "{line}").is_err() {
+        STDOUT_GONE.store(true, Ordering::Relaxed);
+    }
+}
+
+/// The longest run --duration asks for: a simulated day.
 const MAX_DURATION_S: f64 = 86_400.0;
 
 const BENCH_HELP: &str = "\
@@ -170,7 +191,7 @@ fn main() -> ExitCode {
 fn bench_main(options: &BenchArgs) -> ExitCode {
     if options.list {
         for scenario in SCENARIOS {
-            println!("{:<22} {:>5.0} s  {}", scenario.name, scenario.seconds, scenario.about);
+            say!("{:<22} {:>5.0} s  {}", scenario.name, scenario.seconds, scenario.about);
         }
         return ExitCode::SUCCESS;
     }
@@ -190,25 +211,37 @@ fn bench_main(options: &BenchArgs) -> ExitCode {
         }
     };
 
-    let live = !options.quiet && !options.all && std::io::stdout().is_terminal();
+    let run = scenarios::Options {
+        seconds: options.duration,
+        samples: options.plot.is_some(),
+        ..scenarios::Options::new(options.seed, options.engine())
+    };
     let mut reports = Vec::new();
-    for scenario in chosen {
-        let (report, bench) = scenarios::run_with(
-            scenario,
-            options.seed,
-            options.duration,
-            live.then(live_view),
-            options.engine(),
-        );
+    let mut trouble = false;
+    let mut each = |(report, trace): (Report, bench::trace::Trace)| {
         summarise(&report);
-        if let Some((file, format)) = &options.plot {
+        if let Some((file, format)) = &options.plot
+            && !trouble
+        {
             let title = format!("lbv bench: {} (seed {})", report.scenario, report.seed);
-            if let Err(error) = bench::plot::write(&bench.trace, &title, file, *format) {
+            if let Err(error) = bench::plot::write(&trace, &title, file, *format) {
                 eprintln!("lbv: cannot write {}: {error}", file.display());
-                return ExitCode::from(exit::TROUBLE);
+                trouble = true;
             }
         }
         reports.push(report);
+    };
+    if options.all {
+        let workers = std::thread::available_parallelism().map_or(1, usize::from);
+        scenarios::run_all(&chosen, &run, workers, &mut each);
+    } else {
+        let live = !options.quiet && std::io::stdout().is_terminal();
+        for scenario in chosen {
+            each(scenarios::run_guarded(scenario, &run, live.then(live_view)));
+        }
+    }
+    if trouble {
+        return ExitCode::from(exit::TROUBLE);
     }
     if let Some(file) = &options.json {
         let json = if options.all {
@@ -226,7 +259,7 @@ fn bench_main(options: &BenchArgs) -> ExitCode {
     }
     let failed = reports.iter().filter(|report| !report.passed).count();
     if reports.len() > 1 {
-        println!(
+        say!(
             "\n{} scenarios: {} passed, {} failed",
             reports.len(),
             reports.len() - failed,
@@ -258,7 +291,7 @@ fn udp(options: &BenchArgs) -> ExitCode {
     let listening = link.local_addr().unwrap_or(listen);
     let config = (dive.vehicle)(options.seed);
     let vehicle: Vec<String> = config.families.iter().map(|family| format!("{family:?}")).collect();
-    println!(
+    say!(
         "lbv bench: MAVLink console on UDP, sending to {send}, listening on {listening}; vehicle {} (seed {}); \
          real time, {}",
         vehicle.join(" "),
@@ -281,12 +314,14 @@ fn udp(options: &BenchArgs) -> ExitCode {
     };
     let (simulated, wall) = (bench.seconds(), clock.elapsed().as_secs_f64());
     let counters = link.counters();
-    println!(
+    say!(
         "lbv bench: {simulated:.1} s simulated in {wall:.1} s; datagrams in {}, out {}, errors {}",
-        counters.datagrams_in, counters.datagrams_out, counters.errors
+        counters.datagrams_in,
+        counters.datagrams_out,
+        counters.errors
     );
     if !clock.lost().is_zero() {
-        println!(
+        say!(
             "lbv bench: could not keep pace with the wall clock (machine too slow or busy): virtual time fell \
              {:.2} s behind; it ran as fast as it could",
             clock.lost().as_secs_f64()
@@ -343,7 +378,7 @@ fn fault_names(bits: u8) -> String {
 }
 
 fn summarise(report: &Report) {
-    println!(
+    say!(
         "{} {} (seed {}): {:.1} s simulated in {:.2} s",
         if report.passed { "PASS" } else { "FAIL" },
         report.scenario,
@@ -352,7 +387,7 @@ fn summarise(report: &Report) {
         report.wall_seconds
     );
     for check in &report.checks {
-        println!(
+        say!(
             "  {} {:<48} {}",
             if check.passed { "ok  " } else { "FAIL" },
             check.name,
@@ -366,7 +401,7 @@ fn summarise(report: &Report) {
         "console_to_wire_latency_ms",
     ] {
         if let Some(value) = report.metrics.get(key) {
-            println!("  {key}: {value}");
+            say!("  {key}: {value}");
         }
     }
 }

@@ -35,7 +35,7 @@ use battery::{BatteryBoard, Rail};
 use ground::GroundStation;
 use master::{MasterBoard, Wiring};
 use thruster::ThrusterBoard;
-use trace::{Event, Sample, ThrusterSample, Trace};
+use trace::{Event, Recorder, Sample, ThrusterSample, Trace};
 
 /// The plant and bus step.
 pub const STEP: Duration = Duration::from_micros(50);
@@ -167,6 +167,8 @@ pub struct Bench {
     pub ground: GroundStation,
     /// What the run recorded.
     pub trace: Trace,
+    /// What goes into the trace: samples only when asked for ([`Bench::keep_samples`]), within bounds.
+    recorder: Recorder,
     /// Random choices of the scenario.
     pub random: Random,
     texts_seen: usize,
@@ -240,6 +242,7 @@ impl Bench {
             battery,
             ground: GroundStation::default(),
             trace: Trace::default(),
+            recorder: Recorder::new(true),
             random,
             texts_seen: 0,
             next_sample: Instant::from_ticks(0),
@@ -250,6 +253,19 @@ impl Bench {
             monitor: None,
             console_sink: None,
         }
+    }
+
+    /// Keep the samples in the trace (for a plot), or only the events. The run is the same either way.
+    pub fn keep_samples(&mut self, keep: bool) {
+        self.recorder = Recorder::new(keep);
+    }
+
+    /// Forget what the ground station has read of the console so far (its STATUSTEXTs and COMMAND_ACKs; the trace
+    /// keeps the texts as events): a long run that does not look back at them stays within bounded memory.
+    pub fn forget_console_texts(&mut self) {
+        self.ground.seen.texts.clear();
+        self.ground.seen.acks.clear();
+        self.texts_seen = 0;
     }
 
     /// Virtual time now.
@@ -264,8 +280,11 @@ impl Bench {
 
     /// Note something in the trace (an injected fault, a scenario step).
     pub fn note(&mut self, text: impl Into<String>) {
-        let t = self.seconds();
-        self.trace.events.push(Event { t, text: text.into() });
+        let event = Event {
+            t: self.seconds(),
+            text: text.into(),
+        };
+        self.recorder.event(&mut self.trace, event);
     }
 
     /// Send bytes to the master's console as the ground station.
@@ -293,11 +312,6 @@ impl Bench {
     /// Reset the master: it boots again with fresh state; the thrusters, the buses and the links stay as they are.
     pub fn reboot_master(&mut self) {
         self.master.reboot(&self.wiring, &mut self.executor);
-    }
-
-    /// The engine it runs on.
-    pub fn engine(&self) -> Engine {
-        self.engine
     }
 
     /// Let `duration` of virtual time pass. The fixed-step engine takes whole steps (rounding `duration` up); on
@@ -335,6 +349,11 @@ impl Bench {
             }
             Engine::Events => self.run_events(end, &mut done).then(|| self.now() - start),
         }
+    }
+
+    /// Events the trace did not keep (past its bound).
+    pub fn events_dropped(&self) -> u64 {
+        self.recorder.events_dropped()
     }
 
     /// Steps (fixed-step engine) or instants (event engine) run so far, runs where tasks kept waking one another
@@ -474,10 +493,11 @@ impl Bench {
         } else if !received.is_empty() {
             self.ground.receive(now, &received);
             for (at, text) in self.ground.seen.texts.iter().skip(self.texts_seen) {
-                self.trace.events.push(Event {
+                let event = Event {
                     t: at.as_micros() as f64 / 1e6,
                     text: format!("STATUSTEXT {text}"),
-                });
+                };
+                self.recorder.event(&mut self.trace, event);
             }
             self.texts_seen = self.ground.seen.texts.len();
         }
@@ -488,7 +508,7 @@ impl Bench {
             if let Some(monitor) = self.monitor.as_mut() {
                 monitor(&sample);
             }
-            self.trace.samples.push(sample);
+            self.recorder.sample(&mut self.trace, sample);
         }
         handed
     }

@@ -7,6 +7,7 @@ use serde_json::{Map, Value, json};
 use tmc_proto::{Family, Faults};
 
 use super::fault::Fault;
+use crate::bench::trace::Trace;
 use crate::bench::{Bench, BenchConfig, Engine, STEP};
 use lbv_master_fw::shared::{LinkHealth, ManualInput};
 
@@ -214,18 +215,37 @@ pub fn dev_kits(seed: u64) -> BenchConfig {
     }
 }
 
-/// Run a scenario on `engine` for `seconds` (its default when None), with `monitor` watching every sample, and
-/// report.
-pub fn run_with(
-    scenario: &Scenario,
-    seed: u64,
-    seconds: Option<f64>,
-    monitor: Option<crate::bench::Monitor>,
-    engine: Engine,
-) -> (Report, Bench) {
+/// How to run a scenario.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    /// Seeds the motors' starting positions and the scenario's random choices.
+    pub seed: u64,
+    /// Virtual seconds to run; the scenario's default when None.
+    pub seconds: Option<f64>,
+    /// The engine that moves time.
+    pub engine: Engine,
+    /// Keep the trace's samples (only a plot reads them); the events are kept either way.
+    pub samples: bool,
+}
+
+impl Options {
+    /// The scenario's default length with `seed` on `engine`, samples kept.
+    pub fn new(seed: u64, engine: Engine) -> Self {
+        Self {
+            seed,
+            seconds: None,
+            engine,
+            samples: true,
+        }
+    }
+}
+
+/// Run a scenario as `options` say, with `monitor` watching every sample, and report.
+pub fn run_with(scenario: &Scenario, options: &Options, monitor: Option<crate::bench::Monitor>) -> (Report, Bench) {
     let wall = std::time::Instant::now();
-    let seconds = seconds.unwrap_or(scenario.seconds).max(0.1);
-    let mut bench = Bench::new(&(scenario.vehicle)(seed), engine);
+    let seconds = options.seconds.unwrap_or(scenario.seconds).max(0.1);
+    let mut bench = Bench::new(&(scenario.vehicle)(options.seed), options.engine);
+    bench.keep_samples(options.samples);
     bench.monitor = monitor;
     let mut run = Run {
         bench,
@@ -248,8 +268,8 @@ pub fn run_with(
     let passed = run.checks.iter().all(|check| check.passed);
     let report = Report {
         scenario: scenario.name.to_string(),
-        seed,
-        engine: run.bench.engine().name(),
+        seed: options.seed,
+        engine: options.engine.name(),
         passed,
         sim_seconds: round(sim_seconds, 3),
         wall_seconds: round(wall_seconds, 3),
@@ -257,6 +277,83 @@ pub fn run_with(
         metrics: run.metrics,
     };
     (report, run.bench)
+}
+
+/// What [`run_guarded`] checks of every run.
+const NO_PANIC: &str = "the run ends without a panic";
+
+/// Run a scenario as [`run_with`] does, and check that it ends without a panic: a run that panics (in the bench's
+/// own code, the cores never panic) reports that check failed with the panic's message, instead of ending the
+/// process. Returns the report and the trace.
+pub fn run_guarded(scenario: &Scenario, options: &Options, monitor: Option<crate::bench::Monitor>) -> (Report, Trace) {
+    let ran = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let (mut report, bench) = run_with(scenario, options, monitor);
+        report.checks.push(Check {
+            name: NO_PANIC.into(),
+            passed: true,
+            detail: String::new(),
+        });
+        (report, bench.trace)
+    }));
+    ran.unwrap_or_else(|panic| {
+        let message = panic
+            .downcast_ref::<&str>()
+            .map(|text| text.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "no message".into());
+        let report = Report {
+            scenario: scenario.name.to_string(),
+            seed: options.seed,
+            engine: options.engine.name(),
+            passed: false,
+            sim_seconds: 0.0,
+            wall_seconds: 0.0,
+            checks: vec![Check {
+                name: NO_PANIC.into(),
+                passed: false,
+                detail: message,
+            }],
+            metrics: Map::new(),
+        };
+        (report, Trace::default())
+    })
+}
+
+/// Run every one of `scenarios` as `options` say, up to `workers` at once, each on a thread of its own (each
+/// thread has its own virtual clock, so every run is what it would be alone). `each` gets every report and trace
+/// in the order of `scenarios`, as soon as it and all those before it are done.
+pub fn run_all(
+    scenarios: &[&'static Scenario],
+    options: &Options,
+    workers: usize,
+    mut each: impl FnMut((Report, Trace)),
+) {
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (done, results) = std::sync::mpsc::channel();
+    std::thread::scope(|scope| {
+        for _ in 0..workers.clamp(1, scenarios.len().max(1)) {
+            let (next, done) = (&next, done.clone());
+            scope.spawn(move || {
+                loop {
+                    let index = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(scenario) = scenarios.get(index) else { break };
+                    if done.send((index, run_guarded(scenario, options, None))).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(done);
+        let mut waiting = std::collections::BTreeMap::new();
+        let mut due = 0;
+        for (index, outcome) in results {
+            waiting.insert(index, outcome);
+            while let Some(outcome) = waiting.remove(&due) {
+                each(outcome);
+                due += 1;
+            }
+        }
+    });
 }
 
 /// `value` to `places` decimals.
@@ -275,9 +372,14 @@ fn common_checks(run: &mut Run) {
         .map(|thruster| thruster.watchdog_bites.get())
         .sum();
     run.check(
-        "no task stalled",
-        busy_runs == 0 && bites == 0,
-        format!("watchdog bites {bites}, busy runs {busy_runs}"),
+        "no watchdog bite",
+        bites == 0,
+        format!("{bites} times a controller went unfed past its watchdog's timeout"),
+    );
+    run.check(
+        "no task kept busy",
+        busy_runs == 0,
+        format!("{busy_runs} runs where tasks kept waking one another"),
     );
     let seconds = run.bench.seconds().max(1e-9);
     let bus = run.bench.thruster_bus();
@@ -320,6 +422,10 @@ fn common_checks(run: &mut Run) {
     run.metric("steps", json!(steps));
     run.metric("task_polls", json!(polls));
     run.metric("console_frames_received", json!(run.bench.ground.seen.frames));
+    let dropped = run.bench.events_dropped();
+    if dropped > 0 {
+        run.metric("trace_events_not_kept", json!(dropped));
+    }
 }
 
 /// Drive ahead, then let `inject` act on thruster 1; returns how long the bridge took to coast (None: it kept

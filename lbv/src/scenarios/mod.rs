@@ -15,9 +15,11 @@ pub mod thruster_faults;
 pub mod vehicle;
 
 #[cfg(test)]
+mod fidelity;
+#[cfg(test)]
 mod tests;
 
-pub use harness::{Report, Scenario, run_with};
+pub use harness::{Options, Report, Scenario, run_all, run_guarded};
 
 use acceptance::acceptance;
 use bus::{bad_frames, missing_thruster, reset_mid_transfer, stuck_sda};
@@ -25,6 +27,10 @@ use harness::{dev_kits, lbv300, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{ground_fault, hall, overtemp, stall, water};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
+
+/// `lbv bench`'s default seed, which the tests run every scenario with.
+#[cfg(test)]
+const SEED: u64 = 1;
 
 /// Every scenario, in the order `--list` and `--all` use.
 pub const SCENARIOS: &[Scenario] = &[

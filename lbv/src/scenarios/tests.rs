@@ -3,14 +3,12 @@
 
 use super::*;
 use crate::bench::Engine;
+use harness::run_with;
 
-/// `lbv bench`'s default seed.
-const SEED: u64 = 1;
-
-/// Run scenario `name` for its default duration and fail with every check that did not hold.
-fn passes(name: &str) {
+/// Run scenario `name` as `options` say and fail with every check that did not hold.
+fn passes_with(name: &str, options: &Options) {
     let scenario = find(name).expect("a scenario of that name");
-    let (report, _) = run_with(scenario, SEED, None, None, Engine::default());
+    let (report, _) = run_guarded(scenario, options, None);
     let failed: Vec<String> = report
         .checks
         .iter()
@@ -19,6 +17,24 @@ fn passes(name: &str) {
         .collect();
     assert!(report.passed && failed.is_empty(), "{name} failed: {failed:#?}");
     assert!(!report.checks.is_empty(), "{name} checked nothing");
+}
+
+/// Run scenario `name` for its default duration on the default engine and fail with every check that did not hold.
+fn passes(name: &str) {
+    passes_with(name, &Options::new(SEED, Engine::default()));
+}
+
+/// An hour of random faults and traffic: every order held, no watchdog bite, no panic. `./test.sh` runs it; a day:
+/// `lbv bench --scenario soak --duration 86400`.
+#[test]
+#[ignore = "an hour of virtual time (about half a minute): ./test.sh runs it"]
+fn soak_for_an_hour() {
+    let options = Options {
+        seconds: Some(3600.0),
+        samples: false,
+        ..Options::new(SEED, Engine::default())
+    };
+    passes_with("soak", &options);
 }
 
 macro_rules! scenario_tests {
@@ -64,7 +80,11 @@ scenario_tests! {
 }
 
 fn trace_of(seed: u64) -> String {
-    let (report, bench) = run_with(find("dive").unwrap(), seed, Some(4.0), None, Engine::default());
+    let options = Options {
+        seconds: Some(4.0),
+        ..Options::new(seed, Engine::default())
+    };
+    let (report, bench) = run_with(find("dive").unwrap(), &options, None);
     assert!(report.sim_seconds >= 4.0);
     serde_json::to_string(&bench.trace).unwrap()
 }
@@ -103,7 +123,11 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 /// What a run produced, hashed in three parts: its checks, its metrics (but the wall-clock figure) and its trace.
 fn outputs_hash(name: &str, seed: u64, seconds: Option<f64>) -> [u64; 3] {
-    let (mut report, bench) = run_with(find(name).unwrap(), seed, seconds, None, Engine::Exact);
+    let options = Options {
+        seconds,
+        ..Options::new(seed, Engine::Exact)
+    };
+    let (mut report, bench) = run_with(find(name).unwrap(), &options, None);
     report.metrics.remove("real_time_factor");
     let hash = |value: String| fnv1a(value.as_bytes());
     [
@@ -128,7 +152,7 @@ fn the_fixed_step_engine_gives_the_same_outputs_bit_for_bit() {
             (
                 "dive",
                 [
-                    6_921_235_171_952_460_993,
+                    671_479_876_040_994_084,
                     15_340_583_869_273_817_075,
                     13_412_210_955_902_595_297
                 ]
@@ -136,7 +160,7 @@ fn the_fixed_step_engine_gives_the_same_outputs_bit_for_bit() {
             (
                 "soak",
                 [
-                    3_022_396_534_925_615_345,
+                    11_520_363_284_237_921_549,
                     879_763_732_530_437_966,
                     16_613_728_634_436_194_247
                 ]
@@ -144,7 +168,7 @@ fn the_fixed_step_engine_gives_the_same_outputs_bit_for_bit() {
             (
                 "acceptance",
                 [
-                    3_649_129_611_892_417_925,
+                    18_446_546_889_810_506_416,
                     6_051_416_779_183_918_459,
                     13_281_169_825_296_475_776
                 ]
