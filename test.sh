@@ -48,8 +48,11 @@ for family in "" ",legacy"; do
   cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
 done
 
-step "host tests (every bench scenario is one)"
+step "host tests (every bench scenario is one, on both engines)"
 cargo test --workspace --locked
+
+step "an hour of random faults and traffic on the bench (the soak)"
+cargo test -p lbv --bin lbv --locked soak_for_an_hour -- --ignored
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"

@@ -3,11 +3,11 @@
 //! run the controller through [`run`] and [`run_commutation`].
 
 use embassy_futures::join::join4;
-use embassy_futures::select::select;
+use embassy_futures::select::select3;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
-use embassy_time::{Duration, Instant, Ticker, with_timeout};
+use embassy_time::{Duration, Instant, Ticker, Timer, with_timeout};
 use tmc_proto::{Family, MotorKind, StatusFrame};
 
 use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
@@ -113,12 +113,15 @@ impl WatchdogTiming {
         saturating_u32(self.timeout.as_micros())
     }
 
-    /// The schedule the IWDG set-up is checked against: the I2C task, the slowest to report, goes at most one
-    /// listen heartbeat plus one transfer's timeout between reports.
+    /// The schedule the IWDG set-up is checked against: the slowest task to report goes at most this long between
+    /// reports: the I2C task one listen heartbeat plus one transfer's timeout, the commutation task (woken only by
+    /// hall edges and changes to drive) one commutation heartbeat; the others report every millisecond.
     pub const fn schedule(&self, bus: &SlaveBus) -> g431_hw::iwdg::Schedule {
+        let i2c = LISTEN_HEARTBEAT.as_micros().saturating_add(bus.timeout.as_micros());
+        let commutation = COMMUTATION_HEARTBEAT.as_micros();
         g431_hw::iwdg::Schedule {
             feed_period_us: saturating_u32(self.feed.as_micros()),
-            slowest_report_us: saturating_u32(LISTEN_HEARTBEAT.as_micros().saturating_add(bus.timeout.as_micros())),
+            slowest_report_us: saturating_u32(if i2c > commutation { i2c } else { commutation }),
             timeout_us: self.timeout_us(),
         }
     }
@@ -198,6 +201,9 @@ pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 pub const CONTROL_PERIOD: Duration = Duration::from_millis(1);
 /// How long the I2C task waits for its address before it reports itself alive anyway.
 pub const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
+/// How long the commutation task waits for a hall edge or a change to drive before it reports itself alive anyway
+/// (a motor at rest, or turning too slowly for an edge, with its duty unchanged).
+pub const COMMUTATION_HEARTBEAT: Duration = Duration::from_millis(20);
 
 type Mutex = CriticalSectionRawMutex;
 
@@ -284,7 +290,9 @@ pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: Motor
 
 /// Commutation: on every hall edge, and whenever the duty or the fault verdict changes, drive the bridge from
 /// the hall state. Runs at the highest priority so that no other work delays a commutation. Coasts whenever
-/// driving must stop: zero duty, a fault, or an invalid hall state.
+/// driving must stop: zero duty, a fault, or an invalid hall state. Nothing else wakes it but its heartbeat to the
+/// watchdog ([`COMMUTATION_HEARTBEAT`]): the bridge is a function of the halls, the duty and the verdict, and the
+/// tasks that change those two wake it when they do.
 pub async fn commutation_task<H: HallSensors, B: Bridge>(
     halls: &mut H,
     bridge: &mut B,
@@ -310,7 +318,12 @@ pub async fn commutation_task<H: HallSensors, B: Bridge>(
         };
         bridge.apply(drive, duty);
         shared.health.report(TaskId::Commutation as u8);
-        select(halls.wait_for_edge(), shared.wake.wait()).await;
+        select3(
+            halls.wait_for_edge(),
+            shared.wake.wait(),
+            Timer::after(COMMUTATION_HEARTBEAT),
+        )
+        .await;
     }
 }
 
@@ -398,18 +411,22 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
     }
 }
 
-/// Speed control at 1 kHz: orders and the link failsafe in, duty out to the commutation task, and the status
-/// frame kept ready for the I2C task.
+/// Speed control at 1 kHz: orders and the link failsafe in, duty out to the commutation task (woken when the duty
+/// changes), and the status frame kept ready for the I2C task.
 pub async fn control_task(config: &Config, shared: &Shared) -> ! {
     let mut control = Control::new(config.family, config.speed, config.link_timeout, Instant::now());
     let mut ticker = Ticker::every(CONTROL_PERIOD);
+    let mut sent = None;
     loop {
         let now = Instant::now();
         let rpm = shared.hall.try_get().map_or(0, |hall| hall.rpm(now));
         let sensed = shared.sensed.try_get().unwrap_or(Sensed::UNKNOWN);
         let duty = control.tick(now, shared.link.try_get(), sensed, rpm);
-        shared.duty.sender().send(duty);
-        shared.wake.signal(());
+        if sent != Some(duty) {
+            sent = Some(duty);
+            shared.duty.sender().send(duty);
+            shared.wake.signal(());
+        }
         shared.status.sender().send(control.status(sensed, rpm).encode());
         shared.health.report(TaskId::Control as u8);
         ticker.next().await;

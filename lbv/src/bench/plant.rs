@@ -188,6 +188,9 @@ pub struct Plant {
     pub hall_fault: Option<HallState>,
     /// Mechanical angle, rad, in [0, 2 pi).
     angle_rad: f64,
+    /// The electrical angle of `angle_rad`, degrees, in [0, 360) (kept with it: every look at the halls or the
+    /// back-EMF needs it).
+    electrical_deg: f64,
     /// Mechanical speed, rad/s, positive forward.
     omega: f64,
     /// Winding temperature, deg C.
@@ -230,6 +233,7 @@ impl Plant {
             blocked: false,
             hall_fault: None,
             angle_rad: 0.0,
+            electrical_deg: 0.0,
             omega: 0.0,
             winding_c: DEFAULT_AMBIENT_C,
             currents: [0.0; 3],
@@ -245,7 +249,7 @@ impl Plant {
 
     /// The same plant with the rotor at `mechanical_rad` (any finite value; non-finite reads 0).
     pub fn with_angle(mut self, mechanical_rad: f64) -> Self {
-        self.angle_rad = wrap_angle(mechanical_rad);
+        self.set_angle(wrap_angle(mechanical_rad));
         self.last_hall = self.hall_state();
         self
     }
@@ -458,10 +462,16 @@ impl Plant {
 
     /// Electrical angle, degrees, in [0, 360).
     fn electrical_deg(&self) -> f64 {
+        self.electrical_deg
+    }
+
+    /// Turn the rotor to `angle_rad` (in [0, 2 pi)).
+    fn set_angle(&mut self, angle_rad: f64) {
+        self.angle_rad = angle_rad;
         let pole_pairs = f64::from(self.params.pole_pairs.max(1));
-        let deg = rem_euclid(pole_pairs * self.angle_rad, TAU) * (180.0 / PI);
+        let deg = rem_euclid(pole_pairs * angle_rad, TAU) * (180.0 / PI);
         // rem_euclid may round up to exactly 360.
-        if deg.is_finite() && deg < 360.0 { deg } else { 0.0 }
+        self.electrical_deg = if deg.is_finite() && deg < 360.0 { deg } else { 0.0 };
     }
 
     /// How much of the winding's distance from its settling temperature is left after `h` seconds:
@@ -514,7 +524,7 @@ impl Plant {
             } else {
                 0.0
             };
-            self.angle_rad = wrap_angle(self.angle_rad + 0.5 * (w + next) * h);
+            self.set_angle(wrap_angle(self.angle_rad + 0.5 * (w + next) * h));
             self.omega = next;
         }
 
@@ -537,6 +547,10 @@ impl Plant {
     /// Phase currents, supply current, torque and copper loss for `drive` with `pwm_v` on the Pwm phases, at the
     /// present angle and speed.
     fn electrical(&self, p: &Sane, drive: BridgeDrive, pwm_v: f64, pwm_fraction: f64) -> Electrical {
+        if drive.iter().filter(|d| **d != PhaseDrive::Float).count() < 2 {
+            // No current path.
+            return Electrical::default();
+        }
         let theta = self.electrical_deg();
         let shapes = [emf_shape(theta), emf_shape(theta - 120.0), emf_shape(theta - 240.0)];
         let speed_emf = p.ke * self.omega;

@@ -46,6 +46,8 @@ struct Io {
     shared: Shared,
     halls: HallInputs,
     bridge: Cell<(BridgeDrive, Duty)>,
+    /// Times the commutation task drove the bridge.
+    applied: Cell<u32>,
     inputs: Cell<RawSample>,
     fed: Cell<u32>,
     /// The latch store, kept as a backup register keeps it over a reset.
@@ -72,6 +74,7 @@ struct TestBridge(Rc<Io>);
 impl Bridge for TestBridge {
     fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
         self.0.bridge.set((drive, duty));
+        self.0.applied.set(self.0.applied.get() + 1);
     }
 }
 
@@ -153,6 +156,7 @@ impl Bench {
             shared: Shared::new(),
             halls: HallInputs::new(FORWARD_SEQUENCE[0]),
             bridge: Cell::new((COAST, Duty::ZERO)),
+            applied: Cell::new(0),
             fed: Cell::new(0),
             latch: Cell::new(latch),
             replies: RefCell::new(Vec::new()),
@@ -404,6 +408,46 @@ fn the_watchdog_is_fed_only_while_every_task_reports() {
     assert_eq!(bench.fed.get(), periods, "fed {} times in 500 ms", bench.fed.get());
 }
 
+#[test]
+fn commutation_runs_on_edges_and_changes_and_still_reports_to_the_watchdog_at_rest() {
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.elapse(Duration::from_millis(100));
+    // At rest with nothing changing, only its heartbeat wakes it: 10 s, 500 heartbeats, not 10 000 ticks.
+    let before = bench.applied.get();
+    bench.elapse(Duration::from_secs(10));
+    let heartbeats = (10_000 / COMMUTATION_HEARTBEAT.as_millis()) as u32;
+    assert!(
+        (heartbeats - 1..=heartbeats + 1).contains(&(bench.applied.get() - before)),
+        "{} runs in 10 s",
+        bench.applied.get() - before
+    );
+    // And the watchdog is fed at every feed period all along.
+    let periods = (10_100 / bench.config.watchdog.feed.as_millis()) as u32;
+    assert_eq!(bench.fed.get(), periods);
+
+    // Turning under orders that change, the bridge always carries the duty the control task last decided, in the
+    // step it was decided: each change wakes the commutation task.
+    bench.order(60);
+    let mut checked = 0;
+    for step in 0..3000 {
+        if step == 1500 {
+            bench.order(-30);
+        }
+        let end = Instant::now() + Duration::from_micros(100);
+        bench.turn_until(|_| Instant::now() >= end);
+        let decided = bench.shared.duty.try_get().unwrap_or(Duty::ZERO);
+        if bench.shared.sensed.try_get().is_some_and(|sensed| sensed.drive_allowed) {
+            assert_eq!(bench.duty(), decided, "at {} us", Instant::now().as_micros());
+            checked += 1;
+        }
+    }
+    assert!(
+        checked > 2500 && bench.duty().value() < 0,
+        "{checked} checks, duty {:?}",
+        bench.duty()
+    );
+}
+
 /// Drive forward, then `inject` a condition; returns how long the bridge took to coast (None: it kept driving
 /// for 50 ms) and the faults then reported.
 fn inject(family: Family, inject: impl Fn(&Bench)) -> (Option<Duration>, Faults, Bench) {
@@ -614,6 +658,9 @@ fn the_image_configuration_is_the_reference_hardware_with_the_spec_timings() {
         // Every task reports within a feed period and the IWDG outlasts two of them at the fastest LSI; the IWDG
         // driver takes the timeout in microseconds.
         assert_eq!(config.watchdog.schedule(&config.bus).check().map(|_| ()), Ok(()));
+        // The commutation task, woken by edges and changes only, reports by its heartbeat: within the schedule.
+        let schedule = config.watchdog.schedule(&config.bus);
+        assert!(u64::from(schedule.slowest_report_us) >= COMMUTATION_HEARTBEAT.as_micros());
         assert_eq!(config.watchdog.timeout_us(), 250_000);
         // A 50 ms feed would miss the I2C task's reports (50 ms heartbeat + 25 ms transfer) and warn falsely.
         let eager = WatchdogTiming {
