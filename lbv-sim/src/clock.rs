@@ -5,51 +5,18 @@
 //! time. Whoever runs cores on a thread first takes that thread's clock with [`take`], which starts it at 0 with
 //! no timer pending.
 //!
-//! The timers are kept by waker, one per waker, each with the order it was set in: timers due at the same time wake
-//! in that order. The earliest time is kept, so a step with nothing due costs nothing.
+//! The timers are kept in arrival order with their wake-up times (one per waker, at the earliest time it asked
+//! for), and the earliest of them, so [`next_alarm`] can tell when anything is due next and a step with nothing
+//! due costs nothing.
 
 use std::cell::{Cell, RefCell};
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 use std::task::Waker;
 
 use embassy_time::{Duration, Instant};
 
-/// A waker's identity, as `Waker::will_wake` compares them: its data and its vtable.
-type Key = (usize, usize);
-
-fn key(waker: &Waker) -> Key {
-    (waker.data() as usize, core::ptr::from_ref(waker.vtable()) as usize)
-}
-
-/// Hashes a [`Key`] (two addresses) by multiplying: no need for a keyed hash on addresses of our own wakers.
-#[derive(Default)]
-struct AddressHasher(u64);
-
-impl Hasher for AddressHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for byte in bytes {
-            self.write_u64(u64::from(*byte));
-        }
-    }
-
-    fn write_usize(&mut self, address: usize) {
-        self.write_u64(address as u64);
-    }
-
-    fn write_u64(&mut self, value: u64) {
-        self.0 = (self.0.rotate_left(5) ^ value).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    }
-}
-
-/// A timer: when, in which order it was set, and whom to wake.
+/// A timer: when, and whom to wake.
 struct Alarm {
     at: u64,
-    order: u64,
     waker: Waker,
 }
 
@@ -57,12 +24,13 @@ struct Alarm {
 #[derive(Default)]
 struct State {
     now: u64,
-    /// The pending timer of each waker.
-    alarms: HashMap<Key, Alarm, BuildHasherDefault<AddressHasher>>,
-    /// When the earliest of `alarms` is due.
+    /// In the order they were set: timers due at the same time wake in this order.
+    alarms: Vec<Alarm>,
+    /// When the earliest of `alarms` is due, so that a step with nothing due costs nothing.
     earliest: Option<u64>,
-    /// Timers set so far: the order of the next one.
-    set: u64,
+    /// Where the last timer was set in `alarms`: a task that waits on several timers at once sets them one after
+    /// the other with the same waker, so this finds its timer without a search.
+    last: usize,
     /// The timers a step made due, kept to reuse its allocation.
     due: Vec<Alarm>,
 }
@@ -89,17 +57,25 @@ impl embassy_time_driver::Driver for Driver {
                 return true;
             }
             let state = &mut *state;
-            match state.alarms.get_mut(&key(waker)) {
-                Some(alarm) => alarm.at = alarm.at.min(at),
+            let last = state
+                .alarms
+                .get(state.last)
+                .filter(|alarm| alarm.waker.will_wake(waker));
+            let found = match last {
+                Some(_) => Some(state.last),
+                None => state.alarms.iter().position(|alarm| alarm.waker.will_wake(waker)),
+            };
+            match found.and_then(|index| state.alarms.get_mut(index).map(|alarm| (index, alarm))) {
+                Some((index, alarm)) => {
+                    alarm.at = alarm.at.min(at);
+                    state.last = index;
+                }
                 None => {
-                    let order = state.set;
-                    state.set += 1;
-                    let alarm = Alarm {
+                    state.last = state.alarms.len();
+                    state.alarms.push(Alarm {
                         at,
-                        order,
                         waker: waker.clone(),
-                    };
-                    state.alarms.insert(key(waker), alarm);
+                    });
                 }
             }
             state.earliest = Some(state.earliest.map_or(at, |earliest| earliest.min(at)));
@@ -160,19 +136,15 @@ pub fn advance(duration: Duration) {
         }
         let state = &mut *state;
         let (now, mut due) = (state.now, std::mem::take(&mut state.due));
-        due.extend(
-            state
-                .alarms
-                .extract_if(|_, alarm| alarm.at <= now)
-                .map(|(_, alarm)| alarm),
-        );
-        state.earliest = state.alarms.values().map(|alarm| alarm.at).min();
+        // Both keep their order: the due ones for waking, the pending ones for the next time.
+        due.extend(state.alarms.extract_if(.., |alarm| alarm.at <= now));
+        state.earliest = state.alarms.iter().map(|alarm| alarm.at).min();
         Some(due)
     });
     let Some(mut due) = due else { return };
-    // Earliest first, and in the order they were set among those due at the same time. Woken outside the borrow: a
-    // waker may schedule again at once.
-    due.sort_unstable_by_key(|alarm| (alarm.at, alarm.order));
+    // Woken outside the borrow: a waker may schedule again at once. The sort is stable: timers due at the same
+    // time wake in the order they were set.
+    due.sort_by_key(|alarm| alarm.at);
     for alarm in due.drain(..) {
         alarm.waker.wake();
     }

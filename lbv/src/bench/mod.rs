@@ -467,7 +467,13 @@ impl Bench {
     /// What passes at `now` between the tasks and the bench: the battery's frames, the console both ways, the
     /// trace's sample. Returns whether it handed the tasks anything (which may wake them).
     fn exchange(&mut self, now: Instant) -> bool {
-        if self.engine == Engine::Events && (now >= self.battery.next_frame() || now >= self.next_sample) {
+        let frame = now >= self.battery.next_frame();
+        let ground = self.console_sink.is_none() && self.ground.next_due().is_some_and(|due| now >= due);
+        if !frame && !ground && now < self.next_sample && self.outgoing.is_empty() && self.wiring.console_out.is_empty()
+        {
+            return false;
+        }
+        if self.engine == Engine::Events && (frame || now >= self.next_sample) {
             self.settle();
         }
         let mut handed = false;

@@ -368,6 +368,43 @@ impl Plant {
         self.halls_changed()
     }
 
+    /// The event engine's reading of the winding temperature and the phase current `h_s` seconds on, without moving
+    /// the plant there: the temperature as [`Plant::advance`] would leave it (the copper loss of the present state
+    /// held, solved exactly: the same as advancing), the current as the present state draws it with `drive` at
+    /// `duty` on `supply_v`.
+    pub fn reading_after(&mut self, h_s: f64, drive: BridgeDrive, duty: Duty, supply_v: f64) -> (f64, f64) {
+        let el = match self.evaluated.0 {
+            Some((d, u, el)) if d == drive && u == duty => el,
+            _ => {
+                let el = self.solve(drive, duty, supply_v);
+                self.evaluated = Memo(Some((drive, duty, el)));
+                el
+            }
+        };
+        let current = el.currents.iter().fold(0.0, |max: f64, i| max.max(i.abs()));
+        let h = if h_s.is_finite() && h_s > 0.0 {
+            h_s.min(MAX_STEP_S)
+        } else {
+            return (self.winding_c, current);
+        };
+        let p = self.sane;
+        let ambient = finite_clamp(self.ambient_c, ABSOLUTE_ZERO_C, MAX_WINDING_C, DEFAULT_AMBIENT_C);
+        (
+            self.winding_after(&p, short_exp(-h / (p.r_th * p.c_th)), el, ambient),
+            current,
+        )
+    }
+
+    /// The local mechanical time constant, s: how fast the speed settles at the present state under the drive of
+    /// the last [`Plant::evaluate`] (the event engine looks ahead a fraction of it). None before an evaluation.
+    pub fn time_constant(&self) -> Option<f64> {
+        let (_, _, el) = self.evaluated.0?;
+        let p = self.sane;
+        let slope = 2.0 * p.prop_k * self.omega.abs() + p.friction - el.damping;
+        let tau = p.inertia / slope;
+        (tau.is_finite() && tau > 0.0).then_some(tau)
+    }
+
     /// The electrical solution for `drive` at `duty` on `supply_v` at the present state.
     fn solve(&self, drive: BridgeDrive, duty: Duty, supply_v: f64) -> Electrical {
         let supply = if supply_v.is_nan() {
@@ -528,14 +565,19 @@ impl Plant {
             self.omega = next;
         }
 
-        // Exact solution of the first-order thermal model with the loss held over the sub-step.
+        self.winding_c = self.winding_after(p, decay, el, ambient);
+    }
+
+    /// The winding temperature after a time whose `decay` is `exp(-h / tau)`, with the copper loss of `el`: the
+    /// exact solution of the first-order thermal model with the loss held.
+    fn winding_after(&self, p: &Sane, decay: f64, el: Electrical, ambient: f64) -> f64 {
         let settled = ambient + el.copper_w * p.r_th;
         let next = settled + (self.winding_c - settled) * decay;
-        self.winding_c = if next.is_finite() {
+        if next.is_finite() {
             next.clamp(ABSOLUTE_ZERO_C, MAX_WINDING_C)
         } else {
             ambient
-        };
+        }
     }
 
     fn apply(&mut self, el: Electrical) {

@@ -32,14 +32,14 @@ const CURRENT_LIMIT_A: f64 = 8.0;
 /// this phase current up: the limiter's discrete dynamics are those of the 50 us steps, and a current rising
 /// towards the limit between two looks (at most a millisecond apart) is caught before it passes it.
 const LIMITER_WATCH_A: f64 = 0.75 * CURRENT_LIMIT_A;
-/// The event engine's longest sub-step of a plant between two looks. Between commutations the driven pair sees a
-/// constant back-EMF shape, so the speed follows a smooth first-order law that one implicit step of this length
-/// tracks closely; see the fidelity test for what the bench's figures make of it.
-const EVENT_SUBSTEP: Duration = Duration::from_micros(500);
-/// The longest the event engine goes on with a plant's prediction: a look after this works it out again from the
-/// plant's present speed and acceleration (and a turning plant with no edge ahead, slowing to turn back, is looked
-/// at again after this).
-const EVENT_HORIZON: Duration = Duration::from_millis(1);
+/// How far ahead the event engine trusts a turning plant's predicted edge, as a fraction of the plant's mechanical
+/// time constant: the prediction takes the acceleration as constant, which is off by about a third of this
+/// fraction of the time to the edge (1 % of it); a look after this works it out again. A plant slowing to turn
+/// back before its next edge is looked at again after this too.
+const LOOK_AHEAD: f64 = 0.03;
+/// The look-ahead's bounds: a driven motor's time constant is some 30 ms, a coasting one's seconds.
+const LOOK_AHEAD_MIN: Duration = Duration::from_millis(1);
+const LOOK_AHEAD_MAX: Duration = Duration::from_millis(100);
 
 /// What is around one controller: the motor and its sensors, the bridge, the watchdog.
 pub struct ThrusterIo {
@@ -74,11 +74,11 @@ struct Lazy {
     next: Cell<Option<Instant>>,
     /// The current limiter acts or may soon: the plant is advanced on the 50 us grid, the limiter at its points.
     limiting: Cell<bool>,
+    /// How far ahead the last look trusted the plant's course (see [`LOOK_AHEAD`]): also its longest sub-step.
+    look_ahead: Cell<Duration>,
     /// Its drive changed, its halls changed or it reached its moment since `next` was worked out: the bench works
     /// it out again once the instant's tasks are done.
     dirty: Cell<bool>,
-    /// When `next` was last worked out.
-    planned: Cell<Instant>,
 }
 
 /// The first point of the fixed-step engine's grid after `t`.
@@ -135,8 +135,8 @@ impl ThrusterBoard {
                     synced: Cell::new(Instant::from_ticks(0)),
                     next: Cell::new(None),
                     limiting: Cell::new(false),
+                    look_ahead: Cell::new(LOOK_AHEAD_MIN),
                     dirty: Cell::new(true),
-                    planned: Cell::new(Instant::from_ticks(0)),
                 }),
             }),
             bus: bus.clone(),
@@ -279,9 +279,11 @@ impl ThrusterIo {
     }
 
     /// Event engine: advance the plant from where it was left to `now` under the drive held since, in sub-steps of
-    /// at most [`EVENT_SUBSTEP`] (on the 50 us grid while the limiter acts), each on the pack's voltage at its
-    /// start; raise a hall edge where the halls changed. Nothing on the fixed-step engine, which steps the plant
-    /// itself.
+    /// at most the look-ahead (on the 50 us grid while the limiter acts), each on the pack's voltage at its start;
+    /// raise a hall edge where the halls changed. Between commutations the driven pair sees a constant back-EMF
+    /// shape, so the speed follows a smooth first-order law that implicit steps of a small fraction of its time
+    /// constant track closely (the fidelity test holds what the bench's figures make of it). Nothing on the
+    /// fixed-step engine, which steps the plant itself.
     pub fn catch_up(&self, now: Instant) {
         let Some(lazy) = &self.lazy else { return };
         let mut t = lazy.synced.get();
@@ -289,10 +291,10 @@ impl ThrusterIo {
             return;
         }
         let mut plant = self.plant.borrow_mut();
-        let grid = lazy.limiting.get();
+        let (grid, longest) = (lazy.limiting.get(), lazy.look_ahead.get());
         let (drive, duty) = self.drive.get();
         while t < now {
-            let mut end = now.min(t + EVENT_SUBSTEP);
+            let mut end = now.min(t + longest);
             if grid {
                 end = end.min(next_grid_point(t));
             }
@@ -312,8 +314,20 @@ impl ThrusterIo {
             t = end;
         }
         lazy.synced.set(now);
-        if now - lazy.planned.get() >= EVENT_HORIZON {
-            lazy.dirty.set(true);
+    }
+
+    /// The winding temperature and phase current the ADC sees at `now`. On the event engine the plant is not moved
+    /// for it (the ADC samples every millisecond; the plant needs advancing only at its edges and drive changes):
+    /// the temperature is the one advancing would give, the current the present state's.
+    fn sense(&self, now: Instant) -> (f64, f64) {
+        let mut plant = self.plant.borrow_mut();
+        match &self.lazy {
+            Some(lazy) => {
+                let (drive, duty) = self.drive.get();
+                let h = seconds(now - lazy.synced.get());
+                plant.reading_after(h, drive, self.passed(duty), lazy.rail.voltage())
+            }
+            None => (plant.winding_c(), plant.phase_current_a()),
         }
     }
 
@@ -333,7 +347,6 @@ impl ThrusterIo {
         let Some(lazy) = self.lazy.as_ref().filter(|lazy| lazy.dirty.replace(false)) else {
             return;
         };
-        lazy.planned.set(now);
         let mut plant = self.plant.borrow_mut();
         let (drive, duty) = self.drive.get();
         // The pack sees the new current from the sub-step that carries it (as on the fixed-step engine, where the
@@ -343,9 +356,13 @@ impl ThrusterIo {
         }
         let limiting = self.current_limit.get() < 1.0 || plant.phase_current_a() > LIMITER_WATCH_A;
         lazy.limiting.set(limiting);
+        let look_ahead = plant.time_constant().map_or(LOOK_AHEAD_MIN, |tau| {
+            Duration::from_micros((LOOK_AHEAD * tau * 1e6) as u64).clamp(LOOK_AHEAD_MIN, LOOK_AHEAD_MAX)
+        });
+        lazy.look_ahead.set(look_ahead);
         let edge = match plant.time_to_edge() {
-            Some(s) => Some(now + Duration::from_micros((s * 1e6).ceil().clamp(1.0, 1e12) as u64)),
-            None if plant.rpm() != 0.0 => Some(now + EVENT_HORIZON),
+            Some(s) => Some(now + Duration::from_micros((s * 1e6).ceil().clamp(1.0, 1e12) as u64).min(look_ahead)),
+            None if plant.rpm() != 0.0 => Some(now + look_ahead),
             None => None,
         };
         let next = match (edge, limiting.then(|| next_grid_point(now))) {
@@ -412,19 +429,14 @@ struct Adc {
 
 impl Sensors for Adc {
     async fn sample(&mut self) -> RawSample {
-        self.io.catch_up(Instant::now());
-        let plant = self.io.plant.borrow();
+        let (winding_c, current_a) = self.io.sense(Instant::now());
         let config = &self.config;
-        let decicelsius = (plant.winding_c() * 10.0)
-            .round()
-            .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
-        let counts = plant.phase_current_a() * 1000.0 / f64::from(config.current.milliamps_per_count);
+        let decicelsius = round(winding_c * 10.0).clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
+        let counts = current_a * 1000.0 / f64::from(config.current.milliamps_per_count);
         RawSample {
-            water: config.water.raw_at(plant.water_ohms),
+            water: config.water.raw_at(self.io.plant.borrow().water_ohms),
             temperature: config.ntc.raw_at(decicelsius),
-            current: (f64::from(config.current.offset_raw) + counts)
-                .round()
-                .clamp(0.0, 4095.0) as u16,
+            current: round(f64::from(config.current.offset_raw) + counts).clamp(0, 4095) as u16,
         }
     }
 }

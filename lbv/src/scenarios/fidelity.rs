@@ -159,9 +159,14 @@ fn without_figures(text: &str) -> String {
     out
 }
 
+/// Below this speed (about two of the protocol's speed steps) the speed loop hunts on either engine: it measures
+/// the speed from hall edges 30 ms and more apart, and its limit cycle has no steady state to compare.
+const CRAWL_RPM: f64 = 100.0;
+
 /// Where one engine's samples leave the other's in steady running. Around each sample, the other engine's samples
 /// within `slack` seconds (the same happening may come that much apart, see [`event_slack`]) make a window; where a
-/// thruster runs steadily in it (its speed moves less than the rpm tolerance), this sample's speed must lie within
+/// thruster runs steadily in it (its speed moves less than the rpm tolerance, above [`CRAWL_RPM`]), this sample's
+/// speed must lie within
 /// the window's range widened by 1 % (at least 10 rpm); where its current is steady too (the windows of both move
 /// less than 25 %: the speed loop dithers the duty, and the current of a loaded motor is the small difference of
 /// the drive and the back-EMF, so a sample moves by several percent from one tick to the next on either engine),
@@ -199,7 +204,7 @@ fn samples_stray(name: &str, ours: &Trace, theirs: &Trace, slack: f64) -> Vec<St
             };
             let (lo, hi) = range(&mut figure(others, |t| t.rpm).into_iter());
             let rpm_tolerance = (0.01 * thruster.rpm.abs()).max(10.0);
-            if hi - lo <= rpm_tolerance {
+            if hi - lo <= rpm_tolerance && lo.abs().max(hi.abs()) >= CRAWL_RPM {
                 if !(lo - rpm_tolerance..=hi + rpm_tolerance).contains(&thruster.rpm) {
                     say(format!(
                         "T{} turns at {:.1} rpm, the other engine {lo:.1}..{hi:.1}",
