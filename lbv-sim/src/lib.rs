@@ -7,7 +7,8 @@
 //! - [`i2c`]: I2C buses with bit-time accounting, devices and firmware slave ports, a TCA9548A, NACKs, clock
 //!   stretching, corruption, SDA held low, and the lines as GPIOs for the bus recovery;
 //! - [`Queue`], [`SerialRx`], [`SerialTx`], [`CanBus`]: serial links and a CAN bus;
-//! - [`flash`]: NOR flash with power-cut faults.
+//! - [`flash`]: NOR flash with power-cut faults;
+//! - [`in_one_critical_section`]: a run at the cost of one critical section.
 //!
 //! All state is owned: a board is a set of handles on these parts and a few tasks; dropping them (a power cycle)
 //! frees everything. This crate knows none of the firmware crates: their port traits are implemented where they
@@ -20,5 +21,15 @@ pub mod i2c;
 mod queue;
 
 pub use clock::Clock;
+
+/// Run `f` inside one critical section. The cores' channels take a critical section for every access (tens of
+/// thousands a simulated second); on the host each is a lock of the process's one critical-section mutex unless it
+/// is nested in another. A run held in one section pays for one lock: every section inside is nested.
+///
+/// The section is the whole process's: while one thread runs in it, another thread's critical sections wait. Run
+/// simulations side by side as processes, not threads.
+pub fn in_one_critical_section<R>(f: impl FnOnce() -> R) -> R {
+    critical_section::with(|_| f())
+}
 pub use executor::{Executor, TaskId};
 pub use queue::{CanBus, Queue, SerialRx, SerialTx};

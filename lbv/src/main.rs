@@ -119,6 +119,10 @@ struct BenchArgs {
     /// Allow --udp-listen on an address other than loopback (exposes the vehicle to the network)
     #[arg(long, requires = "udp")]
     udp_any: bool,
+    /// Write the one scenario's report as JSON on standard output and nothing else: how --all runs each scenario,
+    /// in a process of its own
+    #[arg(long, hide = true, conflicts_with_all = ["all", "udp", "list", "json"])]
+    report_only: bool,
 }
 
 /// `--duration`: seconds, positive, finite, at most [`MAX_DURATION_S`].
@@ -216,28 +220,32 @@ fn bench_main(options: &BenchArgs) -> ExitCode {
         samples: options.plot.is_some(),
         ..scenarios::Options::new(options.seed, options.engine())
     };
+    if options.report_only {
+        return report_only(chosen[0], &run, options);
+    }
     let mut reports = Vec::new();
     let mut trouble = false;
-    let mut each = |(report, trace): (Report, bench::trace::Trace)| {
-        summarise(&report);
-        if let Some((file, format)) = &options.plot
-            && !trouble
-        {
-            let title = format!("lbv bench: {} (seed {})", report.scenario, report.seed);
-            if let Err(error) = bench::plot::write(&trace, &title, file, *format) {
-                eprintln!("lbv: cannot write {}: {error}", file.display());
-                trouble = true;
-            }
-        }
-        reports.push(report);
-    };
     if options.all {
-        let workers = std::thread::available_parallelism().map_or(1, usize::from);
-        scenarios::run_all(&chosen, &run, workers, &mut each);
+        let each = |report: Report| {
+            summarise(&report);
+            reports.push(report);
+        };
+        if let Err(error) = run_in_processes(&chosen, options, each) {
+            eprintln!("lbv: {error}");
+            trouble = true;
+        }
     } else {
         let live = !options.quiet && std::io::stdout().is_terminal();
         for scenario in chosen {
-            each(scenarios::run_guarded(scenario, &run, live.then(live_view)));
+            let (report, trace) = scenarios::run_guarded(scenario, &run, live.then(live_view));
+            summarise(&report);
+            if let Some((file, format)) = &options.plot
+                && let Err(error) = plot(&report, &trace, file, *format)
+            {
+                eprintln!("lbv: cannot write {}: {error}", file.display());
+                trouble = true;
+            }
+            reports.push(report);
         }
     }
     if trouble {
@@ -271,6 +279,101 @@ fn bench_main(options: &BenchArgs) -> ExitCode {
     } else {
         ExitCode::from(exit::FAILED)
     }
+}
+
+/// Draw `trace` as `--plot` asks.
+fn plot(report: &Report, trace: &bench::trace::Trace, file: &std::path::Path, format: Format) -> Result<(), String> {
+    let title = format!("lbv bench: {} (seed {})", report.scenario, report.seed);
+    bench::plot::write(trace, &title, file, format)
+}
+
+/// `--report-only`: the scenario's report as JSON on standard output (and its plot if asked for).
+fn report_only(scenario: &Scenario, run: &scenarios::Options, options: &BenchArgs) -> ExitCode {
+    let (report, trace) = scenarios::run_guarded(scenario, run, None);
+    if let Some((file, format)) = &options.plot
+        && let Err(error) = plot(&report, &trace, file, *format)
+    {
+        eprintln!("lbv: cannot write {}: {error}", file.display());
+        return ExitCode::from(exit::TROUBLE);
+    }
+    match serde_json::to_string(&report) {
+        Ok(json) => say!("{json}"),
+        Err(error) => {
+            eprintln!("lbv: cannot write the report: {error}");
+            return ExitCode::from(exit::TROUBLE);
+        }
+    }
+    ExitCode::from(if report.passed { exit::OK } else { exit::FAILED })
+}
+
+/// `--all`: every scenario in a process of its own, as many at once as there are cores (a run holds its process's
+/// critical section, see `lbv_sim::in_one_critical_section`, so runs side by side are processes). `each` gets the
+/// reports in the scenarios' order, each as soon as it and those before it are in. A process that ends without a
+/// report (it crashed) gives a failed one; an error is a process that could not be started or a plot not written.
+fn run_in_processes(chosen: &[&Scenario], options: &BenchArgs, mut each: impl FnMut(Report)) -> Result<(), String> {
+    let exe = std::env::current_exe().map_err(|error| format!("cannot find this program to run scenarios: {error}"))?;
+    let workers = std::thread::available_parallelism().map_or(1, usize::from);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (done, results) = std::sync::mpsc::channel();
+    let run = scenarios::Options::new(options.seed, options.engine());
+    std::thread::scope(|scope| {
+        for _ in 0..workers.clamp(1, chosen.len().max(1)) {
+            let (next, done, exe) = (&next, done.clone(), &exe);
+            scope.spawn(move || {
+                loop {
+                    let index = next.fetch_add(1, Ordering::Relaxed);
+                    let Some(scenario) = chosen.get(index) else { break };
+                    let mut command = std::process::Command::new(exe);
+                    command.args(["bench", "--report-only", "--quiet", "--scenario", scenario.name]);
+                    command.args(["--seed", &options.seed.to_string()]);
+                    if let Some(seconds) = options.duration {
+                        command.args(["--duration", &seconds.to_string()]);
+                    }
+                    if options.exact {
+                        command.arg("--exact");
+                    }
+                    // As in one process: the last scenario's plot is the one left in the file.
+                    if let Some((file, _)) = &options.plot
+                        && index + 1 == chosen.len()
+                    {
+                        command.arg("--plot").arg(file);
+                    }
+                    let outcome = command.stderr(std::process::Stdio::inherit()).output();
+                    let result = match outcome {
+                        Ok(output) => match serde_json::from_slice::<Report>(&output.stdout) {
+                            Ok(report) => Ok(report),
+                            Err(_) if output.status.code() == Some(exit::TROUBLE.into()) => {
+                                Err(format!("the {} scenario could not write its files", scenario.name))
+                            }
+                            Err(_) => Ok(Report::broken(
+                                scenario.name,
+                                &run,
+                                format!("its process ended without a report ({})", output.status),
+                            )),
+                        },
+                        Err(error) => Err(format!("cannot run the {} scenario: {error}", scenario.name)),
+                    };
+                    if done.send((index, result)).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(done);
+        let mut waiting = std::collections::BTreeMap::new();
+        let (mut due, mut trouble) = (0, Ok(()));
+        for (index, result) in results {
+            waiting.insert(index, result);
+            while let Some(result) = waiting.remove(&due) {
+                match result {
+                    Ok(report) => each(report),
+                    Err(error) => trouble = Err(error),
+                }
+                due += 1;
+            }
+        }
+        trouble
+    })
 }
 
 /// `--udp`: the dive vehicle, no scripted pilot, its console bridged to UDP, paced to the wall clock.

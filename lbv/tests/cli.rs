@@ -206,3 +206,62 @@ fn bench_plots_png_and_svg() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn bench_all_runs_every_scenario_in_order_and_the_same_as_one_at_a_time() {
+    let dir = std::env::temp_dir().join(format!("lbv-cli-all-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let all = dir.join("all.json");
+    let output = lbv(&["bench", "--all", "--json", all.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let listed: Vec<String> = text(&lbv(&["bench", "--list"]).stdout)
+        .lines()
+        .filter_map(|line| line.split_whitespace().next().map(str::to_string))
+        .collect();
+    let reports: serde_json::Value = serde_json::from_slice(&std::fs::read(&all).unwrap()).unwrap();
+    let names: Vec<&str> = reports
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|report| report["scenario"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, listed, "in the order --list gives");
+    // A scenario of --all (run in a process of its own) gives what it gives alone, but for its wall clock.
+    let one = dir.join("one.json");
+    let output = lbv(&["bench", "--scenario", "stall-legacy", "--json", one.to_str().unwrap()]);
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    let mut alone: serde_json::Value = serde_json::from_slice(&std::fs::read(&one).unwrap()).unwrap();
+    let mut within = reports
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|report| report["scenario"] == "stall-legacy")
+        .unwrap()
+        .clone();
+    for report in [&mut alone, &mut within] {
+        report["wall_seconds"] = serde_json::Value::Null;
+        report["metrics"]["real_time_factor"] = serde_json::Value::Null;
+    }
+    assert_eq!(alone, within);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bench_output_to_a_reader_that_stops_early_ends_quietly() {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lbv"))
+        .args(["bench", "--all"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("lbv runs");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    // The reader is gone (as `| head -1` leaves it).
+    let output = child.wait_with_output().unwrap();
+    assert!(first.starts_with("PASS dive"), "{first}");
+    assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+    assert!(text(&output.stderr).is_empty(), "{}", text(&output.stderr));
+}

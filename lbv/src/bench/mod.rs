@@ -147,7 +147,8 @@ pub type Monitor = Box<dyn FnMut(&Sample)>;
 /// Where the master's console output goes when an outside ground station has the link.
 pub type ConsoleSink = Box<dyn FnMut(&[u8])>;
 
-/// One vehicle on the bench.
+/// One vehicle on the bench. Its runs hold the process's critical section (see
+/// [`lbv_sim::in_one_critical_section`]): benches run side by side as processes, not threads.
 pub struct Bench {
     engine: Engine,
     executor: Executor<'static>,
@@ -317,7 +318,7 @@ impl Bench {
     /// Let `duration` of virtual time pass. The fixed-step engine takes whole steps (rounding `duration` up); on
     /// the event engine the clock ends exactly `duration` on, with what falls due then left for the next run.
     pub fn run_for(&mut self, duration: Duration) {
-        match self.engine {
+        lbv_sim::in_one_critical_section(|| match self.engine {
             Engine::Exact => {
                 let steps = duration.as_ticks().div_ceil(STEP.as_ticks());
                 for _ in 0..steps {
@@ -328,7 +329,7 @@ impl Bench {
                 let end = self.now() + duration;
                 self.run_events(end, &mut |_| false);
             }
-        }
+        });
     }
 
     /// Run until `done` holds, at most `limit`; returns how long that took, None if it did not happen. `done` is
@@ -337,7 +338,7 @@ impl Bench {
     pub fn run_until(&mut self, limit: Duration, mut done: impl FnMut(&Bench) -> bool) -> Option<Duration> {
         let start = self.now();
         let end = start + limit;
-        match self.engine {
+        lbv_sim::in_one_critical_section(|| match self.engine {
             Engine::Exact => {
                 while self.now() < end {
                     if done(self) {
@@ -348,7 +349,7 @@ impl Bench {
                 None
             }
             Engine::Events => self.run_events(end, &mut done).then(|| self.now() - start),
-        }
+        })
     }
 
     /// Events the trace did not keep (past its bound).

@@ -2,7 +2,7 @@
 //! scenario's vehicle, the script, the checks every run gets, and the report.
 
 use embassy_time::{Duration, Instant};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value, json};
 use tmc_proto::{Family, Faults};
 
@@ -12,7 +12,7 @@ use crate::bench::{Bench, BenchConfig, Engine, STEP};
 use lbv_master_fw::shared::{LinkHealth, ManualInput};
 
 /// One check of a scenario.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Check {
     /// What was checked.
     pub name: String,
@@ -23,14 +23,14 @@ pub struct Check {
 }
 
 /// A scenario's result, as `--json` writes it.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Report {
     /// The scenario's name.
     pub scenario: String,
     /// The seed.
     pub seed: u64,
     /// The engine that moved time: "events" or "exact".
-    pub engine: &'static str,
+    pub engine: String,
     /// Whether every check held.
     pub passed: bool,
     /// Virtual time run, s.
@@ -269,7 +269,7 @@ pub fn run_with(scenario: &Scenario, options: &Options, monitor: Option<crate::b
     let report = Report {
         scenario: scenario.name.to_string(),
         seed: options.seed,
-        engine: options.engine.name(),
+        engine: options.engine.name().to_string(),
         passed,
         sim_seconds: round(sim_seconds, 3),
         wall_seconds: round(wall_seconds, 3),
@@ -280,7 +280,7 @@ pub fn run_with(scenario: &Scenario, options: &Options, monitor: Option<crate::b
 }
 
 /// What [`run_guarded`] checks of every run.
-const NO_PANIC: &str = "the run ends without a panic";
+pub const NO_PANIC: &str = "the run ends without a panic";
 
 /// Run a scenario as [`run_with`] does, and check that it ends without a panic: a run that panics (in the bench's
 /// own code, the cores never panic) reports that check failed with the panic's message, instead of ending the
@@ -301,59 +301,28 @@ pub fn run_guarded(scenario: &Scenario, options: &Options, monitor: Option<crate
             .map(|text| text.to_string())
             .or_else(|| panic.downcast_ref::<String>().cloned())
             .unwrap_or_else(|| "no message".into());
-        let report = Report {
-            scenario: scenario.name.to_string(),
+        (Report::broken(scenario.name, options, message), Trace::default())
+    })
+}
+
+impl Report {
+    /// The report of a run that broke off (a panic, a process that ended without a report): its one check failed.
+    pub fn broken(scenario: &str, options: &Options, why: String) -> Self {
+        Report {
+            scenario: scenario.to_string(),
             seed: options.seed,
-            engine: options.engine.name(),
+            engine: options.engine.name().to_string(),
             passed: false,
             sim_seconds: 0.0,
             wall_seconds: 0.0,
             checks: vec![Check {
                 name: NO_PANIC.into(),
                 passed: false,
-                detail: message,
+                detail: why,
             }],
             metrics: Map::new(),
-        };
-        (report, Trace::default())
-    })
-}
-
-/// Run every one of `scenarios` as `options` say, up to `workers` at once, each on a thread of its own (each
-/// thread has its own virtual clock, so every run is what it would be alone). `each` gets every report and trace
-/// in the order of `scenarios`, as soon as it and all those before it are done.
-pub fn run_all(
-    scenarios: &[&'static Scenario],
-    options: &Options,
-    workers: usize,
-    mut each: impl FnMut((Report, Trace)),
-) {
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let (done, results) = std::sync::mpsc::channel();
-    std::thread::scope(|scope| {
-        for _ in 0..workers.clamp(1, scenarios.len().max(1)) {
-            let (next, done) = (&next, done.clone());
-            scope.spawn(move || {
-                loop {
-                    let index = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    let Some(scenario) = scenarios.get(index) else { break };
-                    if done.send((index, run_guarded(scenario, options, None))).is_err() {
-                        break;
-                    }
-                }
-            });
         }
-        drop(done);
-        let mut waiting = std::collections::BTreeMap::new();
-        let mut due = 0;
-        for (index, outcome) in results {
-            waiting.insert(index, outcome);
-            while let Some(outcome) = waiting.remove(&due) {
-                each(outcome);
-                due += 1;
-            }
-        }
-    });
+    }
 }
 
 /// `value` to `places` decimals.

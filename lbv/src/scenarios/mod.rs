@@ -19,7 +19,7 @@ mod fidelity;
 #[cfg(test)]
 mod tests;
 
-pub use harness::{Options, Report, Scenario, run_all, run_guarded};
+pub use harness::{Options, Report, Scenario, run_guarded};
 
 use acceptance::acceptance;
 use bus::{bad_frames, missing_thruster, reset_mid_transfer, stuck_sda};
