@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
-# tests (every virtual-bench scenario among them), both firmware images in release and their size report against
-# the flash / RAM budgets.
+# tests (every virtual-bench scenario among them, on both engines), a simulated hour of the bench's soak, both
+# firmware images in release and their size report against the flash / RAM budgets.
 # Usage: ./test.sh        (CI runs exactly this through .ci/run)
 set -euo pipefail
 cd "$(dirname "$0")"

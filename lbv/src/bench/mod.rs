@@ -559,3 +559,38 @@ impl Bench {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A controller that locks up stops feeding its watchdog: on both engines the bench counts a reset the
+    /// watchdog's timeout after the last feed (the event engine at that instant, the fixed-step one at its next
+    /// step), and every timeout after.
+    #[test]
+    fn a_hung_controller_bites_its_watchdog_when_due_on_both_engines() {
+        let mut bites = Vec::new();
+        for engine in [Engine::Events, Engine::Exact] {
+            let mut bench = Bench::new(&BenchConfig::lbv300(1), engine);
+            // Fed at 100 and 200 ms; the feed due at 300 ms has not run when this returns.
+            bench.run_for(Duration::from_millis(300));
+            if let Some(thruster) = bench.thrusters.get_mut(0) {
+                thruster.hang(&mut bench.executor);
+            }
+            let first = bench.run_until(Duration::from_secs(1), |bench| {
+                bench.thrusters[0].watchdog_bites.get() > 0
+            });
+            let first_ms = first.map(|took| took.as_micros() as f64 / 1e3);
+            assert!(
+                first_ms.is_some_and(|ms| (150.0..=150.1).contains(&ms)),
+                "{engine:?}: first bite {first_ms:?} ms after the hang"
+            );
+            bench.run_for(Duration::from_secs(1));
+            bites.push(bench.thrusters[0].watchdog_bites.get());
+            let others: u32 = bench.thrusters.iter().skip(1).map(|t| t.watchdog_bites.get()).sum();
+            assert_eq!(others, 0, "{engine:?}: the healthy controllers are fed");
+        }
+        // At 450, 700, 950 and 1200 ms; the next falls just after the run's end at 1450 ms.
+        assert_eq!(bites, [4, 4], "a bite every 250 ms");
+    }
+}

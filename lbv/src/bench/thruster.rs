@@ -192,6 +192,15 @@ impl ThrusterBoard {
         self.shared = Rc::new(Shared::new());
     }
 
+    /// Hang the controller: its thread-mode tasks stop where they are (a lock-up) while it stays powered and its
+    /// commutation runs on, so its watchdog goes unfed.
+    #[cfg(test)]
+    pub fn hang(&mut self, executor: &mut Executor<'static>) {
+        if let Some(run) = self.tasks.first() {
+            executor.remove(*run);
+        }
+    }
+
     /// Whether the controller is powered.
     pub fn powered(&self) -> bool {
         !self.tasks.is_empty()
