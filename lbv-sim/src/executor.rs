@@ -8,7 +8,8 @@
 use std::collections::VecDeque;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::cell::RefCell;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Wake, Waker};
 
@@ -25,34 +26,87 @@ pub struct TaskId {
     generation: u32,
 }
 
-/// The tasks woken and not yet polled, in wake order.
-#[derive(Debug, Default)]
-struct ReadyQueue(Mutex<VecDeque<TaskId>>);
+/// Executors made so far: each has its own number.
+static EXECUTORS: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    /// The tasks woken on this thread for each executor living on it, by the executor's number, in wake order: a
+    /// wake on the executor's own thread (the usual kind) takes no lock.
+    static WOKEN: RefCell<Vec<(usize, VecDeque<TaskId>)>> = const { RefCell::new(Vec::new()) };
+}
+
+/// The tasks woken and not yet polled, in wake order: on the executor's thread in [`WOKEN`], from any other thread
+/// behind a lock.
+#[derive(Debug)]
+struct ReadyQueue {
+    executor: usize,
+    elsewhere: Mutex<VecDeque<TaskId>>,
+}
 
 impl ReadyQueue {
-    fn push(&self, id: TaskId) {
-        self.0
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner())
-            .push_back(id);
+    /// A queue for a new executor, on this thread.
+    fn new() -> Self {
+        let executor = EXECUTORS.fetch_add(1, Ordering::Relaxed);
+        let _ = WOKEN.try_with(|woken| woken.borrow_mut().push((executor, VecDeque::new())));
+        Self {
+            executor,
+            elsewhere: Mutex::default(),
+        }
     }
 
-    /// Move everything queued to the end of `batch`, keeping the order (one lock for the lot).
+    fn push(&self, id: TaskId) {
+        let here = WOKEN.try_with(|woken| {
+            let mut woken = woken.borrow_mut();
+            let queue = woken.iter_mut().find(|(executor, _)| *executor == self.executor);
+            queue.map(|(_, queue)| queue.push_back(id)).is_some()
+        });
+        if here != Ok(true) {
+            self.lock().push_back(id);
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, VecDeque<TaskId>> {
+        self.elsewhere.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+
+    /// Move everything queued to the end of `batch`, keeping the order (those woken on this thread first).
     fn take_into(&self, batch: &mut VecDeque<TaskId>) {
-        let mut queue = self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        if batch.is_empty() {
-            core::mem::swap(&mut *queue, batch);
-        } else {
-            batch.extend(queue.drain(..));
+        let _ = WOKEN.try_with(|woken| {
+            let mut woken = woken.borrow_mut();
+            if let Some((_, queue)) = woken.iter_mut().find(|(executor, _)| *executor == self.executor) {
+                if batch.is_empty() {
+                    core::mem::swap(queue, batch);
+                } else {
+                    batch.extend(queue.drain(..));
+                }
+            }
+        });
+        let mut elsewhere = self.lock();
+        if !elsewhere.is_empty() {
+            batch.extend(elsewhere.drain(..));
         }
     }
 
     /// Put `ids` back in front of what is queued, in their order.
     fn put_back(&self, ids: &mut VecDeque<TaskId>) {
-        let mut queue = self.0.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        let _ = WOKEN.try_with(|woken| {
+            let mut woken = woken.borrow_mut();
+            if let Some((_, queue)) = woken.iter_mut().find(|(executor, _)| *executor == self.executor) {
+                while let Some(id) = ids.pop_back() {
+                    queue.push_front(id);
+                }
+            }
+        });
+        let mut elsewhere = self.lock();
         while let Some(id) = ids.pop_back() {
-            queue.push_front(id);
+            elsewhere.push_front(id);
         }
+    }
+}
+
+impl Drop for ReadyQueue {
+    fn drop(&mut self) {
+        let _ = WOKEN.try_with(|woken| woken.borrow_mut().retain(|(executor, _)| *executor != self.executor));
     }
 }
 
@@ -70,7 +124,8 @@ impl Wake for TaskWaker {
     }
 
     fn wake_by_ref(self: &Arc<Self>) {
-        if !self.queued.swap(true, Ordering::Relaxed) {
+        // A task woken again before its poll is queued once: the plain load spares the swap then.
+        if !self.queued.load(Ordering::Relaxed) && !self.queued.swap(true, Ordering::Relaxed) {
             self.ready.push(self.id);
         }
     }
@@ -120,7 +175,7 @@ impl<'a> Executor<'a> {
         Self {
             slots: Vec::new(),
             free: Vec::new(),
-            ready: Arc::default(),
+            ready: Arc::new(ReadyQueue::new()),
             batch: VecDeque::new(),
             polls: 0,
             busy_runs: 0,
@@ -282,6 +337,33 @@ mod tests {
         signal.signal(8);
         assert!(executor.run_until_idle());
         assert_eq!(got.get(), 7, "finished tasks are not polled again");
+    }
+
+    #[test]
+    fn a_task_woken_on_another_thread_or_for_another_executor_is_polled() {
+        let signal: Signal<CriticalSectionRawMutex, u32> = Signal::new();
+        let nudge: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+        let (got, other_got) = (Cell::new(0), Cell::new(false));
+        let mut executor = Executor::default();
+        // A second executor on the same thread keeps its own wakes.
+        let mut other = Executor::default();
+        other.spawn(async {
+            nudge.wait().await;
+            other_got.set(true);
+        });
+        executor.spawn(async {
+            got.set(signal.wait().await);
+        });
+        assert!(executor.run_until_idle() && other.run_until_idle());
+        std::thread::scope(|scope| {
+            scope.spawn(|| signal.signal(5));
+        });
+        nudge.signal(());
+        assert!(executor.run_until_idle());
+        assert_eq!((got.get(), other_got.get()), (5, false));
+        assert!(other.run_until_idle());
+        assert!(other_got.get());
+        assert_eq!((executor.tasks(), other.tasks()), (0, 0));
     }
 
     #[test]
