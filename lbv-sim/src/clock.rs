@@ -21,7 +21,6 @@ struct Alarm {
 }
 
 /// One thread's clock: ticks since it was taken, and the timers pending.
-#[derive(Default)]
 struct State {
     now: u64,
     /// In the order they were set: timers due at the same time wake in this order.
@@ -35,8 +34,20 @@ struct State {
     due: Vec<Alarm>,
 }
 
+impl State {
+    /// Time 0, no timer pending.
+    const NEW: State = State {
+        now: 0,
+        alarms: Vec::new(),
+        earliest: None,
+        last: 0,
+        due: Vec::new(),
+    };
+}
+
 thread_local! {
-    static STATE: RefCell<State> = RefCell::default();
+    // Set up without a lazy first-use check: every `Instant::now()` of the cores comes here.
+    static STATE: RefCell<State> = const { RefCell::new(State::NEW) };
     static HELD: Cell<bool> = const { Cell::new(false) };
 }
 
@@ -101,7 +112,7 @@ pub struct Clock {
 pub fn take() -> Clock {
     let held = HELD.with(|held| held.replace(true));
     debug_assert!(!held, "this thread's clock is already taken");
-    STATE.with(|state| *state.borrow_mut() = State::default());
+    STATE.with(|state| *state.borrow_mut() = State::NEW);
     Clock {
         _not_send: core::marker::PhantomData,
     }
