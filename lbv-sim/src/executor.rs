@@ -5,10 +5,10 @@
 //! removed at any point, as a reset drops a controller's work in progress; its slot is then reused, and a waker
 //! left behind by the removed task (in a timer queue, a signal) can never wake the task that took the slot over.
 
+use std::cell::RefCell;
 use std::collections::VecDeque;
 use std::future::Future;
 use std::pin::Pin;
-use std::cell::RefCell;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context, Wake, Waker};
