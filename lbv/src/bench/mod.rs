@@ -20,6 +20,8 @@ pub mod thruster;
 pub mod trace;
 pub mod udp;
 
+use std::rc::Rc;
+
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::MasterConfig;
 use lbv_master_fw::battery::CanFrame;
@@ -28,8 +30,6 @@ use lbv_master_fw::thrusters::{MUX_ADDRESS, ThrusterSlot, ThrusterTable};
 use lbv_sim::i2c::{Bus, Route, Timing};
 use lbv_sim::{CanBus, Clock, Executor, Queue};
 use tmc_proto::Family;
-
-use std::rc::Rc;
 
 use battery::{BatteryBoard, Rail};
 use ground::GroundStation;
