@@ -8,8 +8,11 @@ pub mod acceptance;
 pub mod battery;
 pub mod console;
 pub mod mixer;
+pub mod params;
 pub mod poll;
+pub mod settings;
 pub mod shared;
+pub mod signing;
 pub mod thrusters;
 pub mod vehicle;
 

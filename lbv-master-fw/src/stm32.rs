@@ -1,14 +1,18 @@
 //! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
 use defmt::{info, unwrap};
+use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::Spawner;
 use embassy_stm32::can::{self, CanConfigurator};
+use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::i2c::{self, I2c};
 use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllQDiv, PllRDiv, PllSource, Sysclk};
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use lbv_master_fw::battery;
 use lbv_master_fw::console::{self, ConsoleConfig, ConsoleStats};
+use lbv_master_fw::params::Settings;
+use lbv_master_fw::settings::{self, G431_STORAGE, Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::vehicle::{self, VehicleConfig};
 use static_cell::StaticCell;
@@ -40,6 +44,14 @@ static CONSOLE: ConsoleConfig = ConsoleConfig {
     ..ConsoleConfig::DEFAULT
 };
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
+const VEHICLE: VehicleConfig = VehicleConfig {
+    thrusters: board::THRUSTER_COUNT,
+    ..VehicleConfig::DEFAULT
+};
+
+/// The settings store: embassy-stm32's flash driver (blocking: the G431 has one bank, so the CPU waits out every
+/// write and erase anyway) behind the async NOR flash port.
+type SettingsStore = Store<BlockingAsync<Flash<'static, Blocking>>>;
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
@@ -102,6 +114,13 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
+    let mut store = unwrap!(Store::new(
+        BlockingAsync::new(Flash::new_blocking(p.FLASH)),
+        G431_STORAGE
+    ));
+    let stored = store.load(VEHICLE.defaults()).await;
+    info!("settings: {} unreadable items", store.read_errors());
+
     #[cfg(not(feature = "acceptance"))]
     for (index, bus) in [bus1, bus2, bus3].into_iter().enumerate() {
         let index = index as u8;
@@ -118,7 +137,8 @@ async fn main(spawner: Spawner) {
     spawner.spawn(unwrap!(battery_task(can)));
     spawner.spawn(unwrap!(console_rx_task(console_rx)));
     spawner.spawn(unwrap!(console_tx_task(console_tx)));
-    spawner.spawn(unwrap!(vehicle_task()));
+    spawner.spawn(unwrap!(vehicle_task(stored)));
+    spawner.spawn(unwrap!(settings_task(store, stored)));
 }
 
 /// 170 MHz from the internal 16 MHz oscillator (HSI / 4 * 85 / 2), and 85 MHz from PLL Q for FDCAN, whose
@@ -161,12 +181,22 @@ async fn console_tx_task(mut tx: BufferedUartTx<'static>) -> ! {
 }
 
 #[embassy_executor::task]
-async fn vehicle_task() -> ! {
-    let config = VehicleConfig {
-        thrusters: board::THRUSTER_COUNT,
-        ..VehicleConfig::DEFAULT
-    };
-    vehicle::vehicle_task(config, &SHARED).await
+async fn vehicle_task(stored: Settings) -> ! {
+    vehicle::vehicle_task(VEHICLE, stored, &SHARED).await
+}
+
+#[embassy_executor::task]
+async fn settings_task(mut store: SettingsStore, stored: Settings) -> ! {
+    settings::settings_task(&mut store, stored, &SHARED, &mut SystemReset).await
+}
+
+/// A reboot is a system reset (the ARMv7-M AIRCR.SYSRESETREQ request): the RAM state is lost, the flash kept.
+struct SystemReset;
+
+impl Reboot for SystemReset {
+    fn reboot(&mut self) {
+        cortex_m::peripheral::SCB::sys_reset();
+    }
 }
 
 /// The acceptance test's binding: its report lines over defmt and the console, its prompts as a log line and a

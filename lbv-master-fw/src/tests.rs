@@ -145,7 +145,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
     let tasks = join5(
         console_rx_task(&mut rx, &ConsoleConfig::DEFAULT, &shared, &stats),
         console_tx_task(&mut tx, &ConsoleConfig::DEFAULT, &shared, &stats),
-        vehicle_task(VehicleConfig::DEFAULT, &shared),
+        vehicle_task(VehicleConfig::DEFAULT, VehicleConfig::DEFAULT.defaults(), &shared),
         bus_task(&mut bus, 0, &table, &PollConfig::DEFAULT, &shared),
         can_task(&mut can, &shared),
     );

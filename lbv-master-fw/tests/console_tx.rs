@@ -9,7 +9,7 @@ use embassy_time::{Duration, MockDriver};
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
-use lbv_master_fw::shared::{AckResult, Outgoing, Severity, Shared, Text, ThrusterReport, VehicleState};
+use lbv_master_fw::shared::{AckResult, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState};
 use lbv_master_fw::thrusters::LinkHealth;
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
 
@@ -96,6 +96,10 @@ fn outbox_messages_go_out_at_once() {
                     .try_send(Outgoing::CommandAck {
                         command: 400,
                         result: AckResult::TemporarilyRejected,
+                        to: Sender {
+                            system: 255,
+                            component: 190,
+                        },
                     })
                     .unwrap();
                 shared
@@ -122,6 +126,7 @@ fn outbox_messages_go_out_at_once() {
                 (400, MavResult::MAV_RESULT_TEMPORARILY_REJECTED)
             );
             assert_eq!(ack.progress, 0);
+            assert_eq!((ack.target_system, ack.target_component), (255, 190), "to the sender");
         }
         other => panic!("expected COMMAND_ACK, got {other:?}"),
     }
@@ -173,6 +178,7 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
                 shared.vehicle.sender().send(VehicleState {
                     armed: true,
                     console_alive: true,
+                    refused: 0,
                 });
             }
         },

@@ -211,14 +211,11 @@ impl Master {
             .await;
         });
         executor.spawn(async move {
-            vehicle_task(
-                VehicleConfig {
-                    thrusters,
-                    ..VehicleConfig::DEFAULT
-                },
-                shared,
-            )
-            .await;
+            let config = VehicleConfig {
+                thrusters,
+                ..VehicleConfig::DEFAULT
+            };
+            vehicle_task(config, config.defaults(), shared).await;
         });
         master
     }
