@@ -1,9 +1,11 @@
 //! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
 use defmt::{info, unwrap};
+#[cfg(not(feature = "acceptance"))]
 use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::Spawner;
 use embassy_stm32::can::{self, CanConfigurator};
+#[cfg(not(feature = "acceptance"))]
 use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::i2c::{self, I2c};
 use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllQDiv, PllRDiv, PllSource, Sysclk};
@@ -12,7 +14,9 @@ use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use lbv_master_fw::battery;
 use lbv_master_fw::console::{self, ConsoleConfig, ConsoleStats};
 use lbv_master_fw::params::Settings;
-use lbv_master_fw::settings::{self, G431_STORAGE, Reboot, Store};
+use lbv_master_fw::settings::Reboot;
+#[cfg(not(feature = "acceptance"))]
+use lbv_master_fw::settings::{self, G431_STORAGE, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::vehicle::{self, VehicleConfig};
 use static_cell::StaticCell;
@@ -51,6 +55,7 @@ const VEHICLE: VehicleConfig = VehicleConfig {
 
 /// The settings store: embassy-stm32's flash driver (blocking: the G431 has one bank, so the CPU waits out every
 /// write and erase anyway) behind the async NOR flash port.
+#[cfg(not(feature = "acceptance"))]
 type SettingsStore = Store<BlockingAsync<Flash<'static, Blocking>>>;
 
 #[embassy_executor::main]
@@ -114,12 +119,24 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
-    let mut store = unwrap!(Store::new(
-        BlockingAsync::new(Flash::new_blocking(p.FLASH)),
-        G431_STORAGE
-    ));
-    let stored = store.load(VEHICLE.defaults()).await;
-    info!("settings: {} unreadable items", store.read_errors());
+    // The settings in flash. The acceptance image (a bench test between two dev kits, whose script takes no
+    // parameter) keeps them in RAM at their defaults: the store's code would take it over its flash budget.
+    #[cfg(not(feature = "acceptance"))]
+    let stored = {
+        let mut store = unwrap!(Store::new(
+            BlockingAsync::new(Flash::new_blocking(p.FLASH)),
+            G431_STORAGE
+        ));
+        let stored = store.load(VEHICLE.defaults()).await;
+        info!("settings: {} unreadable items", store.read_errors());
+        spawner.spawn(unwrap!(settings_task(store)));
+        stored
+    };
+    #[cfg(feature = "acceptance")]
+    let stored = {
+        spawner.spawn(unwrap!(reboot_task()));
+        VEHICLE.defaults()
+    };
 
     #[cfg(not(feature = "acceptance"))]
     for (index, bus) in [bus1, bus2, bus3].into_iter().enumerate() {
@@ -138,7 +155,6 @@ async fn main(spawner: Spawner) {
     spawner.spawn(unwrap!(console_rx_task(console_rx)));
     spawner.spawn(unwrap!(console_tx_task(console_tx)));
     spawner.spawn(unwrap!(vehicle_task(stored)));
-    spawner.spawn(unwrap!(settings_task(store, stored)));
 }
 
 /// 170 MHz from the internal 16 MHz oscillator (HSI / 4 * 85 / 2), and 85 MHz from PLL Q for FDCAN, whose
@@ -185,9 +201,18 @@ async fn vehicle_task(stored: Settings) -> ! {
     vehicle::vehicle_task(VEHICLE, stored, &SHARED).await
 }
 
+#[cfg(not(feature = "acceptance"))]
 #[embassy_executor::task]
-async fn settings_task(mut store: SettingsStore, stored: Settings) -> ! {
-    settings::settings_task(&mut store, stored, &SHARED, &mut SystemReset).await
+async fn settings_task(mut store: SettingsStore) -> ! {
+    settings::settings_task(&mut store, &SHARED, &mut SystemReset).await
+}
+
+/// Without the settings store, the reboot alone.
+#[cfg(feature = "acceptance")]
+#[embassy_executor::task]
+async fn reboot_task() {
+    SHARED.reboot.wait().await;
+    SystemReset.reboot();
 }
 
 /// A reboot is a system reset (the ARMv7-M AIRCR.SYSRESETREQ request): the RAM state is lost, the flash kept.
