@@ -185,33 +185,41 @@ impl<F: NorFlash> Store<F> {
 
     /// Store `settings` (nothing is written when the flash holds them already).
     pub async fn save(&mut self, settings: &Settings) -> Result<(), StoreError> {
-        let signing_time = self.held.map_or(0, |held| signing_time_of(&held));
-        self.write(encode(settings, signing_time)).await
+        let signing_time = self.held.as_ref().map_or(0, signing_time_of);
+        self.stage(encode(settings, signing_time));
+        self.write_staged().await
     }
 
     /// Store the signing link's timestamp (after [`Store::load`]).
     pub async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError> {
-        let Some(mut record) = self.held else {
+        let Some(held) = self.held else {
             return Ok(());
         };
-        if let Some(slot) = record.get_mut(RECORD - 8..) {
+        self.stage(held);
+        if let Some(slot) = self.buffer.0.get_mut(RECORD - 8..RECORD) {
             slot.copy_from_slice(&timestamp.to_le_bytes());
         }
-        self.write(record).await
+        self.write_staged().await
     }
 
-    async fn write(&mut self, record: [u8; RECORD]) -> Result<(), StoreError> {
-        if self.held == Some(record) {
+    /// Put a record in the aligned buffer, which flash drivers like to write from.
+    fn stage(&mut self, record: [u8; RECORD]) {
+        if let Some(staged) = self.buffer.0.first_chunk_mut::<RECORD>() {
+            *staged = record;
+        }
+    }
+
+    /// Append the staged record unless the flash holds it already. The oldest records go when the log comes
+    /// round: only the newest counts.
+    async fn write_staged(&mut self) -> Result<(), StoreError> {
+        let Some(staged) = self.buffer.0.first_chunk::<RECORD>() else {
+            return Ok(());
+        };
+        if self.held.as_ref() == Some(staged) {
             return Ok(());
         }
-        // From the aligned buffer, as flash drivers like it. The oldest records go when the log comes round: only
-        // the newest counts.
-        let staged = self.buffer.0.get_mut(..RECORD).unwrap_or_default();
-        staged.copy_from_slice(&record);
-        self.queue
-            .push(self.buffer.0.get(..RECORD).unwrap_or_default(), true)
-            .await?;
-        self.held = Some(record);
+        self.queue.push(staged, true).await?;
+        self.held = Some(*staged);
         Ok(())
     }
 }
