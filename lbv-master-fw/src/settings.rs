@@ -137,7 +137,7 @@ impl<F: NorFlash> core::fmt::Debug for Store<F> {
 }
 
 impl<F: NorFlash> Store<F> {
-    /// The store in `range` of `flash`; `None` unless the range is whole erase pages, at least two of them.
+    /// The store in `range` of `flash`; `None` unless the range is whole erase pages.
     pub fn new(flash: F, range: Range<u32>) -> Option<Self> {
         let config = QueueConfig::try_new(range).ok()?;
         Some(Self {
@@ -176,10 +176,11 @@ impl<F: NorFlash> Store<F> {
             Err(_) => self.read_errors += 1,
         }
         let (mut settings, signing_time) = newest.unwrap_or((defaults, 0));
-        self.held = Some(encode(&settings, signing_time));
         if let Some(key) = settings.signing.as_mut() {
             key.timestamp = key.timestamp.max(signing_time);
         }
+        // As the vehicle will publish them: nothing to write until they change.
+        self.held = Some(encode(&settings, signing_time));
         settings
     }
 
@@ -383,6 +384,16 @@ mod tests {
         block_on(store.load(defaults()));
         block_on(store.save_signing_time(999_999)).unwrap();
         assert_eq!(load(&mut flash).0.signing.map(|k| k.timestamp), Some(999_999));
+        // At power-up the vehicle publishes what was loaded: nothing to write.
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        let loaded = block_on(store.load(defaults()));
+        store.into_flash();
+        let before = flash.stats_snapshot();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        block_on(store.save(&loaded)).unwrap();
+        store.into_flash();
+        assert_eq!(before.compare_to(flash.stats_snapshot()).writes, 0);
         // Signing off: an all-zero key.
         let off = Settings { signing: None, ..new };
         save(&mut flash, &off).unwrap();
