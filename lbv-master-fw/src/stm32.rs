@@ -215,7 +215,8 @@ async fn reboot_task() {
     SystemReset.reboot();
 }
 
-/// A reboot is a system reset (the ARMv7-M AIRCR.SYSRESETREQ request): the RAM state is lost, the flash kept.
+/// A reboot is a system reset (AIRCR.SYSRESETREQ, ARMv7-M Architecture Reference Manual B3.2.6): the RAM state is
+/// lost, the flash kept.
 struct SystemReset;
 
 impl Reboot for SystemReset {
