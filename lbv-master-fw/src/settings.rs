@@ -14,8 +14,10 @@
 //! per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code is
 //! no larger.
 //!
-//! The flash is a port: embedded-storage-async's `NorFlash`, which the STM32 binding implements over
-//! embassy-stm32's flash driver and the host tests over sequential-storage's fault-injecting mock flash.
+//! Two ports: where the settings are kept ([`SettingsStore`]: [`Store`] over any embedded-storage-async
+//! `NorFlash` — embassy-stm32's flash driver on the chip, lbv-sim's flash on the bench, sequential-storage's
+//! fault-injecting mock in the tests — or [`InRam`], which keeps nothing across a restart), and how the master
+//! restarts ([`Reboot`]).
 
 use core::ops::Range;
 
@@ -32,10 +34,50 @@ use crate::signing::SigningKey;
 /// the 2 KiB pages of its single bank (RM0440 3.3.1, category 2 devices). `memory.x` keeps the images below.
 pub const G431_STORAGE: Range<u32> = 0x1_C000..0x2_0000;
 
-/// Restarts the master: a system reset on the STM32; the bench restarts the core with its flash kept.
+/// Where the settings are kept.
+#[allow(async_fn_in_trait)]
+pub trait SettingsStore {
+    /// The newest stored settings over `defaults` (what is missing or invalid stays default); called once, at
+    /// start-up, before anything is saved.
+    async fn load(&mut self, defaults: Settings) -> Settings;
+
+    /// Store `settings`.
+    async fn save(&mut self, settings: &Settings) -> Result<(), StoreError>;
+
+    /// Store the signing link's timestamp.
+    async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError>;
+
+    /// Records that could not be read by [`SettingsStore::load`].
+    fn read_errors(&self) -> u32 {
+        0
+    }
+}
+
+/// Restarts the master: a system reset on the STM32; the bench drops the master's tasks and boots it again with
+/// its flash kept.
+#[allow(async_fn_in_trait)]
 pub trait Reboot {
-    /// Restart now (on the STM32 this does not return).
-    fn reboot(&mut self);
+    /// Restart now. It does not return: the STM32 resets; elsewhere the task waits here until it is dropped.
+    async fn reboot(&mut self) -> !;
+}
+
+/// Settings kept in RAM only: every start is from the defaults, and a save is accepted and forgotten. For an image
+/// without the flash store (the acceptance image, whose script takes no parameter).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct InRam;
+
+impl SettingsStore for InRam {
+    async fn load(&mut self, defaults: Settings) -> Settings {
+        defaults
+    }
+
+    async fn save(&mut self, _settings: &Settings) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    async fn save_signing_time(&mut self, _timestamp: u64) -> Result<(), StoreError> {
+        Ok(())
+    }
 }
 
 /// The record's format; a record of another format is skipped.
@@ -148,59 +190,20 @@ impl<F: NorFlash> Store<F> {
         })
     }
 
+    /// The store in the pages the G431 images leave for it ([`G431_STORAGE`]) of `flash`, the whole 128 KiB flash
+    /// (its 2 KiB pages are checked when the image is built).
+    pub const fn g431(flash: F) -> Self {
+        Self {
+            queue: QueueStorage::new(flash, const { QueueConfig::new(G431_STORAGE) }, Cache::new_uncached()),
+            buffer: Buffer([0; RECORD.next_multiple_of(8)]),
+            held: None,
+            read_errors: 0,
+        }
+    }
+
     /// The flash back (the tests power-cycle it).
     pub fn into_flash(self) -> F {
         self.queue.destroy().0
-    }
-
-    /// Records that could not be read at start-up.
-    pub fn read_errors(&self) -> u32 {
-        self.read_errors
-    }
-
-    /// The newest stored settings over `defaults` (what is missing or invalid stays default); the signing key's
-    /// timestamp is the later of the one it was set up with and the link's stored one.
-    pub async fn load(&mut self, defaults: Settings) -> Settings {
-        let mut newest = None;
-        match self.queue.iter().await {
-            Ok(mut records) => loop {
-                match records.next(&mut self.buffer.0).await {
-                    Ok(Some(record)) => newest = decode(&record, defaults).or(newest),
-                    Ok(None) => break,
-                    Err(_) => {
-                        self.read_errors += 1;
-                        break;
-                    }
-                }
-            },
-            Err(_) => self.read_errors += 1,
-        }
-        let (mut settings, signing_time) = newest.unwrap_or((defaults, 0));
-        if let Some(key) = settings.signing.as_mut() {
-            key.timestamp = key.timestamp.max(signing_time);
-        }
-        // As the vehicle will publish them: nothing to write until they change.
-        self.held = Some(encode(&settings, signing_time));
-        settings
-    }
-
-    /// Store `settings` (nothing is written when the flash holds them already).
-    pub async fn save(&mut self, settings: &Settings) -> Result<(), StoreError> {
-        let signing_time = self.held.as_ref().map_or(0, signing_time_of);
-        self.stage(encode(settings, signing_time));
-        self.write_staged().await
-    }
-
-    /// Store the signing link's timestamp (after [`Store::load`]).
-    pub async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError> {
-        let Some(held) = self.held else {
-            return Ok(());
-        };
-        self.stage(held);
-        if let Some(slot) = self.buffer.0.get_mut(RECORD - 8..RECORD) {
-            slot.copy_from_slice(&timestamp.to_le_bytes());
-        }
-        self.write_staged().await
     }
 
     /// Put a record in the aligned buffer, which flash drivers like to write from.
@@ -225,16 +228,66 @@ impl<F: NorFlash> Store<F> {
     }
 }
 
+impl<F: NorFlash> SettingsStore for Store<F> {
+    /// The signing key's timestamp is the later of the one it was set up with and the link's stored one.
+    async fn load(&mut self, defaults: Settings) -> Settings {
+        let mut newest = None;
+        match self.queue.iter().await {
+            Ok(mut records) => loop {
+                match records.next(&mut self.buffer.0).await {
+                    Ok(Some(record)) => newest = decode(&record, defaults).or(newest),
+                    Ok(None) => break,
+                    Err(_) => {
+                        self.read_errors += 1;
+                        break;
+                    }
+                }
+            },
+            Err(_) => self.read_errors += 1,
+        }
+        let (mut settings, signing_time) = newest.unwrap_or((defaults, 0));
+        if let Some(key) = settings.signing.as_mut() {
+            key.timestamp = key.timestamp.max(signing_time);
+        }
+        // As the vehicle will publish them: nothing to write until they change.
+        self.held = Some(encode(&settings, signing_time));
+        settings
+    }
+
+    /// Nothing is written when the flash holds them already.
+    async fn save(&mut self, settings: &Settings) -> Result<(), StoreError> {
+        let signing_time = self.held.as_ref().map_or(0, signing_time_of);
+        self.stage(encode(settings, signing_time));
+        self.write_staged().await
+    }
+
+    /// Nothing is written before [`SettingsStore::load`].
+    async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError> {
+        let Some(held) = self.held else {
+            return Ok(());
+        };
+        self.stage(held);
+        if let Some(slot) = self.buffer.0.get_mut(RECORD - 8..RECORD) {
+            slot.copy_from_slice(&timestamp.to_le_bytes());
+        }
+        self.write_staged().await
+    }
+
+    fn read_errors(&self) -> u32 {
+        self.read_errors
+    }
+}
+
 /// The signing link's timestamp in a record (its last 8 bytes).
 fn signing_time_of(record: &[u8; RECORD]) -> u64 {
     record.last_chunk::<8>().copied().map_or(0, u64::from_le_bytes)
 }
 
-/// Keep the settings in `store` (which has [`Store::load`]ed them): write each change the vehicle publishes
+/// Keep the settings in `store` (which has [`SettingsStore::load`]ed them): write each change the vehicle publishes
 /// (`shared.settings`) and the signing link's timestamp (`shared.signing_time`); when the reboot's
 /// acknowledgement is out (`shared.reboot`), finish writing and restart through `reboot`. A write that fails is
 /// reported on the console (Warning) and retried with the next change.
-pub async fn settings_task<F: NorFlash, R: Reboot>(store: &mut Store<F>, shared: &Shared, reboot: &mut R) -> ! {
+pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &Shared, reboot: &mut R) -> ! {
     let mut settings = shared.settings.receiver();
     let mut signing_time = shared.signing_time.receiver();
     loop {
@@ -262,8 +315,7 @@ pub async fn settings_task<F: NorFlash, R: Reboot>(store: &mut Store<F>, shared:
                 if let Some(new) = settings.as_mut().and_then(|receiver| receiver.try_changed()) {
                     let _ = store.save(&new).await;
                 }
-                reboot.reboot();
-                Ok(())
+                reboot.reboot().await
             }
         };
         if let Err(error) = result {
@@ -549,8 +601,9 @@ mod tests {
     struct Restart(std::rc::Rc<core::cell::Cell<u32>>);
 
     impl Reboot for Restart {
-        fn reboot(&mut self) {
+        async fn reboot(&mut self) -> ! {
             self.0.set(self.0.get() + 1);
+            core::future::pending().await
         }
     }
 

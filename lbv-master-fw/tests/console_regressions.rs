@@ -9,7 +9,7 @@
 
 mod console_support;
 
-use console_support::{Line, clock, parse_all, run_console, v2};
+use console_support::{Line, parse_all, run_console, v2};
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::LINE_IDLE;
 use lbv_master_fw::console::lbv::{
@@ -70,7 +70,6 @@ fn failsafe_texts(sent: &[u8]) -> Vec<String> {
 
 #[test]
 fn a_stray_byte_does_not_blind_the_console() {
-    let _clock = clock();
     const STRAYS: [&[u8]; 3] = [&[0xFE], &[0xFD, 0xFF, 0x00], &[0xFD, 0xFF]];
     for stray in STRAYS {
         let mut bursts = pilot(30);
@@ -111,7 +110,6 @@ fn a_stray_byte_does_not_blind_the_console() {
 
 #[test]
 fn another_systems_traffic_does_not_keep_the_failsafe_alive() {
-    let _clock = clock();
     // The operator arms, then falls silent; system 2 keeps reading parameters and sending ground-station
     // heartbeats.
     let mut bursts = vec![(0, heartbeat(GCS, 0)), (10, arm(GCS, 1))];
@@ -156,7 +154,6 @@ fn another_systems_traffic_does_not_keep_the_failsafe_alive() {
 
 #[test]
 fn another_system_cannot_arm() {
-    let _clock = clock();
     let other = (42, 1);
     let bursts = vec![
         (0, heartbeat(other, 0)),

@@ -13,7 +13,7 @@ use std::process::{Command as Process, Stdio};
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use console_support::{Line, clock, run_console, run_rx_requests, run_tx};
-use embassy_time::{Duration, Instant, MockDriver};
+use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::frame::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, inbound};
@@ -77,7 +77,6 @@ fn signing_now() -> u64 {
 
 #[test]
 fn after_setup_signing_only_signed_commands_pass_and_everything_sent_is_signed() {
-    let _clock = clock();
     let frames = ground_station(1_000_000);
     let at = |ms: u64, name: &str| (ms, frames[name].clone());
     let line = Line::new(vec![
@@ -168,7 +167,6 @@ fn heartbeat() -> HEARTBEAT_DATA {
 #[test]
 fn mavlink_core_verifies_what_the_console_signs() {
     let _clock = clock();
-    MockDriver::get().reset();
     let shared = Shared::new();
     let stats = ConsoleStats::new();
     let mut settings = VehicleConfig::DEFAULT.defaults();

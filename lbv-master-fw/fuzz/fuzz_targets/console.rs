@@ -21,6 +21,8 @@ use lbv_master_fw::params::{Param, Settings};
 use lbv_master_fw::shared::{Command, Outgoing, Request};
 use lbv_master_fw::signing::{SIGNATURE_LEN, SigningState};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
+// The host's time driver (virtual time; the harness passes its own instants).
+use lbv_sim as _;
 use libfuzzer_sys::fuzz_target;
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MessageData};
 

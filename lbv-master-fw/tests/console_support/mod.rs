@@ -1,18 +1,17 @@
-//! Shared by the console tests: in-memory serial ports, runners for the two console tasks, frame builders and a
-//! reader that uses the mavlink crate's own parser.
+//! Shared by the console tests: a scripted serial receive side, runners for the two console tasks, frame builders
+//! and a reader that uses the mavlink crate's own parser. The clock and the capture port are lbv-sim's.
 #![allow(dead_code)]
 
-use std::cell::{Cell, RefCell};
+use std::cell::Cell;
 use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::rc::Rc;
-use std::sync::{Mutex, MutexGuard};
 
 use embassy_futures::block_on;
 use embassy_futures::join::join3;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
-use embassy_time::{Duration, Instant, MockDriver};
+use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::MavMessage;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::params::Settings;
@@ -20,11 +19,13 @@ use lbv_master_fw::shared::{Command, Request, Shared};
 use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, MessageData};
 
-/// The mock clock is one per process: tests that move it take this lock.
-pub fn clock() -> MutexGuard<'static, ()> {
-    static CLOCK: Mutex<()> = Mutex::new(());
-    CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+/// The virtual clock is one per process: tests that move it take it (at 0).
+pub fn clock() -> lbv_sim::Clock {
+    lbv_sim::clock::take()
 }
+
+/// A serial port's transmit side that records every byte written (`take` returns them).
+pub use lbv_sim::SerialTx as Capture;
 
 /// A serial port's receive side that delivers `data` in chunks of `chunk` bytes, then waits forever; `idle`
 /// turns true once everything was read.
@@ -63,31 +64,6 @@ impl embedded_io_async::Read for ScriptedRx {
         buf[..n].copy_from_slice(&self.data[self.pos..self.pos + n]);
         self.pos += n;
         Ok(n)
-    }
-}
-
-/// A serial port's transmit side that records every byte written.
-#[derive(Clone, Default)]
-pub struct Capture(pub Rc<RefCell<Vec<u8>>>);
-
-impl Capture {
-    pub fn take(&self) -> Vec<u8> {
-        std::mem::take(&mut self.0.borrow_mut())
-    }
-}
-
-impl embedded_io_async::ErrorType for Capture {
-    type Error = Infallible;
-}
-
-impl embedded_io_async::Write for Capture {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.0.borrow_mut().extend_from_slice(buf);
-        Ok(buf.len())
-    }
-
-    async fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
     }
 }
 
@@ -143,7 +119,7 @@ pub fn run_tx(
             for _ in 0..4 {
                 yield_now().await;
             }
-            MockDriver::get().advance(step);
+            lbv_sim::clock::advance(step);
             elapsed += step;
         }
     }));
@@ -230,16 +206,16 @@ impl embedded_io_async::Read for Line {
     }
 }
 
-/// The console and the vehicle on the virtual clock: the receive, transmit and vehicle tasks, with `line` as the
-/// console's input, run for `run_for` in 1 ms steps; `each_ms` sees the shared state after every step. Returns
-/// what the console sent.
+/// The console and the vehicle on the virtual clock, which this takes (at 0) for the run: the receive, transmit and
+/// vehicle tasks, with `line` as the console's input, run for `run_for` in 1 ms steps; `each_ms` sees the shared
+/// state after every step. Returns what the console sent.
 pub fn run_console(
     settings: Settings,
     line: Line,
     run_for: Duration,
     mut each_ms: impl FnMut(Instant, &Shared, &ConsoleStats),
 ) -> Vec<u8> {
-    MockDriver::get().reset();
+    let clock = clock();
     let shared = Shared::new();
     let stats = ConsoleStats::new();
     let capture = Capture::default();
@@ -258,7 +234,7 @@ pub fn run_console(
                 yield_now().await;
             }
             each_ms(Instant::now(), &shared, &stats);
-            MockDriver::get().advance(Duration::from_millis(1));
+            clock.advance(Duration::from_millis(1));
         }
     }));
     capture.take()
