@@ -1,7 +1,8 @@
 //! The bench flown by MAVProxy, a real ground station, as a pilot flies (`tests/mavproxy_pilot.py`): MAVProxy
 //! connects to `lbv bench --udp`, downloads the parameters itself, sets one, arms, holds the vehicle armed for
-//! 8 s on its own 1 Hz heartbeats, disarms and runs a motor test; pymavlink watches what the vehicle sends.
-//! Runs in real time (about 30 s).
+//! 8 s on its own 1 Hz heartbeats, disarms, reboots the master (the bench restarts its core with its flash kept),
+//! finds the parameter still set, and runs a motor test; pymavlink watches what the vehicle sends. Runs in real
+//! time (about 35 s).
 //!
 //! Needs python3 with MAVProxy and pymavlink (`pip install mavproxy pymavlink`; test.sh installs them); without
 //! them this test fails, it does not skip.
@@ -85,9 +86,21 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
     assert_eq!(summary["passed"], true, "{summary}");
     assert_eq!(
         summary["steps"],
-        serde_json::json!(["connect", "params", "param_set", "arm", "hold", "disarm", "motortest"]),
+        serde_json::json!([
+            "connect",
+            "params",
+            "param_set",
+            "arm",
+            "hold",
+            "disarm",
+            "reboot",
+            "persisted",
+            "motortest"
+        ]),
         "{summary}"
     );
     assert_eq!(summary["hold"]["all_armed"], true, "{summary}");
+    assert_eq!(summary["persisted"]["LBV_GAIN"], 80.0, "{summary}");
+    assert!(summary["reboot"]["sequence_restarts"].as_u64() >= Some(1), "{summary}");
     println!("pilot: {summary}\nbench:\n{bench_output}");
 }

@@ -15,10 +15,13 @@ message for the detailed checks (it never sends). The steps:
     hold           8 s armed with nothing from the pilot: every HEARTBEAT armed, no failsafe text (MAVProxy sends
                    its 1 Hz heartbeats and nothing that steers)
     disarm         `disarm`: COMMAND_ACK accepted, HEARTBEAT disarmed
+    reboot         `reboot`: COMMAND_ACK accepted, "Rebooting", then the master starts again (its sequence numbers
+                   start over and it finds its thrusters again: "T1 online")
+    persisted      `param fetch LBV_GAIN` after the reboot: still 80 (read from the master's flash)
     motortest      `motortest 1 0 10 2`: COMMAND_ACK accepted, thruster 1 turns (ESC telemetry), stops after 2 s
 
 Prints a JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not (or
-time ran out), 3 when pymavlink or MAVProxy is missing. Further steps (reboot, persistence) go in STEPS.
+time ran out), 3 when pymavlink or MAVProxy is missing. Further steps go in STEPS.
 """
 import json
 import os
@@ -222,6 +225,45 @@ class Pilot:
             raise Failed(f"disarm: COMMAND_ACK result {result}")
         self.wait(lambda: not self.observer.armed(since) and self.observer.since(since, "HEARTBEAT"), 3.0, "a disarmed HEARTBEAT")
 
+    def reboot(self):
+        since = time.monotonic()
+        self.mavproxy.type("reboot")
+        self.wait(
+            lambda: self.ack(mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, since) is not None, 5.0, "the reboot's COMMAND_ACK"
+        )
+        result = self.ack(mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, since)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"reboot: COMMAND_ACK result {result}")
+
+        def restarted():
+            texts = self.observer.texts(since)
+            return "Rebooting" in texts and "T1 online" in texts[texts.index("Rebooting") :]
+
+        self.wait(restarted, 10.0, "the master starting again")
+        # A fresh master numbers its frames from 0 again.
+        sequences = [m.get_seq() for t, m in self.observer.messages if t >= since]
+        restarts = sum(1 for a, b in zip(sequences, sequences[1:]) if b != (a + 1) % 256)
+        self.summary["reboot"] = {"texts": self.observer.texts(since)[:6], "sequence_restarts": restarts}
+        if restarts < 1:
+            raise Failed("the master's sequence numbers did not start over")
+        self.wait(lambda: self.observer.since(since, "HEARTBEAT") and not self.observer.armed(since), 3.0, "a disarmed HEARTBEAT")
+        # The fresh master takes commands once it has heard the ground station: MAVProxy's next 1 Hz heartbeat.
+        heard = time.monotonic() + 1.5
+        self.wait(lambda: time.monotonic() >= heard, 2.0, "MAVProxy's next heartbeat")
+
+    def persisted(self):
+        since = time.monotonic()
+        self.mavproxy.type("param fetch LBV_GAIN")
+
+        def answered():
+            return [m for _, m in self.observer.since(since, "PARAM_VALUE") if m.param_id == "LBV_GAIN"]
+
+        self.wait(answered, 5.0, "PARAM_VALUE LBV_GAIN after the reboot")
+        value = answered()[-1].param_value
+        self.summary["persisted"] = {"LBV_GAIN": value}
+        if value != 80.0:
+            raise Failed(f"LBV_GAIN is {value} after the reboot, not the 80 set before it")
+
     def motortest(self):
         since = time.monotonic()
         # Thruster 1, throttle type 0 (percent), 10 %, 2 s.
@@ -242,7 +284,7 @@ class Pilot:
             "peak_rpm": max(m.rpm[0] for _, m in self.observer.since(since, "ESC_TELEMETRY_1_TO_4")),
         }
 
-    STEPS = ["connect", "params", "param_set", "arm", "hold", "disarm", "motortest"]
+    STEPS = ["connect", "params", "param_set", "arm", "hold", "disarm", "reboot", "persisted", "motortest"]
 
     def fly(self):
         for step in self.STEPS:
