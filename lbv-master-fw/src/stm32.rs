@@ -1,6 +1,7 @@
 //! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
 use core::num::{NonZeroU8, NonZeroU16};
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use defmt::{info, unwrap};
 #[cfg(not(feature = "acceptance"))]
@@ -22,6 +23,7 @@ use lbv_master_fw::settings::InRam;
 use lbv_master_fw::settings::Reboot;
 #[cfg(not(feature = "acceptance"))]
 use lbv_master_fw::settings::Store;
+use lbv_master_fw::settings::ecc::{self, NmiAction, eccr};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, Ports};
 use static_cell::StaticCell;
@@ -201,6 +203,37 @@ type MasterPorts =
 #[embassy_executor::task]
 async fn master(ports: MasterPorts) -> ! {
     lbv_master_fw::run(ports, &CONFIG, &SHARED, &CONSOLE_STATS).await
+}
+
+/// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).
+static SETTINGS_ECC_ERRORS: AtomicU32 = AtomicU32::new(0);
+
+// The FLASH_ECCR decoding (`settings::ecc`) agrees with ST's SVD for the G431 as stm32-metapac has it.
+const _: () = {
+    use pac::flash::regs::Eccr;
+    assert!(Eccr(eccr::ECCD).eccd() && !Eccr(eccr::ECCD).eccc());
+    assert!(Eccr(eccr::ECCC).eccc() && Eccr(eccr::ECCCIE).eccie());
+    assert!(Eccr(eccr::SYSF_ECC).sysf_ecc() && Eccr(eccr::BK_ECC).bk_ecc());
+    assert!(Eccr(eccr::ADDR_ECC).addr_ecc() == eccr::ADDR_ECC && Eccr(!eccr::ADDR_ECC).addr_ecc() == 0);
+};
+
+/// The NMI: an ECC double error in the settings pages (a write cut short by a power cut) is let pass, so the store
+/// reads the record, finds its CRC wrong and skips it; any other NMI stops the master here, and the thrusters stop
+/// by their link failsafe (`settings::ecc`, RM0440 3.3.2). It touches nothing a critical section guards, so it
+/// logs nothing: a debugger reads `SETTINGS_ECC_ERRORS`, and after a stop FLASH_ECCR, which keeps the cause.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn NonMaskableInt() {
+    let value = pac::FLASH.eccr().read().0;
+    match ecc::nmi_action(value) {
+        NmiAction::PassSettingsRead { clear } => {
+            pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear));
+            SETTINGS_ECC_ERRORS.fetch_add(1, Ordering::Relaxed);
+        }
+        NmiAction::Stop => loop {
+            cortex_m::asm::nop();
+        },
+    }
 }
 
 /// A reboot is a system reset (AIRCR.SYSRESETREQ, ARMv7-M Architecture Reference Manual B3.2.6): the RAM state is
