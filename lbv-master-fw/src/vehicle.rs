@@ -416,10 +416,12 @@ impl Vehicle {
             speed: Speed::new_saturating(round_div(percent * i32::from(Speed::MAX_STEP), 100)),
             until: now.saturating_add(duration),
         });
+        // At most MOTOR_TEST_MAX_DURATION: the milliseconds fit a u32 (whose formatting the image has already).
+        let ms = u32::try_from(duration.as_millis()).unwrap_or(u32::MAX);
         say(
             out,
             Severity::Info,
-            format_args!("Motor test {motor}: {percent} % for {} ms", duration.as_millis()),
+            format_args!("Motor test {motor}: {percent} % for {ms} ms"),
         );
     }
 
