@@ -4,12 +4,10 @@ use core::num::{NonZeroU8, NonZeroU16};
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use defmt::{info, unwrap};
-#[cfg(not(feature = "acceptance"))]
 use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::NominalBitTiming;
 use embassy_stm32::can::{self, CanConfigurator};
-#[cfg(not(feature = "acceptance"))]
 use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::i2c::{self, I2c};
 use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
@@ -18,10 +16,7 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use g431_hw::clock;
 use lbv_master_fw::console::ConsoleStats;
-#[cfg(feature = "acceptance")]
-use lbv_master_fw::settings::InRam;
 use lbv_master_fw::settings::Reboot;
-#[cfg(not(feature = "acceptance"))]
 use lbv_master_fw::settings::Store;
 use lbv_master_fw::settings::ecc::{self, NmiAction, eccr};
 use lbv_master_fw::shared::Shared;
@@ -52,11 +47,8 @@ bind_interrupts!(struct Irqs {
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
 
 /// Where the settings are kept: embassy-stm32's flash driver (blocking: the G431 has one bank, so the CPU waits out
-/// every write and erase anyway) behind the async NOR flash port; in the acceptance image, RAM.
-#[cfg(not(feature = "acceptance"))]
+/// every write and erase anyway) behind the async NOR flash port.
 type Settings = Store<BlockingAsync<Flash<'static, Blocking>>>;
-#[cfg(feature = "acceptance")]
-type Settings = InRam;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
@@ -136,12 +128,8 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
-    // The settings in flash. The acceptance image (a bench test between two dev kits, whose script takes no
-    // parameter) keeps them in RAM at their defaults: the store's code would take it over its flash budget.
-    #[cfg(not(feature = "acceptance"))]
+    // The settings, in the flash pages the images leave free (`memory.x`).
     let settings = Store::g431(BlockingAsync::new(Flash::new_blocking(p.FLASH)));
-    #[cfg(feature = "acceptance")]
-    let settings = InRam;
 
     spawner.spawn(unwrap!(master(Ports {
         buses: [bus1, bus2, bus3],

@@ -5,8 +5,7 @@
 //! What the master is wired to ([`Wiring`]) lives as long as the bench, and so does its flash
 //! ([`MasterBoard::flash`], the G431's 128 KiB with the settings in their pages); the node itself (its tasks and
 //! their state) is dropped and booted afresh by [`MasterBoard::reboot`], which the bench also calls when the
-//! master asks for it (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN). The vehicle keeps its settings in that flash; the
-//! acceptance image, like the one built for the dev kits, in RAM.
+//! master asks for it (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN). Both images keep their settings in that flash.
 
 use core::cell::{Cell, RefCell};
 use std::rc::Rc;
@@ -16,11 +15,10 @@ use embassy_sync::signal::Signal;
 use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::settings::InRam;
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::sim::{RebootRequest, flash_store, g431_flash, thruster_bus};
 use lbv_master_fw::thrusters::BUSES;
-use lbv_master_fw::{MasterConfig, Polling, Ports};
+use lbv_master_fw::{BusWork, MasterConfig, Polling, Ports};
 use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Executor, Queue, SerialRx, SerialTx, TaskId};
@@ -134,44 +132,32 @@ impl MasterBoard {
     }
 
     fn start(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
-        let buses = wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus));
-        let (can, console_rx, console_tx) = (
-            wiring.can.clone(),
-            SerialRx::new(wiring.console_in.clone()),
-            SerialTx(wiring.console_out.clone()),
-        );
-        let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
         self.reboot = RebootRequest::default();
-        let reboot = self.reboot.clone();
         self.boots += 1;
-        self.task = Some(if self.acceptance {
+        let task = if self.acceptance {
             let desk = Rc::new(Desk::default());
             self.desk = Some(desk.clone());
-            let ports = Ports {
-                buses,
-                can,
-                console_rx,
-                console_tx,
-                settings: InRam,
-                reboot,
-                work: Script(DeskOperator(desk)),
-            };
-            executor.spawn(async move {
-                lbv_master_fw::run(ports, &config, &shared, &stats).await;
-            })
+            self.spawn(wiring, executor, Script(DeskOperator(desk)))
         } else {
-            let ports = Ports {
-                buses,
-                can,
-                console_rx,
-                console_tx,
-                settings: flash_store(&self.flash),
-                reboot,
-                work: Polling,
-            };
-            executor.spawn(async move {
-                lbv_master_fw::run(ports, &config, &shared, &stats).await;
-            })
-        });
+            self.spawn(wiring, executor, Polling)
+        };
+        self.task = Some(task);
+    }
+
+    /// The node on its ports, with `work` on its thruster buses.
+    fn spawn(&self, wiring: &Wiring, executor: &mut Executor<'static>, work: impl BusWork + 'static) -> TaskId {
+        let ports = Ports {
+            buses: wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus)),
+            can: wiring.can.clone(),
+            console_rx: SerialRx::new(wiring.console_in.clone()),
+            console_tx: SerialTx(wiring.console_out.clone()),
+            settings: flash_store(&self.flash),
+            reboot: self.reboot.clone(),
+            work,
+        };
+        let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
+        executor.spawn(async move {
+            lbv_master_fw::run(ports, &config, &shared, &stats).await;
+        })
     }
 }
