@@ -1,0 +1,343 @@
+//! One motor-less thruster controller on the emulated chip: the thruster core's tasks, as the STM32 binding
+//! spawns them (commutation on the interrupt executor, the rest in thread mode), on ports that lead to the core's
+//! motor model (`thruster_fw::motorless`) and to the scripted operator.
+//!
+//! Its reset button works: pressing it cuts the power (the I2C line stops answering, the bridge coasts, every
+//! task stops), and 30 ms later the controller starts again with fresh RAM, as after a real reset; the motor
+//! model, which is the physical rotor, carries on.
+
+use core::future::Future;
+use core::sync::atomic::{AtomicBool, AtomicU32, AtomicUsize, Ordering};
+
+use embassy_executor::{SendSpawner, Spawner};
+use embassy_futures::select::select;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+use embassy_sync::watch::Watch;
+use embassy_time::{Duration, Instant, Timer};
+use static_cell::StaticCell;
+use thruster_fw::Duty;
+use thruster_fw::commutation::{BridgeDrive, COAST};
+use thruster_fw::hall::HallState;
+use thruster_fw::motorless::{HoldInput, ModelBridge, ModelHalls, ModelSensors, MotorModel, Motorless, WaterInput};
+use thruster_fw::tasks::{self, Bridge as _, Config, HallSensors, RawSample, Sensors, Shared};
+use tmc_proto::{Family, MotorKind};
+
+use crate::executors::BENCH_METER;
+use crate::halls::EdgeHalls;
+use crate::i2c::{MAX_THRUSTERS, SlaveLine, TargetPort};
+use crate::meter::{self, Meter, metered};
+use crate::report;
+use crate::stacks::Stack;
+
+/// The I2C slave task.
+pub static I2C_METER: Meter = Meter::task("thruster i2c task");
+/// The fault task, 1 kHz.
+pub static FAULT_METER: Meter = Meter::one_khz("thruster fault task (1 kHz)");
+/// The speed control task, 1 kHz.
+pub static CONTROL_METER: Meter = Meter::one_khz("thruster control task (1 kHz)");
+/// The watchdog task.
+pub static HEALTH_METER: Meter = Meter::task("thruster health task");
+/// Commutation, on the interrupt executor.
+pub static COMMUTATION_METER: Meter = Meter::nested("thruster commutation task");
+/// The motor model behind the ports (not firmware: on the STM32 these are pin and ADC reads).
+pub static MOTOR_MODEL_METER: Meter = Meter::nested("motor model (ports)");
+
+/// The STM32 binding feeds the watchdog every 50 ms and lets it bite after 250 ms (thruster-fw `board.rs`).
+const WATCHDOG_FEED: Duration = Duration::from_millis(50);
+const WATCHDOG_TIMEOUT: Duration = Duration::from_millis(250);
+/// How long the reset button holds the controller in reset.
+const RESET_HOLD: Duration = Duration::from_millis(30);
+/// The operator's water-sensor test resistor: 470 kohm from PC3 to 3V3 (the acceptance prompt).
+const WATER_TEST_OHMS: u32 = 470_000;
+/// Power-ups one controller can have in a run: the first and two resets (each gets fresh RAM).
+const POWER_UPS: usize = 3;
+/// Tasks per controller that follow its power.
+const POWERED_TASKS: usize = 5;
+
+/// How the controller's halls reach the commutation task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HallInput {
+    /// A hardware interrupt per edge (APB timer 1), with the latency measured: one thruster per chip.
+    Interrupt,
+    /// The core's model halls, which wait on embassy-time timers.
+    Model,
+}
+
+/// What the watchdog saw.
+struct WatchdogLog {
+    feeds: AtomicU32,
+    last_feed_us: AtomicU32,
+    longest_gap_us: AtomicU32,
+}
+
+/// One controller and what surrounds it.
+pub struct Thruster {
+    /// The controller's configuration: the STM32 image's (`Config::reference`).
+    pub config: Config,
+    /// Its TCA9548A channel, None when wired to the bus directly.
+    pub mux_channel: Option<u8>,
+    /// Its end of the I2C bus.
+    pub line: SlaveLine,
+    motorless: Motorless,
+    water_resistor: AtomicBool,
+    rotor_held: AtomicBool,
+    powered: AtomicBool,
+    /// The RAM of the running power-up, and its number; None while in reset.
+    power: Watch<CriticalSectionRawMutex, Option<(usize, &'static Shared)>, POWERED_TASKS>,
+    rams: [StaticCell<Shared>; POWER_UPS],
+    power_ups: AtomicUsize,
+    reset_pressed: Signal<CriticalSectionRawMutex, ()>,
+    watchdog: WatchdogLog,
+}
+
+static THRUSTERS: [StaticCell<Thruster>; MAX_THRUSTERS] = [const { StaticCell::new() }; MAX_THRUSTERS];
+static CREATED: AtomicUsize = AtomicUsize::new(0);
+
+impl Thruster {
+    /// A brushless motor-less controller of `family`, at rest, not yet powered.
+    pub fn create(family: Family, mux_channel: Option<u8>) -> &'static Thruster {
+        let config = Config::reference(family, MotorKind::Brushless);
+        let index = CREATED.fetch_add(1, Ordering::Relaxed);
+        let thruster = THRUSTERS.get(index).and_then(|cell| {
+            cell.try_init(Thruster {
+                motorless: Motorless::new(MotorModel::new(&config)),
+                config,
+                mux_channel,
+                line: SlaveLine::new(),
+                water_resistor: AtomicBool::new(false),
+                rotor_held: AtomicBool::new(false),
+                powered: AtomicBool::new(false),
+                power: Watch::new(),
+                rams: [const { StaticCell::new() }; POWER_UPS],
+                power_ups: AtomicUsize::new(0),
+                reset_pressed: Signal::new(),
+                watchdog: WatchdogLog {
+                    feeds: AtomicU32::new(0),
+                    last_feed_us: AtomicU32::new(0),
+                    longest_gap_us: AtomicU32::new(0),
+                },
+            })
+        });
+        match thruster {
+            Some(thruster) => thruster,
+            None => report::fail("more thrusters than the chip has room for"),
+        }
+    }
+
+    /// Spawn the controller's tasks and power it up.
+    pub fn start(&'static self, thread: Spawner, high: SendSpawner, halls: HallInput) {
+        report::spawn(thread, i2c(self));
+        report::spawn(thread, faults(self));
+        report::spawn(thread, control(self));
+        report::spawn(thread, health(self));
+        report::spawn(thread, reset_button(self));
+        report::spawn_send(high, commutation(self, halls));
+        self.power_on();
+    }
+
+    /// Whether it answers on the bus.
+    pub fn powered(&self) -> bool {
+        self.powered.load(Ordering::Acquire)
+    }
+
+    /// The operator fits (or removes) the water-sensor test resistor.
+    pub fn fit_water_resistor(&self, fitted: bool) {
+        self.water_resistor.store(fitted, Ordering::Relaxed);
+    }
+
+    /// The operator holds (or lets go of) the rotor.
+    pub fn hold_rotor(&self, held: bool) {
+        self.rotor_held.store(held, Ordering::Relaxed);
+    }
+
+    /// The reset button: power off now, back on after [`RESET_HOLD`].
+    pub fn press_reset(&self) {
+        self.powered.store(false, Ordering::Release);
+        self.power.sender().send(None);
+        // The gate drivers let go: whatever was driven, the motor coasts.
+        ModelBridge(&self.motorless).apply(COAST, Duty::ZERO);
+        self.reset_pressed.signal(());
+    }
+
+    /// Power-ups so far (1 + resets).
+    pub fn power_ups(&self) -> usize {
+        self.power_ups.load(Ordering::Relaxed)
+    }
+
+    /// Feeds of the watchdog, and the longest time between two (or since power-up), us.
+    pub fn watchdog(&self) -> (u32, u32) {
+        (
+            self.watchdog.feeds.load(Ordering::Relaxed),
+            self.watchdog.longest_gap_us.load(Ordering::Relaxed),
+        )
+    }
+
+    /// Whether the watchdog would ever have bitten.
+    pub fn watchdog_bit(&self) -> bool {
+        u64::from(self.watchdog().1) > WATCHDOG_TIMEOUT.as_micros()
+    }
+
+    /// Start with fresh RAM.
+    fn power_on(&'static self) {
+        let power_up = self.power_ups.fetch_add(1, Ordering::Relaxed);
+        let Some(shared) = self.rams.get(power_up).and_then(|ram| ram.try_init(Shared::new())) else {
+            report::fail("a thruster was reset more often than the test provides RAM for");
+        };
+        self.line.clear();
+        self.watchdog.last_feed_us.store(now_us(), Ordering::Relaxed);
+        self.power.sender().send(Some((power_up, &*shared)));
+        self.powered.store(true, Ordering::Release);
+    }
+
+    /// Run `body` with the RAM of each power-up, until that power-up ends.
+    async fn powered_run<F: Future>(&'static self, body: impl Fn(&'static Shared) -> F) -> ! {
+        let Some(mut power) = self.power.receiver() else {
+            report::fail("a thruster has more powered tasks than its power watch has receivers");
+        };
+        loop {
+            let Some((power_up, shared)) = power.changed_and(Option::is_some).await else {
+                continue;
+            };
+            let reset = power.changed_and(move |now| now.is_none_or(|(running, _)| running != power_up));
+            select(body(shared), reset).await;
+        }
+    }
+}
+
+fn now_us() -> u32 {
+    u32::try_from(Instant::now().as_micros()).unwrap_or(u32::MAX)
+}
+
+/// The water-sensor pin: the test resistor, or nothing (the pull-down reads 0).
+struct WaterPin(&'static Thruster);
+
+impl WaterInput for WaterPin {
+    async fn water(&mut self) -> u16 {
+        if self.0.water_resistor.load(Ordering::Relaxed) {
+            self.0.config.water.raw_at(WATER_TEST_OHMS)
+        } else {
+            0
+        }
+    }
+}
+
+/// The user button that holds the model's rotor.
+struct HoldButton(&'static Thruster);
+
+impl HoldInput for HoldButton {
+    fn held(&mut self) -> bool {
+        self.0.rotor_held.load(Ordering::Relaxed)
+    }
+}
+
+/// The fault task's inputs: the core's model sensors, counted as model work.
+struct Inputs(ModelSensors<'static, WaterPin, HoldButton>);
+
+impl Sensors for Inputs {
+    async fn sample(&mut self) -> RawSample {
+        metered(&MOTOR_MODEL_METER, None, self.0.sample()).await
+    }
+}
+
+/// The halls, either kind, their model arithmetic counted as model work.
+enum Halls {
+    Interrupt(EdgeHalls),
+    Model(ModelHalls<'static>),
+}
+
+impl HallSensors for Halls {
+    async fn wait_for_edge(&mut self) {
+        match self {
+            Halls::Interrupt(halls) => halls.wait_for_edge().await,
+            Halls::Model(halls) => metered(&MOTOR_MODEL_METER, None, halls.wait_for_edge()).await,
+        }
+    }
+
+    fn read(&mut self) -> HallState {
+        match self {
+            Halls::Interrupt(halls) => halls.read(),
+            Halls::Model(halls) => meter::measure(&MOTOR_MODEL_METER, || halls.read()),
+        }
+    }
+}
+
+/// The bridge: what would be driven goes to the model.
+struct Bridge(&'static Motorless);
+
+impl tasks::Bridge for Bridge {
+    fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
+        meter::measure(&MOTOR_MODEL_METER, || ModelBridge(self.0).apply(drive, duty));
+    }
+}
+
+/// The watchdog: counts feeds and the longest gap.
+struct Watchdog(&'static Thruster);
+
+impl tasks::Watchdog for Watchdog {
+    fn feed(&mut self) {
+        let log = &self.0.watchdog;
+        let now = now_us();
+        let gap = now.wrapping_sub(log.last_feed_us.swap(now, Ordering::Relaxed));
+        log.longest_gap_us.fetch_max(gap, Ordering::Relaxed);
+        log.feeds.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+// The tasks, one line each around the core's task functions, as in the STM32 binding (`thruster-fw/src/stm32.rs`).
+// Thread-mode tasks poll on the thruster's own stack.
+
+#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
+async fn i2c(t: &'static Thruster) -> ! {
+    let body = t.powered_run(|shared| async move {
+        tasks::i2c_task(&mut TargetPort::new(&t.line), t.config.family, t.config.motor, shared).await
+    });
+    metered(&I2C_METER, Some(Stack::Thruster), body).await
+}
+
+#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
+async fn faults(t: &'static Thruster) -> ! {
+    let body = t.powered_run(|shared| async move {
+        let mut inputs = Inputs(ModelSensors::new(&t.motorless, &t.config, WaterPin(t), HoldButton(t)));
+        tasks::fault_task(&mut inputs, &t.config, shared).await
+    });
+    metered(&FAULT_METER, Some(Stack::Thruster), body).await
+}
+
+#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
+async fn control(t: &'static Thruster) -> ! {
+    let body = t.powered_run(|shared| tasks::control_task(&t.config, shared));
+    metered(&CONTROL_METER, Some(Stack::Thruster), body).await
+}
+
+#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
+async fn health(t: &'static Thruster) -> ! {
+    let body = t.powered_run(|shared| async move { tasks::health_task(&mut Watchdog(t), WATCHDOG_FEED, shared).await });
+    metered(&HEALTH_METER, Some(Stack::Thruster), body).await
+}
+
+#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
+async fn commutation(t: &'static Thruster, input: HallInput) -> ! {
+    let body = t.powered_run(|shared| async move {
+        let mut halls = match input {
+            HallInput::Interrupt => Halls::Interrupt(EdgeHalls::new(&t.motorless)),
+            HallInput::Model => Halls::Model(ModelHalls::new(&t.motorless)),
+        };
+        let mut bridge = Bridge(&t.motorless);
+        tasks::commutation_task(&mut halls, &mut bridge, t.config.motor, t.config.pole_pairs, shared).await
+    });
+    metered(&COMMUTATION_METER, None, body).await
+}
+
+/// The reset button's circuit: the controller comes back [`RESET_HOLD`] after a press.
+#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
+async fn reset_button(t: &'static Thruster) -> ! {
+    let circuit = async {
+        loop {
+            t.reset_pressed.wait().await;
+            Timer::after(RESET_HOLD).await;
+            t.power_on();
+        }
+    };
+    metered(&BENCH_METER, None, circuit).await
+}
