@@ -77,7 +77,7 @@ async fn script(bus: &'static Bus, thruster: &'static Thruster, family: Family) 
 /// The figures of the run, then the exit status.
 fn finish(bus: &Bus, pass: bool) -> ! {
     let fed = report::bus(bus);
-    report::stacks(&[("thruster", Stack::Thruster), ("master-acceptance", Stack::Master)]);
+    let fit = report::stacks(&[("thruster", Stack::Thruster), ("master-acceptance", Stack::Master)]);
     let dispatch = report::cpu(
         &[
             &thruster::FAULT_METER,
@@ -95,7 +95,7 @@ fn finish(bus: &Bus, pass: bool) -> ! {
             &thruster::MOTOR_MODEL_METER,
         ],
     );
-    report::thruster_load(1, dispatch);
+    report::thruster_load(dispatch);
     report::latency();
-    report::exit(pass && fed)
+    report::exit(pass && fed && fit)
 }

@@ -9,6 +9,7 @@ use core::sync::atomic::Ordering;
 use embassy_executor::{SendSpawner, SpawnError, SpawnToken, Spawner};
 use embassy_time::Instant;
 
+use crate::board::SYSCLK_HZ;
 use crate::executors::THREAD_EXECUTOR_METER;
 use crate::halls::{self, LATENCY};
 use crate::i2c::Bus;
@@ -120,22 +121,28 @@ fn mean(usage: &Usage) -> f32 {
     meter::instructions(u64::from(usage.cycles)) as f32 / usage.polls.max(1) as f32
 }
 
+/// One SYSCLK cycle, ns.
+const CYCLE_NS: u32 = 1_000_000_000 / SYSCLK_HZ;
+
 /// The calibration of the instruction clock.
 pub fn calibration(calibration: Calibration) {
     say!(
-        "CALIBRATION a loop of {} instructions took {} SYSCLK cycles of 40 ns: {:.3} instructions per cycle, \
+        "CALIBRATION a loop of {} instructions took {} SYSCLK cycles of {} ns: {:.3} instructions per cycle, \
          {:.2} ns per instruction (QEMU -icount)",
         calibration.instructions,
         calibration.cycles,
+        CYCLE_NS,
         calibration.instructions as f32 / calibration.cycles.max(1) as f32,
-        40.0 * calibration.cycles as f32 / calibration.instructions.max(1) as f32
+        CYCLE_NS as f32 * calibration.cycles as f32 / calibration.instructions.max(1) as f32
     );
 }
 
-/// Each stack's high-water mark, and each image's: `thread` is its thread-mode stack.
-pub fn stacks(images: &[(&str, Stack)]) {
+/// Each stack's high-water mark, and each image's: `thread` is its thread-mode stack. False if one overflowed.
+pub fn stacks(images: &[(&str, Stack)]) -> bool {
+    let mut fit = true;
     for stack in Stack::ALL {
         let used = stack.high_water();
+        fit &= used < STACK_BYTES;
         say!(
             "STACK {:<32} {:>6} B used of {} B{}",
             stack.name(),
@@ -154,6 +161,7 @@ pub fn stacks(images: &[(&str, Stack)]) {
             total as f32 * 100.0 / 32768.0
         );
     }
+    fit
 }
 
 /// The thread executor's own instructions per task poll: its rounds of polls, less the polls of `tasks` (every
@@ -193,27 +201,26 @@ fn load_percent(instructions_per_s: f32, interrupts_per_s: f32) -> f32 {
     (instructions_per_s * CYCLES_PER_INSTRUCTION + interrupts_per_s * EXCEPTION_CYCLES) * 100.0 / TARGET_HZ
 }
 
-/// The thruster's CPU load at full speed, from this run's instructions per poll.
+/// The CPU load of the run's one thruster at full speed, from its instructions per poll.
 ///
 /// `dispatch` is the thread executor's instructions per task poll. Polls per second at 4500 rpm: the fault and
-/// control tasks 1000 each; the health task 20; commutation one per
-/// hall edge (1800) and one per control tick (1000: the control task wakes it every tick), each with its
-/// executor's interrupt; a hall edge interrupt per edge; the I2C task as often as in this run, per thruster; the
-/// time driver's alarm for the thruster's own timers (two 1 kHz tickers, the health task's and the I2C task's
-/// 20 Hz timeouts: 2040 a second).
-pub fn thruster_load(thrusters: u32, dispatch: f32) {
+/// control tasks 1000 each; the health task 20; commutation one per hall edge (1800) and one per control tick
+/// (1000: the control task wakes it every tick), each with its executor's interrupt; a hall edge interrupt per
+/// edge; the I2C task as often as in this run; the time driver's alarm for the thruster's own timers
+/// (two 1 kHz tickers, the health task's and the I2C task's 20 Hz timeouts: 2040 a second).
+pub fn thruster_load(dispatch: f32) {
     use crate::thruster::{COMMUTATION_METER, CONTROL_METER, FAULT_METER, HEALTH_METER, I2C_METER};
-    let per_thruster_per_s = |usage: &Usage| usage.polls as f32 / thrusters.max(1) as f32 / seconds().max(1e-6);
     const ALARMS_PER_S: f32 = 2040.0;
     let commutations = FULL_SPEED_EDGES_PER_S + 1000.0;
     let i2c = I2C_METER.usage();
     let alarm = crate::time::ALARM_METER.usage();
-    let thread_polls = 1000.0 + 1000.0 + 20.0 + per_thruster_per_s(&i2c);
+    let i2c_per_s = i2c.polls as f32 / seconds().max(1e-6);
+    let thread_polls = 1000.0 + 1000.0 + 20.0 + i2c_per_s;
     let terms = [
         ("faults", mean(&FAULT_METER.usage()) * 1000.0, 0.0),
         ("control", mean(&CONTROL_METER.usage()) * 1000.0, 0.0),
         ("health", mean(&HEALTH_METER.usage()) * 20.0, 0.0),
-        ("i2c", mean(&i2c) * per_thruster_per_s(&i2c), 0.0),
+        ("i2c", mean(&i2c) * i2c_per_s, 0.0),
         (
             "commutation",
             (mean(&COMMUTATION_METER.usage()) + mean(&crate::executors::COMMUTATION_ISR_METER.usage())) * commutations,

@@ -2,8 +2,8 @@
 //!
 //! Handlers run on the main stack (MSP); thread mode runs on the process stack (PSP), and each firmware image's
 //! thread-mode tasks are polled on a stack of their own, so that each image's high-water mark is its own even
-//! though both images share the chip. cortex-m-rt paints all four at reset; [`Stack::high_water`] scans for the
-//! deepest word that is no longer paint. The regions come from `memory.x`.
+//! though both images share the chip. [`enter_thread_mode`] paints all four before anything runs on them;
+//! [`Stack::high_water`] scans for the deepest word that is no longer paint. The regions come from `memory.x`.
 // Switching stacks takes a few instructions of assembly and symbols from the linker script.
 #![allow(unsafe_code)]
 
@@ -12,7 +12,7 @@ use core::ptr::addr_of;
 
 /// Each stack's size: the STM32G431's whole RAM.
 pub const STACK_BYTES: usize = 32 * 1024;
-/// cortex-m-rt's paint (`STACK_PAINT_VALUE`).
+/// The paint (cortex-m-rt's, for its own `paint-stack`).
 const PAINT: u32 = 0xCCCC_CCCC;
 
 unsafe extern "C" {
@@ -75,11 +75,14 @@ impl Stack {
         });
     }
 
+    /// The lowest address in it.
+    fn bottom(self) -> usize {
+        self.top() - STACK_BYTES
+    }
+
     /// Bytes of it ever used: from its top down to the deepest word that is no longer paint.
     pub fn high_water(self) -> usize {
-        let top = self.top();
-        let bottom = top - STACK_BYTES;
-        let untouched = (bottom..top)
+        let untouched = (self.bottom()..self.top())
             .step_by(4)
             // SAFETY: the stack regions are reserved by the linker script and always mapped; a word read here
             // is at worst a live stack word, read as a plain u32.
@@ -123,23 +126,35 @@ fn call_on<F: FnMut()>(top: usize, work: &mut F) {
     }
 }
 
-/// Leave the reset handler's main stack: thread mode continues on the process stack at `entry`, and the
-/// handlers get the whole main stack.
+/// Leave the reset handler's main stack: paint the stacks, then thread mode continues on the process stack at
+/// `entry`, and the handlers get the whole main stack.
 pub fn enter_thread_mode(entry: extern "C" fn() -> !) -> ! {
+    for stack in [Stack::Process, Stack::Thruster, Stack::Master] {
+        for address in (stack.bottom()..stack.top()).step_by(4) {
+            // SAFETY: these regions are reserved for the stacks by the linker script and nothing runs on them yet.
+            unsafe { core::ptr::write_volatile(address as *mut u32, PAINT) };
+        }
+    }
     // CONTROL.SPSEL: thread mode uses the process stack.
     let control = cortex_m::register::control::read().bits() | 0b10;
-    // SAFETY: after CONTROL.SPSEL = 1 thread mode uses PSP, so nothing on the main stack is live any more and MSP
-    // can go back to its top; `entry` never returns.
+    // SAFETY: after CONTROL.SPSEL = 1 thread mode uses PSP, so nothing on the main stack is live any more: it is
+    // painted with registers only, MSP goes back to its top, and `entry` never returns.
     unsafe {
         asm!(
             "msr psp, {process}",
             "msr control, {control}",
             "isb",
+            "2:",
+            "str {paint}, [{bottom}], #4",
+            "cmp {bottom}, {main}",
+            "blo 2b",
             "msr msp, {main}",
             "bx {entry}",
             process = in(reg) Stack::Process.top(),
-            main = in(reg) Stack::Main.top(),
             control = in(reg) control,
+            paint = in(reg) PAINT,
+            bottom = in(reg) Stack::Main.bottom(),
+            main = in(reg) Stack::Main.top(),
             entry = in(reg) entry,
             options(noreturn),
         )

@@ -10,7 +10,7 @@ use core::future::Future;
 use core::sync::atomic::{AtomicBool, AtomicU32, AtomicUsize, Ordering};
 
 use embassy_executor::{SendSpawner, Spawner};
-use embassy_futures::select::select;
+use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
@@ -40,7 +40,8 @@ pub static CONTROL_METER: Meter = Meter::one_khz("thruster control task (1 kHz)"
 pub static HEALTH_METER: Meter = Meter::task("thruster health task");
 /// Commutation, on the interrupt executor.
 pub static COMMUTATION_METER: Meter = Meter::nested("thruster commutation task");
-/// The motor model behind the ports (not firmware: on the STM32 these are pin and ADC reads).
+/// The motor model behind the ports: firmware in the motor-less image, but pin and ADC reads in the image with a
+/// motor, so the tasks' figures leave it out.
 pub static MOTOR_MODEL_METER: Meter = Meter::nested("motor model (ports)");
 
 /// The STM32 binding feeds the watchdog every 50 ms and lets it bite after 250 ms (thruster-fw `board.rs`).
@@ -195,12 +196,19 @@ impl Thruster {
         let Some(mut power) = self.power.receiver() else {
             report::fail("a thruster has more powered tasks than its power watch has receivers");
         };
+        let mut now = power.changed_and(Option::is_some).await;
         loop {
-            let Some((power_up, shared)) = power.changed_and(Option::is_some).await else {
+            let Some((power_up, shared)) = now else {
+                now = power.changed_and(Option::is_some).await;
                 continue;
             };
-            let reset = power.changed_and(move |now| now.is_none_or(|(running, _)| running != power_up));
-            select(body(shared), reset).await;
+            // Whatever comes next ends this power-up: a reset, or (if this task was slow to see the reset) the
+            // next power-up already, which it then runs.
+            let ended = power.changed_and(move |next| next.is_none_or(|(next, _)| next != power_up));
+            now = match select(body(shared), ended).await {
+                Either::First(_) => None,
+                Either::Second(next) => next,
+            };
         }
     }
 }

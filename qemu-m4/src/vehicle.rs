@@ -502,7 +502,7 @@ fn finish(bus: &Bus, pass: bool) -> ! {
         stats.bad_frames,
         seen().frames
     );
-    report::stacks(&[("master", Stack::Master), ("thruster", Stack::Thruster)]);
+    let fit = report::stacks(&[("master", Stack::Master), ("thruster", Stack::Thruster)]);
     let master = [
         &BUS_METER,
         &BATTERY_METER,
@@ -532,5 +532,5 @@ fn finish(bus: &Bus, pass: bool) -> ! {
         ],
     );
     report::master_load(&master, dispatch);
-    report::exit(pass && fed)
+    report::exit(pass && fed && fit)
 }
