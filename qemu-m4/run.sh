@@ -15,6 +15,8 @@ LOGS=target/qemu-m4
 # Emulated time per run is bounded by the scripts (about 20 s); this only catches a hang.
 WALL_LIMIT=120
 
+command -v qemu-system-arm >/dev/null || { echo "qemu-m4: qemu-system-arm is missing (Debian: qemu-system-arm)" >&2; exit 2; }
+
 # Its own workspace (see its Cargo.toml), sharing the workspace's target directory and so its built dependencies.
 cargo build --manifest-path qemu-m4/Cargo.toml --release --target "$TARGET" --target-dir target --locked
 cargo build --release --locked -q -p lbv
