@@ -175,7 +175,7 @@ static SEQUENCE: AtomicU8 = AtomicU8::new(0);
 static CONNECTED: AtomicBool = AtomicBool::new(true);
 
 /// What the station has seen of the vehicle.
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Debug, Clone, Copy)]
 struct Seen {
     heartbeats: u32,
     armed: bool,
