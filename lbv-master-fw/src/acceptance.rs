@@ -13,7 +13,7 @@
 //! | `failsafe` | holds a valid order, then leaves the bus silent for `silence` (1.5 s) and only reads after it | the first read shows the drive off, the speed reaches 0 within `coast`, stays there while only reads come, and the same order sent again drives |
 //! | `held-rotor` | prompts the operator to hold the rotor, orders the drive step | STALL within `fault_within` and the drive off; after the release a zero order clears it and the drive step drives again |
 //! | `water` | prompts the operator to fit the test resistor on the water sensor | WATER within `fault_within`; SeaBotix keeps driving and clears the bit once the resistor is removed, Legacy stops and keeps the bit latched |
-//! | `reset` | prompts the operator to reset the thruster board while polling back to back | a failure is seen (NACK, timeout, bus error or a torn frame), the recoveries free the bus, `recovered_polls` good polls follow, and the thruster drives again without fault (a latched Legacy water fault is gone) |
+//! | `reset` | prompts the operator to power-cycle the thruster board while polling back to back | a failure is seen (NACK, timeout, bus error or a torn frame), the recoveries free the bus, `recovered_polls` good polls follow, and the thruster drives again without fault (a latched Legacy water fault is gone) |
 //!
 //! What *follows* an order means per family (IDS 8.4.1, 8.4.2):
 //! - SeaBotix: the status's SPEED (measured speed for brushless, PWM for brushed) is within `tolerance` steps of
@@ -30,10 +30,13 @@ use core::fmt;
 
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
+use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
-use crate::shared::{Severity, Text, text};
-use crate::thrusters::{BusRecovery, Failure};
+use crate::BusWork;
+use crate::config::MasterConfig;
+use crate::recovery::BusRecovery;
+use crate::shared::{Severity, Shared, Text, text};
+use crate::thrusters::{BUSES, Failure};
 
 /// The steps of the script, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -259,7 +262,7 @@ pub fn prompt_text(prompt: Prompt) -> (Severity, Text) {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum Prompt {
-    /// Fit the water-sensor test resistor (470 kohm from PC3 to 3V3): the sensor reads water (< 1 Mohm) but no
+    /// Fit the water-sensor test resistor (470 kohm from PB12 to 3V3): the sensor reads water (< 1 Mohm) but no
     /// ground fault (> 100 kohm).
     FitWaterResistor,
     /// Remove the test resistor.
@@ -268,7 +271,8 @@ pub enum Prompt {
     HoldRotor,
     /// Let the rotor go (release B1).
     ReleaseRotor,
-    /// Press the thruster board's reset button while the test keeps the bus busy.
+    /// Power-cycle the thruster board while the test keeps the bus busy. A power cycle, not the reset button:
+    /// the IDS latches (a Legacy water fault) outlast every other reset.
     ResetThruster,
 }
 
@@ -287,11 +291,11 @@ impl Prompt {
     /// What to do, in words for the person at the bench (short enough for a console text).
     pub const fn instruction(self) -> &'static str {
         match self {
-            Prompt::FitWaterResistor => "fit 470k from PC3 to 3V3 on the thruster board",
-            Prompt::RemoveWaterResistor => "remove the resistor from PC3",
+            Prompt::FitWaterResistor => "fit 470k from PB12 to 3V3 on the thruster",
+            Prompt::RemoveWaterResistor => "remove the resistor from PB12",
             Prompt::HoldRotor => "press and hold B1 on the thruster board",
             Prompt::ReleaseRotor => "release B1 on the thruster board",
-            Prompt::ResetThruster => "press RESET (B2) on the thruster board now",
+            Prompt::ResetThruster => "power-cycle the thruster board (USB) now",
         }
     }
 
@@ -302,12 +306,76 @@ impl Prompt {
     }
 }
 
-/// The person at the bench (or the virtual bench acting for one).
+/// The person at the bench (or the virtual bench acting for one), who is also told how the script goes. The
+/// console hears every prompt, step and verdict anyway ([`Script`]); these are for the report's other readers.
 #[allow(async_fn_in_trait)]
 pub trait Operator {
     /// Ask for `what` on the thruster of `family`. Return once it is done; for a prompt that is
     /// [`Prompt::during_traffic`], once the operator has been told and is about to act.
     async fn prompt(&mut self, what: Prompt, family: Family);
+    /// The script starts.
+    fn started(&mut self) {}
+    /// A step ended.
+    fn reported(&mut self, result: &StepResult) {
+        let _ = result;
+    }
+    /// The script ended.
+    fn concluded(&mut self, verdict: &Verdict) {
+        let _ = verdict;
+    }
+}
+
+/// The acceptance image's work on the thruster buses: `config.acceptance.start` after boot, the script on the dev
+/// kit's bus, with every prompt, step and verdict said on the console as well as told to the operator; the other
+/// buses stay idle.
+#[derive(Debug)]
+pub struct Script<O>(pub O);
+
+impl<O: Operator> BusWork for Script<O> {
+    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
+        let setup = &config.acceptance;
+        Timer::after(setup.start).await;
+        let Some(bus) = buses.get_mut(usize::from(setup.bus)) else {
+            return;
+        };
+        let mut operator = Announced {
+            operator: self.0,
+            shared,
+        };
+        operator.started();
+        let verdict = acceptance_test(bus, &mut operator, &setup.script).await;
+        operator.concluded(&verdict);
+    }
+}
+
+/// An operator whose prompts, steps and verdict the console hears too.
+struct Announced<'a, O> {
+    operator: O,
+    shared: &'a Shared,
+}
+
+impl<O: Operator> Operator for Announced<'_, O> {
+    async fn prompt(&mut self, what: Prompt, family: Family) {
+        let (severity, text) = prompt_text(what);
+        self.shared.say(severity, text);
+        self.operator.prompt(what, family).await;
+    }
+
+    fn started(&mut self) {
+        self.operator.started();
+    }
+
+    fn reported(&mut self, result: &StepResult) {
+        let (severity, text) = step_text(result);
+        self.shared.say(severity, text);
+        self.operator.reported(result);
+    }
+
+    fn concluded(&mut self, verdict: &Verdict) {
+        let (severity, text) = verdict_text(verdict);
+        self.shared.say(severity, text);
+        self.operator.concluded(verdict);
+    }
 }
 
 /// Timings and limits of the script.
@@ -467,24 +535,22 @@ struct Polled {
 }
 
 /// The script's state: the bus, the operator, the tally.
-struct Tester<'a, B, O, R> {
+struct Tester<'a, B, O> {
     bus: &'a mut B,
     operator: &'a mut O,
     config: &'a AcceptanceConfig,
-    report: &'a mut R,
     verdict: Verdict,
     failures: Failures,
 }
 
-impl<B, O, R> Tester<'_, B, O, R>
+impl<B, O> Tester<'_, B, O>
 where
     B: I2c + BusRecovery,
     O: Operator,
-    R: FnMut(StepResult),
 {
     fn finish(&mut self, result: StepResult) {
         self.verdict.count(&result);
-        (self.report)(result);
+        self.operator.reported(&result);
     }
 
     /// Count a failure and recover the bus when it may be stuck.
@@ -522,7 +588,9 @@ where
             return Err(self.failed(Failure::of_bus_error(&error)).await);
         }
         match Status::decode(family, reply) {
-            Ok(status) => Ok(status),
+            Ok(Decoded { status, warning: None }) => Ok(status),
+            // The thruster under test must send only values its encoding defines.
+            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(Failure::BadRange).await),
             Err(error) => Err(self.failed(Failure::of_decode_error(error)).await),
         }
     }
@@ -915,15 +983,10 @@ where
     }
 }
 
-/// Run the whole script against whatever answers on `bus`, reporting each step to `report` as it ends, and return
-/// the verdict. Discovery finds the thrusters; every one found is tested in turn (SeaBotix first). Leaves every
-/// thruster ordered to stop.
-pub async fn acceptance_test<B, O>(
-    bus: &mut B,
-    operator: &mut O,
-    config: &AcceptanceConfig,
-    report: &mut impl FnMut(StepResult),
-) -> Verdict
+/// Run the whole script against whatever answers on `bus`, telling the operator each step's result as it ends, and
+/// return the verdict. Discovery finds the thrusters; every one found is tested in turn (SeaBotix first). Leaves
+/// every thruster ordered to stop.
+pub async fn acceptance_test<B, O>(bus: &mut B, operator: &mut O, config: &AcceptanceConfig) -> Verdict
 where
     B: I2c + BusRecovery,
     O: Operator,
@@ -932,7 +995,6 @@ where
         bus,
         operator,
         config,
-        report,
         verdict: Verdict::default(),
         failures: Failures::default(),
     };

@@ -26,6 +26,7 @@
 use bat_proto::{BatteryInfo, BitReport, BmsAlarms, DcdcStatus, Frame, StatusBit};
 use embassy_time::{Duration, Instant, Timer, with_deadline};
 
+pub use crate::shared::BatterySummary;
 use crate::shared::{Outgoing, Severity, Shared, Text, text};
 
 /// A received classic CAN frame.
@@ -57,24 +58,6 @@ pub trait CanReceiver {
     type Error;
     /// The next frame.
     async fn receive(&mut self) -> Result<CanFrame, Self::Error>;
-}
-
-/// What the master knows of the battery (published to `shared.battery`).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct BatterySummary {
-    /// The last pack info (0x620).
-    pub info: Option<BatteryInfo>,
-    /// The last DCDC status (0x629).
-    pub status: Option<DcdcStatus>,
-    /// The last BMS alarms (0x628).
-    pub alarms: Option<BmsAlarms>,
-    /// No good BAT frame for [`BatteryMonitor::STALE_AFTER`], or none yet: the values above are old or absent.
-    pub stale: bool,
-    /// Good BAT frames received.
-    pub frames: u32,
-    /// Bad BAT frames (unknown BAT ID, bad length, failed check) and receive errors.
-    pub errors: u32,
 }
 
 /// What one good BAT frame means for the console.
@@ -404,22 +387,13 @@ async fn say(shared: &Shared, report: &Report, now: Instant) {
 pub(crate) mod tests {
     use super::*;
     use bat_proto::{BMS_ID, INFO_ID, STATUS_ID};
-    use core::cell::RefCell;
     use embassy_futures::block_on;
     use embassy_futures::select::{Either, select};
-    use embassy_futures::yield_now;
-    use embassy_time::MockDriver;
-    use std::collections::VecDeque;
+    use lbv_sim::Queue;
 
     /// Let virtual time pass in 1 ms steps, giving every task its turn at each step.
     pub(crate) async fn elapse(duration: Duration) {
-        let end = Instant::now() + duration;
-        while Instant::now() < end {
-            MockDriver::get().advance(Duration::from_millis(1));
-            for _ in 0..8 {
-                yield_now().await;
-            }
-        }
+        lbv_sim::clock::elapse(duration, Duration::from_millis(1), 8).await;
     }
 
     fn t(ms: u64) -> Instant {
@@ -784,24 +758,14 @@ pub(crate) mod tests {
         );
     }
 
-    /// A CAN port fed by the test: frames (or errors) are taken when queued.
-    #[derive(Default)]
-    struct TestCan {
-        queue: RefCell<VecDeque<Result<CanFrame, ()>>>,
-    }
+    /// A CAN port fed by the test: frames, or receive errors.
+    struct TestPort(Queue<Result<CanFrame, ()>>);
 
-    struct TestPort<'a>(&'a TestCan);
-
-    impl CanReceiver for TestPort<'_> {
+    impl CanReceiver for TestPort {
         type Error = ();
 
         async fn receive(&mut self) -> Result<CanFrame, ()> {
-            loop {
-                if let Some(item) = self.0.queue.borrow_mut().pop_front() {
-                    return item;
-                }
-                yield_now().await;
-            }
+            self.0.receive().await
         }
     }
 
@@ -831,10 +795,10 @@ pub(crate) mod tests {
     fn can_task_reports_start_up_changes_staleness_and_publishes_at_1_hz() {
         let _clock = crate::test_clock::lock();
         let shared = Shared::new();
-        let bus = TestCan::default();
-        let mut port = TestPort(&bus);
+        let bus = Queue::new();
+        let mut port = TestPort(bus.clone());
         let script = async {
-            let push = |item| bus.queue.borrow_mut().push_back(item);
+            let push = |item| bus.push(item);
             elapse(Duration::from_millis(5)).await;
             let first = shared.battery.try_get().expect("published at once");
             assert!(first.stale);
@@ -911,8 +875,8 @@ pub(crate) mod tests {
     fn can_task_reports_stale_when_the_bus_is_silent_from_the_start() {
         let _clock = crate::test_clock::lock();
         let shared = Shared::new();
-        let bus = TestCan::default();
-        let mut port = TestPort(&bus);
+        let bus = Queue::new();
+        let mut port = TestPort(bus.clone());
         let script = async {
             let texts = collect(&shared, Duration::from_millis(4000)).await;
             assert_eq!(
@@ -931,18 +895,18 @@ pub(crate) mod tests {
     fn can_task_does_not_stall_when_the_outbox_is_full() {
         let _clock = crate::test_clock::lock();
         let shared = Shared::new();
-        let bus = TestCan::default();
-        let mut port = TestPort(&bus);
+        let bus = Queue::new();
+        let mut port = TestPort(bus.clone());
         let script = async {
             // Nobody drains the outbox: the start-up report fills it, the rest is dropped after 100 ms.
-            bus.queue.borrow_mut().push_back(Ok(status(0)));
+            bus.push(Ok(status(0)));
             elapse(Duration::from_millis(1)).await;
             for _ in 0..4 {
                 shared.say(Severity::Info, Text::try_from("filler").unwrap());
             }
             // A change report waits for room at most 100 ms, then the next frame is taken.
-            bus.queue.borrow_mut().push_back(Ok(status(1)));
-            bus.queue.borrow_mut().push_back(Ok(status(3)));
+            bus.push(Ok(status(1)));
+            bus.push(Ok(status(3)));
             elapse(Duration::from_millis(50)).await;
             assert_eq!(shared.battery.try_get().unwrap().frames, 2, "waiting for room");
             elapse(Duration::from_millis(100)).await;

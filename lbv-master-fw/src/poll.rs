@@ -1,7 +1,7 @@
 //! One exchange with a thruster: send the order, read the status (IDS 6.6.1, 8.3, 8.4).
 
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Family, MAX_STATUS_LEN, Order, Status};
+use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, Status};
 
 /// Why a poll failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -11,15 +11,20 @@ pub enum PollError<E> {
     Order(E),
     /// Reading the status failed on the bus.
     Status(E),
-    /// The status arrived but is not a valid frame of the thruster's family.
+    /// The status arrived but is not a valid frame of the thruster's family (wrong length, type or checksum).
     Decode(DecodeError),
 }
 
 /// Send `order` to the thruster of `family` and read back its status.
 ///
 /// The order and the read are separate transfers, each ended by STOP, as the IDS describes them (write at
-/// 0x52/0x54, read at 0x53/0x55).
-pub async fn poll_thruster<I: I2c>(i2c: &mut I, family: Family, order: Order) -> Result<Status, PollError<I::Error>> {
+/// 0x52/0x54, read at 0x53/0x55). A valid frame with an out-of-range field is a status (its faults count) with a
+/// warning, not a failure.
+pub async fn poll_thruster<I: I2c>(
+    i2c: &mut I,
+    family: Family,
+    order: Order,
+) -> Result<Decoded<Status>, PollError<I::Error>> {
     let address = family.address();
     i2c.write(address, &order.encode(family))
         .await
@@ -34,78 +39,42 @@ pub async fn poll_thruster<I: I2c>(i2c: &mut I, family: Family, order: Order) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::BusConfig;
+    use crate::sim::scripted::SimThruster;
+    use core::cell::{Cell, RefCell};
     use embassy_futures::block_on;
+    use embassy_time::Duration;
     use embedded_hal_async::i2c::{ErrorKind, ErrorType, NoAcknowledgeSource, Operation};
-    use thruster_fw::Link;
-    use tmc_proto::{Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Speed, StatusFrame};
+    use lbv_sim::i2c::{Bus, DeviceId, Master, Route, Tamper, Timing};
+    use lbv_sim::{Executor, clock};
+    use std::rc::Rc;
+    use tmc_proto::{Faults, SeaBotixStatus, Speed};
 
-    /// A bus with one thruster on it: the thruster firmware's own link core takes the orders, and the status
-    /// reports the ordered speed as reached. `corrupt` flips bits of every status byte read, as a noisy line would.
-    struct Bus {
-        thruster: Link,
-        corrupt: u8,
-        transfers: usize,
+    /// A bus with one scripted thruster of `family` on it (its status reports the ordered speed as reached).
+    fn bus_with(family: Family) -> (Bus, Rc<RefCell<SimThruster>>, DeviceId) {
+        let bus = Bus::new(Timing::new(
+            BusConfig::THRUSTERS.frequency_hz,
+            BusConfig::THRUSTERS.timeout,
+        ));
+        let thruster = Rc::new(RefCell::new(SimThruster::new(family)));
+        let id = bus.attach(thruster.clone(), Route::Direct);
+        (bus, thruster, id)
     }
 
-    impl Bus {
-        fn with(family: Family) -> Self {
-            Self {
-                thruster: Link::new(family),
-                corrupt: 0,
-                transfers: 0,
-            }
-        }
-
-        fn status(&self) -> StatusFrame {
-            let faults = Faults::NONE;
-            let speed = self.thruster.order().speed;
-            let status = match self.thruster.family() {
-                Family::SeaBotix => Status::SeaBotix(SeaBotixStatus {
-                    revision: 0,
-                    motor: MotorKind::Brushless,
-                    current_limited: true,
-                    faults,
-                    current_deciamps: 0,
-                    speed,
-                    temperature_c: 20,
-                }),
-                Family::Legacy => Status::Legacy(LegacyStatus {
-                    revision: LegacyRevision::LEGACY_BRUSHED,
-                    faults,
-                    max_power: MaxPower::Power(speed),
-                }),
-            };
-            status.encode()
-        }
-    }
-
-    impl ErrorType for Bus {
-        type Error = ErrorKind;
-    }
-
-    impl I2c for Bus {
-        async fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), ErrorKind> {
-            self.transfers += 1;
-            if address != self.thruster.family().address() {
-                return Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address));
-            }
-            for operation in operations {
-                match operation {
-                    Operation::Write(bytes) => {
-                        let _ = self.thruster.accept(bytes);
-                    }
-                    Operation::Read(buffer) => {
-                        let frame = self.status();
-                        let frame = frame.as_bytes();
-                        for (i, byte) in buffer.iter_mut().enumerate() {
-                            // A slave with nothing more to send leaves SDA high: 0xFF.
-                            *byte = frame.get(i).copied().unwrap_or(0xFF) ^ self.corrupt;
-                        }
-                    }
-                }
-            }
-            Ok(())
-        }
+    /// One poll on `bus`, on virtual time.
+    fn poll(bus: &Bus, family: Family, order: Order) -> Result<Decoded<Status>, PollError<ErrorKind>> {
+        let clock = clock::take();
+        let result = Cell::new(None);
+        let mut master: Master = bus.master();
+        let mut executor = Executor::new();
+        executor.spawn(async {
+            result.set(Some(poll_thruster(&mut master, family, order).await));
+        });
+        executor.run_until(&clock, Duration::from_millis(100), Duration::from_micros(10), || {
+            result.get().is_some()
+        });
+        drop(executor);
+        result.get().expect("the poll ended")
     }
 
     fn forward(step: i8) -> Order {
@@ -115,18 +84,23 @@ mod tests {
     #[test]
     fn polls_each_family_and_decodes_the_reply() {
         for family in Family::ALL {
-            let mut bus = Bus::with(family);
-            let status = block_on(poll_thruster(&mut bus, family, forward(25))).unwrap();
-            assert_eq!(status.family(), family);
-            assert_eq!(bus.thruster.order(), forward(25), "the order reached the thruster");
-            assert_eq!(bus.transfers, 2, "one write and one read");
+            let (bus, thruster, _) = bus_with(family);
+            let decoded = poll(&bus, family, forward(25)).unwrap();
+            assert_eq!(decoded.warning, None);
+            assert_eq!(decoded.status.family(), family);
+            assert_eq!(
+                thruster.borrow().link.order(),
+                forward(25),
+                "the order reached the thruster"
+            );
+            assert_eq!(bus.stats().transfers, 2, "one write and one read");
         }
     }
 
     #[test]
     fn the_status_reports_the_order_just_sent() {
-        let mut bus = Bus::with(Family::SeaBotix);
-        let status = block_on(poll_thruster(&mut bus, Family::SeaBotix, forward(-60))).unwrap();
+        let (bus, ..) = bus_with(Family::SeaBotix);
+        let status = poll(&bus, Family::SeaBotix, forward(-60)).unwrap().status;
         let Status::SeaBotix(SeaBotixStatus { speed, .. }) = status else {
             panic!("wrong family")
         };
@@ -135,20 +109,51 @@ mod tests {
 
     #[test]
     fn a_missing_thruster_is_a_nack_on_the_order() {
-        let mut bus = Bus::with(Family::Legacy);
-        let error = block_on(poll_thruster(&mut bus, Family::SeaBotix, Order::STOP)).unwrap_err();
+        let (bus, ..) = bus_with(Family::Legacy);
+        let error = poll(&bus, Family::SeaBotix, Order::STOP).unwrap_err();
         assert_eq!(
             error,
             PollError::Order(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address))
         );
-        assert_eq!(bus.transfers, 1, "no read after a failed order");
+        assert_eq!(bus.stats().transfers, 1, "no read after a failed order");
+    }
+
+    #[test]
+    fn an_odd_field_keeps_the_faults() {
+        // A brushed Legacy controller reporting WATER with MAX POWER 0x00, outside the SPEED range.
+        struct Odd;
+        impl ErrorType for Odd {
+            type Error = ErrorKind;
+        }
+        impl I2c for Odd {
+            async fn transaction(&mut self, _: u8, operations: &mut [Operation<'_>]) -> Result<(), ErrorKind> {
+                for operation in operations {
+                    if let Operation::Read(buffer) = operation {
+                        for (slot, byte) in buffer.iter_mut().zip([0x55, 0x50, 0x00, 0xA5]) {
+                            *slot = byte;
+                        }
+                    }
+                }
+                Ok(())
+            }
+        }
+        let decoded = block_on(poll_thruster(&mut Odd, Family::Legacy, Order::STOP)).unwrap();
+        assert_eq!(decoded.status.faults(), Faults::WATER);
+        assert_eq!(decoded.warning, Some(tmc_proto::FieldWarning::MaxPower(0x00)));
     }
 
     #[test]
     fn a_corrupted_status_is_a_decode_error() {
-        let mut bus = Bus::with(Family::SeaBotix);
-        bus.corrupt = 0x01;
-        let error = block_on(poll_thruster(&mut bus, Family::SeaBotix, Order::STOP)).unwrap_err();
+        let (bus, _, id) = bus_with(Family::SeaBotix);
+        // A noisy line flips a bit of every byte the thruster sends.
+        bus.tamper(
+            id,
+            Tamper {
+                read_xor: 0x01,
+                ..Tamper::NONE
+            },
+        );
+        let error = poll(&bus, Family::SeaBotix, Order::STOP).unwrap_err();
         assert!(matches!(
             error,
             PollError::Decode(DecodeError::MessageType {

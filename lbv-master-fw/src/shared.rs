@@ -1,15 +1,13 @@
 //! What the master's tasks tell one another: the console's commands, the vehicle's orders, the thrusters' and
 //! the battery's reports, and the messages queued for the console. Every task owns its own state machines and
-//! talks to the others only through [`Shared`].
+//! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them.
 
+use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::watch::Watch;
 use embassy_time::Duration;
 use tmc_proto::{Order, Status};
-
-use crate::battery::BatterySummary;
-use crate::thrusters::LinkHealth;
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
 pub const MAX_THRUSTERS: usize = 8;
@@ -156,6 +154,36 @@ pub enum Outgoing {
     Text(Severity, Text),
 }
 
+/// Link health and error counters of one thruster. Counters saturate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct LinkHealth {
+    /// Answering: true from the first good poll until the thruster is taken offline.
+    pub online: bool,
+    /// Failed polls since the last good one.
+    pub consecutive_failures: u16,
+    /// Polls attempted, retries of an offline thruster included.
+    pub polls: u32,
+    /// Polls that returned a valid status.
+    pub good: u32,
+    /// The thruster did not acknowledge (missing or unpowered).
+    pub nack: u32,
+    /// A transfer timed out (SCL held low past the bus's timeout, [`crate::config::BusConfig::timeout`]).
+    pub timeout: u32,
+    /// The status's checksum did not match.
+    pub bad_checksum: u32,
+    /// The status's message type was not the family's.
+    pub bad_type: u32,
+    /// The status had the wrong length.
+    pub bad_length: u32,
+    /// A status field was out of range (the speed byte); the status itself still counted, faults included.
+    pub bad_range: u32,
+    /// Bus error, arbitration loss, overrun, or a failed mux selection.
+    pub bus_error: u32,
+    /// Bus recoveries run after this thruster's timeouts and bus errors.
+    pub recoveries: u32,
+}
+
 /// What the master knows of one thruster, published by its bus task after every poll.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ThrusterReport {
@@ -163,6 +191,24 @@ pub struct ThrusterReport {
     pub health: LinkHealth,
     /// The last valid status, if any came.
     pub status: Option<Status>,
+}
+
+/// What the master knows of the battery (published to `shared.battery`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct BatterySummary {
+    /// The last pack info (0x620).
+    pub info: Option<BatteryInfo>,
+    /// The last DCDC status (0x629).
+    pub status: Option<DcdcStatus>,
+    /// The last BMS alarms (0x628).
+    pub alarms: Option<BmsAlarms>,
+    /// No good BAT frame for [`crate::battery::BatteryMonitor::STALE_AFTER`], or none yet: the values above are old or absent.
+    pub stale: bool,
+    /// Good BAT frames received.
+    pub frames: u32,
+    /// Bad BAT frames (unknown BAT ID, bad length, failed check) and receive errors.
+    pub errors: u32,
 }
 
 /// The vehicle's state for telemetry: published by the vehicle task.

@@ -1,20 +1,24 @@
 //! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
+use core::num::{NonZeroU8, NonZeroU16};
+
 use defmt::{info, unwrap};
 use embassy_executor::Spawner;
+use embassy_stm32::can::config::NominalBitTiming;
 use embassy_stm32::can::{self, CanConfigurator};
 use embassy_stm32::i2c::{self, I2c};
-use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllQDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
-use lbv_master_fw::battery;
-use lbv_master_fw::console::{self, ConsoleConfig, ConsoleStats};
+use g431_hw::clock;
+use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::vehicle::{self, VehicleConfig};
+use lbv_master_fw::{CONFIG, Ports};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::board::{self, BatteryCan, Pin, ThrusterBus};
+use crate::board::{self, BatteryCan, Pin, ThrusterBus, set_i2c_timing};
 
 bind_interrupts!(struct Irqs {
     I2C1_EV => i2c::EventInterruptHandler<peripherals::I2C1>;
@@ -35,22 +39,29 @@ bind_interrupts!(struct Irqs {
 });
 
 static SHARED: Shared = Shared::new();
-static CONSOLE: ConsoleConfig = ConsoleConfig {
-    thrusters: board::THRUSTER_COUNT,
-    ..ConsoleConfig::DEFAULT
-};
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
+
+/// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
+#[cfg(not(feature = "acceptance"))]
+type Work = lbv_master_fw::Polling;
+#[cfg(not(feature = "acceptance"))]
+const WORK: Work = lbv_master_fw::Polling;
+#[cfg(feature = "acceptance")]
+type Work = lbv_master_fw::acceptance::Script<acceptance::Person>;
+#[cfg(feature = "acceptance")]
+const WORK: Work = lbv_master_fw::acceptance::Script(acceptance::Person);
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
-    info!("lbv-master-fw: {} thrusters", board::THRUSTERS.len());
+    info!("lbv-master-fw: {} thrusters", CONFIG.thrusters.count());
 
     let mut i2c_config = i2c::Config::default();
-    i2c_config.frequency = board::BUS_SPEED;
-    i2c_config.timeout = board::TRANSFER_TIMEOUT;
+    i2c_config.frequency = Hertz(CONFIG.bus.frequency_hz);
+    i2c_config.timeout = CONFIG.bus.timeout;
     let bus1 = ThrusterBus {
         i2c: I2c::new(p.I2C1, p.PA15, p.PB7, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config),
+        regs: pac::I2C1,
         scl: Pin {
             port: pac::GPIOA,
             number: 15,
@@ -62,6 +73,7 @@ async fn main(spawner: Spawner) {
     };
     let bus2 = ThrusterBus {
         i2c: I2c::new(p.I2C2, p.PA9, p.PA8, p.DMA1_CH3, p.DMA1_CH4, Irqs, i2c_config),
+        regs: pac::I2C2,
         scl: Pin {
             port: pac::GPIOA,
             number: 9,
@@ -73,6 +85,7 @@ async fn main(spawner: Spawner) {
     };
     let bus3 = ThrusterBus {
         i2c: I2c::new(p.I2C3, p.PC8, p.PC9, p.DMA1_CH5, p.DMA1_CH6, Irqs, i2c_config),
+        regs: pac::I2C3,
         scl: Pin {
             port: pac::GPIOC,
             number: 8,
@@ -83,14 +96,18 @@ async fn main(spawner: Spawner) {
         },
     };
 
+    for bus in [&bus1, &bus2, &bus3] {
+        set_i2c_timing(bus.regs);
+    }
+
     let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
-    can.set_bitrate(board::CAN_BITRATE);
+    can.set_config(can.config().set_nominal_bit_timing(nominal_bit_timing()));
     let can = BatteryCan(can.into_normal_mode());
 
     static TX_BUFFER: StaticCell<[u8; 512]> = StaticCell::new();
     static RX_BUFFER: StaticCell<[u8; 256]> = StaticCell::new();
     let mut uart_config = usart::Config::default();
-    uart_config.baudrate = board::CONSOLE_BAUD;
+    uart_config.baudrate = CONFIG.console_baud;
     let uart = unwrap!(BufferedUart::new(
         p.LPUART1,
         p.PA3,
@@ -102,88 +119,73 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
-    #[cfg(not(feature = "acceptance"))]
-    for (index, bus) in [bus1, bus2, bus3].into_iter().enumerate() {
-        let index = index as u8;
-        if board::THRUSTERS.iter().any(|slot| slot.bus == index) {
-            spawner.spawn(unwrap!(bus_task(bus, index)));
-        }
-    }
-    // The bench test takes the dev kit's bus (I2C2) instead of the polling task; the other buses stay idle.
-    #[cfg(feature = "acceptance")]
-    {
-        drop((bus1, bus3));
-        spawner.spawn(unwrap!(acceptance::task(bus2)));
-    }
-    spawner.spawn(unwrap!(battery_task(can)));
-    spawner.spawn(unwrap!(console_rx_task(console_rx)));
-    spawner.spawn(unwrap!(console_tx_task(console_tx)));
-    spawner.spawn(unwrap!(vehicle_task()));
+    spawner.spawn(unwrap!(master(Ports {
+        buses: [bus1, bus2, bus3],
+        can,
+        console_rx,
+        console_tx,
+        work: WORK,
+    })));
 }
 
-/// 170 MHz from the internal 16 MHz oscillator (HSI / 4 * 85 / 2), and 85 MHz from PLL Q for FDCAN, whose
-/// default kernel clock (HSE) is not running on this board.
+/// 170 MHz from the NUCLEO's 24 MHz crystal (`g431_hw::clock::PLL`); FDCAN on the crystal itself, which its bit
+/// timing needs (`g431_hw::fdcan`: HSI16's 1 % is more than 1 Mbit/s tolerates); the I2C buses on HSI16, the clock
+/// their timing is computed for.
 fn clocks() -> embassy_stm32::Config {
+    const PLL: clock::Pll = clock::PLL;
+    const _: () = assert!(PLL.is_valid(clock::HSE_HZ));
     let mut config = embassy_stm32::Config::default();
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(clock::HSE_HZ),
+        mode: HseMode::Oscillator,
+    });
     config.rcc.pll = Some(Pll {
-        source: PllSource::HSI,
-        prediv: PllPreDiv::DIV4,
-        mul: PllMul::MUL85,
+        source: PllSource::HSE,
+        prediv: PllPreDiv::from_bits((PLL.m - 1) as u8),
+        mul: PllMul::from_bits(PLL.n as u8),
         divp: None,
-        divq: Some(PllQDiv::DIV4),
-        divr: Some(PllRDiv::DIV2),
+        divq: None,
+        divr: Some(PllRDiv::from_bits((PLL.r / 2 - 1) as u8)),
     });
     config.rcc.sys = Sysclk::PLL1_R;
     config.rcc.boost = true;
-    config.rcc.mux.fdcansel = rcc::mux::Fdcansel::PLL1_Q;
+    config.rcc.mux.fdcansel = rcc::mux::Fdcansel::HSE;
+    config.rcc.mux.i2c1sel = rcc::mux::I2csel::HSI;
+    config.rcc.mux.i2c2sel = rcc::mux::I2csel::HSI;
+    config.rcc.mux.i2c3sel = rcc::mux::I2csel::HSI;
     config
 }
 
-#[cfg(not(feature = "acceptance"))]
-#[embassy_executor::task(pool_size = 3)]
-async fn bus_task(mut bus: ThrusterBus, index: u8) -> ! {
-    lbv_master_fw::thrusters::bus_task(&mut bus, index, board::THRUSTERS, &board::POLL, &SHARED).await
+/// `board::CAN_TIMING` in embassy-stm32's terms (it writes each field less one into FDCAN_NBTP).
+fn nominal_bit_timing() -> NominalBitTiming {
+    let timing = board::CAN_TIMING;
+    // `CAN_TIMING.is_valid()` is asserted at build time, so no field is zero.
+    let one = NonZeroU8::MIN;
+    NominalBitTiming {
+        prescaler: NonZeroU16::new(timing.prescaler).unwrap_or(NonZeroU16::MIN),
+        seg1: NonZeroU8::new(timing.tseg1).unwrap_or(one),
+        seg2: NonZeroU8::new(timing.tseg2).unwrap_or(one),
+        sync_jump_width: NonZeroU8::new(timing.sjw).unwrap_or(one),
+    }
 }
 
+/// The whole node, on the thread-mode executor.
 #[embassy_executor::task]
-async fn battery_task(mut can: BatteryCan) -> ! {
-    battery::can_task(&mut can, &SHARED).await
+async fn master(ports: Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Work>) -> ! {
+    lbv_master_fw::run(ports, &CONFIG, &SHARED, &CONSOLE_STATS).await
 }
 
-#[embassy_executor::task]
-async fn console_rx_task(mut rx: BufferedUartRx<'static>) -> ! {
-    console::console_rx_task(&mut rx, &CONSOLE, &SHARED, &CONSOLE_STATS).await
-}
-
-#[embassy_executor::task]
-async fn console_tx_task(mut tx: BufferedUartTx<'static>) -> ! {
-    console::console_tx_task(&mut tx, &CONSOLE, &SHARED, &CONSOLE_STATS).await
-}
-
-#[embassy_executor::task]
-async fn vehicle_task() -> ! {
-    let config = VehicleConfig {
-        thrusters: board::THRUSTER_COUNT,
-        ..VehicleConfig::DEFAULT
-    };
-    vehicle::vehicle_task(config, &SHARED).await
-}
-
-/// The acceptance test's binding: its report lines over defmt and the console, its prompts as a log line and a
-/// wait.
+/// The acceptance test's operator: its report lines over defmt (which `lbv hil` reads), its prompts as a log line
+/// and a wait.
 #[cfg(feature = "acceptance")]
 mod acceptance {
     use core::fmt::Write;
 
     use defmt::{info, warn};
     use embassy_time::Timer;
-    use lbv_master_fw::acceptance::{
-        Operator, Prompt, StepResult, acceptance_test, family_token, prompt_text, step_text, verdict_text,
-    };
+    use lbv_master_fw::CONFIG;
+    use lbv_master_fw::acceptance::{Operator, Prompt, StepResult, Verdict, family_token};
     use tmc_proto::Family;
-
-    use super::SHARED;
-    use crate::board::{self, ThrusterBus};
 
     /// A report line's body; the longest step has 8 figures of ~20 characters.
     type Line = heapless::String<224>;
@@ -195,12 +197,12 @@ mod acceptance {
         line
     }
 
-    /// The person at the bench: told what to do in the log and on the console, then given time to do it.
-    struct Person;
+    /// The person at the bench: told what to do in the log (and on the console), then given time to do it.
+    pub struct Person;
 
     impl Operator for Person {
         async fn prompt(&mut self, what: Prompt, family: Family) {
-            let wait = board::prompt_wait(what);
+            let wait = CONFIG.acceptance.prompt_wait(what);
             info!(
                 "ACCEPT prompt={=str} family={=str} wait_s={=u64}: {=str}",
                 what.name(),
@@ -208,29 +210,24 @@ mod acceptance {
                 wait.as_secs(),
                 what.instruction()
             );
-            let (severity, text) = prompt_text(what);
-            SHARED.say(severity, text);
             Timer::after(wait).await;
         }
-    }
 
-    #[embassy_executor::task]
-    pub async fn task(mut bus: ThrusterBus) {
-        Timer::after(board::ACCEPTANCE_START).await;
-        info!("ACCEPT start");
-        let mut report = |result: StepResult| {
+        fn started(&mut self) {
+            info!("ACCEPT start");
+        }
+
+        fn reported(&mut self, result: &StepResult) {
             let body = line(format_args!("{result}"));
             if result.passed {
                 info!("ACCEPT {=str}", body.as_str());
             } else {
                 warn!("ACCEPT {=str}", body.as_str());
             }
-            let (severity, text) = step_text(&result);
-            SHARED.say(severity, text);
-        };
-        let verdict = acceptance_test(&mut bus, &mut Person, &board::ACCEPTANCE, &mut report).await;
-        info!("ACCEPT {=str}", line(format_args!("{verdict}")).as_str());
-        let (severity, text) = verdict_text(&verdict);
-        SHARED.say(severity, text);
+        }
+
+        fn concluded(&mut self, verdict: &Verdict) {
+            info!("ACCEPT {=str}", line(format_args!("{verdict}")).as_str());
+        }
     }
 }

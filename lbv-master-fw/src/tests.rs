@@ -1,26 +1,25 @@
-//! The whole master on virtual time: a pilot's session built by pymavlink goes in on the console, six simulated
-//! thrusters sit behind a TCA9548A on a 100 kbit/s bus, and pymavlink reads what the master sends back.
+//! The whole master as it ships ([`run`] with the vehicle's configuration) on virtual time: a pilot's session built
+//! by pymavlink goes in on the console, six scripted thrusters sit behind a TCA9548A on the 100 kbit/s I2C2 bus,
+//! and pymavlink reads what the master sends back.
 
 use core::cell::RefCell;
-use core::convert::Infallible;
 use std::collections::VecDeque;
 use std::process::{Command as Process, Stdio};
 use std::rc::Rc;
 
-use embassy_futures::block_on;
-use embassy_futures::join::join5;
-use embassy_futures::select::{Either, select};
-use embassy_futures::yield_now;
-use embassy_time::{Duration, Instant, MockDriver};
+use embassy_time::{Duration, Instant};
+use lbv_sim::i2c::{Bus, Route, Timing};
+use lbv_sim::{Executor, Queue, SerialRx, SerialTx, clock};
 use serde_json::Value;
 use tmc_proto::Family;
 
-use crate::battery::{CanFrame, CanReceiver, can_task};
-use crate::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
+use crate::config::VEHICLE;
+use crate::console::ConsoleStats;
 use crate::shared::{MAX_THRUSTERS, Shared};
-use crate::thrusters::sim::{SimBus, SimThruster, World};
-use crate::thrusters::{PollConfig, ThrusterSlot, bus_task};
-use crate::vehicle::{VehicleConfig, vehicle_task};
+use crate::sim::scripted::SimThruster;
+use crate::sim::thruster_bus;
+use crate::thrusters::MUX_ADDRESS;
+use crate::{Polling, Ports, run};
 
 /// Run the project's pymavlink peer (`tests/mav_peer.py`).
 fn mav_peer(command: &str, input: &str) -> Value {
@@ -47,65 +46,8 @@ fn unhex(hex: &str) -> Vec<u8> {
         .collect()
 }
 
-/// The console's receive side: each frame arrives at its time.
-struct TimedRx(VecDeque<(Instant, Vec<u8>)>);
-
-impl embedded_io_async::ErrorType for TimedRx {
-    type Error = Infallible;
-}
-
-impl embedded_io_async::Read for TimedRx {
-    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        loop {
-            match self.0.front_mut() {
-                Some((at, frame)) if *at <= Instant::now() => {
-                    let n = frame.len().min(buf.len());
-                    buf[..n].copy_from_slice(&frame[..n]);
-                    frame.drain(..n);
-                    if frame.is_empty() {
-                        self.0.pop_front();
-                    }
-                    return Ok(n);
-                }
-                _ => yield_now().await,
-            }
-        }
-    }
-}
-
-/// The console's transmit side.
-#[derive(Clone, Default)]
-struct Capture(Rc<RefCell<Vec<u8>>>);
-
-impl embedded_io_async::ErrorType for Capture {
-    type Error = Infallible;
-}
-
-impl embedded_io_async::Write for Capture {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.0.borrow_mut().extend_from_slice(buf);
-        Ok(buf.len())
-    }
-
-    async fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
-    }
-}
-
-/// A CAN bus with no battery board on it.
-struct QuietCan;
-
-impl CanReceiver for QuietCan {
-    type Error = Infallible;
-
-    async fn receive(&mut self) -> Result<CanFrame, Infallible> {
-        core::future::pending().await
-    }
-}
-
 #[test]
 fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
-    let _clock = crate::test_clock::lock();
     let session = mav_peer("session", "");
     let frames: VecDeque<(Instant, Vec<u8>)> = session
         .as_array()
@@ -124,49 +66,57 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         .filter_map(|event| event[0].as_u64().map(Instant::from_millis))
         .collect();
 
-    let table: Vec<ThrusterSlot> = (0..6)
-        .map(|channel| ThrusterSlot::behind_mux(0, channel, Family::SeaBotix))
+    // The vehicle's own configuration: six SeaBotix thrusters behind a TCA9548A on I2C2.
+    let config = VEHICLE;
+    let timing = Timing::new(config.bus.frequency_hz, config.bus.timeout);
+    let buses = [Bus::new(timing), Bus::new(timing), Bus::new(timing)];
+    buses[1].fit_mux(MUX_ADDRESS);
+    let thrusters: Vec<Rc<RefCell<SimThruster>>> = config
+        .thrusters
+        .as_slice()
+        .iter()
+        .map(|slot| {
+            let thruster = Rc::new(RefCell::new(SimThruster::new(slot.family)));
+            let route = slot.mux_channel.map_or(Route::Direct, Route::Mux);
+            buses[usize::from(slot.bus)].attach(thruster.clone(), route);
+            thruster
+        })
         .collect();
-    let world = RefCell::new(World::with(
-        (0..6)
-            .map(|channel| SimThruster::new(Family::SeaBotix, Some(channel)))
-            .collect(),
-    ));
+    assert!(thrusters.iter().all(|t| t.borrow().link.family() == Family::SeaBotix));
+    let (console_in, console_out) = (Queue::new(), Queue::new());
     let shared = Shared::new();
     let stats = ConsoleStats::new();
-    let capture = Capture::default();
-    let mut rx = TimedRx(frames);
-    let mut tx = capture.clone();
-    let mut bus = SimBus(&world);
-    let mut can = QuietCan;
+    let clock = clock::take();
+    let mut executor = Executor::new();
+    let ports = Ports {
+        buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
+        // No battery board on the CAN bus.
+        can: Queue::new(),
+        console_rx: SerialRx::new(console_in.clone()),
+        console_tx: SerialTx(console_out.clone()),
+        work: Polling,
+    };
+    executor.spawn(async {
+        run(ports, &config, &shared, &stats).await;
+    });
     // When thruster 1's order changed on the wire.
     let mut changes: Vec<Instant> = Vec::new();
-
-    let tasks = join5(
-        console_rx_task(&mut rx, &ConsoleConfig::DEFAULT, &shared, &stats),
-        console_tx_task(&mut tx, &ConsoleConfig::DEFAULT, &shared, &stats),
-        vehicle_task(VehicleConfig::DEFAULT, &shared),
-        bus_task(&mut bus, 0, &table, &PollConfig::DEFAULT, &shared),
-        can_task(&mut can, &shared),
-    );
     let mut last_order = tmc_proto::Order::STOP;
-    let script = async {
-        let end = Instant::from_secs(3) + Duration::from_millis(200);
-        while Instant::now() < end {
-            MockDriver::get().advance(Duration::from_micros(100));
-            for _ in 0..8 {
-                yield_now().await;
-            }
-            let order = world.borrow().thrusters[0].link.order();
-            if order != last_order {
-                last_order = order;
-                changes.push(Instant::now());
+    let mut frames = frames;
+    let end = Instant::from_secs(3) + Duration::from_millis(200);
+    while clock.now() < end {
+        // Each frame arrives at its time.
+        while frames.front().is_some_and(|(at, _)| *at <= clock.now()) {
+            if let Some((_, frame)) = frames.pop_front() {
+                console_in.send(frame);
             }
         }
-    };
-    match block_on(select(tasks, script)) {
-        Either::First(_) => unreachable!("the tasks never end"),
-        Either::Second(()) => {}
+        executor.run_for(&clock, Duration::from_micros(100), Duration::from_micros(100));
+        let order = thrusters[0].borrow().link.order();
+        if order != last_order {
+            last_order = order;
+            changes.push(clock.now());
+        }
     }
 
     // Console to wire: each stick frame's new order reaches thruster 1 on its next poll (50 Hz, so within 20 ms
@@ -194,11 +144,11 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         "latencies {latencies:?}"
     );
     assert!(
-        world.borrow().thrusters.iter().all(|t| t.link.order().speed.is_zero()),
+        thrusters.iter().all(|t| t.borrow().link.order().speed.is_zero()),
         "stopped after disarm"
     );
 
-    let sent: String = capture.0.borrow().iter().map(|byte| format!("{byte:02x}")).collect();
+    let sent: String = console_out.take().iter().map(|byte| format!("{byte:02x}")).collect();
     let messages = mav_peer("decode", &sent);
     let messages = messages.as_array().expect("a list");
     let of = |kind: &'static str| messages.iter().filter(move |m| m["_type"] == kind);

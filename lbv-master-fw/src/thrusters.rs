@@ -1,10 +1,11 @@
 //! Thruster polling: one task per I2C bus sends every thruster on it its order, reads its status and keeps its
 //! link health.
 //!
-//! The thruster table ([`ThrusterSlot`]s) is fixed at build time: each entry names the bus (I2C1..3), the
-//! TCA9548A channel when the thruster sits behind the multiplexer, and the controller family, so Legacy and
-//! SeaBotix controllers can share a bus. A thruster's index in the table is its index in `Shared::orders` and
-//! `Shared::thrusters`, and its number in console texts is that index plus one.
+//! The thruster table ([`ThrusterTable`] of [`ThrusterSlot`]s, the production ones in [`crate::config`]) is fixed
+//! at build time: each entry names the bus (I2C1..3), the TCA9548A channel when the thruster sits behind the
+//! multiplexer, and the controller family, so Legacy and SeaBotix controllers can share a bus. A thruster's index
+//! in the table is its index in `Shared::orders` and `Shared::thrusters`, and its number in console texts is that
+//! index plus one.
 //!
 //! The decisions live in small synchronous state machines that the virtual bench can reuse:
 //! - [`Failure`] classifies a failed poll (NACK, timeout, bus error, mux, decode errors);
@@ -20,13 +21,13 @@ use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::i2c::ErrorKind;
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Family, Faults, Order, Status};
+use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status};
 
 use crate::poll::{PollError, poll_thruster};
+use crate::recovery::BusRecovery;
+pub use crate::shared::LinkHealth;
 use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
 
-#[cfg(test)]
-pub(crate) mod sim;
 #[cfg(test)]
 mod tests;
 
@@ -35,12 +36,6 @@ pub const MUX_ADDRESS: u8 = 0x70;
 
 /// TCA9548A channels.
 pub const MUX_CHANNELS: u8 = 8;
-
-/// Bus clock: the IDS's motherboard is a 100 kbit/s I2C master (IDS 6.4.1).
-pub const BUS_FREQUENCY_HZ: u32 = 100_000;
-
-/// Give up on a transfer stalled this long: SMBus's SCL-low timeout (embassy-stm32's default is 1 s).
-pub const BUS_TIMEOUT: Duration = Duration::from_millis(25);
 
 /// Bit times of one I2C transfer of `bytes` data bytes: START, the address byte and its ACK, 9 bits per data
 /// byte (8 + ACK), STOP. An order (4 bytes) is 47; a SeaBotix status read (7 bytes) 74; a Legacy one 47.
@@ -90,7 +85,7 @@ impl ThrusterSlot {
 }
 
 /// Buses a master has: I2C1..3.
-pub const BUSES: u8 = 3;
+pub const BUSES: usize = 3;
 
 /// What is wrong with a thruster table; thrusters are named by their index in the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,7 +110,7 @@ pub const fn check_table(table: &[ThrusterSlot]) -> Result<(), TableError> {
     let mut rest = table;
     let mut i = 0;
     while let [slot, tail @ ..] = rest {
-        if slot.bus >= BUSES {
+        if slot.bus as usize >= BUSES {
             return Err(TableError::Bus(i));
         }
         if let Some(channel) = slot.mux_channel
@@ -142,42 +137,71 @@ pub const fn check_table(table: &[ThrusterSlot]) -> Result<(), TableError> {
     Ok(())
 }
 
-/// Link health and error counters of one thruster. Counters saturate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// A thruster table: at most [`MAX_THRUSTERS`] slots, kept by value so a configuration owns its table. A thruster's
+/// index in the table is its index in `Shared::orders` and `Shared::thrusters`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct LinkHealth {
-    /// Answering: true from the first good poll until the thruster is taken offline.
-    pub online: bool,
-    /// Failed polls since the last good one.
-    pub consecutive_failures: u16,
-    /// Polls attempted, retries of an offline thruster included.
-    pub polls: u32,
-    /// Polls that returned a valid status.
-    pub good: u32,
-    /// The thruster did not acknowledge (missing or unpowered).
-    pub nack: u32,
-    /// A transfer timed out (SCL held low past [`BUS_TIMEOUT`]).
-    pub timeout: u32,
-    /// The status's checksum did not match.
-    pub bad_checksum: u32,
-    /// The status's message type was not the family's.
-    pub bad_type: u32,
-    /// The status had the wrong length.
-    pub bad_length: u32,
-    /// A status field was out of range (the speed byte).
-    pub bad_range: u32,
-    /// Bus error, arbitration loss, overrun, or a failed mux selection.
-    pub bus_error: u32,
-    /// Bus recoveries run after this thruster's timeouts and bus errors.
-    pub recoveries: u32,
+pub struct ThrusterTable {
+    slots: [ThrusterSlot; MAX_THRUSTERS],
+    len: u8,
 }
 
-/// Clearing a stuck bus: the binding clocks SCL up to 9 times until SDA is released, then sends STOP and
-/// re-initialises the peripheral.
-#[allow(async_fn_in_trait)]
-pub trait BusRecovery {
-    /// Run the recovery; true when SDA is high afterwards.
-    async fn recover(&mut self) -> bool;
+impl ThrusterTable {
+    /// The table of `slots`; slots beyond [`MAX_THRUSTERS`] are dropped (and [`ThrusterTable::check`] says so).
+    pub const fn new(slots: &[ThrusterSlot]) -> Self {
+        let mut table = [ThrusterSlot::direct(0, Family::SeaBotix); MAX_THRUSTERS];
+        let mut len = 0;
+        let mut from = slots;
+        let mut to: &mut [ThrusterSlot] = &mut table;
+        loop {
+            match (from, to) {
+                ([slot, from_rest @ ..], [place, to_rest @ ..]) => {
+                    *place = *slot;
+                    len += 1;
+                    from = from_rest;
+                    to = to_rest;
+                }
+                ([], _) => break,
+                // More than fit: marked so that `check` fails.
+                (_, []) => {
+                    len = u8::MAX;
+                    break;
+                }
+            }
+        }
+        Self { slots: table, len }
+    }
+
+    /// The slots, in order.
+    pub const fn as_slice(&self) -> &[ThrusterSlot] {
+        let len = if (self.len as usize) < MAX_THRUSTERS {
+            self.len as usize
+        } else {
+            MAX_THRUSTERS
+        };
+        match self.slots.split_at_checked(len) {
+            Some((slots, _)) => slots,
+            None => &[],
+        }
+    }
+
+    /// How many thrusters the table holds.
+    pub const fn count(&self) -> u8 {
+        self.as_slice().len() as u8
+    }
+
+    /// Check the table ([`check_table`]); meant for build time: `const _: () = assert!(TABLE.check().is_ok());`.
+    pub const fn check(&self) -> Result<(), TableError> {
+        if self.len as usize > MAX_THRUSTERS {
+            return Err(TableError::TooMany);
+        }
+        check_table(self.as_slice())
+    }
+
+    /// Whether any thruster hangs on bus `bus`.
+    pub fn uses_bus(&self, bus: u8) -> bool {
+        self.as_slice().iter().any(|slot| slot.bus == bus)
+    }
 }
 
 /// How often thrusters are polled and how offline ones are retried.
@@ -445,6 +469,12 @@ impl Link {
         }
     }
 
+    /// Count a status that decoded with an out-of-range field: the poll still counts as good (its faults are
+    /// read), the field's oddity goes to `bad_range`.
+    pub fn on_odd_field(&mut self) {
+        self.health.bad_range = self.health.bad_range.saturating_add(1);
+    }
+
     /// Count a bus recovery run after this thruster's failure.
     pub fn on_recovery(&mut self) {
         self.health.recoveries = self.health.recoveries.saturating_add(1);
@@ -558,7 +588,7 @@ async fn poll_slot<B: I2c>(
     slot: &ThrusterSlot,
     selected: &mut Option<u8>,
     order: Order,
-) -> Result<Status, Failure> {
+) -> Result<Decoded<Status>, Failure> {
     let mask = mux_mask(slot).map_err(|()| Failure::Mux)?;
     if let Some(mask) = mask
         && *selected != Some(mask)
@@ -614,6 +644,11 @@ impl BusState {
             }
             polled += 1;
             let outcome = poll_slot(bus, slot, &mut self.mux, *order).await;
+            // A status with an odd field still reports its faults.
+            if let Ok(Decoded { warning: Some(_), .. }) = outcome {
+                link.on_odd_field();
+            }
+            let outcome = outcome.map(|decoded| decoded.status);
             let change = link.on_outcome(cycle, outcome);
             // A bad channel number in the table never reached the bus: nothing to recover.
             let on_bus = mux_mask(slot).is_ok();

@@ -11,7 +11,7 @@ use std::io::Write as _;
 use std::process::{Command as Process, Stdio};
 
 use console_support::{clock, run_rx, run_tx};
-use embassy_time::{Duration, MockDriver};
+use embassy_time::Duration;
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
 use lbv_master_fw::shared::{
@@ -198,7 +198,6 @@ fn of_type<'a>(decoded: &'a [Value], name: &str) -> Vec<&'a Value> {
 #[test]
 fn pymavlink_decodes_what_the_console_sends() {
     let _clock = clock();
-    MockDriver::get().reset();
     let shared = Shared::new();
     let stats = ConsoleStats::new();
     for (i, watch) in shared.thrusters.iter().enumerate().take(6) {

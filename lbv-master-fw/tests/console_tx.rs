@@ -5,7 +5,7 @@
 mod console_support;
 
 use console_support::{clock, ids, parse_all, run_tx};
-use embassy_time::{Duration, MockDriver};
+use embassy_time::Duration;
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
@@ -45,7 +45,6 @@ fn report(step: i8, good: u32) -> ThrusterReport {
 #[test]
 fn telemetry_periods_on_virtual_time() {
     let _clock = clock();
-    MockDriver::get().reset();
     for (thrusters, five_to_eight) in [(6u8, true), (4, false)] {
         let config = ConsoleConfig {
             thrusters,
@@ -269,7 +268,7 @@ fn drop_rate_comes_from_the_receive_counters() {
                 for _ in 0..4 {
                     embassy_futures::yield_now().await;
                 }
-                MockDriver::get().advance(Duration::from_millis(10));
+                lbv_sim::clock::advance(Duration::from_millis(10));
             }
         },
     ));
@@ -317,7 +316,7 @@ fn write_errors_are_counted_and_the_task_carries_on() {
                 for _ in 0..4 {
                     embassy_futures::yield_now().await;
                 }
-                MockDriver::get().advance(Duration::from_millis(10));
+                lbv_sim::clock::advance(Duration::from_millis(10));
             }
         },
     ));

@@ -1,61 +1,57 @@
-//! NUCLEO-G431RB + X-NUCLEO-IHM08M1 wiring of the thruster controller, the controller's build-time settings,
-//! and the adapters from embassy-stm32 peripherals to the core's ports.
+//! NUCLEO-G431RB + X-NUCLEO-IHM08M1 wiring of the thruster controller and the adapters from embassy-stm32
+//! peripherals to the core's ports; the settings they are configured with are the core's (`thruster_fw::CONFIG`).
 //!
-//! | function | pin | peripheral |
-//! |---|---|---|
-//! | I2C slave SCL / SDA | PC8 / PC9 (CN10 2 / 1) | I2C3 |
-//! | phase A high / low | PA8 / PA7 | TIM1 CH1 / CH1N |
-//! | phase B high / low | PA9 / PB0 | TIM1 CH2 / CH2N |
-//! | phase C high / low | PA10 / PB1 | TIM1 CH3 / CH3N |
-//! | overcurrent (break) | PA6 | TIM1 BKIN, active low |
-//! | halls H1 / H2 / H3 | PA15 / PB3 / PB10 | EXTI 15 / 3 / 10 |
-//! | motor current | PA0 | ADC1 IN1 |
-//! | bus voltage | PA1 | ADC1 IN2 |
-//! | power-stage NTC | PC2 | ADC1 IN8 |
-//! | water-sensor electrodes | PC3 | ADC1 IN9 |
-//! | motor NTC | PB12 | ADC1 IN11 |
+//! The pins are `g431_hw::images::THRUSTER` (brushless), `THRUSTER_BRUSHED` and `THRUSTER_MOTORLESS`, checked at
+//! build time against what the two boards put on each pin; every register value written here comes from
+//! `g431_hw`.
 
 use embassy_embedded_hal::SetConfig;
-use embassy_futures::select::select3;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
-use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::i2c::{self, I2c, SlaveCommandKind};
 use embassy_stm32::mode::Async;
-use embassy_stm32::peripherals::{ADC1, IWDG, TIM1};
+use embassy_stm32::pac;
+use embassy_stm32::peripherals::ADC1;
 use embassy_stm32::time::Hertz;
-use embassy_stm32::timer::Channel;
-use embassy_stm32::timer::complementary_pwm::ComplementaryPwm;
-use embassy_stm32::wdg::IndependentWatchdog;
-use embassy_time::Duration;
-use thruster_fw::commutation::{BridgeDrive, PhaseDrive};
-use thruster_fw::hall::HallState;
-use thruster_fw::tasks::{Bridge, Config, HallSensors, RawSample, Sensors, Watchdog};
-use thruster_fw::{Duty, I2cTarget, Request};
-use tmc_proto::{Family, MotorKind};
+use g431_hw::{adc, clock, images, iwdg, pins};
+use thruster_fw::faults::{LatchStore, ResetKind, carried_latch, latch_word};
+use thruster_fw::tasks::Watchdog;
+use thruster_fw::{CONFIG, FAMILY, I2cTarget, Request};
+use tmc_proto::Faults;
+#[cfg(not(feature = "motorless"))]
+use {
+    core::future::poll_fn,
+    core::task::Poll,
+    embassy_stm32::exti::ExtiInput,
+    embassy_stm32::gpio::Flex,
+    embassy_stm32::pac::timer::regs::{CcerAdv, CcmrOutputGp16, EgrAdv},
+    embassy_stm32::peripherals::TIM1,
+    embassy_stm32::timer::complementary_pwm::ComplementaryPwm,
+    g431_hw::tim1::{self, PhaseMode},
+    thruster_fw::Duty,
+    thruster_fw::commutation::{BridgeDrive, PhaseDrive},
+    thruster_fw::hall::HallState,
+    thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors},
+};
 #[cfg(feature = "motorless")]
 use {
     embassy_stm32::gpio::Input,
     thruster_fw::motorless::{HoldInput, ModelSensors, MotorModel, Motorless, WaterInput},
 };
 
-/// The controller family (Cargo feature `legacy`) and motor kind (Cargo feature `brushed`).
-pub const FAMILY: Family = if cfg!(feature = "legacy") {
-    Family::Legacy
+/// The pins this build takes, on its boards.
+pub const PINS: pins::Image = if cfg!(feature = "motorless") {
+    images::THRUSTER_MOTORLESS
+} else if cfg!(feature = "brushed") {
+    images::THRUSTER_BRUSHED
 } else {
-    Family::SeaBotix
+    images::THRUSTER
 };
-const MOTOR: MotorKind = if cfg!(feature = "brushed") {
-    MotorKind::Brushed
-} else {
-    MotorKind::Brushless
-};
+// A pin used twice, or one a board drives or loads, fails the build.
+const _: () = assert!(pins::check(&PINS).is_ok());
 
-/// Everything fixed at build time: the reference hardware of the pin table above.
-pub static CONFIG: Config = Config::reference(FAMILY, MOTOR);
-
-/// The motor-less controller's model motor (Cargo feature `motorless`), for the same configuration.
+/// The motor-less controller's model motor (Cargo feature `motorless`), for the image's configuration.
 #[cfg(feature = "motorless")]
-pub static MOTORLESS: Motorless = Motorless::new(MotorModel::new(&Config::reference(FAMILY, MOTOR)));
+pub static MOTORLESS: Motorless = Motorless::new(MotorModel::new(&CONFIG));
 
 /// What the fault task samples: the ADC inputs, or in the motor-less controller the model and the water pin.
 #[cfg(not(feature = "motorless"))]
@@ -63,14 +59,46 @@ pub type Analog = AnalogInputs;
 #[cfg(feature = "motorless")]
 pub type Analog = ModelSensors<'static, WaterPin, UserButton>;
 
-/// How often the watchdog is fed (when every task reports) and how long it waits before it resets the chip.
-pub const WATCHDOG_FEED: Duration = Duration::from_millis(50);
-pub const WATCHDOG_TIMEOUT_US: u32 = 250_000;
+/// What commutation reads and drives: the halls and the power stage, or in the motor-less controller the model's.
+#[cfg(not(feature = "motorless"))]
+pub type HallInputs = Halls;
+#[cfg(not(feature = "motorless"))]
+pub type Stage = PowerStage;
+#[cfg(feature = "motorless")]
+pub type HallInputs = thruster_fw::motorless::ModelHalls<'static>;
+#[cfg(feature = "motorless")]
+pub type Stage = thruster_fw::motorless::ModelBridge<'static>;
 
-/// The thruster interface runs at 100 kbit/s (IDS 6.4.1).
-pub const BUS_SPEED: Hertz = Hertz::khz(100);
-/// A slave transfer stalled this long (SMBus's SCL-low timeout) is abandoned and the peripheral re-initialised.
-pub const TRANSFER_TIMEOUT: Duration = Duration::from_millis(25);
+/// IWDG_PR / IWDG_RLR for the timeout, checked against the health task (`WatchdogTiming::schedule`): every task
+/// reports within a feed period, and at the fastest LSI the watchdog outlasts two feed periods.
+pub const WATCHDOG: iwdg::Iwdg = match SCHEDULE.check() {
+    Ok(iwdg) => iwdg,
+    Err(_) => iwdg::Iwdg { pr: 0, rlr: 0 },
+};
+const SCHEDULE: iwdg::Schedule = CONFIG.watchdog.schedule(&CONFIG.bus);
+const _: () = assert!(SCHEDULE.check().is_ok());
+
+/// The power stage on TIM1.
+pub const BRIDGE: g431_hw::tim1::Bridge = g431_hw::tim1::IHM08M1;
+const _: () = assert!(BRIDGE.is_valid(clock::TIM1_HZ));
+
+/// TIM1 BDTR with the outputs stopped for good (MOE = 0, AOE = 0): both switches of every phase off.
+const BDTR_STOPPED: u32 = BRIDGE.bdtr_stopped(clock::TIM1_HZ);
+
+/// Stop the bridge from any context (panic, hard fault): the outputs drop to their idle levels, both switches of
+/// every phase off, and stay there. Harmless when TIM1 is not clocked (writes to it are ignored).
+pub fn stop_bridge() {
+    pac::TIM1.bdtr().write_value(pac::timer::regs::BdtrAdv(BDTR_STOPPED));
+}
+
+/// Write a standard-mode TIMINGR (`g431_hw::i2c`) into an I2C peripheral, over embassy-stm32's own value,
+/// disabling it meanwhile as RM0440 requires.
+pub fn set_i2c_timing(regs: pac::i2c::I2c) {
+    regs.cr1().modify(|w| w.set_pe(false));
+    regs.timingr()
+        .write_value(pac::i2c::regs::Timingr(g431_hw::i2c::TIMINGR));
+    regs.cr1().modify(|w| w.set_pe(true));
+}
 
 /// I2C3 as the thruster interface's slave port.
 pub struct SlavePort(pub I2c<'static, Async, i2c::MultiMaster>);
@@ -97,84 +125,135 @@ impl I2cTarget for SlavePort {
 
     fn reset(&mut self) {
         // Re-applying the configuration turns the peripheral off and on, which clears its state machine and
-        // releases SCL and SDA.
-        let _ = self
-            .0
-            .set_config(&(BUS_SPEED, i2c::SlaveAddrConfig::basic(FAMILY.address())));
+        // releases SCL and SDA; it also rewrites TIMINGR with embassy's value, so ours goes back on top.
+        let _ = self.0.set_config(&(
+            Hertz(CONFIG.bus.frequency_hz),
+            i2c::SlaveAddrConfig::basic(FAMILY.address()),
+        ));
+        set_i2c_timing(pac::I2C3);
     }
 }
 
-/// The three hall inputs.
-#[cfg_attr(
-    feature = "motorless",
-    allow(dead_code, reason = "the motor-less controller's halls are modelled")
-)]
+/// The three hall inputs, and the state last read.
+#[cfg(not(feature = "motorless"))]
 pub struct Halls {
-    pub h1: ExtiInput<'static, Async>,
-    pub h2: ExtiInput<'static, Async>,
-    pub h3: ExtiInput<'static, Async>,
+    h1: ExtiInput<'static, Async>,
+    h2: ExtiInput<'static, Async>,
+    h3: ExtiInput<'static, Async>,
+    last: HallState,
 }
 
-impl HallSensors for Halls {
-    async fn wait_for_edge(&mut self) {
-        let Self { h1, h2, h3 } = self;
-        select3(h1.wait_for_any_edge(), h2.wait_for_any_edge(), h3.wait_for_any_edge()).await;
+#[cfg(not(feature = "motorless"))]
+impl Halls {
+    /// The halls on their EXTI lines, read once.
+    pub fn new(h1: ExtiInput<'static, Async>, h2: ExtiInput<'static, Async>, h3: ExtiInput<'static, Async>) -> Self {
+        let mut halls = Halls {
+            h1,
+            h2,
+            h3,
+            last: HallState::from_bits(0),
+        };
+        halls.last = halls.pins();
+        halls
     }
 
-    fn read(&mut self) -> HallState {
+    fn pins(&self) -> HallState {
         HallState::from_pins(self.h1.is_high(), self.h2.is_high(), self.h3.is_high())
     }
 }
 
-/// TIM1's three complementary pairs. Off-state selection (OSSR) holds both switches of a disabled phase off,
-/// so a floating phase is really floating.
-#[cfg_attr(feature = "motorless", allow(dead_code, reason = "no power stage is fitted"))]
-pub struct PowerStage {
-    pub pwm: ComplementaryPwm<'static, TIM1>,
-}
-
-impl Bridge for PowerStage {
-    fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
-        let period = u16::try_from(self.pwm.get_max_duty()).unwrap_or(u16::MAX);
-        let compare = u32::from(duty.compare(period));
-        for (channel, phase) in [Channel::Ch1, Channel::Ch2, Channel::Ch3].into_iter().zip(drive) {
-            match phase {
-                PhaseDrive::Pwm => {
-                    self.pwm.set_duty(channel, compare);
-                    self.pwm.enable(channel);
-                }
-                PhaseDrive::Low => {
-                    self.pwm.set_duty(channel, 0);
-                    self.pwm.enable(channel);
-                }
-                PhaseDrive::Float => self.pwm.disable(channel),
+#[cfg(not(feature = "motorless"))]
+impl HallSensors for Halls {
+    /// Returns once the halls differ from the last `read`. Arming an EXTI line clears its pending bit, so an edge
+    /// between the last read and the arming would otherwise wait for the next tick (a sector lasts 0.5 ms at
+    /// 4500 rpm): the lines are armed first and the pins compared after, as embassy's own `wait_for_low` does.
+    async fn wait_for_edge(&mut self) {
+        poll_fn(|cx| {
+            self.h1.poll_for_any_edge(cx);
+            self.h2.poll_for_any_edge(cx);
+            self.h3.poll_for_any_edge(cx);
+            if self.pins() == self.last {
+                Poll::Pending
+            } else {
+                Poll::Ready(())
             }
-        }
+        })
+        .await
+    }
+
+    fn read(&mut self) -> HallState {
+        self.last = self.pins();
+        self.last
     }
 }
 
+/// TIM1's three complementary pairs on the IHM08M1's L6398 gate drivers. The registers are written from
+/// `g431_hw::tim1`; embassy's driver and the break input's pin are held only so that the timer stays clocked and
+/// the pins stay in their alternate functions (dropping them would disconnect the pins).
+#[cfg(not(feature = "motorless"))]
+pub struct PowerStage {
+    pub _pwm: ComplementaryPwm<'static, TIM1>,
+    pub _break_input: Flex<'static>,
+    /// TIM1's auto-reload value: the PWM period in counts.
+    pub arr: u16,
+}
+
+#[cfg(not(feature = "motorless"))]
+impl Bridge for PowerStage {
+    /// The step's output modes and enables change together at a COM event; the compare registers (the same
+    /// value for all three: only the switching phase uses it) at the next update event.
+    fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
+        let step = BRIDGE.commutation(drive.map(|phase| match phase {
+            PhaseDrive::Pwm => PhaseMode::Switching,
+            PhaseDrive::Low => PhaseMode::LowOn,
+            PhaseDrive::Float => PhaseMode::Off,
+        }));
+        let compare = BRIDGE.compare(duty.magnitude(), self.arr);
+        let tim = pac::TIM1;
+        for channel in 0..3 {
+            tim.ccr(channel).write(|w| w.set_ccr(compare));
+        }
+        tim.ccmr_output(0).write_value(CcmrOutputGp16(step.ccmr1));
+        tim.ccmr_output(1).write_value(CcmrOutputGp16(step.ccmr2));
+        tim.ccer().write_value(CcerAdv(step.ccer));
+        tim.egr().write_value(EgrAdv(tim1::EGR_COMG));
+    }
+}
+
+/// Sample times from the sources' impedance (`g431_hw::adc`); the water sensor relies on its 100 nF.
+const WATER_SAMPLE: adc::SampleTime = adc::G431.sample_time(adc::WATER, clock::ADC_HZ);
+const NTC_SAMPLE: adc::SampleTime = adc::G431.sample_time(adc::NTC, clock::ADC_HZ);
+const CURRENT_SAMPLE: adc::SampleTime = adc::G431.sample_time(adc::CURRENT, clock::ADC_HZ);
+const _: () = assert!(
+    adc::G431.settles(adc::WATER, WATER_SAMPLE, clock::ADC_HZ)
+        && adc::G431.settles(adc::NTC, NTC_SAMPLE, clock::ADC_HZ)
+        && adc::G431.settles(adc::CURRENT, CURRENT_SAMPLE, clock::ADC_HZ)
+);
+
+/// embassy-stm32's sample time of ours.
+const fn sample_time(sample: adc::SampleTime) -> SampleTime {
+    SampleTime::from_bits(sample.bits())
+}
+
 /// ADC1 and the fault / telemetry inputs.
-#[cfg_attr(
-    feature = "motorless",
-    allow(dead_code, reason = "the motor-less controller reads only the water pin")
-)]
+#[cfg(not(feature = "motorless"))]
 pub struct AnalogInputs {
     pub adc: Adc<'static, ADC1>,
     pub water: AnyAdcChannel<'static, ADC1>,
-    pub motor_ntc: AnyAdcChannel<'static, ADC1>,
+    /// The motor's NTC (brushless) or the power stage's (brushed): the temperature the status reports.
+    pub ntc: AnyAdcChannel<'static, ADC1>,
     pub current: AnyAdcChannel<'static, ADC1>,
 }
 
-/// ADC sample time of every input: 47.5 cycles suit the water sensor's 1 Mohm divider.
-const SAMPLE: SampleTime = SampleTime::CYCLES47_5;
-
+#[cfg(not(feature = "motorless"))]
 impl Sensors for AnalogInputs {
     async fn sample(&mut self) -> RawSample {
-        // Three blocking conversions take about 5 us in all: not worth a DMA round trip at 1 kHz.
+        // Three blocking conversions take about 17 us in all (the water sensor's 640.5 cycles dominate): not
+        // worth a DMA round trip at 1 kHz.
         RawSample {
-            water: self.adc.blocking_read(&mut self.water, SAMPLE),
-            temperature: self.adc.blocking_read(&mut self.motor_ntc, SAMPLE),
-            current: self.adc.blocking_read(&mut self.current, SAMPLE),
+            water: self.adc.blocking_read(&mut self.water, sample_time(WATER_SAMPLE)),
+            temperature: self.adc.blocking_read(&mut self.ntc, sample_time(NTC_SAMPLE)),
+            current: self.adc.blocking_read(&mut self.current, sample_time(CURRENT_SAMPLE)),
         }
     }
 }
@@ -189,7 +268,7 @@ pub struct WaterPin {
 #[cfg(feature = "motorless")]
 impl WaterInput for WaterPin {
     async fn water(&mut self) -> u16 {
-        self.adc.blocking_read(&mut self.pin, SAMPLE)
+        self.adc.blocking_read(&mut self.pin, sample_time(WATER_SAMPLE))
     }
 }
 
@@ -204,11 +283,66 @@ impl HoldInput for UserButton {
     }
 }
 
-/// The independent watchdog.
-pub struct Iwdg(pub IndependentWatchdog<'static, IWDG>);
+/// The independent watchdog, set up from [`WATCHDOG`].
+pub struct Iwdg(());
+
+impl Iwdg {
+    /// Start the watchdog: RM0440's IWDG procedure (start, unlock, prescaler, reload, wait for the update, then
+    /// reload the counter). Taking the peripheral keeps anyone else from it.
+    pub fn start(_iwdg: embassy_stm32::Peri<'static, embassy_stm32::peripherals::IWDG>) -> Self {
+        use pac::iwdg::vals::{Key, Pr};
+        let regs = pac::IWDG;
+        regs.kr().write(|w| w.set_key(Key::START));
+        regs.kr().write(|w| w.set_key(Key::ENABLE));
+        regs.pr().write(|w| w.set_pr(Pr::from_bits(WATCHDOG.pr)));
+        regs.rlr().write(|w| w.set_rl(WATCHDOG.rlr));
+        // A few LSI cycles; were the LSI dead, the watchdog (running since START) resets the chip.
+        while regs.sr().read().0 != 0 {}
+        regs.kr().write(|w| w.set_key(Key::RESET));
+        Iwdg(())
+    }
+}
 
 impl Watchdog for Iwdg {
     fn feed(&mut self) {
-        self.0.pet();
+        pac::IWDG.kr().write(|w| w.set_key(pac::iwdg::vals::Key::RESET));
+    }
+}
+
+/// The backup register that keeps the power-cycle latches across resets (TAMP_BKP0R, in the backup domain: kept
+/// over every reset but a loss of VDD and VBAT, which are one supply on the NUCLEO).
+const LATCH_REGISTER: usize = 0;
+
+/// The fault latches in a backup register.
+pub struct BackupLatch {
+    carried: Faults,
+}
+
+impl BackupLatch {
+    /// Open the backup domain for writing (PWR_CR1.DBP, with the PWR and RTC/TAMP APB clocks on) and read the
+    /// latches the last reset left, dropping them after a power cycle (`ResetKind`, from RCC_CSR).
+    pub fn open(reset: ResetKind) -> Self {
+        pac::RCC.apb1enr1().modify(|w| {
+            w.set_pwren(true);
+            w.set_rtcapben(true);
+        });
+        pac::PWR.cr1().modify(|w| w.set_dbp(true));
+        let word = pac::TAMP.bkpr(LATCH_REGISTER).read().bkp();
+        let mut latch = BackupLatch {
+            carried: carried_latch(reset, word),
+        };
+        let carried = latch.carried;
+        latch.save(carried);
+        latch
+    }
+}
+
+impl LatchStore for BackupLatch {
+    fn load(&mut self) -> Faults {
+        self.carried
+    }
+
+    fn save(&mut self, latched: Faults) {
+        pac::TAMP.bkpr(LATCH_REGISTER).write(|w| w.set_bkp(latch_word(latched)));
     }
 }

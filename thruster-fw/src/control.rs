@@ -8,7 +8,7 @@ use tmc_proto::{
 
 use crate::drive::Duty;
 use crate::failsafe::LinkFailsafe;
-use crate::speed::{SpeedConfig, SpeedController};
+use crate::speed::{SpeedConfig, SpeedController, step_of_brushed_duty};
 
 /// What the I2C side last heard from the master, published after every valid order and every status read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -117,7 +117,8 @@ impl Control {
         // Brushed controllers report the PWM value in the SPEED encoding (IDS 8.4.2), brushless the measured speed.
         let speed = match self.motor {
             MotorKind::Brushless => Speed::from_rpm(rpm),
-            MotorKind::Brushed => duty_as_speed(self.duty),
+            // Rounded as the order was turned into the duty, so the order reads back at steady state.
+            MotorKind::Brushed => step_of_brushed_duty(self.duty, self.speed.config().max_duty),
         };
         status_of(self.family, self.motor, sensed, speed)
     }
@@ -156,11 +157,6 @@ fn status_of(family: Family, motor: MotorKind, sensed: Sensed, speed: Speed) -> 
     }
 }
 
-/// A duty as the SPEED step it corresponds to (100 % = step 102).
-fn duty_as_speed(duty: Duty) -> Speed {
-    Speed::new_saturating(i32::from(duty.value()) * i32::from(Speed::MAX_STEP) / i32::from(Duty::FULL))
-}
-
 /// 0.1 deg C to the status's unsigned whole degrees.
 fn celsius_byte(decicelsius: i16) -> u8 {
     u8::try_from(decicelsius.max(0) / 10).unwrap_or(u8::MAX)
@@ -170,6 +166,7 @@ fn celsius_byte(decicelsius: i16) -> u8 {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+    use tmc_proto::Decoded;
 
     const TIMEOUT: Duration = Duration::from_secs(1);
     const HEALTHY: Sensed = Sensed {
@@ -314,6 +311,35 @@ mod tests {
     }
 
     #[test]
+    fn a_brushed_order_reads_back_at_steady_state_for_every_step() {
+        for max_duty in [crate::speed::MAX_DUTY, 9_500, Duty::FULL as u16, 1_000, 103] {
+            let config = SpeedConfig {
+                max_duty,
+                ..SpeedConfig::BRUSHED_DEFAULT
+            };
+            for family in Family::ALL {
+                for step in -102..=102i8 {
+                    let mut brushed = Control::new(family, config, TIMEOUT, ms(0));
+                    let link = update(step, 1, ms(0));
+                    // 0.5 s of ramp reaches any step.
+                    for t in 0..600 {
+                        brushed.tick(ms(t), link, HEALTHY, 0);
+                    }
+                    let read = match brushed.status(HEALTHY, 0) {
+                        Status::SeaBotix(status) => status.speed,
+                        Status::Legacy(LegacyStatus {
+                            max_power: MaxPower::Power(speed),
+                            ..
+                        }) => speed,
+                        other => panic!("{other:?}"),
+                    };
+                    assert_eq!(read.step(), step, "max duty {max_duty}, {family:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn out_of_range_readings_saturate_in_the_status() {
         let sensed = Sensed {
             current_deciamps: 9999,
@@ -354,7 +380,7 @@ mod tests {
             };
             for control in [brushless(family), Control::new(family, SpeedConfig::BRUSHED_DEFAULT, TIMEOUT, ms(0))] {
                 let status = control.status(sensed, rpm);
-                prop_assert_eq!(Status::decode(family, status.encode().as_bytes()), Ok(status));
+                prop_assert_eq!(Status::decode(family, status.encode().as_bytes()), Ok(Decoded::clean(status)));
                 prop_assert_eq!(status.faults(), sensed.faults);
             }
         }

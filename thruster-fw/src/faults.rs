@@ -10,8 +10,10 @@
 //! | hall sensor error | hall state invalid or illegal transition | stops; clears when the halls read normal | same |
 //!
 //! The IDS does not say how a stall clears; the project follows the AM32 / BLHeli_32 rule (spec-notes): a
-//! zero-speed order clears it. "Latched until power cycle" means until a new [`FaultMonitor`] is made, which the
-//! firmware does only at reset. The controller keeps answering on I2C whatever the faults (IDS 8.4 remark 1).
+//! zero-speed order clears it. "Latched until power cycle" holds across every other reset (watchdog, reset pin,
+//! software): the fault task keeps the latches in a [`LatchStore`] (on the STM32, a backup register), and
+//! [`carried_latch`] drops them only after a power-on or brown-out. The controller keeps answering on I2C whatever
+//! the faults (IDS 8.4 remark 1).
 
 use embassy_time::{Duration, Instant};
 use tmc_proto::{Family, Faults, Speed};
@@ -59,7 +61,7 @@ impl Thresholds {
 pub struct Sample {
     /// Resistance between the water-sensor electrodes, in ohms (see `sensors::WaterSensor`).
     pub water_ohms: u32,
-    /// Motor temperature in 0.1 C (see `sensors::Ntc`).
+    /// The temperature the status reports, the motor's or the controller's, in 0.1 C (see `sensors::Ntc`).
     pub temperature_decicelsius: i16,
     /// The hall state is valid (not 000/111) and no illegal transition happened since the previous sample.
     pub halls_normal: bool,
@@ -210,6 +212,25 @@ impl FaultMonitor {
         self.faults
     }
 
+    /// The faults a family keeps until power cycle: ground fault, and for Legacy water too (IDS 8.4.1 remarks 2
+    /// and 6, 8.4.2 remark 3).
+    pub const fn power_cycle_latches(family: Family) -> Faults {
+        match family {
+            Family::Legacy => Faults::GROUND.union(Faults::WATER),
+            Family::SeaBotix => Faults::GROUND,
+        }
+    }
+
+    /// The power-cycle latches set now: what must survive a reset.
+    pub fn latched(&self) -> Faults {
+        self.faults & Self::power_cycle_latches(self.family)
+    }
+
+    /// Take back the latches carried over a reset; only those this family keeps until power cycle are taken.
+    pub fn restore(&mut self, latched: Faults) {
+        self.faults.insert(latched & Self::power_cycle_latches(self.family));
+    }
+
     /// Whether the motor may be driven: false while any fault that stops the motor for this family is present.
     /// Every fault stops it except the SeaBotix water warning.
     pub fn drive_allowed(&self) -> bool {
@@ -221,10 +242,131 @@ impl FaultMonitor {
     }
 }
 
+/// Where the power-cycle latches live between resets.
+pub trait LatchStore {
+    /// The latches carried over the last reset (none after a power cycle).
+    fn load(&mut self) -> Faults;
+    /// Keep `latched` for the next reset.
+    fn save(&mut self, latched: Faults);
+}
+
+/// A store that forgets at reset, as RAM does at power-off: for the host bench and tests, where every reset is a
+/// power cycle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct VolatileLatch(Faults);
+
+impl LatchStore for VolatileLatch {
+    fn load(&mut self) -> Faults {
+        self.0
+    }
+
+    fn save(&mut self, latched: Faults) {
+        self.0 = latched;
+    }
+}
+
+/// How the chip came out of its last reset, as far as the latches are concerned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ResetKind {
+    /// Power-on or brown-out: a power cycle, which clears the latches.
+    PowerCycle,
+    /// Any other reset (watchdog, reset pin, software, option-byte load): the latches stay.
+    Other,
+}
+
+/// Marks a latch word as written by this firmware.
+const LATCH_TAG: u32 = 0x4C54;
+
+/// The latches as one 32-bit word: a tag in the upper half, the fault bits and their complement below, so that a
+/// word never written (zero after a power-on) or corrupted reads as no latch.
+pub const fn latch_word(latched: Faults) -> u32 {
+    let bits = latched.bits() as u32;
+    (LATCH_TAG << 16) | ((!bits & 0xFF) << 8) | bits
+}
+
+/// The latches of a word written by [`latch_word`]; none for any other word.
+pub const fn latch_from_word(word: u32) -> Faults {
+    let bits = word & 0xFF;
+    if word >> 16 == LATCH_TAG && (word >> 8) & 0xFF == !bits & 0xFF {
+        Faults::from_bits_truncate(bits as u8)
+    } else {
+        Faults::NONE
+    }
+}
+
+/// The latches to restore at boot from the stored word, after a reset of `kind`.
+pub const fn carried_latch(kind: ResetKind, word: u32) -> Faults {
+    match kind {
+        ResetKind::PowerCycle => Faults::NONE,
+        ResetKind::Other => latch_from_word(word),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use tmc_proto::{LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus};
+
+    #[test]
+    fn latches_survive_every_reset_but_a_power_cycle() {
+        for family in Family::ALL {
+            let mut m = monitor(family);
+            m.update(water(50_000), false);
+            let latched = m.latched();
+            let expected = match family {
+                Family::Legacy => Faults::GROUND | Faults::WATER,
+                Family::SeaBotix => Faults::GROUND,
+            };
+            assert_eq!(latched, expected);
+            let word = latch_word(latched);
+            // A watchdog or pin reset: the new monitor starts with the latches and does not drive.
+            let mut after_reset = monitor(family);
+            after_reset.restore(carried_latch(ResetKind::Other, word));
+            assert_eq!(after_reset.update(HEALTHY, false), expected);
+            assert!(!after_reset.drive_allowed());
+            // A power cycle: clean.
+            let mut after_power = monitor(family);
+            after_power.restore(carried_latch(ResetKind::PowerCycle, word));
+            assert_eq!(after_power.update(HEALTHY, false), Faults::NONE);
+            assert!(after_power.drive_allowed());
+        }
+    }
+
+    #[test]
+    fn only_power_cycle_latches_are_carried() {
+        // Stall, hall and overtemp never come back from a store, nor a SeaBotix water warning.
+        let mut m = monitor(Family::SeaBotix);
+        m.restore(Faults::ALL);
+        assert_eq!(m.faults(), Faults::GROUND);
+        let mut m = monitor(Family::Legacy);
+        m.restore(Faults::ALL);
+        assert_eq!(m.faults(), Faults::GROUND | Faults::WATER);
+        // Nor do overtemp and stall get saved.
+        let mut m = monitor(Family::Legacy);
+        m.update(temperature(1200), true);
+        assert_eq!(m.latched(), Faults::NONE);
+    }
+
+    #[test]
+    fn a_latch_word_that_was_not_written_reads_as_none() {
+        for faults in (0..=0x1F).map(Faults::from_bits_truncate) {
+            assert_eq!(latch_from_word(latch_word(faults)), faults);
+        }
+        // Zero (a backup register after a power-on), all ones, and near misses.
+        for word in [
+            0,
+            u32::MAX,
+            latch_word(Faults::GROUND) ^ 1,
+            latch_word(Faults::GROUND) ^ 0x1_0000,
+        ] {
+            assert_eq!(latch_from_word(word), Faults::NONE, "{word:#x}");
+        }
+        let mut store = VolatileLatch::default();
+        assert_eq!(store.load(), Faults::NONE);
+        store.save(Faults::GROUND);
+        assert_eq!(store.load(), Faults::GROUND);
+    }
 
     const HEALTHY: Sample = Sample {
         water_ohms: u32::MAX,

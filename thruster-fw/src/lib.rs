@@ -1,7 +1,10 @@
 //! The thruster motor controller's hardware-free core.
 //!
 //! Everything here runs unchanged on the STM32 (through the binding in `main.rs`) and on the host, where tests
-//! drive it through simulated ports. It never touches a register and never panics on bus input.
+//! and the bench drive it through simulated ports. It never touches a register and never panics on bus input.
+//!
+//! [`run`] and [`run_commutation`] are the whole controller: the STM32 binding builds their ports from peripherals
+//! and calls them with [`CONFIG`]; the bench and the tests call them with simulated ports.
 #![cfg_attr(not(test), no_std)]
 
 #[macro_use]
@@ -17,26 +20,30 @@ pub mod health;
 pub mod i2c_slave;
 pub mod motorless;
 pub mod sensors;
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;
 pub mod speed;
 pub mod tasks;
 
 pub use drive::{Direction, Duty};
 pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve};
+pub use tasks::{Config, Ports, run, run_commutation};
 
-/// Virtual time for the host tests.
-#[cfg(test)]
-pub(crate) mod test_clock {
-    use embassy_time::MockDriver;
-    use std::sync::{Mutex, MutexGuard};
+use tmc_proto::{Family, MotorKind};
 
-    /// embassy-time's mock driver is one clock for the whole test process: every test that moves it, in any
-    /// module, holds this lock.
-    static CLOCK: Mutex<()> = Mutex::new(());
+/// The controller family this image is built for: SeaBotix, or Aveox / Legacy with Cargo feature `legacy`.
+pub const FAMILY: Family = if cfg!(feature = "legacy") {
+    Family::Legacy
+} else {
+    Family::SeaBotix
+};
 
-    /// Take the virtual clock and set it to 0.
-    pub(crate) fn lock() -> MutexGuard<'static, ()> {
-        let guard = CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
-        MockDriver::get().reset();
-        guard
-    }
-}
+/// The motor this image drives: brushless with hall commutation, or brushed with Cargo feature `brushed`.
+pub const MOTOR: MotorKind = if cfg!(feature = "brushed") {
+    MotorKind::Brushed
+} else {
+    MotorKind::Brushless
+};
+
+/// Everything this image is built with: the reference hardware (see [`Config::reference`]) for its family and motor.
+pub const CONFIG: Config = Config::reference(FAMILY, MOTOR);

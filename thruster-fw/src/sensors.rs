@@ -56,11 +56,22 @@ const ZERO_CELSIUS_K: f32 = 273.15;
 /// The NTC's reference temperature, 25 degrees Celsius, in kelvin.
 const T25_K: f32 = 298.15;
 
-/// NTC thermistor to ground with a pull-up to VDDA (motor winding sensor), Beta model:
-/// 1/T = 1/T25 + ln(R / R25) / Beta, with raw = 4095 * R / (R + R_pu).
+/// Where an NTC sits in its divider.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum NtcPlacement {
+    /// NTC from the ADC node to ground, the fixed resistor to VDDA: the reading falls as it warms.
+    ToGround,
+    /// NTC from VDDA to the ADC node, the fixed resistor to ground: the reading rises as it warms.
+    ToSupply,
+}
+
+/// NTC thermistor in a divider with a fixed resistor, Beta model: 1/T = 1/T25 + ln(R / R25) / Beta, with
+/// raw = 4095 * R / (R + R_fixed) for an NTC to ground, and 4095 minus that for an NTC to VDDA.
 ///
-/// Feeds the overtemp fault (set at 110 C, cleared at 100 C, IDS 8.4 remarks) and the SeaBotix status
-/// TEMPERATURE byte (IDS 8.4.2). Single-precision floats: the Cortex-M4F computes them in hardware.
+/// Feeds the overtemp fault (set at 110 C, cleared at 100 C, IDS 8.4 remarks) and the status TEMPERATURE byte,
+/// which is the motor's for brushless controllers and the controller's for brushed ones (IDS 8.4.2).
+/// Single-precision floats: the Cortex-M4F computes them in hardware.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Ntc {
@@ -68,24 +79,54 @@ pub struct Ntc {
     pub r25_ohms: u32,
     /// The Beta constant, in kelvin.
     pub beta: u16,
-    /// The pull-up from the ADC node to VDDA, in ohms.
-    pub pull_up_ohms: u32,
+    /// The divider's fixed resistor, in ohms.
+    pub fixed_ohms: u32,
+    /// Which side of the divider the NTC is on.
+    pub placement: NtcPlacement,
 }
 
 impl Ntc {
+    /// The reference motor's winding sensor: 10 kohm B3435 to ground, 10 kohm to VDDA.
+    pub const MOTOR: Ntc = Ntc {
+        r25_ohms: 10_000,
+        beta: 3435,
+        fixed_ohms: 10_000,
+        placement: NtcPlacement::ToGround,
+    };
+
+    /// The X-NUCLEO-IHM08M1's power-stage sensor (PC2), the controller temperature of brushed builds: taken as a
+    /// 10 kohm NTC to VDDA over 4.7 kohm to ground. Its schematic could not be read here; this divider reads
+    /// 1.055 V at 25 C, the V0 that ST's motor-control SDK uses for its power boards' temperature sensors, and
+    /// B3435 is assumed. Check both against the board before trusting its overtemp threshold.
+    pub const IHM08M1: Ntc = Ntc {
+        r25_ohms: 10_000,
+        beta: 3435,
+        fixed_ohms: 4_700,
+        placement: NtcPlacement::ToSupply,
+    };
+
+    /// The reading as if the NTC were to ground, which the Beta model below is written for.
+    const fn as_to_ground(&self, raw: u16) -> u16 {
+        match self.placement {
+            NtcPlacement::ToGround => raw,
+            NtcPlacement::ToSupply => ADC_MAX - if raw > ADC_MAX { ADC_MAX } else { raw },
+        }
+    }
+
     /// Temperature in 0.1 deg C, rounded to the nearest tenth and saturated to the `i16` range.
     ///
-    /// The ends fail towards the overtemp fault's safe side where they can: raw 0 (thermistor shorted) and
-    /// readings beyond the model's range read very hot, `i16::MAX`; raw >= 4095 (thermistor open or
-    /// disconnected) reads very cold, `i16::MIN`. Zero parameters give meaningless values but never panic.
+    /// The ends fail towards the overtemp fault's safe side where they can: a shorted thermistor (raw 0 to ground,
+    /// 4095 to VDDA) and readings beyond the model's range read very hot, `i16::MAX`; an open or disconnected one
+    /// reads very cold, `i16::MIN`. Zero parameters give meaningless values but never panic.
     pub fn decicelsius(&self, raw: u16) -> i16 {
+        let raw = self.as_to_ground(raw);
         if raw == 0 {
             return i16::MAX;
         }
         if raw >= ADC_MAX {
             return i16::MIN;
         }
-        let ohms = self.pull_up_ohms as f32 * f32::from(raw) / f32::from(ADC_MAX - raw);
+        let ohms = self.fixed_ohms as f32 * f32::from(raw) / f32::from(ADC_MAX - raw);
         let inverse_kelvin = 1.0 / T25_K + libm::logf(ohms / self.r25_ohms as f32) / f32::from(self.beta);
         // A non-positive 1/T (or NaN from zero parameters) lies beyond the hot end of the model.
         if inverse_kelvin.is_nan() || inverse_kelvin <= 0.0 {
@@ -97,18 +138,18 @@ impl Ntc {
     }
 
     /// Inverse of [`Ntc::decicelsius`], for simulation and tests: the reading at `decicelsius`, rounded to the
-    /// nearest count (0..=4095). At or below absolute zero it reads 4095, like an open thermistor.
+    /// nearest count (0..=4095). At or below absolute zero it reads like an open thermistor.
     pub fn raw_at(&self, decicelsius: i16) -> u16 {
         let kelvin = f32::from(decicelsius) / 10.0 + ZERO_CELSIUS_K;
         if kelvin.is_nan() || kelvin <= 0.0 {
-            return ADC_MAX;
+            return self.as_to_ground(ADC_MAX);
         }
         let ohms = self.r25_ohms as f32 * libm::expf(f32::from(self.beta) * (1.0 / kelvin - 1.0 / T25_K));
-        // R / (R + R_pu) written so that an infinite R gives 1 and a zero R gives 0.
-        let fraction = 1.0 / (1.0 + self.pull_up_ohms as f32 / ohms);
+        // R / (R + R_fixed) written so that an infinite R gives 1 and a zero R gives 0.
+        let fraction = 1.0 / (1.0 + self.fixed_ohms as f32 / ohms);
         let raw = libm::roundf(f32::from(ADC_MAX) * fraction);
         // `as` saturates (NaN gives 0); the fraction is at most 1, so this only guards rounding.
-        (raw as u16).min(ADC_MAX)
+        self.as_to_ground((raw as u16).min(ADC_MAX))
     }
 }
 
@@ -152,7 +193,8 @@ mod tests {
     const NTC: Ntc = Ntc {
         r25_ohms: 10_000,
         beta: 3435,
-        pull_up_ohms: 4_700,
+        fixed_ohms: 4_700,
+        placement: NtcPlacement::ToGround,
     };
 
     #[test]
@@ -232,13 +274,13 @@ mod tests {
     fn ntc_reads_25_c_at_r25() {
         // Pull-ups that put R25 exactly on a count: 40 k -> 4095 / 5, 20 k -> 4095 / 3.
         let fifth = Ntc {
-            pull_up_ohms: 40_000,
+            fixed_ohms: 40_000,
             ..NTC
         };
         assert_eq!(fifth.decicelsius(819), 250);
         assert_eq!(fifth.raw_at(250), 819);
         let third = Ntc {
-            pull_up_ohms: 20_000,
+            fixed_ohms: 20_000,
             ..NTC
         };
         assert_eq!(third.decicelsius(1365), 250);
@@ -273,7 +315,7 @@ mod tests {
         // A pull-up equal to R25 loses resolution at the hot end: 1 count is about 0.4 C at 150 C.
         assert!(
             worst_round_trip(&Ntc {
-                pull_up_ohms: 10_000,
+                fixed_ohms: 10_000,
                 ..NTC
             }) <= 2
         );
@@ -307,12 +349,13 @@ mod tests {
     fn ntc_degenerate_parameters_do_not_panic() {
         let params = [0, 1, u32::MAX];
         for r25_ohms in params {
-            for pull_up_ohms in params {
+            for fixed_ohms in params {
                 for beta in [0, 1, u16::MAX] {
                     let ntc = Ntc {
                         r25_ohms,
                         beta,
-                        pull_up_ohms,
+                        fixed_ohms,
+                        placement: NtcPlacement::ToGround,
                     };
                     for raw in [0, 1, 2048, 4094, 4095, u16::MAX] {
                         let _ = ntc.decicelsius(raw);
@@ -323,6 +366,40 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn an_ntc_to_vdda_reads_the_other_way() {
+        let stage = Ntc::IHM08M1;
+        // 1.055 V at 25 C: 4095 * 4.7 / 14.7 = 1309 counts.
+        assert_eq!(stage.raw_at(250), 1309);
+        assert_eq!(stage.decicelsius(1309), 250);
+        // Warmer reads higher.
+        assert!(stage.raw_at(1100) > stage.raw_at(1000));
+        assert!(stage.raw_at(1000) > stage.raw_at(250));
+        let mut previous = i16::MIN;
+        for raw in 0..=ADC_MAX {
+            let t = stage.decicelsius(raw);
+            assert!(t >= previous, "raw {raw}");
+            previous = t;
+        }
+        // Round trip over the range that matters, within a few tenths (the 4.7 kohm divider is coarse when hot).
+        for t in (-200..=1500_i16).step_by(10) {
+            assert!((stage.decicelsius(stage.raw_at(t)) - t).abs() <= 3, "{t}");
+        }
+        // The same NTC placed the other way mirrors the reading.
+        let to_ground = Ntc {
+            placement: NtcPlacement::ToGround,
+            ..stage
+        };
+        for t in [0, 250, 1000, 1100] {
+            assert_eq!(stage.raw_at(t), ADC_MAX - to_ground.raw_at(t));
+        }
+        // Open (node at ground) reads very cold, shorted very hot, out-of-range readings as shorted.
+        assert_eq!(stage.decicelsius(0), i16::MIN);
+        assert_eq!(stage.decicelsius(ADC_MAX), i16::MAX);
+        assert_eq!(stage.decicelsius(u16::MAX), i16::MAX);
+        assert_eq!(stage.raw_at(i16::MIN), 0);
     }
 
     #[test]

@@ -42,7 +42,19 @@ pub struct SpeedConfig {
     /// Integral gain: duty units per rpm of error per second, fixed point with 16 fractional bits.
     /// Unused for brushed motors.
     pub ki_q16_per_s: u32,
+    /// The largest duty magnitude the loop puts out (1/10 000), whatever the order: the power stage's limit
+    /// ([`MAX_DUTY`]). Brushed motors scale the SPEED step to it, so step 102 is this duty.
+    pub max_duty: u16,
 }
+
+/// The largest duty the reference power stage takes: 95 % on the X-NUCLEO-IHM08M1, whose high-side drivers
+/// refresh their bootstrap capacitors while the low switch conducts (`g431_hw::tim1::IHM08M1`). With Cargo
+/// feature `bringup` (the first power-up), 10 %.
+pub const MAX_DUTY: u16 = if cfg!(feature = "bringup") {
+    1_000
+} else {
+    g431_hw::tim1::IHM08M1.max_duty
+};
 
 impl SpeedConfig {
     /// Starting point for a brushless thruster: 0 to full scale in 0.5 s, 80 % duty for 4500 rpm unloaded,
@@ -55,15 +67,18 @@ impl SpeedConfig {
         full_scale_duty: 8_000,
         kp_q16: 2 * 65_536,
         ki_q16_per_s: 10 * 65_536,
+        max_duty: MAX_DUTY,
     };
 
-    /// Brushed thruster: open loop, 0 to 100 % duty in 0.5 s. The feed-forward and gains are not used.
+    /// Brushed thruster: open loop, 0 to 100 % duty in 0.5 s (the ramp's rate; the duty stops at `max_duty`).
+    /// The feed-forward and gains are not used.
     pub const BRUSHED_DEFAULT: SpeedConfig = SpeedConfig {
         motor: MotorKind::Brushed,
         ramp_per_s: 20_000,
         full_scale_duty: Duty::FULL as u16,
         kp_q16: 0,
         ki_q16_per_s: 0,
+        max_duty: MAX_DUTY,
     };
 }
 
@@ -113,11 +128,16 @@ impl SpeedController {
     /// 100 ms, and time going backwards counts as dt = 0.
     pub fn update(&mut self, now: Instant, target: Speed, power_cap_percent: Option<u8>, measured_rpm: i32) -> Duty {
         let dt_us = self.step_time(now);
-        let limit = duty_limit(power_cap_percent);
+        let limit = duty_limit(power_cap_percent).min(i64::from(self.config.max_duty));
         match self.config.motor {
             MotorKind::Brushless => self.update_brushless(dt_us, target, limit, measured_rpm),
             MotorKind::Brushed => self.update_brushed(dt_us, target, limit),
         }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SpeedConfig {
+        &self.config
     }
 
     /// Forget the ramp and the integrator (on a stop, a fault or the failsafe): the next update starts from zero.
@@ -171,7 +191,7 @@ impl SpeedController {
         // Conditional integration: no growth while the output is already clamped in the error's direction.
         let before = fixed.saturating_add(self.integral_q16 / Q16);
         let winding_up = (before > high && error > 0) || (before < low && error < 0);
-        if winding_up && limit < FULL && (before > limit || before < -limit) {
+        if winding_up && limit < i64::from(self.config.max_duty) && (before > limit || before < -limit) {
             // The INFO cap holds the output: the ramp waits where it is, so lifting the cap later raises the
             // speed at the ramp rate instead of stepping the duty to the cap's far side.
             self.ramp_micro = previous_ramp;
@@ -194,7 +214,9 @@ impl SpeedController {
     fn update_brushed(&mut self, dt_us: i64, target: Speed, limit: i64) -> Duty {
         self.integral_q16 = 0;
         let bound = limit.saturating_mul(MICROS_PER_S);
-        let order = brushed_duty(target).clamp(-limit, limit).saturating_mul(MICROS_PER_S);
+        let order = brushed_duty(target, self.config.max_duty)
+            .clamp(-limit, limit)
+            .saturating_mul(MICROS_PER_S);
         // A lowered cap applies at once; the ramp then never leaves the capped range.
         let capped = self.ramp_micro.clamp(-bound, bound);
         self.ramp_micro = slew(capped, order, self.max_step(dt_us));
@@ -210,12 +232,30 @@ fn duty_limit(power_cap_percent: Option<u8>) -> i64 {
     }
 }
 
-/// Open-loop brushed duty of a step: step * 10 000 / 102, rounded half away from zero (step 51 = 50.00 %).
-fn brushed_duty(target: Speed) -> i64 {
-    let scaled = i64::from(target.step()) * FULL;
-    let half = i64::from(Speed::MAX_STEP) / 2;
-    let rounded = if scaled < 0 { scaled - half } else { scaled + half };
-    rounded / i64::from(Speed::MAX_STEP)
+/// Open-loop brushed duty of a step: step * max_duty / 102, rounded half away from zero (step 102 = max_duty).
+/// [`step_of_brushed_duty`] reads it back exactly for every step while max_duty > 102.
+pub fn brushed_duty(target: Speed, max_duty: u16) -> i64 {
+    divide_rounded(
+        i64::from(target.step()) * i64::from(max_duty),
+        i64::from(Speed::MAX_STEP),
+    )
+}
+
+/// The SPEED step a brushed duty corresponds to: duty * 102 / max_duty, rounded half away from zero, saturated to
+/// the step range (the status's readback of [`brushed_duty`]).
+pub fn step_of_brushed_duty(duty: Duty, max_duty: u16) -> Speed {
+    let step = divide_rounded(
+        i64::from(duty.value()) * i64::from(Speed::MAX_STEP),
+        i64::from(max_duty.max(1)),
+    );
+    Speed::new_saturating(saturate_i32(step))
+}
+
+/// `value / divisor` rounded half away from zero; `divisor` > 0.
+fn divide_rounded(value: i64, divisor: i64) -> i64 {
+    let half = divisor / 2;
+    let rounded = if value < 0 { value - half } else { value + half };
+    rounded / divisor
 }
 
 /// `current` moved towards `target` by at most `max_step` (max_step >= 0), never past it.
@@ -428,6 +468,24 @@ mod tests {
     }
 
     #[test]
+    fn the_power_stage_limit_holds_whatever_the_order() {
+        for max_duty in [MAX_DUTY, 9_500, 1_000] {
+            for base in [SpeedConfig::BRUSHLESS_DEFAULT, SpeedConfig::BRUSHED_DEFAULT] {
+                let config = SpeedConfig { max_duty, ..base };
+                // A loaded motor that would need more than full duty for full speed.
+                let mut rig = Rig::new(config, 12_000);
+                let mut largest = 0;
+                for step in [102, -102, 51] {
+                    for _ in 0..1_500 {
+                        largest = largest.max(rig.step(step, None).magnitude());
+                    }
+                }
+                assert_eq!(largest, max_duty, "{:?} {max_duty}", config.motor);
+            }
+        }
+    }
+
+    #[test]
     fn integrator_does_not_wind_up_while_capped() {
         let mut rig = Rig::new(SpeedConfig::BRUSHLESS_DEFAULT, 8_000);
         rig.run(102, Some(20), 1_000);
@@ -534,7 +592,11 @@ mod tests {
 
     #[test]
     fn brushed_is_open_loop_proportional_and_capped() {
-        let mut controller = SpeedController::new(SpeedConfig::BRUSHED_DEFAULT);
+        // At full scale (no stage limit), so steps map to round percentages.
+        let mut controller = SpeedController::new(SpeedConfig {
+            max_duty: Duty::FULL as u16,
+            ..SpeedConfig::BRUSHED_DEFAULT
+        });
         let mut ms = 0u64;
         let mut run = |controller: &mut SpeedController, step: i32, cap: Option<u8>, steps: u32| {
             let mut duty = Duty::ZERO;
@@ -568,7 +630,11 @@ mod tests {
         assert_eq!(run(&mut controller, 0, None, 300).value(), 0);
 
         for (step, duty) in [(0, 0), (1, 98), (51, 5_000), (102, 10_000), (-1, -98), (-102, -10_000)] {
-            assert_eq!(brushed_duty(Speed::new_saturating(step)), duty);
+            assert_eq!(brushed_duty(Speed::new_saturating(step), Duty::FULL as u16), duty);
+        }
+        // Scaled to the power stage's limit: step 102 is the largest duty it takes.
+        for (step, duty) in [(1, 93), (51, 4_750), (102, 9_500), (-102, -9_500)] {
+            assert_eq!(brushed_duty(Speed::new_saturating(step), 9_500), duty);
         }
     }
 
@@ -580,6 +646,7 @@ mod tests {
             full_scale_duty: u16::MAX,
             kp_q16: u32::MAX,
             ki_q16_per_s: u32::MAX,
+            max_duty: u16::MAX,
         };
         let brushed = SpeedConfig {
             motor: MotorKind::Brushed,

@@ -1,30 +1,37 @@
-//! Interrupts, clocks, peripheral set-up and tasks of the thruster image.
+//! Interrupts, clocks, peripheral set-up, the panic and fault handlers, and tasks of the thruster image.
 
-use defmt::{info, unwrap};
+use defmt::{info, unwrap, warn};
+use defmt_rtt as _;
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_stm32::adc::{Adc, AdcChannel, AdcConfig};
 use embassy_stm32::exti;
 use embassy_stm32::gpio::Pull;
 use embassy_stm32::i2c::{self, I2c, SlaveAddrConfig};
 use embassy_stm32::interrupt::{InterruptExt, Priority};
-use embassy_stm32::rcc::{self, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
-use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
-use thruster_fw::tasks::{self, Config, Shared};
-use {defmt_rtt as _, panic_probe as _};
+use g431_hw::clock;
+use thruster_fw::faults::ResetKind;
+use thruster_fw::tasks::Shared;
+use thruster_fw::{CONFIG, FAMILY, Ports};
 
-use crate::board::{self, FAMILY, Iwdg, SlavePort};
+use crate::board::{self, BackupLatch, Iwdg, SlavePort};
 
 // The power stage, the halls and the analog inputs of a controller with a motor.
 #[cfg(not(feature = "motorless"))]
 use {
-    crate::board::{AnalogInputs, Halls, PowerStage},
+    crate::board::{AnalogInputs, BRIDGE, Halls, PowerStage},
     embassy_stm32::exti::ExtiInput,
-    embassy_stm32::gpio::OutputType,
-    embassy_stm32::time::Hertz,
-    embassy_stm32::timer::complementary_pwm::{BreakInputPolarity, ComplementaryPwm, ComplementaryPwmPin, Ossr},
+    embassy_stm32::gpio::{AfType, Flex, OutputType},
+    embassy_stm32::pac::timer::regs::{Af1Adv, BdtrAdv, Cr2Adv},
+    embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin},
     embassy_stm32::timer::low_level::CountingMode,
     embassy_stm32::timer::simple_pwm::PwmPin,
+    embassy_stm32::timer::{BkIn1, BreakInputPin},
+    thruster_fw::Duty,
+    thruster_fw::commutation::COAST,
+    thruster_fw::tasks::Bridge,
 };
 // The motor-less controller: the model's ports, the real water-sensor pin and the user button.
 #[cfg(feature = "motorless")]
@@ -53,30 +60,56 @@ unsafe fn UART4() {
     unsafe { COMMUTATION_EXECUTOR.on_interrupt() }
 }
 
-/// PWM frequency: above hearing, and 4250 counts of resolution at 170 MHz center-aligned.
-#[cfg(not(feature = "motorless"))]
-const PWM_FREQUENCY: Hertz = Hertz::khz(20);
-/// Dead time between a phase's high and low switch: 170 counts of 5.9 ns = 1 us (IHM08M1's MOSFETs need ~500 ns).
-#[cfg(not(feature = "motorless"))]
-const DEAD_TIME: u16 = 170;
+/// A panic stops the bridge before anything else: the watchdog would take up to its timeout to do it.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    board::stop_bridge();
+    cortex_m::interrupt::disable();
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    // An undefined instruction: probe-rs reports the panic; without a probe the watchdog resets the chip.
+    cortex_m::asm::udf()
+}
+
+/// defmt's `panic!` / `unwrap!` take the same way out.
+#[defmt::panic_handler]
+fn defmt_panic() -> ! {
+    board::stop_bridge();
+    cortex_m::asm::udf()
+}
+
+/// A hard fault (flip-link turns a stack overflow into one) stops the bridge too; the watchdog then resets.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    board::stop_bridge();
+    loop {
+        cortex_m::asm::nop();
+    }
+}
 
 static SHARED: Shared = Shared::new();
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(clocks());
-    log_reset_cause();
-    let config = &board::CONFIG;
+    let reset = reset_cause();
+    let latch = BackupLatch::open(reset);
     info!(
         "thruster-fw: {} controller at I2C address {=u8:#x}",
         FAMILY.name(),
         FAMILY.address()
     );
+    if cfg!(feature = "bringup") {
+        warn!(
+            "bring-up build: the duty never exceeds {=u16} / 10000",
+            thruster_fw::speed::MAX_DUTY
+        );
+    }
 
     #[cfg(not(feature = "motorless"))]
     let (halls, bridge, analog) = {
-        // The bridge first, coasting, before anything can ask it to drive.
-        let mut pwm = ComplementaryPwm::new(
+        // The bridge first, every switch off, before anything can ask it to drive.
+        let pwm = ComplementaryPwm::new(
             p.TIM1,
             Some(PwmPin::new(p.PA8, OutputType::PushPull)),
             Some(ComplementaryPwmPin::new(p.PA7, OutputType::PushPull)),
@@ -86,24 +119,43 @@ async fn main(spawner: Spawner) {
             Some(ComplementaryPwmPin::new(p.PB1, OutputType::PushPull)),
             None,
             None,
-            PWM_FREQUENCY,
+            Hertz(BRIDGE.pwm_hz),
             CountingMode::CenterAlignedBothInterrupts,
         );
-        pwm.set_dead_time(DEAD_TIME);
-        pwm.set_off_state_selection_run(Ossr::IDLE_LEVEL);
-        arm_overcurrent_break(&mut pwm);
-        let bridge = PowerStage { pwm };
-
-        let halls = Halls {
-            h1: ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
-            h2: ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
-            h3: ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
+        // PA6 in its TIM1_BKIN alternate function; the IHM08M1's comparator drives it.
+        let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*p.PA6);
+        let mut break_input = Flex::new(p.PA6);
+        break_input.set_as_af_unchecked(break_af, AfType::input(Pull::None));
+        let arr = u16::try_from(pwm.get_max_duty()).unwrap_or(u16::MAX);
+        if u32::from(arr) != BRIDGE.arr(clock::TIM1_HZ) {
+            warn!(
+                "TIM1 ARR {=u16} is not the {=u32} the power stage's figures assume",
+                arr,
+                BRIDGE.arr(clock::TIM1_HZ)
+            );
+        }
+        let mut bridge = PowerStage {
+            _pwm: pwm,
+            _break_input: break_input,
+            arr,
         };
+        arm_power_stage(&mut bridge);
 
+        let halls = Halls::new(
+            ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
+            ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
+            ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
+        );
+
+        let adc = Adc::new(p.ADC1, AdcConfig::default());
+        check_adc_clock();
         let analog = AnalogInputs {
-            adc: Adc::new(p.ADC1, AdcConfig::default()),
-            water: p.PC3.degrade_adc(),
-            motor_ntc: p.PB12.degrade_adc(),
+            adc,
+            water: p.PB12.degrade_adc(),
+            #[cfg(not(feature = "brushed"))]
+            ntc: p.PB11.degrade_adc(),
+            #[cfg(feature = "brushed")]
+            ntc: p.PC2.degrade_adc(),
             current: p.PA0.degrade_adc(),
         };
         (halls, bridge, analog)
@@ -113,71 +165,94 @@ async fn main(spawner: Spawner) {
     #[cfg(feature = "motorless")]
     let analog = {
         info!("motor-less: no power stage, the motor is a model; B1 holds its rotor");
+        let adc = Adc::new(p.ADC1, AdcConfig::default());
+        check_adc_clock();
         let water = WaterPin {
-            adc: Adc::new(p.ADC1, AdcConfig::default()),
-            pin: p.PC3.degrade_adc(),
+            adc,
+            pin: p.PB12.degrade_adc(),
         };
         // NUCLEO-64 (MB1367): B1 connects PC13 to 3V3 when pressed.
         let button = UserButton(Input::new(p.PC13, Pull::Down));
-        ModelSensors::new(&board::MOTORLESS, config, water, button)
+        ModelSensors::new(&board::MOTORLESS, &CONFIG, water, button)
     };
 
     let mut i2c_config = i2c::Config::default();
-    i2c_config.frequency = board::BUS_SPEED;
-    i2c_config.timeout = board::TRANSFER_TIMEOUT;
-    let slave = I2c::new(p.I2C3, p.PC8, p.PC9, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config)
+    i2c_config.frequency = Hertz(CONFIG.bus.frequency_hz);
+    i2c_config.timeout = CONFIG.bus.timeout;
+    let slave = I2c::new(p.I2C3, p.PC8, p.PC11, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config)
         .into_slave_multimaster(SlaveAddrConfig::basic(FAMILY.address()));
+    board::set_i2c_timing(pac::I2C3);
 
-    let mut watchdog = IndependentWatchdog::new(p.IWDG, board::WATCHDOG_TIMEOUT_US);
-    watchdog.unleash();
+    let watchdog = Iwdg::start(p.IWDG);
 
     interrupt::UART4.set_priority(Priority::P1);
     let high = COMMUTATION_EXECUTOR.start(interrupt::UART4);
-    #[cfg(not(feature = "motorless"))]
-    high.spawn(unwrap!(commutation(halls, bridge, config)));
     #[cfg(feature = "motorless")]
-    high.spawn(unwrap!(commutation(config)));
-    spawner.spawn(unwrap!(faults(analog, config)));
-    spawner.spawn(unwrap!(control(config)));
-    spawner.spawn(unwrap!(i2c_slave(SlavePort(slave), config)));
-    spawner.spawn(unwrap!(health(Iwdg(watchdog))));
+    let (halls, bridge) = (ModelHalls::new(&board::MOTORLESS), ModelBridge(&board::MOTORLESS));
+    high.spawn(unwrap!(commutation(halls, bridge)));
+    spawner.spawn(unwrap!(controller(Ports {
+        i2c: SlavePort(slave),
+        sensors: analog,
+        watchdog,
+        latch,
+    })));
 }
 
-/// 170 MHz from the internal 16 MHz oscillator: HSI / 4 * 85 / 2.
+/// 170 MHz from the NUCLEO's 24 MHz crystal (`g431_hw::clock::PLL`); I2C from HSI16 (its timing is computed for
+/// that clock); FDCAN, unused here, stays on HSE; the ADC on SYSCLK, divided to 42.5 MHz by `Adc::new`.
 fn clocks() -> embassy_stm32::Config {
+    const PLL: clock::Pll = clock::PLL;
+    const _: () = assert!(PLL.is_valid(clock::HSE_HZ));
     let mut config = embassy_stm32::Config::default();
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(clock::HSE_HZ),
+        mode: HseMode::Oscillator,
+    });
     config.rcc.pll = Some(Pll {
-        source: PllSource::HSI,
-        prediv: PllPreDiv::DIV4,
-        mul: PllMul::MUL85,
+        source: PllSource::HSE,
+        prediv: PllPreDiv::from_bits((PLL.m - 1) as u8),
+        mul: PllMul::from_bits(PLL.n as u8),
         divp: None,
         divq: None,
-        divr: Some(PllRDiv::DIV2),
+        divr: Some(PllRDiv::from_bits((PLL.r / 2 - 1) as u8)),
     });
     config.rcc.sys = Sysclk::PLL1_R;
     config.rcc.boost = true;
     config.rcc.mux.adc12sel = rcc::mux::Adcsel::SYS;
+    config.rcc.mux.i2c3sel = rcc::mux::I2csel::HSI;
     config
 }
 
-#[cfg(not(feature = "motorless"))]
-/// The IHM08M1's overcurrent comparator pulls PA6 low: as TIM1's break input it turns the bridge off in hardware,
-/// without waiting for software. Automatic output enable restarts the PWM at the next period once the current
-/// has fallen: cycle-by-cycle current limiting.
-fn arm_overcurrent_break(pwm: &mut ComplementaryPwm<'static, peripherals::TIM1>) {
-    // PA6 in alternate function 6 (TIM1_BKIN); embassy-stm32 has no break-pin constructor.
-    pac::GPIOA.afr(0).modify(|w| w.set_afr(6, 6));
-    pac::GPIOA
-        .moder()
-        .modify(|w| w.set_moder(6, pac::gpio::vals::Moder::ALTERNATE));
-    pwm.set_break_polarity(BreakInputPolarity::ACTIVE_LOW);
-    pwm.set_break_input_pin_enable(true);
-    pwm.set_break_enable(true);
-    pwm.set_automatic_output_enable(true);
+/// The ADC clock must be the one the sample times were computed for.
+fn check_adc_clock() {
+    let expected = clock::adc_prescaler(clock::ADC_KERNEL_HZ).map_or(u8::MAX, |(bits, _)| bits);
+    let presc = pac::ADC12_COMMON.ccr().read().presc().to_bits();
+    if presc != expected {
+        warn!(
+            "ADC prescaler {=u8}, expected {=u8}: the sample times do not match the clock",
+            presc, expected
+        );
+    }
 }
 
-/// Say why the chip last reset (a watchdog reset means a task stopped making progress), then clear the flags.
-fn log_reset_cause() {
+/// TIM1 from `g431_hw::tim1`: every phase off and driven (OSSR / OSSI), the L6398's inverted low inputs, the
+/// idle levels, dead time, filtered active-low break and commutation through COM events. The outputs come on at
+/// the next update event (automatic output enable), with every switch off until the commutation task drives.
+#[cfg(not(feature = "motorless"))]
+fn arm_power_stage(bridge: &mut PowerStage) {
+    use embassy_stm32::pac::timer::vals::Ckd;
+    let tim = pac::TIM1;
+    // t_DTS = t_CK_INT: the dead time and the break filter are counted in timer clocks.
+    tim.cr1().modify(|w| w.set_ckd(Ckd::DIV1));
+    tim.bdtr().write_value(BdtrAdv(BRIDGE.bdtr(clock::TIM1_HZ)));
+    tim.cr2().write_value(Cr2Adv(BRIDGE.cr2()));
+    tim.af1().write_value(Af1Adv(g431_hw::tim1::AF1));
+    bridge.apply(COAST, Duty::ZERO);
+}
+
+/// Say why the chip last reset (a watchdog reset means a task stopped making progress), clear the flags, and
+/// tell the latches whether this was a power cycle: RCC_CSR.BORRSTF is set by a power-on or brown-out reset.
+fn reset_cause() -> ResetKind {
     let csr = pac::RCC.csr().read();
     let cause = if csr.iwdgrstf() {
         "independent watchdog"
@@ -198,38 +273,21 @@ fn log_reset_cause() {
     };
     info!("reset cause: {}", cause);
     pac::RCC.csr().modify(|w| w.set_rmvf(true));
+    if csr.borrstf() {
+        ResetKind::PowerCycle
+    } else {
+        ResetKind::Other
+    }
 }
 
-#[cfg(not(feature = "motorless"))]
+/// Commutation, on the high-priority interrupt executor.
 #[embassy_executor::task]
-async fn commutation(mut halls: Halls, mut bridge: PowerStage, config: &'static Config) -> ! {
-    tasks::commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, &SHARED).await
+async fn commutation(halls: board::HallInputs, bridge: board::Stage) -> ! {
+    thruster_fw::run_commutation(halls, bridge, &CONFIG, &SHARED).await
 }
 
-#[cfg(feature = "motorless")]
+/// The controller's other tasks, on the thread-mode executor.
 #[embassy_executor::task]
-async fn commutation(config: &'static Config) -> ! {
-    let mut halls = ModelHalls::new(&board::MOTORLESS);
-    let mut bridge = ModelBridge(&board::MOTORLESS);
-    tasks::commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn faults(mut analog: board::Analog, config: &'static Config) -> ! {
-    tasks::fault_task(&mut analog, config, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn control(config: &'static Config) -> ! {
-    tasks::control_task(config, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn i2c_slave(mut port: SlavePort, config: &'static Config) -> ! {
-    tasks::i2c_task(&mut port, config.family, config.motor, &SHARED).await
-}
-
-#[embassy_executor::task]
-async fn health(mut watchdog: Iwdg) -> ! {
-    tasks::health_task(&mut watchdog, board::WATCHDOG_FEED, &SHARED).await
+async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg, BackupLatch>) -> ! {
+    thruster_fw::run(ports, &CONFIG, &SHARED).await
 }

@@ -1,6 +1,8 @@
-//! The controller's task bodies and the ports they drive. Each task owns its state machines and talks to the
-//! others only through [`Shared`]; the STM32 binding and the host tests run these same functions.
+//! The controller's task bodies, the ports they drive, and [`run`], which joins them: each task owns its state
+//! machines and talks to the others only through [`Shared`]. The STM32 binding, the bench and the host tests all
+//! run the controller through [`run`] and [`run_commutation`].
 
+use embassy_futures::join::join4;
 use embassy_futures::select::select;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
@@ -12,7 +14,7 @@ use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
 use crate::failsafe::LinkFailsafe;
-use crate::faults::{FaultMonitor, Sample, StallDetector, Thresholds};
+use crate::faults::{FaultMonitor, LatchStore, Sample, StallDetector, Thresholds};
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
 use crate::i2c_slave::{I2cTarget, Link, ServeEvent, serve};
@@ -39,7 +41,7 @@ pub trait Bridge {
 pub struct RawSample {
     /// Water-sensor node.
     pub water: u16,
-    /// Motor temperature NTC node.
+    /// The NTC node of the temperature the status reports: the motor's (brushless), the controller's (brushed).
     pub temperature: u16,
     /// Motor current amplifier.
     pub current: u16,
@@ -75,16 +77,66 @@ pub struct Config {
     pub thresholds: Thresholds,
     /// Water-sensor divider.
     pub water: WaterSensor,
-    /// Motor temperature sensor.
+    /// The sensor of the temperature the status reports (IDS 8.4.2 TEMPERATURE).
     pub ntc: Ntc,
     /// Motor current sense.
     pub current: CurrentSense,
+    /// The I2C slave port.
+    pub bus: SlaveBus,
+    /// The independent watchdog.
+    pub watchdog: WatchdogTiming,
+}
+
+/// The thruster interface's bus as the slave sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlaveBus {
+    /// SCL frequency, Hz (IDS 6.4.1: 100 kbit/s).
+    pub frequency_hz: u32,
+    /// A transfer stalled this long (SMBus's SCL-low timeout) is abandoned and the port re-initialised, so the
+    /// controller never holds the bus (IDS 6.6.2). embassy-stm32's default is 1 s.
+    pub timeout: Duration,
+}
+
+/// The independent watchdog's timing: fed every `feed` while every task reports progress; a chip left unfed for
+/// `timeout` resets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WatchdogTiming {
+    /// How often the health task checks the tasks and feeds the watchdog.
+    pub feed: Duration,
+    /// How long the watchdog waits unfed before it resets the chip.
+    pub timeout: Duration,
+}
+
+impl WatchdogTiming {
+    /// The timeout in microseconds, as the IWDG driver takes it (saturated).
+    pub const fn timeout_us(&self) -> u32 {
+        saturating_u32(self.timeout.as_micros())
+    }
+
+    /// The schedule the IWDG set-up is checked against: the I2C task, the slowest to report, goes at most one
+    /// listen heartbeat plus one transfer's timeout between reports.
+    pub const fn schedule(&self, bus: &SlaveBus) -> g431_hw::iwdg::Schedule {
+        g431_hw::iwdg::Schedule {
+            feed_period_us: saturating_u32(self.feed.as_micros()),
+            slowest_report_us: saturating_u32(LISTEN_HEARTBEAT.as_micros().saturating_add(bus.timeout.as_micros())),
+            timeout_us: self.timeout_us(),
+        }
+    }
+}
+
+const fn saturating_u32(value: u64) -> u32 {
+    if value > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        value as u32
+    }
 }
 
 impl Config {
     /// The reference hardware: a 4-pole-pair hall-sensored motor on an X-NUCLEO-IHM08M1, the water-sensor
     /// electrodes over a 1 Mohm pull-down (the 1 Mohm water threshold sits at mid-scale, where the divider resolves
-    /// best), a 10 kohm B3435 NTC in the winding with a 10 kohm pull-up, the spec's thresholds and a 1 s failsafe.
+    /// best), the winding's NTC for a brushless motor and the power stage's for a brushed one, the spec's
+    /// thresholds and a 1 s failsafe.
     pub const fn reference(family: Family, motor: MotorKind) -> Config {
         Config {
             family,
@@ -99,15 +151,25 @@ impl Config {
             water: WaterSensor {
                 pull_down_ohms: 1_000_000,
             },
-            ntc: Ntc {
-                r25_ohms: 10_000,
-                beta: 3435,
-                pull_up_ohms: 10_000,
+            ntc: match motor {
+                MotorKind::Brushless => Ntc::MOTOR,
+                MotorKind::Brushed => Ntc::IHM08M1,
             },
             // IHM08M1: 10 mohm shunt, gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 ohm * 5.18) = 15.6 mA per count.
             current: CurrentSense {
                 offset_raw: 2048,
                 milliamps_per_count: 16,
+            },
+            bus: SlaveBus {
+                frequency_hz: 100_000,
+                timeout: Duration::from_millis(25),
+            },
+            // Fed every 100 ms: longer than the slowest task's gap between reports (the I2C task's listen
+            // heartbeat plus one transfer's timeout, 75 ms), so a healthy controller never misses a feed; the
+            // 250 ms timeout outlasts two feeds even at the fastest LSI (`g431_hw::iwdg::Schedule`).
+            watchdog: WatchdogTiming {
+                feed: Duration::from_millis(100),
+                timeout: Duration::from_millis(250),
             },
         }
     }
@@ -135,7 +197,7 @@ pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 /// The speed loop runs at 1 kHz.
 pub const CONTROL_PERIOD: Duration = Duration::from_millis(1);
 /// How long the I2C task waits for its address before it reports itself alive anyway.
-const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
+pub const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
 
 type Mutex = CriticalSectionRawMutex;
 
@@ -262,9 +324,17 @@ pub const fn h_bridge(duty: Duty) -> BridgeDrive {
 }
 
 /// Faults: sample the ADC at 1 kHz, follow the hall pulses and errors, apply the fault table, publish the
-/// verdict, and wake the commutation task at once when the verdict changes.
-pub async fn fault_task<S: Sensors>(sensors: &mut S, config: &Config, shared: &Shared) -> ! {
+/// verdict, and wake the commutation task at once when the verdict changes. The power-cycle latches come from
+/// `latch` at start and go back to it whenever they change, so they outlast any reset but a power cycle.
+pub async fn fault_task<S: Sensors, L: LatchStore>(
+    sensors: &mut S,
+    latch: &mut L,
+    config: &Config,
+    shared: &Shared,
+) -> ! {
     let mut monitor = FaultMonitor::new(config.family, config.thresholds);
+    monitor.restore(latch.load());
+    let mut saved = monitor.latched();
     let mut stall = StallDetector::new(&config.thresholds);
     let mut seen_pulses = None;
     let mut seen_illegal = None;
@@ -305,6 +375,10 @@ pub async fn fault_task<S: Sensors>(sensors: &mut S, config: &Config, shared: &S
             halls_normal,
         };
         let faults = monitor.update(sample, stalled);
+        if monitor.latched() != saved {
+            saved = monitor.latched();
+            latch.save(saved);
+        }
         let sensed = Sensed {
             faults,
             drive_allowed: monitor.drive_allowed(),
@@ -356,6 +430,54 @@ pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared
             );
         }
     }
+}
+
+/// What the controller's thread-mode tasks are wired to.
+#[derive(Debug)]
+pub struct Ports<T, S, W, L> {
+    /// The I2C slave port of the thruster interface.
+    pub i2c: T,
+    /// The ADC inputs.
+    pub sensors: S,
+    /// The independent watchdog.
+    pub watchdog: W,
+    /// Where the power-cycle fault latches outlast a reset.
+    pub latch: L,
+}
+
+/// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control and health. Commutation runs
+/// apart ([`run_commutation`]), on an executor of its own above these. They talk only through `shared`, which
+/// lives as long as the controller: a reset starts again from a fresh one.
+pub async fn run<T: I2cTarget, S: Sensors, W: Watchdog, L: LatchStore>(
+    ports: Ports<T, S, W, L>,
+    config: &Config,
+    shared: &Shared,
+) -> ! {
+    let Ports {
+        mut i2c,
+        mut sensors,
+        mut watchdog,
+        mut latch,
+    } = ports;
+    let (never, ..) = join4(
+        i2c_task(&mut i2c, config.family, config.motor, shared),
+        fault_task(&mut sensors, &mut latch, config, shared),
+        control_task(config, shared),
+        health_task(&mut watchdog, config.watchdog.feed, shared),
+    )
+    .await;
+    never
+}
+
+/// Commutation: the halls drive the bridge (see [`commutation_task`]). It runs on the highest-priority executor so
+/// that no other work delays a commutation.
+pub async fn run_commutation<H: HallSensors, B: Bridge>(
+    mut halls: H,
+    mut bridge: B,
+    config: &Config,
+    shared: &Shared,
+) -> ! {
+    commutation_task(&mut halls, &mut bridge, config.motor, config.pole_pairs, shared).await
 }
 
 #[cfg(test)]

@@ -29,7 +29,8 @@ pub enum DecodeError {
         /// CSUM byte received.
         actual: u8,
     },
-    /// A speed byte outside 0x19..=0xE6 (IDS 8.3: SPEED range).
+    /// An order's SPEED byte outside 0x19..=0xE6 (IDS 8.3: SPEED range). A status with such a byte is not an
+    /// error: its decoders report a [`FieldWarning`](crate::FieldWarning) and keep the frame.
     SpeedOutOfRange(u8),
 }
 

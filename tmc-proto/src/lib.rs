@@ -6,7 +6,9 @@
 //!
 //! Every message ends with an 8-bit checksum of the bytes before it ([`checksum`]). Decoders never panic: they
 //! check, in this order, the length, the message type, the checksum and then the field ranges, and report the
-//! first problem as a [`DecodeError`]. Reserved bits are sent as zero and ignored on receipt (IDS 8.1).
+//! first problem as a [`DecodeError`]. An order with an out-of-range SPEED is rejected; a status keeps its faults
+//! and reports an out-of-range field as a [`FieldWarning`] beside it ([`Decoded`]). Reserved bits are sent as zero
+//! and ignored on receipt (IDS 8.1).
 //!
 //! ```
 //! use tmc_proto::{DecodeError, Family, Order, Speed};
@@ -37,7 +39,9 @@ pub use family::Family;
 pub use faults::Faults;
 pub use order::Order;
 pub use speed::Speed;
-pub use status::{LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Status, StatusFrame};
+pub use status::{
+    Decoded, FieldWarning, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Status, StatusFrame,
+};
 
 /// Length in bytes of an order, either family: MT, SPEED, INFO, CSUM (IDS 8.3).
 pub const ORDER_LEN: usize = 4;

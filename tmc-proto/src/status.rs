@@ -1,6 +1,58 @@
 //! The status messages, thruster -> master (IDS 8.4).
 
+use core::fmt;
+
 use crate::{DecodeError, Family, Faults, MAX_STATUS_LEN, Speed, checksum};
+
+/// A status field whose byte is outside the values its encoding defines. The frame is valid (length, message
+/// type and checksum check out) and its fault bits are kept; only the odd field holds no reading.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FieldWarning {
+    /// SeaBotix SPEED byte outside 0x19..=0xE6; `speed` reads [`Speed::ZERO`] in its place.
+    Speed(u8),
+    /// Legacy brushed MAX POWER byte outside the SPEED range; `max_power` holds it as [`MaxPower::Raw`].
+    MaxPower(u8),
+}
+
+impl fmt::Display for FieldWarning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            FieldWarning::Speed(byte) => write!(f, "speed byte {byte:#04x} out of range 0x19..=0xe6"),
+            FieldWarning::MaxPower(byte) => write!(f, "max power byte {byte:#04x} out of range 0x19..=0xe6"),
+        }
+    }
+}
+
+/// A decoded status and what was odd in it.
+///
+/// The IDS gives MAX POWER the whole byte (0-FF) and calls a brushed controller's SPEED a PWM value, so a valid
+/// frame may carry a speed byte outside the order encoding's range. Such a frame is not thrown away: its faults
+/// matter more than the odd field (a lost WATER bit is a lost warning), so the status is returned with the odd
+/// field neutralised and a [`FieldWarning`] naming it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Decoded<T> {
+    /// The status.
+    pub status: T,
+    /// The field that held no valid reading, if one did not.
+    pub warning: Option<FieldWarning>,
+}
+
+impl<T> Decoded<T> {
+    /// A status with nothing odd in it.
+    pub const fn clean(status: T) -> Self {
+        Decoded { status, warning: None }
+    }
+
+    /// The same, with the status mapped.
+    pub fn map<U>(self, f: impl FnOnce(T) -> U) -> Decoded<U> {
+        Decoded {
+            status: f(self.status),
+            warning: self.warning,
+        }
+    }
+}
 
 /// Motor technology a controller drives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -62,8 +114,9 @@ impl SeaBotixStatus {
         [b0, b1, b2, b3, b4, b5, checksum(&body)]
     }
 
-    /// Decode. Checks, in this order: length 7, MT 0x53, CSUM, SPEED range. Reserved bits are masked.
-    pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+    /// Decode. Checks, in this order: length 7, MT 0x53, CSUM; reserved bits are masked. A SPEED byte out of
+    /// range gives [`FieldWarning::Speed`] and a zero `speed`; the other fields, faults included, are read.
+    pub fn decode(bytes: &[u8]) -> Result<Decoded<Self>, DecodeError> {
         let [mt, status, fault, current, speed, temperature, csum] =
             <[u8; Self::LEN]>::try_from(bytes).map_err(|_| DecodeError::Length {
                 expected: Self::LEN as u8,
@@ -75,18 +128,25 @@ impl SeaBotixStatus {
             &[mt, status, fault, current, speed, temperature],
             csum,
         )?;
-        Ok(SeaBotixStatus {
-            revision: status >> 4,
-            motor: if status & Self::STATUS_BRUSHLESS != 0 {
-                MotorKind::Brushless
-            } else {
-                MotorKind::Brushed
+        let (speed, warning) = match Speed::from_byte(speed) {
+            Ok(speed) => (speed, None),
+            Err(_) => (Speed::ZERO, Some(FieldWarning::Speed(speed))),
+        };
+        Ok(Decoded {
+            status: SeaBotixStatus {
+                revision: status >> 4,
+                motor: if status & Self::STATUS_BRUSHLESS != 0 {
+                    MotorKind::Brushless
+                } else {
+                    MotorKind::Brushed
+                },
+                current_limited: status & Self::STATUS_NOT_CURRENT_LIMITED == 0,
+                faults: Faults::from_bits_truncate(fault),
+                current_deciamps: current,
+                speed,
+                temperature_c: temperature,
             },
-            current_limited: status & Self::STATUS_NOT_CURRENT_LIMITED == 0,
-            faults: Faults::from_bits_truncate(fault),
-            current_deciamps: current,
-            speed: Speed::from_byte(speed)?,
-            temperature_c: temperature,
+            warning,
         })
     }
 }
@@ -139,7 +199,8 @@ pub enum MaxPower {
     /// Brushed: power set into the motor, in SPEED encoding; equals the ordered speed unless the controller
     /// reduced it.
     Power(Speed),
-    /// Revision with no defined motor kind: the byte as received.
+    /// The byte as received: a revision with no defined motor kind, or a brushed MAX POWER outside the SPEED
+    /// range (decoding reports [`FieldWarning::MaxPower`] then).
     Raw(u8),
 }
 
@@ -183,24 +244,31 @@ impl LegacyStatus {
         [mt, status, max_power, checksum(&[mt, status, max_power])]
     }
 
-    /// Decode. Checks, in this order: length 4, MT 0x55, CSUM, then MAX POWER as a speed for brushed revisions
-    /// (out of range gives [`DecodeError::SpeedOutOfRange`]).
-    pub fn decode(bytes: &[u8]) -> Result<Self, DecodeError> {
+    /// Decode. Checks, in this order: length 4, MT 0x55, CSUM. MAX POWER is read per the revision: a brushed
+    /// revision's byte outside the SPEED range is kept raw with [`FieldWarning::MaxPower`]; the faults are read
+    /// whatever it holds.
+    pub fn decode(bytes: &[u8]) -> Result<Decoded<Self>, DecodeError> {
         let [mt, status, max_power, csum] = <[u8; Self::LEN]>::try_from(bytes).map_err(|_| DecodeError::Length {
             expected: Self::LEN as u8,
             actual: bytes.len(),
         })?;
         check_type_and_sum(Family::Legacy, mt, &[mt, status, max_power], csum)?;
         let revision = LegacyRevision(status >> 5);
-        let max_power = match revision.motor_kind() {
-            Some(MotorKind::Brushless) => MaxPower::Current { deciamps: max_power },
-            Some(MotorKind::Brushed) => MaxPower::Power(Speed::from_byte(max_power)?),
-            None => MaxPower::Raw(max_power),
+        let (max_power, warning) = match revision.motor_kind() {
+            Some(MotorKind::Brushless) => (MaxPower::Current { deciamps: max_power }, None),
+            Some(MotorKind::Brushed) => match Speed::from_byte(max_power) {
+                Ok(speed) => (MaxPower::Power(speed), None),
+                Err(_) => (MaxPower::Raw(max_power), Some(FieldWarning::MaxPower(max_power))),
+            },
+            None => (MaxPower::Raw(max_power), None),
         };
-        Ok(LegacyStatus {
-            revision,
-            faults: Faults::from_bits_truncate(status),
-            max_power,
+        Ok(Decoded {
+            status: LegacyStatus {
+                revision,
+                faults: Faults::from_bits_truncate(status),
+                max_power,
+            },
+            warning,
         })
     }
 }
@@ -249,11 +317,11 @@ impl Status {
         }
     }
 
-    /// Decode a family's status layout.
-    pub fn decode(family: Family, bytes: &[u8]) -> Result<Status, DecodeError> {
+    /// Decode a family's status layout (see [`SeaBotixStatus::decode`], [`LegacyStatus::decode`]).
+    pub fn decode(family: Family, bytes: &[u8]) -> Result<Decoded<Status>, DecodeError> {
         match family {
-            Family::SeaBotix => SeaBotixStatus::decode(bytes).map(Status::SeaBotix),
-            Family::Legacy => LegacyStatus::decode(bytes).map(Status::Legacy),
+            Family::SeaBotix => SeaBotixStatus::decode(bytes).map(|decoded| decoded.map(Status::SeaBotix)),
+            Family::Legacy => LegacyStatus::decode(bytes).map(|decoded| decoded.map(Status::Legacy)),
         }
     }
 }

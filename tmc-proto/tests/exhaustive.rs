@@ -1,6 +1,6 @@
 //! Exhaustive checks over every speed byte, every speed step and every small message.
 
-use tmc_proto::{DecodeError, Family, LegacyStatus, Order, Speed, checksum};
+use tmc_proto::{DecodeError, Family, FieldWarning, LegacyStatus, MaxPower, Order, SeaBotixStatus, Speed, checksum};
 
 #[test]
 fn all_256_speed_bytes() {
@@ -87,25 +87,53 @@ fn every_order_of_both_families() {
 
 #[test]
 fn every_legacy_status_with_a_good_checksum() {
-    let mut rejected = 0;
+    let mut warned = 0;
     for status in 0..=u8::MAX {
         for max_power in 0..=u8::MAX {
             let bytes = [0x55, status, max_power, checksum(&[0x55, status, max_power])];
-            match LegacyStatus::decode(&bytes) {
-                Ok(decoded) => {
-                    assert_eq!(decoded.revision.number(), status >> 5);
-                    assert_eq!(decoded.faults.bits(), status & 0x1F);
-                    assert_eq!(LegacyStatus::decode(&decoded.encode()), Ok(decoded));
-                }
-                Err(e) => {
-                    // Only brushed revisions (2, 4) read MAX POWER as a speed.
-                    assert!(matches!(status >> 5, 2 | 4));
-                    assert_eq!(e, DecodeError::SpeedOutOfRange(max_power));
-                    rejected += 1;
-                }
+            let decoded = LegacyStatus::decode(&bytes).expect("every framed Legacy status decodes");
+            // The faults are always read, whatever MAX POWER holds.
+            assert_eq!(decoded.status.revision.number(), status >> 5);
+            assert_eq!(decoded.status.faults.bits(), status & 0x1F);
+            assert_eq!(
+                LegacyStatus::decode(&decoded.status.encode()).map(|d| d.status),
+                Ok(decoded.status)
+            );
+            if let Some(warning) = decoded.warning {
+                // Only brushed revisions (2, 4) read MAX POWER as a speed.
+                assert!(matches!(status >> 5, 2 | 4));
+                assert_eq!(warning, FieldWarning::MaxPower(max_power));
+                assert_eq!(decoded.status.max_power, MaxPower::Raw(max_power));
+                assert!(Speed::from_byte(max_power).is_err());
+                warned += 1;
             }
         }
     }
     // 2 revisions x 32 STATUS bytes each x 50 out-of-range bytes.
-    assert_eq!(rejected, 3200);
+    assert_eq!(warned, 3200);
+}
+
+#[test]
+fn every_seabotix_speed_byte_keeps_the_faults() {
+    for speed in 0..=u8::MAX {
+        for fault in 0..=u8::MAX {
+            let body = [0x53, 0x02, fault, 12, speed, 25];
+            let mut bytes = [0; 7];
+            bytes[..6].copy_from_slice(&body);
+            bytes[6] = checksum(&body);
+            let decoded = SeaBotixStatus::decode(&bytes).expect("every framed SeaBotix status decodes");
+            assert_eq!(decoded.status.faults.bits(), fault & 0x1F);
+            assert_eq!(
+                (decoded.status.current_deciamps, decoded.status.temperature_c),
+                (12, 25)
+            );
+            match Speed::from_byte(speed) {
+                Ok(reading) => assert_eq!((decoded.status.speed, decoded.warning), (reading, None)),
+                Err(_) => assert_eq!(
+                    (decoded.status.speed, decoded.warning),
+                    (Speed::ZERO, Some(FieldWarning::Speed(speed)))
+                ),
+            }
+        }
+    }
 }

@@ -2,8 +2,8 @@
 
 use proptest::prelude::*;
 use tmc_proto::{
-    DecodeError, Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, Order, SeaBotixStatus, Speed,
-    Status, checksum,
+    DecodeError, Decoded, Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, Order, SeaBotixStatus,
+    Speed, Status, checksum,
 };
 
 fn family() -> impl Strategy<Value = Family> {
@@ -101,21 +101,21 @@ proptest! {
     fn seabotix_status_roundtrip(status in seabotix_status()) {
         let bytes = status.encode();
         prop_assert_eq!(checksum(&bytes[..6]), bytes[6]);
-        prop_assert_eq!(SeaBotixStatus::decode(&bytes), Ok(status));
+        prop_assert_eq!(SeaBotixStatus::decode(&bytes), Ok(Decoded::clean(status)));
     }
 
     #[test]
     fn legacy_status_roundtrip(status in legacy_status()) {
         let bytes = status.encode();
         prop_assert_eq!(checksum(&bytes[..3]), bytes[3]);
-        prop_assert_eq!(LegacyStatus::decode(&bytes), Ok(status));
+        prop_assert_eq!(LegacyStatus::decode(&bytes), Ok(Decoded::clean(status)));
     }
 
     #[test]
     fn status_roundtrip(status in status()) {
         let frame = status.encode();
         prop_assert_eq!(frame.as_bytes().len(), status.family().status_len());
-        prop_assert_eq!(Status::decode(status.family(), frame.as_bytes()), Ok(status));
+        prop_assert_eq!(Status::decode(status.family(), frame.as_bytes()), Ok(Decoded::clean(status)));
     }
 
     #[test]
@@ -124,18 +124,20 @@ proptest! {
             if let Ok(order) = Order::decode(family, &bytes) {
                 prop_assert_eq!(Order::decode(family, &order.encode(family)), Ok(order));
             }
-            if let Ok(status) = Status::decode(family, &bytes) {
-                prop_assert_eq!(Status::decode(family, status.encode().as_bytes()), Ok(status));
+            if let Ok(decoded) = Status::decode(family, &bytes) {
+                let again = Status::decode(family, decoded.status.encode().as_bytes()).map(|d| d.status);
+                prop_assert_eq!(again, Ok(decoded.status));
             }
         }
         if let Ok((family, order)) = Order::decode_any(&bytes) {
             prop_assert_eq!(Order::decode(family, &bytes), Ok(order));
         }
-        if let Ok(status) = SeaBotixStatus::decode(&bytes) {
-            prop_assert_eq!(SeaBotixStatus::decode(&status.encode()), Ok(status));
+        if let Ok(decoded) = SeaBotixStatus::decode(&bytes) {
+            // A zeroed odd speed re-encodes as a valid one.
+            prop_assert_eq!(SeaBotixStatus::decode(&decoded.status.encode()), Ok(Decoded::clean(decoded.status)));
         }
-        if let Ok(status) = LegacyStatus::decode(&bytes) {
-            prop_assert_eq!(LegacyStatus::decode(&status.encode()), Ok(status));
+        if let Ok(decoded) = LegacyStatus::decode(&bytes) {
+            prop_assert_eq!(LegacyStatus::decode(&decoded.status.encode()), Ok(decoded));
         }
     }
 

@@ -1,8 +1,8 @@
 //! Byte vectors worked out by hand from the IDS (sections 6.4.2, 8.3, 8.4). Checksums are computed in the comments.
 
 use tmc_proto::{
-    DecodeError, Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, ORDER_LEN, Order, SeaBotixStatus,
-    Speed, Status, checksum,
+    DecodeError, Decoded, Family, Faults, FieldWarning, LegacyRevision, LegacyStatus, MaxPower, MotorKind, ORDER_LEN,
+    Order, SeaBotixStatus, Speed, Status, checksum,
 };
 
 /// Speed of a step; the steps used here are all within -102..=102.
@@ -273,8 +273,11 @@ fn legacy_status_each_fault_bit_alone_and_all() {
             max_power: MaxPower::Current { deciamps: 12 },
         };
         assert_eq!(status.encode(), bytes, "{faults:?}");
-        assert_eq!(LegacyStatus::decode(&bytes), Ok(status), "{faults:?}");
-        assert_eq!(Status::decode(Family::Legacy, &bytes), Ok(Status::Legacy(status)));
+        assert_eq!(LegacyStatus::decode(&bytes), Ok(Decoded::clean(status)), "{faults:?}");
+        assert_eq!(
+            Status::decode(Family::Legacy, &bytes),
+            Ok(Decoded::clean(Status::Legacy(status)))
+        );
         assert_eq!(Status::Legacy(status).faults(), faults);
     }
 }
@@ -282,7 +285,7 @@ fn legacy_status_each_fault_bit_alone_and_all() {
 #[test]
 fn legacy_revision_0_original_keeps_max_power_raw() {
     // 0x55 + 0x00 + 0x40 = 0x95
-    let status = LegacyStatus::decode(&[0x55, 0x00, 0x40, 0x95]).unwrap();
+    let status = LegacyStatus::decode(&[0x55, 0x00, 0x40, 0x95]).unwrap().status;
     assert_eq!(status.revision, LegacyRevision::ORIGINAL);
     assert_eq!(status.revision.number(), 0);
     assert_eq!(status.revision.motor_kind(), None);
@@ -293,7 +296,7 @@ fn legacy_revision_0_original_keeps_max_power_raw() {
 #[test]
 fn legacy_revision_1_brushless_max_power_is_current_12_is_1_2_amps() {
     // 0x55 + 0x20 + 0x0C = 0x81
-    let status = LegacyStatus::decode(&[0x55, 0x20, 0x0C, 0x81]).unwrap();
+    let status = LegacyStatus::decode(&[0x55, 0x20, 0x0C, 0x81]).unwrap().status;
     assert_eq!(status.revision, LegacyRevision::AVEOX_BRUSHLESS);
     assert_eq!(status.revision.number(), 1);
     assert_eq!(status.revision.motor_kind(), Some(MotorKind::Brushless));
@@ -301,7 +304,7 @@ fn legacy_revision_1_brushless_max_power_is_current_12_is_1_2_amps() {
     // Brushless: any byte is a current, even one outside the speed range.
     // 0x55 + 0x20 + 0xFF = 0x174 -> 0x74
     assert_eq!(
-        LegacyStatus::decode(&[0x55, 0x20, 0xFF, 0x74]).map(|s| s.max_power),
+        LegacyStatus::decode(&[0x55, 0x20, 0xFF, 0x74]).map(|d| d.status.max_power),
         Ok(MaxPower::Current { deciamps: 0xFF })
     );
 }
@@ -309,7 +312,7 @@ fn legacy_revision_1_brushless_max_power_is_current_12_is_1_2_amps() {
 #[test]
 fn legacy_revision_2_brushed_max_power_is_speed() {
     // MAX POWER 0xA0 = +32; 0x55 + 0x40 + 0xA0 = 0x135 -> 0x35
-    let status = LegacyStatus::decode(&[0x55, 0x40, 0xA0, 0x35]).unwrap();
+    let status = LegacyStatus::decode(&[0x55, 0x40, 0xA0, 0x35]).unwrap().status;
     assert_eq!(status.revision, LegacyRevision::LEGACY_BRUSHED);
     assert_eq!(status.revision.number(), 2);
     assert_eq!(status.revision.motor_kind(), Some(MotorKind::Brushed));
@@ -319,7 +322,7 @@ fn legacy_revision_2_brushed_max_power_is_speed() {
 #[test]
 fn legacy_revision_4_brushed_max_power_is_speed() {
     // MAX POWER 0x60 = -(0x7F - 0x60) = -31; 0x55 + 0x80 + 0x60 = 0x135 -> 0x35
-    let status = LegacyStatus::decode(&[0x55, 0x80, 0x60, 0x35]).unwrap();
+    let status = LegacyStatus::decode(&[0x55, 0x80, 0x60, 0x35]).unwrap().status;
     assert_eq!(status.revision, LegacyRevision::BRUSHED_REV4);
     assert_eq!(status.revision.number(), 4);
     assert_eq!(status.revision.motor_kind(), Some(MotorKind::Brushed));
@@ -328,18 +331,41 @@ fn legacy_revision_4_brushed_max_power_is_speed() {
 }
 
 #[test]
-fn legacy_brushed_max_power_out_of_speed_range_is_rejected() {
-    // 0x55 + 0x40 + 0x10 = 0xA5
+fn legacy_brushed_max_power_out_of_speed_range_keeps_the_faults() {
+    // 0x55 + 0x40 + 0x10 = 0xA5: revision 2, no fault, MAX POWER 0x10.
     assert_eq!(
         LegacyStatus::decode(&[0x55, 0x40, 0x10, 0xA5]),
-        Err(DecodeError::SpeedOutOfRange(0x10))
+        Ok(Decoded {
+            status: LegacyStatus {
+                revision: LegacyRevision::LEGACY_BRUSHED,
+                faults: Faults::NONE,
+                max_power: MaxPower::Raw(0x10),
+            },
+            warning: Some(FieldWarning::MaxPower(0x10)),
+        })
     );
+    // Revision 2 with WATER and MAX POWER 0x00: the water warning is not lost with the odd byte.
+    // 0x55 + 0x50 + 0x00 = 0xA5
+    let decoded = LegacyStatus::decode(&[0x55, 0x50, 0x00, 0xA5]).unwrap();
+    assert_eq!(decoded.status.faults, Faults::WATER);
+    assert_eq!(decoded.status.max_power, MaxPower::Raw(0x00));
+    assert_eq!(decoded.warning, Some(FieldWarning::MaxPower(0x00)));
+    assert_eq!(
+        decoded.warning.map(|w| w.to_string()),
+        Some("max power byte 0x00 out of range 0x19..=0xe6".to_string())
+    );
+    assert_eq!(
+        Status::decode(Family::Legacy, &[0x55, 0x50, 0x00, 0xA5]).map(|d| d.status.faults()),
+        Ok(Faults::WATER)
+    );
+    // Re-encoded, the raw byte goes out as it came.
+    assert_eq!(decoded.status.encode(), [0x55, 0x50, 0x00, 0xA5]);
 }
 
 #[test]
 fn legacy_undefined_revision_3_keeps_max_power_raw() {
     // STATUS 0x60 = revision 3; 0x55 + 0x60 + 0xFF = 0x1B4 -> 0xB4
-    let status = LegacyStatus::decode(&[0x55, 0x60, 0xFF, 0xB4]).unwrap();
+    let status = LegacyStatus::decode(&[0x55, 0x60, 0xFF, 0xB4]).unwrap().status;
     assert_eq!(status.revision.number(), 3);
     assert_eq!(status.revision.motor_kind(), None);
     assert_eq!(status.max_power, MaxPower::Raw(0xFF));
@@ -357,7 +383,7 @@ fn legacy_status_encode_writes_mismatched_max_power_as_is() {
     let bytes = status.encode();
     assert_eq!(bytes, [0x55, 0x40, 0x85, 0x1A]);
     assert_eq!(
-        LegacyStatus::decode(&bytes).map(|s| s.max_power),
+        LegacyStatus::decode(&bytes).map(|d| d.status.max_power),
         Ok(MaxPower::Power(speed(5)))
     );
 }
@@ -410,8 +436,11 @@ fn seabotix_status_each_fault_bit_alone_and_all() {
             temperature_c: 25,
         };
         assert_eq!(status.encode(), bytes, "{faults:?}");
-        assert_eq!(SeaBotixStatus::decode(&bytes), Ok(status), "{faults:?}");
-        assert_eq!(Status::decode(Family::SeaBotix, &bytes), Ok(Status::SeaBotix(status)));
+        assert_eq!(SeaBotixStatus::decode(&bytes), Ok(Decoded::clean(status)), "{faults:?}");
+        assert_eq!(
+            Status::decode(Family::SeaBotix, &bytes),
+            Ok(Decoded::clean(Status::SeaBotix(status)))
+        );
         assert_eq!(Status::SeaBotix(status).faults(), faults);
         assert_eq!(Status::SeaBotix(status).encode().as_bytes(), bytes);
     }
@@ -428,7 +457,7 @@ fn seabotix_status_bit_1_motor_kind_and_bit_0_current_limiting() {
     ];
     for (status_byte, motor, current_limited, csum) in cases {
         let bytes = [0x53, status_byte, 0x00, 0x00, 0x80, 0x14, csum];
-        let status = SeaBotixStatus::decode(&bytes).unwrap();
+        let status = SeaBotixStatus::decode(&bytes).unwrap().status;
         assert_eq!(status.motor, motor, "STATUS {status_byte:#04x}");
         assert_eq!(status.current_limited, current_limited, "STATUS {status_byte:#04x}");
         assert_eq!(status.revision, 0);
@@ -442,7 +471,7 @@ fn seabotix_status_bit_1_motor_kind_and_bit_0_current_limiting() {
 fn seabotix_status_revision_is_bits_4_to_7() {
     // STATUS 0xF3: revision 15, brushless, not current-limited. 0xE7 + 0xF3 = 0x1DA -> 0xDA
     let bytes = [0x53, 0xF3, 0x00, 0x00, 0x80, 0x14, 0xDA];
-    let status = SeaBotixStatus::decode(&bytes).unwrap();
+    let status = SeaBotixStatus::decode(&bytes).unwrap().status;
     assert_eq!(status.revision, 15);
     assert_eq!(status.motor, MotorKind::Brushless);
     assert!(!status.current_limited);
@@ -459,7 +488,9 @@ fn seabotix_status_revision_is_bits_4_to_7() {
 fn seabotix_reserved_bits_are_masked_not_rejected() {
     // STATUS 0x0E (bits 2-3 reserved set, bit 1 brushless), FAULT 0xE0 (bits 5-7 reserved set).
     // 0x53 + 0x0E + 0xE0 + 0x00 + 0x80 + 0x14 = 0x1D5 -> 0xD5
-    let status = SeaBotixStatus::decode(&[0x53, 0x0E, 0xE0, 0x00, 0x80, 0x14, 0xD5]).unwrap();
+    let status = SeaBotixStatus::decode(&[0x53, 0x0E, 0xE0, 0x00, 0x80, 0x14, 0xD5])
+        .unwrap()
+        .status;
     assert_eq!(
         status,
         SeaBotixStatus {
@@ -476,17 +507,31 @@ fn seabotix_reserved_bits_are_masked_not_rejected() {
     assert_eq!(status.encode(), [0x53, 0x02, 0x00, 0x00, 0x80, 0x14, 0xE9]);
 
     // FAULT 0xE3: reserved bits plus overtemp and stall. 0xE9 + 0xE3 = 0x1CC -> 0xCC
-    let status = SeaBotixStatus::decode(&[0x53, 0x02, 0xE3, 0x00, 0x80, 0x14, 0xCC]).unwrap();
+    let status = SeaBotixStatus::decode(&[0x53, 0x02, 0xE3, 0x00, 0x80, 0x14, 0xCC])
+        .unwrap()
+        .status;
     assert_eq!(status.faults, Faults::OVERTEMP | Faults::STALL);
 }
 
 #[test]
-fn seabotix_status_errors() {
+fn seabotix_speed_out_of_range_keeps_the_faults() {
     // SPEED 0xFF: 0x53 + 0x02 + 0xFF + 0x14 = 0x168 -> 0x68
+    let decoded = SeaBotixStatus::decode(&[0x53, 0x02, 0x00, 0x00, 0xFF, 0x14, 0x68]).unwrap();
+    assert_eq!(decoded.warning, Some(FieldWarning::Speed(0xFF)));
+    assert_eq!(decoded.status.speed, Speed::ZERO);
+    assert_eq!(decoded.status.temperature_c, 20);
+    // With GROUND and WATER set and SPEED 0x05 (a brushed PWM value): 0x53 + 0x02 + 0x18 + 0x05 + 0x14 = 0x86.
+    let decoded = SeaBotixStatus::decode(&[0x53, 0x02, 0x18, 0x00, 0x05, 0x14, 0x86]).unwrap();
+    assert_eq!(decoded.status.faults, Faults::GROUND | Faults::WATER);
+    assert_eq!(decoded.warning, Some(FieldWarning::Speed(0x05)));
     assert_eq!(
-        SeaBotixStatus::decode(&[0x53, 0x02, 0x00, 0x00, 0xFF, 0x14, 0x68]),
-        Err(DecodeError::SpeedOutOfRange(0xFF))
+        decoded.warning.map(|w| w.to_string()),
+        Some("speed byte 0x05 out of range 0x19..=0xe6".to_string())
     );
+}
+
+#[test]
+fn seabotix_status_errors() {
     // The 0x57 of IDS 8.4.2 is a typo for 0x53.
     assert_eq!(
         SeaBotixStatus::decode(&[0x57, 0x02, 0x00, 0x00, 0x80, 0x14, 0xED]),
@@ -525,7 +570,9 @@ fn status_family_and_frames() {
     // 0x55 + 0x90 + 0xE6 = 0x1CB -> 0xCB
     assert_eq!(legacy.encode().as_bytes(), [0x55, 0x90, 0xE6, 0xCB]);
     assert_eq!(checksum(&[0x55, 0x90, 0xE6]), 0xCB);
-    let seabotix = Status::decode(Family::SeaBotix, &SEABOTIX_FAULT_VECTORS[0].1).unwrap();
+    let seabotix = Status::decode(Family::SeaBotix, &SEABOTIX_FAULT_VECTORS[0].1)
+        .unwrap()
+        .status;
     assert_eq!(seabotix.family(), Family::SeaBotix);
     assert_eq!(seabotix.faults(), Faults::OVERTEMP);
 }

@@ -2,12 +2,12 @@
 //! meant to catch fails that step and the verdict.
 
 use super::*;
-use core::cell::RefCell;
-use embassy_futures::block_on;
-use embassy_futures::select::{Either, select};
-use embassy_futures::yield_now;
-use embassy_time::MockDriver;
-use embedded_hal_async::i2c::{ErrorKind, ErrorType, NoAcknowledgeSource, Operation};
+use crate::config::BusConfig;
+use crate::sim::thruster_bus;
+use core::cell::{Cell, RefCell};
+use lbv_sim::i2c::{Bus, Device, Reply, Route, Timing};
+use lbv_sim::{Executor, clock};
+use std::rc::Rc;
 use thruster_fw::Link;
 use tmc_proto::{LegacyRevision, LegacyStatus, MotorKind, SeaBotixStatus};
 
@@ -19,8 +19,6 @@ const FAILSAFE: Duration = Duration::from_secs(1);
 const STALL_WINDOW: Duration = Duration::from_millis(400);
 /// A reset thruster NACKs this long while it boots.
 const BOOT: Duration = Duration::from_millis(20);
-/// Bus time of one transfer.
-const TRANSFER: Duration = Duration::from_micros(500);
 
 /// What is wrong with a scripted thruster, if anything.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -203,99 +201,80 @@ impl Thruster {
     }
 }
 
-/// The bus with the scripted thrusters on it, shared with the test's operator.
+/// The scripted thrusters, shared by their ends of the bus and the test's operator.
 #[derive(Default)]
 struct World {
     thrusters: Vec<Thruster>,
-    recoveries: u32,
     prompts: Vec<(Prompt, Family)>,
+    results: Vec<StepResult>,
 }
 
 impl World {
-    fn with(thrusters: Vec<Thruster>) -> RefCell<World> {
-        RefCell::new(World {
-            thrusters,
-            ..World::default()
-        })
-    }
-
     fn thruster(&mut self, family: Family) -> Option<&mut Thruster> {
         self.thrusters.iter_mut().find(|thruster| thruster.family() == family)
     }
 }
 
-struct Bus<'a>(&'a RefCell<World>);
+/// One family's address on the bus: the scripted thruster of that family, brought up to date at every transfer.
+struct Reach(Rc<RefCell<World>>, Family);
 
-impl ErrorType for Bus<'_> {
-    type Error = ErrorKind;
-}
-
-impl I2c for Bus<'_> {
-    async fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), ErrorKind> {
-        Timer::after(TRANSFER).await;
+impl Reach {
+    /// The thruster, up to date, if it answers now.
+    fn answer(&mut self, then: impl FnOnce(&mut Thruster, Instant)) -> Reply {
         let now = Instant::now();
         let mut world = self.0.borrow_mut();
         for thruster in &mut world.thrusters {
             thruster.update(now);
         }
-        if world.thrusters.iter().any(|thruster| thruster.stuck) {
-            return Err(ErrorKind::Bus);
-        }
-        let Some(thruster) = world
-            .thrusters
-            .iter_mut()
-            .find(|thruster| thruster.family().address() == address && now >= thruster.boot_until)
-        else {
-            return Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address));
+        let Some(thruster) = world.thruster(self.1) else {
+            return Reply::Nack;
         };
+        if thruster.stuck {
+            // Gone wrong in its reset: SDA held low, and no number of clocks helps.
+            return Reply::HoldSda(u32::MAX);
+        }
+        if now < thruster.boot_until {
+            return Reply::Nack;
+        }
         if !thruster.defects.restarts_on_read {
             thruster.last_life = now;
         }
-        for operation in operations {
-            match operation {
-                Operation::Write(bytes) => {
-                    thruster.take(bytes);
-                    thruster.last_life = now;
-                }
-                Operation::Read(buffer) => {
-                    if thruster.defects.restarts_on_read {
-                        thruster.last_life = now;
-                        thruster.failsafe_orders = None;
-                    }
-                    let frame = thruster.status().encode();
-                    for (i, byte) in buffer.iter_mut().enumerate() {
-                        *byte = frame.as_bytes().get(i).copied().unwrap_or(0xFF);
-                    }
-                }
-            }
-        }
+        then(thruster, now);
         thruster.update(now);
-        Ok(())
+        Reply::Ack
     }
 }
 
-impl BusRecovery for Bus<'_> {
-    async fn recover(&mut self) -> bool {
-        Timer::after(Duration::from_micros(200)).await;
-        let mut world = self.0.borrow_mut();
-        world.recoveries += 1;
-        let hard = world
-            .thrusters
-            .iter()
-            .any(|thruster| thruster.defects.stuck_after_reset);
-        if !hard {
-            for thruster in &mut world.thrusters {
-                thruster.stuck = false;
+impl Device for Reach {
+    fn address(&self) -> u8 {
+        self.1.address()
+    }
+
+    fn write(&mut self, bytes: &[u8]) -> Reply {
+        self.answer(|thruster, now| {
+            thruster.take(bytes);
+            thruster.last_life = now;
+        })
+    }
+
+    fn read(&mut self, buffer: &mut [u8]) -> Reply {
+        self.answer(|thruster, now| {
+            if thruster.defects.restarts_on_read {
+                thruster.last_life = now;
+                thruster.failsafe_orders = None;
             }
-        }
-        !hard
+            let frame = thruster.status().encode();
+            for (byte, status) in buffer.iter_mut().zip(frame.as_bytes()) {
+                *byte = *status;
+            }
+        })
     }
 }
 
 /// The person at the bench: does what is asked, after a moment.
-struct Hands<'a>(&'a RefCell<World>);
+struct Hands(Rc<RefCell<World>>);
 
-impl Operator for Hands<'_> {
+impl Operator for Hands {
     async fn prompt(&mut self, what: Prompt, family: Family) {
         {
             let mut world = self.0.borrow_mut();
@@ -315,35 +294,46 @@ impl Operator for Hands<'_> {
             Timer::after(Duration::from_millis(100)).await;
         }
     }
-}
 
-/// Move virtual time in 250 us steps, forever.
-async fn clock() -> ! {
-    loop {
-        MockDriver::get().advance(Duration::from_micros(250));
-        yield_now().await;
+    fn reported(&mut self, result: &StepResult) {
+        self.0.borrow_mut().results.push(result.clone());
     }
 }
 
-/// Run the script against `thrusters` with `config`; the results and the verdict.
-fn run_with(thrusters: Vec<Thruster>, config: &AcceptanceConfig) -> (Vec<StepResult>, Verdict, RefCell<World>) {
-    let _clock = crate::test_clock::lock();
-    let world = World::with(thrusters);
-    let mut results = Vec::new();
-    let verdict = {
-        let mut bus = Bus(&world);
-        let mut hands = Hands(&world);
-        let mut report = |result: StepResult| results.push(result);
-        let test = acceptance_test(&mut bus, &mut hands, config, &mut report);
-        match block_on(select(test, clock())) {
-            Either::First(verdict) => verdict,
-            Either::Second(never) => never,
-        }
-    };
-    (results, verdict, world)
+/// Run the script against `thrusters` on a simulated bus with `config`; the results, the verdict, the thrusters
+/// and the bus.
+fn run_with(
+    thrusters: Vec<Thruster>,
+    config: &AcceptanceConfig,
+) -> (Vec<StepResult>, Verdict, Rc<RefCell<World>>, Bus) {
+    let world = Rc::new(RefCell::new(World {
+        thrusters,
+        ..World::default()
+    }));
+    let bus = Bus::new(Timing::new(
+        BusConfig::THRUSTERS.frequency_hz,
+        BusConfig::THRUSTERS.timeout,
+    ));
+    for family in Family::ALL {
+        bus.attach(Rc::new(RefCell::new(Reach(world.clone(), family))), Route::Direct);
+    }
+    let clock = clock::take();
+    let verdict = Cell::new(None);
+    let mut port = thruster_bus(&bus, &BusConfig::THRUSTERS);
+    let mut hands = Hands(world.clone());
+    let mut executor = Executor::new();
+    executor.spawn(async {
+        verdict.set(Some(acceptance_test(&mut port, &mut hands, config).await));
+    });
+    executor.run_until(&clock, Duration::from_secs(3600), Duration::from_micros(250), || {
+        verdict.get().is_some()
+    });
+    drop(executor);
+    let results = core::mem::take(&mut world.borrow_mut().results);
+    (results, verdict.get().unwrap_or_default(), world, bus)
 }
 
-fn run(thrusters: Vec<Thruster>) -> (Vec<StepResult>, Verdict, RefCell<World>) {
+fn run(thrusters: Vec<Thruster>) -> (Vec<StepResult>, Verdict, Rc<RefCell<World>>, Bus) {
     let config = AcceptanceConfig {
         reset_window: Duration::from_secs(2),
         ..AcceptanceConfig::DEFAULT
@@ -377,7 +367,7 @@ fn result(results: &[StepResult], step: Step) -> &StepResult {
 #[test]
 fn a_good_thruster_of_each_family_passes_every_step() {
     for family in Family::ALL {
-        let (results, verdict, world) = run(vec![good(family)]);
+        let (results, verdict, world, _) = run(vec![good(family)]);
         assert!(failed(&results).is_empty(), "{family:?}: {:#?}", failed(&results));
         let steps: Vec<Step> = results.iter().map(|result| result.step).collect();
         assert_eq!(steps, Step::ALL, "every step once, in order");
@@ -409,7 +399,7 @@ fn a_good_thruster_of_each_family_passes_every_step() {
 
 #[test]
 fn the_figures_tell_what_was_measured() {
-    let (results, _, _) = run(vec![good(Family::SeaBotix)]);
+    let (results, ..) = run(vec![good(Family::SeaBotix)]);
     let sweep = result(&results, Step::SpeedForward);
     assert_eq!(sweep.figure_value("steps"), Some(102));
     assert_eq!(sweep.figure_value("ok"), Some(102));
@@ -437,7 +427,7 @@ fn the_figures_tell_what_was_measured() {
     assert_eq!(failsafe.figure_value("off_at_first_read"), Some(1));
     assert_eq!(failsafe.figure_value("stayed"), Some(1));
 
-    let (results, _, _) = run(vec![good(Family::Legacy)]);
+    let (results, ..) = run(vec![good(Family::Legacy)]);
     let sweep = result(&results, Step::SpeedForward);
     assert!(
         sweep.figure_value("current_da").unwrap() >= 1,
@@ -449,7 +439,7 @@ fn the_figures_tell_what_was_measured() {
 
 #[test]
 fn both_families_on_one_bus_are_tested_in_turn() {
-    let (results, verdict, _) = run(vec![good(Family::Legacy), good(Family::SeaBotix)]);
+    let (results, verdict, ..) = run(vec![good(Family::Legacy), good(Family::SeaBotix)]);
     assert!(verdict.pass(), "{:#?}", failed(&results));
     assert_eq!(verdict.passed, 17);
     assert_eq!(result(&results, Step::Discovery).figure_value("found"), Some(2));
@@ -460,7 +450,7 @@ fn both_families_on_one_bus_are_tested_in_turn() {
 
 #[test]
 fn an_empty_bus_fails_discovery_and_stops_there() {
-    let (results, verdict, _) = run(Vec::new());
+    let (results, verdict, ..) = run(Vec::new());
     assert_eq!(results.len(), 1);
     assert!(!results[0].passed);
     assert_eq!(
@@ -478,7 +468,7 @@ fn the_expected_family_must_answer() {
         reset_window: Duration::from_secs(2),
         ..AcceptanceConfig::DEFAULT
     };
-    let (results, verdict, _) = run_with(vec![good(Family::SeaBotix)], &config);
+    let (results, verdict, ..) = run_with(vec![good(Family::SeaBotix)], &config);
     assert!(!result(&results, Step::Discovery).passed);
     assert!(!verdict.pass());
     assert_eq!(
@@ -491,7 +481,7 @@ fn the_expected_family_must_answer() {
 
 /// Run one thruster with `defects`: the steps that failed, by name.
 fn failing_steps(family: Family, defects: Defects) -> Vec<Step> {
-    let (results, verdict, _) = run(vec![with(family, defects)]);
+    let (results, verdict, ..) = run(vec![with(family, defects)]);
     assert!(!verdict.pass());
     results
         .iter()
@@ -559,14 +549,15 @@ fn a_bus_the_recovery_cannot_free_fails_the_reset_step() {
         stuck_after_reset: true,
         ..Defects::default()
     };
-    let (results, verdict, world) = run(vec![with(Family::SeaBotix, defects)]);
+    let (results, verdict, world, bus) = run(vec![with(Family::SeaBotix, defects)]);
     assert!(!verdict.pass());
     let reset = result(&results, Step::Reset);
     assert!(!reset.passed);
     assert!(reset.figure_value("bus_error").unwrap() > 0, "{reset}");
     assert!(reset.figure_value("recoveries").unwrap() > 0, "{reset}");
     assert_eq!(reset.figure_value("recovered_ms"), Some(-1));
-    assert!(world.borrow().recoveries > 0);
+    assert!(bus.stats().pin_clocks > 0, "the recovery clocked the bus");
+    drop(world);
 }
 
 #[test]

@@ -1,15 +1,19 @@
 //! The state machines alone, then the bus task on a simulated bus on virtual time.
 
-use super::sim::{BIT, Mode, SimBus, SimThruster, World, speed};
 use super::*;
+use crate::config::BusConfig;
 use crate::shared::Outgoing;
-use core::cell::RefCell;
-use embassy_futures::block_on;
-use embassy_futures::join::join;
-use embassy_futures::select::{Either, select};
-use embassy_time::MockDriver;
+use crate::sim::scripted::{Mode, SimThruster, speed};
+use crate::sim::thruster_bus;
+use core::cell::{RefCell, RefMut};
 use embedded_hal::i2c::NoAcknowledgeSource;
+use lbv_sim::i2c::{Bus, Data, Route, Timing};
+use lbv_sim::{Clock, Executor, clock};
+use std::rc::Rc;
 use tmc_proto::{MotorKind, SeaBotixStatus, Speed};
+
+/// One bit at 100 kbit/s.
+const BIT: Duration = Duration::from_micros(10);
 
 const MS: Duration = Duration::from_millis(1);
 
@@ -328,22 +332,82 @@ fn thruster_tables_are_checked() {
         check_table(&[ThrusterSlot::direct(0, Family::Legacy); 9]),
         Err(TableError::TooMany)
     );
+
+    // A table kept by value holds the slots in order, and still knows when it was given too many.
+    let table = ThrusterTable::new(&ok);
+    assert_eq!(table.as_slice(), ok);
+    assert_eq!((table.count(), table.check()), (6, Ok(())));
+    assert!(table.uses_bus(2) && !ThrusterTable::new(&[]).uses_bus(0));
+    let too_many = ThrusterTable::new(&[ThrusterSlot::direct(0, Family::Legacy); 9]);
+    assert_eq!(too_many.as_slice().len(), MAX_THRUSTERS);
+    assert_eq!(too_many.check(), Err(TableError::TooMany));
+    assert_eq!(
+        ThrusterTable::new(&channel_twins).check(),
+        Err(TableError::SharedAddress(0, 1))
+    );
 }
 
 // ---------------------------------------------------------------------------------------------------------------
 // The bus task on a simulated bus
 
-/// One simulated bus, the shared channels and the texts the console would have received.
+/// A slave stuck mid-byte needs this many clocks to let SDA go.
+const STUCK_CLOCKS: u32 = 5;
+
+/// One simulated bus with scripted thrusters on it, the shared channels and the texts the console would have
+/// received.
 struct Bench {
-    world: RefCell<World>,
+    bus: Bus,
+    thrusters: Vec<Rc<RefCell<SimThruster>>>,
     shared: Shared,
     texts: RefCell<Vec<(Severity, String)>>,
 }
 
+/// The bus task running: the executor and the clock.
+struct Runner<'a> {
+    bench: &'a Bench,
+    executor: Executor<'a>,
+    clock: Clock,
+}
+
+impl Runner<'_> {
+    /// Let virtual time pass one bit time at a time, collecting the texts.
+    fn elapse(&mut self, duration: Duration) {
+        let end = Instant::now() + duration;
+        while Instant::now() < end {
+            self.executor.run_for(&self.clock, BIT, BIT);
+            self.bench.collect();
+        }
+    }
+}
+
 impl Bench {
-    fn new(thrusters: Vec<SimThruster>) -> Self {
+    /// Scripted thrusters of these families, each on its TCA9548A channel or wired directly (None); the mux is
+    /// fitted when any thruster needs it. The bus keeps a log.
+    fn new(thrusters: &[(Family, Option<u8>)]) -> Self {
+        Self::with_mux(thrusters, thrusters.iter().any(|(_, channel)| channel.is_some()))
+    }
+
+    /// Like [`Bench::new`], the mux fitted or not.
+    fn with_mux(thrusters: &[(Family, Option<u8>)], mux: bool) -> Self {
+        let bus = Bus::new(Timing::new(
+            BusConfig::THRUSTERS.frequency_hz,
+            BusConfig::THRUSTERS.timeout,
+        ));
+        if mux {
+            bus.fit_mux(MUX_ADDRESS);
+        }
+        bus.record(true);
+        let thrusters = thrusters
+            .iter()
+            .map(|(family, channel)| {
+                let thruster = Rc::new(RefCell::new(SimThruster::new(*family)));
+                bus.attach(thruster.clone(), channel.map_or(Route::Direct, Route::Mux));
+                thruster
+            })
+            .collect();
         Self {
-            world: RefCell::new(World::with(thrusters)),
+            bus,
+            thrusters,
             shared: Shared::new(),
             texts: RefCell::new(Vec::new()),
         }
@@ -351,24 +415,41 @@ impl Bench {
 
     /// `count` thrusters of `family` on mux channels 0, 1, ...
     fn muxed(count: u8, family: Family) -> (Self, Vec<ThrusterSlot>) {
-        let bench = Self::new((0..count).map(|ch| SimThruster::new(family, Some(ch))).collect());
+        let thrusters: Vec<(Family, Option<u8>)> = (0..count).map(|ch| (family, Some(ch))).collect();
         let table = (0..count).map(|ch| ThrusterSlot::behind_mux(0, ch, family)).collect();
-        (bench, table)
+        (Self::new(&thrusters), table)
     }
 
     /// Run bus 0's task alongside `script` until the script ends; virtual time starts at 0.
-    fn run(&self, table: &[ThrusterSlot], config: &PollConfig, script: impl Future<Output = ()>) {
-        let _clock = crate::test_clock::lock();
-        let mut bus = SimBus(&self.world);
-        match block_on(select(bus_task(&mut bus, 0, table, config, &self.shared), script)) {
-            Either::First(never) => never,
-            Either::Second(()) => {}
-        }
+    fn run<'a>(&'a self, table: &'a [ThrusterSlot], config: &'a PollConfig, script: impl FnOnce(&mut Runner<'a>)) {
+        let clock = clock::take();
+        let mut executor = Executor::new();
+        let mut port = thruster_bus(&self.bus, &BusConfig::THRUSTERS);
+        executor.spawn(async move {
+            bus_task(&mut port, 0, table, config, &self.shared).await;
+        });
+        script(&mut Runner {
+            bench: self,
+            executor,
+            clock,
+        });
     }
 
-    /// Let virtual time pass one bit time at a time, collecting the texts.
-    async fn elapse(&self, duration: Duration) {
-        elapse(duration, || self.collect()).await;
+    fn thruster(&self, index: usize) -> RefMut<'_, SimThruster> {
+        self.thrusters[index].borrow_mut()
+    }
+
+    /// The control bytes written to the TCA9548A, with when.
+    fn mux_writes(&self) -> Vec<(Instant, u8)> {
+        self.bus
+            .take_log()
+            .into_iter()
+            .filter(|transfer| transfer.address == MUX_ADDRESS)
+            .filter_map(|transfer| match transfer.data {
+                Data::Write(bytes) => bytes.last().map(|mask| (transfer.at, *mask)),
+                Data::Read(_) => None,
+            })
+            .collect()
     }
 
     fn collect(&self) {
@@ -393,20 +474,7 @@ impl Bench {
     }
 
     fn orders(&self, index: usize) -> Vec<Instant> {
-        self.world.borrow().thrusters[index].orders.clone()
-    }
-}
-
-/// Let virtual time pass in bit-time steps (every transfer and schedule is a whole number of them), giving every
-/// task its turns at each step.
-async fn elapse(duration: Duration, mut each: impl FnMut()) {
-    let end = Instant::now() + duration;
-    while Instant::now() < end {
-        MockDriver::get().advance(BIT);
-        for _ in 0..3 {
-            yield_now().await;
-        }
-        each();
+        self.thruster(index).orders.clone()
     }
 }
 
@@ -440,20 +508,19 @@ fn utilisation(bits: u64, elapsed: Duration) -> f64 {
 #[test]
 fn six_thrusters_at_50_hz_are_polled_in_table_order_50_times_a_second() {
     let (bench, table) = Bench::muxed(6, Family::SeaBotix);
-    bench.run(&table, &PollConfig::DEFAULT, async {
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
         // Up to the last instant before the 501st cycle.
-        bench.elapse(Duration::from_secs(10) - BIT).await;
+        sim.elapse(Duration::from_secs(10) - BIT);
     });
     assert_50_hz(&bench, 6, 10, None);
-    let world = bench.world.borrow();
     // Within each cycle: T1..T6 in table order, each after selecting its channel.
-    let masks: Vec<u8> = world.mux_writes.iter().map(|(_, mask)| *mask).collect();
+    let masks: Vec<u8> = bench.mux_writes().iter().map(|(_, mask)| *mask).collect();
     assert_eq!(masks.len(), 6 * 500);
     for (i, mask) in masks.iter().enumerate() {
         assert_eq!(*mask, 1 << (i % 6));
     }
     for index in 0..6 {
-        let first = world.thrusters[index].orders[0];
+        let first = bench.thruster(index).orders[0];
         let expected = index as u64 * (poll_bits(Family::SeaBotix) as u64 + 20) + 20;
         assert_eq!(
             first.as_micros(),
@@ -469,14 +536,14 @@ fn six_thrusters_at_50_hz_are_polled_in_table_order_50_times_a_second() {
         assert_eq!((h.polls, h.good), (500, 500));
     }
     // Each cycle: 6 x (mux select 20 bits + order 47 + status 74) = 846 bits.
-    assert_eq!(world.bits, 500 * 846);
-    let load = utilisation(world.bits, Duration::from_secs(10));
+    assert_eq!(bench.bus.stats().bits, 500 * 846);
+    let load = utilisation(bench.bus.stats().bits, Duration::from_secs(10));
     println!(
         "50 Hz, 6 SeaBotix thrusters behind a TCA9548A on one bus: {} polls per thruster in 10 s, \
          bus utilisation {:.1} % ({} bit times per cycle)",
-        world.thrusters[0].orders.len(),
+        bench.thruster(0).orders.len(),
         load * 100.0,
-        world.bits / 500
+        bench.bus.stats().bits / 500
     );
     assert!((0.40..0.45).contains(&load));
 }
@@ -489,16 +556,13 @@ fn back_to_back_polling_is_limited_only_by_the_bus() {
         ..PollConfig::DEFAULT
     };
     let seconds = 10;
-    bench.run(&table, &config, async {
-        bench.elapse(Duration::from_secs(seconds)).await;
+    bench.run(&table, &config, |sim| {
+        sim.elapse(Duration::from_secs(seconds));
     });
-    let world = bench.world.borrow();
-    let rates: Vec<f64> = world
-        .thrusters
-        .iter()
-        .map(|t| t.orders.len() as f64 / seconds as f64)
+    let rates: Vec<f64> = (0..6)
+        .map(|i| bench.thruster(i).orders.len() as f64 / seconds as f64)
         .collect();
-    let load = utilisation(world.bits, Duration::from_secs(seconds));
+    let load = utilisation(bench.bus.stats().bits, Duration::from_secs(seconds));
     // One cycle: 6 x 141 bit times = 8.46 ms, so 118.2 polls a second per thruster.
     let cycle = 6 * (poll_bits(Family::SeaBotix) + transfer_bits(1));
     let expected = 1e6 / (cycle as f64 * 10.0);
@@ -518,15 +582,12 @@ fn back_to_back_polling_is_limited_only_by_the_bus() {
         assert!((100.0..150.0).contains(rate));
     }
     assert!(load > 0.99, "back to back keeps the bus busy: {load}");
-    assert!(world.log.iter().all(|t| t.ok));
+    assert!(bench.bus.take_log().iter().all(|t| t.ok));
 }
 
 #[test]
 fn back_to_back_with_one_thruster_per_family_on_a_direct_bus() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::SeaBotix, None),
-        SimThruster::new(Family::Legacy, None),
-    ]);
+    let bench = Bench::new(&[(Family::SeaBotix, None), (Family::Legacy, None)]);
     let table = [
         ThrusterSlot::direct(0, Family::SeaBotix),
         ThrusterSlot::direct(0, Family::Legacy),
@@ -535,30 +596,29 @@ fn back_to_back_with_one_thruster_per_family_on_a_direct_bus() {
         period: Duration::from_ticks(0),
         ..PollConfig::DEFAULT
     };
-    bench.run(&table, &config, async {
-        bench.elapse(Duration::from_secs(1)).await;
+    bench.run(&table, &config, |sim| {
+        sim.elapse(Duration::from_secs(1));
     });
-    let world = bench.world.borrow();
     let cycle = poll_bits(Family::SeaBotix) + poll_bits(Family::Legacy);
     let expected = 100_000 / cycle as usize;
     println!(
         "back to back, one SeaBotix and one Legacy thruster wired directly: {} and {} polls/s ({} bit times a cycle)",
-        world.thrusters[0].orders.len(),
-        world.thrusters[1].orders.len(),
+        bench.thruster(0).orders.len(),
+        bench.thruster(1).orders.len(),
         cycle
     );
-    for thruster in &world.thrusters {
-        assert!(thruster.orders.len().abs_diff(expected) <= 1);
+    for thruster in &bench.thrusters {
+        assert!(thruster.borrow().orders.len().abs_diff(expected) <= 1);
     }
-    assert!(world.mux_writes.is_empty());
+    assert!(bench.mux_writes().is_empty());
 }
 
 #[test]
 fn a_missing_thruster_is_found_by_its_first_nack_and_retried_with_back_off_without_slowing_the_others() {
     let (bench, table) = Bench::muxed(6, Family::SeaBotix);
-    bench.world.borrow_mut().thrusters[2].mode = Mode::Silent;
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_secs(10)).await;
+    bench.thruster(2).mode = Mode::Silent;
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_secs(10));
         assert_50_hz(&bench, 6, 10, Some(2));
         let h = bench.health(2);
         assert!(!h.online);
@@ -570,14 +630,14 @@ fn a_missing_thruster_is_found_by_its_first_nack_and_retried_with_back_off_witho
         assert_eq!(texts.iter().filter(|(_, t)| t.ends_with("online")).count(), 5);
 
         // It turns up: the next retry finds it.
-        bench.world.borrow_mut().thrusters[2].mode = Mode::Good;
-        bench.elapse(Duration::from_millis(2100)).await;
+        bench.thruster(2).mode = Mode::Good;
+        sim.elapse(Duration::from_millis(2100));
         assert!(bench.health(2).online);
         assert_eq!(bench.take_texts(), [(Severity::Info, "T3 online".to_owned())]);
-        bench.elapse(Duration::from_secs(1)).await;
+        sim.elapse(Duration::from_secs(1));
     });
     // Its attempts: the first cycle, then 100, 200, 400 ... ms apart, capped at 2 s.
-    let attempts = bench.world.borrow().thrusters[2].addressed.clone();
+    let attempts = bench.thruster(2).addressed.clone();
     let start = attempts[0];
     // Two thrusters, each with its mux select, and T3's own select, come before it in the cycle.
     assert_eq!(start.as_micros(), (2 * 141 + 20) * 10);
@@ -590,34 +650,47 @@ fn a_missing_thruster_is_found_by_its_first_nack_and_retried_with_back_off_witho
 }
 
 #[test]
+fn an_out_of_range_field_is_counted_but_the_status_and_its_faults_are_kept() {
+    for family in Family::ALL {
+        let bench = Bench::new(&[(family, Some(0))]);
+        bench.thruster(0).mode = Mode::BadRange;
+        let table = [ThrusterSlot::behind_mux(0, 0, family)];
+        bench.run(&table, &PollConfig::DEFAULT, |sim| {
+            sim.elapse(Duration::from_millis(100));
+            let h = bench.health(0);
+            assert!(h.online, "{family:?}");
+            assert_eq!((h.good, h.bad_range, h.consecutive_failures), (h.polls, h.polls, 0));
+            assert_eq!(bench.take_texts(), [(Severity::Info, "T1 online".to_owned())]);
+        });
+    }
+}
+
+#[test]
 fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
     let cases = [
         (Mode::BadChecksum, "T1 offline: bad checksum"),
         (Mode::BadType, "T1 offline: bad message type"),
-        (Mode::BadRange, "T1 offline: value out of range"),
         (Mode::Stretch, "T1 offline: timeout"),
     ];
     for family in Family::ALL {
         for (mode, text) in cases {
-            let mut faulty = SimThruster::new(family, Some(0));
-            faulty.mode = mode;
             let other = match family {
                 Family::SeaBotix => Family::Legacy,
                 Family::Legacy => Family::SeaBotix,
             };
-            let bench = Bench::new(vec![faulty, SimThruster::new(other, Some(1))]);
+            let bench = Bench::new(&[(family, Some(0)), (other, Some(1))]);
+            bench.thruster(0).mode = mode;
             let table = [
                 ThrusterSlot::behind_mux(0, 0, family),
                 ThrusterSlot::behind_mux(0, 1, other),
             ];
-            bench.run(&table, &PollConfig::DEFAULT, async {
-                bench.elapse(Duration::from_millis(100)).await;
+            bench.run(&table, &PollConfig::DEFAULT, |sim| {
+                sim.elapse(Duration::from_millis(100));
                 let h = bench.health(0);
                 assert!(!h.online);
                 let counted = match mode {
                     Mode::BadChecksum => h.bad_checksum,
                     Mode::BadType => h.bad_type,
-                    Mode::BadRange => h.bad_range,
                     Mode::Stretch => h.timeout,
                     _ => unreachable!(),
                 };
@@ -625,7 +698,7 @@ fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
                 assert_eq!(h.nack + h.bus_error + h.bad_length, 0);
                 let recoveries = if mode == Mode::Stretch { 3 } else { 0 };
                 assert_eq!(h.recoveries, recoveries);
-                assert_eq!(bench.world.borrow().recoveries, recoveries);
+                assert_eq!(bench.bus.stats().pin_stops, u64::from(recoveries));
                 let texts = bench.take_texts();
                 assert_eq!(
                     texts,
@@ -645,10 +718,13 @@ fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
 
 #[test]
 fn a_missing_mux_counts_as_a_bus_error_of_the_thrusters_behind_it() {
-    let (bench, table) = Bench::muxed(2, Family::Legacy);
-    bench.world.borrow_mut().mux_fitted = false;
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_millis(100)).await;
+    let bench = Bench::with_mux(&[(Family::Legacy, Some(0)), (Family::Legacy, Some(1))], false);
+    let table = [
+        ThrusterSlot::behind_mux(0, 0, Family::Legacy),
+        ThrusterSlot::behind_mux(0, 1, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_millis(100));
     });
     for index in 0..2 {
         let h = bench.health(index);
@@ -661,28 +737,23 @@ fn a_missing_mux_counts_as_a_bus_error_of_the_thrusters_behind_it() {
             (Severity::Warning, "T2 offline: mux error".to_owned()),
         ]
     );
-    assert!(bench.world.borrow().thrusters.iter().all(|t| t.addressed.is_empty()));
+    assert!(bench.thrusters.iter().all(|t| t.borrow().addressed.is_empty()));
 }
 
 #[test]
 fn a_stuck_sda_is_recovered_and_polling_resumes() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::SeaBotix, None),
-        SimThruster::new(Family::Legacy, None),
-    ]);
+    let bench = Bench::new(&[(Family::SeaBotix, None), (Family::Legacy, None)]);
     let table = [
         ThrusterSlot::direct(0, Family::SeaBotix),
         ThrusterSlot::direct(0, Family::Legacy),
     ];
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_millis(105)).await;
-        bench.world.borrow_mut().stuck = true;
-        bench.elapse(Duration::from_millis(895)).await;
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_millis(105));
+        bench.bus.hold_sda(STUCK_CLOCKS);
+        sim.elapse(Duration::from_millis(895));
         // T1's poll in the 120 ms cycle met the stuck bus; one recovery freed it; T2 went on in the same cycle.
-        let world = bench.world.borrow();
-        assert_eq!(world.recoveries, 1);
-        assert!(!world.stuck);
-        drop(world);
+        assert_eq!(bench.bus.stats().pin_stops, 1);
+        assert!(!bench.bus.sda_held());
         let h = bench.health(0);
         assert_eq!((h.bus_error, h.recoveries, h.polls, h.good), (1, 1, 50, 49));
         assert!(h.online, "one failure is not enough to go offline");
@@ -702,22 +773,16 @@ fn a_stuck_sda_is_recovered_and_polling_resumes() {
 
 #[test]
 fn a_bus_stuck_through_recoveries_takes_everyone_offline_until_it_frees() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::SeaBotix, None),
-        SimThruster::new(Family::Legacy, None),
-    ]);
+    let bench = Bench::new(&[(Family::SeaBotix, None), (Family::Legacy, None)]);
     let table = [
         ThrusterSlot::direct(0, Family::SeaBotix),
         ThrusterSlot::direct(0, Family::Legacy),
     ];
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_millis(10)).await;
-        {
-            let mut world = bench.world.borrow_mut();
-            world.stuck = true;
-            world.stuck_hard = true;
-        }
-        bench.elapse(Duration::from_millis(100)).await;
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_millis(10));
+        // A slave that needs more clocks than a recovery gives.
+        bench.bus.hold_sda(u32::MAX);
+        sim.elapse(Duration::from_millis(100));
         let texts = bench.take_texts();
         assert_eq!(
             texts,
@@ -733,8 +798,8 @@ fn a_bus_stuck_through_recoveries_takes_everyone_offline_until_it_frees() {
             assert_eq!((h.bus_error, h.recoveries), (3, 3));
         }
         // Freed (the next recovery works): both come back with their next retry.
-        bench.world.borrow_mut().stuck_hard = false;
-        bench.elapse(Duration::from_millis(300)).await;
+        bench.bus.hold_sda(STUCK_CLOCKS);
+        sim.elapse(Duration::from_millis(300));
         let texts = bench.take_texts();
         assert_eq!(
             texts,
@@ -745,25 +810,25 @@ fn a_bus_stuck_through_recoveries_takes_everyone_offline_until_it_frees() {
             "T1's retry met the stuck bus and recovered it; T2's then went through"
         );
         assert!(bench.health(0).online && bench.health(1).online);
-        assert!(!bench.world.borrow().stuck);
+        assert!(!bench.bus.sda_held());
     });
 }
 
 #[test]
 fn the_mux_is_written_only_when_the_channel_changes() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::SeaBotix, Some(0)),
-        SimThruster::new(Family::Legacy, Some(0)),
-        SimThruster::new(Family::SeaBotix, Some(1)),
+    let bench = Bench::new(&[
+        (Family::SeaBotix, Some(0)),
+        (Family::Legacy, Some(0)),
+        (Family::SeaBotix, Some(1)),
     ]);
     let table = [
         ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
         ThrusterSlot::behind_mux(0, 0, Family::Legacy),
         ThrusterSlot::behind_mux(0, 1, Family::SeaBotix),
     ];
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_millis(99)).await;
-        let masks: Vec<u8> = bench.world.borrow().mux_writes.iter().map(|(_, m)| *m).collect();
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_millis(99));
+        let masks: Vec<u8> = bench.mux_writes().iter().map(|(_, m)| *m).collect();
         assert_eq!(
             masks,
             [1, 2].repeat(5),
@@ -773,10 +838,9 @@ fn the_mux_is_written_only_when_the_channel_changes() {
             assert_eq!(bench.orders(index).len(), 5);
         }
         // After an error the selection is forgotten and written again, even for the same channel.
-        bench.world.borrow_mut().thrusters[0].mode = Mode::BadChecksum;
-        bench.world.borrow_mut().mux_writes.clear();
-        bench.elapse(Duration::from_millis(40)).await;
-        let masks: Vec<u8> = bench.world.borrow().mux_writes.iter().map(|(_, m)| *m).collect();
+        bench.thruster(0).mode = Mode::BadChecksum;
+        sim.elapse(Duration::from_millis(40));
+        let masks: Vec<u8> = bench.mux_writes().iter().map(|(_, m)| *m).collect();
         assert_eq!(masks, [1, 1, 2].repeat(2));
         assert_eq!(bench.orders(1).len(), 7);
         assert_eq!(bench.orders(2).len(), 7);
@@ -785,25 +849,25 @@ fn the_mux_is_written_only_when_the_channel_changes() {
 
 #[test]
 fn thrusters_wired_directly_share_the_bus_with_the_mux_channels() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::Legacy, None),
-        SimThruster::new(Family::SeaBotix, Some(4)),
-        SimThruster::new(Family::SeaBotix, Some(6)),
+    let bench = Bench::new(&[
+        (Family::Legacy, None),
+        (Family::SeaBotix, Some(4)),
+        (Family::SeaBotix, Some(6)),
     ]);
     let table = [
         ThrusterSlot::direct(0, Family::Legacy),
         ThrusterSlot::behind_mux(0, 4, Family::SeaBotix),
         ThrusterSlot::behind_mux(0, 6, Family::SeaBotix),
     ];
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_millis(99)).await;
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_millis(99));
     });
-    let world = bench.world.borrow();
-    let masks: Vec<u8> = world.mux_writes.iter().map(|(_, m)| *m).collect();
+    let masks: Vec<u8> = bench.mux_writes().iter().map(|(_, m)| *m).collect();
     // The one wired directly needs no selection.
     assert_eq!(masks, [0x10, 0x40].repeat(5));
-    assert_eq!(world.collisions, 0, "never two thrusters answering at once");
-    for thruster in &world.thrusters {
+    assert_eq!(bench.bus.stats().collisions, 0, "never two thrusters answering at once");
+    for thruster in &bench.thrusters {
+        let thruster = thruster.borrow();
         assert_eq!(thruster.orders.len(), 5);
         assert_eq!(
             thruster.addressed.len(),
@@ -815,35 +879,26 @@ fn thrusters_wired_directly_share_the_bus_with_the_mux_channels() {
 
 #[test]
 fn legacy_and_seabotix_mixed_on_one_bus_follow_their_orders() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::SeaBotix, None),
-        SimThruster::new(Family::Legacy, None),
-    ]);
+    let bench = Bench::new(&[(Family::SeaBotix, None), (Family::Legacy, None)]);
     let table = [
         ThrusterSlot::direct(0, Family::SeaBotix),
         ThrusterSlot::direct(0, Family::Legacy),
     ];
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(Duration::from_millis(50)).await;
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(Duration::from_millis(50));
         // Until the vehicle publishes orders, every thruster is sent STOP.
-        {
-            let world = bench.world.borrow();
-            assert!(
-                world
-                    .thrusters
-                    .iter()
-                    .all(|t| t.link.order() == Order::STOP && t.link.orders() == 3)
-            );
-        }
+        assert!(bench.thrusters.iter().all(|t| {
+            let t = t.borrow();
+            t.link.order() == Order::STOP && t.link.orders() == 3
+        }));
         let mut orders = [Order::STOP; MAX_THRUSTERS];
         orders[0] = Order::new(speed(20));
         orders[1] = Order::new(speed(-30));
         bench.shared.orders.sender().send(orders);
-        bench.elapse(Duration::from_millis(950) - BIT).await;
-        let world = bench.world.borrow();
-        assert_eq!(world.thrusters[0].link.order(), orders[0]);
-        assert_eq!(world.thrusters[1].link.order(), orders[1]);
-        assert_eq!(world.bits, 50 * (121 + 94));
+        sim.elapse(Duration::from_millis(950) - BIT);
+        assert_eq!(bench.thruster(0).link.order(), orders[0]);
+        assert_eq!(bench.thruster(1).link.order(), orders[1]);
+        assert_eq!(bench.bus.stats().bits, 50 * (121 + 94));
     });
     match bench.report(0).status {
         Some(Status::SeaBotix(status)) => assert_eq!(status.speed.step(), 20),
@@ -859,18 +914,18 @@ fn legacy_and_seabotix_mixed_on_one_bus_follow_their_orders() {
 
 #[test]
 fn texts_on_link_and_fault_changes_and_the_others_keep_working() {
-    let bench = Bench::new(vec![
-        SimThruster::new(Family::SeaBotix, Some(0)),
-        SimThruster::new(Family::Legacy, Some(1)),
-        SimThruster::new(Family::SeaBotix, Some(2)),
+    let bench = Bench::new(&[
+        (Family::SeaBotix, Some(0)),
+        (Family::Legacy, Some(1)),
+        (Family::SeaBotix, Some(2)),
     ]);
     let table = [
         ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
         ThrusterSlot::behind_mux(0, 1, Family::Legacy),
         ThrusterSlot::behind_mux(0, 2, Family::SeaBotix),
     ];
-    bench.run(&table, &PollConfig::DEFAULT, async {
-        bench.elapse(MS * 10).await;
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(MS * 10);
         assert_eq!(
             bench.take_texts(),
             [
@@ -879,9 +934,9 @@ fn texts_on_link_and_fault_changes_and_the_others_keep_working() {
                 (Severity::Info, "T3 online".to_owned()),
             ]
         );
-        bench.world.borrow_mut().thrusters[0].faults = Faults::WATER;
-        bench.world.borrow_mut().thrusters[1].faults = Faults::WATER;
-        bench.elapse(MS * 20).await;
+        bench.thruster(0).faults = Faults::WATER;
+        bench.thruster(1).faults = Faults::WATER;
+        sim.elapse(MS * 20);
         assert_eq!(
             bench.take_texts(),
             [
@@ -889,16 +944,16 @@ fn texts_on_link_and_fault_changes_and_the_others_keep_working() {
                 (Severity::Critical, "T2 fault: water detect".to_owned()),
             ]
         );
-        bench.world.borrow_mut().thrusters[0].faults = Faults::WATER | Faults::GROUND;
-        bench.elapse(MS * 100).await;
+        bench.thruster(0).faults = Faults::WATER | Faults::GROUND;
+        sim.elapse(MS * 100);
         assert_eq!(
             bench.take_texts(),
             [(Severity::Critical, "T1 fault: ground fault".to_owned())],
             "one text per change, not per poll"
         );
-        bench.world.borrow_mut().thrusters[0].faults = Faults::NONE;
-        bench.world.borrow_mut().thrusters[2].mode = Mode::Silent;
-        bench.elapse(MS * 20).await;
+        bench.thruster(0).faults = Faults::NONE;
+        bench.thruster(2).mode = Mode::Silent;
+        sim.elapse(MS * 20);
         assert_eq!(
             bench.take_texts(),
             [
@@ -918,45 +973,37 @@ fn texts_on_link_and_fault_changes_and_the_others_keep_working() {
 
 #[test]
 fn each_bus_task_polls_only_its_own_bus() {
-    let _clock = crate::test_clock::lock();
     let table = [
         ThrusterSlot::direct(0, Family::SeaBotix),
         ThrusterSlot::direct(1, Family::SeaBotix),
         ThrusterSlot::direct(0, Family::Legacy),
         ThrusterSlot::behind_mux(1, 3, Family::Legacy),
     ];
-    let bus0 = RefCell::new(World::with(vec![
-        SimThruster::new(Family::SeaBotix, None),
-        SimThruster::new(Family::Legacy, None),
-    ]));
-    let bus1 = RefCell::new(World::with(vec![
-        SimThruster::new(Family::SeaBotix, None),
-        SimThruster::new(Family::Legacy, Some(3)),
-    ]));
+    let bus0 = Bench::new(&[(Family::SeaBotix, None), (Family::Legacy, None)]);
+    let bus1 = Bench::new(&[(Family::SeaBotix, None), (Family::Legacy, Some(3))]);
     let shared = Shared::new();
     let mut orders = [Order::STOP; MAX_THRUSTERS];
     for (i, order) in orders.iter_mut().enumerate().take(4) {
         *order = Order::new(speed(10 * (i as i8 + 1)));
     }
     shared.orders.sender().send(orders);
-    let (mut a, mut b) = (SimBus(&bus0), SimBus(&bus1));
     let config = PollConfig::DEFAULT;
-    let tasks = join(
-        bus_task(&mut a, 0, &table, &config, &shared),
-        bus_task(&mut b, 1, &table, &config, &shared),
-    );
-    let script = elapse(Duration::from_secs(1), || {});
-    match block_on(select(tasks, script)) {
-        Either::First((never, _)) => never,
-        Either::Second(()) => {}
+    let clock = clock::take();
+    let mut executor = Executor::new();
+    for (index, bench) in [&bus0, &bus1].into_iter().enumerate() {
+        let mut port = thruster_bus(&bench.bus, &BusConfig::THRUSTERS);
+        let (table, config, shared) = (&table, &config, &shared);
+        executor.spawn(async move {
+            bus_task(&mut port, index as u8, table, config, shared).await;
+        });
     }
-    let (bus0, bus1) = (bus0.borrow(), bus1.borrow());
-    assert_eq!(bus0.thrusters[0].link.order(), orders[0]);
-    assert_eq!(bus0.thrusters[1].link.order(), orders[2]);
-    assert_eq!(bus1.thrusters[0].link.order(), orders[1]);
-    assert_eq!(bus1.thrusters[1].link.order(), orders[3]);
+    executor.run_for(&clock, Duration::from_secs(1), BIT);
+    assert_eq!(bus0.thruster(0).link.order(), orders[0]);
+    assert_eq!(bus0.thruster(1).link.order(), orders[2]);
+    assert_eq!(bus1.thruster(0).link.order(), orders[1]);
+    assert_eq!(bus1.thruster(1).link.order(), orders[3]);
     for thruster in bus0.thrusters.iter().chain(bus1.thrusters.iter()) {
-        assert!(thruster.orders.len().abs_diff(50) <= 1);
+        assert!(thruster.borrow().orders.len().abs_diff(50) <= 1);
     }
     for index in 0..4 {
         let h = shared.thrusters[index].try_get().unwrap().health;

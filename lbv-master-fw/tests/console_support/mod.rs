@@ -1,26 +1,27 @@
-//! Shared by the console tests: in-memory serial ports, runners for the two console tasks, frame builders and a
-//! reader that uses the mavlink crate's own parser.
+//! Shared by the console tests: a scripted serial receive side, runners for the two console tasks, frame builders
+//! and a reader that uses the mavlink crate's own parser. The clock and the capture port are lbv-sim's.
 #![allow(dead_code)]
 
-use std::cell::{Cell, RefCell};
+use std::cell::Cell;
 use std::convert::Infallible;
 use std::rc::Rc;
-use std::sync::{Mutex, MutexGuard};
 
 use embassy_futures::block_on;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
-use embassy_time::{Duration, MockDriver};
+use embassy_time::Duration;
 use lbv_master_fw::console::lbv::MavMessage;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::{Command, Shared};
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, MessageData};
 
-/// The mock clock is one per process: tests that move it take this lock.
-pub fn clock() -> MutexGuard<'static, ()> {
-    static CLOCK: Mutex<()> = Mutex::new(());
-    CLOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+/// The virtual clock is one per process: tests that move it take it (at 0).
+pub fn clock() -> lbv_sim::Clock {
+    lbv_sim::clock::take()
 }
+
+/// A serial port's transmit side that records every byte written (`take` returns them).
+pub use lbv_sim::SerialTx as Capture;
 
 /// A serial port's receive side that delivers `data` in chunks of `chunk` bytes, then waits forever; `idle`
 /// turns true once everything was read.
@@ -58,31 +59,6 @@ impl embedded_io_async::Read for ScriptedRx {
         // Let the other side run between chunks, as a UART would.
         yield_now().await;
         Ok(n)
-    }
-}
-
-/// A serial port's transmit side that records every byte written.
-#[derive(Clone, Default)]
-pub struct Capture(pub Rc<RefCell<Vec<u8>>>);
-
-impl Capture {
-    pub fn take(&self) -> Vec<u8> {
-        std::mem::take(&mut self.0.borrow_mut())
-    }
-}
-
-impl embedded_io_async::ErrorType for Capture {
-    type Error = Infallible;
-}
-
-impl embedded_io_async::Write for Capture {
-    async fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.0.borrow_mut().extend_from_slice(buf);
-        Ok(buf.len())
-    }
-
-    async fn flush(&mut self) -> Result<(), Infallible> {
-        Ok(())
     }
 }
 
@@ -128,7 +104,7 @@ pub fn run_tx(
             for _ in 0..4 {
                 yield_now().await;
             }
-            MockDriver::get().advance(step);
+            lbv_sim::clock::advance(step);
             elapsed += step;
         }
     }));

@@ -1,14 +1,13 @@
-//! The virtual bench: the master core, the thruster cores and a battery board, wired by simulated buses, with a
-//! plant model behind every thruster, all on one virtual clock.
+//! The virtual bench: the master and the thrusters as they ship (their cores' `run` functions with the images'
+//! configurations: the LBV300-6 table, the bus speed and timeouts, the watchdog and task timings) and a battery
+//! board, wired by lbv-sim's buses, with a plant model behind every thruster, all on one virtual clock.
 //!
 //! Each step of [`STEP`] of virtual time: the firmware tasks that were woken run until none is ready, then the
 //! motors, the battery and the ground station move by one step, then the clock advances. The same seed gives the
 //! same run, bit for bit.
 
 pub mod battery;
-pub mod executor;
 pub mod ground;
-pub mod i2c;
 pub mod master;
 pub mod plant;
 pub mod plot;
@@ -16,19 +15,19 @@ pub mod thruster;
 pub mod trace;
 pub mod udp;
 
-use core::cell::RefCell;
-
-use embassy_time::{Duration, Instant, MockDriver};
-use lbv_master_fw::acceptance::AcceptanceConfig;
-use lbv_master_fw::thrusters::ThrusterSlot;
+use embassy_time::{Duration, Instant};
+use lbv_master_fw::MasterConfig;
+use lbv_master_fw::battery::CanFrame;
+use lbv_master_fw::config::{THRUSTER_BUS, lbv300_6};
+use lbv_master_fw::thrusters::{MUX_ADDRESS, ThrusterSlot, ThrusterTable};
+use lbv_sim::i2c::{Bus, Route, Timing};
+use lbv_sim::{CanBus, Clock, Executor, Queue};
 use tmc_proto::Family;
 
 use battery::BatteryBoard;
-use executor::Executor;
 use ground::GroundStation;
-use i2c::{BusSlave, BusWorld};
-use master::Master;
-use thruster::Thruster;
+use master::{MasterBoard, Wiring};
+use thruster::ThrusterBoard;
 use trace::{Event, Sample, ThrusterSample, Trace};
 
 /// The plant and bus step.
@@ -41,22 +40,47 @@ const HOTEL_LOAD_A: f64 = 0.6;
 /// What to build.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BenchConfig {
-    /// One family per thruster, in table order; each hangs on its own TCA9548A channel.
+    /// The vehicle (the LBV300-6's wiring, six thrusters): the family of each, in table order. The two-board bench
+    /// (`acceptance`): one thruster of each family listed, wired directly.
     pub families: Vec<Family>,
     /// Seeds the motors' starting positions and any random choices of a scenario.
     pub seed: u64,
-    /// The two-board bench instead of the vehicle: every thruster wired to the bus directly (no TCA9548A) and the
-    /// master running its acceptance test instead of polling.
+    /// The two-board bench instead of the vehicle: the thrusters wired to the dev kit's bus directly (no
+    /// TCA9548A) and the master running its acceptance test instead of polling.
     pub acceptance: bool,
 }
 
 impl BenchConfig {
-    /// An LBV300-6: six SeaBotix thrusters.
+    /// An LBV300-6: six SeaBotix thrusters, the vehicle's own table.
     pub fn lbv300(seed: u64) -> Self {
         Self {
             families: vec![Family::SeaBotix; 6],
             seed,
             acceptance: false,
+        }
+    }
+
+    /// The master's configuration and the thruster table the bench wires: the vehicle's (the LBV300-6 wiring with
+    /// these families), or for the acceptance test the dev kit's master with these thrusters on its bus.
+    fn master(&self) -> (MasterConfig, ThrusterTable) {
+        if self.acceptance {
+            let slots: Vec<ThrusterSlot> = self
+                .families
+                .iter()
+                .map(|family| ThrusterSlot::direct(THRUSTER_BUS, *family))
+                .collect();
+            let mut config = MasterConfig::devkit(Family::SeaBotix);
+            // Both families are wired: the script tests whichever answers.
+            config.acceptance.script.expect = None;
+            (config, ThrusterTable::new(&slots))
+        } else {
+            let families: [Family; 6] = self
+                .families
+                .as_slice()
+                .try_into()
+                .expect("the bench's vehicle is an LBV300-6: six thrusters");
+            let config = MasterConfig::with_thrusters(lbv300_6(families));
+            (config, config.thrusters)
         }
     }
 }
@@ -99,10 +123,16 @@ pub type ConsoleSink = Box<dyn FnMut(&[u8])>;
 /// One vehicle on the bench.
 pub struct Bench {
     executor: Executor<'static>,
+    /// The virtual clock, held while the bench exists: one bench at a time per process.
+    clock: Clock,
+    /// What the master is wired to: its thruster buses, CAN node and console link.
+    pub wiring: Wiring,
+    /// The battery CAN bus.
+    pub can: CanBus<CanFrame>,
     /// The thrusters, in table order.
-    pub thrusters: Vec<&'static Thruster>,
+    pub thrusters: Vec<ThrusterBoard>,
     /// The master node.
-    pub master: &'static Master,
+    pub master: MasterBoard,
     /// The battery board.
     pub battery: BatteryBoard,
     /// The operator's ground station.
@@ -114,7 +144,6 @@ pub struct Bench {
     texts_seen: usize,
     next_sample: Instant,
     steps: u64,
-    busy_rounds: u32,
     /// Extra ground-station bytes a UDP link or a scenario queued.
     outgoing: Vec<u8>,
     /// Called with every sample as it is recorded (the live view).
@@ -126,56 +155,51 @@ pub struct Bench {
 }
 
 impl Bench {
-    /// Build the vehicle and power it up at virtual time 0. One bench runs at a time: the virtual clock is one per
-    /// process.
+    /// Build the vehicle and power it up at virtual time 0. It holds the virtual clock (one per process) until it
+    /// is dropped: a second bench in the same process waits for it.
     pub fn new(config: &BenchConfig) -> Self {
-        MockDriver::get().reset();
+        let clock = lbv_sim::clock::take();
         let mut random = Random::new(config.seed);
-        let mut executor = Executor::default();
-        let thrusters: Vec<&'static Thruster> = config
-            .families
-            .iter()
-            .map(|family| Thruster::new(*family, random.unit() * core::f64::consts::TAU))
-            .collect();
-        let channel = |channel: u8| (!config.acceptance).then_some(channel);
-        let table: &'static [ThrusterSlot] = Box::leak(
-            (0u8..)
-                .zip(&config.families)
-                .map(|(index, family)| match channel(index) {
-                    Some(channel) => ThrusterSlot::behind_mux(0, channel, *family),
-                    None => ThrusterSlot::direct(0, *family),
-                })
-                .collect::<Vec<_>>()
-                .into_boxed_slice(),
-        );
-        let bus = BusWorld {
-            slaves: (0u8..)
-                .zip(&thrusters)
-                .map(|(index, thruster)| BusSlave {
-                    family: thruster.config.family,
-                    channel: channel(index),
-                    line: thruster.line,
-                    powered: true,
-                    corrupt: 0,
-                    corrupt_orders: 0,
-                    out_of_range_orders: false,
-                })
-                .collect(),
-            mux_fitted: !config.acceptance,
-            ..BusWorld::default()
+        let mut executor = Executor::new();
+        let (master_config, table) = config.master();
+        let timing = Timing::new(master_config.bus.frequency_hz, master_config.bus.timeout);
+        let buses = [Bus::new(timing), Bus::new(timing), Bus::new(timing)];
+        let mut thrusters = Vec::new();
+        for slot in table.as_slice() {
+            let Some(bus) = buses.get(usize::from(slot.bus)) else {
+                continue;
+            };
+            let route = match slot.mux_channel {
+                Some(channel) => {
+                    if bus.mux_control().is_none() {
+                        bus.fit_mux(MUX_ADDRESS);
+                    }
+                    Route::Mux(channel)
+                }
+                None => Route::Direct,
+            };
+            let device = bus.attach_target(slot.family.address(), route);
+            let angle = random.unit() * core::f64::consts::TAU;
+            thrusters.push(ThrusterBoard::new(slot.family, bus, device, angle));
+        }
+        let mut can = CanBus::default();
+        let wiring = Wiring {
+            buses,
+            can: can.attach(),
+            console_in: Queue::new(),
+            console_out: Queue::new(),
         };
-        let master = if config.acceptance {
-            Master::start_acceptance(table, bus, &mut executor, AcceptanceConfig::DEFAULT)
-        } else {
-            Master::start(table, bus, &mut executor)
-        };
-        for thruster in &thrusters {
-            thruster.start(&mut executor);
+        let master = MasterBoard::boot(master_config, config.acceptance, &wiring, &mut executor);
+        for thruster in &mut thrusters {
+            thruster.boot(&mut executor);
         }
         let mut battery = BatteryBoard::default();
         battery.step(0.0, HOTEL_LOAD_A);
         Self {
             executor,
+            clock,
+            wiring,
+            can,
             thrusters,
             master,
             battery,
@@ -185,7 +209,6 @@ impl Bench {
             texts_seen: 0,
             next_sample: Instant::from_ticks(0),
             steps: 0,
-            busy_rounds: 0,
             outgoing: Vec::new(),
             monitor: None,
             console_sink: None,
@@ -213,27 +236,26 @@ impl Bench {
         self.outgoing.extend(bytes);
     }
 
-    /// The bus, its multiplexer and its hooks.
-    pub fn bus(&self) -> &'static RefCell<BusWorld> {
-        self.master.bus
+    /// The bus the thrusters hang on (I2C2, in the vehicle's table and on the dev kit).
+    pub fn thruster_bus(&self) -> &Bus {
+        &self.wiring.buses[usize::from(THRUSTER_BUS)]
     }
 
-    /// Cut a thruster's power now (its controller stops mid-whatever it was doing) and restore it after `off`.
-    pub fn power_cycle(&mut self, index: usize, off: Duration) {
-        let Some(thruster) = self.thrusters.get(index).copied() else {
+    /// Cut thruster `index`'s power (its controller stops mid-whatever it was doing), or restore it (it boots).
+    pub fn power(&mut self, index: usize, on: bool) {
+        let Some(thruster) = self.thrusters.get_mut(index) else {
             return;
         };
-        thruster.power_off(&mut self.executor);
-        self.set_powered(index, false);
-        self.run_for(off);
-        self.set_powered(index, true);
-        thruster.start(&mut self.executor);
+        if on {
+            thruster.boot(&mut self.executor);
+        } else {
+            thruster.power_off(&mut self.executor);
+        }
     }
 
-    fn set_powered(&self, index: usize, powered: bool) {
-        if let Some(slave) = self.master.bus.borrow_mut().slaves.get_mut(index) {
-            slave.powered = powered;
-        }
+    /// Reset the master: it boots again with fresh state; the thrusters, the buses and the links stay as they are.
+    pub fn reboot_master(&mut self) {
+        self.master.reboot(&self.wiring, &mut self.executor);
     }
 
     /// Let `duration` of virtual time pass.
@@ -244,16 +266,14 @@ impl Bench {
         }
     }
 
-    /// Steps run so far and rounds where tasks kept waking one another (should stay 0).
+    /// Steps run so far, runs where tasks kept waking one another (should stay 0), and task polls.
     pub fn counters(&self) -> (u64, u32, u64) {
-        (self.steps, self.busy_rounds, self.executor.polls())
+        (self.steps, self.executor.busy_runs(), self.executor.polls())
     }
 
     fn step(&mut self) {
-        if !self.executor.run_until_idle() {
-            self.busy_rounds += 1;
-        }
-        let now = Instant::now();
+        self.executor.run_until_idle();
+        let now = self.clock.now();
         let dt = STEP.as_micros() as f64 / 1e6;
 
         let supply = self.battery.voltage;
@@ -265,7 +285,7 @@ impl Bench {
         self.battery.step(dt, drawn);
         let frames = self.battery.frames(now);
         if !frames.is_empty() {
-            self.master.can.send(frames);
+            self.can.send(&frames);
         }
 
         let mut outgoing = core::mem::take(&mut self.outgoing);
@@ -273,9 +293,9 @@ impl Bench {
             outgoing.extend(self.ground.periodic(now));
         }
         if !outgoing.is_empty() && self.ground.connected {
-            self.master.console_in.send(outgoing);
+            self.wiring.console_in.send(outgoing);
         }
-        let received = core::mem::take(&mut *self.master.console_out.borrow_mut());
+        let received = self.wiring.console_out.take();
         if let Some(sink) = self.console_sink.as_mut() {
             if !received.is_empty() {
                 sink(&received);
@@ -300,7 +320,7 @@ impl Bench {
             self.trace.samples.push(sample);
         }
         self.steps += 1;
-        MockDriver::get().advance(STEP);
+        self.clock.advance(STEP);
     }
 
     /// Every thruster and the battery now.

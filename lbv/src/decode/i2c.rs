@@ -26,7 +26,7 @@ use std::io::{self, BufRead, BufReader, Write};
 use std::process::ExitCode;
 
 use serde::Serialize;
-use tmc_proto::{DecodeError, Family, Faults, MaxPower, MotorKind, ORDER_LEN, Order, Speed, Status, checksum};
+use tmc_proto::{Family, Faults, MaxPower, MotorKind, ORDER_LEN, Order, Speed, Status, checksum};
 
 /// One-line usage, shown by `lbv decode` and on errors.
 pub const USAGE: &str = "usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]";
@@ -657,7 +657,10 @@ fn decode_status(record: &mut Record, family: Family, bytes: &[u8]) {
     record.kind = Kind::Status;
     record.checksum_ok = checksum_verdict(bytes, family.status_len());
     let decoded = match Status::decode(family, bytes) {
-        Ok(status) => Some((status, true)),
+        Ok(decoded) => {
+            record.error = decoded.warning.map(|warning| warning.to_string());
+            Some((decoded.status, decoded.warning.is_none()))
+        }
         Err(error) => {
             record.error = Some(error.to_string());
             salvage_status(family, bytes)
@@ -672,8 +675,8 @@ fn decode_status(record: &mut Record, family: Family, bytes: &[u8]) {
     }
 }
 
-/// The status as far as it can be read: right length and message type needed; the checksum is mended, and an
-/// out-of-range speed byte is replaced by zero (the second value then says the speed could not be read).
+/// The status as far as it can be read: right length and message type needed; the checksum is mended (the second
+/// value says whether the speed could be read).
 fn salvage_status(family: Family, bytes: &[u8]) -> Option<(Status, bool)> {
     if bytes.len() != family.status_len() || bytes.first() != Some(&family.status_type()) {
         return None;
@@ -685,19 +688,10 @@ fn salvage_status(family: Family, bytes: &[u8]) -> Option<(Status, bool)> {
         }
     };
     mend(&mut mended);
-    match Status::decode(family, &mended) {
-        Ok(status) => Some((status, true)),
-        Err(DecodeError::SpeedOutOfRange(_)) => {
-            let speed_at = match family {
-                Family::SeaBotix => 4,
-                Family::Legacy => 2,
-            };
-            *mended.get_mut(speed_at)? = Speed::ZERO.to_byte();
-            mend(&mut mended);
-            Status::decode(family, &mended).ok().map(|status| (status, false))
-        }
-        Err(_) => None,
-    }
+    // An out-of-range speed byte is read as zero by tmc-proto, with a warning: the speed could not be read.
+    Status::decode(family, &mended)
+        .ok()
+        .map(|decoded| (decoded.status, decoded.warning.is_none()))
 }
 
 fn motor_name(motor: MotorKind) -> &'static str {

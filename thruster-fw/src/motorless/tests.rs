@@ -3,13 +3,13 @@
 use super::*;
 use crate::commutation::drive_for;
 use crate::control::LinkUpdate;
+use crate::faults::VolatileLatch;
 use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
-use crate::tasks::{Shared, commutation_task, control_task, fault_task};
-use embassy_futures::block_on;
-use embassy_futures::join::join3;
-use embassy_futures::select::{Either, select};
-use embassy_futures::yield_now;
-use embassy_time::MockDriver;
+use crate::tasks::{Ports, Shared, Watchdog};
+use core::ops::Deref;
+use lbv_sim::i2c::{Bus, Route, Timing};
+use lbv_sim::{Clock, Executor, clock};
+use std::rc::Rc;
 use tmc_proto::{Family, Faults, MotorKind, Order, Speed, Status};
 
 const CONFIG: Config = Config::reference(Family::SeaBotix, MotorKind::Brushless);
@@ -133,15 +133,16 @@ impl WaterInput for Dry {
 }
 
 /// The user button, as the test sets it.
-struct Button<'a>(&'a Cell<bool>);
+struct Button(Rc<RigIo>);
 
-impl HoldInput for Button<'_> {
+impl HoldInput for Button {
     fn held(&mut self) -> bool {
-        self.0.get()
+        self.0.button.get()
     }
 }
 
-struct Rig {
+/// What the rig's ports share with the test.
+struct RigIo {
     shared: Shared,
     motorless: Motorless,
     button: Cell<bool>,
@@ -149,31 +150,66 @@ struct Rig {
     zero_orders: Cell<u32>,
 }
 
+/// A watchdog nobody checks.
+struct Unwatched;
+
+impl Watchdog for Unwatched {
+    fn feed(&mut self) {}
+}
+
+/// The controller as it ships ([`crate::run`], [`crate::run_commutation`]) on the model, with a bus nobody talks
+/// on: the test stands in for the I2C task and publishes the master's orders itself.
+struct Rig {
+    io: Rc<RigIo>,
+    _bus: Bus,
+    executor: Executor<'static>,
+    clock: Clock,
+}
+
+impl Deref for Rig {
+    type Target = RigIo;
+
+    fn deref(&self) -> &RigIo {
+        &self.io
+    }
+}
+
 impl Rig {
+    /// Start the controller at virtual time 0.
     fn new() -> Self {
-        Self {
+        let clock = clock::take();
+        let io = Rc::new(RigIo {
             shared: Shared::new(),
             motorless: Motorless::new(MotorModel::new(&CONFIG)),
             button: Cell::new(false),
             orders: Cell::new(0),
             zero_orders: Cell::new(0),
-        }
-    }
-
-    /// Run the commutation, fault and control tasks on the model alongside `script`; virtual time from 0.
-    fn run(&self, script: impl Future<Output = ()>) {
-        let _clock = crate::test_clock::lock();
-        let mut halls = ModelHalls::new(&self.motorless);
-        let mut bridge = ModelBridge(&self.motorless);
-        let mut sensors = ModelSensors::new(&self.motorless, &CONFIG, Dry, Button(&self.button));
-        let tasks = join3(
-            commutation_task(&mut halls, &mut bridge, CONFIG.motor, CONFIG.pole_pairs, &self.shared),
-            fault_task(&mut sensors, &CONFIG, &self.shared),
-            control_task(&CONFIG, &self.shared),
-        );
-        match block_on(select(tasks, script)) {
-            Either::First(_) => unreachable!("the tasks never end"),
-            Either::Second(()) => {}
+        });
+        let bus = Bus::new(Timing::new(CONFIG.bus.frequency_hz, CONFIG.bus.timeout));
+        let port = bus.target(bus.attach_target(CONFIG.family.address(), Route::Direct));
+        let mut executor = Executor::new();
+        let controller = io.clone();
+        executor.spawn(async move {
+            let Some(port) = port else { return };
+            let ports = Ports {
+                i2c: port,
+                sensors: ModelSensors::new(&controller.motorless, &CONFIG, Dry, Button(controller.clone())),
+                watchdog: Unwatched,
+                latch: VolatileLatch::default(),
+            };
+            crate::run(ports, &CONFIG, &controller.shared).await;
+        });
+        let controller = io.clone();
+        executor.spawn(async move {
+            let halls = ModelHalls::new(&controller.motorless);
+            let bridge = ModelBridge(&controller.motorless);
+            crate::run_commutation(halls, bridge, &CONFIG, &controller.shared).await;
+        });
+        Self {
+            io,
+            _bus: bus,
+            executor,
+            clock,
         }
     }
 
@@ -194,7 +230,7 @@ impl Rig {
     /// The status the I2C task would answer with now.
     fn status(&self) -> Status {
         let frame = self.shared.status.try_get().expect("a status is ready");
-        Status::decode(Family::SeaBotix, frame.as_bytes()).unwrap()
+        Status::decode(Family::SeaBotix, frame.as_bytes()).unwrap().status
     }
 
     fn speed(&self) -> i8 {
@@ -205,13 +241,11 @@ impl Rig {
     }
 
     /// Let `duration` pass in 20 us steps, keeping the link alive with a read every 10 ms.
-    async fn elapse(&self, duration: Duration) {
+    fn elapse(&mut self, duration: Duration) {
         let end = Instant::now() + duration;
         while Instant::now() < end {
-            MockDriver::get().advance(Duration::from_micros(20));
-            for _ in 0..3 {
-                yield_now().await;
-            }
+            self.executor
+                .run_for(&self.clock, Duration::from_micros(20), Duration::from_micros(20));
             if Instant::now().as_micros().is_multiple_of(10_000)
                 && let Some(mut link) = self.shared.link.try_get()
             {
@@ -224,73 +258,67 @@ impl Rig {
 
 #[test]
 fn the_speed_loop_drives_the_model_to_every_order_and_reports_it() {
-    let rig = Rig::new();
-    rig.run(async {
-        rig.elapse(Duration::from_millis(10)).await;
-        for step in [1, 2, 30, 60, 102, -1, -60, -102, 0] {
-            rig.order(step);
-            rig.elapse(Duration::from_millis(800)).await;
-            let reported = rig.speed();
-            assert!(
-                (i16::from(reported) - i16::from(step)).abs() <= 1,
-                "ordered {step}, reported {reported}"
-            );
-            assert!(rig.status().faults().is_empty(), "{:?}", rig.status());
-        }
-        let hall = rig.shared.hall.try_get().unwrap();
-        assert_eq!(hall.illegal_transitions(), 0, "every modelled edge is a legal one");
-    });
+    let mut rig = Rig::new();
+    rig.elapse(Duration::from_millis(10));
+    for step in [1, 2, 30, 60, 102, -1, -60, -102, 0] {
+        rig.order(step);
+        rig.elapse(Duration::from_millis(800));
+        let reported = rig.speed();
+        assert!(
+            (i16::from(reported) - i16::from(step)).abs() <= 1,
+            "ordered {step}, reported {reported}"
+        );
+        assert!(rig.status().faults().is_empty(), "{:?}", rig.status());
+    }
+    let hall = rig.shared.hall.try_get().unwrap();
+    assert_eq!(hall.illegal_transitions(), 0, "every modelled edge is a legal one");
 }
 
 #[test]
 fn the_current_shows_in_the_status() {
-    let rig = Rig::new();
-    rig.run(async {
-        rig.order(60);
-        rig.elapse(Duration::from_millis(800)).await;
-        let Status::SeaBotix(status) = rig.status() else {
-            unreachable!()
-        };
-        // 2647 rpm: 3 A x (2647 / 4500)^2 = 1.04 A.
-        assert!((9..=11).contains(&status.current_deciamps), "{status:?}");
-        assert_eq!(status.temperature_c, 25);
-        rig.order(0);
-        rig.elapse(Duration::from_millis(800)).await;
-        let Status::SeaBotix(status) = rig.status() else {
-            unreachable!()
-        };
-        assert_eq!(status.current_deciamps, 0);
-    });
+    let mut rig = Rig::new();
+    rig.order(60);
+    rig.elapse(Duration::from_millis(800));
+    let Status::SeaBotix(status) = rig.status() else {
+        unreachable!()
+    };
+    // 2647 rpm: 3 A x (2647 / 4500)^2 = 1.04 A.
+    assert!((9..=11).contains(&status.current_deciamps), "{status:?}");
+    assert_eq!(status.temperature_c, 25);
+    rig.order(0);
+    rig.elapse(Duration::from_millis(800));
+    let Status::SeaBotix(status) = rig.status() else {
+        unreachable!()
+    };
+    assert_eq!(status.current_deciamps, 0);
 }
 
 #[test]
 fn holding_the_button_stalls_the_motor_and_a_zero_order_clears_it() {
-    let rig = Rig::new();
-    rig.run(async {
-        rig.order(60);
-        rig.elapse(Duration::from_millis(800)).await;
-        rig.button.set(true);
-        let held_at = Instant::now();
-        while !rig.status().faults().contains(Faults::STALL) {
-            rig.elapse(Duration::from_millis(1)).await;
-            assert!(held_at.elapsed() < Duration::from_secs(1), "no stall");
-        }
-        let after = held_at.elapsed().as_millis();
-        // The window counts the last pulses before the hold: it trips 400 ms after the last edge.
-        assert!((390..=430).contains(&after), "stall after {after} ms");
-        rig.elapse(Duration::from_millis(5)).await;
-        assert_eq!(rig.motorless.now().duty, Duty::ZERO, "stalled: nothing driven");
-        rig.button.set(false);
-        rig.elapse(Duration::from_millis(100)).await;
-        assert!(
-            rig.status().faults().contains(Faults::STALL),
-            "latched until a zero order"
-        );
-        rig.order(0);
-        rig.elapse(Duration::from_millis(5)).await;
-        assert!(rig.status().faults().is_empty());
-        rig.order(60);
-        rig.elapse(Duration::from_millis(800)).await;
-        assert!((59..=61).contains(&rig.speed()));
-    });
+    let mut rig = Rig::new();
+    rig.order(60);
+    rig.elapse(Duration::from_millis(800));
+    rig.button.set(true);
+    let held_at = Instant::now();
+    while !rig.status().faults().contains(Faults::STALL) {
+        rig.elapse(Duration::from_millis(1));
+        assert!(held_at.elapsed() < Duration::from_secs(1), "no stall");
+    }
+    let after = held_at.elapsed().as_millis();
+    // The window counts the last pulses before the hold: it trips 400 ms after the last edge.
+    assert!((390..=430).contains(&after), "stall after {after} ms");
+    rig.elapse(Duration::from_millis(5));
+    assert_eq!(rig.motorless.now().duty, Duty::ZERO, "stalled: nothing driven");
+    rig.button.set(false);
+    rig.elapse(Duration::from_millis(100));
+    assert!(
+        rig.status().faults().contains(Faults::STALL),
+        "latched until a zero order"
+    );
+    rig.order(0);
+    rig.elapse(Duration::from_millis(5));
+    assert!(rig.status().faults().is_empty());
+    rig.order(60);
+    rig.elapse(Duration::from_millis(800));
+    assert!((59..=61).contains(&rig.speed()));
 }

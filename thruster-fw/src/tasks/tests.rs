@@ -1,107 +1,107 @@
-//! The tasks together, on virtual time: a scripted master, simulated halls, bridge and ADC inputs.
+//! The controller as it ships ([`run`] and [`run_commutation`]) on virtual time: a master on a simulated bus,
+//! halls, bridge and ADC inputs set by the test.
 
 use super::*;
+use crate::faults::VolatileLatch;
 use crate::hall::FORWARD_SEQUENCE;
-use crate::i2c_slave::Request;
 use core::cell::{Cell, RefCell};
-use embassy_futures::block_on;
-use embassy_futures::join::join5;
-use embassy_futures::select::{Either, select};
-use embassy_futures::yield_now;
-use embassy_time::MockDriver;
-use std::collections::VecDeque;
+use core::ops::Deref;
+use embedded_hal_async::i2c::I2c;
+use lbv_sim::i2c::{Bus, DeviceId, Route, Timing};
+use lbv_sim::{Clock, Executor, Queue, clock};
+use std::rc::Rc;
 use tmc_proto::{Faults, Order, Speed, Status};
-
-/// The master's side of the bus: transfers queued by the test, status replies collected.
-#[derive(Default)]
-struct Master {
-    queue: RefCell<VecDeque<Vec<u8>>>,
-    replies: RefCell<Vec<Vec<u8>>>,
-    resets: Cell<u32>,
-    /// The next transfer fails on the bus (a glitch, a master reset mid-transfer, a stalled clock).
-    fail_next: Cell<bool>,
-}
 
 /// An empty transfer stands for a read.
 const READ: Vec<u8> = Vec::new();
 
-struct MasterPort<'a> {
-    master: &'a Master,
-    pending: Option<Vec<u8>>,
-}
-
-impl I2cTarget for MasterPort<'_> {
-    type Error = ();
-
-    async fn listen(&mut self) -> Result<Request, ()> {
-        loop {
-            if let Some(transfer) = self.master.queue.borrow_mut().pop_front() {
-                let request = if transfer.is_empty() {
-                    Request::Read
-                } else {
-                    Request::Write
-                };
-                self.pending = Some(transfer);
-                return Ok(request);
-            }
-            yield_now().await;
-        }
-    }
-
-    async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, ()> {
-        let bytes = self.pending.take().ok_or(())?;
-        if self.master.fail_next.replace(false) {
-            return Err(());
-        }
-        let stored = bytes.len().min(buffer.len());
-        buffer[..stored].copy_from_slice(&bytes[..stored]);
-        Ok(stored)
-    }
-
-    async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), ()> {
-        if self.master.fail_next.replace(false) {
-            return Err(());
-        }
-        self.master.replies.borrow_mut().push(data.to_vec());
-        Ok(())
-    }
-
-    fn reset(&mut self) {
-        self.master.resets.set(self.master.resets.get() + 1);
-    }
-}
-
 /// Hall inputs the test sets; every change is an edge.
-struct TestHalls<'a>(&'a Cell<HallState>, HallState);
+struct HallInputs {
+    state: Cell<HallState>,
+    edge: Signal<Mutex, ()>,
+}
 
-impl HallSensors for TestHalls<'_> {
-    async fn wait_for_edge(&mut self) {
-        while self.0.get() == self.1 {
-            yield_now().await;
+impl HallInputs {
+    fn new(state: HallState) -> Self {
+        Self {
+            state: Cell::new(state),
+            edge: Signal::new(),
         }
-        self.1 = self.0.get();
+    }
+
+    fn get(&self) -> HallState {
+        self.state.get()
+    }
+
+    fn set(&self, state: HallState) {
+        if self.state.replace(state) != state {
+            self.edge.signal(());
+        }
+    }
+}
+
+/// What the controller's ports read and drive, and what the test sees of it.
+struct Io {
+    config: Config,
+    shared: Shared,
+    halls: HallInputs,
+    bridge: Cell<(BridgeDrive, Duty)>,
+    inputs: Cell<RawSample>,
+    fed: Cell<u32>,
+    /// The latch store, kept as a backup register keeps it over a reset.
+    latch: Cell<VolatileLatch>,
+    /// Every status the master read.
+    replies: RefCell<Vec<Vec<u8>>>,
+}
+
+struct TestHalls(Rc<Io>);
+
+impl HallSensors for TestHalls {
+    async fn wait_for_edge(&mut self) {
+        self.0.halls.edge.wait().await;
     }
 
     fn read(&mut self) -> HallState {
-        self.1 = self.0.get();
-        self.1
+        self.0.halls.get()
     }
 }
 
 /// The bridge as last driven.
-struct TestBridge<'a>(&'a Cell<(BridgeDrive, Duty)>);
+struct TestBridge(Rc<Io>);
 
-impl Bridge for TestBridge<'_> {
+impl Bridge for TestBridge {
     fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
-        self.0.set((drive, duty));
+        self.0.bridge.set((drive, duty));
     }
 }
 
-struct TestSensors<'a>(&'a Cell<RawSample>);
+struct TestSensors(Rc<Io>);
 
-impl Sensors for TestSensors<'_> {
+impl Sensors for TestSensors {
     async fn sample(&mut self) -> RawSample {
-        self.0.get()
+        self.0.inputs.get()
+    }
+}
+
+struct TestLatch(Rc<Io>);
+
+impl LatchStore for TestLatch {
+    fn load(&mut self) -> Faults {
+        self.0.latch.get().load()
+    }
+
+    fn save(&mut self, latched: Faults) {
+        let mut store = self.0.latch.get();
+        store.save(latched);
+        self.0.latch.set(store);
+    }
+}
+
+struct CountingWatchdog(Rc<Io>);
+
+impl Watchdog for CountingWatchdog {
+    fn feed(&mut self) {
+        self.0.fed.set(self.0.fed.get() + 1);
     }
 }
 
@@ -114,79 +114,96 @@ fn dry(config: &Config) -> RawSample {
     }
 }
 
-/// One controller with its five tasks, and what a test can see and touch.
+/// One controller on a bus, with a master that sends what the test queues, one transfer after the other.
 struct Bench {
-    config: Config,
-    shared: Shared,
-    master: Master,
-    halls: Cell<HallState>,
-    bridge: Cell<(BridgeDrive, Duty)>,
-    inputs: Cell<RawSample>,
-    fed: Cell<u32>,
+    io: Rc<Io>,
+    bus: Bus,
+    device: DeviceId,
+    transfers: Queue<Vec<u8>>,
+    executor: Executor<'static>,
+    clock: Clock,
 }
 
-struct CountingWatchdog<'a>(&'a Cell<u32>);
+impl Deref for Bench {
+    type Target = Io;
 
-impl Watchdog for CountingWatchdog<'_> {
-    fn feed(&mut self) {
-        self.0.set(self.0.get() + 1);
+    fn deref(&self) -> &Io {
+        &self.io
     }
 }
 
 impl Bench {
     fn new(family: Family) -> Self {
-        Self::with(Config::reference(family, MotorKind::Brushless))
+        Self::with(
+            Config::reference(family, MotorKind::Brushless),
+            VolatileLatch::default(),
+        )
     }
 
     fn brushed(family: Family) -> Self {
-        Self::with(Config::reference(family, MotorKind::Brushed))
+        Self::with(Config::reference(family, MotorKind::Brushed), VolatileLatch::default())
     }
 
-    fn with(config: Config) -> Self {
-        let inputs = Cell::new(dry(&config));
-        Self {
+    /// Start the controller at virtual time 0, with the latches a reset left in `latch`.
+    fn with(config: Config, latch: VolatileLatch) -> Self {
+        let clock = clock::take();
+        let io = Rc::new(Io {
+            inputs: Cell::new(dry(&config)),
             config,
             shared: Shared::new(),
-            master: Master::default(),
-            halls: Cell::new(FORWARD_SEQUENCE[0]),
+            halls: HallInputs::new(FORWARD_SEQUENCE[0]),
             bridge: Cell::new((COAST, Duty::ZERO)),
-            inputs,
             fed: Cell::new(0),
-        }
-    }
-
-    /// Run the controller's tasks alongside `script` until the script ends; virtual time starts at 0.
-    fn run(&self, script: impl Future<Output = ()>) {
-        let _clock = crate::test_clock::lock();
-        let mut port = MasterPort {
-            master: &self.master,
-            pending: None,
+            latch: Cell::new(latch),
+            replies: RefCell::new(Vec::new()),
+        });
+        let bus = Bus::new(Timing::new(io.config.bus.frequency_hz, io.config.bus.timeout));
+        let family = io.config.family;
+        let device = bus.attach_target(family.address(), Route::Direct);
+        let transfers: Queue<Vec<u8>> = Queue::new();
+        let mut executor = Executor::new();
+        let port = bus.target(device).expect("a firmware port");
+        let ports = Ports {
+            i2c: port,
+            sensors: TestSensors(io.clone()),
+            watchdog: CountingWatchdog(io.clone()),
+            latch: TestLatch(io.clone()),
         };
-        let mut halls = TestHalls(&self.halls, self.halls.get());
-        let mut bridge = TestBridge(&self.bridge);
-        let mut sensors = TestSensors(&self.inputs);
-        let mut watchdog = CountingWatchdog(&self.fed);
-        let tasks = join5(
-            i2c_task(&mut port, self.config.family, self.config.motor, &self.shared),
-            commutation_task(
-                &mut halls,
-                &mut bridge,
-                self.config.motor,
-                self.config.pole_pairs,
-                &self.shared,
-            ),
-            fault_task(&mut sensors, &self.config, &self.shared),
-            control_task(&self.config, &self.shared),
-            health_task(&mut watchdog, Duration::from_millis(50), &self.shared),
-        );
-        match block_on(select(tasks, script)) {
-            Either::First(_) => unreachable!("the tasks never end"),
-            Either::Second(()) => {}
+        let (halls, bridge) = (TestHalls(io.clone()), TestBridge(io.clone()));
+        let controller = io.clone();
+        executor.spawn(async move {
+            run(ports, &controller.config, &controller.shared).await;
+        });
+        let controller = io.clone();
+        executor.spawn(async move {
+            run_commutation(halls, bridge, &controller.config, &controller.shared).await;
+        });
+        let (mut master, queue, master_io) = (bus.master(), transfers.clone(), io.clone());
+        executor.spawn(async move {
+            loop {
+                let bytes = queue.receive().await;
+                if bytes.is_empty() {
+                    let mut status = vec![0; family.status_len()];
+                    if master.read(family.address(), &mut status).await.is_ok() {
+                        master_io.replies.borrow_mut().push(status);
+                    }
+                } else {
+                    let _ = master.write(family.address(), &bytes).await;
+                }
+            }
+        });
+        Self {
+            io,
+            bus,
+            device,
+            transfers,
+            executor,
+            clock,
         }
     }
 
     fn send(&self, bytes: Vec<u8>) {
-        self.master.queue.borrow_mut().push_back(bytes);
+        self.transfers.push(bytes);
     }
 
     fn order(&self, step: i8) {
@@ -198,45 +215,39 @@ impl Bench {
     }
 
     fn last_status(&self) -> Status {
-        let replies = self.master.replies.borrow();
-        Status::decode(self.config.family, replies.last().expect("a status was read")).expect("status decodes")
+        let replies = self.replies.borrow();
+        let decoded = Status::decode(self.config.family, replies.last().expect("a status was read"));
+        let decoded = decoded.expect("status decodes");
+        assert_eq!(decoded.warning, None);
+        decoded.status
     }
 
     fn duty(&self) -> Duty {
         self.bridge.get().1
     }
-}
 
-/// Let virtual time pass in 100 us steps, giving every task its turn at each step.
-async fn elapse(duration: Duration) {
-    let step = Duration::from_micros(100);
-    let mut left = duration;
-    while left > Duration::from_ticks(0) {
-        let now = step.min(left);
-        MockDriver::get().advance(now);
-        left -= now;
-        for _ in 0..4 {
-            yield_now().await;
+    /// Let virtual time pass in 100 us steps, every task running at each step.
+    fn elapse(&mut self, duration: Duration) {
+        self.executor.run_for(&self.clock, duration, Duration::from_micros(100));
+    }
+
+    /// Let virtual time pass with the motor turning forward at 1250 rpm (4 pole pairs: a hall edge every 2 ms),
+    /// until `done` says stop; returns how long that took.
+    fn turn_until(&mut self, mut done: impl FnMut(&Bench) -> bool) -> Duration {
+        let start = Instant::now();
+        while !done(self) {
+            self.elapse(Duration::from_micros(100));
+            let sector = (Instant::now().as_micros() / 2000 % 6) as usize;
+            self.halls.set(FORWARD_SEQUENCE[sector]);
         }
+        Instant::now() - start
     }
-}
 
-/// Let virtual time pass with the motor turning forward at 1250 rpm (4 pole pairs: a hall edge every 2 ms),
-/// until `done` says stop; returns how long that took.
-async fn turn_until(bench: &Bench, mut done: impl FnMut() -> bool) -> Duration {
-    let start = Instant::now();
-    while !done() {
-        elapse(Duration::from_micros(100)).await;
-        let sector = (Instant::now().as_micros() / 2000 % 6) as usize;
-        bench.halls.set(FORWARD_SEQUENCE[sector]);
+    /// Turn the motor for `duration`.
+    fn turn(&mut self, duration: Duration) {
+        let end = Instant::now() + duration;
+        self.turn_until(|_| Instant::now() >= end);
     }
-    Instant::now() - start
-}
-
-/// Turn the motor for `duration`.
-async fn turn(bench: &Bench, duration: Duration) {
-    let end = Instant::now() + duration;
-    turn_until(bench, || Instant::now() >= end).await;
 }
 
 /// Milliseconds since the run started.
@@ -246,155 +257,175 @@ fn now_ms() -> u64 {
 
 #[test]
 fn an_order_drives_the_bridge_forward_and_the_status_says_so() {
-    let bench = Bench::new(Family::SeaBotix);
-    bench.run(async {
-        elapse(Duration::from_millis(5)).await;
-        assert_eq!(bench.bridge.get().0, COAST, "stopped until ordered");
-        bench.order(51);
-        elapse(Duration::from_millis(20)).await;
-        let (drive, duty) = bench.bridge.get();
-        assert!(duty.value() > 0, "forward duty, got {duty:?}");
-        assert_eq!(drive, drive_for(bench.halls.get(), duty));
-        bench.send(READ);
-        elapse(Duration::from_millis(1)).await;
-        assert!(bench.last_status().faults().is_empty());
-    });
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.elapse(Duration::from_millis(5));
+    assert_eq!(bench.bridge.get().0, COAST, "stopped until ordered");
+    bench.order(51);
+    bench.elapse(Duration::from_millis(20));
+    let (drive, duty) = bench.bridge.get();
+    assert!(duty.value() > 0, "forward duty, got {duty:?}");
+    assert_eq!(drive, drive_for(bench.halls.get(), duty));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(bench.last_status().faults().is_empty());
 }
 
 #[test]
 fn the_failsafe_stops_the_motor_after_exactly_one_second_of_silence() {
-    let bench = Bench::new(Family::SeaBotix);
-    bench.run(async {
-        bench.order(51);
-        // The order is taken within the first 100 us step.
-        elapse(Duration::from_micros(100)).await;
-        assert_eq!(bench.shared.link.try_get().map(|link| link.orders), Some(1));
-        let ordered_at = now_ms();
-        turn(&bench, Duration::from_millis(990)).await;
-        assert!(
-            bench.duty().value() > 0,
-            "still driving at {} ms",
-            now_ms() - ordered_at
-        );
-        turn_until(&bench, || bench.duty() == Duty::ZERO).await;
-        let stopped_after = now_ms() - ordered_at;
-        assert!(
-            (1000..=1001).contains(&stopped_after),
-            "stopped after {stopped_after} ms"
-        );
-        assert_eq!(bench.bridge.get().0, COAST);
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.order(51);
+    // The order is taken within the first 100 us step.
+    bench.elapse(Duration::from_micros(100));
+    assert_eq!(bench.shared.link.try_get().map(|link| link.orders), Some(1));
+    let ordered_at = now_ms();
+    bench.turn(Duration::from_millis(990));
+    assert!(
+        bench.duty().value() > 0,
+        "still driving at {} ms",
+        now_ms() - ordered_at
+    );
+    bench.turn_until(|bench| bench.duty() == Duty::ZERO);
+    let stopped_after = now_ms() - ordered_at;
+    assert!(
+        (1000..=1001).contains(&stopped_after),
+        "stopped after {stopped_after} ms"
+    );
+    assert_eq!(bench.bridge.get().0, COAST);
 
-        // The motor coasts to a stop. A read keeps the link alive but does not restart the motor; the next valid
-        // order does.
-        elapse(Duration::from_millis(200)).await;
-        bench.send(READ);
-        elapse(Duration::from_millis(20)).await;
-        assert_eq!(bench.duty(), Duty::ZERO);
-        bench.order(20);
-        elapse(Duration::from_millis(20)).await;
-        assert!(bench.duty().value() > 0);
-    });
+    // The motor coasts to a stop. A read keeps the link alive but does not restart the motor; the next valid
+    // order does.
+    bench.elapse(Duration::from_millis(200));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(20));
+    assert_eq!(bench.duty(), Duty::ZERO);
+    bench.order(20);
+    bench.elapse(Duration::from_millis(20));
+    assert!(bench.duty().value() > 0);
 }
 
 #[test]
 fn reads_alone_keep_the_link_alive() {
-    let bench = Bench::new(Family::Legacy);
-    bench.run(async {
-        bench.order(30);
-        for _ in 0..30 {
-            turn(&bench, Duration::from_millis(100)).await;
-            bench.send(READ);
-        }
-        assert!(bench.duty().value() > 0, "still driving after 3 s of reads");
-    });
+    let mut bench = Bench::new(Family::Legacy);
+    bench.order(30);
+    for _ in 0..30 {
+        bench.turn(Duration::from_millis(100));
+        bench.send(READ);
+    }
+    assert!(bench.duty().value() > 0, "still driving after 3 s of reads");
 }
 
 #[test]
 fn a_ground_fault_coasts_the_bridge_within_one_sample_and_latches() {
     for family in Family::ALL {
-        let bench = Bench::new(family);
-        bench.run(async {
-            bench.order(60);
-            turn(&bench, Duration::from_millis(100)).await;
-            assert!(bench.duty().value() > 0);
-            let wet = RawSample {
-                water: bench.config.water.raw_at(50_000),
-                ..bench.inputs.get()
-            };
-            bench.inputs.set(wet);
-            let reaction = turn_until(&bench, || bench.bridge.get().0 == COAST).await;
-            assert!(reaction <= SAMPLE_PERIOD, "coasted after {reaction:?}");
+        let mut bench = Bench::new(family);
+        bench.order(60);
+        bench.turn(Duration::from_millis(100));
+        assert!(bench.duty().value() > 0);
+        let wet = RawSample {
+            water: bench.config.water.raw_at(50_000),
+            ..bench.inputs.get()
+        };
+        bench.inputs.set(wet);
+        let reaction = bench.turn_until(|bench| bench.bridge.get().0 == COAST);
+        assert!(reaction <= SAMPLE_PERIOD, "coasted after {reaction:?}");
 
-            // Dry again: the ground fault stays until power is cycled, and the master still gets answers.
-            bench.inputs.set(dry(&bench.config));
-            bench.order(60);
-            elapse(Duration::from_millis(50)).await;
-            bench.send(READ);
-            elapse(Duration::from_millis(1)).await;
-            assert!(bench.last_status().faults().contains(Faults::GROUND));
-            assert_eq!(bench.bridge.get().0, COAST);
+        // Dry again: the ground fault stays until power is cycled, and the master still gets answers.
+        bench.inputs.set(dry(&bench.config));
+        bench.order(60);
+        bench.elapse(Duration::from_millis(50));
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert!(bench.last_status().faults().contains(Faults::GROUND));
+        assert_eq!(bench.bridge.get().0, COAST);
+    }
+}
+
+#[test]
+fn latches_outlast_a_reset_but_not_a_power_cycle() {
+    for family in Family::ALL {
+        let mut before = Bench::new(family);
+        before.inputs.set(RawSample {
+            water: before.config.water.raw_at(50_000),
+            ..dry(&before.config)
         });
+        before.elapse(Duration::from_millis(5));
+        let stored = before.latch.get();
+        drop(before);
+        // The same controller after a watchdog or pin reset: fresh tasks, the store kept, dry electrodes.
+        let mut after = Bench::with(Config::reference(family, MotorKind::Brushless), stored);
+        after.order(60);
+        after.elapse(Duration::from_millis(100));
+        after.send(READ);
+        after.elapse(Duration::from_millis(1));
+        assert!(after.last_status().faults().contains(Faults::GROUND), "{family:?}");
+        assert_eq!(
+            after.last_status().faults().contains(Faults::WATER),
+            family == Family::Legacy
+        );
+        assert_eq!(after.bridge.get().0, COAST);
+        drop(after);
+        // After a power cycle the store is empty and the controller drives.
+        let mut cycled = Bench::new(family);
+        cycled.order(60);
+        cycled.elapse(Duration::from_millis(100));
+        assert!(cycled.duty().value() > 0);
     }
 }
 
 #[test]
 fn status_reads_always_decode_and_bad_orders_change_nothing() {
-    let bench = Bench::new(Family::SeaBotix);
-    bench.run(async {
-        bench.order(40);
-        let mut bad = Order::new(Speed::new(-90).unwrap()).encode(Family::SeaBotix).to_vec();
-        bad[3] ^= 0xFF;
-        bench.send(bad);
-        bench.send(vec![0x52, 0xF0, 100, 0x52u8.wrapping_add(0xF0).wrapping_add(100)]);
-        elapse(Duration::from_millis(10)).await;
-        assert_eq!(
-            bench.shared.link.try_get().map(|link| link.order.speed.step()),
-            Some(40)
-        );
-        for _ in 0..20 {
-            bench.send(READ);
-            elapse(Duration::from_millis(1)).await;
-        }
-        assert_eq!(bench.master.replies.borrow().len(), 20);
-        for reply in bench.master.replies.borrow().iter() {
-            Status::decode(Family::SeaBotix, reply).expect("every status decodes");
-        }
-    });
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.order(40);
+    let mut bad = Order::new(Speed::new(-90).unwrap()).encode(Family::SeaBotix).to_vec();
+    bad[3] ^= 0xFF;
+    bench.send(bad);
+    bench.send(vec![0x52, 0xF0, 100, 0x52u8.wrapping_add(0xF0).wrapping_add(100)]);
+    bench.elapse(Duration::from_millis(10));
+    assert_eq!(
+        bench.shared.link.try_get().map(|link| link.order.speed.step()),
+        Some(40)
+    );
+    for _ in 0..20 {
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+    }
+    assert_eq!(bench.replies.borrow().len(), 20);
+    for reply in bench.replies.borrow().iter() {
+        Status::decode(Family::SeaBotix, reply).expect("every status decodes");
+    }
 }
 
 #[test]
 fn the_watchdog_is_fed_only_while_every_task_reports() {
-    let bench = Bench::new(Family::SeaBotix);
-    bench.run(async {
-        elapse(Duration::from_millis(500)).await;
-        assert!(bench.fed.get() >= 9, "fed {} times in 500 ms", bench.fed.get());
-    });
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.elapse(Duration::from_millis(500));
+    // Fed at every feed period: no task misses a check.
+    let periods = (500 / bench.config.watchdog.feed.as_millis()) as u32;
+    assert_eq!(bench.fed.get(), periods, "fed {} times in 500 ms", bench.fed.get());
 }
 
 /// Drive forward, then `inject` a condition; returns how long the bridge took to coast (None: it kept driving
 /// for 50 ms) and the faults then reported.
 fn inject(family: Family, inject: impl Fn(&Bench)) -> (Option<Duration>, Faults, Bench) {
-    let bench = Bench::new(family);
+    let mut bench = Bench::new(family);
     let mut reaction = None;
-    bench.run(async {
-        bench.order(60);
-        turn(&bench, Duration::from_millis(100)).await;
-        assert!(bench.duty().value() > 0, "driving before the fault");
-        inject(&bench);
-        // The halls now hold still (the condition is not overwritten), well short of the 400 ms stall window.
-        let start = Instant::now();
-        while bench.bridge.get().0 != COAST && Instant::now() - start < Duration::from_millis(50) {
-            elapse(Duration::from_micros(100)).await;
-        }
-        let took = Instant::now() - start;
-        if bench.bridge.get().0 == COAST {
-            reaction = Some(took);
-        }
-        // The status frame follows within a fault sample and a control step.
-        elapse(SAMPLE_PERIOD + CONTROL_PERIOD).await;
-        bench.send(READ);
-        elapse(Duration::from_millis(1)).await;
-    });
+    bench.order(60);
+    bench.turn(Duration::from_millis(100));
+    assert!(bench.duty().value() > 0, "driving before the fault");
+    inject(&bench);
+    // The halls now hold still (the condition is not overwritten), well short of the 400 ms stall window.
+    let start = Instant::now();
+    while bench.bridge.get().0 != COAST && Instant::now() - start < Duration::from_millis(50) {
+        bench.elapse(Duration::from_micros(100));
+    }
+    let took = Instant::now() - start;
+    if bench.bridge.get().0 == COAST {
+        reaction = Some(took);
+    }
+    // The status frame follows within a fault sample and a control step.
+    bench.elapse(SAMPLE_PERIOD + CONTROL_PERIOD);
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
     let faults = bench.last_status().faults();
     (reaction, faults, bench)
 }
@@ -430,149 +461,174 @@ fn water_stops_a_legacy_controller_but_only_warns_on_a_seabotix_one() {
 #[test]
 fn overtemperature_stops_within_one_sample_and_resumes_after_cooling_to_100_c() {
     for family in Family::ALL {
-        let (reaction, faults, bench) = inject(family, |bench| set_temperature(bench, 1105));
+        let (reaction, faults, mut bench) = inject(family, |bench| set_temperature(bench, 1105));
         assert!(
             reaction.is_some_and(|took| took <= SAMPLE_PERIOD),
             "{family:?}: {reaction:?}"
         );
         assert_eq!(faults, Faults::OVERTEMP);
-        bench.run(async {
-            set_temperature(&bench, 1010);
-            bench.order(60);
-            elapse(Duration::from_millis(20)).await;
-            assert_eq!(bench.duty(), Duty::ZERO, "101 C is still too hot");
-            set_temperature(&bench, 995);
-            elapse(Duration::from_millis(20)).await;
-            assert!(bench.duty().value() > 0, "resumes below 100 C");
-        });
+        set_temperature(&bench, 1010);
+        bench.order(60);
+        bench.elapse(Duration::from_millis(20));
+        assert_eq!(bench.duty(), Duty::ZERO, "101 C is still too hot");
+        set_temperature(&bench, 995);
+        // The halls have stood still since the stop: once the tracker reads standstill the speed loop ramps up
+        // from rest (while it still reads the old speed, the loop would only brake).
+        bench.elapse(crate::hall::HallTracker::STANDSTILL);
+        assert!(bench.duty().value() > 0, "resumes below 100 C");
     }
 }
 
 #[test]
 fn a_stalled_propeller_stops_the_motor_400_ms_after_the_duty_passes_8_percent_until_a_zero_order() {
-    let bench = Bench::new(Family::SeaBotix);
-    bench.run(async {
-        // The halls never move: the rotor is held.
-        bench.order(60);
-        let mut above_8_percent = None;
-        while bench.bridge.get().0 != COAST || above_8_percent.is_none() {
-            elapse(Duration::from_micros(100)).await;
-            if above_8_percent.is_none() && bench.duty().magnitude() > 800 {
-                above_8_percent = Some(Instant::now());
-            }
+    let mut bench = Bench::new(Family::SeaBotix);
+    // The halls never move: the rotor is held.
+    bench.order(60);
+    let mut above_8_percent = None;
+    while bench.bridge.get().0 != COAST || above_8_percent.is_none() {
+        bench.elapse(Duration::from_micros(100));
+        if above_8_percent.is_none() && bench.duty().magnitude() > 800 {
+            above_8_percent = Some(Instant::now());
         }
-        let stalled_after = Instant::now() - above_8_percent.unwrap();
-        assert!(
-            (Duration::from_millis(400)..=Duration::from_millis(402)).contains(&stalled_after),
-            "stalled after {stalled_after:?}"
-        );
-        bench.send(READ);
-        elapse(Duration::from_millis(1)).await;
-        assert_eq!(bench.last_status().faults(), Faults::STALL);
+    }
+    let stalled_after = Instant::now() - above_8_percent.unwrap();
+    assert!(
+        (Duration::from_millis(400)..=Duration::from_millis(402)).contains(&stalled_after),
+        "stalled after {stalled_after:?}"
+    );
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert_eq!(bench.last_status().faults(), Faults::STALL);
 
-        // Another non-zero order does not clear the stall; a zero order does, and the next order drives again.
-        bench.order(30);
-        elapse(Duration::from_millis(20)).await;
-        assert_eq!(bench.duty(), Duty::ZERO);
-        bench.order(0);
-        elapse(Duration::from_millis(5)).await;
-        bench.order(30);
-        elapse(Duration::from_millis(20)).await;
-        assert!(bench.duty().value() > 0);
-        bench.send(READ);
-        elapse(Duration::from_millis(1)).await;
-        assert!(bench.last_status().faults().is_empty());
-    });
+    // Another non-zero order does not clear the stall; a zero order does, and the next order drives again.
+    bench.order(30);
+    bench.elapse(Duration::from_millis(20));
+    assert_eq!(bench.duty(), Duty::ZERO);
+    bench.order(0);
+    bench.elapse(Duration::from_millis(5));
+    bench.order(30);
+    bench.elapse(Duration::from_millis(20));
+    assert!(bench.duty().value() > 0);
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(bench.last_status().faults().is_empty());
 }
 
 #[test]
 fn an_invalid_hall_state_coasts_at_once_and_clears_when_the_halls_read_normal() {
     for family in Family::ALL {
-        let (reaction, faults, bench) = inject(family, |bench| bench.halls.set(HallState::from_bits(0b000)));
+        let (reaction, faults, mut bench) = inject(family, |bench| bench.halls.set(HallState::from_bits(0b000)));
         assert!(
             reaction.is_some_and(|took| took <= Duration::from_micros(100)),
             "{family:?}: {reaction:?}"
         );
         assert_eq!(faults, Faults::HALL);
-        bench.run(async {
-            bench.halls.set(FORWARD_SEQUENCE[2]);
-            elapse(Duration::from_millis(5)).await;
-            bench.order(60);
-            elapse(Duration::from_millis(20)).await;
-            assert!(bench.duty().value() > 0, "drives again once the halls read normal");
-            assert_eq!(bench.bridge.get().0, drive_for(FORWARD_SEQUENCE[2], bench.duty()));
-        });
+        bench.halls.set(FORWARD_SEQUENCE[2]);
+        bench.elapse(Duration::from_millis(5));
+        bench.order(60);
+        bench.elapse(Duration::from_millis(20));
+        assert!(bench.duty().value() > 0, "drives again once the halls read normal");
+        assert_eq!(bench.bridge.get().0, drive_for(FORWARD_SEQUENCE[2], bench.duty()));
     }
 }
 
 #[test]
 fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed() {
-    let bench = Bench::brushed(Family::SeaBotix);
-    bench.run(async {
-        bench.order(51);
-        // No halls on a brushed motor, so no stall or hall fault either: the order holds.
-        elapse(Duration::from_millis(600)).await;
-        assert_eq!(
-            bench.bridge.get(),
-            (
-                [PhaseDrive::Pwm, PhaseDrive::Low, PhaseDrive::Float],
-                Duty::new_saturating(5000)
-            )
-        );
-        bench.send(READ);
-        elapse(Duration::from_millis(1)).await;
-        let Status::SeaBotix(status) = bench.last_status() else {
-            panic!("wrong family")
-        };
-        assert_eq!((status.motor, status.speed.step()), (MotorKind::Brushed, 51));
+    let mut bench = Bench::brushed(Family::SeaBotix);
+    bench.order(51);
+    // No halls on a brushed motor, so no stall or hall fault either: the order holds. Step 102 is the power
+    // stage's largest duty, so step 51 is half of it.
+    let max = i32::from(crate::speed::MAX_DUTY);
+    bench.elapse(Duration::from_millis(600));
+    assert_eq!(
+        bench.bridge.get(),
+        (
+            [PhaseDrive::Pwm, PhaseDrive::Low, PhaseDrive::Float],
+            Duty::new_saturating(max / 2)
+        )
+    );
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    let Status::SeaBotix(status) = bench.last_status() else {
+        panic!("wrong family")
+    };
+    assert_eq!((status.motor, status.speed.step()), (MotorKind::Brushed, 51));
 
-        bench.order(-102);
-        // +50 % to -100 % at 200 % per second: 750 ms, well inside the link timeout.
-        elapse(Duration::from_millis(900)).await;
-        assert_eq!(
-            bench.bridge.get(),
-            (
-                [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
-                Duty::new_saturating(-10_000)
-            )
-        );
-    });
+    bench.order(-102);
+    // Half to all of it in reverse at 200 % per second: under 750 ms, well inside the link timeout.
+    bench.elapse(Duration::from_millis(900));
+    assert_eq!(
+        bench.bridge.get(),
+        (
+            [PhaseDrive::Low, PhaseDrive::Pwm, PhaseDrive::Float],
+            Duty::new_saturating(-max)
+        )
+    );
 }
 
 #[test]
 fn a_failed_transfer_reinitialises_the_slave_and_changes_nothing() {
-    let bench = Bench::new(Family::SeaBotix);
-    bench.run(async {
-        bench.order(25);
-        elapse(Duration::from_millis(2)).await;
-        bench.master.fail_next.set(true);
-        bench.order(-80);
-        elapse(Duration::from_millis(2)).await;
-        assert_eq!(bench.master.resets.get(), 1);
-        assert_eq!(
-            bench
-                .shared
-                .link
-                .try_get()
-                .map(|link| (link.orders, link.order.speed.step())),
-            Some((1, 25))
-        );
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.order(25);
+    bench.elapse(Duration::from_millis(2));
+    bench.bus.disturb(bench.device);
+    bench.order(-80);
+    bench.elapse(Duration::from_millis(2));
+    assert_eq!(bench.bus.target_resets(bench.device), 1);
+    assert_eq!(
+        bench
+            .shared
+            .link
+            .try_get()
+            .map(|link| (link.orders, link.order.speed.step())),
+        Some((1, 25))
+    );
 
-        bench.master.fail_next.set(true);
-        bench.send(READ);
-        bench.send(READ);
-        elapse(Duration::from_millis(2)).await;
-        assert_eq!(bench.master.resets.get(), 2);
+    bench.bus.disturb(bench.device);
+    bench.send(READ);
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(2));
+    assert_eq!(bench.bus.target_resets(bench.device), 2);
+    assert_eq!(
+        bench.replies.borrow().len(),
+        1,
+        "the read after the failed one is answered"
+    );
+    bench.order(-80);
+    bench.elapse(Duration::from_millis(2));
+    assert_eq!(
+        bench.shared.link.try_get().map(|link| link.order.speed.step()),
+        Some(-80)
+    );
+}
+
+#[test]
+fn the_image_configuration_is_the_reference_hardware_with_the_spec_timings() {
+    for family in Family::ALL {
+        let config = Config::reference(family, MotorKind::Brushless);
         assert_eq!(
-            bench.master.replies.borrow().len(),
-            1,
-            "the read after the failed one is answered"
+            (config.bus.frequency_hz, config.bus.timeout),
+            (100_000, Duration::from_millis(25))
         );
-        bench.order(-80);
-        elapse(Duration::from_millis(2)).await;
+        assert_eq!(config.link_timeout, Duration::from_secs(1));
+        // Every task reports within a feed period and the IWDG outlasts two of them at the fastest LSI; the IWDG
+        // driver takes the timeout in microseconds.
+        assert_eq!(config.watchdog.schedule(&config.bus).check().map(|_| ()), Ok(()));
+        assert_eq!(config.watchdog.timeout_us(), 250_000);
+        // A 50 ms feed would miss the I2C task's reports (50 ms heartbeat + 25 ms transfer) and warn falsely.
+        let eager = WatchdogTiming {
+            feed: Duration::from_millis(50),
+            ..config.watchdog
+        };
         assert_eq!(
-            bench.shared.link.try_get().map(|link| link.order.speed.step()),
-            Some(-80)
+            eager.schedule(&config.bus).check().map(|_| ()),
+            Err(g431_hw::iwdg::ScheduleError::ReportSlowerThanFeed)
         );
-    });
+    }
+    assert_eq!(crate::CONFIG.family, crate::FAMILY);
+    let forever = WatchdogTiming {
+        feed: Duration::from_secs(1),
+        timeout: Duration::from_secs(10_000),
+    };
+    assert_eq!(forever.timeout_us(), u32::MAX, "saturates");
 }

@@ -1,0 +1,265 @@
+//! ADC sample times against the impedance of what is sampled.
+//!
+//! The ADC charges its sample-and-hold capacitor C_ADC from the source during the sampling time T_S. STM32
+//! datasheets bound the source for an error under 1/4 LSB ("Equation 1: R_AIN max formula", e.g. the
+//! STM32F103x4/x6 datasheet, Doc ID 15060, whose table 47 this module reproduces in its tests):
+//! R_AIN < T_S / (f_ADC * C_ADC * ln(2^(N + 2))) - R_ADC, T_S in ADC clock cycles.
+//! For the STM32G431 this module takes C_ADC = 5 pF (DS12589's ADC characteristics as recalled; the datasheet
+//! could not be read here) and R_ADC = 0, which only errs towards allowing slightly larger sources; the margins
+//! below are wide either way.
+//!
+//! A source too slow for the longest sample time (the water sensor's 1 Mohm divider: about 310 kohm is the limit
+//! at 640.5 cycles and 42.5 MHz, 23 kohm at the 47.5 cycles used before) gets a capacitor at the pin: it supplies
+//! the sample's charge, and must be large enough that sharing it with C_ADC moves the pin by less than 1/4 LSB
+//! after a full-scale step (C >= C_ADC * 2^(N + 2)). The source then only has to refill that charge between
+//! conversions; the error that leaves is [`Adc::recharge_error_lsb`].
+
+/// ADC_SMPRx SMPy values (RM0440): the sampling time in ADC clock cycles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum SampleTime {
+    /// 2.5 cycles.
+    Cycles2_5,
+    /// 6.5 cycles.
+    Cycles6_5,
+    /// 12.5 cycles.
+    Cycles12_5,
+    /// 24.5 cycles.
+    Cycles24_5,
+    /// 47.5 cycles.
+    Cycles47_5,
+    /// 92.5 cycles.
+    Cycles92_5,
+    /// 247.5 cycles.
+    Cycles247_5,
+    /// 640.5 cycles.
+    Cycles640_5,
+}
+
+impl SampleTime {
+    /// Every sample time, shortest first.
+    pub const ALL: [SampleTime; 8] = [
+        SampleTime::Cycles2_5,
+        SampleTime::Cycles6_5,
+        SampleTime::Cycles12_5,
+        SampleTime::Cycles24_5,
+        SampleTime::Cycles47_5,
+        SampleTime::Cycles92_5,
+        SampleTime::Cycles247_5,
+        SampleTime::Cycles640_5,
+    ];
+
+    /// The longest.
+    pub const LONGEST: SampleTime = SampleTime::Cycles640_5;
+
+    /// The SMPy field value.
+    pub const fn bits(self) -> u8 {
+        self as u8
+    }
+
+    /// The sampling time in ADC clock cycles.
+    pub const fn cycles(self) -> f64 {
+        match self {
+            SampleTime::Cycles2_5 => 2.5,
+            SampleTime::Cycles6_5 => 6.5,
+            SampleTime::Cycles12_5 => 12.5,
+            SampleTime::Cycles24_5 => 24.5,
+            SampleTime::Cycles47_5 => 47.5,
+            SampleTime::Cycles92_5 => 92.5,
+            SampleTime::Cycles247_5 => 247.5,
+            SampleTime::Cycles640_5 => 640.5,
+        }
+    }
+}
+
+/// The parts of an ADC that bound what it can sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Adc {
+    /// The sample-and-hold capacitor, in pF.
+    pub c_adc_pf: f64,
+    /// The sampling switch's resistance, in ohms.
+    pub r_adc_ohms: f64,
+    /// Resolution in bits.
+    pub bits: u32,
+}
+
+/// The STM32G431's ADC in 12-bit mode (see the module documentation for the figures' source).
+pub const G431: Adc = Adc {
+    c_adc_pf: 5.0,
+    r_adc_ohms: 0.0,
+    bits: 12,
+};
+
+/// An analog input as the ADC sees it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Source {
+    /// The largest Thevenin resistance of the source, in ohms.
+    pub ohms: u32,
+    /// A capacitor from the pin to ground, in pF (0 for none).
+    pub hold_capacitor_pf: u32,
+}
+
+/// ln 2.
+const LN_2: f64 = core::f64::consts::LN_2;
+
+impl Adc {
+    /// ln(2^(N + 2)): the settling needed for 1/4 LSB.
+    const fn settling(&self) -> f64 {
+        (self.bits + 2) as f64 * LN_2
+    }
+
+    /// The largest source resistance `sample` settles within 1/4 LSB at an ADC clock of `adc_hz`, in ohms.
+    pub const fn max_source_ohms(&self, sample: SampleTime, adc_hz: u32) -> f64 {
+        sample.cycles() / (adc_hz as f64 * self.c_adc_pf * 1e-12 * self.settling()) - self.r_adc_ohms
+    }
+
+    /// The least capacitor at a pin that keeps the charge shared with C_ADC under 1/4 LSB after a full-scale
+    /// step: C_ADC * 2^(N + 2), in pF.
+    pub const fn min_hold_capacitor_pf(&self) -> f64 {
+        self.c_adc_pf * (1u64 << (self.bits + 2)) as f64
+    }
+
+    /// Whether `source` is read within 1/4 LSB with `sample` at `adc_hz`: either it settles by itself, or a
+    /// large enough capacitor holds the pin and the longest sample time is used.
+    pub const fn settles(&self, source: Source, sample: SampleTime, adc_hz: u32) -> bool {
+        source.ohms as f64 <= self.max_source_ohms(sample, adc_hz)
+            || (source.hold_capacitor_pf as f64 >= self.min_hold_capacitor_pf()
+                && sample as u8 == SampleTime::LONGEST as u8)
+    }
+
+    /// The shortest sample time that reads `source` within 1/4 LSB at `adc_hz`; the longest when none does (then
+    /// [`Adc::settles`] says whether its capacitor makes up for it).
+    pub const fn sample_time(&self, source: Source, adc_hz: u32) -> SampleTime {
+        let mut rest: &[SampleTime] = &SampleTime::ALL;
+        while let [sample, tail @ ..] = rest {
+            if source.ohms as f64 <= self.max_source_ohms(*sample, adc_hz) {
+                return *sample;
+            }
+            rest = tail;
+        }
+        SampleTime::LONGEST
+    }
+
+    /// The error, in LSB, left on a held pin by repeated conversions: each conversion of a pin at a full-scale
+    /// distance from what C_ADC last held takes C_ADC * V_FS from the pin's capacitor, which the source refills
+    /// through `source_ohms`. In the steady state the pin sits short of the source by R / (R + 1 / (f C_ADC)) of
+    /// full scale, f being the conversion rate: the conversions act as a switched-capacitor resistor. Independent
+    /// of the hold capacitor's size.
+    pub const fn recharge_error_lsb(&self, source_ohms: u32, conversions_per_s: u32) -> f64 {
+        let switched = 1.0 / (conversions_per_s as f64 * self.c_adc_pf * 1e-12);
+        let r = source_ohms as f64;
+        (1u64 << self.bits) as f64 * r / (r + switched)
+    }
+}
+
+/// The thruster's water sensor: the electrodes (1 Mohm at the water threshold, open when dry) over a 1 Mohm
+/// pull-down, so the source is at most 1 Mohm; 100 nF at the pin, the first E6 value above the 82 nF
+/// [`Adc::min_hold_capacitor_pf`] asks for. The RC of 1 Mohm and 100 nF (100 ms) delays a water reading by a
+/// fraction of a second, well within what a leak allows.
+pub const WATER: Source = Source {
+    ohms: 1_000_000,
+    hold_capacitor_pf: 100_000,
+};
+
+/// A 10 kohm NTC with a 10 kohm (motor) or 4.7 kohm (IHM08M1) fixed resistor: the parallel pair never exceeds the
+/// fixed resistor.
+pub const NTC: Source = Source {
+    ohms: 10_000,
+    hold_capacitor_pf: 0,
+};
+
+/// The IHM08M1's current-sense amplifier output: an op-amp (TSV994) behind the board's filter; its output
+/// resistance is not in the documents read here, so it is budgeted like the NTCs.
+pub const CURRENT: Source = NTC;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::clock::ADC_HZ;
+    use stm32_metapac::adc::vals::SampleTime as PacSampleTime;
+
+    /// The STM32F103's ADC: C_ADC 8 pF, R_ADC 1 kohm (its datasheets' ADC characteristics).
+    const F103: Adc = Adc {
+        c_adc_pf: 8.0,
+        r_adc_ohms: 1_000.0,
+        bits: 12,
+    };
+
+    #[test]
+    fn formula_reproduces_the_datasheet_table() {
+        // STM32F103x4/x6 (Doc ID 15060) table 47, R_AIN max for f_ADC = 14 MHz: cycles -> kohm.
+        let table = [
+            (1.5, 0.4),
+            (7.5, 5.9),
+            (13.5, 11.4),
+            (28.5, 25.2),
+            (41.5, 37.2),
+            (55.5, 50.0),
+        ];
+        for (cycles, kohm) in table {
+            let r = cycles / (14e6 * F103.c_adc_pf * 1e-12 * F103.settling()) - F103.r_adc_ohms;
+            assert!((r / 1000.0 - kohm).abs() < 0.1, "{cycles}: {r}");
+        }
+    }
+
+    #[test]
+    fn the_water_sensor_cannot_be_read_without_its_capacitor() {
+        // The binding before: 47.5 cycles at 42.5 MHz settles about 23 kohm, a fiftieth of the sensor.
+        assert!((G431.max_source_ohms(SampleTime::Cycles47_5, ADC_HZ) - 23_030.0).abs() < 10.0);
+        let bare = Source {
+            hold_capacitor_pf: 0,
+            ..WATER
+        };
+        assert!(!G431.settles(bare, SampleTime::Cycles47_5, ADC_HZ));
+        // Not even the longest sample time does: about 310 kohm.
+        assert!(G431.max_source_ohms(SampleTime::LONGEST, ADC_HZ) < 320_000.0);
+        assert!(!G431.settles(bare, SampleTime::LONGEST, ADC_HZ));
+        // With 100 nF at the pin and the longest time it does.
+        assert_eq!(G431.sample_time(WATER, ADC_HZ), SampleTime::LONGEST);
+        assert!(G431.settles(WATER, SampleTime::LONGEST, ADC_HZ));
+        assert!(!G431.settles(WATER, SampleTime::Cycles47_5, ADC_HZ));
+        assert!((G431.min_hold_capacitor_pf() - 81_920.0).abs() < 1.0);
+        assert!(f64::from(WATER.hold_capacitor_pf) >= G431.min_hold_capacitor_pf());
+    }
+
+    #[test]
+    fn repeated_conversions_leave_the_thresholds_where_they_are() {
+        // Sampled at 1 kHz. The source is the electrodes in parallel with the 1 Mohm pull-down.
+        let parallel = |ohms: f64| ohms * 1e6 / (ohms + 1e6);
+        // At the 1 Mohm water threshold (node at mid-scale, 1.02 counts per kohm): 10 LSB, 1 % of the threshold.
+        let water = G431.recharge_error_lsb(parallel(1e6) as u32, 1_000);
+        assert!(water < 10.5, "{water}");
+        let counts_per_ohm = 4095.0 * 1e6 / (2e6 * 2e6);
+        assert!(water / counts_per_ohm < 0.011 * 1e6);
+        // At the 100 kohm ground threshold (3.38 counts per kohm): under 2 LSB, 0.6 % of the threshold.
+        let ground = G431.recharge_error_lsb(parallel(1e5) as u32, 1_000);
+        assert!(ground < 2.0, "{ground}");
+        let counts_per_ohm = 4095.0 * 1e6 / (1.1e6 * 1.1e6);
+        assert!(ground / counts_per_ohm < 0.006 * 1e5);
+    }
+
+    #[test]
+    fn other_inputs_settle_on_their_own() {
+        let sample = G431.sample_time(NTC, ADC_HZ);
+        assert_eq!(sample, SampleTime::Cycles24_5);
+        assert!(G431.settles(NTC, sample, ADC_HZ));
+        assert!(!G431.settles(NTC, SampleTime::Cycles12_5, ADC_HZ));
+        assert_eq!(G431.sample_time(CURRENT, ADC_HZ), SampleTime::Cycles24_5);
+    }
+
+    #[test]
+    fn field_values_agree_with_the_pac() {
+        let pac = [
+            PacSampleTime::CYCLES2_5,
+            PacSampleTime::CYCLES6_5,
+            PacSampleTime::CYCLES12_5,
+            PacSampleTime::CYCLES24_5,
+            PacSampleTime::CYCLES47_5,
+            PacSampleTime::CYCLES92_5,
+            PacSampleTime::CYCLES247_5,
+            PacSampleTime::CYCLES640_5,
+        ];
+        for (ours, theirs) in SampleTime::ALL.into_iter().zip(pac) {
+            assert_eq!(ours.bits(), theirs.to_bits());
+        }
+    }
+}

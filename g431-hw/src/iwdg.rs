@@ -1,0 +1,160 @@
+//! The independent watchdog: prescaler and reload for a timeout, and the timing rules of a firmware that feeds it
+//! only while every task reports progress.
+//!
+//! RM0440 (IWDG): the counter runs from the LSI through a prescaler of 4 << PR (PR 0..=6, 7 = /256), counting
+//! down from RLR (12 bits); the timeout is (RLR + 1) * prescaler / f_LSI. The LSI is not precise, so the
+//! schedule is checked at its fastest (shortest timeout).
+
+use crate::clock::{LSI_HZ, LSI_MAX_HZ, LSI_MIN_HZ};
+
+/// IWDG_PR and IWDG_RLR.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Iwdg {
+    /// PR, 0..=6: prescaler 4 << PR.
+    pub pr: u8,
+    /// RLR, 0..=0xFFF.
+    pub rlr: u16,
+}
+
+impl Iwdg {
+    /// The prescaler's divisor.
+    pub const fn prescaler(&self) -> u32 {
+        4 << self.pr
+    }
+
+    /// The timeout at an LSI of `lsi_hz`, in microseconds.
+    pub const fn timeout_us(&self, lsi_hz: u32) -> u32 {
+        ((self.rlr as u64 + 1) * self.prescaler() as u64 * 1_000_000 / lsi_hz as u64) as u32
+    }
+}
+
+/// The smallest prescaler whose reload reaches `timeout_us` at the nominal LSI, and that reload (rounded to the
+/// nearest count); `None` beyond the longest timeout (32.8 s at 32 kHz) or for a zero timeout.
+pub const fn for_timeout(timeout_us: u32) -> Option<Iwdg> {
+    let mut pr: u8 = 0;
+    while pr <= 6 {
+        let prescaler = 4u64 << pr;
+        let counts = (timeout_us as u64 * LSI_HZ as u64 + prescaler * 500_000) / (prescaler * 1_000_000);
+        if counts >= 1 && counts <= 0x1000 {
+            return Some(Iwdg {
+                pr,
+                rlr: (counts - 1) as u16,
+            });
+        }
+        pr += 1;
+    }
+    None
+}
+
+/// How a firmware feeds the watchdog: a health task checks every `feed_period_us` that every task reported since
+/// the last check and only then feeds it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Schedule {
+    /// The health task's period.
+    pub feed_period_us: u32,
+    /// The longest a healthy task may go between two reports.
+    pub slowest_report_us: u32,
+    /// The watchdog's configured timeout.
+    pub timeout_us: u32,
+}
+
+/// Why a schedule is unsound.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ScheduleError {
+    /// A healthy task may report less often than the health check runs: a check finds its bit missing (a false
+    /// "tasks not reporting" warning) and skips a feed.
+    ReportSlowerThanFeed,
+    /// At the fastest LSI the watchdog bites before two feed periods: one late check resets the chip.
+    TimeoutTooShort,
+    /// The timeout cannot be set.
+    NoTimeout,
+}
+
+impl Schedule {
+    /// Check the schedule: every healthy task reports within a feed period, and at the fastest LSI the watchdog
+    /// outlasts two feed periods.
+    pub const fn check(&self) -> Result<Iwdg, ScheduleError> {
+        let Some(iwdg) = for_timeout(self.timeout_us) else {
+            return Err(ScheduleError::NoTimeout);
+        };
+        if self.slowest_report_us >= self.feed_period_us {
+            return Err(ScheduleError::ReportSlowerThanFeed);
+        }
+        if (iwdg.timeout_us(LSI_MAX_HZ) as u64) < 2 * self.feed_period_us as u64 {
+            return Err(ScheduleError::TimeoutTooShort);
+        }
+        Ok(iwdg)
+    }
+
+    /// The longest the watchdog can take to bite once feeding stops: its timeout at the slowest LSI.
+    pub const fn worst_bite_us(&self) -> u32 {
+        match for_timeout(self.timeout_us) {
+            Some(iwdg) => iwdg.timeout_us(LSI_MIN_HZ),
+            None => 0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stm32_metapac::iwdg::vals::Pr;
+
+    #[test]
+    fn prescaler_and_reload_follow_rm0440() {
+        // RM0440's table at 32 kHz: /4 covers 0.125 ms..=512 ms, /8 up to 1024 ms, ..., /256 up to 32 768 ms.
+        assert_eq!(for_timeout(125), Some(Iwdg { pr: 0, rlr: 0 }));
+        assert_eq!(for_timeout(512_000), Some(Iwdg { pr: 0, rlr: 0xFFF }));
+        assert_eq!(for_timeout(512_001).map(|i| i.pr), Some(0));
+        assert_eq!(for_timeout(600_000).map(|i| i.pr), Some(1));
+        assert_eq!(for_timeout(32_768_000), Some(Iwdg { pr: 6, rlr: 0xFFF }));
+        assert_eq!(for_timeout(40_000_000), None);
+        assert_eq!(for_timeout(0), None);
+        // The thruster's 250 ms: /4, 2000 counts, as embassy-stm32 would set it.
+        let iwdg = for_timeout(250_000).unwrap();
+        assert_eq!(iwdg, Iwdg { pr: 0, rlr: 1999 });
+        assert_eq!(iwdg.timeout_us(LSI_HZ), 250_000);
+        // The divisors by PR, as the PAC names them.
+        let pac = [
+            (Pr::DIVIDE_BY4, 4),
+            (Pr::DIVIDE_BY8, 8),
+            (Pr::DIVIDE_BY16, 16),
+            (Pr::DIVIDE_BY32, 32),
+            (Pr::DIVIDE_BY64, 64),
+            (Pr::DIVIDE_BY128, 128),
+            (Pr::DIVIDE_BY256, 256),
+        ];
+        for (pr, (name, divisor)) in pac.into_iter().enumerate() {
+            let iwdg = Iwdg { pr: pr as u8, rlr: 0 };
+            assert_eq!((Pr::from_bits(iwdg.pr), iwdg.prescaler()), (name, divisor));
+        }
+    }
+
+    #[test]
+    fn the_previous_schedule_warned_falsely() {
+        // Health checked every 50 ms while the I2C task, idle, reports every 50 ms plus up to one 25 ms transfer.
+        let before = Schedule {
+            feed_period_us: 50_000,
+            slowest_report_us: 75_000,
+            timeout_us: 250_000,
+        };
+        assert_eq!(before.check(), Err(ScheduleError::ReportSlowerThanFeed));
+    }
+
+    #[test]
+    fn the_thruster_schedule_holds_at_either_lsi_extreme() {
+        let schedule = Schedule {
+            feed_period_us: 100_000,
+            slowest_report_us: 75_000,
+            timeout_us: 250_000,
+        };
+        let iwdg = schedule.check().unwrap();
+        assert!(iwdg.timeout_us(LSI_MAX_HZ) >= 200_000);
+        assert!(schedule.worst_bite_us() < 300_000);
+        let short = Schedule {
+            timeout_us: 150_000,
+            ..schedule
+        };
+        assert_eq!(short.check(), Err(ScheduleError::TimeoutTooShort));
+    }
+}

@@ -1,0 +1,359 @@
+//! TIM1 driving three half-bridges through high/low gate drivers: the register values for each commutation step,
+//! the dead time, the break input and the safe state (RM0440, advanced-control timers TIM1/TIM8/TIM20).
+//!
+//! The X-NUCLEO-IHM08M1 drives each MOSFET pair through an L6398, whose low-side input LIN is *active low* with an
+//! internal pull-up and whose high-side input HIN is active high with an internal pull-down; with both inputs
+//! asking for their switch, its interlock turns both off. Sources: the L6398 datasheet (Doc ID 18199), whose DC
+//! characteristics give LIN's bias current at LIN = 0 V and HIN's at HIN = 15 V; ST's answer on the ST community
+//! forum about the L6398 input logic on the IHM08M1 (HIN high + LIN high turns the high side on, HIN low + LIN low
+//! the low side; output LIN inverted); and NuttX's IHM08M1 board support, which requires CHxN inverted for it
+//! (`boards/arm/stm32/common/src/stm32_ihm08m1.c`: "PWM complementary channels must have inverted polarity"). So
+//! CCxP = 0 and CCxNP = 1, and every idle and off level below derives from them.
+//!
+//! The safe state: both switches of every phase off, *driven* by the MCU (not left to the driver's pulls):
+//! - a phase that floats is `CCxE = 1, CCxNE = 0, OCxREF forced inactive` with OSSR = 1: CHx = CCxP and CHxN sits
+//!   in its off state CCxNP (RM0440 "Output control bits for complementary OCx and OCxN channels with break
+//!   feature": with MOE = 1 and CCxE = CCxNE = 0 the outputs are *not driven*, whatever OSSR);
+//! - after a break, or with MOE cleared, OSSI = 1 drives the idle levels OISx = CCxP, OISxN = CCxNP;
+//! - the break input is filtered (BKF) so switching noise on the overcurrent line does not trip it.
+//!
+//! Commutation changes CCER and the output modes together at a COM event (CR2.CCPC = 1, software COMG), so a
+//! step never passes through a mixed pattern; the compare registers are preloaded and take effect at the next
+//! update event.
+
+/// What one half-bridge does in a commutation step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PhaseMode {
+    /// Complementary PWM: high switch for the duty, low switch for the rest, dead time between.
+    Switching,
+    /// Low switch held on.
+    LowOn,
+    /// Both switches held off.
+    Off,
+}
+
+/// The input polarity of a high/low gate driver.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GateDriver {
+    /// The high-side input turns its switch on when high.
+    pub high_active_high: bool,
+    /// The low-side input turns its switch on when high.
+    pub low_active_high: bool,
+}
+
+impl GateDriver {
+    /// ST L6398: HIN active high, LIN active low (see the module documentation).
+    pub const L6398: GateDriver = GateDriver {
+        high_active_high: true,
+        low_active_high: false,
+    };
+
+    /// CCxP: 1 inverts the channel output, so a driver input that is active low gets CCxP = 1.
+    const fn ccp(&self) -> bool {
+        !self.high_active_high
+    }
+
+    /// CCxNP likewise for the complementary output.
+    const fn ccnp(&self) -> bool {
+        !self.low_active_high
+    }
+}
+
+/// The power stage behind TIM1 and the choices made for it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Bridge {
+    /// The gate drivers' input polarity.
+    pub driver: GateDriver,
+    /// Dead time TIM1 inserts between a phase's two switches, in ns.
+    pub dead_time_ns: u32,
+    /// The break input is active low.
+    pub break_active_low: bool,
+    /// Pulses on the break input shorter than this are ignored (switching noise), in ns.
+    pub break_glitch_ns: u32,
+    /// Re-enable the outputs at the next update event once the break input is inactive (AOE): cycle-by-cycle
+    /// current limiting by the overcurrent comparator.
+    pub auto_restart: bool,
+    /// PWM frequency, center-aligned.
+    pub pwm_hz: u32,
+    /// Largest duty the high switch may get, in 1/10 000: the low switch must conduct every period to recharge
+    /// the high-side driver's bootstrap capacitor.
+    pub max_duty: u16,
+}
+
+/// The X-NUCLEO-IHM08M1 as the thruster drives it.
+///
+/// - 1 us dead time in TIM1, on top of the L6398's own fixed 320 ns (NuttX's IHM08M1 support, which also keeps a
+///   timer dead time "for sure").
+/// - The overcurrent comparator pulls BKIN low (the binding's PA6); pulses under 400 ns are taken as switching
+///   noise (an engineering margin over the MOSFETs' switching transients, to confirm on the scope at first
+///   power-up); the filter still reacts well within a microsecond.
+/// - 20 kHz: above hearing.
+/// - At most 95 % duty, as NuttX's IHM08M1 support (`MAX_DUTY_B16 = 0.95` for center-aligned PWM): at 20 kHz
+///   that leaves the low switch 2.5 us per period, 1.5 us of it conducting after TIM1's dead time, to refresh the
+///   bootstrap capacitor.
+pub const IHM08M1: Bridge = Bridge {
+    driver: GateDriver::L6398,
+    dead_time_ns: 1_000,
+    break_active_low: true,
+    break_glitch_ns: 400,
+    auto_restart: true,
+    pwm_hz: 20_000,
+    max_duty: 9_500,
+};
+
+/// Full scale of a duty in [`Bridge::compare`].
+pub const FULL_DUTY: u16 = 10_000;
+
+/// The least time per period the low switch must conduct at the highest duty, so the bootstrap capacitor of the
+/// high-side driver is refreshed every period: an engineering margin over the L6398's own 320 ns dead time and
+/// its propagation delays, to be confirmed on the scope at first power-up (no bootstrap under-voltage dropouts of
+/// the high-side gate at full duty).
+pub const MIN_LOW_SIDE_NS: u32 = 1_000;
+
+/// CCMRx output-compare modes OCxM[3:0] (RM0440 TIMx_CCMR1).
+const OCM_FORCE_INACTIVE: u32 = 0b0100;
+const OCM_PWM1: u32 = 0b0110;
+
+/// The compare register CCRx is preloaded (OCxPE).
+const OCPE: u32 = 1 << 3;
+
+/// CR2: capture/compare preloaded control (CCxE, CCxNE, OCxM change at a COM event).
+const CCPC: u32 = 1 << 0;
+
+/// BDTR bits.
+const OSSI: u32 = 1 << 10;
+const OSSR: u32 = 1 << 11;
+const BKE: u32 = 1 << 12;
+const BKP: u32 = 1 << 13;
+const AOE: u32 = 1 << 14;
+const MOE: u32 = 1 << 15;
+const BKF_SHIFT: u32 = 16;
+
+/// EGR: generate a COM event.
+pub const EGR_COMG: u32 = 1 << 5;
+
+/// AF1: the BKIN pin feeds break input 1 (BKINE, its reset value), not inverted (BKINP = 0); the polarity is
+/// BDTR.BKP's.
+pub const AF1: u32 = 1 << 0;
+
+/// CCMRx, CCER of one commutation step; written while CR2.CCPC = 1, they take effect together at the COM event
+/// (`EGR = EGR_COMG`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Commutation {
+    /// CCMR1 (output mode): channels 1 and 2.
+    pub ccmr1: u32,
+    /// CCMR2 (output mode): channel 3 (channel 4 unused).
+    pub ccmr2: u32,
+    /// CCER.
+    pub ccer: u32,
+}
+
+/// Bits of one output-compare channel in a CCMR register, for the low (`upper = false`) or high half: OCxM[2:0]
+/// at bits 4..6, OCxM[3] at bit 16, OCxPE at bit 3; the high half is the same 8 bits up. CCxS = 00 (output).
+const fn ccmr_channel(mode: PhaseMode, upper: bool) -> u32 {
+    let ocm = match mode {
+        PhaseMode::Switching => OCM_PWM1,
+        PhaseMode::LowOn | PhaseMode::Off => OCM_FORCE_INACTIVE,
+    };
+    let bits = OCPE | ((ocm & 0b111) << 4) | ((ocm >> 3) << 16);
+    if upper { bits << 8 } else { bits }
+}
+
+/// CCER nibble of one channel: CCxE, CCxP, CCxNE, CCxNP at bits 0..=3.
+const fn ccer_channel(mode: PhaseMode, driver: &GateDriver) -> u32 {
+    let (enable, enable_n) = match mode {
+        PhaseMode::Switching | PhaseMode::LowOn => (true, true),
+        PhaseMode::Off => (true, false),
+    };
+    (enable as u32) | ((driver.ccp() as u32) << 1) | ((enable_n as u32) << 2) | ((driver.ccnp() as u32) << 3)
+}
+
+/// Dead-time ticks of a BDTR.DTG value, in t_DTS (RM0440 TIMx_BDTR DTG[7:0]):
+/// 0xx: DTG; 10x: (64 + DTG[5:0]) * 2; 110: (32 + DTG[4:0]) * 8; 111: (32 + DTG[4:0]) * 16.
+pub const fn dead_time_ticks(dtg: u8) -> u32 {
+    let dtg = dtg as u32;
+    if dtg & 0x80 == 0 {
+        dtg
+    } else if dtg & 0xC0 == 0x80 {
+        (64 + (dtg & 0x3F)) * 2
+    } else if dtg & 0xE0 == 0xC0 {
+        (32 + (dtg & 0x1F)) * 8
+    } else {
+        (32 + (dtg & 0x1F)) * 16
+    }
+}
+
+/// The DTG value giving the shortest dead time of at least `ticks` t_DTS; `None` above 1008 ticks.
+pub const fn dtg_at_least(ticks: u32) -> Option<u8> {
+    let mut best: Option<u8> = None;
+    let mut dtg: u32 = 0;
+    while dtg <= 0xFF {
+        let t = dead_time_ticks(dtg as u8);
+        if t >= ticks {
+            best = match best {
+                Some(b) if dead_time_ticks(b) <= t => Some(b),
+                _ => Some(dtg as u8),
+            };
+        }
+        dtg += 1;
+    }
+    best
+}
+
+/// Length of the break filter BKF in t_CK_INT with t_DTS = t_CK_INT (CR1.CKD = 00): the sampling divider times
+/// the N samples that must agree (RM0440 TIMx_BDTR BKF[3:0]); 0 for no filter.
+pub const fn break_filter_ticks(bkf: u8) -> u32 {
+    match bkf & 0x0F {
+        0 => 0,
+        1 => 2,
+        2 => 4,
+        3 => 8,
+        4 => 2 * 6,
+        5 => 2 * 8,
+        6 => 4 * 6,
+        7 => 4 * 8,
+        8 => 8 * 6,
+        9 => 8 * 8,
+        10 => 16 * 5,
+        11 => 16 * 6,
+        12 => 16 * 8,
+        13 => 32 * 5,
+        14 => 32 * 6,
+        _ => 32 * 8,
+    }
+}
+
+/// The shortest break filter at least `ticks` long; `None` above 256 ticks.
+pub const fn break_filter_at_least(ticks: u32) -> Option<u8> {
+    let mut best: Option<u8> = None;
+    let mut bkf: u8 = 0;
+    while bkf <= 0x0F {
+        let t = break_filter_ticks(bkf);
+        if t >= ticks {
+            best = match best {
+                Some(b) if break_filter_ticks(b) <= t => Some(b),
+                _ => Some(bkf),
+            };
+        }
+        bkf += 1;
+    }
+    best
+}
+
+/// `ns` in ticks of a `hz` clock, rounded up.
+pub const fn ns_to_ticks(ns: u32, hz: u32) -> u32 {
+    (ns as u64 * hz as u64).div_ceil(1_000_000_000) as u32
+}
+
+/// `ticks` of a `hz` clock in ns, rounded down.
+pub const fn ticks_to_ns(ticks: u32, hz: u32) -> u32 {
+    (ticks as u64 * 1_000_000_000 / hz as u64) as u32
+}
+
+impl Bridge {
+    /// The step's CCMR1, CCMR2 and CCER for phases A, B, C on channels 1, 2, 3.
+    pub const fn commutation(&self, modes: [PhaseMode; 3]) -> Commutation {
+        let [a, b, c] = modes;
+        Commutation {
+            ccmr1: ccmr_channel(a, false) | ccmr_channel(b, true),
+            ccmr2: ccmr_channel(c, false),
+            ccer: ccer_channel(a, &self.driver)
+                | (ccer_channel(b, &self.driver) << 4)
+                | (ccer_channel(c, &self.driver) << 8),
+        }
+    }
+
+    /// Every phase off: the state after reset, a fault or a stop.
+    pub const fn off(&self) -> Commutation {
+        self.commutation([PhaseMode::Off; 3])
+    }
+
+    /// CR2: CCPC = 1 (commutation through COM events, COMG only: CCUS = 0), and the idle levels with MOE = 0
+    /// equal to each output's inactive level: OISx = CCxP, OISxN = CCxNP.
+    pub const fn cr2(&self) -> u32 {
+        let ois = self.driver.ccp() as u32;
+        let oisn = self.driver.ccnp() as u32;
+        let pair = ois | (oisn << 1);
+        CCPC | (pair << 8) | (pair << 10) | (pair << 12)
+    }
+
+    /// DTG for the bridge's dead time at a `tim_hz` timer clock; 0 when it does not fit (caught by
+    /// [`Bridge::is_valid`]).
+    pub const fn dtg(&self, tim_hz: u32) -> u8 {
+        match dtg_at_least(ns_to_ticks(self.dead_time_ns, tim_hz)) {
+            Some(dtg) => dtg,
+            None => 0,
+        }
+    }
+
+    /// BKF for the bridge's glitch length at a `tim_hz` timer clock; 0 (no filter) when none is long enough
+    /// (caught by [`Bridge::is_valid`]).
+    pub const fn bkf(&self, tim_hz: u32) -> u8 {
+        match break_filter_at_least(ns_to_ticks(self.break_glitch_ns, tim_hz)) {
+            Some(bkf) => bkf,
+            None => 0,
+        }
+    }
+
+    /// BDTR as configured, outputs not yet enabled (MOE = 0): dead time, OSSI = OSSR = 1 (off and idle states
+    /// driven), break 1 enabled with its polarity and filter, AOE per `auto_restart`, LOCK = 0 (embassy-stm32's
+    /// constructor writes BDTR first, and RM0440 lets LOCK be written only once after reset).
+    pub const fn bdtr(&self, tim_hz: u32) -> u32 {
+        let polarity = if self.break_active_low { 0 } else { BKP };
+        let restart = if self.auto_restart { AOE } else { 0 };
+        self.dtg(tim_hz) as u32 | OSSI | OSSR | BKE | polarity | restart | ((self.bkf(tim_hz) as u32) << BKF_SHIFT)
+    }
+
+    /// BDTR with the outputs stopped for good: MOE = 0 (idle levels, both switches off) and AOE = 0 so that no
+    /// update event re-enables them. For the panic and fault handlers.
+    pub const fn bdtr_stopped(&self, tim_hz: u32) -> u32 {
+        self.bdtr(tim_hz) & !(AOE | MOE)
+    }
+
+    /// BDTR with the outputs enabled (MOE = 1).
+    pub const fn bdtr_armed(&self, tim_hz: u32) -> u32 {
+        self.bdtr(tim_hz) | MOE
+    }
+
+    /// ARR of center-aligned PWM at the bridge's frequency: the counter runs 0..ARR..0 once per period.
+    pub const fn arr(&self, tim_hz: u32) -> u32 {
+        tim_hz / (2 * self.pwm_hz)
+    }
+
+    /// CCRx for a duty in 1/10 000 (0..=10 000) with ARR `arr`: the high switch is on while the counter is below
+    /// CCRx (PWM mode 1), so duty = CCR / ARR; capped at `max_duty`.
+    pub const fn compare(&self, duty: u16, arr: u16) -> u16 {
+        let duty = if duty > self.max_duty { self.max_duty } else { duty };
+        (duty as u32 * arr as u32 / FULL_DUTY as u32) as u16
+    }
+
+    /// Whether every value fits its register and the stage's limits hold at `tim_hz`: the dead time is encodable,
+    /// a break filter long enough exists and still reacts within a microsecond, the PWM period fits the 16-bit
+    /// counter, and at the highest duty the low switch conducts at least [`MIN_LOW_SIDE_NS`] per period.
+    pub const fn is_valid(&self, tim_hz: u32) -> bool {
+        if dtg_at_least(ns_to_ticks(self.dead_time_ns, tim_hz)).is_none() {
+            return false;
+        }
+        let Some(bkf) = break_filter_at_least(ns_to_ticks(self.break_glitch_ns, tim_hz)) else {
+            return false;
+        };
+        let arr = self.arr(tim_hz);
+        if arr == 0 || arr > 0xFFFF || self.max_duty > FULL_DUTY || bkf == 0 {
+            return false;
+        }
+        ticks_to_ns(break_filter_ticks(bkf), tim_hz) <= 1_000
+            && ticks_to_ns(self.low_side_ticks(tim_hz), tim_hz) >= MIN_LOW_SIDE_NS
+    }
+
+    /// Ticks per period the low switch conducts at the highest duty: the counter spends 2 * (ARR - CCR) ticks at
+    /// or above CCR per center-aligned period, and the low switch turns on a dead time after the high one turns
+    /// off.
+    pub const fn low_side_ticks(&self, tim_hz: u32) -> u32 {
+        let arr = self.arr(tim_hz);
+        let ccr = self.compare(FULL_DUTY, arr as u16) as u32;
+        (2 * (arr - ccr)).saturating_sub(dead_time_ticks(self.dtg(tim_hz)))
+    }
+}
+
+#[cfg(test)]
+mod tests;

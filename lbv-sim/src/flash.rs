@@ -1,0 +1,308 @@
+//! NOR flash, as the STM32G4's: erased a page at a time to 0xFF, programmed a double word (8 bytes) at a time,
+//! each double word once between erases. It implements embedded-storage's blocking and async `NorFlash`, so a
+//! settings store (sequential-storage) runs on it as on the chip.
+//!
+//! It is a handle: clones share the memory, so the flash outlives the board that uses it (a master that reboots
+//! or loses power finds what it wrote). A power cut can be armed to land in the middle of an erase or a program:
+//! the operation stops at that byte, leaving the page torn, and the flash answers nothing until power returns.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+
+use embedded_storage::nor_flash::{self, NorFlashError, NorFlashErrorKind};
+
+/// Why a flash operation failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FlashError {
+    /// An offset or length not aligned to the operation's unit.
+    NotAligned,
+    /// Beyond the end of the flash.
+    OutOfBounds,
+    /// Programming a double word that is not erased (the STM32's PROGERR).
+    NotErased,
+    /// The power went (or is off).
+    PowerCut,
+}
+
+impl NorFlashError for FlashError {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            FlashError::NotAligned => NorFlashErrorKind::NotAligned,
+            FlashError::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            FlashError::NotErased | FlashError::PowerCut => NorFlashErrorKind::Other,
+        }
+    }
+}
+
+impl From<NorFlashErrorKind> for FlashError {
+    fn from(kind: NorFlashErrorKind) -> Self {
+        match kind {
+            NorFlashErrorKind::NotAligned => FlashError::NotAligned,
+            _ => FlashError::OutOfBounds,
+        }
+    }
+}
+
+/// What the flash has done.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FlashStats {
+    /// Pages erased.
+    pub erases: u64,
+    /// Bytes programmed.
+    pub programmed: u64,
+    /// Operations torn by a power cut.
+    pub torn: u32,
+}
+
+#[derive(Debug)]
+struct Memory {
+    bytes: Vec<u8>,
+    /// Bytes that may still be erased or programmed before the power goes; None: no cut armed.
+    until_cut: Option<usize>,
+    powered: bool,
+    stats: FlashStats,
+}
+
+impl Memory {
+    /// Spend one byte of the armed power cut's budget: false once the power has gone.
+    fn spend(&mut self) -> bool {
+        match self.until_cut {
+            Some(0) => {
+                self.powered = false;
+                self.until_cut = None;
+                self.stats.torn += 1;
+                false
+            }
+            Some(left) => {
+                self.until_cut = Some(left - 1);
+                true
+            }
+            None => true,
+        }
+    }
+}
+
+/// A NOR flash of pages of `ERASE_SIZE` bytes, programmed `WRITE_SIZE` bytes at a time; clones share it.
+#[derive(Debug, Clone)]
+pub struct Flash<const WRITE_SIZE: usize, const ERASE_SIZE: usize>(Rc<RefCell<Memory>>);
+
+/// The STM32G4's flash: 8-byte double words, 2 KiB pages (RM0440 3.3.7, 3.3.6).
+pub type Stm32g4Flash = Flash<8, 2048>;
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_SIZE> {
+    /// `pages` erased pages.
+    pub fn new(pages: usize) -> Self {
+        Self(Rc::new(RefCell::new(Memory {
+            bytes: vec![0xFF; pages.saturating_mul(ERASE_SIZE)],
+            until_cut: None,
+            powered: true,
+            stats: FlashStats::default(),
+        })))
+    }
+
+    /// A copy of everything in it.
+    pub fn contents(&self) -> Vec<u8> {
+        self.0.borrow().bytes.clone()
+    }
+
+    /// Cut the power once `bytes` more bytes have been erased or programmed: the operation under way then stops
+    /// where it is.
+    pub fn cut_power_after(&self, bytes: usize) {
+        self.0.borrow_mut().until_cut = Some(bytes);
+    }
+
+    /// Power back on (a cut armed and not yet reached is disarmed).
+    pub fn power_on(&self) {
+        let mut memory = self.0.borrow_mut();
+        memory.powered = true;
+        memory.until_cut = None;
+    }
+
+    /// Whether it has power.
+    pub fn powered(&self) -> bool {
+        self.0.borrow().powered
+    }
+
+    /// What it has done so far.
+    pub fn stats(&self) -> FlashStats {
+        self.0.borrow().stats
+    }
+
+    fn read_at(&self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        nor_flash::check_read(self, offset, bytes.len())?;
+        let memory = self.0.borrow();
+        if !memory.powered {
+            return Err(FlashError::PowerCut);
+        }
+        let start = offset as usize;
+        let stored = memory
+            .bytes
+            .get(start..start + bytes.len())
+            .ok_or(FlashError::OutOfBounds)?;
+        bytes.copy_from_slice(stored);
+        Ok(())
+    }
+
+    fn erase_range(&self, from: u32, to: u32) -> Result<(), FlashError> {
+        nor_flash::check_erase(self, from, to)?;
+        let mut memory = self.0.borrow_mut();
+        if !memory.powered {
+            return Err(FlashError::PowerCut);
+        }
+        for page in (from as usize..to as usize).step_by(ERASE_SIZE.max(1)) {
+            for at in page..page + ERASE_SIZE {
+                if !memory.spend() {
+                    return Err(FlashError::PowerCut);
+                }
+                if let Some(byte) = memory.bytes.get_mut(at) {
+                    *byte = 0xFF;
+                }
+            }
+            memory.stats.erases += 1;
+        }
+        Ok(())
+    }
+
+    fn program(&self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        nor_flash::check_write(self, offset, bytes.len())?;
+        let mut memory = self.0.borrow_mut();
+        if !memory.powered {
+            return Err(FlashError::PowerCut);
+        }
+        let start = offset as usize;
+        let erased = memory
+            .bytes
+            .get(start..start + bytes.len())
+            .is_some_and(|stored| stored.iter().all(|byte| *byte == 0xFF));
+        if !erased {
+            return Err(FlashError::NotErased);
+        }
+        for (at, byte) in (start..).zip(bytes) {
+            if !memory.spend() {
+                return Err(FlashError::PowerCut);
+            }
+            if let Some(stored) = memory.bytes.get_mut(at) {
+                // NOR: programming only clears bits.
+                *stored &= *byte;
+            }
+            memory.stats.programmed += 1;
+        }
+        Ok(())
+    }
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_flash::ErrorType for Flash<WRITE_SIZE, ERASE_SIZE> {
+    type Error = FlashError;
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_flash::ReadNorFlash for Flash<WRITE_SIZE, ERASE_SIZE> {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        self.read_at(offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        self.0.borrow().bytes.len()
+    }
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_flash::NorFlash for Flash<WRITE_SIZE, ERASE_SIZE> {
+    const WRITE_SIZE: usize = WRITE_SIZE;
+    const ERASE_SIZE: usize = ERASE_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+        self.erase_range(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        self.program(offset, bytes)
+    }
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> embedded_storage_async::nor_flash::ReadNorFlash
+    for Flash<WRITE_SIZE, ERASE_SIZE>
+{
+    const READ_SIZE: usize = 1;
+
+    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        self.read_at(offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        self.0.borrow().bytes.len()
+    }
+}
+
+impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> embedded_storage_async::nor_flash::NorFlash
+    for Flash<WRITE_SIZE, ERASE_SIZE>
+{
+    const WRITE_SIZE: usize = WRITE_SIZE;
+    const ERASE_SIZE: usize = ERASE_SIZE;
+
+    async fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+        self.erase_range(from, to)
+    }
+
+    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        self.program(offset, bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
+
+    type Small = Flash<8, 64>;
+
+    fn read(flash: &mut Small, offset: u32, len: usize) -> Result<Vec<u8>, FlashError> {
+        let mut bytes = vec![0; len];
+        flash.read(offset, &mut bytes).map(|()| bytes)
+    }
+
+    #[test]
+    fn erase_sets_0xff_and_program_writes_each_double_word_once() {
+        let mut flash = Small::new(2);
+        assert_eq!(flash.capacity(), 128);
+        assert_eq!(read(&mut flash, 0, 128).unwrap(), vec![0xFF; 128]);
+        flash.write(8, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
+        assert_eq!(read(&mut flash, 6, 4).unwrap(), [0xFF, 0xFF, 1, 2]);
+        assert_eq!(flash.write(8, &[0; 8]), Err(FlashError::NotErased));
+        assert_eq!(flash.write(3, &[0; 8]), Err(FlashError::NotAligned));
+        assert_eq!(flash.write(128, &[0; 8]), Err(FlashError::OutOfBounds));
+        assert_eq!(flash.erase(0, 32), Err(FlashError::NotAligned));
+        flash.erase(0, 64).unwrap();
+        assert_eq!(read(&mut flash, 8, 8).unwrap(), vec![0xFF; 8]);
+        flash.write(8, &[9; 8]).unwrap();
+        assert_eq!(flash.stats().erases, 1);
+        assert_eq!(flash.stats().programmed, 16);
+    }
+
+    #[test]
+    fn a_power_cut_tears_the_operation_under_way_and_the_flash_keeps_it() {
+        let mut flash = Small::new(1);
+        let kept = flash.clone();
+        flash.write(0, &[0; 64]).unwrap();
+        flash.cut_power_after(20);
+        assert_eq!(flash.erase(0, 64), Err(FlashError::PowerCut));
+        assert!(!flash.powered());
+        assert_eq!(read(&mut flash, 0, 1), Err(FlashError::PowerCut));
+        // The board that owned this handle is gone; the memory stays.
+        drop(flash);
+        kept.power_on();
+        let contents = kept.contents();
+        assert_eq!(&contents[..20], &[0xFF; 20], "erased up to the cut");
+        assert_eq!(&contents[20..], &[0; 44], "the rest as it was");
+        assert_eq!(kept.stats().torn, 1);
+        let mut flash = kept;
+        flash.erase(0, 64).unwrap();
+        flash.cut_power_after(3);
+        assert_eq!(flash.write(32, &[0x55; 8]), Err(FlashError::PowerCut));
+        flash.power_on();
+        assert_eq!(
+            read(&mut flash, 32, 8).unwrap(),
+            [0x55, 0x55, 0x55, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]
+        );
+    }
+}

@@ -1,0 +1,24 @@
+//! The simulated world the LBV firmware cores run in on the host: the same `run` functions as the STM32 images,
+//! against simulated ports, on virtual time. The bench (`lbv bench`) and every host test of the cores build on it;
+//! nothing else models a bus, a link, a flash or the clock.
+//!
+//! - [`clock`]: the virtual clock (embassy-time's time driver on the host, one per thread);
+//! - [`Executor`]: polls the woken tasks, removes tasks (a reset), moves the clock in steps;
+//! - [`i2c`]: I2C buses with bit-time accounting, devices and firmware slave ports, a TCA9548A, NACKs, clock
+//!   stretching, corruption, SDA held low, and the lines as GPIOs for the bus recovery;
+//! - [`Queue`], [`SerialRx`], [`SerialTx`], [`CanBus`]: serial links and a CAN bus;
+//! - [`flash`]: NOR flash with power-cut faults.
+//!
+//! All state is owned: a board is a set of handles on these parts and a few tasks; dropping them (a power cycle)
+//! frees everything. This crate knows none of the firmware crates: their port traits are implemented where they
+//! are defined, or by thin adapters in the crate that wires a board.
+
+pub mod clock;
+mod executor;
+pub mod flash;
+pub mod i2c;
+mod queue;
+
+pub use clock::Clock;
+pub use executor::{Executor, TaskId};
+pub use queue::{CanBus, Queue, SerialRx, SerialTx};

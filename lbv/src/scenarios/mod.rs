@@ -1,0 +1,183 @@
+//! The bench's scenarios: each injects something into the running vehicle and checks the reaction the
+//! interface specification (and the project's reading of it) calls for. `lbv bench` runs them, and so does
+//! `cargo test` (one test each, in `tests.rs`), through the same harness.
+//!
+//! - [`harness`]: the run, its checks and report, and the checks every run gets;
+//! - [`fault`]: the one [`Fault`] type the scenarios, the soak and the acceptance operator inject and clear;
+//! - the scenario groups: [`vehicle`], [`thruster_faults`], [`bus`], [`soak`], [`acceptance`].
+
+pub mod acceptance;
+pub mod bus;
+pub mod fault;
+pub mod harness;
+pub mod soak;
+pub mod thruster_faults;
+pub mod vehicle;
+
+#[cfg(test)]
+mod tests;
+
+pub use harness::{Report, Scenario, run_with};
+
+use acceptance::acceptance;
+use bus::{bad_frames, missing_thruster, reset_mid_transfer, stuck_sda};
+use harness::{dev_kits, lbv300, legacy6, mixed};
+use soak::soak;
+use thruster_faults::{ground_fault, hall, overtemp, stall, water};
+use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
+
+/// Every scenario, in the order `--list` and `--all` use.
+pub const SCENARIOS: &[Scenario] = &[
+    Scenario {
+        name: "dive",
+        about: "arm, drive ahead, yaw, disarm: thrusters follow the sticks, telemetry reaches the console",
+        seconds: 12.0,
+        vehicle: mixed,
+        run: dive,
+    },
+    Scenario {
+        name: "water-legacy",
+        about: "water (500 kohm) in a Legacy thruster: it stops and latches; the others keep working",
+        seconds: 6.0,
+        vehicle: legacy6,
+        run: water,
+    },
+    Scenario {
+        name: "water-seabotix",
+        about: "water (500 kohm) in a SeaBotix thruster: a warning only, it keeps driving; clears when dry",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: water,
+    },
+    Scenario {
+        name: "ground-fault-legacy",
+        about: "50 kohm between the water electrodes, Legacy: stops, latched after drying",
+        seconds: 6.0,
+        vehicle: legacy6,
+        run: ground_fault,
+    },
+    Scenario {
+        name: "ground-fault-seabotix",
+        about: "50 kohm between the water electrodes, SeaBotix: stops, latched after drying",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: ground_fault,
+    },
+    Scenario {
+        name: "overtemp-legacy",
+        about: "a Legacy thruster's winding driven hot: stops at 110 C, resumes after cooling to 100 C",
+        seconds: 60.0,
+        vehicle: legacy6,
+        run: overtemp,
+    },
+    Scenario {
+        name: "overtemp-seabotix",
+        about: "a SeaBotix thruster's winding driven hot: stops at 110 C, resumes after cooling to 100 C",
+        seconds: 60.0,
+        vehicle: lbv300,
+        run: overtemp,
+    },
+    Scenario {
+        name: "stall-legacy",
+        about: "a rope in a Legacy thruster's propeller: stall in 400 ms, cleared by a zero order",
+        seconds: 6.0,
+        vehicle: legacy6,
+        run: stall,
+    },
+    Scenario {
+        name: "stall-seabotix",
+        about: "a rope in a SeaBotix thruster's propeller: stall in 400 ms, cleared by a zero order",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: stall,
+    },
+    Scenario {
+        name: "hall-legacy",
+        about: "a Legacy thruster's hall sensors unplugged (000): stops at once, resumes when they read normal",
+        seconds: 6.0,
+        vehicle: legacy6,
+        run: hall,
+    },
+    Scenario {
+        name: "hall-seabotix",
+        about: "a SeaBotix thruster's hall sensors unplugged (000): stops at once, resumes when they read normal",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: hall,
+    },
+    Scenario {
+        name: "bad-frames",
+        about: "corrupted status frames, orders with bad checksums and out-of-range orders: counted, change nothing",
+        seconds: 8.0,
+        vehicle: mixed,
+        run: bad_frames,
+    },
+    Scenario {
+        name: "missing-thruster",
+        about: "one thruster unpowered: found by its first NACK, retried with back-off, the others unslowed",
+        seconds: 8.0,
+        vehicle: lbv300,
+        run: missing_thruster,
+    },
+    Scenario {
+        name: "stuck-sda",
+        about: "a slave holds SDA low for 5, then 12 clocks: the master's recovery clocks the bus free, polling resumes",
+        seconds: 4.0,
+        vehicle: lbv300,
+        run: stuck_sda,
+    },
+    Scenario {
+        name: "reset-mid-transfer",
+        about: "a thruster loses power mid-transfer: the master times out, recovers, and the thruster rejoins",
+        seconds: 6.0,
+        vehicle: mixed,
+        run: reset_mid_transfer,
+    },
+    Scenario {
+        name: "console-silence",
+        about: "the console link drops for 3 s while armed: disarm and stop after 1 s, no restart until re-armed",
+        seconds: 8.0,
+        vehicle: lbv300,
+        run: console_silence,
+    },
+    Scenario {
+        name: "master-reboot",
+        about: "the master resets while driving: it orders every thruster to stop, finds them again, drives once re-armed",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: master_reboot,
+    },
+    Scenario {
+        name: "battery-lost",
+        about: "the BAT board's CAN frames stop for 3 s: flagged stale after 1 s, resumed after",
+        seconds: 8.0,
+        vehicle: lbv300,
+        run: battery_lost,
+    },
+    Scenario {
+        name: "battery-bits",
+        about: "BAT status bits flip: start-up report of every bit, then only the switched bits",
+        seconds: 5.0,
+        vehicle: lbv300,
+        run: battery_bits,
+    },
+    Scenario {
+        name: "acceptance",
+        about: "the master's acceptance test against a SeaBotix and a Legacy thruster, the bench acting as operator",
+        seconds: 60.0,
+        vehicle: dev_kits,
+        run: acceptance,
+    },
+    Scenario {
+        name: "soak",
+        about: "random faults and traffic over a long run: every order applied, no task stalled",
+        seconds: 120.0,
+        vehicle: mixed,
+        run: soak,
+    },
+];
+
+/// The scenario called `name`.
+pub fn find(name: &str) -> Option<&'static Scenario> {
+    SCENARIOS.iter().find(|scenario| scenario.name == name)
+}

@@ -1,0 +1,223 @@
+//! The vehicle as a whole: a dive from the ground station, the console link dropping, the battery board's frames
+//! lost and its status bits switching.
+
+use bat_proto::StatusBit;
+use lbv_master_fw::shared::ManualInput;
+use serde_json::json;
+use tmc_proto::Family;
+
+use super::fault::Fault;
+use super::harness::{AHEAD, Run, round};
+
+pub fn dive(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    let acked = run.bench.ground.seen.acks.first().copied();
+    run.check(
+        "arming accepted",
+        acked == Some((400, 0)),
+        format!("first COMMAND_ACK {acked:?}"),
+    );
+
+    // Console to wire: a new stick position reaches thruster 1's controller.
+    let before = run.bench.thrusters[0].shared().link.try_get().map(|link| link.order);
+    let latency = run.run_until(0.5, |bench| {
+        bench.thrusters[0].shared().link.try_get().map(|link| link.order) != before
+    });
+    let latency_ms = latency.map(|s| round(s * 1e3, 2));
+    run.metric("console_to_wire_latency_ms", json!(latency_ms));
+    run.check(
+        "stick reaches the thruster within 40 ms",
+        latency.is_some_and(|s| s <= 0.04),
+        format!("{latency_ms:?} ms"),
+    );
+
+    run.run_for(3.0);
+    let rpm: Vec<f64> = (0..4).map(|i| round(run.rpm(i), 0)).collect();
+    run.check(
+        "the horizontal thrusters turn ahead",
+        rpm.iter().all(|r| *r > 800.0),
+        format!("rpm {rpm:?}"),
+    );
+    // SeaBotix thrusters report their speed; Legacy ones only their current (IDS 8.4.1).
+    let seen = run.bench.ground.seen.clone();
+    let moving = run
+        .bench
+        .thrusters
+        .iter()
+        .zip(seen.rpm.iter().zip(seen.current_ca))
+        .take(4)
+        .all(|(thruster, (rpm, ca))| match thruster.config.family {
+            Family::SeaBotix => *rpm > 500,
+            Family::Legacy => ca > 0,
+        });
+    run.check(
+        "ESC telemetry reaches the console",
+        moving,
+        format!("telemetry rpm {:?}, cA {:?}", seen.rpm, seen.current_ca),
+    );
+    run.check(
+        "the ground station sees it armed",
+        run.bench.ground.seen.armed,
+        "HEARTBEAT armed flag",
+    );
+
+    run.bench.ground.sticks = Some(ManualInput { r: 500, ..AHEAD });
+    run.run_for(3.0);
+    let yaw: Vec<f64> = (0..4).map(|i| round(run.rpm(i), 0)).collect();
+    let differs = (yaw[0] - yaw[1]).abs() > 300.0;
+    run.check("yaw splits the horizontal thrusters", differs, format!("rpm {yaw:?}"));
+
+    run.disarm();
+    run.run_for(2.0);
+    let duties: Vec<i16> = run
+        .bench
+        .thrusters
+        .iter()
+        .map(|thruster| thruster.drive().1.value())
+        .collect();
+    let still: Vec<f64> = (0..run.bench.thrusters.len()).map(|i| round(run.rpm(i), 0)).collect();
+    run.check(
+        "disarmed, every thruster stops driving and slows",
+        duties.iter().all(|d| *d == 0) && still.iter().all(|r| (0.0..300.0).contains(r)),
+        format!("duty {duties:?}, rpm {still:?}"),
+    );
+    let faults: Vec<u8> = (0..run.bench.thrusters.len()).map(|i| run.faults(i).bits()).collect();
+    run.check(
+        "no faults in a clean dive",
+        faults.iter().all(|f| *f == 0),
+        format!("fault bits {faults:?}"),
+    );
+    run.metric("battery_v_at_end", json!(round(run.bench.battery.voltage, 2)));
+}
+
+pub fn console_silence(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.0);
+    run.inject(Fault::ConsoleSilence);
+    let disarmed = run.run_until(2.0, |bench| {
+        !bench.master.shared.vehicle.try_get().is_some_and(|v| v.armed)
+    });
+    run.check(
+        "disarms after 1 s of silence",
+        disarmed.is_some_and(|s| (0.85..=1.15).contains(&s)),
+        format!("after {disarmed:?} s (the last frame was up to 0.1 s before the loss)"),
+    );
+    run.run_for(0.5);
+    let duties: Vec<i16> = (0..6).map(|i| run.duty(i)).collect();
+    run.check(
+        "every thruster stops driving",
+        duties.iter().all(|d| *d == 0),
+        format!("duty {duties:?}"),
+    );
+    run.clear(Fault::ConsoleSilence);
+    run.run_for(1.5);
+    let duties: Vec<i16> = (0..6).map(|i| run.duty(i)).collect();
+    run.check(
+        "no restart until re-armed",
+        duties.iter().all(|d| *d == 0),
+        format!("duty {duties:?}"),
+    );
+    run.check("the console hears why", run.said("Failsafe"), "STATUSTEXT");
+}
+
+pub fn battery_lost(run: &mut Run) {
+    run.run_for(1.5);
+    let fresh = run.bench.master.shared.battery.try_get().is_some_and(|b| !b.stale);
+    run.check("battery data fresh at first", fresh, "");
+    run.inject(Fault::BatteryFramesLost);
+    let stale = run.run_until(2.0, |bench| {
+        bench.master.shared.battery.try_get().is_some_and(|b| b.stale)
+    });
+    run.check(
+        "flagged stale after 1 s",
+        stale.is_some_and(|s| (0.9..=1.2).contains(&s)),
+        format!("after {stale:?} s"),
+    );
+    run.run_for(2.0);
+    run.clear(Fault::BatteryFramesLost);
+    run.run_for(1.0);
+    let fresh = run.bench.master.shared.battery.try_get().is_some_and(|b| !b.stale);
+    run.check("resumed", fresh && run.said("BAT data resumed"), "");
+    run.check("the console hears of it", run.said("BAT data stale"), "");
+}
+
+pub fn battery_bits(run: &mut Run) {
+    run.run_for(1.0);
+    let startup = run
+        .bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .filter(|(_, text)| text.starts_with("BAT ") && text.contains('='))
+        .count();
+    run.check(
+        "start-up report names every bit",
+        startup == 12,
+        format!("{startup} bit texts"),
+    );
+    let before = run.bench.ground.seen.texts.len();
+    run.inject(Fault::BatteryBit(StatusBit::HsmSwFault));
+    run.run_for(1.0);
+    let new: Vec<String> = run
+        .bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .skip(before)
+        .map(|(_, text)| text.clone())
+        .collect();
+    let bits: Vec<&String> = new.iter().filter(|text| text.contains('=')).collect();
+    run.check(
+        "only the switched bit is reported",
+        bits.len() == 1 && bits[0].contains("HSM_SW_F=1"),
+        format!("{new:?}"),
+    );
+}
+
+/// The master resets while the vehicle drives: it boots with fresh state, so it comes up disarmed, orders every
+/// thruster to stop at its first polls, finds them all again, and drives once re-armed.
+pub fn master_reboot(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(2.0);
+    run.bench.note("master reset");
+    run.bench.reboot_master();
+    let stopped = run.run_until(0.2, |bench| {
+        bench.thrusters.iter().all(|thruster| {
+            thruster
+                .shared()
+                .link
+                .try_get()
+                .is_some_and(|link| link.order.speed.is_zero())
+        })
+    });
+    run.check(
+        "every thruster is ordered to stop at once",
+        stopped.is_some_and(|s| s <= 0.05),
+        format!("after {stopped:?} s"),
+    );
+    run.run_for(1.0);
+    let online = (0..6).all(|i| run.health(i).online);
+    let armed = run
+        .bench
+        .master
+        .shared
+        .vehicle
+        .try_get()
+        .is_some_and(|state| state.armed);
+    run.check(
+        "it finds every thruster again and stays disarmed",
+        online && !armed,
+        format!("all online {online}, armed {armed}"),
+    );
+    let arm = run.bench.ground.arm(true);
+    run.bench.send(arm);
+    run.run_for(2.0);
+    let rpm: Vec<f64> = (0..4).map(|i| round(run.rpm(i), 0)).collect();
+    run.check(
+        "re-armed, it drives again",
+        rpm.iter().all(|r| *r > 800.0),
+        format!("rpm {rpm:?}"),
+    );
+}
