@@ -3,8 +3,8 @@
 //! On the STM32 a hall edge is an EXTI interrupt whose handler wakes the commutation task; here APB timer 1 fires
 //! when the motor model's rotor is due to cross into the next hall sector, and its handler wakes the commutation
 //! task the same way. The interrupt executor then polls that task: the time from the timer's expiry to that poll
-//! is the latency [`LATENCY`] keeps, apart for the edges that came while one of the 1 kHz tasks was running.
-//! One thruster at a time can have these halls (there is one such timer).
+//! is the latency [`LATENCY`] keeps, apart for the edges that came while the thruster's thread-mode tasks (the
+//! 1 kHz fault and control tasks among them, joined in `thruster_fw::run`) were being polled. One thruster at a time can have these halls (there is one such timer).
 
 use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -17,7 +17,7 @@ use thruster_fw::motorless::Motorless;
 use thruster_fw::tasks::HallSensors;
 
 use crate::board::{self, Irq, Priority, SYSCLK_HZ, TIMER1};
-use crate::meter::{self, Meter, ONE_KHZ_BUSY};
+use crate::meter::{self, Meter, THRUSTER_THREAD_BUSY};
 use crate::thruster::MOTOR_MODEL_METER;
 
 /// The hall edge's handler.
@@ -30,8 +30,8 @@ static WAKER: AtomicWaker = AtomicWaker::new();
 static FIRED: AtomicBool = AtomicBool::new(false);
 /// The SYSCLK cycle at which the armed edge is due.
 static DEADLINE: AtomicU32 = AtomicU32::new(0);
-/// The last edge came while a 1 kHz task was polling.
-static DURING_ONE_KHZ: AtomicBool = AtomicBool::new(false);
+/// The last edge came while the thruster's thread-mode tasks were being polled.
+static DURING_THREAD_TASKS: AtomicBool = AtomicBool::new(false);
 
 /// Latency from hall edges to the commutation task, in SYSCLK cycles.
 #[derive(Debug)]
@@ -39,8 +39,8 @@ pub struct Latency {
     edges: AtomicU32,
     sum: AtomicU32,
     worst: AtomicU32,
-    during_one_khz: AtomicU32,
-    worst_during_one_khz: AtomicU32,
+    during_thread_tasks: AtomicU32,
+    worst_during_thread_tasks: AtomicU32,
 }
 
 /// What [`Latency`] saw.
@@ -52,10 +52,10 @@ pub struct LatencyFigures {
     pub sum: u32,
     /// The longest.
     pub worst: u32,
-    /// Edges that came while a 1 kHz task was polling.
-    pub during_one_khz: u32,
+    /// Edges that came while the thruster's thread-mode tasks were being polled.
+    pub during_thread_tasks: u32,
     /// The longest of those.
-    pub worst_during_one_khz: u32,
+    pub worst_during_thread_tasks: u32,
 }
 
 impl Latency {
@@ -64,18 +64,18 @@ impl Latency {
             edges: AtomicU32::new(0),
             sum: AtomicU32::new(0),
             worst: AtomicU32::new(0),
-            during_one_khz: AtomicU32::new(0),
-            worst_during_one_khz: AtomicU32::new(0),
+            during_thread_tasks: AtomicU32::new(0),
+            worst_during_thread_tasks: AtomicU32::new(0),
         }
     }
 
-    fn record(&self, cycles: u32, during_one_khz: bool) {
+    fn record(&self, cycles: u32, during_thread_tasks: bool) {
         self.edges.fetch_add(1, Ordering::Relaxed);
         self.sum.fetch_add(cycles, Ordering::Relaxed);
         self.worst.fetch_max(cycles, Ordering::Relaxed);
-        if during_one_khz {
-            self.during_one_khz.fetch_add(1, Ordering::Relaxed);
-            self.worst_during_one_khz.fetch_max(cycles, Ordering::Relaxed);
+        if during_thread_tasks {
+            self.during_thread_tasks.fetch_add(1, Ordering::Relaxed);
+            self.worst_during_thread_tasks.fetch_max(cycles, Ordering::Relaxed);
         }
     }
 
@@ -85,8 +85,8 @@ impl Latency {
             edges: self.edges.load(Ordering::Relaxed),
             sum: self.sum.load(Ordering::Relaxed),
             worst: self.worst.load(Ordering::Relaxed),
-            during_one_khz: self.during_one_khz.load(Ordering::Relaxed),
-            worst_during_one_khz: self.worst_during_one_khz.load(Ordering::Relaxed),
+            during_thread_tasks: self.during_thread_tasks.load(Ordering::Relaxed),
+            worst_during_thread_tasks: self.worst_during_thread_tasks.load(Ordering::Relaxed),
         }
     }
 }
@@ -114,7 +114,7 @@ fn arm(wait: Duration) {
 pub extern "C" fn on_edge() {
     meter::measure(&EDGE_ISR_METER, || {
         TIMER1.stop();
-        DURING_ONE_KHZ.store(ONE_KHZ_BUSY.load(Ordering::Relaxed), Ordering::Relaxed);
+        DURING_THREAD_TASKS.store(THRUSTER_THREAD_BUSY.load(Ordering::Relaxed), Ordering::Relaxed);
         FIRED.store(true, Ordering::Release);
         WAKER.wake();
     });
@@ -162,7 +162,7 @@ impl HallSensors for EdgeHalls {
             // An edge when the rotor did cross; otherwise the model's look at a rotor at rest, or a prediction that a
             // change of speed made early.
             if hall_state(self.motorless) != self.seen {
-                LATENCY.record(latency, DURING_ONE_KHZ.load(Ordering::Relaxed));
+                LATENCY.record(latency, DURING_THREAD_TASKS.load(Ordering::Relaxed));
                 return;
             }
         }

@@ -5,8 +5,9 @@
 //! - `acceptance seabotix|legacy`: the dev-kit acceptance test looped back inside the chip (`acceptance.rs`);
 //! - `vehicle`: the master's whole core with six thruster cores and a scripted pilot (`vehicle.rs`).
 //!
-//! Everything here is binding and test bench: the firmware's logic is the cores', linked unchanged. On the host
-//! this binary is a stub.
+//! Everything here is binding and test bench: the firmware is the cores' wiring functions (`thruster_fw::run`,
+//! `thruster_fw::run_commutation`, `lbv_master_fw::run`) with their production configurations, linked unchanged.
+//! On the host this binary is a stub.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
 #[cfg(target_os = "none")]
@@ -20,11 +21,15 @@ mod halls;
 #[cfg(target_os = "none")]
 mod i2c;
 #[cfg(target_os = "none")]
+mod master;
+#[cfg(target_os = "none")]
 mod meter;
 #[cfg(target_os = "none")]
 mod report;
 #[cfg(target_os = "none")]
 mod stacks;
+#[cfg(target_os = "none")]
+mod station;
 #[cfg(target_os = "none")]
 mod thruster;
 #[cfg(target_os = "none")]

@@ -13,7 +13,7 @@ use crate::board::SYSCLK_HZ;
 use crate::executors::THREAD_EXECUTOR_METER;
 use crate::halls::{self, LATENCY};
 use crate::i2c::Bus;
-use crate::meter::{self, Calibration, Meter, Usage};
+use crate::meter::{self, Calibration, Joined, Meter, Usage};
 use crate::stacks::{STACK_BYTES, Stack};
 
 /// One line of output.
@@ -68,14 +68,21 @@ pub fn spawn_send<S: Send>(spawner: SendSpawner, token: Result<SpawnToken<S>, Sp
     }
 }
 
-/// The bus's counts and each thruster's watchdog; false if a watchdog would have bitten.
+/// The bus's counts and each thruster's watchdog; false if a watchdog would have bitten or a slave still holds
+/// SDA.
 pub fn bus(bus: &Bus) -> bool {
     let counts = bus.counts();
+    let held = bus.sda_held();
     say!(
-        "BUS transfers={} nacks={} timeouts={}; defmt frames the cores logged: {} (counted, not decoded)",
+        "BUS transfers={} nacks={} timeouts={} bus_errors={}; recovery on the lines: clocks={} stops={}; SDA {}; \
+         defmt frames the cores logged: {} (counted, not decoded)",
         counts.transfers,
         counts.nacks,
         counts.timeouts,
+        counts.bus_errors,
+        counts.pin_clocks,
+        counts.pin_stops,
+        if held { "STILL HELD LOW" } else { "free" },
         crate::DEFMT_FRAMES.load(Ordering::Relaxed)
     );
     let mut fed = true;
@@ -96,7 +103,7 @@ pub fn bus(bus: &Bus) -> bool {
             }
         );
     }
-    fed
+    fed && !held
 }
 
 /// The STM32G431's clock, the figure the instruction counts are turned into time at.
@@ -175,23 +182,68 @@ fn dispatch(tasks: &[&Meter]) -> f32 {
     meter::instructions(rounds.saturating_sub(cycles)) as f32 / polls.max(1) as f32
 }
 
-/// Instructions per poll of every thread-mode task (`thread`, which must be all of them) and of the work nested in
-/// them (`nested`), and the thread executor's own share.
-pub fn cpu(thread: &[&Meter], nested: &[&Meter]) -> f32 {
+/// One line of instructions per poll.
+fn usage_line(name: fmt::Arguments<'_>, usage: &Usage, seconds: f32) {
+    say!(
+        "CPU {:<44} polls={:>8} per_s={:>8.1} mean={:>7.0} max={:>7}",
+        name,
+        usage.polls,
+        usage.polls as f32 / seconds.max(1e-6),
+        mean(usage),
+        meter::instructions(u64::from(usage.max_cycles))
+    );
+}
+
+/// The inner tasks of `set` (a bit mask over `tasks`), joined with `+`.
+struct TaskSet<'a> {
+    tasks: &'a [&'a str],
+    set: u8,
+}
+
+impl fmt::Display for TaskSet<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.set == 0 {
+            return f.write_str("none seen");
+        }
+        let mut first = true;
+        for (bit, name) in self.tasks.iter().enumerate() {
+            if self.set & (1 << bit) != 0 {
+                if !first {
+                    f.write_str("+")?;
+                }
+                f.write_str(name)?;
+                first = false;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Instructions per poll of each image's joined thread-mode tasks (`joined`), in all and by the inner tasks that
+/// progressed in the poll, of the test bench's own thread-mode tasks (`thread`: with `joined`, every thread-mode
+/// task there is) and of the work nested in them (`nested`); the thread executor's own share.
+pub fn cpu(joined: &[&Joined], thread: &[&Meter], nested: &[&Meter]) -> f32 {
     let seconds = seconds();
     say!("CPU instructions per poll, each net of the interrupts and model ports inside it; {seconds:.1} s emulated");
-    for meter in thread.iter().chain(nested) {
-        let usage = meter.usage();
-        say!(
-            "CPU {:<34} polls={:>8} per_s={:>8.1} mean={:>7.0} max={:>7}",
-            meter.name,
-            usage.polls,
-            usage.polls as f32 / seconds.max(1e-6),
-            mean(&usage),
-            meter::instructions(u64::from(usage.max_cycles))
-        );
+    for meter in joined {
+        usage_line(format_args!("{}", meter.all.name), &meter.all.usage(), seconds);
+        for (set, usage) in meter.classes() {
+            let tasks = TaskSet {
+                tasks: meter.tasks,
+                set,
+            };
+            usage_line(format_args!("  polls in which progressed: {tasks}"), &usage, seconds);
+        }
     }
-    let dispatch = dispatch(thread);
+    for meter in thread.iter().chain(nested) {
+        usage_line(format_args!("{}", meter.name), &meter.usage(), seconds);
+    }
+    let every: heapless::Vec<&Meter, 8> = joined
+        .iter()
+        .map(|meter| &meter.all)
+        .chain(thread.iter().copied())
+        .collect();
+    let dispatch = dispatch(&every);
     say!("CPU thread executor: {dispatch:.0} instructions per task poll of its own (its rounds less the tasks' polls)");
     dispatch
 }
@@ -201,26 +253,26 @@ fn load_percent(instructions_per_s: f32, interrupts_per_s: f32) -> f32 {
     (instructions_per_s * CYCLES_PER_INSTRUCTION + interrupts_per_s * EXCEPTION_CYCLES) * 100.0 / TARGET_HZ
 }
 
-/// The CPU load of the run's one thruster at full speed, from its instructions per poll.
+/// Instructions per second of `usage` as run.
+fn per_second(usage: &Usage) -> f32 {
+    meter::instructions(u64::from(usage.cycles)) as f32 / seconds().max(1e-6)
+}
+
+/// The CPU load of the run's one thruster at full speed.
 ///
-/// `dispatch` is the thread executor's instructions per task poll. Polls per second at 4500 rpm: the fault and
-/// control tasks 1000 each; the health task 20; commutation one per hall edge (1800) and one per control tick
-/// (1000: the control task wakes it every tick), each with its executor's interrupt; a hall edge interrupt per
-/// edge; the I2C task as often as in this run; the time driver's alarm for the thruster's own timers
-/// (two 1 kHz tickers, the health task's and the I2C task's 20 Hz timeouts: 2040 a second).
+/// `dispatch` is the thread executor's instructions per task poll. The thread-mode tasks (`run`) as they ran:
+/// their polls per second are set by the 1 kHz fault and control ticks, the health task's 10 Hz and the I2C
+/// traffic the acceptance script made, none of which depends on the motor's speed. Commutation at 4500 rpm: one
+/// poll per hall edge (1800 a second from 4 pole pairs) and one per control tick (1000: the control task wakes it
+/// every tick), each with its executor's interrupt, and a hall edge interrupt per edge. The time driver's alarm:
+/// at most one per poll of `run` (every wake-up but an I2C transfer's is a timer's).
 pub fn thruster_load(dispatch: f32) {
-    use crate::thruster::{COMMUTATION_METER, CONTROL_METER, FAULT_METER, HEALTH_METER, I2C_METER};
-    const ALARMS_PER_S: f32 = 2040.0;
+    use crate::thruster::{COMMUTATION_METER, THREAD_METER};
     let commutations = FULL_SPEED_EDGES_PER_S + 1000.0;
-    let i2c = I2C_METER.usage();
-    let alarm = crate::time::ALARM_METER.usage();
-    let i2c_per_s = i2c.polls as f32 / seconds().max(1e-6);
-    let thread_polls = 1000.0 + 1000.0 + 20.0 + i2c_per_s;
+    let thread = THREAD_METER.all.usage();
+    let thread_polls_per_s = thread.polls as f32 / seconds().max(1e-6);
     let terms = [
-        ("faults", mean(&FAULT_METER.usage()) * 1000.0, 0.0),
-        ("control", mean(&CONTROL_METER.usage()) * 1000.0, 0.0),
-        ("health", mean(&HEALTH_METER.usage()) * 20.0, 0.0),
-        ("i2c", mean(&i2c) * i2c_per_s, 0.0),
+        ("thread-tasks", per_second(&thread), 0.0),
         (
             "commutation",
             (mean(&COMMUTATION_METER.usage()) + mean(&crate::executors::COMMUTATION_ISR_METER.usage())) * commutations,
@@ -231,8 +283,12 @@ pub fn thruster_load(dispatch: f32) {
             mean(&halls::EDGE_ISR_METER.usage()) * FULL_SPEED_EDGES_PER_S,
             FULL_SPEED_EDGES_PER_S,
         ),
-        ("time-driver", mean(&alarm) * ALARMS_PER_S, ALARMS_PER_S),
-        ("thread-executor", dispatch * thread_polls, 0.0),
+        (
+            "time-driver",
+            mean(&crate::time::ALARM_METER.usage()) * thread_polls_per_s,
+            thread_polls_per_s,
+        ),
+        ("thread-executor", dispatch * thread_polls_per_s, 0.0),
     ];
     let mut line = Line::new();
     let mut total = 0.0;
@@ -247,20 +303,15 @@ pub fn thruster_load(dispatch: f32) {
     );
     say!(
         "LOAD assumed: {CYCLES_PER_INSTRUCTION} cycles per instruction, {EXCEPTION_CYCLES} per interrupt, \
-         {FULL_SPEED_EDGES_PER_S} hall edges/s; not included: the motor model, the real ports' ADC and timer accesses"
+         {FULL_SPEED_EDGES_PER_S} hall edges/s and 1000 control wake-ups/s of commutation; thread tasks and alarms \
+         as run; not included: the motor model, the real ports' ADC and timer accesses"
     );
 }
 
 /// The load of the master's tasks as they ran (`dispatch`: the thread executor's instructions per task poll).
-pub fn master_load(meters: &[&Meter], dispatch: f32) {
-    let (instructions, polls) = meters.iter().fold((0u64, 0u64), |(instructions, polls), meter| {
-        let usage = meter.usage();
-        (
-            instructions + meter::instructions(u64::from(usage.cycles)),
-            polls + u64::from(usage.polls),
-        )
-    });
-    let per_s = (instructions as f32 + dispatch * polls as f32) / seconds().max(1e-6);
+pub fn master_load(dispatch: f32) {
+    let usage = crate::master::MASTER_METER.all.usage();
+    let per_s = per_second(&usage) + dispatch * usage.polls as f32 / seconds().max(1e-6);
     say!(
         "LOAD master tasks as run, with the executor's dispatch = {per_s:.0} instructions/s = {:.2} % of a 170 MHz \
          G431 (assumed {CYCLES_PER_INSTRUCTION} cycles per instruction; the time driver and the real peripherals' \
@@ -269,16 +320,15 @@ pub fn master_load(meters: &[&Meter], dispatch: f32) {
     );
 }
 
-/// Hall edge to commutation: the latency, and the edges that came while a 1 kHz task was polling.
+/// Hall edge to commutation: the latency, and the edges that came while the thruster's thread tasks were polled.
 pub fn latency() {
-    use crate::thruster::{CONTROL_METER, FAULT_METER};
     let figures = LATENCY.figures();
     let instructions = |cycles: u32| meter::instructions(u64::from(cycles));
     let micros = |cycles: u32| {
         // Two exception entries: the hall edge's and the commutation executor's (tail-chained or preempting).
         (instructions(cycles) as f32 * CYCLES_PER_INSTRUCTION + 2.0 * EXCEPTION_CYCLES) / TARGET_HZ * 1e6
     };
-    let longest_one_khz = FAULT_METER.usage().max_cycles.max(CONTROL_METER.usage().max_cycles);
+    let longest_poll = crate::thruster::THREAD_METER.all.usage().max_cycles;
     say!(
         "LATENCY hall edge (APB timer 1 interrupt) to the commutation task polled: edges={} mean={} worst={} \
          instructions, worst {:.2} us at 170 MHz",
@@ -288,12 +338,12 @@ pub fn latency() {
         micros(figures.worst)
     );
     say!(
-        "LATENCY while a 1 kHz task (faults, control) was polling: edges={} worst={} instructions ({:.2} us at \
-         170 MHz); that task's longest poll is {} instructions, so without preemption the worst would be at least \
-         that",
-        figures.during_one_khz,
-        instructions(figures.worst_during_one_khz),
-        micros(figures.worst_during_one_khz),
-        instructions(longest_one_khz)
+        "LATENCY while the thruster's thread tasks (run: the 1 kHz fault and control tasks, I2C, health) were being \
+         polled: edges={} worst={} instructions ({:.2} us at 170 MHz); their longest poll is {} instructions, so \
+         without preemption the worst would be at least that",
+        figures.during_thread_tasks,
+        instructions(figures.worst_during_thread_tasks),
+        micros(figures.worst_during_thread_tasks),
+        instructions(longest_poll)
     );
 }

@@ -3,7 +3,8 @@
 //! Handlers run on the main stack (MSP); thread mode runs on the process stack (PSP), and each firmware image's
 //! thread-mode tasks are polled on a stack of their own, so that each image's high-water mark is its own even
 //! though both images share the chip. [`enter_thread_mode`] paints all four before anything runs on them;
-//! [`Stack::high_water`] scans for the deepest word that is no longer paint. The regions come from `memory.x`.
+//! [`Stack::high_water`] scans for the deepest word that is no longer paint. The main stack's top is the linker's
+//! `_stack_start` (cortex-m-rt's or flip-link's), the others come from `memory.x`; each spans 32 KiB below its top.
 // Switching stacks takes a few instructions of assembly and symbols from the linker script.
 #![allow(unsafe_code)]
 

@@ -1,10 +1,10 @@
-//! One motor-less thruster controller on the emulated chip: the thruster core's tasks, as the STM32 binding
-//! spawns them (commutation on the interrupt executor, the rest in thread mode), on ports that lead to the core's
-//! motor model (`thruster_fw::motorless`) and to the scripted operator.
+//! One motor-less thruster controller on the emulated chip: the thruster core as the STM32 binding runs it,
+//! `thruster_fw::run` in thread mode and `thruster_fw::run_commutation` on the interrupt executor, on ports that
+//! lead to the core's motor model (`thruster_fw::motorless`) and to the scripted operator.
 //!
-//! Its reset button works: pressing it cuts the power (the I2C line stops answering, the bridge coasts, every
-//! task stops), and 30 ms later the controller starts again with fresh RAM, as after a real reset; the motor
-//! model, which is the physical rotor, carries on.
+//! Its power can be cut: the I2C line stops answering, the bridge coasts, both futures are dropped, and 30 ms
+//! later the controller starts again with fresh RAM (a new `Shared`, a new latch store), as after a power cycle;
+//! the motor model, which is the physical rotor, carries on.
 
 use core::future::Future;
 use core::sync::atomic::{AtomicBool, AtomicU32, AtomicUsize, Ordering};
@@ -16,45 +16,42 @@ use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::{Duration, Instant, Timer};
 use static_cell::StaticCell;
-use thruster_fw::Duty;
 use thruster_fw::commutation::{BridgeDrive, COAST};
+use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
 use thruster_fw::motorless::{HoldInput, ModelBridge, ModelHalls, ModelSensors, MotorModel, Motorless, WaterInput};
 use thruster_fw::tasks::{self, Bridge as _, Config, HallSensors, RawSample, Sensors, Shared};
+use thruster_fw::{Duty, Ports};
 use tmc_proto::{Family, MotorKind};
 
 use crate::executors::BENCH_METER;
 use crate::halls::EdgeHalls;
 use crate::i2c::{MAX_THRUSTERS, SlaveLine, TargetPort};
-use crate::meter::{self, Meter, metered};
+use crate::meter::{self, Joined, Meter, Progress, THRUSTER_THREAD_BUSY, metered, metered_joined};
 use crate::report;
 use crate::stacks::Stack;
 
-/// The I2C slave task.
-pub static I2C_METER: Meter = Meter::task("thruster i2c task");
-/// The fault task, 1 kHz.
-pub static FAULT_METER: Meter = Meter::one_khz("thruster fault task (1 kHz)");
-/// The speed control task, 1 kHz.
-pub static CONTROL_METER: Meter = Meter::one_khz("thruster control task (1 kHz)");
-/// The watchdog task.
-pub static HEALTH_METER: Meter = Meter::task("thruster health task");
-/// Commutation, on the interrupt executor.
-pub static COMMUTATION_METER: Meter = Meter::nested("thruster commutation task");
+/// The thread-mode tasks (`thruster_fw::run`: I2C, faults, control, health joined), every poll and by which of
+/// them made progress.
+pub static THREAD_METER: Joined = Joined::new(
+    "thruster thread tasks (run)",
+    Progress::THRUSTER,
+    Some(&THRUSTER_THREAD_BUSY),
+);
+/// Commutation (`thruster_fw::run_commutation`), on the interrupt executor: one poll per commutation event.
+pub static COMMUTATION_METER: Meter = Meter::nested("thruster commutation (run_commutation)");
 /// The motor model behind the ports: firmware in the motor-less image, but pin and ADC reads in the image with a
 /// motor, so the tasks' figures leave it out.
 pub static MOTOR_MODEL_METER: Meter = Meter::nested("motor model (ports)");
 
-/// The STM32 binding feeds the watchdog every 50 ms and lets it bite after 250 ms (thruster-fw `board.rs`).
-const WATCHDOG_FEED: Duration = Duration::from_millis(50);
-const WATCHDOG_TIMEOUT: Duration = Duration::from_millis(250);
-/// How long the reset button holds the controller in reset.
-const RESET_HOLD: Duration = Duration::from_millis(30);
-/// The operator's water-sensor test resistor: 470 kohm from PC3 to 3V3 (the acceptance prompt).
+/// How long a power cut holds the controller down.
+const POWER_CUT: Duration = Duration::from_millis(30);
+/// The operator's water-sensor test resistor: 470 kohm from the sensor pin to 3V3 (the acceptance prompt).
 const WATER_TEST_OHMS: u32 = 470_000;
-/// Power-ups one controller can have in a run: the first and two resets (each gets fresh RAM).
+/// Power-ups one controller can have in a run: the first and two cuts (each gets fresh RAM).
 const POWER_UPS: usize = 3;
-/// Tasks per controller that follow its power.
-const POWERED_TASKS: usize = 5;
+/// Tasks per controller that follow its power: thread mode and commutation.
+const POWERED_TASKS: usize = 2;
 
 /// How the controller's halls reach the commutation task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -74,7 +71,8 @@ struct WatchdogLog {
 
 /// One controller and what surrounds it.
 pub struct Thruster {
-    /// The controller's configuration: the STM32 image's (`Config::reference`).
+    /// The controller's configuration: the image's for its family (`thruster_fw::CONFIG` is
+    /// `Config::reference(FAMILY, MOTOR)`; one emulated image serves both families).
     pub config: Config,
     /// Its TCA9548A channel, None when wired to the bus directly.
     pub mux_channel: Option<u8>,
@@ -84,11 +82,11 @@ pub struct Thruster {
     water_resistor: AtomicBool,
     rotor_held: AtomicBool,
     powered: AtomicBool,
-    /// The RAM of the running power-up, and its number; None while in reset.
+    /// The RAM of the running power-up, and its number; None while the power is cut.
     power: Watch<CriticalSectionRawMutex, Option<(usize, &'static Shared)>, POWERED_TASKS>,
     rams: [StaticCell<Shared>; POWER_UPS],
     power_ups: AtomicUsize,
-    reset_pressed: Signal<CriticalSectionRawMutex, ()>,
+    power_cut: Signal<CriticalSectionRawMutex, ()>,
     watchdog: WatchdogLog,
 }
 
@@ -112,7 +110,7 @@ impl Thruster {
                 power: Watch::new(),
                 rams: [const { StaticCell::new() }; POWER_UPS],
                 power_ups: AtomicUsize::new(0),
-                reset_pressed: Signal::new(),
+                power_cut: Signal::new(),
                 watchdog: WatchdogLog {
                     feeds: AtomicU32::new(0),
                     last_feed_us: AtomicU32::new(0),
@@ -126,13 +124,10 @@ impl Thruster {
         }
     }
 
-    /// Spawn the controller's tasks and power it up.
+    /// Spawn the controller's two tasks and its power supply, and power it up.
     pub fn start(&'static self, thread: Spawner, high: SendSpawner, halls: HallInput) {
-        report::spawn(thread, i2c(self));
-        report::spawn(thread, faults(self));
-        report::spawn(thread, control(self));
-        report::spawn(thread, health(self));
-        report::spawn(thread, reset_button(self));
+        report::spawn(thread, controller(self));
+        report::spawn(thread, power_supply(self));
         report::spawn_send(high, commutation(self, halls));
         self.power_on();
     }
@@ -152,16 +147,16 @@ impl Thruster {
         self.rotor_held.store(held, Ordering::Relaxed);
     }
 
-    /// The reset button: power off now, back on after [`RESET_HOLD`].
-    pub fn press_reset(&self) {
+    /// Cut the power now; it comes back after [`POWER_CUT`].
+    pub fn cut_power(&self) {
         self.powered.store(false, Ordering::Release);
         self.power.sender().send(None);
         // The gate drivers let go: whatever was driven, the motor coasts.
         ModelBridge(&self.motorless).apply(COAST, Duty::ZERO);
-        self.reset_pressed.signal(());
+        self.power_cut.signal(());
     }
 
-    /// Power-ups so far (1 + resets).
+    /// Power-ups so far (1 + power cuts).
     pub fn power_ups(&self) -> usize {
         self.power_ups.load(Ordering::Relaxed)
     }
@@ -176,14 +171,14 @@ impl Thruster {
 
     /// Whether the watchdog would ever have bitten.
     pub fn watchdog_bit(&self) -> bool {
-        u64::from(self.watchdog().1) > WATCHDOG_TIMEOUT.as_micros()
+        u64::from(self.watchdog().1) > self.config.watchdog.timeout.as_micros()
     }
 
     /// Start with fresh RAM.
     fn power_on(&'static self) {
         let power_up = self.power_ups.fetch_add(1, Ordering::Relaxed);
         let Some(shared) = self.rams.get(power_up).and_then(|ram| ram.try_init(Shared::new())) else {
-            report::fail("a thruster was reset more often than the test provides RAM for");
+            report::fail("a thruster lost its power more often than the test provides RAM for");
         };
         self.line.clear();
         self.watchdog.last_feed_us.store(now_us(), Ordering::Relaxed);
@@ -202,13 +197,34 @@ impl Thruster {
                 now = power.changed_and(Option::is_some).await;
                 continue;
             };
-            // Whatever comes next ends this power-up: a reset, or (if this task was slow to see the reset) the
+            // Whatever comes next ends this power-up: a power cut, or (if this task was slow to see the cut) the
             // next power-up already, which it then runs.
             let ended = power.changed_and(move |next| next.is_none_or(|(next, _)| next != power_up));
             now = match select(body(shared), ended).await {
                 Either::First(_) => None,
                 Either::Second(next) => next,
             };
+        }
+    }
+}
+
+/// What the thruster's outputs show of its control task: it publishes a duty every tick.
+struct ControlOutput {
+    seen: Option<(usize, u64)>,
+}
+
+impl ControlOutput {
+    /// [`Progress::THRUSTER_CONTROL`] when the running power-up's duty was published since the last look.
+    fn progress(&mut self, thruster: &Thruster) -> u8 {
+        let now = thruster
+            .power
+            .try_get()
+            .flatten()
+            .map(|(power_up, shared)| (power_up, shared.duty.get_msg_id()));
+        if now.is_some() && now != core::mem::replace(&mut self.seen, now) {
+            Progress::THRUSTER_CONTROL
+        } else {
+            0
         }
     }
 }
@@ -239,11 +255,13 @@ impl HoldInput for HoldButton {
     }
 }
 
-/// The fault task's inputs: the core's model sensors, counted as model work.
+/// The fault task's inputs: the core's model sensors, counted as model work. A sample is the fault task's
+/// progress.
 struct Inputs(ModelSensors<'static, WaterPin, HoldButton>);
 
 impl Sensors for Inputs {
     async fn sample(&mut self) -> RawSample {
+        meter::progressed(Progress::THRUSTER_FAULTS);
         metered(&MOTOR_MODEL_METER, None, self.0.sample()).await
     }
 }
@@ -279,11 +297,12 @@ impl tasks::Bridge for Bridge {
     }
 }
 
-/// The watchdog: counts feeds and the longest gap.
+/// The watchdog: counts feeds and the longest gap. A feed is the health task's progress.
 struct Watchdog(&'static Thruster);
 
 impl tasks::Watchdog for Watchdog {
     fn feed(&mut self) {
+        meter::progressed(Progress::THRUSTER_HEALTH);
         let log = &self.0.watchdog;
         let now = now_us();
         let gap = now.wrapping_sub(log.last_feed_us.swap(now, Ordering::Relaxed));
@@ -292,60 +311,47 @@ impl tasks::Watchdog for Watchdog {
     }
 }
 
-// The tasks, one line each around the core's task functions, as in the STM32 binding (`thruster-fw/src/stm32.rs`).
-// Thread-mode tasks poll on the thruster's own stack.
+// The controller as the STM32 binding runs it (`thruster-fw/src/stm32.rs`): `run` in thread mode, polled on the
+// thruster's own stack, `run_commutation` on the interrupt executor; each power-up with fresh RAM.
 
 #[embassy_executor::task(pool_size = MAX_THRUSTERS)]
-async fn i2c(t: &'static Thruster) -> ! {
-    let body = t.powered_run(|shared| async move {
-        tasks::i2c_task(&mut TargetPort::new(&t.line), t.config.family, t.config.motor, shared).await
+async fn controller(t: &'static Thruster) -> ! {
+    let body = t.powered_run(|shared| {
+        let ports = Ports {
+            i2c: TargetPort::new(&t.line),
+            sensors: Inputs(ModelSensors::new(&t.motorless, &t.config, WaterPin(t), HoldButton(t))),
+            watchdog: Watchdog(t),
+            // A power cut clears the latches, as the operator's power cycle does (a backup register would keep
+            // them over any other reset).
+            latch: VolatileLatch::default(),
+        };
+        thruster_fw::run(ports, &t.config, shared)
     });
-    metered(&I2C_METER, Some(Stack::Thruster), body).await
-}
-
-#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
-async fn faults(t: &'static Thruster) -> ! {
-    let body = t.powered_run(|shared| async move {
-        let mut inputs = Inputs(ModelSensors::new(&t.motorless, &t.config, WaterPin(t), HoldButton(t)));
-        tasks::fault_task(&mut inputs, &t.config, shared).await
-    });
-    metered(&FAULT_METER, Some(Stack::Thruster), body).await
-}
-
-#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
-async fn control(t: &'static Thruster) -> ! {
-    let body = t.powered_run(|shared| tasks::control_task(&t.config, shared));
-    metered(&CONTROL_METER, Some(Stack::Thruster), body).await
-}
-
-#[embassy_executor::task(pool_size = MAX_THRUSTERS)]
-async fn health(t: &'static Thruster) -> ! {
-    let body = t.powered_run(|shared| async move { tasks::health_task(&mut Watchdog(t), WATCHDOG_FEED, shared).await });
-    metered(&HEALTH_METER, Some(Stack::Thruster), body).await
+    let mut control = ControlOutput { seen: None };
+    metered_joined(&THREAD_METER, Stack::Thruster, || control.progress(t), body).await
 }
 
 #[embassy_executor::task(pool_size = MAX_THRUSTERS)]
 async fn commutation(t: &'static Thruster, input: HallInput) -> ! {
-    let body = t.powered_run(|shared| async move {
-        let mut halls = match input {
+    let body = t.powered_run(|shared| {
+        let halls = match input {
             HallInput::Interrupt => Halls::Interrupt(EdgeHalls::new(&t.motorless)),
             HallInput::Model => Halls::Model(ModelHalls::new(&t.motorless)),
         };
-        let mut bridge = Bridge(&t.motorless);
-        tasks::commutation_task(&mut halls, &mut bridge, t.config.motor, t.config.pole_pairs, shared).await
+        thruster_fw::run_commutation(halls, Bridge(&t.motorless), &t.config, shared)
     });
     metered(&COMMUTATION_METER, None, body).await
 }
 
-/// The reset button's circuit: the controller comes back [`RESET_HOLD`] after a press.
+/// The supply: the controller comes back [`POWER_CUT`] after its power was cut.
 #[embassy_executor::task(pool_size = MAX_THRUSTERS)]
-async fn reset_button(t: &'static Thruster) -> ! {
-    let circuit = async {
+async fn power_supply(t: &'static Thruster) -> ! {
+    let supply = async {
         loop {
-            t.reset_pressed.wait().await;
-            Timer::after(RESET_HOLD).await;
+            t.power_cut.wait().await;
+            Timer::after(POWER_CUT).await;
             t.power_on();
         }
     };
-    metered(&BENCH_METER, None, circuit).await
+    metered(&BENCH_METER, None, supply).await
 }
