@@ -22,7 +22,8 @@ pub static COMMUTATION_ISR_METER: Meter = Meter::nested("commutation executor IS
 
 /// Thread mode's executor: each round of polls, tasks included (their own meters tell them apart).
 pub static THREAD_EXECUTOR_METER: Meter = Meter::task("thread executor");
-/// The test bench's own thread-mode tasks (operator, pilot, battery board, reset buttons).
+/// The test bench's own thread-mode tasks (the ground station, the pilot, the battery board, the thrusters' power
+/// supplies, the end of a run).
 pub static BENCH_METER: Meter = Meter::task("test bench tasks");
 
 /// Raised by the thread-mode pender's interrupt: there is work for thread mode.

@@ -4,7 +4,8 @@
 //! when the motor model's rotor is due to cross into the next hall sector, and its handler wakes the commutation
 //! task the same way. The interrupt executor then polls that task: the time from the timer's expiry to that poll
 //! is the latency [`LATENCY`] keeps, apart for the edges that came while the thruster's thread-mode tasks (the
-//! 1 kHz fault and control tasks among them, joined in `thruster_fw::run`) were being polled. One thruster at a time can have these halls (there is one such timer).
+//! 1 kHz fault and control tasks among them, joined in `thruster_fw::run`) were being polled. One thruster at a
+//! time can have these halls (there is one such timer).
 
 use core::future::poll_fn;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
