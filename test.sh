@@ -58,7 +58,7 @@ cargo test --workspace --locked
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz; do
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv/fuzz; do
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
   done
 fi

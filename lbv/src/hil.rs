@@ -13,31 +13,35 @@
 //! recorded log instead of a board's, `--dry-run` prints the commands without running them.
 
 use std::fs::File;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ExitCode, Stdio};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
 use std::time::{Duration, Instant};
 
 use tmc_proto::Family;
 
-pub const USAGE: &str = "\
-usage: lbv hil --master-probe SERIAL --thruster-probe SERIAL [--family seabotix|legacy] [--timeout S] [--log FILE]
-               [--dry-run]
-       lbv hil --replay LOG [--timeout S]
+use crate::lines::{Line, Lines};
 
-The bench test between two NUCLEO-G431RB dev kits (README: \"Bench test between two dev kits\"): builds the
-motor-less thruster image and the master's acceptance image, flashes the thruster board and starts it, flashes and
-runs the master board with probe-rs, and follows the master's log until the test's verdict.
---master-probe, --thruster-probe  each board's ST-LINK, by serial number (`probe-rs list` shows them), or as
-             VID:PID:SERIAL
---family     the thruster image's controller family (default seabotix)
---timeout S  give up after S seconds without a verdict (default 300)
---log FILE   keep the master's whole log
---dry-run    print the commands and run nothing
---replay LOG follow a recorded log instead of a board's
-Exit status: 0 verdict PASS; 1 verdict FAIL or a failed step; 2 bad usage, or a build or flash failed;
-3 no verdict before the timeout; 4 the log ended without a verdict.";
+const HELP: &str = "\
+The bench test between two NUCLEO-G431RB dev kits (README: \"Bench test between two dev kits\"):
+builds the motor-less thruster image and the master's acceptance image, flashes the thruster board
+and starts it, flashes and runs the master board with probe-rs, and follows the master's log until
+the test's verdict.
+
+Exit status: 0 verdict PASS; 1 verdict FAIL or a failed step; 2 bad command line, or a build or
+flash failed; 3 no verdict before the timeout; 4 the log ended without a verdict.";
+
+/// Exit status: the verdict was PASS.
+pub const EXIT_PASS: u8 = crate::exit::OK;
+/// Exit status: the verdict was FAIL, or a step failed.
+pub const EXIT_FAIL: u8 = crate::exit::FAILED;
+/// Exit status: bad usage, or a build or flash command failed.
+pub const EXIT_SETUP: u8 = crate::exit::TROUBLE;
+/// Exit status: no verdict before the timeout.
+pub const EXIT_TIMEOUT: u8 = 3;
+/// Exit status: the log ended without a verdict.
+pub const EXIT_NO_VERDICT: u8 = 4;
 
 /// The firmware target.
 const TARGET: &str = "thumbv7em-none-eabihf";
@@ -47,19 +51,74 @@ pub const CHIP: &str = "STM32G431RBTx";
 pub const ST_LINK_V3E: &str = "0483:374e";
 /// The defmt line format asked of probe-rs: level and message, one line per log frame.
 const LOG_FORMAT: &str = "{L} {s}";
+/// The longest wait for a verdict that --timeout takes: a day.
+const MAX_TIMEOUT_S: f64 = 86_400.0;
+/// Longest log line read whole; a longer one is cut, written to the log as cut, and never read as a report line.
+pub const MAX_LINE: usize = 8192;
+/// Batches of log lines in flight between the thread that reads them and the one that follows them.
+const IN_FLIGHT: usize = 16;
+/// A batch holds the lines read without waiting, up to about this many bytes of text.
+const BATCH_BYTES: usize = 64 * 1024;
 
-/// Exit status: the verdict was PASS.
-pub const EXIT_PASS: u8 = 0;
-/// Exit status: the verdict was FAIL, or a step failed.
-pub const EXIT_FAIL: u8 = 1;
-/// Exit status: bad usage, or a build or flash command failed.
-pub const EXIT_SETUP: u8 = 2;
-/// Exit status: no verdict before the timeout.
-pub const EXIT_TIMEOUT: u8 = 3;
-/// Exit status: the log ended without a verdict.
-pub const EXIT_NO_VERDICT: u8 = 4;
+/// `lbv hil`'s command line.
+#[derive(Debug, Clone, PartialEq, clap::Parser)]
+#[command(after_help = HELP)]
+pub struct Args {
+    /// The master board's ST-LINK, by serial number (`probe-rs list` shows them), or as VID:PID:SERIAL
+    #[arg(long, value_name = "SERIAL", value_parser = probe_arg, required_unless_present = "replay")]
+    pub master_probe: Option<String>,
+    /// The thruster board's ST-LINK, likewise
+    #[arg(long, value_name = "SERIAL", value_parser = probe_arg, required_unless_present = "replay")]
+    pub thruster_probe: Option<String>,
+    /// The thruster image's controller family
+    #[arg(long, value_enum, default_value_t = FamilyArg::Seabotix)]
+    pub family: FamilyArg,
+    /// Give up after S seconds without a verdict (0 < S <= 86400)
+    #[arg(long, value_name = "S", default_value = "300", value_parser = timeout_seconds)]
+    pub timeout: Duration,
+    /// Keep the master's whole log in FILE
+    #[arg(long, value_name = "FILE")]
+    pub log: Option<PathBuf>,
+    /// Print the commands and run nothing
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Follow a recorded log instead of a board's
+    #[arg(long, value_name = "LOG", conflicts_with_all = ["master_probe", "thruster_probe", "dry_run"])]
+    pub replay: Option<PathBuf>,
+}
 
-/// What the command line asked for.
+/// The thruster image's family, as the command line names it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum FamilyArg {
+    /// SeaBotix (0x52/0x53, 7-byte status)
+    Seabotix,
+    /// Aveox / Legacy (0x54/0x55, 4-byte status)
+    Legacy,
+}
+
+impl From<FamilyArg> for Family {
+    fn from(family: FamilyArg) -> Family {
+        match family {
+            FamilyArg::Seabotix => Family::SeaBotix,
+            FamilyArg::Legacy => Family::Legacy,
+        }
+    }
+}
+
+/// `--timeout`: seconds, positive, finite, at most [`MAX_TIMEOUT_S`].
+fn timeout_seconds(text: &str) -> Result<Duration, String> {
+    let seconds: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if seconds.is_finite() && seconds > 0.0 && seconds <= MAX_TIMEOUT_S {
+        Ok(Duration::from_secs_f64(seconds))
+    } else {
+        Err(format!("{text} is outside 0 < S <= {MAX_TIMEOUT_S}"))
+    }
+}
+
+/// What the command line asked for, checked.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Options {
     /// The master board's probe, as given.
@@ -78,74 +137,37 @@ pub struct Options {
     pub replay: Option<PathBuf>,
 }
 
-/// Read the command line.
-pub fn parse(args: &[String]) -> Result<Options, String> {
-    let (mut master, mut thruster, mut family, mut timeout) = (None, None, Family::SeaBotix, Duration::from_secs(300));
-    let (mut log, mut dry_run, mut replay) = (None, false, None);
-    let mut args = args.iter();
-    while let Some(arg) = args.next() {
-        let mut value = |name: &str| args.next().cloned().ok_or(format!("{name} needs a value"));
-        match arg.as_str() {
-            "--master-probe" => master = Some(probe_arg("--master-probe", value("--master-probe")?)?),
-            "--thruster-probe" => thruster = Some(probe_arg("--thruster-probe", value("--thruster-probe")?)?),
-            "--family" => {
-                family = match value("--family")?.as_str() {
-                    "seabotix" => Family::SeaBotix,
-                    "legacy" => Family::Legacy,
-                    other => return Err(format!("--family is seabotix or legacy, not {other}")),
-                }
-            }
-            "--timeout" => {
-                let seconds: f64 = value("--timeout")?.parse().map_err(|_| "--timeout needs seconds")?;
-                if !(seconds.is_finite() && seconds > 0.0) {
-                    return Err("--timeout needs a positive number of seconds".into());
-                }
-                timeout = Duration::from_secs_f64(seconds);
-            }
-            "--log" => log = Some(PathBuf::from(value("--log")?)),
-            "--dry-run" => dry_run = true,
-            "--replay" => replay = Some(PathBuf::from(value("--replay")?)),
-            "-h" | "--help" => return Err(String::new()),
-            other => return Err(format!("unknown option {other}")),
+impl TryFrom<Args> for Options {
+    type Error = String;
+
+    /// The rule clap's attributes do not say: two boards need two probes.
+    fn try_from(args: Args) -> Result<Options, String> {
+        let (master_probe, thruster_probe) = (
+            args.master_probe.unwrap_or_default(),
+            args.thruster_probe.unwrap_or_default(),
+        );
+        if args.replay.is_none() && master_probe == thruster_probe {
+            return Err("the two boards need two probes: --master-probe and --thruster-probe are the same".into());
         }
+        Ok(Options {
+            master_probe,
+            thruster_probe,
+            family: args.family.into(),
+            timeout: args.timeout,
+            log: args.log,
+            dry_run: args.dry_run,
+            replay: args.replay,
+        })
     }
-    if replay.is_some() {
-        return Ok(Options {
-            master_probe: master.unwrap_or_default(),
-            thruster_probe: thruster.unwrap_or_default(),
-            family,
-            timeout,
-            log,
-            dry_run,
-            replay,
-        });
-    }
-    let (Some(master_probe), Some(thruster_probe)) = (master, thruster) else {
-        return Err("--master-probe and --thruster-probe are needed (probe-rs list shows the serial numbers)".into());
-    };
-    if master_probe == thruster_probe {
-        return Err("the two boards need two probes: --master-probe and --thruster-probe are the same".into());
-    }
-    Ok(Options {
-        master_probe,
-        thruster_probe,
-        family,
-        timeout,
-        log,
-        dry_run,
-        replay,
-    })
 }
 
 /// A probe argument: a serial number, or VID:PID:SERIAL; nothing that a shell or probe-rs would read otherwise.
-fn probe_arg(option: &str, text: String) -> Result<String, String> {
+fn probe_arg(text: &str) -> Result<String, String> {
     let fine = !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || c == ':');
     if fine {
-        Ok(text)
+        Ok(text.to_string())
     } else {
-        Err(format!(
-            "{option} takes a serial number (or VID:PID:SERIAL), not {text:?}"
-        ))
+        Err(format!("{text:?} is not a serial number (or VID:PID:SERIAL)"))
     }
 }
 
@@ -400,31 +422,79 @@ pub fn parse_line(line: &str) -> Option<Event> {
     }))
 }
 
-/// What a log said, line by line.
+/// Failed steps whose lines are kept for the summary; all are counted.
+pub const MAX_FAILURES: usize = 100;
+
+/// One line of the master's log as read: its text (bytes that are not UTF-8 shown as U+FFFD) and whether it was
+/// longer than [`MAX_LINE`] and cut.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LogLine {
+    /// The text, or the first [`MAX_LINE`] bytes of it.
+    pub text: String,
+    /// The line was longer and is cut.
+    pub cut: bool,
+}
+
+impl From<Line<'_>> for LogLine {
+    fn from(line: Line<'_>) -> LogLine {
+        LogLine {
+            text: String::from_utf8_lossy(line.bytes()).into_owned(),
+            cut: matches!(line, Line::TooLong { .. }),
+        }
+    }
+}
+
+impl From<&str> for LogLine {
+    fn from(text: &str) -> LogLine {
+        LogLine {
+            text: text.to_string(),
+            cut: false,
+        }
+    }
+}
+
+/// What a log said, line by line. Its size does not grow with the log: counts, and the first [`MAX_FAILURES`]
+/// failed steps.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Outcome {
     /// The test's start line was seen.
     pub started: bool,
-    /// Every step's line, in order.
-    pub steps: Vec<StepLine>,
+    /// Steps that passed.
+    pub passed: u64,
+    /// Steps that failed.
+    pub failed: u64,
+    /// The first failed steps' lines, in order.
+    pub failures: Vec<StepLine>,
     /// Prompts seen.
-    pub prompts: usize,
+    pub prompts: u64,
     /// The verdict, once seen.
     pub verdict: Option<VerdictLine>,
     /// The firmware panicked (panic-probe's message).
     pub panicked: bool,
+    /// Lines cut for their length: never read as report lines.
+    pub cut_lines: u64,
 }
 
 impl Outcome {
     /// Take one log line; returns the report line it held, if any.
-    pub fn feed(&mut self, line: &str) -> Option<Event> {
-        if line.contains("panicked at") {
+    pub fn feed(&mut self, line: &LogLine) -> Option<Event> {
+        if line.text.contains("panicked at") {
             self.panicked = true;
         }
-        let event = parse_line(line)?;
+        if line.cut {
+            self.cut_lines += 1;
+            return None;
+        }
+        let event = parse_line(&line.text)?;
         match &event {
             Event::Start => self.started = true,
-            Event::Step(step) => self.steps.push(step.clone()),
+            Event::Step(step) if step.passed => self.passed += 1,
+            Event::Step(step) => {
+                self.failed += 1;
+                if self.failures.len() < MAX_FAILURES {
+                    self.failures.push(step.clone());
+                }
+            }
             Event::Prompt { .. } => self.prompts += 1,
             Event::Verdict(verdict) => self.verdict = Some(*verdict),
         }
@@ -436,14 +506,14 @@ impl Outcome {
     pub fn of_log(log: &str) -> Outcome {
         let mut outcome = Outcome::default();
         for line in log.lines() {
-            outcome.feed(line);
+            outcome.feed(&line.into());
         }
         outcome
     }
 
-    /// Steps that failed.
-    pub fn failed_steps(&self) -> impl Iterator<Item = &StepLine> {
-        self.steps.iter().filter(|step| !step.passed)
+    /// Steps reported, passed or failed.
+    pub fn steps(&self) -> u64 {
+        self.passed + self.failed
     }
 }
 
@@ -460,19 +530,29 @@ pub enum Ending {
 
 /// The exit status and a one-line summary for an outcome.
 ///
-/// PASS needs the verdict PASS, no failed step line, step counts that match the verdict's, and no panic; a
-/// verdict that contradicts the step lines is a FAIL.
+/// PASS needs the test's start line, at least one step, the verdict PASS, no failed step line, step counts that
+/// match the verdict's, and no panic; a verdict that contradicts the step lines is a FAIL.
 pub fn judge(outcome: &Outcome, ending: Ending, timeout: Duration) -> (u8, String) {
-    let passed = outcome.steps.iter().filter(|step| step.passed).count();
-    let failed = outcome.steps.len() - passed;
+    let (passed, failed) = (outcome.passed, outcome.failed);
     if outcome.panicked {
         return (EXIT_FAIL, "FAIL: the master panicked".into());
     }
     match outcome.verdict {
         Some(verdict) => {
-            let consistent = usize::try_from(verdict.passed).is_ok_and(|n| n == passed)
-                && usize::try_from(verdict.failed).is_ok_and(|n| n == failed);
-            if verdict.pass && failed == 0 && consistent {
+            let consistent = u64::from(verdict.passed) == passed && u64::from(verdict.failed) == failed;
+            if !outcome.started || outcome.steps() == 0 {
+                (
+                    EXIT_FAIL,
+                    format!(
+                        "FAIL: a verdict with {} (a verdict alone proves nothing)",
+                        if outcome.started {
+                            "no step reported"
+                        } else {
+                            "no start line before it"
+                        }
+                    ),
+                )
+            } else if verdict.pass && failed == 0 && consistent {
                 (EXIT_PASS, format!("PASS: {passed} steps passed"))
             } else if !consistent {
                 (
@@ -499,15 +579,15 @@ pub fn judge(outcome: &Outcome, ending: Ending, timeout: Duration) -> (u8, Strin
                 EXIT_TIMEOUT,
                 format!(
                     "FAIL: no verdict within {} s ({} steps reported)",
-                    timeout.as_secs(),
-                    outcome.steps.len()
+                    timeout.as_secs_f64(),
+                    outcome.steps()
                 ),
             ),
             Ending::LogEnded | Ending::Verdict => (
                 EXIT_NO_VERDICT,
                 format!(
                     "FAIL: the log ended without a verdict ({} steps reported)",
-                    outcome.steps.len()
+                    outcome.steps()
                 ),
             ),
         },
@@ -545,7 +625,7 @@ pub fn describe(event: &Event) -> String {
 /// Follow log lines as they arrive until the verdict, the end of the log or `timeout`: every line goes to `log`
 /// (when given), every report line to `out`.
 pub fn follow(
-    lines: &Receiver<String>,
+    lines: &Receiver<Vec<LogLine>>,
     timeout: Duration,
     mut log: Option<&mut dyn Write>,
     out: &mut dyn Write,
@@ -554,31 +634,46 @@ pub fn follow(
     let mut outcome = Outcome::default();
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
-        let line = match lines.recv_timeout(left) {
-            Ok(line) => line,
+        let batch = match lines.recv_timeout(left) {
+            Ok(batch) => batch,
             Err(RecvTimeoutError::Timeout) => return (outcome, Ending::Timeout),
             Err(RecvTimeoutError::Disconnected) => return (outcome, Ending::LogEnded),
         };
-        if let Some(log) = log.as_mut() {
-            let _ = writeln!(log, "{line}");
-        }
-        if let Some(event) = outcome.feed(&line) {
-            let _ = writeln!(out, "{}", describe(&event));
-            if matches!(event, Event::Verdict(_)) {
-                return (outcome, Ending::Verdict);
+        for line in batch {
+            if let Some(log) = log.as_mut() {
+                let _ = writeln!(log, "{}", line.text);
+            }
+            if let Some(event) = outcome.feed(&line) {
+                let _ = writeln!(out, "{}", describe(&event));
+                if matches!(event, Event::Verdict(_)) {
+                    return (outcome, Ending::Verdict);
+                }
             }
         }
     }
 }
 
-/// Send every line of `source` to a channel from a thread of its own; the channel closes at the end.
-fn lines_of(source: impl Read + Send + 'static, to: mpsc::Sender<String>) {
+/// Send every line of `source` to a channel from a thread of its own, in batches: a batch goes as soon as the
+/// reader would wait for more input (so a live log is followed line by line) or holds [`BATCH_BYTES`]. The
+/// channel closes at the end of the input (or at a read error); it is bounded, so the reader waits while the
+/// follower is behind.
+fn lines_of(source: impl Read + Send + 'static, to: SyncSender<Vec<LogLine>>) {
     std::thread::spawn(move || {
-        for line in BufReader::new(source).lines() {
-            let Ok(line) = line else { break };
-            if to.send(line).is_err() {
-                break;
+        let mut lines = Lines::new(BufReader::new(source), MAX_LINE);
+        let (mut batch, mut bytes) = (Vec::new(), 0);
+        while let Ok(Some((_, line))) = lines.next_line() {
+            let line = LogLine::from(line);
+            bytes += line.text.len();
+            batch.push(line);
+            if lines.get_ref().buffer().is_empty() || bytes >= BATCH_BYTES {
+                if to.send(std::mem::take(&mut batch)).is_err() {
+                    return;
+                }
+                bytes = 0;
             }
+        }
+        if !batch.is_empty() {
+            let _ = to.send(batch);
         }
     });
 }
@@ -595,10 +690,10 @@ fn target_dir(workspace: &Path) -> PathBuf {
 }
 
 /// `lbv hil ...`
-pub fn main(args: &[String]) -> ExitCode {
-    let options = match parse(args) {
+pub fn main(args: Args) -> ExitCode {
+    let options = match Options::try_from(args) {
         Ok(options) => options,
-        Err(message) => return crate::usage_error(&message, USAGE, ExitCode::from(EXIT_SETUP)),
+        Err(message) => crate::refuse::<Args>("lbv hil", message),
     };
     let mut log = match options.log.as_ref().map(File::create).transpose() {
         Ok(log) => log,
@@ -607,7 +702,7 @@ pub fn main(args: &[String]) -> ExitCode {
             return ExitCode::from(EXIT_SETUP);
         }
     };
-    let (sender, receiver) = mpsc::channel();
+    let (sender, receiver) = mpsc::sync_channel(IN_FLIGHT);
     let mut child: Option<Child> = None;
     if let Some(replay) = &options.replay {
         match File::open(replay) {
@@ -674,10 +769,21 @@ pub fn main(args: &[String]) -> ExitCode {
         let _ = process.wait();
     }
     let (code, summary) = judge(&outcome, ending, options.timeout);
-    for step in outcome.failed_steps() {
-        println!("failed: {} {}", step.family.as_deref().unwrap_or(""), step.step);
+    // Written, not printed: a reader that went away (`| head`) is no reason to stop before the exit status.
+    for step in &outcome.failures {
+        let _ = writeln!(stdout, "failed: {} {}", step.family.as_deref().unwrap_or(""), step.step);
     }
-    println!("lbv hil: {summary}");
+    if outcome.failed > outcome.failures.len() as u64 {
+        let more = outcome.failed - outcome.failures.len() as u64;
+        let _ = writeln!(stdout, "failed: ... and {more} more");
+    }
+    if outcome.cut_lines > 0 {
+        eprintln!(
+            "lbv hil: {} log lines were longer than {MAX_LINE} bytes: cut (also in --log) and not read as report lines",
+            outcome.cut_lines
+        );
+    }
+    let _ = writeln!(stdout, "lbv hil: {summary}");
     ExitCode::from(code)
 }
 
@@ -689,12 +795,15 @@ mod tests {
     const FAIL_LOG: &str = include_str!("../tests/fixtures/hil-fail.log");
     const CUT_LOG: &str = include_str!("../tests/fixtures/hil-no-verdict.log");
 
-    fn args(line: &str) -> Vec<String> {
-        line.split_whitespace().map(str::to_string).collect()
+    /// The options of a command line, or clap's or the check's error in words.
+    fn parse(line: &str) -> Result<Options, String> {
+        use clap::Parser as _;
+        let args = Args::try_parse_from(std::iter::once("hil").chain(line.split_whitespace()));
+        Options::try_from(args.map_err(|error| error.to_string())?)
     }
 
     fn options(line: &str) -> Options {
-        parse(&args(line)).unwrap()
+        parse(line).unwrap()
     }
 
     #[test]
@@ -706,22 +815,32 @@ mod tests {
         assert_eq!(o.timeout, Duration::from_secs(90));
         assert_eq!(o.log, Some(PathBuf::from("x.log")));
         assert_eq!(options("--master-probe A --thruster-probe B").family, Family::SeaBotix);
+        assert_eq!(
+            options("--replay x.log --timeout 0.5").timeout,
+            Duration::from_millis(500)
+        );
         for (bad, why) in [
             ("--master-probe A", "--thruster-probe"),
             ("--master-probe A --thruster-probe A", "same"),
+            ("--master-probe A --thruster-probe B --family aveox", "seabotix"),
             (
-                "--master-probe A --thruster-probe B --family aveox",
-                "seabotix or legacy",
+                "--master-probe A --thruster-probe B --timeout -1",
+                "unexpected argument",
             ),
-            ("--master-probe A --thruster-probe B --timeout -1", "positive"),
-            ("--master-probe A --thruster-probe 'B;rm'", "serial number"),
-            ("--master-probe", "needs a value"),
-            ("--frobnicate", "unknown option"),
+            ("--master-probe A --thruster-probe B --timeout 0", "outside"),
+            ("--master-probe A --thruster-probe B --timeout 1e19", "outside"),
+            ("--master-probe A --thruster-probe B --timeout 86401", "outside"),
+            ("--master-probe A --thruster-probe B --timeout NaN", "outside"),
+            ("--master-probe A --thruster-probe B --timeout inf", "outside"),
+            ("--master-probe A --thruster-probe B --timeout soon", "not a number"),
+            ("--master-probe A --thruster-probe B;rm", "serial number"),
+            ("--master-probe", "a value is required"),
+            ("--frobnicate", "unexpected argument"),
+            ("--replay x.log --master-probe A", "cannot be used with"),
         ] {
-            let error = parse(&args(bad)).unwrap_err();
+            let error = parse(bad).unwrap_err();
             assert!(error.contains(why), "{bad}: {error}");
         }
-        assert_eq!(parse(&args("--help")), Err(String::new()));
         let replay = options("--replay fixtures/hil-pass.log");
         assert_eq!(replay.replay, Some(PathBuf::from("fixtures/hil-pass.log")));
     }
@@ -812,7 +931,7 @@ mod tests {
     fn a_recorded_passing_run_passes() {
         let outcome = Outcome::of_log(PASS_LOG);
         assert!(outcome.started);
-        assert_eq!(outcome.steps.len(), 9);
+        assert_eq!((outcome.passed, outcome.failed), (9, 0));
         assert_eq!(outcome.prompts, 5);
         assert_eq!(
             outcome.verdict,
@@ -829,7 +948,7 @@ mod tests {
     #[test]
     fn a_recorded_failing_run_fails_and_names_the_step() {
         let outcome = Outcome::of_log(FAIL_LOG);
-        let failed: Vec<&str> = outcome.failed_steps().map(|step| step.step.as_str()).collect();
+        let failed: Vec<&str> = outcome.failures.iter().map(|step| step.step.as_str()).collect();
         assert_eq!(failed, ["held-rotor"]);
         let (code, summary) = judge(&outcome, Ending::Verdict, Duration::from_secs(300));
         assert_eq!(code, EXIT_FAIL);
@@ -840,7 +959,7 @@ mod tests {
     fn a_log_without_a_verdict_fails() {
         let outcome = Outcome::of_log(CUT_LOG);
         assert!(outcome.verdict.is_none());
-        assert!(!outcome.steps.is_empty());
+        assert!(outcome.steps() > 0);
         let (code, _) = judge(&outcome, Ending::LogEnded, Duration::from_secs(300));
         assert_eq!(code, EXIT_NO_VERDICT);
         let (code, summary) = judge(&outcome, Ending::Timeout, Duration::from_secs(300));
@@ -876,10 +995,8 @@ mod tests {
     #[test]
     fn following_stops_at_the_verdict_and_keeps_the_whole_log() {
         let (sender, receiver) = mpsc::channel();
-        for line in PASS_LOG.lines() {
-            sender.send(line.to_string()).unwrap();
-        }
-        sender.send("INFO  something after the verdict".into()).unwrap();
+        sender.send(PASS_LOG.lines().map(LogLine::from).collect()).unwrap();
+        sender.send(vec!["INFO  something after the verdict".into()]).unwrap();
         let (mut log, mut out) = (Vec::new(), Vec::new());
         let (outcome, ending) = follow(&receiver, Duration::from_secs(5), Some(&mut log), &mut out);
         assert_eq!(ending, Ending::Verdict);
@@ -905,21 +1022,59 @@ mod tests {
     fn following_ends_with_the_log_or_the_timeout() {
         let (sender, receiver) = mpsc::channel();
         for line in CUT_LOG.lines() {
-            sender.send(line.to_string()).unwrap();
+            sender.send(vec![line.into()]).unwrap();
         }
         drop(sender);
         let (outcome, ending) = follow(&receiver, Duration::from_secs(5), None, &mut Vec::new());
         assert_eq!(ending, Ending::LogEnded);
-        assert!(!outcome.steps.is_empty());
+        assert!(outcome.steps() > 0);
 
         // A board that goes quiet: the sender stays open, nothing comes.
-        let (sender, receiver) = mpsc::channel::<String>();
-        sender.send("INFO  ACCEPT start".into()).unwrap();
+        let (sender, receiver) = mpsc::channel::<Vec<LogLine>>();
+        sender.send(vec!["INFO  ACCEPT start".into()]).unwrap();
         let started = Instant::now();
         let (outcome, ending) = follow(&receiver, Duration::from_millis(100), None, &mut Vec::new());
         assert_eq!(ending, Ending::Timeout);
         assert!(outcome.started);
         assert!(started.elapsed() >= Duration::from_millis(100));
         drop(sender);
+    }
+
+    #[test]
+    fn a_verdict_without_the_start_or_any_step_is_a_fail() {
+        for log in [
+            "INFO  ACCEPT verdict=PASS passed=0 failed=0",
+            "INFO  ACCEPT start\nINFO  ACCEPT verdict=PASS passed=0 failed=0",
+            "INFO  ACCEPT step=discovery result=PASS seabotix=1 legacy=0 found=1\nINFO  ACCEPT verdict=PASS passed=1 failed=0",
+        ] {
+            let (code, summary) = judge(&Outcome::of_log(log), Ending::Verdict, Duration::from_secs(1));
+            assert_eq!(code, EXIT_FAIL, "{log}: {summary}");
+            assert!(summary.contains("verdict alone"), "{summary}");
+        }
+    }
+
+    #[test]
+    fn lines_that_are_not_utf8_or_too_long_hide_nothing_after_them() {
+        let mut log = b"\xff\xfe not text\n".to_vec();
+        log.extend(std::iter::repeat_n(b'x', MAX_LINE * 3));
+        log.extend(b" ACCEPT verdict=PASS passed=9 failed=0\n");
+        log.extend(PASS_LOG.as_bytes());
+        let (sender, receiver) = mpsc::sync_channel(IN_FLIGHT);
+        lines_of(std::io::Cursor::new(log), sender);
+        let (outcome, ending) = follow(&receiver, Duration::from_secs(5), None, &mut Vec::new());
+        assert_eq!(ending, Ending::Verdict);
+        assert_eq!(outcome.cut_lines, 1, "the long line is cut, and its verdict not read");
+        assert_eq!(judge(&outcome, ending, Duration::from_secs(5)).0, EXIT_PASS);
+    }
+
+    #[test]
+    fn the_outcome_keeps_counts_not_lines() {
+        let mut outcome = Outcome::default();
+        let line = LogLine::from("INFO  ACCEPT step=speed-forward family=seabotix result=FAIL steps=102 ok=101");
+        for _ in 0..10 * MAX_FAILURES {
+            outcome.feed(&line);
+        }
+        assert_eq!(outcome.failed, 10 * MAX_FAILURES as u64);
+        assert_eq!(outcome.failures.len(), MAX_FAILURES);
     }
 }

@@ -3,155 +3,161 @@
 //! time with its MAVLink console on UDP, for a ground station to fly.
 
 mod bench;
-mod decode;
-mod hil;
 mod scenarios;
 
 use std::io::{IsTerminal, Write};
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::process::ExitCode;
 
+use clap::{Parser, Subcommand};
+use lbv::{decode, exit, hil};
+
+use bench::plot::Format;
 use bench::trace::Sample;
 use scenarios::{Report, SCENARIOS, Scenario};
 
-const USAGE: &str = "\
-usage: lbv bench [--scenario NAME] [--seed N] [--duration SECONDS] [--json FILE] [--plot FILE.svg] [--quiet]
-       lbv bench --all [--seed N] [--json FILE]
-       lbv bench --list
-       lbv bench --udp [--udp-send ADDR:PORT] [--udp-listen ADDR:PORT] [--udp-any] [--seed N] [--duration S] [--quiet]
+/// Host tools for the LBV propulsion: the virtual bench, capture decoders, the dev-kit bench test.
+#[derive(Debug, Parser)]
+#[command(name = "lbv", arg_required_else_help = true, term_width = 100, after_help = exit::HELP)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
 
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// The virtual bench: the whole vehicle (the real firmware cores, simulated buses, motors and battery) on
+    /// virtual time; with --udp, in real time for a ground station to fly
+    Bench(BenchArgs),
+    /// Decode what people capture on the bench: I2C annotations from sigrok, candump logs
+    #[command(subcommand)]
+    Decode(decode::Command),
+    /// The bench test between two NUCLEO-G431RB dev kits: build, flash, follow the master's log to the verdict
+    Hil(hil::Args),
+}
+
+/// The longest run --duration asks for: a simulated day (the trace of a run grows with its length).
+const MAX_DURATION_S: f64 = 86_400.0;
+
+const BENCH_HELP: &str = "\
 With no options: the dive scenario, with a live view of the thrusters and a summary at the end.
---list       name every scenario
---all        run every scenario; the exit status is non-zero if any check fails
---duration S the soak's length; other scenarios run their script to the end, then on to S if it is longer
---json FILE  write the report (a list of reports with --all) as JSON
---plot FILE  draw rpm, current, temperature and faults over time as SVG
---quiet      no live view (with --udp: no status lines)
 
---udp        the dive scenario's vehicle with no scripted pilot, in real time, its MAVLink console on UDP for a
-             ground station (QGroundControl, pymavlink) to arm and fly it; runs until interrupted, or for
-             --duration seconds. A status line every second: armed, each thruster's rpm, datagrams.
---udp-send ADDR:PORT    where the master's MAVLink goes (default 127.0.0.1:14550, where QGroundControl and
-                        `pymavlink udpin:0.0.0.0:14550` listen)
---udp-listen ADDR:PORT  where the bench receives the station's MAVLink (default 127.0.0.1:14551); a loopback
-                        address only, unless --udp-any
---udp-any    allow --udp-listen on an address other than loopback (exposes the vehicle to the network)";
+--udp flies the dive scenario's vehicle with no scripted pilot, in real time, its MAVLink console
+on UDP for a ground station (QGroundControl, pymavlink) to arm and fly; it runs until interrupted,
+or for --duration seconds, with a status line every second (armed, each thruster's rpm, datagrams).
 
-/// What the command line asked for.
-#[derive(Debug, Default)]
-struct Options {
+Exit status: 0 every check passed; 1 a check failed; 2 bad command line, an unknown scenario, a
+file that cannot be written, a UDP port that cannot be opened.";
+
+/// `lbv bench`: what to run and what to write.
+#[derive(Debug, Parser)]
+#[command(after_help = BENCH_HELP)]
+struct BenchArgs {
+    /// Name every scenario, with its default length and what it checks
+    #[arg(long)]
     list: bool,
+    /// Run every scenario
+    #[arg(long, conflicts_with = "scenario")]
     all: bool,
+    /// The scenario to run (lbv bench --list names them) [default: dive]
+    #[arg(long, value_name = "NAME")]
     scenario: Option<String>,
+    /// Seeds the motors' starting positions and the scenarios' random choices: the same seed, the same run
+    #[arg(long, value_name = "N", default_value_t = 1)]
     seed: u64,
+    /// The soak's length; other scenarios run their script to the end, then on to SECONDS if it is longer
+    /// (0 < SECONDS <= 86400)
+    #[arg(long, value_name = "SECONDS", value_parser = duration_seconds)]
     duration: Option<f64>,
-    json: Option<String>,
-    plot: Option<String>,
+    /// Write the report (a list of reports with --all) as JSON
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Draw rpm, current, temperature, faults and events over time, as SVG or PNG by the file's extension
+    #[arg(long, value_name = "FILE.svg|FILE.png", value_parser = plot_file)]
+    plot: Option<(PathBuf, Format)>,
+    /// No live view (with --udp: no status lines)
+    #[arg(long)]
     quiet: bool,
+    /// Run the dive vehicle in real time with its MAVLink console on UDP (see below)
+    #[arg(long, conflicts_with_all = ["all", "json", "plot"])]
     udp: bool,
+    /// Where the master's MAVLink goes (QGroundControl and `pymavlink udpin:0.0.0.0:14550` listen there)
+    /// [default: 127.0.0.1:14550]
+    #[arg(long, value_name = "ADDR:PORT", requires = "udp")]
     udp_send: Option<SocketAddr>,
+    /// Where the bench takes the station's MAVLink: a loopback address unless --udp-any
+    /// [default: 127.0.0.1:14551]
+    #[arg(long, value_name = "ADDR:PORT", requires = "udp")]
     udp_listen: Option<SocketAddr>,
+    /// Allow --udp-listen on an address other than loopback (exposes the vehicle to the network)
+    #[arg(long, requires = "udp")]
     udp_any: bool,
 }
 
-fn parse(args: &[String]) -> Result<Options, String> {
-    let mut options = Options {
-        seed: 1,
-        ..Options::default()
-    };
-    let mut args = args.iter();
-    while let Some(arg) = args.next() {
-        let mut value = |name: &str| args.next().cloned().ok_or(format!("{name} needs a value"));
-        match arg.as_str() {
-            "--list" => options.list = true,
-            "--all" => options.all = true,
-            "--quiet" => options.quiet = true,
-            "--scenario" => options.scenario = Some(value("--scenario")?),
-            "--seed" => options.seed = value("--seed")?.parse().map_err(|_| "--seed needs a number")?,
-            "--duration" => {
-                let seconds: f64 = value("--duration")?.parse().map_err(|_| "--duration needs seconds")?;
-                if !(seconds.is_finite() && seconds > 0.0) {
-                    return Err("--duration needs a positive number of seconds".into());
-                }
-                options.duration = Some(seconds);
-            }
-            "--json" => options.json = Some(value("--json")?),
-            "--plot" => {
-                let file = value("--plot")?;
-                if !file.ends_with(".svg") {
-                    return Err("--plot writes SVG: give a file name ending in .svg".into());
-                }
-                options.plot = Some(file);
-            }
-            "--udp" => options.udp = true,
-            "--udp-any" => options.udp_any = true,
-            "--udp-send" => options.udp_send = Some(address("--udp-send", &value("--udp-send")?)?),
-            "--udp-listen" => options.udp_listen = Some(address("--udp-listen", &value("--udp-listen")?)?),
-            "-h" | "--help" => return Err(String::new()),
-            other => return Err(format!("unknown option {other}")),
-        }
+/// `--duration`: seconds, positive, finite, at most [`MAX_DURATION_S`].
+fn duration_seconds(text: &str) -> Result<f64, String> {
+    let seconds: f64 = text
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number of seconds"))?;
+    if seconds.is_finite() && seconds > 0.0 && seconds <= MAX_DURATION_S {
+        Ok(seconds)
+    } else {
+        Err(format!("{text} is outside 0 < SECONDS <= {MAX_DURATION_S}"))
     }
-    if options.udp {
-        if options.all {
-            return Err("--udp runs one vehicle: it does not go with --all".into());
+}
+
+/// `--plot`: a file name ending in .svg or .png (the picture's format).
+fn plot_file(text: &str) -> Result<(PathBuf, Format), String> {
+    let path = PathBuf::from(text);
+    let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match extension.as_deref() {
+        Some("svg") => Ok((path, Format::Svg)),
+        Some("png") => Ok((path, Format::Png)),
+        _ => Err(format!("{text} does not end in .svg or .png")),
+    }
+}
+
+impl BenchArgs {
+    /// The rules between options that clap's attributes do not say.
+    fn check(&self) -> Result<(), String> {
+        if !self.udp {
+            return Ok(());
         }
-        if let Some(name) = options.scenario.as_deref().filter(|name| *name != "dive") {
+        if let Some(name) = self.scenario.as_deref().filter(|name| *name != "dive") {
             return Err(format!(
                 "--udp flies the dive scenario's vehicle with the ground station as pilot: --scenario {name} does \
                  not go with it"
             ));
         }
-        if options.json.is_some() || options.plot.is_some() {
-            return Err("--json and --plot report scripted scenarios: they do not go with --udp".into());
-        }
-        if let Some(listen) = options.udp_listen
+        if let Some(listen) = self.udp_listen
             && !listen.ip().is_loopback()
-            && !options.udp_any
+            && !self.udp_any
         {
             return Err(format!(
                 "--udp-listen {listen} is not a loopback address: add --udp-any to listen on the network"
             ));
         }
-    } else if options.udp_send.is_some() || options.udp_listen.is_some() || options.udp_any {
-        return Err("--udp-send, --udp-listen and --udp-any go with --udp".into());
+        Ok(())
     }
-    Ok(options)
-}
-
-fn address(option: &str, text: &str) -> Result<SocketAddr, String> {
-    text.parse()
-        .map_err(|_| format!("{option} needs an address and port such as 127.0.0.1:14550, not {text}"))
 }
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let rest = args.get(1..).unwrap_or_default();
-    match args.first().map(String::as_str) {
-        Some("bench") => bench_main(rest),
-        Some("decode") => decode::main(rest),
-        Some("hil") => hil::main(rest),
-        _ => {
-            eprintln!("{USAGE}\n{}\n{}", decode::USAGE, hil::USAGE);
-            ExitCode::from(2)
+    match Cli::parse().command {
+        Command::Bench(args) => {
+            if let Err(message) = args.check() {
+                lbv::refuse::<BenchArgs>("lbv bench", message);
+            }
+            bench_main(&args)
         }
+        Command::Decode(command) => decode::main(command),
+        Command::Hil(args) => hil::main(args),
     }
-}
-
-/// Say what was wrong with the command line (nothing for `--help`), show the usage, and exit with `code`.
-fn usage_error(message: &str, usage: &str, code: ExitCode) -> ExitCode {
-    if !message.is_empty() {
-        eprintln!("lbv: {message}");
-    }
-    eprintln!("{usage}");
-    code
 }
 
 /// `lbv bench ...`
-fn bench_main(args: &[String]) -> ExitCode {
-    let options = match parse(args) {
-        Ok(options) => options,
-        Err(message) => return usage_error(&message, USAGE, ExitCode::from(2)),
-    };
+fn bench_main(options: &BenchArgs) -> ExitCode {
     if options.list {
         for scenario in SCENARIOS {
             println!("{:<22} {:>5.0} s  {}", scenario.name, scenario.seconds, scenario.about);
@@ -159,7 +165,7 @@ fn bench_main(args: &[String]) -> ExitCode {
         return ExitCode::SUCCESS;
     }
     if options.udp {
-        return udp(&options);
+        return udp(options);
     }
     let chosen: Vec<&Scenario> = if options.all {
         SCENARIOS.iter().collect()
@@ -169,7 +175,7 @@ fn bench_main(args: &[String]) -> ExitCode {
             Some(scenario) => vec![scenario],
             None => {
                 eprintln!("lbv: no scenario called {name} (lbv bench --list names them)");
-                return ExitCode::from(2);
+                return ExitCode::from(exit::TROUBLE);
             }
         }
     };
@@ -179,14 +185,11 @@ fn bench_main(args: &[String]) -> ExitCode {
     for scenario in chosen {
         let (report, bench) = scenarios::run_with(scenario, options.seed, options.duration, live.then(live_view));
         summarise(&report);
-        if let Some(file) = &options.plot {
-            let svg = bench::plot::svg(
-                &bench.trace,
-                &format!("lbv bench: {} (seed {})", report.scenario, report.seed),
-            );
-            if let Err(error) = std::fs::write(file, svg) {
-                eprintln!("lbv: cannot write {file}: {error}");
-                return ExitCode::from(2);
+        if let Some((file, format)) = &options.plot {
+            let title = format!("lbv bench: {} (seed {})", report.scenario, report.seed);
+            if let Err(error) = bench::plot::write(&bench.trace, &title, file, *format) {
+                eprintln!("lbv: cannot write {}: {error}", file.display());
+                return ExitCode::from(exit::TROUBLE);
             }
         }
         reports.push(report);
@@ -201,8 +204,8 @@ fn bench_main(args: &[String]) -> ExitCode {
             .map_err(|error| error.to_string())
             .and_then(|json| std::fs::write(file, json).map_err(|e| e.to_string()));
         if let Err(error) = written {
-            eprintln!("lbv: cannot write {file}: {error}");
-            return ExitCode::from(2);
+            eprintln!("lbv: cannot write {}: {error}", file.display());
+            return ExitCode::from(exit::TROUBLE);
         }
     }
     let failed = reports.iter().filter(|report| !report.passed).count();
@@ -217,23 +220,23 @@ fn bench_main(args: &[String]) -> ExitCode {
     if failed == 0 {
         ExitCode::SUCCESS
     } else {
-        ExitCode::FAILURE
+        ExitCode::from(exit::FAILED)
     }
 }
 
 /// `--udp`: the dive vehicle, no scripted pilot, its console bridged to UDP, paced to the wall clock.
-fn udp(options: &Options) -> ExitCode {
+fn udp(options: &BenchArgs) -> ExitCode {
     let send = options.udp_send.unwrap_or(bench::udp::DEFAULT_SEND);
     let listen = options.udp_listen.unwrap_or(bench::udp::DEFAULT_LISTEN);
     let Some(dive) = scenarios::find("dive") else {
         eprintln!("lbv: no dive scenario to take the vehicle from");
-        return ExitCode::from(2);
+        return ExitCode::from(exit::TROUBLE);
     };
     let link = match bench::udp::UdpLink::open(listen, send) {
         Ok(link) => link,
         Err(error) => {
             eprintln!("lbv: cannot listen on {listen}: {error}");
-            return ExitCode::from(2);
+            return ExitCode::from(exit::TROUBLE);
         }
     };
     let listening = link.local_addr().unwrap_or(listen);
@@ -257,7 +260,7 @@ fn udp(options: &Options) -> ExitCode {
         Ok(clock) => clock,
         Err(error) => {
             eprintln!("lbv: the UDP link failed: {error}");
-            return ExitCode::from(2);
+            return ExitCode::from(exit::TROUBLE);
         }
     };
     let (simulated, wall) = (bench.seconds(), clock.elapsed().as_secs_f64());

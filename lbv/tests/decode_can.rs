@@ -200,11 +200,18 @@ fn random_bytes_never_crash_it() {
 
 #[test]
 fn usage_and_input_errors_exit_with_2() {
-    for args in [&["--bogus"][..], &["a.log", "b.log"], &["--help"]] {
+    for args in [&["--bogus"][..], &["a.log", "b.log"]] {
         let output = lbv(args, b"");
         assert_eq!(output.status.code(), Some(2), "{args:?}");
-        assert!(text(&output.stderr).contains("usage: lbv decode"), "{args:?}");
+        let err = text(&output.stderr);
+        assert!(
+            err.starts_with("error: ") && err.contains("Usage: lbv decode can"),
+            "{args:?}: {err}"
+        );
     }
+    let help = lbv(&["--help"], b"");
+    assert_eq!(help.status.code(), Some(0));
+    assert!(text(&help.stdout).contains("Exit status: 0 every line read"));
     let output = lbv(&["/nonexistent/candump.log"], b"");
     assert_eq!(output.status.code(), Some(2));
     assert!(text(&output.stderr).contains("cannot open /nonexistent/candump.log"));

@@ -84,3 +84,46 @@ fn bad_usage_exits_two() {
     assert_eq!(lbv(&["--master-probe", "A"]).status.code(), Some(2));
     assert_eq!(lbv(&["--replay", "/nonexistent/log"]).status.code(), Some(2));
 }
+
+/// Writes `log` to a file of its own and replays it.
+fn replay(name: &str, log: &[u8]) -> Output {
+    let path = std::env::temp_dir().join(format!("lbv-hil-{}-{name}.log", std::process::id()));
+    std::fs::write(&path, log).unwrap();
+    let output = lbv(&["--replay", &path.display().to_string()]);
+    let _ = std::fs::remove_file(&path);
+    output
+}
+
+#[test]
+fn a_line_that_is_not_utf8_hides_nothing() {
+    let mut log = b"\xff\xfe\n".to_vec();
+    log.extend(std::fs::read(fixture("hil-pass.log")).unwrap());
+    let output = replay("not-utf8", &log);
+    assert_eq!(output.status.code(), Some(0), "{}", stdout(&output));
+    assert!(stdout(&output).contains("lbv hil: PASS: 9 steps passed"));
+}
+
+#[test]
+fn a_verdict_alone_does_not_pass() {
+    let output = replay("verdict-alone", b"INFO  ACCEPT verdict=PASS passed=0 failed=0\n");
+    assert_eq!(output.status.code(), Some(1), "{}", stdout(&output));
+    assert!(
+        stdout(&output).contains("a verdict alone proves nothing"),
+        "{}",
+        stdout(&output)
+    );
+}
+
+#[test]
+fn an_overlong_line_is_cut_and_not_read() {
+    let mut log = vec![b'x'; 100_000];
+    log.extend(b" ACCEPT verdict=PASS passed=0 failed=0\n");
+    let output = replay("overlong", &log);
+    assert_eq!(
+        output.status.code(),
+        Some(4),
+        "no verdict was read: {}",
+        stdout(&output)
+    );
+    assert!(String::from_utf8_lossy(&output.stderr).contains("1 log lines were longer than 8192 bytes"));
+}

@@ -23,7 +23,8 @@
 //!
 //! Status reports mirror the master's battery monitor: the first 0x629 frame on an interface reports every one
 //! of the 12 bits in words (start-up report), later ones the bits that switched since the previous frame on that
-//! interface (change report); BMS alarms already set in the first 0x628 frame count as raised.
+//! interface (change report); BMS alarms already set in the first 0x628 frame count as raised. The boards of at
+//! most [`MAX_INTERFACES`] interfaces are remembered, so that memory stays bounded on any log.
 //!
 //! Human output, one line per BAT frame (`C` is degrees Celsius; a current or temperature that the frame does
 //! not report, sent as 0, is left out):
@@ -53,71 +54,63 @@
 //!
 //! The same frames are described for other CAN tools (cantools, SavvyCAN) by `lbv/dbc/bat.dbc`.
 
-use std::collections::HashMap;
-use std::fs::File;
-use std::io::{self, BufRead, BufReader, BufWriter, Write};
+use std::io::{self, BufRead, BufWriter, Write};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus, DecodeError, Frame, StatusBit};
+
+use crate::exit;
+use crate::lines::{Line as InputLine, Lines};
 
 /// Longest line read whole. candump's longest line, a CAN XL frame of 2048 bytes, is about 4200 bytes.
 pub const MAX_LINE: usize = 8192;
 /// Bad lines reported one by one on standard error; the summary counts them all.
 pub const MAX_MESSAGES: u64 = 100;
+/// Interfaces whose BAT board is remembered for the change reports; past this many, the one heard from least
+/// recently is forgotten (its next status is reported as a start-up again), so memory stays bounded.
+pub const MAX_INTERFACES: usize = 64;
 /// Output is built in memory and written in chunks of about this size.
 const OUT_CHUNK: usize = 64 * 1024;
-/// Input buffer size.
-const IN_BUFFER: usize = 256 * 1024;
 /// The error-frame flag in an 8-digit candump ID.
 const CAN_ERR_FLAG: u32 = 0x2000_0000;
 
+const HELP: &str = "\
+Reads candump logs (`candump -l`: `(TIME) IFACE ID#DATA`) and decodes the BAT board's 0x620 info,
+0x629 status (every bit in words at an interface's first frame, then the bits that switched) and
+0x628 BMS alarms with bat-proto, one line per frame; other frames are counted, not printed. Bad
+lines (and lines over 8192 bytes) are reported on standard error with their number and skipped. A
+summary goes to standard error.
+
+Exit status: 0 every line read and every BAT frame decoded; 1 lines were skipped or BAT frames did
+not decode (the output is complete all the same); 2 bad command line, or the input cannot be read
+or the output written.";
+
+/// `lbv decode can`'s command line.
+#[derive(Debug, Default, clap::Args)]
+#[command(after_help = HELP)]
+pub struct Args {
+    /// The candump log; standard input when - or absent
+    #[arg(value_name = "FILE")]
+    pub input: Option<PathBuf>,
+    /// One object per frame: time, id, voltage_v, current_a, charge_pct, temperature_c, status, status_bits,
+    /// changed, alarms, alarm_bits; a frame that did not decode: line and error
+    #[arg(long)]
+    pub json: bool,
+}
+
 /// `lbv decode can [FILE|-] [--json]`
-pub fn main(args: &[String]) -> ExitCode {
-    let mut input = None;
-    let mut json = false;
-    for arg in args {
-        match arg.as_str() {
-            "--json" => json = true,
-            "-h" | "--help" => {
-                eprintln!("{}", super::USAGE);
-                return ExitCode::from(2);
-            }
-            other if other.starts_with('-') && other != "-" => {
-                eprintln!("lbv decode can: unknown option {other}\n{}", super::USAGE);
-                return ExitCode::from(2);
-            }
-            other if input.is_none() => input = Some(other),
-            other => {
-                eprintln!("lbv decode can: one input only, not also {other}\n{}", super::USAGE);
-                return ExitCode::from(2);
-            }
+pub fn main(args: &Args) -> ExitCode {
+    let (input, name) = match super::open(args.input.as_deref()) {
+        Ok(input) => input,
+        Err(message) => {
+            eprintln!("lbv decode can: {message}");
+            return ExitCode::from(exit::TROUBLE);
         }
-    }
+    };
     let stdout = io::stdout();
     let mut out = BufWriter::with_capacity(OUT_CHUNK, stdout.lock());
-    let mut err = io::stderr();
-    let (name, result) = match input {
-        None | Some("-") => (
-            "standard input",
-            run(
-                BufReader::with_capacity(IN_BUFFER, io::stdin()),
-                &mut out,
-                &mut err,
-                json,
-            ),
-        ),
-        Some(path) => match File::open(path) {
-            Ok(file) => (
-                path,
-                run(BufReader::with_capacity(IN_BUFFER, file), &mut out, &mut err, json),
-            ),
-            Err(error) => {
-                eprintln!("lbv decode can: cannot open {path}: {error}");
-                return ExitCode::from(2);
-            }
-        },
-    };
-    match result {
+    match run(input, &mut out, &mut io::stderr(), args.json) {
         Ok(summary) => {
             eprintln!("lbv decode can: {summary}");
             summary.exit_code()
@@ -126,11 +119,11 @@ pub fn main(args: &[String]) -> ExitCode {
         Err(Failure::Write(error)) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
         Err(Failure::Write(error)) => {
             eprintln!("lbv decode can: cannot write the output: {error}");
-            ExitCode::from(2)
+            ExitCode::from(exit::TROUBLE)
         }
         Err(Failure::Read(error)) => {
             eprintln!("lbv decode can: cannot read {name}: {error}");
-            ExitCode::from(2)
+            ExitCode::from(exit::TROUBLE)
         }
     }
 }
@@ -145,21 +138,13 @@ pub enum Failure {
 }
 
 /// Decodes the candump log `input` to `out` (human or `json`), with bad-line messages and notes on `err`.
-pub fn run(
-    mut input: impl BufRead,
-    out: &mut impl Write,
-    err: &mut impl Write,
-    json: bool,
-) -> Result<Summary, Failure> {
+pub fn run(input: impl BufRead, out: &mut impl Write, err: &mut impl Write, json: bool) -> Result<Summary, Failure> {
     let mut decoder = Decoder::new(json);
-    let mut line = Vec::with_capacity(256);
-    let mut number = 0_u64;
-    while let Some(complete) = read_line(&mut input, &mut line).map_err(Failure::Read)? {
-        number += 1;
-        let parsed = if complete {
-            parse_line(&line)
-        } else {
-            Err("line too long for a candump log line")
+    let mut lines = Lines::new(input, MAX_LINE);
+    while let Some((number, line)) = lines.next_line().map_err(Failure::Read)? {
+        let parsed = match line {
+            InputLine::Whole(line) => parse_line(line),
+            InputLine::TooLong { .. } => Err("line too long for a candump log line"),
         };
         match parsed {
             Ok(Line::Blank) => {}
@@ -169,7 +154,7 @@ pub fn run(
                 let _ = writeln!(
                     err,
                     "lbv decode can: line {number}: the capture lost frames: {}",
-                    shown(&line)
+                    shown(line.bytes())
                 );
             }
             Ok(Line::Frame { time, iface, frame }) => decoder.frame(number, time, iface, frame),
@@ -180,7 +165,7 @@ pub fn run(
                     let _ = writeln!(
                         err,
                         "lbv decode can: line {number}: {reason}, skipped: {}",
-                        shown(&line)
+                        shown(line.bytes())
                     );
                 }
             }
@@ -190,50 +175,8 @@ pub fn run(
         }
     }
     decoder.flush(out)?;
-    decoder.summary.lines = number;
+    decoder.summary.lines = lines.number();
     Ok(decoder.summary)
-}
-
-/// Reads one line into `line` (without its end of line). `None` at the end of the input; `Some(false)` when the
-/// line is longer than [`MAX_LINE`] (its first bytes are kept, the rest is skipped, so memory stays bounded).
-fn read_line(input: &mut impl BufRead, line: &mut Vec<u8>) -> io::Result<Option<bool>> {
-    line.clear();
-    let read = io::Read::take(&mut *input, MAX_LINE as u64 + 1).read_until(b'\n', line)?;
-    if read == 0 {
-        return Ok(None);
-    }
-    if line.last() == Some(&b'\n') {
-        line.pop();
-        if line.last() == Some(&b'\r') {
-            line.pop();
-        }
-        return Ok(Some(true));
-    }
-    if read <= MAX_LINE {
-        return Ok(Some(true)); // the last line, without an end of line
-    }
-    // Too long: skip to the end of the line.
-    loop {
-        let buffer = match input.fill_buf() {
-            Ok(buffer) => buffer,
-            Err(error) if error.kind() == io::ErrorKind::Interrupted => continue,
-            Err(error) => return Err(error),
-        };
-        if buffer.is_empty() {
-            break;
-        }
-        match buffer.iter().position(|&byte| byte == b'\n') {
-            Some(end) => {
-                input.consume(end + 1);
-                break;
-            }
-            None => {
-                let all = buffer.len();
-                input.consume(all);
-            }
-        }
-    }
-    Ok(Some(false))
 }
 
 /// A line for a message: at most 80 bytes, not UTF-8 shown as U+FFFD, control characters escaped.
@@ -500,6 +443,8 @@ pub struct Summary {
     pub error_frames: u64,
     /// CAN XL frames.
     pub xl: u64,
+    /// Interfaces' boards forgotten to keep at most [`MAX_INTERFACES`].
+    pub forgotten: u64,
 }
 
 impl Summary {
@@ -551,6 +496,14 @@ impl std::fmt::Display for Summary {
         if self.bad > MAX_MESSAGES {
             write!(f, " (the first {MAX_MESSAGES} shown)")?;
         }
+        if self.forgotten > 0 {
+            write!(
+                f,
+                "; BAT boards on more than {MAX_INTERFACES} interfaces: {} forgotten (a board heard again after \
+                 that reports its status as at start-up)",
+                self.forgotten
+            )?;
+        }
         if self.drop_notes > 0 {
             write!(
                 f,
@@ -565,6 +518,10 @@ impl std::fmt::Display for Summary {
 /// What is remembered of one interface's BAT board, for the change reports.
 #[derive(Debug, Default)]
 struct Board {
+    /// The interface's name.
+    iface: Vec<u8>,
+    /// When it was last heard from, in BAT frames decoded.
+    heard: u64,
     status: Option<DcdcStatus>,
     alarms: Option<BmsAlarms>,
 }
@@ -573,7 +530,8 @@ struct Board {
 #[derive(Debug)]
 struct Decoder {
     json: bool,
-    boards: HashMap<Vec<u8>, Board>,
+    /// At most [`MAX_INTERFACES`].
+    boards: Vec<Board>,
     summary: Summary,
     out: Vec<u8>,
 }
@@ -582,7 +540,7 @@ impl Decoder {
     fn new(json: bool) -> Self {
         Self {
             json,
-            boards: HashMap::new(),
+            boards: Vec::new(),
             summary: Summary::default(),
             out: Vec::with_capacity(OUT_CHUNK + 1024),
         }
@@ -595,13 +553,31 @@ impl Decoder {
         out.flush().map_err(Failure::Write)
     }
 
-    /// Applies `update` to the board on `iface` (a new one for an interface not seen yet). The name is copied
-    /// only the first time.
+    /// Applies `update` to the board on `iface`: a new one for an interface not seen yet, which takes the place
+    /// of the one heard from least recently once [`MAX_INTERFACES`] are remembered.
     fn on_board<T>(&mut self, iface: &[u8], update: impl FnOnce(&mut Board) -> T) -> T {
-        if let Some(board) = self.boards.get_mut(iface) {
-            return update(board);
+        let heard = self.summary.decoded;
+        let at = match self.boards.iter().position(|board| board.iface == iface) {
+            Some(at) => at,
+            None if self.boards.len() < MAX_INTERFACES => {
+                self.boards.push(Board::default());
+                self.boards.len() - 1
+            }
+            None => {
+                self.summary.forgotten += 1;
+                let oldest = self.boards.iter().enumerate().min_by_key(|(_, board)| board.heard);
+                oldest.map_or(0, |(at, _)| at)
+            }
+        };
+        let board = &mut self.boards[at];
+        if board.iface != iface {
+            *board = Board {
+                iface: iface.to_vec(),
+                ..Board::default()
+            };
         }
-        update(self.boards.entry(iface.to_vec()).or_default())
+        board.heard = heard;
+        update(board)
     }
 
     fn frame(&mut self, line: u64, time: &[u8], iface: &[u8], frame: CanFrame) {
@@ -1074,5 +1050,40 @@ mod tests {
                 .unwrap()
                 .starts_with("lbv decode can: line 1: line too long")
         );
+    }
+
+    /// A log with more interfaces than [`MAX_INTERFACES`]: the boards remembered stay bounded, the least recently
+    /// heard is forgotten, and the summary says so.
+    #[test]
+    fn interfaces_beyond_the_limit_are_forgotten_least_recent_first() {
+        let status = |iface: &str| format!("(1.0) {iface} 629#AC00000000000000\n");
+        let mut log = String::new();
+        for i in 0..10 * MAX_INTERFACES {
+            log.push_str(&status(&format!("can{i}")));
+        }
+        // can0 .. can{MAX-1} were pushed out long ago; the last MAX_INTERFACES are remembered.
+        let last = format!("can{}", 10 * MAX_INTERFACES - 1);
+        log.push_str(&status(&last));
+        log.push_str(&status("can0"));
+        let mut decoder = Decoder::new(false);
+        let mut lines = crate::lines::Lines::new(log.as_bytes(), MAX_LINE);
+        let mut outputs = Vec::new();
+        while let Some((number, line)) = lines.next_line().unwrap() {
+            let Ok(Line::Frame { time, iface, frame }) = parse_line(line.bytes()) else {
+                panic!("a frame")
+            };
+            decoder.frame(number, time, iface, frame);
+            outputs.push(String::from_utf8(std::mem::take(&mut decoder.out)).unwrap());
+        }
+        assert_eq!(decoder.boards.len(), MAX_INTERFACES);
+        let last_two: Vec<&String> = outputs.iter().rev().take(2).collect();
+        assert!(!last_two[1].contains("start-up"), "still remembered: {}", last_two[1]);
+        assert!(
+            last_two[0].contains("start-up: "),
+            "forgotten, so a start-up again: {}",
+            last_two[0]
+        );
+        assert_eq!(decoder.summary.forgotten, 9 * MAX_INTERFACES as u64 + 1);
+        assert!(decoder.summary.to_string().contains("forgotten"));
     }
 }

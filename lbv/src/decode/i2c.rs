@@ -20,89 +20,63 @@
 //! repeated START. Writes to 0x29 / 0x2A are orders of the SeaBotix / Legacy family, reads from them statuses;
 //! anything else is printed raw (a TCA9548A mux at 0x70..=0x77 is named, with its channel mask).
 
-use std::collections::HashMap;
-use std::fs::File;
-use std::io::{self, BufRead, BufReader, Write};
+use std::io::{self, BufRead, Write};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use serde::Serialize;
 use tmc_proto::{Family, Faults, MaxPower, MotorKind, ORDER_LEN, Order, Speed, Status, checksum};
 
-/// One-line usage, shown by `lbv decode` and on errors.
-pub const USAGE: &str = "usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]";
+use crate::exit;
+use crate::lines::{Line, Lines};
 
 const HELP: &str = "\
-usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]
+Reads the output of sigrok's I2C protocol decoder, one annotation per line, in these layouts:
+  sigrok-cli -A i2c                         i2c-1: Address write: 29
+  ... --protocol-decoder-samplenum          35-105 i2c-1: Address write: 29
+  ... -l 4 (class and all texts, quoted)    35-105 i2c-1: address-write: \"Address write: 29\" ...
+  ... --protocol-decoder-jsontrace          {\"ph\": \"B\", \"ts\": 35.0, \"name\": \"Address write: 29\"}
+  PulseView's annotation export, default format %s %d: %r: %1
+                                            35-105 I²C: Address/Data: Address write: 29
+  ... any format of %s (first, if there), %d, %r, %c, %1 or %a, separated by ': ' , ; or tabs,
+      with or without %q
+  e.g. sigrok-cli -i capture.sr -P i2c:scl=D0:sda=D1 -A i2c | lbv decode i2c
+Bit and read/write annotations are ignored; other lines, and lines over 4096 bytes, are reported
+(with their line number) and skipped.
 
-Reads the output of sigrok's I2C protocol decoder from FILE, or standard input when FILE is - or absent, one
-annotation per line, in any of these layouts:
-  sigrok-cli -i capture.sr -P i2c:scl=D0:sda=D1 -A i2c          i2c-1: Address write: 29
-    ... with --protocol-decoder-samplenum                      35-105 i2c-1: Address write: 29
-    ... with -l 4 (class and all texts, quoted)                35-105 i2c-1: address-write: \"Address write: 29\" ...
-    ... --protocol-decoder-jsontrace (times in the ts field)   {\"ph\": \"B\", \"ts\": 35.0, \"name\": \"Address write: 29\", ...}
-  PulseView export of annotations, default format %s %d: %r: %1:
-                                                               35-105 I²C: Address/Data: Address write: 29
-    any format of %s (if there, first), %d, %r, %c, %1 or %a, separated by ': ' , ; or tabs, with or without %q
-Bit and read/write annotations are ignored; other lines are reported (with their line number) and skipped.
+Prints one line per transfer (START or repeated START to STOP or the next repeated START): start
+time, time since the previous transfer, address, W/R, then the thruster order or status decoded
+with tmc-proto (0x29 SeaBotix, 0x2A Legacy: speed, INFO, faults, current, temperature, checksum
+verdict), a mux select at 0x70-0x77, or the raw bytes (the first 64 of a longer transfer); NACKed
+addresses as NACK (no thruster). At the end, time since the last transfer to the same address. A
+summary goes to standard error.
 
-Prints one line per transfer (START or repeated START to STOP or the next repeated START): start time, time since
-the previous transfer, address, W/R, then the thruster order or status decoded with tmc-proto (0x29 SeaBotix,
-0x2A Legacy: speed, INFO, faults, current, temperature, checksum verdict), a mux select at 0x70-0x77, or the raw
-bytes; NACKed addresses as NACK (no thruster). At the end, time since the last transfer to the same address.
+Exit status: 0 every line read; 1 lines were skipped (the output is complete all the same);
+2 bad command line, or the input cannot be read or the output written.";
 
---json          one JSON object per transfer and line: time, address, direction, ack, bytes, family, kind
-                (order, status, other), the decoded fields, checksum_ok, error, since_prev_s,
-                since_prev_same_address_s, duration_s
---samplerate HZ turn sample numbers into seconds (1000000, 1e6, 1M and 1MHz are the same). Without it, and
-                without trace times, time is null; the human line then shows the start sample @N or the
-                transfer number #N
---unshifted     the addresses were exported unshifted (sigrok's address_format=unshifted: R/W bit included)
-
-A summary goes to standard error. Exit status 0, also with skipped lines; 1 if the input cannot be read; 2 for
-usage errors.";
-
-/// What the command line asked for.
-#[derive(Debug, Default)]
-struct Options {
-    input: Option<String>,
-    json: bool,
-    samplerate: Option<f64>,
-    unshifted: bool,
-    help: bool,
+/// `lbv decode i2c`'s command line.
+#[derive(Debug, Default, clap::Args)]
+#[command(after_help = HELP)]
+pub struct Args {
+    /// The annotations; standard input when - or absent
+    #[arg(value_name = "FILE")]
+    pub input: Option<PathBuf>,
+    /// One JSON object per transfer and line: time, address, direction, ack, bytes, family, kind (order, status,
+    /// other), the decoded fields, checksum_ok, error, since_prev_s, since_prev_same_address_s, duration_s
+    #[arg(long)]
+    pub json: bool,
+    /// Turn sample numbers into seconds (1000000, 1e6, 1M and 1MHz are the same; 1 Hz to 1 THz). Without it, and
+    /// without trace times, time is null; the human line then shows the start sample @N or the transfer number #N
+    #[arg(long, value_name = "HZ", value_parser = parse_rate)]
+    pub samplerate: Option<f64>,
+    /// The addresses were exported unshifted (sigrok's address_format=unshifted: R/W bit included)
+    #[arg(long)]
+    pub unshifted: bool,
 }
 
-fn parse_options(args: &[String]) -> Result<Options, String> {
-    let mut options = Options::default();
-    let mut args = args.iter();
-    while let Some(arg) = args.next() {
-        match arg.as_str() {
-            "--json" => options.json = true,
-            "--unshifted" => options.unshifted = true,
-            "-h" | "--help" => options.help = true,
-            "--samplerate" => {
-                let value = args
-                    .next()
-                    .ok_or("--samplerate needs a rate in Hz, such as 1000000 or 1M")?;
-                options.samplerate = Some(parse_rate(value)?);
-            }
-            other if other.starts_with("--samplerate=") => {
-                options.samplerate = Some(parse_rate(other.trim_start_matches("--samplerate="))?);
-            }
-            other if other.starts_with('-') && other != "-" => return Err(format!("unknown option {other}")),
-            file => {
-                if let Some(first) = &options.input {
-                    return Err(format!("one input at a time: {first} or {file}"));
-                }
-                options.input = Some(file.to_string());
-            }
-        }
-    }
-    Ok(options)
-}
-
-/// A sample rate in Hz: a number with an optional k / M / G multiplier and an optional `Hz`.
+/// A sample rate in Hz: a number with an optional k / M / G multiplier and an optional `Hz`, from 1 Hz to 1 THz.
 fn parse_rate(text: &str) -> Result<f64, String> {
-    let bad = || format!("--samplerate needs a positive rate in Hz, such as 1000000 or 1M, not {text}");
+    let bad = || format!("{text:?} is not a rate from 1 Hz to 1 THz, such as 1000000 or 1M");
     let mut number = text.trim();
     if number.len() >= 2
         && number
@@ -119,7 +93,7 @@ fn parse_rate(text: &str) -> Result<f64, String> {
     };
     let value: f64 = digits.unwrap_or_default().trim().parse().map_err(|_| bad())?;
     let rate = value * scale;
-    if rate.is_finite() && rate > 0.0 {
+    if (1.0..=1e12).contains(&rate) {
         Ok(rate)
     } else {
         Err(bad())
@@ -127,43 +101,51 @@ fn parse_rate(text: &str) -> Result<f64, String> {
 }
 
 /// `lbv decode i2c ...`
-pub fn main(args: &[String]) -> ExitCode {
-    let options = match parse_options(args) {
-        Ok(options) => options,
+pub fn main(args: &Args) -> ExitCode {
+    let (input, name) = match super::open(args.input.as_deref()) {
+        Ok(input) => input,
         Err(message) => {
-            eprintln!("lbv decode i2c: {message}\n{USAGE}");
-            return ExitCode::from(2);
+            eprintln!("lbv decode i2c: {message}");
+            return ExitCode::from(exit::TROUBLE);
         }
     };
-    if options.help {
-        println!("{HELP}");
-        return ExitCode::SUCCESS;
-    }
-    let input: Box<dyn BufRead> = match options.input.as_deref() {
-        None | Some("-") => Box::new(io::stdin().lock()),
-        Some(path) => match File::open(path) {
-            Ok(file) => Box::new(BufReader::new(file)),
-            Err(error) => {
-                eprintln!("lbv decode i2c: cannot open {path}: {error}");
-                return ExitCode::from(2);
-            }
-        },
-    };
-    let stdout = io::stdout().lock();
-    let mut out = io::BufWriter::new(stdout);
-    let mut decoder = Decoder::new(&options);
-    let result = decoder.run(input, &mut out, &mut io::stderr());
-    let flushed = out.flush();
-    decoder.summary(&mut io::stderr());
-    match result.and(flushed) {
-        Ok(()) => ExitCode::SUCCESS,
+    let mut out = io::BufWriter::new(io::stdout().lock());
+    let mut err = io::stderr();
+    let mut decoder = Decoder::new(args);
+    let result = decoder.run(input, &mut out, &mut err);
+    let result = result.and_then(|()| out.flush().map_err(Failure::Write));
+    decoder.summary(&mut err);
+    match result {
+        Ok(()) if decoder.counts.skipped == 0 => ExitCode::SUCCESS,
+        Ok(()) => ExitCode::from(exit::FAILED),
         // A reader that stopped early (`| head`) is not an error.
-        Err(error) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
-        Err(error) => {
-            eprintln!("lbv decode i2c: {error}");
-            ExitCode::FAILURE
+        Err(Failure::Write(error)) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(Failure::Write(error)) => {
+            eprintln!("lbv decode i2c: cannot write the output: {error}");
+            ExitCode::from(exit::TROUBLE)
+        }
+        Err(Failure::Read(error)) => {
+            eprintln!("lbv decode i2c: cannot read {name}: {error}");
+            ExitCode::from(exit::TROUBLE)
         }
     }
+}
+
+/// Why a run stopped before the end of its input.
+#[derive(Debug)]
+pub enum Failure {
+    /// Reading the input failed.
+    Read(io::Error),
+    /// Writing the output failed.
+    Write(io::Error),
+}
+
+/// Decode the annotations of `input` as `args` say: transfers to `out`, bad lines and the summary to `err`.
+pub fn run(input: impl BufRead, out: &mut impl Write, err: &mut impl Write, args: &Args) -> Result<Counts, Failure> {
+    let mut decoder = Decoder::new(args);
+    decoder.run(input, out, err)?;
+    decoder.summary(err);
+    Ok(decoder.counts)
 }
 
 /// What one annotation says.
@@ -204,18 +186,15 @@ struct Annotation {
     stamp: Stamp,
 }
 
-/// Longest line read; annotation lines are far shorter.
-const MAX_LINE: usize = 1000;
+/// Longest line read; annotation lines are far shorter. Longer lines are skipped (only this much of one is kept).
+pub const MAX_LINE: usize = 4096;
 
 /// Read one line: `Ok(None)` for lines with nothing to read (blank, `#` comments, trace header and footer, trace
-/// end events), an error saying why for lines that are not I2C annotations.
+/// end events), an error saying why for lines that are not I2C annotations. Linear in the line's length.
 fn parse_line(line: &str) -> Result<Option<Annotation>, String> {
     let text = line.trim_matches(|c: char| c.is_whitespace() || c == '\u{feff}');
     if text.is_empty() || text.starts_with('#') {
         return Ok(None);
-    }
-    if text.len() > MAX_LINE {
-        return Err(format!("line longer than {MAX_LINE} bytes"));
     }
     if text.starts_with('{') || text.starts_with(']') {
         return parse_trace_event(text);
@@ -225,25 +204,38 @@ fn parse_line(line: &str) -> Result<Option<Annotation>, String> {
         // Quoted texts (sigrok-cli -l 4, PulseView %q): the first quoted text that is an annotation.
         rest.split('"').skip(1).step_by(2).find_map(parse_text)
     } else {
-        // The annotation text is a field between the decoder, row and class names and anything after it: the
-        // leftmost, shortest run of fields that reads as an annotation.
-        let separators: Vec<(usize, usize)> = rest
-            .char_indices()
-            .filter(|(_, c)| matches!(c, ':' | ',' | ';' | '\t'))
-            .map(|(at, c)| (at, at + c.len_utf8()))
-            .collect();
-        let mut starts = std::iter::once(0).chain(separators.iter().map(|(_, after)| *after));
-        let ends: Vec<usize> = separators.iter().map(|(at, _)| *at).chain([rest.len()]).collect();
-        starts.find_map(|start| {
-            ends.iter()
-                .filter(|end| **end > start)
-                .find_map(|end| rest.get(start..*end).and_then(parse_text))
-        })
+        candidates(rest).find_map(parse_text)
     };
     match event {
         Some(event) => Ok(Some(Annotation { event, stamp })),
         None => Err("not an I2C annotation".into()),
     }
+}
+
+/// The texts that an unquoted line's annotation may be, leftmost first. Fields are separated by `:`, `,`, `;` or
+/// tabs, and stand between the decoder, row and class names and anything after; the annotation text is a field
+/// (`Start`, `ACK`) or a field and the next after a colon (`Address write: 29`). Each byte is in at most three
+/// candidates, so reading a line is linear in its length.
+fn candidates(rest: &str) -> impl Iterator<Item = &str> {
+    let mut fields = Vec::new();
+    let mut start = 0;
+    for (at, c) in rest.char_indices() {
+        if matches!(c, ':' | ',' | ';' | '\t') {
+            fields.push((start, at, c == ':'));
+            start = at + c.len_utf8();
+        }
+    }
+    fields.push((start, rest.len(), false));
+    (0..fields.len()).flat_map(move |i| {
+        let (start, end, colon) = fields.get(i).copied().unwrap_or_default();
+        let next_end = fields.get(i + 1).filter(|_| colon).map(|next| next.1);
+        [
+            rest.get(start..end),
+            next_end.and_then(|next_end| rest.get(start..next_end)),
+        ]
+        .into_iter()
+        .flatten()
+    })
 }
 
 /// A leading `START-END` sample range, if any, and the rest of the line.
@@ -341,7 +333,12 @@ struct When {
     seconds: Option<f64>,
 }
 
-/// One transfer being put together: address, direction, data bytes and their acknowledges.
+/// Data bytes kept of one transfer: a thruster message has at most 7; a longer transfer is shown cut, so that
+/// memory stays bounded whatever the capture holds.
+pub const MAX_TRANSFER_BYTES: usize = 64;
+
+/// One transfer being put together: address, direction, data bytes and their acknowledges. Its size is bounded:
+/// the first [`MAX_TRANSFER_BYTES`] data bytes, counts for the rest, at most one problem of each kind.
 #[derive(Debug, Clone, Default)]
 struct Transfer {
     start: When,
@@ -350,8 +347,17 @@ struct Transfer {
     read: bool,
     /// The address byte's acknowledge; `None` when the capture stops before it.
     address_ack: Option<bool>,
+    /// The first data bytes.
     bytes: Vec<u8>,
-    byte_acks: Vec<Option<bool>>,
+    /// Data bytes in all.
+    count: u64,
+    /// The last data byte has had no ACK or NACK yet.
+    awaiting_ack: bool,
+    /// The first data byte that the receiver NACKed.
+    first_nack: Option<u64>,
+    /// Data bytes that went the other way from the address's R/W bit: how many, and the first one.
+    wrong_way: (u64, u8),
+    /// How the transfer ended, when it did not end well.
     problems: Vec<String>,
 }
 
@@ -438,17 +444,18 @@ impl Assembler {
                     return Err(format!("{} outside a transfer", if ack { "ACK" } else { "NACK" }));
                 };
                 transfer.end = end;
-                if transfer.bytes.is_empty() && transfer.address_ack.is_none() {
+                if transfer.count == 0 && transfer.address_ack.is_none() {
                     transfer.address_ack = Some(ack);
                     return Ok(None);
                 }
-                match transfer.byte_acks.last_mut() {
-                    Some(slot @ None) => {
-                        *slot = Some(ack);
-                        Ok(None)
-                    }
-                    _ => Err(format!("{} with no byte before it", if ack { "ACK" } else { "NACK" })),
+                if !transfer.awaiting_ack {
+                    return Err(format!("{} with no byte before it", if ack { "ACK" } else { "NACK" }));
                 }
+                transfer.awaiting_ack = false;
+                if !ack && transfer.first_nack.is_none() {
+                    transfer.first_nack = Some(transfer.count - 1);
+                }
+                Ok(None)
             }
             Event::Data { read, byte } => {
                 let Some(transfer) = self.current.as_mut() else {
@@ -457,13 +464,17 @@ impl Assembler {
                     ));
                 };
                 if read != transfer.read {
-                    transfer.problems.push(format!(
-                        "data byte {byte:02X} goes the other way from the address's R/W bit"
-                    ));
+                    if transfer.wrong_way.0 == 0 {
+                        transfer.wrong_way.1 = byte;
+                    }
+                    transfer.wrong_way.0 += 1;
                 }
                 transfer.end = end;
-                transfer.bytes.push(byte);
-                transfer.byte_acks.push(None);
+                if transfer.bytes.len() < MAX_TRANSFER_BYTES {
+                    transfer.bytes.push(byte);
+                }
+                transfer.count += 1;
+                transfer.awaiting_ack = true;
                 Ok(None)
             }
         }
@@ -496,7 +507,7 @@ struct Record {
     #[serde(skip_serializing_if = "Option::is_none")]
     sample: Option<u64>,
     /// Transfer number, from 0.
-    index: usize,
+    index: u64,
     /// 7-bit address.
     address: u8,
     direction: &'static str,
@@ -550,7 +561,7 @@ struct Record {
 const MUX_ADDRESSES: std::ops::RangeInclusive<u8> = 0x70..=0x77;
 
 /// Build the record of a finished transfer.
-fn record(transfer: Transfer, index: usize) -> Record {
+fn record(transfer: Transfer, index: u64) -> Record {
     let mut record = Record {
         time: transfer.start.seconds,
         sample: transfer.start.sample,
@@ -566,12 +577,28 @@ fn record(transfer: Transfer, index: usize) -> Record {
             .map(|(start, end)| round_ns(end - start)),
         ..Record::default()
     };
-    let mut problems = transfer.problems;
+    let mut problems = Vec::new();
+    match transfer.wrong_way {
+        (0, _) => {}
+        (1, byte) => problems.push(format!(
+            "data byte {byte:02X} goes the other way from the address's R/W bit"
+        )),
+        (n, byte) => problems.push(format!(
+            "{n} data bytes go the other way from the address's R/W bit, the first {byte:02X}"
+        )),
+    }
+    problems.extend(transfer.problems);
     if !transfer.read
-        && let Some(at) = transfer.byte_acks.iter().position(|ack| *ack == Some(false))
-        && at + 1 < transfer.bytes.len()
+        && let Some(at) = transfer.first_nack
+        && at + 1 < transfer.count
     {
         problems.push(format!("the slave NACKed data byte {at} and the master wrote on"));
+    }
+    if transfer.count > MAX_TRANSFER_BYTES as u64 {
+        problems.push(format!(
+            "{} data bytes, the first {MAX_TRANSFER_BYTES} shown",
+            transfer.count
+        ));
     }
     let bytes = transfer.bytes;
     match Family::from_address(transfer.address) {
@@ -847,74 +874,85 @@ fn describe_fields(record: &Record, words: &mut Vec<String>) {
     }
 }
 
-/// Counts for the summary.
-#[derive(Debug, Default)]
-struct Counts {
-    transfers: usize,
-    orders: usize,
-    statuses: usize,
-    others: usize,
-    nacked: usize,
-    bad_checksums: usize,
-    annotations: usize,
-    skipped: usize,
+/// What a run read, for the summary and the exit status.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct Counts {
+    /// Transfers printed.
+    pub transfers: u64,
+    /// Thruster orders among them.
+    pub orders: u64,
+    /// Thruster statuses among them.
+    pub statuses: u64,
+    /// Transfers to other addresses.
+    pub others: u64,
+    /// Transfers whose address no device acknowledged.
+    pub nacked: u64,
+    /// Thruster messages whose checksum did not match.
+    pub bad_checksums: u64,
+    /// Annotations read.
+    pub annotations: u64,
+    /// Lines skipped.
+    pub skipped: u64,
 }
 
-/// Reads the lines, assembles the transfers, prints them.
+/// Bad lines reported one by one on standard error; the summary counts them all.
+pub const MAX_MESSAGES: u64 = 100;
+
+/// Reads the lines, assembles the transfers, prints them. Its state is bounded: the transfer being assembled
+/// and one time per 7-bit address.
 #[derive(Debug)]
 struct Decoder {
     json: bool,
     assembler: Assembler,
     counts: Counts,
     last_start: Option<f64>,
-    last_start_by_address: HashMap<u8, f64>,
+    last_start_by_address: [Option<f64>; 128],
 }
 
 impl Decoder {
-    fn new(options: &Options) -> Decoder {
+    fn new(args: &Args) -> Decoder {
         Decoder {
-            json: options.json,
+            json: args.json,
             assembler: Assembler {
-                unshifted: options.unshifted,
-                samplerate: options.samplerate,
+                unshifted: args.unshifted,
+                samplerate: args.samplerate,
                 ..Assembler::default()
             },
             counts: Counts::default(),
             last_start: None,
-            last_start_by_address: HashMap::new(),
+            last_start_by_address: [None; 128],
         }
     }
 
     /// Decode every line of `input`; transfers go to `out`, bad lines to `err`.
-    fn run(&mut self, mut input: impl BufRead, out: &mut impl Write, err: &mut impl Write) -> io::Result<()> {
-        let mut buffer = Vec::new();
-        let mut number = 0usize;
-        loop {
-            buffer.clear();
-            if input.read_until(b'\n', &mut buffer)? == 0 {
-                break;
-            }
-            number += 1;
-            let line = String::from_utf8_lossy(&buffer);
-            let outcome = parse_line(&line).and_then(|annotation| match annotation {
-                Some(annotation) => {
-                    self.counts.annotations += 1;
-                    self.assembler.feed(annotation)
-                }
-                None => Ok(None),
-            });
+    fn run(&mut self, input: impl BufRead, out: &mut impl Write, err: &mut impl Write) -> Result<(), Failure> {
+        let mut lines = Lines::new(input, MAX_LINE);
+        while let Some((number, line)) = lines.next_line().map_err(Failure::Read)? {
+            let text = String::from_utf8_lossy(line.bytes());
+            let outcome = match line {
+                Line::TooLong { length, .. } => Err(format!("line of {length} bytes, longer than {MAX_LINE}")),
+                Line::Whole(_) => parse_line(&text).and_then(|annotation| match annotation {
+                    Some(annotation) => {
+                        self.counts.annotations += 1;
+                        self.assembler.feed(annotation)
+                    }
+                    None => Ok(None),
+                }),
+            };
             match outcome {
-                Ok(Some(transfer)) => self.emit(transfer, out)?,
+                Ok(Some(transfer)) => self.emit(transfer, out).map_err(Failure::Write)?,
                 Ok(None) => {}
                 Err(reason) => {
                     self.counts.skipped += 1;
-                    let excerpt: String = line.trim_end().chars().take(60).collect();
-                    writeln!(err, "lbv decode i2c: line {number}: {reason}, skipped: {excerpt:?}")?;
+                    if self.counts.skipped <= MAX_MESSAGES {
+                        let excerpt: String = text.trim_end().chars().take(60).collect();
+                        let _ = writeln!(err, "lbv decode i2c: line {number}: {reason}, skipped: {excerpt:?}");
+                    }
                 }
             }
         }
         if let Some(transfer) = self.assembler.finish() {
-            self.emit(transfer, out)?;
+            self.emit(transfer, out).map_err(Failure::Write)?;
         }
         Ok(())
     }
@@ -923,12 +961,12 @@ impl Decoder {
         let mut record = record(transfer, self.counts.transfers);
         if let Some(time) = record.time {
             record.since_prev_s = self.last_start.map(|last| round_ns(time - last));
-            record.since_prev_same_address_s = self
-                .last_start_by_address
-                .get(&record.address)
-                .map(|last| round_ns(time - last));
+            let last_here = self.last_start_by_address.get_mut(usize::from(record.address));
+            if let Some(last_here) = last_here {
+                record.since_prev_same_address_s = last_here.map(|last| round_ns(time - last));
+                *last_here = Some(time);
+            }
             self.last_start = Some(time);
-            self.last_start_by_address.insert(record.address, time);
         }
         self.counts.transfers += 1;
         if record.ack == Some(false) {
@@ -956,8 +994,19 @@ impl Decoder {
         let _ = writeln!(
             err,
             "lbv decode i2c: {} transfers: {} orders, {} statuses, {} other, {} NACKed, {} bad checksums; {} lines \
-             skipped",
-            c.transfers, c.orders, c.statuses, c.others, c.nacked, c.bad_checksums, c.skipped
+             skipped{}",
+            c.transfers,
+            c.orders,
+            c.statuses,
+            c.others,
+            c.nacked,
+            c.bad_checksums,
+            c.skipped,
+            if c.skipped > MAX_MESSAGES {
+                format!(" (the first {MAX_MESSAGES} shown)")
+            } else {
+                String::new()
+            }
         );
         if c.annotations == 0 {
             let _ = writeln!(
@@ -1076,9 +1125,29 @@ mod tests {
         ] {
             assert!(parse_line(line).is_err(), "{line:?}");
         }
-        let long = format!("i2c-1: Start{}", " ".repeat(MAX_LINE));
-        assert_eq!(event(&long), Event::Start);
-        assert!(parse_line(&format!("{long}x")).is_err());
+    }
+
+    /// Reading a line is linear in its length: on lines of separators (which once cost time cubic in their
+    /// length) the annotation texts tried add up to at most three times the line.
+    #[test]
+    fn separator_storms_cost_linear_work() {
+        for filler in [":", ",", ";", "\t", ": ", "a:", "Address write:", "x:y,"] {
+            let line = filler.repeat(MAX_LINE / filler.len());
+            let (count, bytes) = candidates(&line).fold((0, 0), |(n, bytes), text| (n + 1, bytes + text.len()));
+            let fields = line.matches([':', ',', ';', '\t']).count() + 1;
+            assert!(count <= 2 * fields, "{filler:?}: {count} candidates");
+            assert!(bytes <= 3 * line.len(), "{filler:?}: {bytes} bytes tried");
+            assert!(!matches!(parse_line(&line), Ok(Some(_))), "{filler:?}");
+        }
+        // The annotation is still found at the far end of such a line.
+        let line = format!("{}Address write: 29", ":".repeat(MAX_LINE - 20));
+        assert_eq!(
+            event(&line),
+            Event::Address {
+                read: false,
+                value: 0x29
+            }
+        );
     }
 
     #[test]
@@ -1090,38 +1159,49 @@ mod tests {
         assert_eq!(parse_rate("500k"), Ok(5e5));
         assert_eq!(parse_rate("1e6"), Ok(1e6));
         assert_eq!(parse_rate("1G"), Ok(1e9));
-        for bad in ["", "0", "-5", "fast", "inf", "NaN", "Hz", "M"] {
+        assert_eq!(parse_rate("1"), Ok(1.0));
+        for bad in [
+            "", "0", "-5", "fast", "inf", "NaN", "Hz", "M", "1e400", "0.5", "2e12", "1e-300",
+        ] {
             assert!(parse_rate(bad).is_err(), "{bad}");
         }
     }
 
     #[test]
-    fn options() {
-        let args = |list: &[&str]| list.iter().map(|s| s.to_string()).collect::<Vec<_>>();
-        let options = parse_options(&args(&["cap.txt", "--json", "--samplerate", "2M", "--unshifted"])).unwrap();
-        assert_eq!(options.input.as_deref(), Some("cap.txt"));
-        assert!(options.json && options.unshifted);
-        assert_eq!(options.samplerate, Some(2e6));
-        assert_eq!(
-            parse_options(&args(&["--samplerate=4k"])).unwrap().samplerate,
-            Some(4e3)
-        );
-        assert_eq!(parse_options(&args(&["-"])).unwrap().input.as_deref(), Some("-"));
-        assert!(parse_options(&args(&["--samplerate"])).is_err());
-        assert!(parse_options(&args(&["--frobnicate"])).is_err());
-        assert!(parse_options(&args(&["a", "b"])).is_err());
+    fn command_line() {
+        #[derive(Debug, clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: Args,
+        }
+        let parse = |line: &[&str]| {
+            use clap::Parser as _;
+            Cli::try_parse_from(std::iter::once("i2c").chain(line.iter().copied())).map(|cli| cli.args)
+        };
+        let args = parse(&["cap.txt", "--json", "--samplerate", "2M", "--unshifted"]).unwrap();
+        assert_eq!(args.input.as_deref(), Some(std::path::Path::new("cap.txt")));
+        assert!(args.json && args.unshifted);
+        assert_eq!(args.samplerate, Some(2e6));
+        assert_eq!(parse(&["--samplerate=4k"]).unwrap().samplerate, Some(4e3));
+        assert_eq!(parse(&["-"]).unwrap().input.as_deref(), Some(std::path::Path::new("-")));
+        for bad in [
+            &["--samplerate"][..],
+            &["--frobnicate"],
+            &["a", "b"],
+            &["--samplerate", "0"],
+        ] {
+            assert!(parse(bad).is_err(), "{bad:?}");
+        }
     }
 
     fn records(text: &str, samplerate: Option<f64>) -> (Vec<serde_json::Value>, String) {
-        let options = Options {
+        let args = Args {
             json: true,
             samplerate,
-            ..Options::default()
+            ..Args::default()
         };
-        let mut decoder = Decoder::new(&options);
         let (mut out, mut err) = (Vec::new(), Vec::new());
-        decoder.run(text.as_bytes(), &mut out, &mut err).unwrap();
-        decoder.summary(&mut err);
+        run(text.as_bytes(), &mut out, &mut err, &args).unwrap();
         let records = String::from_utf8(out)
             .unwrap()
             .lines()
@@ -1276,8 +1356,7 @@ i2c-1: Data read: 53
 
     #[test]
     fn human_lines() {
-        let options = Options::default();
-        let mut decoder = Decoder::new(&options);
+        let mut decoder = Decoder::new(&Args::default());
         let (mut out, mut err) = (Vec::new(), Vec::new());
         let text = "\
 0-0 i2c-1: Start
@@ -1305,5 +1384,71 @@ i2c-1: Data read: 53
             "@0 0x29 W SeaBotix order speed +51 (2250 rpm) info 100 csum ok [52 B3 64 69]"
         );
         assert_eq!(lines[1], "@900 0x29 W NACK (no thruster)");
+    }
+
+    fn feed(assembler: &mut Assembler, event: Event) -> Option<Transfer> {
+        assembler
+            .feed(Annotation {
+                event,
+                stamp: Stamp::None,
+            })
+            .unwrap_or(None)
+    }
+
+    /// A transfer that never ends, with data going the wrong way and every byte NACKed, keeps a bounded size.
+    #[test]
+    fn an_endless_transfer_keeps_bounded_state() {
+        let mut assembler = Assembler::default();
+        feed(&mut assembler, Event::Start);
+        feed(
+            &mut assembler,
+            Event::Address {
+                read: false,
+                value: 0x29,
+            },
+        );
+        feed(&mut assembler, Event::Ack);
+        for i in 0..200_000u32 {
+            let byte = i as u8;
+            feed(&mut assembler, Event::Data { read: i % 2 == 0, byte });
+            feed(&mut assembler, Event::Nack);
+        }
+        let transfer = assembler.current.as_ref().unwrap();
+        assert_eq!(transfer.bytes.len(), MAX_TRANSFER_BYTES);
+        assert_eq!(transfer.count, 200_000);
+        assert!(transfer.problems.is_empty());
+        let transfer = assembler.finish().unwrap();
+        let record = record(transfer, 0);
+        assert_eq!(record.bytes.len(), MAX_TRANSFER_BYTES);
+        let error = record.error.unwrap();
+        for says in [
+            "100000 data bytes go the other way from the address's R/W bit, the first 00",
+            "the capture ends before the STOP",
+            "the slave NACKed data byte 0 and the master wrote on",
+            "200000 data bytes, the first 64 shown",
+        ] {
+            assert!(error.contains(says), "{says:?} in {error}");
+        }
+        assert!(error.len() < 400, "{error}");
+    }
+
+    /// Starts and addresses with no STOP: every transfer is printed as it ends, none is kept.
+    #[test]
+    fn transfers_without_a_stop_are_not_kept() {
+        let mut assembler = Assembler::default();
+        let mut printed = 0;
+        for i in 0..10_000u32 {
+            let event = match i % 3 {
+                0 => Event::Start,
+                1 => Event::Address {
+                    read: true,
+                    value: 0x2A,
+                },
+                _ => Event::Data { read: true, byte: 0x55 },
+            };
+            printed += usize::from(feed(&mut assembler, event).is_some());
+        }
+        assert_eq!(printed, 3333);
+        assert!(assembler.current.as_ref().map_or(0, |t| t.bytes.len()) <= 1);
     }
 }

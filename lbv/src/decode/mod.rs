@@ -4,29 +4,45 @@
 pub mod can;
 pub mod i2c;
 
+use std::fs::File;
+use std::io::{self, BufRead, BufReader};
+use std::path::Path;
 use std::process::ExitCode;
 
-pub const USAGE: &str =
-    "usage: lbv decode i2c [FILE|-] [--json] [--samplerate HZ] [--unshifted]   (lbv decode i2c --help for more)
-       lbv decode can [FILE|-] [--json]
-
-lbv decode can: candump logs (`candump -l`: `(TIME) IFACE ID#DATA`) from FILE or standard input: the BAT board's
-             0x620 info, 0x629 status (every bit in words at the first, then the bits that switched) and 0x628
-             BMS alarms, decoded with bat-proto, one line per frame; other frames are counted, not printed.
-             --json: one object per frame (time, id, voltage_v, current_a, charge_pct, temperature_c, status,
-             status_bits, changed, alarms, alarm_bits). Bad lines are reported on standard error with their
-             number and skipped. Exit status 1 when lines were skipped or BAT frames did not decode, 2 when the
-             input cannot be read.";
+/// `lbv decode`'s commands.
+#[derive(Debug, clap::Subcommand)]
+pub enum Command {
+    /// Thruster-bus transfers from sigrok's I2C decoder output (sigrok-cli or PulseView)
+    I2c(i2c::Args),
+    /// The BAT board's frames from candump logs
+    Can(can::Args),
+}
 
 /// `lbv decode ...`
-pub fn main(args: &[String]) -> ExitCode {
-    let rest = args.get(1..).unwrap_or_default();
-    match args.first().map(String::as_str) {
-        Some("i2c") => i2c::main(rest),
-        Some("can") => can::main(rest),
-        _ => {
-            eprintln!("{USAGE}");
-            ExitCode::from(2)
-        }
+pub fn main(command: Command) -> ExitCode {
+    match command {
+        Command::I2c(args) => i2c::main(&args),
+        Command::Can(args) => can::main(&args),
+    }
+}
+
+/// Size of the input buffer.
+const IN_BUFFER: usize = 256 * 1024;
+
+/// The input named on the command line, standard input for none or `-`, and its name for messages; or why the
+/// file cannot be opened.
+fn open(input: Option<&Path>) -> Result<(Box<dyn BufRead>, String), String> {
+    match input {
+        Some(path) if path != Path::new("-") => match File::open(path) {
+            Ok(file) => Ok((
+                Box::new(BufReader::with_capacity(IN_BUFFER, file)),
+                path.display().to_string(),
+            )),
+            Err(error) => Err(format!("cannot open {}: {error}", path.display())),
+        },
+        _ => Ok((
+            Box::new(BufReader::with_capacity(IN_BUFFER, io::stdin())),
+            "standard input".into(),
+        )),
     }
 }
