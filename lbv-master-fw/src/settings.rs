@@ -16,7 +16,8 @@
 //!
 //! Two ports: where the settings are kept ([`SettingsStore`]: [`Store`] over any embedded-storage-async
 //! `NorFlash` — embassy-stm32's flash driver on the chip, lbv-sim's flash on the bench, sequential-storage's
-//! fault-injecting mock in the tests), and how the master restarts ([`Reboot`]).
+//! fault-injecting mock in the tests — or, with no flash for them, [`InRam`]), and how the master restarts
+//! ([`Reboot`]).
 
 use core::ops::Range;
 
@@ -60,6 +61,25 @@ pub trait SettingsStore {
 pub trait Reboot {
     /// Restart now. It does not return: the STM32 resets; elsewhere the task waits here until it is dropped.
     async fn reboot(&mut self) -> !;
+}
+
+/// Settings kept in RAM only, for a board with no flash set aside for them (the cores on an emulated Cortex-M4):
+/// every start is from the defaults, and a save is accepted and forgotten.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct InRam;
+
+impl SettingsStore for InRam {
+    async fn load(&mut self, defaults: Settings) -> Settings {
+        defaults
+    }
+
+    async fn save(&mut self, _settings: &Settings) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    async fn save_signing_time(&mut self, _timestamp: u64) -> Result<(), StoreError> {
+        Ok(())
+    }
 }
 
 /// The record's format; a record of another format is skipped.
