@@ -50,7 +50,8 @@ pub struct Ports<B, C, R, W, S, X, J = Polling> {
     pub console_rx: R,
     /// The console link's transmit side.
     pub console_tx: W,
-    /// Where the settings are kept: [`settings::Store`] on the flash pages kept for them.
+    /// Where the settings are kept: [`settings::Store`] on the flash pages kept for them (or, on a board without
+    /// them, [`settings::InRam`]).
     pub settings: S,
     /// How the master restarts (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN).
     pub reboot: X,

@@ -47,11 +47,9 @@ pub fn g431_flash() -> Stm32g4Flash {
     Stm32g4Flash::new(64)
 }
 
-/// The settings store on a simulated G431 flash, in the pages the binding gives it.
-pub type FlashStore = Store<Stm32g4Flash>;
-
-/// The settings store on `flash` (a handle: the memory stays with whoever holds another).
-pub fn flash_store(flash: &Stm32g4Flash) -> FlashStore {
+/// The settings store on a simulated G431 `flash`, in the pages the binding gives it (a handle: the memory stays
+/// with whoever holds another).
+pub fn flash_store(flash: &Stm32g4Flash) -> Store<Stm32g4Flash> {
     Store::g431(flash.clone())
 }
 

@@ -16,9 +16,8 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use g431_hw::clock;
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::settings::Reboot;
-use lbv_master_fw::settings::Store;
 use lbv_master_fw::settings::ecc::{self, NmiAction, eccr};
+use lbv_master_fw::settings::{Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, Ports};
 use static_cell::StaticCell;
@@ -183,6 +182,7 @@ fn nominal_bit_timing() -> NominalBitTiming {
     }
 }
 
+/// The master's ports on the NUCLEO.
 type MasterPorts =
     Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Settings, SystemReset, Work>;
 
