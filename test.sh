@@ -26,8 +26,9 @@ if [ ${#packages[@]} -gt 0 ]; then
   as_root apt-get update -qq
   as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${packages[@]}" >/dev/null
 fi
-# Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against.
-python3 -c 'import pymavlink, cantools' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools
+# Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against, and
+# MAVProxy, the ground station that flies the bench in a test.
+python3 -c 'import pymavlink, cantools, MAVProxy' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools mavproxy
 cargo --version
 
 step "rustfmt"
@@ -58,7 +59,7 @@ cargo test --workspace --locked
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv/fuzz; do
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz; do
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
   done
 fi

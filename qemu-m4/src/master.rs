@@ -10,6 +10,7 @@ use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::console::ConsoleStats;
+use lbv_master_fw::settings::{InRam, Reboot};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::thrusters::BUSES;
 use lbv_master_fw::{BusWork, MasterConfig, Ports};
@@ -37,8 +38,9 @@ pub static CAN: Channel<Cs, CanFrame, 8> = Channel::new();
 /// joined), every poll and by which of them made progress.
 pub static MASTER_METER: Joined = Joined::new("master tasks (run)", Progress::MASTER, None);
 
-/// The master's ports, with `work` on the thruster buses.
-pub type MasterPorts<J> = Ports<MasterPort, CanPort, ConsoleRx, ConsoleTx, J>;
+/// The master's ports, with `work` on the thruster buses. The emulated chip has no flash set aside for the settings:
+/// they stay in RAM.
+pub type MasterPorts<J> = Ports<MasterPort, CanPort, ConsoleRx, ConsoleTx, InRam, NoReboot, J>;
 
 /// The thruster buses of `config`'s table, each thruster a motor-less thruster core started on the chip; the one
 /// whose halls come through the hall-edge interrupt is the first when `halls` says so.
@@ -71,7 +73,19 @@ pub fn ports<J>(buses: [&'static Bus; BUSES], work: J) -> MasterPorts<J> {
         can: CanPort,
         console_rx: ConsoleRx,
         console_tx: ConsoleTx,
+        settings: InRam,
+        reboot: NoReboot,
         work,
+    }
+}
+
+/// The runs here never ask the master to restart: one that does fails.
+#[derive(Debug)]
+pub struct NoReboot;
+
+impl Reboot for NoReboot {
+    async fn reboot(&mut self) -> ! {
+        report::fail("the master asked to reboot")
     }
 }
 

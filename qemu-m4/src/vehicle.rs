@@ -307,7 +307,10 @@ async fn fly(bus: &Bus) -> bool {
     wait_for(Duration::from_millis(500), Some(FORWARD), |_| false).await;
     let critical_before = seen().critical_texts;
     CONNECTED.store(false, Ordering::Relaxed);
-    let failsafe = wait_for(Duration::from_secs(3), None, |seen| {
+    // The ground-station failsafe acts FS_GCS_TIMEOUT after the last heartbeat (the pilot-input one, earlier, only
+    // holds the sticks at neutral).
+    let within = VEHICLE.vehicle.defaults().params.gcs_timeout() + Duration::from_secs(1);
+    let failsafe = wait_for(within, None, |seen| {
         !seen.armed && seen.critical_texts > critical_before && turning(seen, STOPPED_RPM) == 0
     })
     .await;

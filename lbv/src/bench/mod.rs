@@ -273,6 +273,12 @@ impl Bench {
 
     fn step(&mut self) {
         self.executor.run_until_idle();
+        // The master asked to restart (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN): it boots again with its flash kept.
+        if self.master.reboot_requested() {
+            self.note("master reboots");
+            self.reboot_master();
+            self.executor.run_until_idle();
+        }
         let now = self.clock.now();
         let dt = STEP.as_micros() as f64 / 1e6;
 
