@@ -215,6 +215,8 @@ class Pilot:
         failsafes = [t for t in self.observer.texts(since) if "Failsafe" in t]
         if failsafes:
             raise Failed(f"failsafe while MAVProxy was connected: {failsafes}")
+        if self.mavproxy.said("fence breach"):
+            raise Failed("MAVProxy reports a fence breach: SYS_STATUS must show the absent fence healthy")
 
     def disarm(self):
         since = time.monotonic()

@@ -121,7 +121,9 @@ pub fn sys_status(
         MavSysStatusSensor::empty()
     };
     let present = motors | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
-    let mut health = present;
+    // No geofence exists, so none is breached: reported healthy as ArduPilot does. Ground stations that take the
+    // bit's absence for a breach (MAVProxy says "fence breach" at connect) stay quiet.
+    let mut health = present | MavSysStatusSensor::MAV_SYS_STATUS_GEOFENCE;
     health.set(MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS, all_online);
     health.set(
         MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_PROPULSION,
@@ -559,6 +561,8 @@ mod tests {
         let bat = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
         assert!(s.onboard_control_sensors_present.contains(motors | bat));
         assert!(s.onboard_control_sensors_health.contains(motors | bat));
+        let fence = MavSysStatusSensor::MAV_SYS_STATUS_GEOFENCE;
+        assert!(!s.onboard_control_sensors_present.contains(fence) && s.onboard_control_sensors_health.contains(fence));
         assert_eq!(
             (s.voltage_battery, s.current_battery, s.battery_remaining),
             (25_200, -350, 80)
