@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
 # tests (every virtual-bench scenario among them, on both engines), a simulated hour of the bench's soak, both
-# firmware images in release and their size report against the flash / RAM budgets.
+# firmware images in release and their size report against the flash / RAM budgets, and the cores on an emulated
+# Cortex-M4 (QEMU).
 # Usage: ./test.sh        (CI runs exactly this through .ci/run)
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -16,20 +17,25 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
 # flip-link links the firmware images (.cargo/config.toml): a stack overflow faults instead of corrupting RAM.
 command -v flip-link >/dev/null || cargo install flip-link --locked
-# Debian packages: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use.
+# Debian packages: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use,
+# qemu-system-arm for the cores on an emulated Cortex-M4 (without its recommended GUI and firmware packages).
 packages=()
 command -v arm-none-eabi-size >/dev/null || packages+=(binutils-arm-none-eabi)
 command -v sigrok-cli >/dev/null || packages+=(sigrok-cli)
+command -v qemu-system-arm >/dev/null || packages+=(qemu-system-arm)
 if [ ${#packages[@]} -gt 0 ]; then
   as_root apt-get update -qq
-  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${packages[@]}" >/dev/null
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${packages[@]}" >/dev/null
 fi
-# Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against.
-python3 -c 'import pymavlink, cantools' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools
+# Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against, and
+# MAVProxy, the ground station that flies the bench in a test.
+python3 -c 'import pymavlink, cantools, MAVProxy' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools mavproxy
 cargo --version
 
 step "rustfmt"
 cargo fmt --all -- --check
+# qemu-m4 is its own workspace (it links its own memory map; see qemu-m4/Cargo.toml).
+cargo fmt --manifest-path qemu-m4/Cargo.toml -- --check
 
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
@@ -47,6 +53,7 @@ for family in "" ",legacy"; do
   cargo clippy --release --target "$TARGET" -p lbv-master-fw --features "acceptance$family" --locked -- -D warnings
   cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
 done
+cargo clippy --manifest-path qemu-m4/Cargo.toml --release --target "$TARGET" --target-dir target --locked -- -D warnings
 
 step "host tests (every bench scenario is one, on both engines)"
 cargo test --workspace --locked
@@ -56,7 +63,7 @@ cargo test -p lbv --bin lbv --locked soak_for_an_hour -- --ignored
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv/fuzz; do
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz; do
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
   done
 fi
@@ -99,5 +106,8 @@ lbv-master-fw      96 24
 lbv-master-fw-acceptance 96 24
 BUDGETS
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
+
+step "the cores on an emulated Cortex-M4 (QEMU mps2-an386): acceptance loops, vehicle, stack and CPU figures"
+qemu-m4/run.sh
 
 step "all checks passed"

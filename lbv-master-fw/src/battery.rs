@@ -100,66 +100,57 @@ pub enum Report {
 pub const MAX_REPORT_TEXTS: usize = 13;
 
 impl Report {
-    /// The STATUSTEXTs for the console, in order.
-    pub fn texts(&self, mut say: impl FnMut(Severity, Text)) {
-        match self {
-            Self::Nothing => {}
-            Self::News(news) => news.texts(&mut say),
-            Self::Stale => say(Severity::Warning, text(format_args!("BAT data stale"))),
-            Self::Resumed(news) => {
-                say(Severity::Info, text(format_args!("BAT data resumed")));
-                if let Some(news) = news {
-                    news.texts(&mut say);
-                }
-            }
-        }
-    }
-
-    /// The `n`th text of [`Report::texts`], so that a task can send them one by one without a buffer.
-    pub fn nth_text(&self, n: usize) -> Option<(Severity, Text)> {
-        let mut index = 0;
-        let mut found = None;
-        self.texts(|severity, text| {
-            if index == n {
-                found = Some((severity, text));
-            }
-            index += 1;
-        });
-        found
+    /// The STATUSTEXTs for the console, in order, each formatted as it is taken: a task sends them one by one
+    /// without a buffer, and formats each once.
+    pub fn texts(self) -> impl Iterator<Item = (Severity, Text)> {
+        let (first, news) = match self {
+            Self::Nothing => (None, None),
+            Self::News(news) => (None, Some(news)),
+            Self::Stale => (Some((Severity::Warning, "BAT data stale")), None),
+            Self::Resumed(news) => (Some((Severity::Info, "BAT data resumed")), news),
+        };
+        first
+            .into_iter()
+            .map(|(severity, words)| (severity, format(format_args!("{words}"))))
+            .chain(news.into_iter().flat_map(News::texts))
     }
 }
 
 impl News {
-    fn texts(&self, say: &mut impl FnMut(Severity, Text)) {
-        match *self {
-            Self::StartUp(status) => status.describe_all().for_each(|report| say_bit(report, say)),
-            Self::Changed { previous, current } => {
-                current
-                    .describe_changes(previous)
-                    .for_each(|report| say_bit(report, say));
-            }
-            Self::Alarms { raised, cleared } => {
-                for alarm in raised.iter() {
-                    say(Severity::Warning, text(format_args!("BAT BMS alarm: {}", alarm.name())));
-                }
-                for alarm in cleared.iter() {
-                    say(
-                        Severity::Info,
-                        text(format_args!("BAT BMS alarm cleared: {}", alarm.name())),
-                    );
-                }
-            }
-        }
+    fn texts(self) -> impl Iterator<Item = (Severity, Text)> {
+        let (start_up, changed, alarms) = match self {
+            Self::StartUp(status) => (Some(status), None, None),
+            Self::Changed { previous, current } => (None, Some((previous, current)), None),
+            Self::Alarms { raised, cleared } => (None, None, Some((raised, cleared))),
+        };
+        let bits = start_up
+            .into_iter()
+            .flat_map(DcdcStatus::describe_all)
+            .chain(
+                changed
+                    .into_iter()
+                    .flat_map(|(previous, current)| current.describe_changes(previous)),
+            )
+            .map(|report| (bit_severity(report), bit_text(report)));
+        let (raised, cleared) = alarms.unwrap_or((BmsAlarms::NONE, BmsAlarms::NONE));
+        let raised = raised.iter().map(|alarm| {
+            let text = format(format_args!("BAT BMS alarm: {}", alarm.name()));
+            (Severity::Warning, text)
+        });
+        let cleared = cleared.iter().map(|alarm| {
+            let text = format(format_args!("BAT BMS alarm cleared: {}", alarm.name()));
+            (Severity::Info, text)
+        });
+        bits.chain(raised).chain(cleared)
     }
 }
 
-fn say_bit(report: BitReport, say: &mut impl FnMut(Severity, Text)) {
-    let severity = if bit_is_warning(report) {
+fn bit_severity(report: BitReport) -> Severity {
+    if bit_is_warning(report) {
         Severity::Warning
     } else {
         Severity::Info
-    };
-    say(severity, bit_text(report));
+    }
 }
 
 /// A set fault bit, or power good lost.
@@ -173,12 +164,25 @@ fn bit_is_warning(report: BitReport) -> bool {
 
 /// `BAT <name>=<0|1> <meaning>`, at most 50 bytes for every bit and state.
 pub fn bit_text(report: BitReport) -> Text {
-    text(format_args!(
+    format(format_args!(
         "BAT {}={} {}",
         report.bit.name(),
         u8::from(report.set),
         short_meaning(report.bit, report.set)
     ))
+}
+
+#[cfg(test)]
+std::thread_local! {
+    /// Texts formatted on this thread (host tests: a report's work is one formatting per text).
+    static FORMATTED: core::cell::Cell<usize> = const { core::cell::Cell::new(0) };
+}
+
+/// Format one text of the monitor.
+fn format(args: core::fmt::Arguments<'_>) -> Text {
+    #[cfg(test)]
+    FORMATTED.with(|count| count.set(count.get() + 1));
+    text(args)
 }
 
 /// bat-proto's meaning, shortened where `BAT <name>=<state> <meaning>` would exceed 50 bytes.
@@ -371,9 +375,7 @@ pub async fn can_task<C: CanReceiver>(can: &mut C, shared: &Shared) -> ! {
 /// Queue a report's texts, waiting at most [`TEXT_DEADLINE`] in all for room.
 async fn say(shared: &Shared, report: &Report, now: Instant) {
     let deadline = now.saturating_add(TEXT_DEADLINE);
-    let mut n = 0;
-    while let Some((severity, text)) = report.nth_text(n) {
-        n += 1;
+    for (severity, text) in report.texts() {
         if with_deadline(deadline, shared.outbox.send(Outgoing::Text(severity, text)))
             .await
             .is_err()
@@ -426,9 +428,10 @@ pub(crate) mod tests {
     }
 
     fn texts(report: &Report) -> Vec<(Severity, String)> {
-        let mut all = Vec::new();
-        report.texts(|severity, text| all.push((severity, text.to_string())));
-        all
+        report
+            .texts()
+            .map(|(severity, text)| (severity, text.to_string()))
+            .collect()
     }
 
     #[test]
@@ -469,10 +472,10 @@ pub(crate) mod tests {
             .map(|(severity, text)| (severity, text.to_string()))
         );
         assert_eq!(
-            report.nth_text(2).map(|(_, text)| text.to_string()),
+            report.texts().nth(2).map(|(_, text)| text.to_string()),
             Some(lines[2].1.clone())
         );
-        assert_eq!(report.nth_text(12), None);
+        assert_eq!(report.texts().nth(12), None);
         // Every bit set: the faults are warnings, the longest texts still fit.
         let mut monitor = BatteryMonitor::new();
         let report = monitor.on_frame(t(0), &status(0x0FFF));
@@ -587,6 +590,46 @@ pub(crate) mod tests {
                 ),
             ]
         );
+    }
+
+    fn formatted() -> usize {
+        FORMATTED.with(|count| count.replace(0))
+    }
+
+    #[test]
+    fn each_text_of_a_report_is_formatted_once() {
+        // The longest report: resumed, then the start-up report of every bit, 13 texts. Taking them one by one
+        // formats one each, so the task's work grows with the texts, not with their square.
+        let report = Report::Resumed(Some(News::StartUp(DcdcStatus::from_word(0x0FFF))));
+        formatted();
+        let mut taken = report.texts();
+        for n in 1..=MAX_REPORT_TEXTS {
+            assert!(taken.next().is_some(), "text {n}");
+            assert_eq!(formatted(), 1, "text {n}");
+        }
+        assert!(taken.next().is_none());
+        assert_eq!(formatted(), 0);
+
+        // The task's path: every text queued for the console, each formatted once.
+        let _clock = crate::test_clock::lock();
+        let shared = Shared::new();
+        block_on(say(&shared, &report, Instant::now()));
+        assert_eq!(shared.outbox.len(), MAX_REPORT_TEXTS);
+        assert_eq!(formatted(), MAX_REPORT_TEXTS);
+
+        // A change report and an alarm report likewise.
+        let changed = Report::News(News::Changed {
+            previous: DcdcStatus::from_word(0),
+            current: DcdcStatus::from_word(0x0C01),
+        });
+        assert_eq!(changed.texts().count(), 3);
+        assert_eq!(formatted(), 3);
+        let alarms = Report::News(News::Alarms {
+            raised: BmsAlarms::LOW_VOLTAGE | BmsAlarms::HIGH_TEMPERATURE,
+            cleared: BmsAlarms::LOW_CHARGE,
+        });
+        assert_eq!(alarms.texts().count(), 3);
+        assert_eq!(formatted(), 3);
     }
 
     #[test]

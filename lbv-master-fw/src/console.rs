@@ -1,25 +1,29 @@
-//! The operator console: MAVLink 2 on LPUART1 (the ST-LINK virtual COM port), for QGroundControl and pymavlink
-//! scripts.
+//! The operator console: MAVLink 2 on LPUART1 (the ST-LINK virtual COM port), for QGroundControl, MAVProxy and
+//! pymavlink scripts.
 //!
-//! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too), decodes the few messages the master
-//!   understands and hands them to the vehicle task as [`Command`](crate::shared::Command)s (mapping in
-//!   [`inbound::decode`]).
+//! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too) through a [`Receiver`], which checks their
+//!   signatures when a key is set ([`crate::signing`]), decodes the few messages the master understands
+//!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it.
 //! - [`console_tx_task`] sends the telemetry an ArduSub ground station displays (HEARTBEAT, SYS_STATUS,
 //!   BATTERY_STATUS at 1 Hz, ESC_TELEMETRY at 4 Hz) and every message the other tasks queue in
-//!   [`Shared::outbox`] (COMMAND_ACK, PARAM_VALUE, STATUSTEXT) as soon as it is queued.
+//!   [`Shared::outbox`] (COMMAND_ACK, PARAM_VALUE, STATUSTEXT) as soon as it is queued, signed when a key is set.
 //!
 //! The dialect ([`lbv`]) is generated at build time from `mavlink/lbv.xml`, which holds only the messages used,
 //! copied from the official definitions; messages are encoded and decoded one type at a time, so the image
-//! carries only their codecs. Both tasks keep their counters in a [`ConsoleStats`] they share.
+//! carries only their codecs. Both tasks share a [`ConsoleStats`]: the link's counters and its signing state.
 
-use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
+use core::cell::RefCell;
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use embassy_futures::select::{Either, select};
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::{Duration, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
-use crate::shared::{MAX_THRUSTERS, Outgoing, Shared};
+use crate::shared::{MAX_THRUSTERS, Outgoing, Request, Sender, Shared};
+use crate::signing::{Refusal, SigningKey, SigningState};
 
 pub mod frame;
 pub mod inbound;
@@ -27,7 +31,7 @@ pub mod outbound;
 
 include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 
-use frame::{Event, FrameParser, Reject};
+use frame::{Event, FrameParser};
 use outbound::{Framer, LinkQuality, Reports};
 
 /// ESC telemetry period (4 Hz); HEARTBEAT, SYS_STATUS and BATTERY_STATUS go every fourth period (1 Hz).
@@ -36,6 +40,11 @@ pub const TELEMETRY_PERIOD: Duration = Duration::from_millis(250);
 const SLOW_EVERY: u8 = 4;
 /// Pause after a read error or end of input, so a failing port cannot monopolise the executor.
 const READ_RETRY: Duration = Duration::from_millis(10);
+/// The line is quiet for this long with a frame begun: the frame will not complete, so its start was false and
+/// the bytes after it are read again. A ground station writes each frame at once, so a real frame has no gap
+/// this long inside it (at 115200 baud a whole 280-byte frame takes 24 ms), and a stray start byte costs this
+/// much instead of the up to 280 bytes its claimed length would take to arrive (13 s of 1 Hz heartbeats).
+pub const LINE_IDLE: Duration = Duration::from_millis(50);
 
 /// Console settings.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -69,27 +78,36 @@ impl Default for ConsoleConfig {
     }
 }
 
-/// Counters of the console link, shared by the two tasks (atomics, so both take it by reference); read them
-/// with [`ConsoleStats::snapshot`]. Counters wrap.
-///
-/// It also remembers who sent the last COMMAND_LONG, so its COMMAND_ACK is addressed back to that sender.
-#[derive(Debug, Default)]
+/// The console link's state shared by its two tasks: counters (atomics, read them with
+/// [`ConsoleStats::snapshot`]; they wrap) and the signing state, which both the receiving side (checks, follows
+/// the timestamps) and the sending side (signs) use.
+#[derive(Debug)]
 pub struct ConsoleStats {
     frames_in: AtomicU32,
     bad_frames: AtomicU32,
     unknown_messages: AtomicU32,
     skipped_bytes: AtomicU32,
     read_errors: AtomicU32,
+    unsigned: AtomicU32,
+    bad_signatures: AtomicU32,
+    replayed: AtomicU32,
     frames_out: AtomicU32,
     write_errors: AtomicU32,
-    commander: AtomicU16,
+    signing: Mutex<CriticalSectionRawMutex, RefCell<SigningState>>,
+}
+
+impl Default for ConsoleStats {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 /// A copy of the console counters.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct ConsoleCounters {
-    /// CRC-valid frames of messages of the dialect whose payload decoded (whether or not they were for us).
+    /// CRC-valid frames of messages of the dialect whose payload decoded and that passed the signing checks
+    /// (whether or not they were for us).
     pub frames_in: u32,
     /// Frames dropped: CRC mismatch (a truncated frame shows as one), unknown message id, unsupported MAVLink 2
     /// incompatibility flag, or a payload that does not decode.
@@ -101,6 +119,12 @@ pub struct ConsoleCounters {
     pub skipped_bytes: u32,
     /// Errors reported by the serial port (overrun, framing, noise).
     pub read_errors: u32,
+    /// With a signing key set: frames refused because they were not signed (or MAVLink 1).
+    pub unsigned: u32,
+    /// With a signing key set: frames refused because their signature was wrong.
+    pub bad_signatures: u32,
+    /// With a signing key set: correctly signed frames refused for their timestamp (a replay).
+    pub replayed: u32,
     /// Frames written.
     pub frames_out: u32,
     /// Frames the serial port failed to write.
@@ -112,10 +136,17 @@ impl ConsoleCounters {
     pub fn corrupt(&self) -> u32 {
         self.bad_frames.wrapping_sub(self.unknown_messages)
     }
+
+    /// Frames refused by the signing checks.
+    pub fn refused_by_signing(&self) -> u32 {
+        self.unsigned
+            .wrapping_add(self.bad_signatures)
+            .wrapping_add(self.replayed)
+    }
 }
 
 impl ConsoleStats {
-    /// All zero.
+    /// All zero, no signing key.
     pub const fn new() -> Self {
         Self {
             frames_in: AtomicU32::new(0),
@@ -123,29 +154,39 @@ impl ConsoleStats {
             unknown_messages: AtomicU32::new(0),
             skipped_bytes: AtomicU32::new(0),
             read_errors: AtomicU32::new(0),
+            unsigned: AtomicU32::new(0),
+            bad_signatures: AtomicU32::new(0),
+            replayed: AtomicU32::new(0),
             frames_out: AtomicU32::new(0),
             write_errors: AtomicU32::new(0),
-            commander: AtomicU16::new(0),
+            signing: Mutex::new(RefCell::new(SigningState::new())),
         }
     }
 
     /// The counters now.
     pub fn snapshot(&self) -> ConsoleCounters {
+        let load = |counter: &AtomicU32| counter.load(Ordering::Relaxed);
         ConsoleCounters {
-            frames_in: self.frames_in.load(Ordering::Relaxed),
-            bad_frames: self.bad_frames.load(Ordering::Relaxed),
-            unknown_messages: self.unknown_messages.load(Ordering::Relaxed),
-            skipped_bytes: self.skipped_bytes.load(Ordering::Relaxed),
-            read_errors: self.read_errors.load(Ordering::Relaxed),
-            frames_out: self.frames_out.load(Ordering::Relaxed),
-            write_errors: self.write_errors.load(Ordering::Relaxed),
+            frames_in: load(&self.frames_in),
+            bad_frames: load(&self.bad_frames),
+            unknown_messages: load(&self.unknown_messages),
+            skipped_bytes: load(&self.skipped_bytes),
+            read_errors: load(&self.read_errors),
+            unsigned: load(&self.unsigned),
+            bad_signatures: load(&self.bad_signatures),
+            replayed: load(&self.replayed),
+            frames_out: load(&self.frames_out),
+            write_errors: load(&self.write_errors),
         }
     }
 
-    /// System and component of the last COMMAND_LONG's sender (0, 0 before any).
-    pub fn commander(&self) -> (u8, u8) {
-        let [system, component] = self.commander.load(Ordering::Relaxed).to_be_bytes();
-        (system, component)
+    /// Use the link's signing state, following `key` (the one in force) first.
+    pub fn signing<T>(&self, key: Option<SigningKey>, f: impl FnOnce(&mut SigningState) -> T) -> T {
+        self.signing.lock(|state| {
+            let mut state = state.borrow_mut();
+            state.sync(key);
+            f(&mut state)
+        })
     }
 
     fn count(counter: &AtomicU32, n: u32) {
@@ -155,72 +196,159 @@ impl ConsoleStats {
     }
 }
 
-/// Read MAVLink frames from `rx`, decode them and send the [`Command`](crate::shared::Command)s to
-/// `shared.commands`, awaiting room (the vehicle task drains it).
+/// What one frame came to.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Received {
+    /// A request for the vehicle.
+    Request(Request),
+    /// Nothing for the vehicle: counted and dropped, or not addressed to us, or telemetry of another system.
+    Nothing,
+}
+
+/// The receiving half of the console without its port: bytes in, requests for the vehicle out. Bad bytes and
+/// frames are counted in the [`ConsoleStats`] and skipped; it never panics. [`console_rx_task`] runs it, and the
+/// fuzz target drives it directly.
+#[derive(Debug, Clone, Default)]
+pub struct Receiver {
+    parser: FrameParser,
+}
+
+impl Receiver {
+    /// Nothing buffered.
+    pub const fn new() -> Self {
+        Self {
+            parser: FrameParser::new(),
+        }
+    }
+
+    /// Append received bytes; returns how many were taken (see [`FrameParser::push`]).
+    pub fn push(&mut self, data: &[u8]) -> usize {
+        self.parser.push(data)
+    }
+
+    /// The input has paused: a frame begun now will not complete (see [`FrameParser::end_of_input`]).
+    pub fn end_of_input(&mut self) {
+        self.parser.end_of_input();
+    }
+
+    /// Whether a frame has begun and is not complete.
+    pub fn pending(&self) -> bool {
+        self.parser.pending()
+    }
+
+    /// What the next buffered frame comes to, or `None` when more bytes are needed. `key` is the signing key in
+    /// force: with one, frames that fail the signing checks are refused and counted.
+    pub fn next(&mut self, config: &ConsoleConfig, key: Option<SigningKey>, stats: &ConsoleStats) -> Option<Received> {
+        let event = self.parser.next(inbound::extra_crc);
+        let received = match event {
+            None => None,
+            Some(Event::Corrupt) => {
+                ConsoleStats::count(&stats.bad_frames, 1);
+                Some(Received::Nothing)
+            }
+            Some(Event::Unknown(_)) => {
+                ConsoleStats::count(&stats.bad_frames, 1);
+                ConsoleStats::count(&stats.unknown_messages, 1);
+                Some(Received::Nothing)
+            }
+            Some(Event::Frame(frame)) => Some(match stats.signing(key, |signing| signing.check(&frame)) {
+                Err(refusal) => {
+                    ConsoleStats::count(
+                        match refusal {
+                            Refusal::Unsigned => &stats.unsigned,
+                            Refusal::BadSignature => &stats.bad_signatures,
+                            Refusal::Replayed => &stats.replayed,
+                        },
+                        1,
+                    );
+                    Received::Nothing
+                }
+                Ok(()) => match inbound::decode(&frame, config) {
+                    Ok(command) => {
+                        ConsoleStats::count(&stats.frames_in, 1);
+                        let from = Sender {
+                            system: frame.system_id,
+                            component: frame.component_id,
+                        };
+                        command.map_or(Received::Nothing, |command| {
+                            Received::Request(Request { from, command })
+                        })
+                    }
+                    Err(_) => {
+                        ConsoleStats::count(&stats.bad_frames, 1);
+                        Received::Nothing
+                    }
+                },
+            }),
+        };
+        ConsoleStats::count(&stats.skipped_bytes, self.parser.take_skipped());
+        received
+    }
+}
+
+/// Read MAVLink frames from `rx` and send the [`Request`]s they carry to `shared.commands`, awaiting room (the
+/// vehicle task drains it).
 ///
-/// Bad bytes and frames are counted in `stats` and skipped; the parser resynchronises on the next start byte
-/// (0xFD, or 0xFE for MAVLink 1) and never panics. Frames from any system are read; only messages addressed to
-/// our system (target 0 or ours, where the message has a target) are acted on. A read error is counted and
-/// reading resumes after a short pause.
+/// A frame begun when the line falls quiet for [`LINE_IDLE`] is given up and the bytes after its start read
+/// again, so noise never hides the frames behind it for longer. Frames from any system are read; only messages
+/// addressed to our system (target 0 or ours, where the message has a target) become requests, and the vehicle
+/// decides whether their sender may ask. With a signing key in force (`shared.settings`), frames that fail the
+/// signing checks are refused, and the link's timestamp is handed to `shared.signing_time` for storing once a
+/// minute. A read error is counted and reading resumes after a short pause.
 pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared: &Shared, stats: &ConsoleStats) -> ! {
-    let mut parser = FrameParser::new();
+    let mut receiver = Receiver::new();
     let mut chunk = [0u8; 64];
+    let signing_time = shared.signing_time.sender();
     loop {
-        let received = match rx.read(&mut chunk).await {
-            Ok(0) => {
+        let read = if receiver.pending() {
+            match select(rx.read(&mut chunk), Timer::after(LINE_IDLE)).await {
+                Either::First(read) => Some(read),
+                Either::Second(()) => None,
+            }
+        } else {
+            Some(rx.read(&mut chunk).await)
+        };
+        let mut rest = match read {
+            None => {
+                receiver.end_of_input();
+                &[][..]
+            }
+            Some(Ok(0)) => {
                 Timer::after(READ_RETRY).await;
                 continue;
             }
-            Ok(n) => chunk.get(..n).unwrap_or_default(),
-            Err(_) => {
+            Some(Ok(n)) => chunk.get(..n).unwrap_or_default(),
+            Some(Err(_)) => {
                 ConsoleStats::count(&stats.read_errors, 1);
                 Timer::after(READ_RETRY).await;
                 continue;
             }
         };
-        let mut rest = received;
-        while !rest.is_empty() {
-            let taken = parser.push(rest);
+        loop {
+            let taken = receiver.push(rest);
             rest = rest.get(taken..).unwrap_or_default();
-            loop {
-                let inbound = match parser.next(inbound::extra_crc) {
-                    None => break,
-                    Some(Event::Frame(frame)) => match inbound::decode(&frame, config) {
-                        Ok(inbound) => {
-                            ConsoleStats::count(&stats.frames_in, 1);
-                            inbound
-                        }
-                        Err(_) => {
-                            ConsoleStats::count(&stats.bad_frames, 1);
-                            None
-                        }
-                    },
-                    Some(Event::Rejected(reject)) => {
-                        ConsoleStats::count(&stats.bad_frames, 1);
-                        if let Reject::UnknownMessage(_) = reject {
-                            ConsoleStats::count(&stats.unknown_messages, 1);
-                        }
-                        None
-                    }
-                };
-                if let Some(inbound) = inbound {
-                    if let Some((system, component)) = inbound.commander {
-                        stats
-                            .commander
-                            .store(u16::from_be_bytes([system, component]), Ordering::Relaxed);
-                    }
-                    shared.commands.send(inbound.command).await;
+            let key = shared.settings.try_get().and_then(|settings| settings.signing);
+            while let Some(received) = receiver.next(config, key, stats) {
+                if let Received::Request(request) = received {
+                    shared.commands.send(request).await;
                 }
             }
-            ConsoleStats::count(&stats.skipped_bytes, parser.take_skipped());
+            if let Some(timestamp) = stats.signing(key, SigningState::due_for_storing) {
+                signing_time.send(timestamp);
+            }
+            if rest.is_empty() {
+                break;
+            }
         }
     }
 }
 
 /// Send telemetry to `tx`: HEARTBEAT, SYS_STATUS and BATTERY_STATUS at 1 Hz (the first set at once),
 /// ESC_TELEMETRY_1_TO_4 (and ESC_TELEMETRY_5_TO_8 when more than 4 thrusters are configured) at 4 Hz, and every
-/// [`Shared::outbox`] message as soon as it is queued. MAVLink 2 frames from `config`'s system and component;
-/// the sequence number counts every frame. Write errors are counted in `stats` and the frame is dropped.
+/// [`Shared::outbox`] message as soon as it is queued. MAVLink 2 frames from `config`'s system and component,
+/// signed while a key is in force (`shared.settings`); the sequence number counts every frame. Write errors are
+/// counted in `stats` and the frame is dropped. [`Outgoing::Reboot`] flushes the port and raises
+/// `shared.reboot`.
 ///
 /// SYS_STATUS's drop_rate_comm is the share of corrupt frames received during the last second (see
 /// [`ConsoleCounters::corrupt`]).
@@ -229,6 +357,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
         tx,
         framer: Framer::new(config.system_id, config.component_id),
         stats,
+        key: None,
         batch: [0; BATCH],
         len: 0,
         frames: 0,
@@ -238,6 +367,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
     let mut tick: u8 = 0;
     let mut last = stats.snapshot();
     loop {
+        out.key = shared.settings.try_get().and_then(|settings| settings.signing);
         let reports: Reports = core::array::from_fn(|i| {
             shared
                 .thrusters
@@ -247,10 +377,11 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
         });
         if tick == 0 {
             let battery = shared.battery.try_get();
+            let vehicle = shared.vehicle.try_get();
             let now = stats.snapshot();
-            let link = link_quality(&last, &now);
+            let link = link_quality(&last, &now, vehicle.map_or(0, |v| v.refused));
             last = now;
-            out.push(&outbound::heartbeat(shared.vehicle.try_get()));
+            out.push(&outbound::heartbeat(vehicle));
             out.push(&outbound::sys_status(thrusters, &reports, battery.as_ref(), link));
             out.push(&outbound::battery_status(battery.as_ref()));
         }
@@ -262,10 +393,9 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
         tick = (tick + 1) % SLOW_EVERY;
 
         while let Either::Second(message) = select(ticker.next(), shared.outbox.receive()).await {
+            out.key = shared.settings.try_get().and_then(|settings| settings.signing);
             match message {
-                Outgoing::CommandAck { command, result } => {
-                    out.push(&outbound::command_ack(command, result, stats.commander()))
-                }
+                Outgoing::CommandAck { command, result, to } => out.push(&outbound::command_ack(command, result, to)),
                 Outgoing::ParamValue {
                     id,
                     value,
@@ -273,14 +403,21 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                     count,
                 } => out.push(&outbound::param_value(&id, value, index, count)),
                 Outgoing::Text(severity, text) => out.push(&outbound::statustext(severity, &text)),
+                Outgoing::Reboot => {
+                    out.flush().await;
+                    // The acknowledgement must leave the port before the restart cuts it off.
+                    let _ = out.tx.flush().await;
+                    shared.reboot.signal(());
+                }
             }
             out.flush().await;
         }
     }
 }
 
-/// Link quality between two snapshots of the counters.
-fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters) -> LinkQuality {
+/// Link quality between two snapshots of the counters; `refused` the vehicle's count of requests from other
+/// systems.
+fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters, refused: u32) -> LinkQuality {
     // A serial link carries far fewer than 400 000 frames a second: the product fits a u32 (no 64-bit division
     // code in the image).
     let corrupt = now.corrupt().wrapping_sub(before.corrupt()).min(400_000);
@@ -288,12 +425,14 @@ fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters) -> LinkQuality 
     LinkQuality {
         drop_rate: (corrupt * 10_000).checked_div(corrupt + good).unwrap_or(0) as u16,
         errors: now.corrupt() as u16,
+        refused_other_system: refused as u16,
+        refused_by_signing: now.refused_by_signing() as u16,
     }
 }
 
 /// Room for the largest batch of frames written at once: the 1 Hz set and both ESC messages with full payloads
-/// take 254 bytes.
-const BATCH: usize = 256;
+/// take 254 bytes, and 5 signatures 65 more.
+const BATCH: usize = 320;
 
 /// The writing half: frames messages into a batch and writes the batch in one go (one await point for all
 /// message types keeps the task small).
@@ -301,21 +440,42 @@ struct Output<'a, W> {
     tx: &'a mut W,
     framer: Framer,
     stats: &'a ConsoleStats,
+    /// The signing key in force.
+    key: Option<SigningKey>,
     batch: [u8; BATCH],
     len: usize,
     frames: u32,
 }
 
 impl<W: Write> Output<'_, W> {
-    /// Frame `message` into the batch; a frame that does not fit is counted as a write error.
+    /// Frame `message` into the batch, signed when a key is in force; a frame that does not fit is counted as a
+    /// write error.
     fn push<D: MessageData>(&mut self, message: &D) {
-        let bytes = self.framer.frame(message);
-        match self.batch.get_mut(self.len..self.len + bytes.len()) {
-            Some(room) => {
-                room.copy_from_slice(bytes);
-                self.len += bytes.len();
+        let frame = self.framer.frame(message);
+        let len = frame.len();
+        match self.batch.get_mut(self.len..self.len + len) {
+            Some(slot) => slot.copy_from_slice(frame),
+            None => return ConsoleStats::count(&self.stats.write_errors, 1),
+        }
+        self.append(len, D::EXTRA_CRC);
+    }
+
+    /// Take the `len`-byte frame just copied to the end of the batch, signing it when a key is in force (not
+    /// generic: one copy for every message type).
+    #[inline(never)]
+    fn append(&mut self, len: usize, extra_crc: u8) {
+        let signed = match (self.key, self.batch.get_mut(self.len..)) {
+            (Some(key), Some(rest)) => self
+                .stats
+                .signing(Some(key), |signing| signing.sign(rest, len, extra_crc)),
+            _ => Some(len),
+        };
+        match signed {
+            Some(len) => {
+                self.len += len;
                 self.frames += 1;
             }
+            // No room left for the signature.
             None => ConsoleStats::count(&self.stats.write_errors, 1),
         }
     }

@@ -4,7 +4,7 @@
 //! and the bench drive it through simulated ports. It never touches a register and never panics on bus input.
 //!
 //! [`run`] is the whole node: the STM32 binding builds its [`Ports`] from peripherals and calls it with [`CONFIG`];
-//! the bench and the tests call it with simulated ports.
+//! the bench and the tests call it with simulated ports (lbv-sim's buses, links and flash).
 #![cfg_attr(not(test), no_std)]
 
 pub mod acceptance;
@@ -12,15 +12,18 @@ pub mod battery;
 pub mod config;
 pub mod console;
 pub mod mixer;
+pub mod params;
 pub mod poll;
 pub mod recovery;
+pub mod settings;
 pub mod shared;
+pub mod signing;
 #[cfg(any(test, feature = "sim"))]
 pub mod sim;
 pub mod thrusters;
 pub mod vehicle;
 
-use embassy_futures::join::{join3, join5};
+use embassy_futures::join::{join, join3, join5};
 use embedded_hal_async::i2c::I2c;
 use embedded_io_async::{Read, Write};
 
@@ -30,14 +33,15 @@ pub use poll::{PollError, poll_thruster};
 use battery::{CanReceiver, can_task};
 use console::{ConsoleStats, console_rx_task, console_tx_task};
 use recovery::BusRecovery;
-use shared::Shared;
+use settings::{Reboot, SettingsStore, settings_task};
+use shared::{Severity, Shared, text};
 use thrusters::{BUSES, bus_task};
 use vehicle::vehicle_task;
 
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
-/// CAN bus, the console's serial link, and what the buses are for.
+/// CAN bus, the console's serial link, where the settings are kept, how it restarts, and what the buses are for.
 #[derive(Debug)]
-pub struct Ports<B, C, R, W, J = Polling> {
+pub struct Ports<B, C, R, W, S, X, J = Polling> {
     /// The thruster buses, each with its recovery.
     pub buses: [B; BUSES],
     /// The battery board's frames.
@@ -46,6 +50,11 @@ pub struct Ports<B, C, R, W, J = Polling> {
     pub console_rx: R,
     /// The console link's transmit side.
     pub console_tx: W,
+    /// Where the settings are kept: [`settings::Store`] on the flash pages kept for them (or, on a board without
+    /// them, [`settings::InRam`]).
+    pub settings: S,
+    /// How the master restarts (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN).
+    pub reboot: X,
     /// The buses' work: [`Polling`] the thrusters (the vehicle), or the acceptance [`acceptance::Script`].
     pub work: J,
 }
@@ -82,11 +91,11 @@ async fn poll_bus<B: I2c + BusRecovery>(bus: &mut B, index: u8, config: &MasterC
     }
 }
 
-/// The master node: the buses' work, the battery CAN task, the console's receive and transmit tasks and the vehicle
-/// task, joined. They talk only through `shared` (and the console tasks through `console`), which live as long as
-/// the node: a reboot starts again from fresh ones.
-pub async fn run<B, C, R, W, J>(
-    ports: Ports<B, C, R, W, J>,
+/// The master node: the settings loaded from their store, then the buses' work, the battery CAN task, the console's
+/// receive and transmit tasks, the vehicle task and the settings task, joined. They talk only through `shared` (and
+/// the console tasks through `console`), which live as long as the node: a reboot starts again from fresh ones.
+pub async fn run<B, C, R, W, S, X, J>(
+    ports: Ports<B, C, R, W, S, X, J>,
     config: &MasterConfig,
     shared: &Shared,
     console: &ConsoleStats,
@@ -96,6 +105,8 @@ where
     C: CanReceiver,
     R: Read,
     W: Write,
+    S: SettingsStore,
+    X: Reboot,
     J: BusWork,
 {
     let Ports {
@@ -103,18 +114,31 @@ where
         mut can,
         mut console_rx,
         mut console_tx,
+        mut settings,
+        mut reboot,
         work,
     } = ports;
+    let stored = settings.load(config.vehicle.defaults()).await;
+    let unreadable = settings.read_errors();
+    if unreadable > 0 {
+        shared.say(
+            Severity::Warning,
+            text(format_args!("Settings: {unreadable} unreadable in flash")),
+        );
+    }
     let buses = async {
         work.run(&mut buses, config, shared).await;
         core::future::pending::<()>().await
     };
-    let (_, never, ..) = join5(
-        buses,
-        can_task(&mut can, shared),
-        console_rx_task(&mut console_rx, &config.console, shared, console),
-        console_tx_task(&mut console_tx, &config.console, shared, console),
-        vehicle_task(config.vehicle, shared),
+    let ((_, never, ..), _) = join(
+        join5(
+            buses,
+            can_task(&mut can, shared),
+            console_rx_task(&mut console_rx, &config.console, shared, console),
+            console_tx_task(&mut console_tx, &config.console, shared, console),
+            vehicle_task(config.vehicle, stored, shared),
+        ),
+        settings_task(&mut settings, shared, &mut reboot),
     )
     .await;
     never

@@ -5,9 +5,12 @@
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
+use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::Duration;
 use tmc_proto::{Order, Status};
+
+use crate::params::Settings;
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
 pub const MAX_THRUSTERS: usize = 8;
@@ -53,6 +56,26 @@ pub struct ManualInput {
 /// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
 pub type ParamId = [u8; 16];
 
+/// Who sent a console message: its MAVLink system and component ids.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Sender {
+    /// MAVLink system id (a ground station is usually 255).
+    pub system: u8,
+    /// MAVLink component id.
+    pub component: u8,
+}
+
+/// A console command and who sent it: the vehicle decides whether that sender may ask it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Request {
+    /// The sender.
+    pub from: Sender,
+    /// What it asks.
+    pub command: Command,
+}
+
 /// What the console asked for, decoded from MAVLink by the console task.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -73,6 +96,15 @@ pub enum Command {
         percent: i8,
         /// How long to run it.
         duration: Duration,
+    },
+    /// COMMAND_LONG MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (246) with param1 = 1: restart the master.
+    Reboot,
+    /// SETUP_SIGNING: the MAVLink 2 signing key (all zeros: signing off) and the timestamp to start from.
+    SetupSigning {
+        /// The secret.
+        key: [u8; 32],
+        /// 10 us units since 2015-01-01.
+        timestamp: u64,
     },
     /// Any other COMMAND_LONG: answered MAV_RESULT_UNSUPPORTED.
     Unsupported {
@@ -138,6 +170,8 @@ pub enum Outgoing {
         command: u16,
         /// The result.
         result: AckResult,
+        /// The command's sender, whom the answer is addressed to.
+        to: Sender,
     },
     /// PARAM_VALUE.
     ParamValue {
@@ -152,6 +186,8 @@ pub enum Outgoing {
     },
     /// STATUSTEXT.
     Text(Severity, Text),
+    /// Restart the master once everything queued before this has been sent (the reboot's COMMAND_ACK).
+    Reboot,
 }
 
 /// Link health and error counters of one thruster. Counters saturate.
@@ -217,16 +253,18 @@ pub struct BatterySummary {
 pub struct VehicleState {
     /// Armed: thrusters follow the pilot.
     pub armed: bool,
-    /// The console has been heard within its timeout.
+    /// The operator's ground-station heartbeat has been heard within `FS_GCS_TIMEOUT`.
     pub console_alive: bool,
+    /// Requests refused because they came from another system than the operator's (`SYSID_MYGCS`), wrapping.
+    pub refused: u32,
 }
 
 type Mutex = CriticalSectionRawMutex;
 
 /// The channels between the master's tasks.
 pub struct Shared {
-    /// Console -> vehicle: decoded commands, in order.
-    pub commands: Channel<Mutex, Command, 8>,
+    /// Console -> vehicle: decoded commands and their senders, in order.
+    pub commands: Channel<Mutex, Request, 8>,
     /// Vehicle -> bus tasks: the order for every thruster (STOP when disarmed).
     pub orders: Watch<Mutex, [Order; MAX_THRUSTERS], 1>,
     /// Vehicle -> console: armed and console state.
@@ -237,6 +275,12 @@ pub struct Shared {
     pub battery: Watch<Mutex, BatterySummary, 1>,
     /// Everyone -> console: acknowledgements, parameter values and texts, sent in order.
     pub outbox: Channel<Mutex, Outgoing, 16>,
+    /// Vehicle -> settings store, console: the parameters and the signing key in force.
+    pub settings: Watch<Mutex, Settings, 1>,
+    /// Console -> settings store: the signing link's timestamp, to store (at most once a minute).
+    pub signing_time: Watch<Mutex, u64, 1>,
+    /// Console -> settings store: the reboot's acknowledgement has been sent; restart.
+    pub reboot: Signal<Mutex, ()>,
 }
 
 impl Shared {
@@ -249,6 +293,9 @@ impl Shared {
             thrusters: [const { Watch::new() }; MAX_THRUSTERS],
             battery: Watch::new(),
             outbox: Channel::new(),
+            settings: Watch::new(),
+            signing_time: Watch::new(),
+            reboot: Signal::new(),
         }
     }
 

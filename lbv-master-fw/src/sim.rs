@@ -1,16 +1,23 @@
 //! The master's ports on lbv-sim's simulated parts, for the bench (Cargo feature `sim`, host only) and the host
 //! tests: a thruster bus recovered by the core's own [`clear_bus`](crate::recovery::clear_bus) on the simulated
-//! lines, and the battery CAN receiver on a simulated CAN bus.
+//! lines, the battery CAN receiver on a simulated CAN bus, the settings store on a simulated G431 flash, and a
+//! reboot that whoever runs the board carries out.
 
+extern crate alloc;
+
+use alloc::rc::Rc;
+use core::cell::Cell;
 use core::convert::Infallible;
 
 use embassy_time::Delay;
 use lbv_sim::Queue;
+use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::{Bus, Master, Scl, Sda};
 
 use crate::battery::{CanFrame, CanReceiver};
 use crate::config::BusConfig;
 use crate::recovery::PinRecovery;
+use crate::settings::{Reboot, Store};
 
 /// A simulated thruster bus as the master sees it: transfers on lbv-sim's master port, the recovery on its lines.
 pub type ThrusterBus = PinRecovery<Master, Scl, Sda, Delay>;
@@ -32,6 +39,36 @@ impl CanReceiver for Queue<CanFrame> {
 
     async fn receive(&mut self) -> Result<CanFrame, Infallible> {
         Ok(Queue::receive(self).await)
+    }
+}
+
+/// The G431's 128 KiB of flash, erased: 64 pages of 2 KiB (RM0440 3.3.1).
+pub fn g431_flash() -> Stm32g4Flash {
+    Stm32g4Flash::new(64)
+}
+
+/// The settings store on a simulated G431 `flash`, in the pages the binding gives it (a handle: the memory stays
+/// with whoever holds another).
+pub fn flash_store(flash: &Stm32g4Flash) -> Store<Stm32g4Flash> {
+    Store::g431(flash.clone())
+}
+
+/// A simulated master's reboot: it counts the request and waits; whoever runs the board sees
+/// [`RebootRequest::requested`], drops the master's tasks and boots it again.
+#[derive(Debug, Clone, Default)]
+pub struct RebootRequest(Rc<Cell<u32>>);
+
+impl RebootRequest {
+    /// Reboots asked for so far.
+    pub fn requested(&self) -> u32 {
+        self.0.get()
+    }
+}
+
+impl Reboot for RebootRequest {
+    async fn reboot(&mut self) -> ! {
+        self.0.set(self.0.get().saturating_add(1));
+        core::future::pending().await
     }
 }
 

@@ -1,11 +1,14 @@
 //! Interrupts, clocks, peripheral set-up and tasks of the master image.
 
 use core::num::{NonZeroU8, NonZeroU16};
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use defmt::{info, unwrap};
+use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::NominalBitTiming;
 use embassy_stm32::can::{self, CanConfigurator};
+use embassy_stm32::flash::{Blocking, Flash};
 use embassy_stm32::i2c::{self, I2c};
 use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
 use embassy_stm32::time::Hertz;
@@ -13,6 +16,8 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use g431_hw::clock;
 use lbv_master_fw::console::ConsoleStats;
+use lbv_master_fw::settings::ecc::{self, NmiAction, eccr};
+use lbv_master_fw::settings::{Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, Ports};
 use static_cell::StaticCell;
@@ -38,8 +43,11 @@ bind_interrupts!(struct Irqs {
     LPUART1 => usart::BufferedInterruptHandler<peripherals::LPUART1>;
 });
 
-static SHARED: Shared = Shared::new();
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
+
+/// Where the settings are kept: embassy-stm32's flash driver (blocking: the G431 has one bank, so the CPU waits out
+/// every write and erase anyway) behind the async NOR flash port.
+type Settings = Store<BlockingAsync<Flash<'static, Blocking>>>;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
@@ -119,11 +127,16 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
+    // The settings, in the flash pages the images leave free (`memory.x`).
+    let settings = Store::g431(BlockingAsync::new(Flash::new_blocking(p.FLASH)));
+
     spawner.spawn(unwrap!(master(Ports {
         buses: [bus1, bus2, bus3],
         can,
         console_rx,
         console_tx,
+        settings,
+        reboot: SystemReset,
         work: WORK,
     })));
 }
@@ -169,10 +182,57 @@ fn nominal_bit_timing() -> NominalBitTiming {
     }
 }
 
-/// The whole node, on the thread-mode executor.
+/// The master's ports on the NUCLEO.
+type MasterPorts =
+    Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Settings, SystemReset, Work>;
+
+/// The whole node, on the thread-mode executor. Its channels live in the task (zeroed RAM, set up at start) rather
+/// than in a static, whose initial value would take 2.5 KiB of flash.
 #[embassy_executor::task]
-async fn master(ports: Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Work>) -> ! {
-    lbv_master_fw::run(ports, &CONFIG, &SHARED, &CONSOLE_STATS).await
+async fn master(ports: MasterPorts) -> ! {
+    let shared = Shared::new();
+    lbv_master_fw::run(ports, &CONFIG, &shared, &CONSOLE_STATS).await
+}
+
+/// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).
+static SETTINGS_ECC_ERRORS: AtomicU32 = AtomicU32::new(0);
+
+// The FLASH_ECCR decoding (`settings::ecc`) agrees with ST's SVD for the G431 as stm32-metapac has it.
+const _: () = {
+    use pac::flash::regs::Eccr;
+    assert!(Eccr(eccr::ECCD).eccd() && !Eccr(eccr::ECCD).eccc());
+    assert!(Eccr(eccr::ECCC).eccc() && Eccr(eccr::ECCCIE).eccie());
+    assert!(Eccr(eccr::SYSF_ECC).sysf_ecc() && Eccr(eccr::BK_ECC).bk_ecc());
+    assert!(Eccr(eccr::ADDR_ECC).addr_ecc() == eccr::ADDR_ECC && Eccr(!eccr::ADDR_ECC).addr_ecc() == 0);
+};
+
+/// The NMI: an ECC double error in the settings pages (a write cut short by a power cut) is let pass, so the store
+/// reads the record, finds its CRC wrong and skips it; any other NMI stops the master here, and the thrusters stop
+/// by their link failsafe (`settings::ecc`, RM0440 3.3.2). It touches nothing a critical section guards, so it
+/// logs nothing: a debugger reads `SETTINGS_ECC_ERRORS`, and after a stop FLASH_ECCR, which keeps the cause.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn NonMaskableInt() {
+    let value = pac::FLASH.eccr().read().0;
+    match ecc::nmi_action(value) {
+        NmiAction::PassSettingsRead { clear } => {
+            pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear));
+            SETTINGS_ECC_ERRORS.fetch_add(1, Ordering::Relaxed);
+        }
+        NmiAction::Stop => loop {
+            cortex_m::asm::nop();
+        },
+    }
+}
+
+/// A reboot is a system reset (AIRCR.SYSRESETREQ, ARMv7-M Architecture Reference Manual B3.2.6): the RAM state is
+/// lost, the flash kept.
+struct SystemReset;
+
+impl Reboot for SystemReset {
+    async fn reboot(&mut self) -> ! {
+        cortex_m::peripheral::SCB::sys_reset()
+    }
 }
 
 /// The acceptance test's operator: its report lines over defmt (which `lbv hil` reads), its prompts as a log line

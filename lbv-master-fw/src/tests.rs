@@ -17,7 +17,7 @@ use crate::config::VEHICLE;
 use crate::console::ConsoleStats;
 use crate::shared::{MAX_THRUSTERS, Shared};
 use crate::sim::scripted::SimThruster;
-use crate::sim::thruster_bus;
+use crate::sim::{RebootRequest, flash_store, g431_flash, thruster_bus};
 use crate::thrusters::MUX_ADDRESS;
 use crate::{Polling, Ports, run};
 
@@ -94,6 +94,8 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         can: Queue::new(),
         console_rx: SerialRx::new(console_in.clone()),
         console_tx: SerialTx(console_out.clone()),
+        settings: flash_store(&g431_flash()),
+        reboot: RebootRequest::default(),
         work: Polling,
     };
     executor.spawn(async {

@@ -1,35 +1,47 @@
-//! The vehicle: arming, the console failsafe, the motor test and the parameters, turned into one order per
-//! thruster.
+//! The vehicle: arming, the two failsafes, the one operator, the motor test, the parameters and the signing key,
+//! turned into one order per thruster.
 //!
-//! Rules (ArduSub-like):
-//! - Console life: every [`Command`] counts, whatever it is. The console is alive while the last one is less
-//!   than `LBV_CONSOLE_TO` old. Time is evaluated before a command is applied, so a command that arrives after
-//!   a silence first lets the failsafe act.
-//! - Failsafe: armed and the console silent for `LBV_CONSOLE_TO` (at exactly that age) -> disarm, every order
-//!   STOP, one Critical text. It acts once: arming again needs a command, which brings the console back. A
-//!   running motor test is stopped as well.
-//! - Arming (MAV_CMD_COMPONENT_ARM_DISARM): arm is accepted unless a motor test runs; then the test is stopped
-//!   and the arm answered TEMPORARILY_REJECTED (arm again once the thruster has stopped). Disarm is always
-//!   accepted and stops a motor test too. An arm command is itself console life, so the console is never
-//!   silent when one is applied. Arming starts from neutral sticks.
+//! Rules (ArduSub's, where it has one):
+//! - One operator: only the ground station whose system id is `SYSID_MYGCS` (255, a ground station's usual id)
+//!   may arm, command, set parameters or the signing key, steer, and keep the failsafes from acting. Its
+//!   COMMAND_LONGs from another system are answered COMMAND_ACK DENIED; its MANUAL_CONTROL, PARAM_SET and
+//!   SETUP_SIGNING are ignored (MAVLink has no answer for them); all are counted in [`VehicleState::refused`].
+//!   Anyone may read the parameters.
+//! - Ground-station failsafe (`FS_GCS_ENABLE`, `FS_GCS_TIMEOUT`): only the operator's HEARTBEATs (type GCS) count.
+//!   Armed and none for `FS_GCS_TIMEOUT` (at exactly that age) -> warn, disarm, or hold neutral sticks, once per
+//!   silence with one text; a running motor test is stopped. When the heartbeats return, a text says so and the
+//!   sticks count again. Arming and motor tests need a live heartbeat.
+//! - Pilot-input failsafe (`FS_PILOT_INPUT`, `FS_PILOT_TIMEOUT`): once the operator's MANUAL_CONTROL has started
+//!   after arming, armed and none for `FS_PILOT_TIMEOUT` -> neutral sticks (or disarm), once, with one text; the
+//!   next MANUAL_CONTROL takes over again. A ground station that never sends MANUAL_CONTROL (MAVProxy, a script
+//!   that only arms) leaves the sticks neutral and does not trip it.
+//! - Time is evaluated before a request is applied, so a request that arrives after a silence first lets the
+//!   failsafes act.
+//! - Arming (MAV_CMD_COMPONENT_ARM_DISARM): arm is accepted with a live heartbeat unless a motor test runs; then
+//!   the test is stopped and the arm answered TEMPORARILY_REJECTED (arm again once the thruster has stopped).
+//!   Disarm is always accepted and stops a motor test too. Arming starts from neutral sticks.
 //! - MANUAL_CONTROL is applied only while armed (ignored while disarmed) and forgotten on disarm: the orders
 //!   are the mixer's output for the last input ([`crate::mixer`]), with `LBV_GAIN`.
-//! - Motor test (MAV_CMD_DO_MOTOR_TEST, 209): thruster 1..=`thrusters` (else DENIED), only while disarmed
-//!   (else TEMPORARILY_REJECTED). The percentage is clamped to +-`LBV_MTEST_MAX`; the test runs for its duration
-//!   (at most 10 s) and stops at exactly its end. One thruster at a time: a new test replaces the running one;
-//!   a test of 0 % or of zero duration stops it.
+//! - Motor test (MAV_CMD_DO_MOTOR_TEST, 209): thruster 1..=`thrusters` (else DENIED), only while disarmed with a
+//!   live heartbeat (else TEMPORARILY_REJECTED). The percentage is clamped to +-`LBV_MTEST_MAX`; the test runs for
+//!   its duration (at most 10 s) and stops at exactly its end. One thruster at a time: a new test replaces the
+//!   running one; a test of 0 % or of zero duration stops it.
+//! - Reboot (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, param1 = 1): only while disarmed (else TEMPORARILY_REJECTED);
+//!   ACCEPTED, then [`Outgoing::Reboot`]: the master restarts once the acknowledgement is out.
 //! - Orders: disarmed, every order is [`Order::STOP`] except the motor test's thruster. Orders that drive
 //!   (armed, or the motor test) carry INFO = `LBV_POWER_CAP`. Slots beyond `thrusters` are always STOP.
 //! - Thruster reports do not change the orders: a thruster that is offline or has stopped on a fault still
 //!   gets its order (the thruster decides), and the others keep working. Faults are reported elsewhere.
-//! - Parameters: see [`Param`]. PARAM_REQUEST_LIST answers every PARAM_VALUE in index order;
+//! - Parameters ([`crate::params`]): PARAM_REQUEST_LIST answers every PARAM_VALUE in index order;
 //!   PARAM_REQUEST_READ the one asked (by index, or by name when the index is -1; unknown -> no answer);
 //!   PARAM_SET of a known name applies a valid value and answers PARAM_VALUE; an invalid one (out of range, not
-//!   a number, `LBV_FRAME` while armed) is rejected with a Warning text and a PARAM_VALUE of the unchanged
-//!   value, as ArduPilot does. An unknown name gets no answer.
+//!   a number, `LBV_FRAME` or `SYSID_MYGCS` while armed) is rejected with a Warning text and a PARAM_VALUE of the
+//!   unchanged value, as ArduPilot does. An unknown name gets no answer. What is set is kept across power cycles
+//!   ([`crate::settings`]).
+//! - SETUP_SIGNING (only while disarmed): sets the signing key, or turns signing off with an all-zero key.
 //! - Any other COMMAND_LONG: COMMAND_ACK UNSUPPORTED.
-//! - Answer order: texts of what time did before the command (failsafe, end of a motor test), then the
-//!   COMMAND_ACK, then the command's own texts.
+//! - Answer order: texts of what time did before the request (failsafe, end of a motor test), then the
+//!   COMMAND_ACK, then the request's own texts.
 
 use core::fmt;
 
@@ -38,14 +50,18 @@ use embassy_time::{Duration, Instant, Ticker, with_deadline};
 use tmc_proto::{Order, Speed};
 
 use crate::mixer::{FrameKind, mix, round_div};
+use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
-    AckResult, Command, MAX_THRUSTERS, ManualInput, Outgoing, ParamId, Severity, Shared, VehicleState, text,
+    AckResult, Command, MAX_THRUSTERS, ManualInput, Outgoing, Request, Sender, Severity, Shared, VehicleState, text,
 };
+use crate::signing::SigningKey;
 
 /// MAV_CMD_COMPONENT_ARM_DISARM.
 pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
 /// MAV_CMD_DO_MOTOR_TEST.
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
+/// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
+pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
 /// Longest motor test.
 pub const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);
 
@@ -57,195 +73,32 @@ pub const NEUTRAL: ManualInput = ManualInput {
     r: 0,
 };
 
-/// The MAVLink parameters, in index order.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Param {
-    /// `LBV_CONSOLE_TO`: console timeout in ms, 100..=10000 (default 1000).
-    ConsoleTimeout,
-    /// `LBV_GAIN`: pilot gain in %, 1..=100 (default 50, ArduSub's JS_GAIN_DEFAULT).
-    Gain,
-    /// `LBV_POWER_CAP`: the orders' INFO byte, output power cap in %, 1..=100 (default 100: no cap).
-    PowerCap,
-    /// `LBV_FRAME`: 4 (LBV200-4) or 6 (LBV300-6); changed only while disarmed.
-    Frame,
-    /// `LBV_MTEST_MAX`: largest motor test throttle in %, 1..=100 (default 30: thrusters tested in air).
-    MotorTestMax,
-}
-
-/// How many parameters there are.
-pub const PARAM_COUNT: usize = 5;
-
-impl Param {
-    /// Every parameter, in index order.
-    pub const ALL: [Param; PARAM_COUNT] = [
-        Self::ConsoleTimeout,
-        Self::Gain,
-        Self::PowerCap,
-        Self::Frame,
-        Self::MotorTestMax,
-    ];
-
-    /// The MAVLink name (at most 16 characters).
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::ConsoleTimeout => "LBV_CONSOLE_TO",
-            Self::Gain => "LBV_GAIN",
-            Self::PowerCap => "LBV_POWER_CAP",
-            Self::Frame => "LBV_FRAME",
-            Self::MotorTestMax => "LBV_MTEST_MAX",
-        }
-    }
-
-    /// Smallest and largest value (`LBV_FRAME` takes only the two ends).
-    pub const fn range(self) -> (i32, i32) {
-        match self {
-            Self::ConsoleTimeout => (100, 10_000),
-            Self::Gain | Self::PowerCap | Self::MotorTestMax => (1, 100),
-            Self::Frame => (4, 6),
-        }
-    }
-
-    /// The index in PARAM_VALUE.
-    pub const fn index(self) -> u16 {
-        self as u16
-    }
-
-    /// The parameter at an index.
-    pub fn from_index(index: u16) -> Option<Param> {
-        Self::ALL.into_iter().find(|param| param.index() == index)
-    }
-
-    /// The parameter of a NUL-padded MAVLink name (exact, case-sensitive, as ArduPilot matches).
-    pub fn from_id(id: &ParamId) -> Option<Param> {
-        let len = id.iter().position(|byte| *byte == 0).unwrap_or(id.len());
-        let name = id.get(..len)?;
-        Self::ALL.into_iter().find(|param| param.name().as_bytes() == name)
-    }
-
-    /// The NUL-padded MAVLink name.
-    pub fn id(self) -> ParamId {
-        let mut id = [0; 16];
-        for (slot, byte) in id.iter_mut().zip(self.name().bytes()) {
-            *slot = byte;
-        }
-        id
-    }
-
-    /// Whether `value` is a valid setting.
-    pub const fn accepts(self, value: i32) -> bool {
-        let (min, max) = self.range();
-        match self {
-            Self::Frame => value == min || value == max,
-            _ => min <= value && value <= max,
-        }
-    }
-}
-
-/// The tunable settings, exposed as MAVLink parameters ([`Param`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Params {
-    /// `LBV_CONSOLE_TO`, ms.
-    pub console_timeout_ms: u16,
-    /// `LBV_GAIN`, %.
-    pub gain_percent: u8,
-    /// `LBV_POWER_CAP`, %.
-    pub power_cap_percent: u8,
-    /// `LBV_FRAME`.
-    pub frame: FrameKind,
-    /// `LBV_MTEST_MAX`, %.
-    pub motor_test_max_percent: u8,
-}
-
-impl Params {
-    /// The initial values from a configuration, each clamped into its parameter's range.
-    pub fn from_config(config: &VehicleConfig) -> Self {
-        let (min, max) = Param::ConsoleTimeout.range();
-        let timeout = config.console_timeout.as_millis().clamp(min as u64, max as u64);
-        Self {
-            console_timeout_ms: u16::try_from(timeout).unwrap_or(u16::MAX),
-            gain_percent: config.gain_percent.clamp(1, 100),
-            power_cap_percent: config.power_cap_percent.clamp(1, 100),
-            frame: config.frame,
-            motor_test_max_percent: config.motor_test_max_percent.clamp(1, 100),
-        }
-    }
-
-    /// A parameter's value.
-    pub fn get(&self, param: Param) -> i32 {
-        match param {
-            Param::ConsoleTimeout => i32::from(self.console_timeout_ms),
-            Param::Gain => i32::from(self.gain_percent),
-            Param::PowerCap => i32::from(self.power_cap_percent),
-            Param::Frame => self.frame.thrusters() as i32,
-            Param::MotorTestMax => i32::from(self.motor_test_max_percent),
-        }
-    }
-
-    /// Set a parameter; `false` (and nothing changed) if the value is not valid for it.
-    pub fn set(&mut self, param: Param, value: i32) -> bool {
-        if !param.accepts(value) {
-            return false;
-        }
-        // In range, so every conversion below succeeds.
-        match param {
-            Param::ConsoleTimeout => self.console_timeout_ms = u16::try_from(value).unwrap_or(self.console_timeout_ms),
-            Param::Gain => self.gain_percent = u8::try_from(value).unwrap_or(self.gain_percent),
-            Param::PowerCap => self.power_cap_percent = u8::try_from(value).unwrap_or(self.power_cap_percent),
-            Param::Frame => {
-                self.frame = u8::try_from(value)
-                    .ok()
-                    .and_then(FrameKind::from_thrusters)
-                    .unwrap_or(self.frame);
-            }
-            Param::MotorTestMax => {
-                self.motor_test_max_percent = u8::try_from(value).unwrap_or(self.motor_test_max_percent);
-            }
-        }
-        true
-    }
-
-    /// The console timeout as a duration.
-    pub fn console_timeout(&self) -> Duration {
-        Duration::from_millis(u64::from(self.console_timeout_ms))
-    }
-}
-
-/// The vehicle's configuration at power-up: the frame, how many thrusters this master drives, and the initial
-/// parameter values.
+/// The vehicle's build-time configuration: the frame and how many thrusters this master drives.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct VehicleConfig {
-    /// Thruster layout (initial `LBV_FRAME`).
+    /// Thruster layout (the default `LBV_FRAME`).
     pub frame: FrameKind,
     /// Thrusters wired to this master, numbered 1..=thrusters (at most [`MAX_THRUSTERS`]); orders beyond are
     /// STOP and motor tests beyond are DENIED.
     pub thrusters: u8,
-    /// Initial `LBV_CONSOLE_TO` (default 1 s).
-    pub console_timeout: Duration,
-    /// Initial `LBV_GAIN`, %.
-    pub gain_percent: u8,
-    /// Initial `LBV_POWER_CAP`, %.
-    pub power_cap_percent: u8,
-    /// Initial `LBV_MTEST_MAX`, %.
-    pub motor_test_max_percent: u8,
 }
 
 impl VehicleConfig {
-    /// The defaults for the LBV300-6, all six thrusters wired.
+    /// The LBV300-6, all six thrusters wired.
     pub const DEFAULT: VehicleConfig = VehicleConfig::new(FrameKind::Lbv300_6);
 
-    /// The defaults for a frame, with all its thrusters wired.
+    /// A frame with all its thrusters wired.
     pub const fn new(frame: FrameKind) -> Self {
         Self {
             frame,
             thrusters: frame.thrusters() as u8,
-            console_timeout: Duration::from_secs(1),
-            gain_percent: 50,
-            power_cap_percent: 100,
-            motor_test_max_percent: 30,
         }
+    }
+
+    /// The settings of a master that has none stored: default parameters for this frame, signing off.
+    pub fn defaults(&self) -> Settings {
+        Settings::defaults(self.frame)
     }
 }
 
@@ -266,67 +119,51 @@ struct MotorTest {
     until: Instant,
 }
 
-/// Arming, console failsafe, motor test, parameters -> orders. Pure state machine with explicit time.
+/// Arming, failsafes, operator, motor test, settings -> orders. Pure state machine with explicit time.
 #[derive(Debug, Clone)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Vehicle {
     thrusters: u8,
-    params: Params,
+    settings: Settings,
     armed: bool,
-    /// A command has come since power-up.
-    heard: bool,
-    /// When the last command came (power-up until one does).
-    last_life: Instant,
+    /// When the operator's last heartbeat came.
+    heartbeat: Option<Instant>,
+    /// The ground-station failsafe has acted for the present silence.
+    gcs_lost: bool,
+    /// When the operator's last MANUAL_CONTROL came, since arming and since the pilot-input failsafe last acted.
+    pilot_input: Option<Instant>,
     input: ManualInput,
     motor_test: Option<MotorTest>,
+    refused: u32,
 }
 
 impl Vehicle {
-    /// Disarmed, console not heard yet, parameters from `config`; `now` is power-up.
-    pub fn new(config: VehicleConfig, now: Instant) -> Self {
+    /// Disarmed, no ground station heard yet, with `settings` (clamped to what `config` wires).
+    pub fn new(config: VehicleConfig, settings: Settings) -> Self {
         Self {
             thrusters: config.thrusters.min(MAX_THRUSTERS as u8),
-            params: Params::from_config(&config),
+            settings,
             armed: false,
-            heard: false,
-            last_life: now,
+            heartbeat: None,
+            gcs_lost: false,
+            pilot_input: None,
             input: NEUTRAL,
             motor_test: None,
+            refused: 0,
         }
     }
 
-    /// The current parameters.
-    pub fn params(&self) -> &Params {
-        &self.params
+    /// The settings in force.
+    pub fn settings(&self) -> &Settings {
+        &self.settings
     }
 
-    /// Apply one console command at `now`; `out` receives the answers (COMMAND_ACK, PARAM_VALUEs, texts).
-    pub fn on_command(&mut self, now: Instant, command: Command, out: &mut impl FnMut(Outgoing)) {
+    /// Apply one console request at `now`; `out` receives the answers (COMMAND_ACK, PARAM_VALUEs, texts).
+    pub fn on_request(&mut self, now: Instant, request: Request, out: &mut impl FnMut(Outgoing)) {
         self.update(now, out);
-        self.heard = true;
-        self.last_life = now;
+        let Request { from, command } = request;
+        let operator = from.system == self.settings.params.operator();
         match command {
-            Command::Heartbeat => {}
-            Command::Manual(input) => {
-                if self.armed {
-                    self.input = input;
-                }
-            }
-            Command::Arm(true) => self.arm(out),
-            Command::Arm(false) => {
-                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted);
-                self.stop_motor_test(out);
-                if self.armed {
-                    self.disarm();
-                    say(out, Severity::Info, format_args!("Disarmed"));
-                }
-            }
-            Command::MotorTest {
-                motor,
-                percent,
-                duration,
-            } => self.motor_test(now, motor, percent, duration, out),
-            Command::Unsupported { command } => ack(out, command, AckResult::Unsupported),
             Command::ParamRequestList => {
                 for param in Param::ALL {
                     self.param_value(param, out);
@@ -341,22 +178,76 @@ impl Vehicle {
                     self.param_value(param, out);
                 }
             }
+            // Another ground station's heartbeat is no sign of the pilot.
+            Command::Heartbeat if !operator => {}
+            Command::Heartbeat => {
+                self.heartbeat = Some(now);
+                if core::mem::take(&mut self.gcs_lost) {
+                    say(out, Severity::Info, format_args!("Ground station back"));
+                }
+            }
+            _ if !operator => {
+                self.refused = self.refused.wrapping_add(1);
+                if let Some(command) = command_long(&command) {
+                    ack(out, command, AckResult::Denied, from);
+                }
+            }
+            Command::Manual(input) => {
+                let held = self.gcs_lost && self.settings.params.gcs_failsafe() == GcsFailsafe::Neutral;
+                if self.armed && !held {
+                    self.input = input;
+                    self.pilot_input = Some(now);
+                }
+            }
+            Command::Arm(true) => self.arm(now, from, out),
+            Command::Arm(false) => {
+                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted, from);
+                self.stop_motor_test(out);
+                if self.armed {
+                    self.disarm();
+                    say(out, Severity::Info, format_args!("Disarmed"));
+                }
+            }
+            Command::MotorTest {
+                motor,
+                percent,
+                duration,
+            } => self.motor_test(now, from, motor, percent, duration, out),
+            Command::Reboot => {
+                if self.armed {
+                    ack(
+                        out,
+                        MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
+                        AckResult::TemporarilyRejected,
+                        from,
+                    );
+                    say(out, Severity::Warning, format_args!("Reboot rejected: disarm first"));
+                } else {
+                    self.stop_motor_test(out);
+                    ack(out, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, AckResult::Accepted, from);
+                    say(out, Severity::Info, format_args!("Rebooting"));
+                    out(Outgoing::Reboot);
+                }
+            }
+            Command::Unsupported { command } => ack(out, command, AckResult::Unsupported, from),
             Command::ParamSet { id, value } => {
                 if let Some(param) = Param::from_id(&id) {
                     self.param_set(param, value, out);
                 }
             }
+            Command::SetupSigning { key, timestamp } => self.setup_signing(key, timestamp, out),
         }
     }
 
-    /// The orders for every thruster at `now` (applying the failsafe and the end of a motor test first).
+    /// The orders for every thruster at `now` (applying the failsafes and the end of a motor test first).
     pub fn orders(&mut self, now: Instant, out: &mut impl FnMut(Outgoing)) -> [Order; MAX_THRUSTERS] {
         self.update(now, out);
-        let info = self.params.power_cap_percent;
+        let params = &self.settings.params;
+        let info = params.power_cap_percent();
         let mut orders = [Order::STOP; MAX_THRUSTERS];
         let wired = usize::from(self.thrusters);
         if self.armed {
-            let speeds = mix(self.params.frame, self.input, self.params.gain_percent);
+            let speeds = mix(params.frame(), self.input, params.gain_percent());
             for (order, speed) in orders.iter_mut().zip(speeds).take(wired) {
                 *order = Order { speed, info };
             }
@@ -375,31 +266,74 @@ impl Vehicle {
     pub fn state(&self, now: Instant) -> VehicleState {
         VehicleState {
             armed: self.armed,
-            console_alive: self.heard && !self.console_silent(now),
+            console_alive: self.heartbeat_live(now),
+            refused: self.refused,
         }
     }
 
-    fn console_silent(&self, now: Instant) -> bool {
-        now.saturating_duration_since(self.last_life) >= self.params.console_timeout()
+    fn heartbeat_live(&self, now: Instant) -> bool {
+        self.heartbeat
+            .is_some_and(|at| now.saturating_duration_since(at) < self.settings.params.gcs_timeout())
     }
 
-    /// What the passing of time does: the failsafe, the end of a motor test.
+    /// What the passing of time does: the failsafes, the end of a motor test.
     fn update(&mut self, now: Instant, out: &mut impl FnMut(Outgoing)) {
-        if self.console_silent(now) {
-            if self.armed {
-                self.disarm();
-                say(
-                    out,
-                    Severity::Critical,
-                    format_args!("Failsafe: console lost, disarmed"),
-                );
-            }
+        let params = self.settings.params;
+        if !self.heartbeat_live(now) {
             if let Some(test) = self.motor_test.take() {
                 say(
                     out,
                     Severity::Warning,
-                    format_args!("Motor test {} stopped: console lost", test.motor),
+                    format_args!("Motor test {} stopped: ground station lost", test.motor),
                 );
+            }
+            if self.armed && !self.gcs_lost {
+                self.gcs_lost = true;
+                match params.gcs_failsafe() {
+                    GcsFailsafe::Warn => say(out, Severity::Warning, format_args!("Failsafe: ground station lost")),
+                    GcsFailsafe::Neutral => {
+                        self.input = NEUTRAL;
+                        self.pilot_input = None;
+                        say(
+                            out,
+                            Severity::Critical,
+                            format_args!("Failsafe: ground station lost, neutral"),
+                        );
+                    }
+                    GcsFailsafe::Disarm => {
+                        self.disarm();
+                        say(
+                            out,
+                            Severity::Critical,
+                            format_args!("Failsafe: ground station lost, disarmed"),
+                        );
+                    }
+                }
+            }
+        }
+        let pilot_silent = self
+            .pilot_input
+            .is_some_and(|at| now.saturating_duration_since(at) >= params.pilot_timeout());
+        if self.armed && pilot_silent {
+            self.pilot_input = None;
+            match params.pilot_failsafe() {
+                PilotFailsafe::Off => {}
+                PilotFailsafe::Neutral => {
+                    self.input = NEUTRAL;
+                    say(
+                        out,
+                        Severity::Warning,
+                        format_args!("Failsafe: pilot input lost, neutral"),
+                    );
+                }
+                PilotFailsafe::Disarm => {
+                    self.disarm();
+                    say(
+                        out,
+                        Severity::Critical,
+                        format_args!("Failsafe: pilot input lost, disarmed"),
+                    );
+                }
             }
         }
         if let Some(test) = self.motor_test
@@ -410,9 +344,9 @@ impl Vehicle {
         }
     }
 
-    fn arm(&mut self, out: &mut impl FnMut(Outgoing)) {
+    fn arm(&mut self, now: Instant, from: Sender, out: &mut impl FnMut(Outgoing)) {
         if self.motor_test.is_some() {
-            ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected);
+            ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
             self.stop_motor_test(out);
             say(
                 out,
@@ -421,10 +355,21 @@ impl Vehicle {
             );
             return;
         }
-        ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted);
+        if !self.heartbeat_live(now) {
+            ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
+            say(
+                out,
+                Severity::Warning,
+                format_args!("Arm rejected: no ground station heartbeat"),
+            );
+            return;
+        }
+        ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted, from);
         if !self.armed {
             self.armed = true;
             self.input = NEUTRAL;
+            self.pilot_input = None;
+            self.gcs_lost = false;
             say(out, Severity::Info, format_args!("Armed"));
         }
     }
@@ -432,6 +377,7 @@ impl Vehicle {
     fn disarm(&mut self) {
         self.armed = false;
         self.input = NEUTRAL;
+        self.pilot_input = None;
     }
 
     fn stop_motor_test(&mut self, out: &mut impl FnMut(Outgoing)) {
@@ -440,21 +386,29 @@ impl Vehicle {
         }
     }
 
-    fn motor_test(&mut self, now: Instant, motor: u8, percent: i8, duration: Duration, out: &mut impl FnMut(Outgoing)) {
+    fn motor_test(
+        &mut self,
+        now: Instant,
+        from: Sender,
+        motor: u8,
+        percent: i8,
+        duration: Duration,
+        out: &mut impl FnMut(Outgoing),
+    ) {
         if motor == 0 || motor > self.thrusters {
-            ack(out, MAV_CMD_DO_MOTOR_TEST, AckResult::Denied);
+            ack(out, MAV_CMD_DO_MOTOR_TEST, AckResult::Denied, from);
             return;
         }
-        if self.armed {
-            ack(out, MAV_CMD_DO_MOTOR_TEST, AckResult::TemporarilyRejected);
+        if self.armed || !self.heartbeat_live(now) {
+            ack(out, MAV_CMD_DO_MOTOR_TEST, AckResult::TemporarilyRejected, from);
             return;
         }
-        ack(out, MAV_CMD_DO_MOTOR_TEST, AckResult::Accepted);
+        ack(out, MAV_CMD_DO_MOTOR_TEST, AckResult::Accepted, from);
         if percent == 0 || duration == Duration::from_ticks(0) {
             self.stop_motor_test(out);
             return;
         }
-        let max = i32::from(self.params.motor_test_max_percent);
+        let max = i32::from(self.settings.params.motor_test_max_percent());
         let percent = i32::from(percent).clamp(-max, max);
         let duration = duration.min(MOTOR_TEST_MAX_DURATION);
         self.motor_test = Some(MotorTest {
@@ -462,17 +416,19 @@ impl Vehicle {
             speed: Speed::new_saturating(round_div(percent * i32::from(Speed::MAX_STEP), 100)),
             until: now.saturating_add(duration),
         });
+        // At most MOTOR_TEST_MAX_DURATION: the milliseconds fit a u32 (whose formatting the image has already).
+        let ms = u32::try_from(duration.as_millis()).unwrap_or(u32::MAX);
         say(
             out,
             Severity::Info,
-            format_args!("Motor test {motor}: {percent} % for {} ms", duration.as_millis()),
+            format_args!("Motor test {motor}: {percent} % for {ms} ms"),
         );
     }
 
     fn param_value(&self, param: Param, out: &mut impl FnMut(Outgoing)) {
         out(Outgoing::ParamValue {
             id: param.id(),
-            value: self.params.get(param) as f32,
+            value: param.to_float(self.settings.params.get(param)),
             index: param.index(),
             count: PARAM_COUNT as u16,
         });
@@ -480,11 +436,12 @@ impl Vehicle {
 
     fn param_set(&mut self, param: Param, value: f32, out: &mut impl FnMut(Outgoing)) {
         let (min, max) = param.range();
-        match to_integer(value) {
-            Some(_) if param == Param::Frame && self.armed => {
+        let (min, max) = (param.shown(min), param.shown(max));
+        match param.from_float(value) {
+            Some(_) if param.only_disarmed() && self.armed => {
                 say(out, Severity::Warning, format_args!("{}: disarm first", param.name()));
             }
-            Some(value) if self.params.set(param, value) => {}
+            Some(value) if self.settings.params.set(param, value) => {}
             _ if param == Param::Frame => {
                 say(
                     out,
@@ -500,20 +457,40 @@ impl Vehicle {
         }
         self.param_value(param, out);
     }
-}
 
-/// The nearest integer to a parameter value (half away from zero), or `None` if it is not a number.
-fn to_integer(value: f32) -> Option<i32> {
-    if !value.is_finite() {
-        return None;
+    fn setup_signing(&mut self, secret: [u8; 32], timestamp: u64, out: &mut impl FnMut(Outgoing)) {
+        if self.armed {
+            say(out, Severity::Warning, format_args!("Signing: disarm first"));
+            return;
+        }
+        if secret == [0; 32] {
+            self.settings.signing = None;
+            say(out, Severity::Info, format_args!("Signing off"));
+        } else {
+            self.settings.signing = Some(SigningKey { secret, timestamp });
+            say(out, Severity::Info, format_args!("Signing on"));
+        }
     }
-    let rounded = if value >= 0.0 { value + 0.5 } else { value - 0.5 };
-    // Saturating conversion; out-of-range values stay out of range.
-    Some(rounded as i32)
 }
 
-fn ack(out: &mut impl FnMut(Outgoing), command: u16, result: AckResult) {
-    out(Outgoing::CommandAck { command, result });
+/// The MAV_CMD of a request that came as a COMMAND_LONG (and so is answered with a COMMAND_ACK).
+fn command_long(command: &Command) -> Option<u16> {
+    match command {
+        Command::Arm(_) => Some(MAV_CMD_COMPONENT_ARM_DISARM),
+        Command::MotorTest { .. } => Some(MAV_CMD_DO_MOTOR_TEST),
+        Command::Reboot => Some(MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN),
+        Command::Unsupported { command } => Some(*command),
+        Command::Heartbeat
+        | Command::Manual(_)
+        | Command::ParamRequestList
+        | Command::ParamRequestRead { .. }
+        | Command::ParamSet { .. }
+        | Command::SetupSigning { .. } => None,
+    }
+}
+
+fn ack(out: &mut impl FnMut(Outgoing), command: u16, result: AckResult, to: Sender) {
+    out(Outgoing::CommandAck { command, result, to });
 }
 
 fn say(out: &mut impl FnMut(Outgoing), severity: Severity, args: fmt::Arguments<'_>) {
@@ -523,20 +500,24 @@ fn say(out: &mut impl FnMut(Outgoing), severity: Severity, args: fmt::Arguments<
 /// The vehicle task's period: 50 Hz.
 pub const TICK: Duration = Duration::from_millis(20);
 
-/// Most answers one command and one evaluation can give (a parameter list plus a few texts).
+/// Most answers one request and one evaluation can give (a parameter list plus a few texts).
 const MAX_REPLIES: usize = PARAM_COUNT + 6;
 
-/// Receive commands (`shared.commands`) and evaluate at 50 Hz; publish the orders (`shared.orders`) and the
-/// state (`shared.vehicle`) after every command and every tick; queue the answers in `shared.outbox`, waiting
-/// at most one tick for room (a console that does not drain it must not stall the failsafe).
-pub async fn vehicle_task(config: VehicleConfig, shared: &Shared) -> ! {
-    let mut vehicle = Vehicle::new(config, Instant::now());
+/// Receive requests (`shared.commands`) and evaluate at 50 Hz; publish the orders (`shared.orders`), the state
+/// (`shared.vehicle`) and, when they change, the settings (`shared.settings`) after every request and every
+/// tick; queue the answers in `shared.outbox`, waiting at most one tick for room (a console that does not drain
+/// it must not stall the failsafes). `settings` are those stored (or the defaults).
+pub async fn vehicle_task(config: VehicleConfig, settings: Settings, shared: &Shared) -> ! {
+    let mut vehicle = Vehicle::new(config, settings);
     let orders = shared.orders.sender();
     let state = shared.vehicle.sender();
+    let published = shared.settings.sender();
+    let mut settings = *vehicle.settings();
+    published.send(settings);
     let mut ticker = Ticker::every(TICK);
     loop {
-        let command = match select(shared.commands.receive(), ticker.next()).await {
-            Either::First(command) => Some(command),
+        let request = match select(shared.commands.receive(), ticker.next()).await {
+            Either::First(request) => Some(request),
             Either::Second(()) => None,
         };
         let now = Instant::now();
@@ -545,11 +526,15 @@ pub async fn vehicle_task(config: VehicleConfig, shared: &Shared) -> ! {
             // Bounded by construction (MAX_REPLIES); a reply beyond it would be dropped, not panic.
             let _ = replies.push(reply);
         };
-        if let Some(command) = command {
-            vehicle.on_command(now, command, &mut push);
+        if let Some(request) = request {
+            vehicle.on_request(now, request, &mut push);
         }
         orders.send(vehicle.orders(now, &mut push));
         state.send(vehicle.state(now));
+        if *vehicle.settings() != settings {
+            settings = *vehicle.settings();
+            published.send(settings);
+        }
         let deadline = now.saturating_add(TICK);
         for reply in replies {
             if with_deadline(deadline, shared.outbox.send(reply)).await.is_err() {
@@ -563,6 +548,8 @@ pub async fn vehicle_task(config: VehicleConfig, shared: &Shared) -> ! {
 mod tests {
     use super::*;
     use crate::battery::tests::elapse;
+    use crate::params::Params;
+    use crate::shared::ParamId;
     use embassy_futures::block_on;
 
     fn t(ms: u64) -> Instant {
@@ -575,6 +562,20 @@ mod tests {
         id
     }
 
+    /// The operator's ground station (QGroundControl's ids) and two others.
+    const GCS: Sender = Sender {
+        system: 255,
+        component: 190,
+    };
+    const OTHER: Sender = Sender {
+        system: 42,
+        component: 1,
+    };
+    const COMPANION: Sender = Sender {
+        system: 2,
+        component: 191,
+    };
+
     /// A vehicle and what it said.
     struct Bench {
         vehicle: Vehicle,
@@ -583,23 +584,42 @@ mod tests {
 
     impl Bench {
         fn new(config: VehicleConfig) -> Self {
+            Self::with(config, |_| {})
+        }
+
+        /// With parameters changed from the defaults.
+        fn with(config: VehicleConfig, change: impl FnOnce(&mut Params)) -> Self {
+            let mut settings = config.defaults();
+            change(&mut settings.params);
             Self {
-                vehicle: Vehicle::new(config, t(0)),
+                vehicle: Vehicle::new(config, settings),
                 said: Vec::new(),
             }
         }
 
-        /// Apply a command; returns what it answered.
+        /// Apply a request from the operator; returns what it answered.
         fn command(&mut self, ms: u64, command: Command) -> Vec<Outgoing> {
+            self.command_from(ms, GCS, command)
+        }
+
+        fn command_from(&mut self, ms: u64, from: Sender, command: Command) -> Vec<Outgoing> {
             let mut said = Vec::new();
-            self.vehicle.on_command(t(ms), command, &mut |o| said.push(o));
+            self.vehicle
+                .on_request(t(ms), Request { from, command }, &mut |o| said.push(o));
             self.said.extend(said.iter().cloned());
             said
+        }
+
+        /// The operator's heartbeat, then arm.
+        fn arm(&mut self, ms: u64) -> Vec<Outgoing> {
+            self.command(ms, Command::Heartbeat);
+            self.command(ms, Command::Arm(true))
         }
 
         fn orders(&mut self, ms: u64) -> ([Order; MAX_THRUSTERS], Vec<Outgoing>) {
             let mut said = Vec::new();
             let orders = self.vehicle.orders(t(ms), &mut |o| said.push(o));
+            self.said.extend(said.iter().cloned());
             (orders, said)
         }
 
@@ -610,10 +630,18 @@ mod tests {
         fn armed(&self, ms: u64) -> bool {
             self.vehicle.state(t(ms)).armed
         }
+
+        fn params(&self) -> &Params {
+            &self.vehicle.settings().params
+        }
     }
 
     fn ack(command: u16, result: AckResult) -> Outgoing {
-        Outgoing::CommandAck { command, result }
+        ack_to(command, result, GCS)
+    }
+
+    fn ack_to(command: u16, result: AckResult, to: Sender) -> Outgoing {
+        Outgoing::CommandAck { command, result, to }
     }
 
     fn text(severity: Severity, text: &str) -> Outgoing {
@@ -625,13 +653,19 @@ mod tests {
             id: param.id(),
             value,
             index: param.index(),
-            count: 5,
+            count: PARAM_COUNT as u16,
         }
+    }
+
+    fn set(name: &str, value: f32) -> Command {
+        Command::ParamSet { id: id(name), value }
     }
 
     const ARM: u16 = MAV_CMD_COMPONENT_ARM_DISARM;
     const TEST: u16 = MAV_CMD_DO_MOTOR_TEST;
+    const REBOOT: u16 = MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN;
     const STOP: [Order; MAX_THRUSTERS] = [Order::STOP; MAX_THRUSTERS];
+    const GCS_LOST_DISARMED: &str = "Failsafe: ground station lost, disarmed";
 
     fn manual(x: i16, y: i16, z: i16, r: i16) -> Command {
         Command::Manual(ManualInput { x, y, z, r })
@@ -645,14 +679,22 @@ mod tests {
         }
     }
 
+    /// Failsafe texts said so far.
+    fn failsafes(said: &[Outgoing]) -> Vec<&Outgoing> {
+        said.iter()
+            .filter(|o| matches!(o, Outgoing::Text(_, text) if text.starts_with("Failsafe")))
+            .collect()
+    }
+
     #[test]
-    fn starts_disarmed_with_the_console_unheard() {
+    fn starts_disarmed_with_no_ground_station() {
         let mut bench = Bench::new(VehicleConfig::default());
         assert_eq!(
             bench.vehicle.state(t(0)),
             VehicleState {
                 armed: false,
-                console_alive: false
+                console_alive: false,
+                refused: 0
             }
         );
         assert_eq!(bench.orders(0), (STOP, vec![]));
@@ -660,73 +702,417 @@ mod tests {
     }
 
     #[test]
-    fn arming_and_disarming() {
+    fn arming_needs_the_operators_heartbeat() {
         let mut bench = Bench::new(VehicleConfig::default());
         assert_eq!(
             bench.command(10, Command::Arm(true)),
+            [
+                ack(ARM, AckResult::TemporarilyRejected),
+                text(Severity::Warning, "Arm rejected: no ground station heartbeat")
+            ]
+        );
+        assert_eq!(
+            bench.arm(20),
             [ack(ARM, AckResult::Accepted), text(Severity::Info, "Armed")]
         );
         assert_eq!(
-            bench.vehicle.state(t(10)),
+            bench.vehicle.state(t(20)),
             VehicleState {
                 armed: true,
-                console_alive: true
+                console_alive: true,
+                refused: 0
             }
         );
         // Arming again is accepted and says nothing.
-        assert_eq!(bench.command(20, Command::Arm(true)), [ack(ARM, AckResult::Accepted)]);
+        assert_eq!(bench.command(30, Command::Arm(true)), [ack(ARM, AckResult::Accepted)]);
         assert_eq!(
-            bench.command(30, Command::Arm(false)),
+            bench.command(40, Command::Arm(false)),
             [ack(ARM, AckResult::Accepted), text(Severity::Info, "Disarmed")]
         );
-        assert!(!bench.armed(30));
-        assert_eq!(bench.command(40, Command::Arm(false)), [ack(ARM, AckResult::Accepted)]);
+        assert!(!bench.armed(40));
+        assert_eq!(bench.command(50, Command::Arm(false)), [ack(ARM, AckResult::Accepted)]);
+        // A heartbeat older than FS_GCS_TIMEOUT does not do.
+        assert_eq!(
+            bench.command(5_020, Command::Arm(true))[0],
+            ack(ARM, AckResult::TemporarilyRejected)
+        );
     }
 
     #[test]
-    fn console_failsafe_at_exactly_the_timeout() {
+    fn ground_station_failsafe_disarms_at_exactly_the_timeout() {
         let mut bench = Bench::new(VehicleConfig::default());
-        bench.command(0, Command::Arm(true));
+        bench.arm(0);
         bench.command(500, manual(1000, 0, 500, 0));
-        // Any command is console life.
         bench.command(1000, Command::Heartbeat);
-        let (orders, said) = bench.orders(1999);
-        assert!(bench.armed(1999));
-        assert!(bench.vehicle.state(t(1999)).console_alive);
+        // Sticks keep coming; only the heartbeat counts for this failsafe.
+        for ms in (600..6000).step_by(100) {
+            bench.command(ms, manual(1000, 0, 500, 0));
+        }
+        let (orders, said) = bench.orders(5999);
+        assert!(bench.armed(5999));
+        assert!(bench.vehicle.state(t(5999)).console_alive);
         assert_eq!(orders[0].speed.step(), 51);
         assert!(said.is_empty());
-        let (orders, said) = bench.orders(2000);
+        let (orders, said) = bench.orders(6000);
         assert_eq!(orders, STOP);
-        assert_eq!(said, [text(Severity::Critical, "Failsafe: console lost, disarmed")]);
+        assert_eq!(said, [text(Severity::Critical, GCS_LOST_DISARMED)]);
         assert_eq!(
-            bench.vehicle.state(t(2000)),
+            bench.vehicle.state(t(6000)),
             VehicleState {
                 armed: false,
-                console_alive: false
+                console_alive: false,
+                refused: 0
             }
         );
         // Once.
-        assert_eq!(bench.orders(2020), (STOP, vec![]));
-        // The console comes back: still disarmed, the last input forgotten.
-        bench.command(3000, Command::Heartbeat);
-        assert!(bench.vehicle.state(t(3000)).console_alive);
-        bench.command(3000, Command::Arm(true));
-        assert_eq!(bench.steps(3001), [0; MAX_THRUSTERS]);
+        assert_eq!(bench.orders(6020), (STOP, vec![]));
+        // The ground station comes back: still disarmed, the last input forgotten.
+        assert_eq!(
+            bench.command(7000, Command::Heartbeat),
+            [text(Severity::Info, "Ground station back")]
+        );
+        assert!(bench.vehicle.state(t(7000)).console_alive);
+        bench.command(7000, Command::Arm(true));
+        assert_eq!(bench.steps(7001), [0; MAX_THRUSTERS]);
     }
 
     #[test]
-    fn a_late_command_lets_the_failsafe_act_first() {
+    fn a_late_request_lets_the_failsafe_act_first() {
         let mut bench = Bench::new(VehicleConfig::default());
-        bench.command(0, Command::Arm(true));
+        bench.arm(0);
         // Nobody asked for orders in between; the stick input after the silence is ignored.
-        let said = bench.command(1000, manual(1000, 0, 500, 0));
-        assert_eq!(said, [text(Severity::Critical, "Failsafe: console lost, disarmed")]);
-        assert_eq!(bench.orders(1000), (STOP, vec![]));
+        let said = bench.command(5000, manual(1000, 0, 500, 0));
+        assert_eq!(said, [text(Severity::Critical, GCS_LOST_DISARMED)]);
+        assert_eq!(bench.orders(5000), (STOP, vec![]));
+    }
+
+    #[test]
+    fn ground_station_failsafe_warn_only() {
+        let mut bench = Bench::with(VehicleConfig::default(), |p| {
+            p.set(Param::GcsFailsafe, 1);
+        });
+        bench.arm(0);
+        bench.command(100, manual(1000, 0, 500, 0));
+        for ms in (200..9000).step_by(100) {
+            bench.command(ms, manual(1000, 0, 500, 0));
+        }
+        assert_eq!(
+            failsafes(&bench.said),
+            [&text(Severity::Warning, "Failsafe: ground station lost")],
+            "once"
+        );
+        assert!(bench.armed(9000));
+        assert_eq!(bench.steps(9000)[0], 51, "still driving");
+        assert_eq!(
+            bench.command(9500, Command::Heartbeat),
+            [text(Severity::Info, "Ground station back")]
+        );
+    }
+
+    #[test]
+    fn ground_station_failsafe_neutral_holds_the_sticks_until_it_is_back() {
+        let mut bench = Bench::with(VehicleConfig::default(), |p| {
+            p.set(Param::GcsFailsafe, 3);
+        });
+        bench.arm(0);
+        bench.command(100, manual(1000, 0, 500, 0));
+        assert_eq!(bench.steps(100)[0], 51);
+        let (_, said) = bench.orders(5000);
+        assert_eq!(
+            said,
+            [text(Severity::Critical, "Failsafe: ground station lost, neutral")]
+        );
+        assert!(bench.armed(5000));
+        assert_eq!(bench.steps(5000), [0; MAX_THRUSTERS]);
+        // Sticks from the operator without heartbeats: still held.
+        bench.command(5100, manual(1000, 0, 500, 0));
+        assert_eq!(bench.steps(5100), [0; MAX_THRUSTERS]);
+        // The heartbeats return: the sticks count again.
+        assert_eq!(
+            bench.command(6000, Command::Heartbeat),
+            [text(Severity::Info, "Ground station back")]
+        );
+        bench.command(6100, manual(1000, 0, 500, 0));
+        assert_eq!(bench.steps(6100)[0], 51);
+    }
+
+    /// A 1 Hz stream with jitter and lost frames: the times it arrives at, over `seconds`.
+    fn one_hertz(seconds: u64, jitter_ms: u64, lose_every: u64, seed: u64) -> Vec<u64> {
+        let mut state = seed | 1;
+        (0..seconds)
+            .filter(|n| (n + 1) % lose_every != 0)
+            .map(|n| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                n * 1000 + state % (jitter_ms + 1)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn one_hertz_heartbeats_and_sticks_with_one_lost_never_trip_either_failsafe() {
+        for (jitter, lose_every) in [(0, 2), (500, 2), (300, 3), (0, 1000)] {
+            let mut bench = Bench::new(VehicleConfig::default());
+            bench.arm(0);
+            bench.command(0, manual(500, 0, 500, 0));
+            // Ten minutes of heartbeats and sticks, each at 1 Hz: every `lose_every`-th one lost (2: every other
+            // one, so 2 s apart), late by up to `jitter`.
+            let mut events: Vec<(u64, Command)> = one_hertz(600, jitter, lose_every, 7)
+                .into_iter()
+                .map(|ms| (ms, Command::Heartbeat))
+                .chain(
+                    one_hertz(600, jitter, lose_every, 11)
+                        .into_iter()
+                        .map(|ms| (ms, manual(500, 0, 500, 0))),
+                )
+                .collect();
+            events.sort_by_key(|(ms, _)| *ms);
+            let mut events = events.into_iter().peekable();
+            // Orders at 50 Hz, as the task asks.
+            for ms in (0..600_000).step_by(20) {
+                while let Some((at, command)) = events.next_if(|(at, _)| *at <= ms) {
+                    bench.command(at, command);
+                }
+                assert!(
+                    bench.armed(ms),
+                    "disarmed at {ms} ms (jitter {jitter}, 1 in {lose_every} lost)"
+                );
+                assert_eq!(bench.orders(ms).0[0].speed.step(), 26, "{ms} ms");
+            }
+            assert!(failsafes(&bench.said).is_empty(), "{:?}", failsafes(&bench.said));
+        }
+    }
+
+    #[test]
+    fn heartbeats_alone_hold_the_vehicle_armed() {
+        // MAVProxy without a joystick: heartbeats at 1 Hz, no MANUAL_CONTROL. The pilot-input failsafe watches a
+        // stream that never started, so it stays quiet, and the thrusters stay neutral.
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.arm(0);
+        for ms in (0..60_000).step_by(20) {
+            if ms % 1000 == 0 {
+                bench.command(ms, Command::Heartbeat);
+            }
+            let (orders, _) = bench.orders(ms);
+            let neutral = Order {
+                speed: Speed::ZERO,
+                info: 100,
+            };
+            assert!(orders[..6].iter().all(|o| *o == neutral), "{ms} ms: {orders:?}");
+        }
+        assert!(bench.armed(60_000));
+        assert!(failsafes(&bench.said).is_empty());
+    }
+
+    #[test]
+    fn pilot_input_failsafe_neutral_then_the_sticks_take_over_again() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.arm(0);
+        for ms in (100..=4000).step_by(100) {
+            if ms % 1000 == 0 {
+                bench.command(ms, Command::Heartbeat);
+            }
+            if ms <= 2000 {
+                bench.command(ms, manual(1000, 0, 500, 0));
+            }
+        }
+        // The last stick frame at 2000: at 4999 still driving, at 5000 neutral, still armed.
+        assert_eq!(bench.steps(4999)[0], 51);
+        let (orders, said) = bench.orders(5000);
+        assert!(orders.iter().all(|o| o.speed.is_zero()));
+        assert_eq!(said, [text(Severity::Warning, "Failsafe: pilot input lost, neutral")]);
+        assert!(bench.armed(5000));
+        for ms in (5000..=8000).step_by(1000) {
+            bench.command(ms, Command::Heartbeat);
+        }
+        assert_eq!(bench.orders(8000).1, [], "once");
+        // The sticks come back.
+        bench.command(8000, manual(-1000, 0, 500, 0));
+        assert_eq!(bench.steps(8000)[0], -51);
+    }
+
+    #[test]
+    fn pilot_input_failsafe_disarm_or_off() {
+        let mut bench = Bench::with(VehicleConfig::default(), |p| {
+            p.set(Param::PilotFailsafe, 2);
+            p.set(Param::PilotTimeout, 10);
+        });
+        bench.arm(0);
+        bench.command(100, manual(1000, 0, 500, 0));
+        bench.command(1000, Command::Heartbeat);
+        assert!(bench.orders(1099).1.is_empty());
+        assert_eq!(
+            bench.orders(1100),
+            (
+                STOP,
+                vec![text(Severity::Critical, "Failsafe: pilot input lost, disarmed")]
+            )
+        );
+        assert!(!bench.armed(1100));
+
+        let mut bench = Bench::with(VehicleConfig::default(), |p| {
+            p.set(Param::PilotFailsafe, 0);
+        });
+        bench.arm(0);
+        bench.command(100, manual(1000, 0, 500, 0));
+        for ms in (1000..20_000).step_by(1000) {
+            bench.command(ms, Command::Heartbeat);
+        }
+        assert_eq!(bench.steps(20_000)[0], 51, "off: the last input holds");
+        assert!(failsafes(&bench.said).is_empty());
+    }
+
+    #[test]
+    fn only_the_operator_may_arm_steer_set_and_keep_the_failsafe_alive() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        // Another system arms, with its own heartbeats: denied, to it, and counted.
+        bench.command_from(0, OTHER, Command::Heartbeat);
+        assert_eq!(
+            bench.command_from(0, OTHER, Command::Arm(true)),
+            [ack_to(ARM, AckResult::Denied, OTHER)]
+        );
+        assert!(!bench.armed(0));
+        assert!(
+            !bench.vehicle.state(t(0)).console_alive,
+            "its heartbeat is not the operator's"
+        );
+        // Every command of another system is denied, whatever it asks.
+        for command in [
+            Command::Arm(false),
+            motor_test(1, 10, 1000),
+            Command::Reboot,
+            Command::Unsupported { command: 31010 },
+        ] {
+            let said = bench.command_from(0, OTHER, command);
+            assert!(matches!(
+                said.as_slice(),
+                [Outgoing::CommandAck {
+                    result: AckResult::Denied,
+                    to: OTHER,
+                    ..
+                }]
+            ));
+        }
+        // Parameter sets and the signing key: ignored (no answer in MAVLink), counted.
+        assert_eq!(bench.command_from(0, OTHER, set("LBV_GAIN", 90.0)), []);
+        assert_eq!(bench.params().gain_percent(), 50);
+        assert_eq!(
+            bench.command_from(
+                0,
+                OTHER,
+                Command::SetupSigning {
+                    key: [1; 32],
+                    timestamp: 0
+                }
+            ),
+            []
+        );
+        assert_eq!(bench.vehicle.settings().signing, None);
+        assert_eq!(bench.vehicle.state(t(0)).refused, 7);
+        // Reading the parameters is anyone's.
+        assert_eq!(
+            bench.command_from(
+                0,
+                OTHER,
+                Command::ParamRequestRead {
+                    id: id("LBV_GAIN"),
+                    index: -1
+                }
+            ),
+            [value(Param::Gain, 50.0)]
+        );
+
+        // The operator arms; another system's sticks are ignored and counted.
+        bench.arm(100);
+        bench.command_from(200, OTHER, manual(1000, 0, 500, 0));
+        assert_eq!(bench.steps(200), [0; MAX_THRUSTERS]);
+        assert_eq!(bench.vehicle.state(t(200)).refused, 8);
+        // A companion computer keeps reading parameters and beating while the operator is silent: the failsafe
+        // still acts.
+        for ms in (200..5100).step_by(100) {
+            bench.command_from(ms, COMPANION, Command::ParamRequestRead { id: id(""), index: 1 });
+            bench.command_from(ms, COMPANION, Command::Heartbeat);
+        }
+        bench.orders(5100);
+        assert!(!bench.armed(5100));
+        assert_eq!(failsafes(&bench.said), [&text(Severity::Critical, GCS_LOST_DISARMED)]);
+    }
+
+    #[test]
+    fn the_operator_is_a_parameter_changed_only_while_disarmed() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.arm(0);
+        assert_eq!(
+            bench.command(0, set("SYSID_MYGCS", 42.0)),
+            [
+                text(Severity::Warning, "SYSID_MYGCS: disarm first"),
+                value(Param::OperatorId, 255.0)
+            ]
+        );
+        bench.command(0, Command::Arm(false));
+        assert_eq!(
+            bench.command(0, set("SYSID_MYGCS", 42.0)),
+            [value(Param::OperatorId, 42.0)]
+        );
+        // The old operator is now a stranger; the new one is obeyed.
+        assert_eq!(bench.command(10, Command::Arm(true)), [ack(ARM, AckResult::Denied)]);
+        bench.command_from(20, OTHER, Command::Heartbeat);
+        assert_eq!(
+            bench.command_from(20, OTHER, Command::Arm(true)),
+            [ack_to(ARM, AckResult::Accepted, OTHER), text(Severity::Info, "Armed")]
+        );
+    }
+
+    #[test]
+    fn reboot_only_while_disarmed_after_its_acknowledgement() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.arm(0);
+        assert_eq!(
+            bench.command(0, Command::Reboot),
+            [
+                ack(REBOOT, AckResult::TemporarilyRejected),
+                text(Severity::Warning, "Reboot rejected: disarm first")
+            ]
+        );
+        bench.command(0, Command::Arm(false));
+        assert_eq!(
+            bench.command(0, Command::Reboot),
+            [
+                ack(REBOOT, AckResult::Accepted),
+                text(Severity::Info, "Rebooting"),
+                Outgoing::Reboot
+            ]
+        );
+    }
+
+    #[test]
+    fn setup_signing_sets_and_clears_the_key_while_disarmed() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        let setup = |key: [u8; 32]| Command::SetupSigning { key, timestamp: 1_000 };
+        assert_eq!(bench.command(0, setup([3; 32])), [text(Severity::Info, "Signing on")]);
+        assert_eq!(
+            bench.vehicle.settings().signing,
+            Some(SigningKey {
+                secret: [3; 32],
+                timestamp: 1_000
+            })
+        );
+        bench.arm(0);
+        assert_eq!(
+            bench.command(0, setup([0; 32])),
+            [text(Severity::Warning, "Signing: disarm first")]
+        );
+        assert!(bench.vehicle.settings().signing.is_some());
+        bench.command(0, Command::Arm(false));
+        assert_eq!(bench.command(0, setup([0; 32])), [text(Severity::Info, "Signing off")]);
+        assert_eq!(bench.vehicle.settings().signing, None);
     }
 
     #[test]
     fn manual_control_through_the_mixer_to_orders() {
         let mut bench = Bench::new(VehicleConfig::default());
+        bench.command(0, Command::Heartbeat);
         // Ignored while disarmed.
         bench.command(0, manual(1000, 0, 500, 0));
         assert_eq!(bench.orders(0).0, STOP);
@@ -743,20 +1129,8 @@ mod tests {
         assert_eq!(bench.steps(20), [51, 51, 51, 51, 0, 0, 0, 0]);
         bench.command(30, manual(0, 0, 1000, 0));
         assert_eq!(bench.steps(30), [0, 0, 0, 0, 51, 0, 0, 0]);
-        bench.command(
-            40,
-            Command::ParamSet {
-                id: id("LBV_GAIN"),
-                value: 100.0,
-            },
-        );
-        bench.command(
-            40,
-            Command::ParamSet {
-                id: id("LBV_POWER_CAP"),
-                value: 60.0,
-            },
-        );
+        bench.command(40, set("LBV_GAIN", 100.0));
+        bench.command(40, set("LBV_POWER_CAP", 60.0));
         let (orders, _) = bench.orders(40);
         assert_eq!(
             orders[4],
@@ -777,11 +1151,12 @@ mod tests {
     fn orders_beyond_the_wired_thrusters_stay_stop() {
         let config = VehicleConfig {
             thrusters: 4,
-            gain_percent: 100,
             ..VehicleConfig::new(FrameKind::Lbv300_6)
         };
-        let mut bench = Bench::new(config);
-        bench.command(0, Command::Arm(true));
+        let mut bench = Bench::with(config, |p| {
+            p.set(Param::Gain, 100);
+        });
+        bench.arm(0);
         bench.command(0, manual(0, 1000, 500, 0));
         let (orders, _) = bench.orders(0);
         assert_eq!(orders.map(|o| o.speed.step()), [-102, 102, 102, -102, 0, 0, 0, 0]);
@@ -795,12 +1170,10 @@ mod tests {
 
     #[test]
     fn lbv200_frame() {
-        let config = VehicleConfig {
-            gain_percent: 100,
-            ..VehicleConfig::new(FrameKind::Lbv200_4)
-        };
-        let mut bench = Bench::new(config);
-        bench.command(0, Command::Arm(true));
+        let mut bench = Bench::with(VehicleConfig::new(FrameKind::Lbv200_4), |p| {
+            p.set(Param::Gain, 100);
+        });
+        bench.arm(0);
         bench.command(0, manual(0, 0, 500, 1000));
         assert_eq!(bench.steps(0), [-102, 102, 0, 0, 0, 0, 0, 0]);
     }
@@ -808,6 +1181,7 @@ mod tests {
     #[test]
     fn motor_test_runs_for_its_duration() {
         let mut bench = Bench::new(VehicleConfig::default());
+        bench.command(100, Command::Heartbeat);
         assert_eq!(
             bench.command(100, motor_test(3, 20, 2000)),
             [
@@ -827,9 +1201,8 @@ mod tests {
         assert!(orders.iter().enumerate().all(|(n, o)| n == 2 || *o == Order::STOP));
         assert!(said.is_empty());
         assert!(!bench.armed(100), "a motor test does not arm");
-        // Console life keeps it going; it stops at exactly its end.
+        // It stops at exactly its end.
         bench.command(1000, Command::Heartbeat);
-        bench.command(1900, Command::Heartbeat);
         assert_eq!(bench.steps(2099)[2], 20);
         let (orders, said) = bench.orders(2100);
         assert_eq!(orders, STOP);
@@ -839,6 +1212,7 @@ mod tests {
     #[test]
     fn motor_test_clamps_and_limits() {
         let mut bench = Bench::new(VehicleConfig::default());
+        bench.command(0, Command::Heartbeat);
         // LBV_MTEST_MAX 30 %: 30.6 steps -> 31.
         bench.command(0, motor_test(1, 100, 1000));
         assert_eq!(bench.steps(0)[0], 31);
@@ -851,7 +1225,7 @@ mod tests {
         // At most 10 s.
         let said = bench.command(0, motor_test(6, 10, 60_000));
         assert_eq!(said[1], text(Severity::Info, "Motor test 6: 10 % for 10000 ms"));
-        for ms in (0..10_000).step_by(500) {
+        for ms in (0..10_000).step_by(1000) {
             bench.command(ms, Command::Heartbeat);
         }
         assert_eq!(bench.steps(9_999)[5], 10);
@@ -861,6 +1235,7 @@ mod tests {
     #[test]
     fn motor_test_one_thruster_at_a_time() {
         let mut bench = Bench::new(VehicleConfig::default());
+        bench.command(0, Command::Heartbeat);
         bench.command(0, motor_test(1, 20, 5000));
         bench.command(10, motor_test(2, -20, 5000));
         assert_eq!(bench.steps(10), [0, -20, 0, 0, 0, 0, 0, 0]);
@@ -892,6 +1267,7 @@ mod tests {
     #[test]
     fn arming_during_a_motor_test_stops_it_and_is_rejected() {
         let mut bench = Bench::new(VehicleConfig::default());
+        bench.command(0, Command::Heartbeat);
         bench.command(0, motor_test(5, 20, 5000));
         assert_eq!(
             bench.command(10, Command::Arm(true)),
@@ -910,6 +1286,12 @@ mod tests {
     #[test]
     fn motor_test_denied_and_rejected() {
         let mut bench = Bench::new(VehicleConfig::default());
+        // No heartbeat yet.
+        assert_eq!(
+            bench.command(0, motor_test(1, 20, 1000)),
+            [ack(TEST, AckResult::TemporarilyRejected)]
+        );
+        bench.command(0, Command::Heartbeat);
         for motor in [0, 7, 8, 255] {
             assert_eq!(
                 bench.command(0, motor_test(motor, 20, 1000)),
@@ -930,20 +1312,28 @@ mod tests {
     }
 
     #[test]
-    fn console_loss_stops_a_motor_test() {
+    fn ground_station_loss_stops_a_motor_test() {
         let mut bench = Bench::new(VehicleConfig::default());
-        bench.command(0, motor_test(1, 20, 5000));
-        assert_eq!(bench.steps(999)[0], 20);
-        let (orders, said) = bench.orders(1000);
+        bench.command(0, Command::Heartbeat);
+        bench.command(0, motor_test(1, 20, 9000));
+        assert_eq!(bench.steps(4999)[0], 20);
+        let (orders, said) = bench.orders(5000);
         assert_eq!(orders, STOP);
-        assert_eq!(said, [text(Severity::Warning, "Motor test 1 stopped: console lost")]);
+        assert_eq!(
+            said,
+            [text(Severity::Warning, "Motor test 1 stopped: ground station lost")]
+        );
     }
 
     #[test]
     fn parameter_list_and_read() {
         let mut bench = Bench::new(VehicleConfig::default());
         let all = [
-            value(Param::ConsoleTimeout, 1000.0),
+            value(Param::GcsFailsafe, 2.0),
+            value(Param::GcsTimeout, 5.0),
+            value(Param::PilotFailsafe, 1.0),
+            value(Param::PilotTimeout, 3.0),
+            value(Param::OperatorId, 255.0),
             value(Param::Gain, 50.0),
             value(Param::PowerCap, 100.0),
             value(Param::Frame, 6.0),
@@ -973,15 +1363,13 @@ mod tests {
                 std::slice::from_ref(expected),
                 "by index, the name ignored"
             );
-            assert!(param.name().len() <= 16);
-            assert_eq!(Param::from_id(&param.id()), Some(param));
         }
         // Unknown: no answer.
         for (name, index) in [
             ("LBV_GAINS", -1),
             ("lbv_gain", -1),
             ("", -1),
-            ("LBV_GAIN", 5),
+            ("LBV_GAIN", 9),
             ("LBV_GAIN", 300),
         ] {
             assert!(
@@ -990,25 +1378,20 @@ mod tests {
                     .is_empty()
             );
         }
-        // A 16-byte name without NUL.
-        assert_eq!(Param::from_id(b"LBV_GAIN\0\0\0\0\0\0\0\0"), Some(Param::Gain));
-        assert_eq!(Param::from_id(b"LBV_GAIN_LONGER_"), None);
     }
 
     #[test]
     fn parameter_set_in_and_out_of_range() {
         let mut bench = Bench::new(VehicleConfig::default());
-        let set =
-            |bench: &mut Bench, name: &str, value: f32| bench.command(0, Command::ParamSet { id: id(name), value });
-        assert_eq!(set(&mut bench, "LBV_GAIN", 80.0), [value(Param::Gain, 80.0)]);
-        assert_eq!(bench.vehicle.params().gain_percent, 80);
+        assert_eq!(bench.command(0, set("LBV_GAIN", 80.0)), [value(Param::Gain, 80.0)]);
+        assert_eq!(bench.params().gain_percent(), 80);
         // Rounded to the nearest integer.
-        assert_eq!(set(&mut bench, "LBV_GAIN", 79.6), [value(Param::Gain, 80.0)]);
-        assert_eq!(set(&mut bench, "LBV_GAIN", 70.4), [value(Param::Gain, 70.0)]);
+        assert_eq!(bench.command(0, set("LBV_GAIN", 79.6)), [value(Param::Gain, 80.0)]);
+        assert_eq!(bench.command(0, set("LBV_GAIN", 70.4)), [value(Param::Gain, 70.0)]);
         // Out of range: the unchanged value, and a warning.
         for bad in [0.0, 101.0, -5.0, 1e20, f32::NAN, f32::INFINITY] {
             assert_eq!(
-                set(&mut bench, "LBV_GAIN", bad),
+                bench.command(0, set("LBV_GAIN", bad)),
                 [
                     text(Severity::Warning, "LBV_GAIN: range 1..100"),
                     value(Param::Gain, 70.0)
@@ -1016,72 +1399,71 @@ mod tests {
                 "{bad}"
             );
         }
+        // Seconds with a tenth.
         assert_eq!(
-            set(&mut bench, "LBV_CONSOLE_TO", 50.0),
+            bench.command(0, set("FS_GCS_TIMEOUT", 1.0)),
             [
-                text(Severity::Warning, "LBV_CONSOLE_TO: range 100..10000"),
-                value(Param::ConsoleTimeout, 1000.0)
+                text(Severity::Warning, "FS_GCS_TIMEOUT: range 2..120"),
+                value(Param::GcsTimeout, 5.0)
             ]
         );
         assert_eq!(
-            set(&mut bench, "LBV_FRAME", 5.0),
+            bench.command(0, set("FS_GCS_TIMEOUT", 3.3)),
+            [value(Param::GcsTimeout, 3.3)]
+        );
+        assert_eq!(bench.params().gcs_timeout(), Duration::from_millis(3300));
+        assert_eq!(
+            bench.command(0, set("FS_PILOT_TIMEOUT", 0.4)),
+            [
+                text(Severity::Warning, "FS_PILOT_TIMEOUT: range 0.5..10"),
+                value(Param::PilotTimeout, 3.0)
+            ]
+        );
+        assert_eq!(
+            bench.command(0, set("FS_GCS_ENABLE", 0.0)),
+            [
+                text(Severity::Warning, "FS_GCS_ENABLE: range 1..3"),
+                value(Param::GcsFailsafe, 2.0)
+            ]
+        );
+        assert_eq!(
+            bench.command(0, set("LBV_FRAME", 5.0)),
             [
                 text(Severity::Warning, "LBV_FRAME: must be 4 or 6"),
                 value(Param::Frame, 6.0)
             ]
         );
-        assert_eq!(set(&mut bench, "LBV_FRAME", 4.0), [value(Param::Frame, 4.0)]);
-        assert_eq!(bench.vehicle.params().frame, FrameKind::Lbv200_4);
-        assert_eq!(set(&mut bench, "LBV_POWER_CAP", 1.0), [value(Param::PowerCap, 1.0)]);
+        assert_eq!(bench.command(0, set("LBV_FRAME", 4.0)), [value(Param::Frame, 4.0)]);
+        assert_eq!(bench.params().frame(), FrameKind::Lbv200_4);
         assert_eq!(
-            set(&mut bench, "LBV_MTEST_MAX", 100.0),
+            bench.command(0, set("LBV_POWER_CAP", 1.0)),
+            [value(Param::PowerCap, 1.0)]
+        );
+        assert_eq!(
+            bench.command(0, set("LBV_MTEST_MAX", 100.0)),
             [value(Param::MotorTestMax, 100.0)]
         );
         assert!(
-            set(&mut bench, "LBV_NOTHING", 1.0).is_empty(),
+            bench.command(0, set("LBV_NOTHING", 1.0)).is_empty(),
             "unknown name: no answer"
         );
         // The frame only while disarmed.
-        bench.command(0, Command::Arm(true));
+        bench.arm(0);
         assert_eq!(
-            set(&mut bench, "LBV_FRAME", 6.0),
+            bench.command(0, set("LBV_FRAME", 6.0)),
             [
                 text(Severity::Warning, "LBV_FRAME: disarm first"),
                 value(Param::Frame, 4.0)
             ]
         );
-        // A shorter console timeout applies at once.
+        // A shorter heartbeat timeout applies at once.
         assert_eq!(
-            set(&mut bench, "LBV_CONSOLE_TO", 200.0),
-            [value(Param::ConsoleTimeout, 200.0)]
+            bench.command(0, set("FS_GCS_TIMEOUT", 2.0)),
+            [value(Param::GcsTimeout, 2.0)]
         );
-        assert!(bench.orders(199).1.is_empty());
-        assert_eq!(bench.orders(200).1.len(), 1);
-        assert!(!bench.armed(200));
-    }
-
-    #[test]
-    fn config_values_are_clamped_into_the_parameter_ranges() {
-        let config = VehicleConfig {
-            frame: FrameKind::Lbv200_4,
-            thrusters: 200,
-            console_timeout: Duration::from_secs(3600),
-            gain_percent: 0,
-            power_cap_percent: 0,
-            motor_test_max_percent: 255,
-        };
-        let vehicle = Vehicle::new(config, t(0));
-        assert_eq!(
-            *vehicle.params(),
-            Params {
-                console_timeout_ms: 10_000,
-                gain_percent: 1,
-                power_cap_percent: 1,
-                frame: FrameKind::Lbv200_4,
-                motor_test_max_percent: 100
-            }
-        );
-        assert_eq!(vehicle.thrusters, MAX_THRUSTERS as u8);
+        assert!(bench.orders(1999).1.is_empty());
+        assert_eq!(bench.orders(2000).1.len(), 1);
+        assert!(!bench.armed(2000));
     }
 
     #[test]
@@ -1091,18 +1473,17 @@ mod tests {
             bench.command(0, Command::Unsupported { command: 511 }),
             [ack(511, AckResult::Unsupported)]
         );
-        assert!(bench.vehicle.state(t(0)).console_alive, "still console life");
+        assert!(!bench.vehicle.state(t(0)).console_alive, "only heartbeats are life");
         assert_eq!(bench.said.len(), 1);
     }
 
     #[test]
-    fn vehicle_task_publishes_orders_state_and_answers() {
+    fn vehicle_task_publishes_orders_state_settings_and_answers() {
         let _clock = crate::test_clock::lock();
         let shared = Shared::new();
-        let config = VehicleConfig {
-            gain_percent: 100,
-            ..VehicleConfig::default()
-        };
+        let config = VehicleConfig::default();
+        let mut settings = config.defaults();
+        settings.params.set(Param::Gain, 100);
         let drain = || {
             let mut all = Vec::new();
             while let Ok(message) = shared.outbox.try_receive() {
@@ -1110,6 +1491,7 @@ mod tests {
             }
             all
         };
+        let request = |command| Request { from: GCS, command };
         let script = async {
             elapse(Duration::from_millis(25)).await;
             assert_eq!(shared.orders.try_get(), Some(STOP));
@@ -1117,55 +1499,79 @@ mod tests {
                 shared.vehicle.try_get(),
                 Some(VehicleState {
                     armed: false,
-                    console_alive: false
+                    console_alive: false,
+                    refused: 0
                 })
             );
-            shared.commands.send(Command::Arm(true)).await;
-            shared.commands.send(manual(1000, 0, 500, 0)).await;
+            assert_eq!(
+                shared.settings.try_get(),
+                Some(settings),
+                "the settings in force, at once"
+            );
+            let sent = Instant::now();
+            shared.commands.send(request(Command::Heartbeat)).await;
+            shared.commands.send(request(Command::Arm(true))).await;
+            shared.commands.send(request(manual(1000, 0, 500, 0))).await;
             elapse(Duration::from_millis(2)).await;
             assert_eq!(drain(), [ack(ARM, AckResult::Accepted), text(Severity::Info, "Armed")]);
             assert_eq!(
                 shared.vehicle.try_get(),
                 Some(VehicleState {
                     armed: true,
-                    console_alive: true
+                    console_alive: true,
+                    refused: 0
                 })
             );
             let orders = shared.orders.try_get().unwrap();
             assert_eq!(orders.map(|o| o.speed.step()), [102, 102, 102, 102, 0, 0, 0, 0]);
 
-            shared.commands.send(Command::ParamRequestList).await;
+            shared.commands.send(request(Command::ParamRequestList)).await;
             elapse(Duration::from_millis(2)).await;
             assert_eq!(drain().len(), PARAM_COUNT);
+            shared.commands.send(request(set("LBV_GAIN", 60.0))).await;
+            elapse(Duration::from_millis(2)).await;
+            assert_eq!(shared.settings.try_get().map(|s| s.params.gain_percent()), Some(60));
 
-            // The console falls silent: disarmed by the 50 Hz tick within one period of the timeout.
-            let last = Instant::now();
+            // Everything falls silent: the sticks go neutral after FS_PILOT_TIMEOUT and the vehicle disarms
+            // after FS_GCS_TIMEOUT, each within one 50 Hz tick of the request's arrival (the clock moves in 1 ms
+            // steps).
+            let mut neutral_at = None;
             let mut disarmed_at = None;
             while disarmed_at.is_none() {
                 elapse(Duration::from_millis(1)).await;
+                let moving = shared.orders.try_get().unwrap().iter().any(|o| !o.speed.is_zero());
+                if neutral_at.is_none() && !moving {
+                    neutral_at = Some(Instant::now() - sent);
+                }
                 if !shared.vehicle.try_get().unwrap().armed {
-                    disarmed_at = Some(Instant::now() - last);
+                    disarmed_at = Some(Instant::now() - sent);
                 }
             }
-            let after = disarmed_at.unwrap();
+            let (neutral, disarmed) = (neutral_at.unwrap(), disarmed_at.unwrap());
             assert!(
-                after >= Duration::from_millis(1000) && after <= Duration::from_millis(1020),
-                "{after:?}"
+                neutral >= Duration::from_millis(3000) && neutral <= Duration::from_millis(3022),
+                "{neutral:?}"
+            );
+            assert!(
+                disarmed >= Duration::from_millis(5000) && disarmed <= Duration::from_millis(5022),
+                "{disarmed:?}"
             );
             assert_eq!(shared.orders.try_get(), Some(STOP));
-            assert_eq!(drain(), [text(Severity::Critical, "Failsafe: console lost, disarmed")]);
+            let said = drain();
+            assert_eq!(failsafes(&said).len(), 2, "{said:?}");
 
             // A motor test through the task, ending on time.
-            shared.commands.send(motor_test(2, 10, 100)).await;
+            shared.commands.send(request(Command::Heartbeat)).await;
+            shared.commands.send(request(motor_test(2, 10, 100))).await;
             elapse(Duration::from_millis(2)).await;
             assert_eq!(shared.orders.try_get().unwrap()[1].speed.step(), 10);
             elapse(Duration::from_millis(120)).await;
             assert_eq!(shared.orders.try_get(), Some(STOP));
             let said = drain();
-            assert_eq!(said.len(), 3, "{said:?}");
-            assert_eq!(said[2], text(Severity::Info, "Motor test 2 done"));
+            assert_eq!(said.len(), 4, "{said:?}");
+            assert_eq!(said[3], text(Severity::Info, "Motor test 2 done"));
         };
-        match block_on(select(vehicle_task(config, &shared), script)) {
+        match block_on(select(vehicle_task(config, settings, &shared), script)) {
             Either::First(never) => match never {},
             Either::Second(()) => {}
         }

@@ -15,7 +15,7 @@ use embassy_time::Duration;
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
 use lbv_master_fw::shared::{
-    AckResult, Command, ManualInput, Outgoing, Severity, Shared, Text, ThrusterReport, VehicleState,
+    AckResult, Command, ManualInput, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState,
 };
 use lbv_master_fw::thrusters::LinkHealth;
 use serde_json::Value;
@@ -235,6 +235,10 @@ fn pymavlink_decodes_what_the_console_sends() {
                     .try_send(Outgoing::CommandAck {
                         command: 209,
                         result: AckResult::Denied,
+                        to: Sender {
+                            system: 255,
+                            component: 190,
+                        },
                     })
                     .unwrap();
                 shared.say(Severity::Critical, text.clone());
@@ -252,6 +256,7 @@ fn pymavlink_decodes_what_the_console_sends() {
                 shared.vehicle.sender().send(VehicleState {
                     armed: true,
                     console_alive: true,
+                    refused: 0,
                 });
             }
         },

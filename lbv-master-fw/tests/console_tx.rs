@@ -9,7 +9,7 @@ use embassy_time::Duration;
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
-use lbv_master_fw::shared::{AckResult, Outgoing, Severity, Shared, Text, ThrusterReport, VehicleState};
+use lbv_master_fw::shared::{AckResult, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState};
 use lbv_master_fw::thrusters::LinkHealth;
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
 
@@ -95,6 +95,10 @@ fn outbox_messages_go_out_at_once() {
                     .try_send(Outgoing::CommandAck {
                         command: 400,
                         result: AckResult::TemporarilyRejected,
+                        to: Sender {
+                            system: 255,
+                            component: 190,
+                        },
                     })
                     .unwrap();
                 shared
@@ -121,6 +125,7 @@ fn outbox_messages_go_out_at_once() {
                 (400, MavResult::MAV_RESULT_TEMPORARILY_REJECTED)
             );
             assert_eq!(ack.progress, 0);
+            assert_eq!((ack.target_system, ack.target_component), (255, 190), "to the sender");
         }
         other => panic!("expected COMMAND_ACK, got {other:?}"),
     }
@@ -172,6 +177,7 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
                 shared.vehicle.sender().send(VehicleState {
                     armed: true,
                     console_alive: true,
+                    refused: 0,
                 });
             }
         },
@@ -323,4 +329,80 @@ fn write_errors_are_counted_and_the_task_carries_on() {
     let counters = stats.snapshot();
     // 0 and 1 s: 3 slow messages each; 0, 0.25, ..., 1 s: 2 ESC messages each.
     assert_eq!((counters.frames_out, counters.write_errors), (0, 2 * 3 + 5 * 2));
+}
+
+/// A serial port's transmit side that records what was written and, at each flush, how much had been written.
+#[derive(Clone, Default)]
+struct Flushing {
+    written: std::rc::Rc<std::cell::RefCell<Vec<u8>>>,
+    flushed_at: std::rc::Rc<std::cell::RefCell<Vec<usize>>>,
+}
+
+impl embedded_io_async::ErrorType for Flushing {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io_async::Write for Flushing {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.written.borrow_mut().extend_from_slice(buf);
+        Ok(buf.len())
+    }
+
+    async fn flush(&mut self) -> Result<(), Self::Error> {
+        let len = self.written.borrow().len();
+        self.flushed_at.borrow_mut().push(len);
+        Ok(())
+    }
+}
+
+#[test]
+fn a_reboot_waits_for_its_acknowledgement_to_leave_the_port() {
+    use embassy_futures::select::{Either, select};
+    use embassy_futures::{block_on, yield_now};
+    use lbv_master_fw::console::console_tx_task;
+
+    let _clock = clock();
+    let shared = Shared::new();
+    let stats = ConsoleStats::new();
+    let port = Flushing::default();
+    let mut tx = port.clone();
+    let to = Sender {
+        system: 255,
+        component: 190,
+    };
+    let script = async {
+        for _ in 0..4 {
+            yield_now().await;
+        }
+        assert!(!shared.reboot.signaled());
+        shared
+            .outbox
+            .send(Outgoing::CommandAck {
+                command: 246,
+                result: AckResult::Accepted,
+                to,
+            })
+            .await;
+        shared.outbox.send(Outgoing::Reboot).await;
+        for _ in 0..4 {
+            yield_now().await;
+        }
+    };
+    match block_on(select(
+        console_tx_task(&mut tx, &ConsoleConfig::DEFAULT, &shared, &stats),
+        script,
+    )) {
+        Either::First(never) => match never {},
+        Either::Second(()) => {}
+    }
+    assert!(shared.reboot.signaled(), "the reboot is let go");
+    let written = port.written.borrow().clone();
+    let frames = parse_all(&written);
+    let (_, last) = frames.last().unwrap();
+    match last {
+        MavMessage::COMMAND_ACK(ack) => assert_eq!((ack.command, ack.result), (246, MavResult::MAV_RESULT_ACCEPTED)),
+        other => panic!("the last frame before the reboot is its ACK, not {other:?}"),
+    }
+    // The port was flushed with the acknowledgement in it.
+    assert_eq!(port.flushed_at.borrow().last(), Some(&written.len()));
 }

@@ -3,8 +3,14 @@
 
     mav_peer.py check    exit 0 when pymavlink is importable
     mav_peer.py emit     print a JSON object {name: hex frame} of frames a ground station sends
-    mav_peer.py decode   read hex frames on stdin, print a JSON list of the decoded messages
-                         (fields of each message plus "_sys", "_comp", "_seq", "_type")
+    mav_peer.py decode [KEY]
+                         read hex frames on stdin, print a JSON list of the decoded messages
+                         (fields of each message plus "_sys", "_comp", "_seq", "_type", "_signed"); with KEY
+                         (64 hex digits), frames must be signed with it: the others come out as BAD_DATA
+    mav_peer.py signing KEY TIMESTAMP
+                         print a JSON object {name: hex frame} of a ground station's frames for a vehicle
+                         with signing: SETUP_SIGNING of KEY (unsigned), and HEARTBEAT and arm frames signed
+                         with KEY from TIMESTAMP on, unsigned, signed with another key
     mav_peer.py session  print a JSON list of [time_ms, name, hex frame]: a pilot's dive as a ground
                          station sends it (heartbeats at 1 Hz, arm, the stick pushed forward step by step
                          at about 10 Hz, disarm)
@@ -76,6 +82,32 @@ def session():
     print(json.dumps([[t, name, message.pack(g).hex()] for t, name, message in events]))
 
 
+def signing(key, timestamp):
+    def signer(secret):
+        g = link(mav2)
+        g.signing.secret_key = secret
+        g.signing.timestamp = timestamp
+        g.signing.link_id = 0
+        g.signing.sign_outgoing = True
+        return g
+    g = link(mav2)
+    s = signer(key)
+    other = signer(bytes(32 - i for i in range(32)))
+    heartbeat = lambda: s.heartbeat_encode(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 192, 0, mav2.MAV_STATE_ACTIVE)
+    arm = lambda: g.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)
+    frames = {
+        "setup": g.setup_signing_encode(1, 1, key, timestamp).pack(g),
+        "heartbeat_unsigned": heartbeat().pack(g),
+        "arm_unsigned": arm().pack(g),
+        "heartbeat_signed": heartbeat().pack(s),
+        "arm_signed": arm().pack(s),
+        "arm_other_key": arm().pack(other),
+        "heartbeat_signed_later": heartbeat().pack(s),
+        "disarm_signed": g.command_long_encode(1, 1, 400, 0, 0, 0, 0, 0, 0, 0, 0).pack(s),
+    }
+    print(json.dumps({name: bytes(frame).hex() for name, frame in frames.items()}))
+
+
 def plain(value):
     if isinstance(value, (bytes, bytearray)):
         return value.decode("latin-1")
@@ -84,10 +116,12 @@ def plain(value):
     return value
 
 
-def decode():
+def decode(key=None):
     data = bytes.fromhex("".join(sys.stdin.read().split()))
     parser = link(mav2)
     parser.robust_parsing = True
+    if key is not None:
+        parser.signing.secret_key = key
     out = []
     for msg in parser.parse_buffer(data) or []:
         fields = {k: plain(v) for k, v in msg.to_dict().items() if k != "mavpackettype"}
@@ -95,6 +129,7 @@ def decode():
         fields["_sys"] = msg.get_srcSystem()
         fields["_comp"] = msg.get_srcComponent()
         fields["_seq"] = msg.get_seq()
+        fields["_signed"] = msg.get_signed()
         out.append(fields)
     print(json.dumps(out))
 
@@ -106,7 +141,9 @@ if __name__ == "__main__":
     elif command == "emit":
         emit()
     elif command == "decode":
-        decode()
+        decode(bytes.fromhex(sys.argv[2]) if len(sys.argv) > 2 else None)
+    elif command == "signing":
+        signing(bytes.fromhex(sys.argv[2]), int(sys.argv[3]))
     elif command == "session":
         session()
     else:

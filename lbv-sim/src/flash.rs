@@ -5,8 +5,14 @@
 //! It is a handle: clones share the memory, so the flash outlives the board that uses it (a master that reboots
 //! or loses power finds what it wrote). A power cut can be armed to land in the middle of an erase or a program:
 //! the operation stops at that byte, leaving the page torn, and the flash answers nothing until power returns.
+//!
+//! The STM32G4 keeps ECC bits with each double word (RM0440 3.3.2): one it was programming or erasing when the power
+//! went is left with data and ECC that disagree. Such a torn double word reads back as its cells hold it, and
+//! every read of it is recorded as an ECC double error (on the chip: FLASH_ECCR.ECCD and an NMI), with its
+//! offset, until it is erased again.
 
 use std::cell::RefCell;
+use std::collections::BTreeSet;
 use std::rc::Rc;
 
 use embedded_storage::nor_flash::{self, NorFlashError, NorFlashErrorKind};
@@ -52,6 +58,8 @@ pub struct FlashStats {
     pub programmed: u64,
     /// Operations torn by a power cut.
     pub torn: u32,
+    /// Reads that touched a torn double word (each an ECC double error on the chip).
+    pub ecc_errors: u64,
 }
 
 #[derive(Debug)]
@@ -61,16 +69,25 @@ struct Memory {
     until_cut: Option<usize>,
     powered: bool,
     stats: FlashStats,
+    /// Offsets of the write units a power cut left half done.
+    torn_units: BTreeSet<usize>,
+    /// Offsets of the torn units reads have touched.
+    ecc_offsets: BTreeSet<usize>,
 }
 
 impl Memory {
-    /// Spend one byte of the armed power cut's budget: false once the power has gone.
-    fn spend(&mut self) -> bool {
+    /// Spend one byte of the armed power cut's budget before changing the byte at `at` of a unit of `unit` bytes:
+    /// false once the power has gone, leaving that unit torn if the cut lands inside it.
+    fn spend(&mut self, at: usize, unit: usize) -> bool {
         match self.until_cut {
             Some(0) => {
                 self.powered = false;
                 self.until_cut = None;
                 self.stats.torn += 1;
+                let unit = unit.max(1);
+                if !at.is_multiple_of(unit) {
+                    self.torn_units.insert(at - at % unit);
+                }
                 false
             }
             Some(left) => {
@@ -97,7 +114,19 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
             until_cut: None,
             powered: true,
             stats: FlashStats::default(),
+            torn_units: BTreeSet::new(),
+            ecc_offsets: BTreeSet::new(),
         })))
+    }
+
+    /// The offsets of the torn double words that reads have touched (each an ECC double error on the chip).
+    pub fn ecc_error_offsets(&self) -> Vec<u32> {
+        let memory = self.0.borrow();
+        memory
+            .ecc_offsets
+            .iter()
+            .filter_map(|offset| u32::try_from(*offset).ok())
+            .collect()
     }
 
     /// A copy of everything in it.
@@ -130,7 +159,7 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
 
     fn read_at(&self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
         nor_flash::check_read(self, offset, bytes.len())?;
-        let memory = self.0.borrow();
+        let mut memory = self.0.borrow_mut();
         if !memory.powered {
             return Err(FlashError::PowerCut);
         }
@@ -140,6 +169,13 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
             .get(start..start + bytes.len())
             .ok_or(FlashError::OutOfBounds)?;
         bytes.copy_from_slice(stored);
+        let unit = WRITE_SIZE.max(1);
+        let first = start - start % unit;
+        let torn: Vec<usize> = memory.torn_units.range(first..start + bytes.len()).copied().collect();
+        if !torn.is_empty() {
+            memory.stats.ecc_errors += 1;
+            memory.ecc_offsets.extend(torn);
+        }
         Ok(())
     }
 
@@ -149,13 +185,17 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
         if !memory.powered {
             return Err(FlashError::PowerCut);
         }
+        let unit = WRITE_SIZE.max(1);
         for page in (from as usize..to as usize).step_by(ERASE_SIZE.max(1)) {
             for at in page..page + ERASE_SIZE {
-                if !memory.spend() {
+                if !memory.spend(at, unit) {
                     return Err(FlashError::PowerCut);
                 }
                 if let Some(byte) = memory.bytes.get_mut(at) {
                     *byte = 0xFF;
+                }
+                if at % unit == unit - 1 {
+                    memory.torn_units.remove(&(at + 1 - unit));
                 }
             }
             memory.stats.erases += 1;
@@ -178,7 +218,7 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
             return Err(FlashError::NotErased);
         }
         for (at, byte) in (start..).zip(bytes) {
-            if !memory.spend() {
+            if !memory.spend(at, WRITE_SIZE) {
                 return Err(FlashError::PowerCut);
             }
             if let Some(stored) = memory.bytes.get_mut(at) {
@@ -304,5 +344,43 @@ mod tests {
             read(&mut flash, 32, 8).unwrap(),
             [0x55, 0x55, 0x55, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]
         );
+    }
+
+    #[test]
+    fn a_double_word_torn_by_a_power_cut_reads_as_an_ecc_error_until_erased() {
+        let mut flash = Small::new(2);
+        flash.write(0, &[1; 8]).unwrap();
+        // Cut on a double word's boundary: nothing of the next one was programmed, nothing is torn.
+        flash.cut_power_after(8);
+        assert_eq!(flash.write(8, &[2; 16]), Err(FlashError::PowerCut));
+        flash.power_on();
+        read(&mut flash, 0, 64).unwrap();
+        assert_eq!((flash.stats().ecc_errors, flash.ecc_error_offsets()), (0, vec![]));
+        // Cut three bytes into a double word: it is torn, and every read touching it says so.
+        flash.cut_power_after(3);
+        assert_eq!(flash.write(24, &[3; 8]), Err(FlashError::PowerCut));
+        flash.power_on();
+        assert_eq!(
+            read(&mut flash, 24, 8).unwrap(),
+            [3, 3, 3, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]
+        );
+        read(&mut flash, 30, 1).unwrap();
+        read(&mut flash, 16, 8).unwrap();
+        assert_eq!((flash.stats().ecc_errors, flash.ecc_error_offsets()), (2, vec![24]));
+        // A page erase cut in a double word of the other page tears that one too.
+        flash.cut_power_after(64 + 12);
+        assert_eq!(flash.erase(0, 128), Err(FlashError::PowerCut));
+        flash.power_on();
+        read(&mut flash, 0, 128).unwrap();
+        assert_eq!(
+            flash.ecc_error_offsets(),
+            vec![24, 72],
+            "every torn double word read so far"
+        );
+        // Erased, the first page reads cleanly again.
+        let before = flash.stats().ecc_errors;
+        flash.erase(0, 64).unwrap();
+        read(&mut flash, 0, 64).unwrap();
+        assert_eq!(flash.stats().ecc_errors, before);
     }
 }

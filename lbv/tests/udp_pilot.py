@@ -5,7 +5,7 @@
 
 Listens on 127.0.0.1:GCS_PORT like a ground station (the bench sends there) and answers to where the vehicle's
 datagrams come from, which must be 127.0.0.1:BENCH_PORT. Sends GCS heartbeats at 1 Hz throughout (the master
-disarms after 1 s without any console message), then: vehicle HEARTBEAT (submarine), arm (COMMAND_ACK 0),
+arms only with them and disarms 5 s after they stop), then: vehicle HEARTBEAT (submarine), arm (COMMAND_ACK 0),
 MANUAL_CONTROL x=700 z=500 at 10 Hz for 4 s with the SeaBotix thrusters (1 and 3) reporting rpm above 500 in
 ESC_TELEMETRY_1_TO_4, disarm (COMMAND_ACK 0), a HEARTBEAT without the armed flag. Prints a JSON summary on
 stdout; exit 0 when every step held, 1 with the reason on stderr when one did not (or time ran out), 3 when

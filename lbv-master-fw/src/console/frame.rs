@@ -1,11 +1,15 @@
-//! MAVLink framing: finds CRC-valid MAVLink 2 (and 1) frames in a byte stream and resynchronises after noise.
+//! MAVLink framing: finds MAVLink 2 (and 1) frames in a byte stream and resynchronises after noise.
 //!
 //! The parser keeps one maximum-size frame of look-ahead. A candidate that fails its CRC is dropped by one byte
-//! only, so a good frame hiding behind a false start marker (a truncated frame, noise containing 0xFD) is still
-//! found. A frame whose message id the dialect does not know cannot be CRC-checked; its length is trusted only
-//! when the byte after it starts another frame, otherwise it is treated as noise.
+//! only, so a good frame hiding behind a false start marker (a truncated frame, noise containing 0xFD or 0xFE) is
+//! still found. So is a candidate whose claimed length has not arrived when the input ends
+//! ([`FrameParser::end_of_input`]: the line fell quiet, the datagram ended): a stray start byte costs the time the
+//! line needs to fall quiet, not the up to 280 bytes its claimed length would take to arrive.
 //!
-//! MAVLink 2 signed frames are accepted without checking the signature (the console link has no key).
+//! A frame whose message id the dialect does not know cannot be CRC-checked; its length is trusted only when the
+//! byte after it starts another frame or the input ends there, otherwise it is treated as noise.
+//!
+//! Signatures are not checked here: a signed frame comes out whole, for [`crate::signing`] to check.
 
 use mavlink_core::calculate_crc;
 
@@ -34,7 +38,7 @@ pub enum Version {
     V2,
 }
 
-/// A CRC-valid frame, borrowed from the parser's buffer.
+/// A frame, borrowed from the parser's buffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Frame<'a> {
     /// Protocol version.
@@ -49,26 +53,91 @@ pub struct Frame<'a> {
     pub message_id: u32,
     /// The payload as sent (MAVLink 2 trims trailing zeros).
     pub payload: &'a [u8],
-}
-
-/// Why bytes that looked like a frame were dropped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Reject {
-    /// Wrong CRC (also a truncated frame: its CRC is read from the next frame's bytes), or an unsupported
-    /// MAVLink 2 incompatibility flag, or an unknown message that is not followed by another frame.
-    Corrupt,
-    /// A well-framed message the dialect does not hold (skipped whole).
-    UnknownMessage(u32),
+    /// It carries a signature (MAVLink 2 incompatibility flag 0x01): the last 13 of `bytes`.
+    pub signed: bool,
+    /// The whole frame as received, from its start byte to its checksum or signature.
+    pub bytes: &'a [u8],
 }
 
 /// What [`FrameParser::next`] found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Event<'a> {
-    /// A CRC-valid frame of a known message.
+    /// A CRC-valid frame of a message the dialect holds.
     Frame(Frame<'a>),
-    /// A dropped candidate.
-    Rejected(Reject),
+    /// A well-framed message the dialect does not hold (its CRC cannot be checked), skipped whole.
+    Unknown(Frame<'a>),
+    /// A false start dropped by one byte: wrong CRC (a truncated frame shows as one), an unsupported MAVLink 2
+    /// incompatibility flag, a claimed length that did not arrive before the end of the input, or an unknown
+    /// message not followed by another frame.
+    Corrupt,
+}
+
+/// The fixed part of a frame.
+struct Header {
+    version: Version,
+    len: usize,
+    payload_len: usize,
+    incompat: u8,
+    sequence: u8,
+    system_id: u8,
+    component_id: u8,
+    message_id: u32,
+}
+
+impl Header {
+    /// The header at the start of `window` (which starts with a start byte), `None` until all of it is there.
+    fn read(window: &[u8]) -> Option<Header> {
+        if window.first() == Some(&STX_V2) {
+            let [
+                _,
+                len,
+                incompat,
+                _compat,
+                sequence,
+                system_id,
+                component_id,
+                id0,
+                id1,
+                id2,
+            ] = *window.first_chunk::<V2_HEADER>()?;
+            Some(Header {
+                version: Version::V2,
+                len: V2_HEADER,
+                payload_len: usize::from(len),
+                incompat,
+                sequence,
+                system_id,
+                component_id,
+                message_id: u32::from_le_bytes([id0, id1, id2, 0]),
+            })
+        } else {
+            let [_, len, sequence, system_id, component_id, id] = *window.first_chunk::<V1_HEADER>()?;
+            Some(Header {
+                version: Version::V1,
+                len: V1_HEADER,
+                payload_len: usize::from(len),
+                incompat: 0,
+                sequence,
+                system_id,
+                component_id,
+                message_id: u32::from(id),
+            })
+        }
+    }
+
+    fn signed(&self) -> bool {
+        self.incompat & IFLAG_SIGNED != 0
+    }
+
+    /// Where the checksum starts.
+    fn crc_at(&self) -> usize {
+        self.len + self.payload_len
+    }
+
+    /// The whole frame's length.
+    fn frame_len(&self) -> usize {
+        self.crc_at() + CHECKSUM + if self.signed() { SIGNATURE } else { 0 }
+    }
 }
 
 /// Incremental MAVLink frame parser with a fixed buffer; never panics, whatever the input.
@@ -78,6 +147,8 @@ pub struct FrameParser {
     start: usize,
     end: usize,
     skipped: u32,
+    /// No more bytes of the buffered frames will come (until the next push).
+    ended: bool,
 }
 
 impl Default for FrameParser {
@@ -94,6 +165,7 @@ impl FrameParser {
             start: 0,
             end: 0,
             skipped: 0,
+            ended: false,
         }
     }
 
@@ -106,10 +178,25 @@ impl FrameParser {
         if let (Some(dst), Some(src)) = (free.get_mut(..taken), data.get(..taken)) {
             dst.copy_from_slice(src);
             self.end += taken;
+            if taken > 0 {
+                self.ended = false;
+            }
             taken
         } else {
             0
         }
+    }
+
+    /// The input has ended for now (the line fell quiet, a datagram ended): no more bytes will complete the
+    /// buffered candidates, so [`FrameParser::next`] resolves them all, and the buffer is empty once it returns
+    /// `None`.
+    pub fn end_of_input(&mut self) {
+        self.ended = true;
+    }
+
+    /// Whether bytes are buffered (a frame begun but not complete).
+    pub fn pending(&self) -> bool {
+        self.end > self.start
     }
 
     /// Bytes dropped while looking for a start byte since the last call.
@@ -117,7 +204,7 @@ impl FrameParser {
         core::mem::take(&mut self.skipped)
     }
 
-    /// The next frame or rejected candidate in the buffered bytes, or `None` when more bytes are needed.
+    /// The next frame or dropped candidate in the buffered bytes, or `None` when more bytes are needed.
     ///
     /// `extra_crc` gives the CRC_EXTRA byte of the message ids the dialect knows.
     pub fn next(&mut self, extra_crc: impl Fn(u32) -> Option<u8>) -> Option<Event<'_>> {
@@ -131,55 +218,71 @@ impl FrameParser {
         };
         self.skipped = self.skipped.wrapping_add(at as u32);
         self.start += at;
-        let window = self.window();
 
-        let (header_len, payload_len, incompat, sequence, system_id, component_id, message_id, version) =
-            if window.first() == Some(&STX_V2) {
-                let [_, len, incompat, _compat, seq, sys, comp, id0, id1, id2] = *window.first_chunk::<V2_HEADER>()?;
-                let id = u32::from_le_bytes([id0, id1, id2, 0]);
-                (V2_HEADER, len, incompat, seq, sys, comp, id, Version::V2)
-            } else {
-                let [_, len, seq, sys, comp, id] = *window.first_chunk::<V1_HEADER>()?;
-                (V1_HEADER, len, 0, seq, sys, comp, u32::from(id), Version::V1)
-            };
-        if incompat & !IFLAG_SIGNED != 0 {
-            self.start += 1;
-            return Some(Event::Rejected(Reject::Corrupt));
-        }
-        let crc_at = header_len + usize::from(payload_len);
-        let signature = if incompat & IFLAG_SIGNED != 0 { SIGNATURE } else { 0 };
-        let frame_len = crc_at + CHECKSUM + signature;
-
-        let Some(extra) = extra_crc(message_id) else {
-            // Unknown message: trust its length only if another frame starts right after it.
-            let next = *window.get(frame_len)?;
-            if next == STX_V1 || next == STX_V2 {
-                self.start += frame_len;
-                return Some(Event::Rejected(Reject::UnknownMessage(message_id)));
-            }
-            self.start += 1;
-            return Some(Event::Rejected(Reject::Corrupt));
+        let Some(header) = Header::read(self.window()) else {
+            return self.incomplete();
         };
-        let frame = window.get(..frame_len)?;
-        let crc_ok = match (frame.get(1..crc_at), frame.get(crc_at..crc_at + CHECKSUM)) {
+        if header.incompat & !IFLAG_SIGNED != 0 {
+            self.start += 1;
+            return Some(Event::Corrupt);
+        }
+        let frame_len = header.frame_len();
+        if self.window().len() < frame_len {
+            return self.incomplete();
+        }
+        let Some(extra) = extra_crc(header.message_id) else {
+            // Unknown message: trust its length only if another frame starts right after it, or nothing does.
+            let trusted = match self.window().get(frame_len) {
+                Some(&next) => next == STX_V1 || next == STX_V2,
+                None if self.ended => true,
+                None => return None,
+            };
+            if !trusted {
+                self.start += 1;
+                return Some(Event::Corrupt);
+            }
+            let begin = self.start;
+            self.start += frame_len;
+            return Some(Event::Unknown(self.frame_at(begin, &header)?));
+        };
+        let crc_at = header.crc_at();
+        let window = self.window();
+        let crc_ok = match (window.get(1..crc_at), window.get(crc_at..crc_at + CHECKSUM)) {
             (Some(body), Some(&[lo, hi])) => calculate_crc(body, extra) == u16::from_le_bytes([lo, hi]),
             _ => false,
         };
         if !crc_ok {
             self.start += 1;
-            return Some(Event::Rejected(Reject::Corrupt));
+            return Some(Event::Corrupt);
         }
-        let payload_start = self.start + header_len;
+        let begin = self.start;
         self.start += frame_len;
-        let payload = self.buf.get(payload_start..payload_start + usize::from(payload_len))?;
-        Some(Event::Frame(Frame {
-            version,
-            sequence,
-            system_id,
-            component_id,
-            message_id,
-            payload,
-        }))
+        Some(Event::Frame(self.frame_at(begin, &header)?))
+    }
+
+    /// A candidate that needs bytes not here yet: wait for them, or drop its start byte when the input has ended.
+    fn incomplete(&mut self) -> Option<Event<'static>> {
+        if self.ended {
+            self.start += 1;
+            Some(Event::Corrupt)
+        } else {
+            None
+        }
+    }
+
+    /// The frame of `header` starting at `begin` in the buffer.
+    fn frame_at(&self, begin: usize, header: &Header) -> Option<Frame<'_>> {
+        let bytes = self.buf.get(begin..begin + header.frame_len())?;
+        Some(Frame {
+            version: header.version,
+            sequence: header.sequence,
+            system_id: header.system_id,
+            component_id: header.component_id,
+            message_id: header.message_id,
+            payload: bytes.get(header.len..header.crc_at())?,
+            signed: header.signed(),
+            bytes,
+        })
     }
 
     fn window(&self) -> &[u8] {
@@ -233,28 +336,60 @@ mod tests {
         f
     }
 
-    /// Sequence number and payload of a frame.
-    type Seen = (u8, Vec<u8>);
+    /// What came out of the parser, in order.
+    #[derive(Debug, Clone, PartialEq, Eq)]
+    enum Seen {
+        /// Sequence number and payload of a frame.
+        Frame(u8, Vec<u8>),
+        Unknown(u32),
+        Corrupt,
+    }
 
-    /// Feed `bytes` in chunks of `chunk`; returns every frame, every rejection and the skipped byte count.
-    fn run(bytes: &[u8], chunk: usize) -> (Vec<Seen>, Vec<Reject>, u32) {
+    /// Feed `pieces` one after the other in chunks of `chunk`, ending the input after each piece when `ends`;
+    /// returns what came out and the skipped byte count.
+    fn run_pieces(pieces: &[Vec<u8>], chunk: usize, ends: bool) -> (Vec<Seen>, u32) {
         let mut parser = FrameParser::new();
-        let (mut frames, mut rejects, mut skipped) = (vec![], vec![], 0);
-        for piece in bytes.chunks(chunk) {
-            let mut rest = piece;
-            while !rest.is_empty() {
-                let taken = parser.push(rest);
-                rest = &rest[taken..];
-                while let Some(event) = parser.next(extra) {
-                    match event {
-                        Event::Frame(f) => frames.push((f.sequence, f.payload.to_vec())),
-                        Event::Rejected(r) => rejects.push(r),
+        let (mut seen, mut skipped) = (vec![], 0);
+        let mut drain = |parser: &mut FrameParser| {
+            while let Some(event) = parser.next(extra) {
+                seen.push(match event {
+                    Event::Frame(f) => {
+                        assert_eq!(
+                            f.bytes.len(),
+                            f.payload.len() + if f.version == Version::V2 { 12 } else { 8 }
+                        );
+                        Seen::Frame(f.sequence, f.payload.to_vec())
                     }
+                    Event::Unknown(f) => Seen::Unknown(f.message_id),
+                    Event::Corrupt => Seen::Corrupt,
+                });
+            }
+            skipped += parser.take_skipped();
+        };
+        for piece in pieces {
+            for bytes in piece.chunks(chunk) {
+                let mut rest = bytes;
+                while !rest.is_empty() {
+                    let taken = parser.push(rest);
+                    rest = &rest[taken..];
+                    drain(&mut parser);
                 }
-                skipped += parser.take_skipped();
+            }
+            if ends {
+                parser.end_of_input();
+                drain(&mut parser);
+                assert!(!parser.pending(), "the end of the input resolves everything");
             }
         }
-        (frames, rejects, skipped)
+        (seen, skipped)
+    }
+
+    fn run(bytes: &[u8], chunk: usize) -> (Vec<Seen>, u32) {
+        run_pieces(&[bytes.to_vec()], chunk, false)
+    }
+
+    fn frames(seen: &[Seen]) -> Vec<Seen> {
+        seen.iter().filter(|s| matches!(s, Seen::Frame(..))).cloned().collect()
     }
 
     #[test]
@@ -263,12 +398,11 @@ mod tests {
         bytes.extend(v1(2, 7, &[4, 5]));
         bytes.extend(v2(3, 7, &[0x55; 255]));
         for chunk in [1, 2, 3, 7, 64, 500] {
-            let (frames, rejects, skipped) = run(&bytes, chunk);
-            assert_eq!(frames.len(), 3, "chunk {chunk}");
-            assert_eq!(frames[0], (1, vec![1, 2, 3]));
-            assert_eq!(frames[1], (2, vec![4, 5]));
-            assert_eq!(frames[2].1.len(), 255);
-            assert!(rejects.is_empty());
+            let (seen, skipped) = run(&bytes, chunk);
+            assert_eq!(seen.len(), 3, "chunk {chunk}");
+            assert_eq!(seen[0], Seen::Frame(1, vec![1, 2, 3]));
+            assert_eq!(seen[1], Seen::Frame(2, vec![4, 5]));
+            assert_eq!(seen[2], Seen::Frame(3, vec![0x55; 255]));
             assert_eq!(skipped, 0);
         }
     }
@@ -283,13 +417,20 @@ mod tests {
         bytes.extend(&bad_crc);
         bytes.extend(truncated);
         bytes.extend(&good);
-        // The truncated frame's claimed length reaches past the good frame: the good frame is found once the
-        // bytes that make up the claimed length have arrived (here, the next frame).
+        // The truncated frame's claimed length reaches past the good frame: in a stream that does not pause, the
+        // good frame is found once the bytes that make up the claimed length have arrived (here, the next frame).
         bytes.extend(v2(6, 7, &[1; 20]));
         for chunk in [1, 5, 64] {
-            let (frames, rejects, skipped) = run(&bytes, chunk);
-            assert_eq!(frames, vec![(5, vec![10, 20, 30]), (6, vec![1; 20])]);
-            assert_eq!(rejects, vec![Reject::Corrupt, Reject::Corrupt]);
+            let (seen, skipped) = run(&bytes, chunk);
+            assert_eq!(
+                seen,
+                vec![
+                    Seen::Corrupt,
+                    Seen::Corrupt,
+                    Seen::Frame(5, vec![10, 20, 30]),
+                    Seen::Frame(6, vec![1; 20])
+                ]
+            );
             assert!(skipped >= 3 + (bad_crc.len() as u32 - 1) + (truncated.len() as u32 - 1));
         }
     }
@@ -301,22 +442,84 @@ mod tests {
         let mut bytes = vec![STX_V2, 40, 0, 0, 0, 0, 0, 7, 0, 0];
         bytes.extend(&good);
         bytes.extend([0u8; 40]);
-        let (frames, rejects, _) = run(&bytes, 64);
-        assert_eq!(frames, vec![(1, vec![42])]);
-        assert_eq!(rejects, vec![Reject::Corrupt]);
+        let (seen, _) = run(&bytes, 64);
+        assert_eq!(seen, vec![Seen::Corrupt, Seen::Frame(1, vec![42])]);
+    }
+
+    /// The stray bytes that once blinded the parser for a whole claimed length (up to 280 bytes: 13 s of 1 Hz
+    /// heartbeats on the serial link).
+    const STRAYS: [&[u8]; 4] = [
+        &[STX_V1],
+        &[STX_V2, 0xFF, 0x00],
+        &[STX_V2, 0xFF],
+        &[0x00, STX_V2, 0xF0, 0x01],
+    ];
+
+    #[test]
+    fn a_stray_byte_costs_nothing_once_the_input_ends() {
+        let heartbeat = v2(9, 7, &[1, 2, 3, 4]);
+        for stray in STRAYS {
+            // The stray bytes and the frame in one piece (one datagram, or one burst on the line), the line quiet
+            // after it: the frame is found at the end of the piece, not 280 bytes later.
+            let piece = [stray, heartbeat.as_slice()].concat();
+            for chunk in [1, 3, 64] {
+                let (seen, _) = run_pieces(std::slice::from_ref(&piece), chunk, true);
+                assert_eq!(
+                    frames(&seen),
+                    vec![Seen::Frame(9, vec![1, 2, 3, 4])],
+                    "{stray:02x?} chunk {chunk}"
+                );
+            }
+            // The stray bytes alone, then the frame later: each piece is resolved on its own.
+            let (seen, _) = run_pieces(&[stray.to_vec(), heartbeat.clone()], 64, true);
+            assert_eq!(frames(&seen), vec![Seen::Frame(9, vec![1, 2, 3, 4])], "{stray:02x?}");
+            assert!(seen.contains(&Seen::Corrupt));
+        }
+        // Without the end of the input the parser waits for the claimed length: the end is what frees it.
+        let piece = [&[STX_V1], heartbeat.as_slice()].concat();
+        assert!(frames(&run(&piece, 64).0).is_empty());
     }
 
     #[test]
-    fn unknown_messages_are_skipped_whole_when_followed_by_a_frame() {
+    fn a_clean_stream_is_unchanged_by_the_ends_of_input_between_frames() {
+        let stream = [
+            v2(1, 7, &[1]),
+            v1(2, 7, &[2, 2]),
+            v2(3, 99, &[3, 3, 3]),
+            v2(4, 7, &[0xFD; 30]),
+        ];
+        for chunk in [1, 2, 64] {
+            let (seen, skipped) = run_pieces(&stream, chunk, true);
+            assert_eq!(
+                seen,
+                vec![
+                    Seen::Frame(1, vec![1]),
+                    Seen::Frame(2, vec![2, 2]),
+                    Seen::Unknown(99),
+                    Seen::Frame(4, vec![0xFD; 30])
+                ]
+            );
+            assert_eq!(skipped, 0);
+        }
+    }
+
+    #[test]
+    fn unknown_messages_are_skipped_whole_when_followed_by_a_frame_or_the_end() {
         let mut bytes = v2(1, 99, &[STX_V2, STX_V1, 3]);
         bytes.extend(v2(2, 7, &[1]));
-        let (frames, rejects, _) = run(&bytes, 64);
-        assert_eq!(frames, vec![(2, vec![1])]);
-        assert_eq!(rejects, vec![Reject::UnknownMessage(99)]);
+        let (seen, _) = run(&bytes, 64);
+        assert_eq!(seen, vec![Seen::Unknown(99), Seen::Frame(2, vec![1])]);
+        // Followed by nothing yet: waits; by the end of the input: skipped whole.
+        assert_eq!(run(&v2(1, 99, &[5]), 64).0, vec![]);
+        assert_eq!(run_pieces(&[v2(1, 99, &[5])], 64, true).0, vec![Seen::Unknown(99)]);
+        // Followed by noise: not trusted, rescanned.
+        let mut noisy = v2(1, 99, &[5]);
+        noisy.push(0x00);
+        assert_eq!(run(&noisy, 64).0.first(), Some(&Seen::Corrupt));
     }
 
     #[test]
-    fn signed_frames_are_accepted_and_unknown_flags_rejected() {
+    fn signed_frames_come_out_whole_and_unknown_flags_are_rejected() {
         let mut signed = v2(1, 7, &[1, 2]);
         signed[2] = IFLAG_SIGNED;
         let crc_at = signed.len() - 2;
@@ -325,11 +528,18 @@ mod tests {
         signed.extend([0xAA; SIGNATURE]);
         let mut flagged = v2(2, 7, &[3]);
         flagged[2] = 0x02;
-        let mut bytes = signed;
-        bytes.extend(flagged);
-        let (frames, rejects, _) = run(&bytes, 64);
-        assert_eq!(frames, vec![(1, vec![1, 2])]);
-        assert_eq!(rejects.first(), Some(&Reject::Corrupt));
+        let mut parser = FrameParser::new();
+        parser.push(&signed);
+        match parser.next(extra) {
+            Some(Event::Frame(f)) => {
+                assert!(f.signed);
+                assert_eq!(f.bytes, signed.as_slice());
+                assert_eq!(f.payload, &[1, 2]);
+            }
+            other => panic!("{other:?}"),
+        }
+        let (seen, _) = run(&flagged, 64);
+        assert_eq!(seen.first(), Some(&Seen::Corrupt));
     }
 
     #[test]
@@ -349,13 +559,14 @@ mod tests {
             });
         }
         let good = v2(77, 7, &[1, 2, 3]);
-        let mut bytes = noise;
-        // A full frame of zeros flushes any pending false candidate, then a good frame.
-        bytes.extend([0u8; MAX_FRAME + 1]);
-        bytes.extend(&good);
         for chunk in [1, 13, 64] {
-            let (frames, _, _) = run(&bytes, chunk);
-            assert_eq!(frames.last(), Some(&(77, vec![1, 2, 3])), "chunk {chunk}");
+            // A full frame of zeros flushes any pending false candidate in a stream that never pauses...
+            let flushed = [noise.clone(), vec![0u8; MAX_FRAME + 1], good.clone()].concat();
+            let (seen, _) = run(&flushed, chunk);
+            assert_eq!(seen.last(), Some(&Seen::Frame(77, vec![1, 2, 3])), "chunk {chunk}");
+            // ...and so does the end of the input.
+            let (seen, _) = run_pieces(&[noise.clone(), good.clone()], chunk, true);
+            assert_eq!(seen.last(), Some(&Seen::Frame(77, vec![1, 2, 3])), "chunk {chunk}");
         }
     }
 }

@@ -1,4 +1,5 @@
-//! What the console's MAVLink messages ask for: one [`Command`] per message addressed to this vehicle.
+//! What the console's MAVLink messages ask for: one [`Command`] per message addressed to this vehicle. Whether its
+//! sender may ask it is the vehicle's decision.
 
 use embassy_time::Duration;
 use mavlink_core::MessageData;
@@ -9,7 +10,7 @@ use super::frame::{Frame, Version};
 use super::lbv::{
     BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_LONG_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA,
     HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
-    PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::shared::{Command, ManualInput};
 
@@ -17,13 +18,17 @@ use crate::shared::{Command, ManualInput};
 pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
 /// MAV_CMD_DO_MOTOR_TEST.
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
+/// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
+pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
+/// Its param1 asking the autopilot to reboot (REBOOT_SHUTDOWN_ACTION_REBOOT).
+const REBOOT_AUTOPILOT: f32 = 1.0;
 /// MOTOR_TEST_THROTTLE_PERCENT, the only motor test throttle type supported.
 const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 /// Longest motor test run.
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 13] = [
+const MESSAGES: [(u32, u8); 14] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
@@ -35,6 +40,7 @@ const MESSAGES: [(u32, u8); 13] = [
     (COMMAND_ACK_DATA::ID, COMMAND_ACK_DATA::EXTRA_CRC),
     (BATTERY_STATUS_DATA::ID, BATTERY_STATUS_DATA::EXTRA_CRC),
     (STATUSTEXT_DATA::ID, STATUSTEXT_DATA::EXTRA_CRC),
+    (SETUP_SIGNING_DATA::ID, SETUP_SIGNING_DATA::EXTRA_CRC),
     (ESC_TELEMETRY_1_TO_4_DATA::ID, ESC_TELEMETRY_1_TO_4_DATA::EXTRA_CRC),
     (ESC_TELEMETRY_5_TO_8_DATA::ID, ESC_TELEMETRY_5_TO_8_DATA::EXTRA_CRC),
 ];
@@ -44,41 +50,26 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
     MESSAGES.iter().find(|(id, _)| *id == message_id).map(|&(_, crc)| crc)
 }
 
-/// A decoded message that asks something of the vehicle.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Inbound {
-    /// The command for the vehicle task.
-    pub command: Command,
-    /// Sender (system, component) of a COMMAND_LONG, which its COMMAND_ACK is addressed to.
-    pub commander: Option<(u8, u8)>,
-}
-
-impl From<Command> for Inbound {
-    fn from(command: Command) -> Self {
-        Self {
-            command,
-            commander: None,
-        }
-    }
-}
-
 /// Decode a CRC-valid frame. `Ok(None)` for messages that ask nothing of this vehicle: telemetry from other
 /// systems, messages addressed to another system or component, HEARTBEATs that are not from a ground station.
-/// `Err` when the payload does not decode (an enum value that does not exist).
+/// `Err` when the payload does not decode (an enum value that does not exist). Who sent it is in the frame's
+/// header, and the vehicle decides whether that sender may ask it.
 ///
 /// Mapping:
-/// - HEARTBEAT with type MAV_TYPE_GCS, from any system: [`Command::Heartbeat`]. Other components' heartbeats
-///   (a companion computer, another vehicle, our own echo) do not prove that the pilot is there.
+/// - HEARTBEAT with type MAV_TYPE_GCS: [`Command::Heartbeat`]. Other components' heartbeats (a companion
+///   computer, another vehicle, our own echo) do not prove that the pilot is there.
 /// - MANUAL_CONTROL to our system (or 0): [`Command::Manual`]; x, y, r clamped to -1000..=1000, z to 0..=1000
 ///   (ArduSub's 500-neutral heave); an axis sent as INT16_MAX ("invalid") reads as neutral.
 /// - COMMAND_LONG to our system and component (or 0): 400 gives [`Command::Arm`] (arm when param1 is exactly 1,
 ///   disarm otherwise); 209 gives [`Command::MotorTest`] for throttle type MOTOR_TEST_THROTTLE_PERCENT (param1
 ///   motor number, param3 percent clamped to -100..=100, param4 seconds clamped to 0..=10, NaN reads as 0), and
-///   [`Command::Unsupported`] for the other throttle types; any other command gives [`Command::Unsupported`].
-///   The vehicle task answers every one with a COMMAND_ACK.
+///   [`Command::Unsupported`] for the other throttle types; 246 with param1 exactly 1 (reboot the autopilot)
+///   gives [`Command::Reboot`], other actions (shutdown, bootloader, none) [`Command::Unsupported`]; any other
+///   command gives [`Command::Unsupported`]. The vehicle task answers every one with a COMMAND_ACK.
+/// - SETUP_SIGNING to our system and component (or 0): [`Command::SetupSigning`].
 /// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
 ///   command; the value is taken as a float whatever param_type says.
-pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Inbound>, ParserError> {
+pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Command>, ParserError> {
     let version = match frame.version {
         Version::V1 => mavlink_core::MavlinkVersion::V1,
         Version::V2 => mavlink_core::MavlinkVersion::V2,
@@ -87,49 +78,47 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Inboun
     let for_us = |system: u8, component: u8| {
         (system == 0 || system == config.system_id) && (component == 0 || component == config.component_id)
     };
-    let inbound = match frame.message_id {
+    let command = match frame.message_id {
         HEARTBEAT_DATA::ID => {
             let m = HEARTBEAT_DATA::deser(version, payload)?;
-            (m.mavtype == MavType::MAV_TYPE_GCS).then_some(Command::Heartbeat.into())
+            (m.mavtype == MavType::MAV_TYPE_GCS).then_some(Command::Heartbeat)
         }
         MANUAL_CONTROL_DATA::ID => {
             let m = MANUAL_CONTROL_DATA::deser(version, payload)?;
-            (m.target == 0 || m.target == config.system_id).then(|| Command::Manual(manual_input(&m)).into())
+            (m.target == 0 || m.target == config.system_id).then(|| Command::Manual(manual_input(&m)))
         }
         COMMAND_LONG_DATA::ID => {
             let m = COMMAND_LONG_DATA::deser(version, payload)?;
-            for_us(m.target_system, m.target_component).then(|| Inbound {
-                command: command_long(&m),
-                commander: Some((frame.system_id, frame.component_id)),
-            })
+            for_us(m.target_system, m.target_component).then(|| command_long(&m))
         }
         PARAM_REQUEST_LIST_DATA::ID => {
             let m = PARAM_REQUEST_LIST_DATA::deser(version, payload)?;
-            for_us(m.target_system, m.target_component).then_some(Command::ParamRequestList.into())
+            for_us(m.target_system, m.target_component).then_some(Command::ParamRequestList)
         }
         PARAM_REQUEST_READ_DATA::ID => {
             let m = PARAM_REQUEST_READ_DATA::deser(version, payload)?;
-            for_us(m.target_system, m.target_component).then(|| {
-                Command::ParamRequestRead {
-                    id: *m.param_id,
-                    index: m.param_index,
-                }
-                .into()
+            for_us(m.target_system, m.target_component).then_some(Command::ParamRequestRead {
+                id: *m.param_id,
+                index: m.param_index,
             })
         }
         PARAM_SET_DATA::ID => {
             let m = PARAM_SET_DATA::deser(version, payload)?;
-            for_us(m.target_system, m.target_component).then(|| {
-                Command::ParamSet {
-                    id: *m.param_id,
-                    value: m.param_value,
-                }
-                .into()
+            for_us(m.target_system, m.target_component).then_some(Command::ParamSet {
+                id: *m.param_id,
+                value: m.param_value,
+            })
+        }
+        SETUP_SIGNING_DATA::ID => {
+            let m = SETUP_SIGNING_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then_some(Command::SetupSigning {
+                key: m.secret_key,
+                timestamp: m.initial_timestamp,
             })
         }
         _ => None,
     };
-    Ok(inbound)
+    Ok(command)
 }
 
 /// The sticks of a MANUAL_CONTROL, with invalid axes neutral.
@@ -147,6 +136,7 @@ fn manual_input(m: &MANUAL_CONTROL_DATA) -> ManualInput {
 fn command_long(m: &COMMAND_LONG_DATA) -> Command {
     match m.command {
         MAV_CMD_COMPONENT_ARM_DISARM => Command::Arm(m.param1 == 1.0),
+        MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN if m.param1 == REBOOT_AUTOPILOT => Command::Reboot,
         MAV_CMD_DO_MOTOR_TEST if m.param2 == MOTOR_TEST_THROTTLE_PERCENT => {
             // Float to integer casts saturate and read NaN as 0; `max`/`min` would turn NaN into the bound.
             let percent = if m.param3.is_nan() {
@@ -181,6 +171,8 @@ mod tests {
             component_id: 190,
             message_id,
             payload,
+            signed: false,
+            bytes: &[],
         }
     }
 
@@ -208,9 +200,7 @@ mod tests {
 
     fn decode_long(m: &COMMAND_LONG_DATA) -> Option<Command> {
         let payload = encode(m);
-        decode(&frame(COMMAND_LONG_DATA::ID, &payload), &ConsoleConfig::DEFAULT)
-            .unwrap()
-            .map(|i| i.command)
+        decode(&frame(COMMAND_LONG_DATA::ID, &payload), &ConsoleConfig::DEFAULT).unwrap()
     }
 
     #[test]
@@ -228,6 +218,7 @@ mod tests {
             (77, 143),
             (147, 154),
             (253, 83),
+            (256, 71),
             (11030, 144),
             (11031, 133),
         ] {
@@ -293,6 +284,41 @@ mod tests {
     }
 
     #[test]
+    fn reboot_only_of_the_autopilot() {
+        assert_eq!(decode_long(&long(246, [1.0, 0.0, 0.0, 0.0])), Some(Command::Reboot));
+        for action in [0.0, 2.0, 3.0, f32::NAN] {
+            assert_eq!(
+                decode_long(&long(246, [action, 0.0, 0.0, 0.0])),
+                Some(Command::Unsupported { command: 246 }),
+                "{action}"
+            );
+        }
+    }
+
+    #[test]
+    fn setup_signing() {
+        let m = SETUP_SIGNING_DATA {
+            target_system: 1,
+            target_component: 0,
+            secret_key: [0xA5; 32],
+            initial_timestamp: 0x0000_1234_5678_9ABC,
+        };
+        let payload = encode(&m);
+        assert_eq!(
+            decode(&frame(SETUP_SIGNING_DATA::ID, &payload), &ConsoleConfig::DEFAULT).unwrap(),
+            Some(Command::SetupSigning {
+                key: [0xA5; 32],
+                timestamp: 0x0000_1234_5678_9ABC
+            })
+        );
+        let other = encode(&SETUP_SIGNING_DATA { target_system: 2, ..m });
+        assert_eq!(
+            decode(&frame(SETUP_SIGNING_DATA::ID, &other), &ConsoleConfig::DEFAULT).unwrap(),
+            None
+        );
+    }
+
+    #[test]
     fn commands_for_other_systems_or_components_are_ignored() {
         let mut m = long(400, [1.0, 0.0, 0.0, 0.0]);
         m.target_system = 2;
@@ -318,7 +344,7 @@ mod tests {
         let payload = encode(&m);
         let got = decode(&frame(MANUAL_CONTROL_DATA::ID, &payload), &ConsoleConfig::DEFAULT).unwrap();
         assert_eq!(
-            got.map(|i| i.command),
+            got,
             Some(Command::Manual(ManualInput {
                 x: 1000,
                 y: -1000,

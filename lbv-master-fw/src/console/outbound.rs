@@ -13,7 +13,7 @@ use super::lbv::{
     MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::battery::BatterySummary;
-use crate::shared::{AckResult, MAX_THRUSTERS, ParamId, Severity, Text, ThrusterReport, VehicleState};
+use crate::shared::{AckResult, MAX_THRUSTERS, ParamId, Sender, Severity, Text, ThrusterReport, VehicleState};
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
 
@@ -54,6 +54,10 @@ pub struct LinkQuality {
     pub drop_rate: u16,
     /// Corrupt frames since start (wrapping).
     pub errors: u16,
+    /// Requests refused since start because they came from another system than the operator's (wrapping).
+    pub refused_other_system: u16,
+    /// Frames refused since start by the signing checks (wrapping).
+    pub refused_by_signing: u16,
 }
 
 /// The battery's fresh reading: `None` when there is none or it is stale.
@@ -92,7 +96,9 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 ///   "unknown" values UINT16_MAX, -1, -1.
 /// - drop_rate_comm, errors_comm: the console link ([`LinkQuality`]).
 /// - errors_count1: thruster link errors (NACK, timeout, checksum, type, length, range, bus), summed over the
-///   configured thrusters; errors_count2: battery CAN frames that did not decode; errors_count3/4: 0.
+///   configured thrusters; errors_count2: battery CAN frames that did not decode; errors_count3: console
+///   requests refused because they came from another system than the operator's; errors_count4: console frames
+///   refused by the signing checks.
 /// - load: 0 (not measured).
 pub fn sys_status(
     thrusters: usize,
@@ -115,7 +121,9 @@ pub fn sys_status(
         MavSysStatusSensor::empty()
     };
     let present = motors | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
-    let mut health = present;
+    // No geofence exists, so none is breached: reported healthy as ArduPilot does. Ground stations that take the
+    // bit's absence for a breach (MAVProxy says "fence breach" at connect) stay quiet.
+    let mut health = present | MavSysStatusSensor::MAV_SYS_STATUS_GEOFENCE;
     health.set(MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS, all_online);
     health.set(
         MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_PROPULSION,
@@ -155,8 +163,8 @@ pub fn sys_status(
         errors_comm: link.errors,
         errors_count1: errors as u16,
         errors_count2: battery.map_or(0, |b| b.errors as u16),
-        errors_count3: 0,
-        errors_count4: 0,
+        errors_count3: link.refused_other_system,
+        errors_count4: link.refused_by_signing,
         onboard_control_sensors_present_extended: leak,
         onboard_control_sensors_enabled_extended: leak,
         onboard_control_sensors_health_extended: leak_health,
@@ -366,16 +374,16 @@ pub fn statustext(level: Severity, text: &Text) -> STATUSTEXT_DATA {
     }
 }
 
-/// COMMAND_ACK, addressed to the command's sender (`commander`, 0/0 when unknown). Progress and result_param2
-/// are 0 (the master never answers IN_PROGRESS).
-pub fn command_ack(command: u16, answer: AckResult, commander: (u8, u8)) -> COMMAND_ACK_DATA {
+/// COMMAND_ACK, addressed to the command's sender. Progress and result_param2 are 0 (the master never answers
+/// IN_PROGRESS).
+pub fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_DATA {
     COMMAND_ACK_DATA {
         command,
         result: result(answer),
         progress: 0,
         result_param2: 0,
-        target_system: commander.0,
-        target_component: commander.1,
+        target_system: to.system,
+        target_component: to.component,
     }
 }
 
@@ -410,7 +418,8 @@ impl Framer {
         }
     }
 
-    /// Frame one message (MAVLink 2, unsigned) and return its bytes.
+    /// Frame one message (MAVLink 2, unsigned: [`crate::signing::SigningState::sign`] signs it) and return its
+    /// bytes.
     pub fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
         self.raw.serialize_message_data(self.header, message);
         self.header.sequence = self.header.sequence.wrapping_add(1);
@@ -471,6 +480,7 @@ mod tests {
             Some(VehicleState {
                 armed: false,
                 console_alive: true,
+                refused: 0,
             }),
         ] {
             let hb = heartbeat(vehicle);
@@ -480,6 +490,7 @@ mod tests {
         let hb = heartbeat(Some(VehicleState {
             armed: true,
             console_alive: true,
+            refused: 0,
         }));
         assert_eq!(hb.base_mode.bits(), 0xC1);
         assert_eq!(hb.system_status, MavState::MAV_STATE_ACTIVE);
@@ -542,17 +553,22 @@ mod tests {
         let link = LinkQuality {
             drop_rate: 250,
             errors: 3,
+            refused_other_system: 4,
+            refused_by_signing: 5,
         };
         let s = sys_status(6, &reports, Some(&battery()), link);
         let motors = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
         let bat = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
         assert!(s.onboard_control_sensors_present.contains(motors | bat));
         assert!(s.onboard_control_sensors_health.contains(motors | bat));
+        let fence = MavSysStatusSensor::MAV_SYS_STATUS_GEOFENCE;
+        assert!(!s.onboard_control_sensors_present.contains(fence) && s.onboard_control_sensors_health.contains(fence));
         assert_eq!(
             (s.voltage_battery, s.current_battery, s.battery_remaining),
             (25_200, -350, 80)
         );
         assert_eq!((s.drop_rate_comm, s.errors_comm, s.errors_count2), (250, 3, 2));
+        assert_eq!((s.errors_count3, s.errors_count4), (4, 5));
 
         // One thruster offline with errors, a stale battery.
         if let Some(r) = reports[2].as_mut() {

@@ -3,16 +3,20 @@
 #![allow(dead_code)]
 
 use std::cell::Cell;
+use std::collections::VecDeque;
 use std::convert::Infallible;
 use std::rc::Rc;
 
 use embassy_futures::block_on;
+use embassy_futures::join::join3;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
-use embassy_time::Duration;
+use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::MavMessage;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, console_rx_task, console_tx_task};
-use lbv_master_fw::shared::{Command, Shared};
+use lbv_master_fw::params::Settings;
+use lbv_master_fw::shared::{Command, Request, Shared};
+use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, MessageData};
 
 /// The virtual clock is one per process: tests that move it take it (at 0).
@@ -53,11 +57,12 @@ impl embedded_io_async::Read for ScriptedRx {
             self.idle.set(true);
             core::future::pending::<()>().await;
         }
+        // Let the other side run between chunks, as a UART would (before taking the bytes: a read may be dropped
+        // while it waits, and a UART loses nothing then).
+        yield_now().await;
         let n = self.chunk.min(buf.len()).min(self.data.len() - self.pos);
         buf[..n].copy_from_slice(&self.data[self.pos..self.pos + n]);
         self.pos += n;
-        // Let the other side run between chunks, as a UART would.
-        yield_now().await;
         Ok(n)
     }
 }
@@ -65,12 +70,22 @@ impl embedded_io_async::Read for ScriptedRx {
 /// Feed `bytes` to a console receive task in chunks of `chunk`; returns the commands it produced, in order, and
 /// its counters.
 pub fn run_rx(bytes: &[u8], chunk: usize, config: &ConsoleConfig) -> (Vec<Command>, ConsoleCounters) {
-    let shared = Shared::new();
+    let (requests, counters) = run_rx_requests(bytes, chunk, config, &Shared::new());
+    (requests.into_iter().map(|request| request.command).collect(), counters)
+}
+
+/// As [`run_rx`], with the requests (who sent what), and the settings in force in `shared`.
+pub fn run_rx_requests(
+    bytes: &[u8],
+    chunk: usize,
+    config: &ConsoleConfig,
+    shared: &Shared,
+) -> (Vec<Request>, ConsoleCounters) {
     let stats = ConsoleStats::new();
     let mut rx = ScriptedRx::new(bytes.to_vec(), chunk);
     let idle = rx.idle.clone();
     let mut commands = vec![];
-    block_on(select(console_rx_task(&mut rx, config, &shared, &stats), async {
+    block_on(select(console_rx_task(&mut rx, config, shared, &stats), async {
         loop {
             while let Ok(command) = shared.commands.try_receive() {
                 commands.push(command);
@@ -149,4 +164,78 @@ pub fn parse_all(bytes: &[u8]) -> Vec<(MavHeader, MavMessage)> {
 pub fn ids(frames: &[(MavHeader, MavMessage)]) -> Vec<u32> {
     use mavlink_core::Message;
     frames.iter().map(|(_, m)| m.message_id()).collect()
+}
+
+/// A serial line on the virtual clock: each burst of bytes arrives at its time (a ground station writes a frame
+/// at once), and nothing between them.
+pub struct Line(pub VecDeque<(Instant, Vec<u8>)>);
+
+impl Line {
+    /// Bursts at the given milliseconds, in time order.
+    pub fn new(mut bursts: Vec<(u64, Vec<u8>)>) -> Self {
+        bursts.sort_by_key(|(ms, _)| *ms);
+        Self(
+            bursts
+                .into_iter()
+                .map(|(ms, bytes)| (Instant::from_millis(ms), bytes))
+                .collect(),
+        )
+    }
+}
+
+impl embedded_io_async::ErrorType for Line {
+    type Error = Infallible;
+}
+
+impl embedded_io_async::Read for Line {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        loop {
+            match self.0.front_mut() {
+                Some((at, bytes)) if *at <= Instant::now() => {
+                    let n = bytes.len().min(buf.len());
+                    buf[..n].copy_from_slice(&bytes[..n]);
+                    bytes.drain(..n);
+                    if bytes.is_empty() {
+                        self.0.pop_front();
+                    }
+                    return Ok(n);
+                }
+                _ => yield_now().await,
+            }
+        }
+    }
+}
+
+/// The console and the vehicle on the virtual clock, which this takes (at 0) for the run: the receive, transmit and
+/// vehicle tasks, with `line` as the console's input, run for `run_for` in 1 ms steps; `each_ms` sees the shared
+/// state after every step. Returns what the console sent.
+pub fn run_console(
+    settings: Settings,
+    line: Line,
+    run_for: Duration,
+    mut each_ms: impl FnMut(Instant, &Shared, &ConsoleStats),
+) -> Vec<u8> {
+    let clock = clock();
+    let shared = Shared::new();
+    let stats = ConsoleStats::new();
+    let capture = Capture::default();
+    let mut tx = capture.clone();
+    let mut rx = line;
+    let config = ConsoleConfig::DEFAULT;
+    let tasks = join3(
+        console_rx_task(&mut rx, &config, &shared, &stats),
+        console_tx_task(&mut tx, &config, &shared, &stats),
+        vehicle_task(VehicleConfig::DEFAULT, settings, &shared),
+    );
+    block_on(select(tasks, async {
+        let end = Instant::now() + run_for;
+        while Instant::now() < end {
+            for _ in 0..8 {
+                yield_now().await;
+            }
+            each_ms(Instant::now(), &shared, &stats);
+            clock.advance(Duration::from_millis(1));
+        }
+    }));
+    capture.take()
 }

@@ -2,8 +2,10 @@
 //! the bench's simulated buses, CAN bus and console link. Its thruster buses run either the vehicle's polling or
 //! the acceptance script, whose operator is the scenario (through a [`Desk`]).
 //!
-//! What the master is wired to ([`Wiring`]) lives as long as the bench; the node itself (its tasks and their
-//! state) is dropped and booted afresh by [`MasterBoard::reboot`].
+//! What the master is wired to ([`Wiring`]) lives as long as the bench, and so does its flash
+//! ([`MasterBoard::flash`], the G431's 128 KiB with the settings in their pages); the node itself (its tasks and
+//! their state) is dropped and booted afresh by [`MasterBoard::reboot`], which the bench also calls when the
+//! master asks for it (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN). Both images keep their settings in that flash.
 
 use core::cell::{Cell, RefCell};
 use std::rc::Rc;
@@ -14,9 +16,10 @@ use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::sim::thruster_bus;
+use lbv_master_fw::sim::{RebootRequest, flash_store, g431_flash, thruster_bus};
 use lbv_master_fw::thrusters::BUSES;
-use lbv_master_fw::{MasterConfig, Polling, Ports};
+use lbv_master_fw::{BusWork, MasterConfig, Polling, Ports};
+use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
@@ -83,6 +86,11 @@ pub struct MasterBoard {
     pub console_stats: Rc<ConsoleStats>,
     /// With the acceptance script: its results and prompts.
     pub desk: Option<Rc<Desk>>,
+    /// Its flash: kept across reboots and power cycles (a handle; cut its power to cut the master's).
+    pub flash: Stm32g4Flash,
+    /// Times it has booted.
+    pub boots: u32,
+    reboot: RebootRequest,
     task: Option<TaskId>,
 }
 
@@ -95,14 +103,23 @@ impl MasterBoard {
             shared: Rc::new(Shared::new()),
             console_stats: Rc::new(ConsoleStats::new()),
             desk: None,
+            flash: g431_flash(),
+            boots: 0,
+            reboot: RebootRequest::default(),
             task: None,
         };
         board.start(wiring, executor);
         board
     }
 
+    /// Whether the master has asked to restart since it booted.
+    pub fn reboot_requested(&self) -> bool {
+        self.reboot.requested() > 0
+    }
+
     /// Reset the master: its tasks stop where they are and it boots again with fresh state (a CAN controller that
-    /// restarts has an empty receive FIFO). What it is wired to stays as it is.
+    /// restarts has an empty receive FIFO). What it is wired to and its flash stay as they are; a flash whose power
+    /// was cut has it back (a power cycle is a reset that may tear a flash write).
     pub fn reboot(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
         if let Some(task) = self.task.take() {
             executor.remove(task);
@@ -110,41 +127,37 @@ impl MasterBoard {
         self.shared = Rc::new(Shared::new());
         self.console_stats = Rc::new(ConsoleStats::new());
         wiring.can.clear();
+        self.flash.power_on();
         self.start(wiring, executor);
     }
 
     fn start(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
-        let buses = wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus));
-        let (can, console_rx, console_tx) = (
-            wiring.can.clone(),
-            SerialRx::new(wiring.console_in.clone()),
-            SerialTx(wiring.console_out.clone()),
-        );
-        let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
-        self.task = Some(if self.acceptance {
+        self.reboot = RebootRequest::default();
+        self.boots += 1;
+        let task = if self.acceptance {
             let desk = Rc::new(Desk::default());
             self.desk = Some(desk.clone());
-            let ports = Ports {
-                buses,
-                can,
-                console_rx,
-                console_tx,
-                work: Script(DeskOperator(desk)),
-            };
-            executor.spawn(async move {
-                lbv_master_fw::run(ports, &config, &shared, &stats).await;
-            })
+            self.spawn(wiring, executor, Script(DeskOperator(desk)))
         } else {
-            let ports = Ports {
-                buses,
-                can,
-                console_rx,
-                console_tx,
-                work: Polling,
-            };
-            executor.spawn(async move {
-                lbv_master_fw::run(ports, &config, &shared, &stats).await;
-            })
-        });
+            self.spawn(wiring, executor, Polling)
+        };
+        self.task = Some(task);
+    }
+
+    /// The node on its ports, with `work` on its thruster buses.
+    fn spawn(&self, wiring: &Wiring, executor: &mut Executor<'static>, work: impl BusWork + 'static) -> TaskId {
+        let ports = Ports {
+            buses: wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus)),
+            can: wiring.can.clone(),
+            console_rx: SerialRx::new(wiring.console_in.clone()),
+            console_tx: SerialTx(wiring.console_out.clone()),
+            settings: flash_store(&self.flash),
+            reboot: self.reboot.clone(),
+            work,
+        };
+        let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
+        executor.spawn(async move {
+            lbv_master_fw::run(ports, &config, &shared, &stats).await;
+        })
     }
 }

@@ -366,6 +366,12 @@ impl Bench {
     /// Run the tasks woken at this instant until none is ready: the one place both engines do so.
     fn run_tasks(&mut self) {
         self.executor.run_until_idle();
+        // The master asked to restart (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN): it boots again with its flash kept.
+        if self.master.reboot_requested() {
+            self.note("master reboots");
+            self.reboot_master();
+            self.executor.run_until_idle();
+        }
     }
 
     /// Fixed-step engine: one step.

@@ -3,7 +3,11 @@
 //!
 //! Ground-station convention: the vehicle sends its MAVLink to the station's port (14550) and the station answers
 //! to the address the datagrams came from, so one socket does both: bound to the listen address, it sends every
-//! byte the master writes to the send address and feeds every datagram it receives into the master's console.
+//! byte the master writes to the send address and feeds the frames of every datagram it receives into the
+//! master's console.
+//!
+//! Each datagram is parsed on its own, as a MAVLink router does: its whole frames go to the console, and bytes
+//! that make no frame are dropped at its end, so a broken datagram cannot hide the frames of the next one.
 
 use std::cell::Cell;
 use std::io::{self, ErrorKind, Write as _};
@@ -12,6 +16,8 @@ use std::rc::Rc;
 use std::time::Instant as WallInstant;
 
 use embassy_time::{Duration, Instant};
+use lbv_master_fw::console::frame::{Event, FrameParser};
+use lbv_master_fw::console::inbound;
 
 use super::Bench;
 
@@ -32,6 +38,8 @@ const DATAGRAM: usize = 2048;
 pub struct LinkCounters {
     /// Datagrams received and fed to the master.
     pub datagrams_in: u64,
+    /// Bytes of received datagrams that made no whole frame, dropped.
+    pub dropped_bytes: u64,
     /// Datagrams sent (one per step in which the master wrote something).
     pub datagrams_out: u64,
     /// Sends or receives that failed (other than nothing to read).
@@ -94,7 +102,9 @@ impl UdpLink {
             match self.socket.recv_from(&mut buf) {
                 Ok((n, _)) => {
                     count.datagrams_in += 1;
-                    bench.send(buf.get(..n).unwrap_or_default().to_vec());
+                    let (frames, dropped) = frames_of(buf.get(..n).unwrap_or_default());
+                    count.dropped_bytes += dropped as u64;
+                    bench.send(frames);
                 }
                 Err(error) if error.kind() == ErrorKind::WouldBlock => break,
                 // An ICMP "port unreachable" for an earlier send (no station listening yet) shows up here on some
@@ -112,6 +122,31 @@ impl UdpLink {
         }
         self.counters.set(count);
     }
+}
+
+/// The whole frames of one datagram, in order (those of messages outside the master's dialect too, framed by
+/// their length), and how many of its bytes made no frame.
+pub fn frames_of(datagram: &[u8]) -> (Vec<u8>, usize) {
+    let mut parser = FrameParser::new();
+    let mut frames = Vec::with_capacity(datagram.len());
+    let mut rest = datagram;
+    loop {
+        let taken = parser.push(rest);
+        rest = rest.get(taken..).unwrap_or_default();
+        if rest.is_empty() {
+            parser.end_of_input();
+        }
+        while let Some(event) = parser.next(inbound::extra_crc) {
+            if let Event::Frame(frame) | Event::Unknown(frame) = event {
+                frames.extend_from_slice(frame.bytes);
+            }
+        }
+        if rest.is_empty() {
+            break;
+        }
+    }
+    let dropped = datagram.len() - frames.len();
+    (frames, dropped)
 }
 
 /// Keeps virtual time from running ahead of the wall clock; when the machine is too slow, virtual time falls
@@ -188,12 +223,17 @@ fn status_line(bench: &Bench, counters: LinkCounters) {
     let mut out = io::stdout().lock();
     let _ = writeln!(
         out,
-        "t {:7.1} s  {:<8}  rpm {}  udp in {} out {}{}",
+        "t {:7.1} s  {:<8}  rpm {}  udp in {} out {}{}{}",
         sample.t,
         if sample.armed { "ARMED" } else { "disarmed" },
         rpm.join(" "),
         counters.datagrams_in,
         counters.datagrams_out,
+        if counters.dropped_bytes > 0 {
+            format!(" dropped {} B", counters.dropped_bytes)
+        } else {
+            String::new()
+        },
         if counters.errors > 0 {
             format!(" errors {}", counters.errors)
         } else {
@@ -201,4 +241,67 @@ fn status_line(bench: &Bench, counters: LinkCounters) {
         }
     );
     let _ = out.flush();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lbv_master_fw::console::lbv::{
+        HEARTBEAT_DATA, MavAutopilot, MavModeFlag, MavState, MavType, PARAM_REQUEST_LIST_DATA,
+    };
+    use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
+
+    fn frame<D: MessageData>(message: &D) -> Vec<u8> {
+        let mut raw = MAVLinkV2MessageRaw::new();
+        raw.serialize_message_data(
+            MavHeader {
+                system_id: 255,
+                component_id: 190,
+                sequence: 7,
+            },
+            message,
+        );
+        raw.raw_bytes().to_vec()
+    }
+
+    fn heartbeat() -> Vec<u8> {
+        frame(&HEARTBEAT_DATA {
+            custom_mode: 0,
+            mavtype: MavType::MAV_TYPE_GCS,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+            base_mode: MavModeFlag::empty(),
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        })
+    }
+
+    #[test]
+    fn whole_frames_pass_unchanged() {
+        let list = frame(&PARAM_REQUEST_LIST_DATA {
+            target_system: 1,
+            target_component: 1,
+        });
+        // SYSTEM_TIME (id 2), outside the dialect: framed by its length.
+        let mut system_time = vec![0xFD, 12, 0, 0, 0, 255, 190, 2, 0, 0];
+        system_time.extend([1u8; 14]);
+        let datagram = [heartbeat(), system_time, list].concat();
+        assert_eq!(frames_of(&datagram), (datagram.clone(), 0));
+        // Larger than the parser's buffer.
+        let big: Vec<u8> = std::iter::repeat_n(heartbeat(), 200).flatten().collect();
+        assert_eq!(frames_of(&big), (big.clone(), 0));
+    }
+
+    #[test]
+    fn a_broken_datagram_does_not_hide_the_next_one() {
+        // A stray start byte, alone or in front of a frame, and a frame cut short: what makes no frame is dropped
+        // at the end of its datagram.
+        for stray in [&[0xFE][..], &[0xFD, 0xFF, 0x00]] {
+            assert_eq!(frames_of(stray), (vec![], stray.len()));
+            let datagram = [stray, heartbeat().as_slice()].concat();
+            assert_eq!(frames_of(&datagram), (heartbeat(), stray.len()), "{stray:02x?}");
+        }
+        let cut = &heartbeat()[..15];
+        assert_eq!(frames_of(cut), (vec![], 15));
+        assert_eq!(frames_of(&heartbeat()), (heartbeat(), 0));
+    }
 }

@@ -4,10 +4,11 @@
 //!
 //! - [`harness`]: the run, its checks and report, and the checks every run gets;
 //! - [`fault`]: the one [`Fault`] type the scenarios, the soak and the acceptance operator inject and clear;
-//! - the scenario groups: [`vehicle`], [`thruster_faults`], [`bus`], [`soak`], [`acceptance`].
+//! - the scenario groups: [`vehicle`], [`console`], [`thruster_faults`], [`bus`], [`soak`], [`acceptance`].
 
 pub mod acceptance;
 pub mod bus;
+pub mod console;
 pub mod fault;
 pub mod harness;
 pub mod soak;
@@ -23,6 +24,7 @@ pub use harness::{Options, Report, Scenario, run_guarded};
 
 use acceptance::acceptance;
 use bus::{bad_frames, missing_thruster, reset_mid_transfer, stuck_sda};
+use console::{ground_station_1hz, second_sysid, settings_persist, settings_power_cut, signing, stray_byte};
 use harness::{dev_kits, lbv300, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{ground_fault, hall, overtemp, stall, water};
@@ -141,8 +143,9 @@ pub const SCENARIOS: &[Scenario] = &[
     },
     Scenario {
         name: "console-silence",
-        about: "the console link drops for 3 s while armed: disarm and stop after 1 s, no restart until re-armed",
-        seconds: 8.0,
+        about: "the console link drops while armed: neutral after 3 s without sticks, disarmed 5 s after the last \
+                heartbeat, no restart until re-armed",
+        seconds: 11.0,
         vehicle: lbv300,
         run: console_silence,
     },
@@ -166,6 +169,48 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 5.0,
         vehicle: lbv300,
         run: battery_bits,
+    },
+    Scenario {
+        name: "ground-station-1hz",
+        about: "a ground station at 1 Hz holds the vehicle armed on its heartbeats alone, one lost, and with sticks",
+        seconds: 20.0,
+        vehicle: lbv300,
+        run: ground_station_1hz,
+    },
+    Scenario {
+        name: "stray-byte",
+        about: "stray bytes on the console, alone and in front of a frame: the frame gets through, still armed",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: stray_byte,
+    },
+    Scenario {
+        name: "second-sysid",
+        about: "system 42 tries to arm, command, set parameters and steer: DENIED or ignored, counted; no failsafe cover",
+        seconds: 12.0,
+        vehicle: lbv300,
+        run: second_sysid,
+    },
+    Scenario {
+        name: "signing",
+        about: "a signing key set over the console: unsigned, badly signed and replayed frames refused, signed obeyed",
+        seconds: 8.0,
+        vehicle: lbv300,
+        run: signing,
+    },
+    Scenario {
+        name: "settings-persist",
+        about: "parameters set over the console survive a reboot (refused while armed) and a power cycle",
+        seconds: 5.0,
+        vehicle: lbv300,
+        run: settings_persist,
+    },
+    Scenario {
+        name: "settings-power-cut",
+        about: "power cut during parameter writes, and during a page erase: only the interrupted write is lost",
+        seconds: 20.0,
+        vehicle: lbv300,
+        run: settings_power_cut,
     },
     Scenario {
         name: "acceptance",

@@ -75,6 +75,12 @@ scenario_tests! {
     master_reboot: "master-reboot",
     battery_lost: "battery-lost",
     battery_bits: "battery-bits",
+    ground_station_1hz: "ground-station-1hz",
+    stray_byte: "stray-byte",
+    second_sysid: "second-sysid",
+    signing: "signing",
+    settings_persist: "settings-persist",
+    settings_power_cut: "settings-power-cut",
     acceptance: "acceptance",
     soak: "soak",
 }

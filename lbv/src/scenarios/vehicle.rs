@@ -94,13 +94,33 @@ pub fn console_silence(run: &mut Run) {
     run.arm_and_go(AHEAD);
     run.run_for(1.0);
     run.inject(Fault::ConsoleSilence);
-    let disarmed = run.run_until(2.0, |bench| {
-        !bench.master.shared.vehicle.try_get().is_some_and(|v| v.armed)
+    // FS_PILOT_TIMEOUT (3 s) after the last stick frame, up to 0.1 s before the loss.
+    let neutral = run.run_until(4.0, |bench| {
+        bench
+            .master
+            .shared
+            .orders
+            .try_get()
+            .is_some_and(|orders| orders.iter().all(|order| order.speed.is_zero()))
     });
     run.check(
-        "disarms after 1 s of silence",
-        disarmed.is_some_and(|s| (0.85..=1.15).contains(&s)),
-        format!("after {disarmed:?} s (the last frame was up to 0.1 s before the loss)"),
+        "neutral after 3 s without sticks",
+        neutral.is_some_and(|s| (2.85..=3.05).contains(&s)),
+        format!("after {neutral:?} s (the last stick frame was up to 0.1 s before the loss)"),
+    );
+    let armed = run.bench.master.shared.vehicle.try_get().is_some_and(|v| v.armed);
+    run.check("still armed while neutral", armed, "");
+    // FS_GCS_TIMEOUT (5 s) after the last heartbeat, up to 1 s before the loss.
+    let disarmed = run
+        .run_until(3.0, |bench| {
+            !bench.master.shared.vehicle.try_get().is_some_and(|v| v.armed)
+        })
+        .zip(neutral)
+        .map(|(disarmed, neutral)| disarmed + neutral);
+    run.check(
+        "disarms 5 s after the last heartbeat",
+        disarmed.is_some_and(|s| (3.95..=5.05).contains(&s)),
+        format!("after {disarmed:?} s (the last heartbeat was up to 1 s before the loss)"),
     );
     run.run_for(0.5);
     let duties: Vec<i16> = (0..6).map(|i| run.duty(i)).collect();

@@ -1,0 +1,444 @@
+//! What the operator sets and the master keeps across power cycles: the MAVLink parameters (names, ranges,
+//! defaults and values) and the signing key; together the [`Settings`].
+//!
+//! The failsafe parameters carry ArduSub's names, so a pilot finds them where ArduSub keeps them:
+//!
+//! | name | meaning | values | default |
+//! |---|---|---|---|
+//! | `FS_GCS_ENABLE` | the operator's HEARTBEATs stop while armed | 1 warn, 2 disarm, 3 neutral | 2 |
+//! | `FS_GCS_TIMEOUT` | how long without one, s | 2.0-120.0 | 5.0 |
+//! | `FS_PILOT_INPUT` | the operator's MANUAL_CONTROL stops while armed | 0 off, 1 neutral, 2 disarm | 1 |
+//! | `FS_PILOT_TIMEOUT` | how long without one, s | 0.5-10.0 | 3.0 |
+//! | `SYSID_MYGCS` | the one ground station obeyed (only while disarmed) | 1-255 | 255 |
+//! | `LBV_GAIN` | pilot gain, % of full speed | 1-100 | 50 |
+//! | `LBV_POWER_CAP` | power cap sent in each order's INFO byte, % | 1-100 | 100 |
+//! | `LBV_FRAME` | thruster layout (only while disarmed) | 4, 6 | the build's |
+//! | `LBV_MTEST_MAX` | motor test throttle limit, % | 1-100 | 30 |
+//!
+//! Values are kept as integers in a parameter's own unit (the timeouts in tenths of a second) and go over MAVLink
+//! as floats in the displayed unit.
+
+use core::fmt;
+
+use embassy_time::Duration;
+
+use crate::mixer::FrameKind;
+use crate::shared::ParamId;
+use crate::signing::SigningKey;
+
+/// What the ground-station heartbeat failsafe does (`FS_GCS_ENABLE`; 1 and 2 as in ArduSub, whose 3 holds depth).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum GcsFailsafe {
+    /// Tell the pilot, keep going.
+    Warn,
+    /// Disarm: every thruster stops.
+    Disarm,
+    /// Hold the sticks at neutral, stay armed; the pilot's input counts again once the heartbeats return.
+    Neutral,
+}
+
+/// What the pilot-input failsafe does (`FS_PILOT_INPUT`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum PilotFailsafe {
+    /// Nothing.
+    Off,
+    /// Neutral sticks until the next MANUAL_CONTROL.
+    Neutral,
+    /// Disarm.
+    Disarm,
+}
+
+/// The MAVLink parameters, in index order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Param {
+    /// `FS_GCS_ENABLE`: [`GcsFailsafe`] 1 warn, 2 disarm, 3 neutral.
+    GcsFailsafe,
+    /// `FS_GCS_TIMEOUT`: ground-station heartbeat timeout, 0.1 s.
+    GcsTimeout,
+    /// `FS_PILOT_INPUT`: [`PilotFailsafe`] 0 off, 1 neutral, 2 disarm.
+    PilotFailsafe,
+    /// `FS_PILOT_TIMEOUT`: pilot input timeout, 0.1 s.
+    PilotTimeout,
+    /// `SYSID_MYGCS`: the operator's ground station, by MAVLink system id.
+    OperatorId,
+    /// `LBV_GAIN`: pilot gain in % (ArduSub's JS_GAIN_DEFAULT is 50 %).
+    Gain,
+    /// `LBV_POWER_CAP`: the orders' INFO byte, output power cap in % (100: no cap).
+    PowerCap,
+    /// `LBV_FRAME`: 4 (LBV200-4) or 6 (LBV300-6).
+    Frame,
+    /// `LBV_MTEST_MAX`: largest motor test throttle in % (30: thrusters are tested in air).
+    MotorTestMax,
+}
+
+/// How many parameters there are.
+pub const PARAM_COUNT: usize = 9;
+
+impl Param {
+    /// Every parameter, in index order.
+    pub const ALL: [Param; PARAM_COUNT] = [
+        Self::GcsFailsafe,
+        Self::GcsTimeout,
+        Self::PilotFailsafe,
+        Self::PilotTimeout,
+        Self::OperatorId,
+        Self::Gain,
+        Self::PowerCap,
+        Self::Frame,
+        Self::MotorTestMax,
+    ];
+
+    /// The MAVLink name (at most 16 characters).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::GcsFailsafe => "FS_GCS_ENABLE",
+            Self::GcsTimeout => "FS_GCS_TIMEOUT",
+            Self::PilotFailsafe => "FS_PILOT_INPUT",
+            Self::PilotTimeout => "FS_PILOT_TIMEOUT",
+            Self::OperatorId => "SYSID_MYGCS",
+            Self::Gain => "LBV_GAIN",
+            Self::PowerCap => "LBV_POWER_CAP",
+            Self::Frame => "LBV_FRAME",
+            Self::MotorTestMax => "LBV_MTEST_MAX",
+        }
+    }
+
+    /// Smallest and largest value, in the parameter's own unit (`LBV_FRAME` takes only the two ends).
+    pub const fn range(self) -> (i32, i32) {
+        match self {
+            Self::GcsFailsafe => (1, 3),
+            Self::GcsTimeout => (20, 1200),
+            Self::PilotFailsafe => (0, 2),
+            Self::PilotTimeout => (5, 100),
+            Self::OperatorId => (1, 255),
+            Self::Gain | Self::PowerCap | Self::MotorTestMax => (1, 100),
+            Self::Frame => (4, 6),
+        }
+    }
+
+    /// Own units per displayed unit: the timeouts are kept in tenths of the seconds a ground station shows.
+    pub const fn scale(self) -> i32 {
+        match self {
+            Self::GcsTimeout | Self::PilotTimeout => 10,
+            _ => 1,
+        }
+    }
+
+    /// The default value (`LBV_FRAME`'s comes from the build, see [`Params::defaults`]).
+    ///
+    /// The two timeouts are chosen so that a ground station's 1 Hz stream with a frame lost (2 s between two) never
+    /// trips either failsafe, with a second to spare for a late frame. The pilot-input failsafe (3 s) acts before
+    /// the heartbeat failsafe (5 s, ArduPilot's FS_GCS_TIMEOUT): when the link goes, the thrusters go neutral
+    /// first, then the vehicle disarms.
+    pub const fn default_value(self) -> i32 {
+        match self {
+            Self::GcsFailsafe => 2,
+            Self::GcsTimeout => 50,
+            Self::PilotFailsafe => 1,
+            Self::PilotTimeout => 30,
+            Self::OperatorId => 255,
+            Self::Gain => 50,
+            Self::PowerCap => 100,
+            Self::Frame => 6,
+            Self::MotorTestMax => 30,
+        }
+    }
+
+    /// Changing it while armed would hand the vehicle to another station or remix the thrusters mid-dive.
+    pub const fn only_disarmed(self) -> bool {
+        matches!(self, Self::OperatorId | Self::Frame)
+    }
+
+    /// The index in PARAM_VALUE.
+    pub const fn index(self) -> u16 {
+        self as u16
+    }
+
+    /// The parameter at an index.
+    pub fn from_index(index: u16) -> Option<Param> {
+        Self::ALL.into_iter().find(|param| param.index() == index)
+    }
+
+    /// The parameter of a NUL-padded MAVLink name (exact, case-sensitive, as ArduPilot matches).
+    pub fn from_id(id: &ParamId) -> Option<Param> {
+        let len = id.iter().position(|byte| *byte == 0).unwrap_or(id.len());
+        let name = id.get(..len)?;
+        Self::ALL.into_iter().find(|param| param.name().as_bytes() == name)
+    }
+
+    /// The NUL-padded MAVLink name.
+    pub fn id(self) -> ParamId {
+        let mut id = [0; 16];
+        for (slot, byte) in id.iter_mut().zip(self.name().bytes()) {
+            *slot = byte;
+        }
+        id
+    }
+
+    /// Whether `value` (own unit) is a valid setting.
+    pub const fn accepts(self, value: i32) -> bool {
+        let (min, max) = self.range();
+        match self {
+            Self::Frame => value == min || value == max,
+            _ => min <= value && value <= max,
+        }
+    }
+
+    /// A MAVLink value in the parameter's own unit: the nearest integer (half away from zero), or `None` if it is
+    /// not a number. Values too large for an `i32` saturate and so stay out of range.
+    pub fn from_float(self, value: f32) -> Option<i32> {
+        let scaled = value * self.scale() as f32;
+        if !scaled.is_finite() {
+            return None;
+        }
+        let rounded = if scaled >= 0.0 { scaled + 0.5 } else { scaled - 0.5 };
+        Some(rounded as i32)
+    }
+
+    /// A value in the parameter's own unit as MAVLink carries it.
+    pub fn to_float(self, value: i32) -> f32 {
+        value as f32 / self.scale() as f32
+    }
+
+    /// A value in the parameter's own unit, written in the displayed unit ("120", "0.5") with integer arithmetic:
+    /// formatting an `f32` would add some 10 KiB to the image.
+    pub fn shown(self, value: i32) -> impl fmt::Display {
+        Shown(self.scale(), value)
+    }
+}
+
+struct Shown(i32, i32);
+
+impl fmt::Display for Shown {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let Shown(scale, value) = *self;
+        let sign = if value < 0 { "-" } else { "" };
+        let magnitude = value.unsigned_abs();
+        let scale = scale.unsigned_abs().max(1);
+        match magnitude % scale {
+            0 => write!(f, "{sign}{}", magnitude / scale),
+            tenths => write!(f, "{sign}{}.{tenths}", magnitude / scale),
+        }
+    }
+}
+
+/// Every parameter's value, each always in its range.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Params([i32; PARAM_COUNT]);
+
+impl Params {
+    /// The defaults, with the build's frame.
+    pub fn defaults(frame: FrameKind) -> Self {
+        let mut values = Param::ALL.map(Param::default_value);
+        if let Some(slot) = values.get_mut(usize::from(Param::Frame.index())) {
+            *slot = frame.thrusters() as i32;
+        }
+        Self(values)
+    }
+
+    /// A parameter's value, in its own unit.
+    pub fn get(&self, param: Param) -> i32 {
+        self.0
+            .get(usize::from(param.index()))
+            .copied()
+            .unwrap_or(param.default_value())
+    }
+
+    /// Set a parameter; `false` (and nothing changed) if the value is not valid for it.
+    pub fn set(&mut self, param: Param, value: i32) -> bool {
+        match self.0.get_mut(usize::from(param.index())) {
+            Some(slot) if param.accepts(value) => {
+                *slot = value;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// `FS_GCS_ENABLE`.
+    pub fn gcs_failsafe(&self) -> GcsFailsafe {
+        match self.get(Param::GcsFailsafe) {
+            1 => GcsFailsafe::Warn,
+            3 => GcsFailsafe::Neutral,
+            _ => GcsFailsafe::Disarm,
+        }
+    }
+
+    /// `FS_GCS_TIMEOUT`.
+    pub fn gcs_timeout(&self) -> Duration {
+        deciseconds(self.get(Param::GcsTimeout))
+    }
+
+    /// `FS_PILOT_INPUT`.
+    pub fn pilot_failsafe(&self) -> PilotFailsafe {
+        match self.get(Param::PilotFailsafe) {
+            0 => PilotFailsafe::Off,
+            2 => PilotFailsafe::Disarm,
+            _ => PilotFailsafe::Neutral,
+        }
+    }
+
+    /// `FS_PILOT_TIMEOUT`.
+    pub fn pilot_timeout(&self) -> Duration {
+        deciseconds(self.get(Param::PilotTimeout))
+    }
+
+    /// `SYSID_MYGCS`.
+    pub fn operator(&self) -> u8 {
+        u8::try_from(self.get(Param::OperatorId)).unwrap_or(u8::MAX)
+    }
+
+    /// `LBV_GAIN`, %.
+    pub fn gain_percent(&self) -> u8 {
+        self.percent(Param::Gain)
+    }
+
+    /// `LBV_POWER_CAP`, %.
+    pub fn power_cap_percent(&self) -> u8 {
+        self.percent(Param::PowerCap)
+    }
+
+    /// `LBV_MTEST_MAX`, %.
+    pub fn motor_test_max_percent(&self) -> u8 {
+        self.percent(Param::MotorTestMax)
+    }
+
+    /// `LBV_FRAME`.
+    pub fn frame(&self) -> FrameKind {
+        u8::try_from(self.get(Param::Frame))
+            .ok()
+            .and_then(FrameKind::from_thrusters)
+            .unwrap_or(FrameKind::Lbv300_6)
+    }
+
+    fn percent(&self, param: Param) -> u8 {
+        u8::try_from(self.get(param)).unwrap_or(100)
+    }
+}
+
+fn deciseconds(value: i32) -> Duration {
+    Duration::from_millis(100 * u64::try_from(value).unwrap_or(0))
+}
+
+/// Everything the master keeps across power cycles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Settings {
+    /// The parameters.
+    pub params: Params,
+    /// The MAVLink 2 signing key; `None`: signing is off.
+    pub signing: Option<SigningKey>,
+}
+
+impl Settings {
+    /// Default parameters for the build's frame, signing off.
+    pub fn defaults(frame: FrameKind) -> Self {
+        Self {
+            params: Params::defaults(frame),
+            signing: None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn id(name: &str) -> ParamId {
+        let mut id = [0; 16];
+        id[..name.len()].copy_from_slice(name.as_bytes());
+        id
+    }
+
+    #[test]
+    fn names_indexes_and_defaults() {
+        for (n, param) in Param::ALL.into_iter().enumerate() {
+            assert_eq!(usize::from(param.index()), n);
+            assert_eq!(Param::from_index(param.index()), Some(param));
+            assert!(param.name().len() <= 16);
+            assert_eq!(Param::from_id(&param.id()), Some(param));
+            assert!(param.accepts(param.default_value()), "{param:?}");
+        }
+        assert_eq!(Param::from_index(PARAM_COUNT as u16), None);
+        assert_eq!(Param::from_id(&id("fs_gcs_enable")), None, "case-sensitive");
+        assert_eq!(Param::from_id(&id("FS_GCS_ENABLEX")), None);
+        assert_eq!(
+            Param::from_id(b"FS_PILOT_TIMEOUT"),
+            Some(Param::PilotTimeout),
+            "16 bytes, no NUL"
+        );
+        let defaults = Params::defaults(FrameKind::Lbv200_4);
+        assert_eq!(defaults.frame(), FrameKind::Lbv200_4);
+        assert_eq!(defaults.gcs_failsafe(), GcsFailsafe::Disarm);
+        assert_eq!(defaults.gcs_timeout(), Duration::from_secs(5));
+        assert_eq!(defaults.pilot_failsafe(), PilotFailsafe::Neutral);
+        assert_eq!(defaults.pilot_timeout(), Duration::from_secs(3));
+        assert_eq!(defaults.operator(), 255);
+        assert_eq!(
+            (
+                defaults.gain_percent(),
+                defaults.power_cap_percent(),
+                defaults.motor_test_max_percent()
+            ),
+            (50, 100, 30)
+        );
+    }
+
+    #[test]
+    fn one_lost_frame_of_a_1_hz_stream_trips_neither_failsafe_by_default() {
+        let defaults = Params::defaults(FrameKind::Lbv300_6);
+        // Two seconds between frames, and late by up to half a second.
+        let worst_gap = Duration::from_millis(2500);
+        assert!(defaults.gcs_timeout() > worst_gap);
+        assert!(defaults.pilot_timeout() > worst_gap);
+        assert!(
+            defaults.pilot_timeout() < defaults.gcs_timeout(),
+            "neutral before disarm"
+        );
+    }
+
+    #[test]
+    fn values_are_kept_in_range() {
+        let mut params = Params::defaults(FrameKind::Lbv300_6);
+        for param in Param::ALL {
+            let (min, max) = param.range();
+            for value in [i32::MIN, min - 1, max + 1, i32::MAX] {
+                assert!(!params.set(param, value), "{param:?} {value}");
+            }
+            assert_eq!(params.get(param), Params::defaults(FrameKind::Lbv300_6).get(param));
+            assert!(params.set(param, max));
+            assert_eq!(params.get(param), max);
+        }
+        assert!(!params.set(Param::Frame, 5));
+        assert_eq!(params.frame(), FrameKind::Lbv300_6);
+        assert!(params.set(Param::Frame, 4));
+        assert_eq!(params.frame(), FrameKind::Lbv200_4);
+    }
+
+    #[test]
+    fn floats_in_the_displayed_unit() {
+        let t = Param::GcsTimeout;
+        assert_eq!(t.from_float(3.3), Some(33));
+        assert_eq!(t.from_float(2.96), Some(30));
+        assert_eq!(t.to_float(33), 3.3);
+        assert_eq!(Param::Gain.from_float(79.5), Some(80));
+        assert_eq!(Param::Gain.from_float(-79.5), Some(-80));
+        assert_eq!(Param::Gain.from_float(f32::NAN), None);
+        assert_eq!(Param::Gain.from_float(f32::INFINITY), None);
+        assert_eq!(t.from_float(1e30), Some(i32::MAX), "saturates, so stays out of range");
+        assert_eq!(format!("{}", t.shown(5)), "0.5");
+        assert_eq!(format!("{}", t.shown(1200)), "120");
+        assert_eq!(format!("{}", t.shown(-33)), "-3.3");
+        assert_eq!(format!("{}", Param::Gain.shown(100)), "100");
+        for param in Param::ALL {
+            let (min, max) = param.range();
+            for value in [min, max, param.default_value()] {
+                assert_eq!(param.from_float(param.to_float(value)), Some(value), "{param:?}");
+            }
+        }
+    }
+}

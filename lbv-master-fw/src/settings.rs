@@ -1,0 +1,693 @@
+//! The settings kept across power cycles (the parameters and the signing key, [`Settings`]) in flash pages the
+//! image does not use, and the task that keeps them there and restarts the master when asked.
+//!
+//! The store is sequential-storage's queue, made for NOR flash, used as a log of snapshots: every change appends
+//! one record of all the settings (a header with its own CRC, the data with another) to the current page; pages
+//! are used in turn and the oldest is erased only when the log comes round to it (wear levelling). At start-up
+//! the newest whole record wins. A record cut short by a power loss fails its CRC and is ignored, so a power cut
+//! during a write loses that write (all of it) and nothing before it.
+//!
+//! A record holds a format byte, the parameter count, each parameter (an `i32` in its own unit, by index), the
+//! signing key (secret and set-up timestamp; all zero: signing off) and the signing link's timestamp (stored at
+//! most once a minute while it advances, so a restart does not reopen the door to old signed frames). A stored
+//! value that is not valid for its parameter reads as the default. One record of everything (rather than one item
+//! per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code is
+//! no larger.
+//!
+//! Two ports: where the settings are kept ([`SettingsStore`]: [`Store`] over any embedded-storage-async
+//! `NorFlash` — embassy-stm32's flash driver on the chip, lbv-sim's flash on the bench, sequential-storage's
+//! fault-injecting mock in the tests — or, with no flash for them, [`InRam`]), and how the master restarts
+//! ([`Reboot`]).
+
+use core::ops::Range;
+
+use embassy_futures::select::{Either3, select3};
+use embedded_storage_async::nor_flash::NorFlash;
+use sequential_storage::cache::{Cache, Uncached};
+use sequential_storage::queue::{QueueConfig, QueueStorage};
+
+use crate::params::{PARAM_COUNT, Param, Settings};
+use crate::shared::{Severity, Shared, text};
+use crate::signing::SigningKey;
+
+pub mod ecc;
+
+/// The STM32G431RB's flash kept for the settings, as offsets from the start of flash: its top 16 KiB, eight of
+/// the 2 KiB pages of its single bank (RM0440 3.3.1, category 2 devices). `memory.x` keeps the images below.
+pub const G431_STORAGE: Range<u32> = 0x1_C000..0x2_0000;
+
+/// Where the settings are kept.
+#[allow(async_fn_in_trait)]
+pub trait SettingsStore {
+    /// The newest stored settings over `defaults` (what is missing or invalid stays default); called once, at
+    /// start-up, before anything is saved.
+    async fn load(&mut self, defaults: Settings) -> Settings;
+
+    /// Store `settings`.
+    async fn save(&mut self, settings: &Settings) -> Result<(), StoreError>;
+
+    /// Store the signing link's timestamp.
+    async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError>;
+
+    /// Records that could not be read by [`SettingsStore::load`].
+    fn read_errors(&self) -> u32 {
+        0
+    }
+}
+
+/// Restarts the master: a system reset on the STM32; the bench drops the master's tasks and boots it again with
+/// its flash kept.
+#[allow(async_fn_in_trait)]
+pub trait Reboot {
+    /// Restart now. It does not return: the STM32 resets; elsewhere the task waits here until it is dropped.
+    async fn reboot(&mut self) -> !;
+}
+
+/// Settings kept in RAM only, for a board with no flash set aside for them (the cores on an emulated Cortex-M4):
+/// every start is from the defaults, and a save is accepted and forgotten.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct InRam;
+
+impl SettingsStore for InRam {
+    async fn load(&mut self, defaults: Settings) -> Settings {
+        defaults
+    }
+
+    async fn save(&mut self, _settings: &Settings) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    async fn save_signing_time(&mut self, _timestamp: u64) -> Result<(), StoreError> {
+        Ok(())
+    }
+}
+
+/// The record's format; a record of another format is skipped.
+const FORMAT: u8 = 1;
+/// A record's length: format and parameter count, the parameters, the signing secret and its timestamp, the
+/// signing link's timestamp.
+const RECORD: usize = 2 + 4 * PARAM_COUNT + 32 + 8 + 8;
+
+/// Room for a record, rounded up to 8-byte flash words, aligned as flash drivers like their write buffers.
+#[repr(align(8))]
+#[derive(Debug)]
+struct Buffer([u8; RECORD.next_multiple_of(8)]);
+
+/// Why a write did not reach the flash.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum StoreError {
+    /// The flash reported an error (or the power was cut, in the tests).
+    Flash,
+    /// The store found itself corrupt and could not repair it.
+    Corrupt,
+}
+
+impl<E> From<sequential_storage::Error<E>> for StoreError {
+    fn from(error: sequential_storage::Error<E>) -> Self {
+        match error {
+            sequential_storage::Error::Storage { .. } => Self::Flash,
+            _ => Self::Corrupt,
+        }
+    }
+}
+
+type NoCache = Cache<Uncached, Uncached, Uncached, ()>;
+
+/// A record of `settings` and the signing link's `signing_time`.
+fn encode(settings: &Settings, signing_time: u64) -> [u8; RECORD] {
+    let mut out = [0; RECORD];
+    let mut at = 0;
+    let mut put = |bytes: &[u8]| {
+        if let Some(slot) = out.get_mut(at..at + bytes.len()) {
+            slot.copy_from_slice(bytes);
+        }
+        at += bytes.len();
+    };
+    put(&[FORMAT, PARAM_COUNT as u8]);
+    for param in Param::ALL {
+        put(&settings.params.get(param).to_le_bytes());
+    }
+    let key = settings.signing;
+    put(&key.map_or([0; 32], |key| key.secret));
+    put(&key.map_or(0, |key| key.timestamp).to_le_bytes());
+    put(&signing_time.to_le_bytes());
+    out
+}
+
+/// The settings (over `defaults`) and the signing link's timestamp of a record, or `None` when `bytes` is not a
+/// whole record of this format.
+fn decode(bytes: &[u8], defaults: Settings) -> Option<(Settings, u64)> {
+    let (head, mut rest) = bytes.split_first_chunk::<2>()?;
+    if *head != [FORMAT, PARAM_COUNT as u8] || rest.len() != RECORD - 2 {
+        return None;
+    }
+    let mut take = |n: usize| {
+        let (taken, left) = rest.split_at_checked(n)?;
+        rest = left;
+        Some(taken)
+    };
+    let mut settings = defaults;
+    for param in Param::ALL {
+        let value = take(4)?.first_chunk::<4>().copied()?;
+        settings.params.set(param, i32::from_le_bytes(value));
+    }
+    let secret = take(32)?.first_chunk::<32>().copied()?;
+    let key_time = u64::from_le_bytes(take(8)?.first_chunk::<8>().copied()?);
+    let signing_time = u64::from_le_bytes(take(8)?.first_chunk::<8>().copied()?);
+    settings.signing = (secret != [0; 32]).then_some(SigningKey {
+        secret,
+        timestamp: key_time,
+    });
+    Some((settings, signing_time))
+}
+
+/// The settings store on a NOR flash.
+pub struct Store<F: NorFlash> {
+    queue: QueueStorage<F, NoCache>,
+    buffer: Buffer,
+    /// The record the flash holds (after [`Store::load`]).
+    held: Option<[u8; RECORD]>,
+    /// Records that could not be read at start-up.
+    read_errors: u32,
+}
+
+impl<F: NorFlash> core::fmt::Debug for Store<F> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Store")
+            .field("read_errors", &self.read_errors)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<F: NorFlash> Store<F> {
+    /// The store in `range` of `flash`; `None` unless the range is whole erase pages.
+    pub fn new(flash: F, range: Range<u32>) -> Option<Self> {
+        let config = QueueConfig::try_new(range).ok()?;
+        Some(Self {
+            queue: QueueStorage::new(flash, config, Cache::new_uncached()),
+            buffer: Buffer([0; RECORD.next_multiple_of(8)]),
+            held: None,
+            read_errors: 0,
+        })
+    }
+
+    /// The store in the pages the G431 images leave for it ([`G431_STORAGE`]) of `flash`, the whole 128 KiB flash
+    /// (its 2 KiB pages are checked when the image is built).
+    pub const fn g431(flash: F) -> Self {
+        Self {
+            queue: QueueStorage::new(flash, const { QueueConfig::new(G431_STORAGE) }, Cache::new_uncached()),
+            buffer: Buffer([0; RECORD.next_multiple_of(8)]),
+            held: None,
+            read_errors: 0,
+        }
+    }
+
+    /// The flash back (the tests power-cycle it).
+    pub fn into_flash(self) -> F {
+        self.queue.destroy().0
+    }
+
+    /// Put a record in the aligned buffer, which flash drivers like to write from.
+    fn stage(&mut self, record: [u8; RECORD]) {
+        if let Some(staged) = self.buffer.0.first_chunk_mut::<RECORD>() {
+            *staged = record;
+        }
+    }
+
+    /// Append the staged record unless the flash holds it already. The oldest records go when the log comes
+    /// round: only the newest counts.
+    async fn write_staged(&mut self) -> Result<(), StoreError> {
+        let Some(staged) = self.buffer.0.first_chunk::<RECORD>() else {
+            return Ok(());
+        };
+        if self.held.as_ref() == Some(staged) {
+            return Ok(());
+        }
+        self.queue.push(staged, true).await?;
+        self.held = Some(*staged);
+        Ok(())
+    }
+}
+
+impl<F: NorFlash> SettingsStore for Store<F> {
+    /// The signing key's timestamp is the later of the one it was set up with and the link's stored one.
+    async fn load(&mut self, defaults: Settings) -> Settings {
+        let mut newest = None;
+        match self.queue.iter().await {
+            Ok(mut records) => loop {
+                match records.next(&mut self.buffer.0).await {
+                    Ok(Some(record)) => newest = decode(&record, defaults).or(newest),
+                    Ok(None) => break,
+                    Err(_) => {
+                        self.read_errors += 1;
+                        break;
+                    }
+                }
+            },
+            Err(_) => self.read_errors += 1,
+        }
+        let (mut settings, signing_time) = newest.unwrap_or((defaults, 0));
+        if let Some(key) = settings.signing.as_mut() {
+            key.timestamp = key.timestamp.max(signing_time);
+        }
+        // As the vehicle will publish them: nothing to write until they change.
+        self.held = Some(encode(&settings, signing_time));
+        settings
+    }
+
+    /// Nothing is written when the flash holds them already.
+    async fn save(&mut self, settings: &Settings) -> Result<(), StoreError> {
+        let signing_time = self.held.as_ref().map_or(0, signing_time_of);
+        self.stage(encode(settings, signing_time));
+        self.write_staged().await
+    }
+
+    /// Nothing is written before [`SettingsStore::load`].
+    async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError> {
+        let Some(held) = self.held else {
+            return Ok(());
+        };
+        self.stage(held);
+        if let Some(slot) = self.buffer.0.get_mut(RECORD - 8..RECORD) {
+            slot.copy_from_slice(&timestamp.to_le_bytes());
+        }
+        self.write_staged().await
+    }
+
+    fn read_errors(&self) -> u32 {
+        self.read_errors
+    }
+}
+
+/// The signing link's timestamp in a record (its last 8 bytes).
+fn signing_time_of(record: &[u8; RECORD]) -> u64 {
+    record.last_chunk::<8>().copied().map_or(0, u64::from_le_bytes)
+}
+
+/// Keep the settings in `store` (which has [`SettingsStore::load`]ed them): write each change the vehicle publishes
+/// (`shared.settings`) and the signing link's timestamp (`shared.signing_time`); when the reboot's
+/// acknowledgement is out (`shared.reboot`), finish writing and restart through `reboot`. A write that fails is
+/// reported on the console (Warning) and retried with the next change.
+pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &Shared, reboot: &mut R) -> ! {
+    let mut settings = shared.settings.receiver();
+    let mut signing_time = shared.signing_time.receiver();
+    loop {
+        let changed = async {
+            match settings.as_mut() {
+                Some(receiver) => {
+                    receiver.changed().await;
+                }
+                None => core::future::pending().await,
+            }
+        };
+        let timestamp = async {
+            match signing_time.as_mut() {
+                Some(receiver) => receiver.changed().await,
+                None => core::future::pending().await,
+            }
+        };
+        let result = match select3(changed, timestamp, shared.reboot.wait()).await {
+            Either3::First(()) => match shared.settings.try_get() {
+                Some(new) => store.save(&new).await,
+                None => Ok(()),
+            },
+            Either3::Second(timestamp) => store.save_signing_time(timestamp).await,
+            Either3::Third(()) => {
+                if let Some(new) = settings.as_mut().and_then(|receiver| receiver.try_changed()) {
+                    let _ = store.save(&new).await;
+                }
+                reboot.reboot().await
+            }
+        };
+        if let Err(error) = result {
+            let why = match error {
+                StoreError::Flash => "flash error",
+                StoreError::Corrupt => "store corrupt",
+            };
+            shared.say(Severity::Warning, text(format_args!("Settings not saved: {why}")));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mixer::FrameKind;
+    use embassy_futures::block_on;
+    use embassy_futures::select::{Either, select};
+    use embassy_futures::yield_now;
+    use sequential_storage::mock_flash::{MockFlashBase, WriteCountCheck};
+
+    /// The G431's storage pages: eight of 2 KiB, written in 8-byte double words, each word once between erases
+    /// (its flash has ECC).
+    type Flash = MockFlashBase<8, 8, 256>;
+    const RANGE: Range<u32> = 0..(8 * 2048);
+
+    fn flash() -> Flash {
+        Flash::new(WriteCountCheck::OnceOnly, None, true)
+    }
+
+    fn defaults() -> Settings {
+        Settings::defaults(FrameKind::Lbv300_6)
+    }
+
+    /// Power up: load what the flash holds.
+    fn load(flash: &mut Flash) -> (Settings, u32) {
+        let mut store = Store::new(flash, RANGE).unwrap();
+        let settings = block_on(store.load(defaults()));
+        (settings, store.read_errors())
+    }
+
+    /// Power up, then store `new`.
+    fn save(flash: &mut Flash, new: &Settings) -> Result<(), StoreError> {
+        let mut store = Store::new(flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        block_on(store.save(new))
+    }
+
+    fn with(change: impl FnOnce(&mut Settings)) -> Settings {
+        let mut settings = defaults();
+        change(&mut settings);
+        settings
+    }
+
+    #[test]
+    fn the_storage_pages_are_memory_x_s() {
+        // memory.x keeps the images out of the top 16 KiB; the store uses exactly that.
+        let memory_x = include_str!("../../memory.x");
+        let line = |name: &str| {
+            memory_x
+                .lines()
+                .find(|line| line.trim_start().starts_with(name))
+                .unwrap_or_else(|| panic!("memory.x has no {name} region"))
+                .to_owned()
+        };
+        assert!(
+            line("FLASH").contains("ORIGIN = 0x08000000, LENGTH = 112K"),
+            "{}",
+            line("FLASH")
+        );
+        assert!(
+            line("STORAGE").contains("ORIGIN = 0x0801C000, LENGTH = 16K"),
+            "{}",
+            line("STORAGE")
+        );
+        assert_eq!(G431_STORAGE, 0x1_C000..0x1_C000 + 16 * 1024);
+        assert_eq!((G431_STORAGE.end - G431_STORAGE.start) % 2048, 0, "whole 2 KiB pages");
+        assert_eq!(G431_STORAGE.end, 128 * 1024, "the top of the 128 KiB flash");
+    }
+
+    #[test]
+    fn a_bad_range_is_refused() {
+        let mut flash = flash();
+        assert!(Store::new(&mut flash, 100..4196).is_none(), "not page aligned");
+        assert!(Store::new(&mut flash, 0..4096).is_some());
+    }
+
+    #[test]
+    fn blank_flash_reads_as_the_defaults() {
+        let mut blank = flash();
+        assert_eq!(load(&mut blank), (defaults(), 0));
+        let mut flash = flash();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        let other = Settings::defaults(FrameKind::Lbv200_4);
+        assert_eq!(block_on(store.load(other)), other);
+    }
+
+    #[test]
+    fn what_is_saved_survives_a_power_cycle() {
+        let mut flash = flash();
+        let new = with(|s| {
+            s.params.set(Param::Gain, 80);
+            s.params.set(Param::GcsTimeout, 33);
+            s.params.set(Param::Frame, 4);
+            s.signing = Some(SigningKey {
+                secret: [0x5A; 32],
+                timestamp: 123_456,
+            });
+        });
+        save(&mut flash, &new).unwrap();
+        assert_eq!(load(&mut flash), (new, 0));
+        // What the flash holds already is not written again.
+        let before = flash.stats_snapshot();
+        save(&mut flash, &new).unwrap();
+        assert_eq!(before.compare_to(flash.stats_snapshot()).writes, 0);
+        // The link's signing time is kept with the key; the later of the two is the link's start.
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        block_on(store.save_signing_time(999_999)).unwrap();
+        assert_eq!(load(&mut flash).0.signing.map(|k| k.timestamp), Some(999_999));
+        // At power-up the vehicle publishes what was loaded: nothing to write.
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        let loaded = block_on(store.load(defaults()));
+        store.into_flash();
+        let before = flash.stats_snapshot();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        block_on(store.save(&loaded)).unwrap();
+        store.into_flash();
+        assert_eq!(before.compare_to(flash.stats_snapshot()).writes, 0);
+        // Signing off: an all-zero key.
+        let off = Settings { signing: None, ..new };
+        save(&mut flash, &off).unwrap();
+        assert_eq!(load(&mut flash).0, off);
+    }
+
+    /// Push raw bytes as a record, from an aligned buffer.
+    fn push(store: &mut Store<&mut Flash>, bytes: &[u8]) {
+        let mut aligned = Buffer([0; RECORD.next_multiple_of(8)]);
+        aligned.0[..bytes.len()].copy_from_slice(bytes);
+        block_on(store.queue.push(&aligned.0[..bytes.len()], true)).unwrap();
+    }
+
+    #[test]
+    fn invalid_values_and_other_formats_read_as_defaults() {
+        let mut flash = flash();
+        let good = with(|s| {
+            s.params.set(Param::PowerCap, 70);
+        });
+        save(&mut flash, &good).unwrap();
+        {
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            // A record with LBV_GAIN 1000: the gain reads as its default, the rest as stored.
+            let mut record = encode(&good, 0);
+            let gain = 2 + 4 * usize::from(Param::Gain.index());
+            record[gain..gain + 4].copy_from_slice(&1000i32.to_le_bytes());
+            push(&mut store, &record);
+        }
+        let (settings, errors) = load(&mut flash);
+        assert_eq!(
+            (settings.params.gain_percent(), settings.params.power_cap_percent()),
+            (50, 70)
+        );
+        assert_eq!(errors, 0);
+        {
+            // Newer records of another format, or cut short, are passed over: the last good one stands.
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            let mut other = encode(&defaults(), 0);
+            other[0] = FORMAT + 1;
+            push(&mut store, &other);
+            push(&mut store, &encode(&defaults(), 0)[..40]);
+        }
+        assert_eq!(load(&mut flash).0.params.power_cap_percent(), 70);
+    }
+
+    #[test]
+    fn many_changes_wear_every_page_and_the_last_one_wins() {
+        let mut flash = flash();
+        let start = flash.stats_snapshot();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        let mut last = defaults();
+        // Enough writes to go round the eight pages several times (21 records to a page).
+        for n in 0..1000 {
+            last = with(|s| {
+                s.params.set(Param::Gain, 1 + n % 100);
+                s.params.set(Param::PowerCap, 100 - n % 100);
+            });
+            block_on(store.save(&last)).unwrap();
+        }
+        store.into_flash();
+        assert_eq!(load(&mut flash), (last, 0));
+        let erases = start.compare_to(flash.stats_snapshot()).erases;
+        assert!(erases >= 40, "pages were reused ({erases} erases)");
+    }
+
+    /// Cut the power during one write, in a store `fill` writes full, and check that the next start finds the
+    /// settings before the write or after it, nothing else, and that the store goes on working. The power is cut
+    /// after every byte of the writes, and after every 16th byte of a page erase. Returns the bytes the write
+    /// takes (erased and written).
+    fn power_cut_during_a_write(fill: u32) -> u32 {
+        let mut flash = flash();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        for n in 0..fill {
+            block_on(store.save(&with(|s| {
+                s.params.set(Param::Gain, 1 + (n % 100) as i32);
+            })))
+            .unwrap();
+        }
+        let earlier = with(|s| {
+            s.params.set(Param::Gain, 42);
+            s.signing = Some(SigningKey {
+                secret: [1; 32],
+                timestamp: 42,
+            });
+        });
+        block_on(store.save(&earlier)).unwrap();
+        store.into_flash();
+        let target = with(|s| {
+            *s = earlier;
+            s.params.set(Param::GcsTimeout, 77);
+        });
+        let total = {
+            let mut uncut = flash.clone();
+            uncut.bytes_until_shutoff = Some(u32::MAX);
+            save(&mut uncut, &target).unwrap();
+            u32::MAX - uncut.bytes_until_shutoff.unwrap()
+        };
+        let erase = if total > 2048 { 0..2048 } else { 0..0 };
+        for cut_at in (0..=total).filter(|n| !erase.contains(n) || n % 16 == 0) {
+            let mut cut = flash.clone();
+            cut.bytes_until_shutoff = Some(cut_at);
+            let result = save(&mut cut, &target);
+            let completed = cut.bytes_until_shutoff.is_some();
+            // Power back: the cut-off flag is gone, the flash holds what was written.
+            cut.bytes_until_shutoff = None;
+            let (after, _) = load(&mut cut);
+            if completed {
+                assert_eq!((cut_at, result, after), (total, Ok(()), target));
+                continue;
+            }
+            assert_eq!(result, Err(StoreError::Flash));
+            // Cut in the last word's padding, the record is whole already.
+            assert!(
+                after == earlier || after == target,
+                "fill {fill}, cut after {cut_at} bytes: only the interrupted write may be lost: {after:?}"
+            );
+            // And the store goes on working.
+            let next = with(|s| {
+                *s = after;
+                s.params.set(Param::PowerCap, 55);
+            });
+            save(&mut cut, &next).unwrap();
+            assert_eq!(load(&mut cut).0, next, "fill {fill}, cut after {cut_at} bytes");
+        }
+        total
+    }
+
+    #[test]
+    fn a_power_cut_during_a_write_loses_at_most_that_write() {
+        // One record: an 8-byte header and 86 bytes of data in 11 double words.
+        assert_eq!(power_cut_during_a_write(0), 96);
+    }
+
+    #[test]
+    fn a_power_cut_while_the_store_moves_to_a_new_page_loses_at_most_that_write() {
+        // 21 records to a page: after 20 (and one more), the interrupted write closes its page and opens the
+        // next (two page markers more); after 167, the log has gone round the eight pages and must erase the
+        // oldest first.
+        assert_eq!(
+            power_cut_during_a_write(20),
+            96 + 16,
+            "the write that moves to a new page"
+        );
+        assert_eq!(
+            power_cut_during_a_write(167),
+            2048 + 96 + 16,
+            "the write that erases a page first"
+        );
+    }
+
+    struct Restart(std::rc::Rc<core::cell::Cell<u32>>);
+
+    impl Reboot for Restart {
+        async fn reboot(&mut self) -> ! {
+            self.0.set(self.0.get() + 1);
+            core::future::pending().await
+        }
+    }
+
+    #[test]
+    fn the_task_writes_changes_and_restarts_after_the_last_write() {
+        let shared = Shared::new();
+        let mut flash = flash();
+        let restarts = std::rc::Rc::new(core::cell::Cell::new(0));
+        let mut reboot = Restart(restarts.clone());
+        let changed = with(|s| {
+            s.params.set(Param::OperatorId, 200);
+            s.signing = Some(SigningKey {
+                secret: [9; 32],
+                timestamp: 10,
+            });
+        });
+        {
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            let stored = block_on(store.load(defaults()));
+            let script = async {
+                let settings = shared.settings.sender();
+                settings.send(stored);
+                for _ in 0..4 {
+                    yield_now().await;
+                }
+                settings.send(changed);
+                for _ in 0..4 {
+                    yield_now().await;
+                }
+                shared.signing_time.sender().send(7_000_000);
+                for _ in 0..4 {
+                    yield_now().await;
+                }
+                // A last change and the reboot at once: the change is written first.
+                settings.send(with(|s| {
+                    *s = changed;
+                    s.params.set(Param::Gain, 99);
+                }));
+                shared.reboot.signal(());
+                for _ in 0..4 {
+                    yield_now().await;
+                }
+                assert_eq!(restarts.get(), 1);
+            };
+            match block_on(select(settings_task(&mut store, &shared, &mut reboot), script)) {
+                Either::First(never) => match never {},
+                Either::Second(()) => {}
+            }
+        }
+        let (after, _) = load(&mut flash);
+        assert_eq!(after.params.operator(), 200);
+        assert_eq!(after.params.gain_percent(), 99);
+        assert_eq!(after.signing.map(|key| key.timestamp), Some(7_000_000));
+        assert!(shared.outbox.try_receive().is_err(), "no warning");
+    }
+
+    #[test]
+    fn a_failed_write_is_reported_on_the_console() {
+        let shared = Shared::new();
+        let mut flash = flash();
+        let mut reboot = Restart(Default::default());
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        store.into_flash();
+        flash.bytes_until_shutoff = Some(3);
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        let script = async {
+            shared.settings.sender().send(with(|s| {
+                s.params.set(Param::Gain, 10);
+            }));
+            for _ in 0..4 {
+                yield_now().await;
+            }
+        };
+        match block_on(select(settings_task(&mut store, &shared, &mut reboot), script)) {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+        assert!(matches!(
+            shared.outbox.try_receive(),
+            Ok(crate::shared::Outgoing::Text(Severity::Warning, text)) if text.starts_with("Settings not saved")
+        ));
+    }
+}

@@ -1,0 +1,323 @@
+#!/usr/bin/env python3
+"""A pilot flying the bench with MAVProxy, a real ground station, for tests/mavproxy.rs.
+
+    mavproxy_pilot.py GCS_PORT OBSERVER_PORT [TIMEOUT_S]
+
+Starts MAVProxy headless on udpin:127.0.0.1:GCS_PORT (where `lbv bench --udp` sends) with its own defaults
+(modules, 1 Hz heartbeats, its parameter download) and types the pilot's commands on its stdin, as a person at
+its prompt would. MAVProxy forwards what the vehicle sends to OBSERVER_PORT, where pymavlink watches every
+message for the detailed checks (it never sends). The steps:
+
+    connect        MAVProxy sees the vehicle (HEARTBEAT of a submarine)
+    params         MAVProxy's own parameter download gets all 9
+    param set      `param set LBV_GAIN 80`: the vehicle answers PARAM_VALUE 80
+    arm            `arm throttle`: COMMAND_ACK accepted, HEARTBEAT armed
+    hold           8 s armed with nothing from the pilot: every HEARTBEAT armed, no failsafe text (MAVProxy sends
+                   its 1 Hz heartbeats and nothing that steers)
+    disarm         `disarm`: COMMAND_ACK accepted, HEARTBEAT disarmed
+    reboot         `reboot`: COMMAND_ACK accepted, "Rebooting", then the master starts again (its sequence numbers
+                   start over and it finds its thrusters again: "T1 online")
+    persisted      `param fetch LBV_GAIN` after the reboot: still 80 (read from the master's flash)
+    motortest      `motortest 1 0 10 2`: COMMAND_ACK accepted, thruster 1 turns (ESC telemetry), stops after 2 s
+
+Prints a JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not (or
+time ran out), 3 when pymavlink or MAVProxy is missing. Further steps go in STEPS.
+"""
+import json
+import os
+import queue
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+os.environ["MAVLINK20"] = "1"
+try:
+    from pymavlink import mavutil
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+except ImportError as error:
+    print(f"pymavlink is missing ({error}): pip install pymavlink", file=sys.stderr)
+    sys.exit(3)
+
+VEHICLE = 1
+PARAMS = 9
+HOLD_S = 8.0
+
+
+class Failed(Exception):
+    pass
+
+
+class Observer:
+    """pymavlink on MAVProxy's output: every message the vehicle sends, with the time it came."""
+
+    def __init__(self, port):
+        self.link = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="ardupilotmega")
+        self.messages = []  # (time, message)
+
+    def pump(self):
+        msg = self.link.recv_match(blocking=True, timeout=0.05)
+        while msg is not None:
+            if msg.get_srcSystem() == VEHICLE and msg.get_type() != "BAD_DATA":
+                self.messages.append((time.monotonic(), msg))
+            msg = self.link.recv_match(blocking=False)
+
+    def since(self, start, kind):
+        return [(t, m) for t, m in self.messages if t >= start and m.get_type() == kind]
+
+    def armed(self, since=0.0):
+        beats = self.since(since, "HEARTBEAT")
+        return bool(beats) and bool(beats[-1][1].base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    def texts(self, since=0.0):
+        return [m.text for _, m in self.since(since, "STATUSTEXT")]
+
+
+class MavProxy:
+    """MAVProxy at its prompt: commands on stdin, every line it prints kept with its time."""
+
+    def __init__(self, gcs_port, observer_port, state_dir):
+        try:
+            import MAVProxy  # noqa: F401
+        except ImportError as error:
+            print(f"MAVProxy is missing ({error}): pip install mavproxy", file=sys.stderr)
+            sys.exit(3)
+        self.process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "MAVProxy.mavproxy",
+                f"--master=udpin:127.0.0.1:{gcs_port}",
+                f"--out=udpout:127.0.0.1:{observer_port}",
+                f"--state-basedir={state_dir}",
+                "--no-state",
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+            cwd=state_dir,
+        )
+        self.lines = queue.Queue()
+        self.log = []  # (time, line)
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self):
+        for line in self.process.stdout:
+            self.lines.put((time.monotonic(), line.rstrip()))
+
+    def drain(self):
+        while True:
+            try:
+                self.log.append(self.lines.get_nowait())
+            except queue.Empty:
+                return
+
+    def type(self, command):
+        self.process.stdin.write(command + "\n")
+        self.process.stdin.flush()
+
+    def said(self, needle, since=0.0):
+        return any(needle in line for t, line in self.log if t >= since)
+
+    def stop(self):
+        try:
+            self.type("exit")
+            self.process.wait(timeout=5)
+        except Exception:
+            self.process.kill()
+            self.process.wait()
+
+
+class Pilot:
+    def __init__(self, gcs_port, observer_port, timeout):
+        self.state_dir = tempfile.mkdtemp(prefix="mavproxy-pilot-")
+        self.observer = Observer(observer_port)
+        self.mavproxy = MavProxy(gcs_port, observer_port, self.state_dir)
+        self.start = time.monotonic()
+        self.deadline = self.start + timeout
+        self.summary = {}
+
+    def elapsed(self):
+        return round(time.monotonic() - self.start, 2)
+
+    def wait(self, done, within, what):
+        """Keep reading both sides until `done()` holds; fail after `within` s."""
+        end = min(time.monotonic() + within, self.deadline)
+        while True:
+            self.observer.pump()
+            self.mavproxy.drain()
+            if done():
+                return
+            if self.mavproxy.process.poll() is not None:
+                raise Failed(f"{what}: MAVProxy exited ({self.mavproxy.process.returncode})")
+            if time.monotonic() >= end:
+                late = "the overall time limit" if end == self.deadline else f"{within} s"
+                raise Failed(f"{what}: not within {late}")
+
+    def ack(self, command, since):
+        acks = [m for _, m in self.observer.since(since, "COMMAND_ACK") if m.command == command]
+        return acks[-1].result if acks else None
+
+    # The steps, in order.
+
+    def connect(self):
+        self.wait(lambda: self.mavproxy.said("Detected vehicle 1:1"), 20.0, "MAVProxy sees the vehicle")
+        beats = self.observer.since(0.0, "HEARTBEAT")
+        self.wait(lambda: self.observer.since(0.0, "HEARTBEAT"), 5.0, "the observer sees the vehicle")
+        beats = self.observer.since(0.0, "HEARTBEAT")
+        if beats[-1][1].type != mav.MAV_TYPE_SUBMARINE:
+            raise Failed(f"HEARTBEAT type {beats[-1][1].type}, not a submarine")
+
+    def params(self):
+        self.wait(lambda: self.mavproxy.said(f"Received {PARAMS} parameters"), 30.0, "MAVProxy's parameter download")
+        self.summary["params_at_s"] = self.elapsed()
+
+    def param_set(self):
+        since = time.monotonic()
+        self.mavproxy.type("param set LBV_GAIN 80")
+
+        def answered():
+            values = [m for _, m in self.observer.since(since, "PARAM_VALUE") if m.param_id == "LBV_GAIN"]
+            return values and values[-1].param_value == 80.0
+
+        self.wait(answered, 5.0, "PARAM_VALUE LBV_GAIN 80")
+        value = [m for _, m in self.observer.since(since, "PARAM_VALUE") if m.param_id == "LBV_GAIN"][-1]
+        self.summary["param_set"] = {"index": value.param_index, "count": value.param_count}
+        if value.param_count != PARAMS:
+            raise Failed(f"PARAM_VALUE param_count {value.param_count}, not {PARAMS}")
+
+    def arm(self):
+        since = time.monotonic()
+        self.mavproxy.type("arm throttle")
+        self.wait(lambda: self.ack(mav.MAV_CMD_COMPONENT_ARM_DISARM, since) is not None, 5.0, "the arm's COMMAND_ACK")
+        result = self.ack(mav.MAV_CMD_COMPONENT_ARM_DISARM, since)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"arm: COMMAND_ACK result {result}")
+        self.wait(lambda: self.observer.armed(since), 3.0, "a HEARTBEAT that says armed")
+        self.wait(lambda: self.mavproxy.said("ARMED", since), 3.0, "MAVProxy says ARMED")
+        self.summary["armed_at_s"] = self.elapsed()
+
+    def hold(self):
+        since = time.monotonic()
+        end = since + HOLD_S
+        self.wait(lambda: time.monotonic() >= end, HOLD_S + 1.0, "holding armed")
+        beats = self.observer.since(since, "HEARTBEAT")
+        armed = [bool(m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED) for _, m in beats]
+        self.summary["hold"] = {"seconds": HOLD_S, "heartbeats": len(armed), "all_armed": all(armed)}
+        if len(armed) < HOLD_S - 1:
+            raise Failed(f"only {len(armed)} vehicle heartbeats in {HOLD_S} s")
+        if not all(armed):
+            raise Failed(f"disarmed while MAVProxy was connected: {armed}; texts {self.observer.texts(since)}")
+        failsafes = [t for t in self.observer.texts(since) if "Failsafe" in t]
+        if failsafes:
+            raise Failed(f"failsafe while MAVProxy was connected: {failsafes}")
+        if self.mavproxy.said("fence breach"):
+            raise Failed("MAVProxy reports a fence breach: SYS_STATUS must show the absent fence healthy")
+
+    def disarm(self):
+        since = time.monotonic()
+        self.mavproxy.type("disarm")
+        self.wait(lambda: self.ack(mav.MAV_CMD_COMPONENT_ARM_DISARM, since) is not None, 5.0, "the disarm's COMMAND_ACK")
+        result = self.ack(mav.MAV_CMD_COMPONENT_ARM_DISARM, since)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"disarm: COMMAND_ACK result {result}")
+        self.wait(lambda: not self.observer.armed(since) and self.observer.since(since, "HEARTBEAT"), 3.0, "a disarmed HEARTBEAT")
+
+    def reboot(self):
+        since = time.monotonic()
+        self.mavproxy.type("reboot")
+        self.wait(
+            lambda: self.ack(mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, since) is not None, 5.0, "the reboot's COMMAND_ACK"
+        )
+        result = self.ack(mav.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, since)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"reboot: COMMAND_ACK result {result}")
+
+        def restarted():
+            texts = self.observer.texts(since)
+            return "Rebooting" in texts and "T1 online" in texts[texts.index("Rebooting") :]
+
+        self.wait(restarted, 10.0, "the master starting again")
+        # A fresh master numbers its frames from 0 again.
+        sequences = [m.get_seq() for t, m in self.observer.messages if t >= since]
+        restarts = sum(1 for a, b in zip(sequences, sequences[1:]) if b != (a + 1) % 256)
+        self.summary["reboot"] = {"texts": self.observer.texts(since)[:6], "sequence_restarts": restarts}
+        if restarts < 1:
+            raise Failed("the master's sequence numbers did not start over")
+        self.wait(lambda: self.observer.since(since, "HEARTBEAT") and not self.observer.armed(since), 3.0, "a disarmed HEARTBEAT")
+        # The fresh master takes commands once it has heard the ground station: MAVProxy's next 1 Hz heartbeat.
+        heard = time.monotonic() + 1.5
+        self.wait(lambda: time.monotonic() >= heard, 2.0, "MAVProxy's next heartbeat")
+
+    def persisted(self):
+        since = time.monotonic()
+        self.mavproxy.type("param fetch LBV_GAIN")
+
+        def answered():
+            return [m for _, m in self.observer.since(since, "PARAM_VALUE") if m.param_id == "LBV_GAIN"]
+
+        self.wait(answered, 5.0, "PARAM_VALUE LBV_GAIN after the reboot")
+        value = answered()[-1].param_value
+        self.summary["persisted"] = {"LBV_GAIN": value}
+        if value != 80.0:
+            raise Failed(f"LBV_GAIN is {value} after the reboot, not the 80 set before it")
+
+    def motortest(self):
+        since = time.monotonic()
+        # Thruster 1, throttle type 0 (percent), 10 %, 2 s.
+        self.mavproxy.type("motortest 1 0 10 2")
+        self.wait(lambda: self.ack(mav.MAV_CMD_DO_MOTOR_TEST, since) is not None, 5.0, "the motor test's COMMAND_ACK")
+        result = self.ack(mav.MAV_CMD_DO_MOTOR_TEST, since)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"motortest: COMMAND_ACK result {result}")
+
+        def turned():
+            return any(m.rpm[0] > 100 for _, m in self.observer.since(since, "ESC_TELEMETRY_1_TO_4"))
+
+        self.wait(turned, 3.0, "thruster 1 turning")
+        self.wait(lambda: "Motor test 1 done" in self.observer.texts(since), 4.0, "the motor test's end")
+        texts = self.observer.texts(since)
+        self.summary["motortest"] = {
+            "texts": texts,
+            "peak_rpm": max(m.rpm[0] for _, m in self.observer.since(since, "ESC_TELEMETRY_1_TO_4")),
+        }
+
+    STEPS = ["connect", "params", "param_set", "arm", "hold", "disarm", "reboot", "persisted", "motortest"]
+
+    def fly(self):
+        for step in self.STEPS:
+            getattr(self, step)()
+            self.summary.setdefault("steps", []).append(step)
+        self.summary["elapsed_s"] = self.elapsed()
+
+
+def main():
+    if len(sys.argv) < 3:
+        print(__doc__, file=sys.stderr)
+        return 2
+    gcs_port, observer_port = int(sys.argv[1]), int(sys.argv[2])
+    timeout = float(sys.argv[3]) if len(sys.argv) > 3 else 90.0
+    pilot = Pilot(gcs_port, observer_port, timeout)
+    try:
+        pilot.fly()
+    except Failed as failure:
+        pilot.mavproxy.drain()
+        pilot.summary.update(failed=str(failure), elapsed_s=pilot.elapsed())
+        pilot.summary["mavproxy"] = [line for _, line in pilot.mavproxy.log][-40:]
+        print(json.dumps(pilot.summary))
+        print(f"mavproxy_pilot: {failure}", file=sys.stderr)
+        return 1
+    finally:
+        pilot.mavproxy.stop()
+        shutil.rmtree(pilot.state_dir, ignore_errors=True)
+    pilot.summary["passed"] = True
+    print(json.dumps(pilot.summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,84 @@
+//! Flying `lbv bench --udp` from a Python ground-station script, for the pymavlink and MAVProxy tests: the bench
+//! runs in real time on loopback ports while the script flies it and prints a JSON summary.
+
+use std::io::Read as _;
+use std::net::UdpSocket;
+use std::process::{Child, Command, Stdio};
+
+/// The bench process, killed when the test ends however it ends.
+struct Bench(Child);
+
+impl Bench {
+    /// Stop it and return what it printed.
+    fn stop(mut self) -> String {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+        let mut out = String::new();
+        if let Some(mut stdout) = self.0.stdout.take() {
+            let _ = stdout.read_to_string(&mut out);
+        }
+        if let Some(mut stderr) = self.0.stderr.take() {
+            let _ = stderr.read_to_string(&mut out);
+        }
+        out
+    }
+}
+
+impl Drop for Bench {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `N` free loopback UDP ports (held together while they are chosen, so they differ).
+pub fn free_ports<const N: usize>() -> [u16; N] {
+    let sockets = [(); N].map(|()| UdpSocket::bind("127.0.0.1:0").unwrap());
+    sockets.map(|socket| socket.local_addr().unwrap().port())
+}
+
+/// Run `lbv bench --udp` for `bench_seconds`, sending to 127.0.0.1:`gcs` and listening on 127.0.0.1:`listen`,
+/// while `python3 script args...` flies it. Returns the script's JSON summary, which must say `"passed": true`,
+/// and what the bench printed. `needs` names the Python packages the script needs (it exits 3 without them).
+pub fn fly(
+    script: &str,
+    args: &[String],
+    bench_seconds: &str,
+    gcs: u16,
+    listen: u16,
+    needs: &str,
+) -> (serde_json::Value, String) {
+    let bench = Command::new(env!("CARGO_BIN_EXE_lbv"))
+        .args(["bench", "--udp", "--duration", bench_seconds])
+        .args(["--udp-send", &format!("127.0.0.1:{gcs}")])
+        .args(["--udp-listen", &format!("127.0.0.1:{listen}")])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start lbv bench --udp");
+    let bench = Bench(bench);
+
+    let pilot = match Command::new("python3")
+        .arg(script)
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+    {
+        Ok(output) => output,
+        Err(error) => panic!("cannot run python3 ({error}): install Python 3 and `pip install {needs}`"),
+    };
+    let bench_output = bench.stop();
+    let stdout = String::from_utf8_lossy(&pilot.stdout);
+    let stderr = String::from_utf8_lossy(&pilot.stderr);
+    if pilot.status.code() == Some(3) {
+        panic!("{script} needs {needs} (`pip install {needs}`): {stderr}");
+    }
+    assert!(
+        pilot.status.success(),
+        "{script} failed ({}):\n{stderr}\nits summary: {stdout}\nthe bench printed:\n{bench_output}",
+        pilot.status
+    );
+    let summary: serde_json::Value = serde_json::from_str(stdout.trim()).expect("the pilot's JSON summary");
+    assert_eq!(summary["passed"], true, "{summary}");
+    (summary, bench_output)
+}
