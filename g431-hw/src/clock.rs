@@ -4,7 +4,7 @@
 //! examples for this board family run HSE 24 MHz / 6 * 85 / 2 the same way). HSI16 is specified at only +-1 %
 //! (DS12589 features list), too loose for 1 Mbit/s CAN (see [`crate::fdcan`]), so the PLL runs from the crystal.
 
-/// The NUCLEO's HSE crystal (UM2505: X3, 24 MHz).
+/// The NUCLEO-G431RB's HSE crystal, X3, 24 MHz (from public board tables; see [`crate::pins::NUCLEO_G431RB`]).
 pub const HSE_HZ: u32 = 24_000_000;
 /// The internal 16 MHz RC oscillator.
 pub const HSI16_HZ: u32 = 16_000_000;

@@ -136,6 +136,12 @@ pub const EGR_COMG: u32 = 1 << 5;
 /// BDTR.BKP's.
 pub const AF1: u32 = 1 << 0;
 
+/// SYSCFG_CFGR2: the core's LOCKUP output (CLL) and a flash ECC double error (ECCL) trip TIM1's break as system
+/// break sources, so every switch goes off in hardware when no handler can run: a fault while stacking an
+/// exception (a stack overflow below RAM, flip-link's layout) locks the core up, and the watchdog would bite only
+/// 250 ms later. Both bits hold until a system reset (RM0440 SYSCFG_CFGR2; TIM1 break: system break sources).
+pub const SYSCFG_CFGR2: u32 = 1 << 0 | 1 << 3;
+
 /// CCMRx, CCER of one commutation step; written while CR2.CCPC = 1, they take effect together at the COM event
 /// (`EGR = EGR_COMG`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -24,6 +24,7 @@ use {
     crate::board::{AnalogInputs, BRIDGE, Halls, PowerStage},
     embassy_stm32::exti::ExtiInput,
     embassy_stm32::gpio::{AfType, Flex, OutputType},
+    embassy_stm32::pac::syscfg::regs::Cfgr2,
     embassy_stm32::pac::timer::regs::{Af1Adv, BdtrAdv, Cr2Adv},
     embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin},
     embassy_stm32::timer::low_level::CountingMode,
@@ -236,8 +237,9 @@ fn check_adc_clock() {
 }
 
 /// TIM1 from `g431_hw::tim1`: every phase off and driven (OSSR / OSSI), the L6398's inverted low inputs, the
-/// idle levels, dead time, filtered active-low break and commutation through COM events. The outputs come on at
-/// the next update event (automatic output enable), with every switch off until the commutation task drives.
+/// idle levels, dead time, filtered active-low break (tripped too by a core lockup or a flash ECC error) and
+/// commutation through COM events. The outputs come on at the next update event (automatic output enable), with
+/// every switch off until the commutation task drives.
 #[cfg(not(feature = "motorless"))]
 fn arm_power_stage(bridge: &mut PowerStage) {
     use embassy_stm32::pac::timer::vals::Ckd;
@@ -247,6 +249,7 @@ fn arm_power_stage(bridge: &mut PowerStage) {
     tim.bdtr().write_value(BdtrAdv(BRIDGE.bdtr(clock::TIM1_HZ)));
     tim.cr2().write_value(Cr2Adv(BRIDGE.cr2()));
     tim.af1().write_value(Af1Adv(g431_hw::tim1::AF1));
+    pac::SYSCFG.cfgr2().write_value(Cfgr2(g431_hw::tim1::SYSCFG_CFGR2));
     bridge.apply(COAST, Duty::ZERO);
 }
 

@@ -2,6 +2,7 @@
 //! the register layouts of stm32-metapac (generated from ST's SVD files).
 
 use super::*;
+use stm32_metapac::syscfg::regs::Cfgr2;
 use stm32_metapac::timer::regs::{Af1Adv, BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv};
 use stm32_metapac::timer::vals::{Bkp, FilterValue, Ocm, Ossi, Ossr};
 
@@ -373,4 +374,9 @@ fn bit_positions_agree_with_the_pac() {
     let mut af1 = Af1Adv(0);
     af1.set_bkine(true);
     assert_eq!(AF1, af1.0);
+
+    let mut cfgr2 = Cfgr2(0);
+    cfgr2.set_cll(true);
+    cfgr2.set_eccl(true);
+    assert_eq!(SYSCFG_CFGR2, cfgr2.0);
 }
