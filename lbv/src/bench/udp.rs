@@ -246,9 +246,8 @@ fn status_line(bench: &Bench, counters: LinkCounters) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use lbv_master_fw::console::lbv::{
-        HEARTBEAT_DATA, MavAutopilot, MavModeFlag, MavState, MavType, PARAM_REQUEST_LIST_DATA,
-    };
+    use crate::bench::ground::GroundStation;
+    use lbv_master_fw::console::lbv::PARAM_REQUEST_LIST_DATA;
     use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
 
     fn frame<D: MessageData>(message: &D) -> Vec<u8> {
@@ -265,14 +264,7 @@ mod tests {
     }
 
     fn heartbeat() -> Vec<u8> {
-        frame(&HEARTBEAT_DATA {
-            custom_mode: 0,
-            mavtype: MavType::MAV_TYPE_GCS,
-            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-            base_mode: MavModeFlag::empty(),
-            system_status: MavState::MAV_STATE_ACTIVE,
-            mavlink_version: 3,
-        })
+        GroundStation::default().heartbeat()
     }
 
     #[test]
