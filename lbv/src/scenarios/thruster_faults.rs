@@ -132,13 +132,7 @@ pub fn stall(run: &mut Run) {
 pub fn hall(run: &mut Run) {
     let unplugged = Fault::HallsUnplugged { thruster: 0 };
     let took = inject_and_time(run, unplugged);
-    let ms = took.map(|s| round(s * 1e3, 2));
-    run.metric("reaction_ms", json!(ms));
-    run.check(
-        "coasts at once",
-        took.is_some_and(|s| s <= 0.0011),
-        format!("{ms:?} ms"),
-    );
+    coasted_within_a_sample(run, took);
     run.run_for(0.2);
     reported(run, Faults::HALL);
     others_keep_working(run);
