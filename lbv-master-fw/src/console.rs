@@ -18,7 +18,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use embassy_futures::select::{Either, select};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_time::{Duration, Ticker, Timer};
+use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
@@ -91,6 +91,8 @@ pub struct ConsoleStats {
     unsigned: AtomicU32,
     bad_signatures: AtomicU32,
     replayed: AtomicU32,
+    ahead: AtomicU32,
+    out_of_range: AtomicU32,
     frames_out: AtomicU32,
     write_errors: AtomicU32,
     signing: Mutex<CriticalSectionRawMutex, RefCell<SigningState>>,
@@ -125,6 +127,12 @@ pub struct ConsoleCounters {
     pub bad_signatures: u32,
     /// With a signing key set: correctly signed frames refused for their timestamp (a replay).
     pub replayed: u32,
+    /// With a signing key set: correctly signed frames beyond the stored reservation, refused until the next one
+    /// is stored (the first frame of a ground station whose clock ran on while the master was off).
+    pub ahead: u32,
+    /// With a signing key set: correctly signed frames with a timestamp so near 2^48 - 1 that the link's would
+    /// run out.
+    pub out_of_range: u32,
     /// Frames written.
     pub frames_out: u32,
     /// Frames the serial port failed to write.
@@ -142,6 +150,8 @@ impl ConsoleCounters {
         self.unsigned
             .wrapping_add(self.bad_signatures)
             .wrapping_add(self.replayed)
+            .wrapping_add(self.ahead)
+            .wrapping_add(self.out_of_range)
     }
 }
 
@@ -157,6 +167,8 @@ impl ConsoleStats {
             unsigned: AtomicU32::new(0),
             bad_signatures: AtomicU32::new(0),
             replayed: AtomicU32::new(0),
+            ahead: AtomicU32::new(0),
+            out_of_range: AtomicU32::new(0),
             frames_out: AtomicU32::new(0),
             write_errors: AtomicU32::new(0),
             signing: Mutex::new(RefCell::new(SigningState::new())),
@@ -175,6 +187,8 @@ impl ConsoleStats {
             unsigned: load(&self.unsigned),
             bad_signatures: load(&self.bad_signatures),
             replayed: load(&self.replayed),
+            ahead: load(&self.ahead),
+            out_of_range: load(&self.out_of_range),
             frames_out: load(&self.frames_out),
             write_errors: load(&self.write_errors),
         }
@@ -187,6 +201,25 @@ impl ConsoleStats {
             state.sync(key);
             f(&mut state)
         })
+    }
+
+    /// Bring the signing state up to the settings and the flash: the key in force (`shared.settings`), the
+    /// reservation stored (`shared.signing_stored`); hand a reservation that has fallen due to the settings store
+    /// (`shared.signing_time`). Returns the key in force. [`crate::run`] calls it before any task starts, and both
+    /// console tasks before every frame they take or send.
+    pub fn follow(&self, shared: &Shared) -> Option<SigningKey> {
+        let key = shared.settings.try_get().and_then(|settings| settings.signing);
+        let stored = shared.signing_stored.try_get();
+        let due = self.signing(key, |signing| {
+            if let Some(reservation) = stored {
+                signing.stored(reservation);
+            }
+            signing.due_for_storing()
+        });
+        if let Some(reservation) = due {
+            shared.signing_time.sender().send(reservation);
+        }
+        key
     }
 
     fn count(counter: &AtomicU32, n: u32) {
@@ -258,6 +291,8 @@ impl Receiver {
                             Refusal::Unsigned => &stats.unsigned,
                             Refusal::BadSignature => &stats.bad_signatures,
                             Refusal::Replayed => &stats.replayed,
+                            Refusal::Ahead => &stats.ahead,
+                            Refusal::OutOfRange => &stats.out_of_range,
                         },
                         1,
                     );
@@ -293,12 +328,11 @@ impl Receiver {
 /// again, so noise never hides the frames behind it for longer. Frames from any system are read; only messages
 /// addressed to our system (target 0 or ours, where the message has a target) become requests, and the vehicle
 /// decides whether their sender may ask. With a signing key in force (`shared.settings`), frames that fail the
-/// signing checks are refused, and the link's timestamp is handed to `shared.signing_time` for storing once a
-/// minute. A read error is counted and reading resumes after a short pause.
+/// signing checks are refused, and the reservations the link needs are asked for ([`ConsoleStats::follow`]). A
+/// read error is counted and reading resumes after a short pause.
 pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared: &Shared, stats: &ConsoleStats) -> ! {
     let mut receiver = Receiver::new();
     let mut chunk = [0u8; 64];
-    let signing_time = shared.signing_time.sender();
     loop {
         let read = if receiver.pending() {
             match select(rx.read(&mut chunk), Timer::after(LINE_IDLE)).await {
@@ -327,15 +361,12 @@ pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared
         loop {
             let taken = receiver.push(rest);
             rest = rest.get(taken..).unwrap_or_default();
-            let key = shared.settings.try_get().and_then(|settings| settings.signing);
-            while let Some(received) = receiver.next(config, key, stats) {
+            while let Some(received) = receiver.next(config, stats.follow(shared), stats) {
                 if let Received::Request(request) = received {
                     shared.commands.send(request).await;
                 }
             }
-            if let Some(timestamp) = stats.signing(key, SigningState::due_for_storing) {
-                signing_time.send(timestamp);
-            }
+            stats.follow(shared);
             if rest.is_empty() {
                 break;
             }
@@ -346,8 +377,9 @@ pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared
 /// Send telemetry to `tx`: HEARTBEAT, SYS_STATUS and BATTERY_STATUS at 1 Hz (the first set at once),
 /// ESC_TELEMETRY_1_TO_4 (and ESC_TELEMETRY_5_TO_8 when more than 4 thrusters are configured) at 4 Hz, and every
 /// [`Shared::outbox`] message as soon as it is queued. MAVLink 2 frames from `config`'s system and component,
-/// signed while a key is in force (`shared.settings`); the sequence number counts every frame. Write errors are
-/// counted in `stats` and the frame is dropped. [`Outgoing::Reboot`] flushes the port and raises
+/// signed while a key is in force (`shared.settings`; a batch waits for the signing reservation to have room,
+/// never going out unsigned); the sequence number counts every frame. Write errors, and frames that could not be
+/// signed, are counted in `stats` as write errors and the frame is dropped. [`Outgoing::Reboot`] flushes the port and raises
 /// `shared.reboot`.
 ///
 /// SYS_STATUS's drop_rate_comm is the share of corrupt frames received during the last second (see
@@ -367,7 +399,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
     let mut tick: u8 = 0;
     let mut last = stats.snapshot();
     loop {
-        out.key = shared.settings.try_get().and_then(|settings| settings.signing);
+        out.key = signing_room(shared, stats).await;
         let reports: Reports = core::array::from_fn(|i| {
             shared
                 .thrusters
@@ -393,7 +425,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
         tick = (tick + 1) % SLOW_EVERY;
 
         while let Either::Second(message) = select(ticker.next(), shared.outbox.receive()).await {
-            out.key = shared.settings.try_get().and_then(|settings| settings.signing);
+            out.key = signing_room(shared, stats).await;
             match message {
                 Outgoing::CommandAck { command, result, to } => out.push(&outbound::command_ack(command, result, to)),
                 Outgoing::ParamValue {
@@ -412,6 +444,26 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
             }
             out.flush().await;
         }
+    }
+}
+
+/// Most frames one batch signs: the 1 Hz set and both ESC messages.
+const BATCH_FRAMES: u64 = 5;
+/// Longest wait for a signing reservation to be stored before a batch goes (its frames beyond the reservation
+/// are dropped then): a write takes milliseconds, a page erase about 20 ms.
+const ROOM_WAIT: Duration = Duration::from_millis(50);
+
+/// The key in force, once the signing reservation has room for a batch (at once without a key, or after
+/// [`ROOM_WAIT`] at most): right after a start whose reservation could not be stored, or a SETUP_SIGNING with a
+/// later timestamp, the frames wait for the settings store rather than go unsigned.
+async fn signing_room(shared: &Shared, stats: &ConsoleStats) -> Option<SigningKey> {
+    let deadline = Instant::now() + ROOM_WAIT;
+    loop {
+        let key = stats.follow(shared);
+        if stats.signing(key, |signing| signing.room()) >= BATCH_FRAMES || Instant::now() >= deadline {
+            return key;
+        }
+        Timer::after(Duration::from_millis(1)).await;
     }
 }
 
@@ -475,7 +527,7 @@ impl<W: Write> Output<'_, W> {
                 self.len += len;
                 self.frames += 1;
             }
-            // No room left for the signature.
+            // No room left for the signature, or none in the signing reservation.
             None => ConsoleStats::count(&self.stats.write_errors, 1),
         }
     }

@@ -94,6 +94,10 @@ async fn poll_bus<B: I2c + BusRecovery>(bus: &mut B, index: u8, config: &MasterC
 /// The master node: the settings loaded from their store, then the buses' work, the battery CAN task, the console's
 /// receive and transmit tasks, the vehicle task and the settings task, joined. They talk only through `shared` (and
 /// the console tasks through `console`), which live as long as the node: a reboot starts again from fresh ones.
+///
+/// Before any task runs, the settings are published and, with a signing key, a new signing reservation is stored
+/// past the one loaded (the start's floor, [`signing`]): the first frame read (one already waiting in the UART) is
+/// checked with the key, and the first telemetry goes out signed, above every timestamp used before the start.
 pub async fn run<B, C, R, W, S, X, J>(
     ports: Ports<B, C, R, W, S, X, J>,
     config: &MasterConfig,
@@ -126,6 +130,16 @@ where
             text(format_args!("Settings: {unreadable} unreadable in flash")),
         );
     }
+    if let Some(key) = stored.signing {
+        let reservation = signing::reservation_after(key.timestamp);
+        match settings.save_signing_time(reservation).await {
+            Ok(()) => shared.signing_stored.sender().send(reservation),
+            // The console signs and accepts nothing until the settings task stores one.
+            Err(_) => shared.say(Severity::Warning, text(format_args!("Signing: reservation not stored"))),
+        }
+    }
+    shared.settings.sender().send(stored);
+    console.follow(shared);
     let buses = async {
         work.run(&mut buses, config, shared).await;
         core::future::pending::<()>().await

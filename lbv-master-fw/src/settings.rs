@@ -8,8 +8,9 @@
 //! during a write loses that write (all of it) and nothing before it.
 //!
 //! A record holds a format byte, the parameter count, each parameter (an `i32` in its own unit, by index), the
-//! signing key (secret and set-up timestamp; all zero: signing off) and the signing link's timestamp (stored at
-//! most once a minute while it advances, so a restart does not reopen the door to old signed frames). A stored
+//! signing key (secret and set-up timestamp; all zero: signing off) and the signing link's reservation (a
+//! timestamp ahead of every one used, stored at each start and about once a minute while the link advances, so a
+//! restart does not reopen the door to old signed frames: [`crate::signing`]). A stored
 //! value that is not valid for its parameter reads as the default. One record of everything (rather than one item
 //! per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code is
 //! no larger.
@@ -21,7 +22,8 @@
 
 use core::ops::Range;
 
-use embassy_futures::select::{Either3, select3};
+use embassy_futures::select::{Either, Either3, select, select3};
+use embassy_time::{Duration, Timer};
 use embedded_storage_async::nor_flash::NorFlash;
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::queue::{QueueConfig, QueueStorage};
@@ -46,7 +48,7 @@ pub trait SettingsStore {
     /// Store `settings`.
     async fn save(&mut self, settings: &Settings) -> Result<(), StoreError>;
 
-    /// Store the signing link's timestamp.
+    /// Store the signing link's reservation.
     async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError>;
 
     /// Records that could not be read by [`SettingsStore::load`].
@@ -231,7 +233,8 @@ impl<F: NorFlash> Store<F> {
 }
 
 impl<F: NorFlash> SettingsStore for Store<F> {
-    /// The signing key's timestamp is the later of the one it was set up with and the link's stored one.
+    /// The signing key's timestamp is the later of the one it was set up with and the link's stored reservation:
+    /// the floor of this start.
     async fn load(&mut self, defaults: Settings) -> Settings {
         let mut newest = None;
         match self.queue.iter().await {
@@ -285,13 +288,20 @@ fn signing_time_of(record: &[u8; RECORD]) -> u64 {
     record.last_chunk::<8>().copied().map_or(0, u64::from_le_bytes)
 }
 
+/// How long after a failed write of the signing reservation it is tried again.
+pub const SIGNING_RETRY: Duration = Duration::from_secs(5);
+
 /// Keep the settings in `store` (which has [`SettingsStore::load`]ed them): write each change the vehicle publishes
-/// (`shared.settings`) and the signing link's timestamp (`shared.signing_time`); when the reboot's
-/// acknowledgement is out (`shared.reboot`), finish writing and restart through `reboot`. A write that fails is
-/// reported on the console (Warning) and retried with the next change.
+/// (`shared.settings`) and each signing reservation the console asks for (`shared.signing_time`), telling the
+/// console once a reservation is in flash (`shared.signing_stored`); when the reboot's acknowledgement is out
+/// (`shared.reboot`), finish writing and restart through `reboot`. A write that fails is reported on the console
+/// (Warning); a settings change is retried with the next change, a reservation every [`SIGNING_RETRY`] until it
+/// is stored (until then the console signs and accepts nothing beyond the last one).
 pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &Shared, reboot: &mut R) -> ! {
     let mut settings = shared.settings.receiver();
     let mut signing_time = shared.signing_time.receiver();
+    let stored = shared.signing_stored.sender();
+    let mut unsaved: Option<u64> = None;
     loop {
         let changed = async {
             match settings.as_mut() {
@@ -301,21 +311,47 @@ pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &
                 None => core::future::pending().await,
             }
         };
-        let timestamp = async {
+        let asked = async {
             match signing_time.as_mut() {
                 Some(receiver) => receiver.changed().await,
                 None => core::future::pending().await,
             }
         };
-        let result = match select3(changed, timestamp, shared.reboot.wait()).await {
+        let retry = async {
+            match unsaved {
+                Some(reservation) => {
+                    Timer::after(SIGNING_RETRY).await;
+                    reservation
+                }
+                None => core::future::pending().await,
+            }
+        };
+        let reservation = async {
+            match select(asked, retry).await {
+                Either::First(reservation) | Either::Second(reservation) => reservation,
+            }
+        };
+        let result = match select3(changed, reservation, shared.reboot.wait()).await {
             Either3::First(()) => match shared.settings.try_get() {
                 Some(new) => store.save(&new).await,
                 None => Ok(()),
             },
-            Either3::Second(timestamp) => store.save_signing_time(timestamp).await,
+            Either3::Second(reservation) => {
+                let result = store.save_signing_time(reservation).await;
+                unsaved = result.is_err().then_some(reservation);
+                if result.is_ok() {
+                    stored.send(reservation);
+                }
+                result
+            }
             Either3::Third(()) => {
                 if let Some(new) = settings.as_mut().and_then(|receiver| receiver.try_changed()) {
                     let _ = store.save(&new).await;
+                }
+                // A reservation asked for is stored before the restart: the next start's floor lies past it.
+                let asked = signing_time.as_mut().and_then(|receiver| receiver.try_changed());
+                if let Some(reservation) = asked.or(unsaved) {
+                    let _ = store.save_signing_time(reservation).await;
                 }
                 reboot.reboot().await
             }
@@ -639,6 +675,7 @@ mod tests {
                 for _ in 0..4 {
                     yield_now().await;
                 }
+                assert_eq!(shared.signing_stored.try_get(), Some(7_000_000), "the console is told");
                 // A last change and the reboot at once: the change is written first.
                 settings.send(with(|s| {
                     *s = changed;
@@ -689,5 +726,76 @@ mod tests {
             shared.outbox.try_receive(),
             Ok(crate::shared::Outgoing::Text(Severity::Warning, text)) if text.starts_with("Settings not saved")
         ));
+    }
+
+    #[test]
+    fn a_reservation_asked_for_with_the_reboot_is_stored_before_the_restart() {
+        let shared = Shared::new();
+        let mut flash = flash();
+        let restarts = std::rc::Rc::new(core::cell::Cell::new(0));
+        let mut reboot = Restart(restarts.clone());
+        let keyed = with(|s| {
+            s.signing = Some(SigningKey {
+                secret: [9; 32],
+                timestamp: 10,
+            })
+        });
+        save(&mut flash, &keyed).unwrap();
+        {
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            block_on(store.load(defaults()));
+            let script = async {
+                shared.signing_time.sender().send(8_000_000);
+                shared.reboot.signal(());
+                for _ in 0..4 {
+                    yield_now().await;
+                }
+                assert_eq!(restarts.get(), 1);
+            };
+            match block_on(select(settings_task(&mut store, &shared, &mut reboot), script)) {
+                Either::First(never) => match never {},
+                Either::Second(()) => {}
+            }
+        }
+        assert_eq!(load(&mut flash).0.signing.map(|key| key.timestamp), Some(8_000_000));
+    }
+
+    #[test]
+    fn a_failed_reservation_is_written_again_until_it_is_stored() {
+        let _clock = crate::test_clock::lock();
+        let shared = Shared::new();
+        let mut flash = flash();
+        let mut reboot = Restart(Default::default());
+        save(
+            &mut flash,
+            &with(|s| {
+                s.params.set(Param::Gain, 10);
+            }),
+        )
+        .unwrap();
+        // The next write fails part way.
+        flash.bytes_until_shutoff = Some(3);
+        {
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            block_on(store.load(defaults()));
+            let script = async {
+                shared.signing_time.sender().send(9_000_000);
+                crate::battery::tests::elapse(Duration::from_millis(10)).await;
+                assert_eq!(shared.signing_stored.try_get(), None, "not stored, not confirmed");
+                assert!(matches!(
+                    shared.outbox.try_receive(),
+                    Ok(crate::shared::Outgoing::Text(Severity::Warning, _))
+                ));
+                crate::battery::tests::elapse(SIGNING_RETRY).await;
+                assert_eq!(shared.signing_stored.try_get(), Some(9_000_000), "stored on the retry");
+            };
+            match block_on(select(settings_task(&mut store, &shared, &mut reboot), script)) {
+                Either::First(never) => match never {},
+                Either::Second(()) => {}
+            }
+        }
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        block_on(store.load(defaults()));
+        assert_eq!(signing_time_of(&store.held.unwrap()), 9_000_000);
     }
 }

@@ -277,8 +277,10 @@ pub struct Shared {
     pub outbox: Channel<Mutex, Outgoing, 16>,
     /// Vehicle -> settings store, console: the parameters and the signing key in force.
     pub settings: Watch<Mutex, Settings, 1>,
-    /// Console -> settings store: the signing link's timestamp, to store (at most once a minute).
+    /// Console -> settings store: the signing link's next reservation, to store ([`crate::signing`]).
     pub signing_time: Watch<Mutex, u64, 1>,
+    /// Settings store -> console: the signing reservation in flash, once written.
+    pub signing_stored: Watch<Mutex, u64, 1>,
     /// Console -> settings store: the reboot's acknowledgement has been sent; restart.
     pub reboot: Signal<Mutex, ()>,
 }
@@ -295,6 +297,7 @@ impl Shared {
             outbox: Channel::new(),
             settings: Watch::new(),
             signing_time: Watch::new(),
+            signing_stored: Watch::new(),
             reboot: Signal::new(),
         }
     }

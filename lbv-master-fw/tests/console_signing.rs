@@ -174,7 +174,7 @@ fn mavlink_core_verifies_what_the_console_signs() {
         secret: KEY,
         timestamp: signing_now(),
     });
-    shared.settings.sender().send(settings);
+    console_support::publish(&shared, settings);
     let bytes = run_tx(
         &ConsoleConfig::DEFAULT,
         &shared,
@@ -211,7 +211,7 @@ fn the_console_accepts_what_mavlink_core_signs() {
         timestamp: signing_now(),
     });
     let shared = Shared::new();
-    shared.settings.sender().send(settings);
+    console_support::publish(&shared, settings);
     let signer = SigningData::from_config(SigningConfig::new(KEY, 3, true, false));
     let header = MavHeader {
         system_id: 255,

@@ -8,14 +8,16 @@ use std::convert::Infallible;
 use std::rc::Rc;
 
 use embassy_futures::block_on;
-use embassy_futures::join::join3;
+use embassy_futures::join::join4;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::MavMessage;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::params::Settings;
+use lbv_master_fw::settings::{InRam, Reboot, settings_task};
 use lbv_master_fw::shared::{Command, Request, Shared};
+use lbv_master_fw::signing::reservation_after;
 use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, MessageData};
 
@@ -206,9 +208,27 @@ impl embedded_io_async::Read for Line {
     }
 }
 
+/// Publish `settings` as [`lbv_master_fw::run`] does at a start: with a signing key, a reservation past its
+/// timestamp is in flash.
+pub fn publish(shared: &Shared, settings: Settings) {
+    if let Some(key) = settings.signing {
+        shared.signing_stored.sender().send(reservation_after(key.timestamp));
+    }
+    shared.settings.sender().send(settings);
+}
+
+/// A restart that never comes (the tests that run the settings task do not reboot).
+pub struct NoReboot;
+
+impl Reboot for NoReboot {
+    async fn reboot(&mut self) -> ! {
+        core::future::pending().await
+    }
+}
+
 /// The console and the vehicle on the virtual clock, which this takes (at 0) for the run: the receive, transmit and
-/// vehicle tasks, with `line` as the console's input, run for `run_for` in 1 ms steps; `each_ms` sees the shared
-/// state after every step. Returns what the console sent.
+/// vehicle tasks (and the settings task, on settings kept in RAM), with `line` as the console's input, run for
+/// `run_for` in 1 ms steps; `each_ms` sees the shared state after every step. Returns what the console sent.
 pub fn run_console(
     settings: Settings,
     line: Line,
@@ -222,10 +242,13 @@ pub fn run_console(
     let mut tx = capture.clone();
     let mut rx = line;
     let config = ConsoleConfig::DEFAULT;
-    let tasks = join3(
+    publish(&shared, settings);
+    let (mut store, mut reboot) = (InRam, NoReboot);
+    let tasks = join4(
         console_rx_task(&mut rx, &config, &shared, &stats),
         console_tx_task(&mut tx, &config, &shared, &stats),
         vehicle_task(VehicleConfig::DEFAULT, settings, &shared),
+        settings_task(&mut store, &shared, &mut reboot),
     );
     block_on(select(tasks, async {
         let end = Instant::now() + run_for;
