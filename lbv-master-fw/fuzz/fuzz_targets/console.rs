@@ -1,10 +1,12 @@
 //! The console's receive path and the vehicle, end to end: bytes -> frame parser -> signing checks -> decoder ->
 //! vehicle, on a clock the input moves. Two kinds of input:
 //!
-//! - A line: raw bytes, well-formed frames from any system (signed or not, when a key is set), pauses of the line
-//!   and time passing, in any mix. Nothing panics; after every step every parameter is in its range; the
-//!   vehicle arms only on an arm command from the operator's system (`SYSID_MYGCS` before the command); after a
-//!   pause the parser holds nothing, so whatever noise came before cannot hide the next frame.
+//! - A line: raw bytes, well-formed frames from any system (signed or not, when a key is set), pauses of the line,
+//!   time passing, reboots of the master (its settings and signing reservation kept as its flash keeps them), and
+//!   frames recorded before a reboot sent again after it, in any mix. Nothing panics; after every step every
+//!   parameter is in its range; the vehicle arms only on an arm command from the operator's system (`SYSID_MYGCS`
+//!   before the command); after a pause the parser holds nothing, so whatever noise came before cannot hide the
+//!   next frame; while signing is on, no frame the master took in before a reboot is accepted after it.
 //! - A clean stream: well-formed frames only (those of messages outside the dialect too), cut into chunks of any
 //!   size, with pauses only between frames. It comes out unchanged: exactly the requests each frame gives on its
 //!   own, in order, with nothing counted as bad or skipped.
@@ -16,10 +18,10 @@ use lbv_master_fw::console::lbv::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavModeFlag, MavParamType, MavState, MavType,
     PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, SETUP_SIGNING_DATA,
 };
-use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, Received, Receiver};
+use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, Received, Receiver};
 use lbv_master_fw::params::{Param, Settings};
-use lbv_master_fw::shared::{Command, Outgoing, Request};
-use lbv_master_fw::signing::{SIGNATURE_LEN, SigningState};
+use lbv_master_fw::shared::{Command, Outgoing, Request, Shared};
+use lbv_master_fw::signing::{SIGNATURE_LEN, SigningState, TIMESTAMP_MAX, reservation_after};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
 // The host's time driver (virtual time; the harness passes its own instants).
 use lbv_sim as _;
@@ -108,6 +110,10 @@ enum Op {
     Pause,
     /// Time passes, in ms; the vehicle ticks.
     Wait(u16),
+    /// The master reboots.
+    Reboot,
+    /// A frame recorded before the last reboot (by its number, modulo how many there are) is sent again.
+    Replay(u8),
 }
 
 #[derive(Arbitrary, Debug)]
@@ -282,22 +288,75 @@ fn build(frame: &Frame, operator: u8, signer: &mut SigningState) -> Vec<u8> {
     bytes
 }
 
+/// What the master's flash keeps: the settings (every change is written) and the signing reservation.
+#[derive(Clone, Copy)]
+struct Flash {
+    settings: Settings,
+    reservation: u64,
+}
+
 /// The vehicle with its console, on a clock the input moves.
 struct Rig {
     receiver: Receiver,
     stats: ConsoleStats,
+    shared: Shared,
     vehicle: Vehicle,
+    flash: Flash,
     now: u64,
 }
 
 impl Rig {
     fn new() -> Self {
+        let defaults = VehicleConfig::DEFAULT.defaults();
+        Self::boot(Flash {
+            settings: defaults,
+            reservation: 0,
+        })
+    }
+
+    /// A start from what `flash` holds, as `lbv_master_fw::run` and the settings store do it: the key's timestamp
+    /// is the later of its own and the reservation (the floor), a new reservation past it is stored, and the
+    /// settings are published before anything is read.
+    fn boot(mut flash: Flash) -> Self {
         let config = VehicleConfig::DEFAULT;
+        let shared = Shared::new();
+        if let Some(key) = flash.settings.signing.as_mut() {
+            key.timestamp = key.timestamp.max(flash.reservation);
+            flash.reservation = reservation_after(key.timestamp);
+            shared.signing_stored.sender().send(flash.reservation);
+        }
+        shared.settings.sender().send(flash.settings);
+        let stats = ConsoleStats::new();
+        stats.follow(&shared);
         Self {
             receiver: Receiver::new(),
-            stats: ConsoleStats::new(),
-            vehicle: Vehicle::new(config, config.defaults()),
+            stats,
+            shared,
+            vehicle: Vehicle::new(config, flash.settings),
+            flash,
             now: 0,
+        }
+    }
+
+    /// The reboot: the master's RAM is lost, its flash kept.
+    fn reboot(&mut self) {
+        *self = Self::boot(self.flash);
+    }
+
+    /// The settings task: the settings the vehicle publishes and the reservation the console asks for are written
+    /// (at once: a write takes milliseconds) and the console is told.
+    fn store(&mut self) {
+        let settings = self.settings();
+        if self.shared.settings.try_get() != Some(settings) {
+            self.shared.settings.sender().send(settings);
+            self.flash.settings = settings;
+        }
+        self.stats.follow(&self.shared);
+        if let Some(reservation) = self.shared.signing_time.try_get()
+            && reservation > self.flash.reservation
+        {
+            self.flash.reservation = reservation;
+            self.shared.signing_stored.sender().send(reservation);
         }
     }
 
@@ -316,7 +375,7 @@ impl Rig {
                 self.receiver.end_of_input();
             }
             loop {
-                let key = self.settings().signing;
+                let key = self.stats.follow(&self.shared);
                 let Some(received) = self.receiver.next(&CONFIG, key, &self.stats) else {
                     break;
                 };
@@ -324,7 +383,9 @@ impl Rig {
                     self.apply(request);
                     requests.push(request);
                 }
+                self.store();
             }
+            self.store();
             if rest.is_empty() {
                 break;
             }
@@ -371,14 +432,23 @@ fn signer(settings: &Settings, offset: u16) -> SigningState {
     if let Some(mut key) = settings.signing {
         key.timestamp = key.timestamp.saturating_add(u64::from(offset));
         signer.sync(Some(key));
+        signer.stored(TIMESTAMP_MAX);
     }
     signer
+}
+
+/// Frames the console has looked at: taken, refused, or dropped as bad.
+fn looked_at(counters: &ConsoleCounters) -> u32 {
+    counters.frames_in + counters.bad_frames + counters.refused_by_signing()
 }
 
 fuzz_target!(|input: Input| {
     match input {
         Input::Line(ops) => {
             let mut rig = Rig::new();
+            // Frames the console looked at whole, since the first start, and how many came before the last reboot.
+            let mut recorded: Vec<Vec<u8>> = Vec::new();
+            let mut before_reboot = 0;
             for op in ops.iter().take(256) {
                 match op {
                     Op::Bytes(bytes) => {
@@ -388,12 +458,37 @@ fuzz_target!(|input: Input| {
                         let settings = rig.settings();
                         let mut signer = signer(&settings, frame.signed.unwrap_or(0));
                         let bytes = build(frame, settings.params.operator(), &mut signer);
+                        let (clean, seen) = (!rig.receiver.pending(), looked_at(&rig.stats.snapshot()));
                         rig.feed(&bytes, false);
+                        if clean && !rig.receiver.pending() && looked_at(&rig.stats.snapshot()) == seen + 1 {
+                            recorded.push(bytes);
+                        }
                     }
                     Op::Pause => {
                         rig.feed(&[], true);
                     }
                     Op::Wait(ms) => rig.tick(*ms),
+                    Op::Reboot => {
+                        rig.reboot();
+                        before_reboot = recorded.len();
+                    }
+                    Op::Replay(n) => {
+                        if before_reboot == 0 {
+                            continue;
+                        }
+                        let bytes = recorded[usize::from(*n) % before_reboot].clone();
+                        let signing = rig.settings().signing.is_some();
+                        let taken = rig.stats.snapshot().frames_in;
+                        // The replay comes on a quiet line, as an attacker would send it.
+                        rig.feed(&[], true);
+                        let requests = rig.feed(&bytes, true);
+                        if signing {
+                            assert!(
+                                requests.is_empty() && rig.stats.snapshot().frames_in == taken,
+                                "a frame from before the reboot was accepted after it: {bytes:02x?}"
+                            );
+                        }
+                    }
                 }
             }
         }

@@ -61,9 +61,16 @@ pub struct Seen {
     pub verified: u32,
     /// Signed frames whose signature did not verify (or that came while this station had no key).
     pub unverified: u32,
+    /// Unsigned frames that came while this station had a key.
+    pub unsigned: u32,
+    /// Verified frames whose signature timestamp was not newer than the one before (a wrap, a restart behind).
+    pub timestamps_back: u32,
+    /// The newest signature timestamp verified.
+    pub newest_timestamp: u64,
 }
 
-/// A MAVLink 2 signing key as a station holds it, and the timestamp of its last signature.
+/// A MAVLink 2 signing key as a station holds it, and the timestamp of its last signature (or the newest one it
+/// verified from the vehicle, which it follows).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Signing {
     /// The secret.
@@ -139,6 +146,17 @@ impl GroundStation {
 
     /// `message` framed as MAVLink 2 from this station, signed when it has a key.
     pub fn frame(&mut self, message: &MavMessage) -> Vec<u8> {
+        let timestamp = self.signing.as_mut().map(|signing| signing.timestamp(Instant::now()));
+        self.framed(message, timestamp)
+    }
+
+    /// `message` signed with this station's key and exactly `timestamp`, whatever its clock says (a frame
+    /// recorded long ago, or an attacker's); unsigned without a key.
+    pub fn frame_signed_at(&mut self, message: &MavMessage, timestamp: u64) -> Vec<u8> {
+        self.framed(message, Some(timestamp))
+    }
+
+    fn framed(&mut self, message: &MavMessage, timestamp: Option<u64>) -> Vec<u8> {
         let header = MavHeader {
             system_id: u32::from(self.system),
             component_id: COMPONENT,
@@ -146,11 +164,9 @@ impl GroundStation {
         };
         self.sequence = self.sequence.wrapping_add(1);
         let mut raw = MAVLinkV2MessageRaw::new();
-        match self.signing.as_mut() {
-            None => raw.serialize_message(header, message),
-            Some(signing) => {
+        match (self.signing.as_ref(), timestamp) {
+            (Some(signing), Some(timestamp)) => {
                 raw.serialize_message_for_signing(header, message);
-                let timestamp = signing.timestamp(Instant::now());
                 *raw.signature_link_id_mut() = signing.link_id;
                 raw.signature_timestamp_bytes_mut()
                     .copy_from_slice(&timestamp.to_le_bytes()[..6]);
@@ -158,6 +174,7 @@ impl GroundStation {
                 raw.calculate_signature(&signing.key, &mut signature);
                 raw.signature_value_mut().copy_from_slice(&signature);
             }
+            _ => raw.serialize_message(header, message),
         }
         raw.raw_bytes().to_vec()
     }
@@ -183,6 +200,18 @@ impl GroundStation {
     /// MAV_CMD_COMPONENT_ARM_DISARM.
     pub fn arm(&mut self, arm: bool) -> Vec<u8> {
         self.command(ARM_DISARM, [if arm { 1.0 } else { 0.0 }, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    }
+
+    /// An arm, signed at exactly `timestamp` ([`GroundStation::frame_signed_at`]).
+    pub fn arm_signed_at(&mut self, timestamp: u64) -> Vec<u8> {
+        let message = MavMessage::COMMAND_LONG(COMMAND_LONG_DATA {
+            param1: 1.0,
+            command: ARM_DISARM,
+            target_system: 1,
+            target_component: 1,
+            ..Default::default()
+        });
+        self.frame_signed_at(&message, timestamp)
     }
 
     /// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, param1 = 1: restart the autopilot (the master).
@@ -298,11 +327,20 @@ impl GroundStation {
             while let Some(event) = self.parser.next(|id| Some(MavMessage::extra_crc(id))) {
                 let Event::Frame(frame) = event else { continue };
                 if frame.signed {
-                    if verifies(frame.bytes, self.signing.as_ref()) {
-                        self.seen.verified += 1;
-                    } else {
-                        self.seen.unverified += 1;
+                    match (verified(frame.bytes, self.signing.as_ref()), self.signing.as_mut()) {
+                        (Some(timestamp), Some(signing)) => {
+                            self.seen.verified += 1;
+                            if timestamp <= self.seen.newest_timestamp {
+                                self.seen.timestamps_back += 1;
+                            }
+                            self.seen.newest_timestamp = self.seen.newest_timestamp.max(timestamp);
+                            // As the spec asks (and the C library and pymavlink do): follow a newer timestamp.
+                            signing.last = signing.last.max(timestamp);
+                        }
+                        _ => self.seen.unverified += 1,
                     }
+                } else if self.signing.is_some() {
+                    self.seen.unsigned += 1;
                 }
                 let Ok(message) = MavMessage::parse(MavlinkVersion::V2, frame.message_id, frame.payload) else {
                     continue;
@@ -375,19 +413,15 @@ impl GroundStation {
     }
 }
 
-/// Whether the mavlink crate finds the signature of the signed frame `bytes` made with `signing`'s key.
-fn verifies(bytes: &[u8], signing: Option<&Signing>) -> bool {
-    let Some(signing) = signing else {
-        return false;
-    };
+/// The signature timestamp of the signed frame `bytes` when the mavlink crate finds its signature made with
+/// `signing`'s key.
+fn verified(bytes: &[u8], signing: Option<&Signing>) -> Option<u64> {
+    let signing = signing?;
     let mut raw = MAVLinkV2MessageRaw::new();
-    let Some(slot) = raw.as_mut_slice().get_mut(..bytes.len()) else {
-        return false;
-    };
-    slot.copy_from_slice(bytes);
+    raw.as_mut_slice().get_mut(..bytes.len())?.copy_from_slice(bytes);
     let mut signature = [0; 6];
     raw.calculate_signature(&signing.key, &mut signature);
-    signature == raw.signature_value()
+    (signature == raw.signature_value()).then(|| raw.signature_timestamp())
 }
 
 /// A parameter's name as MAVLink carries it.
@@ -429,8 +463,8 @@ mod tests {
             let mut raw = MAVLinkV2MessageRaw::new();
             raw.as_mut_slice()[..frame.len()].copy_from_slice(frame);
             assert!(verifier.verify_signature(&raw), "{frame:02x?}");
-            assert!(verifies(frame, station.signing.as_ref()));
-            assert!(!verifies(frame, Some(&Signing::new([8; 32]))));
+            assert!(verified(frame, station.signing.as_ref()).is_some());
+            assert!(verified(frame, Some(&Signing::new([8; 32]))).is_none());
         }
         // Each signature is newer than the last, at the same virtual time too.
         let stamp = |frame: &[u8]| {

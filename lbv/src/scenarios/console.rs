@@ -4,9 +4,11 @@
 
 use std::collections::BTreeMap;
 
+use lbv_master_fw::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType};
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
 use lbv_master_fw::params::Settings;
 use lbv_master_fw::settings::ecc::{NmiAction, eccr, nmi_action};
+use lbv_master_fw::signing::TIMESTAMP_MAX;
 use serde_json::json;
 
 use super::harness::{AHEAD, NEUTRAL, Run, round};
@@ -402,6 +404,149 @@ pub fn signing(run: &mut Run) {
     run.run_for(0.3);
     run.check("and a signed arm is obeyed", armed(run), "");
     run.disarm();
+}
+
+/// The attacks a reboot once opened on the signing, as an attacker on the console's line would try them: the
+/// operator's session (heartbeat, arm, two seconds of sticks) recorded and replayed 20 ms after the reboot's
+/// COMMAND_ACK; one frame signed with the largest timestamp, 2^48 - 1; frames signed a year ago, replayed after each
+/// of two more reboots. All are refused and counted, the vehicle never arms or drives on them; the master's
+/// timestamps never go back, everything it sends after each reboot is signed from the first frame, and the
+/// operator, whose station follows the master's timestamps as the spec asks, is obeyed after every reboot.
+pub fn signing_reboot(run: &mut Run) {
+    const KEY: [u8; 32] = *b"lbv-bench-signing-reboot-key-012";
+    const YEAR: u64 = 365 * 24 * 3600 * 100_000;
+    run.run_for(0.5);
+    let setup = run.bench.ground.setup_signing(KEY, SIGNING_EPOCH);
+    run.bench.send(setup);
+    run.bench.ground.signing = Some(Signing::new(KEY));
+    run.run_for(0.3);
+    let key = settings(run).and_then(|s| s.signing);
+    run.check("the key is set", key.is_some_and(|key| key.secret == KEY), format!("{key:?}"));
+    let unsigned_before = run.bench.ground.seen.unsigned;
+    // Recorded then, signed with the key a year before the set-up.
+    let year_old = [
+        run.bench.ground.frame_signed_at(&heartbeat_message(), SIGNING_EPOCH - YEAR),
+        run.bench.ground.arm_signed_at(SIGNING_EPOCH - YEAR + 1),
+    ];
+
+    // The operator's session, recorded as it goes out.
+    let mut recorded = vec![run.bench.ground.heartbeat(), run.bench.ground.arm(true)];
+    for frame in recorded.clone() {
+        run.bench.send(frame);
+    }
+    for _ in 0..20 {
+        let frame = run.bench.ground.manual(AHEAD);
+        recorded.push(frame.clone());
+        run.bench.send(frame);
+        run.run_for(0.1);
+    }
+    let driven = horizontal_rpm(run);
+    run.check(
+        "the operator's session drives the vehicle",
+        armed(run) && driven.iter().all(|rpm| *rpm > 100.0),
+        format!("armed {}, rpm {driven:?}", armed(run)),
+    );
+    run.disarm();
+    run.run_for(0.5);
+    let reboot = run.bench.ground.reboot();
+    run.bench.send(reboot);
+    let boots = run.bench.master.boots;
+    run.run_until(1.0, |bench| bench.master.boots > boots);
+    let replayed = counters(run).replayed;
+    run.run_for(0.02);
+    let at = now(run);
+    for (n, frame) in recorded.iter().enumerate() {
+        run.bench.send(frame.clone());
+        run.run_for(if n < 2 { 0.0 } else { 0.1 });
+    }
+    run.run_for(0.5);
+    let refused = counters(run).replayed - replayed;
+    let (samples, drove) = undriven_since(run, at);
+    run.check(
+        "the session replayed 20 ms after the reboot is refused and counted, the thrusters ordered to stop",
+        run.bench.master.boots == boots + 1 && refused >= recorded.len() as u32 && samples >= 50 && !drove,
+        format!(
+            "boots {}, replays refused {refused} of {}, {samples} samples, armed or driven {drove}",
+            run.bench.master.boots,
+            recorded.len(),
+        ),
+    );
+
+    let frame = run.bench.ground.frame_signed_at(&heartbeat_message(), TIMESTAMP_MAX);
+    run.bench.send(frame);
+    run.run_for(1.0);
+    run.check(
+        "a frame signed with the largest timestamp is refused and counted",
+        counters(run).out_of_range == 1 && run.bench.ground.seen.timestamps_back == 0,
+        format!(
+            "out of range {}, timestamps back {}",
+            counters(run).out_of_range,
+            run.bench.ground.seen.timestamps_back
+        ),
+    );
+    for _ in 0..2 {
+        let reboot = run.bench.ground.reboot();
+        run.bench.send(reboot);
+        let boots = run.bench.master.boots;
+        run.run_until(1.0, |bench| bench.master.boots > boots);
+        let replayed = counters(run).replayed;
+        run.run_for(0.02);
+        let at = now(run);
+        for frame in &year_old {
+            run.bench.send(frame.clone());
+        }
+        run.run_for(1.0);
+        let (samples, drove) = undriven_since(run, at);
+        run.check(
+            "year-old frames replayed after a reboot are refused",
+            counters(run).replayed >= replayed + 2 && samples >= 50 && !drove,
+            format!(
+                "replays refused {}, {samples} samples, armed or driven {drove}",
+                counters(run).replayed - replayed
+            ),
+        );
+    }
+    let arm = run.bench.ground.arm(true);
+    run.bench.send(arm);
+    run.run_for(0.3);
+    let seen = run.bench.ground.seen.clone();
+    run.check(
+        "the operator is obeyed after the reboots",
+        armed(run) && results(run, OPERATOR, ARM_DISARM).last() == Some(&ACCEPTED),
+        format!("{:?}", results(run, OPERATOR, ARM_DISARM)),
+    );
+    run.check(
+        "everything sent after each reboot is signed with the key, its timestamps rising",
+        seen.unsigned == unsigned_before && seen.unverified == 0 && seen.timestamps_back == 0,
+        format!(
+            "unsigned {}, not verified {}, timestamps back {}",
+            seen.unsigned - unsigned_before,
+            seen.unverified,
+            seen.timestamps_back
+        ),
+    );
+    run.disarm();
+}
+
+/// The trace samples from `from` s on, and whether the vehicle was armed or a thruster ordered to turn in any.
+fn undriven_since(run: &Run, from: f64) -> (usize, bool) {
+    let samples: Vec<_> = run.bench.trace.samples.iter().filter(|s| s.t >= from).collect();
+    let drove = samples
+        .iter()
+        .any(|s| s.armed || s.thrusters.iter().any(|t| t.ordered_step != 0));
+    (samples.len(), drove)
+}
+
+/// A ground station's HEARTBEAT.
+fn heartbeat_message() -> MavMessage {
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 0,
+        mavtype: MavType::MAV_TYPE_GCS,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+        base_mode: MavModeFlag::empty(),
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
 }
 
 /// The operator's parameter changes survive a reboot asked over the console (refused while armed) and a power

@@ -24,7 +24,9 @@ pub use harness::{Options, Report, Scenario, run_guarded};
 
 use acceptance::acceptance;
 use bus::{bad_frames, missing_thruster, reset_mid_transfer, stuck_sda};
-use console::{ground_station_1hz, second_sysid, settings_persist, settings_power_cut, signing, stray_byte};
+use console::{
+    ground_station_1hz, second_sysid, settings_persist, settings_power_cut, signing, signing_reboot, stray_byte,
+};
 use harness::{dev_kits, lbv300, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{ground_fault, hall, overtemp, stall, water};
@@ -197,6 +199,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 8.0,
         vehicle: lbv300,
         run: signing,
+    },
+    Scenario {
+        name: "signing-reboot",
+        about: "a signed session replayed after a reboot, a 2^48-1 timestamp, year-old frames: refused; all sent signed",
+        seconds: 12.0,
+        vehicle: lbv300,
+        run: signing_reboot,
     },
     Scenario {
         name: "settings-persist",

@@ -79,6 +79,7 @@ scenario_tests! {
     stray_byte: "stray-byte",
     second_sysid: "second-sysid",
     signing: "signing",
+    signing_reboot: "signing-reboot",
     settings_persist: "settings-persist",
     settings_power_cut: "settings-power-cut",
     acceptance: "acceptance",
