@@ -1,30 +1,52 @@
 //! One exchange with a thruster: send the order, read the status (IDS 6.6.1, 8.3, 8.4).
 
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, Status};
+use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, Status, StatusForm};
 
 /// Why a poll failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum PollError<E> {
-    /// Writing the order failed on the bus (a missing thruster NACKs its address).
+    /// Writing the order failed on the bus (a missing thruster NACKs its address): the order was not delivered.
     Order(E),
-    /// Reading the status failed on the bus.
+    /// The order was delivered, but reading the status failed on the bus.
     Status(E),
-    /// The status arrived but is not a valid frame of the thruster's family (wrong length, type or checksum).
+    /// The order was delivered, but the status is not a valid frame of the thruster's family in either form
+    /// (wrong length, type or checksum).
     Decode(DecodeError),
+}
+
+impl<E> PollError<E> {
+    /// Whether the order reached the thruster (its write was acknowledged) before the poll failed.
+    pub const fn delivered(&self) -> bool {
+        matches!(self, PollError::Status(_) | PollError::Decode(_))
+    }
+}
+
+/// A status read back, and the form it came in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Polled {
+    /// The status, with a warning for an odd field.
+    pub decoded: Decoded<Status>,
+    /// Full (MT repeated) or implied-type (the 6-byte SeaBotix form some controllers send).
+    pub form: StatusForm,
 }
 
 /// Send `order` to the thruster of `family` and read back its status.
 ///
 /// The order and the read are separate transfers, each ended by STOP, as the IDS describes them (write at
-/// 0x52/0x54, read at 0x53/0x55). A valid frame with an out-of-range field is a status (its faults count) with a
-/// warning, not a failure.
+/// 0x52/0x54, read at 0x53/0x55). The family's full status length is read, and the status taken in the full form
+/// or, unless `last` (the form the thruster was last read in) is the full one, in the implied-type form: about one
+/// damaged full frame in 256 checks as the other form, so line noise on a thruster known to send full frames must
+/// not pass for one ([`Status::decode_either`]). A valid frame with an out-of-range field is a status (its faults
+/// count) with a warning, not a failure.
 pub async fn poll_thruster<I: I2c>(
     i2c: &mut I,
     family: Family,
     order: Order,
-) -> Result<Decoded<Status>, PollError<I::Error>> {
+    last: Option<StatusForm>,
+) -> Result<Polled, PollError<I::Error>> {
     let address = family.address();
     i2c.write(address, &order.encode(family))
         .await
@@ -33,7 +55,15 @@ pub async fn poll_thruster<I: I2c>(
     // Never empty: status_len() is at most MAX_STATUS_LEN.
     let reply = buffer.get_mut(..family.status_len()).unwrap_or_default();
     i2c.read(address, reply).await.map_err(PollError::Status)?;
-    Status::decode(family, reply).map_err(PollError::Decode)
+    let (decoded, form) = match last {
+        Some(StatusForm::Full) => (Status::decode(family, reply), StatusForm::Full),
+        None | Some(StatusForm::ImpliedType) => match Status::decode_either(family, reply) {
+            Ok((decoded, form)) => (Ok(decoded), form),
+            Err(error) => (Err(error), StatusForm::Full),
+        },
+    };
+    let decoded = decoded.map_err(PollError::Decode)?;
+    Ok(Polled { decoded, form })
 }
 
 #[cfg(test)]
@@ -62,13 +92,23 @@ mod tests {
     }
 
     /// One poll on `bus`, on virtual time.
-    fn poll(bus: &Bus, family: Family, order: Order) -> Result<Decoded<Status>, PollError<ErrorKind>> {
+    fn poll(bus: &Bus, family: Family, order: Order) -> Result<Polled, PollError<ErrorKind>> {
+        poll_after(bus, family, order, None)
+    }
+
+    /// One poll on `bus` of a thruster last read in the form `last`, on virtual time.
+    fn poll_after(
+        bus: &Bus,
+        family: Family,
+        order: Order,
+        last: Option<StatusForm>,
+    ) -> Result<Polled, PollError<ErrorKind>> {
         let clock = clock::take();
         let result = Cell::new(None);
         let mut master: Master = bus.master();
         let mut executor = Executor::new();
         executor.spawn(async {
-            result.set(Some(poll_thruster(&mut master, family, order).await));
+            result.set(Some(poll_thruster(&mut master, family, order, last).await));
         });
         executor.run_until(&clock, Duration::from_millis(100), Duration::from_micros(10), || {
             result.get().is_some()
@@ -85,7 +125,9 @@ mod tests {
     fn polls_each_family_and_decodes_the_reply() {
         for family in Family::ALL {
             let (bus, thruster, _) = bus_with(family);
-            let decoded = poll(&bus, family, forward(25)).unwrap();
+            let polled = poll(&bus, family, forward(25)).unwrap();
+            assert_eq!(polled.form, StatusForm::Full);
+            let decoded = polled.decoded;
             assert_eq!(decoded.warning, None);
             assert_eq!(decoded.status.family(), family);
             assert_eq!(
@@ -100,7 +142,7 @@ mod tests {
     #[test]
     fn the_status_reports_the_order_just_sent() {
         let (bus, ..) = bus_with(Family::SeaBotix);
-        let status = poll(&bus, Family::SeaBotix, forward(-60)).unwrap().status;
+        let status = poll(&bus, Family::SeaBotix, forward(-60)).unwrap().decoded.status;
         let Status::SeaBotix(SeaBotixStatus { speed, .. }) = status else {
             panic!("wrong family")
         };
@@ -137,7 +179,9 @@ mod tests {
                 Ok(())
             }
         }
-        let decoded = block_on(poll_thruster(&mut Odd, Family::Legacy, Order::STOP)).unwrap();
+        let decoded = block_on(poll_thruster(&mut Odd, Family::Legacy, Order::STOP, None))
+            .unwrap()
+            .decoded;
         assert_eq!(decoded.status.faults(), Faults::WATER);
         assert_eq!(decoded.warning, Some(tmc_proto::FieldWarning::MaxPower(0x00)));
     }
@@ -161,5 +205,36 @@ mod tests {
                 actual: 0x52
             })
         ));
+        assert!(error.delivered(), "the order went through; only the status is lost");
+    }
+
+    #[test]
+    fn a_controller_that_sends_the_six_byte_form_is_read() {
+        for family in Family::ALL {
+            let (bus, _, id) = bus_with(family);
+            // The MT taken as the address byte: the frame starts at STATUS, and the line reads 0xFF after it.
+            fn implied(bytes: &mut [u8]) {
+                bytes.rotate_left(1);
+                if let Some(last) = bytes.last_mut() {
+                    *last = 0xFF;
+                }
+            }
+            bus.tamper(
+                id,
+                Tamper {
+                    rewrite_read: Some(implied),
+                    ..Tamper::NONE
+                },
+            );
+            for last in [None, Some(StatusForm::ImpliedType)] {
+                let polled = poll_after(&bus, family, forward(30), last).unwrap();
+                assert_eq!(polled.form, StatusForm::ImpliedType, "{family:?}");
+                assert_eq!(polled.decoded.warning, None);
+                assert_eq!(polled.decoded.status.family(), family);
+            }
+            // Not from a thruster last read in full: there it is a damaged frame.
+            let error = poll_after(&bus, family, forward(30), Some(StatusForm::Full)).unwrap_err();
+            assert!(matches!(error, PollError::Decode(_)), "{error:?}");
+        }
     }
 }

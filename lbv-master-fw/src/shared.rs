@@ -191,17 +191,31 @@ pub enum Outgoing {
 }
 
 /// Link health and error counters of one thruster. Counters saturate.
+///
+/// The order and the status are kept apart (IDS 8.3: the order "shall be sent whenever the LBV motherboard
+/// requires an update"): a thruster whose orders are acknowledged stays online and keeps its full order rate
+/// whatever becomes of its status reads; a status that cannot be read costs its telemetry, counted here and told
+/// on the console ([`LinkHealth::status_lost`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct LinkHealth {
-    /// Answering: true from the first good poll until the thruster is taken offline.
+    /// Taking orders: true from the first delivered order until the thruster is taken offline.
     pub online: bool,
-    /// Failed polls since the last good one.
+    /// Polls in a row whose order was not delivered.
     pub consecutive_failures: u16,
+    /// Polls in a row whose order was delivered but whose status could not be read.
+    pub status_failures: u16,
+    /// The status has not been readable for the last [`crate::thrusters::PollConfig::offline_after`] polls
+    /// though the orders were delivered: the telemetry is stale.
+    pub status_lost: bool,
     /// Polls attempted, retries of an offline thruster included.
     pub polls: u32,
+    /// Orders delivered: the thruster acknowledged the write.
+    pub delivered: u32,
     /// Polls that returned a valid status.
     pub good: u32,
+    /// Of those, statuses in the implied-type form (the 6-byte SeaBotix form, [`tmc_proto::StatusForm`]).
+    pub implied_form: u32,
     /// The thruster did not acknowledge (missing or unpowered).
     pub nack: u32,
     /// A transfer timed out (SCL held low past the bus's timeout, [`crate::config::BusConfig::timeout`]).

@@ -14,16 +14,19 @@
 //!
 //! [`bus_task`] wires them to a bus: every poll period it polls each due thruster once, in table order. A missing
 //! thruster (its first NACK) is taken offline at once and retried with a doubling back-off, skipped between
-//! retries so it never slows the others. After a timeout or a bus error the bus is recovered (up to 9 SCL pulses,
-//! then STOP) and polling goes on with the next thruster.
+//! retries so it never slows the others. Only orders that do not get through take a thruster offline: one whose
+//! orders are acknowledged keeps its full order rate however its status reads go, and a status it cannot read
+//! costs only the telemetry (counted, and told on the console once it has failed for `offline_after` polls in a
+//! row). After a timeout or a bus error the bus is recovered (up to 9 SCL pulses, then STOP) and polling goes on
+//! with the next thruster.
 
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::i2c::ErrorKind;
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status};
+use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm};
 
-use crate::poll::{PollError, poll_thruster};
+use crate::poll::{PollError, Polled, poll_thruster};
 use crate::recovery::BusRecovery;
 pub use crate::shared::LinkHealth;
 use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
@@ -306,6 +309,37 @@ impl Failure {
     }
 }
 
+/// What one poll came to, as the link counts it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Outcome {
+    /// The order was delivered and the status read.
+    Answered(Status),
+    /// The order was delivered (its write acknowledged), but the status could not be read.
+    NoStatus(Failure),
+    /// The order was not delivered.
+    NoOrder(Failure),
+}
+
+impl Outcome {
+    /// The outcome of a [`poll_thruster`].
+    pub fn of_poll<E: embedded_hal::i2c::Error>(result: &Result<Polled, PollError<E>>) -> Outcome {
+        match result {
+            Ok(polled) => Outcome::Answered(polled.decoded.status),
+            Err(error) if error.delivered() => Outcome::NoStatus(Failure::of_poll_error(error)),
+            Err(error) => Outcome::NoOrder(Failure::of_poll_error(error)),
+        }
+    }
+
+    /// Why the poll failed, if it did.
+    pub const fn failure(&self) -> Option<Failure> {
+        match self {
+            Outcome::Answered(_) => None,
+            Outcome::NoStatus(failure) | Outcome::NoOrder(failure) => Some(*failure),
+        }
+    }
+}
+
 /// Where a thruster's link stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -322,10 +356,14 @@ pub enum LinkState {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum LinkChange {
-    /// The first good poll after start-up or after being offline.
+    /// The first delivered order after start-up or after being offline.
     Online,
     /// Taken offline, for this last failure.
     Offline(Failure),
+    /// Orders delivered, but the status unreadable for `offline_after` polls in a row, for this last failure.
+    StatusLost(Failure),
+    /// A status read again after [`LinkChange::StatusLost`].
+    StatusBack,
 }
 
 /// One thruster's link: health counters, the last valid status and the retry schedule while offline.
@@ -335,6 +373,8 @@ pub struct Link {
     health: LinkHealth,
     state: LinkState,
     status: Option<Status>,
+    /// The form the last valid status came in.
+    form: Option<StatusForm>,
     /// While offline: when the next retry is due.
     retry_at: Instant,
     /// While offline: the interval after the next failed retry.
@@ -351,8 +391,12 @@ impl Link {
             health: LinkHealth {
                 online: false,
                 consecutive_failures: 0,
+                status_failures: 0,
+                status_lost: false,
                 polls: 0,
+                delivered: 0,
                 good: 0,
+                implied_form: 0,
                 nack: 0,
                 timeout: 0,
                 bad_checksum: 0,
@@ -364,6 +408,7 @@ impl Link {
             },
             state: LinkState::Unknown,
             status: None,
+            form: None,
             retry_at: Instant::from_ticks(0),
             next_backoff: config.retry_min,
             retry_min: config.retry_min,
@@ -385,6 +430,11 @@ impl Link {
     /// The last valid status, kept across failures.
     pub const fn status(&self) -> Option<Status> {
         self.status
+    }
+
+    /// The form the last valid status came in ([`poll_thruster`] takes only that form once it is known full).
+    pub const fn form(&self) -> Option<StatusForm> {
+        self.form
     }
 
     /// What the bus task publishes.
@@ -413,57 +463,89 @@ impl Link {
     pub fn on_result<E: embedded_hal::i2c::Error>(
         &mut self,
         now: Instant,
-        result: &Result<Status, PollError<E>>,
+        result: &Result<Polled, PollError<E>>,
     ) -> Option<LinkChange> {
-        self.on_outcome(now, result.as_ref().copied().map_err(Failure::of_poll_error))
+        if let Ok(polled) = result {
+            self.form = Some(polled.form);
+            if polled.form == StatusForm::ImpliedType {
+                self.health.implied_form = self.health.implied_form.saturating_add(1);
+            }
+        }
+        self.on_outcome(now, Outcome::of_poll(result))
     }
 
     /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
-    pub fn on_outcome(&mut self, now: Instant, outcome: Result<Status, Failure>) -> Option<LinkChange> {
+    pub fn on_outcome(&mut self, now: Instant, outcome: Outcome) -> Option<LinkChange> {
         let health = &mut self.health;
         health.polls = health.polls.saturating_add(1);
-        match outcome {
-            Ok(status) => {
-                health.good = health.good.saturating_add(1);
+        if let Some(failure) = outcome.failure() {
+            let counter = match failure {
+                Failure::Nack => &mut health.nack,
+                Failure::Timeout => &mut health.timeout,
+                Failure::Bus | Failure::Mux => &mut health.bus_error,
+                Failure::BadLength => &mut health.bad_length,
+                Failure::BadType => &mut health.bad_type,
+                Failure::BadChecksum => &mut health.bad_checksum,
+                Failure::BadRange => &mut health.bad_range,
+            };
+            *counter = counter.saturating_add(1);
+        }
+        let failure = match outcome {
+            Outcome::NoOrder(failure) => failure,
+            Outcome::Answered(_) | Outcome::NoStatus(_) => {
+                health.delivered = health.delivered.saturating_add(1);
                 health.consecutive_failures = 0;
                 health.online = true;
-                self.status = Some(status);
                 self.next_backoff = self.retry_min;
                 let was = core::mem::replace(&mut self.state, LinkState::Online);
-                (was != LinkState::Online).then_some(LinkChange::Online)
-            }
-            Err(failure) => {
-                let counter = match failure {
-                    Failure::Nack => &mut health.nack,
-                    Failure::Timeout => &mut health.timeout,
-                    Failure::Bus | Failure::Mux => &mut health.bus_error,
-                    Failure::BadLength => &mut health.bad_length,
-                    Failure::BadType => &mut health.bad_type,
-                    Failure::BadChecksum => &mut health.bad_checksum,
-                    Failure::BadRange => &mut health.bad_range,
+                let status = match outcome {
+                    Outcome::Answered(status) => {
+                        health.good = health.good.saturating_add(1);
+                        health.status_failures = 0;
+                        self.status = Some(status);
+                        Ok(())
+                    }
+                    Outcome::NoStatus(failure) | Outcome::NoOrder(failure) => {
+                        health.status_failures = health.status_failures.saturating_add(1);
+                        Err(failure)
+                    }
                 };
-                *counter = counter.saturating_add(1);
-                health.consecutive_failures = health.consecutive_failures.saturating_add(1);
-                match self.state {
-                    LinkState::Offline => {
-                        // A failed retry: wait longer before the next.
-                        self.retry_at = now + self.next_backoff;
-                        self.next_backoff = self.doubled(self.next_backoff);
-                        None
+                if was != LinkState::Online {
+                    health.status_lost = false;
+                    return Some(LinkChange::Online);
+                }
+                return match status {
+                    Ok(()) if health.status_lost => {
+                        health.status_lost = false;
+                        Some(LinkChange::StatusBack)
                     }
-                    LinkState::Unknown | LinkState::Online => {
-                        let missing = failure == Failure::Nack;
-                        if missing || health.consecutive_failures >= self.offline_after.max(1) {
-                            health.online = false;
-                            self.state = LinkState::Offline;
-                            let first = self.retry_min.min(self.retry_max);
-                            self.retry_at = now + first;
-                            self.next_backoff = self.doubled(first);
-                            Some(LinkChange::Offline(failure))
-                        } else {
-                            None
-                        }
+                    Err(failure) if !health.status_lost && health.status_failures >= self.offline_after.max(1) => {
+                        health.status_lost = true;
+                        Some(LinkChange::StatusLost(failure))
                     }
+                    _ => None,
+                };
+            }
+        };
+        health.consecutive_failures = health.consecutive_failures.saturating_add(1);
+        match self.state {
+            LinkState::Offline => {
+                // A failed retry: wait longer before the next.
+                self.retry_at = now + self.next_backoff;
+                self.next_backoff = self.doubled(self.next_backoff);
+                None
+            }
+            LinkState::Unknown | LinkState::Online => {
+                let missing = failure == Failure::Nack;
+                if missing || health.consecutive_failures >= self.offline_after.max(1) {
+                    health.online = false;
+                    self.state = LinkState::Offline;
+                    let first = self.retry_min.min(self.retry_max);
+                    self.retry_at = now + first;
+                    self.next_backoff = self.doubled(first);
+                    Some(LinkChange::Offline(failure))
+                } else {
+                    None
                 }
             }
         }
@@ -545,6 +627,11 @@ pub fn link_text(index: usize, change: LinkChange) -> (Severity, Text) {
             Severity::Warning,
             text(format_args!("T{number} offline: {}", failure.reason())),
         ),
+        LinkChange::StatusLost(failure) => (
+            Severity::Warning,
+            text(format_args!("T{number} status unreadable: {}", failure.reason())),
+        ),
+        LinkChange::StatusBack => (Severity::Notice, text(format_args!("T{number} status readable again"))),
     }
 }
 
@@ -579,6 +666,13 @@ fn mux_mask(slot: &ThrusterSlot) -> Result<Option<u8>, ()> {
     }
 }
 
+/// Why a slot's poll did not happen or failed: the mux could not be set (the order was not delivered), or the
+/// poll itself failed.
+enum SlotError<E> {
+    Mux,
+    Poll(PollError<E>),
+}
+
 /// Select the slot's mux channel if needed, then poll the thruster.
 ///
 /// `selected` is the control byte last written to the mux, None when unknown; it is forgotten after any error so
@@ -588,19 +682,20 @@ async fn poll_slot<B: I2c>(
     slot: &ThrusterSlot,
     selected: &mut Option<u8>,
     order: Order,
-) -> Result<Decoded<Status>, Failure> {
-    let mask = mux_mask(slot).map_err(|()| Failure::Mux)?;
+    form: Option<StatusForm>,
+) -> Result<Polled, SlotError<B::Error>> {
+    let mask = mux_mask(slot).map_err(|()| SlotError::Mux)?;
     if let Some(mask) = mask
         && *selected != Some(mask)
     {
         *selected = None;
-        bus.write(MUX_ADDRESS, &[mask]).await.map_err(|_| Failure::Mux)?;
+        bus.write(MUX_ADDRESS, &[mask]).await.map_err(|_| SlotError::Mux)?;
         *selected = Some(mask);
     }
-    let result = poll_thruster(bus, slot.family, order).await;
+    let result = poll_thruster(bus, slot.family, order, form).await;
     result.map_err(|error| {
         *selected = None;
-        Failure::of_poll_error(&error)
+        SlotError::Poll(error)
     })
 }
 
@@ -643,16 +738,32 @@ impl BusState {
                 continue;
             }
             polled += 1;
-            let outcome = poll_slot(bus, slot, &mut self.mux, *order).await;
+            let result = poll_slot(bus, slot, &mut self.mux, *order, link.form()).await;
             // A status with an odd field still reports its faults.
-            if let Ok(Decoded { warning: Some(_), .. }) = outcome {
+            if let Ok(Polled {
+                decoded: Decoded { warning: Some(_), .. },
+                ..
+            }) = result
+            {
                 link.on_odd_field();
             }
-            let outcome = outcome.map(|decoded| decoded.status);
-            let change = link.on_outcome(cycle, outcome);
+            let (change, outcome) = match result {
+                Ok(polled) => (
+                    link.on_result::<B::Error>(cycle, &Ok(polled)),
+                    Outcome::Answered(polled.decoded.status),
+                ),
+                Err(SlotError::Poll(error)) => {
+                    let outcome = Outcome::of_poll::<B::Error>(&Err(error));
+                    (link.on_outcome(cycle, outcome), outcome)
+                }
+                Err(SlotError::Mux) => {
+                    let outcome = Outcome::NoOrder(Failure::Mux);
+                    (link.on_outcome(cycle, outcome), outcome)
+                }
+            };
             // A bad channel number in the table never reached the bus: nothing to recover.
             let on_bus = mux_mask(slot).is_ok();
-            if let Err(failure) = outcome
+            if let Some(failure) = outcome.failure()
                 && failure.needs_recovery()
                 && on_bus
             {
@@ -666,7 +777,7 @@ impl BusState {
                 let (severity, text) = link_text(index, change);
                 shared.say(severity, text);
             }
-            if let Ok(status) = outcome
+            if let Outcome::Answered(status) = outcome
                 && let Some(change) = faults.update(status.faults())
             {
                 for (severity, text) in fault_texts(index, slot.family, change) {

@@ -90,6 +90,8 @@ pub struct Tamper {
     pub write_last_xor: u8,
     /// Rewrite every write before the device sees it.
     pub rewrite: Option<fn(&mut [u8])>,
+    /// Rewrite every read before the master sees it (a controller that lays its reply out otherwise).
+    pub rewrite_read: Option<fn(&mut [u8])>,
 }
 
 impl Tamper {
@@ -98,6 +100,7 @@ impl Tamper {
         read_xor: 0,
         write_last_xor: 0,
         rewrite: None,
+        rewrite_read: None,
     };
 
     fn write(&self, bytes: &mut [u8]) {
@@ -110,6 +113,11 @@ impl Tamper {
     }
 
     fn read(&self, bytes: &mut [u8]) {
+        if let Some(rewrite) = self.rewrite_read
+            && !bytes.is_empty()
+        {
+            rewrite(bytes);
+        }
         for byte in bytes {
             *byte ^= self.read_xor;
         }

@@ -40,7 +40,8 @@ pub use faults::Faults;
 pub use order::Order;
 pub use speed::Speed;
 pub use status::{
-    Decoded, FieldWarning, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Status, StatusFrame,
+    Decoded, FieldWarning, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Status, StatusForm,
+    StatusFrame,
 };
 
 /// Length in bytes of an order, either family: MT, SPEED, INFO, CSUM (IDS 8.3).

@@ -324,6 +324,61 @@ impl Status {
             Family::Legacy => LegacyStatus::decode(bytes).map(|decoded| decoded.map(Status::Legacy)),
         }
     }
+
+    /// Decode a status read as the family's full length ([`Family::status_len`] bytes) in either of the two
+    /// forms the IDS can be read to give ([`StatusForm`]): the full layout when it checks, else the implied-type
+    /// form ([`Status::decode_implied`]), else the full layout's error.
+    ///
+    /// A damaged full frame checks as the implied-type form about once in 256 (a public SeaBotix master's noisy
+    /// line gave one in 399): a receiver that knows which form a controller sends should take only that form.
+    pub fn decode_either(family: Family, bytes: &[u8]) -> Result<(Decoded<Status>, StatusForm), DecodeError> {
+        match Status::decode(family, bytes) {
+            Ok(decoded) => Ok((decoded, StatusForm::Full)),
+            Err(error) => Status::decode_implied(family, bytes)
+                .map(|decoded| (decoded, StatusForm::ImpliedType))
+                .map_err(|_| error),
+        }
+    }
+
+    /// Decode a status read as the family's full length in the implied-type form ([`StatusForm::ImpliedType`]):
+    /// the first bytes are the frame from STATUS on, checked with the family's MT implied; the last byte is
+    /// whatever the controller sends when it has no more (often 0xFF). A first byte equal to the MT is refused as
+    /// [`DecodeError::MessageType`] with `expected` 0 and `actual` the MT: a full frame's first byte stands where
+    /// STATUS belongs.
+    pub fn decode_implied(family: Family, bytes: &[u8]) -> Result<Decoded<Status>, DecodeError> {
+        let len = family.status_len();
+        let mt = family.status_type();
+        if bytes.len() != len {
+            return Err(DecodeError::Length {
+                expected: len as u8,
+                actual: bytes.len(),
+            });
+        }
+        if bytes.first() == Some(&mt) {
+            return Err(DecodeError::MessageType {
+                expected: 0,
+                actual: mt,
+            });
+        }
+        let mut full = [mt; MAX_STATUS_LEN];
+        if let (Some(rest), Some(frame)) = (full.get_mut(1..len), bytes.get(..len - 1)) {
+            rest.copy_from_slice(frame);
+        }
+        Status::decode(family, full.get(..len).unwrap_or_default())
+    }
+}
+
+/// The two forms a status comes in. IDS 8.4.2 lays the SeaBotix status out as 7 bytes with MT as word 0; IDS
+/// 6.6.1 and 8.3 ("this value addresses the thruster") also read as MT being the read address byte itself, with
+/// the rest following: a public SeaBotix master reads 6 bytes at 0x53. The same holds for Legacy (4 or 3 bytes).
+/// The checksum is the same sum either way (the MT byte counted once).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StatusForm {
+    /// MT repeated as the first byte: 7 bytes SeaBotix, 4 Legacy (what this project's thruster sends).
+    Full,
+    /// MT taken as the address byte: the frame starts at STATUS, 6 bytes SeaBotix, 3 Legacy.
+    ImpliedType,
 }
 
 impl From<SeaBotixStatus> for Status {
@@ -411,5 +466,87 @@ mod tests {
         let frame = Status::from(legacy).encode();
         assert_eq!(frame.as_bytes(), [0x55, 0x00, 0x00, 0x55]);
         assert_eq!(frame.as_ref(), legacy.encode());
+    }
+
+    #[test]
+    fn a_status_in_either_form_decodes_and_says_which() {
+        let seabotix = Status::SeaBotix(SeaBotixStatus {
+            revision: 0,
+            motor: MotorKind::Brushless,
+            current_limited: true,
+            faults: Faults::WATER | Faults::OVERTEMP,
+            current_deciamps: 37,
+            speed: Speed::new(-40).unwrap(),
+            temperature_c: 61,
+        });
+        let legacy = Status::Legacy(LegacyStatus {
+            revision: LegacyRevision::AVEOX_BRUSHLESS,
+            faults: Faults::STALL,
+            max_power: MaxPower::Current { deciamps: 12 },
+        });
+        for status in [seabotix, legacy] {
+            let family = status.family();
+            let full = status.encode();
+            let full = full.as_bytes();
+            assert_eq!(
+                Status::decode_either(family, full),
+                Ok((Decoded { status, warning: None }, StatusForm::Full))
+            );
+            // The frame from STATUS on, then what a controller with no more to send puts on the line.
+            for filler in [0xFF, 0x00, full[full.len() - 1]] {
+                let mut implied = full[1..].to_vec();
+                implied.push(filler);
+                assert_eq!(
+                    Status::decode_either(family, &implied),
+                    Ok((Decoded { status, warning: None }, StatusForm::ImpliedType)),
+                    "{family:?} filler {filler:#x}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_damaged_frame_is_not_taken_for_the_other_form() {
+        let status = Status::SeaBotix(SeaBotixStatus {
+            revision: 0,
+            motor: MotorKind::Brushless,
+            current_limited: true,
+            faults: Faults::NONE,
+            current_deciamps: 0,
+            speed: Speed::ZERO,
+            temperature_c: 20,
+        });
+        let full = status.encode();
+        let full = full.as_bytes();
+        // Every single-bit flip of a full frame: refused with the full layout's error, never read as the other form.
+        for byte in 0..full.len() {
+            for bit in 0..8 {
+                let mut damaged = full.to_vec();
+                damaged[byte] ^= 1 << bit;
+                let plain = Status::decode(Family::SeaBotix, &damaged);
+                let either = Status::decode_either(Family::SeaBotix, &damaged);
+                match plain {
+                    Ok(decoded) => assert_eq!(either, Ok((decoded, StatusForm::Full))),
+                    Err(error) => assert!(
+                        either == Err(error) || matches!(either, Ok((_, StatusForm::ImpliedType))),
+                        "{damaged:02x?}"
+                    ),
+                }
+                if let Ok((_, StatusForm::ImpliedType)) = either {
+                    // Only when the damage left the first six bytes a valid implied-type frame.
+                    assert_ne!(damaged[0], 0x53);
+                }
+            }
+        }
+        // Too short or too long: the length error, whatever the bytes.
+        assert!(matches!(
+            Status::decode_either(Family::SeaBotix, &full[1..]),
+            Err(DecodeError::Length { .. })
+        ));
+        assert!(matches!(
+            Status::decode_either(Family::Legacy, &[0; 5]),
+            Err(DecodeError::Length { .. })
+        ));
+        assert!(Status::decode_either(Family::Legacy, &[]).is_err());
     }
 }

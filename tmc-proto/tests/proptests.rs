@@ -3,7 +3,7 @@
 use proptest::prelude::*;
 use tmc_proto::{
     DecodeError, Decoded, Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, Order, SeaBotixStatus,
-    Speed, Status, checksum,
+    Speed, Status, StatusForm, checksum,
 };
 
 fn family() -> impl Strategy<Value = Family> {
@@ -127,6 +127,18 @@ proptest! {
             if let Ok(decoded) = Status::decode(family, &bytes) {
                 let again = Status::decode(family, decoded.status.encode().as_bytes()).map(|d| d.status);
                 prop_assert_eq!(again, Ok(decoded.status));
+            }
+            // Either form: the full layout whenever it decodes; else an implied-type frame (never one that starts
+            // with the MT byte), which re-encodes in full to the same status; else the full layout's error.
+            match Status::decode_either(family, &bytes) {
+                Ok((decoded, StatusForm::Full)) => prop_assert_eq!(Status::decode(family, &bytes), Ok(decoded)),
+                Ok((decoded, StatusForm::ImpliedType)) => {
+                    prop_assert!(Status::decode(family, &bytes).is_err());
+                    prop_assert_ne!(bytes.first().copied(), Some(family.status_type()));
+                    let again = Status::decode(family, decoded.status.encode().as_bytes()).map(|d| d.status);
+                    prop_assert_eq!(again, Ok(decoded.status));
+                }
+                Err(error) => prop_assert_eq!(Status::decode(family, &bytes).err(), Some(error)),
             }
         }
         if let Ok((family, order)) = Order::decode_any(&bytes) {

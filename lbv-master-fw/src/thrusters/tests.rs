@@ -95,7 +95,7 @@ fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
     assert_eq!(link.state(), LinkState::Unknown);
     assert!(link.due(at_ms(0)));
     assert_eq!(
-        link.on_outcome(at_ms(0), Err(Failure::Nack)),
+        link.on_outcome(at_ms(0), Outcome::NoOrder(Failure::Nack)),
         Some(LinkChange::Offline(Failure::Nack))
     );
     assert_eq!(link.state(), LinkState::Offline);
@@ -105,7 +105,11 @@ fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
         now += 20;
         if link.due(at_ms(now)) {
             retries.push(now);
-            assert_eq!(link.on_outcome(at_ms(now), Err(Failure::Nack)), None, "already offline");
+            assert_eq!(
+                link.on_outcome(at_ms(now), Outcome::NoOrder(Failure::Nack)),
+                None,
+                "already offline"
+            );
         }
     }
     assert_eq!(retries, [100, 300, 700, 1500, 3100, 5100, 7100, 9100]);
@@ -117,85 +121,142 @@ fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
     now += 2000;
     assert!(link.due(at_ms(now)));
     assert_eq!(
-        link.on_outcome(at_ms(now), Ok(seabotix_status(Faults::NONE))),
+        link.on_outcome(at_ms(now), Outcome::Answered(seabotix_status(Faults::NONE))),
         Some(LinkChange::Online)
     );
     assert!(link.health().online && link.health().consecutive_failures == 0);
     assert!(link.due(at_ms(now + 1)), "online thrusters are always due");
     assert_eq!(
-        link.on_outcome(at_ms(now), Err(Failure::Nack)),
+        link.on_outcome(at_ms(now), Outcome::NoOrder(Failure::Nack)),
         Some(LinkChange::Offline(Failure::Nack))
     );
     assert_eq!(link.retry_at(), Some(at_ms(now + 100)));
 }
 
 #[test]
-fn other_failures_take_a_thruster_offline_after_three_in_a_row() {
-    for failure in [
-        Failure::Timeout,
-        Failure::Bus,
-        Failure::Mux,
-        Failure::BadLength,
-        Failure::BadType,
-        Failure::BadChecksum,
-        Failure::BadRange,
-    ] {
+fn orders_not_delivered_take_a_thruster_offline_after_three_in_a_row() {
+    for failure in [Failure::Timeout, Failure::Bus, Failure::Mux] {
         let mut link = Link::new(&PollConfig::DEFAULT);
-        let good = seabotix_status(Faults::NONE);
-        assert_eq!(link.on_outcome(at_ms(0), Ok(good)), Some(LinkChange::Online));
-        assert_eq!(link.on_outcome(at_ms(20), Err(failure)), None);
-        assert_eq!(link.on_outcome(at_ms(40), Err(failure)), None);
-        // A good poll in between resets the run.
-        assert_eq!(link.on_outcome(at_ms(60), Ok(good)), None);
-        assert_eq!(link.on_outcome(at_ms(80), Err(failure)), None);
-        assert_eq!(link.on_outcome(at_ms(100), Err(failure)), None);
+        let good = Outcome::Answered(seabotix_status(Faults::NONE));
+        let lost = Outcome::NoOrder(failure);
+        assert_eq!(link.on_outcome(at_ms(0), good), Some(LinkChange::Online));
+        assert_eq!(link.on_outcome(at_ms(20), lost), None);
+        assert_eq!(link.on_outcome(at_ms(40), lost), None);
+        // A delivered order in between resets the run, even without a status.
+        assert_eq!(
+            link.on_outcome(at_ms(60), Outcome::NoStatus(Failure::BadChecksum)),
+            None
+        );
+        assert_eq!(link.on_outcome(at_ms(80), lost), None);
+        assert_eq!(link.on_outcome(at_ms(100), lost), None);
         assert!(link.health().online);
         assert_eq!(link.health().consecutive_failures, 2);
-        assert_eq!(
-            link.on_outcome(at_ms(120), Err(failure)),
-            Some(LinkChange::Offline(failure))
-        );
+        assert_eq!(link.on_outcome(at_ms(120), lost), Some(LinkChange::Offline(failure)));
         assert_eq!(link.retry_at(), Some(at_ms(220)));
-        assert_eq!(link.status(), Some(good), "the last valid status is kept");
+        assert_eq!(
+            link.status(),
+            Some(seabotix_status(Faults::NONE)),
+            "the last valid status is kept"
+        );
         let h = link.health();
         let counted = match failure {
             Failure::Timeout => h.timeout,
-            Failure::Bus | Failure::Mux => h.bus_error,
-            Failure::BadLength => h.bad_length,
-            Failure::BadType => h.bad_type,
-            Failure::BadChecksum => h.bad_checksum,
-            Failure::BadRange => h.bad_range,
-            Failure::Nack => unreachable!(),
+            _ => h.bus_error,
         };
-        assert_eq!((h.polls, h.good, counted, h.nack), (7, 2, 5, 0), "{failure:?}");
-        let total = h.timeout + h.bus_error + h.bad_length + h.bad_type + h.bad_checksum + h.bad_range;
-        assert_eq!(total, 5, "only {failure:?} counted");
+        assert_eq!(
+            (h.polls, h.delivered, h.good, counted, h.bad_checksum),
+            (7, 2, 1, 5, 1),
+            "{failure:?}"
+        );
+    }
+}
+
+#[test]
+fn a_status_that_cannot_be_read_costs_the_telemetry_not_the_orders() {
+    for failure in [
+        Failure::BadLength,
+        Failure::BadType,
+        Failure::BadChecksum,
+        Failure::Timeout,
+        Failure::Bus,
+        Failure::Nack,
+    ] {
+        let mut link = Link::new(&PollConfig::DEFAULT);
+        let good = seabotix_status(Faults::NONE);
+        assert_eq!(
+            link.on_outcome(at_ms(0), Outcome::Answered(good)),
+            Some(LinkChange::Online)
+        );
+        // Many seconds of unreadable statuses: told once, after three in a row; the thruster stays online and due
+        // every period.
+        let mut changes = Vec::new();
+        for k in 1..=400 {
+            assert!(link.due(at_ms(20 * k)), "{failure:?} poll {k}");
+            changes.extend(link.on_outcome(at_ms(20 * k), Outcome::NoStatus(failure)));
+        }
+        assert_eq!(changes, [LinkChange::StatusLost(failure)], "{failure:?}");
+        let h = link.health();
+        assert!(h.online && h.status_lost && h.consecutive_failures == 0, "{h:?}");
+        assert_eq!((h.polls, h.delivered, h.good, h.status_failures), (401, 401, 1, 400));
+        assert_eq!(link.status(), Some(good), "the last valid status is kept");
+        assert_eq!(link.retry_at(), None);
+        assert_eq!(
+            link.on_outcome(at_ms(9000), Outcome::Answered(good)),
+            Some(LinkChange::StatusBack)
+        );
+        assert!(!link.health().status_lost && link.health().status_failures == 0);
     }
 }
 
 #[test]
 fn failures_before_the_first_answer_go_offline_from_unknown() {
     let mut link = Link::new(&PollConfig::DEFAULT);
-    assert_eq!(link.on_outcome(at_ms(0), Err(Failure::BadChecksum)), None);
+    assert_eq!(link.on_outcome(at_ms(0), Outcome::NoOrder(Failure::Timeout)), None);
     assert_eq!(link.state(), LinkState::Unknown);
-    assert_eq!(link.on_outcome(at_ms(20), Err(Failure::BadChecksum)), None);
+    assert_eq!(link.on_outcome(at_ms(20), Outcome::NoOrder(Failure::Timeout)), None);
     assert_eq!(
-        link.on_outcome(at_ms(40), Err(Failure::BadChecksum)),
-        Some(LinkChange::Offline(Failure::BadChecksum))
+        link.on_outcome(at_ms(40), Outcome::NoOrder(Failure::Timeout)),
+        Some(LinkChange::Offline(Failure::Timeout))
     );
     link.on_recovery();
     assert_eq!(link.health().recoveries, 1);
+    assert_eq!(link.report().status, None);
+    // Orders delivered from the start but never a readable status: online, the telemetry lost.
+    let mut link = Link::new(&PollConfig::DEFAULT);
+    assert_eq!(
+        link.on_outcome(at_ms(0), Outcome::NoStatus(Failure::BadChecksum)),
+        Some(LinkChange::Online)
+    );
+    assert_eq!(
+        link.on_outcome(at_ms(20), Outcome::NoStatus(Failure::BadChecksum)),
+        None
+    );
+    assert_eq!(
+        link.on_outcome(at_ms(40), Outcome::NoStatus(Failure::BadChecksum)),
+        Some(LinkChange::StatusLost(Failure::BadChecksum))
+    );
     assert_eq!(link.report().status, None);
 }
 
 #[test]
 fn a_link_can_take_a_poll_result_directly() {
     let mut link = Link::new(&PollConfig::DEFAULT);
-    let result: Result<Status, PollError<ErrorKind>> = Err(PollError::Order(ErrorKind::Other));
+    let result: Result<Polled, PollError<ErrorKind>> = Err(PollError::Order(ErrorKind::Other));
     assert_eq!(link.on_result(at_ms(0), &result), None);
-    assert_eq!(link.health().timeout, 1);
-    let result: Result<Status, PollError<ErrorKind>> = Ok(seabotix_status(Faults::NONE));
-    assert_eq!(link.on_result(at_ms(20), &result), Some(LinkChange::Online));
+    assert_eq!((link.health().timeout, link.health().delivered), (1, 0));
+    let result: Result<Polled, PollError<ErrorKind>> = Err(PollError::Status(ErrorKind::Other));
+    assert_eq!(
+        link.on_result(at_ms(20), &result),
+        Some(LinkChange::Online),
+        "the order was delivered"
+    );
+    assert_eq!((link.health().timeout, link.health().delivered), (2, 1));
+    let polled = Polled {
+        decoded: Decoded::clean(seabotix_status(Faults::NONE)),
+        form: StatusForm::ImpliedType,
+    };
+    assert_eq!(link.on_result::<ErrorKind>(at_ms(40), &Ok(polled)), None);
+    assert_eq!((link.health().good, link.health().implied_form), (1, 1));
 }
 
 // ---------------------------------------------------------------------------------------------------------------
@@ -666,14 +727,15 @@ fn an_out_of_range_field_is_counted_but_the_status_and_its_faults_are_kept() {
 }
 
 #[test]
-fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
+fn each_failure_kind_is_counted_and_only_orders_that_fail_take_the_thruster_offline() {
+    // (mode, whether its orders are delivered, the text after three polls)
     let cases = [
-        (Mode::BadChecksum, "T1 offline: bad checksum"),
-        (Mode::BadType, "T1 offline: bad message type"),
-        (Mode::Stretch, "T1 offline: timeout"),
+        (Mode::BadChecksum, true, "T1 status unreadable: bad checksum"),
+        (Mode::BadType, true, "T1 status unreadable: bad message type"),
+        (Mode::Stretch, false, "T1 offline: timeout"),
     ];
     for family in Family::ALL {
-        for (mode, text) in cases {
+        for (mode, delivered, text) in cases {
             let other = match family {
                 Family::SeaBotix => Family::Legacy,
                 Family::Legacy => Family::SeaBotix,
@@ -687,27 +749,43 @@ fn each_failure_kind_is_counted_and_takes_the_thruster_offline_after_three() {
             bench.run(&table, &PollConfig::DEFAULT, |sim| {
                 sim.elapse(Duration::from_millis(100));
                 let h = bench.health(0);
-                assert!(!h.online);
                 let counted = match mode {
                     Mode::BadChecksum => h.bad_checksum,
                     Mode::BadType => h.bad_type,
                     Mode::Stretch => h.timeout,
                     _ => unreachable!(),
                 };
-                assert_eq!((h.polls, counted, h.consecutive_failures), (3, 3, 3), "{mode:?}");
                 assert_eq!(h.nack + h.bus_error + h.bad_length, 0);
                 let recoveries = if mode == Mode::Stretch { 3 } else { 0 };
                 assert_eq!(h.recoveries, recoveries);
                 assert_eq!(bench.bus.stats().pin_stops, u64::from(recoveries));
                 let texts = bench.take_texts();
-                assert_eq!(
-                    texts,
-                    [
-                        (Severity::Info, "T2 online".to_owned()),
-                        (Severity::Warning, text.to_owned())
-                    ],
-                    "{family:?} {mode:?}"
-                );
+                if delivered {
+                    // Polled every 20 ms in the 100 ms: every order taken, the status never read.
+                    assert!(h.online && h.status_lost && h.consecutive_failures == 0, "{h:?}");
+                    assert_eq!((h.polls, h.delivered, counted, h.good), (5, 5, 5, 0), "{mode:?}");
+                    assert_eq!(bench.orders(0).len(), 5, "{mode:?}");
+                    assert_eq!(
+                        texts,
+                        [
+                            (Severity::Info, "T1 online".to_owned()),
+                            (Severity::Info, "T2 online".to_owned()),
+                            (Severity::Warning, text.to_owned())
+                        ],
+                        "{family:?} {mode:?}"
+                    );
+                } else {
+                    assert!(!h.online);
+                    assert_eq!((h.polls, counted, h.consecutive_failures), (3, 3, 3), "{mode:?}");
+                    assert_eq!(
+                        texts,
+                        [
+                            (Severity::Info, "T2 online".to_owned()),
+                            (Severity::Warning, text.to_owned())
+                        ],
+                        "{family:?} {mode:?}"
+                    );
+                }
                 // The other one works on.
                 let h = bench.health(1);
                 assert!(h.online && h.good == h.polls && h.polls >= 3);

@@ -547,6 +547,10 @@ struct Record {
     max_power: Option<u8>,
     /// Whether CSUM matches the bytes before it; null when there is no thruster message of the right length.
     checksum_ok: Option<bool>,
+    /// A status in the implied-type form (MT taken as the address byte: 6 SeaBotix bytes, 3 Legacy, read alone or
+    /// followed by an idle byte): "implied-type"; absent for the full form.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    form: Option<&'static str>,
     #[serde(skip_serializing_if = "Option::is_none")]
     error: Option<String>,
     /// Seconds since the previous transfer started (any address).
@@ -678,17 +682,28 @@ fn set_order(record: &mut Record, speed: Option<Speed>, info: u8) {
     record.info = Some(info);
 }
 
-/// A status from a thruster: decoded with `tmc-proto`; when that fails, read again with the checksum (and an
-/// out-of-range speed byte) mended, so every field that can be read is shown.
+/// A status from a thruster: decoded with `tmc-proto` in the full form, else in the implied-type form (read as
+/// the frame alone, or as the full length with an idle byte after it, as this project's master reads it); when
+/// neither decodes, read again with the checksum (and an out-of-range speed byte) mended, so every field that can
+/// be read is shown.
 fn decode_status(record: &mut Record, family: Family, bytes: &[u8]) {
     record.kind = Kind::Status;
     record.checksum_ok = checksum_verdict(bytes, family.status_len());
-    let decoded = match Status::decode(family, bytes) {
-        Ok(decoded) => {
+    let padded: Vec<u8> = if bytes.len() + 1 == family.status_len() {
+        bytes.iter().copied().chain([0xFF]).collect()
+    } else {
+        bytes.to_vec()
+    };
+    let decoded = match (Status::decode(family, bytes), Status::decode_implied(family, &padded)) {
+        (Ok(decoded), _) | (Err(_), Ok(decoded)) => {
+            if Status::decode(family, bytes).is_err() {
+                record.form = Some("implied-type");
+                record.checksum_ok = Some(true);
+            }
             record.error = decoded.warning.map(|warning| warning.to_string());
             Some((decoded.status, decoded.warning.is_none()))
         }
-        Err(error) => {
+        (Err(error), Err(_)) => {
             record.error = Some(error.to_string());
             salvage_status(family, bytes)
         }
@@ -697,7 +712,8 @@ fn decode_status(record: &mut Record, family: Family, bytes: &[u8]) {
         set_status(record, status, speed_read);
         if family == Family::Legacy {
             // As received, even when the speed it holds was out of range.
-            record.max_power = bytes.get(2).copied();
+            let at = if record.form.is_some() { 1 } else { 2 };
+            record.max_power = bytes.get(at).copied();
         }
     }
 }
@@ -803,6 +819,9 @@ fn human(record: &Record) -> String {
             .into(),
         );
         describe_fields(record, &mut words);
+        if let Some(form) = record.form {
+            words.push(format!("({form} form)"));
+        }
         match record.checksum_ok {
             Some(true) => words.push("csum ok".into()),
             Some(false) => words.push("csum BAD".into()),
@@ -1208,6 +1227,59 @@ mod tests {
             .map(|line| serde_json::from_str(line).unwrap())
             .collect();
         (records, String::from_utf8(err).unwrap())
+    }
+
+    /// sigrok's annotations of one read from 7-bit `address` of `bytes`, starting at sample `at`.
+    fn read_annotations(at: u64, address: u8, bytes: &[u8]) -> String {
+        let mut lines = vec![
+            format!("{at}-{at} i2c-1: Start"),
+            format!("{}-{} i2c-1: Address read: {address:02X}", at + 10, at + 80),
+        ];
+        let mut t = at + 90;
+        lines.push(format!("{t}-{} i2c-1: ACK", t + 10));
+        for (n, byte) in bytes.iter().enumerate() {
+            t += 10;
+            lines.push(format!("{t}-{} i2c-1: Data read: {byte:02X}", t + 80));
+            t += 90;
+            let ack = if n + 1 == bytes.len() { "NACK" } else { "ACK" };
+            lines.push(format!("{t}-{} i2c-1: {ack}", t + 10));
+        }
+        lines.push(format!("{}-{} i2c-1: Stop", t + 20, t + 20));
+        lines.join("\n") + "\n"
+    }
+
+    #[test]
+    fn a_status_in_the_implied_type_form_is_read_and_named() {
+        let status = tmc_proto::Status::SeaBotix(tmc_proto::SeaBotixStatus {
+            revision: 0,
+            motor: MotorKind::Brushless,
+            current_limited: true,
+            faults: Faults::WATER,
+            current_deciamps: 25,
+            speed: Speed::new(20).unwrap(),
+            temperature_c: 33,
+        });
+        let full = status.encode();
+        let full = full.as_bytes();
+        let frame = &full[1..];
+        let with_idle: Vec<u8> = frame.iter().copied().chain([0xFF]).collect();
+        let text = read_annotations(0, 0x29, full)
+            + &read_annotations(2000, 0x29, frame)
+            + &read_annotations(4000, 0x29, &with_idle);
+        let (records, err) = records(&text, None);
+        assert_eq!(records.len(), 3, "{err}");
+        for (record, form) in
+            records
+                .iter()
+                .zip([serde_json::Value::Null, "implied-type".into(), "implied-type".into()])
+        {
+            assert_eq!(record["kind"], "status");
+            assert_eq!(record["faults"], serde_json::json!(["water detect"]), "{record}");
+            assert_eq!(record["current_a"], 2.5);
+            assert_eq!(record["temperature_c"], 33);
+            assert_eq!(record["checksum_ok"], true);
+            assert_eq!(record.get("form").cloned().unwrap_or_default(), form, "{record}");
+        }
     }
 
     #[test]

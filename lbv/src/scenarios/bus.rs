@@ -4,8 +4,10 @@
 use embassy_time::Duration;
 use lbv_master_fw::shared::ManualInput;
 
+use serde_json::json;
+
 use super::fault::Fault;
-use super::harness::{AHEAD, Run, others_keep_working};
+use super::harness::{AHEAD, Run, others_keep_working, round};
 
 /// Thruster `index`'s link as its controller holds it: valid orders received and the last one.
 fn held(run: &Run, index: usize) -> Option<(u32, tmc_proto::Order)> {
@@ -32,16 +34,16 @@ pub fn bad_frames(run: &mut Run) {
         format!("{h:?}"),
     );
     run.check(
-        "and mark the thruster offline",
-        !h.online,
-        format!("online {}", h.online),
+        "and the telemetry marked lost, the thruster online: its orders get through",
+        h.online && h.status_lost && run.said("T2 status unreadable"),
+        format!("online {}, status lost {}", h.online, h.status_lost),
     );
     run.clear(noise);
     run.run_for(1.0);
     run.check(
-        "it comes back once the line is clean",
-        run.health(1).online,
-        "online again",
+        "its status is read again once the line is clean",
+        !run.health(1).status_lost && run.said("T2 status readable again"),
+        format!("{:?}", run.health(1)),
     );
 
     // Orders with a bad checksum: the thruster discards them and keeps its last valid order.
@@ -175,4 +177,104 @@ pub fn reset_mid_transfer(run: &mut Run) {
         format!("rpm {:.0}", run.rpm(2)),
     );
     others_keep_working(run);
+}
+
+/// Many seconds of status reads corrupted while the orders get through (a noisy read line): the thruster keeps its
+/// full order rate, never stops on its own 1 s link failsafe, and follows a stick reversal at once; the master
+/// counts the lost statuses and says so once, and again when they read well.
+pub fn status_noise(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.0);
+    let noise = Fault::NoisyStatus {
+        thruster: 1,
+        mask: 0x01,
+    };
+    let (before, _) = held(run, 1).unwrap_or_default();
+    let from = run.bench.seconds();
+    run.inject(noise);
+    // T2's speed every 10 ms for 4 s.
+    let mut speeds = Vec::new();
+    for _ in 0..400 {
+        run.run_for(0.01);
+        speeds.push(run.rpm(1));
+    }
+    // A stick reversal in the middle of it.
+    run.bench.ground.sticks = Some(ManualInput { x: -600, ..AHEAD });
+    run.run_for(4.0);
+    let (after, _) = held(run, 1).unwrap_or_default();
+    let seconds = run.bench.seconds() - from;
+    let rate = f64::from(after.saturating_sub(before)) / seconds;
+    run.metric("T2 orders per second under status noise", json!(round(rate, 1)));
+    run.check(
+        "the thruster takes its orders at the full 50 Hz through 8 s of unreadable statuses",
+        rate >= 49.0,
+        format!("{rate:.1} orders/s"),
+    );
+    let slowest = speeds.iter().copied().fold(f64::INFINITY, f64::min);
+    run.check(
+        "it keeps driving: no link failsafe, no drop in speed",
+        slowest > 800.0,
+        format!("slowest {slowest:.0} rpm"),
+    );
+    run.check(
+        "a stick reversal reaches it at once",
+        run.rpm(1) < -800.0,
+        format!("T2 rpm {:.0}", run.rpm(1)),
+    );
+    let h = run.health(1);
+    run.check(
+        "the lost statuses are counted and told once",
+        h.status_lost && h.bad_checksum + h.bad_type > 300 && h.online && h.implied_form == 0,
+        format!("{h:?}"),
+    );
+    run.clear(noise);
+    run.run_for(0.5);
+    run.check(
+        "and the status is read again once the line is clean",
+        !run.health(1).status_lost && run.said("T2 status readable again"),
+        format!("{:?}", run.health(1)),
+    );
+}
+
+/// A thruster that answers in the 6-byte SeaBotix form (MT as the address byte, as a public SeaBotix master
+/// reads it): the master reads it as well as the others, counts the form, and its faults reach the console.
+pub fn six_byte_status(run: &mut Run) {
+    run.inject(Fault::ImpliedTypeStatus { thruster: 1 });
+    run.arm_and_go(AHEAD);
+    run.run_for(2.0);
+    let h = run.health(1);
+    run.check(
+        "its status is read, in the implied-type form",
+        h.online && !h.status_lost && h.good > 50 && h.implied_form == h.good && h.bad_type + h.bad_checksum == 0,
+        format!("{h:?}"),
+    );
+    run.check(
+        "the others read in the full form",
+        run.health(0).implied_form == 0 && run.health(0).good > 50,
+        format!("{:?}", run.health(0)),
+    );
+    run.check(
+        "it follows its orders",
+        run.rpm(1) > 800.0,
+        format!("T2 rpm {:.0}", run.rpm(1)),
+    );
+    let heat = Fault::Heat {
+        thruster: 1,
+        celsius: 150.0,
+    };
+    run.inject(heat);
+    let seen = run.run_until(60.0, |bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(_, text)| text.starts_with("T2 fault: overtemp"))
+    });
+    run.check(
+        "its faults reach the console",
+        seen.is_some(),
+        format!("overtemp text after {seen:?} s"),
+    );
+    run.clear(heat);
 }

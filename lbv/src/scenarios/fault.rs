@@ -28,6 +28,9 @@ pub enum Fault {
     HallsUnplugged { thruster: usize },
     /// A noisy line: `mask` flipped in every status byte the thruster sends.
     NoisyStatus { thruster: usize, mask: u8 },
+    /// The thruster lays its status out in the implied-type form, as some SeaBotix controllers do: MT taken as the
+    /// read address byte, the frame starting at STATUS, the line idle (0xFF) after it.
+    ImpliedTypeStatus { thruster: usize },
     /// Orders arrive with `mask` flipped in their checksum byte.
     CorruptOrders { thruster: usize, mask: u8 },
     /// Orders arrive with SPEED 0x00 (out of range) and a checksum that matches.
@@ -44,6 +47,14 @@ pub enum Fault {
     BatteryFramesLost,
     /// A BAT status bit reads 1. Cleared: it reads 0.
     BatteryBit(StatusBit),
+}
+
+/// A status read in the implied-type form: the bytes from STATUS on, then 0xFF.
+fn implied_type(bytes: &mut [u8]) {
+    if let Some(last) = bytes.len().checked_sub(1) {
+        bytes.rotate_left(1);
+        bytes[last] = 0xFF;
+    }
 }
 
 /// Orders arrive with SPEED 0x00 and a checksum that matches, so only the range check can catch them.
@@ -93,6 +104,7 @@ impl Fault {
             Fault::BlockedPropeller { .. } => "blocked-propeller",
             Fault::HallsUnplugged { .. } => "halls-unplugged",
             Fault::NoisyStatus { .. } => "noisy-status",
+            Fault::ImpliedTypeStatus { .. } => "implied-type-status",
             Fault::CorruptOrders { .. } => "corrupt-orders",
             Fault::OutOfRangeOrders { .. } => "out-of-range-orders",
             Fault::PowerCut { .. } => "power-cut",
@@ -114,6 +126,7 @@ impl Fault {
             Fault::BlockedPropeller { thruster } => format!("T{}: propeller blocked", thruster + 1),
             Fault::HallsUnplugged { thruster } => format!("T{}: halls unplugged", thruster + 1),
             Fault::NoisyStatus { thruster, mask } => format!("T{}: status bytes corrupted ({mask:#04x})", thruster + 1),
+            Fault::ImpliedTypeStatus { thruster } => format!("T{}: status in the 6-byte form", thruster + 1),
             Fault::CorruptOrders { thruster, mask } => format!("T{}: orders corrupted ({mask:#04x})", thruster + 1),
             Fault::OutOfRangeOrders { thruster } => format!("T{}: orders out of range", thruster + 1),
             Fault::PowerCut { thruster } => format!("T{}: power cut", thruster + 1),
@@ -165,6 +178,14 @@ impl Fault {
                 thruster,
                 Tamper {
                     read_xor: mask,
+                    ..Tamper::NONE
+                },
+            ),
+            Fault::ImpliedTypeStatus { thruster } => tamper(
+                bench,
+                thruster,
+                Tamper {
+                    rewrite_read: Some(implied_type),
                     ..Tamper::NONE
                 },
             ),

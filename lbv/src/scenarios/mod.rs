@@ -23,7 +23,7 @@ mod tests;
 pub use harness::{Options, Report, Scenario, run_guarded};
 
 use acceptance::acceptance;
-use bus::{bad_frames, missing_thruster, reset_mid_transfer, stuck_sda};
+use bus::{bad_frames, missing_thruster, reset_mid_transfer, six_byte_status, status_noise, stuck_sda};
 use console::{
     ground_station_1hz, second_sysid, settings_persist, settings_power_cut, signing, signing_reboot, stray_byte,
 };
@@ -121,6 +121,20 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 8.0,
         vehicle: mixed,
         run: bad_frames,
+    },
+    Scenario {
+        name: "status-noise",
+        about: "8 s of unreadable status reads while the orders get through: full order rate, no stop, told once",
+        seconds: 12.0,
+        vehicle: lbv300,
+        run: status_noise,
+    },
+    Scenario {
+        name: "six-byte-status",
+        about: "a thruster answering in the 6-byte SeaBotix form: read, counted, its faults reach the console",
+        seconds: 40.0,
+        vehicle: lbv300,
+        run: six_byte_status,
     },
     Scenario {
         name: "missing-thruster",

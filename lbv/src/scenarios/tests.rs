@@ -68,6 +68,8 @@ scenario_tests! {
     hall_legacy: "hall-legacy",
     hall_seabotix: "hall-seabotix",
     bad_frames: "bad-frames",
+    status_noise: "status-noise",
+    six_byte_status: "six-byte-status",
     missing_thruster: "missing-thruster",
     stuck_sda: "stuck-sda",
     reset_mid_transfer: "reset-mid-transfer",

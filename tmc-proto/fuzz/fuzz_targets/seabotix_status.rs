@@ -2,11 +2,17 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tmc_proto::{Decoded, Family, SeaBotixStatus, Status, checksum};
+use tmc_proto::{Decoded, Family, SeaBotixStatus, Status, StatusForm, checksum};
 
 fuzz_target!(|data: &[u8]| {
     let decoded = SeaBotixStatus::decode(data);
     assert_eq!(Status::decode(Family::SeaBotix, data), decoded.map(|d| d.map(Status::SeaBotix)));
+    // Either form: the full layout whenever it decodes; an implied-type frame only when it does not.
+    match Status::decode_either(Family::SeaBotix, data) {
+        Ok((either, StatusForm::Full)) => assert_eq!(decoded.map(|d| d.map(Status::SeaBotix)), Ok(either)),
+        Ok((_, StatusForm::ImpliedType)) => assert!(decoded.is_err() && data.first() != Some(&0x53)),
+        Err(error) => assert_eq!(decoded.err(), Some(error)),
+    }
     if let Ok(decoded) = decoded {
         let status = decoded.status;
         let bytes = status.encode();
