@@ -209,6 +209,10 @@ pub struct BatteryMonitor {
     alarms: Option<BmsAlarms>,
     /// When the last good BAT frame came.
     last_frame: Option<Instant>,
+    /// When the last good frame of each ID came: info (0x620), status (0x629), BMS alarms (0x628).
+    last_info: Option<Instant>,
+    last_status: Option<Instant>,
+    last_alarms: Option<Instant>,
     /// When the monitor was first used: staleness counts from here until a frame comes.
     started: Option<Instant>,
     /// "Stale" has been reported and no good frame came since.
@@ -247,14 +251,19 @@ impl BatteryMonitor {
         let news = match decoded {
             Frame::Info(info) => {
                 self.info = Some(info);
+                self.last_info = Some(now);
                 None
             }
-            Frame::Status(current) => match self.status.replace(current) {
-                None => Some(News::StartUp(current)),
-                Some(previous) if previous != current => Some(News::Changed { previous, current }),
-                Some(_) => None,
-            },
+            Frame::Status(current) => {
+                self.last_status = Some(now);
+                match self.status.replace(current) {
+                    None => Some(News::StartUp(current)),
+                    Some(previous) if previous != current => Some(News::Changed { previous, current }),
+                    Some(_) => None,
+                }
+            }
             Frame::Bms(current) => {
+                self.last_alarms = Some(now);
                 let previous = self.alarms.replace(current).unwrap_or(BmsAlarms::NONE);
                 let raised = BmsAlarms::from_bits_truncate(current.bits() & !previous.bits());
                 let cleared = BmsAlarms::from_bits_truncate(previous.bits() & !current.bits());
@@ -296,15 +305,20 @@ impl BatteryMonitor {
             .map(|from| from.saturating_add(Self::STALE_AFTER))
     }
 
-    /// The summary at `now` (stale when no good BAT frame for [`Self::STALE_AFTER`], or none yet).
+    /// The summary at `now`: stale when no good BAT frame for [`Self::STALE_AFTER`], or none yet, and each value
+    /// stale when its own frame has not come for that long (the BAT sends each ID on its own: one can stop while
+    /// the others flow).
     pub fn summary(&self, now: Instant) -> BatterySummary {
+        let stale =
+            |last: Option<Instant>| last.is_none_or(|last| now.saturating_duration_since(last) >= Self::STALE_AFTER);
         BatterySummary {
             info: self.info,
             status: self.status,
             alarms: self.alarms,
-            stale: self
-                .last_frame
-                .is_none_or(|last| now.saturating_duration_since(last) >= Self::STALE_AFTER),
+            stale: stale(self.last_frame),
+            info_stale: stale(self.last_info),
+            status_stale: stale(self.last_status),
+            alarms_stale: stale(self.last_alarms),
             frames: self.frames,
             errors: self.errors,
         }
@@ -545,6 +559,28 @@ pub(crate) mod tests {
             ]
         );
         assert_eq!(monitor.summary(t(300)).status, Some(DcdcStatus::from_word(0x04A8)));
+    }
+
+    #[test]
+    fn each_value_goes_stale_with_its_own_frame() {
+        let mut monitor = BatteryMonitor::new();
+        let fresh = |s: &BatterySummary| (s.stale, s.info_stale, s.status_stale, s.alarms_stale);
+        assert_eq!(fresh(&monitor.summary(t(0))), (true, true, true, true), "none yet");
+        monitor.on_frame(t(0), &status(172));
+        monitor.on_frame(t(0), &bms(BmsAlarms::NONE));
+        // 0x629 stops; 0x620 goes on every 200 ms.
+        for ms in (0..=5000).step_by(200) {
+            monitor.on_frame(t(ms), &info(420, 80));
+        }
+        let summary = monitor.summary(t(5000));
+        assert_eq!(
+            fresh(&summary),
+            (false, false, true, true),
+            "the status 172 of 5 s ago is stale"
+        );
+        assert_eq!(summary.status, Some(DcdcStatus::from_word(172)), "kept, marked stale");
+        monitor.on_frame(t(5100), &status(172));
+        assert_eq!(fresh(&monitor.summary(t(5100))), (false, false, false, true));
     }
 
     #[test]
@@ -795,6 +831,9 @@ pub(crate) mod tests {
                 status: Some(DcdcStatus::from_word(0x04AC)),
                 alarms: Some(BmsAlarms::LOW_VOLTAGE),
                 stale: false,
+                info_stale: false,
+                status_stale: false,
+                alarms_stale: false,
                 frames: 3,
                 errors: 0,
             }

@@ -255,6 +255,13 @@ pub struct BatterySummary {
     pub alarms: Option<BmsAlarms>,
     /// No good BAT frame for [`crate::battery::BatteryMonitor::STALE_AFTER`], or none yet: the values above are old or absent.
     pub stale: bool,
+    /// No pack info frame (0x620) for [`crate::battery::BatteryMonitor::STALE_AFTER`], or none yet: `info` is old or
+    /// absent, whatever the other frames do.
+    pub info_stale: bool,
+    /// No DCDC status frame (0x629) for that long, or none yet: `status` is old or absent.
+    pub status_stale: bool,
+    /// No BMS alarm frame (0x628) for that long, or none yet: `alarms` are old or absent.
+    pub alarms_stale: bool,
     /// Good BAT frames received.
     pub frames: u32,
     /// Bad BAT frames (unknown BAT ID, bad length, failed check) and receive errors.

@@ -62,7 +62,7 @@ pub struct LinkQuality {
 
 /// The battery's fresh reading: `None` when there is none or it is stale.
 fn fresh(battery: Option<&BatterySummary>) -> Option<&BatterySummary> {
-    battery.filter(|b| !b.stale && b.info.is_some())
+    battery.filter(|b| !b.info_stale && b.info.is_some())
 }
 
 /// Whether the battery reports an alarm or a DCDC fault.
@@ -468,6 +468,9 @@ mod tests {
             status: Some(DcdcStatus::from_word(0)),
             alarms: Some(BmsAlarms::NONE),
             stale: false,
+            info_stale: false,
+            status_stale: false,
+            alarms_stale: false,
             frames: 10,
             errors: 2,
         }
@@ -578,6 +581,9 @@ mod tests {
         }
         let stale = BatterySummary {
             stale: true,
+            info_stale: true,
+            status_stale: true,
+            alarms_stale: true,
             ..battery()
         };
         let s = sys_status(6, &reports, Some(&stale), link);
