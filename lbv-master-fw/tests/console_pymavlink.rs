@@ -217,9 +217,9 @@ fn pymavlink_decodes_what_the_console_sends() {
         }),
         status: None,
         alarms: Some(bat_proto::BmsAlarms::NONE),
-        stale: false,
         frames: 40,
         errors: 1,
+        ..BatterySummary::default()
     });
     let mut text = Text::new();
     text.push_str("LBV master ready").unwrap();

@@ -163,9 +163,8 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
         }),
         status: None,
         alarms: Some(bat_proto::BmsAlarms::NONE),
-        stale: false,
         frames: 3,
-        errors: 0,
+        ..BatterySummary::default()
     });
     let bytes = run_tx(
         &ConsoleConfig::DEFAULT,

@@ -146,6 +146,7 @@ fn tampering_corrupts_both_ways() {
             read_xor: 0x10,
             write_last_xor: 0x01,
             rewrite: Some(|bytes| bytes.reverse()),
+            rewrite_read: None,
         },
     );
     bus.record(true);
