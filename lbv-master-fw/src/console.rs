@@ -379,8 +379,8 @@ pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared
 /// [`Shared::outbox`] message as soon as it is queued. MAVLink 2 frames from `config`'s system and component,
 /// signed while a key is in force (`shared.settings`; a batch waits for the signing reservation to have room,
 /// never going out unsigned); the sequence number counts every frame. Write errors, and frames that could not be
-/// signed, are counted in `stats` as write errors and the frame is dropped. [`Outgoing::Reboot`] flushes the port and raises
-/// `shared.reboot`.
+/// signed, are counted in `stats` as write errors and the frame is dropped. [`Outgoing::Reboot`] flushes the port
+/// and raises `shared.reboot`.
 ///
 /// SYS_STATUS's drop_rate_comm is the share of corrupt frames received during the last second (see
 /// [`ConsoleCounters::corrupt`]).
