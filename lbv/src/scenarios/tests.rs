@@ -147,7 +147,8 @@ fn outputs_hash(name: &str, seed: u64, seconds: Option<f64>) -> [u64; 3] {
 }
 
 /// The fixed-step engine's outputs, bit for bit, as they were before its speed-ups: a change that is only meant to
-/// make the bench faster must leave these alone.
+/// make the bench faster must leave these alone. (The soak's metrics and trace moved when a thruster whose orders
+/// get through stopped going offline over unreadable statuses: its texts and link counts differ.)
 #[test]
 fn the_fixed_step_engine_gives_the_same_outputs_bit_for_bit() {
     let hashes = [
@@ -170,8 +171,8 @@ fn the_fixed_step_engine_gives_the_same_outputs_bit_for_bit() {
                 "soak",
                 [
                     11_520_363_284_237_921_549,
-                    1_816_169_369_025_854_061,
-                    16_613_728_634_436_194_247
+                    9_036_088_089_504_525_545,
+                    16_673_657_856_623_221_157
                 ]
             ),
             (
