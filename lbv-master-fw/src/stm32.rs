@@ -191,7 +191,11 @@ type MasterPorts =
 #[embassy_executor::task]
 async fn master(ports: MasterPorts) -> ! {
     let shared = Shared::new();
-    lbv_master_fw::run(ports, &CONFIG, &shared, &CONSOLE_STATS).await
+    let mut config = CONFIG;
+    // The 96-bit unique device id for AUTOPILOT_VERSION (RM0440 section 48.1: UID_BASE 0x1FFF_7590, the address
+    // stm32-metapac gives the G431's UID block): read here, so that the core stays free of hardware.
+    config.console.uid = embassy_stm32::uid::uid();
+    lbv_master_fw::run(ports, &config, &shared, &CONSOLE_STATS).await
 }
 
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).

@@ -126,6 +126,12 @@ def decode(key=None):
     for msg in parser.parse_buffer(data) or []:
         fields = {k: plain(v) for k, v in msg.to_dict().items() if k != "mavpackettype"}
         fields["_type"] = msg.get_type()
+        # A well-formed frame of a message this pymavlink does not know (ESC_INFO and ESC_STATUS are newer than
+        # its XML) is not a bad frame.
+        if msg.get_type().startswith("UNKNOWN_"):
+            fields = {"_type": "UNKNOWN", "_id": int(msg.get_type()[len("UNKNOWN_"):])}
+            out.append(fields)
+            continue
         fields["_sys"] = msg.get_srcSystem()
         fields["_comp"] = msg.get_srcComponent()
         fields["_seq"] = msg.get_seq()
