@@ -188,6 +188,16 @@ impl Param {
         }
     }
 
+    /// Whether a PARAM_SET of MAV_PARAM_TYPE `param_type` may set it: its own type, or REAL32. With
+    /// PARAM_ENCODE_C_CAST the float holds the value whatever the type says, so a REAL32 set of an integer means
+    /// the same number; and it is what ArduPilot ground stations send (MAVProxy records a parameter's type only
+    /// for PX4 vehicles and otherwise sends REAL32; pymavlink's param_set_send defaults to it; ArduPilot itself
+    /// ignores the type). Any other type (an INT32 or UINT8 for an INT8, an integer for a REAL32) is not this
+    /// parameter's encoding and is refused.
+    pub const fn takes_type(self, param_type: u8) -> bool {
+        param_type == self.param_type().mav() || param_type == ParamType::Real32.mav()
+    }
+
     /// Changing it while armed would hand the vehicle to another station or remix the thrusters mid-dive.
     pub const fn only_disarmed(self) -> bool {
         matches!(self, Self::OperatorId | Self::Frame)
@@ -476,6 +486,12 @@ mod tests {
         assert_eq!(Param::Gain.from_float(79.5), None);
         assert_eq!(Param::OperatorId.from_float(-0.0), Some(0));
         assert_eq!(Param::OperatorId.from_float(3e9), Some(i32::MAX), "still saturates");
+        assert!(Param::PilotFailsafe.takes_type(2) && Param::PilotFailsafe.takes_type(9));
+        for other in [0, 1, 3, 4, 6, 10, 255] {
+            assert!(!Param::PilotFailsafe.takes_type(other), "{other}");
+        }
+        assert!(Param::OperatorId.takes_type(4) && !Param::OperatorId.takes_type(2));
+        assert!(Param::GcsTimeout.takes_type(9) && !Param::GcsTimeout.takes_type(2));
         // Seconds with a tenth still round.
         assert_eq!(Param::GcsTimeout.from_float(f32::from_bits(2)), Some(0));
         let types = Param::ALL.map(Param::param_type);

@@ -39,9 +39,9 @@
 //!   PARAM_SET of a known name applies a valid value and answers PARAM_VALUE; an invalid one (out of range, not
 //!   a number, a fraction for an integer parameter, `LBV_FRAME` or `SYSID_MYGCS` while armed) is rejected with a
 //!   Warning text and a PARAM_VALUE of the unchanged value, as ArduPilot does. A PARAM_SET whose param_type is
-//!   not the parameter's ([`Param::param_type`]) is answered the same way and counted
-//!   ([`VehicleState::param_type_mismatches`]): its value may be encoded otherwise (PX4's raw bits). An unknown
-//!   name gets no answer.
+//!   neither the parameter's ([`Param::param_type`]) nor REAL32 ([`Param::takes_type`]: what MAVProxy sends) is
+//!   answered the same way and counted ([`VehicleState::param_type_mismatches`]): its value may be encoded
+//!   otherwise. An unknown name gets no answer.
 //! - MAV_CMD_REQUEST_MESSAGE / MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (anyone may ask: it reads): ACCEPTED, then
 //!   [`Outgoing::Message`]; a message the master does not send (HOME_POSITION: there is no home) DENIED, which
 //!   MAV_RESULT defines as "supported but has invalid parameters" (the command is supported, its message id is
@@ -275,7 +275,7 @@ impl Vehicle {
             }
             Command::Unsupported { command } => ack(out, command, AckResult::Unsupported, from),
             Command::ParamSet { id, value, param_type } => match Param::from_id(&id) {
-                Some(param) if param.param_type().mav() != param_type => {
+                Some(param) if !param.takes_type(param_type) => {
                     self.param_type_mismatches = self.param_type_mismatches.wrapping_add(1);
                     say(
                         out,
@@ -1481,8 +1481,8 @@ mod tests {
             value,
             param_type,
         };
-        // FS_PILOT_INPUT is INT8: a REAL32 (or INT32, or bytewise UINT8) set changes nothing.
-        for param_type in [9, 6, 1, 0] {
+        // FS_PILOT_INPUT is INT8: an INT32, UINT8, INT16 or unknown-type set changes nothing.
+        for param_type in [6, 1, 4, 0] {
             assert_eq!(
                 bench.command(0, typed("FS_PILOT_INPUT", 2.0, param_type)),
                 [
@@ -1499,6 +1499,17 @@ mod tests {
             [value(Param::PilotFailsafe, 2.0)]
         );
         assert_eq!(bench.params().pilot_failsafe(), PilotFailsafe::Disarm);
+        // REAL32 too (MAVProxy's), the float holding the value.
+        assert_eq!(
+            bench.command(0, typed("FS_PILOT_INPUT", 0.0, 9)),
+            [value(Param::PilotFailsafe, 0.0)]
+        );
+        assert_eq!(
+            bench.command(0, typed("FS_GCS_TIMEOUT", 6.0, 2)).len(),
+            2,
+            "an integer type for a REAL32"
+        );
+        assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 5);
         assert_eq!(
             bench.command(0, typed("FS_GCS_TIMEOUT", 6.5, 9)),
             [value(Param::GcsTimeout, 6.5)]
@@ -1508,7 +1519,7 @@ mod tests {
             bench.command(0, typed("SYSID_MYGCS", 254.0, 4)),
             [value(Param::OperatorId, 254.0)]
         );
-        assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 4);
+        assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 5);
     }
 
     #[test]

@@ -501,10 +501,10 @@ fn an_sdk_sets_an_integer_parameter_as_its_type() {
         };
         if phase == 0 {
             gcs.heartbeat();
-            // The SDK's integer set (C_CAST, the capability announced), then a REAL32 one of the same INT8
-            // parameter, and PX4's bytewise encoding of 0 for it (a denormal-free zero would be 0.0: 1 as raw bits).
+            // The SDK's integer set (C_CAST, the capability announced), then an INT32 one of the same INT8
+            // parameter, and PX4's bytewise encoding of 1 for it (raw bits: a denormal, not a whole number).
             set(gcs, "FS_PILOT_INPUT", 2.0, MavParamType::MAV_PARAM_TYPE_INT8);
-            set(gcs, "FS_PILOT_INPUT", 0.0, MavParamType::MAV_PARAM_TYPE_REAL32);
+            set(gcs, "FS_PILOT_INPUT", 0.0, MavParamType::MAV_PARAM_TYPE_INT32);
             set(
                 gcs,
                 "FS_PILOT_INPUT",
