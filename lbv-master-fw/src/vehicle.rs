@@ -625,7 +625,7 @@ mod tests {
     use super::*;
     use crate::battery::tests::elapse;
     use crate::params::Params;
-    use crate::shared::ParamId;
+    use crate::shared::{Interval, Message, ParamId};
     use embassy_futures::block_on;
 
     fn t(ms: u64) -> Instant {
@@ -768,6 +768,115 @@ mod tests {
         said.iter()
             .filter(|o| matches!(o, Outgoing::Text(_, text) if text.starts_with("Failsafe")))
             .collect()
+    }
+
+    /// Whether the operator's arm would be accepted now, tried on a copy.
+    fn arm_accepted(vehicle: &Vehicle, ms: u64) -> bool {
+        let mut copy = vehicle.clone();
+        let mut said = vec![];
+        copy.on_request(
+            t(ms),
+            Request {
+                from: GCS,
+                command: Command::Arm(true),
+            },
+            &mut |o| said.push(o),
+        );
+        said.contains(&ack(ARM, AckResult::Accepted))
+    }
+
+    #[test]
+    fn the_prearm_check_is_exactly_the_arm_rule() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        let mut seen = (false, false);
+        let mut check = |bench: &mut Bench, ms: u64| {
+            bench.orders(ms);
+            let armable = bench.vehicle.state(t(ms)).armable;
+            assert_eq!(armable, arm_accepted(&bench.vehicle, ms), "at {ms} ms");
+            assert_eq!(armable, bench.vehicle.arm_check(t(ms)).is_ok());
+            if armable {
+                seen.0 = true;
+            } else {
+                seen.1 = true;
+            }
+        };
+        // No ground station; its heartbeat; a motor test; the test over; armed; silence (failsafe); back.
+        check(&mut bench, 0);
+        bench.command(10, Command::Heartbeat);
+        check(&mut bench, 10);
+        bench.command(20, motor_test(1, 20, 500));
+        check(&mut bench, 30);
+        check(&mut bench, 600);
+        bench.command(700, Command::Arm(true));
+        check(&mut bench, 710);
+        for ms in [5_000, 5_709, 5_710, 5_711, 9_000] {
+            check(&mut bench, ms);
+        }
+        bench.command(9_500, Command::Heartbeat);
+        check(&mut bench, 9_500);
+        assert_eq!(seen, (true, true));
+    }
+
+    #[test]
+    fn a_failsafe_in_force_shows_until_the_pilot_is_back() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.arm(0);
+        assert!(!bench.vehicle.state(t(0)).failsafe);
+        // Heartbeats on, sticks stop: the pilot-input failsafe (neutral) acts at 3 s, until the next sticks.
+        bench.command(100, manual(500, 0, 500, 0));
+        for ms in [1_000, 2_000, 3_000] {
+            bench.command(ms, Command::Heartbeat);
+        }
+        bench.orders(3_100);
+        assert!(bench.vehicle.state(t(3_100)).failsafe);
+        bench.command(3_200, manual(0, 0, 500, 0));
+        assert!(!bench.vehicle.state(t(3_200)).failsafe);
+        // The heartbeats stop: disarmed at 5 s after the last, and the failsafe shows until they return.
+        bench.orders(8_100);
+        let state = bench.vehicle.state(t(8_100));
+        assert!(state.failsafe && !state.armed && !state.armable);
+        bench.command(9_000, Command::Heartbeat);
+        let state = bench.vehicle.state(t(9_000));
+        assert!(!state.failsafe && state.armable);
+    }
+
+    #[test]
+    fn message_requests_and_intervals() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        let request = |message| Command::RequestMessage { command: 512, message };
+        // Anyone may ask for a message.
+        assert_eq!(
+            bench.command_from(0, OTHER, request(Some(Message::AutopilotVersion))),
+            [
+                ack_to(512, AckResult::Accepted, OTHER),
+                Outgoing::Message(Message::AutopilotVersion)
+            ]
+        );
+        assert_eq!(bench.command(0, request(None)), [ack(512, AckResult::Denied)]);
+        let interval = |message, interval| Command::MessageInterval { message, interval };
+        assert_eq!(
+            bench.command(0, interval(Some(Message::EscStatus), Some(Interval::Off))),
+            [
+                ack(511, AckResult::Accepted),
+                Outgoing::Interval(Message::EscStatus, Interval::Off)
+            ]
+        );
+        for (message, every) in [
+            (Some(Message::Heartbeat), Some(Interval::Every(200))),
+            (Some(Message::AutopilotVersion), Some(Interval::Every(1000))),
+            (None, Some(Interval::Default)),
+            (Some(Message::SysStatus), None),
+        ] {
+            assert_eq!(
+                bench.command(0, interval(message, every)),
+                [ack(511, AckResult::Denied)]
+            );
+        }
+        // Pacing the operator's link is the operator's.
+        assert_eq!(
+            bench.command_from(0, OTHER, interval(Some(Message::SysStatus), Some(Interval::Default))),
+            [ack_to(511, AckResult::Denied, OTHER)]
+        );
     }
 
     #[test]

@@ -787,6 +787,99 @@ mod tests {
         assert_eq!(esc_entry(None), EscEntry::default());
     }
 
+    fn legacy(deciamps: u8, faults: Faults) -> Status {
+        Status::Legacy(LegacyStatus {
+            revision: LegacyRevision::AVEOX_BRUSHLESS,
+            faults,
+            max_power: MaxPower::Current { deciamps },
+        })
+    }
+
+    #[test]
+    fn esc_status_reports_rpm_and_current_where_known() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        reports[0] = online(Some(seabotix(-102, 23, 41)), 10);
+        reports[1] = online(Some(legacy(12, Faults::NONE)), 10);
+        reports[2] = online(None, 0);
+        let mut off = online(Some(seabotix(50, 10, 30)), 9);
+        off.as_mut().unwrap().health.online = false;
+        reports[3] = off;
+        reports[4] = online(Some(seabotix(51, 5, 20)), 1);
+        let s = esc_status(6, &reports, 0, 123_456);
+        assert_eq!((s.index, s.time_usec), (0, 123_456));
+        // Astern is negative; Legacy, no status yet and offline report no rpm: 0 (no "unknown" is defined).
+        assert_eq!(s.rpm, [-4500, 0, 0, 0]);
+        assert!(s.voltage.iter().all(|v| v.is_nan()), "not measured");
+        assert_eq!(s.current[0], 2.3);
+        assert_eq!(s.current[1], 1.2, "Legacy MAX POWER as current");
+        assert!(s.current[2].is_nan() && s.current[3].is_nan());
+        let b = esc_status(6, &reports, 4, 0);
+        assert_eq!((b.index, b.rpm), (4, [2250, 0, 0, 0]));
+        assert!(
+            b.current[1..].iter().all(|c| c.is_nan()),
+            "thruster 6 unheard, 7 and 8 not configured"
+        );
+    }
+
+    #[test]
+    fn esc_info_says_what_is_not_known() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        reports[0] = online(
+            Some(Status::SeaBotix(SeaBotixStatus {
+                faults: Faults::OVERTEMP.union(Faults::WATER),
+                ..match seabotix(10, 1, 41) {
+                    Status::SeaBotix(s) => s,
+                    Status::Legacy(_) => unreachable!(),
+                }
+            })),
+            300,
+        );
+        reports[1] = online(Some(legacy(3, Faults::STALL.union(Faults::HALL))), 200);
+        if let Some(r) = reports[1].as_mut() {
+            r.health.timeout = 4;
+            r.health.nack = 1;
+        }
+        let mut off = online(Some(seabotix(0, 0, 25)), 9);
+        off.as_mut().unwrap().health.online = false;
+        reports[2] = off;
+        let i = esc_info(6, &reports, 0, 99);
+        assert_eq!((i.index, i.time_usec, i.count), (0, 99, 6));
+        assert_eq!(i.connection_type, EscConnectionType::ESC_CONNECTION_TYPE_I2C);
+        assert_eq!(i.info, 0b0011, "thrusters 1 and 2 online");
+        assert_eq!(i.counter, 509);
+        assert_eq!(
+            i.failure_flags,
+            [4, 32 | 64, 0, 0],
+            "over-temperature; stuck and generic"
+        );
+        assert_eq!(i.error_count, [0, 5, 0, 0]);
+        // SeaBotix in cdegC; Legacy has no sensor, thruster 3 is offline, 4 unheard: INT16_MAX.
+        assert_eq!(i.temperature, [4100, i16::MAX, i16::MAX, i16::MAX]);
+        let b = esc_info(6, &reports, 4, 99);
+        assert_eq!((b.index, b.info, b.temperature), (4, 0, [i16::MAX; 4]));
+    }
+
+    #[test]
+    fn autopilot_version_carries_the_build_and_the_chip() {
+        let uid: [u8; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+        let v = autopilot_version(&uid);
+        assert_eq!(v.capabilities.bits(), 0x2_2008);
+        let part = |s: &str| s.parse::<u32>().unwrap();
+        assert_eq!(
+            v.flight_sw_version >> 8,
+            part(env!("CARGO_PKG_VERSION_MAJOR")) << 16
+                | part(env!("CARGO_PKG_VERSION_MINOR")) << 8
+                | part(env!("CARGO_PKG_VERSION_PATCH"))
+        );
+        assert_eq!(v.flight_custom_version, GIT_REVISION);
+        assert!(GIT_REVISION == [0; 8] || GIT_REVISION.iter().all(u8::is_ascii_hexdigit));
+        assert_eq!(&v.uid2[..12], &uid);
+        assert_eq!(&v.uid2[12..], &[0; 6]);
+        assert_eq!(v.uid, 0x0403_0201 | (0x0807_0605u64 ^ 0x0C0B_0A09) << 32);
+        assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0468));
+        assert_eq!(autopilot_version(&[0; 12]).uid, 0, "unknown");
+    }
+
     #[test]
     fn esc_blocks_stop_at_the_configured_thrusters() {
         let mut reports: Reports = [None; MAX_THRUSTERS];
