@@ -3,7 +3,7 @@
 //! Every field of every message is set here on purpose: the generated `Default` of a bit-flag field is its first
 //! flag, not empty (a default HEARTBEAT would claim to be armed).
 
-use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
+use mavlink_core::MessageData;
 use tmc_proto::{MaxPower, MotorKind, Status};
 
 use super::lbv::{
@@ -568,32 +568,69 @@ pub fn param_value(id: &ParamId, value: f32, param_type: ParamType, index: u16, 
     }
 }
 
+/// MAVLink 2 header length (start byte included).
+const HEADER_LEN: usize = 10;
+/// Largest MAVLink 2 payload.
+const MAX_PAYLOAD: usize = 255;
+
 /// MAVLink 2 framing of outgoing messages: this system's header and a sequence number that counts every frame.
+/// Only the payload's encoding is generic; the header and CRC are written by one function for every message type
+/// (the mavlink crate's framing would be copied into the image once per type).
 #[derive(Debug)]
 pub struct Framer {
-    header: MavHeader,
-    raw: MAVLinkV2MessageRaw,
+    system_id: u8,
+    component_id: u8,
+    sequence: u8,
+    frame: [u8; HEADER_LEN + MAX_PAYLOAD + 2],
 }
 
 impl Framer {
     /// Frames from `system_id` / `component_id`, starting at sequence 0.
     pub const fn new(system_id: u8, component_id: u8) -> Self {
         Self {
-            header: MavHeader {
-                system_id: system_id as u32,
-                component_id,
-                sequence: 0,
-            },
-            raw: MAVLinkV2MessageRaw::new(),
+            system_id,
+            component_id,
+            sequence: 0,
+            frame: [0; HEADER_LEN + MAX_PAYLOAD + 2],
         }
     }
 
     /// Frame one message (MAVLink 2, unsigned: [`crate::signing::SigningState::sign`] signs it) and return its
     /// bytes.
     pub fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
-        self.raw.serialize_message_data(self.header, message);
-        self.header.sequence = self.header.sequence.wrapping_add(1);
-        self.raw.raw_bytes()
+        let len = match self.frame.get_mut(HEADER_LEN..HEADER_LEN + MAX_PAYLOAD) {
+            Some(payload) => message.ser(mavlink_core::MavlinkVersion::V2, payload),
+            None => 0,
+        };
+        self.finish(D::ID, D::EXTRA_CRC, len)
+    }
+
+    /// The header and CRC around the `len`-byte payload just encoded.
+    #[inline(never)]
+    fn finish(&mut self, id: u32, extra_crc: u8, len: usize) -> &[u8] {
+        let [id0, id1, id2, _] = id.to_le_bytes();
+        let header = [
+            0xFD,
+            len as u8,
+            0,
+            0,
+            self.sequence,
+            self.system_id,
+            self.component_id,
+            id0,
+            id1,
+            id2,
+        ];
+        if let Some(slot) = self.frame.get_mut(..HEADER_LEN) {
+            slot.copy_from_slice(&header);
+        }
+        self.sequence = self.sequence.wrapping_add(1);
+        let end = HEADER_LEN + len;
+        let crc = mavlink_core::calculate_crc(self.frame.get(1..end).unwrap_or_default(), extra_crc);
+        if let Some(slot) = self.frame.get_mut(end..end + 2) {
+            slot.copy_from_slice(&crc.to_le_bytes());
+        }
+        self.frame.get(..end + 2).unwrap_or_default()
     }
 }
 
@@ -994,6 +1031,33 @@ mod tests {
             battery_status(Some(&low)).charge_state,
             MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_LOW
         );
+    }
+
+    #[test]
+    fn framer_builds_what_the_mavlink_crate_builds() {
+        let mut framer = Framer::new(1, 1);
+        let mut raw = mavlink_core::MAVLinkV2MessageRaw::new();
+        for sequence in 0..3u8 {
+            let version = autopilot_version(&[7; 12]);
+            let ours = framer.frame(&version).to_vec();
+            let header = mavlink_core::MavHeader {
+                system_id: 1,
+                component_id: 1,
+                sequence,
+            };
+            raw.serialize_message_data(header, &version);
+            assert_eq!(ours, raw.raw_bytes());
+            let empty = framer.frame(&PARAM_VALUE_DATA::DEFAULT).to_vec();
+            raw.serialize_message_data(
+                mavlink_core::MavHeader {
+                    sequence: sequence.wrapping_add(1),
+                    ..header
+                },
+                &PARAM_VALUE_DATA::DEFAULT,
+            );
+            assert_eq!(empty, raw.raw_bytes(), "a payload of zeros truncated to one byte");
+            framer.sequence = sequence.wrapping_add(1);
+        }
     }
 
     #[test]
