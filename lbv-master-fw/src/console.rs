@@ -351,6 +351,11 @@ pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared
     }
 }
 
+/// Whether the image sends ESC_INFO and ESC_STATUS. The acceptance image leaves them out: its script drives the
+/// bus itself and publishes no thruster reports (they would only ever say "no thruster"), and their codecs do
+/// not fit its flash budget beside the script.
+pub const ESC_DETAIL: bool = !cfg!(feature = "acceptance");
+
 /// The paced messages, in the order a batch carries them.
 const PACED: [Message; 7] = [
     Message::Heartbeat,
@@ -365,6 +370,7 @@ const PACED: [Message; 7] = [
 /// A paced message's default period in [`TX_TICK`]s.
 const fn default_ticks(message: Message) -> u16 {
     match message {
+        Message::EscInfo | Message::EscStatus if !ESC_DETAIL => 0,
         Message::EscTelemetry1To4 | Message::EscTelemetry5To8 | Message::EscStatus => 5,
         _ => 20,
     }
@@ -549,6 +555,7 @@ impl<W: Write> Output<'_, W> {
                 self.push(&outbound::esc_telemetry_5_to_8(thrusters, &reports))
             }
             Message::EscTelemetry5To8 => {}
+            Message::EscInfo | Message::EscStatus if !ESC_DETAIL => {}
             Message::EscInfo => {
                 for first in blocks {
                     self.push(&outbound::esc_info(thrusters, &reports, first, time_usec));
