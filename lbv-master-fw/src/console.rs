@@ -4,9 +4,11 @@
 //! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too) through a [`Receiver`], which checks their
 //!   signatures when a key is set ([`crate::signing`]), decodes the few messages the master understands
 //!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it.
-//! - [`console_tx_task`] sends the telemetry an ArduSub ground station displays (HEARTBEAT, SYS_STATUS,
-//!   BATTERY_STATUS at 1 Hz, ESC_TELEMETRY at 4 Hz) and every message the other tasks queue in
-//!   [`Shared::outbox`] (COMMAND_ACK, PARAM_VALUE, STATUSTEXT) as soon as it is queued, signed when a key is set.
+//! - [`console_tx_task`] sends the telemetry an ArduSub or QGroundControl ground station displays (HEARTBEAT,
+//!   SYS_STATUS, BATTERY_STATUS, ESC_INFO at 1 Hz, ESC_TELEMETRY and ESC_STATUS at 4 Hz, at the intervals a
+//!   ground station sets) and every message the other tasks queue in [`Shared::outbox`] (COMMAND_ACK,
+//!   PARAM_VALUE, STATUSTEXT, a requested message such as AUTOPILOT_VERSION) as soon as it is queued, signed when
+//!   a key is set.
 //!
 //! The dialect ([`lbv`]) is generated at build time from `mavlink/lbv.xml`, which holds only the messages used,
 //! copied from the official definitions; messages are encoded and decoded one type at a time, so the image
@@ -22,7 +24,7 @@ use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
-use crate::shared::{MAX_THRUSTERS, Outgoing, Request, Sender, Shared};
+use crate::shared::{Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared};
 use crate::signing::{Refusal, SigningKey, SigningState};
 
 pub mod frame;
@@ -34,10 +36,11 @@ include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 use frame::{Event, FrameParser};
 use outbound::{Framer, LinkQuality, Reports};
 
-/// ESC telemetry period (4 Hz); HEARTBEAT, SYS_STATUS and BATTERY_STATUS go every fourth period (1 Hz).
+/// The default ESC telemetry period (4 Hz); HEARTBEAT, SYS_STATUS, BATTERY_STATUS and ESC_INFO go every fourth
+/// (1 Hz).
 pub const TELEMETRY_PERIOD: Duration = Duration::from_millis(250);
-/// Telemetry periods per 1 Hz message set.
-const SLOW_EVERY: u8 = 4;
+/// The transmit task's clock: every message interval is a whole number of these (rounded, at least one).
+pub const TX_TICK: Duration = Duration::from_millis(50);
 /// Pause after a read error or end of input, so a failing port cannot monopolise the executor.
 const READ_RETRY: Duration = Duration::from_millis(10);
 /// The line is quiet for this long with a frame begun: the frame will not complete, so its start was false and
@@ -56,14 +59,19 @@ pub struct ConsoleConfig {
     pub component_id: u8,
     /// How many thrusters are configured (at most [`MAX_THRUSTERS`]; more are ignored).
     pub thrusters: u8,
+    /// The chip's 96-bit unique device id for AUTOPILOT_VERSION, as its three words read in little-endian order
+    /// (RM0440 section 48.1: UID[31:0] at 0x1FFF_7590 first). The STM32 binding reads it; the core never touches
+    /// hardware. All zeros: unknown.
+    pub uid: [u8; 12],
 }
 
 impl ConsoleConfig {
-    /// System 1, component 1 (MAV_COMP_ID_AUTOPILOT1), 6 thrusters (the LBV300).
+    /// System 1, component 1 (MAV_COMP_ID_AUTOPILOT1), 6 thrusters (the LBV300), unique id unknown.
     pub const DEFAULT: ConsoleConfig = ConsoleConfig {
         system_id: 1,
         component_id: 1,
         thrusters: 6,
+        uid: [0; 12],
     };
 
     /// The configured thrusters, capped at [`MAX_THRUSTERS`].
@@ -374,15 +382,91 @@ pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared
     }
 }
 
-/// Send telemetry to `tx`: HEARTBEAT, SYS_STATUS and BATTERY_STATUS at 1 Hz (the first set at once),
-/// ESC_TELEMETRY_1_TO_4 (and ESC_TELEMETRY_5_TO_8 when more than 4 thrusters are configured) at 4 Hz, and every
-/// [`Shared::outbox`] message as soon as it is queued. MAVLink 2 frames from `config`'s system and component,
-/// signed while a key is in force (`shared.settings`; a batch waits for the signing reservation to have room,
-/// never going out unsigned); the sequence number counts every frame. Write errors, and frames that could not be
-/// signed, are counted in `stats` as write errors and the frame is dropped. [`Outgoing::Reboot`] flushes the port
-/// and raises `shared.reboot`.
+/// Whether the image sends ESC_INFO and ESC_STATUS. The acceptance image leaves them out: its script drives the
+/// bus itself and publishes no thruster reports (they would only ever say "no thruster"), and their codecs do
+/// not fit its flash budget beside the script.
+pub const ESC_DETAIL: bool = !cfg!(feature = "acceptance");
+
+/// The paced messages, in the order a batch carries them.
+const PACED: [Message; 7] = [
+    Message::Heartbeat,
+    Message::SysStatus,
+    Message::BatteryStatus,
+    Message::EscTelemetry1To4,
+    Message::EscTelemetry5To8,
+    Message::EscInfo,
+    Message::EscStatus,
+];
+
+/// A paced message's default period in [`TX_TICK`]s.
+const fn default_ticks(message: Message) -> u16 {
+    match message {
+        Message::EscInfo | Message::EscStatus if !ESC_DETAIL => 0,
+        Message::EscTelemetry1To4 | Message::EscTelemetry5To8 | Message::EscStatus => 5,
+        _ => 20,
+    }
+}
+
+/// Ticks per interval: rounded, at least one (the interval is already clamped, see [`inbound::interval`]).
+fn interval_ticks(message: Message, interval: Interval) -> u16 {
+    let tick = TX_TICK.as_millis() as u32;
+    match interval {
+        Interval::Default => default_ticks(message),
+        Interval::Off => 0,
+        Interval::Every(ms) => u16::try_from((ms + tick / 2) / tick).unwrap_or(u16::MAX).max(1),
+    }
+}
+
+/// When each paced message goes: its period and the ticks left until it is due (0: off / due now).
+#[derive(Debug, Clone)]
+struct Schedule {
+    period: [u16; PACED.len()],
+    left: [u16; PACED.len()],
+}
+
+impl Schedule {
+    /// The default rates, everything due at once.
+    fn new() -> Self {
+        Self {
+            period: PACED.map(default_ticks),
+            left: [0; PACED.len()],
+        }
+    }
+
+    /// Pace `message` at `interval` from now: due at once, then every period.
+    fn set(&mut self, message: Message, interval: Interval) {
+        if let Some(n) = PACED.iter().position(|m| *m == message)
+            && let (Some(period), Some(left)) = (self.period.get_mut(n), self.left.get_mut(n))
+        {
+            *period = interval_ticks(message, interval);
+            *left = 0;
+        }
+    }
+
+    /// One tick: the messages due now, in [`PACED`] order.
+    fn tick(&mut self) -> [bool; PACED.len()] {
+        core::array::from_fn(|n| match (self.period.get(n).copied(), self.left.get_mut(n)) {
+            (Some(period), Some(left)) if period > 0 => {
+                let due = *left == 0;
+                *left = if due { period - 1 } else { *left - 1 };
+                due
+            }
+            _ => false,
+        })
+    }
+}
+
+/// Send telemetry to `tx`: HEARTBEAT (always 1 Hz), SYS_STATUS, BATTERY_STATUS and ESC_INFO at 1 Hz,
+/// ESC_TELEMETRY_1_TO_4 (and ESC_TELEMETRY_5_TO_8 when more than 4 thrusters are configured) and ESC_STATUS at
+/// 4 Hz, the first set at once; [`Outgoing::Interval`] changes a paced message's interval (the next one goes at
+/// once). ESC_INFO and ESC_STATUS go as one message per block of four configured thrusters. Every
+/// [`Shared::outbox`] message goes as soon as it is queued, a requested one ([`Outgoing::Message`]) built then.
+/// MAVLink 2 frames from `config`'s system and component, signed while a key is in force (`shared.settings`; a
+/// batch waits for the signing reservation to have room, never going out unsigned); the sequence number counts
+/// every frame. Write errors, and frames that could not be signed, are counted in `stats` as write errors and the
+/// frame is dropped. [`Outgoing::Reboot`] flushes the port and raises `shared.reboot`.
 ///
-/// SYS_STATUS's drop_rate_comm is the share of corrupt frames received during the last second (see
+/// SYS_STATUS's drop_rate_comm is the share of corrupt frames received since the last SYS_STATUS (see
 /// [`ConsoleCounters::corrupt`]).
 pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, shared: &Shared, stats: &ConsoleStats) -> ! {
     let mut out = Output {
@@ -394,35 +478,17 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
         len: 0,
         frames: 0,
     };
-    let thrusters = config.thruster_count();
-    let mut ticker = Ticker::every(TELEMETRY_PERIOD);
-    let mut tick: u8 = 0;
+    let mut schedule = Schedule::new();
+    let mut ticker = Ticker::every(TX_TICK);
     let mut last = stats.snapshot();
     loop {
         out.key = signing_room(shared, stats).await;
-        let reports: Reports = core::array::from_fn(|i| {
-            shared
-                .thrusters
-                .get(i)
-                .filter(|_| i < thrusters)
-                .and_then(|w| w.try_get())
-        });
-        if tick == 0 {
-            let battery = shared.battery.try_get();
-            let vehicle = shared.vehicle.try_get();
-            let now = stats.snapshot();
-            let link = link_quality(&last, &now, vehicle.map_or(0, |v| v.refused));
-            last = now;
-            out.push(&outbound::heartbeat(vehicle));
-            out.push(&outbound::sys_status(thrusters, &reports, battery.as_ref(), link));
-            out.push(&outbound::battery_status(battery.as_ref()));
-        }
-        out.push(&outbound::esc_telemetry_1_to_4(thrusters, &reports));
-        if thrusters > 4 {
-            out.push(&outbound::esc_telemetry_5_to_8(thrusters, &reports));
+        for (message, due) in PACED.into_iter().zip(schedule.tick()) {
+            if due {
+                out.send(message, config, shared, &mut last);
+            }
         }
         out.flush().await;
-        tick = (tick + 1) % SLOW_EVERY;
 
         while let Either::Second(message) = select(ticker.next(), shared.outbox.receive()).await {
             out.key = signing_room(shared, stats).await;
@@ -431,10 +497,13 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                 Outgoing::ParamValue {
                     id,
                     value,
+                    param_type,
                     index,
                     count,
-                } => out.push(&outbound::param_value(&id, value, index, count)),
+                } => out.push(&outbound::param_value(&id, value, param_type, index, count)),
                 Outgoing::Text(severity, text) => out.push(&outbound::statustext(severity, &text)),
+                Outgoing::Message(message) => out.send(message, config, shared, &mut last),
+                Outgoing::Interval(message, interval) => schedule.set(message, interval),
                 Outgoing::Reboot => {
                     out.flush().await;
                     // The acknowledgement must leave the port before the restart cuts it off.
@@ -447,8 +516,8 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
     }
 }
 
-/// Most frames one batch signs: the 1 Hz set and both ESC messages.
-const BATCH_FRAMES: u64 = 5;
+/// Most frames one batch signs: every paced message, ESC_INFO and ESC_STATUS twice (see [`BATCH`]).
+const BATCH_FRAMES: u64 = 9;
 /// Longest wait for a signing reservation to be stored before a batch goes (its frames beyond the reservation
 /// are dropped then): a write takes milliseconds, a page erase about 20 ms.
 const ROOM_WAIT: Duration = Duration::from_millis(50);
@@ -468,23 +537,24 @@ async fn signing_room(shared: &Shared, stats: &ConsoleStats) -> Option<SigningKe
 }
 
 /// Link quality between two snapshots of the counters; `refused` the vehicle's count of requests from other
-/// systems.
-fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters, refused: u32) -> LinkQuality {
+/// systems. The totals saturate in SYS_STATUS's 16-bit fields.
+pub(crate) fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters, refused: u32) -> LinkQuality {
     // A serial link carries far fewer than 400 000 frames a second: the product fits a u32 (no 64-bit division
     // code in the image).
     let corrupt = now.corrupt().wrapping_sub(before.corrupt()).min(400_000);
     let good = now.frames_in.wrapping_sub(before.frames_in).min(400_000);
     LinkQuality {
         drop_rate: (corrupt * 10_000).checked_div(corrupt + good).unwrap_or(0) as u16,
-        errors: now.corrupt() as u16,
-        refused_other_system: refused as u16,
-        refused_by_signing: now.refused_by_signing() as u16,
+        errors: outbound::saturate(now.corrupt()),
+        refused_other_system: outbound::saturate(refused),
+        refused_by_signing: outbound::saturate(now.refused_by_signing()),
     }
 }
 
-/// Room for the largest batch of frames written at once: the 1 Hz set and both ESC messages with full payloads
-/// take 254 bytes, and 5 signatures 65 more.
-const BATCH: usize = 320;
+/// Room for the largest batch of frames written at once: every paced message with full payloads (HEARTBEAT 21,
+/// SYS_STATUS 55, BATTERY_STATUS 66, two ESC_TELEMETRY 56 each, two ESC_INFO 58 each, two ESC_STATUS 69 each:
+/// 508 bytes) and their 9 signatures (117): 625 bytes.
+const BATCH: usize = 640;
 
 /// The writing half: frames messages into a batch and writes the batch in one go (one await point for all
 /// message types keeps the task small).
@@ -500,6 +570,57 @@ struct Output<'a, W> {
 }
 
 impl<W: Write> Output<'_, W> {
+    /// Frame one of the periodic (or requested) messages, built from the state now; `last` is the counters at the
+    /// last SYS_STATUS (its drop rate covers the time since).
+    fn send(&mut self, message: Message, config: &ConsoleConfig, shared: &Shared, last: &mut ConsoleCounters) {
+        let thrusters = config.thruster_count();
+        let reports: Reports = core::array::from_fn(|i| {
+            shared
+                .thrusters
+                .get(i)
+                .filter(|_| i < thrusters)
+                .and_then(|w| w.try_get())
+        });
+        let time_usec = embassy_time::Instant::now().as_micros();
+        // The blocks of four thrusters that have at least one configured.
+        let blocks = (0..MAX_THRUSTERS).step_by(4).filter(|first| *first < thrusters.max(1));
+        match message {
+            Message::Heartbeat => self.push(&outbound::heartbeat(shared.vehicle.try_get())),
+            Message::SysStatus => {
+                let vehicle = shared.vehicle.try_get();
+                let now = self.stats.snapshot();
+                let link = link_quality(last, &now, vehicle.map_or(0, |v| v.refused));
+                *last = now;
+                let battery = shared.battery.try_get();
+                self.push(&outbound::sys_status(
+                    thrusters,
+                    &reports,
+                    battery.as_ref(),
+                    vehicle,
+                    link,
+                ));
+            }
+            Message::BatteryStatus => self.push(&outbound::battery_status(shared.battery.try_get().as_ref())),
+            Message::AutopilotVersion => self.push(&outbound::autopilot_version(&config.uid)),
+            Message::EscTelemetry1To4 => self.push(&outbound::esc_telemetry_1_to_4(thrusters, &reports)),
+            Message::EscTelemetry5To8 if thrusters > 4 => {
+                self.push(&outbound::esc_telemetry_5_to_8(thrusters, &reports))
+            }
+            Message::EscTelemetry5To8 => {}
+            Message::EscInfo | Message::EscStatus if !ESC_DETAIL => {}
+            Message::EscInfo => {
+                for first in blocks {
+                    self.push(&outbound::esc_info(thrusters, &reports, first, time_usec));
+                }
+            }
+            Message::EscStatus => {
+                for first in blocks {
+                    self.push(&outbound::esc_status(thrusters, &reports, first, time_usec));
+                }
+            }
+        }
+    }
+
     /// Frame `message` into the batch, signed when a key is in force; a frame that does not fit is counted as a
     /// write error.
     fn push<D: MessageData>(&mut self, message: &D) {

@@ -16,7 +16,8 @@
 //! | `LBV_MTEST_MAX` | motor test throttle limit, % | 1-100 | 30 |
 //!
 //! Values are kept as integers in a parameter's own unit (the timeouts in tenths of a second) and go over MAVLink
-//! as floats in the displayed unit.
+//! as floats in the displayed unit, with their type ([`Param::param_type`]): the two timeouts REAL32, SYSID_MYGCS
+//! INT16, the others INT8, an integer's float holding its value (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST).
 
 use core::fmt;
 
@@ -48,6 +49,30 @@ pub enum PilotFailsafe {
     Neutral,
     /// Disarm.
     Disarm,
+}
+
+/// A parameter's MAVLink type (MAV_PARAM_TYPE). Integer parameters travel as MAVLink's float holding the
+/// integer's value (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST), as ArduPilot and ArduSub send them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ParamType {
+    /// MAV_PARAM_TYPE_INT8 (2).
+    Int8,
+    /// MAV_PARAM_TYPE_INT16 (4).
+    Int16,
+    /// MAV_PARAM_TYPE_REAL32 (9).
+    Real32,
+}
+
+impl ParamType {
+    /// The MAV_PARAM_TYPE value.
+    pub const fn mav(self) -> u8 {
+        match self {
+            Self::Int8 => 2,
+            Self::Int16 => 4,
+            Self::Real32 => 9,
+        }
+    }
 }
 
 /// The MAVLink parameters, in index order.
@@ -147,6 +172,32 @@ impl Param {
         }
     }
 
+    /// Its MAVLink type: the timeouts are seconds with a tenth (REAL32); the others are integers, of ArduPilot's
+    /// width for the ArduSub names (SYSID_MYGCS is AP_Int16, the failsafe enables AP_Int8) and the smallest that
+    /// holds the range for ours.
+    pub const fn param_type(self) -> ParamType {
+        match self {
+            Self::GcsTimeout | Self::PilotTimeout => ParamType::Real32,
+            Self::OperatorId => ParamType::Int16,
+            Self::GcsFailsafe
+            | Self::PilotFailsafe
+            | Self::Gain
+            | Self::PowerCap
+            | Self::Frame
+            | Self::MotorTestMax => ParamType::Int8,
+        }
+    }
+
+    /// Whether a PARAM_SET of MAV_PARAM_TYPE `param_type` may set it: its own type, or REAL32. With
+    /// PARAM_ENCODE_C_CAST the float holds the value whatever the type says, so a REAL32 set of an integer means
+    /// the same number; and it is what ArduPilot ground stations send (MAVProxy records a parameter's type only
+    /// for PX4 vehicles and otherwise sends REAL32; pymavlink's param_set_send defaults to it; ArduPilot itself
+    /// ignores the type). Any other type (an INT32 or UINT8 for an INT8, an integer for a REAL32) is not this
+    /// parameter's encoding and is refused.
+    pub const fn takes_type(self, param_type: u8) -> bool {
+        param_type == self.param_type().mav() || param_type == ParamType::Real32.mav()
+    }
+
     /// Changing it while armed would hand the vehicle to another station or remix the thrusters mid-dive.
     pub const fn only_disarmed(self) -> bool {
         matches!(self, Self::OperatorId | Self::Frame)
@@ -188,10 +239,17 @@ impl Param {
     }
 
     /// A MAVLink value in the parameter's own unit: the nearest integer (half away from zero), or `None` if it is
-    /// not a number. Values too large for an `i32` saturate and so stay out of range.
+    /// not a number, or if the parameter is an integer and the value is not a whole number (an integer sent as
+    /// raw bits, MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE, reads as a tiny denormal: 2 would become 0 and
+    /// turn a failsafe off). Values too large for an `i32` saturate and so stay out of range.
     pub fn from_float(self, value: f32) -> Option<i32> {
         let scaled = value * self.scale() as f32;
         if !scaled.is_finite() {
+            return None;
+        }
+        // A float this large is a whole number; below it the cast to i32 is exact.
+        let whole = scaled.abs() >= 8_388_608.0 || scaled as i32 as f32 == scaled;
+        if self.param_type() != ParamType::Real32 && !whole {
             return None;
         }
         let rounded = if scaled >= 0.0 { scaled + 0.5 } else { scaled - 0.5 };
@@ -420,13 +478,56 @@ mod tests {
     }
 
     #[test]
+    fn integer_parameters_take_only_whole_numbers() {
+        // FS_PILOT_INPUT = 2 sent as raw bits (PX4's bytewise encoding) is a denormal, not 0.
+        let bytewise = f32::from_bits(2);
+        assert_eq!(Param::PilotFailsafe.from_float(bytewise), None);
+        assert_eq!(Param::PilotFailsafe.from_float(2.0), Some(2));
+        assert_eq!(Param::Gain.from_float(79.5), None);
+        assert_eq!(Param::OperatorId.from_float(-0.0), Some(0));
+        assert_eq!(Param::OperatorId.from_float(3e9), Some(i32::MAX), "still saturates");
+        assert!(Param::PilotFailsafe.takes_type(2) && Param::PilotFailsafe.takes_type(9));
+        for other in [0, 1, 3, 4, 6, 10, 255] {
+            assert!(!Param::PilotFailsafe.takes_type(other), "{other}");
+        }
+        assert!(Param::OperatorId.takes_type(4) && !Param::OperatorId.takes_type(2));
+        assert!(Param::GcsTimeout.takes_type(9) && !Param::GcsTimeout.takes_type(2));
+        // Seconds with a tenth still round.
+        assert_eq!(Param::GcsTimeout.from_float(f32::from_bits(2)), Some(0));
+        let types = Param::ALL.map(Param::param_type);
+        assert_eq!(
+            types,
+            [
+                ParamType::Int8,
+                ParamType::Real32,
+                ParamType::Int8,
+                ParamType::Real32,
+                ParamType::Int16,
+                ParamType::Int8,
+                ParamType::Int8,
+                ParamType::Int8,
+                ParamType::Int8
+            ]
+        );
+        for param in Param::ALL {
+            let (min, max) = param.range();
+            let fits = match param.param_type() {
+                ParamType::Int8 => i32::from(i8::MIN) <= min && max <= i32::from(i8::MAX),
+                ParamType::Int16 => i32::from(i16::MIN) <= min && max <= i32::from(i16::MAX),
+                ParamType::Real32 => true,
+            };
+            assert!(fits, "{param:?}");
+        }
+    }
+
+    #[test]
     fn floats_in_the_displayed_unit() {
         let t = Param::GcsTimeout;
         assert_eq!(t.from_float(3.3), Some(33));
         assert_eq!(t.from_float(2.96), Some(30));
         assert_eq!(t.to_float(33), 3.3);
-        assert_eq!(Param::Gain.from_float(79.5), Some(80));
-        assert_eq!(Param::Gain.from_float(-79.5), Some(-80));
+        assert_eq!(Param::Gain.from_float(79.0), Some(79));
+        assert_eq!(Param::Gain.from_float(-80.0), Some(-80));
         assert_eq!(Param::Gain.from_float(f32::NAN), None);
         assert_eq!(Param::Gain.from_float(f32::INFINITY), None);
         assert_eq!(t.from_float(1e30), Some(i32::MAX), "saturates, so stays out of range");

@@ -10,7 +10,7 @@ use embassy_sync::watch::Watch;
 use embassy_time::Duration;
 use tmc_proto::{Order, Status};
 
-use crate::params::Settings;
+use crate::params::{ParamType, Settings};
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
 pub const MAX_THRUSTERS: usize = 8;
@@ -84,7 +84,7 @@ pub enum Command {
     Heartbeat,
     /// MANUAL_CONTROL.
     Manual(ManualInput),
-    /// COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM (400): arm (param1 = 1) or disarm (0).
+    /// MAV_CMD_COMPONENT_ARM_DISARM (400): arm (param1 = 1) or disarm (0).
     Arm(bool),
     /// COMMAND_LONG MAV_CMD_DO_MOTOR_TEST (209), as QGroundControl's motor test page sends it: thruster
     /// `motor` (1-based, param1), throttle in percent -100..=100 (param2 type MOTOR_TEST_THROTTLE_PERCENT,
@@ -106,7 +106,21 @@ pub enum Command {
         /// 10 us units since 2015-01-01.
         timestamp: u64,
     },
-    /// Any other COMMAND_LONG: answered MAV_RESULT_UNSUPPORTED.
+    /// MAV_CMD_REQUEST_MESSAGE (512) or MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (520): send one message now.
+    RequestMessage {
+        /// The MAV_CMD it came as (the COMMAND_ACK names it).
+        command: u16,
+        /// The message, `None` when the master does not send the one asked for.
+        message: Option<Message>,
+    },
+    /// MAV_CMD_SET_MESSAGE_INTERVAL (511): how often to send a periodic message.
+    MessageInterval {
+        /// The message, `None` when the master does not send the one asked for.
+        message: Option<Message>,
+        /// The interval, `None` when the value asked is not one (NaN, below -1).
+        interval: Option<Interval>,
+    },
+    /// Any other command (COMMAND_LONG or COMMAND_INT): answered MAV_RESULT_UNSUPPORTED.
     Unsupported {
         /// The MAV_CMD number.
         command: u16,
@@ -124,9 +138,53 @@ pub enum Command {
     ParamSet {
         /// The name.
         id: ParamId,
-        /// The new value.
+        /// The new value, as the message's float carries it.
         value: f32,
+        /// The MAV_PARAM_TYPE the sender says the value has.
+        param_type: u8,
     },
+}
+
+/// The messages the console sends that a ground station may ask for (MAV_CMD_REQUEST_MESSAGE) or pace
+/// (MAV_CMD_SET_MESSAGE_INTERVAL).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Message {
+    /// HEARTBEAT (0): always 1 Hz, as the heartbeat protocol asks.
+    Heartbeat,
+    /// SYS_STATUS (1).
+    SysStatus,
+    /// BATTERY_STATUS (147).
+    BatteryStatus,
+    /// AUTOPILOT_VERSION (148): only on request.
+    AutopilotVersion,
+    /// ESC_INFO (290), every block of four thrusters.
+    EscInfo,
+    /// ESC_STATUS (291), every block of four thrusters.
+    EscStatus,
+    /// ESC_TELEMETRY_1_TO_4 (11030).
+    EscTelemetry1To4,
+    /// ESC_TELEMETRY_5_TO_8 (11031), only with more than four thrusters.
+    EscTelemetry5To8,
+}
+
+impl Message {
+    /// Whether it is sent periodically at an interval a ground station may change.
+    pub const fn paced(self) -> bool {
+        !matches!(self, Self::Heartbeat | Self::AutopilotVersion)
+    }
+}
+
+/// A MAV_CMD_SET_MESSAGE_INTERVAL interval.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Interval {
+    /// 0: the message's default rate.
+    Default,
+    /// -1: not sent.
+    Off,
+    /// Every so many milliseconds (clamped to what the link carries, see [`crate::console`]).
+    Every(u32),
 }
 
 /// MAVLink MAV_RESULT values the master answers with.
@@ -177,8 +235,10 @@ pub enum Outgoing {
     ParamValue {
         /// The name.
         id: ParamId,
-        /// The value.
+        /// The value (an integer parameter's as its float, MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST).
         value: f32,
+        /// Its type.
+        param_type: ParamType,
         /// Its index.
         index: u16,
         /// How many parameters there are.
@@ -186,6 +246,10 @@ pub enum Outgoing {
     },
     /// STATUSTEXT.
     Text(Severity, Text),
+    /// One of the periodic messages (or AUTOPILOT_VERSION), now: the answer to a MAV_CMD_REQUEST_MESSAGE.
+    Message(Message),
+    /// Send a periodic message at this interval from now on.
+    Interval(Message, Interval),
     /// Restart the master once everything queued before this has been sent (the reboot's COMMAND_ACK).
     Reboot,
 }
@@ -278,6 +342,13 @@ pub struct VehicleState {
     pub console_alive: bool,
     /// Requests refused because they came from another system than the operator's (`SYSID_MYGCS`), wrapping.
     pub refused: u32,
+    /// An arm command from the operator would be accepted now ([`crate::vehicle::Vehicle::arm_check`]).
+    pub armable: bool,
+    /// A failsafe is in force: the ground-station failsafe has acted and its heartbeats have not returned, or the
+    /// pilot-input failsafe has acted and no MANUAL_CONTROL has come since.
+    pub failsafe: bool,
+    /// PARAM_SETs refused because their param_type was not the parameter's, wrapping.
+    pub param_type_mismatches: u32,
 }
 
 type Mutex = CriticalSectionRawMutex;

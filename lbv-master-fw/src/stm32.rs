@@ -19,7 +19,7 @@ use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::settings::ecc::{self, NmiAction, eccr};
 use lbv_master_fw::settings::{Reboot, Store};
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::{CONFIG, Ports};
+use lbv_master_fw::{CONFIG, MasterConfig, Ports};
 use static_cell::StaticCell;
 use {defmt_rtt as _, panic_probe as _};
 
@@ -130,15 +130,28 @@ async fn main(spawner: Spawner) {
     // The settings, in the flash pages the images leave free (`memory.x`).
     let settings = Store::g431(BlockingAsync::new(Flash::new_blocking(p.FLASH)));
 
-    spawner.spawn(unwrap!(master(Ports {
-        buses: [bus1, bus2, bus3],
-        can,
-        console_rx,
-        console_tx,
-        settings,
-        reboot: SystemReset,
-        work: WORK,
-    })));
+    // The build's configuration with the chip's 96-bit unique device id for AUTOPILOT_VERSION (RM0440 section
+    // 48.1: UID_BASE 0x1FFF_7590, the address stm32-metapac gives the G431's UID block), read here so that the core
+    // stays free of hardware. In a static (zeroed RAM): a copy inside the task would be moved with the task.
+    static MASTER_CONFIG: StaticCell<MasterConfig> = StaticCell::new();
+    let config = MASTER_CONFIG.init_with(|| {
+        let mut config = CONFIG;
+        config.console.uid = embassy_stm32::uid::uid();
+        config
+    });
+
+    spawner.spawn(unwrap!(master(
+        Ports {
+            buses: [bus1, bus2, bus3],
+            can,
+            console_rx,
+            console_tx,
+            settings,
+            reboot: SystemReset,
+            work: WORK,
+        },
+        config
+    )));
 }
 
 /// 170 MHz from the NUCLEO's 24 MHz crystal (`g431_hw::clock::PLL`); FDCAN on the crystal itself, which its bit
@@ -189,9 +202,9 @@ type MasterPorts =
 /// The whole node, on the thread-mode executor. Its channels live in the task (zeroed RAM, set up at start) rather
 /// than in a static, whose initial value would take 2.5 KiB of flash.
 #[embassy_executor::task]
-async fn master(ports: MasterPorts) -> ! {
+async fn master(ports: MasterPorts, config: &'static MasterConfig) -> ! {
     let shared = Shared::new();
-    lbv_master_fw::run(ports, &CONFIG, &shared, &CONSOLE_STATS).await
+    lbv_master_fw::run(ports, config, &shared, &CONSOLE_STATS).await
 }
 
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).

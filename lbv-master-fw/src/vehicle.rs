@@ -19,6 +19,8 @@
 //!   failsafes act.
 //! - Arming (MAV_CMD_COMPONENT_ARM_DISARM): arm is accepted with a live heartbeat unless a motor test runs; then
 //!   the test is stopped and the arm answered TEMPORARILY_REJECTED (arm again once the thruster has stopped).
+//!   The rule is [`Vehicle::arm_check`], which also gives SYS_STATUS's pre-arm check bit
+//!   ([`VehicleState::armable`]), so a ground station that waits for it can always arm.
 //!   Disarm is always accepted and stops a motor test too. Arming starts from neutral sticks.
 //! - MANUAL_CONTROL is applied only while armed (ignored while disarmed) and forgotten on disarm: the orders
 //!   are the mixer's output for the last input ([`crate::mixer`]), with `LBV_GAIN`.
@@ -35,8 +37,18 @@
 //! - Parameters ([`crate::params`]): PARAM_REQUEST_LIST answers every PARAM_VALUE in index order;
 //!   PARAM_REQUEST_READ the one asked (by index, or by name when the index is -1; unknown -> no answer);
 //!   PARAM_SET of a known name applies a valid value and answers PARAM_VALUE; an invalid one (out of range, not
-//!   a number, `LBV_FRAME` or `SYSID_MYGCS` while armed) is rejected with a Warning text and a PARAM_VALUE of the
-//!   unchanged value, as ArduPilot does. An unknown name gets no answer. What is set is kept across power cycles
+//!   a number, a fraction for an integer parameter, `LBV_FRAME` or `SYSID_MYGCS` while armed) is rejected with a
+//!   Warning text and a PARAM_VALUE of the unchanged value, as ArduPilot does. A PARAM_SET whose param_type is
+//!   neither the parameter's ([`Param::param_type`]) nor REAL32 ([`Param::takes_type`]: what MAVProxy sends) is
+//!   answered the same way and counted ([`VehicleState::param_type_mismatches`]): its value may be encoded
+//!   otherwise. An unknown name gets no answer.
+//! - MAV_CMD_REQUEST_MESSAGE / MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (anyone may ask: it reads): ACCEPTED, then
+//!   [`Outgoing::Message`]; a message the master does not send (HOME_POSITION: there is no home) DENIED, which
+//!   MAV_RESULT defines as "supported but has invalid parameters" (the command is supported, its message id is
+//!   not one the master has; UNSUPPORTED would tell a ground station the command itself is unknown).
+//! - MAV_CMD_SET_MESSAGE_INTERVAL (the operator only): a paced message ([`crate::shared::Message::paced`]) with a
+//!   valid interval is ACCEPTED, then [`Outgoing::Interval`]; HEARTBEAT (kept at 1 Hz), AUTOPILOT_VERSION, a
+//!   message the master does not send or an invalid interval: DENIED. What is set is kept across power cycles
 //!   ([`crate::settings`]).
 //! - SETUP_SIGNING (only while disarmed): sets the signing key, or turns signing off with an all-zero key.
 //! - Any other COMMAND_LONG: COMMAND_ACK UNSUPPORTED.
@@ -62,6 +74,8 @@ pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
 /// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
 pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
+/// MAV_CMD_SET_MESSAGE_INTERVAL.
+pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
 /// Longest motor test.
 pub const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);
 
@@ -119,6 +133,16 @@ struct MotorTest {
     until: Instant,
 }
 
+/// Why an arm command would be refused now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ArmRefusal {
+    /// A motor test runs (arming stops it).
+    MotorTest,
+    /// The operator's heartbeat has not been heard within `FS_GCS_TIMEOUT`.
+    NoHeartbeat,
+}
+
 /// Arming, failsafes, operator, motor test, settings -> orders. Pure state machine with explicit time.
 #[derive(Debug, Clone)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -135,6 +159,9 @@ pub struct Vehicle {
     input: ManualInput,
     motor_test: Option<MotorTest>,
     refused: u32,
+    /// The pilot-input failsafe has acted and no MANUAL_CONTROL has come since.
+    pilot_lost: bool,
+    param_type_mismatches: u32,
 }
 
 impl Vehicle {
@@ -150,6 +177,8 @@ impl Vehicle {
             input: NEUTRAL,
             motor_test: None,
             refused: 0,
+            pilot_lost: false,
+            param_type_mismatches: 0,
         }
     }
 
@@ -178,6 +207,13 @@ impl Vehicle {
                     self.param_value(param, out);
                 }
             }
+            Command::RequestMessage { command, message } => match message {
+                Some(message) => {
+                    ack(out, command, AckResult::Accepted, from);
+                    out(Outgoing::Message(message));
+                }
+                None => ack(out, command, AckResult::Denied, from),
+            },
             // Another ground station's heartbeat is no sign of the pilot.
             Command::Heartbeat if !operator => {}
             Command::Heartbeat => {
@@ -197,8 +233,16 @@ impl Vehicle {
                 if self.armed && !held {
                     self.input = input;
                     self.pilot_input = Some(now);
+                    self.pilot_lost = false;
                 }
             }
+            Command::MessageInterval { message, interval } => match (message, interval) {
+                (Some(message), Some(interval)) if message.paced() => {
+                    ack(out, MAV_CMD_SET_MESSAGE_INTERVAL, AckResult::Accepted, from);
+                    out(Outgoing::Interval(message, interval));
+                }
+                _ => ack(out, MAV_CMD_SET_MESSAGE_INTERVAL, AckResult::Denied, from),
+            },
             Command::Arm(true) => self.arm(now, from, out),
             Command::Arm(false) => {
                 ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted, from);
@@ -230,11 +274,19 @@ impl Vehicle {
                 }
             }
             Command::Unsupported { command } => ack(out, command, AckResult::Unsupported, from),
-            Command::ParamSet { id, value } => {
-                if let Some(param) = Param::from_id(&id) {
-                    self.param_set(param, value, out);
+            Command::ParamSet { id, value, param_type } => match Param::from_id(&id) {
+                Some(param) if !param.takes_type(param_type) => {
+                    self.param_type_mismatches = self.param_type_mismatches.wrapping_add(1);
+                    say(
+                        out,
+                        Severity::Warning,
+                        format_args!("{}: wrong param_type", param.name()),
+                    );
+                    self.param_value(param, out);
                 }
-            }
+                Some(param) => self.param_set(param, value, out),
+                None => {}
+            },
             Command::SetupSigning { key, timestamp } => self.setup_signing(key, timestamp, out),
         }
     }
@@ -268,6 +320,22 @@ impl Vehicle {
             armed: self.armed,
             console_alive: self.heartbeat_live(now),
             refused: self.refused,
+            armable: self.arm_check(now).is_ok(),
+            failsafe: self.gcs_lost || self.pilot_lost,
+            param_type_mismatches: self.param_type_mismatches,
+        }
+    }
+
+    /// Whether the operator's arm command would be accepted at `now`: the one rule for arming and for the
+    /// pre-arm check that SYS_STATUS reports. (Evaluated after [`Vehicle::orders`] at the same `now`, so the
+    /// failsafes and the end of a motor test have already acted.)
+    pub fn arm_check(&self, now: Instant) -> Result<(), ArmRefusal> {
+        if self.motor_test.is_some() {
+            Err(ArmRefusal::MotorTest)
+        } else if !self.heartbeat_live(now) {
+            Err(ArmRefusal::NoHeartbeat)
+        } else {
+            Ok(())
         }
     }
 
@@ -316,6 +384,7 @@ impl Vehicle {
             .is_some_and(|at| now.saturating_duration_since(at) >= params.pilot_timeout());
         if self.armed && pilot_silent {
             self.pilot_input = None;
+            self.pilot_lost = params.pilot_failsafe() != PilotFailsafe::Off;
             match params.pilot_failsafe() {
                 PilotFailsafe::Off => {}
                 PilotFailsafe::Neutral => {
@@ -345,30 +414,34 @@ impl Vehicle {
     }
 
     fn arm(&mut self, now: Instant, from: Sender, out: &mut impl FnMut(Outgoing)) {
-        if self.motor_test.is_some() {
-            ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
-            self.stop_motor_test(out);
-            say(
-                out,
-                Severity::Warning,
-                format_args!("Arm rejected: motor test was running"),
-            );
-            return;
-        }
-        if !self.heartbeat_live(now) {
-            ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
-            say(
-                out,
-                Severity::Warning,
-                format_args!("Arm rejected: no ground station heartbeat"),
-            );
-            return;
+        match self.arm_check(now) {
+            Err(ArmRefusal::MotorTest) => {
+                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
+                self.stop_motor_test(out);
+                say(
+                    out,
+                    Severity::Warning,
+                    format_args!("Arm rejected: motor test was running"),
+                );
+                return;
+            }
+            Err(ArmRefusal::NoHeartbeat) => {
+                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
+                say(
+                    out,
+                    Severity::Warning,
+                    format_args!("Arm rejected: no ground station heartbeat"),
+                );
+                return;
+            }
+            Ok(()) => {}
         }
         ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted, from);
         if !self.armed {
             self.armed = true;
             self.input = NEUTRAL;
             self.pilot_input = None;
+            self.pilot_lost = false;
             self.gcs_lost = false;
             say(out, Severity::Info, format_args!("Armed"));
         }
@@ -378,6 +451,7 @@ impl Vehicle {
         self.armed = false;
         self.input = NEUTRAL;
         self.pilot_input = None;
+        self.pilot_lost = false;
     }
 
     fn stop_motor_test(&mut self, out: &mut impl FnMut(Outgoing)) {
@@ -429,6 +503,7 @@ impl Vehicle {
         out(Outgoing::ParamValue {
             id: param.id(),
             value: param.to_float(self.settings.params.get(param)),
+            param_type: param.param_type(),
             index: param.index(),
             count: PARAM_COUNT as u16,
         });
@@ -479,7 +554,8 @@ fn command_long(command: &Command) -> Option<u16> {
         Command::Arm(_) => Some(MAV_CMD_COMPONENT_ARM_DISARM),
         Command::MotorTest { .. } => Some(MAV_CMD_DO_MOTOR_TEST),
         Command::Reboot => Some(MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN),
-        Command::Unsupported { command } => Some(*command),
+        Command::Unsupported { command } | Command::RequestMessage { command, .. } => Some(*command),
+        Command::MessageInterval { .. } => Some(MAV_CMD_SET_MESSAGE_INTERVAL),
         Command::Heartbeat
         | Command::Manual(_)
         | Command::ParamRequestList
@@ -549,7 +625,7 @@ mod tests {
     use super::*;
     use crate::battery::tests::elapse;
     use crate::params::Params;
-    use crate::shared::ParamId;
+    use crate::shared::{Interval, Message, ParamId};
     use embassy_futures::block_on;
 
     fn t(ms: u64) -> Instant {
@@ -652,13 +728,21 @@ mod tests {
         Outgoing::ParamValue {
             id: param.id(),
             value,
+            param_type: param.param_type(),
             index: param.index(),
             count: PARAM_COUNT as u16,
         }
     }
 
+    /// PARAM_SET with the parameter's own type (REAL32 for an unknown name), as a ground station sends it after
+    /// reading the parameters.
     fn set(name: &str, value: f32) -> Command {
-        Command::ParamSet { id: id(name), value }
+        let param_type = Param::from_id(&id(name)).map_or(9, |param| param.param_type().mav());
+        Command::ParamSet {
+            id: id(name),
+            value,
+            param_type,
+        }
     }
 
     const ARM: u16 = MAV_CMD_COMPONENT_ARM_DISARM;
@@ -686,6 +770,115 @@ mod tests {
             .collect()
     }
 
+    /// Whether the operator's arm would be accepted now, tried on a copy.
+    fn arm_accepted(vehicle: &Vehicle, ms: u64) -> bool {
+        let mut copy = vehicle.clone();
+        let mut said = vec![];
+        copy.on_request(
+            t(ms),
+            Request {
+                from: GCS,
+                command: Command::Arm(true),
+            },
+            &mut |o| said.push(o),
+        );
+        said.contains(&ack(ARM, AckResult::Accepted))
+    }
+
+    #[test]
+    fn the_prearm_check_is_exactly_the_arm_rule() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        let mut seen = (false, false);
+        let mut check = |bench: &mut Bench, ms: u64| {
+            bench.orders(ms);
+            let armable = bench.vehicle.state(t(ms)).armable;
+            assert_eq!(armable, arm_accepted(&bench.vehicle, ms), "at {ms} ms");
+            assert_eq!(armable, bench.vehicle.arm_check(t(ms)).is_ok());
+            if armable {
+                seen.0 = true;
+            } else {
+                seen.1 = true;
+            }
+        };
+        // No ground station; its heartbeat; a motor test; the test over; armed; silence (failsafe); back.
+        check(&mut bench, 0);
+        bench.command(10, Command::Heartbeat);
+        check(&mut bench, 10);
+        bench.command(20, motor_test(1, 20, 500));
+        check(&mut bench, 30);
+        check(&mut bench, 600);
+        bench.command(700, Command::Arm(true));
+        check(&mut bench, 710);
+        for ms in [5_000, 5_709, 5_710, 5_711, 9_000] {
+            check(&mut bench, ms);
+        }
+        bench.command(9_500, Command::Heartbeat);
+        check(&mut bench, 9_500);
+        assert_eq!(seen, (true, true));
+    }
+
+    #[test]
+    fn a_failsafe_in_force_shows_until_the_pilot_is_back() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.arm(0);
+        assert!(!bench.vehicle.state(t(0)).failsafe);
+        // Heartbeats on, sticks stop: the pilot-input failsafe (neutral) acts at 3 s, until the next sticks.
+        bench.command(100, manual(500, 0, 500, 0));
+        for ms in [1_000, 2_000, 3_000] {
+            bench.command(ms, Command::Heartbeat);
+        }
+        bench.orders(3_100);
+        assert!(bench.vehicle.state(t(3_100)).failsafe);
+        bench.command(3_200, manual(0, 0, 500, 0));
+        assert!(!bench.vehicle.state(t(3_200)).failsafe);
+        // The heartbeats stop: disarmed at 5 s after the last, and the failsafe shows until they return.
+        bench.orders(8_100);
+        let state = bench.vehicle.state(t(8_100));
+        assert!(state.failsafe && !state.armed && !state.armable);
+        bench.command(9_000, Command::Heartbeat);
+        let state = bench.vehicle.state(t(9_000));
+        assert!(!state.failsafe && state.armable);
+    }
+
+    #[test]
+    fn message_requests_and_intervals() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        let request = |message| Command::RequestMessage { command: 512, message };
+        // Anyone may ask for a message.
+        assert_eq!(
+            bench.command_from(0, OTHER, request(Some(Message::AutopilotVersion))),
+            [
+                ack_to(512, AckResult::Accepted, OTHER),
+                Outgoing::Message(Message::AutopilotVersion)
+            ]
+        );
+        assert_eq!(bench.command(0, request(None)), [ack(512, AckResult::Denied)]);
+        let interval = |message, interval| Command::MessageInterval { message, interval };
+        assert_eq!(
+            bench.command(0, interval(Some(Message::EscStatus), Some(Interval::Off))),
+            [
+                ack(511, AckResult::Accepted),
+                Outgoing::Interval(Message::EscStatus, Interval::Off)
+            ]
+        );
+        for (message, every) in [
+            (Some(Message::Heartbeat), Some(Interval::Every(200))),
+            (Some(Message::AutopilotVersion), Some(Interval::Every(1000))),
+            (None, Some(Interval::Default)),
+            (Some(Message::SysStatus), None),
+        ] {
+            assert_eq!(
+                bench.command(0, interval(message, every)),
+                [ack(511, AckResult::Denied)]
+            );
+        }
+        // Pacing the operator's link is the operator's.
+        assert_eq!(
+            bench.command_from(0, OTHER, interval(Some(Message::SysStatus), Some(Interval::Default))),
+            [ack_to(511, AckResult::Denied, OTHER)]
+        );
+    }
+
     #[test]
     fn starts_disarmed_with_no_ground_station() {
         let mut bench = Bench::new(VehicleConfig::default());
@@ -694,7 +887,10 @@ mod tests {
             VehicleState {
                 armed: false,
                 console_alive: false,
-                refused: 0
+                refused: 0,
+                armable: false,
+                failsafe: false,
+                param_type_mismatches: 0
             }
         );
         assert_eq!(bench.orders(0), (STOP, vec![]));
@@ -720,7 +916,10 @@ mod tests {
             VehicleState {
                 armed: true,
                 console_alive: true,
-                refused: 0
+                refused: 0,
+                armable: true,
+                failsafe: false,
+                param_type_mismatches: 0
             }
         );
         // Arming again is accepted and says nothing.
@@ -761,7 +960,10 @@ mod tests {
             VehicleState {
                 armed: false,
                 console_alive: false,
-                refused: 0
+                refused: 0,
+                armable: false,
+                failsafe: true,
+                param_type_mismatches: 0
             }
         );
         // Once.
@@ -1381,20 +1583,81 @@ mod tests {
     }
 
     #[test]
+    fn parameter_set_of_another_type_is_answered_unchanged_and_counted() {
+        let mut bench = Bench::new(VehicleConfig::default());
+        let typed = |name: &str, value: f32, param_type: u8| Command::ParamSet {
+            id: id(name),
+            value,
+            param_type,
+        };
+        // FS_PILOT_INPUT is INT8: an INT32, UINT8, INT16 or unknown-type set changes nothing.
+        for param_type in [6, 1, 4, 0] {
+            assert_eq!(
+                bench.command(0, typed("FS_PILOT_INPUT", 2.0, param_type)),
+                [
+                    text(Severity::Warning, "FS_PILOT_INPUT: wrong param_type"),
+                    value(Param::PilotFailsafe, 1.0)
+                ]
+            );
+        }
+        assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 4);
+        assert_eq!(bench.params().pilot_failsafe(), PilotFailsafe::Neutral);
+        // The right type is taken; SYSID_MYGCS is INT16, the timeouts REAL32.
+        assert_eq!(
+            bench.command(0, typed("FS_PILOT_INPUT", 2.0, 2)),
+            [value(Param::PilotFailsafe, 2.0)]
+        );
+        assert_eq!(bench.params().pilot_failsafe(), PilotFailsafe::Disarm);
+        // REAL32 too (MAVProxy's), the float holding the value.
+        assert_eq!(
+            bench.command(0, typed("FS_PILOT_INPUT", 0.0, 9)),
+            [value(Param::PilotFailsafe, 0.0)]
+        );
+        assert_eq!(
+            bench.command(0, typed("FS_GCS_TIMEOUT", 6.0, 2)).len(),
+            2,
+            "an integer type for a REAL32"
+        );
+        assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 5);
+        assert_eq!(
+            bench.command(0, typed("FS_GCS_TIMEOUT", 6.5, 9)),
+            [value(Param::GcsTimeout, 6.5)]
+        );
+        // (Last: the operator is someone else after it.)
+        assert_eq!(
+            bench.command(0, typed("SYSID_MYGCS", 254.0, 4)),
+            [value(Param::OperatorId, 254.0)]
+        );
+        assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 5);
+    }
+
+    #[test]
     fn parameter_set_in_and_out_of_range() {
         let mut bench = Bench::new(VehicleConfig::default());
         assert_eq!(bench.command(0, set("LBV_GAIN", 80.0)), [value(Param::Gain, 80.0)]);
         assert_eq!(bench.params().gain_percent(), 80);
-        // Rounded to the nearest integer.
-        assert_eq!(bench.command(0, set("LBV_GAIN", 79.6)), [value(Param::Gain, 80.0)]);
-        assert_eq!(bench.command(0, set("LBV_GAIN", 70.4)), [value(Param::Gain, 70.0)]);
-        // Out of range: the unchanged value, and a warning.
-        for bad in [0.0, 101.0, -5.0, 1e20, f32::NAN, f32::INFINITY] {
+        // A timeout (seconds with a tenth) is rounded to the tenth.
+        assert_eq!(
+            bench.command(0, set("FS_GCS_TIMEOUT", 4.96)),
+            [value(Param::GcsTimeout, 5.0)]
+        );
+        // Out of range, or not a whole number for an integer (2 as raw bits is a denormal): the unchanged value,
+        // and a warning.
+        for bad in [
+            0.0,
+            101.0,
+            -5.0,
+            1e20,
+            f32::NAN,
+            f32::INFINITY,
+            79.6,
+            f32::from_bits(80),
+        ] {
             assert_eq!(
                 bench.command(0, set("LBV_GAIN", bad)),
                 [
                     text(Severity::Warning, "LBV_GAIN: range 1..100"),
-                    value(Param::Gain, 70.0)
+                    value(Param::Gain, 80.0)
                 ],
                 "{bad}"
             );
@@ -1500,7 +1763,10 @@ mod tests {
                 Some(VehicleState {
                     armed: false,
                     console_alive: false,
-                    refused: 0
+                    refused: 0,
+                    armable: false,
+                    failsafe: false,
+                    param_type_mismatches: 0
                 })
             );
             assert_eq!(
@@ -1519,7 +1785,10 @@ mod tests {
                 Some(VehicleState {
                     armed: true,
                     console_alive: true,
-                    refused: 0
+                    refused: 0,
+                    armable: true,
+                    failsafe: false,
+                    param_type_mismatches: 0
                 })
             );
             let orders = shared.orders.try_get().unwrap();

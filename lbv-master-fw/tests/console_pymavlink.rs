@@ -14,8 +14,10 @@ use console_support::{clock, run_rx, run_tx};
 use embassy_time::Duration;
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
+use lbv_master_fw::params::ParamType;
 use lbv_master_fw::shared::{
-    AckResult, Command, ManualInput, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState,
+    AckResult, Command, Interval, ManualInput, Message, Outgoing, Sender, Severity, Shared, Text, ThrusterReport,
+    VehicleState,
 };
 use lbv_master_fw::thrusters::LinkHealth;
 use serde_json::Value;
@@ -131,6 +133,52 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             Some(Command::ParamSet {
                 id: param_id("THR_MAX"),
                 value: 0.75,
+                param_type: 9,
+            }),
+        ),
+        (
+            "param_set_int8",
+            Some(Command::ParamSet {
+                id: param_id("FS_PILOT_INPUT"),
+                value: 2.0,
+                param_type: 2,
+            }),
+        ),
+        ("arm_half", Some(Command::Unsupported { command: 400 })),
+        ("arm_int", Some(Command::Arm(true))),
+        (
+            "request_version",
+            Some(Command::RequestMessage {
+                command: 512,
+                message: Some(Message::AutopilotVersion),
+            }),
+        ),
+        (
+            "request_version_int",
+            Some(Command::RequestMessage {
+                command: 512,
+                message: Some(Message::AutopilotVersion),
+            }),
+        ),
+        (
+            "request_capabilities",
+            Some(Command::RequestMessage {
+                command: 520,
+                message: Some(Message::AutopilotVersion),
+            }),
+        ),
+        (
+            "request_home",
+            Some(Command::RequestMessage {
+                command: 512,
+                message: None,
+            }),
+        ),
+        (
+            "esc_status_off",
+            Some(Command::MessageInterval {
+                message: Some(Message::EscStatus),
+                interval: Some(Interval::Off),
             }),
         ),
         ("arm_v1", Some(Command::Arm(true))),
@@ -223,51 +271,71 @@ fn pymavlink_decodes_what_the_console_sends() {
     });
     let mut text = Text::new();
     text.push_str("LBV master ready").unwrap();
-    let bytes = run_tx(
-        &ConsoleConfig::DEFAULT,
-        &shared,
-        &stats,
-        Duration::from_millis(1100),
-        |elapsed| {
-            if elapsed == Duration::from_millis(100) {
-                shared
-                    .outbox
-                    .try_send(Outgoing::CommandAck {
-                        command: 209,
-                        result: AckResult::Denied,
-                        to: Sender {
-                            system: 255,
-                            component: 190,
-                        },
-                    })
-                    .unwrap();
-                shared.say(Severity::Critical, text.clone());
-                shared
-                    .outbox
-                    .try_send(Outgoing::ParamValue {
-                        id: param_id("SIXTEEN_CHARS_ID"),
-                        value: -2.5,
-                        index: 4,
-                        count: 9,
-                    })
-                    .unwrap();
-            }
-            if elapsed == Duration::from_millis(600) {
-                shared.vehicle.sender().send(VehicleState {
-                    armed: true,
-                    console_alive: true,
-                    refused: 0,
-                });
-            }
-        },
-    );
+    let config = ConsoleConfig {
+        uid: *b"0123456789AB",
+        ..ConsoleConfig::DEFAULT
+    };
+    let bytes = run_tx(&config, &shared, &stats, Duration::from_millis(1100), |elapsed| {
+        if elapsed == Duration::from_millis(100) {
+            shared
+                .outbox
+                .try_send(Outgoing::CommandAck {
+                    command: 209,
+                    result: AckResult::Denied,
+                    to: Sender {
+                        system: 255,
+                        component: 190,
+                    },
+                })
+                .unwrap();
+            shared.say(Severity::Critical, text.clone());
+            shared
+                .outbox
+                .try_send(Outgoing::ParamValue {
+                    id: param_id("SIXTEEN_CHARS_ID"),
+                    value: -2.5,
+                    param_type: ParamType::Real32,
+                    index: 4,
+                    count: 9,
+                })
+                .unwrap();
+            shared
+                .outbox
+                .try_send(Outgoing::ParamValue {
+                    id: param_id("SYSID_MYGCS"),
+                    value: 255.0,
+                    param_type: ParamType::Int16,
+                    index: 4,
+                    count: 9,
+                })
+                .unwrap();
+            shared
+                .outbox
+                .try_send(Outgoing::Message(Message::AutopilotVersion))
+                .unwrap();
+        }
+        if elapsed == Duration::from_millis(600) {
+            shared.vehicle.sender().send(VehicleState {
+                armed: true,
+                console_alive: true,
+                refused: 0,
+                armable: true,
+                failsafe: false,
+                param_type_mismatches: 0,
+            });
+        }
+    });
     let decoded: Vec<Value> = serde_json::from_str(&peer(&["decode"], &hex_encode(&bytes))).unwrap();
     assert!(
         of_type(&decoded, "BAD_DATA").is_empty(),
         "pymavlink rejected frames: {decoded:#?}"
     );
     assert_eq!(decoded.len() as u32, stats.snapshot().frames_out);
-    for (n, m) in decoded.iter().enumerate() {
+    // pymavlink's XML predates ESC_INFO and ESC_STATUS: it sees well-formed frames it cannot read.
+    for m in of_type(&decoded, "UNKNOWN") {
+        assert!([290, 291].contains(&m["_id"].as_u64().unwrap()), "{m}");
+    }
+    for (n, m) in decoded.iter().enumerate().filter(|(_, m)| m["_type"] != "UNKNOWN") {
         assert_eq!((m["_sys"].as_u64(), m["_comp"].as_u64()), (Some(1), Some(1)));
         assert_eq!(m["_seq"].as_u64(), Some(n as u64 % 256));
     }
@@ -347,7 +415,59 @@ fn pymavlink_decodes_what_the_console_sends() {
     assert_eq!(texts[0]["text"], "LBV master ready");
 
     let params = of_type(&decoded, "PARAM_VALUE");
-    assert_eq!(params.len(), 1);
+    assert_eq!(params.len(), 2);
+    assert_eq!(params[1]["param_id"], "SYSID_MYGCS");
+    assert_eq!(params[1]["param_value"], 255.0, "C_CAST: the float holds the integer");
+    assert_eq!(params[1]["param_type"], 4, "MAV_PARAM_TYPE_INT16");
+
+    let versions = of_type(&decoded, "AUTOPILOT_VERSION");
+    assert_eq!(versions.len(), 1);
+    let v = versions[0];
+    assert_eq!(
+        v["capabilities"], 0x2_2008,
+        "MAVLINK2 | COMMAND_INT | PARAM_ENCODE_C_CAST"
+    );
+    let version = v["flight_sw_version"].as_u64().unwrap();
+    let part = |s: &str| s.parse::<u64>().unwrap();
+    assert_eq!(
+        version >> 8,
+        part(env!("CARGO_PKG_VERSION_MAJOR")) << 16
+            | part(env!("CARGO_PKG_VERSION_MINOR")) << 8
+            | part(env!("CARGO_PKG_VERSION_PATCH"))
+    );
+    assert_eq!(
+        (&v["vendor_id"], &v["product_id"]),
+        (&Value::from(0x0483), &Value::from(0x0468))
+    );
+    let mut uid2: Vec<Value> = b"0123456789AB".iter().map(|&b| Value::from(b)).collect();
+    uid2.extend(std::iter::repeat_n(Value::from(0), 6));
+    assert_eq!(v["uid2"], Value::Array(uid2));
+    let word = |n: usize| {
+        u64::from(u32::from_le_bytes(
+            b"0123456789AB"[n * 4..n * 4 + 4].try_into().unwrap(),
+        ))
+    };
+    assert_eq!(v["uid"], word(0) | (word(1) ^ word(2)) << 32);
+    // The git revision as 8 ASCII hex digits (pymavlink shows uint8_t[8] as numbers), or zeros outside git.
+    let git: Vec<u8> = v["flight_custom_version"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b.as_u64().unwrap() as u8)
+        .collect();
+    assert!(git == [0; 8] || git.iter().all(u8::is_ascii_hexdigit), "{git:?}");
+    // SYS_STATUS's pre-arm check: present and enabled, healthy once the vehicle says it is armable (at 600 ms).
+    let prearm = 0x1000_0000u64;
+    let sys_all = of_type(&decoded, "SYS_STATUS");
+    for s in &sys_all {
+        assert_eq!(s["onboard_control_sensors_present"].as_u64().unwrap() & prearm, prearm);
+        assert_eq!(s["onboard_control_sensors_enabled"].as_u64().unwrap() & prearm, prearm);
+    }
+    let healthy: Vec<bool> = sys_all
+        .iter()
+        .map(|s| s["onboard_control_sensors_health"].as_u64().unwrap() & prearm != 0)
+        .collect();
+    assert_eq!(healthy, [false, true]);
     assert_eq!(params[0]["param_id"], "SIXTEEN_CHARS_ID");
     assert_eq!(params[0]["param_value"], -2.5);
     assert_eq!(params[0]["param_type"], 9, "MAV_PARAM_TYPE_REAL32");

@@ -153,6 +153,7 @@ fn inputs() -> Vec<(Vec<u8>, Option<Command>)> {
             Some(Command::ParamSet {
                 id: param_id("SIXTEEN_CHARS_ID"),
                 value: 0.75,
+                param_type: 9,
             }),
         ),
         // MAVLink 1 is accepted too.
@@ -215,6 +216,7 @@ fn another_system_id_is_honoured() {
         system_id: 7,
         component_id: 1,
         thrusters: 6,
+        ..ConsoleConfig::DEFAULT
     };
     let ours = v2(255, 190, 0, &command((7, 1), 400, [1.0, 0.0, 0.0, 0.0]));
     let default_target = v2(255, 190, 1, &command((1, 1), 400, [1.0, 0.0, 0.0, 0.0]));

@@ -130,7 +130,14 @@ fn after_setup_signing_only_signed_commands_pass_and_everything_sent_is_signed()
     // What the master sent, read by pymavlink with the key: the frames before the key are unsigned (pymavlink
     // refuses them), every frame after it signed, with timestamps pymavlink accepts.
     let decoded = peer(&["decode", &hex(&KEY)], &hex(&sent));
-    let decoded = decoded.as_array().unwrap();
+    // ESC_INFO and ESC_STATUS are newer than pymavlink's XML: it cannot check their signatures.
+    let decoded: Vec<Value> = decoded
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|m| m["_type"] != "UNKNOWN")
+        .cloned()
+        .collect();
     let first_signed = decoded.iter().position(|m| m["_type"] != "BAD_DATA").unwrap();
     assert!(
         first_signed <= 6,

@@ -9,6 +9,7 @@ use embassy_time::Duration;
 use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
+use lbv_master_fw::params::ParamType;
 use lbv_master_fw::shared::{AckResult, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState};
 use lbv_master_fw::thrusters::LinkHealth;
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
@@ -18,6 +19,8 @@ const SYS_STATUS: u32 = 1;
 const BATTERY_STATUS: u32 = 147;
 const ESC_1_TO_4: u32 = 11030;
 const ESC_5_TO_8: u32 = 11031;
+const ESC_INFO: u32 = 290;
+const ESC_STATUS: u32 = 291;
 
 fn count(frames: &[u32], id: u32) -> usize {
     frames.iter().filter(|&&i| i == id).count()
@@ -61,6 +64,10 @@ fn telemetry_periods_on_virtual_time() {
         }
         assert_eq!(count(&ids, ESC_1_TO_4), 41);
         assert_eq!(count(&ids, ESC_5_TO_8), if five_to_eight { 41 } else { 0 });
+        // One ESC_INFO (1 Hz) and ESC_STATUS (4 Hz) per block of four thrusters.
+        let blocks = if five_to_eight { 2 } else { 1 };
+        assert_eq!(count(&ids, ESC_INFO), 11 * blocks);
+        assert_eq!(count(&ids, ESC_STATUS), 41 * blocks);
         assert_eq!(ids.len(), frames.len());
         assert_eq!(stats.snapshot().frames_out as usize, frames.len());
         // The sequence counts every frame; system 1, component 1.
@@ -106,6 +113,7 @@ fn outbox_messages_go_out_at_once() {
                     .try_send(Outgoing::ParamValue {
                         id: *b"THR_MAX\0\0\0\0\0\0\0\0\0",
                         value: 0.5,
+                        param_type: ParamType::Real32,
                         index: 2,
                         count: 5,
                     })
@@ -116,9 +124,10 @@ fn outbox_messages_go_out_at_once() {
     );
     let frames = parse_all(&bytes);
     let messages: Vec<&MavMessage> = frames.iter().map(|(_, m)| m).collect();
-    // Telemetry at t = 0 (HEARTBEAT, SYS_STATUS, BATTERY_STATUS, two ESC), then the three queued messages.
-    assert_eq!(messages.len(), 8, "{messages:#?}");
-    match messages[5] {
+    // Telemetry at t = 0 (HEARTBEAT, SYS_STATUS, BATTERY_STATUS, two ESC_TELEMETRY, two ESC_INFO, two
+    // ESC_STATUS), then the three queued messages.
+    assert_eq!(messages.len(), 12, "{messages:#?}");
+    match messages[9] {
         MavMessage::COMMAND_ACK(ack) => {
             assert_eq!(
                 (ack.command, ack.result),
@@ -129,14 +138,14 @@ fn outbox_messages_go_out_at_once() {
         }
         other => panic!("expected COMMAND_ACK, got {other:?}"),
     }
-    match messages[6] {
+    match messages[10] {
         MavMessage::PARAM_VALUE(p) => {
             assert_eq!(&p.param_id[..8], b"THR_MAX\0");
             assert_eq!((p.param_value, p.param_index, p.param_count), (0.5, 2, 5));
         }
         other => panic!("expected PARAM_VALUE, got {other:?}"),
     }
-    match messages[7] {
+    match messages[11] {
         MavMessage::STATUSTEXT(t) => {
             assert_eq!(t.severity, MavSeverity::MAV_SEVERITY_WARNING);
             assert_eq!(&t.text[..18], b"thruster 3 offline");
@@ -177,6 +186,9 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
                     armed: true,
                     console_alive: true,
                     refused: 0,
+                    armable: true,
+                    failsafe: false,
+                    param_type_mismatches: 0,
                 });
             }
         },
@@ -326,8 +338,9 @@ fn write_errors_are_counted_and_the_task_carries_on() {
         },
     ));
     let counters = stats.snapshot();
-    // 0 and 1 s: 3 slow messages each; 0, 0.25, ..., 1 s: 2 ESC messages each.
-    assert_eq!((counters.frames_out, counters.write_errors), (0, 2 * 3 + 5 * 2));
+    // 0 and 1 s: 5 slow messages each (three, and ESC_INFO of two blocks); 0, 0.25, ..., 1 s: 4 fast ones each
+    // (ESC_TELEMETRY 1-4 and 5-8, ESC_STATUS of two blocks).
+    assert_eq!((counters.frames_out, counters.write_errors), (0, 2 * 5 + 5 * 4));
 }
 
 /// A serial port's transmit side that records what was written and, at each flush, how much had been written.

@@ -57,6 +57,14 @@ def emit():
         "param_read_name": g.param_request_read_encode(1, 1, b"THR_MAX", -1).pack(g),
         "param_read_index": g.param_request_read_encode(1, 0, b"", 3).pack(g),
         "param_set": g.param_set_encode(1, 1, b"THR_MAX", 0.75, mav2.MAV_PARAM_TYPE_REAL32).pack(g),
+        "param_set_int8": g.param_set_encode(1, 1, b"FS_PILOT_INPUT", 2, mav2.MAV_PARAM_TYPE_INT8).pack(g),
+        "arm_half": g.command_long_encode(1, 1, 400, 0, 0.5, 0, 0, 0, 0, 0, 0).pack(g),
+        "arm_int": g.command_int_encode(1, 1, 0, 400, 0, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
+        "request_version": g.command_long_encode(1, 1, 512, 0, 148, 0, 0, 0, 0, 0, 0).pack(g),
+        "request_version_int": g.command_int_encode(1, 1, 0, 512, 0, 0, 148, 0, 0, 0, 0, 0, 0).pack(g),
+        "request_capabilities": g.command_long_encode(1, 1, 520, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
+        "request_home": g.command_long_encode(1, 1, 512, 0, 242, 0, 0, 0, 0, 0, 0).pack(g),
+        "esc_status_off": g.command_long_encode(1, 1, 511, 0, 291, -1, 0, 0, 0, 0, 0).pack(g),
         "arm_v1": g1.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g1),
         "manual_v1": g1.manual_control_encode(1, -1000, 1000, 0, 1000, 0).pack(g1),
         # Not in the console's dialect.
@@ -126,6 +134,12 @@ def decode(key=None):
     for msg in parser.parse_buffer(data) or []:
         fields = {k: plain(v) for k, v in msg.to_dict().items() if k != "mavpackettype"}
         fields["_type"] = msg.get_type()
+        # A well-formed frame of a message this pymavlink does not know (ESC_INFO and ESC_STATUS are newer than
+        # its XML) is not a bad frame.
+        if msg.get_type().startswith("UNKNOWN_"):
+            fields = {"_type": "UNKNOWN", "_id": int(msg.get_type()[len("UNKNOWN_"):])}
+            out.append(fields)
+            continue
         fields["_sys"] = msg.get_srcSystem()
         fields["_comp"] = msg.get_srcComponent()
         fields["_seq"] = msg.get_seq()

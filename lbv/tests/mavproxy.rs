@@ -1,5 +1,6 @@
 //! The bench flown by MAVProxy, a real ground station, as a pilot flies (`tests/mavproxy_pilot.py`): MAVProxy
-//! connects to `lbv bench --udp`, downloads the parameters itself, sets one, arms, holds the vehicle armed for
+//! connects to `lbv bench --udp`, downloads the parameters itself (each with its type), asks the vehicle's
+//! AUTOPILOT_VERSION (`version`), sets one parameter, arms, holds the vehicle armed for
 //! 8 s on its own 1 Hz heartbeats, disarms, reboots the master (the bench restarts its core with its flash kept),
 //! finds the parameter still set, and runs a motor test; pymavlink watches what the vehicle sends. Runs in real
 //! time (about 35 s).
@@ -25,6 +26,7 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
         serde_json::json!([
             "connect",
             "params",
+            "version",
             "param_set",
             "arm",
             "hold",
@@ -36,6 +38,22 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
         "{summary}"
     );
     assert_eq!(summary["hold"]["all_armed"], true, "{summary}");
+    // MAVLINK2 | COMMAND_INT | PARAM_ENCODE_C_CAST; the crate version; the bench's unique id.
+    assert_eq!(summary["version"]["capabilities"], 0x2_2008, "{summary}");
+    let version = summary["version"]["flight_sw_version"].as_u64().unwrap_or(0);
+    let crate_version: Vec<u64> = env!("CARGO_PKG_VERSION")
+        .split('.')
+        .map(|n| n.parse().unwrap_or(0))
+        .collect();
+    assert_eq!(
+        version >> 8,
+        crate_version[0] << 16 | crate_version[1] << 8 | crate_version[2],
+        "{summary}"
+    );
+    assert_eq!(summary["version"]["uid2"], "LBV bench 01", "{summary}");
+    assert_eq!(summary["param_types"]["SYSID_MYGCS"], 4, "INT16: {summary}");
+    assert_eq!(summary["param_types"]["FS_PILOT_INPUT"], 2, "INT8: {summary}");
+    assert_eq!(summary["param_types"]["FS_GCS_TIMEOUT"], 9, "REAL32: {summary}");
     assert_eq!(summary["persisted"]["LBV_GAIN"], 80.0, "{summary}");
     assert!(summary["reboot"]["sequence_restarts"].as_u64() >= Some(1), "{summary}");
     println!("pilot: {summary}\nbench:\n{bench_output}");

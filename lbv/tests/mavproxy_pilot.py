@@ -9,7 +9,10 @@ its prompt would. MAVProxy forwards what the vehicle sends to OBSERVER_PORT, whe
 message for the detailed checks (it never sends). The steps:
 
     connect        MAVProxy sees the vehicle (HEARTBEAT of a submarine)
-    params         MAVProxy's own parameter download gets all 9
+    params         MAVProxy's own parameter download gets all 9, each with its type (the timeouts REAL32,
+                   SYSID_MYGCS INT16, the others INT8)
+    version        `version`: MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION is accepted and answered (MAVLink 2,
+                   COMMAND_INT and C_CAST parameters, no mission or FTP, the bench's unique id)
     param set      `param set LBV_GAIN 80`: the vehicle answers PARAM_VALUE 80
     arm            `arm throttle`: COMMAND_ACK accepted, HEARTBEAT armed
     hold           8 s armed with nothing from the pilot: every HEARTBEAT armed, no failsafe text (MAVProxy sends
@@ -44,6 +47,12 @@ except ImportError as error:
 VEHICLE = 1
 PARAMS = 9
 HOLD_S = 8.0
+# The parameters' MAVLink types as the vehicle declares them.
+REAL32_PARAMS = ("FS_GCS_TIMEOUT", "FS_PILOT_TIMEOUT")
+INT16_PARAMS = ("SYSID_MYGCS",)
+# AUTOPILOT_VERSION: MAVLINK2 | COMMAND_INT | PARAM_ENCODE_C_CAST, and the unique id `lbv bench` gives its master.
+CAPABILITIES = 0x2000 | 0x8 | 0x20000
+BENCH_UID = b"LBV bench 01"
 
 
 class Failed(Exception):
@@ -175,6 +184,43 @@ class Pilot:
     def params(self):
         self.wait(lambda: self.mavproxy.said(f"Received {PARAMS} parameters"), 30.0, "MAVProxy's parameter download")
         self.summary["params_at_s"] = self.elapsed()
+        types = {m.param_id: m.param_type for _, m in self.observer.since(0.0, "PARAM_VALUE")}
+        self.summary["param_types"] = types
+        for name, param_type in types.items():
+            if name in REAL32_PARAMS:
+                wanted = mav.MAV_PARAM_TYPE_REAL32
+            elif name in INT16_PARAMS:
+                wanted = mav.MAV_PARAM_TYPE_INT16
+            else:
+                wanted = mav.MAV_PARAM_TYPE_INT8
+            if param_type != wanted:
+                raise Failed(f"PARAM_VALUE {name}: type {param_type}, not {wanted}")
+        if len(types) != PARAMS:
+            raise Failed(f"the observer saw {len(types)} parameters, not {PARAMS}")
+
+    def version(self):
+        since = time.monotonic()
+        self.mavproxy.type("version")
+        self.wait(lambda: self.observer.since(since, "AUTOPILOT_VERSION"), 5.0, "AUTOPILOT_VERSION")
+        result = self.ack(mav.MAV_CMD_REQUEST_MESSAGE, since)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"REQUEST_MESSAGE AUTOPILOT_VERSION: COMMAND_ACK result {result}")
+        v = self.observer.since(since, "AUTOPILOT_VERSION")[-1][1]
+        uid2 = bytes(v.uid2)
+        self.summary["version"] = {
+            "capabilities": v.capabilities,
+            "flight_sw_version": v.flight_sw_version,
+            "git": bytes(v.flight_custom_version).decode("latin-1"),
+            "vendor_id": v.vendor_id,
+            "product_id": v.product_id,
+            "uid2": uid2[:12].decode("latin-1"),
+        }
+        if v.capabilities != CAPABILITIES:
+            raise Failed(f"capabilities {v.capabilities:#x}, not {CAPABILITIES:#x}")
+        if v.flight_sw_version == 0:
+            raise Failed("flight_sw_version is 0")
+        if uid2 != BENCH_UID + bytes(6):
+            raise Failed(f"uid2 {uid2!r}, not the bench's {BENCH_UID!r}")
 
     def param_set(self):
         since = time.monotonic()
@@ -286,7 +332,7 @@ class Pilot:
             "peak_rpm": max(m.rpm[0] for _, m in self.observer.since(since, "ESC_TELEMETRY_1_TO_4")),
         }
 
-    STEPS = ["connect", "params", "param_set", "arm", "hold", "disarm", "reboot", "persisted", "motortest"]
+    STEPS = ["connect", "params", "version", "param_set", "arm", "hold", "disarm", "reboot", "persisted", "motortest"]
 
     def fly(self):
         for step in self.STEPS:

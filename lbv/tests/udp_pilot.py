@@ -5,7 +5,10 @@
 
 Listens on 127.0.0.1:GCS_PORT like a ground station (the bench sends there) and answers to where the vehicle's
 datagrams come from, which must be 127.0.0.1:BENCH_PORT. Sends GCS heartbeats at 1 Hz throughout (the master
-arms only with them and disarms 5 s after they stop), then: vehicle HEARTBEAT (submarine), arm (COMMAND_ACK 0),
+arms only with them and disarms 5 s after they stop), then: vehicle HEARTBEAT (submarine), AUTOPILOT_VERSION by
+MAV_CMD_REQUEST_MESSAGE and by MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (COMMAND_ACK 0 first; MAVLink 2, COMMAND_INT and
+C_CAST parameters, the bench's unique id), FS_PILOT_INPUT read as INT8 and set as INT8 (taken) and as INT32
+(refused: the value unchanged), SYS_STATUS's pre-arm check healthy, arm (COMMAND_ACK 0),
 MANUAL_CONTROL x=700 z=500 at 10 Hz for 4 s with the SeaBotix thrusters (1 and 3) reporting rpm above 500 in
 ESC_TELEMETRY_1_TO_4, disarm (COMMAND_ACK 0), a HEARTBEAT without the armed flag. Prints a JSON summary on
 stdout; exit 0 when every step held, 1 with the reason on stderr when one did not (or time ran out), 3 when
@@ -28,6 +31,12 @@ except ImportError as error:
 VEHICLE_SYSTEM = 1
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
 ARM_DISARM = 400
+REQUEST_MESSAGE = 512
+REQUEST_AUTOPILOT_CAPABILITIES = 520
+# MAVLINK2 | COMMAND_INT | PARAM_ENCODE_C_CAST
+CAPABILITIES = 0x2000 | 0x8 | 0x20000
+PREARM_CHECK = 0x10000000
+BENCH_UID = b"LBV bench 01"
 AHEAD = dict(x=700, y=0, z=500, r=0)
 STICK_SECONDS = 4.0
 RPM_WANTED = 500
@@ -59,6 +68,10 @@ class Pilot:
         self.rpm = [0, 0, 0, 0]
         self.current_ca = [0, 0, 0, 0]
         self.rpm_max = [0, 0, 0, 0]
+        self.versions = []
+        self.params = []
+        self.prearm = []
+        self.texts = []
         self.summary = {}
 
     def elapsed(self):
@@ -94,6 +107,16 @@ class Pilot:
             self.armed = bool(msg.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
         elif kind == "COMMAND_ACK":
             self.acks.append((msg.command, msg.result))
+            self.versions.append(("ack", msg.command, msg.result))
+        elif kind == "AUTOPILOT_VERSION":
+            self.versions.append(("version", msg))
+        elif kind == "PARAM_VALUE":
+            self.params.append(msg)
+        elif kind == "SYS_STATUS":
+            present = msg.onboard_control_sensors_present & msg.onboard_control_sensors_enabled & PREARM_CHECK
+            self.prearm.append(bool(present) and bool(msg.onboard_control_sensors_health & PREARM_CHECK))
+        elif kind == "STATUSTEXT":
+            self.texts.append(msg.text)
         elif kind == "ESC_TELEMETRY_1_TO_4":
             self.rpm = list(msg.rpm)
             self.current_ca = list(msg.current)
@@ -122,6 +145,63 @@ class Pilot:
             raise Failed(f"{what}: COMMAND_ACK result {result}, not 0 (accepted)")
         return result
 
+    def autopilot_version(self, command, param1):
+        """Ask AUTOPILOT_VERSION with `command`; the COMMAND_ACK (accepted) comes first, then the message."""
+        seen = len(self.versions)
+        self.link.mav.command_long_send(VEHICLE_SYSTEM, 1, command, 0, param1, 0, 0, 0, 0, 0, 0)
+        self.pump(lambda: any(e[0] == "version" for e in self.versions[seen:]), 3.0, f"AUTOPILOT_VERSION ({command})")
+        events = self.versions[seen:]
+        first = next(i for i, e in enumerate(events) if e[0] == "version")
+        acks = [e for e in events[:first] if e[0] == "ack" and e[1] == command]
+        if not acks or acks[-1][2] != mav.MAV_RESULT_ACCEPTED:
+            raise Failed(f"AUTOPILOT_VERSION ({command}) without an accepted COMMAND_ACK before it: {events}")
+        v = events[first][1]
+        uid2 = bytes(v.uid2)
+        if v.capabilities != CAPABILITIES:
+            raise Failed(f"capabilities {v.capabilities:#x}, not {CAPABILITIES:#x}")
+        if uid2 != BENCH_UID + bytes(6):
+            raise Failed(f"uid2 {uid2!r}, not {BENCH_UID!r}")
+        return {
+            "capabilities": v.capabilities,
+            "flight_sw_version": v.flight_sw_version,
+            "git": bytes(v.flight_custom_version).decode("latin-1"),
+            "vendor_id": v.vendor_id,
+            "product_id": v.product_id,
+        }
+
+    def param(self, name, send, what):
+        seen = len(self.params)
+        send()
+        self.pump(lambda: any(p.param_id == name for p in self.params[seen:]), 3.0, what)
+        return next(p for p in self.params[seen:] if p.param_id == name)
+
+    def typed_parameter(self):
+        """FS_PILOT_INPUT (INT8): read, set as INT8, set as INT32 (refused), restored."""
+        name = "FS_PILOT_INPUT"
+        read = self.param(name, lambda: self.link.mav.param_request_read_send(VEHICLE_SYSTEM, 1, name.encode(), -1), "PARAM_VALUE read")
+        if read.param_type != mav.MAV_PARAM_TYPE_INT8:
+            raise Failed(f"{name}: type {read.param_type}, not INT8")
+        def set_as(value, param_type):
+            return self.param(
+                name,
+                lambda: self.link.mav.param_set_send(VEHICLE_SYSTEM, 1, name.encode(), value, param_type),
+                f"PARAM_VALUE after a set of type {param_type}",
+            )
+        taken = set_as(2, mav.MAV_PARAM_TYPE_INT8)
+        texts = len(self.texts)
+        refused = set_as(0, mav.MAV_PARAM_TYPE_INT32)
+        restored = set_as(read.param_value, mav.MAV_PARAM_TYPE_INT8)
+        result = {
+            "read": [read.param_value, read.param_type],
+            "set_int8": [taken.param_value, taken.param_type],
+            "set_int32": [refused.param_value, refused.param_type],
+            "restored": restored.param_value,
+            "texts": self.texts[texts:],
+        }
+        if taken.param_value != 2 or refused.param_value != 2:
+            raise Failed(f"{name}: {result}")
+        return result
+
     def fly(self):
         self.pump(lambda: self.heartbeats > 0, 10.0, "the vehicle's HEARTBEAT")
         s = self.summary
@@ -133,6 +213,13 @@ class Pilot:
         if addresses != [["127.0.0.1", self.bench_port]]:
             raise Failed(f"the vehicle sends from {addresses}, not 127.0.0.1:{self.bench_port}")
 
+        s["autopilot_version"] = self.autopilot_version(REQUEST_MESSAGE, 148)
+        self.autopilot_version(REQUEST_AUTOPILOT_CAPABILITIES, 1)
+        s["param_types"] = self.typed_parameter()
+
+        seen = len(self.prearm)
+        self.pump(lambda: any(self.prearm[seen:]), 5.0, "SYS_STATUS's pre-arm check healthy")
+        s["prearm_healthy"] = True
         self.link.mav.command_long_send(VEHICLE_SYSTEM, 1, ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
         s["arm_ack"] = self.wait_ack(ARM_DISARM, "arming")
         s["arm_at_s"] = self.elapsed()

@@ -8,11 +8,12 @@ use mavlink_core::error::ParserError;
 use super::ConsoleConfig;
 use super::frame::{Frame, Version};
 use super::lbv::{
-    BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_LONG_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA,
-    HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
-    PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, ESC_INFO_DATA,
+    ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA,
+    MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA,
+    STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
-use crate::shared::{Command, ManualInput};
+use crate::shared::{Command, Interval, ManualInput, Message};
 
 /// MAV_CMD_COMPONENT_ARM_DISARM.
 pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
@@ -20,6 +21,17 @@ pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
 /// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
 pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
+/// MAV_CMD_SET_MESSAGE_INTERVAL.
+pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
+/// MAV_CMD_REQUEST_MESSAGE.
+pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
+/// MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: the older way to ask for AUTOPILOT_VERSION.
+pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
+/// Shortest message interval taken, ms: every paced message at 10 Hz together takes some 5 kB/s, under half of
+/// what 115200 baud carries, leaving room for the ground station's own frames and the parameter list.
+pub const MIN_INTERVAL_MS: u32 = 100;
+/// Longest message interval taken, ms.
+pub const MAX_INTERVAL_MS: u32 = 60_000;
 /// Its param1 asking the autopilot to reboot (REBOOT_SHUTDOWN_ACTION_REBOOT).
 const REBOOT_AUTOPILOT: f32 = 1.0;
 /// MOTOR_TEST_THROTTLE_PERCENT, the only motor test throttle type supported.
@@ -28,7 +40,7 @@ const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 14] = [
+const MESSAGES: [(u32, u8); 18] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
@@ -36,11 +48,15 @@ const MESSAGES: [(u32, u8); 14] = [
     (PARAM_VALUE_DATA::ID, PARAM_VALUE_DATA::EXTRA_CRC),
     (PARAM_SET_DATA::ID, PARAM_SET_DATA::EXTRA_CRC),
     (MANUAL_CONTROL_DATA::ID, MANUAL_CONTROL_DATA::EXTRA_CRC),
+    (COMMAND_INT_DATA::ID, COMMAND_INT_DATA::EXTRA_CRC),
     (COMMAND_LONG_DATA::ID, COMMAND_LONG_DATA::EXTRA_CRC),
     (COMMAND_ACK_DATA::ID, COMMAND_ACK_DATA::EXTRA_CRC),
     (BATTERY_STATUS_DATA::ID, BATTERY_STATUS_DATA::EXTRA_CRC),
+    (AUTOPILOT_VERSION_DATA::ID, AUTOPILOT_VERSION_DATA::EXTRA_CRC),
     (STATUSTEXT_DATA::ID, STATUSTEXT_DATA::EXTRA_CRC),
     (SETUP_SIGNING_DATA::ID, SETUP_SIGNING_DATA::EXTRA_CRC),
+    (ESC_INFO_DATA::ID, ESC_INFO_DATA::EXTRA_CRC),
+    (ESC_STATUS_DATA::ID, ESC_STATUS_DATA::EXTRA_CRC),
     (ESC_TELEMETRY_1_TO_4_DATA::ID, ESC_TELEMETRY_1_TO_4_DATA::EXTRA_CRC),
     (ESC_TELEMETRY_5_TO_8_DATA::ID, ESC_TELEMETRY_5_TO_8_DATA::EXTRA_CRC),
 ];
@@ -60,15 +76,19 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 ///   computer, another vehicle, our own echo) do not prove that the pilot is there.
 /// - MANUAL_CONTROL to our system (or 0): [`Command::Manual`]; x, y, r clamped to -1000..=1000, z to 0..=1000
 ///   (ArduSub's 500-neutral heave); an axis sent as INT16_MAX ("invalid") reads as neutral.
-/// - COMMAND_LONG to our system and component (or 0): 400 gives [`Command::Arm`] (arm when param1 is exactly 1,
-///   disarm otherwise); 209 gives [`Command::MotorTest`] for throttle type MOTOR_TEST_THROTTLE_PERCENT (param1
+/// - COMMAND_LONG or COMMAND_INT (the same commands: none of them takes a position) to our system and component
+///   (or 0): 400 gives [`Command::Arm`] (arm when param1 is exactly 1, disarm when exactly 0, any other value
+///   [`Command::Unsupported`] as ArduPilot answers it: a half-received 0.5 or a NaN must not disarm a diving
+///   vehicle); 512 gives [`Command::RequestMessage`] of the message param1 names, 520 of AUTOPILOT_VERSION; 511
+///   gives [`Command::MessageInterval`] (param1 the message, param2 the interval: 0 default, -1 off, else µs
+///   clamped to [`MIN_INTERVAL_MS`]..=[`MAX_INTERVAL_MS`]); 209 gives [`Command::MotorTest`] for throttle type MOTOR_TEST_THROTTLE_PERCENT (param1
 ///   motor number, param3 percent clamped to -100..=100, param4 seconds clamped to 0..=10, NaN reads as 0), and
 ///   [`Command::Unsupported`] for the other throttle types; 246 with param1 exactly 1 (reboot the autopilot)
 ///   gives [`Command::Reboot`], other actions (shutdown, bootloader, none) [`Command::Unsupported`]; any other
 ///   command gives [`Command::Unsupported`]. The vehicle task answers every one with a COMMAND_ACK.
 /// - SETUP_SIGNING to our system and component (or 0): [`Command::SetupSigning`].
 /// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
-///   command; the value is taken as a float whatever param_type says.
+///   command; PARAM_SET carries its param_type, which the vehicle checks against the parameter's.
 pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Command>, ParserError> {
     let version = match frame.version {
         Version::V1 => mavlink_core::MavlinkVersion::V1,
@@ -89,7 +109,13 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Comman
         }
         COMMAND_LONG_DATA::ID => {
             let m = COMMAND_LONG_DATA::deser(version, payload)?;
-            for_us(m.target_system, m.target_component).then(|| command_long(&m))
+            for_us(m.target_system, m.target_component)
+                .then(|| command(m.command, [m.param1, m.param2, m.param3, m.param4], config))
+        }
+        COMMAND_INT_DATA::ID => {
+            let m = COMMAND_INT_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component)
+                .then(|| command(m.command, [m.param1, m.param2, m.param3, m.param4], config))
         }
         PARAM_REQUEST_LIST_DATA::ID => {
             let m = PARAM_REQUEST_LIST_DATA::deser(version, payload)?;
@@ -107,6 +133,7 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Comman
             for_us(m.target_system, m.target_component).then_some(Command::ParamSet {
                 id: *m.param_id,
                 value: m.param_value,
+                param_type: m.param_type as u8,
             })
         }
         SETUP_SIGNING_DATA::ID => {
@@ -132,25 +159,76 @@ fn manual_input(m: &MANUAL_CONTROL_DATA) -> ManualInput {
     }
 }
 
-/// The command a COMMAND_LONG asks for.
-fn command_long(m: &COMMAND_LONG_DATA) -> Command {
-    match m.command {
-        MAV_CMD_COMPONENT_ARM_DISARM => Command::Arm(m.param1 == 1.0),
-        MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN if m.param1 == REBOOT_AUTOPILOT => Command::Reboot,
-        MAV_CMD_DO_MOTOR_TEST if m.param2 == MOTOR_TEST_THROTTLE_PERCENT => {
+/// The message a MAV_CMD_REQUEST_MESSAGE or MAV_CMD_SET_MESSAGE_INTERVAL names in a float, if the master sends
+/// it: ESC_TELEMETRY_5_TO_8 only with more than four thrusters.
+pub fn message(id: f32, config: &ConsoleConfig) -> Option<Message> {
+    // Only a whole number names a message (the cast saturates: NaN reads 0, so check it comes back the same).
+    let whole = id as u32;
+    if whole as f32 != id {
+        return None;
+    }
+    Some(match whole {
+        HEARTBEAT_DATA::ID => Message::Heartbeat,
+        SYS_STATUS_DATA::ID => Message::SysStatus,
+        BATTERY_STATUS_DATA::ID => Message::BatteryStatus,
+        AUTOPILOT_VERSION_DATA::ID => Message::AutopilotVersion,
+        ESC_INFO_DATA::ID if super::ESC_DETAIL => Message::EscInfo,
+        ESC_STATUS_DATA::ID if super::ESC_DETAIL => Message::EscStatus,
+        ESC_TELEMETRY_1_TO_4_DATA::ID => Message::EscTelemetry1To4,
+        ESC_TELEMETRY_5_TO_8_DATA::ID if config.thruster_count() > 4 => Message::EscTelemetry5To8,
+        _ => return None,
+    })
+}
+
+/// A MAV_CMD_SET_MESSAGE_INTERVAL interval in µs: 0 the default, -1 off, a positive value clamped to
+/// [`MIN_INTERVAL_MS`]..=[`MAX_INTERVAL_MS`] (rounded to the ms); `None` for anything else (NaN, below -1).
+pub fn interval(us: f32) -> Option<Interval> {
+    if us == 0.0 {
+        Some(Interval::Default)
+    } else if us == -1.0 {
+        Some(Interval::Off)
+    } else if us > 0.0 {
+        let ms = (us / 1000.0 + 0.5) as u32;
+        Some(Interval::Every(ms.clamp(MIN_INTERVAL_MS, MAX_INTERVAL_MS)))
+    } else {
+        None
+    }
+}
+
+/// The command a COMMAND_LONG or COMMAND_INT asks for, from its number and first four parameters.
+fn command(command: u16, [param1, param2, param3, param4]: [f32; 4], config: &ConsoleConfig) -> Command {
+    match command {
+        // ArduPilot (GCS_MAVLINK::handle_command_component_arm_disarm) arms on exactly 1, disarms on exactly 0
+        // and answers MAV_RESULT_UNSUPPORTED for anything else.
+        MAV_CMD_COMPONENT_ARM_DISARM if param1 == 1.0 => Command::Arm(true),
+        MAV_CMD_COMPONENT_ARM_DISARM if param1 == 0.0 => Command::Arm(false),
+        MAV_CMD_REQUEST_MESSAGE => Command::RequestMessage {
+            command,
+            message: message(param1, config),
+        },
+        MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Command::RequestMessage {
+            command,
+            message: Some(Message::AutopilotVersion),
+        },
+        MAV_CMD_SET_MESSAGE_INTERVAL => Command::MessageInterval {
+            message: message(param1, config),
+            interval: interval(param2),
+        },
+        MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN if param1 == REBOOT_AUTOPILOT => Command::Reboot,
+        MAV_CMD_DO_MOTOR_TEST if param2 == MOTOR_TEST_THROTTLE_PERCENT => {
             // Float to integer casts saturate and read NaN as 0; `max`/`min` would turn NaN into the bound.
-            let percent = if m.param3.is_nan() {
+            let percent = if param3.is_nan() {
                 0
             } else {
-                m.param3.clamp(-100.0, 100.0) as i8
+                param3.clamp(-100.0, 100.0) as i8
             };
-            let seconds = if m.param4.is_nan() {
+            let seconds = if param4.is_nan() {
                 0.0
             } else {
-                m.param4.clamp(0.0, MOTOR_TEST_MAX_SECONDS)
+                param4.clamp(0.0, MOTOR_TEST_MAX_SECONDS)
             };
             Command::MotorTest {
-                motor: m.param1 as u8,
+                motor: param1 as u8,
                 percent,
                 duration: Duration::from_millis(u64::from((seconds * 1000.0) as u32)),
             }
@@ -219,6 +297,10 @@ mod tests {
             (147, 154),
             (253, 83),
             (256, 71),
+            (75, 158),
+            (148, 178),
+            (290, 251),
+            (291, 10),
             (11030, 144),
             (11031, 133),
         ] {
@@ -274,12 +356,106 @@ mod tests {
         assert_eq!(decode_long(&long(400, [1.0, 0.0, 0.0, 0.0])), Some(Command::Arm(true)));
         assert_eq!(decode_long(&long(400, [0.0, 0.0, 0.0, 0.0])), Some(Command::Arm(false)));
         assert_eq!(
-            decode_long(&long(400, [f32::NAN, 0.0, 0.0, 0.0])),
+            decode_long(&long(400, [-0.0, 0.0, 0.0, 0.0])),
             Some(Command::Arm(false))
         );
+        // Neither arm nor disarm: UNSUPPORTED, as ArduPilot answers; never a disarm.
+        for param1 in [0.5, 2.0, -1.0, f32::NAN, f32::INFINITY, 1.0 + f32::EPSILON] {
+            assert_eq!(
+                decode_long(&long(400, [param1, 0.0, 0.0, 0.0])),
+                Some(Command::Unsupported { command: 400 }),
+                "{param1}"
+            );
+        }
         assert_eq!(
-            decode_long(&long(520, [0.0; 4])),
-            Some(Command::Unsupported { command: 520 })
+            decode_long(&long(31010, [0.0; 4])),
+            Some(Command::Unsupported { command: 31010 })
+        );
+    }
+
+    #[test]
+    fn command_int_carries_the_same_commands() {
+        let int = |command: u16, params: [f32; 4]| {
+            let m = COMMAND_INT_DATA {
+                target_system: 1,
+                target_component: 0,
+                frame: 2,
+                command,
+                current: 0,
+                autocontinue: 0,
+                param1: params[0],
+                param2: params[1],
+                param3: params[2],
+                param4: params[3],
+                x: 7,
+                y: 8,
+                z: 9.0,
+            };
+            let payload = encode(&m);
+            decode(&frame(COMMAND_INT_DATA::ID, &payload), &ConsoleConfig::DEFAULT).unwrap()
+        };
+        for (command, params) in [
+            (400, [1.0, 0.0, 0.0, 0.0]),
+            (400, [0.5, 0.0, 0.0, 0.0]),
+            (246, [1.0, 0.0, 0.0, 0.0]),
+            (209, [2.0, 0.0, 20.0, 1.0]),
+            (512, [148.0, 0.0, 0.0, 0.0]),
+            (511, [1.0, 200_000.0, 0.0, 0.0]),
+            (520, [1.0, 0.0, 0.0, 0.0]),
+            (16, [0.0; 4]),
+        ] {
+            assert_eq!(int(command, params), decode_long(&long(command, params)), "{command}");
+            assert!(int(command, params).is_some());
+        }
+        assert_eq!(int(16, [0.0; 4]), Some(Command::Unsupported { command: 16 }));
+    }
+
+    #[test]
+    fn requested_messages_and_intervals() {
+        let request = |id: f32| decode_long(&long(512, [id, 0.0, 0.0, 0.0]));
+        let asked = |message| Some(Command::RequestMessage { command: 512, message });
+        assert_eq!(request(148.0), asked(Some(Message::AutopilotVersion)));
+        assert_eq!(request(0.0), asked(Some(Message::Heartbeat)));
+        assert_eq!(request(1.0), asked(Some(Message::SysStatus)));
+        assert_eq!(request(147.0), asked(Some(Message::BatteryStatus)));
+        assert_eq!(request(290.0), asked(Some(Message::EscInfo)));
+        assert_eq!(request(291.0), asked(Some(Message::EscStatus)));
+        assert_eq!(request(11030.0), asked(Some(Message::EscTelemetry1To4)));
+        assert_eq!(request(11031.0), asked(Some(Message::EscTelemetry5To8)));
+        // HOME_POSITION: there is no home; not whole numbers, NaN, negative: no message.
+        for id in [242.0, 148.5, f32::NAN, -1.0, 1e12] {
+            assert_eq!(request(id), asked(None), "{id}");
+        }
+        assert_eq!(
+            decode_long(&long(520, [1.0, 0.0, 0.0, 0.0])),
+            Some(Command::RequestMessage {
+                command: 520,
+                message: Some(Message::AutopilotVersion)
+            })
+        );
+        // Four thrusters: no ESC_TELEMETRY_5_TO_8.
+        let four = ConsoleConfig {
+            thrusters: 4,
+            ..ConsoleConfig::DEFAULT
+        };
+        assert_eq!(message(11031.0, &four), None);
+        assert_eq!(message(11030.0, &four), Some(Message::EscTelemetry1To4));
+
+        assert_eq!(interval(0.0), Some(Interval::Default));
+        assert_eq!(interval(-1.0), Some(Interval::Off));
+        assert_eq!(interval(250_000.0), Some(Interval::Every(250)));
+        assert_eq!(interval(1.0), Some(Interval::Every(MIN_INTERVAL_MS)));
+        assert_eq!(interval(1e12), Some(Interval::Every(MAX_INTERVAL_MS)));
+        assert_eq!(interval(f32::INFINITY), Some(Interval::Every(MAX_INTERVAL_MS)));
+        for bad in [f32::NAN, -2.0, -0.5, f32::NEG_INFINITY] {
+            assert_eq!(interval(bad), None, "{bad}");
+        }
+        assert_eq!(
+            decode_long(&long(511, [291.0, -1.0, 0.0, 0.0])),
+            Some(Command::MessageInterval {
+                message: Some(Message::EscStatus),
+                interval: Some(Interval::Off)
+            })
         );
     }
 

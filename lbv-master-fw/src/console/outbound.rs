@@ -3,19 +3,69 @@
 //! Every field of every message is set here on purpose: the generated `Default` of a bit-flag field is its first
 //! flag, not empty (a default HEARTBEAT would claim to be armed).
 
-use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
+use mavlink_core::MessageData;
 use tmc_proto::{MaxPower, MotorKind, Status};
 
 use super::lbv::{
-    BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, HEARTBEAT_DATA,
+    AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA, ESC_STATUS_DATA,
+    ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags, HEARTBEAT_DATA,
     MavAutopilot, MavBatteryChargeState, MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType,
-    MavModeFlag, MavParamType, MavResult, MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended,
-    MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    MavModeFlag, MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
+    MavSysStatusSensorExtended, MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::battery::BatterySummary;
+use crate::params::ParamType;
 use crate::shared::{AckResult, MAX_THRUSTERS, ParamId, Sender, Severity, Text, ThrusterReport, VehicleState};
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
+
+include!(concat!(env!("OUT_DIR"), "/build_info.rs"));
+
+/// AUTOPILOT_VERSION.vendor_id: 0x0483, STMicroelectronics' USB vendor id (the G431's maker; the console's ST-LINK
+/// virtual COM port enumerates under it). The board has no USB id of its own.
+pub const VENDOR_ID: u16 = 0x0483;
+/// AUTOPILOT_VERSION.product_id: 0x0468, the STM32G431's device id (DBGMCU_IDCODE.DEV_ID, RM0440 section 47.6.1).
+pub const PRODUCT_ID: u16 = 0x0468;
+
+/// What the master can do, as AUTOPILOT_VERSION announces it: MAVLink 2, COMMAND_INT (the same commands as
+/// COMMAND_LONG), and integer parameters carried as the float of their value (PARAM_ENCODE_C_CAST, what ArduPilot
+/// and ArduSub announce and do). No mission, fence, rally or FTP bits: there are none, so a ground station does
+/// not ask for them.
+pub const CAPABILITIES: MavProtocolCapability = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
+    .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST);
+
+/// AUTOPILOT_VERSION: the crate version ([`FLIGHT_SW_VERSION`]) and git revision ([`GIT_REVISION`]) the image was
+/// built from, [`CAPABILITIES`], [`VENDOR_ID`] / [`PRODUCT_ID`], and the chip's 96-bit unique id `uid`: whole in
+/// uid2 (its first 12 bytes, the rest 0), folded into uid (the X/Y word, and the wafer/lot words XORed above it).
+/// No middleware, OS or board version (0).
+pub fn autopilot_version(uid: &[u8; 12]) -> AUTOPILOT_VERSION_DATA {
+    let word = |n: usize| {
+        let mut bytes = [0u8; 4];
+        if let Some(src) = uid.get(n * 4..n * 4 + 4) {
+            bytes.copy_from_slice(src);
+        }
+        u32::from_le_bytes(bytes)
+    };
+    let mut uid2 = [0u8; 18];
+    for (dst, src) in uid2.iter_mut().zip(uid) {
+        *dst = *src;
+    }
+    AUTOPILOT_VERSION_DATA {
+        capabilities: CAPABILITIES,
+        uid: u64::from(word(0)) | u64::from(word(1) ^ word(2)) << 32,
+        flight_sw_version: FLIGHT_SW_VERSION,
+        middleware_sw_version: 0,
+        os_sw_version: 0,
+        board_version: 0,
+        vendor_id: VENDOR_ID,
+        product_id: PRODUCT_ID,
+        flight_custom_version: GIT_REVISION,
+        middleware_custom_version: [0; 8],
+        os_custom_version: [0; 8],
+        uid2,
+    }
+}
 
 /// ArduSub's MANUAL flight mode, reported as HEARTBEAT.custom_mode.
 pub const ARDUSUB_MODE_MANUAL: u32 = 19;
@@ -52,11 +102,11 @@ pub fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
 pub struct LinkQuality {
     /// Corrupt frames as a share of all frames received, in 0.01 % (0..=10000).
     pub drop_rate: u16,
-    /// Corrupt frames since start (wrapping).
+    /// Corrupt frames since start (saturating: a flood must not wrap it back to a small number).
     pub errors: u16,
-    /// Requests refused since start because they came from another system than the operator's (wrapping).
+    /// Requests refused since start because they came from another system than the operator's (saturating).
     pub refused_other_system: u16,
-    /// Frames refused since start by the signing checks (wrapping).
+    /// Frames refused since start by the signing checks (saturating).
     pub refused_by_signing: u16,
 }
 
@@ -90,8 +140,12 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 ///
 /// - Sensors: MOTOR_OUTPUTS (present and enabled when thrusters are configured, healthy when every configured
 ///   thruster is online), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
-///   enabled always, healthy with a fresh reading and no BMS alarm nor DCDC fault) and, in the extended bits,
-///   LEAK (healthy when no thruster reports its water sensor).
+///   enabled always, healthy with a fresh reading and no BMS alarm nor DCDC fault), RC_RECEIVER (the pilot's
+///   control link, the ground station's heartbeats and MANUAL_CONTROL: present and enabled always, unhealthy
+///   while a failsafe is in force, [`VehicleState::failsafe`]), PREARM_CHECK (present and enabled always, healthy
+///   exactly when an arm command would be accepted, [`VehicleState::armable`]) and, in the extended bits, LEAK
+///   (healthy when no thruster reports its water sensor). Before the vehicle task has said anything, RC_RECEIVER
+///   and PREARM_CHECK are unhealthy.
 /// - voltage_battery mV, current_battery cA, battery_remaining %: from a fresh battery reading, else the
 ///   "unknown" values UINT16_MAX, -1, -1.
 /// - drop_rate_comm, errors_comm: the console link ([`LinkQuality`]).
@@ -99,11 +153,12 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 ///   configured thrusters; errors_count2: battery CAN frames that did not decode; errors_count3: console
 ///   requests refused because they came from another system than the operator's; errors_count4: console frames
 ///   refused by the signing checks.
-/// - load: 0 (not measured).
+/// - load: 0 (not measured). Every counter saturates at UINT16_MAX rather than wrap.
 pub fn sys_status(
     thrusters: usize,
     reports: &Reports,
     battery: Option<&BatterySummary>,
+    vehicle: Option<VehicleState>,
     link: LinkQuality,
 ) -> SYS_STATUS_DATA {
     let configured = reports.iter().take(thrusters);
@@ -120,7 +175,10 @@ pub fn sys_status(
     } else {
         MavSysStatusSensor::empty()
     };
-    let present = motors | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
+    let present = motors
+        | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY
+        | MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_RC_RECEIVER
+        | MavSysStatusSensor::MAV_SYS_STATUS_PREARM_CHECK;
     // No geofence exists, so none is breached: reported healthy as ArduPilot does. Ground stations that take the
     // bit's absence for a breach (MAVProxy says "fence breach" at connect) stay quiet.
     let mut health = present | MavSysStatusSensor::MAV_SYS_STATUS_GEOFENCE;
@@ -128,6 +186,14 @@ pub fn sys_status(
     health.set(
         MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_PROPULSION,
         faults.difference(Faults::WATER).is_empty(),
+    );
+    health.set(
+        MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_RC_RECEIVER,
+        vehicle.is_some_and(|v| !v.failsafe),
+    );
+    health.set(
+        MavSysStatusSensor::MAV_SYS_STATUS_PREARM_CHECK,
+        vehicle.is_some_and(|v| v.armable),
     );
     let fresh = fresh(battery);
     health.set(
@@ -161,14 +227,19 @@ pub fn sys_status(
         battery_remaining: info.map_or(-1, |i| i.charge_percent.min(100) as i8),
         drop_rate_comm: link.drop_rate,
         errors_comm: link.errors,
-        errors_count1: errors as u16,
-        errors_count2: battery.map_or(0, |b| b.errors as u16),
+        errors_count1: saturate(errors),
+        errors_count2: battery.map_or(0, |b| saturate(b.errors)),
         errors_count3: link.refused_other_system,
         errors_count4: link.refused_by_signing,
         onboard_control_sensors_present_extended: leak,
         onboard_control_sensors_enabled_extended: leak,
         onboard_control_sensors_health_extended: leak_health,
     }
+}
+
+/// A 32-bit counter in a 16-bit field: UINT16_MAX once it no longer fits.
+pub fn saturate(count: u32) -> u16 {
+    u16::try_from(count).unwrap_or(u16::MAX)
 }
 
 /// 0.1 V to mV, below UINT16_MAX (which means "unknown").
@@ -266,10 +337,12 @@ pub struct EscEntry {
     pub count: u16,
 }
 
-/// A thruster's ESC entry: rpm from a brushless SeaBotix status (a brushed one reports PWM, not rpm: 0); current
-/// from the SeaBotix CURRENT or the brushless Legacy MAX POWER byte; temperature from SeaBotix (Legacy has
-/// none: 0); count the good polls. Voltage and total current are not measured (0). Offline or absent
-/// thrusters read all zeros.
+/// A thruster's ESC_TELEMETRY entry: rpm from a brushless SeaBotix status (a brushed one reports PWM, not rpm,
+/// and a Legacy thruster no speed at all: 0); current from the SeaBotix CURRENT or the brushless Legacy MAX POWER
+/// byte; temperature from SeaBotix (Legacy has none: 0); count the good polls. Voltage and total current are not
+/// measured (0). Offline or absent thrusters read all zeros. ardupilotmega.xml defines no "unknown" value for any
+/// of these fields; ArduPilot sends 0 for data an ESC does not report, and so does the master. ESC_INFO and
+/// ESC_STATUS say what is not known where their fields can ([`esc_info`], [`esc_status`]).
 pub fn esc_entry(report: Option<&ThrusterReport>) -> EscEntry {
     let Some(report) = report.filter(|r| r.health.online) else {
         return EscEntry::default();
@@ -338,6 +411,99 @@ pub fn esc_telemetry_5_to_8(thrusters: usize, reports: &Reports) -> ESC_TELEMETR
     }
 }
 
+/// The reported speed (negative astern) of a thruster that reports one: a brushless SeaBotix.
+fn reported_rpm(report: &ThrusterReport) -> Option<i32> {
+    match report.status {
+        Some(Status::SeaBotix(s)) if s.motor == MotorKind::Brushless => Some(s.speed.rpm()),
+        _ => None,
+    }
+}
+
+/// The motor current, A, of a thruster that reports one.
+fn reported_current(report: &ThrusterReport) -> Option<f32> {
+    match report.status {
+        Some(Status::SeaBotix(s)) => Some(f32::from(s.current_deciamps) / 10.0),
+        Some(Status::Legacy(s)) => match s.max_power {
+            MaxPower::Current { deciamps } => Some(f32::from(deciamps) / 10.0),
+            MaxPower::Power(_) | MaxPower::Raw(_) => None,
+        },
+        None => None,
+    }
+}
+
+/// The online report of configured thruster `n`.
+fn online_report(thrusters: usize, reports: &Reports, n: usize) -> Option<&ThrusterReport> {
+    reports
+        .get(n)
+        .filter(|_| n < thrusters)
+        .and_then(Option::as_ref)
+        .filter(|r| r.health.online)
+}
+
+/// ESC_STATUS of thrusters `first..first + 4` (index `first`, time since boot).
+///
+/// rpm: the speed a brushless SeaBotix thruster reports, negative astern. common.xml defines no "unknown" rpm,
+/// so a thruster that reports none (brushed SeaBotix, Legacy 0x54/0x55, offline, not configured) reads 0, as
+/// ArduPilot fills rpm it does not have. voltage: not measured per thruster, NaN (MAVLink's "invalid" for a float
+/// field). current: the reported motor current in A, NaN where none is reported.
+pub fn esc_status(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_STATUS_DATA {
+    let online = |i: usize| online_report(thrusters, reports, first + i);
+    ESC_STATUS_DATA {
+        index: first as u8,
+        time_usec,
+        rpm: core::array::from_fn(|i| online(i).and_then(reported_rpm).unwrap_or(0)),
+        voltage: [f32::NAN; 4],
+        current: core::array::from_fn(|i| online(i).and_then(reported_current).unwrap_or(f32::NAN)),
+    }
+}
+
+/// The ESC failure flags of a thruster's faults: overtemperature, stall (motor stuck), hall or ground fault
+/// (generic). Water is a leak, which SYS_STATUS reports, not a failure of the ESC.
+fn esc_failures(faults: Faults) -> u16 {
+    let mut flags = EscFailureFlags::empty();
+    flags.set(
+        EscFailureFlags::ESC_FAILURE_OVER_TEMPERATURE,
+        faults.contains(Faults::OVERTEMP),
+    );
+    flags.set(EscFailureFlags::ESC_FAILURE_MOTOR_STUCK, faults.contains(Faults::STALL));
+    flags.set(
+        EscFailureFlags::ESC_FAILURE_GENERIC,
+        faults.contains(Faults::HALL) || faults.contains(Faults::GROUND),
+    );
+    flags.bits()
+}
+
+/// ESC_INFO of thrusters `first..first + 4` (index `first`, time since boot): count the configured thrusters,
+/// connection I2C, info bit n set when thruster `first + n` is online, counter the good polls of the block
+/// (wrapping), failure_flags from the last status's faults, error_count the link errors, temperature the SeaBotix
+/// temperature in cdegC and INT16_MAX (common.xml's "not supplied") for Legacy, offline or absent thrusters.
+pub fn esc_info(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_INFO_DATA {
+    let report = |i: usize| {
+        let n = first + i;
+        reports.get(n).filter(|_| n < thrusters).and_then(Option::as_ref)
+    };
+    let online = |i: usize| online_report(thrusters, reports, first + i);
+    let info = (0..4).fold(0u8, |bits, i| if online(i).is_some() { bits | 1 << i } else { bits });
+    ESC_INFO_DATA {
+        index: first as u8,
+        time_usec,
+        counter: (0..4)
+            .filter_map(report)
+            .fold(0u16, |sum, r| sum.wrapping_add(r.health.good as u16)),
+        count: thrusters.min(MAX_THRUSTERS) as u8,
+        connection_type: EscConnectionType::ESC_CONNECTION_TYPE_I2C,
+        info,
+        failure_flags: core::array::from_fn(|i| {
+            report(i).and_then(|r| r.status).map_or(0, |s| esc_failures(s.faults()))
+        }),
+        error_count: core::array::from_fn(|i| report(i).map_or(0, link_errors)),
+        temperature: core::array::from_fn(|i| match online(i).and_then(|r| r.status) {
+            Some(Status::SeaBotix(s)) => i16::from(s.temperature_c) * 100,
+            _ => i16::MAX,
+        }),
+    }
+}
+
 /// MAV_SEVERITY of a [`Severity`].
 pub fn severity(severity: Severity) -> MavSeverity {
     match severity {
@@ -387,49 +553,91 @@ pub fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_D
     }
 }
 
-/// PARAM_VALUE: every parameter is a MAV_PARAM_TYPE_REAL32.
-pub fn param_value(id: &ParamId, value: f32, index: u16, count: u16) -> PARAM_VALUE_DATA {
+/// PARAM_VALUE, with the parameter's own type (an integer's value as the float, PARAM_ENCODE_C_CAST).
+pub fn param_value(id: &ParamId, value: f32, param_type: ParamType, index: u16, count: u16) -> PARAM_VALUE_DATA {
     PARAM_VALUE_DATA {
         param_id: (*id).into(),
         param_value: value,
-        param_type: MavParamType::MAV_PARAM_TYPE_REAL32,
+        param_type: match param_type {
+            ParamType::Int8 => MavParamType::MAV_PARAM_TYPE_INT8,
+            ParamType::Int16 => MavParamType::MAV_PARAM_TYPE_INT16,
+            ParamType::Real32 => MavParamType::MAV_PARAM_TYPE_REAL32,
+        },
         param_count: count,
         param_index: index,
     }
 }
 
+/// MAVLink 2 header length (start byte included).
+const HEADER_LEN: usize = 10;
+/// Largest MAVLink 2 payload.
+const MAX_PAYLOAD: usize = 255;
+
 /// MAVLink 2 framing of outgoing messages: this system's header and a sequence number that counts every frame.
+/// Only the payload's encoding is generic; the header and CRC are written by one function for every message type
+/// (the mavlink crate's framing would be copied into the image once per type).
 #[derive(Debug)]
 pub struct Framer {
-    header: MavHeader,
-    raw: MAVLinkV2MessageRaw,
+    system_id: u8,
+    component_id: u8,
+    sequence: u8,
+    frame: [u8; HEADER_LEN + MAX_PAYLOAD + 2],
 }
 
 impl Framer {
     /// Frames from `system_id` / `component_id`, starting at sequence 0.
     pub const fn new(system_id: u8, component_id: u8) -> Self {
         Self {
-            header: MavHeader {
-                system_id: system_id as u32,
-                component_id,
-                sequence: 0,
-            },
-            raw: MAVLinkV2MessageRaw::new(),
+            system_id,
+            component_id,
+            sequence: 0,
+            frame: [0; HEADER_LEN + MAX_PAYLOAD + 2],
         }
     }
 
     /// Frame one message (MAVLink 2, unsigned: [`crate::signing::SigningState::sign`] signs it) and return its
     /// bytes.
     pub fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
-        self.raw.serialize_message_data(self.header, message);
-        self.header.sequence = self.header.sequence.wrapping_add(1);
-        self.raw.raw_bytes()
+        let len = match self.frame.get_mut(HEADER_LEN..HEADER_LEN + MAX_PAYLOAD) {
+            Some(payload) => message.ser(mavlink_core::MavlinkVersion::V2, payload),
+            None => 0,
+        };
+        self.finish(D::ID, D::EXTRA_CRC, len)
+    }
+
+    /// The header and CRC around the `len`-byte payload just encoded.
+    #[inline(never)]
+    fn finish(&mut self, id: u32, extra_crc: u8, len: usize) -> &[u8] {
+        let [id0, id1, id2, _] = id.to_le_bytes();
+        let header = [
+            0xFD,
+            len as u8,
+            0,
+            0,
+            self.sequence,
+            self.system_id,
+            self.component_id,
+            id0,
+            id1,
+            id2,
+        ];
+        if let Some(slot) = self.frame.get_mut(..HEADER_LEN) {
+            slot.copy_from_slice(&header);
+        }
+        self.sequence = self.sequence.wrapping_add(1);
+        let end = HEADER_LEN + len;
+        let crc = mavlink_core::calculate_crc(self.frame.get(1..end).unwrap_or_default(), extra_crc);
+        if let Some(slot) = self.frame.get_mut(end..end + 2) {
+            slot.copy_from_slice(&crc.to_le_bytes());
+        }
+        self.frame.get(..end + 2).unwrap_or_default()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::console::ConsoleCounters;
     use crate::thrusters::LinkHealth;
     use bat_proto::{BatteryInfo, DcdcStatus, StatusBit};
     use tmc_proto::{LegacyRevision, LegacyStatus, SeaBotixStatus, Speed};
@@ -476,6 +684,86 @@ mod tests {
         }
     }
 
+    /// Disarmed, armable, no failsafe.
+    const READY: VehicleState = VehicleState {
+        armed: false,
+        console_alive: true,
+        refused: 0,
+        armable: true,
+        failsafe: false,
+        param_type_mismatches: 0,
+    };
+
+    #[test]
+    fn sys_status_prearm_and_failsafe_follow_the_vehicle() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        for r in reports.iter_mut().take(6) {
+            *r = online(Some(seabotix(0, 0, 20)), 1);
+        }
+        let prearm = MavSysStatusSensor::MAV_SYS_STATUS_PREARM_CHECK;
+        let rc = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_RC_RECEIVER;
+        let link = LinkQuality::default();
+        for (vehicle, prearm_ok, rc_ok) in [
+            (Some(READY), true, true),
+            (
+                Some(VehicleState {
+                    armable: false,
+                    ..READY
+                }),
+                false,
+                true,
+            ),
+            (
+                Some(VehicleState {
+                    failsafe: true,
+                    ..READY
+                }),
+                true,
+                false,
+            ),
+            (None, false, false),
+        ] {
+            let s = sys_status(6, &reports, Some(&battery()), vehicle, link);
+            assert_eq!(s.onboard_control_sensors_present.bits() & 0x1001_0000, 0x1001_0000);
+            assert_eq!(s.onboard_control_sensors_enabled.bits() & 0x1001_0000, 0x1001_0000);
+            assert_eq!(
+                s.onboard_control_sensors_health.contains(prearm),
+                prearm_ok,
+                "{vehicle:?}"
+            );
+            assert_eq!(s.onboard_control_sensors_health.contains(rc), rc_ok, "{vehicle:?}");
+        }
+    }
+
+    #[test]
+    fn sys_status_counters_saturate() {
+        let reports: Reports = [None; MAX_THRUSTERS];
+        let flood = ConsoleCounters {
+            bad_frames: 70_000,
+            unknown_messages: 1,
+            unsigned: 40_000,
+            bad_signatures: 40_000,
+            ..ConsoleCounters::default()
+        };
+        let link = crate::console::link_quality(&ConsoleCounters::default(), &flood, 65_537);
+        assert_eq!(
+            (link.errors, link.refused_other_system, link.refused_by_signing),
+            (u16::MAX, u16::MAX, u16::MAX)
+        );
+        let battery = BatterySummary {
+            errors: 1 << 20,
+            ..battery()
+        };
+        let s = sys_status(6, &reports, Some(&battery), Some(READY), link);
+        assert_eq!(
+            (s.errors_comm, s.errors_count2, s.errors_count3, s.errors_count4),
+            (u16::MAX, u16::MAX, u16::MAX, u16::MAX)
+        );
+        assert_eq!(saturate(65_535), 65_535);
+        assert_eq!(saturate(65_536), u16::MAX);
+        assert_eq!(saturate(7), 7);
+    }
+
     #[test]
     fn heartbeat_is_disarmed_unless_the_vehicle_says_armed() {
         for vehicle in [
@@ -484,6 +772,9 @@ mod tests {
                 armed: false,
                 console_alive: true,
                 refused: 0,
+                armable: true,
+                failsafe: false,
+                param_type_mismatches: 0,
             }),
         ] {
             let hb = heartbeat(vehicle);
@@ -494,6 +785,9 @@ mod tests {
             armed: true,
             console_alive: true,
             refused: 0,
+            armable: true,
+            failsafe: false,
+            param_type_mismatches: 0,
         }));
         assert_eq!(hb.base_mode.bits(), 0xC1);
         assert_eq!(hb.system_status, MavState::MAV_STATE_ACTIVE);
@@ -533,6 +827,99 @@ mod tests {
         assert_eq!(esc_entry(None), EscEntry::default());
     }
 
+    fn legacy(deciamps: u8, faults: Faults) -> Status {
+        Status::Legacy(LegacyStatus {
+            revision: LegacyRevision::AVEOX_BRUSHLESS,
+            faults,
+            max_power: MaxPower::Current { deciamps },
+        })
+    }
+
+    #[test]
+    fn esc_status_reports_rpm_and_current_where_known() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        reports[0] = online(Some(seabotix(-102, 23, 41)), 10);
+        reports[1] = online(Some(legacy(12, Faults::NONE)), 10);
+        reports[2] = online(None, 0);
+        let mut off = online(Some(seabotix(50, 10, 30)), 9);
+        off.as_mut().unwrap().health.online = false;
+        reports[3] = off;
+        reports[4] = online(Some(seabotix(51, 5, 20)), 1);
+        let s = esc_status(6, &reports, 0, 123_456);
+        assert_eq!((s.index, s.time_usec), (0, 123_456));
+        // Astern is negative; Legacy, no status yet and offline report no rpm: 0 (no "unknown" is defined).
+        assert_eq!(s.rpm, [-4500, 0, 0, 0]);
+        assert!(s.voltage.iter().all(|v| v.is_nan()), "not measured");
+        assert_eq!(s.current[0], 2.3);
+        assert_eq!(s.current[1], 1.2, "Legacy MAX POWER as current");
+        assert!(s.current[2].is_nan() && s.current[3].is_nan());
+        let b = esc_status(6, &reports, 4, 0);
+        assert_eq!((b.index, b.rpm), (4, [2250, 0, 0, 0]));
+        assert!(
+            b.current[1..].iter().all(|c| c.is_nan()),
+            "thruster 6 unheard, 7 and 8 not configured"
+        );
+    }
+
+    #[test]
+    fn esc_info_says_what_is_not_known() {
+        let mut reports: Reports = [None; MAX_THRUSTERS];
+        reports[0] = online(
+            Some(Status::SeaBotix(SeaBotixStatus {
+                faults: Faults::OVERTEMP.union(Faults::WATER),
+                ..match seabotix(10, 1, 41) {
+                    Status::SeaBotix(s) => s,
+                    Status::Legacy(_) => unreachable!(),
+                }
+            })),
+            300,
+        );
+        reports[1] = online(Some(legacy(3, Faults::STALL.union(Faults::HALL))), 200);
+        if let Some(r) = reports[1].as_mut() {
+            r.health.timeout = 4;
+            r.health.nack = 1;
+        }
+        let mut off = online(Some(seabotix(0, 0, 25)), 9);
+        off.as_mut().unwrap().health.online = false;
+        reports[2] = off;
+        let i = esc_info(6, &reports, 0, 99);
+        assert_eq!((i.index, i.time_usec, i.count), (0, 99, 6));
+        assert_eq!(i.connection_type, EscConnectionType::ESC_CONNECTION_TYPE_I2C);
+        assert_eq!(i.info, 0b0011, "thrusters 1 and 2 online");
+        assert_eq!(i.counter, 509);
+        assert_eq!(
+            i.failure_flags,
+            [4, 32 | 64, 0, 0],
+            "over-temperature; stuck and generic"
+        );
+        assert_eq!(i.error_count, [0, 5, 0, 0]);
+        // SeaBotix in cdegC; Legacy has no sensor, thruster 3 is offline, 4 unheard: INT16_MAX.
+        assert_eq!(i.temperature, [4100, i16::MAX, i16::MAX, i16::MAX]);
+        let b = esc_info(6, &reports, 4, 99);
+        assert_eq!((b.index, b.info, b.temperature), (4, 0, [i16::MAX; 4]));
+    }
+
+    #[test]
+    fn autopilot_version_carries_the_build_and_the_chip() {
+        let uid: [u8; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
+        let v = autopilot_version(&uid);
+        assert_eq!(v.capabilities.bits(), 0x2_2008);
+        let part = |s: &str| s.parse::<u32>().unwrap();
+        assert_eq!(
+            v.flight_sw_version >> 8,
+            part(env!("CARGO_PKG_VERSION_MAJOR")) << 16
+                | part(env!("CARGO_PKG_VERSION_MINOR")) << 8
+                | part(env!("CARGO_PKG_VERSION_PATCH"))
+        );
+        assert_eq!(v.flight_custom_version, GIT_REVISION);
+        assert!(GIT_REVISION == [0; 8] || GIT_REVISION.iter().all(u8::is_ascii_hexdigit));
+        assert_eq!(&v.uid2[..12], &uid);
+        assert_eq!(&v.uid2[12..], &[0; 6]);
+        assert_eq!(v.uid, 0x0403_0201 | (0x0807_0605u64 ^ 0x0C0B_0A09) << 32);
+        assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0468));
+        assert_eq!(autopilot_version(&[0; 12]).uid, 0, "unknown");
+    }
+
     #[test]
     fn esc_blocks_stop_at_the_configured_thrusters() {
         let mut reports: Reports = [None; MAX_THRUSTERS];
@@ -559,7 +946,7 @@ mod tests {
             refused_other_system: 4,
             refused_by_signing: 5,
         };
-        let s = sys_status(6, &reports, Some(&battery()), link);
+        let s = sys_status(6, &reports, Some(&battery()), Some(READY), link);
         let motors = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS;
         let bat = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_BATTERY;
         assert!(s.onboard_control_sensors_present.contains(motors | bat));
@@ -586,7 +973,7 @@ mod tests {
             alarms_stale: true,
             ..battery()
         };
-        let s = sys_status(6, &reports, Some(&stale), link);
+        let s = sys_status(6, &reports, Some(&stale), Some(READY), link);
         assert!(!s.onboard_control_sensors_health.contains(motors));
         assert!(!s.onboard_control_sensors_health.contains(bat));
         assert_eq!(
@@ -600,7 +987,7 @@ mod tests {
             status: Some(DcdcStatus::from_word(0).with(StatusBit::HsmFault, true)),
             ..battery()
         };
-        let s = sys_status(2, &reports, Some(&faulty), link);
+        let s = sys_status(2, &reports, Some(&faulty), Some(READY), link);
         assert!(s.onboard_control_sensors_health.contains(motors));
         assert!(!s.onboard_control_sensors_health.contains(bat));
     }
@@ -650,6 +1037,33 @@ mod tests {
             battery_status(Some(&low)).charge_state,
             MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_LOW
         );
+    }
+
+    #[test]
+    fn framer_builds_what_the_mavlink_crate_builds() {
+        let mut framer = Framer::new(1, 1);
+        let mut raw = mavlink_core::MAVLinkV2MessageRaw::new();
+        for sequence in 0..3u8 {
+            let version = autopilot_version(&[7; 12]);
+            let ours = framer.frame(&version).to_vec();
+            let header = mavlink_core::MavHeader {
+                system_id: 1,
+                component_id: 1,
+                sequence,
+            };
+            raw.serialize_message_data(header, &version);
+            assert_eq!(ours, raw.raw_bytes());
+            let empty = framer.frame(&PARAM_VALUE_DATA::DEFAULT).to_vec();
+            raw.serialize_message_data(
+                mavlink_core::MavHeader {
+                    sequence: sequence.wrapping_add(1),
+                    ..header
+                },
+                &PARAM_VALUE_DATA::DEFAULT,
+            );
+            assert_eq!(empty, raw.raw_bytes(), "a payload of zeros truncated to one byte");
+            framer.sequence = sequence.wrapping_add(1);
+        }
     }
 
     #[test]

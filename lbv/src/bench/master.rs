@@ -94,9 +94,15 @@ pub struct MasterBoard {
     task: Option<TaskId>,
 }
 
+/// The unique device id the bench's master reports in AUTOPILOT_VERSION, where a G431 reports its own: a fixed
+/// one ("LBV bench 01" in ASCII), so that every run reports the same.
+pub const BENCH_UID: [u8; 12] = *b"LBV bench 01";
+
 impl MasterBoard {
-    /// The master with `config`, booted on `wiring`; with `acceptance`, the acceptance image.
+    /// The master with `config` (and [`BENCH_UID`]), booted on `wiring`; with `acceptance`, the acceptance image.
     pub fn boot(config: MasterConfig, acceptance: bool, wiring: &Wiring, executor: &mut Executor<'static>) -> Self {
+        let mut config = config;
+        config.console.uid = BENCH_UID;
         let mut board = Self {
             config,
             acceptance,

@@ -1,0 +1,528 @@
+//! The connect sequence of a standard ground station, played against the console and the vehicle tasks on the
+//! virtual clock: QGroundControl's InitialConnectStateMachine (src/Vehicle/InitialConnectStateMachine.cc) step by
+//! step, answering what the vehicle sends as QGroundControl would, then the message requests and intervals an SDK
+//! uses. Frames are built and read with the mavlink crate (our dialect's definitions, copied from the official
+//! XML).
+#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
+
+mod console_support;
+
+use console_support::{clock, parse_all, v2};
+use embassy_futures::block_on;
+use embassy_futures::join::join3;
+use embassy_futures::select::select;
+use embassy_futures::yield_now;
+use embassy_time::{Duration, Instant};
+use lbv_master_fw::console::lbv::{
+    AUTOPILOT_VERSION_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag,
+    MavParamType, MavProtocolCapability, MavResult, MavState, MavSysStatusSensor, MavType, PARAM_REQUEST_LIST_DATA,
+    PARAM_SET_DATA,
+};
+use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
+use lbv_master_fw::shared::Shared;
+use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
+use lbv_sim::{Queue, SerialRx, SerialTx};
+use mavlink_core::MavHeader;
+
+/// QGroundControl's own ids: system 255, MAV_COMP_ID_MISSIONPLANNER (190).
+const GCS: (u8, u8) = (255, 190);
+const UID: [u8; 12] = [0x31, 0x00, 0x52, 0x00, 0x0B, 0x51, 0x33, 0x32, 0x34, 0x38, 0x37, 0x39];
+
+/// The ground station's end of the link: what it has received so far, and a way to send.
+struct Station {
+    to_vehicle: Queue<u8>,
+    from_vehicle: SerialTx,
+    received: Vec<(Instant, MavHeader, MavMessage)>,
+    sequence: u8,
+}
+
+impl Station {
+    fn send<D: mavlink_core::MessageData>(&mut self, message: &D) {
+        self.to_vehicle.send(v2(GCS.0, GCS.1, self.sequence, message));
+        self.sequence = self.sequence.wrapping_add(1);
+    }
+
+    fn heartbeat(&mut self) {
+        self.send(&HEARTBEAT_DATA {
+            custom_mode: 0,
+            mavtype: MavType::MAV_TYPE_GCS,
+            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+            base_mode: MavModeFlag::empty(),
+            system_status: MavState::MAV_STATE_ACTIVE,
+            mavlink_version: 3,
+        });
+    }
+
+    fn command(&mut self, command: u16, params: [f32; 7]) {
+        self.send(&COMMAND_LONG_DATA {
+            target_system: 1,
+            target_component: 1,
+            command,
+            confirmation: 0,
+            param1: params[0],
+            param2: params[1],
+            param3: params[2],
+            param4: params[3],
+            param5: params[4],
+            param6: params[5],
+            param7: params[6],
+        });
+    }
+
+    /// Read what the vehicle has sent.
+    fn poll(&mut self) {
+        let now = Instant::now();
+        for (header, message) in parse_all(&self.from_vehicle.take()) {
+            self.received.push((now, header, message));
+        }
+    }
+
+    /// Messages received from index `from` on.
+    fn since(&self, from: usize) -> impl Iterator<Item = &MavMessage> {
+        self.received.iter().skip(from).map(|(_, _, m)| m)
+    }
+}
+
+/// Run the console and the vehicle (6 thrusters, defaults, [`UID`]) with `script` playing the ground station:
+/// called every millisecond of virtual time with the station, until it returns `true` (done) or `limit` passes.
+fn connect(limit: Duration, mut script: impl FnMut(&mut Station) -> bool) -> Station {
+    let _clock = clock();
+    let shared = Shared::new();
+    let stats = ConsoleStats::new();
+    let to_vehicle = Queue::new();
+    let mut rx = SerialRx::new(to_vehicle.clone());
+    let from_vehicle = SerialTx::default();
+    let mut tx = from_vehicle.clone();
+    let config = ConsoleConfig {
+        uid: UID,
+        ..ConsoleConfig::DEFAULT
+    };
+    let vehicle = VehicleConfig::DEFAULT;
+    let mut station = Station {
+        to_vehicle,
+        from_vehicle,
+        received: vec![],
+        sequence: 0,
+    };
+    let tasks = join3(
+        console_rx_task(&mut rx, &config, &shared, &stats),
+        console_tx_task(&mut tx, &config, &shared, &stats),
+        vehicle_task(vehicle, vehicle.defaults(), &shared),
+    );
+    let mut done = false;
+    block_on(select(tasks, async {
+        let end = Instant::now() + limit;
+        while Instant::now() < end && !done {
+            for _ in 0..8 {
+                yield_now().await;
+            }
+            station.poll();
+            done = script(&mut station);
+            lbv_sim::clock::advance(Duration::from_millis(1));
+        }
+    }));
+    assert!(done, "the ground station's script did not finish");
+    station
+}
+
+const REQUEST_MESSAGE: u16 = 512;
+const REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
+const SET_MESSAGE_INTERVAL: u16 = 511;
+const ARM_DISARM: u16 = 400;
+
+/// The index of the first message from `from` on that `matches`.
+fn find(station: &Station, from: usize, matches: impl Fn(&MavMessage) -> bool) -> Option<usize> {
+    station.since(from).position(matches).map(|n| n + from)
+}
+
+fn ack(command: u16) -> impl Fn(&MavMessage) -> bool {
+    move |m| matches!(m, MavMessage::COMMAND_ACK(a) if a.command == command)
+}
+
+fn ack_result(station: &Station, at: usize) -> MavResult {
+    match &station.received[at].2 {
+        MavMessage::COMMAND_ACK(a) => {
+            assert_eq!((a.target_system, a.target_component), GCS, "addressed to the asker");
+            a.result
+        }
+        other => panic!("not an ack: {other:?}"),
+    }
+}
+
+fn prearm_healthy(m: &MavMessage) -> Option<bool> {
+    match m {
+        MavMessage::SYS_STATUS(s) => {
+            let bit = MavSysStatusSensor::MAV_SYS_STATUS_PREARM_CHECK;
+            assert!(s.onboard_control_sensors_present.contains(bit));
+            assert!(s.onboard_control_sensors_enabled.contains(bit));
+            Some(s.onboard_control_sensors_health.contains(bit))
+        }
+        _ => None,
+    }
+}
+
+/// The AUTOPILOT_VERSION QGroundControl reads: version, git hash (ASCII, as for ArduPilot), capabilities, ids.
+fn check_autopilot_version(v: &AUTOPILOT_VERSION_DATA) {
+    let part = |name: &str| name.parse::<u32>().unwrap();
+    let major = part(env!("CARGO_PKG_VERSION_MAJOR"));
+    let minor = part(env!("CARGO_PKG_VERSION_MINOR"));
+    let patch = part(env!("CARGO_PKG_VERSION_PATCH"));
+    assert_eq!(v.flight_sw_version >> 8, major << 16 | minor << 8 | patch);
+    assert!(
+        [0, 255].contains(&(v.flight_sw_version & 0xFF)),
+        "FIRMWARE_VERSION_TYPE DEV or OFFICIAL"
+    );
+    let hash = v.flight_custom_version;
+    assert!(
+        hash == [0; 8] || hash.iter().all(u8::is_ascii_hexdigit),
+        "8 hex digits of the git revision, or zeros outside git: {hash:?}"
+    );
+    let caps = v.capabilities;
+    for needed in [
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST,
+    ] {
+        assert!(caps.contains(needed), "{needed:?}");
+    }
+    // No mission, fence, rally, FTP: QGroundControl skips the fence and rally downloads.
+    for absent in [
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MISSION_INT,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MISSION_FENCE,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MISSION_RALLY,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_FTP,
+        MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE,
+    ] {
+        assert!(!caps.contains(absent), "{absent:?}");
+    }
+    assert_eq!(caps.bits() & 2, 0, "not the deprecated PARAM_FLOAT");
+    assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0468));
+    assert_eq!(&v.uid2[..12], &UID);
+    assert_eq!(&v.uid2[12..], &[0; 6]);
+    let word = |n: usize| u32::from_le_bytes(UID[n * 4..n * 4 + 4].try_into().unwrap());
+    assert_eq!(v.uid, u64::from(word(0)) | u64::from(word(1) ^ word(2)) << 32);
+}
+
+#[test]
+fn qgroundcontrol_initial_connect_then_arm() {
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    enum Step {
+        /// Listen before saying anything: the vehicle's heartbeat, and its pre-arm check unhealthy without a
+        /// ground station.
+        Listen,
+        /// An arm now must be refused: the pre-arm bit said so.
+        ArmTooEarly {
+            sent: usize,
+        },
+        /// Heartbeats from now on; REQUEST_MESSAGE AUTOPILOT_VERSION (QGroundControl asks component 1).
+        RequestVersion {
+            sent: usize,
+        },
+        /// The older MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (what QGroundControl's older releases and some SDKs send).
+        RequestCapabilities {
+            sent: usize,
+        },
+        /// ParameterManager::refreshAllParameters: PARAM_REQUEST_LIST, then every PARAM_VALUE.
+        Parameters {
+            sent: usize,
+        },
+        /// Wait for SYS_STATUS's pre-arm check to turn healthy (the capabilities announced no fence or rally, so
+        /// those downloads are skipped).
+        WaitArmable {
+            from: usize,
+        },
+        /// Arm.
+        Arm {
+            sent: usize,
+        },
+        Done,
+    }
+    let mut step = Step::Listen;
+    let mut last_heartbeat: Option<Instant> = None;
+    let mut versions = 0;
+    let station = connect(Duration::from_secs(20), |gcs| {
+        let now = Instant::now();
+        let talking = !matches!(step, Step::Listen | Step::ArmTooEarly { .. });
+        if talking && last_heartbeat.is_none_or(|at| now - at >= Duration::from_secs(1)) {
+            gcs.heartbeat();
+            last_heartbeat = Some(now);
+        }
+        let len = gcs.received.len();
+        step = match step {
+            Step::Listen => {
+                let heard = gcs.since(0).any(|m| matches!(m, MavMessage::HEARTBEAT(_)));
+                let prearm = gcs.since(0).find_map(prearm_healthy);
+                match prearm {
+                    Some(healthy) if heard => {
+                        assert!(!healthy, "no ground station yet: arming would be refused");
+                        gcs.command(ARM_DISARM, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                        Step::ArmTooEarly { sent: len }
+                    }
+                    _ => Step::Listen,
+                }
+            }
+            Step::ArmTooEarly { sent } => match find(gcs, sent, ack(ARM_DISARM)) {
+                Some(at) => {
+                    assert_eq!(ack_result(gcs, at), MavResult::MAV_RESULT_TEMPORARILY_REJECTED);
+                    gcs.heartbeat();
+                    last_heartbeat = Some(now);
+                    gcs.command(REQUEST_MESSAGE, [148.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                    Step::RequestVersion {
+                        sent: gcs.received.len(),
+                    }
+                }
+                None => step,
+            },
+            Step::RequestVersion { sent } | Step::RequestCapabilities { sent } => {
+                let command = if matches!(step, Step::RequestVersion { .. }) {
+                    REQUEST_MESSAGE
+                } else {
+                    REQUEST_AUTOPILOT_CAPABILITIES
+                };
+                let acked = find(gcs, sent, ack(command));
+                let version = find(gcs, sent, |m| matches!(m, MavMessage::AUTOPILOT_VERSION(_)));
+                match (acked, version) {
+                    (Some(a), Some(v)) => {
+                        assert!(a < v, "the COMMAND_ACK comes before the message");
+                        assert_eq!(ack_result(gcs, a), MavResult::MAV_RESULT_ACCEPTED);
+                        let MavMessage::AUTOPILOT_VERSION(version) = &gcs.received[v].2 else {
+                            unreachable!()
+                        };
+                        check_autopilot_version(version);
+                        versions += 1;
+                        if command == REQUEST_MESSAGE {
+                            gcs.command(REQUEST_AUTOPILOT_CAPABILITIES, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                            Step::RequestCapabilities {
+                                sent: gcs.received.len(),
+                            }
+                        } else {
+                            gcs.send(&PARAM_REQUEST_LIST_DATA {
+                                target_system: 1,
+                                target_component: 1,
+                            });
+                            Step::Parameters {
+                                sent: gcs.received.len(),
+                            }
+                        }
+                    }
+                    _ => step,
+                }
+            }
+            Step::Parameters { sent } => {
+                let values: Vec<_> = gcs
+                    .since(sent)
+                    .filter_map(|m| match m {
+                        MavMessage::PARAM_VALUE(p) => Some(p.clone()),
+                        _ => None,
+                    })
+                    .collect();
+                match values.first() {
+                    Some(first) if values.len() == usize::from(first.param_count) => {
+                        assert_eq!(first.param_count, 9);
+                        for (n, p) in values.iter().enumerate() {
+                            assert_eq!(usize::from(p.param_index), n);
+                            let name = p.param_id.to_str().unwrap();
+                            let expected = match name {
+                                "FS_GCS_TIMEOUT" | "FS_PILOT_TIMEOUT" => MavParamType::MAV_PARAM_TYPE_REAL32,
+                                "SYSID_MYGCS" => MavParamType::MAV_PARAM_TYPE_INT16,
+                                _ => MavParamType::MAV_PARAM_TYPE_INT8,
+                            };
+                            assert_eq!(p.param_type, expected, "{name}");
+                            if expected != MavParamType::MAV_PARAM_TYPE_REAL32 {
+                                assert_eq!(p.param_value.fract(), 0.0, "C_CAST: the float is the integer");
+                            }
+                        }
+                        let sysid = values.iter().find(|p| p.param_id.to_str().unwrap() == "SYSID_MYGCS");
+                        assert_eq!(sysid.map(|p| p.param_value), Some(255.0));
+                        Step::WaitArmable {
+                            from: gcs.received.len(),
+                        }
+                    }
+                    _ => step,
+                }
+            }
+            Step::WaitArmable { from } => {
+                if gcs.since(from).filter_map(prearm_healthy).any(|healthy| healthy) {
+                    gcs.command(ARM_DISARM, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                    Step::Arm {
+                        sent: gcs.received.len(),
+                    }
+                } else {
+                    step
+                }
+            }
+            Step::Arm { sent } => {
+                let acked = find(gcs, sent, ack(ARM_DISARM));
+                let armed = acked.and_then(|a| {
+                    find(gcs, a, |m| {
+                        matches!(m, MavMessage::HEARTBEAT(h)
+                            if h.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED))
+                    })
+                });
+                match (acked, armed) {
+                    (Some(a), Some(_)) => {
+                        assert_eq!(ack_result(gcs, a), MavResult::MAV_RESULT_ACCEPTED);
+                        Step::Done
+                    }
+                    _ => step,
+                }
+            }
+            Step::Done => Step::Done,
+        };
+        step == Step::Done
+    });
+    assert_eq!(versions, 2);
+    // Nothing the vehicle sent was answered with a request it does not serve: no mission, fence or rally
+    // protocol frames went either way (the dialect has none).
+    assert!(
+        station
+            .received
+            .iter()
+            .all(|(_, h, _)| (h.system_id, h.component_id) == (1, 1))
+    );
+}
+
+#[test]
+fn request_message_and_message_intervals_as_an_sdk_uses_them() {
+    let mut sent_at = None;
+    let mut phase = 0;
+    let station = connect(Duration::from_secs(6), |gcs| {
+        let now = Instant::now();
+        if phase == 0 {
+            gcs.heartbeat();
+            // Each message the vehicle sends, one at a time; HOME_POSITION (242) it has not; ESC_STATUS off;
+            // SYS_STATUS at 5 Hz; HEARTBEAT may not be changed; COMMAND_INT carries the same request.
+            for id in [0.0, 1.0, 147.0, 148.0, 290.0, 291.0, 11030.0, 11031.0, 242.0] {
+                gcs.command(REQUEST_MESSAGE, [id, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            }
+            gcs.command(SET_MESSAGE_INTERVAL, [291.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.command(SET_MESSAGE_INTERVAL, [1.0, 200_000.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.command(SET_MESSAGE_INTERVAL, [0.0, 2_000_000.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.command(SET_MESSAGE_INTERVAL, [242.0, 1_000_000.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.send(&COMMAND_INT_DATA {
+                target_system: 1,
+                target_component: 1,
+                frame: 0,
+                command: REQUEST_MESSAGE,
+                current: 0,
+                autocontinue: 0,
+                param1: 148.0,
+                param2: 0.0,
+                param3: 0.0,
+                param4: 0.0,
+                x: 0,
+                y: 0,
+                z: 0.0,
+            });
+            sent_at = Some(now);
+            phase = 1;
+        }
+        now >= Instant::from_secs(5)
+    });
+    let start = sent_at.unwrap();
+    let answers: Vec<&MavMessage> = station
+        .received
+        .iter()
+        .filter(|(at, _, _)| *at >= start && *at < start + Duration::from_millis(100))
+        .map(|(_, _, m)| m)
+        .filter(|m| !matches!(m, MavMessage::STATUSTEXT(_)))
+        .collect();
+    // Every request answered in order: ACCEPTED and the message, or DENIED.
+    let results: Vec<(u16, MavResult)> = answers
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::COMMAND_ACK(a) => Some((a.command, a.result)),
+            _ => None,
+        })
+        .collect();
+    use MavResult::{MAV_RESULT_ACCEPTED as OK, MAV_RESULT_DENIED as NO};
+    assert_eq!(
+        results,
+        [
+            (512, OK),
+            (512, OK),
+            (512, OK),
+            (512, OK),
+            (512, OK),
+            (512, OK),
+            (512, OK),
+            (512, OK),
+            (512, NO),
+            (511, OK),
+            (511, OK),
+            (511, NO),
+            (511, NO),
+            (512, OK),
+        ]
+    );
+    let mut after_ack = vec![];
+    for pair in answers.windows(2) {
+        if let MavMessage::COMMAND_ACK(a) = pair[0]
+            && a.command == 512
+            && a.result == OK
+        {
+            use mavlink_core::Message;
+            after_ack.push(pair[1].message_id());
+        }
+    }
+    assert_eq!(after_ack, [0, 1, 147, 148, 290, 291, 11030, 11031, 148]);
+
+    // From then on: no ESC_STATUS; SYS_STATUS at 5 Hz; HEARTBEAT still at 1 Hz.
+    let later = |id: u32| {
+        use mavlink_core::Message;
+        station
+            .received
+            .iter()
+            .filter(|(at, _, m)| *at >= start + Duration::from_millis(100) && m.message_id() == id)
+            .count()
+    };
+    assert_eq!(later(291), 0);
+    let sys = later(1);
+    assert!((22..=25).contains(&sys), "about 5 Hz over 4.9 s: {sys}");
+    let hb = later(0);
+    assert!((4..=5).contains(&hb), "1 Hz: {hb}");
+}
+
+#[test]
+fn an_sdk_sets_an_integer_parameter_as_its_type() {
+    let mut phase = 0;
+    let station = connect(Duration::from_secs(2), |gcs| {
+        let set = |gcs: &mut Station, name: &str, value: f32, param_type| {
+            let mut id = [0u8; 16];
+            id[..name.len()].copy_from_slice(name.as_bytes());
+            gcs.send(&PARAM_SET_DATA {
+                target_system: 1,
+                target_component: 1,
+                param_id: id.into(),
+                param_value: value,
+                param_type,
+            });
+        };
+        if phase == 0 {
+            gcs.heartbeat();
+            // The SDK's integer set (C_CAST, the capability announced), then an INT32 one of the same INT8
+            // parameter, and PX4's bytewise encoding of 1 for it (raw bits: a denormal, not a whole number).
+            set(gcs, "FS_PILOT_INPUT", 2.0, MavParamType::MAV_PARAM_TYPE_INT8);
+            set(gcs, "FS_PILOT_INPUT", 0.0, MavParamType::MAV_PARAM_TYPE_INT32);
+            set(
+                gcs,
+                "FS_PILOT_INPUT",
+                f32::from_bits(1),
+                MavParamType::MAV_PARAM_TYPE_INT8,
+            );
+            phase = 1;
+        }
+        Instant::now() >= Instant::from_millis(1500)
+    });
+    let values: Vec<(f32, MavParamType)> = station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::PARAM_VALUE(p) => Some((p.param_value, p.param_type)),
+            _ => None,
+        })
+        .collect();
+    let int8 = MavParamType::MAV_PARAM_TYPE_INT8;
+    // Set; unchanged (wrong type); unchanged (not a whole number): the failsafe stays "disarm".
+    assert_eq!(values, [(2.0, int8), (2.0, int8), (2.0, int8)]);
+}
