@@ -139,7 +139,7 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 /// SYS_STATUS.
 ///
 /// - Sensors: MOTOR_OUTPUTS (present and enabled when thrusters are configured, healthy when every configured
-///   thruster is online), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
+///   thruster is online with its status readable, [`reporting`]), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
 ///   enabled always, healthy with a fresh reading and no BMS alarm nor DCDC fault), RC_RECEIVER (the pilot's
 ///   control link, the ground station's heartbeats and MANUAL_CONTROL: present and enabled always, unhealthy
 ///   while a failsafe is in force, [`VehicleState::failsafe`]), PREARM_CHECK (present and enabled always, healthy
@@ -162,7 +162,7 @@ pub fn sys_status(
     link: LinkQuality,
 ) -> SYS_STATUS_DATA {
     let configured = reports.iter().take(thrusters);
-    let all_online = configured.clone().all(|r| r.is_some_and(|r| r.health.online));
+    let all_online = configured.clone().all(|r| r.as_ref().is_some_and(reporting));
     let faults = configured
         .clone()
         .flatten()
@@ -344,7 +344,7 @@ pub struct EscEntry {
 /// of these fields; ArduPilot sends 0 for data an ESC does not report, and so does the master. ESC_INFO and
 /// ESC_STATUS say what is not known where their fields can ([`esc_info`], [`esc_status`]).
 pub fn esc_entry(report: Option<&ThrusterReport>) -> EscEntry {
-    let Some(report) = report.filter(|r| r.health.online) else {
+    let Some(report) = report.filter(|r| reporting(r)) else {
         return EscEntry::default();
     };
     let count = report.health.good as u16;
@@ -431,13 +431,19 @@ fn reported_current(report: &ThrusterReport) -> Option<f32> {
     }
 }
 
-/// The online report of configured thruster `n`.
+/// Whether a thruster's report is current: online, and its status readable (one whose orders get through but
+/// whose status has not been read for a while reads as unknown, not as its last values).
+fn reporting(report: &ThrusterReport) -> bool {
+    report.health.online && !report.health.status_lost
+}
+
+/// The current report of configured thruster `n` ([`reporting`]).
 fn online_report(thrusters: usize, reports: &Reports, n: usize) -> Option<&ThrusterReport> {
     reports
         .get(n)
         .filter(|_| n < thrusters)
         .and_then(Option::as_ref)
-        .filter(|r| r.health.online)
+        .filter(|r| reporting(r))
 }
 
 /// ESC_STATUS of thrusters `first..first + 4` (index `first`, time since boot).
@@ -825,6 +831,10 @@ mod tests {
         off.health.online = false;
         assert_eq!(esc_entry(Some(&off)), EscEntry::default());
         assert_eq!(esc_entry(None), EscEntry::default());
+        // Online, but its status unreadable for a while: its last values are not shown as current.
+        let mut lost = online(Some(seabotix(50, 10, 30)), 9).unwrap();
+        lost.health.status_lost = true;
+        assert_eq!(esc_entry(Some(&lost)), EscEntry::default());
     }
 
     fn legacy(deciamps: u8, faults: Faults) -> Status {
@@ -959,6 +969,14 @@ mod tests {
         );
         assert_eq!((s.drop_rate_comm, s.errors_comm, s.errors_count2), (250, 3, 2));
         assert_eq!((s.errors_count3, s.errors_count4), (4, 5));
+
+        // One thruster whose orders get through but whose status cannot be read: the motors' health is unknown.
+        let mut unread = reports;
+        if let Some(r) = unread[1].as_mut() {
+            r.health.status_lost = true;
+        }
+        let s = sys_status(6, &unread, Some(&battery()), Some(READY), link);
+        assert!(!s.onboard_control_sensors_health.contains(motors));
 
         // One thruster offline with errors, a stale battery.
         if let Some(r) = reports[2].as_mut() {
