@@ -84,7 +84,9 @@ cp "$release/lbv-master-fw" target/images/lbv-master-fw-acceptance
 
 step "image sizes"
 # Flash holds code, constants and the initial values of .data; static RAM is .data + .bss + .uninit.
-# Budgets in KiB: image flash ram
+# Budgets in KiB: image flash ram. Every image must fit the 112 KiB memory.x gives it below the settings pages; the
+# vehicle's images keep 16 KiB of that spare. The acceptance image, which runs only on the dev-kit bench, carries
+# the acceptance script beside the whole console and keeps 12 KiB.
 failed=0
 while read -r image flash_kib ram_kib; do
   arm-none-eabi-size -A "target/images/$image" | awk -v name="$image" -v fb="$flash_kib" -v rb="$ram_kib" '
@@ -103,7 +105,7 @@ thruster-fw-brushed 48 16
 thruster-fw-motorless 48 16
 thruster-fw-bringup 48 16
 lbv-master-fw      96 24
-lbv-master-fw-acceptance 96 24
+lbv-master-fw-acceptance 100 24
 BUDGETS
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 
