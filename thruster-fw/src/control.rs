@@ -59,6 +59,8 @@ pub struct Control {
     order: Order,
     orders_seen: u32,
     duty: Duty,
+    /// The failsafe stopped the motor and no new order has come since.
+    holding: bool,
 }
 
 impl Control {
@@ -72,6 +74,7 @@ impl Control {
             order: Order::STOP,
             orders_seen: 0,
             duty: Duty::ZERO,
+            holding: false,
         }
     }
 
@@ -85,6 +88,12 @@ impl Control {
         self.failsafe.trips()
     }
 
+    /// Whether the link failsafe holds the motor stopped: from its trip until the next valid order (a read
+    /// alone does not end it). SeaBotix builds report it in FAULT bit 5 (`SeaBotixStatus::FAULT_LINK_FAILSAFE`).
+    pub fn failsafe_holding(&self) -> bool {
+        self.holding
+    }
+
     /// One control step: take the link's news, apply the failsafe and the fault verdict, run the speed loop.
     pub fn tick(&mut self, now: Instant, link: Option<LinkUpdate>, sensed: Sensed, rpm: i32) -> Duty {
         if let Some(update) = link {
@@ -92,13 +101,18 @@ impl Control {
             if update.orders != self.orders_seen {
                 self.orders_seen = update.orders;
                 self.order = update.order;
+                self.holding = false;
             }
         }
         let trips = self.failsafe.trips();
         if self.failsafe.check(now) {
             if self.failsafe.trips() != trips {
-                warn!("link lost: no transfer for the failsafe timeout, stopping");
+                warn!(
+                    "link lost: no transfer for the failsafe timeout, stopping ({} trips so far)",
+                    self.failsafe.trips()
+                );
             }
+            self.holding = true;
             // Only a new order restarts the motor, not a read carrying the old one.
             self.order = Order::STOP;
         }
@@ -133,7 +147,12 @@ fn status_of(family: Family, motor: MotorKind, sensed: Sensed, speed: Speed) -> 
     let current = u8::try_from(sensed.current_deciamps).unwrap_or(u8::MAX);
     match family {
         Family::SeaBotix => Status::SeaBotix(SeaBotixStatus {
-            revision: 0,
+            // 0 is the original brushless software (IDS 8.4.2); a brushed build reports the IDS's brushed
+            // revision number instead (`SeaBotixStatus::REVISION_BRUSHED`).
+            revision: match motor {
+                MotorKind::Brushless => 0,
+                MotorKind::Brushed => SeaBotixStatus::REVISION_BRUSHED,
+            },
             motor,
             current_limited: true,
             faults: sensed.faults,

@@ -8,8 +8,10 @@ use tmc_proto::{Family, Faults};
 use super::fault::{Fault, GROUND_FAULT_OHMS, WATER_OHMS};
 use super::harness::{
     AHEAD, NEUTRAL, Run, coasted_within_a_sample, drives_again, family, inject_and_time, others_keep_working, reported,
-    round,
+    round, stopped_after_consecutive_samples,
 };
+use thruster_fw::commutation::COAST;
+use thruster_fw::faults::Thresholds;
 
 pub fn water(run: &mut Run) {
     let legacy = family(run) == Family::Legacy;
@@ -19,7 +21,7 @@ pub fn water(run: &mut Run) {
     };
     let took = inject_and_time(run, water);
     if legacy {
-        coasted_within_a_sample(run, took);
+        stopped_after_consecutive_samples(run, took, Thresholds::SPEC.latch_samples);
     } else {
         run.check(
             "SeaBotix keeps driving on water",
@@ -56,7 +58,7 @@ pub fn ground_fault(run: &mut Run) {
         ohms: GROUND_FAULT_OHMS,
     };
     let took = inject_and_time(run, ground_fault);
-    coasted_within_a_sample(run, took);
+    stopped_after_consecutive_samples(run, took, Thresholds::SPEC.latch_samples);
     run.run_for(0.5);
     reported(run, Faults::GROUND);
     others_keep_working(run);
@@ -131,8 +133,18 @@ pub fn stall(run: &mut Run) {
 
 pub fn hall(run: &mut Run) {
     let unplugged = Fault::HallsUnplugged { thruster: 0 };
-    let took = inject_and_time(run, unplugged);
-    coasted_within_a_sample(run, took);
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    run.inject(unplugged);
+    // The commutation coasts the phases at once on the invalid state; the hall error (which stops the drive)
+    // follows after its consecutive readings.
+    let coasted = run.run_until(1.0, |bench| bench.thrusters[0].drive().0 == COAST);
+    coasted_within_a_sample(run, coasted);
+    let stopped = coasted.and_then(|s| {
+        run.run_until(1.0, |bench| bench.thrusters[0].drive().1.value() == 0)
+            .map(|more| s + more)
+    });
+    stopped_after_consecutive_samples(run, stopped, Thresholds::SPEC.hall_error_samples);
     run.run_for(0.2);
     reported(run, Faults::HALL);
     others_keep_working(run);
