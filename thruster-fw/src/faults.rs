@@ -51,8 +51,9 @@ pub struct Thresholds {
     /// Stall window: the duty must stay above `stall_duty` this long, and the pulses are counted over it
     /// (IDS: 400 ms).
     pub stall_window: Duration,
-    /// Stall when fewer than this many hall pulses arrive within the window (IDS: 3). At most
-    /// [`StallDetector::MAX_PULSES`] take effect; 0 disables stall detection.
+    /// Stall when fewer than this many hall pulses arrive within the window (IDS: 3), a pulse being one hall
+    /// state of net progress in the driven direction ([`Progress`]). At most [`StallDetector::MAX_PULSES`] take
+    /// effect; 0 disables stall detection.
     pub stall_min_pulses: u8,
     /// Brushed stall ([`CurrentStall`]): the motor's locked-rotor current at full duty, in 0.1 A. A locked rotor
     /// draws this times the duty; the stall level is half of that at the applied duty.
@@ -76,6 +77,10 @@ impl Thresholds {
     ///   (the illegal edge into the glitch, seen on one sample, and the one out of it, seen on the next when the
     ///   glitch spans a sample), so three in a row is a sensor that stays wrong: an unplugged or shorted sensor is
     ///   reacted to in 3 ms. The commutation still coasts at once on an invalid state.
+    /// - `stall_min_pulses` 3 in `stall_window` 400 ms (the IDS), counted as net progress: at the reference
+    ///   motor's 4 pole pairs (`Config::reference`) a hall state is 1/24 of a turn, and 3 states in every 400 ms
+    ///   window need an edge at least every 133 ms: a rotor turning slower than 18.75 rpm, or rocking in place,
+    ///   is stalled.
     /// - `locked_rotor_deciamps` 20 A: the reference BTD150-class motor (24 V across its 1.2 ohm winding, the
     ///   motor the bench models in `lbv/src/bench/plant.rs`). Half of it at the applied duty is far above what
     ///   the propeller draws turning (4 A at full speed, 0.4 A at 25 %).

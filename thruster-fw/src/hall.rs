@@ -125,7 +125,8 @@ pub const fn transition(from: HallState, to: HallState) -> Transition {
 /// Edge intervals averaged for the speed: one electrical revolution.
 const AVERAGED_INTERVALS: usize = 6;
 
-/// Follows the hall edges of a turning motor: direction, electrical period, signed mechanical rpm, legal pulses.
+/// Follows the hall edges of a turning motor: direction, electrical period, signed mechanical rpm, legal pulses and
+/// the net position they add up to.
 ///
 /// A plain value (Copy), so a task can publish snapshots of it for others to read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
