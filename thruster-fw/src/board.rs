@@ -250,6 +250,10 @@ impl Sensors for AnalogInputs {
     async fn sample(&mut self) -> RawSample {
         // Three blocking conversions take about 17 us in all (the water sensor's 640.5 cycles dominate): not
         // worth a DMA round trip at 1 kHz.
+        // STM32G4 errata ES0431 (as spec-notes reports it): the first conversion after the ADC idled for about
+        // 1 ms or more may be wrong, and these come 1 ms apart. One conversion of the low-impedance current input
+        // is thrown away first; the faults' consecutive samples (`Thresholds::latch_samples`) cover it anyway.
+        let _ = self.adc.blocking_read(&mut self.current, sample_time(CURRENT_SAMPLE));
         RawSample {
             water: self.adc.blocking_read(&mut self.water, sample_time(WATER_SAMPLE)),
             temperature: self.adc.blocking_read(&mut self.ntc, sample_time(NTC_SAMPLE)),
@@ -268,6 +272,8 @@ pub struct WaterPin {
 #[cfg(feature = "motorless")]
 impl WaterInput for WaterPin {
     async fn water(&mut self) -> u16 {
+        // ES0431: the first conversion after an idle ADC may be wrong (see `AnalogInputs::sample`); thrown away.
+        let _ = self.adc.blocking_read(&mut self.pin, sample_time(CURRENT_SAMPLE));
         self.adc.blocking_read(&mut self.pin, sample_time(WATER_SAMPLE))
     }
 }

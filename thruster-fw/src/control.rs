@@ -8,7 +8,7 @@ use tmc_proto::{
 
 use crate::drive::Duty;
 use crate::failsafe::LinkFailsafe;
-use crate::speed::{SpeedConfig, SpeedController, step_of_brushed_duty};
+use crate::speed::{PowerLimit, SpeedConfig, SpeedController, step_of_brushed_duty};
 
 /// What the I2C side last heard from the master, published after every valid order and every status read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -55,10 +55,13 @@ pub struct Control {
     family: Family,
     motor: MotorKind,
     speed: SpeedController,
+    power: PowerLimit,
     failsafe: LinkFailsafe,
     order: Order,
     orders_seen: u32,
     duty: Duty,
+    /// The failsafe stopped the motor and no new order has come since.
+    holding: bool,
 }
 
 impl Control {
@@ -68,10 +71,12 @@ impl Control {
             family,
             motor: speed.motor,
             speed: SpeedController::new(speed),
+            power: PowerLimit::new(),
             failsafe: LinkFailsafe::new(link_timeout, now),
             order: Order::STOP,
             orders_seen: 0,
             duty: Duty::ZERO,
+            holding: false,
         }
     }
 
@@ -85,6 +90,12 @@ impl Control {
         self.failsafe.trips()
     }
 
+    /// Whether the link failsafe holds the motor stopped: from its trip until the next valid order (a read
+    /// alone does not end it). SeaBotix builds report it in FAULT bit 5 (`SeaBotixStatus::FAULT_LINK_FAILSAFE`).
+    pub fn failsafe_holding(&self) -> bool {
+        self.holding
+    }
+
     /// One control step: take the link's news, apply the failsafe and the fault verdict, run the speed loop.
     pub fn tick(&mut self, now: Instant, link: Option<LinkUpdate>, sensed: Sensed, rpm: i32) -> Duty {
         if let Some(update) = link {
@@ -92,19 +103,27 @@ impl Control {
             if update.orders != self.orders_seen {
                 self.orders_seen = update.orders;
                 self.order = update.order;
+                self.holding = false;
             }
         }
         let trips = self.failsafe.trips();
         if self.failsafe.check(now) {
             if self.failsafe.trips() != trips {
-                warn!("link lost: no transfer for the failsafe timeout, stopping");
+                warn!(
+                    "link lost: no transfer for the failsafe timeout, stopping ({} trips so far)",
+                    self.failsafe.trips()
+                );
             }
+            self.holding = true;
             // Only a new order restarts the motor, not a read carrying the old one.
             self.order = Order::STOP;
         }
+        // INFO limits the power drawn, measured with the duty of the last step (the one the current flowed at).
+        let ceiling = self
+            .power
+            .update(now, self.order.power_cap_percent(), self.duty, sensed.current_deciamps);
         self.duty = if sensed.drive_allowed && !self.failsafe.expired(now) {
-            self.speed
-                .update(now, self.order.speed, self.order.power_cap_percent(), rpm)
+            self.speed.update_within(now, self.order.speed, ceiling, rpm)
         } else {
             self.speed.reset();
             Duty::ZERO
@@ -133,7 +152,12 @@ fn status_of(family: Family, motor: MotorKind, sensed: Sensed, speed: Speed) -> 
     let current = u8::try_from(sensed.current_deciamps).unwrap_or(u8::MAX);
     match family {
         Family::SeaBotix => Status::SeaBotix(SeaBotixStatus {
-            revision: 0,
+            // 0 is the original brushless software (IDS 8.4.2); a brushed build reports the IDS's brushed
+            // revision number instead (`SeaBotixStatus::REVISION_BRUSHED`).
+            revision: match motor {
+                MotorKind::Brushless => 0,
+                MotorKind::Brushed => SeaBotixStatus::REVISION_BRUSHED,
+            },
             motor,
             current_limited: true,
             faults: sensed.faults,
@@ -248,24 +272,106 @@ mod tests {
         assert_eq!(control.failsafe_trips(), 1);
     }
 
+    /// The supply power of a propeller-loaded motor at `duty` and `rpm` (the reference motor's figures: 24 V,
+    /// 1.2 ohm, 19.2 V of back-EMF at 5000 rpm), and the motor current it draws in 0.1 A.
+    fn motor_current(duty: Duty, rpm: f64) -> u16 {
+        let back_emf = 19.2 * rpm / 5000.0;
+        let amps = ((f64::from(duty.magnitude()) / 10_000.0 * 24.0 - back_emf) / 1.2).max(0.0);
+        (amps * 10.0).round() as u16
+    }
+
     #[test]
-    fn the_info_byte_caps_the_duty() {
-        let mut control = brushless(Family::SeaBotix);
-        let order = Order {
-            speed: Speed::MAX_FORWARD,
-            info: 25,
-        };
+    fn the_info_byte_limits_the_power_drawn_not_the_duty() {
+        for (info, cap_w) in [(50u8, 48.0), (25, 24.0)] {
+            let mut control = brushless(Family::SeaBotix);
+            let order = Order {
+                speed: Speed::MAX_FORWARD,
+                info,
+            };
+            let link = Some(LinkUpdate {
+                order,
+                orders: 1,
+                zero_orders: 0,
+                at: ms(0),
+            });
+            // A first-order motor with a propeller: steady speed ~ 5000 rpm x duty, 50 ms time constant.
+            let (mut rpm, mut duty) = (0.0f64, Duty::ZERO);
+            let mut power = 0.0;
+            for t in 0..3000 {
+                let current = motor_current(duty, rpm);
+                let sensed = Sensed {
+                    current_deciamps: current,
+                    ..HEALTHY
+                };
+                let link = link.map(|update| LinkUpdate { at: ms(t), ..update });
+                duty = control.tick(ms(t), link, sensed, rpm.round() as i32);
+                power = f64::from(duty.magnitude()) / 10_000.0 * f64::from(current) / 10.0 * 24.0;
+                let steady = 5000.0 * f64::from(duty.value()) / 10_000.0;
+                rpm += (steady - rpm) * 0.001 / 0.05;
+            }
+            assert!(
+                (power - cap_w).abs() < cap_w * 0.05,
+                "INFO {info}: {power:.1} W against {cap_w} W, duty {duty:?}"
+            );
+            // Far more than INFO % of the duty, which gave about 15 % of full power at INFO 50.
+            assert!(
+                duty.magnitude() > u16::from(info) * 100 + 1000,
+                "INFO {info}: duty {duty:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn info_100_and_no_info_do_not_limit() {
+        for info in [0u8, 100, 101, 255] {
+            let mut control = brushless(Family::SeaBotix);
+            let link = Some(LinkUpdate {
+                order: Order {
+                    speed: Speed::MAX_FORWARD,
+                    info,
+                },
+                orders: 1,
+                zero_orders: 0,
+                at: ms(0),
+            });
+            // A locked rotor's current: the limit never bites.
+            let sensed = Sensed {
+                current_deciamps: 200,
+                ..HEALTHY
+            };
+            let mut highest = 0;
+            for t in 0..900 {
+                highest = highest.max(control.tick(ms(t), link, sensed, 0).value());
+            }
+            assert_eq!(highest, i16::try_from(crate::speed::MAX_DUTY).unwrap(), "INFO {info}");
+        }
+    }
+
+    #[test]
+    fn the_power_limit_holds_a_brushed_motor_too() {
+        let mut control = Control::new(Family::Legacy, SpeedConfig::BRUSHED_DEFAULT, TIMEOUT, ms(0));
         let link = Some(LinkUpdate {
-            order,
+            order: Order {
+                speed: Speed::MAX_FORWARD,
+                info: 50,
+            },
             orders: 1,
             zero_orders: 0,
             at: ms(0),
         });
-        let mut highest = 0;
-        for t in 0..900 {
-            highest = highest.max(control.tick(ms(t), link, HEALTHY, 0).value());
+        let (mut rpm, mut duty, mut power) = (0.0f64, Duty::ZERO, 0.0);
+        for t in 0..3000 {
+            let current = motor_current(duty, rpm);
+            let sensed = Sensed {
+                current_deciamps: current,
+                ..HEALTHY
+            };
+            let link = link.map(|update| LinkUpdate { at: ms(t), ..update });
+            duty = control.tick(ms(t), link, sensed, 0);
+            power = f64::from(duty.magnitude()) / 10_000.0 * f64::from(current) / 10.0 * 24.0;
+            rpm += (5000.0 * f64::from(duty.value()) / 10_000.0 - rpm) * 0.001 / 0.05;
         }
-        assert_eq!(highest, 2500, "25 % of full scale with the motor not turning");
+        assert!((power - 48.0).abs() < 2.4, "{power:.1} W, duty {duty:?}");
     }
 
     #[test]

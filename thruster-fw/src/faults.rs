@@ -3,11 +3,16 @@
 //!
 //! | fault | set when | Legacy | SeaBotix |
 //! |---|---|---|---|
-//! | water detect | water sensor < 1 Mohm | stops; latched until power cycle | warning only; clears at >= 1 Mohm |
+//! | water detect | water sensor < 1 Mohm | stops; latched until power cycle | warning only; clears at >= 1.1 Mohm |
 //! | ground fault | water sensor < 100 kohm | stops; latched until power cycle | same |
 //! | overtemp | >= 110.0 C, cleared at <= 100.0 C | stops while set | same |
-//! | stalled motor | [`StallDetector`] verdict | stops; latched until a zero-speed order | same |
+//! | stalled motor | [`StallDetector`] / [`CurrentStall`] verdict | stops; latched until a zero-speed order | same |
 //! | hall sensor error | hall state invalid or illegal transition | stops; clears when the halls read normal | same |
+//!
+//! The IDS leaves the filtering open; the project's reading (spec-notes, "How the project reads the rest of the
+//! fault rules"): water and ground need their condition on [`Thresholds::latch_samples`] consecutive samples to
+//! set (and water as many above its band to clear), a hall error needs [`Thresholds::hall_error_samples`]
+//! consecutive abnormal readings. Overtemp has its own 10 C band and needs no count.
 //!
 //! The IDS does not say how a stall clears; the project follows the AM32 / BLHeli_32 rule (spec-notes): a
 //! zero-speed order clears it. "Latched until power cycle" holds across every other reset (watchdog, reset pin,
@@ -18,7 +23,7 @@
 use embassy_time::{Duration, Instant};
 use tmc_proto::{Family, Faults, Speed};
 
-use crate::drive::Duty;
+use crate::drive::{Direction, Duty};
 
 /// Fault thresholds (spec-notes section 1, IDS 8.4 remarks).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -26,6 +31,15 @@ use crate::drive::Duty;
 pub struct Thresholds {
     /// Water detect when the water sensor resistance is below this, in ohms (IDS 8.4.2 remark 2: 1 Mohm).
     pub water_ohms: u32,
+    /// A SeaBotix water warning clears only at or above this, in ohms: the threshold plus a band, so a sensor
+    /// sitting at 1 Mohm with ADC noise does not toggle the warning (spec-notes: "a band on the clear").
+    pub water_clear_ohms: u32,
+    /// Water and ground fault need their condition on this many consecutive samples to set, and water as many
+    /// at or above `water_clear_ohms` to clear; 0 acts as 1 (spec-notes: "consecutive samples, never one").
+    pub latch_samples: u8,
+    /// A hall error needs this many consecutive abnormal readings; 0 acts as 1 (spec-notes: "one bad hall
+    /// reading is not yet a hall error").
+    pub hall_error_samples: u8,
     /// Ground fault when the water sensor resistance is below this, in ohms (IDS 8.4 remarks: 100 kohm).
     pub ground_ohms: u32,
     /// Overtemp sets at or above this temperature, in 0.1 C (IDS 8.4 remarks: 110 C).
@@ -37,21 +51,55 @@ pub struct Thresholds {
     /// Stall window: the duty must stay above `stall_duty` this long, and the pulses are counted over it
     /// (IDS: 400 ms).
     pub stall_window: Duration,
-    /// Stall when fewer than this many hall pulses arrive within the window (IDS: 3). At most
-    /// [`StallDetector::MAX_PULSES`] take effect; 0 disables stall detection.
+    /// Stall when fewer than this many hall pulses arrive within the window (IDS: 3), a pulse being one hall
+    /// state of net progress in the driven direction ([`Progress`]). At most [`StallDetector::MAX_PULSES`] take
+    /// effect; 0 disables stall detection.
     pub stall_min_pulses: u8,
+    /// Brushed stall ([`CurrentStall`]): the motor's locked-rotor current at full duty, in 0.1 A. A locked rotor
+    /// draws this times the duty; the stall level is half of that at the applied duty.
+    pub locked_rotor_deciamps: u16,
+    /// Brushed stall: the level never exceeds this, in 0.1 A, so a power stage that limits the current below the
+    /// locked-rotor current still sees a locked rotor as stalled.
+    pub stall_current_ceiling_deciamps: u16,
 }
 
 impl Thresholds {
-    /// The values of the IDS 8.4 remarks.
+    /// The values of the IDS 8.4 remarks, and the project's filters where the IDS gives none.
+    ///
+    /// - `water_clear_ohms` 1.1 Mohm: a 10 % band. With the reference 1 Mohm pull-down (`sensors::WaterSensor`),
+    ///   1 Mohm reads 2048 counts and 1.1 Mohm 1950: ~100 counts of band against an ADC noise of a few counts
+    ///   (one count is ~1 kohm there).
+    /// - `latch_samples` 3: at the 1 kHz sampling ([`crate::tasks::SAMPLE_PERIOD`]) water and ground faults are
+    ///   reacted to in 3 ms instead of 1 ms; the IDS gives no reaction time, and the water sensor's own 100 nF
+    ///   already filters over ~0.1 s (README, the water sensor). Three covers a single spike and the wrong first
+    ///   conversion after an idle ADC (STM32G4 errata ES0431) with a sample to spare.
+    /// - `hall_error_samples` 3: a hall glitch shorter than a sample period gives at most two abnormal readings
+    ///   (the illegal edge into the glitch, seen on one sample, and the one out of it, seen on the next when the
+    ///   glitch spans a sample), so three in a row is a sensor that stays wrong: an unplugged or shorted sensor is
+    ///   reacted to in 3 ms. The commutation still coasts at once on an invalid state.
+    /// - `stall_min_pulses` 3 in `stall_window` 400 ms (the IDS), counted as net progress: at the reference
+    ///   motor's 4 pole pairs (`Config::reference`) a hall state is 1/24 of a turn, and 3 states in every 400 ms
+    ///   window need an edge at least every 133 ms: a rotor turning slower than 18.75 rpm, or rocking in place,
+    ///   is stalled.
+    /// - `locked_rotor_deciamps` 20 A: the reference BTD150-class motor (24 V across its 1.2 ohm winding, the
+    ///   motor the bench models in `lbv/src/bench/plant.rs`). Half of it at the applied duty is far above what
+    ///   the propeller draws turning (4 A at full speed, 0.4 A at 25 %).
+    /// - `stall_current_ceiling_deciamps` 6 A: above the 4 A of full speed, below the power stage's 8 A
+    ///   cycle-by-cycle limit (the IHM08M1's overcurrent comparator as the bench models it), which would
+    ///   otherwise hold a locked rotor under a level it could never reach.
     pub const SPEC: Thresholds = Thresholds {
         water_ohms: 1_000_000,
+        water_clear_ohms: 1_100_000,
+        latch_samples: 3,
+        hall_error_samples: 3,
         ground_ohms: 100_000,
         overtemp_set_decicelsius: 1100,
         overtemp_clear_decicelsius: 1000,
         stall_duty: 800,
         stall_window: Duration::from_millis(400),
         stall_min_pulses: 3,
+        locked_rotor_deciamps: 200,
+        stall_current_ceiling_deciamps: 60,
     };
 }
 
@@ -146,6 +194,120 @@ impl StallDetector {
     }
 }
 
+/// Net progress of the rotor in the driven direction, for the stall window's pulses (spec-notes: "a hall pulse is
+/// net progress of one hall state in the driven direction").
+///
+/// A pulse is a hall state reached beyond the furthest one reached so far in the driven direction: an edge back,
+/// and the edge forward again over the same boundary, count nothing, so a blocked rotor rocking across a hall
+/// boundary gives at most one pulse. A change of the driven direction (or no drive) starts again from where the
+/// rotor is.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Progress {
+    /// The direction driven and the furthest hall position reached in it.
+    mark: Option<(Direction, i32)>,
+}
+
+impl Progress {
+    /// No mark: the next call starts from where the rotor is.
+    pub const fn new() -> Self {
+        Progress { mark: None }
+    }
+
+    /// The new pulses at hall `position` (the net count of [`crate::hall::HallTracker::position`]) with the
+    /// motor driven in `driven` (`None`: not driven).
+    pub fn advance(&mut self, position: i32, driven: Option<Direction>) -> u32 {
+        let Some(direction) = driven else {
+            self.mark = None;
+            return 0;
+        };
+        let Some((marked, furthest)) = self.mark.filter(|(marked, _)| *marked == direction) else {
+            self.mark = Some((direction, position));
+            return 0;
+        };
+        // Wrapping: the position is a wrapping count, and the difference of two nearby ones is small.
+        let gained = match marked {
+            Direction::Forward => position.wrapping_sub(furthest),
+            Direction::Reverse => furthest.wrapping_sub(position),
+        };
+        if gained > 0 {
+            self.mark = Some((marked, position));
+            gained.unsigned_abs()
+        } else {
+            0
+        }
+    }
+}
+
+/// Stall detection for a brushed motor, which has no halls (spec-notes: "stall on a brushed motor"): the duty
+/// magnitude strictly above 8 % and the motor current at or above its stall level, continuously for 400 ms (the
+/// window of the IDS's brushless rule). The level at duty d is min(d x locked-rotor / 2, ceiling)
+/// ([`Thresholds::locked_rotor_deciamps`], [`Thresholds::stall_current_ceiling_deciamps`]). As for
+/// [`StallDetector`], the condition first seen at t = 0 and held at every update reports a stall from t = 400 ms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct CurrentStall {
+    stall_duty: u16,
+    window: Duration,
+    locked_rotor_deciamps: u16,
+    ceiling_deciamps: u16,
+    /// First `update` of the current run of the condition.
+    since: Option<Instant>,
+}
+
+impl CurrentStall {
+    /// A detector that has seen nothing.
+    pub const fn new(thresholds: &Thresholds) -> Self {
+        CurrentStall {
+            stall_duty: thresholds.stall_duty,
+            window: thresholds.stall_window,
+            locked_rotor_deciamps: thresholds.locked_rotor_deciamps,
+            ceiling_deciamps: thresholds.stall_current_ceiling_deciamps,
+            since: None,
+        }
+    }
+
+    /// The stall level at `duty`, in 0.1 A.
+    pub fn level_deciamps(&self, duty: Duty) -> u16 {
+        // Both factors are below 2^16: the product fits in u32, and the quotient is at most 65 535 / 2.
+        let half_locked = u32::from(self.locked_rotor_deciamps) * u32::from(duty.magnitude()) / (2 * FULL_DUTY);
+        u16::try_from(half_locked)
+            .unwrap_or(u16::MAX)
+            .min(self.ceiling_deciamps)
+    }
+
+    /// Whether the motor is stalled at `now` with `duty` applied and `current_deciamps` measured.
+    pub fn update(&mut self, now: Instant, duty: Duty, current_deciamps: u16) -> bool {
+        if duty.magnitude() <= self.stall_duty || current_deciamps < self.level_deciamps(duty) {
+            self.since = None;
+            return false;
+        }
+        let since = *self.since.get_or_insert(now);
+        now.saturating_duration_since(since) >= self.window
+    }
+
+    /// Forget the history, as after [`CurrentStall::new`].
+    pub fn reset(&mut self) {
+        self.since = None;
+    }
+}
+
+/// Full scale of a [`Duty`], as the stall level's arithmetic takes it.
+const FULL_DUTY: u32 = Duty::FULL as u32;
+
+/// Consecutive samples of one condition, saturating.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+struct Run(u8);
+
+impl Run {
+    /// Count this sample (`on`) or start again; returns whether the run has reached `needed` (0 acts as 1).
+    fn sample(&mut self, on: bool, needed: u8) -> bool {
+        self.0 = if on { self.0.saturating_add(1) } else { 0 };
+        self.0 >= needed.max(1)
+    }
+}
+
 /// The fault state machine for one controller family: the table in this module's documentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -153,6 +315,12 @@ pub struct FaultMonitor {
     family: Family,
     thresholds: Thresholds,
     faults: Faults,
+    /// Consecutive samples below the water threshold, at or above its band, below the ground threshold, and with
+    /// the halls abnormal.
+    wet: Run,
+    dry: Run,
+    grounded: Run,
+    bad_halls: Run,
 }
 
 impl FaultMonitor {
@@ -162,27 +330,33 @@ impl FaultMonitor {
             family,
             thresholds,
             faults: Faults::NONE,
+            wet: Run(0),
+            dry: Run(0),
+            grounded: Run(0),
+            bad_halls: Run(0),
         }
     }
 
     /// Apply one sample (plus the stall detector's verdict) and return the faults to report.
     ///
-    /// The returned faults already reflect this sample, so the motor stops within one sample of a fault.
+    /// The returned faults already reflect this sample, so the motor stops on the sample that completes a
+    /// fault's count (the first sample for overtemp and stall).
     pub fn update(&mut self, sample: Sample, stalled: bool) -> Faults {
         let t = &self.thresholds;
-        let water = sample.water_ohms < t.water_ohms;
-        match self.family {
-            // IDS 8.4.1 remark 2: latched until power cycle.
-            Family::Legacy => {
-                if water {
-                    self.faults.insert(Faults::WATER);
-                }
-            }
-            // IDS 8.4.2 remark 2: a warning that clears when the resistance is back.
-            Family::SeaBotix => self.faults.set(Faults::WATER, water),
+        let wet = self.wet.sample(sample.water_ohms < t.water_ohms, t.latch_samples);
+        let dry = self
+            .dry
+            .sample(sample.water_ohms >= t.water_clear_ohms, t.latch_samples);
+        if wet {
+            self.faults.insert(Faults::WATER);
+        }
+        // IDS 8.4.1 remark 2: Legacy water is latched until power cycle; IDS 8.4.2 remark 2: the SeaBotix warning
+        // clears when the resistance is back, here above the band.
+        if dry && self.family == Family::SeaBotix {
+            self.faults.remove(Faults::WATER);
         }
         // IDS 8.4.1 remark 6, 8.4.2 remark 3: latched until power cycle.
-        if sample.water_ohms < t.ground_ohms {
+        if self.grounded.sample(sample.water_ohms < t.ground_ohms, t.latch_samples) {
             self.faults.insert(Faults::GROUND);
         }
         // Hysteresis: between the two thresholds the overtemp keeps its state.
@@ -195,7 +369,9 @@ impl FaultMonitor {
         if stalled {
             self.faults.insert(Faults::STALL);
         }
-        self.faults.set(Faults::HALL, !sample.halls_normal);
+        // IDS 8.4 remarks: clears when the halls read normal, here on the first normal reading.
+        let hall_error = self.bad_halls.sample(!sample.halls_normal, t.hall_error_samples);
+        self.faults.set(Faults::HALL, hall_error);
         self.faults
     }
 
@@ -393,7 +569,20 @@ mod tests {
         ..HEALTHY
     };
 
+    /// The table without its filters: one sample sets and clears, water clears at the threshold itself. The
+    /// table's tests use it; the filters have tests of their own with [`Thresholds::SPEC`].
+    const UNFILTERED: Thresholds = Thresholds {
+        water_clear_ohms: 1_000_000,
+        latch_samples: 1,
+        hall_error_samples: 1,
+        ..Thresholds::SPEC
+    };
+
     fn monitor(family: Family) -> FaultMonitor {
+        FaultMonitor::new(family, UNFILTERED)
+    }
+
+    fn filtered(family: Family) -> FaultMonitor {
         FaultMonitor::new(family, Thresholds::SPEC)
     }
 
@@ -437,6 +626,164 @@ mod tests {
         assert_eq!(t.stall_duty, 800);
         assert_eq!(t.stall_window, Duration::from_millis(400));
         assert_eq!(t.stall_min_pulses, 3);
+        assert_eq!(t.water_clear_ohms, 1_100_000);
+        assert_eq!(t.latch_samples, 3);
+        assert_eq!(t.hall_error_samples, 3);
+        assert_eq!(t.locked_rotor_deciamps, 200);
+        assert_eq!(t.stall_current_ceiling_deciamps, 60);
+    }
+
+    #[test]
+    fn one_ground_sample_does_not_latch_but_three_in_a_row_do() {
+        for family in Family::ALL {
+            let mut m = filtered(family);
+            // Single 90 kohm samples (a spike, or ES0431's wrong first conversion) between dry ones.
+            for _ in 0..10 {
+                assert_eq!(m.update(water(90_000), false), Faults::NONE, "{family:?}");
+                assert_eq!(m.update(water(90_000), false), Faults::NONE, "{family:?}");
+                assert_eq!(m.update(HEALTHY, false), Faults::NONE, "{family:?}");
+            }
+            assert!(m.drive_allowed());
+            m.update(water(90_000), false);
+            m.update(water(90_000), false);
+            assert_eq!(m.update(water(90_000), false), Faults::GROUND | Faults::WATER);
+            assert!(!m.drive_allowed());
+            for _ in 0..10 {
+                m.update(HEALTHY, false);
+            }
+            assert!(m.faults().contains(Faults::GROUND));
+        }
+    }
+
+    #[test]
+    fn legacy_water_needs_three_samples_to_latch() {
+        let mut m = filtered(Family::Legacy);
+        assert_eq!(m.update(water(999_999), false), Faults::NONE);
+        assert_eq!(m.update(water(999_999), false), Faults::NONE);
+        assert_eq!(m.update(HEALTHY, false), Faults::NONE);
+        for _ in 0..2 {
+            assert_eq!(m.update(water(500_000), false), Faults::NONE);
+        }
+        assert_eq!(m.update(water(500_000), false), Faults::WATER);
+        assert_eq!(m.update(HEALTHY, false), Faults::WATER);
+    }
+
+    #[test]
+    fn seabotix_water_at_its_threshold_does_not_chatter() {
+        let sensor = crate::sensors::WaterSensor {
+            pull_down_ohms: 1_000_000,
+        };
+        let at = sensor.raw_at(1_000_000);
+        let mut m = filtered(Family::SeaBotix);
+        let mut changes = 0;
+        let mut last = Faults::NONE;
+        // One ADC count either side of 1 Mohm, in every pattern of a slow pseudo-random walk, for 2 s.
+        let mut state: u32 = 0x2545_F491;
+        for _ in 0..2000 {
+            state ^= state << 13;
+            state ^= state >> 17;
+            state ^= state << 5;
+            let raw = match state % 3 {
+                0 => at - 1,
+                1 => at,
+                _ => at + 1,
+            };
+            let faults = m.update(water(sensor.resistance_ohms(raw)), false);
+            if faults != last {
+                changes += 1;
+                last = faults;
+            }
+        }
+        assert!(changes <= 1, "{changes} changes of the warning");
+        // It clears above the band, after three samples there.
+        assert!(m.faults().contains(Faults::WATER));
+        assert_eq!(m.update(water(1_099_999), false), Faults::WATER);
+        assert_eq!(m.update(water(1_100_000), false), Faults::WATER);
+        assert_eq!(m.update(water(1_100_000), false), Faults::WATER);
+        assert_eq!(m.update(water(1_100_000), false), Faults::NONE);
+        assert!(m.drive_allowed());
+    }
+
+    #[test]
+    fn one_or_two_bad_hall_readings_are_not_a_hall_error() {
+        for family in Family::ALL {
+            let mut m = filtered(family);
+            for _ in 0..20 {
+                assert_eq!(m.update(BAD_HALLS, false), Faults::NONE);
+                assert_eq!(m.update(BAD_HALLS, false), Faults::NONE);
+                assert_eq!(m.update(HEALTHY, false), Faults::NONE);
+                assert!(m.drive_allowed());
+            }
+            m.update(BAD_HALLS, false);
+            m.update(BAD_HALLS, false);
+            assert_eq!(m.update(BAD_HALLS, false), Faults::HALL);
+            assert!(!m.drive_allowed());
+            assert_eq!(m.update(HEALTHY, false), Faults::NONE);
+        }
+    }
+
+    #[test]
+    fn progress_counts_only_new_ground_in_the_driven_direction() {
+        let mut p = Progress::new();
+        let forward = Some(Direction::Forward);
+        assert_eq!(p.advance(10, forward), 0);
+        // Rocking across one boundary: one pulse at most.
+        let mut pulses = 0;
+        for position in [11, 10, 11, 10, 11, 10, 11] {
+            pulses += p.advance(position, forward);
+        }
+        assert_eq!(pulses, 1);
+        assert_eq!(p.advance(13, forward), 2);
+        // Turning backwards while driven forward counts nothing, nor does coming back.
+        assert_eq!(p.advance(5, forward), 0);
+        assert_eq!(p.advance(13, forward), 0);
+        assert_eq!(p.advance(14, forward), 1);
+        // Driven in reverse: progress is downwards, from where the rotor is when the direction changes.
+        let reverse = Some(Direction::Reverse);
+        assert_eq!(p.advance(14, reverse), 0);
+        assert_eq!(p.advance(12, reverse), 2);
+        assert_eq!(p.advance(13, reverse), 0);
+        // Not driven: the mark goes.
+        assert_eq!(p.advance(0, None), 0);
+        assert_eq!(p.advance(-3, reverse), 0);
+        assert_eq!(p.advance(-4, reverse), 1);
+        // Across the wrap of the count.
+        let mut p = Progress::new();
+        assert_eq!(p.advance(i32::MAX, forward), 0);
+        assert_eq!(p.advance(i32::MIN, forward), 1);
+    }
+
+    #[test]
+    fn brushed_stall_level_and_window() {
+        let mut s = CurrentStall::new(&Thresholds::SPEC);
+        // Half the 20 A locked-rotor current at the duty, at most 6 A.
+        assert_eq!(s.level_deciamps(duty(1000)), 10);
+        assert_eq!(s.level_deciamps(duty(-5000)), 50);
+        assert_eq!(s.level_deciamps(duty(9500)), 60);
+        // 25 A at full order: stalled from 400 ms on.
+        assert!(!s.update(ms(0), duty(9500), 250));
+        assert!(!s.update(ms(399), duty(9500), 250));
+        assert!(s.update(ms(400), duty(9500), 250));
+        // A turning motor's current, at any duty, never stalls.
+        let mut s = CurrentStall::new(&Thresholds::SPEC);
+        for t in 0..2000 {
+            assert!(!s.update(ms(t), duty(9500), 40));
+        }
+        // A locked rotor at 10 % duty draws 2 A: above its 1 A level.
+        let mut s = CurrentStall::new(&Thresholds::SPEC);
+        assert!(!s.update(ms(0), duty(1000), 20));
+        assert!(s.update(ms(400), duty(1000), 20));
+        // 8 % is not above 8 %; a dip of the current restarts the window.
+        let mut s = CurrentStall::new(&Thresholds::SPEC);
+        assert!(!s.update(ms(0), duty(800), 200));
+        assert!(!s.update(ms(500), duty(800), 200));
+        assert!(!s.update(ms(501), duty(9500), 200));
+        assert!(!s.update(ms(700), duty(9500), 59));
+        assert!(!s.update(ms(701), duty(9500), 60));
+        assert!(!s.update(ms(1100), duty(9500), 60));
+        assert!(s.update(ms(1101), duty(9500), 60));
+        s.reset();
+        assert!(!s.update(ms(1102), duty(9500), 60));
     }
 
     #[test]

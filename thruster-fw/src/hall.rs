@@ -125,7 +125,8 @@ pub const fn transition(from: HallState, to: HallState) -> Transition {
 /// Edge intervals averaged for the speed: one electrical revolution.
 const AVERAGED_INTERVALS: usize = 6;
 
-/// Follows the hall edges of a turning motor: direction, electrical period, signed mechanical rpm, legal pulses.
+/// Follows the hall edges of a turning motor: direction, electrical period, signed mechanical rpm, legal pulses and
+/// the net position they add up to.
 ///
 /// A plain value (Copy), so a task can publish snapshots of it for others to read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -147,6 +148,8 @@ pub struct HallTracker {
     next: u8,
     /// Legal edges, wrapping.
     pulses: u32,
+    /// Net legal edges, forward minus reverse, wrapping.
+    position: i32,
     /// Illegal transitions, saturating.
     illegal: u32,
 }
@@ -167,6 +170,7 @@ impl HallTracker {
             filled: 0,
             next: 0,
             pulses: 0,
+            position: 0,
             illegal: 0,
         }
     }
@@ -233,6 +237,12 @@ impl HallTracker {
         self.pulses
     }
 
+    /// Net hall states moved since `new`: forward edges minus reverse edges, wrapping. Illegal transitions do not
+    /// move it. The stall window counts progress in this ([`crate::faults::Progress`]).
+    pub fn position(&self) -> i32 {
+        self.position
+    }
+
     /// Illegal transitions seen since `new`, saturating.
     pub fn illegal_transitions(&self) -> u32 {
         self.illegal
@@ -242,6 +252,10 @@ impl HallTracker {
     /// illegal transition or a standstill.
     fn legal_edge(&mut self, direction: Direction, now: Instant) {
         self.pulses = self.pulses.wrapping_add(1);
+        self.position = match direction {
+            Direction::Forward => self.position.wrapping_add(1),
+            Direction::Reverse => self.position.wrapping_sub(1),
+        };
         let gap = now.saturating_duration_since(self.last_edge);
         if self.run == Some(direction) && gap < Self::STANDSTILL {
             // gap < 100 ms, so its microseconds fit a u32; 1 us at least keeps the speed finite.
@@ -517,6 +531,8 @@ mod tests {
         let last = edges(&mut t, Direction::Reverse, 10, last + 2500, 2500);
         assert_eq!(t.rpm(us(last)), -1000);
         assert_eq!(t.pulses(), 22);
+        // 10 forward, then 12 back: net 2 states back.
+        assert_eq!(t.position(), -2);
         assert_eq!(t.illegal_transitions(), 0);
     }
 
@@ -531,6 +547,7 @@ mod tests {
         assert_eq!(t.state(), jump);
         assert_eq!(t.illegal_transitions(), 1);
         assert_eq!(t.pulses(), 10);
+        assert_eq!(t.position(), 10, "an illegal jump does not move the position");
         assert_eq!(t.rpm(us(last + 2500)), 0);
         let last = edges(&mut t, Direction::Forward, 1, last + 5000, 2500);
         assert_eq!(t.rpm(us(last)), 0);

@@ -127,8 +127,15 @@ impl SpeedController {
     /// The first call after `new()`/`reset()` uses dt = 0 (no jump from an unknown past); dt is clamped to
     /// 100 ms, and time going backwards counts as dt = 0.
     pub fn update(&mut self, now: Instant, target: Speed, power_cap_percent: Option<u8>, measured_rpm: i32) -> Duty {
+        let ceiling = u16::try_from(duty_limit(power_cap_percent)).unwrap_or(u16::MAX);
+        self.update_within(now, target, ceiling, measured_rpm)
+    }
+
+    /// [`SpeedController::update`] with the duty magnitude held to `ceiling` (1/10 000) instead of a percentage:
+    /// what the INFO power limit ([`PowerLimit`]) gives.
+    pub fn update_within(&mut self, now: Instant, target: Speed, ceiling: u16, measured_rpm: i32) -> Duty {
         let dt_us = self.step_time(now);
-        let limit = duty_limit(power_cap_percent).min(i64::from(self.config.max_duty));
+        let limit = i64::from(ceiling).min(FULL).min(i64::from(self.config.max_duty));
         match self.config.motor {
             MotorKind::Brushless => self.update_brushless(dt_us, target, limit, measured_rpm),
             MotorKind::Brushed => self.update_brushed(dt_us, target, limit),
@@ -221,6 +228,78 @@ impl SpeedController {
         let capped = self.ramp_micro.clamp(-bound, bound);
         self.ramp_micro = slew(capped, order, self.max_step(dt_us));
         Duty::new_saturating(self.ramped_target())
+    }
+}
+
+/// The INFO byte as a power limit (spec-notes: "INFO is a power limit, not a duty limit"): the power drawn from
+/// the supply is held to INFO % of [`RATED_POWER_MW`], so the speed rises to the order as the current falls.
+///
+/// The core measures no supply voltage (its ADC inputs are the water sensor, the NTC and the motor current), so
+/// the power is estimated at the nominal [`SUPPLY_MV`]: |duty| x motor current x 24 V, the bridge's supply
+/// current times its nominal voltage. A pack above or below 24 V makes the real power that much higher or lower.
+///
+/// The limit is a duty ceiling that integrates the power error: it moves by [`POWER_LIMIT_GAIN_PER_S`] x full
+/// scale per second for an error of the whole rated power (~20 ms time constant on the reference motor, whose
+/// power rises ~5 x rated per unit of duty at fixed speed), within 0..=full scale. INFO 100, 0 and above 100
+/// mean no limit (masters send 100, spec-notes: they behave as before); the ceiling is then full scale.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct PowerLimit {
+    /// The duty ceiling in millionths of a duty unit.
+    ceiling_micro: i64,
+    last: Option<Instant>,
+}
+
+/// The reference thruster's rated power, mW: 96 W, what the BTD150-class thruster of `lbv/src/bench/plant.rs`
+/// draws at full duty in water on 24 V (4 A). Full order (4500 rpm) draws less, so INFO 100 would never bite.
+pub const RATED_POWER_MW: u32 = 96_000;
+/// The nominal supply the power is estimated at, mV: the reference thruster's 24 V.
+pub const SUPPLY_MV: u32 = 24_000;
+/// The power limit's integrating gain, full scale per second per rated power of error.
+pub const POWER_LIMIT_GAIN_PER_S: i64 = 10;
+
+impl Default for PowerLimit {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl PowerLimit {
+    /// No limit in effect yet: the ceiling at full scale.
+    pub const fn new() -> Self {
+        PowerLimit {
+            ceiling_micro: FULL * MICROS_PER_S,
+            last: None,
+        }
+    }
+
+    /// The supply power estimated from the duty applied and the motor current, mW.
+    pub fn power_mw(duty: Duty, current_deciamps: u16) -> i64 {
+        // |duty| <= 10 000, current < 2^16, so the product stays far inside i64.
+        // duty / 10 000 x deciamps / 10 x mV.
+        i64::from(duty.magnitude()) * i64::from(current_deciamps) * i64::from(SUPPLY_MV) / (FULL * 10)
+    }
+
+    /// One step at `now`: INFO's `power_cap_percent`, the duty applied since the last step and the motor current
+    /// it drew. Returns the duty ceiling (1/10 000).
+    pub fn update(&mut self, now: Instant, power_cap_percent: Option<u8>, duty: Duty, current_deciamps: u16) -> u16 {
+        let dt_us = self
+            .last
+            .and_then(|last| now.checked_duration_since(last))
+            .map_or(0, |dt| i64::try_from(dt.min(MAX_DT).as_micros()).unwrap_or(0));
+        self.last = Some(now);
+        let full = FULL * MICROS_PER_S;
+        match power_cap_percent {
+            Some(percent @ 1..=99) => {
+                let cap = i64::from(RATED_POWER_MW) * i64::from(percent) / 100;
+                let error = cap - Self::power_mw(duty, current_deciamps);
+                // |error| <= ~1e7 mW, dt <= 1e5 us: the product stays inside i64. In millionths of a duty unit.
+                let step = error * POWER_LIMIT_GAIN_PER_S * FULL * dt_us / i64::from(RATED_POWER_MW);
+                self.ceiling_micro = self.ceiling_micro.saturating_add(step).clamp(0, full);
+            }
+            _ => self.ceiling_micro = full,
+        }
+        u16::try_from(self.ceiling_micro / MICROS_PER_S).unwrap_or(u16::MAX)
     }
 }
 
@@ -429,6 +508,39 @@ mod tests {
         assert!(saw_zero);
         assert_eq!(rig.controller.ramped_target(), -2250);
         assert!(within_2_percent(rig.motor.rpm, -2250));
+    }
+
+    #[test]
+    fn power_limit_estimate_and_ceiling_bounds() {
+        // 50 % duty at 4 A on 24 V: 2 A from the supply, 48 W.
+        assert_eq!(PowerLimit::power_mw(Duty::new_saturating(-5000), 40), 48_000);
+        assert_eq!(PowerLimit::power_mw(Duty::ZERO, u16::MAX), 0);
+        let mut limit = PowerLimit::new();
+        let full = Duty::new_saturating(10_000);
+        // Drawing far too much for 1 s: the ceiling falls to zero and stays there, never below.
+        for t in 0..1000 {
+            limit.update(Instant::from_millis(t), Some(10), full, u16::MAX);
+        }
+        assert_eq!(limit.update(Instant::from_millis(1000), Some(10), full, u16::MAX), 0);
+        // Drawing nothing: it rises back to full scale, never above; INFO 100 is full scale at once.
+        for t in 1001..3000 {
+            limit.update(Instant::from_millis(t), Some(10), Duty::ZERO, 0);
+        }
+        assert_eq!(
+            limit.update(Instant::from_millis(3000), Some(10), Duty::ZERO, 0),
+            10_000
+        );
+        let mut limit = PowerLimit::new();
+        limit.update(Instant::from_millis(0), Some(1), full, u16::MAX);
+        assert!(limit.update(Instant::from_millis(100), Some(1), full, u16::MAX) < 10_000);
+        assert_eq!(
+            limit.update(Instant::from_millis(101), Some(100), full, u16::MAX),
+            10_000
+        );
+        // A late or backwards clock takes a bounded step.
+        let mut limit = PowerLimit::new();
+        limit.update(Instant::from_ticks(u64::MAX), Some(50), full, 10);
+        assert_eq!(limit.update(Instant::from_millis(0), Some(50), full, 10), 10_000);
     }
 
     #[test]

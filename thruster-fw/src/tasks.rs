@@ -2,19 +2,22 @@
 //! machines and talks to the others only through [`Shared`]. The STM32 binding, the bench and the host tests all
 //! run the controller through [`run`] and [`run_commutation`].
 
+use core::cell::Cell;
 use embassy_futures::join::join4;
 use embassy_futures::select::select3;
+
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::{Duration, Instant, Ticker, Timer, with_timeout};
-use tmc_proto::{Family, MotorKind, StatusFrame};
+use tmc_proto::{Family, MotorKind, SeaBotixStatus, StatusFrame};
 
 use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
 use crate::failsafe::LinkFailsafe;
-use crate::faults::{FaultMonitor, LatchStore, Sample, StallDetector, Thresholds};
+use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector, Thresholds};
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
 use crate::i2c_slave::{I2cTarget, Link, ServeEvent, serve};
@@ -222,6 +225,8 @@ pub struct Shared {
     pub status: Watch<Mutex, StatusFrame, 1>,
     /// Wakes the commutation task when the duty or the fault verdict changed.
     pub wake: Signal<Mutex, ()>,
+    /// Fault bits set at any sample since the last status read carried them (see [`Shared::note_unread`]).
+    unread: BlockingMutex<Mutex, Cell<u8>>,
     /// Task heartbeats for the watchdog.
     pub health: Health,
 }
@@ -236,8 +241,21 @@ impl Shared {
             duty: Watch::new(),
             status: Watch::new(),
             wake: Signal::new(),
+            unread: BlockingMutex::new(Cell::new(0)),
             health: Health::new(TASKS),
         }
+    }
+
+    /// Fault bits (the status's fault field) set now. They go into every status read until one read has carried
+    /// them, so a fault that sets and clears between two reads is still seen (spec-notes: "a fault bit is seen
+    /// before it clears").
+    pub fn note_unread(&self, bits: u8) {
+        self.unread.lock(|unread| unread.set(unread.get() | bits));
+    }
+
+    /// Take the bits noted since the last take, for the read being served.
+    fn take_unread(&self) -> u8 {
+        self.unread.lock(|unread| unread.replace(0))
     }
 }
 
@@ -270,7 +288,17 @@ pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: Motor
                 continue;
             }
         };
-        match serve(target, &mut link, request, || shared.status.try_get().unwrap_or(idle)).await {
+        let carried = Cell::new(0);
+        let frame = || {
+            carried.set(shared.take_unread());
+            shared.status.try_get().unwrap_or(idle).with_fault_bits(carried.get())
+        };
+        let served = serve(target, &mut link, request, frame).await;
+        if !matches!(served, Ok(ServeEvent::StatusSent)) {
+            // Not carried to the master: they wait for the next read.
+            shared.note_unread(carried.get());
+        }
+        match served {
             Ok(ServeEvent::Order(_) | ServeEvent::StatusSent) => shared.link.sender().send(LinkUpdate {
                 order: link.order(),
                 orders: link.orders(),
@@ -349,7 +377,8 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
     monitor.restore(latch.load());
     let mut saved = monitor.latched();
     let mut stall = StallDetector::new(&config.thresholds);
-    let mut seen_pulses = None;
+    let mut current_stall = CurrentStall::new(&config.thresholds);
+    let mut progress = Progress::new();
     let mut seen_illegal = None;
     let mut seen_zero_orders = 0;
     let mut allowed = false;
@@ -364,22 +393,30 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
             seen_zero_orders = link.zero_orders;
             monitor.on_order(tmc_proto::Speed::ZERO);
             stall.reset();
+            current_stall.reset();
+            progress = Progress::new();
         }
 
-        let brushless = config.motor == MotorKind::Brushless;
+        let duty = shared.duty.try_get().unwrap_or(Duty::ZERO);
+        let current_deciamps = config.current.deciamps(raw.current);
         let mut halls_normal = true;
         let mut stalled = false;
-        if brushless && let Some(hall) = shared.hall.try_get() {
-            // Each new legal edge is a pulse for the stall window; a few are enough to know the motor turns.
-            let new_pulses = seen_pulses.map_or(0, |seen: u32| hall.pulses().wrapping_sub(seen));
-            for _ in 0..new_pulses.min(u32::from(config.thresholds.stall_min_pulses)) {
-                stall.on_pulse(now);
+        match config.motor {
+            MotorKind::Brushless => {
+                if let Some(hall) = shared.hall.try_get() {
+                    // Each hall state gained in the driven direction is a pulse for the stall window (edges back
+                    // and forth over one boundary are not); a few are enough to know the motor turns.
+                    let new_pulses = progress.advance(hall.position(), duty.direction());
+                    for _ in 0..new_pulses.min(u32::from(config.thresholds.stall_min_pulses)) {
+                        stall.on_pulse(now);
+                    }
+                    let illegal = hall.illegal_transitions();
+                    halls_normal = hall.state().is_valid() && seen_illegal.is_none_or(|seen| seen == illegal);
+                    seen_illegal = Some(illegal);
+                    stalled = stall.update(now, duty);
+                }
             }
-            seen_pulses = Some(hall.pulses());
-            let illegal = hall.illegal_transitions();
-            halls_normal = hall.state().is_valid() && seen_illegal.is_none_or(|seen| seen == illegal);
-            seen_illegal = Some(illegal);
-            stalled = stall.update(now, shared.duty.try_get().unwrap_or(Duty::ZERO));
+            MotorKind::Brushed => stalled = current_stall.update(now, duty, current_deciamps),
         }
 
         let sample = Sample {
@@ -388,6 +425,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
             halls_normal,
         };
         let faults = monitor.update(sample, stalled);
+        shared.note_unread(faults.bits());
         if monitor.latched() != saved {
             saved = monitor.latched();
             latch.save(saved);
@@ -395,7 +433,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
         let sensed = Sensed {
             faults,
             drive_allowed: monitor.drive_allowed(),
-            current_deciamps: config.current.deciamps(raw.current),
+            current_deciamps,
             temperature_decicelsius: sample.temperature_decicelsius,
         };
         shared.sensed.sender().send(sensed);
@@ -422,6 +460,10 @@ pub async fn control_task(config: &Config, shared: &Shared) -> ! {
         let rpm = shared.hall.try_get().map_or(0, |hall| hall.rpm(now));
         let sensed = shared.sensed.try_get().unwrap_or(Sensed::UNKNOWN);
         let duty = control.tick(now, shared.link.try_get(), sensed, rpm);
+        // SeaBotix FAULT bit 5: the failsafe holds the motor stopped (the Legacy STATUS byte has no spare bit).
+        if config.family == Family::SeaBotix && control.failsafe_holding() {
+            shared.note_unread(SeaBotixStatus::FAULT_LINK_FAILSAFE);
+        }
         if sent != Some(duty) {
             sent = Some(duty);
             shared.duty.sender().send(duty);

@@ -90,6 +90,24 @@ impl SeaBotixStatus {
     /// Message length in bytes.
     pub const LEN: usize = 7;
 
+    /// FAULT bit 5, one of the IDS's "future growth" bits (8.4.2), which this project gives to its link failsafe
+    /// (spec-notes: 1 s without a valid order stops the motor): set from the failsafe stopping the motor until a
+    /// new order restarts it, and carried by at least one read. Bits 6-7 stay reserved. A master that follows
+    /// IDS 8.1 ignores it; [`SeaBotixStatus::decode`] masks it like the other reserved bits (read it with
+    /// [`SeaBotixStatus::link_failsafe_in`]).
+    pub const FAULT_LINK_FAILSAFE: u8 = 1 << 5;
+
+    /// The software revision (STATUS bits 4-7) a brushed build of this project's controller reports: 4, the
+    /// number the IDS gives brushed software ("brushed DC software (revision 4)", 8.4.1), since 0 means the
+    /// original brushless software (8.4.2). Brushless builds report 0 as the original does.
+    pub const REVISION_BRUSHED: u8 = 4;
+
+    /// Whether a 7-byte SeaBotix frame with a good checksum carries [`SeaBotixStatus::FAULT_LINK_FAILSAFE`];
+    /// false for anything else.
+    pub fn link_failsafe_in(bytes: &[u8]) -> bool {
+        Self::decode(bytes).is_ok() && bytes.get(2).is_some_and(|fault| fault & Self::FAULT_LINK_FAILSAFE != 0)
+    }
+
     const STATUS_BRUSHLESS: u8 = 1 << 1;
     const STATUS_NOT_CURRENT_LIMITED: u8 = 1 << 0;
 
@@ -404,6 +422,27 @@ pub struct StatusFrame {
 }
 
 impl StatusFrame {
+    /// The frame with `bits` set in its fault field, CSUM recomputed: the SeaBotix FAULT byte takes bits 0-4 and
+    /// [`SeaBotixStatus::FAULT_LINK_FAILSAFE`], the Legacy STATUS byte bits 0-4 (its bits 5-7 are the revision);
+    /// other bits are dropped. For a thruster that keeps a fault bit set until a read has carried it.
+    pub fn with_fault_bits(mut self, bits: u8) -> StatusFrame {
+        // The FAULT byte is word 2 of the SeaBotix layout, the STATUS byte word 1 of the Legacy one.
+        let (index, mask) = if usize::from(self.len) == SeaBotixStatus::LEN {
+            (2, Faults::ALL.bits() | SeaBotixStatus::FAULT_LINK_FAILSAFE)
+        } else {
+            (1, Faults::ALL.bits())
+        };
+        let last = usize::from(self.len).saturating_sub(1);
+        if let Some(field) = self.bytes.get_mut(index) {
+            *field |= bits & mask;
+        }
+        let sum = checksum(self.bytes.get(..last).unwrap_or(&[]));
+        if let Some(csum) = self.bytes.get_mut(last) {
+            *csum = sum;
+        }
+        self
+    }
+
     /// The message bytes, CSUM included.
     pub fn as_bytes(&self) -> &[u8] {
         self.bytes.get(..usize::from(self.len)).unwrap_or(&[])
@@ -435,6 +474,38 @@ fn check_type_and_sum(family: Family, mt: u8, body: &[u8], csum: u8) -> Result<(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fault_bits_added_to_a_frame_keep_it_valid() {
+        let seabotix = SeaBotixStatus {
+            revision: SeaBotixStatus::REVISION_BRUSHED,
+            motor: MotorKind::Brushed,
+            current_limited: true,
+            faults: Faults::WATER,
+            current_deciamps: 12,
+            speed: Speed::ZERO,
+            temperature_c: 20,
+        };
+        let frame = Status::from(seabotix).encode();
+        assert!(!SeaBotixStatus::link_failsafe_in(frame.as_bytes()));
+        let flagged = frame.with_fault_bits(Faults::HALL.bits() | SeaBotixStatus::FAULT_LINK_FAILSAFE | 0x80);
+        assert_eq!(flagged.as_bytes().get(2), Some(&0x34));
+        assert!(SeaBotixStatus::link_failsafe_in(flagged.as_bytes()));
+        let decoded = SeaBotixStatus::decode(flagged.as_bytes()).unwrap();
+        assert_eq!(decoded.status.faults, Faults::WATER | Faults::HALL);
+        assert_eq!(decoded.status.revision, 4);
+        // Legacy: the revision bits are never touched.
+        let legacy = LegacyStatus {
+            revision: LegacyRevision::AVEOX_BRUSHLESS,
+            faults: Faults::NONE,
+            max_power: MaxPower::Current { deciamps: 0 },
+        };
+        let flagged = Status::from(legacy).encode().with_fault_bits(0xFF);
+        let decoded = LegacyStatus::decode(flagged.as_bytes()).unwrap();
+        assert_eq!(decoded.status.revision, LegacyRevision::AVEOX_BRUSHLESS);
+        assert_eq!(decoded.status.faults, Faults::ALL);
+        assert!(!SeaBotixStatus::link_failsafe_in(flagged.as_bytes()));
+    }
 
     #[test]
     fn legacy_revision_range() {

@@ -35,6 +35,9 @@ pub enum Fault {
     CorruptOrders { thruster: usize, mask: u8 },
     /// Orders arrive with SPEED 0x00 (out of range) and a checksum that matches.
     OutOfRangeOrders { thruster: usize },
+    /// Orders arrive as full ahead (SPEED 0xE6) with INFO `info` (50: a power limit of 50 %; anything else 100)
+    /// and a checksum that matches.
+    FullOrder { thruster: usize, info: u8 },
     /// The thruster loses power: its controller stops wherever it was, mid-transfer or not. Cleared: power comes
     /// back and it boots.
     PowerCut { thruster: usize },
@@ -63,6 +66,23 @@ fn out_of_range(bytes: &mut [u8]) {
         *speed = 0x00;
         *sum = tmc_proto::checksum(&[*mt, *speed, *info]);
     }
+}
+
+/// Orders rewritten to full ahead with INFO `info` and a checksum that matches.
+fn full_order(bytes: &mut [u8], info_byte: u8) {
+    if let [mt, speed, info, sum] = bytes {
+        *speed = tmc_proto::Speed::MAX_FORWARD.to_byte();
+        *info = info_byte;
+        *sum = tmc_proto::checksum(&[*mt, *speed, *info]);
+    }
+}
+
+fn full_order_info_50(bytes: &mut [u8]) {
+    full_order(bytes, 50);
+}
+
+fn full_order_info_100(bytes: &mut [u8]) {
+    full_order(bytes, tmc_proto::Order::INFO_NO_CAP);
 }
 
 impl Fault {
@@ -107,6 +127,7 @@ impl Fault {
             Fault::ImpliedTypeStatus { .. } => "implied-type-status",
             Fault::CorruptOrders { .. } => "corrupt-orders",
             Fault::OutOfRangeOrders { .. } => "out-of-range-orders",
+            Fault::FullOrder { .. } => "full-order",
             Fault::PowerCut { .. } => "power-cut",
             Fault::SdaHeld { clocks } if *clocks > 10 => "sda-held-long",
             Fault::SdaHeld { .. } => "sda-held",
@@ -129,6 +150,7 @@ impl Fault {
             Fault::ImpliedTypeStatus { thruster } => format!("T{}: status in the 6-byte form", thruster + 1),
             Fault::CorruptOrders { thruster, mask } => format!("T{}: orders corrupted ({mask:#04x})", thruster + 1),
             Fault::OutOfRangeOrders { thruster } => format!("T{}: orders out of range", thruster + 1),
+            Fault::FullOrder { thruster, info } => format!("T{}: orders full ahead with INFO {info}", thruster + 1),
             Fault::PowerCut { thruster } => format!("T{}: power cut", thruster + 1),
             Fault::SdaHeld { clocks } => format!("SDA held low for {clocks} clocks"),
             Fault::ConsoleSilence => "console link lost".into(),
@@ -202,6 +224,18 @@ impl Fault {
                 thruster,
                 Tamper {
                     rewrite: Some(out_of_range),
+                    ..Tamper::NONE
+                },
+            ),
+            Fault::FullOrder { thruster, info } => tamper(
+                bench,
+                thruster,
+                Tamper {
+                    rewrite: Some(if info == 50 {
+                        full_order_info_50
+                    } else {
+                        full_order_info_100
+                    }),
                     ..Tamper::NONE
                 },
             ),

@@ -85,9 +85,11 @@ fn tolerance(metric: &str) -> Within {
 /// board send on the same 100 ms grid the master's own checks tick on; what the fixed-step engine delivers 50 us
 /// late then lands after such a tick instead of on it, and is noticed one tick later: a 20 ms poll, or a 100 ms
 /// battery frame. The acceptance test's prompts follow its sweeps' settling (see `acceptance_seconds`), a few
-/// hundred milliseconds apart.
+/// hundred milliseconds apart: one sweep's wait moves by 0.2-0.3 s with the poll phase (the Legacy forward sweep
+/// took 0.34 s here and 0.15 s there before the thruster's fault filters, 0.13 s and 0.35 s after), and four
+/// sweeps add up, so the prompts are held to 2 % of the test's ~39 s, as `acceptance_seconds` is.
 fn event_slack(scenario: &str) -> f64 {
-    if scenario == "acceptance" { 0.5 } else { 0.105 }
+    if scenario == "acceptance" { 0.8 } else { 0.105 }
 }
 
 /// Whether two numbers agree.

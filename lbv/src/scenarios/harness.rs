@@ -417,6 +417,19 @@ pub fn coasted_within_a_sample(run: &mut Run, took: Option<f64>) {
     );
 }
 
+/// The drive stopped on the sample that completed the fault's filter of `samples` consecutive 1 ms samples
+/// (thruster-fw `Thresholds::SPEC`): not sooner than `samples - 1` samples, not later than `samples`.
+pub fn stopped_after_consecutive_samples(run: &mut Run, took: Option<f64>, samples: u8) {
+    let ms = took.map(|s| round(s * 1e3, 2));
+    run.metric("reaction_ms", json!(ms));
+    let n = f64::from(samples);
+    run.check(
+        &format!("T1 stops after {samples} consecutive 1 ms samples"),
+        took.is_some_and(|s| s > (n - 1.0) * 1e-3 - 1e-4 && s <= n * 1e-3 + 1e-4),
+        format!("stopped after {ms:?} ms"),
+    );
+}
+
 /// Thruster 1 reports `fault` in its status.
 pub fn reported(run: &mut Run, fault: Faults) {
     let faults = run.faults(0);

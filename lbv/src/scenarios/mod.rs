@@ -29,7 +29,10 @@ use console::{
 };
 use harness::{dev_kits, lbv300, legacy6, mixed};
 use soak::soak;
-use thruster_faults::{ground_fault, hall, overtemp, stall, water};
+use thruster_faults::{
+    ground_fault, ground_glitch, hall, hall_glitches, info_power, overtemp, rocking_rotor, stall, water,
+    water_threshold,
+};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
 
 /// `lbv bench`'s default seed, which the tests run every scenario with.
@@ -114,6 +117,55 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 6.0,
         vehicle: lbv300,
         run: hall,
+    },
+    Scenario {
+        name: "hall-glitches-seabotix",
+        about: "hall noise on a SeaBotix thruster: 0.3 ms glitches keep it driving, 5 ms hall errors all reach the console",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: hall_glitches,
+    },
+    Scenario {
+        name: "hall-glitches-legacy",
+        about: "hall noise on a Legacy thruster: 0.3 ms glitches keep it driving, 5 ms hall errors all reach the console",
+        seconds: 6.0,
+        vehicle: legacy6,
+        run: hall_glitches,
+    },
+    Scenario {
+        name: "rocking-rotor",
+        about: "a rope holds a rotor across a hall boundary, rocking every 50 ms at full order: a stall in 400 ms",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: rocking_rotor,
+    },
+    Scenario {
+        name: "water-threshold",
+        about: "a SeaBotix water sensor at 1 Mohm +- one ADC count for 2 s: one warning, no text storm",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: water_threshold,
+    },
+    Scenario {
+        name: "ground-glitch-seabotix",
+        about: "single 90 kohm samples on a SeaBotix water sensor: no ground fault latches",
+        seconds: 4.0,
+        vehicle: lbv300,
+        run: ground_glitch,
+    },
+    Scenario {
+        name: "ground-glitch-legacy",
+        about: "single 90 kohm samples on a Legacy water sensor: no ground fault latches",
+        seconds: 4.0,
+        vehicle: legacy6,
+        run: ground_glitch,
+    },
+    Scenario {
+        name: "info-power",
+        about: "INFO 50 at full order: the power drawn held to 50 % of the rating, the speed well above half",
+        seconds: 8.0,
+        vehicle: lbv300,
+        run: info_power,
     },
     Scenario {
         name: "bad-frames",

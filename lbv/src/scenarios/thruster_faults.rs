@@ -8,8 +8,12 @@ use tmc_proto::{Family, Faults};
 use super::fault::{Fault, GROUND_FAULT_OHMS, WATER_OHMS};
 use super::harness::{
     AHEAD, NEUTRAL, Run, coasted_within_a_sample, drives_again, family, inject_and_time, others_keep_working, reported,
-    round,
+    round, stopped_after_consecutive_samples,
 };
+use crate::bench::plant::DRY_WATER_OHMS;
+use thruster_fw::commutation::COAST;
+use thruster_fw::faults::Thresholds;
+use thruster_fw::hall::HallState;
 
 pub fn water(run: &mut Run) {
     let legacy = family(run) == Family::Legacy;
@@ -19,7 +23,7 @@ pub fn water(run: &mut Run) {
     };
     let took = inject_and_time(run, water);
     if legacy {
-        coasted_within_a_sample(run, took);
+        stopped_after_consecutive_samples(run, took, Thresholds::SPEC.latch_samples);
     } else {
         run.check(
             "SeaBotix keeps driving on water",
@@ -56,7 +60,7 @@ pub fn ground_fault(run: &mut Run) {
         ohms: GROUND_FAULT_OHMS,
     };
     let took = inject_and_time(run, ground_fault);
-    coasted_within_a_sample(run, took);
+    stopped_after_consecutive_samples(run, took, Thresholds::SPEC.latch_samples);
     run.run_for(0.5);
     reported(run, Faults::GROUND);
     others_keep_working(run);
@@ -131,12 +135,254 @@ pub fn stall(run: &mut Run) {
 
 pub fn hall(run: &mut Run) {
     let unplugged = Fault::HallsUnplugged { thruster: 0 };
-    let took = inject_and_time(run, unplugged);
-    coasted_within_a_sample(run, took);
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    run.inject(unplugged);
+    // The commutation coasts the phases at once on the invalid state; the hall error (which stops the drive)
+    // follows after its consecutive readings.
+    let coasted = run.run_until(1.0, |bench| bench.thrusters[0].drive().0 == COAST);
+    coasted_within_a_sample(run, coasted);
+    let stopped = coasted.and_then(|s| {
+        run.run_until(1.0, |bench| bench.thrusters[0].drive().1.value() == 0)
+            .map(|more| s + more)
+    });
+    stopped_after_consecutive_samples(run, stopped, Thresholds::SPEC.hall_error_samples);
     run.run_for(0.2);
     reported(run, Faults::HALL);
     others_keep_working(run);
     run.clear(unplugged);
     run.run_for(1.5);
     drives_again(run, "clears and drives when the halls read normal");
+}
+
+/// The console texts that contain `needle`, so far.
+fn texts(run: &Run, needle: &str) -> usize {
+    run.bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .filter(|(_, text)| text.contains(needle))
+        .count()
+}
+
+/// T1's hall lines read `state` (`None`: the rotor's own).
+fn halls(run: &mut Run, state: Option<HallState>) {
+    run.bench.thrusters[0].plant.borrow_mut().hall_fault = state;
+}
+
+/// Hall noise on T1 while it drives ahead: 19 glitches of 0.3 ms to 111 do not cut the drive and are no hall
+/// error (thruster-fw `Thresholds::hall_error_samples`); then 5 hall errors of 5 ms, each cleared long before the
+/// master's next poll would have found it on the old 1 ms bit, each reach the console.
+pub fn hall_glitches(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    let mut cut = None;
+    for glitch in 0..19 {
+        halls(run, Some(HallState::from_bits(0b111)));
+        run.run_for(0.0003);
+        halls(run, None);
+        if run
+            .run_until(0.3, |bench| bench.thrusters[0].drive().1.value() == 0)
+            .is_some()
+        {
+            cut.get_or_insert(glitch);
+        }
+    }
+    run.check(
+        "hall glitches do not cut the drive",
+        cut.is_none() && run.rpm(0) > 800.0,
+        format!("first cut at glitch {cut:?}, rpm {:.0}", run.rpm(0)),
+    );
+    let noise_texts = texts(run, "T1 fault: hall");
+    run.check(
+        "glitches are no hall error",
+        noise_texts == 0,
+        format!("{noise_texts} hall texts"),
+    );
+    for _ in 0..5 {
+        halls(run, Some(HallState::from_bits(0b000)));
+        run.run_for(0.005);
+        halls(run, None);
+        run.run_for(0.6);
+    }
+    let seen = texts(run, "T1 fault: hall sensor error");
+    run.metric("hall_errors_seen", json!(seen));
+    run.check(
+        "the master sees every short hall error",
+        seen == 5,
+        format!("{seen} of 5 hall errors reached the console"),
+    );
+    run.run_for(1.0);
+    drives_again(run, "drives again after the hall errors");
+}
+
+/// A rope holds T1's rotor across a hall boundary, where it rocks back and forth every 50 ms at full order: zero
+/// net progress is a stall within the 400 ms window (thruster-fw `faults::Progress`).
+pub fn rocking_rotor(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    let rope = Fault::BlockedPropeller { thruster: 0 };
+    run.inject(rope);
+    // The rotor stops where it is: it rocks between that hall state and the next.
+    run.run_for(0.001);
+    let held = run.bench.thrusters[0].plant.borrow().hall_state();
+    let next = HallState::from_bits(match held.bits() {
+        0b001 => 0b011,
+        0b011 => 0b010,
+        0b010 => 0b110,
+        0b110 => 0b100,
+        0b100 => 0b101,
+        _ => 0b001,
+    });
+    let mut stopped = None;
+    for half in 0..40u32 {
+        halls(run, (half % 2 == 0).then_some(next));
+        if let Some(more) = run.run_until(0.05, |bench| bench.thrusters[0].drive().1.value() == 0) {
+            stopped = Some(f64::from(half) * 0.05 + more + 0.001);
+            break;
+        }
+    }
+    halls(run, None);
+    let ms = stopped.map(|s| round(s * 1e3, 1));
+    run.metric("stall_detected_after_ms", json!(ms));
+    // The window counts progress over the last 400 ms: the last edges before the block are in it at first.
+    run.check(
+        "a rocking blocked rotor stalls within the 400 ms window",
+        stopped.is_some_and(|s| (0.35..=0.45).contains(&s)),
+        format!("{ms:?} ms"),
+    );
+    run.run_for(0.2);
+    reported(run, Faults::STALL);
+    run.check(
+        "the console hears of it",
+        run.said("T1 fault: stalled motor"),
+        "STATUSTEXT",
+    );
+    others_keep_working(run);
+    run.clear(rope);
+    run.bench.ground.sticks = Some(NEUTRAL);
+    run.run_for(0.5);
+    run.bench.ground.sticks = Some(AHEAD);
+    run.run_for(1.5);
+    drives_again(run, "a zero order clears it and the next order drives");
+}
+
+/// T1's water sensor sits at the 1 Mohm threshold, one ADC count either way each 1 ms sample, for 2 s: the
+/// warning comes once and stays (thruster-fw `Thresholds::water_clear_ohms`), no storm of console texts.
+pub fn water_threshold(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    let sensor = run.bench.thrusters[0].config.water;
+    let at = sensor.raw_at(1_000_000);
+    let readings = [at - 1, at, at + 1].map(|raw| sensor.resistance_ohms(raw));
+    let before = run.bench.ground.seen.texts.len();
+    let mut state: u32 = 0x2545_F491;
+    for _ in 0..2000 {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        run.bench.thrusters[0].plant.borrow_mut().water_ohms = readings[(state % 3) as usize];
+        run.run_for(0.001);
+    }
+    let t1: Vec<String> = run.bench.ground.seen.texts[before..]
+        .iter()
+        .filter(|(_, text)| text.starts_with("T1 "))
+        .map(|(_, text)| text.clone())
+        .collect();
+    run.metric("water_texts", json!(t1.len()));
+    run.check("no text storm", t1.len() <= 1, format!("T1 texts: {t1:?}"));
+    reported(run, Faults::WATER);
+    run.check(
+        "SeaBotix keeps driving on water",
+        run.duty(0) != 0 && run.rpm(0) > 800.0,
+        format!("duty {}, rpm {:.0}", run.duty(0), run.rpm(0)),
+    );
+    run.bench.thrusters[0].plant.borrow_mut().water_ohms = DRY_WATER_OHMS;
+    run.run_for(0.5);
+    run.check(
+        "clears when dry",
+        !run.faults(0).contains(Faults::WATER) && run.said("T1 fault"),
+        format!("faults {:#04x}", run.faults(0).bits()),
+    );
+}
+
+/// Five single samples at 90 kohm on T1's water sensor, 0.3 s apart (a spike, or the STM32G4's wrong first
+/// conversion, errata ES0431): no ground fault latches (thruster-fw `Thresholds::latch_samples`).
+pub fn ground_glitch(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    for _ in 0..5 {
+        run.bench.thrusters[0].plant.borrow_mut().water_ohms = 90_000;
+        // Shorter than the 1 ms sample period: one sample sees it.
+        run.run_for(0.0009);
+        run.bench.thrusters[0].plant.borrow_mut().water_ohms = DRY_WATER_OHMS;
+        run.run_for(0.3);
+    }
+    let faults = run.faults(0);
+    run.check(
+        "one bad sample latches nothing",
+        faults.is_empty() && !run.said("T1 fault"),
+        format!("faults {:#04x}", faults.bits()),
+    );
+    drives_again(run, "keeps driving");
+    others_keep_working(run);
+}
+
+/// T1's supply power as the firmware estimates it (|duty| x its motor current x 24 V), W, averaged over
+/// `seconds`; and its mean rpm.
+fn mean_power_and_rpm(run: &mut Run, seconds: f64) -> (f64, f64) {
+    let steps = (seconds / 0.01) as u32;
+    let (mut power, mut rpm) = (0.0, 0.0);
+    for _ in 0..steps {
+        run.run_for(0.01);
+        let thruster = &run.bench.thrusters[0];
+        let duty = f64::from(thruster.drive().1.magnitude()) / 1e4;
+        let amps = thruster
+            .shared()
+            .sensed
+            .try_get()
+            .map_or(0.0, |sensed| f64::from(sensed.current_deciamps) / 10.0);
+        power += duty * amps * f64::from(thruster_fw::speed::SUPPLY_MV) / 1e3;
+        rpm += run.rpm(0);
+    }
+    (power / f64::from(steps), rpm / f64::from(steps))
+}
+
+/// T1's orders rewritten on the wire to full ahead with INFO 100, then with INFO 50: INFO limits the power drawn
+/// to 50 % of the 96 W rating (thruster-fw `speed::PowerLimit`), not the duty to 50 %, which would give a
+/// propeller about 15 % of its power.
+pub fn info_power(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    let full = Fault::FullOrder { thruster: 0, info: 100 };
+    run.inject(full);
+    run.run_for(2.0);
+    let (full_w, full_rpm) = mean_power_and_rpm(run, 1.0);
+    let fifty = Fault::FullOrder { thruster: 0, info: 50 };
+    run.inject(fifty);
+    run.run_for(1.5);
+    let (capped_w, capped_rpm) = mean_power_and_rpm(run, 1.0);
+    let cap_w = f64::from(thruster_fw::speed::RATED_POWER_MW) / 1e3 * 0.5;
+    run.metric("info_50_w", json!(round(capped_w, 1)));
+    run.metric("info_50_rpm", json!(round(capped_rpm, 0)));
+    run.check(
+        "INFO 50 draws 50 % of the rated power",
+        (capped_w - cap_w).abs() <= 0.05 * cap_w,
+        format!("{capped_w:.1} W against {cap_w:.1} W (full order {full_w:.1} W at {full_rpm:.0} rpm)"),
+    );
+    run.check(
+        "INFO 50 turns faster than half the duty would",
+        capped_rpm > 3000.0 && capped_rpm < full_rpm,
+        format!("{capped_rpm:.0} rpm at INFO 50, {full_rpm:.0} rpm at INFO 100"),
+    );
+    others_keep_working(run);
+    run.inject(full);
+    run.run_for(1.5);
+    let (back_w, back_rpm) = mean_power_and_rpm(run, 0.5);
+    run.check(
+        "INFO 100 again: the full order's speed",
+        (back_rpm - full_rpm).abs() <= 0.02 * full_rpm,
+        format!("{back_rpm:.0} rpm, {back_w:.1} W"),
+    );
+    run.clear(full);
 }

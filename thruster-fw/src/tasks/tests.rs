@@ -319,7 +319,7 @@ fn reads_alone_keep_the_link_alive() {
 }
 
 #[test]
-fn a_ground_fault_coasts_the_bridge_within_one_sample_and_latches() {
+fn a_ground_fault_coasts_the_bridge_within_three_samples_and_latches() {
     for family in Family::ALL {
         let mut bench = Bench::new(family);
         bench.order(60);
@@ -331,7 +331,8 @@ fn a_ground_fault_coasts_the_bridge_within_one_sample_and_latches() {
         };
         bench.inputs.set(wet);
         let reaction = bench.turn_until(|bench| bench.bridge.get().0 == COAST);
-        assert!(reaction <= SAMPLE_PERIOD, "coasted after {reaction:?}");
+        assert!(reaction <= filtered(), "coasted after {reaction:?}");
+        assert!(reaction > filtered() - SAMPLE_PERIOD, "coasted after {reaction:?}");
 
         // Dry again: the ground fault stays until power is cycled, and the master still gets answers.
         bench.inputs.set(dry(&bench.config));
@@ -466,12 +467,18 @@ fn inject(family: Family, inject: impl Fn(&Bench)) -> (Option<Duration>, Faults,
     if bench.bridge.get().0 == COAST {
         reaction = Some(took);
     }
-    // The status frame follows within a fault sample and a control step.
-    bench.elapse(SAMPLE_PERIOD + CONTROL_PERIOD);
+    // The status frame follows within the filters' samples and a control step.
+    bench.elapse(filtered() + CONTROL_PERIOD);
     bench.send(READ);
     bench.elapse(Duration::from_millis(1));
     let faults = bench.last_status().faults();
     (reaction, faults, bench)
+}
+
+/// How long a filtered fault (water, ground, hall) takes at most: its consecutive samples.
+fn filtered() -> Duration {
+    let samples = Thresholds::SPEC.latch_samples.max(Thresholds::SPEC.hall_error_samples);
+    SAMPLE_PERIOD * u32::from(samples)
 }
 
 fn set_water(bench: &Bench, ohms: u32) {
@@ -492,7 +499,7 @@ fn set_temperature(bench: &Bench, decicelsius: i16) {
 fn water_stops_a_legacy_controller_but_only_warns_on_a_seabotix_one() {
     let (reaction, faults, _) = inject(Family::Legacy, |bench| set_water(bench, 500_000));
     assert!(
-        reaction.is_some_and(|took| took <= SAMPLE_PERIOD),
+        reaction.is_some_and(|took| took <= filtered()),
         "legacy reaction {reaction:?}"
     );
     assert_eq!(faults, Faults::WATER);
@@ -553,6 +560,10 @@ fn a_stalled_propeller_stops_the_motor_400_ms_after_the_duty_passes_8_percent_un
     bench.order(30);
     bench.elapse(Duration::from_millis(20));
     assert!(bench.duty().value() > 0);
+    // The stall was set after the last read: this read still carries it, the next one is clean.
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert_eq!(bench.last_status().faults(), Faults::STALL);
     bench.send(READ);
     bench.elapse(Duration::from_millis(1));
     assert!(bench.last_status().faults().is_empty());
@@ -597,6 +608,7 @@ fn a_brushed_build_drives_an_h_bridge_proportionally_and_reports_itself_brushed(
         panic!("wrong family")
     };
     assert_eq!((status.motor, status.speed.step()), (MotorKind::Brushed, 51));
+    assert_eq!(status.revision, tmc_proto::SeaBotixStatus::REVISION_BRUSHED);
 
     bench.order(-102);
     // Half to all of it in reverse at 200 % per second: under 750 ms, well inside the link timeout.
@@ -678,4 +690,198 @@ fn the_image_configuration_is_the_reference_hardware_with_the_spec_timings() {
         timeout: Duration::from_secs(10_000),
     };
     assert_eq!(forever.timeout_us(), u32::MAX, "saturates");
+}
+
+/// The raw ADC reading of a motor current of `deciamps`.
+fn current_raw(config: &Config, deciamps: u32) -> u16 {
+    let counts = deciamps * 100 / u32::from(config.current.milliamps_per_count);
+    u16::try_from(u32::from(config.current.offset_raw) + counts).unwrap()
+}
+
+#[test]
+fn a_brushed_motor_at_25_a_stalls_400_ms_into_it_until_a_zero_order() {
+    for family in Family::ALL {
+        let mut bench = Bench::brushed(family);
+        bench.order(102);
+        // The ramp reaches the full duty within 0.5 s; a propeller turning draws 4 A.
+        bench.inputs.set(RawSample {
+            current: current_raw(&bench.config, 40),
+            ..bench.inputs.get()
+        });
+        bench.elapse(Duration::from_millis(900));
+        bench.order(102);
+        assert!(bench.duty().magnitude() > 9000, "{family:?}: turning at full duty");
+        // The rotor locks: 25 A.
+        bench.inputs.set(RawSample {
+            current: current_raw(&bench.config, 250),
+            ..bench.inputs.get()
+        });
+        let start = Instant::now();
+        while bench.bridge.get().0 != COAST && Instant::now() - start < Duration::from_secs(1) {
+            bench.elapse(Duration::from_micros(100));
+        }
+        let took = Instant::now() - start;
+        assert!(
+            (Duration::from_millis(400)..=Duration::from_millis(402)).contains(&took),
+            "{family:?}: stalled after {took:?}"
+        );
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert!(bench.last_status().faults().contains(Faults::STALL));
+        // Latched until a zero order, as for brushless.
+        bench.inputs.set(dry(&bench.config));
+        bench.order(102);
+        bench.elapse(Duration::from_millis(50));
+        assert_eq!(bench.duty(), Duty::ZERO);
+        bench.order(0);
+        bench.elapse(Duration::from_millis(5));
+        bench.order(102);
+        bench.elapse(Duration::from_millis(50));
+        assert!(bench.duty().value() > 0);
+    }
+}
+
+#[test]
+fn a_blocked_rotor_rocking_across_a_hall_boundary_stalls() {
+    // Rocking half-periods up to 130 ms were not flagged when every edge counted; 50 ms gives 8 edges a window.
+    for half_period_ms in [10, 50, 130] {
+        let mut bench = Bench::new(Family::SeaBotix);
+        bench.order(102);
+        let mut above_8_percent = None;
+        let start = Instant::now();
+        while bench.bridge.get().0 != COAST || above_8_percent.is_none() {
+            bench.elapse(Duration::from_micros(100));
+            let rocks = (Instant::now() - start).as_millis() / half_period_ms;
+            bench.halls.set(FORWARD_SEQUENCE[(rocks % 2) as usize]);
+            if above_8_percent.is_none() && bench.duty().magnitude() > 800 {
+                above_8_percent = Some(Instant::now());
+            }
+            assert!(
+                Instant::now() - start < Duration::from_secs(2),
+                "{half_period_ms} ms: never stalled"
+            );
+        }
+        let stalled_after = Instant::now() - above_8_percent.unwrap();
+        assert!(
+            (Duration::from_millis(400)..=Duration::from_millis(402)).contains(&stalled_after),
+            "{half_period_ms} ms: stalled after {stalled_after:?}"
+        );
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert_eq!(bench.last_status().faults(), Faults::STALL);
+    }
+}
+
+#[test]
+fn the_stall_threshold_sits_at_one_hall_state_per_133_ms() {
+    // 3 net states in 400 ms: an edge at least every 133 ms, 60 / (0.1333 s * 6 states * 4 pole pairs) =
+    // 18.75 rpm. A motor turning one state per 130 ms (19.2 rpm) runs; one per 140 ms (17.9 rpm) stalls.
+    for (period_ms, stalls) in [(130, false), (140, true)] {
+        let mut bench = Bench::new(Family::SeaBotix);
+        bench.order(102);
+        let start = Instant::now();
+        while Instant::now() - start < Duration::from_secs(2) {
+            bench.elapse(Duration::from_micros(100));
+            let elapsed = (Instant::now() - start).as_millis();
+            bench.halls.set(FORWARD_SEQUENCE[(elapsed / period_ms % 6) as usize]);
+            // Orders keep coming, as from a master, so the link failsafe stays out of it.
+            if (Instant::now() - start).as_micros().is_multiple_of(100_000) {
+                bench.order(102);
+            }
+        }
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(5));
+        assert_eq!(
+            bench.last_status().faults().contains(Faults::STALL),
+            stalls,
+            "{period_ms} ms"
+        );
+        assert_eq!(bench.duty() == Duty::ZERO, stalls, "{period_ms} ms");
+    }
+}
+
+#[test]
+fn hall_glitches_do_not_cut_the_drive_and_a_short_hall_error_is_still_read() {
+    for family in Family::ALL {
+        let mut bench = Bench::new(family);
+        bench.order(60);
+        bench.turn(Duration::from_millis(200));
+        let before = bench.duty().value();
+        assert!(before > 0);
+        // 20 glitches of 300 us to 111 while turning: the bridge coasts through each, the drive stays on.
+        for _ in 0..20 {
+            let sector = bench.halls.get();
+            bench.halls.set(HallState::from_bits(0b111));
+            bench.elapse(Duration::from_micros(300));
+            bench.halls.set(sector);
+            bench.turn(Duration::from_millis(20));
+            assert!(bench.duty().value() > 0, "{family:?}: the drive was cut");
+        }
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert!(
+            bench.last_status().faults().is_empty(),
+            "{family:?}: glitches are no hall error"
+        );
+        // A hall error of 5 ms between two reads 20 ms apart: the next read carries it, the one after does not.
+        let sector = bench.halls.get();
+        bench.halls.set(HallState::from_bits(0b000));
+        bench.elapse(Duration::from_millis(5));
+        bench.halls.set(sector);
+        bench.elapse(Duration::from_millis(15));
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert_eq!(bench.last_status().faults(), Faults::HALL, "{family:?}");
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert!(bench.last_status().faults().is_empty(), "{family:?}");
+    }
+}
+
+#[test]
+fn a_failed_read_keeps_the_unread_fault_for_the_next_one() {
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.elapse(Duration::from_millis(5));
+    set_temperature(&bench, 1105);
+    bench.elapse(Duration::from_millis(3));
+    set_temperature(&bench, 250);
+    bench.elapse(Duration::from_millis(3));
+    // The read fails on the wire: the overtemp it would have carried waits for the next one.
+    bench.bus.disturb(bench.device);
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(2));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert_eq!(bench.last_status().faults(), Faults::OVERTEMP);
+}
+
+#[test]
+fn the_failsafe_shows_in_seabotix_fault_bit_5_until_a_read_after_the_next_order() {
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.order(51);
+    bench.turn(Duration::from_millis(100));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    let flagged = |bench: &Bench| tmc_proto::SeaBotixStatus::link_failsafe_in(bench.replies.borrow().last().unwrap());
+    assert!(!flagged(&bench));
+    // 1.1 s of silence: the failsafe stops the motor; the master's next read sees it.
+    bench.turn(Duration::from_millis(1100));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(flagged(&bench), "the first read after the silence");
+    // Reads alone do not restart the motor: the bit stays.
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(flagged(&bench));
+    // A new order restarts it; the read after it still carries the bit once, then it is gone.
+    bench.order(51);
+    bench.elapse(Duration::from_millis(5));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(flagged(&bench));
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(!flagged(&bench));
+    // The other faults are as they were: none.
+    assert!(bench.last_status().faults().is_empty());
 }
