@@ -1,7 +1,7 @@
 //! One exchange with a thruster: send the order, read the status (IDS 6.6.1, 8.3, 8.4).
 
 use embedded_hal_async::i2c::I2c;
-use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, Status, StatusForm};
+use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, SeaBotixStatus, Status, StatusForm};
 
 /// Why a poll failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -31,6 +31,9 @@ pub struct Polled {
     pub decoded: Decoded<Status>,
     /// Full (MT repeated) or implied-type (the 6-byte SeaBotix form some controllers send).
     pub form: StatusForm,
+    /// The status says the thruster's link failsafe stopped it: this project's SeaBotix FAULT bit 5
+    /// ([`SeaBotixStatus::FAULT_LINK_FAILSAFE`]), which only this project's thruster sends, in the full form.
+    pub link_failsafe: bool,
 }
 
 /// Send `order` to the thruster of `family` and read back its status.
@@ -63,7 +66,13 @@ pub async fn poll_thruster<I: I2c>(
         },
     };
     let decoded = decoded.map_err(PollError::Decode)?;
-    Ok(Polled { decoded, form })
+    let link_failsafe =
+        form == StatusForm::Full && family == Family::SeaBotix && SeaBotixStatus::link_failsafe_in(reply);
+    Ok(Polled {
+        decoded,
+        form,
+        link_failsafe,
+    })
 }
 
 #[cfg(test)]

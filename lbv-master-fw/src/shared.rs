@@ -280,6 +280,9 @@ pub struct LinkHealth {
     pub good: u32,
     /// Of those, statuses in the implied-type form (the 6-byte SeaBotix form, [`tmc_proto::StatusForm`]).
     pub implied_form: u32,
+    /// Times the thruster said its link failsafe had stopped it (SeaBotix FAULT bit 5 rising: it went 1 s
+    /// without a valid order).
+    pub link_failsafes: u32,
     /// The thruster did not acknowledge (missing or unpowered).
     pub nack: u32,
     /// A transfer timed out (SCL held low past the bus's timeout, [`crate::config::BusConfig::timeout`]).

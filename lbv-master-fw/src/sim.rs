@@ -111,6 +111,8 @@ pub(crate) mod scripted {
         pub mode: Mode,
         /// Faults its status reports.
         pub faults: Faults,
+        /// Its status says its link failsafe stopped it (SeaBotix FAULT bit 5).
+        pub link_failsafe: bool,
         /// When each transfer addressed to it began (while it was reachable), whatever its mode.
         pub addressed: Vec<Instant>,
         /// When each valid order arrived.
@@ -123,6 +125,7 @@ pub(crate) mod scripted {
                 link: Link::new(family),
                 mode: Mode::Good,
                 faults: Faults::NONE,
+                link_failsafe: false,
                 addressed: Vec::new(),
                 orders: Vec::new(),
             }
@@ -151,7 +154,12 @@ pub(crate) mod scripted {
                     max_power: MaxPower::Power(speed),
                 }),
             };
-            let mut bytes = status.encode().as_bytes().to_vec();
+            let failsafe = if self.link_failsafe {
+                SeaBotixStatus::FAULT_LINK_FAILSAFE
+            } else {
+                0
+            };
+            let mut bytes = status.encode().with_fault_bits(failsafe).as_bytes().to_vec();
             let last = bytes.len() - 1;
             match self.mode {
                 Mode::BadChecksum => bytes[last] = bytes[last].wrapping_add(1),

@@ -375,6 +375,8 @@ pub struct Link {
     status: Option<Status>,
     /// The form the last valid status came in.
     form: Option<StatusForm>,
+    /// The last valid status said the link failsafe had stopped the thruster.
+    link_failsafe: bool,
     /// While offline: when the next retry is due.
     retry_at: Instant,
     /// While offline: the interval after the next failed retry.
@@ -397,6 +399,7 @@ impl Link {
                 delivered: 0,
                 good: 0,
                 implied_form: 0,
+                link_failsafes: 0,
                 nack: 0,
                 timeout: 0,
                 bad_checksum: 0,
@@ -409,6 +412,7 @@ impl Link {
             state: LinkState::Unknown,
             status: None,
             form: None,
+            link_failsafe: false,
             retry_at: Instant::from_ticks(0),
             next_backoff: config.retry_min,
             retry_min: config.retry_min,
@@ -472,6 +476,17 @@ impl Link {
             }
         }
         self.on_outcome(now, Outcome::of_poll(result))
+    }
+
+    /// Take the link failsafe bit of a valid status; true when it has just risen (the thruster went 1 s without a
+    /// valid order and stopped), which is counted.
+    pub fn on_link_failsafe(&mut self, set: bool) -> bool {
+        let risen = set && !self.link_failsafe;
+        self.link_failsafe = set;
+        if risen {
+            self.health.link_failsafes = self.health.link_failsafes.saturating_add(1);
+        }
+        risen
     }
 
     /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
@@ -747,6 +762,13 @@ impl BusState {
             {
                 link.on_odd_field();
             }
+            let failsafe = matches!(
+                result,
+                Ok(Polled {
+                    link_failsafe: true,
+                    ..
+                })
+            );
             let (change, outcome) = match result {
                 Ok(polled) => (
                     link.on_result::<B::Error>(cycle, &Ok(polled)),
@@ -776,6 +798,13 @@ impl BusState {
             if let Some(change) = change {
                 let (severity, text) = link_text(index, change);
                 shared.say(severity, text);
+            }
+            if matches!(outcome, Outcome::Answered(_)) && link.on_link_failsafe(failsafe) {
+                let number = index.saturating_add(1);
+                shared.say(
+                    Severity::Warning,
+                    text(format_args!("T{number} stopped: 1 s without a valid order")),
+                );
             }
             if let Outcome::Answered(status) = outcome
                 && let Some(change) = faults.update(status.faults())

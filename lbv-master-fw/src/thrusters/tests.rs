@@ -254,6 +254,7 @@ fn a_link_can_take_a_poll_result_directly() {
     let polled = Polled {
         decoded: Decoded::clean(seabotix_status(Faults::NONE)),
         form: StatusForm::ImpliedType,
+        link_failsafe: false,
     };
     assert_eq!(link.on_result::<ErrorKind>(at_ms(40), &Ok(polled)), None);
     assert_eq!((link.health().good, link.health().implied_form), (1, 1));
@@ -988,6 +989,40 @@ fn legacy_and_seabotix_mixed_on_one_bus_follow_their_orders() {
     }
     assert_50_hz(&bench, 2, 1, None);
     assert_eq!(bench.health(1).good, 50);
+}
+
+#[test]
+fn a_thruster_stopped_by_its_link_failsafe_is_told_once_per_stop() {
+    let bench = Bench::new(&[(Family::SeaBotix, Some(0)), (Family::Legacy, Some(1))]);
+    let table = [
+        ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(0, 1, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(MS * 10);
+        bench.take_texts();
+        // Its status says the failsafe stopped it (SeaBotix FAULT bit 5) for several polls: one text, one count.
+        bench.thruster(0).link_failsafe = true;
+        sim.elapse(MS * 100);
+        assert_eq!(
+            bench.take_texts(),
+            [(Severity::Warning, "T1 stopped: 1 s without a valid order".to_owned())]
+        );
+        assert_eq!(bench.health(0).link_failsafes, 1);
+        assert_eq!(
+            bench.report(0).status.map(|s| s.faults()),
+            Some(Faults::NONE),
+            "not a fault"
+        );
+        // An order restarts it; a second stop is a second text.
+        bench.thruster(0).link_failsafe = false;
+        sim.elapse(MS * 40);
+        bench.thruster(0).link_failsafe = true;
+        sim.elapse(MS * 40);
+        assert_eq!(bench.take_texts().len(), 1);
+        assert_eq!(bench.health(0).link_failsafes, 2);
+        assert_eq!(bench.health(1).link_failsafes, 0);
+    });
 }
 
 #[test]

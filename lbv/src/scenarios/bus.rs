@@ -278,3 +278,34 @@ pub fn six_byte_status(run: &mut Run) {
     );
     run.clear(heat);
 }
+
+/// The bus stuck for 1.5 s (a slave holding SDA through every recovery): no order reaches the thrusters, and each
+/// stops on its own link failsafe after 1 s. Once the bus is free, each says so in its first status (SeaBotix FAULT
+/// bit 5), the master tells the console once per thruster and counts it, and the thrusters follow the orders again.
+pub fn link_failsafe(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.0);
+    let stuck = Fault::SdaHeld { clocks: u32::MAX };
+    run.inject(stuck);
+    run.run_for(1.5);
+    let duties: Vec<i16> = (0..6).map(|i| run.duty(i)).collect();
+    run.check(
+        "every thruster stops driving on its own failsafe while the bus is stuck",
+        duties.iter().all(|duty| *duty == 0),
+        format!("duty {duties:?}"),
+    );
+    run.clear(stuck);
+    run.run_for(1.5);
+    let counted: Vec<u32> = (0..6).map(|i| run.health(i).link_failsafes).collect();
+    let told = (1..=6).all(|n| run.said(&format!("T{n} stopped: 1 s without a valid order")));
+    run.check(
+        "each thruster's stop reaches the console once it answers again, once each",
+        told && counted.iter().all(|n| *n == 1),
+        format!("told {told}, counted {counted:?}"),
+    );
+    run.check(
+        "and the thrusters follow the orders again",
+        (0..4).all(|i| run.rpm(i) > 800.0),
+        format!("rpm {:?}", (0..4).map(|i| round(run.rpm(i), 0)).collect::<Vec<_>>()),
+    );
+}

@@ -23,7 +23,7 @@ mod tests;
 pub use harness::{Options, Report, Scenario, run_guarded};
 
 use acceptance::acceptance;
-use bus::{bad_frames, missing_thruster, reset_mid_transfer, six_byte_status, status_noise, stuck_sda};
+use bus::{bad_frames, link_failsafe, missing_thruster, reset_mid_transfer, six_byte_status, status_noise, stuck_sda};
 use console::{
     ground_station_1hz, second_sysid, settings_persist, settings_power_cut, signing, signing_reboot, stray_byte,
 };
@@ -187,6 +187,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 40.0,
         vehicle: lbv300,
         run: six_byte_status,
+    },
+    Scenario {
+        name: "link-failsafe",
+        about: "the bus stuck 1.5 s: every thruster stops on its own failsafe, says so in FAULT bit 5, the console hears",
+        seconds: 5.0,
+        vehicle: lbv300,
+        run: link_failsafe,
     },
     Scenario {
         name: "missing-thruster",

@@ -77,6 +77,7 @@ scenario_tests! {
     bad_frames: "bad-frames",
     status_noise: "status-noise",
     six_byte_status: "six-byte-status",
+    link_failsafe: "link-failsafe",
     missing_thruster: "missing-thruster",
     stuck_sda: "stuck-sda",
     reset_mid_transfer: "reset-mid-transfer",
