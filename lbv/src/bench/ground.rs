@@ -226,14 +226,7 @@ impl GroundStation {
 
     /// A HEARTBEAT, as a ground station sends it.
     pub fn heartbeat(&mut self) -> Vec<u8> {
-        self.frame(&MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-            custom_mode: 0,
-            mavtype: MavType::MAV_TYPE_GCS,
-            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-            base_mode: MavModeFlag::empty(),
-            system_status: MavState::MAV_STATE_ACTIVE,
-            mavlink_version: 3,
-        }))
+        self.frame(&heartbeat_message())
     }
 
     /// MANUAL_CONTROL with `sticks`.
@@ -422,6 +415,18 @@ fn verified(bytes: &[u8], signing: Option<&Signing>) -> Option<u64> {
     let mut signature = [0; 6];
     raw.calculate_signature(&signing.key, &mut signature);
     (signature == raw.signature_value()).then(|| raw.signature_timestamp())
+}
+
+/// A ground station's HEARTBEAT.
+pub fn heartbeat_message() -> MavMessage {
+    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
+        custom_mode: 0,
+        mavtype: MavType::MAV_TYPE_GCS,
+        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
+        base_mode: MavModeFlag::empty(),
+        system_status: MavState::MAV_STATE_ACTIVE,
+        mavlink_version: 3,
+    })
 }
 
 /// A parameter's name as MAVLink carries it.

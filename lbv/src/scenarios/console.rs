@@ -4,7 +4,6 @@
 
 use std::collections::BTreeMap;
 
-use lbv_master_fw::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType};
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
 use lbv_master_fw::params::Settings;
 use lbv_master_fw::settings::ecc::{NmiAction, eccr, nmi_action};
@@ -12,7 +11,9 @@ use lbv_master_fw::signing::TIMESTAMP_MAX;
 use serde_json::json;
 
 use super::harness::{AHEAD, NEUTRAL, Run, round};
-use crate::bench::ground::{ARM_DISARM, GroundStation, MOTOR_TEST, OPERATOR, REBOOT, SIGNING_EPOCH, Signing};
+use crate::bench::ground::{
+    ARM_DISARM, GroundStation, MOTOR_TEST, OPERATOR, REBOOT, SIGNING_EPOCH, Signing, heartbeat_message,
+};
 
 /// MAV_RESULT values.
 const ACCEPTED: u8 = 0;
@@ -306,18 +307,8 @@ pub fn second_sysid(run: &mut Run) {
 /// are obeyed, and everything the master sends is signed with it (checked by the mavlink crate). The key is kept
 /// in flash: after a reboot the master still refuses unsigned commands.
 pub fn signing(run: &mut Run) {
-    const KEY: [u8; 32] = *b"lbv-bench-signing-key-0123456789";
     run.run_for(0.5);
-    let setup = run.bench.ground.setup_signing(KEY, SIGNING_EPOCH);
-    run.bench.send(setup);
-    run.bench.ground.signing = Some(Signing::new(KEY));
-    run.run_for(0.3);
-    let key = settings(run).and_then(|s| s.signing);
-    run.check(
-        "the key is set",
-        key.is_some_and(|key| key.secret == KEY),
-        format!("{key:?}"),
-    );
+    set_key(run, *b"lbv-bench-signing-key-0123456789");
     let verified_before = run.bench.ground.seen.verified;
 
     let mut unsigned = GroundStation::default();
@@ -413,19 +404,9 @@ pub fn signing(run: &mut Run) {
 /// timestamps never go back, everything it sends after each reboot is signed from the first frame, and the
 /// operator, whose station follows the master's timestamps as the spec asks, is obeyed after every reboot.
 pub fn signing_reboot(run: &mut Run) {
-    const KEY: [u8; 32] = *b"lbv-bench-signing-reboot-key-012";
     const YEAR: u64 = 365 * 24 * 3600 * 100_000;
     run.run_for(0.5);
-    let setup = run.bench.ground.setup_signing(KEY, SIGNING_EPOCH);
-    run.bench.send(setup);
-    run.bench.ground.signing = Some(Signing::new(KEY));
-    run.run_for(0.3);
-    let key = settings(run).and_then(|s| s.signing);
-    run.check(
-        "the key is set",
-        key.is_some_and(|key| key.secret == KEY),
-        format!("{key:?}"),
-    );
+    set_key(run, *b"lbv-bench-signing-reboot-key-012");
     let unsigned_before = run.bench.ground.seen.unsigned;
     // Recorded then, signed with the key a year before the set-up.
     let year_old = [
@@ -531,6 +512,21 @@ pub fn signing_reboot(run: &mut Run) {
     run.disarm();
 }
 
+/// The operator sets `key` over the console (SETUP_SIGNING, unsigned as the first time must be) and signs with it
+/// from then on; checked to be in force.
+fn set_key(run: &mut Run, key: [u8; 32]) {
+    let setup = run.bench.ground.setup_signing(key, SIGNING_EPOCH);
+    run.bench.send(setup);
+    run.bench.ground.signing = Some(Signing::new(key));
+    run.run_for(0.3);
+    let set = settings(run).and_then(|s| s.signing);
+    run.check(
+        "the key is set",
+        set.is_some_and(|set| set.secret == key),
+        format!("{set:?}"),
+    );
+}
+
 /// Run for `seconds` in 10 ms steps; whether the vehicle was armed or the master ordered a thruster to turn at any
 /// of them.
 fn driven_for(run: &mut Run, seconds: f64) -> bool {
@@ -542,18 +538,6 @@ fn driven_for(run: &mut Run, seconds: f64) -> bool {
         drove |= armed(run) || orders.iter().any(|order| !order.speed.is_zero());
     }
     drove
-}
-
-/// A ground station's HEARTBEAT.
-fn heartbeat_message() -> MavMessage {
-    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        custom_mode: 0,
-        mavtype: MavType::MAV_TYPE_GCS,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-        base_mode: MavModeFlag::empty(),
-        system_status: MavState::MAV_STATE_ACTIVE,
-        mavlink_version: 3,
-    })
 }
 
 /// The operator's parameter changes survive a reboot asked over the console (refused while armed) and a power
