@@ -7,6 +7,12 @@
 
 use crate::clock::{LSI_HZ, LSI_MAX_HZ, LSI_MIN_HZ};
 
+/// DBGMCU_APB1FZR1 (APB1LFZR in stm32-metapac): DBG_IWDG_STOP. The watchdog stops while a debugger halts the
+/// core, so a breakpoint does not reset the chip under the probe; the bridge is safe meanwhile, TIM1 stopping with
+/// it and turning every switch off ([`crate::tim1::DBGMCU_APB2FZR`]). Without a debugger the bit changes nothing
+/// (RM0440 DBGMCU_APB1FZR1).
+pub const DBGMCU_APB1FZR1: u32 = 1 << 12;
+
 /// IWDG_PR and IWDG_RLR.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Iwdg {
@@ -98,7 +104,15 @@ impl Schedule {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stm32_metapac::dbgmcu::regs::Apb1lfzr;
     use stm32_metapac::iwdg::vals::Pr;
+
+    #[test]
+    fn the_debug_freeze_is_dbg_iwdg_stop_alone() {
+        let mut freeze = Apb1lfzr(0);
+        freeze.set_iwdg(true);
+        assert_eq!(DBGMCU_APB1FZR1, freeze.0);
+    }
 
     #[test]
     fn prescaler_and_reload_follow_rm0440() {

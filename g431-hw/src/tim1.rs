@@ -142,6 +142,12 @@ pub const AF1: u32 = 1 << 0;
 /// 250 ms later. Both bits hold until a system reset (RM0440 SYSCFG_CFGR2; TIM1 break: system break sources).
 pub const SYSCFG_CFGR2: u32 = 1 << 0 | 1 << 3;
 
+/// DBGMCU_APB2FZR: DBG_TIM1_STOP. While a debugger halts the core, TIM1's counter stops and its outputs are
+/// disabled as if MOE were cleared, to the idle levels OSSI = 1 gives them ([`Bridge::bdtr`]: every switch off):
+/// a breakpoint during bring-up never leaves a phase conducting in its last step (RM0440 DBGMCU_APB2FZR; TIM1
+/// "Debug mode"). Without a debugger the bit changes nothing.
+pub const DBGMCU_APB2FZR: u32 = 1 << 11;
+
 /// CCMRx, CCER of one commutation step; written while CR2.CCPC = 1, they take effect together at the COM event
 /// (`EGR = EGR_COMG`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -297,6 +297,10 @@ impl Iwdg {
     /// reload the counter). Taking the peripheral keeps anyone else from it.
     pub fn start(_iwdg: embassy_stm32::Peri<'static, embassy_stm32::peripherals::IWDG>) -> Self {
         use pac::iwdg::vals::{Key, Pr};
+        // Frozen while a debugger halts the core (the bridge is off then: see TIM1's freeze).
+        pac::DBGMCU
+            .apb1lfzr()
+            .write_value(pac::dbgmcu::regs::Apb1lfzr(g431_hw::iwdg::DBGMCU_APB1FZR1));
         let regs = pac::IWDG;
         regs.kr().write(|w| w.set_key(Key::START));
         regs.kr().write(|w| w.set_key(Key::ENABLE));

@@ -123,10 +123,12 @@ async fn main(spawner: Spawner) {
             Hertz(BRIDGE.pwm_hz),
             CountingMode::CenterAlignedBothInterrupts,
         );
-        // PA6 in its TIM1_BKIN alternate function; the IHM08M1's comparator drives it.
+        // PA6 in its TIM1_BKIN alternate function, driven by the IHM08M1's overcurrent comparators. They are open
+        // drain by the second binding review's reading of the board (UM1996 not read here): the pull-up holds the line
+        // high (no break) between their pulls low, and costs nothing should the output be push-pull.
         let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*p.PA6);
         let mut break_input = Flex::new(p.PA6);
-        break_input.set_as_af_unchecked(break_af, AfType::input(Pull::None));
+        break_input.set_as_af_unchecked(break_af, AfType::input(Pull::Up));
         let arr = u16::try_from(pwm.get_max_duty()).unwrap_or(u16::MAX);
         if u32::from(arr) != BRIDGE.arr(clock::TIM1_HZ) {
             warn!(
@@ -250,6 +252,10 @@ fn arm_power_stage(bridge: &mut PowerStage) {
     tim.cr2().write_value(Cr2Adv(BRIDGE.cr2()));
     tim.af1().write_value(Af1Adv(g431_hw::tim1::AF1));
     pac::SYSCFG.cfgr2().write_value(Cfgr2(g431_hw::tim1::SYSCFG_CFGR2));
+    // A debugger's halt stops TIM1 and turns every switch off (RM0440 TIM1 "Debug mode").
+    pac::DBGMCU
+        .apb2fzr()
+        .write_value(pac::dbgmcu::regs::Apb2fzr(g431_hw::tim1::DBGMCU_APB2FZR));
     bridge.apply(COAST, Duty::ZERO);
 }
 

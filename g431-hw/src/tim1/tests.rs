@@ -2,6 +2,7 @@
 //! the register layouts of stm32-metapac (generated from ST's SVD files).
 
 use super::*;
+use stm32_metapac::dbgmcu::regs::Apb2fzr;
 use stm32_metapac::syscfg::regs::Cfgr2;
 use stm32_metapac::timer::regs::{Af1Adv, BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv};
 use stm32_metapac::timer::vals::{Bkp, FilterValue, Ocm, Ossi, Ossr};
@@ -379,4 +380,8 @@ fn bit_positions_agree_with_the_pac() {
     cfgr2.set_cll(true);
     cfgr2.set_eccl(true);
     assert_eq!(SYSCFG_CFGR2, cfgr2.0);
+
+    let mut freeze = Apb2fzr(0);
+    freeze.set_tim1(true);
+    assert_eq!(DBGMCU_APB2FZR, freeze.0, "DBG_TIM1_STOP and nothing else");
 }
