@@ -88,6 +88,28 @@ unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     }
 }
 
+/// A stray interrupt (one the image never enables) stops the bridge too: cortex-m-rt's default handler would spin
+/// with the bridge driving until the watchdog bit.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn DefaultHandler(_irqn: i16) -> ! {
+    board::stop_bridge();
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// So does an NMI: this image keeps nothing in flash, so a flash ECC double error (which also trips TIM1's break
+/// through SYSCFG_CFGR2) or any other NMI source is a fault; the watchdog then resets.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn NonMaskableInt() -> ! {
+    board::stop_bridge();
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
 static SHARED: Shared = Shared::new();
 
 #[embassy_executor::main]
