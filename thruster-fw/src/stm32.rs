@@ -151,12 +151,20 @@ async fn main(spawner: Spawner) {
         let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*p.PA6);
         let mut break_input = Flex::new(p.PA6);
         break_input.set_as_af_unchecked(break_af, AfType::input(Pull::Up));
-        let arr = u16::try_from(pwm.get_max_duty()).unwrap_or(u16::MAX);
-        if u32::from(arr) != BRIDGE.arr(clock::TIM1_HZ) {
+        // The period is written here, not taken from embassy: its centre-aligned set-up counts ARR = 4249 (an
+        // edge-aligned period less one), while a centre-aligned period is 2 x ARR timer clocks (RM0440 TIM1
+        // centre-aligned mode), so 20 kHz from 170 MHz is ARR = 4250 with PSC = 0. The outputs are not armed yet.
+        const ARR: u16 = {
+            let arr = BRIDGE.arr(clock::TIM1_HZ);
+            assert!(arr <= u16::MAX as u32, "the PWM period does not fit TIM1's 16 bits");
+            arr as u16
+        };
+        pac::TIM1.arr().write(|w| w.set_arr(ARR));
+        let (arr, psc) = (pac::TIM1.arr().read().arr(), pac::TIM1.psc().read());
+        if arr != ARR || psc != 0 {
             warn!(
-                "TIM1 ARR {=u16} is not the {=u32} the power stage's figures assume",
-                arr,
-                BRIDGE.arr(clock::TIM1_HZ)
+                "TIM1 counts ARR {=u16} with PSC {=u16}, not {=u16} with 0",
+                arr, psc, ARR
             );
         }
         let mut bridge = PowerStage {
