@@ -7,16 +7,15 @@
 
 mod console_support;
 
-use console_support::{clock, parse_all, v2};
+use console_support::{GCS_HEARTBEAT, clock, parse_all, v2};
 use embassy_futures::block_on;
 use embassy_futures::join::join3;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::{
-    AUTOPILOT_VERSION_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag,
-    MavParamType, MavProtocolCapability, MavResult, MavState, MavSysStatusSensor, MavType, PARAM_REQUEST_LIST_DATA,
-    PARAM_SET_DATA,
+    AUTOPILOT_VERSION_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MavMessage, MavModeFlag, MavParamType,
+    MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
 };
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::Shared;
@@ -43,14 +42,7 @@ impl Station {
     }
 
     fn heartbeat(&mut self) {
-        self.send(&HEARTBEAT_DATA {
-            custom_mode: 0,
-            mavtype: MavType::MAV_TYPE_GCS,
-            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-            base_mode: MavModeFlag::empty(),
-            system_status: MavState::MAV_STATE_ACTIVE,
-            mavlink_version: 3,
-        });
+        self.send(&GCS_HEARTBEAT);
     }
 
     fn command(&mut self, command: u16, params: [f32; 7]) {

@@ -11,6 +11,8 @@
 //!   with no key (an unsigned SETUP_SIGNING with a zero key would have turned signing off).
 #![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
+mod console_support;
+
 use std::cell::Cell;
 use std::convert::Infallible;
 use std::rc::Rc;
@@ -21,10 +23,7 @@ use embedded_hal_async::i2c::I2c;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::config::{MasterConfig, VEHICLE};
 use lbv_master_fw::console::frame::{Event, FrameParser};
-use lbv_master_fw::console::lbv::{
-    COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType,
-    SETUP_SIGNING_DATA,
-};
+use lbv_master_fw::console::lbv::{COMMAND_LONG_DATA, MANUAL_CONTROL_DATA, MavMessage, SETUP_SIGNING_DATA};
 use lbv_master_fw::console::{ConsoleCounters, ConsoleStats, inbound};
 use lbv_master_fw::recovery::{BusRecovery, PinRecovery};
 use lbv_master_fw::settings::{Reboot, Store};
@@ -249,14 +248,7 @@ impl GroundStation {
 }
 
 fn heartbeat() -> MavMessage {
-    MavMessage::HEARTBEAT(HEARTBEAT_DATA {
-        custom_mode: 0,
-        mavtype: MavType::MAV_TYPE_GCS,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-        base_mode: MavModeFlag::empty(),
-        system_status: MavState::MAV_STATE_ACTIVE,
-        mavlink_version: 3,
-    })
+    MavMessage::HEARTBEAT(console_support::GCS_HEARTBEAT)
 }
 
 fn command(command: u16, param1: f32) -> MavMessage {

@@ -9,27 +9,16 @@
 
 mod console_support;
 
-use console_support::{Line, parse_all, run_console, v2};
+use console_support::{GCS_HEARTBEAT, Line, parse_all, run_console, v2};
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::LINE_IDLE;
-use lbv_master_fw::console::lbv::{
-    COMMAND_LONG_DATA, HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavResult, MavState, MavType,
-    PARAM_REQUEST_READ_DATA,
-};
+use lbv_master_fw::console::lbv::{COMMAND_LONG_DATA, MavMessage, MavResult, PARAM_REQUEST_READ_DATA};
 use lbv_master_fw::vehicle::VehicleConfig;
 
 const GCS: (u8, u8) = (255, 190);
 
 fn heartbeat(from: (u8, u8), sequence: u8) -> Vec<u8> {
-    let message = HEARTBEAT_DATA {
-        custom_mode: 0,
-        mavtype: MavType::MAV_TYPE_GCS,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-        base_mode: MavModeFlag::empty(),
-        system_status: MavState::MAV_STATE_ACTIVE,
-        mavlink_version: 3,
-    };
-    v2(from.0, from.1, sequence, &message)
+    v2(from.0, from.1, sequence, &GCS_HEARTBEAT)
 }
 
 fn arm(from: (u8, u8), sequence: u8) -> Vec<u8> {
