@@ -199,12 +199,15 @@ fn nominal_bit_timing() -> NominalBitTiming {
 type MasterPorts =
     Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Settings, SystemReset, Work>;
 
-/// The whole node, on the thread-mode executor. Its channels live in the task (zeroed RAM, set up at start) rather
-/// than in a static, whose initial value would take 2.5 KiB of flash.
+/// The whole node, on the thread-mode executor. Its channels are set up at start in a `StaticCell` (zeroed RAM): a
+/// static with an initial value would take 2.5 KiB of flash, and inside the task's future they would be built on
+/// the stack with the rest of it when the task is spawned (embassy-executor's `write_in_place` materialises the
+/// whole future there), which overflowed the 15 KiB stack at boot.
 #[embassy_executor::task]
 async fn master(ports: MasterPorts, config: &'static MasterConfig) -> ! {
-    let shared = Shared::new();
-    lbv_master_fw::run(ports, config, &shared, &CONSOLE_STATS).await
+    static SHARED: StaticCell<Shared> = StaticCell::new();
+    let shared = SHARED.init_with(Shared::new);
+    lbv_master_fw::run(ports, config, shared, &CONSOLE_STATS).await
 }
 
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).
