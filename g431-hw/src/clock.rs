@@ -117,6 +117,49 @@ pub const LSI_MIN_HZ: u32 = 29_500;
 /// Fastest LSI, see [`LSI_HZ`].
 pub const LSI_MAX_HZ: u32 = 34_000;
 
+/// The register values of this clock tree after start-up (RM0440 7.4): what `embassy_stm32::init` must leave.
+pub mod registers {
+    use super::{PLL, Pll, SYSCLK_HZ};
+
+    /// RCC_PLLCFGR with `pll` fed from HSE and only its R output on (RM0440 7.4.4): PLLSRC = 0b11 at [1:0],
+    /// PLLM - 1 at [7:4], PLLN at [14:8], PLLREN at 24, PLLR = r / 2 - 1 at [26:25].
+    pub const fn pllcfgr_hse(pll: Pll) -> u32 {
+        0b11 | (pll.m - 1) << 4 | pll.n << 8 | 1 << 24 | (pll.r / 2 - 1) << 25
+    }
+
+    /// The PLL as both images set it.
+    pub const PLLCFGR: u32 = pllcfgr_hse(PLL);
+
+    /// RCC_CFGR.SW / SWS: the PLL's R output is the system clock (RM0440 7.4.3).
+    pub const SW_PLL: u32 = 0b11;
+
+    /// FLASH_ACR.LATENCY for an HCLK in range 1 boost mode, the mode both images run in (RM0440 3.3.3, "Number
+    /// of wait states according to CPU clock frequency"): one wait state per started 34 MHz above 34 MHz.
+    pub const fn boost_flash_latency(hclk_hz: u32) -> u32 {
+        hclk_hz.saturating_sub(1) / 34_000_000
+    }
+
+    /// 170 MHz: 4 wait states.
+    pub const LATENCY: u32 = boost_flash_latency(SYSCLK_HZ);
+
+    /// RCC_CCIPR kernel-clock fields (RM0440 7.4.26): position of each mux and the value selecting a source.
+    pub const I2C1SEL: u32 = 12;
+    /// I2C2's mux.
+    pub const I2C2SEL: u32 = 14;
+    /// I2C3's mux.
+    pub const I2C3SEL: u32 = 16;
+    /// FDCAN's mux.
+    pub const FDCANSEL: u32 = 24;
+    /// ADC1/2's mux.
+    pub const ADC12SEL: u32 = 28;
+    /// I2CxSEL = 0b10: HSI16.
+    pub const I2C_HSI16: u32 = 0b10;
+    /// FDCANSEL = 0b00: HSE.
+    pub const FDCAN_HSE: u32 = 0b00;
+    /// ADC12SEL = 0b10: SYSCLK.
+    pub const ADC_SYSCLK: u32 = 0b10;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -168,5 +211,33 @@ mod tests {
         assert_eq!(adc_prescaler(170_000_000), Some((2, 4)));
         assert_eq!(ADC_HZ, 42_500_000);
         assert_eq!(adc_prescaler(u32::MAX).map(|(_, d)| d), Some(128));
+    }
+
+    #[test]
+    fn start_up_registers_agree_with_the_pac() {
+        use registers::*;
+        use stm32_metapac::flash::vals::Latency;
+        use stm32_metapac::rcc::regs::{Ccipr, Pllcfgr};
+        use stm32_metapac::rcc::vals::{Adcsel, Fdcansel, I2csel, Pllm, Plln, Pllr, Pllsrc};
+        let mut pllcfgr = Pllcfgr(0);
+        pllcfgr.set_pllsrc(Pllsrc::HSE);
+        pllcfgr.set_pllm(Pllm::DIV6);
+        pllcfgr.set_plln(Plln::MUL85);
+        pllcfgr.set_pllr(Pllr::DIV2);
+        pllcfgr.set_pllren(true);
+        assert_eq!(PLLCFGR, pllcfgr.0);
+        let mut ccipr = Ccipr(0);
+        ccipr.set_i2c1sel(I2csel::HSI);
+        ccipr.set_i2c3sel(I2csel::HSI);
+        ccipr.set_fdcansel(Fdcansel::HSE);
+        ccipr.set_adc12sel(Adcsel::SYS);
+        assert_eq!(
+            ccipr.0,
+            I2C_HSI16 << I2C1SEL | I2C_HSI16 << I2C3SEL | FDCAN_HSE << FDCANSEL | ADC_SYSCLK << ADC12SEL
+        );
+        assert_eq!(LATENCY, Latency::WS4.to_bits() as u32);
+        // The table's edges (34 / 68 / 102 / 136 MHz), as embassy-stm32's G4 clock set-up has them too.
+        let latency = [34, 35, 68, 69, 102, 136, 137, 170].map(|mhz| boost_flash_latency(mhz * 1_000_000));
+        assert_eq!(latency, [0, 1, 1, 2, 2, 3, 4, 4]);
     }
 }

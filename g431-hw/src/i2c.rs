@@ -151,6 +151,12 @@ pub const TIMINGR: u32 = match standard_mode(crate::clock::I2C_KERNEL_HZ) {
 };
 const _: () = assert!(standard_mode(crate::clock::I2C_KERNEL_HZ).is_ok());
 
+/// I2C_OAR1 for a 7-bit own address (RM0440 37.7.3): OA1EN at bit 15, OA1MODE = 0 (7-bit), the address in
+/// OA1[7:1].
+pub const fn oar1(address: u8) -> u32 {
+    1 << 15 | ((address as u32) & 0x7F) << 1
+}
+
 /// `a / b` rounded up, for positive values.
 const fn ceil_div(a: i64, b: i64) -> i64 {
     if a <= 0 { 0 } else { (a + b - 1) / b }
@@ -310,5 +316,16 @@ mod tests {
             ..standard_mode(16_000_000).unwrap()
         };
         assert_eq!(bad.check_standard_mode(16_000_000), Err(Violation::FieldRange));
+    }
+
+    #[test]
+    fn own_address_register_agrees_with_the_pac() {
+        use stm32_metapac::i2c::regs::Oar1;
+        for address in [0x29, 0x2A, 0x7F] {
+            let mut register = Oar1(0);
+            register.set_oa1(u16::from(address) << 1);
+            register.set_oa1en(true);
+            assert_eq!(oar1(address), register.0);
+        }
     }
 }

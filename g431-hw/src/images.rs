@@ -2,8 +2,12 @@
 //! sources), assert [`check`](crate::pins::check) on them at build time, and the README's pin tables list them
 //! (a test reads those too).
 
+use crate::pins::Mode::{Alternate, Analog, Input};
 use crate::pins::Port::{A, B, C};
-use crate::pins::{Board, IHM08M1, Image, NUCLEO_G431RB, Use, pin};
+use crate::pins::{Board, IHM08M1, Image, Mode, NUCLEO_G431RB, Pull, Use, af, i2c, pin};
+
+/// The hall inputs with their internal pull-ups, which hold a line high whenever an open-collector sensor lets go.
+const HALL: Mode = Input(Pull::Up);
 
 /// The thruster's boards.
 const POWER_STAGE: &[&Board] = &[&NUCLEO_G431RB, &IHM08M1];
@@ -12,22 +16,23 @@ const POWER_STAGE: &[&Board] = &[&NUCLEO_G431RB, &IHM08M1];
 macro_rules! thruster_pins {
     ($($extra:expr),* $(,)?) => {
         &[
-            Use::digital(pin(C, 8), "I2C slave SCL"),
+            Use::digital(pin(C, 8), "I2C slave SCL", i2c("I2C3_SCL", 8)),
             // I2C3's other SDA pin (AF8): PC9 carries the IHM08M1's GPIO_BEMF.
-            Use::digital(pin(C, 11), "I2C slave SDA"),
-            Use::of(pin(A, 8), "phase A high", "UH", false),
-            Use::of(pin(A, 7), "phase A low", "UL", false),
-            Use::of(pin(A, 9), "phase B high", "VH", false),
-            Use::of(pin(B, 0), "phase B low", "VL", false),
-            Use::of(pin(A, 10), "phase C high", "WH", false),
-            Use::of(pin(B, 1), "phase C low", "WL", false),
-            Use::of(pin(A, 6), "overcurrent break", "BKIN", false),
-            Use::of(pin(A, 15), "hall H1", "H1", false),
-            Use::of(pin(B, 3), "hall H2", "H2", false),
-            Use::of(pin(B, 10), "hall H3", "H3", false),
-            Use::of(pin(A, 0), "motor current", "CURR_FDBK_A", true),
+            Use::digital(pin(C, 11), "I2C slave SDA", i2c("I2C3_SDA", 8)),
+            Use::of(pin(A, 8), "phase A high", "UH", af("TIM1_CH1", 6)),
+            Use::of(pin(A, 7), "phase A low", "UL", af("TIM1_CH1N", 6)),
+            Use::of(pin(A, 9), "phase B high", "VH", af("TIM1_CH2", 6)),
+            Use::of(pin(B, 0), "phase B low", "VL", af("TIM1_CH2N", 6)),
+            Use::of(pin(A, 10), "phase C high", "WH", af("TIM1_CH3", 6)),
+            Use::of(pin(B, 1), "phase C low", "WL", af("TIM1_CH3N", 6)),
+            // Pulled up: the comparators only pull the line low.
+            Use::of(pin(A, 6), "overcurrent break", "BKIN", Alternate { signal: "TIM1_BKIN", af: 6, pull: Pull::Up }),
+            Use::of(pin(A, 15), "hall H1", "H1", HALL),
+            Use::of(pin(B, 3), "hall H2", "H2", HALL),
+            Use::of(pin(B, 10), "hall H3", "H3", HALL),
+            Use::of(pin(A, 0), "motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
             // The one ADC pin neither board touches; PC3, used before, carries the IHM08M1's BEMF1.
-            Use::analog(pin(B, 12), "water sensor"),
+            Use::analog(pin(B, 12), "water sensor", 11),
             $($extra,)*
         ]
     };
@@ -39,7 +44,7 @@ pub const THRUSTER: Image = Image {
     name: "thruster-fw",
     boards: POWER_STAGE,
     removed: &["R60"],
-    uses: thruster_pins!(Use::analog(pin(B, 11), "motor NTC")),
+    uses: thruster_pins!(Use::analog(pin(B, 11), "motor NTC", 14)),
 };
 
 /// The brushed thruster: TEMPERATURE is the controller's (IDS 8.4.2), the IHM08M1's power-stage NTC on PC2.
@@ -47,7 +52,12 @@ pub const THRUSTER_BRUSHED: Image = Image {
     name: "thruster-fw (brushed)",
     boards: POWER_STAGE,
     removed: &[],
-    uses: thruster_pins!(Use::of(pin(C, 2), "power-stage NTC", "TEMPERATURE", true)),
+    uses: thruster_pins!(Use::of(
+        pin(C, 2),
+        "power-stage NTC",
+        "TEMPERATURE",
+        Analog { adc1_in: 8 }
+    )),
 };
 
 /// The motor-less thruster on a bare NUCLEO: the I2C slave, the real water-sensor pin and B1 holding the model's
@@ -57,10 +67,11 @@ pub const THRUSTER_MOTORLESS: Image = Image {
     boards: &[&NUCLEO_G431RB],
     removed: &[],
     uses: &[
-        Use::digital(pin(C, 8), "I2C slave SCL"),
-        Use::digital(pin(C, 11), "I2C slave SDA"),
-        Use::analog(pin(B, 12), "water sensor"),
-        Use::of(pin(C, 13), "model rotor hold", "B1", false),
+        Use::digital(pin(C, 8), "I2C slave SCL", i2c("I2C3_SCL", 8)),
+        Use::digital(pin(C, 11), "I2C slave SDA", i2c("I2C3_SDA", 8)),
+        Use::analog(pin(B, 12), "water sensor", 11),
+        // B1 connects PC13 to 3V3 when pressed (MB1367): pulled down, it reads low when released.
+        Use::of(pin(C, 13), "model rotor hold", "B1", Input(Pull::Down)),
     ],
 };
 
@@ -70,16 +81,16 @@ pub const MASTER: Image = Image {
     boards: &[&NUCLEO_G431RB],
     removed: &[],
     uses: &[
-        Use::digital(pin(A, 15), "thruster bus 1 SCL"),
-        Use::digital(pin(B, 7), "thruster bus 1 SDA"),
-        Use::digital(pin(A, 9), "thruster bus 2 SCL"),
-        Use::digital(pin(A, 8), "thruster bus 2 SDA"),
-        Use::digital(pin(C, 8), "thruster bus 3 SCL"),
-        Use::digital(pin(C, 9), "thruster bus 3 SDA"),
-        Use::digital(pin(A, 11), "battery CAN RX"),
-        Use::digital(pin(A, 12), "battery CAN TX"),
-        Use::of(pin(A, 2), "console TX", "VCP (ST-LINK RX)", false),
-        Use::of(pin(A, 3), "console RX", "VCP (ST-LINK TX)", false),
+        Use::digital(pin(A, 15), "thruster bus 1 SCL", i2c("I2C1_SCL", 4)),
+        Use::digital(pin(B, 7), "thruster bus 1 SDA", i2c("I2C1_SDA", 4)),
+        Use::digital(pin(A, 9), "thruster bus 2 SCL", i2c("I2C2_SCL", 4)),
+        Use::digital(pin(A, 8), "thruster bus 2 SDA", i2c("I2C2_SDA", 4)),
+        Use::digital(pin(C, 8), "thruster bus 3 SCL", i2c("I2C3_SCL", 8)),
+        Use::digital(pin(C, 9), "thruster bus 3 SDA", i2c("I2C3_SDA", 8)),
+        Use::digital(pin(A, 11), "battery CAN RX", af("FDCAN1_RX", 9)),
+        Use::digital(pin(A, 12), "battery CAN TX", af("FDCAN1_TX", 9)),
+        Use::of(pin(A, 2), "console TX", "VCP (ST-LINK RX)", af("LPUART1_TX", 12)),
+        Use::of(pin(A, 3), "console RX", "VCP (ST-LINK TX)", af("LPUART1_RX", 12)),
     ],
 };
 
@@ -176,9 +187,9 @@ mod tests {
         boards: POWER_STAGE,
         removed: &[],
         uses: &[
-            Use::digital(pin(C, 8), "I2C slave SCL"),
-            Use::digital(pin(C, 9), "I2C slave SDA"),
-            Use::analog(pin(C, 3), "water sensor"),
+            Use::digital(pin(C, 8), "I2C slave SCL", i2c("I2C3_SCL", 8)),
+            Use::digital(pin(C, 9), "I2C slave SDA", i2c("I2C3_SDA", 8)),
+            Use::analog(pin(C, 3), "water sensor", 9),
         ],
     };
 
@@ -192,7 +203,7 @@ mod tests {
             })
         );
         const WATER_ONLY: Image = Image {
-            uses: &[Use::analog(pin(C, 3), "water sensor")],
+            uses: &[Use::analog(pin(C, 3), "water sensor", 9)],
             ..OLD
         };
         assert_eq!(
@@ -216,12 +227,15 @@ mod tests {
         );
         // A pin taken twice, a signal that is not there, and an analog input on a listened-to pin.
         const TWICE: Image = Image {
-            uses: &[Use::digital(pin(C, 8), "a"), Use::digital(pin(C, 8), "b")],
+            uses: &[
+                Use::digital(pin(C, 8), "a", i2c("I2C3_SCL", 8)),
+                Use::digital(pin(C, 8), "b", i2c("I2C3_SCL", 8)),
+            ],
             ..OLD
         };
         assert_eq!(check(&TWICE), Err(Conflict::UsedTwice(pin(C, 8))));
         const MISSING: Image = Image {
-            uses: &[Use::of(pin(C, 8), "hall", "H1", false)],
+            uses: &[Use::of(pin(C, 8), "hall", "H1", HALL)],
             ..OLD
         };
         assert_eq!(
@@ -232,7 +246,7 @@ mod tests {
             })
         );
         const LISTENED: Image = Image {
-            uses: &[Use::analog(pin(A, 2), "sensor")],
+            uses: &[Use::analog(pin(A, 2), "sensor", 3)],
             ..MASTER
         };
         assert_eq!(
@@ -272,5 +286,34 @@ mod tests {
             rows_of(&[&THRUSTER, &THRUSTER_BRUSHED, &THRUSTER_MOTORLESS])
         );
         assert_eq!(readme_rows("### Master board pins"), rows_of(&[&MASTER]));
+    }
+
+    /// Every alternate function and ADC channel an image names is the one ST's data gives that pin (stm32-metapac's
+    /// pin table, generated from ST's device database; DS12589 Tables 12 and 13 are the same tables in print).
+    #[test]
+    fn alternate_functions_and_adc_channels_agree_with_st_data() {
+        use crate::pins::Mode;
+        use stm32_metapac::metadata::METADATA;
+        for image in ALL {
+            for used in image.uses {
+                let (signal, af) = match used.mode {
+                    Mode::Alternate { signal, af, .. } | Mode::AlternateOpenDrain { signal, af } => {
+                        (signal.to_string(), Some(af))
+                    }
+                    // ST's data names ADC1's inputs INx, without an alternate function.
+                    Mode::Analog { adc1_in } => (format!("ADC1_IN{adc1_in}"), None),
+                    Mode::Input(_) => continue,
+                };
+                let name = format!("P{}{}", used.pin.port.letter(), used.pin.number);
+                let known = METADATA
+                    .peripherals
+                    .iter()
+                    .flat_map(|peripheral| peripheral.pins.iter().map(move |pin| (peripheral.name, pin)))
+                    .any(|(peripheral, pin)| {
+                        format!("{peripheral}_{}", pin.signal) == signal && pin.pin == name && pin.af == af
+                    });
+                assert!(known, "{}: {signal} is not {af:?} of {name} in ST's data", image.name);
+            }
+        }
     }
 }

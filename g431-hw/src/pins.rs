@@ -17,7 +17,10 @@
 //!     name: "thruster with SDA on PC9",
 //!     boards: &[&NUCLEO_G431RB, &IHM08M1],
 //!     removed: &[],
-//!     uses: &[Use::digital(pin(C, 8), "I2C3 SCL"), Use::digital(pin(C, 9), "I2C3 SDA")],
+//!     uses: &[
+//!         Use::digital(pin(C, 8), "I2C3 SCL", pins::i2c("I2C3_SCL", 8)),
+//!         Use::digital(pin(C, 9), "I2C3 SDA", pins::i2c("I2C3_SDA", 8)),
+//!     ],
 //! };
 //! const _: () = assert!(pins::check(&OLD).is_ok());
 //! ```
@@ -113,6 +116,47 @@ pub struct Board {
     pub signals: &'static [Signal],
 }
 
+/// A pin's internal pull resistor (GPIOx_PUPDR, RM0440 9.4.4).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pull {
+    /// No pull.
+    None,
+    /// Pull-up.
+    Up,
+    /// Pull-down.
+    Down,
+}
+
+/// How an image sets a pin up (GPIOx_MODER, OTYPER, PUPDR, AFRL/AFRH; RM0440 9.4). Alternate-function numbers are
+/// DS12589's Table 13 ("Alternate function"), checked against stm32-metapac's pin table in this crate's tests.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// A peripheral's `signal` (ST's name: `TIM1_CH1N`) drives or reads the pin through alternate function `af`,
+    /// push-pull.
+    Alternate { signal: &'static str, af: u8, pull: Pull },
+    /// The same, open-drain (the I2C lines, whose pull-ups are outside the chip).
+    AlternateOpenDrain { signal: &'static str, af: u8 },
+    /// A digital input read by software or EXTI.
+    Input(Pull),
+    /// An analog input, ADC1's channel `adc1_in` (DS12589 Table 12's ADC12_INx / ADC1_INx): the digital input is
+    /// disconnected.
+    Analog { adc1_in: u8 },
+}
+
+/// An I2C line: open-drain in its alternate function.
+pub const fn i2c(signal: &'static str, af: u8) -> Mode {
+    Mode::AlternateOpenDrain { signal, af }
+}
+
+/// A push-pull alternate function without pull.
+pub const fn af(signal: &'static str, af: u8) -> Mode {
+    Mode::Alternate {
+        signal,
+        af,
+        pull: Pull::None,
+    }
+}
+
 /// One pin an image uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Use {
@@ -123,39 +167,44 @@ pub struct Use {
     /// The board signal it uses, when it is one (a gate-driver input, a hall line); `None` for a pin the boards
     /// must leave free.
     pub signal: Option<&'static str>,
-    /// A high-impedance analog input: even a listening input disturbs it.
-    pub analog: bool,
+    /// How the image sets it up.
+    pub mode: Mode,
 }
 
 impl Use {
     /// A digital use of a pin the boards leave free.
-    pub const fn digital(pin: Pin, function: &'static str) -> Use {
+    pub const fn digital(pin: Pin, function: &'static str, mode: Mode) -> Use {
         Use {
             pin,
             function,
             signal: None,
-            analog: false,
+            mode,
         }
     }
 
-    /// An analog use of a pin the boards leave free.
-    pub const fn analog(pin: Pin, function: &'static str) -> Use {
+    /// An analog use of a pin the boards leave free, on ADC1's channel `adc1_in`.
+    pub const fn analog(pin: Pin, function: &'static str, adc1_in: u8) -> Use {
         Use {
             pin,
             function,
             signal: None,
-            analog: true,
+            mode: Mode::Analog { adc1_in },
         }
     }
 
     /// A use of a board's signal.
-    pub const fn of(pin: Pin, function: &'static str, signal: &'static str, analog: bool) -> Use {
+    pub const fn of(pin: Pin, function: &'static str, signal: &'static str, mode: Mode) -> Use {
         Use {
             pin,
             function,
             signal: Some(signal),
-            analog,
+            mode,
         }
+    }
+
+    /// A high-impedance analog input: even a listening input disturbs it.
+    pub const fn is_analog(&self) -> bool {
+        matches!(self.mode, Mode::Analog { .. })
     }
 }
 
@@ -239,7 +288,7 @@ const fn check_use(image: &Image, used: &Use) -> Result<(), Conflict> {
                     Some(name) => same(name, signal.name),
                     None => false,
                 };
-                let harmless = matches!(signal.kind, Kind::Listens) && !used.analog;
+                let harmless = matches!(signal.kind, Kind::Listens) && !used.is_analog();
                 if wanted {
                     found = true;
                 } else if !harmless {

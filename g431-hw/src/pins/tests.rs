@@ -30,11 +30,11 @@ fn a_removed_link_frees_its_pin_only() {
         name: "test",
         boards: &[&BEMF],
         removed: &["R60"],
-        uses: &[Use::analog(pin(B, 11), "sensor")],
+        uses: &[Use::analog(pin(B, 11), "sensor", 14)],
     };
     assert_eq!(check(&FREE), Ok(()));
     const OTHER: Image = Image {
-        uses: &[Use::analog(pin(C, 4), "sensor")],
+        uses: &[Use::analog(pin(C, 4), "sensor", 5)],
         ..FREE
     };
     assert_eq!(

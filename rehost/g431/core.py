@@ -1,0 +1,450 @@
+"""The Cortex-M4 core of an STM32G431 on the Unicorn engine: memory, time, and the exception model Unicorn lacks.
+
+Unicorn runs Thumb-2 code but has no NVIC: exception entry and return are done here, by the rules of the ARMv7-M
+Architecture Reference Manual (B1.5.6 exception entry, B1.5.8 exception return, B1.5.7 stack alignment). Time
+advances with instructions, one per cycle at 170 MHz (`Core.hz`); the count comes from a block hook that counts each
+translated block's Thumb instructions once (a halfword whose top five bits are 0b11101, 0b11110 or 0b11111 starts a
+32-bit instruction, A5.1).
+
+Peripherals are objects with `read(offset)` / `write(offset, value)` on 32-bit registers, placed at their RM0440
+Table 4 base addresses (`Core.attach`), and schedule their own events on the core's clock (`Core.at`).
+"""
+
+import heapq
+import struct
+
+from unicorn import (
+    UC_ARCH_ARM,
+    UC_HOOK_BLOCK,
+    UC_HOOK_CODE,
+    UC_HOOK_INSN_INVALID,
+    UC_HOOK_INTR,
+    UC_HOOK_MEM_INVALID,
+    UC_MEM_WRITE_PROT,
+    UC_MODE_MCLASS,
+    UC_MODE_THUMB,
+    UC_PROT_ALL,
+    UC_PROT_READ,
+    UC_PROT_EXEC,
+    Uc,
+    UcError,
+)
+from unicorn import arm_const as arm
+
+FLASH_BASE = 0x0800_0000
+FLASH_SIZE = 128 * 1024
+SRAM_BASE = 0x2000_0000
+SRAM_SIZE = 32 * 1024
+# System memory: the unique device id (RM0440 48.1, UID_BASE 0x1FFF_7590) and the flash size (48.2, 0x1FFF_75E0).
+SYSTEM_BASE = 0x1FFF_0000
+SYSTEM_SIZE = 0x8000
+UID_ADDRESS = 0x1FFF_7590
+FLASH_SIZE_ADDRESS = 0x1FFF_75E0
+
+# Exception numbers (ARMv7-M B1.5.2).
+RESET, NMI, HARD_FAULT, SVCALL, PENDSV, SYSTICK = 1, 2, 3, 11, 14, 15
+IRQ0 = 16
+
+# EXC_RETURN values (B1.5.8): to thread mode on the main stack, with or without an FP frame, or to handler mode.
+EXC_RETURN_THREAD = 0xFFFF_FFF9
+EXC_RETURN_THREAD_FP = 0xFFFF_FFE9
+EXC_RETURN_HANDLER = 0xFFFF_FFF1
+EXC_RETURN_HANDLER_FP = 0xFFFF_FFE1
+
+CONTROL_FPCA = 1 << 2
+
+# Thumb encodings the core must see (ARMv7-M A7.7): WFE and SEV (hint instructions), UDF and BKPT.
+WFE = 0xBF20
+WFI = 0xBF30
+SEV = 0xBF40
+
+
+class Stop(Exception):
+    """The run ended: a fault the test did not expect, a reset, or the time or instruction limit."""
+
+
+def thumb_instructions(code: bytes) -> int:
+    """How many Thumb instructions a block of code holds."""
+    count, i = 0, 0
+    while i + 1 < len(code):
+        half = code[i] | code[i + 1] << 8
+        i += 4 if half >> 11 in (0b11101, 0b11110, 0b11111) else 2
+        count += 1
+    return max(count, 1)
+
+
+class Core:
+    hz = 170_000_000
+
+    def __init__(self):
+        self.uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
+        self.uc.ctl_set_cpu_model(arm.UC_CPU_ARM_CORTEX_M4)
+        self.cycles = 0
+        self.instructions = 0
+        self._events = []  # (cycle, sequence, callback)
+        self._sequence = 0
+        self._block_sizes = {}
+        self._stop_at = 0
+        self._stop_reason = None
+        self._attention = False
+        self._regions = {}  # base (aligned to 0x400) -> peripheral
+        self.nvic = None  # set by the board: pending, enabled, priorities
+        self.event = False  # the event register WFE waits on (B1.5.18)
+        self.sleeping = False
+        self.active = []  # exception numbers being handled, innermost last
+        self.fault = None  # why the core faulted, if it did
+        self.flash_store = None  # (address, size, value): the flash interface takes CPU stores into flash
+        self.watch = []  # (predicate, reason): checked between runs
+        self.service = lambda: False  # the chip's work between runs (resets, draining the log); True: look again
+
+        self.uc.mem_map(FLASH_BASE, FLASH_SIZE, UC_PROT_READ | UC_PROT_EXEC)
+        self.uc.mem_map(SRAM_BASE, SRAM_SIZE, UC_PROT_ALL)
+        self.uc.mem_map(SYSTEM_BASE, SYSTEM_SIZE, UC_PROT_READ)
+        self.uc.hook_add(UC_HOOK_BLOCK, self._on_block)
+        self.uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
+        self.uc.hook_add(UC_HOOK_INSN_INVALID, self._on_invalid)
+        self.uc.hook_add(UC_HOOK_MEM_INVALID, self._on_bad_access)
+        for base, size in ((0x4000_0000, 0x24000), (0x4800_0000, 0x2000), (0x5000_0000, 0x2000), (0xE000_0000, 0x10_0000)):
+            self.uc.mmio_map(base, size, self._mmio_read, base, self._mmio_write, base)
+
+    # Memory and peripherals ------------------------------------------------------------------------------------
+    def load(self, segments):
+        """Writes an image's loadable segments (physical address, bytes) into flash."""
+        for address, data in segments:
+            self.uc.mem_write(address, data)
+
+    def attach(self, base, peripheral, size=0x400):
+        for offset in range(0, size, 0x400):
+            self._regions[base + offset] = (base, peripheral)
+
+    def _mmio_read(self, uc, offset, size, base):
+        return self._access(base + offset, size, None)
+
+    def _mmio_write(self, uc, offset, size, value, base):
+        self._access(base + offset, size, value)
+
+    def _access(self, address, size, value):
+        key = address & ~0x3FF
+        found = self._regions.get(key)
+        if found is None:
+            self.fail(f"access to {address:#010x}, where no peripheral is modelled")
+            return 0
+        base, peripheral = found
+        register = (address - base) & ~3
+        shift = (address & 3) * 8
+        mask = ((1 << (size * 8)) - 1) << shift
+        if value is None:
+            return (peripheral.read(register) & mask) >> shift
+        if size == 4:
+            peripheral.write(register, value & 0xFFFF_FFFF)
+        else:
+            # A narrow write: the rest of the register keeps its value (RM0440 2.2: byte and half-word accesses).
+            old = peripheral.read(register) if peripheral.narrow_merge else 0
+            peripheral.write(register, (old & ~mask) | ((value << shift) & mask))
+        return 0
+
+    def bus_read(self, address, size):
+        """A read by a bus master other than the core (DMA): a peripheral register or memory."""
+        if 0x4000_0000 <= address < 0x6000_0000:
+            return self._access(address, size, None)
+        return int.from_bytes(self.uc.mem_read(address, size), "little")
+
+    def bus_write(self, address, size, value):
+        if 0x4000_0000 <= address < 0x6000_0000:
+            self._access(address, size, value)
+        else:
+            self.uc.mem_write(address, (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little"))
+
+    def read32(self, address):
+        return struct.unpack("<I", self.uc.mem_read(address, 4))[0]
+
+    def write32(self, address, value):
+        self.uc.mem_write(address, struct.pack("<I", value & 0xFFFF_FFFF))
+
+    # Time ------------------------------------------------------------------------------------------------------
+    def at(self, cycle, callback):
+        """Calls `callback()` once the core's clock reaches `cycle`."""
+        self._sequence += 1
+        heapq.heappush(self._events, (max(cycle, self.cycles), self._sequence, callback))
+        if cycle < self._stop_at:
+            self._stop_at = cycle
+
+    def after_us(self, us, callback):
+        self.at(self.cycles + int(us * self.hz / 1_000_000), callback)
+
+    def drop_events(self):
+        """A reset: every scheduled peripheral event is forgotten."""
+        self._events.clear()
+
+    @property
+    def seconds(self):
+        return self.cycles / self.hz
+
+    def _fire_due(self):
+        while self._events and self._events[0][0] <= self.cycles:
+            _, _, callback = heapq.heappop(self._events)
+            callback()
+
+    # Execution -------------------------------------------------------------------------------------------------
+    def reset(self, vector_table=FLASH_BASE):
+        self.vtor = vector_table
+        self.active.clear()
+        self.sleeping = False
+        self.event = False
+        self.fault = None
+        msp = self.read32(vector_table)
+        pc = self.read32(vector_table + 4)
+        self.uc.reg_write(arm.UC_ARM_REG_MSP, msp)
+        self.uc.reg_write(arm.UC_ARM_REG_SP, msp)
+        self.uc.reg_write(arm.UC_ARM_REG_LR, 0xFFFF_FFFF)
+        self.uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
+        self.uc.reg_write(arm.UC_ARM_REG_PRIMASK, 0)
+        self.uc.reg_write(arm.UC_ARM_REG_BASEPRI, 0)
+        self.uc.reg_write(arm.UC_ARM_REG_XPSR, 1 << 24)
+        self.pc = pc & ~1
+
+    def run(self, until_cycle=None, until=None, max_instructions=None):
+        """Runs until the clock reaches `until_cycle`, or `until()` holds, or the instruction limit is reached."""
+        limit = None if max_instructions is None else self.instructions + max_instructions
+        while True:
+            if until is not None and until():
+                return
+            if until_cycle is not None and self.cycles >= until_cycle:
+                return
+            if limit is not None and self.instructions >= limit:
+                raise Stop(f"{max_instructions} instructions without reaching the goal, at pc {self.pc:#010x}")
+            if self.service():
+                continue
+            if self.fault is not None:
+                raise Stop(self.fault)
+            for predicate, reason in self.watch:
+                if predicate():
+                    raise Stop(reason)
+            self._fire_due()
+            if self._take_exception():
+                continue
+            horizon = self._events[0][0] if self._events else self.cycles + self.hz
+            if until_cycle is not None:
+                horizon = min(horizon, until_cycle)
+            if self.sleeping:
+                # Asleep in WFE: nothing runs until the next event. The clock jumps there.
+                if self._events and (until_cycle is None or self._events[0][0] <= until_cycle):
+                    self.cycles = max(self.cycles, self._events[0][0])
+                elif until_cycle is not None:
+                    self.cycles = until_cycle
+                else:
+                    raise Stop(f"asleep at {self.pc:#010x} with nothing scheduled to wake it")
+                continue
+            self._stop_at = horizon
+            if limit is not None:
+                self._stop_at = min(self._stop_at, self.cycles + (limit - self.instructions))
+            self._execute()
+
+    def _execute(self):
+        self._stop_reason = None
+        try:
+            self.uc.emu_start(self.pc | 1, 0xFFFF_FFFF)
+        except UcError as error:
+            if self._stop_reason is None and self.fault is None:
+                self.raise_fault(f"the core stopped at {self.uc.reg_read(arm.UC_ARM_REG_PC):#010x}: {error}")
+                return
+        self.pc = self.uc.reg_read(arm.UC_ARM_REG_PC)
+        reason = self._stop_reason
+        if reason is not None:
+            reason()
+
+    def _stop(self, reason=None):
+        self._stop_reason = reason
+        self.uc.emu_stop()
+
+    def _on_block(self, uc, address, size, _data):
+        count = self._block_sizes.get((address, size))
+        if count is None:
+            count = thumb_instructions(bytes(uc.mem_read(address, size))) if size else 1
+            self._block_sizes[(address, size)] = count
+        self.cycles += count
+        self.instructions += count
+        if self._attention or self.cycles >= self._stop_at or (self.nvic is not None and self.nvic.wants_attention()):
+            self._attention = False
+            self._stop()
+
+    def request_stop(self):
+        """Stop at the next block, where the state is whole: a peripheral changed something the run loop must see.
+
+        Never stop from inside a memory callback: Unicorn would resume at the instruction that made the access and
+        run it a second time."""
+        self._attention = True
+
+    def stall(self, cycles):
+        """The core waits (a flash erase from the bank it runs from): time passes, no instruction runs."""
+        self.cycles += cycles
+        self.request_stop()
+
+    # Hints: WFE, WFI, SEV -------------------------------------------------------------------------------------
+    def hook_sev(self, code_start, code):
+        """SEV is a NOP to Unicorn: hook every halfword-aligned SEV encoding in the code so the event is seen."""
+        for i in range(0, len(code) - 1, 2):
+            if code[i] | code[i + 1] << 8 == SEV:
+                address = code_start + i
+                self.uc.hook_add(UC_HOOK_CODE, self._on_sev, begin=address, end=address)
+
+    def _on_sev(self, uc, address, size, _data):
+        self.event = True
+
+    def _on_invalid(self, uc, _data=None):
+        # Returning False ends emu_start with an error that `_execute` expects; the reason says what to do.
+        pc = uc.reg_read(arm.UC_ARM_REG_PC)
+        here = struct.unpack("<H", uc.mem_read(pc, 2))[0]
+        before = struct.unpack("<H", uc.mem_read(pc - 2, 2))[0]
+        if here >> 8 != 0xDE and before == WFE:
+            # Unicorn reports WFE with PC already past it.
+            self._stop_reason = lambda: self._wfe(pc)
+            return False
+        # UDF and everything else undefined: a UsageFault, escalated to HardFault (no handler enabled, B1.5.4).
+        self._stop_reason = lambda: self.enter_fault(f"undefined instruction {here:#06x} at {pc:#010x}", pc)
+        return False
+
+    def _wfe(self, pc):
+        self.pc = pc
+        if self.event:
+            self.event = False
+        else:
+            self.sleeping = True
+
+    def _on_interrupt(self, uc, intno, _data):
+        pc = uc.reg_read(arm.UC_ARM_REG_PC)
+        if intno == 8 and pc & 0xF000_0000 == 0xF000_0000:
+            # A handler returned: Unicorn leaves the EXC_RETURN value in PC (B1.5.8).
+            self._stop(lambda: self._exception_return(pc | 1))
+        elif intno == 7:
+            self._stop(lambda: self.enter_fault(f"breakpoint at {pc:#010x}", pc))
+        elif intno == 16 and pc == 0xFFFF_FFFF:
+            self._stop(lambda: self.raise_fault("returned from reset"))
+        else:
+            self._stop(lambda: self.enter_fault(f"CPU exception {intno} at {pc:#010x}", pc))
+
+    def _on_bad_access(self, uc, access, address, size, value, _data):
+        pc = uc.reg_read(arm.UC_ARM_REG_PC)
+        if access == UC_MEM_WRITE_PROT and FLASH_BASE <= address < FLASH_BASE + FLASH_SIZE and self.flash_store:
+            # A store into flash goes to the flash interface's programming sequence (RM0440 3.3.7).
+            self.flash_store(address, size, value & 0xFFFF_FFFF)
+            return True
+        self._stop_reason = lambda: self.enter_fault(f"bus fault: access to {address:#010x} at {pc:#010x}", pc)
+        return False
+
+    def fail(self, why):
+        """A modelled peripheral saw what real silicon would not allow; the run stops there."""
+        self.raise_fault(why)
+        self.request_stop()
+
+    def raise_fault(self, why):
+        if self.fault is None:
+            self.fault = why
+
+    # Exceptions (ARMv7-M B1.5) --------------------------------------------------------------------------------
+    def execution_priority(self):
+        """The current priority: the active exceptions', PRIMASK's and BASEPRI's (B1.5.4)."""
+        priority = 256
+        for number in self.active:
+            priority = min(priority, self.nvic.priority(number))
+        if self.uc.reg_read(arm.UC_ARM_REG_PRIMASK) & 1:
+            priority = min(priority, 0)
+        basepri = self.uc.reg_read(arm.UC_ARM_REG_BASEPRI) & 0xFF
+        if basepri:
+            priority = min(priority, basepri)
+        return priority
+
+    def _take_exception(self):
+        if self.nvic is None:
+            return False
+        number = self.nvic.highest_pending()
+        if number is None:
+            return False
+        priority = self.nvic.priority(number)
+        if priority >= self.execution_priority() and number not in (NMI, HARD_FAULT):
+            return False
+        self.nvic.activate(number)
+        self._enter(number)
+        return True
+
+    def enter_fault(self, why, pc):
+        """A fault the image may handle: HardFault, unless one is already active (a lockup, B1.5.15)."""
+        self.last_fault = why
+        if HARD_FAULT in self.active or NMI in self.active:
+            self.raise_fault(f"lockup: {why}")
+            return
+        self.pc = pc
+        self._enter(HARD_FAULT)
+
+    def pend(self, number):
+        """Sets an exception pending (NMI, HardFault) from a test."""
+        self.nvic.set_pending(number)
+
+    def _enter(self, number):
+        uc = self.uc
+        self.sleeping = False
+        self.event = True  # exception entry is a WFE wake-up event (B1.5.18)
+        control = uc.reg_read(arm.UC_ARM_REG_CONTROL)
+        fp = bool(control & CONTROL_FPCA)
+        sp = uc.reg_read(arm.UC_ARM_REG_SP)
+        words = 26 if fp else 8
+        frame = (sp - words * 4) & ~7
+        aligned = (sp - words * 4) & 4
+        xpsr = uc.reg_read(arm.UC_ARM_REG_XPSR) & ~(1 << 9)
+        if aligned:
+            xpsr |= 1 << 9
+        regs = [uc.reg_read(r) for r in (arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3,
+                                         arm.UC_ARM_REG_R12, arm.UC_ARM_REG_LR)]
+        data = struct.pack("<8I", *regs, self.pc | 0, xpsr | (1 << 24))
+        saved_fp = None
+        if fp:
+            saved_fp = [uc.reg_read(arm.UC_ARM_REG_S0 + i) for i in range(16)]
+            fpscr = uc.reg_read(arm.UC_ARM_REG_FPSCR)
+            data += struct.pack("<16I", *saved_fp) + struct.pack("<II", fpscr, 0)
+        if frame < SRAM_BASE:
+            self.raise_fault(f"stack overflow: an exception frame at {frame:#010x}, below RAM")
+            return
+        uc.mem_write(frame, data)
+        uc.reg_write(arm.UC_ARM_REG_SP, frame)
+        uc.reg_write(arm.UC_ARM_REG_MSP, frame)
+        in_handler = bool(self.active[:-1]) if self.active and self.active[-1] == number else bool(self.active)
+        if number not in self.active:
+            self.active.append(number)
+        if in_handler:
+            exc_return = EXC_RETURN_HANDLER_FP if fp else EXC_RETURN_HANDLER
+        else:
+            exc_return = EXC_RETURN_THREAD_FP if fp else EXC_RETURN_THREAD
+        uc.reg_write(arm.UC_ARM_REG_LR, exc_return)
+        uc.reg_write(arm.UC_ARM_REG_CONTROL, control & ~CONTROL_FPCA)
+        uc.reg_write(arm.UC_ARM_REG_IPSR, number)
+        vector = self.read32(self.vtor + 4 * number)
+        self.pc = vector & ~1
+
+    def _exception_return(self, exc_return):
+        uc = self.uc
+        if not self.active:
+            self.raise_fault(f"exception return {exc_return:#010x} with no exception active")
+            return
+        number = self.active.pop()
+        self.nvic.deactivate(number)
+        self.event = True
+        fp = not exc_return & 0x10
+        frame = uc.reg_read(arm.UC_ARM_REG_SP)
+        words = 26 if fp else 8
+        values = struct.unpack(f"<{words}I", uc.mem_read(frame, words * 4))
+        for register, value in zip((arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3,
+                                    arm.UC_ARM_REG_R12, arm.UC_ARM_REG_LR), values):
+            uc.reg_write(register, value)
+        pc, xpsr = values[6], values[7]
+        if fp:
+            for i in range(16):
+                uc.reg_write(arm.UC_ARM_REG_S0 + i, values[8 + i])
+            uc.reg_write(arm.UC_ARM_REG_FPSCR, values[24])
+        sp = frame + words * 4 + (4 if xpsr & (1 << 9) else 0)
+        uc.reg_write(arm.UC_ARM_REG_SP, sp)
+        uc.reg_write(arm.UC_ARM_REG_MSP, sp)
+        control = uc.reg_read(arm.UC_ARM_REG_CONTROL)
+        uc.reg_write(arm.UC_ARM_REG_CONTROL, control | CONTROL_FPCA if fp else control & ~CONTROL_FPCA)
+        uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr & ~(1 << 9))
+        uc.reg_write(arm.UC_ARM_REG_IPSR, self.active[-1] if self.active else 0)
+        self.pc = pc & ~1

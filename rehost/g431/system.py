@@ -1,0 +1,210 @@
+"""Clocks, power, flash, and the small system blocks: RCC (RM0440 7.4), PWR (6.4), FLASH (3.7), SYSCFG (9.1),
+DBGMCU (47.16) and TAMP's backup registers (38.6)."""
+
+from .peripheral import Peripheral, bit, field
+
+# RCC register offsets (RM0440 7.4.1-7.4.29).
+CR, ICSCR, CFGR, PLLCFGR, CIER, CIFR, CICR = 0x00, 0x04, 0x08, 0x0C, 0x18, 0x1C, 0x20
+AHB1ENR, AHB2ENR, APB1ENR1, APB1ENR2, APB2ENR = 0x48, 0x4C, 0x58, 0x5C, 0x60
+CCIPR, BDCR, CSR, CRRCR, CCIPR2 = 0x88, 0x90, 0x94, 0x98, 0x9C
+
+HSE_HZ = 24_000_000  # the NUCLEO-G431RB's crystal (UM2505 6.7.1, X3)
+HSI_HZ = 16_000_000
+
+# RCC_CSR reset flags (7.4.28).
+CSR_LSION, CSR_LSIRDY, CSR_RMVF = 1 << 0, 1 << 1, 1 << 23
+PINRSTF, BORRSTF, SFTRSTF, IWDGRSTF = 1 << 26, 1 << 27, 1 << 28, 1 << 29
+RESET_FLAGS = 0xFF << 24
+
+
+class Rcc(Peripheral):
+    # CR: HSION and HSIRDY after reset; CFGR: HSI16 selected (SW = SWS = 01); PLLCFGR: PLLN = 16.
+    resets = {CR: 0x0000_0500, CFGR: 0x0000_0005, PLLCFGR: 0x0000_1000}
+
+    def __init__(self, chip, name, base):
+        super().__init__(chip, name, base)
+        self.hse_starts = True  # a test sets False: the crystal never oscillates
+
+    def reset(self, flags=PINRSTF, power_on=False):
+        # The reset flags accumulate until RMVF clears them; the backup domain control (BDCR) survives all but a
+        # power-on (RM0440 7.4.27, 7.4.28).
+        csr = 0 if power_on else self.regs.get(CSR, 0) & RESET_FLAGS
+        bdcr = 0 if power_on else self.regs.get(BDCR, 0)
+        super().reset()
+        self.regs[CSR] = csr | flags
+        self.regs[BDCR] = bdcr
+
+    def write(self, offset, value):
+        self.writes.add(offset)
+        if offset == CR:
+            ready = 0
+            if bit(value, 8):
+                ready |= 1 << 10  # HSIRDY follows HSION
+            if bit(value, 16) and self.hse_starts:
+                ready |= 1 << 17  # HSERDY follows HSEON when the crystal starts
+            if bit(value, 24):
+                if self._pll_locks():
+                    ready |= 1 << 25  # PLLRDY follows PLLON when the PLL's input and VCO are in range
+            self.regs[CR] = (value & ~((1 << 10) | (1 << 17) | (1 << 25))) | ready
+        elif offset == CFGR:
+            sw = value & 3
+            sws = sw if self._source_ready(sw) else field(self.regs.get(CFGR, 5), 2, 2)
+            self.regs[CFGR] = (value & ~0xC) | (sws << 2)
+        elif offset == CSR:
+            old = self.regs.get(CSR, 0)
+            new = (old & RESET_FLAGS) | (value & ~RESET_FLAGS)
+            if value & CSR_RMVF:
+                new &= ~RESET_FLAGS
+            if value & CSR_LSION:
+                new |= CSR_LSIRDY
+            self.regs[CSR] = new & ~CSR_RMVF
+        elif offset == CRRCR:
+            self.regs[CRRCR] = (value & ~2) | (bit(value, 0) << 1)  # HSI48RDY follows HSI48ON
+        elif offset == BDCR:
+            # LSERDY follows LSEON (bit 0 -> 1); the backup domain is kept over resets other than power-on.
+            self.regs[BDCR] = value | (bit(value, 0) << 1)
+        else:
+            self.regs[offset] = value
+
+    def _source_ready(self, sw):
+        cr = self.regs.get(CR, 0)
+        return {1: bit(cr, 10), 2: bit(cr, 17), 3: bit(cr, 25)}.get(sw, 0)
+
+    def pll_input_hz(self):
+        pllcfgr = self.regs.get(PLLCFGR, 0)
+        source = pllcfgr & 3
+        return {2: HSI_HZ, 3: HSE_HZ if self.hse_starts else 0}.get(source, 0)
+
+    def _pll_locks(self):
+        # RM0440 7.2.4 and DS12589 Table 43: VCO input 2.66-16 MHz, VCO output 96-344 MHz.
+        pllcfgr = self.regs.get(PLLCFGR, 0)
+        m = field(pllcfgr, 4, 4) + 1
+        n = field(pllcfgr, 8, 7)
+        vin = self.pll_input_hz() / m
+        return 2_660_000 <= vin <= 16_000_000 and 96e6 <= vin * n <= 344e6
+
+    def sysclk_hz(self):
+        sws = field(self.regs.get(CFGR, 5), 2, 2)
+        if sws == 3:
+            pllcfgr = self.regs[PLLCFGR]
+            m, n, r = field(pllcfgr, 4, 4) + 1, field(pllcfgr, 8, 7), 2 * (field(pllcfgr, 25, 2) + 1)
+            return self.pll_input_hz() * n // (m * r)
+        return HSE_HZ if sws == 2 else HSI_HZ
+
+
+# PWR (6.4): CR1 0x00, SR2 0x14 (VOSF, REGLPF), CR5 0x80 (R1MODE).
+class Pwr(Peripheral):
+    resets = {0x00: 0x0000_0200, 0x80: 0x0000_0100}
+
+
+# FLASH (3.7): ACR 0x00, KEYR 0x08, SR 0x10, CR 0x14, ECCR 0x18.
+ACR, KEYR, SR, FCR, ECCR = 0x00, 0x08, 0x10, 0x14, 0x18
+KEY1, KEY2 = 0x4567_0123, 0xCDEF_89AB
+SR_EOP, SR_PROGERR, SR_PGSERR, SR_BSY = 1 << 0, 1 << 3, 1 << 7, 1 << 16
+CR_PG, CR_PER, CR_STRT, CR_LOCK = 1 << 0, 1 << 1, 1 << 16, 1 << 31
+PAGE = 2048
+
+# DS12589 Table 41 (flash memory characteristics): 64-bit programming 81.7 us typical, page erase 22 ms typical.
+PROGRAM_US = 82
+ERASE_US = 22_000
+
+
+class Flash(Peripheral):
+    """The G431's one bank of 2 KiB pages, programmed 64 bits at a time (RM0440 3.3.7, 3.3.8).
+
+    The CPU's stores into flash arrive here (`store`): with PG set they fill a double word, which is programmed
+    when its second word is written; a write to a word that is not erased sets PROGERR. While an erase or a program
+    runs, the core stalls, since it fetches from the same bank (3.3.7): the clock advances with no instruction run.
+    """
+
+    resets = {ACR: 0x0000_0600, FCR: CR_LOCK}
+
+    def __init__(self, chip, name, base):
+        super().__init__(chip, name, base)
+        self.keys = []
+        self.pending = {}  # address of a double word -> first word
+        self.erases = 0
+        self.programs = 0
+
+    def reset(self, flags=None):
+        super().reset()
+        self.keys = []
+        self.pending = {}
+
+    def write(self, offset, value):
+        self.writes.add(offset)
+        if offset == KEYR:
+            self.keys.append(value)
+            if self.keys[-2:] == [KEY1, KEY2]:
+                self.regs[FCR] = self.regs.get(FCR, 0) & ~CR_LOCK
+        elif offset == SR:
+            self.regs[SR] = self.regs.get(SR, 0) & ~(value & 0xC3FB)  # rc_w1 flags
+        elif offset == FCR:
+            if self.regs.get(FCR, 0) & CR_LOCK:
+                self.regs[SR] = self.regs.get(SR, 0) | SR_PGSERR
+                return
+            self.regs[FCR] = value
+            if value & CR_STRT and value & CR_PER:
+                page = field(value, 3, 7)
+                self.chip.flash_erase(page * PAGE)
+                self.erases += 1
+                self.regs[FCR] = value & ~CR_STRT
+                self.regs[SR] = self.regs.get(SR, 0) | SR_EOP
+                self.chip.core.stall(self.chip.core.hz * ERASE_US // 1_000_000)
+        elif offset == ACR:
+            self.regs[ACR] = value
+        else:
+            self.regs[offset] = value
+
+    def store(self, address, value):
+        """A CPU store of a word into flash; returns the word the flash holds afterwards."""
+        cr = self.regs.get(FCR, 0)
+        if not cr & CR_PG or cr & CR_LOCK:
+            self.regs[SR] = self.regs.get(SR, 0) | SR_PGSERR
+            return None
+        double = address & ~7
+        if address & 4 == 0:
+            self.pending = {double: value}
+            return None
+        first = self.pending.pop(double, None)
+        if first is None:
+            self.regs[SR] = self.regs.get(SR, 0) | SR_PGSERR
+            return None
+        if self.chip.flash_word(double) != 0xFFFF_FFFF or self.chip.flash_word(double + 4) != 0xFFFF_FFFF:
+            self.regs[SR] = self.regs.get(SR, 0) | SR_PROGERR
+            return None
+        self.chip.flash_program(double, first, value)
+        self.programs += 1
+        self.regs[SR] = self.regs.get(SR, 0) | SR_EOP
+        self.chip.core.stall(self.chip.core.hz * PROGRAM_US // 1_000_000)
+        return value
+
+    def latency(self):
+        return self.regs.get(ACR, 0) & 0xF
+
+
+class Syscfg(Peripheral):
+    pass
+
+
+# DBGMCU (47.16.4-47.16.7): IDCODE 0x00 (the G431's DEV_ID 0x468, RM0440 47.16.1), CR 0x04, APB1FZR1 0x08,
+# APB1FZR2 0x0C, APB2FZR 0x10.
+class Dbgmcu(Peripheral):
+    resets = {0x00: 0x2001_6468}
+
+
+# TAMP (38.6): the backup registers BKPxR from 0x100, kept over every reset but a power-on (backup domain).
+class Tamp(Peripheral):
+    def reset(self, power_on=False):
+        backup = {k: v for k, v in self.regs.items() if k >= 0x100}
+        super().reset()
+        if not power_on:
+            self.regs.update(backup)
+
+
+class Rtc(Peripheral):
+    pass
+
+
+class Crc(Peripheral):
+    pass

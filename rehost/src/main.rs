@@ -1,0 +1,349 @@
+//! The register-level run's reference: what each firmware image must leave in the G431's registers after start-up
+//! (computed by `g431-hw` from the reference manual's rules), the pins it may touch, and tmc-proto's encodings,
+//! printed as JSON for `rehost/run.py`, which runs the images on the Unicorn engine.
+//!
+//! `rehost expected` prints everything; `rehost status FAMILY HEX` decodes a status frame the thruster image
+//! sent, `rehost order FAMILY HEX` an order the master image sent.
+
+use std::process::ExitCode;
+
+use g431_hw::clock::{self, registers as rcc};
+use g431_hw::pins::{Mode, Pull};
+use g431_hw::tim1::{IHM08M1 as BRIDGE, PhaseMode};
+use g431_hw::{adc, fdcan, i2c, images, iwdg};
+use serde_json::{Value, json};
+use thruster_fw::commutation::{BridgeDrive, PhaseDrive, drive_for};
+use thruster_fw::hall::FORWARD_SEQUENCE;
+use thruster_fw::{Direction, Duty};
+use tmc_proto::{Family, Order, Speed, Status};
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let result = match args.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
+        ["expected"] => Ok(expected()),
+        ["status", family, hex] => family_of(family).and_then(|family| decode_status(family, hex)),
+        ["order", family, hex] => family_of(family).and_then(|family| decode_order(family, hex)),
+        _ => Err("usage: rehost expected | rehost status FAMILY HEX | rehost order FAMILY HEX".to_string()),
+    };
+    match result {
+        Ok(value) => {
+            println!("{value}");
+            ExitCode::SUCCESS
+        }
+        Err(error) => {
+            eprintln!("rehost: {error}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn family_of(name: &str) -> Result<Family, String> {
+    match name {
+        "seabotix" => Ok(Family::SeaBotix),
+        "legacy" => Ok(Family::Legacy),
+        _ => Err(format!("unknown family {name:?}: seabotix or legacy")),
+    }
+}
+
+fn bytes_of(hex: &str) -> Result<Vec<u8>, String> {
+    if !hex.len().is_multiple_of(2) || hex.len() > 64 {
+        return Err(format!("{hex:?} is not a short even-length hex string"));
+    }
+    (0..hex.len())
+        .step_by(2)
+        .map(|i| {
+            hex.get(i..i + 2)
+                .and_then(|pair| u8::from_str_radix(pair, 16).ok())
+                .ok_or_else(|| format!("{hex:?} is not hex"))
+        })
+        .collect()
+}
+
+/// One register expectation: `value` under `mask` at `address`.
+fn register(name: &str, address: u32, mask: u32, value: u32, source: &str) -> Value {
+    json!({ "name": name, "address": address, "mask": mask, "value": value & mask, "source": source })
+}
+
+/// The clock tree both images set up (RM0440 7.4, 3.7.1).
+fn clock_registers(ccipr: &[(u32, u32)]) -> Vec<Value> {
+    const RCC: u32 = 0x4002_1000;
+    let mut out = vec![
+        register(
+            "RCC_PLLCFGR",
+            RCC + 0x0C,
+            0x07FF_7FF3,
+            rcc::PLLCFGR,
+            "g431_hw::clock::registers::PLLCFGR",
+        ),
+        register(
+            "RCC_CFGR.SWS",
+            RCC + 0x08,
+            0b1100,
+            rcc::SW_PLL << 2,
+            "g431_hw::clock::registers::SW_PLL",
+        ),
+        register(
+            "FLASH_ACR.LATENCY",
+            0x4002_2000,
+            0xF,
+            rcc::LATENCY,
+            "g431_hw::clock::registers::LATENCY",
+        ),
+    ];
+    for &(shift, value) in ccipr {
+        out.push(register(
+            &format!("RCC_CCIPR[{}:{shift}]", shift + 1),
+            RCC + 0x88,
+            0b11 << shift,
+            value << shift,
+            "g431_hw::clock::registers",
+        ));
+    }
+    out
+}
+
+fn pins(image: &g431_hw::pins::Image) -> Vec<Value> {
+    image
+        .uses
+        .iter()
+        .map(|used| {
+            let (mode, af, pull, open_drain, channel) = match used.mode {
+                Mode::Alternate { af, pull, .. } => ("alternate", af, pull, false, None),
+                Mode::AlternateOpenDrain { af, .. } => ("alternate", af, Pull::None, true, None),
+                Mode::Input(pull) => ("input", 0, pull, false, None),
+                Mode::Analog { adc1_in } => ("analog", 0, Pull::None, false, Some(adc1_in)),
+            };
+            let pull = match pull {
+                Pull::None => "none",
+                Pull::Up => "up",
+                Pull::Down => "down",
+            };
+            json!({
+                "port": used.pin.port.letter().to_string(), "pin": used.pin.number, "function": used.function,
+                "mode": mode, "af": af, "pull": pull, "open_drain": open_drain, "adc1_in": channel,
+            })
+        })
+        .collect()
+}
+
+/// CCMR1, CCMR2, CCER of a bridge drive, as the binding maps it onto `g431_hw::tim1`.
+fn commutation(drive: BridgeDrive) -> Value {
+    let step = BRIDGE.commutation(drive.map(|phase| match phase {
+        PhaseDrive::Pwm => PhaseMode::Switching,
+        PhaseDrive::Low => PhaseMode::LowOn,
+        PhaseDrive::Float => PhaseMode::Off,
+    }));
+    json!({ "ccmr1": step.ccmr1, "ccmr2": step.ccmr2, "ccer": step.ccer })
+}
+
+fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> Value {
+    const TIM1: u32 = 0x4001_2C00;
+    const I2C3: u32 = 0x4000_7800;
+    const IWDG: u32 = 0x4000_3000;
+    const DBGMCU: u32 = 0xE004_2000;
+    let config = &thruster_fw::CONFIG;
+    let watchdog = config
+        .watchdog
+        .schedule(&config.bus)
+        .check()
+        .unwrap_or(iwdg::Iwdg { pr: 0, rlr: 0 });
+    let mut registers = clock_registers(&[(rcc::I2C3SEL, rcc::I2C_HSI16), (rcc::ADC12SEL, rcc::ADC_SYSCLK)]);
+    registers.extend([
+        register(
+            "I2C3_TIMINGR",
+            I2C3 + 0x10,
+            u32::MAX,
+            i2c::TIMINGR,
+            "g431_hw::i2c::TIMINGR",
+        ),
+        register(
+            "I2C3_OAR1",
+            I2C3 + 0x08,
+            0xFFFF,
+            i2c::oar1(family.address()),
+            "g431_hw::i2c::oar1",
+        ),
+        register(
+            "IWDG_PR",
+            IWDG + 0x04,
+            0x7,
+            watchdog.pr.into(),
+            "CONFIG.watchdog via g431_hw::iwdg",
+        ),
+        register(
+            "IWDG_RLR",
+            IWDG + 0x08,
+            0xFFF,
+            watchdog.rlr.into(),
+            "CONFIG.watchdog via g431_hw::iwdg",
+        ),
+        register(
+            "DBGMCU_APB1FZR1",
+            DBGMCU + 0x08,
+            iwdg::DBGMCU_APB1FZR1,
+            iwdg::DBGMCU_APB1FZR1,
+            "g431_hw::iwdg",
+        ),
+    ]);
+    let mut six_step = Vec::new();
+    if power_stage {
+        let arr = BRIDGE.arr(clock::TIM1_HZ);
+        registers.extend([
+            register("TIM1_ARR", TIM1 + 0x2C, 0xFFFF, arr, "g431_hw::tim1::IHM08M1.arr"),
+            register("TIM1_PSC", TIM1 + 0x28, 0xFFFF, 0, "centre-aligned 20 kHz from 170 MHz"),
+            // CEN, CMS = 0b11 (centre-aligned mode 3: compare flags both ways), CKD = 0 (t_DTS = t_CK_INT).
+            register("TIM1_CR1", TIM1, 0x0371, 0x0061, "centre-aligned, counting"),
+            register(
+                "TIM1_CR2",
+                TIM1 + 0x04,
+                u32::MAX,
+                BRIDGE.cr2(),
+                "g431_hw::tim1::IHM08M1.cr2",
+            ),
+            register(
+                "TIM1_BDTR",
+                TIM1 + 0x44,
+                u32::MAX,
+                BRIDGE.bdtr_armed(clock::TIM1_HZ),
+                "g431_hw::tim1::IHM08M1.bdtr_armed",
+            ),
+            register(
+                "TIM1_AF1",
+                TIM1 + 0x60,
+                u32::MAX,
+                g431_hw::tim1::AF1,
+                "g431_hw::tim1::AF1",
+            ),
+            register(
+                "SYSCFG_CFGR2",
+                0x4001_0000 + 0x1C,
+                0xF,
+                g431_hw::tim1::SYSCFG_CFGR2,
+                "g431_hw::tim1",
+            ),
+            register(
+                "DBGMCU_APB2FZR",
+                DBGMCU + 0x10,
+                g431_hw::tim1::DBGMCU_APB2FZR,
+                g431_hw::tim1::DBGMCU_APB2FZR,
+                "g431_hw::tim1",
+            ),
+        ]);
+        let quarter = Duty::new_saturating(i32::from(g431_hw::tim1::FULL_DUTY) / 4);
+        for state in FORWARD_SEQUENCE {
+            six_step.push(json!({ "hall": state.bits(), "drive": commutation(drive_for(state, quarter)) }));
+        }
+    }
+    let sample_time = |source| adc::G431.sample_time(source, clock::ADC_HZ).bits();
+    json!({
+        "kind": "thruster",
+        "family": family.name(),
+        "address": family.address(),
+        "pins": pins(image),
+        "registers": registers,
+        "coast": commutation(thruster_fw::commutation::COAST),
+        "forward": six_step,
+        "sample_times": {
+            "water": sample_time(adc::WATER), "ntc": sample_time(adc::NTC), "current": sample_time(adc::CURRENT),
+        },
+        "watchdog_timeout_us": watchdog.timeout_us(clock::LSI_HZ),
+    })
+}
+
+fn master(image: &g431_hw::pins::Image) -> Value {
+    let config = &lbv_master_fw::CONFIG;
+    let can = fdcan::nominal(
+        clock::FDCAN_KERNEL_HZ,
+        config.can_bitrate,
+        fdcan::SAMPLE_POINT_PERMILLE,
+        fdcan::BUS_DELAY_NS,
+    )
+    .map(|timing| timing.nbtp())
+    .unwrap_or(0);
+    let mut registers = clock_registers(&[
+        (rcc::I2C1SEL, rcc::I2C_HSI16),
+        (rcc::I2C2SEL, rcc::I2C_HSI16),
+        (rcc::I2C3SEL, rcc::I2C_HSI16),
+        (rcc::FDCANSEL, rcc::FDCAN_HSE),
+    ]);
+    for (name, base) in [("I2C1", 0x4000_5400u32), ("I2C2", 0x4000_5800), ("I2C3", 0x4000_7800)] {
+        registers.push(register(
+            &format!("{name}_TIMINGR"),
+            base + 0x10,
+            u32::MAX,
+            i2c::TIMINGR,
+            "g431_hw::i2c",
+        ));
+    }
+    registers.push(register(
+        "FDCAN1_NBTP",
+        0x4000_6400 + 0x1C,
+        u32::MAX,
+        can,
+        "g431_hw::fdcan::nominal",
+    ));
+    json!({
+        "kind": "master",
+        "pins": pins(image),
+        "registers": registers,
+        "console_baud": config.console_baud,
+        "can_bitrate": config.can_bitrate,
+    })
+}
+
+/// Orders the tests send or expect, in both families.
+fn orders() -> Value {
+    let mut out = serde_json::Map::new();
+    for family in [Family::SeaBotix, Family::Legacy] {
+        let mut by_step = serde_json::Map::new();
+        for step in [0i8, 25, -25, 63, -63] {
+            if let Some(speed) = Speed::new(step) {
+                let bytes = Order::new(speed).encode(family);
+                by_step.insert(step.to_string(), json!(bytes));
+            }
+        }
+        out.insert(family.name().to_string(), Value::Object(by_step));
+    }
+    Value::Object(out)
+}
+
+fn expected() -> Value {
+    json!({
+        "images": {
+            "thruster-fw": thruster(&images::THRUSTER, Family::SeaBotix, true),
+            "thruster-fw-legacy": thruster(&images::THRUSTER, Family::Legacy, true),
+            "thruster-fw-brushed": thruster(&images::THRUSTER_BRUSHED, Family::SeaBotix, true),
+            "thruster-fw-bringup": thruster(&images::THRUSTER, Family::SeaBotix, true),
+            "thruster-fw-motorless": thruster(&images::THRUSTER_MOTORLESS, Family::SeaBotix, false),
+            "lbv-master-fw": master(&images::MASTER),
+            "lbv-master-fw-devkit": master(&images::MASTER),
+            "lbv-master-fw-acceptance": master(&images::MASTER),
+        },
+        "orders": orders(),
+        "forward_direction": format!("{:?}", Direction::Forward),
+    })
+}
+
+fn decode_status(family: Family, hex: &str) -> Result<Value, String> {
+    let bytes = bytes_of(hex)?;
+    let (decoded, form) = Status::decode_either(family, &bytes).map_err(|error| error.to_string())?;
+    let canonical = decoded.status.encode().as_bytes() == bytes.as_slice();
+    let fields = match decoded.status {
+        Status::SeaBotix(status) => json!({
+            "faults": status.faults.bits(), "rpm": status.speed.rpm(), "current_deciamps": status.current_deciamps,
+            "temperature_c": status.temperature_c, "revision": status.revision,
+            "link_failsafe": tmc_proto::SeaBotixStatus::link_failsafe_in(&bytes),
+        }),
+        Status::Legacy(status) => json!({
+            "faults": status.faults.bits(), "revision": status.revision.number(),
+            "max_power": format!("{:?}", status.max_power),
+        }),
+    };
+    Ok(json!({ "form": format!("{form:?}"), "canonical": canonical, "fields": fields }))
+}
+
+fn decode_order(family: Family, hex: &str) -> Result<Value, String> {
+    let bytes = bytes_of(hex)?;
+    let order = Order::decode(family, &bytes).map_err(|error| error.to_string())?;
+    Ok(json!({ "step": order.speed.step(), "canonical": order.encode(family).as_slice() == bytes.as_slice() }))
+}

@@ -1,0 +1,53 @@
+"""Shared set-up: where the images are, what they must leave in the registers (`rehost expected`), and a way to
+boot one under the models."""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "rehost"))
+
+from g431.chip import G431, Image  # noqa: E402
+
+IMAGES = pathlib.Path(os.environ.get("REHOST_IMAGES", ROOT / "target" / "images"))
+REHOST = os.environ.get("REHOST_BIN", str(ROOT / "target" / "debug" / "rehost"))
+
+THRUSTERS = ["thruster-fw", "thruster-fw-legacy", "thruster-fw-brushed", "thruster-fw-motorless", "thruster-fw-bringup"]
+MASTERS = ["lbv-master-fw", "lbv-master-fw-devkit", "lbv-master-fw-acceptance"]
+ALL = THRUSTERS + MASTERS
+
+# Instructions an image may take from reset to its executors' idle: ten times the most any takes (about 120 000).
+BOOT_INSTRUCTIONS = 1_200_000
+
+_images = {}
+
+
+def image(name):
+    """An image, parsed once per run."""
+    if name not in _images:
+        path = IMAGES / name
+        if not path.exists():
+            pytest.fail(f"{path} is missing: ./test.sh builds every image before this run")
+        _images[name] = Image(path)
+    return _images[name]
+
+
+def rehost(*args):
+    return json.loads(subprocess.run([REHOST, *args], check=True, capture_output=True, text=True).stdout)
+
+
+@pytest.fixture(scope="session")
+def expected():
+    return rehost("expected")
+
+
+def boot(name, **options):
+    """A chip running `name`, brought to its first idle (both executors waiting, nothing pending)."""
+    chip = G431(image(name), **options)
+    chip.run_until(chip.idle, seconds=0.05, what=f"{name} reaching idle")
+    return chip
