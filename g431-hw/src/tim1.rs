@@ -129,6 +129,24 @@ const AOE: u32 = 1 << 14;
 const MOE: u32 = 1 << 15;
 const BKF_SHIFT: u32 = 16;
 
+/// TIMx_SR: BIF (bit 7), set by hardware when break input 1 goes active (here: the overcurrent comparator on
+/// BKIN), and SBIF (bit 13), set by a system break (here: core lockup, flash ECC double error). Both stay set
+/// until software clears them (RM0440 TIMx_SR; "Using the break function"). With AOE = 1 the outputs come back
+/// at the next update event, so BIF is the only trace a cycle-by-cycle trip leaves.
+pub const SR_BIF: u32 = 1 << 7;
+pub const SR_SBIF: u32 = 1 << 13;
+
+/// What to write to SR to clear BIF and SBIF alone: SR's flags are rc_w0 (writing 0 clears a flag, 1 leaves it),
+/// so every other bit is written 1 and no flag the hardware sets meanwhile is lost (RM0440 TIMx_SR; ST's HAL
+/// clears a timer flag the same way, `__HAL_TIM_CLEAR_FLAG` writing `~flag`).
+pub const SR_CLEAR_BREAK: u32 = !(SR_BIF | SR_SBIF);
+
+/// Whether an SR value says break input 1 tripped (BIF). SBIF is not an overcurrent: its sources here end in a
+/// reset, so it is cleared and not counted.
+pub const fn break_tripped(sr: u32) -> bool {
+    sr & SR_BIF != 0
+}
+
 /// EGR: generate a COM event.
 pub const EGR_COMG: u32 = 1 << 5;
 
@@ -317,9 +335,17 @@ impl Bridge {
     }
 
     /// BDTR with the outputs stopped for good: MOE = 0 (idle levels, both switches off) and AOE = 0 so that no
-    /// update event re-enables them. For the panic and fault handlers.
+    /// update event re-enables them. For the panic and fault handlers, and a sustained overcurrent (AOE cleared,
+    /// a break no longer ends at the next update event: RM0440 TIMx_BDTR AOE, MOE).
     pub const fn bdtr_stopped(&self, tim_hz: u32) -> u32 {
         self.bdtr(tim_hz) & !(AOE | MOE)
+    }
+
+    /// BDTR after a sustained overcurrent has been cleared: [`Bridge::bdtr`] again, AOE = 1 and MOE = 0, so the
+    /// outputs come back at the next update event, and only once the break input is inactive (RM0440 TIMx_BDTR
+    /// AOE; "Using the break function": MOE cannot be set while the break input is active). As at start-up.
+    pub const fn bdtr_restarted(&self, tim_hz: u32) -> u32 {
+        self.bdtr(tim_hz)
     }
 
     /// BDTR with the outputs enabled (MOE = 1).

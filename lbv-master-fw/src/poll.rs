@@ -34,6 +34,9 @@ pub struct Polled {
     /// The status says the thruster's link failsafe stopped it: this project's SeaBotix FAULT bit 5
     /// ([`SeaBotixStatus::FAULT_LINK_FAILSAFE`]), which only this project's thruster sends, in the full form.
     pub link_failsafe: bool,
+    /// The status says a sustained overcurrent holds the thruster's bridge off until a zero order: this project's
+    /// SeaBotix FAULT bit 6 ([`SeaBotixStatus::FAULT_OVERCURRENT`]), in the full form only, as bit 5.
+    pub overcurrent: bool,
 }
 
 /// Send `order` to the thruster of `family` and read back its status.
@@ -66,12 +69,12 @@ pub async fn poll_thruster<I: I2c>(
         },
     };
     let decoded = decoded.map_err(PollError::Decode)?;
-    let link_failsafe =
-        form == StatusForm::Full && family == Family::SeaBotix && SeaBotixStatus::link_failsafe_in(reply);
+    let extended = form == StatusForm::Full && family == Family::SeaBotix;
     Ok(Polled {
         decoded,
         form,
-        link_failsafe,
+        link_failsafe: extended && SeaBotixStatus::link_failsafe_in(reply),
+        overcurrent: extended && SeaBotixStatus::overcurrent_in(reply),
     })
 }
 

@@ -283,6 +283,9 @@ pub struct LinkHealth {
     /// Times the thruster said its link failsafe had stopped it (SeaBotix FAULT bit 5 rising: it went 1 s
     /// without a valid order).
     pub link_failsafes: u32,
+    /// Times the thruster said a sustained overcurrent had stopped it (SeaBotix FAULT bit 6 rising: its power
+    /// stage's hardware break kept tripping, and its outputs are off until a zero order).
+    pub overcurrents: u32,
     /// The thruster did not acknowledge (missing or unpowered).
     pub nack: u32,
     /// A transfer timed out (SCL held low past the bus's timeout, [`crate::config::BusConfig::timeout`]).

@@ -113,6 +113,8 @@ pub(crate) mod scripted {
         pub faults: Faults,
         /// Its status says its link failsafe stopped it (SeaBotix FAULT bit 5).
         pub link_failsafe: bool,
+        /// Its status says a sustained overcurrent stopped it (SeaBotix FAULT bit 6).
+        pub overcurrent: bool,
         /// When each transfer addressed to it began (while it was reachable), whatever its mode.
         pub addressed: Vec<Instant>,
         /// When each valid order arrived.
@@ -126,6 +128,7 @@ pub(crate) mod scripted {
                 mode: Mode::Good,
                 faults: Faults::NONE,
                 link_failsafe: false,
+                overcurrent: false,
                 addressed: Vec::new(),
                 orders: Vec::new(),
             }
@@ -154,12 +157,14 @@ pub(crate) mod scripted {
                     max_power: MaxPower::Power(speed),
                 }),
             };
-            let failsafe = if self.link_failsafe {
-                SeaBotixStatus::FAULT_LINK_FAILSAFE
-            } else {
-                0
-            };
-            let mut bytes = status.encode().with_fault_bits(failsafe).as_bytes().to_vec();
+            let mut extensions = 0;
+            if self.link_failsafe {
+                extensions |= SeaBotixStatus::FAULT_LINK_FAILSAFE;
+            }
+            if self.overcurrent {
+                extensions |= SeaBotixStatus::FAULT_OVERCURRENT;
+            }
+            let mut bytes = status.encode().with_fault_bits(extensions).as_bytes().to_vec();
             let last = bytes.len() - 1;
             match self.mode {
                 Mode::BadChecksum => bytes[last] = bytes[last].wrapping_add(1),

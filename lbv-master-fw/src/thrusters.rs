@@ -377,6 +377,8 @@ pub struct Link {
     form: Option<StatusForm>,
     /// The last valid status said the link failsafe had stopped the thruster.
     link_failsafe: bool,
+    /// The last valid status said a sustained overcurrent held the thruster's bridge off.
+    overcurrent: bool,
     /// While offline: when the next retry is due.
     retry_at: Instant,
     /// While offline: the interval after the next failed retry.
@@ -400,6 +402,7 @@ impl Link {
                 good: 0,
                 implied_form: 0,
                 link_failsafes: 0,
+                overcurrents: 0,
                 nack: 0,
                 timeout: 0,
                 bad_checksum: 0,
@@ -413,6 +416,7 @@ impl Link {
             status: None,
             form: None,
             link_failsafe: false,
+            overcurrent: false,
             retry_at: Instant::from_ticks(0),
             next_backoff: config.retry_min,
             retry_min: config.retry_min,
@@ -485,6 +489,17 @@ impl Link {
         self.link_failsafe = set;
         if risen {
             self.health.link_failsafes = self.health.link_failsafes.saturating_add(1);
+        }
+        risen
+    }
+
+    /// Take the overcurrent bit of a valid status; true when it has just risen (a sustained overcurrent stopped the
+    /// thruster's bridge until a zero order), which is counted.
+    pub fn on_overcurrent(&mut self, set: bool) -> bool {
+        let risen = set && !self.overcurrent;
+        self.overcurrent = set;
+        if risen {
+            self.health.overcurrents = self.health.overcurrents.saturating_add(1);
         }
         risen
     }
@@ -762,13 +777,10 @@ impl BusState {
             {
                 link.on_odd_field();
             }
-            let failsafe = matches!(
-                result,
-                Ok(Polled {
-                    link_failsafe: true,
-                    ..
-                })
-            );
+            let (failsafe, overcurrent) = match &result {
+                Ok(polled) => (polled.link_failsafe, polled.overcurrent),
+                Err(_) => (false, false),
+            };
             let (change, outcome) = match result {
                 Ok(polled) => (
                     link.on_result::<B::Error>(cycle, &Ok(polled)),
@@ -804,6 +816,13 @@ impl BusState {
                 shared.say(
                     Severity::Warning,
                     text(format_args!("T{number} stopped: 1 s without a valid order")),
+                );
+            }
+            if matches!(outcome, Outcome::Answered(_)) && link.on_overcurrent(overcurrent) {
+                let number = index.saturating_add(1);
+                shared.say(
+                    Severity::Critical,
+                    text(format_args!("T{number} stopped: overcurrent, off until a zero order")),
                 );
             }
             if let Outcome::Answered(status) = outcome

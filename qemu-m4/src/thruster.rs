@@ -295,6 +295,10 @@ impl tasks::Bridge for Bridge {
     fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
         meter::measure(&MOTOR_MODEL_METER, || ModelBridge(self.0).apply(drive, duty));
     }
+
+    fn hold_off(&mut self, off: bool) {
+        ModelBridge(self.0).hold_off(off);
+    }
 }
 
 /// The watchdog: counts feeds and the longest gap. A feed is the health task's progress.

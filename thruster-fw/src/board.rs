@@ -23,7 +23,7 @@ use {
     core::task::Poll,
     embassy_stm32::exti::ExtiInput,
     embassy_stm32::gpio::Flex,
-    embassy_stm32::pac::timer::regs::{CcerAdv, CcmrOutputGp16, EgrAdv},
+    embassy_stm32::pac::timer::regs::{BdtrAdv, CcerAdv, CcmrOutputGp16, EgrAdv, SrAdv},
     embassy_stm32::peripherals::TIM1,
     embassy_stm32::timer::complementary_pwm::ComplementaryPwm,
     g431_hw::tim1::{self, PhaseMode},
@@ -84,6 +84,9 @@ const _: () = assert!(BRIDGE.is_valid(clock::TIM1_HZ));
 
 /// TIM1 BDTR with the outputs stopped for good (MOE = 0, AOE = 0): both switches of every phase off.
 const BDTR_STOPPED: u32 = BRIDGE.bdtr_stopped(clock::TIM1_HZ);
+/// TIM1 BDTR once a sustained overcurrent is cleared: AOE = 1, the outputs back at the next update event.
+#[cfg(not(feature = "motorless"))]
+const BDTR_RESTARTED: u32 = BRIDGE.bdtr_restarted(clock::TIM1_HZ);
 
 /// Stop the bridge from any context (panic, hard fault): the outputs drop to their idle levels, both switches of
 /// every phase off, and stay there. Harmless when TIM1 is not clocked (writes to it are ignored).
@@ -218,6 +221,25 @@ impl Bridge for PowerStage {
         tim.ccer().write_value(CcerAdv(step.ccer));
         tim.egr().write_value(EgrAdv(tim1::EGR_COMG));
     }
+
+    /// BDTR alone: MOE and AOE cleared holds every switch off (OSSI idle levels) through any update event; the
+    /// restart value sets AOE again and leaves MOE to the hardware (RM0440 TIMx_BDTR).
+    fn hold_off(&mut self, off: bool) {
+        let bdtr = if off { BDTR_STOPPED } else { BDTR_RESTARTED };
+        pac::TIM1.bdtr().write_value(BdtrAdv(bdtr));
+    }
+}
+
+/// Whether TIM1's break tripped since the last call, clearing its flags: BIF stays set from a trip until software
+/// clears it (RM0440 TIMx_SR), so one read per sample sees every trip in between. Cleared only when set, so a trip
+/// between the read and a write is never wiped unseen.
+#[cfg(not(feature = "motorless"))]
+fn take_break() -> bool {
+    let sr = pac::TIM1.sr().read().0;
+    if sr & (tim1::SR_BIF | tim1::SR_SBIF) != 0 {
+        pac::TIM1.sr().write_value(SrAdv(tim1::SR_CLEAR_BREAK));
+    }
+    tim1::break_tripped(sr)
 }
 
 /// Sample times from the sources' impedance (`g431_hw::adc`); the water sensor relies on its 100 nF.
@@ -258,6 +280,9 @@ impl Sensors for AnalogInputs {
             water: self.adc.blocking_read(&mut self.water, sample_time(WATER_SAMPLE)),
             temperature: self.adc.blocking_read(&mut self.ntc, sample_time(NTC_SAMPLE)),
             current: self.adc.blocking_read(&mut self.current, sample_time(CURRENT_SAMPLE)),
+            // TIM1's status register, not the ADC: the fault task's 1 kHz sample is the trip rule's tick
+            // (`thruster_fw::overcurrent`). SR's flags are rc_w0, so this never disturbs the commutation's writes.
+            break_tripped: take_break(),
         }
     }
 }

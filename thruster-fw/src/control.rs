@@ -37,6 +37,11 @@ pub struct Sensed {
     pub current_deciamps: u16,
     /// Motor (brushless) or controller (brushed) temperature in 0.1 deg C.
     pub temperature_decicelsius: i16,
+    /// A sustained overcurrent holds the bridge off, its outputs disabled, until a zero order
+    /// ([`crate::overcurrent::TripRule`]).
+    pub overcurrent: bool,
+    /// Samples that saw a break trip since start-up (cycle-by-cycle limiting included).
+    pub break_trips: u32,
 }
 
 impl Sensed {
@@ -46,6 +51,8 @@ impl Sensed {
         drive_allowed: false,
         current_deciamps: 0,
         temperature_decicelsius: 0,
+        overcurrent: false,
+        break_trips: 0,
     };
 }
 
@@ -198,6 +205,7 @@ mod tests {
         drive_allowed: true,
         current_deciamps: 0,
         temperature_decicelsius: 250,
+        ..Sensed::UNKNOWN
     };
 
     fn ms(value: u64) -> Instant {
@@ -381,6 +389,7 @@ mod tests {
             drive_allowed: true,
             current_deciamps: 42,
             temperature_decicelsius: 567,
+            ..Sensed::UNKNOWN
         };
         let Status::SeaBotix(status) = brushless(Family::SeaBotix).status(sensed, 2250) else {
             panic!()
@@ -483,6 +492,7 @@ mod tests {
                 drive_allowed: false,
                 current_deciamps: current,
                 temperature_decicelsius: temperature,
+                ..Sensed::UNKNOWN
             };
             for control in [brushless(family), Control::new(family, SpeedConfig::BRUSHED_DEFAULT, TIMEOUT, ms(0))] {
                 let status = control.status(sensed, rpm);

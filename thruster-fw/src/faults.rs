@@ -8,6 +8,7 @@
 //! | overtemp | >= 110.0 C, cleared at <= 100.0 C | stops while set | same |
 //! | stalled motor | [`StallDetector`] / [`CurrentStall`] verdict | stops; latched until a zero-speed order | same |
 //! | hall sensor error | hall state invalid or illegal transition | stops; clears when the halls read normal | same |
+//! | overcurrent (the project's) | break trips sustained ([`crate::overcurrent::TripRule`]) | stops, outputs off; latched until a zero-speed order; no status bit | same; FAULT bit 6 |
 //!
 //! The IDS leaves the filtering open; the project's reading (spec-notes, "How the project reads the rest of the
 //! fault rules"): water and ground need their condition on [`Thresholds::latch_samples`] consecutive samples to
@@ -61,6 +62,9 @@ pub struct Thresholds {
     /// Brushed stall: the level never exceeds this, in 0.1 A, so a power stage that limits the current below the
     /// locked-rotor current still sees a locked rotor as stalled.
     pub stall_current_ceiling_deciamps: u16,
+    /// A sustained overcurrent: the leaky count of samples with a break trip at which the bridge stops
+    /// ([`crate::overcurrent::TripRule`]); 0 acts as 1.
+    pub overcurrent_ticks: u16,
 }
 
 impl Thresholds {
@@ -87,6 +91,12 @@ impl Thresholds {
     /// - `stall_current_ceiling_deciamps` 6 A: above the 4 A of full speed, below the power stage's 8 A
     ///   cycle-by-cycle limit (the IHM08M1's overcurrent comparator as the bench models it), which would
     ///   otherwise hold a locked rotor under a level it could never reach.
+    /// - `overcurrent_ticks` 500: a break trip on every 1 ms sample stops the bridge after 0.5 s (20 000 PWM
+    ///   periods, each cut by the hardware within a microsecond). Longer than the stall window, so a locked rotor
+    ///   held at the current limit is reported as the stall it is: on the bench (its 8 A limit) a blocked
+    ///   propeller brings the count to at most 375 before the stall stops it (the soak, 120 s), 275 in the stall
+    ///   scenarios; on the IHM08M1, whose comparator sits near twice its rated current, the reference motor's
+    ///   20 A locked-rotor current does not trip it at all. A short trips every period and gets there.
     pub const SPEC: Thresholds = Thresholds {
         water_ohms: 1_000_000,
         water_clear_ohms: 1_100_000,
@@ -100,6 +110,7 @@ impl Thresholds {
         stall_min_pulses: 3,
         locked_rotor_deciamps: 200,
         stall_current_ceiling_deciamps: 60,
+        overcurrent_ticks: 500,
     };
 }
 

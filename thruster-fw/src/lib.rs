@@ -19,6 +19,7 @@ pub mod hall;
 pub mod health;
 pub mod i2c_slave;
 pub mod motorless;
+pub mod overcurrent;
 pub mod sensors;
 #[cfg(any(test, feature = "sim"))]
 pub mod sim;

@@ -251,6 +251,9 @@ impl Bridge for ModelBridge<'_> {
         let now = Instant::now();
         self.0.with(|model| model.drive(now, drive, duty), |_| ());
     }
+
+    /// No power stage, no break: the model's motor never trips it.
+    fn hold_off(&mut self, _off: bool) {}
 }
 
 /// The water-sensor ADC pin, which stays real in the motor-less controller.
@@ -302,6 +305,7 @@ impl<W: WaterInput, H: HoldInput> Sensors for ModelSensors<'_, W, H> {
             water: self.water.water().await,
             temperature: self.temperature_raw,
             current: self.current.offset_raw.saturating_add(counts),
+            break_tripped: false,
         }
     }
 }

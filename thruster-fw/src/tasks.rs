@@ -21,6 +21,7 @@ use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, St
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
 use crate::i2c_slave::{I2cTarget, Link, ServeEvent, serve};
+use crate::overcurrent::TripRule;
 use crate::sensors::{CurrentSense, Ntc, WaterSensor};
 use crate::speed::SpeedConfig;
 
@@ -37,6 +38,10 @@ pub trait HallSensors {
 pub trait Bridge {
     /// Drive the phases; `duty` sets the PWM of the phase marked [`PhaseDrive::Pwm`].
     fn apply(&mut self, drive: BridgeDrive, duty: Duty);
+    /// A sustained overcurrent (`true`): every output off and kept off, the hardware break's automatic restart
+    /// disabled, whatever `apply` asks. `false`: the outputs may come back (at the next PWM period, once the
+    /// break input is inactive).
+    fn hold_off(&mut self, off: bool);
 }
 
 /// Raw ADC readings (12-bit) of the fault and telemetry inputs.
@@ -48,6 +53,9 @@ pub struct RawSample {
     pub temperature: u16,
     /// Motor current amplifier.
     pub current: u16,
+    /// The power stage's hardware break tripped (its overcurrent comparator) since the last sample; taking the
+    /// sample clears it.
+    pub break_tripped: bool,
 }
 
 /// The ADC inputs.
@@ -330,11 +338,20 @@ pub async fn commutation_task<H: HallSensors, B: Bridge>(
 ) -> ! {
     let mut tracker = HallTracker::new(pole_pairs, halls.read(), Instant::now());
     bridge.apply(COAST, Duty::ZERO);
+    let mut held_off = false;
     loop {
         let state = halls.read();
         tracker.on_edge(state, Instant::now());
         shared.hall.sender().send(tracker);
-        let allowed = shared.sensed.try_get().is_some_and(|sensed| sensed.drive_allowed);
+        let sensed = shared.sensed.try_get();
+        // A sustained overcurrent takes the outputs off in hardware, not only to a coasting pattern; the fault
+        // task wakes this task when it changes.
+        let overcurrent = sensed.is_some_and(|sensed| sensed.overcurrent);
+        if overcurrent != held_off {
+            held_off = overcurrent;
+            bridge.hold_off(held_off);
+        }
+        let allowed = sensed.is_some_and(|sensed| sensed.drive_allowed);
         let duty = if allowed {
             shared.duty.try_get().unwrap_or(Duty::ZERO)
         } else {
@@ -364,9 +381,10 @@ pub const fn h_bridge(duty: Duty) -> BridgeDrive {
     }
 }
 
-/// Faults: sample the ADC at 1 kHz, follow the hall pulses and errors, apply the fault table, publish the
-/// verdict, and wake the commutation task at once when the verdict changes. The power-cycle latches come from
-/// `latch` at start and go back to it whenever they change, so they outlast any reset but a power cycle.
+/// Faults: sample the ADC and the break flag at 1 kHz, follow the hall pulses and errors, apply the fault table
+/// and the overcurrent trip rule, publish the verdict, and wake the commutation task at once when the verdict
+/// changes. The power-cycle latches come from `latch` at start and go back to it whenever they change, so they
+/// outlast any reset but a power cycle.
 pub async fn fault_task<S: Sensors, L: LatchStore>(
     sensors: &mut S,
     latch: &mut L,
@@ -379,6 +397,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
     let mut stall = StallDetector::new(&config.thresholds);
     let mut current_stall = CurrentStall::new(&config.thresholds);
     let mut progress = Progress::new();
+    let mut breaks = TripRule::new(config.thresholds.overcurrent_ticks);
     let mut seen_illegal = None;
     let mut seen_zero_orders = 0;
     let mut allowed = false;
@@ -386,6 +405,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
     loop {
         let raw = sensors.sample().await;
         let now = Instant::now();
+        let was_overcurrent = breaks.latched();
 
         if let Some(link) = shared.link.try_get()
             && link.zero_orders != seen_zero_orders
@@ -395,6 +415,14 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
             stall.reset();
             current_stall.reset();
             progress = Progress::new();
+            breaks.on_zero_order();
+        }
+        let overcurrent = breaks.tick(raw.break_tripped);
+        if overcurrent && !was_overcurrent {
+            warn!(
+                "overcurrent: the break tripped on {} samples so far, outputs off until a zero order",
+                breaks.trips()
+            );
         }
 
         let duty = shared.duty.try_get().unwrap_or(Duty::ZERO);
@@ -426,22 +454,28 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
         };
         let faults = monitor.update(sample, stalled);
         shared.note_unread(faults.bits());
+        // SeaBotix FAULT bit 6 (this project's): the Legacy STATUS byte has no spare bit (README, faults).
+        if config.family == Family::SeaBotix && overcurrent {
+            shared.note_unread(SeaBotixStatus::FAULT_OVERCURRENT);
+        }
         if monitor.latched() != saved {
             saved = monitor.latched();
             latch.save(saved);
         }
         let sensed = Sensed {
             faults,
-            drive_allowed: monitor.drive_allowed(),
+            drive_allowed: monitor.drive_allowed() && !overcurrent,
             current_deciamps,
             temperature_decicelsius: sample.temperature_decicelsius,
+            overcurrent,
+            break_trips: breaks.trips(),
         };
         shared.sensed.sender().send(sensed);
-        if sensed.drive_allowed != allowed {
-            allowed = sensed.drive_allowed;
-            if !allowed {
+        if sensed.drive_allowed != allowed || overcurrent != was_overcurrent {
+            if sensed.drive_allowed != allowed && !sensed.drive_allowed {
                 warn!("fault: stopping the motor ({})", faults.bits());
             }
+            allowed = sensed.drive_allowed;
             shared.wake.signal(());
         }
         shared.health.report(TaskId::Faults as u8);

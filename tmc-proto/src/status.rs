@@ -66,7 +66,9 @@ pub enum MotorKind {
 
 /// SeaBotix status, 7 bytes: MT=0x53 STATUS FAULT CURRENT SPEED TEMPERATURE CSUM (IDS 8.4.2).
 ///
-/// STATUS bits 2-3 and FAULT bits 5-7 are reserved: sent as zero, ignored on decode (IDS 8.1).
+/// STATUS bits 2-3 and FAULT bits 5-7 are reserved: sent as zero, ignored on decode (IDS 8.1). This project's
+/// thruster sends two of the FAULT bits ([`SeaBotixStatus::FAULT_LINK_FAILSAFE`],
+/// [`SeaBotixStatus::FAULT_OVERCURRENT`]); decode still masks them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SeaBotixStatus {
@@ -92,10 +94,20 @@ impl SeaBotixStatus {
 
     /// FAULT bit 5, one of the IDS's "future growth" bits (8.4.2), which this project gives to its link failsafe
     /// (spec-notes: 1 s without a valid order stops the motor): set from the failsafe stopping the motor until a
-    /// new order restarts it, and carried by at least one read. Bits 6-7 stay reserved. A master that follows
-    /// IDS 8.1 ignores it; [`SeaBotixStatus::decode`] masks it like the other reserved bits (read it with
+    /// new order restarts it, and carried by at least one read. A master that follows IDS 8.1 ignores it;
+    /// [`SeaBotixStatus::decode`] masks it like the other reserved bits (read it with
     /// [`SeaBotixStatus::link_failsafe_in`]).
     pub const FAULT_LINK_FAILSAFE: u8 = 1 << 5;
+
+    /// FAULT bit 6, the next "future growth" bit (8.4.2), which this project gives to a sustained overcurrent: the
+    /// power stage's comparator kept tripping the bridge's hardware break, so the thruster stopped driving with
+    /// its outputs off until a zero order. Set while it is stopped, and carried by at least one read after the
+    /// zero order. Bit 7 stays reserved. Masked by [`SeaBotixStatus::decode`] as bit 5 is (read it with
+    /// [`SeaBotixStatus::overcurrent_in`]).
+    pub const FAULT_OVERCURRENT: u8 = 1 << 6;
+
+    /// The FAULT bits beyond the IDS's five that this project's thruster sends.
+    pub const FAULT_EXTENSIONS: u8 = Self::FAULT_LINK_FAILSAFE | Self::FAULT_OVERCURRENT;
 
     /// The software revision (STATUS bits 4-7) a brushed build of this project's controller reports: 4, the
     /// number the IDS gives brushed software ("brushed DC software (revision 4)", 8.4.1), since 0 means the
@@ -105,7 +117,17 @@ impl SeaBotixStatus {
     /// Whether a 7-byte SeaBotix frame with a good checksum carries [`SeaBotixStatus::FAULT_LINK_FAILSAFE`];
     /// false for anything else.
     pub fn link_failsafe_in(bytes: &[u8]) -> bool {
-        Self::decode(bytes).is_ok() && bytes.get(2).is_some_and(|fault| fault & Self::FAULT_LINK_FAILSAFE != 0)
+        Self::extension_in(bytes, Self::FAULT_LINK_FAILSAFE)
+    }
+
+    /// Whether a 7-byte SeaBotix frame with a good checksum carries [`SeaBotixStatus::FAULT_OVERCURRENT`]; false
+    /// for anything else.
+    pub fn overcurrent_in(bytes: &[u8]) -> bool {
+        Self::extension_in(bytes, Self::FAULT_OVERCURRENT)
+    }
+
+    fn extension_in(bytes: &[u8], bit: u8) -> bool {
+        Self::decode(bytes).is_ok() && bytes.get(2).is_some_and(|fault| fault & bit != 0)
     }
 
     const STATUS_BRUSHLESS: u8 = 1 << 1;
@@ -423,12 +445,12 @@ pub struct StatusFrame {
 
 impl StatusFrame {
     /// The frame with `bits` set in its fault field, CSUM recomputed: the SeaBotix FAULT byte takes bits 0-4 and
-    /// [`SeaBotixStatus::FAULT_LINK_FAILSAFE`], the Legacy STATUS byte bits 0-4 (its bits 5-7 are the revision);
+    /// [`SeaBotixStatus::FAULT_EXTENSIONS`], the Legacy STATUS byte bits 0-4 (its bits 5-7 are the revision);
     /// other bits are dropped. For a thruster that keeps a fault bit set until a read has carried it.
     pub fn with_fault_bits(mut self, bits: u8) -> StatusFrame {
         // The FAULT byte is word 2 of the SeaBotix layout, the STATUS byte word 1 of the Legacy one.
         let (index, mask) = if usize::from(self.len) == SeaBotixStatus::LEN {
-            (2, Faults::ALL.bits() | SeaBotixStatus::FAULT_LINK_FAILSAFE)
+            (2, Faults::ALL.bits() | SeaBotixStatus::FAULT_EXTENSIONS)
         } else {
             (1, Faults::ALL.bits())
         };
@@ -488,9 +510,28 @@ mod tests {
         };
         let frame = Status::from(seabotix).encode();
         assert!(!SeaBotixStatus::link_failsafe_in(frame.as_bytes()));
+        assert!(!SeaBotixStatus::overcurrent_in(frame.as_bytes()));
         let flagged = frame.with_fault_bits(Faults::HALL.bits() | SeaBotixStatus::FAULT_LINK_FAILSAFE | 0x80);
         assert_eq!(flagged.as_bytes().get(2), Some(&0x34));
         assert!(SeaBotixStatus::link_failsafe_in(flagged.as_bytes()));
+        assert!(!SeaBotixStatus::overcurrent_in(flagged.as_bytes()));
+        // Bit 6 alone, then with bit 5: each read on its own; bit 7 is still dropped.
+        let overcurrent = frame.with_fault_bits(SeaBotixStatus::FAULT_OVERCURRENT);
+        assert_eq!(overcurrent.as_bytes().get(2), Some(&0x50));
+        assert!(SeaBotixStatus::overcurrent_in(overcurrent.as_bytes()));
+        assert!(!SeaBotixStatus::link_failsafe_in(overcurrent.as_bytes()));
+        let both = flagged.with_fault_bits(SeaBotixStatus::FAULT_OVERCURRENT);
+        assert_eq!(both.as_bytes().get(2), Some(&0x74));
+        assert!(SeaBotixStatus::overcurrent_in(both.as_bytes()) && SeaBotixStatus::link_failsafe_in(both.as_bytes()));
+        assert_eq!(
+            SeaBotixStatus::decode(both.as_bytes()).unwrap().status.faults,
+            Faults::WATER | Faults::HALL,
+            "the extensions are masked on decode"
+        );
+        // A damaged checksum carries nothing.
+        let mut broken = overcurrent.as_bytes().to_vec();
+        broken[6] ^= 1;
+        assert!(!SeaBotixStatus::overcurrent_in(&broken));
         let decoded = SeaBotixStatus::decode(flagged.as_bytes()).unwrap();
         assert_eq!(decoded.status.faults, Faults::WATER | Faults::HALL);
         assert_eq!(decoded.status.revision, 4);
@@ -505,6 +546,7 @@ mod tests {
         assert_eq!(decoded.status.revision, LegacyRevision::AVEOX_BRUSHLESS);
         assert_eq!(decoded.status.faults, Faults::ALL);
         assert!(!SeaBotixStatus::link_failsafe_in(flagged.as_bytes()));
+        assert!(!SeaBotixStatus::overcurrent_in(flagged.as_bytes()));
     }
 
     #[test]

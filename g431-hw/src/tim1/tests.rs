@@ -4,7 +4,7 @@
 use super::*;
 use stm32_metapac::dbgmcu::regs::Apb2fzr;
 use stm32_metapac::syscfg::regs::Cfgr2;
-use stm32_metapac::timer::regs::{Af1Adv, BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv};
+use stm32_metapac::timer::regs::{Af1Adv, BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv, SrAdv};
 use stm32_metapac::timer::vals::{Bkp, FilterValue, Ocm, Ossi, Ossr};
 
 const TIM_HZ: u32 = 170_000_000;
@@ -368,6 +368,16 @@ fn bit_positions_agree_with_the_pac() {
     bdtr.set_moe(false);
     bdtr.set_aoe(false);
     assert_eq!(bridge.bdtr_stopped(TIM_HZ), bdtr.0);
+    // Restarted after a sustained overcurrent: AOE back, MOE left to the next update event.
+    bdtr.set_aoe(true);
+    assert_eq!(bridge.bdtr_restarted(TIM_HZ), bdtr.0);
+
+    let mut sr = SrAdv(0);
+    sr.set_bif(0, true);
+    assert_eq!(SR_BIF, sr.0);
+    let mut sr = SrAdv(0);
+    sr.set_sbif(true);
+    assert_eq!(SR_SBIF, sr.0);
 
     let mut egr = EgrAdv(0);
     egr.set_comg(true);
@@ -384,4 +394,26 @@ fn bit_positions_agree_with_the_pac() {
     let mut freeze = Apb2fzr(0);
     freeze.set_tim1(true);
     assert_eq!(DBGMCU_APB2FZR, freeze.0, "DBG_TIM1_STOP and nothing else");
+}
+
+#[test]
+fn clearing_the_break_flags_leaves_every_other_flag_of_sr() {
+    // SR is rc_w0: a bit written 0 is cleared, one written 1 kept. Every SR value the hardware can hold.
+    let write = |sr: u32, value: u32| sr & value;
+    for sr in [
+        0,
+        SR_BIF,
+        SR_SBIF,
+        SR_BIF | SR_SBIF,
+        0x0003_3FFF,
+        0x0000_0001,
+        0x0000_1E5F,
+    ] {
+        let after = write(sr, SR_CLEAR_BREAK);
+        assert_eq!(after & (SR_BIF | SR_SBIF), 0, "{sr:#x}");
+        assert_eq!(after, sr & !(SR_BIF | SR_SBIF), "{sr:#x}: another flag lost");
+    }
+    assert!(break_tripped(SR_BIF | 1));
+    assert!(!break_tripped(SR_SBIF), "a system break is not an overcurrent");
+    assert!(!break_tripped(0x0000_0001 | 1 << 8), "nor the update flag or break 2");
 }

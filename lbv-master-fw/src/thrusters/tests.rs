@@ -255,6 +255,7 @@ fn a_link_can_take_a_poll_result_directly() {
         decoded: Decoded::clean(seabotix_status(Faults::NONE)),
         form: StatusForm::ImpliedType,
         link_failsafe: false,
+        overcurrent: false,
     };
     assert_eq!(link.on_result::<ErrorKind>(at_ms(40), &Ok(polled)), None);
     assert_eq!((link.health().good, link.health().implied_form), (1, 1));
@@ -1022,6 +1023,61 @@ fn a_thruster_stopped_by_its_link_failsafe_is_told_once_per_stop() {
         assert_eq!(bench.take_texts().len(), 1);
         assert_eq!(bench.health(0).link_failsafes, 2);
         assert_eq!(bench.health(1).link_failsafes, 0);
+    });
+}
+
+#[test]
+fn a_thruster_stopped_by_a_sustained_overcurrent_is_told_once_per_stop_and_counted() {
+    let bench = Bench::new(&[(Family::SeaBotix, Some(0)), (Family::Legacy, Some(1))]);
+    let table = [
+        ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(0, 1, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(MS * 10);
+        bench.take_texts();
+        // Its status says so (SeaBotix FAULT bit 6) for as long as it is held off: one text, one count.
+        bench.thruster(0).overcurrent = true;
+        sim.elapse(MS * 100);
+        assert_eq!(
+            bench.take_texts(),
+            [(
+                Severity::Critical,
+                "T1 stopped: overcurrent, off until a zero order".to_owned()
+            )]
+        );
+        assert_eq!(bench.health(0).overcurrents, 1);
+        assert_eq!(bench.health(0).link_failsafes, 0, "bit 6 is not bit 5");
+        assert_eq!(
+            bench.report(0).status.map(|s| s.faults()),
+            Some(Faults::NONE),
+            "none of the IDS's faults"
+        );
+        // A zero order clears it; a second short is a second text. With the link failsafe at the same time, both.
+        bench.thruster(0).overcurrent = false;
+        sim.elapse(MS * 40);
+        bench.thruster(0).overcurrent = true;
+        bench.thruster(0).link_failsafe = true;
+        sim.elapse(MS * 40);
+        let texts = bench.take_texts();
+        assert_eq!(texts.len(), 2, "{texts:?}");
+        assert_eq!(bench.health(0).overcurrents, 2);
+        assert_eq!(bench.health(0).link_failsafes, 1);
+        assert_eq!(bench.health(1).overcurrents, 0);
+    });
+}
+
+#[test]
+fn a_legacy_status_carries_no_overcurrent_bit() {
+    // The Legacy STATUS byte's bits 5-7 are the revision: a Legacy thruster whose status had bit 6 set reads as
+    // revision bits, never as an overcurrent.
+    let bench = Bench::new(&[(Family::Legacy, Some(0))]);
+    let table = [ThrusterSlot::behind_mux(0, 0, Family::Legacy)];
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        bench.thruster(0).overcurrent = true;
+        sim.elapse(MS * 100);
+        assert_eq!(bench.health(0).overcurrents, 0);
+        assert!(bench.take_texts().iter().all(|(_, text)| !text.contains("overcurrent")));
     });
 }
 

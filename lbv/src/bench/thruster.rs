@@ -57,6 +57,13 @@ pub struct ThrusterIo {
     current_limit: Cell<f64>,
     /// Steps during which the break input limited the current.
     pub limited_steps: Cell<u64>,
+    /// TIM1's break flag (SR.BIF): set by every trip, cleared by the fault task's sample that reads it.
+    break_flag: Cell<bool>,
+    /// The controller holds the bridge's outputs off (a sustained overcurrent): nothing is driven.
+    held_off: Cell<bool>,
+    /// A phase shorted (water in it, a failed MOSFET): the comparator trips as soon as the bridge switches, every
+    /// period, so the motor gets no drive, and the break flag is set whenever the bridge drives.
+    pub shorted: Cell<bool>,
     /// On the event engine: how the plant is advanced between events (None: the fixed-step engine steps it).
     lazy: Option<Lazy>,
 }
@@ -129,6 +136,9 @@ impl ThrusterBoard {
                 watchdog_bites: Cell::new(0),
                 current_limit: Cell::new(1.0),
                 limited_steps: Cell::new(0),
+                break_flag: Cell::new(false),
+                held_off: Cell::new(false),
+                shorted: Cell::new(false),
                 lazy: rail.map(|(rail, index)| Lazy {
                     rail,
                     index,
@@ -188,6 +198,9 @@ impl ThrusterBoard {
         self.bus.set_powered(self.device, false);
         self.io.catch_up(Instant::now());
         self.io.drive.set((COAST, Duty::ZERO));
+        // TIM1 comes out of reset with its outputs off and its flags clear.
+        self.io.held_off.set(false);
+        self.io.break_flag.set(false);
         self.io.disturbed();
         self.shared = Rc::new(Shared::new());
     }
@@ -252,6 +265,21 @@ impl ThrusterIo {
         self.drive.get()
     }
 
+    /// What reaches the motor: the drive applied, with the duty the bridge passes; nothing through a short.
+    fn applied(&self) -> (BridgeDrive, Duty) {
+        if self.shorted.get() {
+            return (COAST, Duty::ZERO);
+        }
+        let (drive, duty) = self.drive.get();
+        (drive, self.passed(duty))
+    }
+
+    /// Whether the break tripped since the last look, clearing the flag (as the fault task's sample clears BIF).
+    fn take_break(&self) -> bool {
+        let shorted = self.shorted.get() && !self.held_off.get() && self.drive.get().1 != Duty::ZERO;
+        self.break_flag.replace(false) || shorted
+    }
+
     /// The duty the bridge passes: the commanded one, scaled by the break input while it limits the current.
     fn passed(&self, duty: Duty) -> Duty {
         let scale = self.current_limit.get();
@@ -269,14 +297,14 @@ impl ThrusterIo {
         if current > CURRENT_LIMIT_A {
             self.current_limit.set((scale * CURRENT_LIMIT_A / current).max(0.0));
             self.limited_steps.set(self.limited_steps.get() + 1);
+            self.break_flag.set(true);
         } else {
             self.current_limit.set((scale * 1.05).min(1.0));
         }
     }
 
     fn step(&self, dt: f64, supply_v: f64) {
-        let (drive, duty) = self.drive.get();
-        let passed = self.passed(duty);
+        let (drive, passed) = self.applied();
         let mut plant = self.plant.borrow_mut();
         if plant.step(dt, drive, passed, supply_v) {
             self.hall_edge.signal(());
@@ -301,14 +329,13 @@ impl ThrusterIo {
         }
         let mut plant = self.plant.borrow_mut();
         let (grid, longest) = (lazy.limiting.get(), lazy.look_ahead.get());
-        let (drive, duty) = self.drive.get();
         while t < now {
             let mut end = now.min(t + longest);
             if grid {
                 end = end.min(next_grid_point(t));
             }
             let h = seconds(end - t);
-            let passed = self.passed(duty);
+            let (drive, passed) = self.applied();
             if plant.advance(h, drive, passed, lazy.rail.voltage()) {
                 self.hall_edge.signal(());
                 lazy.dirty.set(true);
@@ -332,9 +359,9 @@ impl ThrusterIo {
         let mut plant = self.plant.borrow_mut();
         match &self.lazy {
             Some(lazy) => {
-                let (drive, duty) = self.drive.get();
+                let (drive, passed) = self.applied();
                 let h = seconds(now - lazy.synced.get());
-                plant.reading_after(h, drive, self.passed(duty), lazy.rail.voltage())
+                plant.reading_after(h, drive, passed, lazy.rail.voltage())
             }
             None => (plant.winding_c(), plant.phase_current_a()),
         }
@@ -357,10 +384,10 @@ impl ThrusterIo {
             return;
         };
         let mut plant = self.plant.borrow_mut();
-        let (drive, duty) = self.drive.get();
+        let (drive, passed) = self.applied();
         // The pack sees the new current from the sub-step that carries it (as on the fixed-step engine, where the
         // voltage of a step follows the currents of the one before).
-        if plant.evaluate(drive, self.passed(duty), lazy.rail.voltage()) {
+        if plant.evaluate(drive, passed, lazy.rail.voltage()) {
             self.hall_edge.signal(());
         }
         let limiting = self.current_limit.get() < 1.0 || plant.phase_current_a() > LIMITER_WATCH_A;
@@ -424,7 +451,21 @@ struct Stage(Rc<ThrusterIo>);
 impl Bridge for Stage {
     fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
         self.0.catch_up(Instant::now());
+        // Outputs held off drive nothing, whatever the pattern (TIM1 with MOE and AOE cleared).
+        let (drive, duty) = if self.0.held_off.get() {
+            (COAST, Duty::ZERO)
+        } else {
+            (drive, duty)
+        };
         if self.0.drive.replace((drive, duty)) != (drive, duty) {
+            self.0.disturbed();
+        }
+    }
+
+    fn hold_off(&mut self, off: bool) {
+        self.0.catch_up(Instant::now());
+        self.0.held_off.set(off);
+        if off && self.0.drive.replace((COAST, Duty::ZERO)) != (COAST, Duty::ZERO) {
             self.0.disturbed();
         }
     }
@@ -446,6 +487,7 @@ impl Sensors for Adc {
             water: config.water.raw_at(self.io.plant.borrow().water_ohms),
             temperature: config.ntc.raw_at(decicelsius),
             current: round(f64::from(config.current.offset_raw) + counts).clamp(0, 4095) as u16,
+            break_tripped: self.io.take_break(),
         }
     }
 }

@@ -26,6 +26,10 @@ pub enum Fault {
     BlockedPropeller { thruster: usize },
     /// The hall sensors unplugged: they read 000.
     HallsUnplugged { thruster: usize },
+    /// A phase shorted (water in it, a failed MOSFET): the power stage's overcurrent comparator trips the break
+    /// in every PWM period the bridge switches, and the motor gets no drive. Not in the soak's deck: its reaction
+    /// is the `overcurrent-*` scenarios'.
+    PhaseShort { thruster: usize },
     /// A noisy line: `mask` flipped in every status byte the thruster sends.
     NoisyStatus { thruster: usize, mask: u8 },
     /// The thruster lays its status out in the implied-type form, as some SeaBotix controllers do: MT taken as the
@@ -123,6 +127,7 @@ impl Fault {
             Fault::Heat { .. } => "heat",
             Fault::BlockedPropeller { .. } => "blocked-propeller",
             Fault::HallsUnplugged { .. } => "halls-unplugged",
+            Fault::PhaseShort { .. } => "phase-short",
             Fault::NoisyStatus { .. } => "noisy-status",
             Fault::ImpliedTypeStatus { .. } => "implied-type-status",
             Fault::CorruptOrders { .. } => "corrupt-orders",
@@ -146,6 +151,7 @@ impl Fault {
             Fault::Heat { thruster, celsius } => format!("T{}: surroundings at {celsius:.0} C", thruster + 1),
             Fault::BlockedPropeller { thruster } => format!("T{}: propeller blocked", thruster + 1),
             Fault::HallsUnplugged { thruster } => format!("T{}: halls unplugged", thruster + 1),
+            Fault::PhaseShort { thruster } => format!("T{}: a phase shorted", thruster + 1),
             Fault::NoisyStatus { thruster, mask } => format!("T{}: status bytes corrupted ({mask:#04x})", thruster + 1),
             Fault::ImpliedTypeStatus { thruster } => format!("T{}: status in the 6-byte form", thruster + 1),
             Fault::CorruptOrders { thruster, mask } => format!("T{}: orders corrupted ({mask:#04x})", thruster + 1),
@@ -195,6 +201,12 @@ impl Fault {
             Fault::HallsUnplugged { thruster } => plant(bench, thruster, &|plant| {
                 plant.hall_fault = on.then(|| HallState::from_bits(0))
             }),
+            Fault::PhaseShort { thruster } => {
+                if let Some(board) = bench.thrusters.get(thruster) {
+                    board.shorted.set(on);
+                    board.disturbed();
+                }
+            }
             Fault::NoisyStatus { thruster, mask } => tamper(
                 bench,
                 thruster,

@@ -30,7 +30,7 @@ use console::{
 use harness::{dev_kits, lbv300, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{
-    ground_fault, ground_glitch, hall, hall_glitches, info_power, overtemp, rocking_rotor, stall, water,
+    ground_fault, ground_glitch, hall, hall_glitches, info_power, overcurrent, overtemp, rocking_rotor, stall, water,
     water_threshold,
 };
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
@@ -159,6 +159,21 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 4.0,
         vehicle: legacy6,
         run: ground_glitch,
+    },
+    Scenario {
+        name: "overcurrent-seabotix",
+        about: "a phase shorted: the break trips every period, 0.5 s of it stops the bridge, FAULT bit 6 told, a zero \
+                order clears it",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: overcurrent,
+    },
+    Scenario {
+        name: "overcurrent-legacy",
+        about: "a phase shorted on a Legacy thruster: stopped as on SeaBotix, with no status bit for it",
+        seconds: 6.0,
+        vehicle: legacy6,
+        run: overcurrent,
     },
     Scenario {
         name: "info-power",

@@ -73,6 +73,8 @@ scenario_tests! {
     water_threshold: "water-threshold",
     ground_glitch_seabotix: "ground-glitch-seabotix",
     ground_glitch_legacy: "ground-glitch-legacy",
+    overcurrent_seabotix: "overcurrent-seabotix",
+    overcurrent_legacy: "overcurrent-legacy",
     info_power: "info-power",
     bad_frames: "bad-frames",
     status_noise: "status-noise",

@@ -386,3 +386,65 @@ pub fn info_power(run: &mut Run) {
     );
     run.clear(full);
 }
+
+/// A phase shorted while driving ahead: the break trips every PWM period, the thruster counts it and stops with its
+/// outputs off after [`Thresholds::overcurrent_ticks`] samples of it. A SeaBotix thruster says so in FAULT bit 6,
+/// which the master tells once and counts; a Legacy one has no bit for it: the master sees a thruster that stopped
+/// with no fault and no current. Either stays stopped under the orders that keep coming once the short is gone,
+/// until a zero order.
+pub fn overcurrent(run: &mut Run) {
+    let legacy = family(run) == Family::Legacy;
+    let short = Fault::PhaseShort { thruster: 0 };
+    let took = inject_and_time(run, short);
+    let ms = took.map(|s| round(s * 1e3, 1));
+    run.metric("overcurrent_stop_after_ms", json!(ms));
+    let sustained = f64::from(Thresholds::SPEC.overcurrent_ticks) / 1e3;
+    run.check(
+        "a trip on every sample stops it after the rule's count of them",
+        took.is_some_and(|s| (sustained - 0.002..=sustained + 0.002).contains(&s)),
+        format!("{ms:?} ms"),
+    );
+    let sensed = run.bench.thrusters[0].shared().sensed.try_get();
+    run.check(
+        "its outputs are held off and the trips counted",
+        sensed.is_some_and(|sensed| {
+            sensed.overcurrent && sensed.break_trips >= u32::from(Thresholds::SPEC.overcurrent_ticks)
+        }),
+        format!("{sensed:?}"),
+    );
+    run.run_for(0.3);
+    let told = run.said("T1 stopped: overcurrent, off until a zero order");
+    let counted = run.health(0).overcurrents;
+    if legacy {
+        run.check(
+            "Legacy: no bit for it, so no text and no count; the status shows no current",
+            !told && counted == 0 && run.faults(0).is_empty(),
+            format!("told {told}, counted {counted}, faults {:#04x}", run.faults(0).bits()),
+        );
+    } else {
+        run.check(
+            "SeaBotix: FAULT bit 6 reaches the console once, counted",
+            told && counted == 1,
+            format!("told {told}, counted {counted}"),
+        );
+        run.check(
+            "and it is none of the IDS's faults",
+            run.faults(0).is_empty(),
+            format!("faults {:#04x}", run.faults(0).bits()),
+        );
+    }
+    others_keep_working(run);
+    run.clear(short);
+    // The propeller coasts down undriven: no duty at any moment of the next second, orders coming.
+    let drove = run.run_until(1.0, |bench| bench.thrusters[0].drive().1.value() != 0);
+    run.check(
+        "still stopped under a non-zero order until a zero order",
+        drove.is_none(),
+        format!("drove again after {drove:?} s"),
+    );
+    run.bench.ground.sticks = Some(NEUTRAL);
+    run.run_for(0.5);
+    run.bench.ground.sticks = Some(AHEAD);
+    run.run_for(1.5);
+    drives_again(run, "a zero order clears it and the next order drives");
+}

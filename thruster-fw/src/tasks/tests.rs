@@ -46,6 +46,10 @@ struct Io {
     shared: Shared,
     halls: HallInputs,
     bridge: Cell<(BridgeDrive, Duty)>,
+    /// The bridge's outputs are held off (a sustained overcurrent).
+    held_off: Cell<bool>,
+    /// A phase is shorted: the break trips whenever the bridge switches.
+    shorted: Cell<bool>,
     /// Times the commutation task drove the bridge.
     applied: Cell<u32>,
     inputs: Cell<RawSample>,
@@ -76,13 +80,26 @@ impl Bridge for TestBridge {
         self.0.bridge.set((drive, duty));
         self.0.applied.set(self.0.applied.get() + 1);
     }
+
+    fn hold_off(&mut self, off: bool) {
+        self.0.held_off.set(off);
+    }
 }
 
 struct TestSensors(Rc<Io>);
 
 impl Sensors for TestSensors {
     async fn sample(&mut self) -> RawSample {
-        self.0.inputs.get()
+        let io = &self.0;
+        // A shorted phase trips the break in every PWM period the bridge switches, until its outputs are held
+        // off; the flag is cleared by the sample that reads it.
+        let (_, duty) = io.bridge.get();
+        let shorted = io.shorted.get() && !io.held_off.get() && duty != Duty::ZERO;
+        let sample = io.inputs.get();
+        RawSample {
+            break_tripped: sample.break_tripped || shorted,
+            ..sample
+        }
     }
 }
 
@@ -114,6 +131,7 @@ fn dry(config: &Config) -> RawSample {
         water: 0,
         temperature: config.ntc.raw_at(250),
         current: config.current.offset_raw,
+        break_tripped: false,
     }
 }
 
@@ -156,6 +174,8 @@ impl Bench {
             shared: Shared::new(),
             halls: HallInputs::new(FORWARD_SEQUENCE[0]),
             bridge: Cell::new((COAST, Duty::ZERO)),
+            held_off: Cell::new(false),
+            shorted: Cell::new(false),
             applied: Cell::new(0),
             fed: Cell::new(0),
             latch: Cell::new(latch),
@@ -884,4 +904,143 @@ fn the_failsafe_shows_in_seabotix_fault_bit_5_until_a_read_after_the_next_order(
     assert!(!flagged(&bench));
     // The other faults are as they were: none.
     assert!(bench.last_status().faults().is_empty());
+}
+
+/// How long a trip on every sample takes to stop the bridge.
+fn sustained() -> Duration {
+    SAMPLE_PERIOD * u32::from(Thresholds::SPEC.overcurrent_ticks)
+}
+
+fn overcurrent_flagged(bench: &Bench) -> bool {
+    tmc_proto::SeaBotixStatus::overcurrent_in(bench.replies.borrow().last().unwrap())
+}
+
+#[test]
+fn isolated_break_trips_are_counted_and_the_motor_keeps_driving() {
+    for family in Family::ALL {
+        let mut bench = Bench::new(family);
+        bench.order(60);
+        bench.turn(Duration::from_millis(100));
+        // Cycle-by-cycle limiting now and then: a trip on one sample in three, for 3 s, orders coming.
+        for n in 0..3000u32 {
+            bench.inputs.set(RawSample {
+                break_tripped: n % 3 == 0,
+                ..bench.inputs.get()
+            });
+            bench.turn(Duration::from_millis(1));
+            if n % 500 == 0 {
+                bench.order(60);
+            }
+            assert!(bench.duty().value() > 0, "{family:?}: stopped at {n} ms");
+        }
+        assert!(!bench.held_off.get());
+        let trips = bench.shared.sensed.try_get().map(|sensed| sensed.break_trips);
+        assert!(
+            trips.is_some_and(|trips| (999..=1001).contains(&trips)),
+            "{family:?}: {trips:?}"
+        );
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert!(bench.last_status().faults().is_empty());
+        if family == Family::SeaBotix {
+            assert!(!overcurrent_flagged(&bench));
+        }
+    }
+}
+
+#[test]
+fn a_shorted_phase_stops_the_bridge_with_its_outputs_off_until_a_zero_order() {
+    for family in Family::ALL {
+        let mut bench = Bench::new(family);
+        bench.order(60);
+        bench.turn(Duration::from_millis(100));
+        bench.shorted.set(true);
+        let took = bench.turn_until(|bench| bench.held_off.get());
+        assert!(
+            (sustained() - SAMPLE_PERIOD..=sustained() + SAMPLE_PERIOD).contains(&took),
+            "{family:?}: held off after {took:?}"
+        );
+        // The same step coasts the bridge.
+        bench.elapse(Duration::from_micros(100));
+        assert_eq!(bench.bridge.get(), (COAST, Duty::ZERO), "{family:?}");
+        let sensed = bench.shared.sensed.try_get().unwrap();
+        assert!(sensed.overcurrent && !sensed.drive_allowed);
+        // The next status read says so on a SeaBotix controller (FAULT bit 6); a Legacy one has no bit for it and
+        // reports no fault: its master sees a thruster that does not turn (MAX POWER: no current).
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        assert!(
+            bench.last_status().faults().is_empty(),
+            "{family:?}: none of the IDS's faults"
+        );
+        match family {
+            Family::SeaBotix => assert!(overcurrent_flagged(&bench)),
+            Family::Legacy => {
+                let Status::Legacy(status) = bench.last_status() else {
+                    panic!()
+                };
+                assert_eq!(status.max_power, tmc_proto::MaxPower::Current { deciamps: 0 });
+                assert_eq!(
+                    bench.replies.borrow().last().unwrap()[1] & 0xE0,
+                    0x20,
+                    "the revision bits untouched"
+                );
+            }
+        }
+
+        // A non-zero order does not restart it, short or no short.
+        bench.shorted.set(false);
+        bench.order(60);
+        bench.elapse(Duration::from_millis(100));
+        assert!(bench.held_off.get(), "{family:?}");
+        assert_eq!(bench.duty(), Duty::ZERO);
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(1));
+        if family == Family::SeaBotix {
+            assert!(overcurrent_flagged(&bench), "set for as long as it holds");
+        }
+
+        // A zero order clears it: the outputs come back and the next order drives.
+        bench.order(0);
+        bench.elapse(Duration::from_millis(5));
+        assert!(!bench.held_off.get(), "{family:?}");
+        bench.order(60);
+        // The speed loop starts again from rest, as after any stop (about 70 ms here).
+        bench.turn(Duration::from_millis(100));
+        assert!(bench.duty().value() > 0, "{family:?}: drives again");
+        if family == Family::SeaBotix {
+            // The read after the clear still carries the bit once, then it is gone.
+            bench.send(READ);
+            bench.elapse(Duration::from_millis(1));
+            assert!(overcurrent_flagged(&bench));
+            bench.send(READ);
+            bench.elapse(Duration::from_millis(1));
+            assert!(!overcurrent_flagged(&bench));
+            assert!(bench.last_status().faults().is_empty());
+        }
+    }
+}
+
+#[test]
+fn a_short_that_stays_trips_again_after_each_zero_order() {
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.order(60);
+    bench.turn(Duration::from_millis(100));
+    bench.shorted.set(true);
+    bench.turn_until(|bench| bench.held_off.get());
+    for _ in 0..2 {
+        bench.order(0);
+        bench.elapse(Duration::from_millis(5));
+        assert!(!bench.held_off.get());
+        bench.order(60);
+        let took = bench.turn_until(|bench| bench.held_off.get());
+        // The speed loop restarts from rest (about 70 ms) before the bridge switches for the short to trip on.
+        assert!(
+            took >= sustained() && took <= sustained() + Duration::from_millis(100),
+            "held off again after {took:?}"
+        );
+    }
+    let trips = bench.shared.sensed.try_get().map(|sensed| sensed.break_trips);
+    let at_least = 3 * u32::from(Thresholds::SPEC.overcurrent_ticks);
+    assert!(trips.is_some_and(|trips| trips >= at_least), "{trips:?}");
 }
