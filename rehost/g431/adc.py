@@ -15,6 +15,7 @@ class Adc(Peripheral):
         super().__init__(chip, name, base)
         self.inputs = {}  # channel -> 12-bit value, or a function of the time in seconds
         self.conversions = []  # (cycle, channel, sample time bits) of each conversion
+        self.stuck = False  # a test sets True: conversions never end (EOC never set)
 
     def reset(self):
         super().reset()
@@ -43,6 +44,9 @@ class Adc(Peripheral):
             if not value & ADEN:
                 self.chip.core.fail(f"{self.name}: ADSTART with the ADC disabled")
             channel = field(self.regs.get(SQR1, 0), 6, 5)
+            if self.stuck:
+                self.regs[CR] = value
+                return
             self.conversions.append((self.chip.core.cycles, channel, self.sample_time(channel)))
             source = self.inputs.get(channel, 0)
             sample = source(self.chip.core.seconds) if callable(source) else source
@@ -54,6 +58,7 @@ class Adc(Peripheral):
     def read(self, offset):
         value = super().read(offset)
         if offset == DR:
+            self.chip.core.changing_read = True  # the read clears EOC
             self.regs[ISR] = self.regs.get(ISR, 0) & ~EOC
         return value
 

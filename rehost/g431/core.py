@@ -59,8 +59,47 @@ WFI = 0xBF30
 SEV = 0xBF40
 
 
+# What a spinning loop must leave unchanged from one pass to the next.
+SPIN_REGISTERS = [getattr(arm, f"UC_ARM_REG_R{n}") for n in range(13)] + [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_XPSR]
+
+
 class Stop(Exception):
     """The run ended: a fault the test did not expect, a reset, or the time or instruction limit."""
+
+
+def halfwords(code: bytes):
+    """The Thumb instructions of a block, as (first halfword, second halfword or None)."""
+    i = 0
+    while i + 1 < len(code):
+        first = code[i] | code[i + 1] << 8
+        if first >> 11 in (0b11101, 0b11110, 0b11111) and i + 3 < len(code):
+            yield first, code[i + 2] | code[i + 3] << 8
+            i += 4
+        else:
+            yield first, None
+            i += 2
+
+
+def stores_nothing(code: bytes) -> bool:
+    """Whether every instruction of a block is one of the few that neither store nor call (ARMv7-M A5.2, A5.3):
+    the loops that wait on a flag (`ldr`, `lsls`/`tst`, a conditional branch) and the idle loops (`nop`, `b`).
+    Anything else answers False, so a block is only ever wrongly taken for one that has effects."""
+    for first, second in halfwords(code):
+        if second is None:
+            if (first == 0xBF00 or 0x0000 <= first < 0x4400 or 0x4500 <= first < 0x4700
+                    or 0x4800 <= first < 0x5000 or 0x6800 <= first < 0x7000 or 0x7800 <= first < 0x8000
+                    or 0x8800 <= first < 0x9000 or 0xB100 <= first < 0xB400 or 0xB900 <= first < 0xBC00
+                    or 0xD000 <= first < 0xDE00 or 0xE000 <= first < 0xE800):
+                continue
+            return False
+        if first & 0xFFF0 in (0xF8D0, 0xF890, 0xF8B0):  # LDR.W, LDRB.W, LDRH.W with a 12-bit offset
+            continue
+        if first & 0xF800 == 0xF000 and second & 0xD000 == 0x8000 and (first >> 6) & 0xF < 0xE:  # B<c>.W
+            continue
+        if first & 0xFA00 == 0xF000 and not second & 0x8000:  # data processing, modified immediate
+            continue
+        return False
+    return True
 
 
 def thumb_instructions(code: bytes) -> int:
@@ -87,6 +126,12 @@ class Core:
         self._stop_at = 0
         self._stop_reason = None
         self._attention = False
+        self._last_block = None
+        self._repeats = 0
+        self._last_registers = None
+        self._spin = 0
+        self.changing_read = False  # a peripheral read whose value changes with time or has a side effect
+        self.spun = 0  # instructions skipped over in spin loops
         self._regions = {}  # base (aligned to 0x400) -> peripheral
         self.nvic = None  # set by the board: pending, enabled, priorities
         self.event = False  # the event register WFE waits on (B1.5.18)
@@ -226,6 +271,18 @@ class Core:
             horizon = self._events[0][0] if self._events else self.cycles + self.hz
             if until_cycle is not None:
                 horizon = min(horizon, until_cycle)
+            if self._spin:
+                # Spinning: the same instructions run until the next event; count them without running them.
+                target = horizon
+                if limit is not None:
+                    target = min(target, self.cycles + (limit - self.instructions))
+                skipped = max(target - self.cycles, 0)
+                self.cycles += skipped
+                self.instructions += skipped
+                self.spun += skipped
+                self._spin = 0
+                self._repeats = 0
+                continue
             if self.sleeping:
                 # Asleep in WFE: nothing runs until the next event. The clock jumps there.
                 if self._events and (until_cycle is None or self._events[0][0] <= until_cycle):
@@ -258,12 +315,33 @@ class Core:
         self.uc.emu_stop()
 
     def _on_block(self, uc, address, size, _data):
-        count = self._block_sizes.get((address, size))
-        if count is None:
-            count = thumb_instructions(bytes(uc.mem_read(address, size))) if size else 1
-            self._block_sizes[(address, size)] = count
+        known = self._block_sizes.get((address, size))
+        if known is None:
+            code = bytes(uc.mem_read(address, size)) if size else b""
+            known = (thumb_instructions(code) if size else 1, bool(size) and stores_nothing(code))
+            self._block_sizes[(address, size)] = known
+        count, pure = known
         self.cycles += count
         self.instructions += count
+        # A block that jumps to itself with the same registers, stores nothing and reads only registers that cannot
+        # change before the next event (`changing_read`) spins until that event: the run loop lets the clock jump
+        # there. (A delay loop counts a register down: not a spin.)
+        if pure and address == self._last_block and not self.changing_read:
+            registers = uc.reg_read_batch(SPIN_REGISTERS)
+            if registers == self._last_registers:
+                self._repeats += 1
+                if self._repeats >= 3:
+                    self._spin = count
+                    self._stop()
+                    return
+            else:
+                self._repeats = 0
+            self._last_registers = registers
+        else:
+            self._repeats = 0
+            self._last_registers = None
+        self._last_block = address
+        self.changing_read = False
         if self._attention or self.cycles >= self._stop_at or (self.nvic is not None and self.nvic.wants_attention()):
             self._attention = False
             self._stop()

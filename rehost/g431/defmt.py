@@ -117,7 +117,8 @@ class Log:
             entry = self.table.entries.get(struct.unpack_from("<H", args, offset)[0])
             if entry is None:
                 return None, offset
-            return self.render(entry.get("data", ""), args, offset + 2, nested=True)
+            text, after = self.render(entry.get("data", ""), args, offset + 2, nested=True)
+            return (text, after) if after is not None else (None, offset)
         if kind == "str":
             if offset + 4 > len(args):
                 return None, offset

@@ -64,6 +64,7 @@ class I2c(Peripheral):
     def read(self, offset):
         value = super().read(offset)
         if offset == RXDR:
+            self.chip.core.changing_read = True  # the read empties RXDR
             self.regs[ISR] = self.regs.get(ISR, 0) & ~RXNE
             self._poke()
         return value

@@ -118,6 +118,7 @@ class Nvic(Peripheral):
         if offset == VTOR:
             return self.chip.core.vtor
         if offset == SYST_CVR:
+            self.chip.core.changing_read = True
             return self._systick_value()
         return super().read(offset)
 

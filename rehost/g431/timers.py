@@ -50,6 +50,7 @@ class Tim15(Peripheral):
 
     def read(self, offset):
         if offset == CNT:
+            self.chip.core.changing_read = True  # counts with time
             return self.counter()
         return super().read(offset)
 
@@ -135,12 +136,14 @@ class Tim1(Peripheral):
         self.breaks = 0
         self.com_events = 0
         self.com_log = []  # (cycle, CCMR1, CCMR2, CCER) after each COM event
+        self.off_writes = []  # the instruction count at each BDTR write that turned the outputs off for good
 
     def reset(self):
         super().reset()
         self.active = {CCMR1: 0, CCMR2: 0, CCER: 0}
         self.com_events = 0
         self.com_log = []
+        self.off_writes = []
 
     def moe(self):
         return bool(self.regs.get(BDTR, 0) & MOE)
@@ -152,6 +155,8 @@ class Tim1(Peripheral):
         self.writes.add(offset)
         if offset == SR:
             self.regs[SR] = self.regs.get(SR, 0) & value  # rc_w0
+            if self._break_active():
+                self.regs[SR] |= BIF  # BIF cannot be cleared while the break input is active (RM0440 28.6.5)
             self._update_irq()
             return
         if offset == EGR:
@@ -163,6 +168,8 @@ class Tim1(Peripheral):
         if offset == BDTR:
             if self._break_active() and value & BKE:
                 value &= ~MOE  # the break holds MOE clear while its input is active
+            if not value & (MOE | AOE):
+                self.off_writes.append(self.chip.core.instructions)  # outputs off, and they stay off
             self.regs[BDTR] = value
             self._await_update()
             return

@@ -65,6 +65,7 @@ class Lpuart(Peripheral):
     def read(self, offset):
         value = super().read(offset)
         if offset == RDR:
+            self.chip.core.changing_read = True  # the read empties RDR
             self.regs[ISR] = self.regs.get(ISR, 0) & ~RXNE
             self._update_irq()
         return value

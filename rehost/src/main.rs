@@ -235,6 +235,14 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         }
     }
     let sample_time = |source| adc::G431.sample_time(source, clock::ADC_HZ).bits();
+    // Readings that put the sensors at a working point, and past the IDS's fault thresholds (IDS 8.4.2).
+    let analog = json!({
+        "dry": config.water.raw_at(10 * config.thresholds.water_ohms),
+        "wet": config.water.raw_at(config.thresholds.water_ohms / 10),
+        "ntc_25c": config.ntc.raw_at(250),
+        "ntc_hot": config.ntc.raw_at(config.thresholds.overtemp_set_decicelsius + 50),
+        "current_zero": config.current.offset_raw,
+    });
     json!({
         "kind": "thruster",
         "family": family.name(),
@@ -247,6 +255,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
             "water": sample_time(adc::WATER), "ntc": sample_time(adc::NTC), "current": sample_time(adc::CURRENT),
         },
         "watchdog_timeout_us": watchdog.timeout_us(clock::LSI_HZ),
+        "analog": analog,
     })
 }
 
@@ -307,6 +316,25 @@ fn orders() -> Value {
     Value::Object(out)
 }
 
+/// A thruster at rest in each family, as tmc-proto encodes it: what the master's modelled thrusters answer.
+fn statuses() -> Value {
+    let seabotix = tmc_proto::SeaBotixStatus {
+        revision: 0,
+        motor: tmc_proto::MotorKind::Brushless,
+        current_limited: false,
+        faults: tmc_proto::Faults::NONE,
+        current_deciamps: 0,
+        speed: Speed::new_saturating(0),
+        temperature_c: 25,
+    };
+    let legacy = tmc_proto::LegacyStatus {
+        revision: tmc_proto::LegacyRevision::AVEOX_BRUSHLESS,
+        faults: tmc_proto::Faults::NONE,
+        max_power: tmc_proto::MaxPower::Current { deciamps: 0 },
+    };
+    json!({ "SeaBotix": seabotix.encode(), "Legacy": legacy.encode() })
+}
+
 fn expected() -> Value {
     json!({
         "images": {
@@ -320,6 +348,7 @@ fn expected() -> Value {
             "lbv-master-fw-acceptance": master(&images::MASTER),
         },
         "orders": orders(),
+        "statuses": statuses(),
         "forward_direction": format!("{:?}", Direction::Forward),
     })
 }

@@ -51,3 +51,15 @@ def boot(name, **options):
     chip = G431(image(name), **options)
     chip.run_until(chip.idle, seconds=0.05, what=f"{name} reaching idle")
     return chip
+
+
+@pytest.fixture(scope="session")
+def figures():
+    """Measured figures, printed at the end of the run."""
+    collected = {}
+    yield collected
+    if collected:
+        width = max(len(key) for key in collected)
+        print("\n\nFigures:")
+        for key, value in sorted(collected.items()):
+            print(f"  {key:<{width}}  {value}")

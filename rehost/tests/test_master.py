@@ -1,0 +1,75 @@
+"""The master image polls its thrusters through the TCA9548A, reads the battery's CAN frames, talks MAVLink on
+its virtual COM port, and keeps a parameter in flash over a reset."""
+
+import cantools
+import pytest
+
+from conftest import ROOT, rehost
+from master import Ground, Thruster, mavlink, start
+
+BAT_DBC = cantools.database.load_file(str(ROOT / "lbv" / "dbc" / "bat.dbc"))
+
+
+def test_every_thruster_is_polled_through_the_mux_with_tmc_protos_orders(expected):
+    chip, mux, _ = start("lbv-master-fw", expected)
+    chip.run_for(1.0)
+    thrusters = [devices[0x29] for devices in mux.channels.values()]
+    for channel, thruster in enumerate(thrusters):
+        # 50 polls a second each (`PollConfig`), every order the disarmed vehicle's zero, byte for byte.
+        assert len(thruster.orders) >= 40, f"thruster on channel {channel}: {len(thruster.orders)} orders in 1 s"
+        assert thruster.reads >= 40
+        for order in set(thruster.orders):
+            decoded = rehost("order", "seabotix", order.hex())
+            assert decoded == {"step": 0, "canonical": True}, (order.hex(), decoded)
+    # Each poll selects exactly one channel.
+    assert set(mux.selections) == {1 << n for n in range(6)}
+
+
+def test_a_missing_thruster_is_not_acknowledged_and_the_others_go_on(expected):
+    chip, mux, _ = start("lbv-master-fw", expected)
+    del mux.channels[3][0x29]
+    chip.run_for(1.0)
+    for channel, devices in mux.channels.items():
+        if channel != 3:
+            assert len(devices[0x29].orders) >= 40
+    nacked = [t for t in chip.i2c[2].transfers if t[0] == 0x29 and t[3] is False]
+    assert nacked, "the missing thruster's address was never sent"
+
+
+def test_heartbeats_reach_pymavlink(expected):
+    chip, _, ground = start("lbv-master-fw", expected)
+    chip.run_for(2.0)
+    heartbeats = ground.of("HEARTBEAT")
+    assert len(heartbeats) >= 2
+    beat = heartbeats[-1]
+    assert beat.type == mavlink.MAV_TYPE_SUBMARINE
+    assert beat.get_srcSystem() == 1
+    assert ground.mav.total_receive_errors == 0 if hasattr(ground.mav, "total_receive_errors") else True
+
+
+def test_a_battery_frame_on_can_reaches_the_console(expected):
+    chip, _, ground = start("lbv-master-fw", expected)
+    info = BAT_DBC.get_message_by_name("BAT_INFO")
+    data = info.encode({"Voltage": 25.2, "Current": 1.5, "Charge": 80, "Temperature": 21.5})
+    for _ in range(5):
+        assert chip.fdcan.receive(info.frame_id, data)
+        chip.run_for(0.1)
+    status = ground.wait("SYS_STATUS", 2.0, lambda m: m.voltage_battery != 0xFFFF)
+    assert status.voltage_battery == 25_200
+    assert status.battery_remaining == 80
+
+
+def test_a_parameter_set_is_kept_in_flash_over_a_power_cycle(expected):
+    chip, _, ground = start("lbv-master-fw", expected)
+    programs = chip.flash_interface.programs
+    ground.send(mavlink.MAVLink_param_set_message(1, 1, b"LBV_GAIN", 40.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    ack = ground.wait("PARAM_VALUE", 1.0, lambda m: m.param_id == "LBV_GAIN")
+    assert ack.param_value == pytest.approx(40.0)
+    chip.run_until(lambda: chip.flash_interface.programs > programs, 1.0, "the setting written to flash")
+    chip.run_for(0.2)
+    chip.power_on()
+    chip.run_until(chip.idle, seconds=0.2, what="idle after the power cycle")
+    ground = Ground(chip)
+    ground.send(mavlink.MAVLink_param_request_read_message(1, 1, b"LBV_GAIN", -1))
+    value = ground.wait("PARAM_VALUE", 1.0, lambda m: m.param_id == "LBV_GAIN")
+    assert value.param_value == pytest.approx(40.0)

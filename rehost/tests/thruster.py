@@ -1,0 +1,54 @@
+"""A thruster image on its bench: its analog inputs at a working point, the bus master the tests play, and the
+hall sensors of a turning rotor."""
+
+from conftest import G431, image
+
+# Analog inputs by the function g431_hw::images gives them.
+WATER, NTC, CURRENT = "water sensor", ("motor NTC", "power-stage NTC"), "motor current"
+
+
+def channels(spec):
+    return {pin["function"]: pin["adc1_in"] for pin in spec["pins"] if pin["mode"] == "analog"}
+
+
+def set_analog(chip, spec, water="dry", ntc="ntc_25c", current="current_zero"):
+    points = spec["analog"]
+    for function, channel in channels(spec).items():
+        if function == WATER:
+            chip.adc1.inputs[channel] = points[water]
+        elif function in NTC:
+            chip.adc1.inputs[channel] = points[ntc]
+        elif function == CURRENT:
+            chip.adc1.inputs[channel] = points[current]
+
+
+def start(name, expected, **analog):
+    spec = expected["images"][name]
+    chip = G431(image(name))
+    set_analog(chip, spec, **analog)
+    if spec["forward"]:
+        set_halls(chip, spec["forward"][0]["hall"])  # a rotor at rest in a valid sector: 111 would be a hall fault
+    chip.run_until(chip.idle, seconds=0.05, what=f"{name} reaching idle")
+    chip.run_for(0.01)  # its first samples: the faults need three in a row (`Thresholds::latch_samples`)
+    return chip, spec
+
+
+def exchange(chip, spec, order):
+    """The modelled master writes `order`, then reads a status (two transfers, as the master image does)."""
+    i2c = chip.i2c[3]
+    written = i2c.master_transfer(spec["address"], bytes(order))
+    chip.run_until(lambda: written.done, seconds=0.05, what="the order written")
+    assert written.error is None, written.error
+    length = 7 if spec["family"] == "SeaBotix" else 4
+    read = i2c.master_transfer(spec["address"], read_length=length)
+    chip.run_until(lambda: read.done, seconds=0.05, what="the status read")
+    assert read.error is None, read.error
+    return bytes(read.read), written, read
+
+
+
+
+def set_halls(chip, bits):
+    """Drives the three hall lines to a state (bit 0 is H1)."""
+    for n, (port, pin) in enumerate((("A", 15), ("B", 3), ("B", 10))):
+        chip.gpio[port].drive(pin, bits >> n & 1)
