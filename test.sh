@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
 # tests (every virtual-bench scenario among them, on both engines), a simulated hour of the bench's soak, both
-# firmware images in release and their size report against the flash / RAM budgets, and the cores on an emulated
-# Cortex-M4 (QEMU).
+# firmware images in release and their size report against the flash / RAM budgets, the images themselves run under
+# register-level models of the STM32G431 (rehost/), and the cores on an emulated Cortex-M4 (QEMU).
 # Usage: ./test.sh        (CI runs exactly this through .ci/run)
 set -euo pipefail
 cd "$(dirname "$0")"
 
 TARGET=thumbv7em-none-eabihf
 
-step() { printf '\n=== %s\n' "$*"; }
+started=$SECONDS
+step() { printf '\n=== [%d:%02d] %s\n' $(((SECONDS - started) / 60)) $(((SECONDS - started) % 60)) "$*"; }
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 step "toolchain"
@@ -79,6 +80,8 @@ for features in legacy brushed motorless bringup; do
   cargo build --release --target "$TARGET" -p thruster-fw --features "$features" --locked
   cp "$release/thruster-fw" "target/images/thruster-fw-$features"
 done
+cargo build --release --target "$TARGET" -p lbv-master-fw --features devkit,legacy --locked
+cp "$release/lbv-master-fw" target/images/lbv-master-fw-devkit
 cargo build --release --target "$TARGET" -p lbv-master-fw --features acceptance --locked
 cp "$release/lbv-master-fw" target/images/lbv-master-fw-acceptance
 
@@ -105,9 +108,13 @@ thruster-fw-brushed 48 16
 thruster-fw-motorless 48 16
 thruster-fw-bringup 48 16
 lbv-master-fw      96 24
+lbv-master-fw-devkit 96 24
 lbv-master-fw-acceptance 100 24
 BUDGETS
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
+
+step "the images that ship, run under register-level models of the STM32G431 (Unicorn): boot, registers, buses, faults"
+rehost/run.sh
 
 step "the cores on an emulated Cortex-M4 (QEMU mps2-an386): acceptance loops, vehicle, stack and CPU figures"
 qemu-m4/run.sh

@@ -256,6 +256,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         },
         "watchdog_timeout_us": watchdog.timeout_us(clock::LSI_HZ),
         "analog": analog,
+        "pole_pairs": config.pole_pairs,
     })
 }
 

@@ -53,13 +53,18 @@ def boot(name, **options):
     return chip
 
 
+FIGURES = {}
+
+
 @pytest.fixture(scope="session")
 def figures():
-    """Measured figures, printed at the end of the run."""
-    collected = {}
-    yield collected
-    if collected:
-        width = max(len(key) for key in collected)
-        print("\n\nFigures:")
-        for key, value in sorted(collected.items()):
-            print(f"  {key:<{width}}  {value}")
+    """Measured figures, printed after the results."""
+    return FIGURES
+
+
+def pytest_terminal_summary(terminalreporter):
+    if FIGURES:
+        width = max(len(key) for key in FIGURES)
+        terminalreporter.section("figures (modelled time: one instruction per cycle at 170 MHz)")
+        for key, value in sorted(FIGURES.items()):
+            terminalreporter.write_line(f"{key:<{width}}  {value}")

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Runs the firmware images ./test.sh builds (target/images/) under register-level models of the STM32G431 on the
+# Unicorn engine, and checks what they do at the register boundary (rehost/README.md). Extra arguments go to
+# pytest, e.g. `rehost/run.sh -k thruster -x`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || python3 -m pip install --quiet -r rehost/requirements.txt
+cargo build --quiet --locked -p rehost
+exec python3 -m pytest -q -p no:cacheprovider rehost/tests "$@"
