@@ -64,3 +64,25 @@ def test_the_bridge_coasts_with_the_outputs_armed(name, expected, booted):
 def test_the_motorless_image_leaves_tim1_alone(booted):
     chip = chip_for("thruster-fw-motorless", booted)
     assert not chip.tim1.writes
+
+
+@pytest.mark.parametrize("name", THRUSTERS)
+def test_each_conversion_uses_the_sample_time_g431_hw_computes(name, expected, booted):
+    chip = chip_for(name, booted)
+    spec = expected["images"][name]
+    wanted = {}
+    for pin in spec["pins"]:
+        if pin["mode"] == "analog":
+            kind = "water" if pin["function"] == "water sensor" else (
+                "current" if pin["function"] == "motor current" else "ntc")
+            wanted[pin["adc1_in"]] = spec["sample_times"][kind]
+    seen = {}
+    for _, channel, bits in chip.adc1.conversions:
+        seen.setdefault(channel, set()).add(bits)
+    assert set(seen) == set(wanted), f"channels converted {sorted(seen)}, listed {sorted(wanted)}"
+    # Besides its own, a channel may see the current input's short sample time: the ES0431 throw-away conversion
+    # before each tick's samples, whose result is dropped (the motor-less image has only the water pin for it).
+    throwaway = spec["sample_times"]["current"]
+    wrong = [f"ADC1_IN{c}: SMPR {sorted(seen[c])}, not {wanted[c]}" for c in wanted
+             if wanted[c] not in seen[c] or seen[c] - {wanted[c], throwaway}]
+    assert not wrong, "\n".join(wrong)
