@@ -1,18 +1,31 @@
 //! ADC sample times against the impedance of what is sampled.
 //!
-//! The ADC charges its sample-and-hold capacitor C_ADC from the source during the sampling time T_S. STM32
-//! datasheets bound the source for an error under 1/4 LSB ("Equation 1: R_AIN max formula", e.g. the
-//! STM32F103x4/x6 datasheet, Doc ID 15060, whose table 47 this module reproduces in its tests):
-//! R_AIN < T_S / (f_ADC * C_ADC * ln(2^(N + 2))) - R_ADC, T_S in ADC clock cycles.
-//! For the STM32G431 this module takes C_ADC = 5 pF (DS12589's ADC characteristics as recalled; the datasheet
-//! could not be read here) and R_ADC = 0, which only errs towards allowing slightly larger sources; the margins
-//! below are wide either way.
+//! The ADC charges its sample-and-hold capacitor C_ADC from the source during the sampling time T_S. Two bounds on
+//! the source's resistance are applied, and a sample time must meet both:
 //!
-//! A source too slow for the longest sample time (the water sensor's 1 Mohm divider: about 310 kohm is the limit
-//! at 640.5 cycles and 42.5 MHz, 23 kohm at the 47.5 cycles used before) gets a capacitor at the pin: it supplies
-//! the sample's charge, and must be large enough that sharing it with C_ADC moves the pin by less than 1/4 LSB
-//! after a full-scale step (C >= C_ADC * 2^(N + 2)). The source then only has to refill that charge between
+//! - **DS12589's "Maximum ADC R_AIN" table** ([`Adc::table_max_source_ohms`]): the largest source resistance per
+//!   sample time, for fast channels (ADCx_IN1..IN5) and slow channels (the rest), at 12 bits and f_ADC = 60 MHz.
+//!   The datasheet itself could not be read here: the figures are the STM32G4 table as a public STM32G4 project
+//!   reproduces it in a header comment (found by text search; 12-bit, 60 MHz, fast / slow ohms). Confirm them
+//!   against DS12589 before relying on the margins. The table is applied by cycle count at this project's slower
+//!   42.5 MHz clock, where the same count samples 41 % longer: conservative.
+//! - **The R_AIN formula** ([`Adc::max_source_ohms`]) of STM32 datasheets ("Equation 1: R_AIN max formula", e.g.
+//!   the STM32F103x4/x6 datasheet, Doc ID 15060, whose table 47 this module reproduces in its tests), for an error
+//!   under 1/4 LSB: R_AIN < T_S / (f_ADC * C_ADC * ln(2^(N + 2))) - R_ADC, T_S in ADC clock cycles, with
+//!   C_ADC = 5 pF and R_ADC = 0 (DS12589 as recalled, not read). It is the looser of the two for every row of the
+//!   table (a test checks), so the table decides; the formula stays for the water sensor's hold capacitor, which the
+//!   table does not cover.
+//!
+//! A source too slow for the longest sample time (the water sensor's 1 Mohm divider) gets a capacitor at the pin:
+//! it supplies the sample's charge, and must be large enough that sharing it with C_ADC moves the pin by less than
+//! 1/4 LSB after a full-scale step (C >= C_ADC * 2^(N + 2)). The source then only has to refill that charge between
 //! conversions; the error that leaves is [`Adc::recharge_error_lsb`].
+//!
+//! A conversion takes the sample time plus 12.5 cycles of successive approximation at 12 bits (RM0440 21.4.16,
+//! "t_CONV = t_SMPL + t_SAR"): [`conversion_ns`]. The thruster's inputs and the order it reads them in each 1 ms
+//! tick are [`THRUSTER_SEQUENCE`].
+
+use crate::clock::ADC_HZ;
 
 /// ADC_SMPRx SMPy values (RM0440): the sampling time in ADC clock cycles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
@@ -89,6 +102,16 @@ pub const G431: Adc = Adc {
     bits: 12,
 };
 
+/// An ADC input's kind: DS12589 allows a fast channel (ADC1/2_IN1..IN5 on the G431) a larger source at the same
+/// sample time than a slow one (every other input).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Channel {
+    /// ADCx_IN1..IN5.
+    Fast,
+    /// The other inputs.
+    Slow,
+}
+
 /// An analog input as the ADC sees it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Source {
@@ -96,6 +119,30 @@ pub struct Source {
     pub ohms: u32,
     /// A capacitor from the pin to ground, in pF (0 for none).
     pub hold_capacitor_pf: u32,
+    /// The kind of input it is wired to.
+    pub channel: Channel,
+}
+
+/// The ADC clock DS12589's R_AIN table is given for: 60 MHz.
+pub const TABLE_ADC_HZ: u32 = 60_000_000;
+
+/// Successive-approximation cycles of a 12-bit conversion (RM0440 21.4.16).
+pub const SAR_CYCLES_12_BIT: f64 = 12.5;
+
+/// One conversion at `sample` and `adc_hz`, in ns: the sample time and the 12.5 SAR cycles (RM0440 21.4.16).
+pub const fn conversion_ns(sample: SampleTime, adc_hz: u32) -> f64 {
+    (sample.cycles() + SAR_CYCLES_12_BIT) * 1e9 / adc_hz as f64
+}
+
+/// Conversions one after another, in ns.
+pub const fn sequence_ns(samples: &[SampleTime], adc_hz: u32) -> f64 {
+    let mut total = 0.0;
+    let mut rest = samples;
+    while let [sample, tail @ ..] = rest {
+        total += conversion_ns(*sample, adc_hz);
+        rest = tail;
+    }
+    total
 }
 
 /// ln 2.
@@ -105,6 +152,38 @@ impl Adc {
     /// ln(2^(N + 2)): the settling needed for 1/4 LSB.
     const fn settling(&self) -> f64 {
         (self.bits + 2) as f64 * LN_2
+    }
+
+    /// DS12589's "Maximum ADC R_AIN" at 12 bits and 60 MHz (see the module documentation for the figures'
+    /// source): the largest source resistance `sample` allows on a `channel` input, in ohms; `None` where the table
+    /// allows none (2.5 cycles on a slow channel). Valid for any ADC clock up to 60 MHz: a slower clock samples
+    /// longer for the same count.
+    pub const fn table_max_source_ohms(sample: SampleTime, channel: Channel) -> Option<u32> {
+        let (fast, slow) = match sample {
+            SampleTime::Cycles2_5 => (100, 0),
+            SampleTime::Cycles6_5 => (330, 100),
+            SampleTime::Cycles12_5 => (680, 470),
+            SampleTime::Cycles24_5 => (1_500, 1_200),
+            SampleTime::Cycles47_5 => (2_200, 1_800),
+            SampleTime::Cycles92_5 => (4_700, 3_900),
+            SampleTime::Cycles247_5 => (12_000, 10_000),
+            SampleTime::Cycles640_5 => (39_000, 33_000),
+        };
+        let ohms = match channel {
+            Channel::Fast => fast,
+            Channel::Slow => slow,
+        };
+        if ohms == 0 { None } else { Some(ohms) }
+    }
+
+    /// Whether `source` settles by itself with `sample` at `adc_hz`: within both DS12589's table (for clocks up to
+    /// its 60 MHz) and the 1/4 LSB formula.
+    pub const fn settles_unheld(&self, source: Source, sample: SampleTime, adc_hz: u32) -> bool {
+        let table = match Self::table_max_source_ohms(sample, source.channel) {
+            Some(ohms) => adc_hz <= TABLE_ADC_HZ && source.ohms <= ohms,
+            None => false,
+        };
+        table && source.ohms as f64 <= self.max_source_ohms(sample, adc_hz)
     }
 
     /// The largest source resistance `sample` settles within 1/4 LSB at an ADC clock of `adc_hz`, in ohms.
@@ -118,20 +197,20 @@ impl Adc {
         self.c_adc_pf * (1u64 << (self.bits + 2)) as f64
     }
 
-    /// Whether `source` is read within 1/4 LSB with `sample` at `adc_hz`: either it settles by itself, or a
-    /// large enough capacitor holds the pin and the longest sample time is used.
+    /// Whether `source` is read within 1/4 LSB with `sample` at `adc_hz`: either it settles by itself
+    /// ([`Adc::settles_unheld`]), or a large enough capacitor holds the pin and the longest sample time is used.
     pub const fn settles(&self, source: Source, sample: SampleTime, adc_hz: u32) -> bool {
-        source.ohms as f64 <= self.max_source_ohms(sample, adc_hz)
+        self.settles_unheld(source, sample, adc_hz)
             || (source.hold_capacitor_pf as f64 >= self.min_hold_capacitor_pf()
                 && sample as u8 == SampleTime::LONGEST as u8)
     }
 
-    /// The shortest sample time that reads `source` within 1/4 LSB at `adc_hz`; the longest when none does (then
-    /// [`Adc::settles`] says whether its capacitor makes up for it).
+    /// The shortest sample time that reads `source` by itself ([`Adc::settles_unheld`]) at `adc_hz`; the longest
+    /// when none does (then [`Adc::settles`] says whether its capacitor makes up for it).
     pub const fn sample_time(&self, source: Source, adc_hz: u32) -> SampleTime {
         let mut rest: &[SampleTime] = &SampleTime::ALL;
         while let [sample, tail @ ..] = rest {
-            if source.ohms as f64 <= self.max_source_ohms(*sample, adc_hz) {
+            if self.settles_unheld(source, *sample, adc_hz) {
                 return *sample;
             }
             rest = tail;
@@ -151,30 +230,58 @@ impl Adc {
     }
 }
 
-/// The thruster's water sensor: the electrodes (1 Mohm at the water threshold, open when dry) over a 1 Mohm
-/// pull-down, so the source is at most 1 Mohm; 100 nF at the pin, the first E6 value above the 82 nF
-/// [`Adc::min_hold_capacitor_pf`] asks for. The RC of 1 Mohm and 100 nF (100 ms) delays a water reading by a
-/// fraction of a second, well within what a leak allows.
+/// The thruster's water sensor on PB12 (ADC1_IN11, a slow channel): the electrodes (1 Mohm at the water threshold,
+/// open when dry) over a 1 Mohm pull-down, so the source is at most 1 Mohm; 100 nF at the pin, the first E6 value
+/// above the 82 nF [`Adc::min_hold_capacitor_pf`] asks for. The RC of 1 Mohm and 100 nF (100 ms) delays a water
+/// reading by a fraction of a second, well within what a leak allows.
 pub const WATER: Source = Source {
     ohms: 1_000_000,
     hold_capacitor_pf: 100_000,
+    channel: Channel::Slow,
 };
 
 /// A 10 kohm NTC with a 10 kohm (motor) or 4.7 kohm (IHM08M1) fixed resistor: the parallel pair never exceeds the
-/// fixed resistor.
+/// fixed resistor. On PB11 (ADC12_IN14) or the IHM08M1's PC2 (ADC12_IN8): slow channels.
 pub const NTC: Source = Source {
     ohms: 10_000,
     hold_capacitor_pf: 0,
+    channel: Channel::Slow,
 };
 
-/// The IHM08M1's current-sense amplifier output: an op-amp (TSV994) behind the board's filter; its output
-/// resistance is not in the documents read here, so it is budgeted like the NTCs.
-pub const CURRENT: Source = NTC;
+/// The IHM08M1's current-sense amplifier output on PA0 (ADC12_IN1, a fast channel): an op-amp (TSV994) behind the
+/// board's filter; its output resistance is not in the documents read here, so it is budgeted like the NTCs.
+pub const CURRENT: Source = Source {
+    channel: Channel::Fast,
+    ..NTC
+};
+
+/// The thruster's sample times (the shortest each source allows, [`Adc::sample_time`]): the water sensor relies on
+/// its 100 nF and the longest time; the NTC and the current need 247.5 cycles by DS12589's table (10 kohm: the slow
+/// channels' limit at 247.5, the fast ones' 12 kohm), where the formula alone gave 24.5.
+pub const WATER_SAMPLE: SampleTime = G431.sample_time(WATER, ADC_HZ);
+/// See [`WATER_SAMPLE`].
+pub const NTC_SAMPLE: SampleTime = G431.sample_time(NTC, ADC_HZ);
+/// See [`WATER_SAMPLE`].
+pub const CURRENT_SAMPLE: SampleTime = G431.sample_time(CURRENT, ADC_HZ);
+
+const _: () = assert!(
+    G431.settles(WATER, WATER_SAMPLE, ADC_HZ)
+        && G431.settles(NTC, NTC_SAMPLE, ADC_HZ)
+        && G431.settles(CURRENT, CURRENT_SAMPLE, ADC_HZ)
+);
+
+/// The conversions of one thruster sample, in the order the binding makes them: one of the current input thrown
+/// away (STM32G4 errata ES0431: the first conversion after the ADC idled about 1 ms may be wrong), then the water
+/// sensor, the NTC and the current. They block the thread executor: [`THRUSTER_SEQUENCE_NS`] is held against the
+/// 1 ms tick by thruster-fw's tests.
+pub const THRUSTER_SEQUENCE: [SampleTime; 4] = [CURRENT_SAMPLE, WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE];
+
+/// How long [`THRUSTER_SEQUENCE`] takes at [`ADC_HZ`], in ns: about 33.7 us.
+pub const THRUSTER_SEQUENCE_NS: f64 = sequence_ns(&THRUSTER_SEQUENCE, ADC_HZ);
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::clock::ADC_HZ;
     use stm32_metapac::adc::vals::SampleTime as PacSampleTime;
 
     /// The STM32F103's ADC: C_ADC 8 pF, R_ADC 1 kohm (its datasheets' ADC characteristics).
@@ -238,12 +345,68 @@ mod tests {
     }
 
     #[test]
+    fn the_datasheet_table_is_stricter_than_the_formula() {
+        // At the table's own 60 MHz, every row allows less than the 5 pF / 0 ohm formula: the table decides.
+        for sample in SampleTime::ALL {
+            for channel in [Channel::Fast, Channel::Slow] {
+                let formula = G431.max_source_ohms(sample, TABLE_ADC_HZ);
+                if let Some(table) = Adc::table_max_source_ohms(sample, channel) {
+                    assert!(
+                        f64::from(table) < formula / 2.0,
+                        "{sample:?} {channel:?}: {table} vs {formula}"
+                    );
+                }
+            }
+        }
+        // 24.5 cycles, what the formula alone chose for 10 kohm: 1.5 / 1.2 kohm by the table.
+        assert_eq!(
+            Adc::table_max_source_ohms(SampleTime::Cycles24_5, Channel::Fast),
+            Some(1_500)
+        );
+        assert_eq!(
+            Adc::table_max_source_ohms(SampleTime::Cycles24_5, Channel::Slow),
+            Some(1_200)
+        );
+        // A slow channel cannot sample in 2.5 cycles at all; the fast and slow columns grow with the time.
+        assert_eq!(Adc::table_max_source_ohms(SampleTime::Cycles2_5, Channel::Slow), None);
+        let column = |channel| SampleTime::ALL.map(|sample| Adc::table_max_source_ohms(sample, channel).unwrap_or(0));
+        for (fast, slow) in column(Channel::Fast).into_iter().zip(column(Channel::Slow)) {
+            assert!(fast > slow);
+        }
+        assert!(column(Channel::Slow).windows(2).all(|pair| pair[0] < pair[1]));
+        // Above the table's 60 MHz nothing settles unheld.
+        assert!(!G431.settles_unheld(NTC, SampleTime::LONGEST, 80_000_000));
+    }
+
+    #[test]
     fn other_inputs_settle_on_their_own() {
+        // 10 kohm on a slow channel: 247.5 cycles (the table's 10 kohm), not 92.5 (3.9 kohm).
         let sample = G431.sample_time(NTC, ADC_HZ);
-        assert_eq!(sample, SampleTime::Cycles24_5);
+        assert_eq!(sample, SampleTime::Cycles247_5);
         assert!(G431.settles(NTC, sample, ADC_HZ));
-        assert!(!G431.settles(NTC, SampleTime::Cycles12_5, ADC_HZ));
-        assert_eq!(G431.sample_time(CURRENT, ADC_HZ), SampleTime::Cycles24_5);
+        assert!(!G431.settles(NTC, SampleTime::Cycles92_5, ADC_HZ));
+        assert!(!G431.settles(NTC, SampleTime::Cycles24_5, ADC_HZ), "the old choice");
+        // On a fast channel 92.5 cycles allow 4.7 kohm: still 247.5 (12 kohm).
+        assert_eq!(G431.sample_time(CURRENT, ADC_HZ), SampleTime::Cycles247_5);
+        assert!(!G431.settles(CURRENT, SampleTime::Cycles92_5, ADC_HZ));
+        assert_eq!(
+            (WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE),
+            (SampleTime::LONGEST, SampleTime::Cycles247_5, SampleTime::Cycles247_5)
+        );
+    }
+
+    #[test]
+    fn a_thruster_sample_takes_34_us() {
+        // RM0440 21.4.16: t_CONV = t_SMPL + 12.5 cycles at 12 bits. 640.5 + 12.5 cycles at 42.5 MHz: 15.36 us.
+        assert!((conversion_ns(SampleTime::LONGEST, ADC_HZ) - 15_364.7).abs() < 0.1);
+        assert!((conversion_ns(SampleTime::Cycles247_5, ADC_HZ) - 6_117.6).abs() < 0.1);
+        // The discarded conversion, water, NTC, current: 1433 cycles, 33.7 us.
+        assert!((THRUSTER_SEQUENCE_NS - 1433.0 / 42.5e6 * 1e9).abs() < 0.1);
+        assert!(
+            (33_700.0..33_750.0).contains(&THRUSTER_SEQUENCE_NS),
+            "{THRUSTER_SEQUENCE_NS}"
+        );
+        assert_eq!(sequence_ns(&[], ADC_HZ), 0.0);
     }
 
     #[test]

@@ -87,8 +87,7 @@ impl ThrusterSlot {
     }
 }
 
-/// Buses a master has: I2C1..3.
-pub const BUSES: usize = 3;
+pub use crate::shared::BUSES;
 
 /// What is wrong with a thruster table; thrusters are named by their index in the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -867,8 +866,13 @@ where
     let back_to_back = config.period == Duration::from_ticks(0);
     let mut next = Instant::now();
     loop {
-        let cycle = if back_to_back { Instant::now() } else { next };
-        let polled = state.cycle(bus, bus_index, table, cycle, shared).await;
+        let polled = {
+            // Between cycles the bus is idle: a settings write waits for that (`shared.quiet`), and a cycle due
+            // during one waits here until it is done.
+            let _turn = shared.quiet.busy(bus_index).await;
+            let cycle = if back_to_back { Instant::now() } else { next };
+            state.cycle(bus, bus_index, table, cycle, shared).await
+        };
         if back_to_back {
             if polled > 0 {
                 yield_now().await;

@@ -16,6 +16,7 @@ use std::task::{Context, Wake, Waker};
 use embassy_time::{Duration, Instant};
 
 use crate::clock::{self, Clock};
+use crate::cpu::Cpu;
 
 type Task<'a> = Pin<Box<dyn Future<Output = ()> + 'a>>;
 
@@ -137,6 +138,8 @@ struct Slot<'a> {
     waker: Arc<TaskWaker>,
     /// `waker` as a [`Waker`], made once: polls borrow it.
     handle: Waker,
+    /// The CPU it runs on, if one that can stall.
+    cpu: Option<Cpu>,
 }
 
 /// Polls woken tasks; see the module documentation.
@@ -184,6 +187,16 @@ impl<'a> Executor<'a> {
 
     /// Add a task; it is polled at the next run.
     pub fn spawn(&mut self, task: impl Future<Output = ()> + 'a) -> TaskId {
+        self.spawn_task(task, None)
+    }
+
+    /// Add a task that runs on `cpu`: while the CPU is stalled the task is not polled; what wakes it meanwhile
+    /// takes effect when the stall ends.
+    pub fn spawn_on(&mut self, cpu: &Cpu, task: impl Future<Output = ()> + 'a) -> TaskId {
+        self.spawn_task(task, Some(cpu.clone()))
+    }
+
+    fn spawn_task(&mut self, task: impl Future<Output = ()> + 'a, cpu: Option<Cpu>) -> TaskId {
         let index = self.free.pop().unwrap_or(self.slots.len());
         let generation = self.slots.get(index).map_or(0, |slot| slot.generation);
         let id = TaskId { index, generation };
@@ -197,6 +210,7 @@ impl<'a> Executor<'a> {
             generation,
             handle: Waker::from(Arc::clone(&waker)),
             waker,
+            cpu,
         };
         match self.slots.get_mut(index) {
             Some(free) => *free = slot,
@@ -251,6 +265,11 @@ impl<'a> Executor<'a> {
                 let Some(task) = slot.task.as_mut() else {
                     continue;
                 };
+                // Its CPU is stalled: it is polled when the stall ends.
+                if let Some(until) = slot.cpu.as_ref().and_then(Cpu::stalled_until) {
+                    embassy_time_driver::schedule_wake(until.as_ticks(), &slot.handle);
+                    continue;
+                }
                 self.polls += 1;
                 if task.as_mut().poll(&mut Context::from_waker(&slot.handle)).is_ready() {
                     Self::retire(slot, &mut self.free, id.index);
@@ -413,6 +432,31 @@ mod tests {
         assert_eq!(second.get(), 1);
         executor.remove(id);
         assert_eq!(executor.tasks(), 1, "a stale id removes nothing");
+    }
+
+    #[test]
+    fn a_task_on_a_stalled_cpu_waits_for_the_stall_while_the_others_run() {
+        let clock = clock::take();
+        let cpu = Cpu::new();
+        let (stalled, free) = (Cell::new(None), Cell::new(None));
+        let mut executor = Executor::default();
+        executor.spawn_on(&cpu, async {
+            Timer::after(Duration::from_millis(1)).await;
+            stalled.set(Some(Instant::now()));
+        });
+        executor.spawn(async {
+            Timer::after(Duration::from_millis(2)).await;
+            free.set(Some(Instant::now()));
+        });
+        executor.run_until_idle();
+        cpu.stall(Duration::from_millis(5));
+        // Its timer falls due at 1 ms, the stall ends at 5 ms: the clock's next alarm is then.
+        executor.run_for(&clock, Duration::from_millis(4), Duration::from_micros(500));
+        assert_eq!((stalled.get(), free.get()), (None, Some(Instant::from_millis(2))));
+        assert_eq!(clock::next_alarm(), Some(Instant::from_millis(5)));
+        executor.run_for(&clock, Duration::from_millis(2), Duration::from_micros(500));
+        assert_eq!(stalled.get(), Some(Instant::from_millis(5)));
+        assert_eq!(executor.tasks(), 0);
     }
 
     #[test]

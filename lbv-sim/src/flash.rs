@@ -10,12 +10,40 @@
 //! went is left with data and ECC that disagree. Such a torn double word reads back as its cells hold it, and
 //! every read of it is recorded as an ECC double error (on the chip: FLASH_ECCR.ECCD and an NMI), with its
 //! offset, until it is erased again.
+//!
+//! Erases and writes take no time unless the flash is wired to a CPU ([`Flash::stall_cpu`]): then each page erased
+//! and each double word programmed stalls that CPU for its [`FlashTiming`], as the G431's single bank stalls the
+//! code that runs from it (the work is done at once; the CPU is held for its duration afterwards).
 
 use std::cell::RefCell;
 use std::collections::BTreeSet;
 use std::rc::Rc;
 
+use embassy_time::Duration;
 use embedded_storage::nor_flash::{self, NorFlashError, NorFlashErrorKind};
+
+use crate::cpu::Cpu;
+
+/// How long the flash's work stalls the CPU it is wired to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FlashTiming {
+    /// One page erase.
+    pub erase_page: Duration,
+    /// Programming one write unit (a double word on the STM32G4).
+    pub program_unit: Duration,
+}
+
+impl FlashTiming {
+    /// The STM32G431 as the bench charges it. DS12589's flash table (t_ERASE, t_PROG) could not be read here:
+    /// project notes put a page erase at "tens of milliseconds" and the issue that asked for this model at about
+    /// 20 ms. The bench takes 25 ms, the thruster bus's timeout: a transfer caught by an erase cannot end in time,
+    /// which is the hazard the master must avoid. A double word is taken at 100 us (an assumed figure of the order
+    /// of STM32 flash programming times), so a settings record of 12 costs 1.2 ms.
+    pub const G431: FlashTiming = FlashTiming {
+        erase_page: Duration::from_millis(25),
+        program_unit: Duration::from_micros(100),
+    };
+}
 
 /// Why a flash operation failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -73,6 +101,8 @@ struct Memory {
     torn_units: BTreeSet<usize>,
     /// Offsets of the torn units reads have touched.
     ecc_offsets: BTreeSet<usize>,
+    /// The CPU its work stalls, and for how long.
+    stall: Option<(Cpu, FlashTiming)>,
 }
 
 impl Memory {
@@ -116,7 +146,18 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
             stats: FlashStats::default(),
             torn_units: BTreeSet::new(),
             ecc_offsets: BTreeSet::new(),
+            stall: None,
         })))
+    }
+
+    /// Let every erase and write stall `cpu` for `timing` from now on (every handle on this flash).
+    pub fn stall_cpu(&self, cpu: &Cpu, timing: FlashTiming) {
+        self.0.borrow_mut().stall = Some((cpu.clone(), timing));
+    }
+
+    /// Erases and writes take no time again.
+    pub fn stall_nothing(&self) {
+        self.0.borrow_mut().stall = None;
     }
 
     /// The offsets of the torn double words that reads have touched (each an ECC double error on the chip).
@@ -199,6 +240,9 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
                 }
             }
             memory.stats.erases += 1;
+            if let Some((cpu, timing)) = &memory.stall {
+                cpu.stall(timing.erase_page);
+            }
         }
         Ok(())
     }
@@ -226,6 +270,11 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
                 *stored &= *byte;
             }
             memory.stats.programmed += 1;
+            if let Some((cpu, timing)) = &memory.stall
+                && at % WRITE_SIZE.max(1) == WRITE_SIZE.max(1) - 1
+            {
+                cpu.stall(timing.program_unit);
+            }
         }
         Ok(())
     }
@@ -344,6 +393,31 @@ mod tests {
             read(&mut flash, 32, 8).unwrap(),
             [0x55, 0x55, 0x55, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]
         );
+    }
+
+    #[test]
+    fn erases_and_writes_stall_the_cpu_they_are_wired_to() {
+        let _clock = crate::clock::take();
+        let cpu = Cpu::new();
+        let mut flash = Small::new(2);
+        flash.write(0, &[0; 8]).unwrap();
+        assert_eq!((cpu.stalls(), cpu.stalled_until()), (0, None), "not wired: no time");
+        let timing = FlashTiming {
+            erase_page: Duration::from_millis(20),
+            program_unit: Duration::from_micros(100),
+        };
+        flash.clone().stall_cpu(&cpu, timing);
+        // Two pages erased and two double words written in one go: the stalls add up.
+        flash.erase(0, 128).unwrap();
+        flash.write(0, &[1; 16]).unwrap();
+        assert_eq!(cpu.stalls(), 4);
+        assert_eq!(cpu.stalled_total(), Duration::from_micros(40_200));
+        assert_eq!(cpu.stalled_until(), Some(embassy_time::Instant::from_micros(40_200)));
+        crate::clock::advance(Duration::from_micros(40_200));
+        assert_eq!(cpu.stalled_until(), None, "over");
+        flash.stall_nothing();
+        flash.erase(0, 64).unwrap();
+        assert_eq!(cpu.stalls(), 4);
     }
 
     #[test]

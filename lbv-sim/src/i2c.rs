@@ -11,6 +11,8 @@
 //!   glitch ([`Bus::disturb`]); a slave can hold SDA low for a number of SCL clocks ([`Bus::hold_sda`]), which fails
 //!   every transfer until the master clocks it free on the lines ([`Scl`], [`Sda`]: open-drain pins as
 //!   embedded-hal sees them, for the UM10204 3.1.16 recovery).
+//! - The master's CPU ([`Bus::set_master_cpu`]): a transfer under way when it stalls (a flash erase) waits for it,
+//!   SCL held, and one that so lasts as long as the timeout or longer fails as a timeout.
 
 use std::cell::{Cell, RefCell};
 use std::convert::Infallible;
@@ -21,6 +23,8 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer, with_timeout};
 use embedded_hal::digital::{self, InputPin, OutputPin};
 use embedded_hal_async::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
+
+use crate::cpu::Cpu;
 
 /// START (or repeated START), the address byte and its ACK bit.
 const ADDRESS_BITS: u64 = 1 + 9;
@@ -139,6 +143,8 @@ pub struct Stats {
     pub nacks: u64,
     /// Transfers the master abandoned at its timeout.
     pub timeouts: u64,
+    /// Of those, transfers its CPU's stall held past the timeout.
+    pub stalled: u64,
     /// Transfers that failed on the bus: SDA held low (before or during the transfer), or a glitch.
     pub bus_errors: u64,
     /// Transfers that two devices answered at once (their bytes would collide on SDA).
@@ -263,6 +269,8 @@ struct Wire {
     busy_with: Option<usize>,
     stats: Stats,
     log: Option<Vec<Transfer>>,
+    /// The CPU the master runs on, when it can stall.
+    master_cpu: Option<Cpu>,
 }
 
 impl Wire {
@@ -316,7 +324,13 @@ impl Bus {
             busy_with: None,
             stats: Stats::default(),
             log: None,
+            master_cpu: None,
         })))
+    }
+
+    /// The master runs on `cpu`: a transfer its stall holds as long as the timeout or longer fails as a timeout.
+    pub fn set_master_cpu(&self, cpu: &Cpu) {
+        self.0.borrow_mut().master_cpu = Some(cpu.clone());
     }
 
     /// Its timing.
@@ -473,6 +487,11 @@ enum Plan {
 }
 
 impl Master {
+    /// The stalls of the master's CPU so far, added up.
+    fn stalled_total(&self) -> Option<Duration> {
+        self.0.0.borrow().master_cpu.as_ref().map(Cpu::stalled_total)
+    }
+
     /// Let the bus be busy for `bits` bit times (and `stretch` more).
     async fn charge(&self, bits: u64, stretch: Duration) {
         let bit = {
@@ -546,6 +565,8 @@ impl Master {
     }
 
     async fn transfer(&mut self, address: u8, operation: &mut Operation<'_>) -> Result<(), ErrorKind> {
+        let started = Instant::now();
+        let stalled_before = self.stalled_total();
         let data_bits = 9 * match operation {
             Operation::Write(bytes) => bytes.len() as u64,
             Operation::Read(buffer) => buffer.len() as u64,
@@ -585,6 +606,16 @@ impl Master {
                 }
             }
             Plan::Target(line, tamper) => self.target_transfer(&line, tamper, operation, data_bits).await,
+        };
+        // The master's CPU stalled meanwhile and held the transfer (SCL low, waiting on its interrupt) past the
+        // timeout: the master's driver reports it timed out, whatever moved on the wires.
+        let held = self.stalled_total() != stalled_before && Instant::now() - started >= self.0.timing().timeout;
+        let (result, read) = match result {
+            Ok(()) if held => {
+                self.0.0.borrow_mut().stats.stalled += 1;
+                (Err(ErrorKind::Other), None)
+            }
+            other => (other, read),
         };
         if let (Some(data), Operation::Read(buffer)) = (&read, &mut *operation) {
             for (slot, byte) in buffer.iter_mut().zip(data.iter().chain(std::iter::repeat(&0xFF))) {

@@ -7,7 +7,7 @@
 //! - [`i2c`]: I2C buses with bit-time accounting, devices and firmware slave ports, a TCA9548A, NACKs, clock
 //!   stretching, corruption, SDA held low, and the lines as GPIOs for the bus recovery;
 //! - [`Queue`], [`SerialRx`], [`SerialTx`], [`CanBus`]: serial links and a CAN bus;
-//! - [`flash`]: NOR flash with power-cut faults;
+//! - [`flash`]: NOR flash with power-cut faults and the CPU stall of its erases and writes ([`Cpu`]);
 //! - [`in_one_critical_section`]: a run at the cost of one critical section.
 //!
 //! All state is owned: a board is a set of handles on these parts and a few tasks; dropping them (a power cycle)
@@ -15,12 +15,14 @@
 //! are defined, or by thin adapters in the crate that wires a board.
 
 pub mod clock;
+mod cpu;
 mod executor;
 pub mod flash;
 pub mod i2c;
 mod queue;
 
 pub use clock::Clock;
+pub use cpu::Cpu;
 
 /// Run `f` inside one critical section. The cores' channels take a critical section for every access (tens of
 /// thousands a simulated second); on the host each is a lock of the process's one critical-section mutex unless it

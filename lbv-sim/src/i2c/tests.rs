@@ -295,3 +295,40 @@ fn sda_held_low_fails_every_transfer_until_enough_clocks_free_it() {
     bus.hold_sda(0);
     assert!(!bus.sda_held());
 }
+
+#[test]
+fn a_transfer_held_past_the_timeout_by_the_masters_stall_times_out() {
+    let clock = clock::take();
+    let bus = Bus::new(TIMING);
+    bus.attach(Register::at(0x29), Route::Direct);
+    let cpu = Cpu::new();
+    bus.set_master_cpu(&cpu);
+    let results = RefCell::new(Vec::new());
+    let mut master = bus.master();
+    let mut executor = Executor::new();
+    executor.spawn_on(&cpu, async {
+        for stall in [Duration::from_millis(10), Duration::from_millis(25)] {
+            // The transfer starts, then the CPU stalls before it ends.
+            let transfer = master.write(0x29, &[1, 2, 3, 4]);
+            let mut transfer = core::pin::pin!(transfer);
+            let started = core::future::poll_fn(|cx| {
+                let _ = transfer.as_mut().poll(cx);
+                core::task::Poll::Ready(Instant::now())
+            })
+            .await;
+            cpu.stall(stall);
+            let result = transfer.await;
+            results.borrow_mut().push((result, Instant::now() - started));
+        }
+    });
+    executor.run_for(&clock, Duration::from_millis(100), Duration::from_micros(10));
+    drop(executor);
+    let results = results.into_inner();
+    // 10 ms: late, but within the 25 ms timeout. 25 ms: a timeout.
+    assert_eq!(results.len(), 2);
+    assert_eq!(results[0].0, Ok(()));
+    assert!(results[0].1 >= Duration::from_millis(10), "{:?}", results[0].1);
+    assert_eq!(results[1].0, Err(ErrorKind::Other));
+    let stats = bus.stats();
+    assert_eq!((stats.timeouts, stats.stalled), (1, 1));
+}

@@ -6,6 +6,10 @@
 //! ([`MasterBoard::flash`], the G431's 128 KiB with the settings in their pages); the node itself (its tasks and
 //! their state) is dropped and booted afresh by [`MasterBoard::reboot`], which the bench also calls when the
 //! master asks for it (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN). Both images keep their settings in that flash.
+//!
+//! The master runs on a [`Cpu`] its flash stalls as the G431's does ([`FlashTiming::G431`]: a page erase 25 ms):
+//! meanwhile none of its tasks runs, and a transfer it has under way on a thruster bus waits for it. A reset ends
+//! a stall.
 
 use core::cell::{Cell, RefCell};
 use std::rc::Rc;
@@ -19,9 +23,9 @@ use lbv_master_fw::shared::Shared;
 use lbv_master_fw::sim::{RebootRequest, flash_store, g431_flash, thruster_bus};
 use lbv_master_fw::thrusters::BUSES;
 use lbv_master_fw::{BusWork, MasterConfig, Polling, Ports};
-use lbv_sim::flash::Stm32g4Flash;
+use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
-use lbv_sim::{Executor, Queue, SerialRx, SerialTx, TaskId};
+use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
 
 /// What the master's ports are wired to: its three thruster buses, its CAN node's receive queue and its console
@@ -90,6 +94,8 @@ pub struct MasterBoard {
     pub flash: Stm32g4Flash,
     /// Times it has booted.
     pub boots: u32,
+    /// Its CPU: the flash's erases and writes stall it.
+    pub cpu: Cpu,
     reboot: RebootRequest,
     task: Option<TaskId>,
 }
@@ -103,14 +109,21 @@ impl MasterBoard {
     pub fn boot(config: MasterConfig, acceptance: bool, wiring: &Wiring, executor: &mut Executor<'static>) -> Self {
         let mut config = config;
         config.console.uid = BENCH_UID;
+        let cpu = Cpu::new();
+        let flash = g431_flash();
+        flash.stall_cpu(&cpu, FlashTiming::G431);
+        for bus in &wiring.buses {
+            bus.set_master_cpu(&cpu);
+        }
         let mut board = Self {
             config,
             acceptance,
             shared: Rc::new(Shared::new()),
             console_stats: Rc::new(ConsoleStats::new()),
             desk: None,
-            flash: g431_flash(),
+            flash,
             boots: 0,
+            cpu,
             reboot: RebootRequest::default(),
             task: None,
         };
@@ -133,6 +146,7 @@ impl MasterBoard {
         self.shared = Rc::new(Shared::new());
         self.console_stats = Rc::new(ConsoleStats::new());
         wiring.can.clear();
+        self.cpu.reset();
         self.flash.power_on();
         self.start(wiring, executor);
     }
@@ -162,7 +176,7 @@ impl MasterBoard {
             work,
         };
         let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
-        executor.spawn(async move {
+        executor.spawn_on(&self.cpu, async move {
             lbv_master_fw::run(ports, &config, &shared, &stats).await;
         })
     }

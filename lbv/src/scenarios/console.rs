@@ -623,10 +623,15 @@ pub fn settings_power_cut(run: &mut Run) {
         run.bench.ground.seen.params.remove("LBV_GAIN");
         let frame = run.bench.ground.param_set("LBV_GAIN", value);
         run.bench.send(frame);
+        let programmed = flash.stats().programmed;
         run.run_until(0.2, |bench| {
             !bench.master.flash.powered() || bench.ground.seen.params.contains_key("LBV_GAIN")
         });
-        // Let the write finish (or the cut land).
+        // Let the write finish (or the cut land): it waits for the thruster buses' quiet window, up to a poll
+        // cycle.
+        run.run_until(0.1, |bench| {
+            !bench.master.flash.powered() || bench.master.flash.stats().programmed > programmed
+        });
         run.run_for(0.01);
         if !flash.powered() {
             erase_cut = Some(n);
@@ -728,4 +733,89 @@ fn flash_power_back(run: &mut Run) {
     run.bench.note("power back");
     run.bench.reboot_master();
     run.run_for(0.3);
+}
+
+/// The operator changes a parameter over and over while the vehicle drives ahead, until the settings log has gone
+/// round its pages and erased the oldest several times. Each page erase stalls the master's CPU for 25 ms on the
+/// bench (`FlashTiming::G431`), as long as the thruster bus's timeout: the master writes only between poll cycles,
+/// with every bus idle, so no transfer is caught by a stall. The thrusters miss no order (no timeout, no failed
+/// poll, no link failsafe) and keep driving; the cycles due during a stall merely start late.
+pub fn settings_quiet_bus(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.0);
+    let thrusters = run.bench.thrusters.len();
+    let before: Vec<_> = (0..thrusters).map(|index| run.health(index)).collect();
+    let duties_before: Vec<i16> = (0..thrusters).map(|index| run.duty(index)).collect();
+    let flash_before = run.bench.master.flash.stats();
+    let stalls_before = run.bench.master.cpu.stalls();
+    let mut answered = 0;
+    // 168 records fill the eight pages; every 21 writes after that erase one: 4 erases by the 252nd.
+    let n = 260u32;
+    for write in 0..n {
+        let value = 10.0 + (write % 50) as f32;
+        answered += u32::from(set_param(run, "LBV_MTEST_MAX", value));
+        // Spread the changes over every phase of the 20 ms poll cycle.
+        run.run_for(f64::from(write % 7) * 0.0029);
+    }
+    run.run_for(0.5);
+    let erases = run.bench.master.flash.stats().erases - flash_before.erases;
+    let stalled_ms = run.bench.master.cpu.stalled_total().as_millis();
+    let stalls = run.bench.master.cpu.stalls() - stalls_before;
+    run.check(
+        "every change is answered and the log erased pages meanwhile, each stalling the master",
+        answered == n && erases >= 4,
+        format!("{answered} of {n} answered, {erases} erases, {stalls} stalls, {stalled_ms} ms stalled since boot"),
+    );
+    let after: Vec<_> = (0..thrusters).map(|index| run.health(index)).collect();
+    let missed: Vec<String> = before
+        .iter()
+        .zip(&after)
+        .enumerate()
+        .filter(|(_, (was, is))| {
+            is.timeout != was.timeout
+                || is.bus_error != was.bus_error
+                || is.link_failsafes != was.link_failsafes
+                || is.recoveries != was.recoveries
+                || is.consecutive_failures != 0
+                || !is.online
+        })
+        .map(|(index, (was, is))| {
+            format!(
+                "thruster {}: timeouts {} -> {}, bus errors {} -> {}, failsafes {} -> {}",
+                index + 1,
+                was.timeout,
+                is.timeout,
+                was.bus_error,
+                is.bus_error,
+                was.link_failsafes,
+                is.link_failsafes
+            )
+        })
+        .collect();
+    let caught: u64 = run.bench.wiring.buses.iter().map(|bus| bus.stats().stalled).sum();
+    run.check(
+        "no transfer is caught by a flash stall: every thruster takes every order",
+        missed.is_empty() && caught == 0,
+        format!("{caught} transfers held past the timeout; {missed:?}"),
+    );
+    let delivered: Vec<u32> = before
+        .iter()
+        .zip(&after)
+        .map(|(was, is)| is.delivered - was.delivered)
+        .collect();
+    let duties: Vec<i16> = (0..thrusters).map(|index| run.duty(index)).collect();
+    run.check(
+        "the thrusters kept driving as before",
+        armed(run)
+            && duties.iter().any(|duty| *duty != 0)
+            && duties
+                .iter()
+                .zip(&duties_before)
+                .all(|(now, was)| (i32::from(*now) - i32::from(*was)).abs() <= i32::from(*was).abs() / 10)
+            && delivered.iter().all(|orders| *orders > 0),
+        format!(
+            "armed {}, duties {duties_before:?} -> {duties:?}, orders delivered: {delivered:?}",
+            armed(run)
+        ),
+    );
 }

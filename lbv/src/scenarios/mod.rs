@@ -25,7 +25,8 @@ pub use harness::{Options, Report, Scenario, run_guarded};
 use acceptance::acceptance;
 use bus::{bad_frames, link_failsafe, missing_thruster, reset_mid_transfer, six_byte_status, status_noise, stuck_sda};
 use console::{
-    ground_station_1hz, second_sysid, settings_persist, settings_power_cut, signing, signing_reboot, stray_byte,
+    ground_station_1hz, second_sysid, settings_persist, settings_power_cut, settings_quiet_bus, signing,
+    signing_reboot, stray_byte,
 };
 use harness::{dev_kits, lbv300, legacy6, mixed};
 use soak::soak;
@@ -308,6 +309,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 20.0,
         vehicle: lbv300,
         run: settings_power_cut,
+    },
+    Scenario {
+        name: "settings-quiet-bus",
+        about: "parameter writes and page erases (25 ms CPU stalls) while driving: no thruster misses an order",
+        seconds: 12.0,
+        vehicle: lbv300,
+        run: settings_quiet_bus,
     },
     Scenario {
         name: "acceptance",

@@ -94,6 +94,7 @@ scenario_tests! {
     signing_reboot: "signing-reboot",
     settings_persist: "settings-persist",
     settings_power_cut: "settings-power-cut",
+    settings_quiet_bus: "settings-quiet-bus",
     acceptance: "acceptance",
     soak: "soak",
 }

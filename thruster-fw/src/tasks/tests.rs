@@ -1044,3 +1044,18 @@ fn a_short_that_stays_trips_again_after_each_zero_order() {
     let at_least = 3 * u32::from(Thresholds::SPEC.overcurrent_ticks);
     assert!(trips.is_some_and(|trips| trips >= at_least), "{trips:?}");
 }
+
+#[test]
+fn the_adc_conversions_of_a_sample_fit_the_tick() {
+    // The binding reads its inputs with blocking conversions (`g431_hw::adc::THRUSTER_SEQUENCE`: one thrown away,
+    // then water, NTC, current) once per sample tick, holding the thread executor meanwhile: at DS12589's sample
+    // times they take about 34 us of the 1 ms tick, kept under 5 % of both the sample and the control tick.
+    let sequence_us = g431_hw::adc::THRUSTER_SEQUENCE_NS / 1000.0;
+    assert!((33.0..34.0).contains(&sequence_us), "{sequence_us} us");
+    for tick in [SAMPLE_PERIOD, CONTROL_PERIOD] {
+        assert!(
+            sequence_us < 0.05 * tick.as_micros() as f64,
+            "{sequence_us} us of {tick:?}"
+        );
+    }
+}
