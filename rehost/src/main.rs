@@ -234,7 +234,6 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
             six_step.push(json!({ "hall": state.bits(), "drive": commutation(drive_for(state, quarter)) }));
         }
     }
-    let sample_time = |source| adc::G431.sample_time(source, clock::ADC_HZ).bits();
     // Readings that put the sensors at a working point, and past the IDS's fault thresholds (IDS 8.4.2).
     let analog = json!({
         "dry": config.water.raw_at(10 * config.thresholds.water_ohms),
@@ -252,7 +251,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         "coast": commutation(thruster_fw::commutation::COAST),
         "forward": six_step,
         "sample_times": {
-            "water": sample_time(adc::WATER), "ntc": sample_time(adc::NTC), "current": sample_time(adc::CURRENT),
+            "water": adc::WATER_SAMPLE.bits(), "ntc": adc::NTC_SAMPLE.bits(), "current": adc::CURRENT_SAMPLE.bits(),
         },
         "watchdog_timeout_us": watchdog.timeout_us(clock::LSI_HZ),
         "analog": analog,
