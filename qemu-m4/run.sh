@@ -19,7 +19,9 @@ command -v qemu-system-arm >/dev/null || { echo "qemu-m4: qemu-system-arm is mis
 
 # Its own workspace (see its Cargo.toml), sharing the workspace's target directory and so its built dependencies.
 cargo build --manifest-path qemu-m4/Cargo.toml --release --target "$TARGET" --target-dir target --locked
-cargo build --release --locked -q -p lbv
+# The judge, `lbv hil --replay`, with the test profile: ./test.sh's `cargo test` has built its dependencies so,
+# and the release profile's fat LTO would take minutes for a log reader.
+cargo build --profile test --locked -q -p lbv
 mkdir -p "$LOGS"
 
 # -icount shift=3: 8 ns of virtual time per instruction, and every timer runs on that time, so the image counts
@@ -53,7 +55,7 @@ for run in acceptance-seabotix acceptance-legacy vehicle; do
   case "$run" in
     acceptance-*)
       # The judge of the dev kits' log, on this one.
-      target/release/lbv hil --replay "$log" >"$LOGS/$run.judged" 2>&1 || { cat "$LOGS/$run.judged"; failed=1; }
+      target/debug/lbv hil --replay "$log" >"$LOGS/$run.judged" 2>&1 || { cat "$LOGS/$run.judged"; failed=1; }
       echo "lbv hil --replay: $(tail -n 1 "$LOGS/$run.judged")"
       ;;
     vehicle)
