@@ -1,7 +1,7 @@
 """ADC1 and the ADC12 common registers (RM0440 21.7, 21.8): the start-up handshakes embassy-stm32 waits on, and
 single regular conversions that return what a test puts on each channel."""
 
-from .peripheral import Peripheral, bit, field
+from .peripheral import Peripheral, field
 
 ISR, IER, CR, CFGR, CFGR2, SMPR1, SMPR2, SQR1, DR = 0x00, 0x04, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x30, 0x40
 ADRDY, EOC, EOS = 1 << 0, 1 << 2, 1 << 3

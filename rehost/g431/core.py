@@ -104,12 +104,7 @@ def stores_nothing(code: bytes) -> bool:
 
 def thumb_instructions(code: bytes) -> int:
     """How many Thumb instructions a block of code holds."""
-    count, i = 0, 0
-    while i + 1 < len(code):
-        half = code[i] | code[i + 1] << 8
-        i += 4 if half >> 11 in (0b11101, 0b11110, 0b11111) else 2
-        count += 1
-    return max(count, 1)
+    return max(sum(1 for _ in halfwords(code)), 1)
 
 
 class Core:
@@ -139,7 +134,6 @@ class Core:
         self.active = []  # exception numbers being handled, innermost last
         self.fault = None  # why the core faulted, if it did
         self.flash_store = None  # (address, size, value): the flash interface takes CPU stores into flash
-        self.watch = []  # (predicate, reason): checked between runs
         self.service = lambda: False  # the chip's work between runs (resets, draining the log); True: look again
 
         self.uc.mem_map(FLASH_BASE, FLASH_SIZE, UC_PROT_READ | UC_PROT_EXEC)
@@ -153,11 +147,6 @@ class Core:
             self.uc.mmio_map(base, size, self._mmio_read, base, self._mmio_write, base)
 
     # Memory and peripherals ------------------------------------------------------------------------------------
-    def load(self, segments):
-        """Writes an image's loadable segments (physical address, bytes) into flash."""
-        for address, data in segments:
-            self.uc.mem_write(address, data)
-
     def attach(self, base, peripheral, size=0x400):
         for offset in range(0, size, 0x400):
             self._regions[base + offset] = (base, peripheral)
@@ -262,9 +251,6 @@ class Core:
                 continue
             if self.fault is not None:
                 raise Stop(self.fault)
-            for predicate, reason in self.watch:
-                if predicate():
-                    raise Stop(reason)
             self._fire_due()
             if self._take_exception():
                 continue
@@ -396,8 +382,6 @@ class Core:
             self._stop(lambda: self._exception_return(pc | 1))
         elif intno == 7:
             self._stop(lambda: self.enter_fault(f"breakpoint at {pc:#010x}", pc))
-        elif intno == 16 and pc == 0xFFFF_FFFF:
-            self._stop(lambda: self.raise_fault("returned from reset"))
         else:
             self._stop(lambda: self.enter_fault(f"CPU exception {intno} at {pc:#010x}", pc))
 

@@ -3,7 +3,7 @@ use: a slave answering a modelled master (the thruster's I2C3), and a master tal
 master's three buses). Clock stretching is what makes it work: whenever the peripheral needs software (ADDR set,
 RXDR full, TXDR empty, TCR), the bus waits until the register access that releases it (37.4.5-37.4.9)."""
 
-from .peripheral import Peripheral, bit, field
+from .peripheral import Peripheral, field
 
 CR1, CR2, OAR1, OAR2, TIMINGR, TIMEOUTR, ISR, ICR, PECR, RXDR, TXDR = (
     0x00, 0x04, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x1C, 0x20, 0x24, 0x28)
@@ -51,7 +51,6 @@ class I2c(Peripheral):
         self._waiting_since = 0
         self._then = None
         self._job = None
-        self._stretch_timer = 0
 
     def reset(self):
         super().reset()
@@ -194,9 +193,6 @@ class I2c(Peripheral):
             return
         self.regs[ISR] = (self.regs.get(ISR, 0) & ~(DIR | (0x7F << 17))) | BUSY | (job.address << 17) | (
             DIR if read else 0)
-        if read:
-            # A read after ADDR: TXDR is flushed by software (embassy sets TXE) before ADDR is cleared.
-            pass
         self._set(ADDR)
         self._until(lambda: not self.regs.get(ISR, 0) & ADDR,
                     (lambda: self._slave_send(job, 0)) if read else (lambda: self._slave_receive(job, 0)))

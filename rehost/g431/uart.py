@@ -1,7 +1,7 @@
 """LPUART1, the NUCLEO's virtual COM port (RM0440 38.7): bytes written to TDR leave one frame time later; bytes a
 test sends arrive in RDR one frame time apart, with ORE when the image has not read the last one."""
 
-from .peripheral import Peripheral, bit
+from .peripheral import Peripheral
 
 CR1, CR2, CR3, BRR, RQR, ISR, ICR, RDR, TDR, PRESC = 0x00, 0x04, 0x08, 0x0C, 0x18, 0x1C, 0x20, 0x24, 0x28, 0x2C
 UE, RE, TE, RXNEIE, TCIE, TXEIE = 1 << 0, 1 << 2, 1 << 3, 1 << 5, 1 << 6, 1 << 7

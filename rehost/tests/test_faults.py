@@ -5,9 +5,8 @@ in the backup domain survives that reset and is cleared by a power cycle."""
 import pytest
 from unicorn import arm_const as arm
 
-from conftest import image
-from g431.core import HARD_FAULT, IRQ0, NMI
-from thruster import exchange, set_halls, start
+from g431.core import IRQ0, NMI
+from thruster import exchange, set_analog, start
 
 # The most instructions from a fault to the outputs being off: the handlers' first act is one BDTR store, so a
 # few dozen at most (exception entry, the vector, the store).
@@ -111,7 +110,6 @@ def test_a_hung_task_lets_the_watchdog_reset_and_the_latch_survives_it_but_not_a
     assert chip.resets[-1][1] == "watchdog"
     # After the reset the sensor is dry and the ADC works again: the latch still says ground fault.
     chip.adc1.stuck = False
-    from thruster import set_analog
     set_analog(chip, spec)
     chip.run_until(chip.idle, 0.05, "idle after the watchdog reset")
     assert any("independent watchdog" in text for _, text in chip.log.lines), chip.log_text()

@@ -5,7 +5,7 @@ import cantools
 import pytest
 
 from conftest import ROOT, rehost
-from master import Ground, Thruster, mavlink, start
+from master import Ground, mavlink, start
 
 BAT_DBC = cantools.database.load_file(str(ROOT / "lbv" / "dbc" / "bat.dbc"))
 
@@ -38,6 +38,9 @@ def test_a_missing_thruster_is_not_acknowledged_and_the_others_go_on(expected):
 
 def test_heartbeats_reach_pymavlink(expected):
     chip, _, ground = start("lbv-master-fw", expected)
+    # LPUART1 at the console's rate, within the 1 % a UART tolerates (from LPUART1_BRR, RM0440 38.5.7).
+    baud = expected["images"]["lbv-master-fw"]["console_baud"]
+    assert abs(chip.lpuart.baud() - baud) < 0.01 * baud, chip.lpuart.baud()
     chip.run_for(2.0)
     heartbeats = ground.of("HEARTBEAT")
     assert len(heartbeats) >= 2

@@ -1,10 +1,8 @@
 """The thruster image answers on its modelled I2C3 in its family's protocol, and its bridge follows the halls."""
 
-import subprocess
-
 import pytest
 
-from conftest import REHOST, rehost
+from conftest import rehost
 from g431.timers import CCER, CCMR1, CCMR2
 from thruster import exchange, set_halls, start
 

@@ -242,13 +242,8 @@ fn take_break() -> bool {
     tim1::break_tripped(sr)
 }
 
-/// Sample times from the sources' impedance and DS12589's R_AIN table (`g431_hw::adc`, which checks that each
-/// input settles); the water sensor relies on its 100 nF.
-const WATER_SAMPLE: adc::SampleTime = adc::WATER_SAMPLE;
-const NTC_SAMPLE: adc::SampleTime = adc::NTC_SAMPLE;
-const CURRENT_SAMPLE: adc::SampleTime = adc::CURRENT_SAMPLE;
-
-/// embassy-stm32's sample time of ours.
+/// embassy-stm32's sample time of ours: `g431_hw::adc`'s, from the sources' impedance and DS12589's R_AIN table
+/// (it checks that each input settles; the water sensor relies on its 100 nF).
 const fn sample_time(sample: adc::SampleTime) -> SampleTime {
     SampleTime::from_bits(sample.bits())
 }
@@ -271,11 +266,15 @@ impl Sensors for AnalogInputs {
         // STM32G4 errata ES0431 (as spec-notes reports it): the first conversion after the ADC idled for about
         // 1 ms or more may be wrong, and these come 1 ms apart. One conversion of the low-impedance current input
         // is thrown away first; the faults' consecutive samples (`Thresholds::latch_samples`) cover it anyway.
-        let _ = self.adc.blocking_read(&mut self.current, sample_time(CURRENT_SAMPLE));
+        let _ = self
+            .adc
+            .blocking_read(&mut self.current, sample_time(adc::CURRENT_SAMPLE));
         RawSample {
-            water: self.adc.blocking_read(&mut self.water, sample_time(WATER_SAMPLE)),
-            temperature: self.adc.blocking_read(&mut self.ntc, sample_time(NTC_SAMPLE)),
-            current: self.adc.blocking_read(&mut self.current, sample_time(CURRENT_SAMPLE)),
+            water: self.adc.blocking_read(&mut self.water, sample_time(adc::WATER_SAMPLE)),
+            temperature: self.adc.blocking_read(&mut self.ntc, sample_time(adc::NTC_SAMPLE)),
+            current: self
+                .adc
+                .blocking_read(&mut self.current, sample_time(adc::CURRENT_SAMPLE)),
             // TIM1's status register, not the ADC: the fault task's 1 kHz sample is the trip rule's tick
             // (`thruster_fw::overcurrent`). SR's flags are rc_w0, so this never disturbs the commutation's writes.
             break_tripped: take_break(),
@@ -294,8 +293,8 @@ pub struct WaterPin {
 impl WaterInput for WaterPin {
     async fn water(&mut self) -> u16 {
         // ES0431: the first conversion after an idle ADC may be wrong (see `AnalogInputs::sample`); thrown away.
-        let _ = self.adc.blocking_read(&mut self.pin, sample_time(CURRENT_SAMPLE));
-        self.adc.blocking_read(&mut self.pin, sample_time(WATER_SAMPLE))
+        let _ = self.adc.blocking_read(&mut self.pin, sample_time(adc::CURRENT_SAMPLE));
+        self.adc.blocking_read(&mut self.pin, sample_time(adc::WATER_SAMPLE))
     }
 }
 
