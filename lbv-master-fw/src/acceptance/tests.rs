@@ -675,3 +675,45 @@ fn what_following_an_order_means_per_family() {
         "a revision with no defined MAX POWER never passes"
     );
 }
+
+/// The script's transfers wait while a settings write holds the buses quiet, and go on once it is done.
+#[test]
+fn a_transfer_waits_for_a_settings_writes_quiet_window() {
+    use core::pin::pin;
+    use core::task::{Context, Waker};
+    use embassy_futures::block_on;
+    use embedded_hal_async::i2c::ErrorKind;
+
+    struct Counting(u32);
+    impl ErrorType for Counting {
+        type Error = ErrorKind;
+    }
+    impl I2c for Counting {
+        async fn transaction(&mut self, _: u8, _: &mut [Operation<'_>]) -> Result<(), ErrorKind> {
+            self.0 += 1;
+            Ok(())
+        }
+    }
+    impl BusRecovery for Counting {
+        async fn recover(&mut self) -> bool {
+            true
+        }
+    }
+
+    let quiet = QuietBuses::new();
+    let mut bus = Counting(0);
+    let mut context = Context::from_waker(Waker::noop());
+    let held = block_on(quiet.quiet());
+    {
+        let mut turned = InTurn {
+            bus: &mut bus,
+            quiet: &quiet,
+            index: 1,
+        };
+        let mut write = pin!(turned.write(0x29, &[0x52]));
+        assert!(write.as_mut().poll(&mut context).is_pending());
+        drop(held);
+        assert!(write.as_mut().poll(&mut context).is_ready());
+    }
+    assert_eq!(bus.0, 1);
+}
