@@ -484,23 +484,13 @@ impl Link {
     /// Take the link failsafe bit of a valid status; true when it has just risen (the thruster went 1 s without a
     /// valid order and stopped), which is counted.
     pub fn on_link_failsafe(&mut self, set: bool) -> bool {
-        let risen = set && !self.link_failsafe;
-        self.link_failsafe = set;
-        if risen {
-            self.health.link_failsafes = self.health.link_failsafes.saturating_add(1);
-        }
-        risen
+        rise(&mut self.link_failsafe, set, &mut self.health.link_failsafes)
     }
 
     /// Take the overcurrent bit of a valid status; true when it has just risen (a sustained overcurrent stopped the
     /// thruster's bridge until a zero order), which is counted.
     pub fn on_overcurrent(&mut self, set: bool) -> bool {
-        let risen = set && !self.overcurrent;
-        self.overcurrent = set;
-        if risen {
-            self.health.overcurrents = self.health.overcurrents.saturating_add(1);
-        }
-        risen
+        rise(&mut self.overcurrent, set, &mut self.health.overcurrents)
     }
 
     /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
@@ -594,6 +584,16 @@ impl Link {
     fn doubled(&self, interval: Duration) -> Duration {
         Duration::from_ticks(interval.as_ticks().saturating_mul(2)).min(self.retry_max)
     }
+}
+
+/// Takes a status bit into `flag`; true when it has just risen, which `count` counts.
+fn rise(flag: &mut bool, set: bool, count: &mut u32) -> bool {
+    let risen = set && !*flag;
+    *flag = set;
+    if risen {
+        *count = count.saturating_add(1);
+    }
+    risen
 }
 
 /// A change of a thruster's fault bits.
