@@ -37,15 +37,9 @@ class Image:
             text = elf.get_section_by_name(".text")
             self.text = (text["sh_addr"], text.data())
             self.defmt = Table(elf)
-            self.sections = {s.name: (s["sh_addr"], s["sh_size"]) for s in elf.iter_sections()}
 
     def symbol(self, name):
         return self.symbols[name]
-
-    def flash_bytes(self):
-        """Flash use as the size report counts it: vector table, code, constants, .data's initial values."""
-        return sum(self.sections[name][1] for name in (".vector_table", ".text", ".rodata", ".data")
-                   if name in self.sections)
 
 
 class G431:
