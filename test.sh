@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), the host
+# The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), rustdoc, the host
 # tests (every virtual-bench scenario among them, on both engines), a simulated hour of the bench's soak, both
 # firmware images in release and their size report against the flash / RAM budgets, the images themselves run under
 # register-level models of the STM32G431 (rehost/), and the cores on an emulated Cortex-M4 (QEMU).
@@ -41,6 +41,9 @@ cargo fmt --manifest-path qemu-m4/Cargo.toml -- --check
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo clippy -p tmc-proto -p bat-proto --all-targets --features defmt --locked -- -D warnings
+
+step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
 step "clippy ($TARGET)"
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings

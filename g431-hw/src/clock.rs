@@ -121,8 +121,8 @@ pub const LSI_MAX_HZ: u32 = 34_000;
 pub mod registers {
     use super::{PLL, Pll, SYSCLK_HZ};
 
-    /// RCC_PLLCFGR with `pll` fed from HSE and only its R output on (RM0440 7.4.4): PLLSRC = 0b11 at [1:0],
-    /// PLLM - 1 at [7:4], PLLN at [14:8], PLLREN at 24, PLLR = r / 2 - 1 at [26:25].
+    /// RCC_PLLCFGR with `pll` fed from HSE and only its R output on (RM0440 7.4.4): PLLSRC = 0b11 at bits 1:0,
+    /// PLLM - 1 at bits 7:4, PLLN at 14:8, PLLREN at 24, PLLR = r / 2 - 1 at 26:25.
     pub const fn pllcfgr_hse(pll: Pll) -> u32 {
         0b11 | (pll.m - 1) << 4 | pll.n << 8 | 1 << 24 | (pll.r / 2 - 1) << 25
     }

@@ -10,7 +10,7 @@
 //! df <= min(PS1, PS2) / (2 (13 NBT - PS2)) and df <= SJW / (20 NBT). The FDCAN (M_CAN) has no separate
 //! propagation segment, so PS1 is TSEG1 less the quanta the bus's round-trip delay needs.
 //!
-//! FDCAN_NBTP (RM0440): NSJW[31:25], NBRP[24:16], NTSEG1[15:8], NTSEG2[6:0], each holding its value minus one.
+//! FDCAN_NBTP (RM0440): NSJW\[31:25\], NBRP\[24:16\], NTSEG1\[15:8\], NTSEG2\[6:0\], each holding its value minus one.
 
 /// Nominal bit timing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

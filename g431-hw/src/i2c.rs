@@ -68,7 +68,7 @@ pub enum Violation {
 }
 
 impl Timing {
-    /// The I2C_TIMINGR value: PRESC[31:28], SCLDEL[23:20], SDADEL[19:16], SCLH[15:8], SCLL[7:0].
+    /// The I2C_TIMINGR value: PRESC\[31:28\], SCLDEL\[23:20\], SDADEL\[19:16\], SCLH\[15:8\], SCLL\[7:0\].
     pub const fn timingr(&self) -> u32 {
         ((self.presc as u32 & 0xF) << 28)
             | ((self.scldel as u32 & 0xF) << 20)
@@ -152,7 +152,7 @@ pub const TIMINGR: u32 = match standard_mode(crate::clock::I2C_KERNEL_HZ) {
 const _: () = assert!(standard_mode(crate::clock::I2C_KERNEL_HZ).is_ok());
 
 /// I2C_OAR1 for a 7-bit own address (RM0440 37.7.3): OA1EN at bit 15, OA1MODE = 0 (7-bit), the address in
-/// OA1[7:1].
+/// OA1\[7:1\].
 pub const fn oar1(address: u8) -> u32 {
     1 << 15 | ((address as u32) & 0x7F) << 1
 }

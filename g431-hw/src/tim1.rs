@@ -110,7 +110,7 @@ pub const FULL_DUTY: u16 = 10_000;
 /// the high-side gate at full duty).
 pub const MIN_LOW_SIDE_NS: u32 = 1_000;
 
-/// CCMRx output-compare modes OCxM[3:0] (RM0440 TIMx_CCMR1).
+/// CCMRx output-compare modes OCxM\[3:0\] (RM0440 TIMx_CCMR1).
 const OCM_FORCE_INACTIVE: u32 = 0b0100;
 const OCM_PWM1: u32 = 0b0110;
 
@@ -178,8 +178,8 @@ pub struct Commutation {
     pub ccer: u32,
 }
 
-/// Bits of one output-compare channel in a CCMR register, for the low (`upper = false`) or high half: OCxM[2:0]
-/// at bits 4..6, OCxM[3] at bit 16, OCxPE at bit 3; the high half is the same 8 bits up. CCxS = 00 (output).
+/// Bits of one output-compare channel in a CCMR register, for the low (`upper = false`) or high half: OCxM\[2:0\]
+/// at bits 4..6, OCxM\[3\] at bit 16, OCxPE at bit 3; the high half is the same 8 bits up. CCxS = 00 (output).
 const fn ccmr_channel(mode: PhaseMode, upper: bool) -> u32 {
     let ocm = match mode {
         PhaseMode::Switching => OCM_PWM1,
@@ -198,8 +198,8 @@ const fn ccer_channel(mode: PhaseMode, driver: &GateDriver) -> u32 {
     (enable as u32) | ((driver.ccp() as u32) << 1) | ((enable_n as u32) << 2) | ((driver.ccnp() as u32) << 3)
 }
 
-/// Dead-time ticks of a BDTR.DTG value, in t_DTS (RM0440 TIMx_BDTR DTG[7:0]):
-/// 0xx: DTG; 10x: (64 + DTG[5:0]) * 2; 110: (32 + DTG[4:0]) * 8; 111: (32 + DTG[4:0]) * 16.
+/// Dead-time ticks of a BDTR.DTG value, in t_DTS (RM0440 TIMx_BDTR DTG\[7:0\]):
+/// 0xx: DTG; 10x: (64 + DTG\[5:0\]) * 2; 110: (32 + DTG\[4:0\]) * 8; 111: (32 + DTG\[4:0\]) * 16.
 pub const fn dead_time_ticks(dtg: u8) -> u32 {
     let dtg = dtg as u32;
     if dtg & 0x80 == 0 {
@@ -231,7 +231,7 @@ pub const fn dtg_at_least(ticks: u32) -> Option<u8> {
 }
 
 /// Length of the break filter BKF in t_CK_INT with t_DTS = t_CK_INT (CR1.CKD = 00): the sampling divider times
-/// the N samples that must agree (RM0440 TIMx_BDTR BKF[3:0]); 0 for no filter.
+/// the N samples that must agree (RM0440 TIMx_BDTR BKF\[3:0\]); 0 for no filter.
 pub const fn break_filter_ticks(bkf: u8) -> u32 {
     match bkf & 0x0F {
         0 => 0,

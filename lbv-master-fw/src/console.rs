@@ -60,7 +60,7 @@ pub struct ConsoleConfig {
     /// How many thrusters are configured (at most [`MAX_THRUSTERS`]; more are ignored).
     pub thrusters: u8,
     /// The chip's 96-bit unique device id for AUTOPILOT_VERSION, as its three words read in little-endian order
-    /// (RM0440 section 48.1: UID[31:0] at 0x1FFF_7590 first). The STM32 binding reads it; the core never touches
+    /// (RM0440 section 48.1: UID\[31:0\] at 0x1FFF_7590 first). The STM32 binding reads it; the core never touches
     /// hardware. All zeros: unknown.
     pub uid: [u8; 12],
 }

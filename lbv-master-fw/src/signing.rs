@@ -52,7 +52,7 @@ pub const LINK_ID: u8 = 0;
 /// Streams remembered; the first frame of a stream beyond them is refused (the MAVLink C library keeps 16; the
 /// console's one ground station needs a few at most).
 const STREAMS: usize = 8;
-/// MAVLink 2 header: STX LEN INCOMPAT COMPAT SEQ SYS COMP MSGID[3].
+/// MAVLink 2 header: STX LEN INCOMPAT COMPAT SEQ SYS COMP MSGID\[3\].
 const V2_HEADER: usize = 10;
 const IFLAG_SIGNED: u8 = 0x01;
 

@@ -238,7 +238,7 @@ impl<'a> Executor<'a> {
     }
 
     /// Poll woken tasks until none is left woken. Returns false if tasks were still waking one another after
-    /// [`MAX_POLLS_PER_RUN`] polls (a busy loop in a task); the next run goes on from there.
+    /// `MAX_POLLS_PER_RUN` polls (a busy loop in a task); the next run goes on from there.
     pub fn run_until_idle(&mut self) -> bool {
         let mut budget = MAX_POLLS_PER_RUN;
         loop {

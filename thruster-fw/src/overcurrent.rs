@@ -11,7 +11,7 @@
 //! an interrupt per trip would be 40 000 a second under a short.
 //!
 //! The rule is a leaky count: +1 for a tick with a trip, -1 for a tick without (never below 0); the trip is
-//! sustained once the count reaches [`TripRule::ticks`]. So a trip on every tick stops the bridge after `ticks` ms,
+//! sustained once the count reaches `TripRule::ticks`. So a trip on every tick stops the bridge after `ticks` ms,
 //! trips on 3 ticks of 4 after 2 x `ticks` ms, and trips on at most every other tick never do: a propeller
 //! accelerating at the limit, or a noisy line, keeps driving. Once sustained, the trip is latched, and the
 //! binding holds the outputs off for good (BDTR with AOE and MOE cleared), until a zero-speed order clears it, as

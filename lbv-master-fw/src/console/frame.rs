@@ -17,7 +17,7 @@ const STX_V1: u8 = 0xFE;
 const STX_V2: u8 = 0xFD;
 /// STX LEN SEQ SYS COMP MSGID.
 const V1_HEADER: usize = 6;
-/// STX LEN INCOMPAT COMPAT SEQ SYS COMP MSGID[3].
+/// STX LEN INCOMPAT COMPAT SEQ SYS COMP MSGID\[3\].
 const V2_HEADER: usize = 10;
 const CHECKSUM: usize = 2;
 const SIGNATURE: usize = 13;

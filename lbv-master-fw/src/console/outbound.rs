@@ -139,7 +139,7 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 /// SYS_STATUS.
 ///
 /// - Sensors: MOTOR_OUTPUTS (present and enabled when thrusters are configured, healthy when every configured
-///   thruster is online with its status readable, [`reporting`]), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
+///   thruster is online with its status readable, `reporting`), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
 ///   enabled always, healthy with a fresh reading and no BMS alarm nor DCDC fault), RC_RECEIVER (the pilot's
 ///   control link, the ground station's heartbeats and MANUAL_CONTROL: present and enabled always, unhealthy
 ///   while a failsafe is in force, [`VehicleState::failsafe`]), PREARM_CHECK (present and enabled always, healthy
