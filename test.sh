@@ -3,9 +3,16 @@
 # tests (every virtual-bench scenario among them, on both engines), a simulated hour of the bench's soak, both
 # firmware images in release and their size report against the flash / RAM budgets, the images themselves run under
 # register-level models of the STM32G431 (rehost/), and the cores on an emulated Cortex-M4 (QEMU).
-# Usage: ./test.sh        (CI runs exactly this through .ci/run)
+# Usage: ./test.sh           the whole suite (CI runs exactly this through .ci/run)
+#        ./test.sh --quick   rustfmt, clippy for the host and the host tests only: the inner loop
 set -euo pipefail
 cd "$(dirname "$0")"
+
+case "${1:-}" in
+  "") quick=false ;;
+  --quick) quick=true ;;
+  *) echo "usage: ./test.sh [--quick]" >&2; exit 2 ;;
+esac
 
 TARGET=thumbv7em-none-eabihf
 
@@ -42,6 +49,13 @@ step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo clippy -p tmc-proto -p bat-proto --all-targets --features defmt --locked -- -D warnings
 
+if $quick; then
+  step "host tests"
+  cargo test --workspace --locked
+  step "quick checks passed (the whole suite: ./test.sh)"
+  exit 0
+fi
+
 step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
@@ -63,57 +77,44 @@ step "host tests (every bench scenario is one, on both engines)"
 cargo test --workspace --locked
 
 step "an hour of random faults and traffic on the bench (the soak)"
-cargo test -p lbv --bin lbv --locked soak_for_an_hour -- --ignored
+# --workspace: the features the host tests were built with, so nothing is built again.
+cargo test --workspace --bin lbv --locked soak_for_an_hour -- --ignored
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
   for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz; do
-    cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet
+    # One target directory for the four: libFuzzer and the shared crates are built once.
+    cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
   done
 fi
 
 step "firmware images (release, $TARGET)"
-# Each image is kept under target/images/ (the thruster's feature builds overwrite one another's ELF).
+# The images and their budgets are data, g431_hw::images::BUILDS: one line each of name, crate, features ("-" for
+# none), flash and static RAM budgets in bytes. Each image is kept under target/images/ (a crate's feature builds
+# overwrite one another's ELF).
+builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
 release="target/$TARGET/release"
 mkdir -p target/images
-cargo build --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked
-cp "$release/thruster-fw" target/images/thruster-fw
-cp "$release/lbv-master-fw" target/images/lbv-master-fw
-for features in legacy brushed motorless bringup; do
-  cargo build --release --target "$TARGET" -p thruster-fw --features "$features" --locked
-  cp "$release/thruster-fw" "target/images/thruster-fw-$features"
-done
-cargo build --release --target "$TARGET" -p lbv-master-fw --features devkit,legacy --locked
-cp "$release/lbv-master-fw" target/images/lbv-master-fw-devkit
-cargo build --release --target "$TARGET" -p lbv-master-fw --features acceptance --locked
-cp "$release/lbv-master-fw" target/images/lbv-master-fw-acceptance
+while read -r name package features _; do
+  if [ "$features" = - ]; then features=(); else features=(--features "$features"); fi
+  cargo build --release --target "$TARGET" -p "$package" "${features[@]}" --locked
+  cp "$release/$package" "target/images/$name"
+done <<<"$builds"
 
 step "image sizes"
 # Flash holds code, constants and the initial values of .data; static RAM is .data + .bss + .uninit.
-# Budgets in KiB: image flash ram. Every image must fit the 112 KiB memory.x gives it below the settings pages; the
-# vehicle's images keep 16 KiB of that spare. The acceptance image, which runs only on the dev-kit bench, carries
-# the acceptance script beside the whole console and keeps 12 KiB.
 failed=0
-while read -r image flash_kib ram_kib; do
-  arm-none-eabi-size -A "target/images/$image" | awk -v name="$image" -v fb="$flash_kib" -v rb="$ram_kib" '
+while read -r name _ _ flash_budget ram_budget; do
+  arm-none-eabi-size -A "target/images/$name" | awk -v name="$name" -v fb="$flash_budget" -v rb="$ram_budget" '
     $1 ~ /^\.(vector_table|text|rodata|data)$/ { flash += $2 }
     $1 ~ /^\.(data|bss|uninit)$/ { ram += $2 }
     END {
-      ok = flash <= fb * 1024 && ram <= rb * 1024
-      printf "%-20s flash %6d B = %5.1f of %2d KiB   static RAM %6d B = %5.1f of %2d KiB   %s\n",
-        name, flash, flash / 1024, fb, ram, ram / 1024, rb, ok ? "ok" : "OVER BUDGET"
+      ok = flash <= fb && ram <= rb
+      printf "%-25s flash %6d B = %5.1f of %3d KiB   static RAM %6d B = %5.1f of %2d KiB   %s\n",
+        name, flash, flash / 1024, fb / 1024, ram, ram / 1024, rb / 1024, ok ? "ok" : "OVER BUDGET"
       exit !ok
     }' || failed=1
-done <<'BUDGETS'
-thruster-fw        48 16
-thruster-fw-legacy 48 16
-thruster-fw-brushed 48 16
-thruster-fw-motorless 48 16
-thruster-fw-bringup 48 16
-lbv-master-fw      96 24
-lbv-master-fw-devkit 96 24
-lbv-master-fw-acceptance 100 24
-BUDGETS
+done <<<"$builds"
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 
 step "the images that ship, run under register-level models of the STM32G431 (Unicorn): boot, registers, buses, faults"

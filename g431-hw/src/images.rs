@@ -1,10 +1,18 @@
-//! The pins each firmware image uses, on its boards. The bindings take exactly these pins (a test reads their
-//! sources), assert [`check`](crate::pins::check) on them at build time, and the README's pin tables list them
-//! (a test reads those too).
+//! Each firmware image described once, as data: the pins it uses and what for, the peripherals it takes, its memory
+//! layout and its size budgets.
+//!
+//! A description is a macro that hands its rows to another macro, so the same rows become the `const` data here
+//! ([`THRUSTER`], [`MASTER`], ...: checked against the boards at build time, printed as the docs' pin tables) and,
+//! in a binding, the one struct it takes its peripherals from ([`chip!`](crate::chip)): a pin or peripheral that is
+//! not in the description is not in that struct, and one that does not fit its peripheral (SDA on a pin without
+//! that I2C's SDA function) fails embassy-stm32's trait bounds. Rows read `field: PIN @ "header" =
+//! constructor(args)`, the constructor one of [`Use`]'s and the header where a wire meets the pin on the NUCLEO.
 
+use core::fmt;
+
+use crate::memory::{self, KIB, Layout};
 use crate::pins::Mode::{Alternate, Analog, Input};
-use crate::pins::Port::{A, B, C};
-use crate::pins::{Board, IHM08M1, Image, Mode, NUCLEO_G431RB, Pull, Use, af, i2c, pin};
+use crate::pins::{Board, IHM08M1, Image, Mode, NUCLEO_G431RB, Pull, af, i2c};
 
 /// The hall inputs with their internal pull-ups, which hold a line high whenever an open-collector sensor lets go.
 const HALL: Mode = Input(Pull::Up);
@@ -12,89 +20,211 @@ const HALL: Mode = Input(Pull::Up);
 /// The thruster's boards.
 const POWER_STAGE: &[&Board] = &[&NUCLEO_G431RB, &IHM08M1];
 
-/// Pins every thruster image with a power stage uses.
-macro_rules! thruster_pins {
-    ($($extra:expr),* $(,)?) => {
-        &[
-            Use::digital(pin(C, 8), "I2C slave SCL", i2c("I2C3_SCL", 8)),
-            // I2C3's other SDA pin (AF8): PC9 carries the IHM08M1's GPIO_BEMF.
-            Use::digital(pin(C, 11), "I2C slave SDA", i2c("I2C3_SDA", 8)),
-            Use::of(pin(A, 8), "phase A high", "UH", af("TIM1_CH1", 6)),
-            Use::of(pin(A, 7), "phase A low", "UL", af("TIM1_CH1N", 6)),
-            Use::of(pin(A, 9), "phase B high", "VH", af("TIM1_CH2", 6)),
-            Use::of(pin(B, 0), "phase B low", "VL", af("TIM1_CH2N", 6)),
-            Use::of(pin(A, 10), "phase C high", "WH", af("TIM1_CH3", 6)),
-            Use::of(pin(B, 1), "phase C low", "WL", af("TIM1_CH3N", 6)),
-            // Pulled up: the comparators only pull the line low.
-            Use::of(pin(A, 6), "overcurrent break", "BKIN", Alternate { signal: "TIM1_BKIN", af: 6, pull: Pull::Up }),
-            Use::of(pin(A, 15), "hall H1", "H1", HALL),
-            Use::of(pin(B, 3), "hall H2", "H2", HALL),
-            Use::of(pin(B, 10), "hall H3", "H3", HALL),
-            Use::of(pin(A, 0), "motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
-            // The one ADC pin neither board touches; PC3, used before, carries the IHM08M1's BEMF1.
-            Use::analog(pin(B, 12), "water sensor", 11),
-            $($extra,)*
-        ]
+/// The rows of every thruster image with a power stage, then `$extra`, handed to `$then`.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! power_stage_rows {
+    ([$($then:ident)::+] [$($arg:tt)*] $($extra:tt)*) => {
+        $($then)::+! { [$($arg)*]
+            pins {
+                scl: PC8 @ "CN10 2" = digital("I2C slave SCL", i2c("I2C3_SCL", 8)),
+                // I2C3's other SDA pin (AF8): PC9 carries the IHM08M1's GPIO_BEMF.
+                sda: PC11 @ "CN7 2" = digital("I2C slave SDA", i2c("I2C3_SDA", 8)),
+                uh: PA8 = of("phase A high", "UH", af("TIM1_CH1", 6)),
+                ul: PA7 = of("phase A low", "UL", af("TIM1_CH1N", 6)),
+                vh: PA9 = of("phase B high", "VH", af("TIM1_CH2", 6)),
+                vl: PB0 = of("phase B low", "VL", af("TIM1_CH2N", 6)),
+                wh: PA10 = of("phase C high", "WH", af("TIM1_CH3", 6)),
+                wl: PB1 = of("phase C low", "WL", af("TIM1_CH3N", 6)),
+                // Pulled up: the comparators only pull the line low.
+                bkin: PA6 = of("overcurrent break", "BKIN", Alternate { signal: "TIM1_BKIN", af: 6, pull: Pull::Up }),
+                h1: PA15 = of("hall H1", "H1", HALL),
+                h2: PB3 = of("hall H2", "H2", HALL),
+                h3: PB10 = of("hall H3", "H3", HALL),
+                current: PA0 = of("motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
+                // The one ADC pin neither board touches; PC3, used before, carries the IHM08M1's BEMF1.
+                water: PB12 @ "CN10 16" = analog("water sensor", 11),
+                $($extra)*
+            }
+            peripherals {
+                slave: I2C3 = "I2C slave",
+                slave_tx_dma: DMA1_CH1 = "I2C slave transmit DMA",
+                slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
+                bridge: TIM1 = "the bridge's PWM and break",
+                h1_exti: EXTI15 = "hall H1 edges",
+                h2_exti: EXTI3 = "hall H2 edges",
+                h3_exti: EXTI10 = "hall H3 edges",
+                adc: ADC1 = "water, NTC and current",
+                watchdog: IWDG = "independent watchdog",
+            }
+        }
     };
 }
 
-/// The brushless thruster: the motor's NTC on PB11 (ADC1 IN14), which the IHM08M1 also feeds BEMF2 through R60.
-/// BEMF2 reaches PC4 through R61 as well, so R60 is removed and nothing is lost.
+/// The brushless thruster's description (see the module's documentation): the motor's NTC on PB11 (ADC1 IN14),
+/// which the IHM08M1 also feeds BEMF2 through R60. BEMF2 reaches PC4 through R61 as well, so R60 is removed and
+/// nothing is lost.
+#[macro_export]
+macro_rules! thruster_image {
+    ($($then:ident)::+ $(, $arg:tt)*) => {
+        $crate::power_stage_rows! { [$($then)::+] [$($arg),*]
+            ntc: PB11 @ "CN10 18" = analog("motor NTC", 14),
+        }
+    };
+}
+
+/// The brushed thruster's description: TEMPERATURE is the controller's (IDS 8.4.2), the IHM08M1's power-stage
+/// NTC on PC2.
+#[macro_export]
+macro_rules! thruster_brushed_image {
+    ($($then:ident)::+ $(, $arg:tt)*) => {
+        $crate::power_stage_rows! { [$($then)::+] [$($arg),*]
+            ntc: PC2 = of("power-stage NTC", "TEMPERATURE", Analog { adc1_in: 8 }),
+        }
+    };
+}
+
+/// The motor-less thruster's description, on a bare NUCLEO: the I2C slave, the real water-sensor pin and B1
+/// holding the model's rotor.
+#[macro_export]
+macro_rules! thruster_motorless_image {
+    ($($then:ident)::+ $(, $arg:tt)*) => {
+        $($then)::+! { [$($arg),*]
+            pins {
+                scl: PC8 @ "CN10 2" = digital("I2C slave SCL", i2c("I2C3_SCL", 8)),
+                sda: PC11 @ "CN7 2" = digital("I2C slave SDA", i2c("I2C3_SDA", 8)),
+                water: PB12 @ "CN10 16" = analog("water sensor", 11),
+                // B1 connects PC13 to 3V3 when pressed (MB1367): pulled down, it reads low when released.
+                hold: PC13 = of("model rotor hold", "B1", Input(Pull::Down)),
+            }
+            peripherals {
+                slave: I2C3 = "I2C slave",
+                slave_tx_dma: DMA1_CH1 = "I2C slave transmit DMA",
+                slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
+                adc: ADC1 = "water sensor",
+                watchdog: IWDG = "independent watchdog",
+            }
+        }
+    };
+}
+
+/// The master's description, on a bare NUCLEO.
+#[macro_export]
+macro_rules! master_image {
+    ($($then:ident)::+ $(, $arg:tt)*) => {
+        $($then)::+! { [$($arg),*]
+            pins {
+                bus1_scl: PA15 @ "CN7 17" = digital("thruster bus 1 SCL", i2c("I2C1_SCL", 4)),
+                bus1_sda: PB7 @ "CN7 21" = digital("thruster bus 1 SDA", i2c("I2C1_SDA", 4)),
+                bus2_scl: PA9 @ "Arduino D8" = digital("thruster bus 2 SCL", i2c("I2C2_SCL", 4)),
+                bus2_sda: PA8 @ "Arduino D7" = digital("thruster bus 2 SDA", i2c("I2C2_SDA", 4)),
+                bus3_scl: PC8 @ "CN10 2" = digital("thruster bus 3 SCL", i2c("I2C3_SCL", 8)),
+                bus3_sda: PC9 @ "CN10 1" = digital("thruster bus 3 SDA", i2c("I2C3_SDA", 8)),
+                can_rx: PA11 @ "CN10 14" = digital("battery CAN RX", af("FDCAN1_RX", 9)),
+                can_tx: PA12 @ "CN10 12" = digital("battery CAN TX", af("FDCAN1_TX", 9)),
+                console_tx: PA2 = of("console TX", "VCP (ST-LINK RX)", af("LPUART1_TX", 12)),
+                console_rx: PA3 = of("console RX", "VCP (ST-LINK TX)", af("LPUART1_RX", 12)),
+            }
+            peripherals {
+                bus1: I2C1 = "thruster bus 1",
+                bus1_tx_dma: DMA1_CH1 = "thruster bus 1 transmit DMA",
+                bus1_rx_dma: DMA1_CH2 = "thruster bus 1 receive DMA",
+                bus2: I2C2 = "thruster bus 2",
+                bus2_tx_dma: DMA1_CH3 = "thruster bus 2 transmit DMA",
+                bus2_rx_dma: DMA1_CH4 = "thruster bus 2 receive DMA",
+                bus3: I2C3 = "thruster bus 3",
+                bus3_tx_dma: DMA1_CH5 = "thruster bus 3 transmit DMA",
+                bus3_rx_dma: DMA1_CH6 = "thruster bus 3 receive DMA",
+                can: FDCAN1 = "battery CAN, 1 Mbit/s",
+                console: LPUART1 = "console, MAVLink v2 at 115200 baud",
+                flash: FLASH = "the settings pages",
+            }
+        }
+    };
+}
+
+/// A description's pins as [`Use`]s.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! description_uses {
+    ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {
+        &[$($crate::pins::Use::$use($crate::pins::Pin::named(stringify!($pin)), $($args)*) $(.at($header))?),*]
+    };
+}
+
+/// A description's peripherals as [`Peripheral`](crate::pins::Peripheral)s.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! description_peripherals {
+    ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {
+        &[$($crate::pins::Peripheral { name: stringify!($name), function: $what }),*]
+    };
+}
+
+/// In a binding: `let chip = g431_hw::chip!(master_image, chip);`, with `chip` the `embassy_stm32::Peripherals`,
+/// moves the description's pins and peripherals out of `chip` into a struct with one field per row and gives it
+/// back. Bound to the name `chip` again, it leaves nothing else of the chip in reach.
+#[macro_export]
+macro_rules! chip {
+    ($description:ident, $peripherals:ident) => {
+        $crate::$description!($crate::chip_take, $peripherals)
+    };
+}
+
+#[doc(hidden)]
+#[macro_export]
+macro_rules! chip_take {
+    ([$chip:ident] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {{
+        /// The pins and peripherals of the image's description (`g431_hw::images`).
+        #[allow(dead_code)]
+        struct Chip {
+            $($field: ::embassy_stm32::Peri<'static, ::embassy_stm32::peripherals::$pin>,)*
+            $($peripheral: ::embassy_stm32::Peri<'static, ::embassy_stm32::peripherals::$name>,)*
+        }
+        Chip { $($field: $chip.$pin,)* $($peripheral: $chip.$name,)* }
+    }};
+}
+
+/// The brushless thruster on its boards.
 pub const THRUSTER: Image = Image {
     name: "thruster-fw",
     boards: POWER_STAGE,
     removed: &["R60"],
-    uses: thruster_pins!(Use::analog(pin(B, 11), "motor NTC", 14)),
+    uses: crate::thruster_image!(crate::description_uses),
+    peripherals: crate::thruster_image!(crate::description_peripherals),
 };
 
-/// The brushed thruster: TEMPERATURE is the controller's (IDS 8.4.2), the IHM08M1's power-stage NTC on PC2.
+/// The brushed thruster on its boards.
 pub const THRUSTER_BRUSHED: Image = Image {
     name: "thruster-fw (brushed)",
     boards: POWER_STAGE,
     removed: &[],
-    uses: thruster_pins!(Use::of(
-        pin(C, 2),
-        "power-stage NTC",
-        "TEMPERATURE",
-        Analog { adc1_in: 8 }
-    )),
+    uses: crate::thruster_brushed_image!(crate::description_uses),
+    peripherals: crate::thruster_brushed_image!(crate::description_peripherals),
 };
 
-/// The motor-less thruster on a bare NUCLEO: the I2C slave, the real water-sensor pin and B1 holding the model's
-/// rotor.
+/// The motor-less thruster on a bare NUCLEO.
 pub const THRUSTER_MOTORLESS: Image = Image {
     name: "thruster-fw (motorless)",
     boards: &[&NUCLEO_G431RB],
     removed: &[],
-    uses: &[
-        Use::digital(pin(C, 8), "I2C slave SCL", i2c("I2C3_SCL", 8)),
-        Use::digital(pin(C, 11), "I2C slave SDA", i2c("I2C3_SDA", 8)),
-        Use::analog(pin(B, 12), "water sensor", 11),
-        // B1 connects PC13 to 3V3 when pressed (MB1367): pulled down, it reads low when released.
-        Use::of(pin(C, 13), "model rotor hold", "B1", Input(Pull::Down)),
-    ],
+    uses: crate::thruster_motorless_image!(crate::description_uses),
+    peripherals: crate::thruster_motorless_image!(crate::description_peripherals),
 };
 
-/// The master node on a bare NUCLEO.
+/// The master on a bare NUCLEO.
 pub const MASTER: Image = Image {
     name: "lbv-master-fw",
     boards: &[&NUCLEO_G431RB],
     removed: &[],
-    uses: &[
-        Use::digital(pin(A, 15), "thruster bus 1 SCL", i2c("I2C1_SCL", 4)),
-        Use::digital(pin(B, 7), "thruster bus 1 SDA", i2c("I2C1_SDA", 4)),
-        Use::digital(pin(A, 9), "thruster bus 2 SCL", i2c("I2C2_SCL", 4)),
-        Use::digital(pin(A, 8), "thruster bus 2 SDA", i2c("I2C2_SDA", 4)),
-        Use::digital(pin(C, 8), "thruster bus 3 SCL", i2c("I2C3_SCL", 8)),
-        Use::digital(pin(C, 9), "thruster bus 3 SDA", i2c("I2C3_SDA", 8)),
-        Use::digital(pin(A, 11), "battery CAN RX", af("FDCAN1_RX", 9)),
-        Use::digital(pin(A, 12), "battery CAN TX", af("FDCAN1_TX", 9)),
-        Use::of(pin(A, 2), "console TX", "VCP (ST-LINK RX)", af("LPUART1_TX", 12)),
-        Use::of(pin(A, 3), "console RX", "VCP (ST-LINK TX)", af("LPUART1_RX", 12)),
-    ],
+    uses: crate::master_image!(crate::description_uses),
+    peripherals: crate::master_image!(crate::description_peripherals),
 };
 
-/// Every image.
+/// Every image's pins.
 pub const ALL: [&Image; 4] = [&THRUSTER, &THRUSTER_BRUSHED, &THRUSTER_MOTORLESS, &MASTER];
 
 const _: () = {
@@ -105,74 +235,233 @@ const _: () = {
     }
 };
 
+/// One firmware image as `./test.sh` builds it, and what it may take of the chip.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Build {
+    /// Its file under `target/images/`.
+    pub name: &'static str,
+    /// The crate it is built from.
+    pub package: &'static str,
+    /// The Cargo features it is built with, comma separated.
+    pub features: &'static str,
+    /// Its pins and peripherals.
+    pub image: &'static Image,
+    /// Its memory layout, printed as its `memory.x`.
+    pub layout: &'static Layout,
+    /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the vehicle's images keep
+    /// 16 KiB of their `FLASH` region spare; the acceptance image, which runs only on the dev-kit bench and
+    /// carries its script beside the whole console, keeps 12 KiB.
+    pub flash_budget: u32,
+    /// Its budget for static RAM (`.data`, `.bss`, `.uninit`), in bytes; the rest of the RAM is stack.
+    pub ram_budget: u32,
+}
+
+const fn thruster(name: &'static str, features: &'static str, image: &'static Image) -> Build {
+    Build {
+        name,
+        package: "thruster-fw",
+        features,
+        image,
+        layout: &memory::G431RB,
+        flash_budget: 48 * KIB,
+        ram_budget: 16 * KIB,
+    }
+}
+
+const fn master(name: &'static str, features: &'static str, flash_budget: u32) -> Build {
+    Build {
+        name,
+        package: "lbv-master-fw",
+        features,
+        image: &MASTER,
+        layout: &memory::G431RB,
+        flash_budget,
+        ram_budget: 24 * KIB,
+    }
+}
+
+/// Every image `./test.sh` builds and holds to its budgets.
+pub const BUILDS: [Build; 8] = [
+    thruster("thruster-fw", "", &THRUSTER),
+    thruster("thruster-fw-legacy", "legacy", &THRUSTER),
+    thruster("thruster-fw-brushed", "brushed", &THRUSTER_BRUSHED),
+    thruster("thruster-fw-motorless", "motorless", &THRUSTER_MOTORLESS),
+    thruster("thruster-fw-bringup", "bringup", &THRUSTER),
+    master("lbv-master-fw", "", 96 * KIB),
+    master("lbv-master-fw-devkit", "devkit,legacy", 96 * KIB),
+    master("lbv-master-fw-acceptance", "acceptance", 100 * KIB),
+];
+
+/// The one memory layout of every image built from `package`.
+pub fn layout_of(package: &str) -> Result<&'static Layout, LayoutOfError> {
+    let mut layouts = BUILDS
+        .iter()
+        .filter(|build| build.package == package)
+        .map(|build| build.layout);
+    let layout = layouts.next().ok_or(LayoutOfError::Unknown)?;
+    if layouts.any(|other| other != layout) {
+        return Err(LayoutOfError::Several);
+    }
+    Ok(layout)
+}
+
+/// Why a crate has no one memory layout.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LayoutOfError {
+    /// No image is built from it.
+    Unknown,
+    /// Its images differ in layout: its build script would have to tell them apart by their features.
+    Several,
+}
+
+impl fmt::Display for LayoutOfError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            LayoutOfError::Unknown => "no image in g431_hw::images::BUILDS is built from this crate",
+            LayoutOfError::Several => "this crate's images in g431_hw::images::BUILDS differ in memory layout",
+        })
+    }
+}
+
+impl core::error::Error for LayoutOfError {}
+
+// Every budget fits its layout's FLASH and RAM regions.
+const _: () = {
+    let mut rest: &[Build] = &BUILDS;
+    while let [build, tail @ ..] = rest {
+        assert!(memory::check(build.layout).is_ok());
+        let (Some(flash), Some(ram)) = (build.layout.region("FLASH"), build.layout.region("RAM")) else {
+            panic!("a layout without FLASH or RAM");
+        };
+        assert!(build.flash_budget <= flash.span.length && build.ram_budget <= ram.span.length);
+        rest = tail;
+    }
+};
+
+/// Write the pin table of `images` (each with the name its column gives it) as a Markdown table, one row per
+/// distinct use: the docs' tables are this output (`cargo run -p g431-hw --bin images -- docs --write`).
+pub fn write_pin_table(images: &[(&str, &Image)], out: &mut impl fmt::Write) -> fmt::Result {
+    let several = images.len() > 1;
+    write!(out, "| function | pin | set up as | on the boards |")?;
+    if several {
+        write!(out, " builds |")?;
+    }
+    write!(out, "\n|---|---|---|---|")?;
+    if several {
+        write!(out, "---|")?;
+    }
+    writeln!(out)?;
+    for (index, (_, image)) in images.iter().enumerate() {
+        for used in image.uses {
+            let earlier = images.iter().take(index).any(|(_, other)| other.uses.contains(used));
+            if earlier {
+                continue;
+            }
+            write!(out, "| {} | {}", used.function, used.pin)?;
+            if let Some(header) = used.header {
+                write!(out, " ({header})")?;
+            }
+            write!(out, " | ")?;
+            write_mode(used.mode, out)?;
+            write!(out, " | ")?;
+            match used.signal {
+                Some(signal) => {
+                    write!(out, "{signal}")?;
+                    if let Some((board, via)) = board_of(image, used.pin, signal) {
+                        write!(out, " ({board}")?;
+                        if let Some(via) = via {
+                            write!(out, ", {via}")?;
+                        }
+                        write!(out, ")")?;
+                    }
+                }
+                None => write!(out, "free")?,
+            }
+            write!(out, " |")?;
+            if several {
+                let mut users = images.iter().filter(|(_, other)| other.uses.contains(used));
+                if users.clone().count() == images.len() {
+                    write!(out, " all")?;
+                } else {
+                    let mut first = true;
+                    for (name, _) in users.by_ref() {
+                        write!(out, "{} {name}", if first { "" } else { "," })?;
+                        first = false;
+                    }
+                }
+                write!(out, " |")?;
+            }
+            writeln!(out)?;
+        }
+    }
+    Ok(())
+}
+
+/// Write the peripherals `image` takes besides its pins as a Markdown table.
+pub fn write_peripheral_table(image: &Image, out: &mut impl fmt::Write) -> fmt::Result {
+    writeln!(out, "| peripheral | for |\n|---|---|")?;
+    for peripheral in image.peripherals {
+        writeln!(out, "| {} | {} |", peripheral.name, peripheral.function)?;
+    }
+    Ok(())
+}
+
+fn write_mode(mode: Mode, out: &mut impl fmt::Write) -> fmt::Result {
+    let pull = |pull| match pull {
+        Pull::None => "",
+        Pull::Up => ", pull-up",
+        Pull::Down => ", pull-down",
+    };
+    match mode {
+        Alternate { signal, af, pull: p } => write!(out, "{signal} (AF{af}){}", pull(p)),
+        Mode::AlternateOpenDrain { signal, af } => write!(out, "{signal} (AF{af}), open drain"),
+        Input(p) => write!(out, "input{}", pull(p)),
+        Analog { adc1_in } => write!(out, "ADC1 IN{adc1_in}"),
+    }
+}
+
+/// The board of `image` that puts `signal` on `pin`, and the link it goes through.
+fn board_of(image: &Image, pin: crate::pins::Pin, signal: &str) -> Option<(&'static str, Option<&'static str>)> {
+    image.boards.iter().find_map(|board| {
+        board
+            .signals
+            .iter()
+            .find(|s| s.pin == pin && s.name == signal)
+            .map(|s| (board.name, s.via))
+    })
+}
+
+/// The docs' generated tables, by the marker that opens each: `<!-- generated: NAME -->` ... `<!-- end -->`.
+pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Result> {
+    Some(match name {
+        "thruster pins" => write_pin_table(
+            &[
+                ("brushless", &THRUSTER),
+                ("brushed", &THRUSTER_BRUSHED),
+                ("motorless", &THRUSTER_MOTORLESS),
+            ],
+            out,
+        ),
+        "thruster peripherals" => write_peripheral_table(&THRUSTER, out),
+        "master pins" => write_pin_table(&[("", &MASTER)], out),
+        "master peripherals" => write_peripheral_table(&MASTER, out),
+        _ => return None,
+    })
+}
+
+/// The names of the docs' generated tables.
+pub const DOCS_TABLES: [&str; 4] = [
+    "thruster pins",
+    "thruster peripherals",
+    "master pins",
+    "master peripherals",
+];
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pins::{Conflict, Pin, Port, check};
-    use std::collections::BTreeSet;
-
-    fn pins_of(images: &[&Image]) -> BTreeSet<Pin> {
-        images
-            .iter()
-            .flat_map(|image| image.uses.iter().map(|used| used.pin))
-            .collect()
-    }
-
-    /// Every `p.PXn` in a binding's source: the pins it takes from embassy-stm32.
-    fn pins_in_source(source: &str) -> BTreeSet<Pin> {
-        let mut found = BTreeSet::new();
-        for (at, _) in source.match_indices("p.P") {
-            let rest = &source[at + 3..];
-            let mut chars = rest.chars();
-            let port = match chars.next() {
-                Some('A') => Port::A,
-                Some('B') => Port::B,
-                Some('C') => Port::C,
-                Some('D') => Port::D,
-                Some('F') => Port::F,
-                Some('G') => Port::G,
-                _ => continue,
-            };
-            let digits: String = chars.take_while(char::is_ascii_digit).collect();
-            if let Ok(number) = digits.parse() {
-                found.insert(pin(port, number));
-            }
-        }
-        found
-    }
-
-    /// The (function, pin) rows of the first table after `heading` in the README.
-    fn readme_rows(heading: &str) -> BTreeSet<(String, Pin)> {
-        let readme = include_str!("../../README.md");
-        let section = readme.split(heading).nth(1).expect("README section");
-        let mut rows = BTreeSet::new();
-        let mut in_table = false;
-        for line in section.lines() {
-            if !line.starts_with('|') {
-                if in_table {
-                    break;
-                }
-                continue;
-            }
-            in_table = true;
-            let cells: Vec<&str> = line.split('|').map(str::trim).collect();
-            let (Some(function), Some(pin_cell)) = (cells.get(1), cells.get(2)) else {
-                continue;
-            };
-            let pins = pins_in_source(&format!("p.{pin_cell}"));
-            if let Some(pin) = pins.into_iter().next() {
-                rows.insert((function.to_string(), pin));
-            }
-        }
-        rows
-    }
-
-    fn rows_of(images: &[&Image]) -> BTreeSet<(String, Pin)> {
-        images
-            .iter()
-            .flat_map(|image| image.uses.iter().map(|used| (used.function.to_string(), used.pin)))
-            .collect()
-    }
+    use crate::pins::Port::{A, B, C};
+    use crate::pins::{Conflict, Use, check, pin};
 
     #[test]
     fn every_image_fits_its_boards() {
@@ -191,6 +480,7 @@ mod tests {
             Use::digital(pin(C, 9), "I2C slave SDA", i2c("I2C3_SDA", 8)),
             Use::analog(pin(C, 3), "water sensor", 9),
         ],
+        peripherals: &[],
     };
 
     #[test]
@@ -260,32 +550,55 @@ mod tests {
         assert_eq!(check(&THRUSTER), Ok(()));
     }
 
+    /// The docs' tables are the data's: `cargo run -p g431-hw --bin images -- docs --write` rewrites them.
     #[test]
-    fn the_bindings_take_exactly_these_pins() {
-        let thruster = [
-            include_str!("../../thruster-fw/src/stm32.rs"),
-            include_str!("../../thruster-fw/src/board.rs"),
-        ]
-        .concat();
-        assert_eq!(
-            pins_in_source(&thruster),
-            pins_of(&[&THRUSTER, &THRUSTER_BRUSHED, &THRUSTER_MOTORLESS])
-        );
-        let master = [
-            include_str!("../../lbv-master-fw/src/stm32.rs"),
-            include_str!("../../lbv-master-fw/src/board.rs"),
-        ]
-        .concat();
-        assert_eq!(pins_in_source(&master), pins_of(&[&MASTER]));
+    fn the_docs_tables_are_generated_from_the_descriptions() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/hardware.md");
+        let docs = std::fs::read_to_string(path).expect("docs/hardware.md");
+        for name in DOCS_TABLES {
+            let open = format!("<!-- generated: {name} -->\n");
+            let start = docs
+                .find(&open)
+                .unwrap_or_else(|| panic!("docs/hardware.md has no {open:?}"))
+                + open.len();
+            let end = start + docs[start..].find("<!-- end -->").expect("the table's end marker");
+            let mut table = String::new();
+            write_docs_table(name, &mut table)
+                .expect("a known table")
+                .expect("written");
+            assert_eq!(
+                docs[start..end],
+                table,
+                "docs/hardware.md's {name} table is not the data's: regenerate it"
+            );
+        }
     }
 
     #[test]
-    fn the_readme_tables_agree() {
-        assert_eq!(
-            readme_rows("### Thruster board pins"),
-            rows_of(&[&THRUSTER, &THRUSTER_BRUSHED, &THRUSTER_MOTORLESS])
+    fn a_pin_table_row_says_where_and_how() {
+        let mut table = String::new();
+        write_pin_table(&[("brushless", &THRUSTER), ("brushed", &THRUSTER_BRUSHED)], &mut table).unwrap();
+        assert!(
+            table.contains("| I2C slave SDA | PC11 (CN7 2) | I2C3_SDA (AF8), open drain | free | all |\n"),
+            "{table}"
         );
-        assert_eq!(readme_rows("### Master board pins"), rows_of(&[&MASTER]));
+        assert!(table.contains("| phase A low | PA7 | TIM1_CH1N (AF6) | UL (X-NUCLEO-IHM08M1, R58) | all |\n"));
+        assert!(table.contains("| motor NTC | PB11 (CN10 18) | ADC1 IN14 | free | brushless |\n"));
+        assert!(table.contains("| hall H1 | PA15 | input, pull-up | H1 (X-NUCLEO-IHM08M1, R79) | all |\n"));
+    }
+
+    /// A description's rows are the binding's fields: the `chip!` expansion names each pin's embassy-stm32 type.
+    #[test]
+    fn descriptions_expand_to_pin_names() {
+        macro_rules! pin_names {
+            ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
+                peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {
+                [$(stringify!($pin)),*]
+            };
+        }
+        let names = crate::master_image!(pin_names);
+        let pins: Vec<String> = MASTER.uses.iter().map(|used| used.pin.to_string()).collect();
+        assert_eq!(names.to_vec(), pins);
     }
 
     /// Every alternate function and ADC channel an image names is the one ST's data gives that pin (stm32-metapac's

@@ -19,5 +19,6 @@ pub mod fdcan;
 pub mod i2c;
 pub mod images;
 pub mod iwdg;
+pub mod memory;
 pub mod pins;
 pub mod tim1;

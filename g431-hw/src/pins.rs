@@ -21,6 +21,7 @@
 //!         Use::digital(pin(C, 8), "I2C3 SCL", pins::i2c("I2C3_SCL", 8)),
 //!         Use::digital(pin(C, 9), "I2C3 SDA", pins::i2c("I2C3_SDA", 8)),
 //!     ],
+//!     peripherals: &[],
 //! };
 //! const _: () = assert!(pins::check(&OLD).is_ok());
 //! ```
@@ -71,6 +72,38 @@ pub const fn pin(port: Port, number: u8) -> Pin {
 }
 
 impl Pin {
+    /// The pin of a name as the datasheet and embassy-stm32 write it, `"PA15"`; in a `const`, a name that is not a
+    /// pin fails the build.
+    pub const fn named(name: &str) -> Pin {
+        let (port, number) = match name.as_bytes() {
+            [b'P', port, digit @ b'0'..=b'9'] => (*port, Some(*digit - b'0')),
+            [b'P', port, b'1', digit @ b'0'..=b'5'] => (*port, Some(10 + *digit - b'0')),
+            _ => (0, None),
+        };
+        let port = match port {
+            b'A' => Some(Port::A),
+            b'B' => Some(Port::B),
+            b'C' => Some(Port::C),
+            b'D' => Some(Port::D),
+            b'F' => Some(Port::F),
+            b'G' => Some(Port::G),
+            _ => None,
+        };
+        match (port, number) {
+            (Some(port), Some(number)) => Pin { port, number },
+            _ => {
+                assert!(
+                    port.is_some() && number.is_some(),
+                    "a pin's name is P, a port letter and 0 to 15"
+                );
+                Pin {
+                    port: Port::A,
+                    number: 0,
+                }
+            }
+        }
+    }
+
     const fn is(self, other: Pin) -> bool {
         self.port as u8 == other.port as u8 && self.number == other.number
     }
@@ -169,6 +202,8 @@ pub struct Use {
     pub signal: Option<&'static str>,
     /// How the image sets it up.
     pub mode: Mode,
+    /// Where a wire meets it on the NUCLEO's headers ("CN10 2"), when one does (a shield's pins have none).
+    pub header: Option<&'static str>,
 }
 
 impl Use {
@@ -179,6 +214,7 @@ impl Use {
             function,
             signal: None,
             mode,
+            header: None,
         }
     }
 
@@ -189,6 +225,7 @@ impl Use {
             function,
             signal: None,
             mode: Mode::Analog { adc1_in },
+            header: None,
         }
     }
 
@@ -199,6 +236,15 @@ impl Use {
             function,
             signal: Some(signal),
             mode,
+            header: None,
+        }
+    }
+
+    /// The same use, wired at `header` ("CN10 2").
+    pub const fn at(self, header: &'static str) -> Use {
+        Use {
+            header: Some(header),
+            ..self
         }
     }
 
@@ -219,6 +265,17 @@ pub struct Image {
     pub removed: &'static [&'static str],
     /// The pins it uses.
     pub uses: &'static [Use],
+    /// The peripherals it uses besides the pins.
+    pub peripherals: &'static [Peripheral],
+}
+
+/// A peripheral an image uses, with its name in embassy-stm32 and ST's documents (`I2C3`, `DMA1_CH1`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Peripheral {
+    /// Its name.
+    pub name: &'static str,
+    /// What the image uses it for.
+    pub function: &'static str,
 }
 
 /// Why an image does not fit its boards.
@@ -243,7 +300,7 @@ pub enum Conflict {
 }
 
 /// `a == b`, in a `const fn`.
-const fn same(a: &str, b: &str) -> bool {
+pub(crate) const fn same(a: &str, b: &str) -> bool {
     let (mut a, mut b) = (a.as_bytes(), b.as_bytes());
     loop {
         match (a, b) {

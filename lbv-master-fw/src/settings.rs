@@ -421,25 +421,15 @@ mod tests {
     }
 
     #[test]
-    fn the_storage_pages_are_memory_x_s() {
-        // memory.x keeps the images out of the top 16 KiB; the store uses exactly that.
-        let memory_x = include_str!("../../memory.x");
-        let line = |name: &str| {
-            memory_x
-                .lines()
-                .find(|line| line.trim_start().starts_with(name))
-                .unwrap_or_else(|| panic!("memory.x has no {name} region"))
-                .to_owned()
-        };
-        assert!(
-            line("FLASH").contains("ORIGIN = 0x08000000, LENGTH = 112K"),
-            "{}",
-            line("FLASH")
-        );
-        assert!(
-            line("STORAGE").contains("ORIGIN = 0x0801C000, LENGTH = 16K"),
-            "{}",
-            line("STORAGE")
+    fn the_storage_pages_are_the_layout_s() {
+        // The image's memory layout (its memory.x) keeps the images out of the top 16 KiB; the store uses exactly
+        // that.
+        let layout = g431_hw::images::layout_of("lbv-master-fw").unwrap();
+        let storage = layout.region("STORAGE").expect("a STORAGE region").span;
+        let flash = g431_hw::memory::FLASH;
+        assert_eq!(
+            G431_STORAGE,
+            storage.origin - flash.origin..storage.end() - flash.origin
         );
         assert_eq!(G431_STORAGE, 0x1_C000..0x1_C000 + 16 * 1024);
         assert_eq!((G431_STORAGE.end - G431_STORAGE.start) % 2048, 0, "whole 2 KiB pages");

@@ -61,54 +61,62 @@ const WORK: Work = lbv_master_fw::acceptance::Script(acceptance::Person);
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    let p = embassy_stm32::init(clocks());
+    // The chip as the image's description (`g431_hw::images`) gives it: nothing else of it is in reach.
+    let chip = embassy_stm32::init(clocks());
+    let mut chip = g431_hw::chip!(master_image, chip);
     info!("lbv-master-fw: {} thrusters", CONFIG.thrusters.count());
 
     let mut i2c_config = i2c::Config::default();
     i2c_config.frequency = Hertz(CONFIG.bus.frequency_hz);
     i2c_config.timeout = CONFIG.bus.timeout;
     let bus1 = ThrusterBus {
-        i2c: I2c::new(p.I2C1, p.PA15, p.PB7, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config),
+        scl: Pin::of(chip.bus1_scl.reborrow()),
+        sda: Pin::of(chip.bus1_sda.reborrow()),
+        i2c: I2c::new(
+            chip.bus1,
+            chip.bus1_scl,
+            chip.bus1_sda,
+            chip.bus1_tx_dma,
+            chip.bus1_rx_dma,
+            Irqs,
+            i2c_config,
+        ),
         regs: pac::I2C1,
-        scl: Pin {
-            port: pac::GPIOA,
-            number: 15,
-        },
-        sda: Pin {
-            port: pac::GPIOB,
-            number: 7,
-        },
     };
     let bus2 = ThrusterBus {
-        i2c: I2c::new(p.I2C2, p.PA9, p.PA8, p.DMA1_CH3, p.DMA1_CH4, Irqs, i2c_config),
+        scl: Pin::of(chip.bus2_scl.reborrow()),
+        sda: Pin::of(chip.bus2_sda.reborrow()),
+        i2c: I2c::new(
+            chip.bus2,
+            chip.bus2_scl,
+            chip.bus2_sda,
+            chip.bus2_tx_dma,
+            chip.bus2_rx_dma,
+            Irqs,
+            i2c_config,
+        ),
         regs: pac::I2C2,
-        scl: Pin {
-            port: pac::GPIOA,
-            number: 9,
-        },
-        sda: Pin {
-            port: pac::GPIOA,
-            number: 8,
-        },
     };
     let bus3 = ThrusterBus {
-        i2c: I2c::new(p.I2C3, p.PC8, p.PC9, p.DMA1_CH5, p.DMA1_CH6, Irqs, i2c_config),
+        scl: Pin::of(chip.bus3_scl.reborrow()),
+        sda: Pin::of(chip.bus3_sda.reborrow()),
+        i2c: I2c::new(
+            chip.bus3,
+            chip.bus3_scl,
+            chip.bus3_sda,
+            chip.bus3_tx_dma,
+            chip.bus3_rx_dma,
+            Irqs,
+            i2c_config,
+        ),
         regs: pac::I2C3,
-        scl: Pin {
-            port: pac::GPIOC,
-            number: 8,
-        },
-        sda: Pin {
-            port: pac::GPIOC,
-            number: 9,
-        },
     };
 
     for bus in [&bus1, &bus2, &bus3] {
         set_i2c_timing(bus.regs);
     }
 
-    let mut can = CanConfigurator::new(p.FDCAN1, p.PA11, p.PA12, Irqs);
+    let mut can = CanConfigurator::new(chip.can, chip.can_rx, chip.can_tx, Irqs);
     can.set_config(can.config().set_nominal_bit_timing(nominal_bit_timing()));
     let can = BatteryCan(can.into_normal_mode());
 
@@ -117,9 +125,9 @@ async fn main(spawner: Spawner) {
     let mut uart_config = usart::Config::default();
     uart_config.baudrate = CONFIG.console_baud;
     let uart = unwrap!(BufferedUart::new(
-        p.LPUART1,
-        p.PA3,
-        p.PA2,
+        chip.console,
+        chip.console_rx,
+        chip.console_tx,
         TX_BUFFER.init([0; 512]),
         RX_BUFFER.init([0; 256]),
         Irqs,
@@ -128,7 +136,7 @@ async fn main(spawner: Spawner) {
     let (console_tx, console_rx) = uart.split();
 
     // The settings, in the flash pages the images leave free (`memory.x`).
-    let settings = Store::g431(BlockingAsync::new(Flash::new_blocking(p.FLASH)));
+    let settings = Store::g431(BlockingAsync::new(Flash::new_blocking(chip.flash)));
 
     // The build's configuration with the chip's 96-bit unique device id for AUTOPILOT_VERSION (RM0440 section
     // 48.1: UID_BASE 0x1FFF_7590, the address stm32-metapac gives the G431's UID block), read here so that the core

@@ -1,9 +1,9 @@
 //! NUCLEO-G431RB + X-NUCLEO-IHM08M1 wiring of the thruster controller and the adapters from embassy-stm32
 //! peripherals to the core's ports; the settings they are configured with are the core's (`thruster_fw::CONFIG`).
 //!
-//! The pins are `g431_hw::images::THRUSTER` (brushless), `THRUSTER_BRUSHED` and `THRUSTER_MOTORLESS`, checked at
-//! build time against what the two boards put on each pin; every register value written here comes from
-//! `g431_hw`.
+//! The pins and peripherals are the image's description (`g431_hw::images`: `thruster_image!` for the brushless
+//! build, `thruster_brushed_image!`, `thruster_motorless_image!`), checked at build time against what the boards put
+//! on each pin; every register value written here comes from `g431_hw`.
 
 use embassy_embedded_hal::SetConfig;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
@@ -12,7 +12,7 @@ use embassy_stm32::mode::Async;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::ADC1;
 use embassy_stm32::time::Hertz;
-use g431_hw::{adc, clock, images, iwdg, pins};
+use g431_hw::{adc, clock, iwdg};
 use thruster_fw::faults::{LatchStore, ResetKind, carried_latch, latch_word};
 use thruster_fw::tasks::Watchdog;
 use thruster_fw::{CONFIG, FAMILY, I2cTarget, Request};
@@ -37,17 +37,6 @@ use {
     embassy_stm32::gpio::Input,
     thruster_fw::motorless::{HoldInput, ModelSensors, MotorModel, Motorless, WaterInput},
 };
-
-/// The pins this build takes, on its boards.
-pub const PINS: pins::Image = if cfg!(feature = "motorless") {
-    images::THRUSTER_MOTORLESS
-} else if cfg!(feature = "brushed") {
-    images::THRUSTER_BRUSHED
-} else {
-    images::THRUSTER
-};
-// A pin used twice, or one a board drives or loads, fails the build.
-const _: () = assert!(pins::check(&PINS).is_ok());
 
 /// The motor-less controller's model motor (Cargo feature `motorless`), for the image's configuration.
 #[cfg(feature = "motorless")]

@@ -114,7 +114,14 @@ static SHARED: Shared = Shared::new();
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
-    let p = embassy_stm32::init(clocks());
+    // The chip as the image's description (`g431_hw::images`) gives it: nothing else of it is in reach.
+    let chip = embassy_stm32::init(clocks());
+    #[cfg(not(any(feature = "brushed", feature = "motorless")))]
+    let chip = g431_hw::chip!(thruster_image, chip);
+    #[cfg(all(feature = "brushed", not(feature = "motorless")))]
+    let chip = g431_hw::chip!(thruster_brushed_image, chip);
+    #[cfg(feature = "motorless")]
+    let chip = g431_hw::chip!(thruster_motorless_image, chip);
     let reset = reset_cause();
     let latch = BackupLatch::open(reset);
     info!(
@@ -133,13 +140,13 @@ async fn main(spawner: Spawner) {
     let (halls, bridge, analog) = {
         // The bridge first, every switch off, before anything can ask it to drive.
         let pwm = ComplementaryPwm::new(
-            p.TIM1,
-            Some(PwmPin::new(p.PA8, OutputType::PushPull)),
-            Some(ComplementaryPwmPin::new(p.PA7, OutputType::PushPull)),
-            Some(PwmPin::new(p.PA9, OutputType::PushPull)),
-            Some(ComplementaryPwmPin::new(p.PB0, OutputType::PushPull)),
-            Some(PwmPin::new(p.PA10, OutputType::PushPull)),
-            Some(ComplementaryPwmPin::new(p.PB1, OutputType::PushPull)),
+            chip.bridge,
+            Some(PwmPin::new(chip.uh, OutputType::PushPull)),
+            Some(ComplementaryPwmPin::new(chip.ul, OutputType::PushPull)),
+            Some(PwmPin::new(chip.vh, OutputType::PushPull)),
+            Some(ComplementaryPwmPin::new(chip.vl, OutputType::PushPull)),
+            Some(PwmPin::new(chip.wh, OutputType::PushPull)),
+            Some(ComplementaryPwmPin::new(chip.wl, OutputType::PushPull)),
             None,
             None,
             Hertz(BRIDGE.pwm_hz),
@@ -148,8 +155,8 @@ async fn main(spawner: Spawner) {
         // PA6 in its TIM1_BKIN alternate function, driven by the IHM08M1's overcurrent comparators. They are open
         // drain by the second binding review's reading of the board (UM1996 not read here): the pull-up holds the line
         // high (no break) between their pulls low, and costs nothing should the output be push-pull.
-        let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*p.PA6);
-        let mut break_input = Flex::new(p.PA6);
+        let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*chip.bkin);
+        let mut break_input = Flex::new(chip.bkin);
         break_input.set_as_af_unchecked(break_af, AfType::input(Pull::Up));
         // The period is written here, not taken from embassy: its centre-aligned set-up counts ARR = 4249 (an
         // edge-aligned period less one), while a centre-aligned period is 2 x ARR timer clocks (RM0440 TIM1
@@ -175,21 +182,21 @@ async fn main(spawner: Spawner) {
         arm_power_stage(&mut bridge);
 
         let halls = Halls::new(
-            ExtiInput::new(p.PA15, p.EXTI15, Pull::Up, Irqs),
-            ExtiInput::new(p.PB3, p.EXTI3, Pull::Up, Irqs),
-            ExtiInput::new(p.PB10, p.EXTI10, Pull::Up, Irqs),
+            ExtiInput::new(chip.h1, chip.h1_exti, Pull::Up, Irqs),
+            ExtiInput::new(chip.h2, chip.h2_exti, Pull::Up, Irqs),
+            ExtiInput::new(chip.h3, chip.h3_exti, Pull::Up, Irqs),
         );
 
-        let adc = Adc::new(p.ADC1, AdcConfig::default());
+        let adc = Adc::new(chip.adc, AdcConfig::default());
         check_adc_clock();
         let analog = AnalogInputs {
             adc,
-            water: p.PB12.degrade_adc(),
+            water: chip.water.degrade_adc(),
             #[cfg(not(feature = "brushed"))]
-            ntc: p.PB11.degrade_adc(),
+            ntc: chip.ntc.degrade_adc(),
             #[cfg(feature = "brushed")]
-            ntc: p.PC2.degrade_adc(),
-            current: p.PA0.degrade_adc(),
+            ntc: chip.ntc.degrade_adc(),
+            current: chip.current.degrade_adc(),
         };
         (halls, bridge, analog)
     };
@@ -198,25 +205,33 @@ async fn main(spawner: Spawner) {
     #[cfg(feature = "motorless")]
     let analog = {
         info!("motor-less: no power stage, the motor is a model; B1 holds its rotor");
-        let adc = Adc::new(p.ADC1, AdcConfig::default());
+        let adc = Adc::new(chip.adc, AdcConfig::default());
         check_adc_clock();
         let water = WaterPin {
             adc,
-            pin: p.PB12.degrade_adc(),
+            pin: chip.water.degrade_adc(),
         };
         // NUCLEO-64 (MB1367): B1 connects PC13 to 3V3 when pressed.
-        let button = UserButton(Input::new(p.PC13, Pull::Down));
+        let button = UserButton(Input::new(chip.hold, Pull::Down));
         ModelSensors::new(&board::MOTORLESS, &CONFIG, water, button)
     };
 
     let mut i2c_config = i2c::Config::default();
     i2c_config.frequency = Hertz(CONFIG.bus.frequency_hz);
     i2c_config.timeout = CONFIG.bus.timeout;
-    let slave = I2c::new(p.I2C3, p.PC8, p.PC11, p.DMA1_CH1, p.DMA1_CH2, Irqs, i2c_config)
-        .into_slave_multimaster(SlaveAddrConfig::basic(FAMILY.address()));
+    let slave = I2c::new(
+        chip.slave,
+        chip.scl,
+        chip.sda,
+        chip.slave_tx_dma,
+        chip.slave_rx_dma,
+        Irqs,
+        i2c_config,
+    )
+    .into_slave_multimaster(SlaveAddrConfig::basic(FAMILY.address()));
     board::set_i2c_timing(pac::I2C3);
 
-    let watchdog = Iwdg::start(p.IWDG);
+    let watchdog = Iwdg::start(chip.watchdog);
 
     interrupt::UART4.set_priority(Priority::P1);
     let high = COMMUTATION_EXECUTOR.start(interrupt::UART4);

@@ -31,6 +31,7 @@ fn a_removed_link_frees_its_pin_only() {
         boards: &[&BEMF],
         removed: &["R60"],
         uses: &[Use::analog(pin(B, 11), "sensor", 14)],
+        peripherals: &[],
     };
     assert_eq!(check(&FREE), Ok(()));
     const OTHER: Image = Image {
