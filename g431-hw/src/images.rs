@@ -143,7 +143,7 @@ mod tests {
 
     /// The (function, pin) rows of the first table after `heading` in the README.
     fn readme_rows(heading: &str) -> BTreeSet<(String, Pin)> {
-        let readme = include_str!("../../README.md");
+        let readme = include_str!("../../docs/hardware.md");
         let section = readme.split(heading).nth(1).expect("README section");
         let mut rows = BTreeSet::new();
         let mut in_table = false;
