@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The firmware cores on QEMU's mps2-an386 (Cortex-M4F): builds the image, runs its three sessions side by side,
-# judges them and prints their figures (README: "The cores on an emulated Cortex-M4").
+# judges them and prints their figures (docs/qemu-m4.md).
 #   acceptance seabotix / legacy  the dev-kit acceptance test looped back inside the chip, judged by
 #                                 `lbv hil --replay` as a log from the dev kits would be
 #   vehicle                       the master's whole core, six thruster cores, a scripted pilot

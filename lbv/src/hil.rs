@@ -24,7 +24,7 @@ use tmc_proto::Family;
 use crate::lines::{Line, Lines};
 
 const HELP: &str = "\
-The bench test between two NUCLEO-G431RB dev kits (README: \"Bench test between two dev kits\"):
+The bench test between two NUCLEO-G431RB dev kits (docs/devkit-bench.md):
 builds the motor-less thruster image and the master's acceptance image, flashes the thruster board
 and starts it, flashes and runs the master board with probe-rs, and follows the master's log until
 the test's verdict.

@@ -75,8 +75,8 @@ impl Thresholds {
     ///   (one count is ~1 kohm there).
     /// - `latch_samples` 3: at the 1 kHz sampling ([`crate::tasks::SAMPLE_PERIOD`]) water and ground faults are
     ///   reacted to in 3 ms instead of 1 ms; the IDS gives no reaction time, and the water sensor's own 100 nF
-    ///   already filters over ~0.1 s (README, the water sensor). Three covers a single spike and the wrong first
-    ///   conversion after an idle ADC (STM32G4 errata ES0431) with a sample to spare.
+    ///   already filters over ~0.1 s (docs/hardware.md, the water sensor). Three covers a single spike and the
+    ///   wrong first conversion after an idle ADC (STM32G4 errata ES0431) with a sample to spare.
     /// - `hall_error_samples` 3: a hall glitch shorter than a sample period gives at most two abnormal readings
     ///   (the illegal edge into the glitch, seen on one sample, and the one out of it, seen on the next when the
     ///   glitch spans a sample), so three in a row is a sensor that stays wrong: an unplugged or shorted sensor is

@@ -454,7 +454,8 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
         };
         let faults = monitor.update(sample, stalled);
         shared.note_unread(faults.bits());
-        // SeaBotix FAULT bit 6 (this project's): the Legacy STATUS byte has no spare bit (README, faults).
+        // SeaBotix FAULT bit 6 (this project's): the Legacy STATUS byte has no spare bit
+        // (docs/thruster.md, "Sustained overcurrent").
         if config.family == Family::SeaBotix && overcurrent {
             shared.note_unread(SeaBotixStatus::FAULT_OVERCURRENT);
         }
