@@ -368,11 +368,10 @@ pub fn write_pin_table(images: &[(&str, &Image)], out: &mut impl fmt::Write) -> 
                 Some(signal) => {
                     write!(out, "{signal}")?;
                     if let Some((board, via)) = board_of(image, used.pin, signal) {
-                        write!(out, " ({board}")?;
+                        write!(out, ": {board}")?;
                         if let Some(via) = via {
                             write!(out, ", {via}")?;
                         }
-                        write!(out, ")")?;
                     }
                 }
                 None => write!(out, "free")?,
@@ -582,9 +581,9 @@ mod tests {
             table.contains("| I2C slave SDA | PC11 (CN7 2) | I2C3_SDA (AF8), open drain | free | all |\n"),
             "{table}"
         );
-        assert!(table.contains("| phase A low | PA7 | TIM1_CH1N (AF6) | UL (X-NUCLEO-IHM08M1, R58) | all |\n"));
+        assert!(table.contains("| phase A low | PA7 | TIM1_CH1N (AF6) | UL: X-NUCLEO-IHM08M1, R58 | all |\n"));
         assert!(table.contains("| motor NTC | PB11 (CN10 18) | ADC1 IN14 | free | brushless |\n"));
-        assert!(table.contains("| hall H1 | PA15 | input, pull-up | H1 (X-NUCLEO-IHM08M1, R79) | all |\n"));
+        assert!(table.contains("| hall H1 | PA15 | input, pull-up | H1: X-NUCLEO-IHM08M1, R79 | all |\n"));
     }
 
     /// A description's rows are the binding's fields: the `chip!` expansion names each pin's embassy-stm32 type.
