@@ -42,8 +42,6 @@ cargo --version
 
 step "rustfmt"
 cargo fmt --all -- --check
-# qemu-m4 is its own workspace (it links its own memory map; see qemu-m4/Cargo.toml).
-cargo fmt --manifest-path qemu-m4/Cargo.toml -- --check
 
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
@@ -71,7 +69,7 @@ for family in "" ",legacy"; do
   cargo clippy --release --target "$TARGET" -p lbv-master-fw --features "acceptance$family" --locked -- -D warnings
   cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
 done
-cargo clippy --manifest-path qemu-m4/Cargo.toml --release --target "$TARGET" --target-dir target --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
 
 step "host tests (every bench scenario is one, on both engines)"
 cargo test --workspace --locked

@@ -1,5 +1,5 @@
-//! Link the emulated image against its own memory map (`memory.x` here, the mps2-an386's), never the STM32's at
-//! the workspace root; host builds need nothing.
+//! Link the emulated image against its own memory map (`memory.x` here, the mps2-an386's); host builds need
+//! nothing.
 use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -11,7 +11,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             out.join("device.x"),
             "/* mps2-an386: interrupt handlers are bound in board.rs */\n",
         )?;
-        println!("cargo:rustc-link-search={}", out.display());
+        println!("cargo:rustc-link-arg-bins=-L");
+        println!("cargo:rustc-link-arg-bins={}", out.display());
         println!("cargo:rustc-link-arg-bins=--nmagic");
         println!("cargo:rustc-link-arg-bins=-Tlink.x");
         println!("cargo:rustc-link-arg-bins=-Tdefmt.x");

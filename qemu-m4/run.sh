@@ -17,11 +17,10 @@ WALL_LIMIT=120
 
 command -v qemu-system-arm >/dev/null || { echo "qemu-m4: qemu-system-arm is missing (Debian: qemu-system-arm)" >&2; exit 2; }
 
-# Its own workspace (see its Cargo.toml), sharing the workspace's target directory and so its built dependencies.
-cargo build --manifest-path qemu-m4/Cargo.toml --release --target "$TARGET" --target-dir target --locked
-# The judge, `lbv hil --replay`, with the test profile: ./test.sh's `cargo test` has built its dependencies so,
-# and the release profile's fat LTO would take minutes for a log reader.
-cargo build --profile test --locked -q -p lbv
+cargo build --release --target "$TARGET" -p qemu-m4 --locked
+# The judge, `lbv hil --replay`, with the test profile and the workspace's features: ./test.sh's `cargo test` has
+# built it so, and the release profile's fat LTO would take minutes for a log reader.
+cargo build --profile test --locked -q --workspace --bin lbv
 mkdir -p "$LOGS"
 
 # -icount shift=3: 8 ns of virtual time per instruction, and every timer runs on that time, so the image counts
