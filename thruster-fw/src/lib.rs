@@ -1,7 +1,8 @@
 //! The thruster motor controller's hardware-free core.
 //!
-//! Everything here runs unchanged on the STM32 (through the binding in `main.rs`) and on the host, where tests
-//! and the bench drive it through simulated ports. It never touches a register and never panics on bus input.
+//! Everything here runs unchanged on the STM32, through the binding in the `thruster-fw` binary (`main.rs`,
+//! `stm32.rs` and `board.rs`, compiled for the firmware target only), and on the host, where tests and the bench
+//! drive it through simulated ports. It never touches a register and never panics on bus input.
 //!
 //! [`run`] and [`run_commutation`] are the whole controller: the STM32 binding builds their ports from peripherals
 //! and calls them with [`CONFIG`]; the bench and the tests call them with simulated ports.
