@@ -4,7 +4,7 @@
 # Usage: lbv/bench-decode-can.sh [FRAMES]      (default 1000000; needs python3 with cantools: pip install cantools)
 #
 # Makes the log once (${TMPDIR:-/tmp}/lbv-bench-decode-can-FRAMES.log: 0x620, 0x629 and 0x628 in turn, random but
-# deterministic values), builds lbv in release, then times, each writing to /dev/null:
+# deterministic values), builds lbv (the dev profile, optimised: Cargo.toml), then times, each writing to /dev/null:
 #   lbv --json      lbv decode can --json LOG
 #   lbv             lbv decode can LOG          (human output)
 #   cantools loop   python3: read each line, db.decode_message() with lbv/dbc/bat.dbc, json.dumps() a line with
@@ -20,8 +20,8 @@ DBC=lbv/dbc/bat.dbc
 
 python3 -c 'import cantools' 2>/dev/null || { echo "cantools is missing: pip install cantools" >&2; exit 3; }
 
-cargo build --release --locked -p lbv --quiet
-LBV="${CARGO_TARGET_DIR:-target}/release/lbv"
+cargo build --locked -p lbv --quiet
+LBV="${CARGO_TARGET_DIR:-target}/debug/lbv"
 
 if [ ! -s "$LOG" ]; then
   python3 - "$FRAMES" "$LOG" <<'PY'

@@ -5,6 +5,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || python3 -m pip install --quiet -r rehost/requirements.txt
-# The test profile: `cargo test --workspace` has already built everything this needs with it.
-cargo build --quiet --locked --profile test -p rehost
+# The test profile and the workspace's features: `cargo test --workspace` has already built everything this needs.
+cargo build --quiet --locked --profile test --workspace --bin rehost
 exec python3 -m pytest -q -p no:cacheprovider rehost/tests "$@"
