@@ -40,8 +40,9 @@ fi
 python3 -c 'import pymavlink, cantools, MAVProxy' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools mavproxy
 cargo --version
 
-step "rustfmt"
+step "rustfmt, and every link in the Markdown docs"
 cargo fmt --all -- --check
+python3 docs/check-links.py
 
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
@@ -80,8 +81,8 @@ cargo test --workspace --bin lbv --locked soak_for_an_hour -- --ignored
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
+  # One target directory for the four: libFuzzer and the crates they share are built once.
   for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz; do
-    # One target directory for the four: libFuzzer and the shared crates are built once.
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
   done
 fi
