@@ -18,6 +18,13 @@ TARGET=thumbv7em-none-eabihf
 
 started=$SECONDS
 step() { printf '\n=== [%d:%02d] %s\n' $(((SECONDS - started) / 60)) $(((SECONDS - started) % 60)) "$*"; }
+# Wait for a step started in the background, show its output, and stop if it failed.
+finish() {
+  local status=0
+  wait "$2" || status=$?
+  cat "$3"
+  [ "$status" -eq 0 ] || { echo "$1 failed" >&2; exit 1; }
+}
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 step "toolchain"
@@ -25,19 +32,27 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
 # flip-link links the firmware images (.cargo/config.toml): a stack overflow faults instead of corrupting RAM.
 command -v flip-link >/dev/null || cargo install flip-link --locked
-# Debian packages: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use,
-# qemu-system-arm for the cores on an emulated Cortex-M4 (without its recommended GUI and firmware packages).
-packages=()
-command -v arm-none-eabi-size >/dev/null || packages+=(binutils-arm-none-eabi)
-command -v sigrok-cli >/dev/null || packages+=(sigrok-cli)
-command -v qemu-system-arm >/dev/null || packages+=(qemu-system-arm)
-if [ ${#packages[@]} -gt 0 ]; then
-  as_root apt-get update -qq
-  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${packages[@]}" >/dev/null
-fi
-# Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against, and
-# MAVProxy, the ground station that flies the bench in a test.
-python3 -c 'import pymavlink, cantools, MAVProxy' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools mavproxy
+# Debian and Python packages download and install while the first Rust steps compile; the host tests, the first
+# step that needs them, wait for them.
+system_packages() {
+  # Debian: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use,
+  # qemu-system-arm for the cores on an emulated Cortex-M4 (without its recommended GUI and firmware packages).
+  local packages=()
+  command -v arm-none-eabi-size >/dev/null || packages+=(binutils-arm-none-eabi)
+  command -v sigrok-cli >/dev/null || packages+=(sigrok-cli)
+  command -v qemu-system-arm >/dev/null || packages+=(qemu-system-arm)
+  if [ ${#packages[@]} -gt 0 ]; then
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${packages[@]}" >/dev/null
+  fi
+  # Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against,
+  # MAVProxy, the ground station that flies the bench in a test, and rehost's Unicorn engine and test runner.
+  python3 -c 'import pymavlink, cantools, MAVProxy' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools mavproxy
+  python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || python3 -m pip install --quiet -r rehost/requirements.txt
+}
+mkdir -p target
+system_packages >target/packages.log 2>&1 &
+packages=$!
 cargo --version
 
 step "rustfmt, and every link in the Markdown docs"
@@ -49,6 +64,7 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo clippy -p tmc-proto -p bat-proto --all-targets --features defmt --locked -- -D warnings
 
 if $quick; then
+  finish "installing the Debian and Python packages" "$packages" target/packages.log
   step "host tests"
   cargo test --workspace --locked
   step "quick checks passed (the whole suite: ./test.sh)"
@@ -72,12 +88,14 @@ for family in "" ",legacy"; do
 done
 cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
 
+finish "installing the Debian and Python packages" "$packages" target/packages.log
 step "host tests (every bench scenario is one, on both engines)"
 cargo test --workspace --locked
 
-step "an hour of random faults and traffic on the bench (the soak)"
-# --workspace: the features the host tests were built with, so nothing is built again.
-cargo test --workspace --bin lbv --locked soak_for_an_hour -- --ignored
+# An hour of random faults and traffic on the bench (the soak): every order held, no watchdog bite, no panic. It
+# runs on one core, so it goes on beside the next steps; `cargo test` has built the bench.
+target/debug/lbv bench --scenario soak --duration 3600 --quiet >target/soak.log 2>&1 &
+soak=$!
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
@@ -116,10 +134,16 @@ while read -r name _ _ flash_budget ram_budget; do
 done <<<"$builds"
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 
+step "an hour of random faults and traffic on the bench (the soak, run beside the steps above)"
+finish soak "$soak" target/soak.log
+
 step "the images that ship, run under register-level models of the STM32G431 (Unicorn): boot, registers, buses, faults"
+# rehost's tests run on one core: the QEMU runs go on beside them, their output shown after.
+qemu-m4/run.sh >target/qemu-m4.log 2>&1 &
+qemu=$!
 rehost/run.sh
 
 step "the cores on an emulated Cortex-M4 (QEMU mps2-an386): acceptance loops, vehicle, stack and CPU figures"
-qemu-m4/run.sh
+finish qemu-m4 "$qemu" target/qemu-m4.log
 
 step "all checks passed"

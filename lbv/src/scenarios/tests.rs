@@ -24,19 +24,6 @@ fn passes(name: &str) {
     passes_with(name, &Options::new(SEED, Engine::default()));
 }
 
-/// An hour of random faults and traffic: every order held, no watchdog bite, no panic. `./test.sh` runs it; a day:
-/// `lbv bench --scenario soak --duration 86400`.
-#[test]
-#[ignore = "an hour of virtual time (about half a minute): ./test.sh runs it"]
-fn soak_for_an_hour() {
-    let options = Options {
-        seconds: Some(3600.0),
-        samples: false,
-        ..Options::new(SEED, Engine::default())
-    };
-    passes_with("soak", &options);
-}
-
 macro_rules! scenario_tests {
     ($($test:ident: $name:literal,)*) => {
         $(
