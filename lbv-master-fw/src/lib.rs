@@ -18,8 +18,6 @@ pub mod recovery;
 pub mod settings;
 pub mod shared;
 pub mod signing;
-#[cfg(any(test, feature = "sim"))]
-pub mod sim;
 pub mod thrusters;
 pub mod vehicle;
 
@@ -160,6 +158,15 @@ where
 
 #[cfg(test)]
 mod tests;
+
+// The host tests' ports on lbv-sim's parts: the bench's own, one file (`lbv/src/bench/ports.rs` says why), which
+// names this crate as the bench does.
+#[cfg(test)]
+extern crate self as lbv_master_fw;
+#[cfg(test)]
+#[path = "../../lbv/src/bench/ports/master.rs"]
+#[allow(dead_code, reason = "the bench reads the reboot count; these tests do not")]
+mod sim;
 
 /// Virtual time for the host tests: the one clock of `lbv-sim`, taken at 0.
 #[cfg(test)]

@@ -11,8 +11,8 @@
 //! - [`in_one_critical_section`]: a run at the cost of one critical section.
 //!
 //! All state is owned: a board is a set of handles on these parts and a few tasks; dropping them (a power cycle)
-//! frees everything. This crate knows none of the firmware crates: their port traits are implemented where they
-//! are defined, or by thin adapters in the crate that wires a board.
+//! frees everything. This crate knows none of the firmware crates: their port traits are implemented by thin
+//! adapters in the crate that wires a board (the bench's `lbv::bench::ports`).
 
 pub mod clock;
 mod cpu;
