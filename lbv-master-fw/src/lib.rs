@@ -167,12 +167,3 @@ extern crate self as lbv_master_fw;
 #[path = "../../lbv/src/bench/ports/master.rs"]
 #[allow(dead_code, reason = "the bench reads the reboot count; these tests do not")]
 mod sim;
-
-/// Virtual time for the host tests: the one clock of `lbv-sim`, taken at 0.
-#[cfg(test)]
-pub(crate) mod test_clock {
-    /// Take the virtual clock and set it to 0.
-    pub(crate) fn lock() -> lbv_sim::Clock {
-        lbv_sim::clock::take()
-    }
-}
