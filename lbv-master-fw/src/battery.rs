@@ -647,7 +647,7 @@ pub(crate) mod tests {
         assert_eq!(formatted(), 0);
 
         // The task's path: every text queued for the console, each formatted once.
-        let _clock = crate::test_clock::lock();
+        let _clock = lbv_sim::clock::take();
         let shared = Shared::new();
         block_on(say(&shared, &report, Instant::now()));
         assert_eq!(shared.outbox.len(), MAX_REPORT_TEXTS);
@@ -875,7 +875,7 @@ pub(crate) mod tests {
 
     #[test]
     fn can_task_reports_start_up_changes_staleness_and_publishes_at_1_hz() {
-        let _clock = crate::test_clock::lock();
+        let _clock = lbv_sim::clock::take();
         let shared = Shared::new();
         let bus = Queue::new();
         let mut port = TestPort(bus.clone());
@@ -955,7 +955,7 @@ pub(crate) mod tests {
 
     #[test]
     fn can_task_reports_stale_when_the_bus_is_silent_from_the_start() {
-        let _clock = crate::test_clock::lock();
+        let _clock = lbv_sim::clock::take();
         let shared = Shared::new();
         let bus = Queue::new();
         let mut port = TestPort(bus.clone());
@@ -975,7 +975,7 @@ pub(crate) mod tests {
 
     #[test]
     fn can_task_does_not_stall_when_the_outbox_is_full() {
-        let _clock = crate::test_clock::lock();
+        let _clock = lbv_sim::clock::take();
         let shared = Shared::new();
         let bus = Queue::new();
         let mut port = TestPort(bus.clone());

@@ -82,7 +82,7 @@ pub async fn poll_thruster<I: I2c>(
 mod tests {
     use super::*;
     use crate::config::BusConfig;
-    use crate::sim::scripted::SimThruster;
+    use crate::tests::scripted::SimThruster;
     use core::cell::{Cell, RefCell};
     use embassy_futures::block_on;
     use embassy_time::Duration;

@@ -764,7 +764,7 @@ mod tests {
 
     #[test]
     fn a_failed_reservation_is_written_again_until_it_is_stored() {
-        let _clock = crate::test_clock::lock();
+        let _clock = lbv_sim::clock::take();
         let shared = Shared::new();
         let mut flash = flash();
         let mut reboot = Restart(Default::default());

@@ -2,6 +2,8 @@
 //! by pymavlink goes in on the console, six scripted thrusters sit behind a TCA9548A on the 100 kbit/s I2C2 bus,
 //! and pymavlink reads what the master sends back.
 
+pub(crate) mod scripted;
+
 use core::cell::RefCell;
 use std::collections::VecDeque;
 use std::process::{Command as Process, Stdio};
@@ -16,8 +18,8 @@ use tmc_proto::Family;
 use crate::config::VEHICLE;
 use crate::console::ConsoleStats;
 use crate::shared::{MAX_THRUSTERS, Shared};
-use crate::sim::scripted::SimThruster;
-use crate::sim::{RebootRequest, flash_store, g431_flash, thruster_bus};
+use crate::sim::{CanNode, RebootRequest, flash_store, g431_flash, thruster_bus};
+use crate::tests::scripted::SimThruster;
 use crate::thrusters::MUX_ADDRESS;
 use crate::{Polling, Ports, run};
 
@@ -91,7 +93,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
     let ports = Ports {
         buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
         // No battery board on the CAN bus.
-        can: Queue::new(),
+        can: CanNode::default(),
         console_rx: SerialRx::new(console_in.clone()),
         console_tx: SerialTx(console_out.clone()),
         settings: flash_store(&g431_flash()),

@@ -1742,7 +1742,7 @@ mod tests {
 
     #[test]
     fn vehicle_task_publishes_orders_state_settings_and_answers() {
-        let _clock = crate::test_clock::lock();
+        let _clock = lbv_sim::clock::take();
         let shared = Shared::new();
         let config = VehicleConfig::default();
         let mut settings = config.defaults();

@@ -6,8 +6,8 @@
 //! the rest of the world (the other boards, the buses) goes on; an I2C master on a stalled CPU keeps its transfer
 //! waiting on the CPU ([`crate::i2c::Bus::set_master_cpu`]).
 
-use std::cell::Cell;
-use std::rc::Rc;
+use alloc::rc::Rc;
+use core::cell::Cell;
 
 use embassy_time::{Duration, Instant};
 

@@ -15,9 +15,11 @@
 //! and each double word programmed stalls that CPU for its [`FlashTiming`], as the G431's single bank stalls the
 //! code that runs from it (the work is done at once; the CPU is held for its duration afterwards).
 
-use std::cell::RefCell;
-use std::collections::BTreeSet;
-use std::rc::Rc;
+use alloc::collections::BTreeSet;
+use alloc::rc::Rc;
+use alloc::vec;
+use alloc::vec::Vec;
+use core::cell::RefCell;
 
 use embassy_time::Duration;
 use embedded_storage::nor_flash::{self, NorFlashError, NorFlashErrorKind};

@@ -8,15 +8,19 @@
 //!   master out, as embassy-stm32 does).
 //! - Addresses nobody acknowledges (absent, unpowered, behind an unselected multiplexer channel) NACK.
 //! - Faults: a device's bytes can be corrupted both ways ([`Tamper`]); a transfer to firmware can be torn by a
-//!   glitch ([`Bus::disturb`]); a slave can hold SDA low for a number of SCL clocks ([`Bus::hold_sda`]), which fails
-//!   every transfer until the master clocks it free on the lines ([`Scl`], [`Sda`]: open-drain pins as
-//!   embedded-hal sees them, for the UM10204 3.1.16 recovery).
+//!   glitch ([`Bus::disturb`]); a slave can hold SDA low for a number of SCL clocks, now ([`Bus::hold_sda`]) or
+//!   from its next transfer ([`Bus::hold_sda_at_next_transfer`]), which fails every transfer until the master
+//!   clocks it free on the lines ([`Scl`], [`Sda`]: open-drain pins as embedded-hal sees them, for the UM10204
+//!   3.1.16 recovery).
 //! - The master's CPU ([`Bus::set_master_cpu`]): a transfer under way when it stalls (a flash erase) waits for it,
 //!   SCL held, and one that so lasts as long as the timeout or longer fails as a timeout.
 
-use std::cell::{Cell, RefCell};
-use std::convert::Infallible;
-use std::rc::Rc;
+use alloc::rc::Rc;
+use alloc::vec;
+use alloc::vec::Vec;
+use core::cell::{Cell, RefCell};
+use core::convert::Infallible;
+use core::mem;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
@@ -238,6 +242,8 @@ struct Slot {
     route: Route,
     powered: bool,
     tamper: Tamper,
+    /// A glitch at the next transfer that reaches it leaves it holding SDA low for this many SCL clocks.
+    glitch: Option<u32>,
 }
 
 impl Slot {
@@ -287,8 +293,13 @@ impl Wire {
         !self.sda_low && self.sda_hold.is_none()
     }
 
-    fn note(&mut self, address: u8, data: Data, ok: bool) {
+    /// Log the transfer, when recording (its bytes are copied only then).
+    fn note(&mut self, address: u8, operation: &Operation<'_>, ok: bool) {
         if let Some(log) = self.log.as_mut() {
+            let data = match operation {
+                Operation::Write(bytes) => Data::Write(bytes.to_vec()),
+                Operation::Read(buffer) => Data::Read(buffer.to_vec()),
+            };
             log.push(Transfer {
                 at: Instant::now(),
                 address,
@@ -371,6 +382,7 @@ impl Bus {
             route,
             powered: true,
             tamper: Tamper::NONE,
+            glitch: None,
         });
         DeviceId(wire.slots.len() - 1)
     }
@@ -421,6 +433,15 @@ impl Bus {
         }
     }
 
+    /// At the next transfer that reaches the device or firmware port at `id`, a glitch leaves it holding SDA low
+    /// until it has seen `clocks` SCL clocks, as a device answering [`Reply::HoldSda`] does; the firmware never
+    /// sees that transfer.
+    pub fn hold_sda_at_next_transfer(&self, id: DeviceId, clocks: u32) {
+        if let Some(slot) = self.0.borrow_mut().slots.get_mut(id.0) {
+            slot.glitch = Some(clocks);
+        }
+    }
+
     /// A slave holds SDA low until it has seen `clocks` SCL clocks (`u32::MAX`: it never lets go; 0: it lets go).
     pub fn hold_sda(&self, clocks: u32) {
         self.0.borrow_mut().sda_hold = (clocks > 0).then_some(clocks);
@@ -438,7 +459,7 @@ impl Bus {
 
     /// The transfers logged so far, taken out of the log.
     pub fn take_log(&self) -> Vec<Transfer> {
-        self.0.borrow_mut().log.as_mut().map(std::mem::take).unwrap_or_default()
+        self.0.borrow_mut().log.as_mut().map(mem::take).unwrap_or_default()
     }
 
     /// Whether the master's transfer under way is addressed to the device at `id` (a fault that lands now lands
@@ -478,7 +499,7 @@ enum Plan {
     Stuck,
     /// Nobody acknowledges.
     Nack,
-    /// A device answered at once: the reply, and the bytes read (tampered).
+    /// A device (or a glitch) answered at once: the reply, and the bytes read (tampered).
     Device(Reply, Vec<u8>),
     /// The TCA9548A answered.
     Mux(Vec<u8>),
@@ -534,6 +555,10 @@ impl Master {
             wire.stats.collisions += 1;
         }
         wire.busy_with = hearing.first().copied();
+        let glitch = hearing.first().and_then(|&i| wire.slots.get_mut(i)?.glitch.take());
+        if let Some(clocks) = glitch {
+            return Plan::Device(Reply::HoldSda(clocks), Vec::new());
+        }
         let mut plan = Plan::Nack;
         for (n, slot) in hearing.iter().filter_map(|&i| wire.slots.get(i)).enumerate() {
             let first = n == 0;
@@ -618,7 +643,7 @@ impl Master {
             other => (other, read),
         };
         if let (Some(data), Operation::Read(buffer)) = (&read, &mut *operation) {
-            for (slot, byte) in buffer.iter_mut().zip(data.iter().chain(std::iter::repeat(&0xFF))) {
+            for (slot, byte) in buffer.iter_mut().zip(data.iter().chain(core::iter::repeat(&0xFF))) {
                 *slot = *byte;
             }
         }
@@ -630,11 +655,7 @@ impl Master {
             Err(_) => wire.stats.bus_errors += 1,
             Ok(()) => {}
         }
-        let data = match operation {
-            Operation::Write(bytes) => Data::Write(bytes.to_vec()),
-            Operation::Read(buffer) => Data::Read(buffer.to_vec()),
-        };
-        wire.note(address, data, result.is_ok());
+        wire.note(address, operation, result.is_ok());
         result
     }
 
@@ -715,7 +736,7 @@ impl OutputPin for Scl {
     /// Releasing SCL after driving it low is one clock: a slave holding SDA counts it.
     fn set_high(&mut self) -> Result<(), Infallible> {
         let mut wire = self.0.0.borrow_mut();
-        if std::mem::replace(&mut wire.scl_low, false) {
+        if mem::replace(&mut wire.scl_low, false) {
             wire.stats.pin_clocks += 1;
             wire.stats.bits += 1;
             wire.sda_hold = match wire.sda_hold {
@@ -741,7 +762,7 @@ impl OutputPin for Sda {
     /// SDA rising while SCL is high is a STOP.
     fn set_high(&mut self) -> Result<(), Infallible> {
         let mut wire = self.0.0.borrow_mut();
-        if std::mem::replace(&mut wire.sda_low, false) && !wire.scl_low && wire.sda_high() {
+        if mem::replace(&mut wire.sda_low, false) && !wire.scl_low && wire.sda_high() {
             wire.stats.pin_stops += 1;
             wire.stats.bits += STOP_BITS;
         }

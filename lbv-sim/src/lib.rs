@@ -11,16 +11,26 @@
 //! - [`in_one_critical_section`]: a run at the cost of one critical section.
 //!
 //! All state is owned: a board is a set of handles on these parts and a few tasks; dropping them (a power cycle)
-//! frees everything. This crate knows none of the firmware crates: their port traits are implemented where they
-//! are defined, or by thin adapters in the crate that wires a board.
+//! frees everything. This crate knows none of the firmware crates: their port traits are implemented by thin
+//! adapters in the crate that wires a board (the bench's `lbv::bench::ports`).
+//!
+//! The clock, the executor and the critical section are the host's (Cargo feature `std`, on by default). Without
+//! it the parts need only `core` and `alloc`, and run on the time driver and executor of whoever uses them:
+//! qemu-m4 puts its thruster buses on this I2C model on the emulated Cortex-M4.
+#![cfg_attr(not(feature = "std"), no_std)]
 
+extern crate alloc;
+
+#[cfg(feature = "std")]
 pub mod clock;
 mod cpu;
+#[cfg(feature = "std")]
 mod executor;
 pub mod flash;
 pub mod i2c;
 mod queue;
 
+#[cfg(feature = "std")]
 pub use clock::Clock;
 pub use cpu::Cpu;
 
@@ -30,8 +40,10 @@ pub use cpu::Cpu;
 ///
 /// The section is the whole process's: while one thread runs in it, another thread's critical sections wait. Run
 /// simulations side by side as processes, not threads.
+#[cfg(feature = "std")]
 pub fn in_one_critical_section<R>(f: impl FnOnce() -> R) -> R {
     critical_section::with(|_| f())
 }
+#[cfg(feature = "std")]
 pub use executor::{Executor, TaskId};
 pub use queue::{CanBus, Queue, SerialRx, SerialTx};

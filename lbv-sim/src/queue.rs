@@ -1,12 +1,13 @@
 //! One-way links: a [`Queue`] of items (bytes, CAN frames) whose reader is woken on every send, the serial ports
 //! built on it ([`SerialRx`], [`SerialTx`]), and a CAN bus that hands every frame to each node ([`CanBus`]).
 
-use std::cell::RefCell;
-use std::collections::VecDeque;
-use std::convert::Infallible;
-use std::future::poll_fn;
-use std::rc::Rc;
-use std::task::{Poll, Waker};
+use alloc::collections::VecDeque;
+use alloc::rc::Rc;
+use alloc::vec::Vec;
+use core::cell::RefCell;
+use core::convert::Infallible;
+use core::future::poll_fn;
+use core::task::{Poll, Waker};
 
 struct Inner<T> {
     items: VecDeque<T>,

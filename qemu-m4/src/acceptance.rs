@@ -13,7 +13,7 @@ use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict, f
 use lbv_master_fw::config::THRUSTER_BUS;
 use tmc_proto::Family;
 
-use crate::i2c::Bus;
+use crate::i2c::{self, Bus};
 use crate::master::{self, MASTER_METER, MasterPorts};
 use crate::meter::metered;
 use crate::stacks::Stack;
@@ -122,6 +122,7 @@ async fn finish_after_verdict(bus: &'static Bus) {
             &halls::EDGE_ISR_METER,
             &crate::time::ALARM_METER,
             &thruster::MOTOR_MODEL_METER,
+            &i2c::BUS_MODEL_METER,
         ],
     );
     report::thruster_load(dispatch);

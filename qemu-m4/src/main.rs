@@ -19,6 +19,8 @@ mod executors;
 #[cfg(target_os = "none")]
 mod halls;
 #[cfg(target_os = "none")]
+mod heap;
+#[cfg(target_os = "none")]
 mod i2c;
 #[cfg(target_os = "none")]
 mod master;
@@ -47,7 +49,7 @@ mod entry {
     use cortex_m_rt::{ExceptionFrame, entry, exception};
     use tmc_proto::Family;
 
-    use crate::{acceptance, executors, meter, report, stacks, time, vehicle};
+    use crate::{acceptance, executors, heap, meter, report, stacks, time, vehicle};
 
     /// What to run, from the semihosting command line.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,6 +90,7 @@ mod entry {
 
     /// Thread mode, on the process stack.
     extern "C" fn thread_main() -> ! {
+        heap::init();
         meter::init();
         time::init();
         let Some(run) = command_line() else {

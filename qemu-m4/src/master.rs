@@ -52,17 +52,19 @@ pub fn buses(config: &MasterConfig, thread: Spawner, high: SendSpawner, halls: H
         let mut thrusters = heapless::Vec::<&'static Thruster, MAX_THRUSTERS>::new();
         let on_bus = config.thrusters.as_slice().iter().filter(|slot| slot.bus == index);
         for slot in on_bus {
-            let thruster = Thruster::create(slot.family, slot.mux_channel);
-            let input = if first { halls } else { HallInput::Model };
-            first = false;
-            thruster.start(thread, high, input);
-            if thrusters.push(thruster).is_err() {
+            if thrusters.push(Thruster::create(slot.family, slot.mux_channel)).is_err() {
                 report::fail("more thrusters on one bus than the bus model takes");
             }
         }
         let mux_fitted = thrusters.iter().any(|thruster| thruster.mux_channel.is_some());
         index += 1;
-        &*cell.init(Bus::new(config.bus, &thrusters, mux_fitted))
+        let bus: &'static Bus = cell.init(Bus::new(config.bus, &thrusters, mux_fitted));
+        for thruster in bus.thrusters() {
+            let input = if first { halls } else { HallInput::Model };
+            first = false;
+            thruster.start(thread, high, input, bus);
+        }
+        bus
     })
 }
 

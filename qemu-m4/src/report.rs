@@ -12,6 +12,7 @@ use embassy_time::Instant;
 use crate::board::SYSCLK_HZ;
 use crate::executors::THREAD_EXECUTOR_METER;
 use crate::halls::{self, LATENCY};
+use crate::heap::{self, HEAP_BYTES};
 use crate::i2c::Bus;
 use crate::meter::{self, Calibration, Joined, Meter, Usage};
 use crate::stacks::{STACK_BYTES, Stack};
@@ -85,6 +86,7 @@ pub fn bus(bus: &Bus) -> bool {
         if held { "STILL HELD LOW" } else { "free" },
         crate::DEFMT_FRAMES.load(Ordering::Relaxed)
     );
+    say!("BUS model heap: at most {} B in use of {HEAP_BYTES} B", heap::peak());
     let mut fed = true;
     for (index, thruster) in bus.thrusters().iter().enumerate() {
         let (feeds, longest_gap_us) = thruster.watchdog();

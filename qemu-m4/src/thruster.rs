@@ -26,7 +26,7 @@ use tmc_proto::{Family, MotorKind};
 
 use crate::executors::BENCH_METER;
 use crate::halls::EdgeHalls;
-use crate::i2c::{MAX_THRUSTERS, SlaveLine, TargetPort};
+use crate::i2c::{Bus, MAX_THRUSTERS};
 use crate::meter::{self, Joined, Meter, Progress, THRUSTER_THREAD_BUSY, metered, metered_joined};
 use crate::report;
 use crate::stacks::Stack;
@@ -76,12 +76,9 @@ pub struct Thruster {
     pub config: Config,
     /// Its TCA9548A channel, None when wired to the bus directly.
     pub mux_channel: Option<u8>,
-    /// Its end of the I2C bus.
-    pub line: SlaveLine,
     motorless: Motorless,
     water_resistor: AtomicBool,
     rotor_held: AtomicBool,
-    powered: AtomicBool,
     /// The RAM of the running power-up, and its number; None while the power is cut.
     power: Watch<CriticalSectionRawMutex, Option<(usize, &'static Shared)>, POWERED_TASKS>,
     rams: [StaticCell<Shared>; POWER_UPS],
@@ -103,10 +100,8 @@ impl Thruster {
                 motorless: Motorless::new(MotorModel::new(&config)),
                 config,
                 mux_channel,
-                line: SlaveLine::new(),
                 water_resistor: AtomicBool::new(false),
                 rotor_held: AtomicBool::new(false),
-                powered: AtomicBool::new(false),
                 power: Watch::new(),
                 rams: [const { StaticCell::new() }; POWER_UPS],
                 power_ups: AtomicUsize::new(0),
@@ -124,17 +119,12 @@ impl Thruster {
         }
     }
 
-    /// Spawn the controller's two tasks and its power supply, and power it up.
-    pub fn start(&'static self, thread: Spawner, high: SendSpawner, halls: HallInput) {
-        report::spawn(thread, controller(self));
+    /// Spawn the controller's two tasks and its power supply, and power it up; its I2C port is on `bus`.
+    pub fn start(&'static self, thread: Spawner, high: SendSpawner, halls: HallInput, bus: &'static Bus) {
+        report::spawn(thread, controller(self, bus));
         report::spawn(thread, power_supply(self));
         report::spawn_send(high, commutation(self, halls));
         self.power_on();
-    }
-
-    /// Whether it answers on the bus.
-    pub fn powered(&self) -> bool {
-        self.powered.load(Ordering::Acquire)
     }
 
     /// The operator fits (or removes) the water-sensor test resistor.
@@ -147,9 +137,8 @@ impl Thruster {
         self.rotor_held.store(held, Ordering::Relaxed);
     }
 
-    /// Cut the power now; it comes back after [`POWER_CUT`].
+    /// Cut the power now (its bus port, which cuts it, stops answering); it comes back after [`POWER_CUT`].
     pub fn cut_power(&self) {
-        self.powered.store(false, Ordering::Release);
         self.power.sender().send(None);
         // The gate drivers let go: whatever was driven, the motor coasts.
         ModelBridge(&self.motorless).apply(COAST, Duty::ZERO);
@@ -180,10 +169,8 @@ impl Thruster {
         let Some(shared) = self.rams.get(power_up).and_then(|ram| ram.try_init(Shared::new())) else {
             report::fail("a thruster lost its power more often than the test provides RAM for");
         };
-        self.line.clear();
         self.watchdog.last_feed_us.store(now_us(), Ordering::Relaxed);
         self.power.sender().send(Some((power_up, &*shared)));
-        self.powered.store(true, Ordering::Release);
     }
 
     /// Run `body` with the RAM of each power-up, until that power-up ends.
@@ -319,10 +306,14 @@ impl tasks::Watchdog for Watchdog {
 // thruster's own stack, `run_commutation` on the interrupt executor; each power-up with fresh RAM.
 
 #[embassy_executor::task(pool_size = MAX_THRUSTERS)]
-async fn controller(t: &'static Thruster) -> ! {
+async fn controller(t: &'static Thruster, bus: &'static Bus) -> ! {
     let body = t.powered_run(|shared| {
+        // Each power-up boots with a fresh peripheral; from then on the thruster answers on the bus.
+        let Some(i2c) = bus.target(t) else {
+            report::fail("a thruster is not on the bus it was started on");
+        };
         let ports = Ports {
-            i2c: TargetPort::new(&t.line),
+            i2c,
             sensors: Inputs(ModelSensors::new(&t.motorless, &t.config, WaterPin(t), HoldButton(t))),
             watchdog: Watchdog(t),
             // A power cut clears the latches, as the operator's power cycle does (a backup register would keep

@@ -20,7 +20,7 @@ use lbv_master_fw::shared::ManualInput;
 use lbv_master_fw::vehicle::{MAV_CMD_COMPONENT_ARM_DISARM, NEUTRAL};
 
 use crate::executors::{self, BENCH_METER};
-use crate::i2c::{Bus, MAX_THRUSTERS};
+use crate::i2c::{self, Bus, MAX_THRUSTERS};
 use crate::master::{self, CAN, CONSOLE_STATS, MASTER_METER, MasterPorts};
 use crate::meter::metered;
 use crate::stacks::Stack;
@@ -350,6 +350,7 @@ fn finish(bus: &Bus, pass: bool) -> ! {
             &executors::COMMUTATION_ISR_METER,
             &crate::time::ALARM_METER,
             &thruster::MOTOR_MODEL_METER,
+            &i2c::BUS_MODEL_METER,
         ],
     );
     report::master_load(dispatch);

@@ -22,10 +22,16 @@ pub mod i2c_slave;
 pub mod motorless;
 pub mod overcurrent;
 pub mod sensors;
-#[cfg(any(test, feature = "sim"))]
-pub mod sim;
 pub mod speed;
 pub mod tasks;
+
+// The host tests' slave port on lbv-sim's bus: the bench's own, one file (`lbv/src/bench/ports.rs` says why),
+// which names this crate as the bench does.
+#[cfg(test)]
+extern crate self as thruster_fw;
+#[cfg(test)]
+#[path = "../../lbv/src/bench/ports/thruster.rs"]
+mod sim;
 
 pub use drive::{Direction, Duty};
 pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve};

@@ -3,8 +3,8 @@
 use super::*;
 use crate::config::BusConfig;
 use crate::shared::Outgoing;
-use crate::sim::scripted::{Mode, SimThruster, speed};
 use crate::sim::thruster_bus;
+use crate::tests::scripted::{Mode, SimThruster, speed};
 use core::cell::{RefCell, RefMut};
 use embedded_hal::i2c::NoAcknowledgeSource;
 use lbv_sim::i2c::{Bus, Data, Route, Timing};

@@ -297,6 +297,44 @@ fn sda_held_low_fails_every_transfer_until_enough_clocks_free_it() {
 }
 
 #[test]
+fn a_glitch_at_the_next_transfer_to_a_port_holds_sda_low_unseen_by_its_firmware() {
+    let bus = Bus::new(TIMING);
+    let id = bus.attach_target(0x29, Route::Direct);
+    let mut target = bus.target(id).unwrap();
+    let (mut scl, mut master) = (bus.scl(), bus.master());
+    let clock = clock::take();
+    let seen = Cell::new(0);
+    let results = RefCell::new(Vec::new());
+    let mut executor = Executor::new();
+    executor.spawn(async {
+        loop {
+            if target.listen().await.is_ok() && target.respond_to_write(&mut [0; 4]).await.is_ok() {
+                seen.set(seen.get() + 1);
+            }
+        }
+    });
+    bus.hold_sda_at_next_transfer(id, 2);
+    assert!(!bus.sda_held(), "not before the transfer");
+    executor.spawn(async {
+        for _ in 0..2 {
+            let result = master.write(0x29, &[5]).await;
+            results.borrow_mut().push(result);
+        }
+        assert!(bus.sda_held());
+        for _ in 0..2 {
+            scl.set_low().unwrap();
+            scl.set_high().unwrap();
+        }
+        let result = master.write(0x29, &[6]).await;
+        results.borrow_mut().push(result);
+    });
+    executor.run_for(&clock, Duration::from_millis(2), BIT);
+    assert_eq!(*results.borrow(), [Err(ErrorKind::Bus), Err(ErrorKind::Bus), Ok(())]);
+    assert_eq!(seen.get(), 1, "the firmware saw only the last");
+    assert_eq!(bus.stats().bus_errors, 2);
+}
+
+#[test]
 fn a_transfer_held_past_the_timeout_by_the_masters_stall_times_out() {
     let clock = clock::take();
     let bus = Bus::new(TIMING);

@@ -20,13 +20,14 @@ use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::sim::{RebootRequest, flash_store, g431_flash, thruster_bus};
 use lbv_master_fw::thrusters::BUSES;
 use lbv_master_fw::{BusWork, MasterConfig, Polling, Ports};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
+
+use super::ports::master::{CanNode, RebootRequest, flash_store, g431_flash, thruster_bus};
 
 /// What the master's ports are wired to: its three thruster buses, its CAN node's receive queue and its console
 /// link, both ways.
@@ -168,7 +169,7 @@ impl MasterBoard {
     fn spawn(&self, wiring: &Wiring, executor: &mut Executor<'static>, work: impl BusWork + 'static) -> TaskId {
         let ports = Ports {
             buses: wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus)),
-            can: wiring.can.clone(),
+            can: CanNode(wiring.can.clone()),
             console_rx: SerialRx::new(wiring.console_in.clone()),
             console_tx: SerialTx(wiring.console_out.clone()),
             settings: flash_store(&self.flash),

@@ -16,6 +16,7 @@ pub mod ground;
 pub mod master;
 pub mod plant;
 pub mod plot;
+pub mod ports;
 pub mod thruster;
 pub mod trace;
 pub mod udp;

@@ -24,6 +24,7 @@ use tmc_proto::{Family, MotorKind};
 use super::STEP;
 use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
+use super::ports::thruster::SlavePort;
 
 /// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
 /// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
@@ -168,7 +169,7 @@ impl ThrusterBoard {
             return;
         };
         let ports = Ports {
-            i2c: port,
+            i2c: SlavePort(port),
             sensors: Adc {
                 io: self.io.clone(),
                 config: self.config.clone(),

@@ -5,6 +5,7 @@ use crate::commutation::drive_for;
 use crate::control::LinkUpdate;
 use crate::faults::VolatileLatch;
 use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
+use crate::sim::SlavePort;
 use crate::tasks::{Ports, Shared, Watchdog};
 use core::ops::Deref;
 use lbv_sim::i2c::{Bus, Route, Timing};
@@ -192,7 +193,7 @@ impl Rig {
         executor.spawn(async move {
             let Some(port) = port else { return };
             let ports = Ports {
-                i2c: port,
+                i2c: SlavePort(port),
                 sensors: ModelSensors::new(&controller.motorless, &CONFIG, Dry, Button(controller.clone())),
                 watchdog: Unwatched,
                 latch: VolatileLatch::default(),

@@ -4,6 +4,7 @@
 use super::*;
 use crate::faults::VolatileLatch;
 use crate::hall::FORWARD_SEQUENCE;
+use crate::sim::SlavePort;
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
 use embedded_hal_async::i2c::I2c;
@@ -188,7 +189,7 @@ impl Bench {
         let mut executor = Executor::new();
         let port = bus.target(device).expect("a firmware port");
         let ports = Ports {
-            i2c: port,
+            i2c: SlavePort(port),
             sensors: TestSensors(io.clone()),
             watchdog: CountingWatchdog(io.clone()),
             latch: TestLatch(io.clone()),

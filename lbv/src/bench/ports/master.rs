@@ -1,0 +1,73 @@
+//! The master's ports on lbv-sim's simulated parts, for the bench and lbv-master-fw's host tests (which include
+//! this file): a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery CAN
+//! receiver on a simulated CAN node, the settings store on a simulated G431 flash, and a reboot that whoever runs
+//! the board carries out.
+
+use std::cell::Cell;
+use std::convert::Infallible;
+use std::rc::Rc;
+
+use embassy_time::Delay;
+use lbv_master_fw::battery::{CanFrame, CanReceiver};
+use lbv_master_fw::config::BusConfig;
+use lbv_master_fw::recovery::PinRecovery;
+use lbv_master_fw::settings::{Reboot, Store};
+use lbv_sim::Queue;
+use lbv_sim::flash::Stm32g4Flash;
+use lbv_sim::i2c::{Bus, Master, Scl, Sda};
+
+/// A simulated thruster bus as the master sees it: transfers on lbv-sim's master port, the recovery on its lines.
+pub type ThrusterBus = PinRecovery<Master, Scl, Sda, Delay>;
+
+/// The master's port on `bus`, whose speed is `config`'s.
+pub fn thruster_bus(bus: &Bus, config: &BusConfig) -> ThrusterBus {
+    PinRecovery {
+        i2c: bus.master(),
+        scl: bus.scl(),
+        sda: bus.sda(),
+        delay: Delay,
+        bus: *config,
+    }
+}
+
+/// The master's receive queue on a simulated CAN bus.
+#[derive(Debug, Clone, Default)]
+pub struct CanNode(pub Queue<CanFrame>);
+
+impl CanReceiver for CanNode {
+    type Error = Infallible;
+
+    async fn receive(&mut self) -> Result<CanFrame, Infallible> {
+        Ok(self.0.receive().await)
+    }
+}
+
+/// The G431's 128 KiB of flash, erased: 64 pages of 2 KiB (RM0440 3.3.1).
+pub fn g431_flash() -> Stm32g4Flash {
+    Stm32g4Flash::new(64)
+}
+
+/// The settings store on a simulated G431 `flash`, in the pages the binding gives it (a handle: the memory stays
+/// with whoever holds another).
+pub fn flash_store(flash: &Stm32g4Flash) -> Store<Stm32g4Flash> {
+    Store::g431(flash.clone())
+}
+
+/// A simulated master's reboot: it counts the request and waits; whoever runs the board sees
+/// [`RebootRequest::requested`], drops the master's tasks and boots it again.
+#[derive(Debug, Clone, Default)]
+pub struct RebootRequest(Rc<Cell<u32>>);
+
+impl RebootRequest {
+    /// Reboots asked for so far.
+    pub fn requested(&self) -> u32 {
+        self.0.get()
+    }
+}
+
+impl Reboot for RebootRequest {
+    async fn reboot(&mut self) -> ! {
+        self.0.set(self.0.get().saturating_add(1));
+        core::future::pending().await
+    }
+}
