@@ -60,6 +60,7 @@ use std::process::ExitCode;
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus, DecodeError, Frame, StatusBit};
 
+use super::StreamError;
 use crate::exit;
 use crate::lines::{Line as InputLine, Lines};
 
@@ -115,33 +116,20 @@ pub fn main(args: &Args) -> ExitCode {
             eprintln!("lbv decode can: {summary}");
             summary.exit_code()
         }
-        // The reader of the output went away (`| head`): nothing more to say.
-        Err(Failure::Write(error)) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
-        Err(Failure::Write(error)) => {
-            eprintln!("lbv decode can: cannot write the output: {error}");
-            ExitCode::from(exit::TROUBLE)
-        }
-        Err(Failure::Read(error)) => {
-            eprintln!("lbv decode can: cannot read {name}: {error}");
-            ExitCode::from(exit::TROUBLE)
-        }
+        Err(error) => error.exit("lbv decode can", &name),
     }
 }
 
-/// Why a run stopped before the end of its input.
-#[derive(Debug)]
-pub enum Failure {
-    /// Reading the input failed.
-    Read(io::Error),
-    /// Writing the output failed.
-    Write(io::Error),
-}
-
 /// Decodes the candump log `input` to `out` (human or `json`), with bad-line messages and notes on `err`.
-pub fn run(input: impl BufRead, out: &mut impl Write, err: &mut impl Write, json: bool) -> Result<Summary, Failure> {
+pub fn run(
+    input: impl BufRead,
+    out: &mut impl Write,
+    err: &mut impl Write,
+    json: bool,
+) -> Result<Summary, StreamError> {
     let mut decoder = Decoder::new(json);
     let mut lines = Lines::new(input, MAX_LINE);
-    while let Some((number, line)) = lines.next_line().map_err(Failure::Read)? {
+    while let Some((number, line)) = lines.next_line().map_err(StreamError::Read)? {
         let parsed = match line {
             InputLine::Whole(line) => parse_line(line),
             InputLine::TooLong { .. } => Err("line too long for a candump log line"),
@@ -547,10 +535,10 @@ impl Decoder {
     }
 
     /// Writes what is buffered to `out`.
-    fn flush(&mut self, out: &mut impl Write) -> Result<(), Failure> {
-        out.write_all(&self.out).map_err(Failure::Write)?;
+    fn flush(&mut self, out: &mut impl Write) -> Result<(), StreamError> {
+        out.write_all(&self.out).map_err(StreamError::Write)?;
         self.out.clear();
-        out.flush().map_err(Failure::Write)
+        out.flush().map_err(StreamError::Write)
     }
 
     /// Applies `update` to the board on `iface`: a new one for an interface not seen yet, which takes the place

@@ -26,6 +26,33 @@ pub fn main(command: Command) -> ExitCode {
     }
 }
 
+/// Why a decoder stopped before the end of its input.
+#[derive(Debug)]
+pub enum StreamError {
+    /// Reading the input failed.
+    Read(io::Error),
+    /// Writing the output failed.
+    Write(io::Error),
+}
+
+impl StreamError {
+    /// Say on standard error why `command` stopped reading `input`, and give its exit status. A reader of the
+    /// output that went away (`| head`) is not an error: there is nothing more to say.
+    fn exit(self, command: &str, input: &str) -> ExitCode {
+        match self {
+            StreamError::Write(error) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+            StreamError::Write(error) => {
+                eprintln!("{command}: cannot write the output: {error}");
+                ExitCode::from(crate::exit::TROUBLE)
+            }
+            StreamError::Read(error) => {
+                eprintln!("{command}: cannot read {input}: {error}");
+                ExitCode::from(crate::exit::TROUBLE)
+            }
+        }
+    }
+}
+
 /// Size of the input buffer.
 const IN_BUFFER: usize = 256 * 1024;
 

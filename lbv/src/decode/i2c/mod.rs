@@ -31,6 +31,7 @@ use std::io::{self, BufRead, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use super::StreamError;
 use crate::exit;
 use crate::lines::{Line, Lines};
 
@@ -122,35 +123,22 @@ pub fn main(args: &Args) -> ExitCode {
     let mut err = io::stderr();
     let mut decoder = Decoder::new(args);
     let result = decoder.run(input, &mut out, &mut err);
-    let result = result.and_then(|()| out.flush().map_err(Failure::Write));
+    let result = result.and_then(|()| out.flush().map_err(StreamError::Write));
     decoder.summary(&mut err);
     match result {
         Ok(()) if decoder.counts.skipped == 0 => ExitCode::SUCCESS,
         Ok(()) => ExitCode::from(exit::FAILED),
-        // A reader that stopped early (`| head`) is not an error.
-        Err(Failure::Write(error)) if error.kind() == io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
-        Err(Failure::Write(error)) => {
-            eprintln!("lbv decode i2c: cannot write the output: {error}");
-            ExitCode::from(exit::TROUBLE)
-        }
-        Err(Failure::Read(error)) => {
-            eprintln!("lbv decode i2c: cannot read {name}: {error}");
-            ExitCode::from(exit::TROUBLE)
-        }
+        Err(error) => error.exit("lbv decode i2c", &name),
     }
 }
 
-/// Why a run stopped before the end of its input.
-#[derive(Debug)]
-pub enum Failure {
-    /// Reading the input failed.
-    Read(io::Error),
-    /// Writing the output failed.
-    Write(io::Error),
-}
-
 /// Decode the annotations of `input` as `args` say: transfers to `out`, bad lines and the summary to `err`.
-pub fn run(input: impl BufRead, out: &mut impl Write, err: &mut impl Write, args: &Args) -> Result<Counts, Failure> {
+pub fn run(
+    input: impl BufRead,
+    out: &mut impl Write,
+    err: &mut impl Write,
+    args: &Args,
+) -> Result<Counts, StreamError> {
     let mut decoder = Decoder::new(args);
     decoder.run(input, out, err)?;
     decoder.summary(err);
@@ -215,9 +203,9 @@ impl Decoder {
     }
 
     /// Decode every line of `input`; transfers go to `out`, bad lines to `err`.
-    fn run(&mut self, input: impl BufRead, out: &mut impl Write, err: &mut impl Write) -> Result<(), Failure> {
+    fn run(&mut self, input: impl BufRead, out: &mut impl Write, err: &mut impl Write) -> Result<(), StreamError> {
         let mut lines = Lines::new(input, MAX_LINE);
-        while let Some((number, line)) = lines.next_line().map_err(Failure::Read)? {
+        while let Some((number, line)) = lines.next_line().map_err(StreamError::Read)? {
             let text = String::from_utf8_lossy(line.bytes());
             let outcome = match line {
                 Line::TooLong { length, .. } => Err(format!("line of {length} bytes, longer than {MAX_LINE}")),
@@ -230,7 +218,7 @@ impl Decoder {
                 }),
             };
             match outcome {
-                Ok(Some(transfer)) => self.emit(transfer, out).map_err(Failure::Write)?,
+                Ok(Some(transfer)) => self.emit(transfer, out).map_err(StreamError::Write)?,
                 Ok(None) => {}
                 Err(reason) => {
                     self.counts.skipped += 1;
@@ -242,7 +230,7 @@ impl Decoder {
             }
         }
         if let Some(transfer) = self.assembler.finish() {
-            self.emit(transfer, out).map_err(Failure::Write)?;
+            self.emit(transfer, out).map_err(StreamError::Write)?;
         }
         Ok(())
     }
