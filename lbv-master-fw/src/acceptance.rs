@@ -32,11 +32,9 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::{ErrorType, I2c, Operation};
 use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
-use crate::BusWork;
-use crate::config::MasterConfig;
 use crate::recovery::BusRecovery;
-use crate::shared::{QuietBuses, Severity, Shared, Text, text};
-use crate::thrusters::{BUSES, Failure};
+use crate::shared::{BUSES, QuietBuses, Severity, Shared, Text, text};
+use crate::thrusters::Failure;
 
 /// The steps of the script, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -325,15 +323,15 @@ pub trait Operator {
     }
 }
 
-/// The acceptance image's work on the thruster buses: `config.acceptance.start` after boot, the script on the dev
-/// kit's bus, with every prompt, step and verdict said on the console as well as told to the operator; the other
-/// buses stay idle.
+/// The acceptance image's work on the thruster buses (its [`BusWork`](crate::BusWork) is in the crate root, which
+/// hands it `config.acceptance`): `setup.start` after boot, the script on the dev kit's bus, with every prompt,
+/// step and verdict said on the console as well as told to the operator; the other buses stay idle.
 #[derive(Debug)]
 pub struct Script<O>(pub O);
 
-impl<O: Operator> BusWork for Script<O> {
-    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
-        let setup = &config.acceptance;
+impl<O: Operator> Script<O> {
+    /// Run the script on `buses[setup.bus]`.
+    pub async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], setup: &AcceptanceSetup, shared: &Shared) {
         Timer::after(setup.start).await;
         let Some(bus) = buses.get_mut(usize::from(setup.bus)) else {
             return;
@@ -461,6 +459,33 @@ impl AcceptanceConfig {
 impl Default for AcceptanceConfig {
     fn default() -> Self {
         Self::DEFAULT
+    }
+}
+
+/// Where the acceptance image runs its script, and the person at the bench's timings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct AcceptanceSetup {
+    /// The script's timings and limits.
+    pub script: AcceptanceConfig,
+    /// The bus the dev kits are wired on (its index, as in the thruster table).
+    pub bus: u8,
+    /// The script starts this long after boot, so that a thruster board powered up at the same time is running
+    /// and the host has attached to the log.
+    pub start: Duration,
+}
+
+impl AcceptanceSetup {
+    /// How long the person at the bench gets for each prompt before the script goes on. The power cycle happens while
+    /// the script keeps the bus busy (for `reset_window`, 15 s), so its prompt only gives time to reach the cable.
+    pub const fn prompt_wait(&self, prompt: Prompt) -> Duration {
+        match prompt {
+            Prompt::FitWaterResistor => Duration::from_secs(15),
+            Prompt::RemoveWaterResistor => Duration::from_secs(10),
+            Prompt::HoldRotor => Duration::from_secs(8),
+            Prompt::ReleaseRotor => Duration::from_secs(5),
+            Prompt::ResetThruster => Duration::from_secs(5),
+        }
     }
 }
 

@@ -24,16 +24,15 @@ use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
+use crate::framing::{Event, FrameParser};
 use crate::shared::{Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared};
 use crate::signing::{Refusal, SigningKey, SigningState};
 
-pub mod frame;
 pub mod inbound;
 pub mod outbound;
 
 include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 
-use frame::{Event, FrameParser};
 use outbound::{Framer, LinkQuality, Reports};
 
 /// The default ESC telemetry period (4 Hz); HEARTBEAT, SYS_STATUS, BATTERY_STATUS and ESC_INFO go every fourth

@@ -11,6 +11,7 @@ pub mod acceptance;
 pub mod battery;
 pub mod config;
 pub mod console;
+pub mod framing;
 pub mod mixer;
 pub mod params;
 pub mod poll;
@@ -34,8 +35,8 @@ use battery::{CanReceiver, can_task};
 use console::{ConsoleStats, console_rx_task, console_tx_task};
 use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
-use shared::{Severity, Shared, text};
-use thrusters::{BUSES, bus_task};
+use shared::{BUSES, Severity, Shared, text};
+use thrusters::bus_task;
 use vehicle::vehicle_task;
 
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
@@ -79,6 +80,12 @@ impl BusWork for Polling {
             poll_bus(third, 2, config, shared),
         )
         .await;
+    }
+}
+
+impl<O: acceptance::Operator> BusWork for acceptance::Script<O> {
+    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
+        acceptance::Script::run(self, buses, &config.acceptance, shared).await
     }
 }
 

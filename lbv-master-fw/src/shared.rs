@@ -11,7 +11,8 @@ use embassy_sync::watch::Watch;
 use embassy_time::Duration;
 use tmc_proto::{Order, Status};
 
-use crate::params::{ParamType, Settings};
+use crate::mixer::ManualInput;
+use crate::params::{ParamId, ParamType, Settings};
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
 pub const MAX_THRUSTERS: usize = 8;
@@ -42,24 +43,6 @@ impl core::fmt::Write for Truncating {
     }
 }
 
-/// The pilot's sticks, as MAVLink MANUAL_CONTROL carries them: x forward, y right, r yaw clockwise, each
-/// -1000..=1000; z vertical thrust 0..=1000 with 500 neutral (the ArduSub convention; 1000 = up).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct ManualInput {
-    /// Surge, -1000 (astern) ..= 1000 (ahead).
-    pub x: i16,
-    /// Sway, -1000 (left) ..= 1000 (right).
-    pub y: i16,
-    /// Heave, 0 (down) ..= 1000 (up), 500 neutral.
-    pub z: i16,
-    /// Yaw, -1000 (counter-clockwise) ..= 1000 (clockwise), seen from above.
-    pub r: i16,
-}
-
-/// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
-pub type ParamId = [u8; 16];
-
 /// Who sent a console message: its MAVLink system and component ids.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -80,6 +63,20 @@ pub struct Request {
     pub command: Command,
 }
 
+// The MAV_CMD numbers the console decodes and the vehicle acknowledges (the dialect leaves COMMAND_LONG's command
+// a plain number).
+/// MAV_CMD_COMPONENT_ARM_DISARM.
+pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
+/// MAV_CMD_DO_MOTOR_TEST.
+pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
+/// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
+pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
+/// MAV_CMD_SET_MESSAGE_INTERVAL.
+pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
+/// MAV_CMD_REQUEST_MESSAGE.
+pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
+/// MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: the older way to ask for AUTOPILOT_VERSION.
+pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
 /// What the console asked for, decoded from MAVLink by the console task.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -292,7 +289,7 @@ pub struct LinkHealth {
     pub overcurrents: u32,
     /// The thruster did not acknowledge (missing or unpowered).
     pub nack: u32,
-    /// A transfer timed out (SCL held low past the bus's timeout, [`crate::config::BusConfig::timeout`]).
+    /// A transfer timed out (SCL held low past the bus's timeout, [`crate::recovery::BusConfig::timeout`]).
     pub timeout: u32,
     /// The status's checksum did not match.
     pub bad_checksum: u32,

@@ -15,7 +15,7 @@ use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::{Bus, Master, Scl, Sda};
 
 use crate::battery::{CanFrame, CanReceiver};
-use crate::config::BusConfig;
+use crate::recovery::BusConfig;
 use crate::recovery::PinRecovery;
 use crate::settings::{Reboot, Store};
 
@@ -84,7 +84,7 @@ pub(crate) mod scripted {
         Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Speed, Status, checksum,
     };
 
-    use crate::config::BusConfig;
+    use crate::recovery::BusConfig;
 
     /// How a scripted thruster behaves on the bus.
     #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -28,8 +28,7 @@ use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm}
 
 use crate::poll::{PollError, Polled, poll_thruster};
 use crate::recovery::BusRecovery;
-pub use crate::shared::LinkHealth;
-use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
+use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
 
 #[cfg(test)]
 mod tests;
@@ -86,8 +85,6 @@ impl ThrusterSlot {
         }
     }
 }
-
-pub use crate::shared::BUSES;
 
 /// What is wrong with a thruster table; thrusters are named by their index in the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -16,7 +16,7 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Delay, Duration, Timer, with_timeout};
 use embedded_hal::digital::{self, InputPin, OutputPin};
 use embedded_hal_async::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
-use lbv_master_fw::config::BusConfig;
+use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::thrusters::{MUX_ADDRESS, transfer_bits};
 use thruster_fw::{I2cTarget, Request};

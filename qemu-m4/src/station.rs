@@ -6,8 +6,8 @@ use core::sync::atomic::{AtomicU8, Ordering};
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use lbv_master_fw::console::frame::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity};
+use lbv_master_fw::framing::{Event, FrameParser};
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message, MessageData};
 
 use crate::executors::BENCH_METER;

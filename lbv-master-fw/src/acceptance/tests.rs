@@ -2,7 +2,7 @@
 //! meant to catch fails that step and the verdict.
 
 use super::*;
-use crate::config::BusConfig;
+use crate::recovery::BusConfig;
 use crate::sim::thruster_bus;
 use core::cell::{Cell, RefCell};
 use lbv_sim::i2c::{Bus, Device, Reply, Route, Timing};

@@ -13,9 +13,8 @@ use super::lbv::{
     MavModeFlag, MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
     MavSysStatusSensorExtended, MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
-use crate::battery::BatterySummary;
-use crate::params::ParamType;
-use crate::shared::{AckResult, MAX_THRUSTERS, ParamId, Sender, Severity, Text, ThrusterReport, VehicleState};
+use crate::params::{ParamId, ParamType};
+use crate::shared::{AckResult, BatterySummary, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport, VehicleState};
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
 
@@ -644,7 +643,7 @@ impl Framer {
 mod tests {
     use super::*;
     use crate::console::ConsoleCounters;
-    use crate::thrusters::LinkHealth;
+    use crate::shared::LinkHealth;
     use bat_proto::{BatteryInfo, DcdcStatus, StatusBit};
     use tmc_proto::{LegacyRevision, LegacyStatus, SeaBotixStatus, Speed};
 

@@ -1,7 +1,7 @@
 //! The state machines alone, then the bus task on a simulated bus on virtual time.
 
 use super::*;
-use crate::config::BusConfig;
+use crate::recovery::BusConfig;
 use crate::shared::Outgoing;
 use crate::sim::scripted::{Mode, SimThruster, speed};
 use crate::sim::thruster_bus;
