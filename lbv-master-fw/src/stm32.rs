@@ -268,7 +268,8 @@ mod acceptance {
     use defmt::{info, warn};
     use embassy_time::Timer;
     use lbv_master_fw::CONFIG;
-    use lbv_master_fw::acceptance::{Operator, Prompt, StepResult, Verdict, family_token};
+    use lbv_master_fw::acceptance::Operator;
+    use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict, family_token};
     use tmc_proto::Family;
 
     /// A report line's body; the longest step has 8 figures of ~20 characters.

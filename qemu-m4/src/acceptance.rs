@@ -9,7 +9,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Timer};
 use lbv_master_fw::MasterConfig;
-use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict, family_token};
+use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict, family_token};
+use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::config::THRUSTER_BUS;
 use tmc_proto::Family;
 

@@ -19,7 +19,7 @@ const GCS_SYSTEM: u8 = 255;
 const GCS_COMPONENT: u8 = 190;
 static SEQUENCE: AtomicU8 = AtomicU8::new(0);
 
-/// The beginning of the console text that carries the acceptance test's verdict (`acceptance::verdict_text`).
+/// The beginning of the console text that carries the acceptance test's verdict (`acceptance::report::verdict_text`).
 const VERDICT_PASS: &str = "acceptance PASS";
 const VERDICT_FAIL: &str = "acceptance FAIL";
 

@@ -561,62 +561,6 @@ fn a_bus_the_recovery_cannot_free_fails_the_reset_step() {
 }
 
 #[test]
-fn report_lines_have_a_fixed_shape() {
-    let mut result = StepResult::new(Step::SpeedForward, Some(Family::Legacy));
-    result.figure("steps", 102);
-    result.millis("worst_ms", Some(Duration::from_micros(40_900)));
-    result.millis("never_ms", None);
-    assert_eq!(
-        result.to_string(),
-        "step=speed-forward family=legacy result=PASS steps=102 worst_ms=40 never_ms=-1"
-    );
-    result.require(false);
-    assert!(result.to_string().contains(" result=FAIL "));
-    for i in 0..20 {
-        result.figure("extra", i);
-    }
-    assert_eq!(result.figures.len(), MAX_FIGURES, "extra figures are dropped");
-    assert_eq!(
-        Verdict { passed: 9, failed: 0 }.to_string(),
-        "verdict=PASS passed=9 failed=0"
-    );
-    assert_eq!(
-        Verdict { passed: 8, failed: 1 }.to_string(),
-        "verdict=FAIL passed=8 failed=1"
-    );
-    assert!(!Verdict::default().pass(), "nothing run is no pass");
-    let (severity, text) = step_text(&result);
-    assert_eq!(severity, Severity::Error);
-    assert_eq!(
-        text.as_str(),
-        "speed-forward legacy FAIL steps=102 worst_ms=40 ne",
-        "cut at 50 bytes"
-    );
-    assert_eq!(
-        verdict_text(&Verdict { passed: 9, failed: 0 }),
-        (
-            Severity::Notice,
-            crate::shared::text(format_args!("acceptance PASS passed=9 failed=0"))
-        )
-    );
-    for prompt in [
-        Prompt::FitWaterResistor,
-        Prompt::RemoveWaterResistor,
-        Prompt::HoldRotor,
-        Prompt::ReleaseRotor,
-        Prompt::ResetThruster,
-    ] {
-        let (_, text) = prompt_text(prompt);
-        assert!(
-            text.ends_with(prompt.instruction()),
-            "the whole instruction fits: {text}"
-        );
-    }
-    let names: Vec<&str> = Step::ALL.iter().map(|step| step.name()).collect();
-    assert!(names.iter().all(|name| !name.contains(' ') && !name.contains('=')));
-}
-
-#[test]
 fn what_following_an_order_means_per_family() {
     let config = AcceptanceConfig::DEFAULT;
     let seabotix = |speed: i8, current: u8| {

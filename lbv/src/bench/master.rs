@@ -16,7 +16,8 @@ use std::rc::Rc;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
-use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict};
+use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
+use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::shared::BUSES;

@@ -4,7 +4,7 @@
 //! transfer to the thruster.
 
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::acceptance::{Prompt, Step, family_token};
+use lbv_master_fw::acceptance::report::{Prompt, Step, family_token};
 use serde_json::json;
 
 use super::fault::{Fault, WATER_OHMS};
