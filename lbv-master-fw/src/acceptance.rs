@@ -34,7 +34,7 @@ use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Or
 
 use crate::recovery::BusRecovery;
 use crate::shared::{BUSES, QuietBuses, Shared};
-use crate::thrusters::Failure;
+use crate::thrusters::PollFailure;
 
 pub mod report;
 
@@ -291,7 +291,7 @@ pub const OUT_OF_RANGE_SPEEDS: [u8; 4] = [0x00, 0x18, 0xE7, 0xFF];
 
 /// Bus failures seen, by kind, and the recoveries run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-struct Failures {
+struct FailureCounts {
     nack: u32,
     timeout: u32,
     bus: u32,
@@ -300,7 +300,7 @@ struct Failures {
     recoveries_failed: u32,
 }
 
-impl Failures {
+impl FailureCounts {
     fn total(&self) -> u32 {
         self.nack
             .saturating_add(self.timeout)
@@ -311,14 +311,13 @@ impl Failures {
 
 /// What a run of polls saw.
 #[derive(Debug, Clone, Copy, Default)]
-struct Polled {
+struct PollRun {
     /// How long until the condition held; None if it never did.
     took: Option<Duration>,
     /// The last valid status.
     last: Option<Status>,
     /// Every fault bit any status reported.
     faults: Faults,
-    /// Polls made.
     polls: u32,
     /// Valid statuses for which `condition` did not hold.
     misses: u32,
@@ -332,7 +331,7 @@ struct Tester<'a, B, O> {
     operator: &'a mut O,
     config: &'a AcceptanceConfig,
     verdict: Verdict,
-    failures: Failures,
+    failures: FailureCounts,
 }
 
 impl<B, O> Tester<'_, B, O>
@@ -346,12 +345,12 @@ where
     }
 
     /// Count a failure and recover the bus when it may be stuck.
-    async fn failed(&mut self, failure: Failure) -> Failure {
+    async fn failed(&mut self, failure: PollFailure) -> PollFailure {
         let counter = match failure {
-            Failure::Nack => &mut self.failures.nack,
-            Failure::Timeout => &mut self.failures.timeout,
-            Failure::Bus | Failure::Mux => &mut self.failures.bus,
-            Failure::BadLength | Failure::BadType | Failure::BadChecksum | Failure::BadRange => {
+            PollFailure::Nack => &mut self.failures.nack,
+            PollFailure::Timeout => &mut self.failures.timeout,
+            PollFailure::Bus | PollFailure::Mux => &mut self.failures.bus,
+            PollFailure::BadLength | PollFailure::BadType | PollFailure::BadChecksum | PollFailure::BadRange => {
                 &mut self.failures.frame
             }
         };
@@ -366,24 +365,24 @@ where
     }
 
     /// Write `order` (any bytes, when given) to the thruster of `family`, then read its status.
-    async fn exchange(&mut self, family: Family, order: Option<&[u8]>) -> Result<Status, Failure> {
+    async fn exchange(&mut self, family: Family, order: Option<&[u8]>) -> Result<Status, PollFailure> {
         let address = family.address();
         if let Some(bytes) = order
             && let Err(error) = self.bus.write(address, bytes).await
         {
-            return Err(self.failed(Failure::of_bus_error(&error)).await);
+            return Err(self.failed(PollFailure::of_bus_error(&error)).await);
         }
         let mut buffer = [0; MAX_STATUS_LEN];
         // Never empty: status_len() is at most MAX_STATUS_LEN.
         let reply = buffer.get_mut(..family.status_len()).unwrap_or_default();
         if let Err(error) = self.bus.read(address, reply).await {
-            return Err(self.failed(Failure::of_bus_error(&error)).await);
+            return Err(self.failed(PollFailure::of_bus_error(&error)).await);
         }
         match Status::decode(family, reply) {
             Ok(Decoded { status, warning: None }) => Ok(status),
             // The thruster under test must send only values its encoding defines.
-            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(Failure::BadRange).await),
-            Err(error) => Err(self.failed(Failure::of_decode_error(error)).await),
+            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(PollFailure::BadRange).await),
+            Err(error) => Err(self.failed(PollFailure::of_decode_error(error)).await),
         }
     }
 
@@ -396,9 +395,9 @@ where
         within: Duration,
         whole: bool,
         mut condition: impl FnMut(&Status) -> bool,
-    ) -> Polled {
+    ) -> PollRun {
         let start = Instant::now();
-        let mut polled = Polled::default();
+        let mut polled = PollRun::default();
         loop {
             polled.polls = polled.polls.saturating_add(1);
             match self.exchange(family, order).await {
@@ -424,7 +423,7 @@ where
     }
 
     /// Order `step` and wait until the status follows it.
-    async fn drive(&mut self, family: Family, step: i8) -> Polled {
+    async fn drive(&mut self, family: Family, step: i8) -> PollRun {
         let config = self.config;
         let order = order_bytes(family, step);
         self.poll(family, Some(&order), config.settle, false, |status| {
@@ -450,7 +449,7 @@ where
                     let _ = found.push(family);
                     1
                 }
-                Err(Failure::Nack) => 0,
+                Err(PollFailure::Nack) => 0,
                 // Something answered, but not with a valid status of the family.
                 Err(_) => -1,
             };
@@ -737,7 +736,7 @@ where
             // Let other work run between polls without leaving the bus idle.
             embassy_futures::yield_now().await;
         }
-        let seen = Failures {
+        let seen = FailureCounts {
             nack: self.failures.nack.wrapping_sub(before.nack),
             timeout: self.failures.timeout.wrapping_sub(before.timeout),
             bus: self.failures.bus.wrapping_sub(before.bus),
@@ -788,7 +787,7 @@ where
         operator,
         config,
         verdict: Verdict::default(),
-        failures: Failures::default(),
+        failures: FailureCounts::default(),
     };
     let found = tester.discovery().await;
     for family in found {

@@ -1,7 +1,8 @@
 //! The LBV master node's hardware-free core.
 //!
-//! Everything here runs unchanged on the STM32 (through the binding in `main.rs`) and on the host, where tests
-//! and the bench drive it through simulated ports. It never touches a register and never panics on bus input.
+//! Everything here runs unchanged on the STM32 (through the binary's binding: `main.rs`, `stm32.rs` and `board.rs`)
+//! and on the host, where tests and the bench drive it through simulated ports. It never touches a register and
+//! never panics on bus input.
 //!
 //! [`run`] is the whole node: the STM32 binding builds its [`Ports`] from peripherals and calls it with [`CONFIG`];
 //! the bench and the tests call it with simulated ports (lbv-sim's buses, links and flash).

@@ -388,7 +388,6 @@ fn deciseconds(value: i32) -> Duration {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Settings {
-    /// The parameters.
     pub params: Params,
     /// The MAVLink 2 signing key; `None`: signing is off.
     pub signing: Option<SigningKey>,

@@ -96,7 +96,6 @@ where
 /// simulated bus); the STM32 binding switches its pins between the peripheral and GPIO itself.
 #[derive(Debug)]
 pub struct PinRecovery<I, Scl, Sda, D> {
-    /// The I2C master.
     pub i2c: I,
     /// SCL as an open-drain output.
     pub scl: Scl,
@@ -104,7 +103,7 @@ pub struct PinRecovery<I, Scl, Sda, D> {
     pub sda: Sda,
     /// Times the half periods.
     pub delay: D,
-    /// The bus's speed.
+    /// The bus's speed, at which the recovery clocks SCL.
     pub bus: BusConfig,
 }
 

@@ -1,6 +1,7 @@
 //! What the master's tasks tell one another: the console's commands, the vehicle's orders, the thrusters' and
 //! the battery's reports, and the messages queued for the console. Every task owns its own state machines and
-//! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them.
+//! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them,
+//! only on [`crate::params`] and [`crate::mixer`] for the settings and the pilot's sticks it carries.
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -57,7 +58,6 @@ pub struct Sender {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Request {
-    /// The sender.
     pub from: Sender,
     /// What it asks.
     pub command: Command,
@@ -65,18 +65,14 @@ pub struct Request {
 
 // The MAV_CMD numbers the console decodes and the vehicle acknowledges (the dialect leaves COMMAND_LONG's command
 // a plain number).
-/// MAV_CMD_COMPONENT_ARM_DISARM.
 pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
-/// MAV_CMD_DO_MOTOR_TEST.
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
-/// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
 pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
-/// MAV_CMD_SET_MESSAGE_INTERVAL.
 pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
-/// MAV_CMD_REQUEST_MESSAGE.
 pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
-/// MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: the older way to ask for AUTOPILOT_VERSION.
+/// The older way to ask for AUTOPILOT_VERSION.
 pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
+
 /// What the console asked for, decoded from MAVLink by the console task.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -102,7 +98,7 @@ pub enum Command {
     Reboot,
     /// SETUP_SIGNING: the MAVLink 2 signing key (all zeros: signing off) and the timestamp to start from.
     SetupSigning {
-        /// The secret.
+        /// The 32-byte secret (SETUP_SIGNING.secret_key).
         key: [u8; 32],
         /// 10 us units since 2015-01-01.
         timestamp: u64,
@@ -227,7 +223,6 @@ pub enum Outgoing {
     CommandAck {
         /// The MAV_CMD answered.
         command: u16,
-        /// The result.
         result: AckResult,
         /// The command's sender, whom the answer is addressed to.
         to: Sender,
@@ -238,9 +233,8 @@ pub enum Outgoing {
         id: ParamId,
         /// The value (an integer parameter's as its float, MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST).
         value: f32,
-        /// Its type.
         param_type: ParamType,
-        /// Its index.
+        /// Its index in the parameter table (PARAM_VALUE.param_index).
         index: u16,
         /// How many parameters there are.
         count: u16,

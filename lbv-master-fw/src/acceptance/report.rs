@@ -51,9 +51,7 @@ pub enum Report<'a> {
 pub struct VerdictLine {
     /// verdict=PASS.
     pub pass: bool,
-    /// Steps that passed.
     pub passed: u32,
-    /// Steps that failed.
     pub failed: u32,
 }
 
@@ -320,7 +318,8 @@ fn passed_from_word(word: &str) -> Option<bool> {
 pub struct Figure<S = &'static str> {
     /// Its name, one word.
     pub name: S,
-    /// Its value.
+    /// In the unit its name ends in (`_ms`: milliseconds, -1 when it never happened; `_da`: 0.1 A), otherwise a
+    /// count, a speed step or a 0/1 flag.
     pub value: i32,
 }
 
@@ -330,13 +329,11 @@ pub const MAX_FIGURES: usize = 8;
 /// The outcome of one step; `S` is its figures' names' type ([`Figure`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct StepResult<S = &'static str> {
-    /// Which step.
     pub step: Step,
     /// The thruster it tested; None for the discovery.
     pub family: Option<Family>,
-    /// Whether it passed.
     pub passed: bool,
-    /// What it measured.
+    /// What it measured, in the order measured.
     pub figures: heapless::Vec<Figure<S>, MAX_FIGURES>,
 }
 
@@ -382,9 +379,9 @@ impl StepResult {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Verdict {
-    /// Steps that passed.
+    /// Steps that passed (at most 255: the count saturates).
     pub passed: u8,
-    /// Steps that failed.
+    /// Steps that failed (saturating likewise).
     pub failed: u8,
 }
 

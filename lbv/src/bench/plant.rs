@@ -131,8 +131,8 @@ impl MotorParams {
     };
 
     /// The parameters as used: every value finite and within a range where the integration stays finite.
-    fn sane(&self) -> Sane {
-        Sane {
+    fn clamped(&self) -> ClampedParams {
+        ClampedParams {
             resistance: finite_clamp(self.resistance_ohm, 1e-3, 1e6, Self::THRUSTER.resistance_ohm),
             ke: finite_clamp(self.ke_v_s_per_rad, 0.0, 10.0, Self::THRUSTER.ke_v_s_per_rad),
             inertia: finite_clamp(self.inertia_kg_m2, 1e-9, 1e3, Self::THRUSTER.inertia_kg_m2),
@@ -156,7 +156,7 @@ impl MotorParams {
 
 /// [`MotorParams`] checked for use.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Sane {
+struct ClampedParams {
     resistance: f64,
     ke: f64,
     inertia: f64,
@@ -177,7 +177,7 @@ pub struct Plant {
     /// Motor constants.
     params: MotorParams,
     /// `params` as used.
-    sane: Sane,
+    clamped: ClampedParams,
     /// Resistance between the water-sensor electrodes, ohms ([`DRY_WATER_OHMS`] at first). No dynamics.
     pub water_ohms: u32,
     /// Water (ambient) temperature, deg C ([`DEFAULT_AMBIENT_C`] at first).
@@ -204,10 +204,10 @@ pub struct Plant {
     /// The hall state at the end of the last step (what the controller last saw), for edge reporting.
     last_hall: HallState,
     /// The last thermal decay: its exponent `-h / tau` and `exp` of it.
-    decay: Memo<(f64, f64)>,
+    decay: Cached<(f64, f64)>,
     /// The electrical solution at the present state for this drive and duty, while nothing has moved since
     /// [`Plant::evaluate`] found it: the next [`Plant::advance`] starts from it.
-    evaluated: Memo<Option<(BridgeDrive, Duty, Electrical)>>,
+    evaluated: Cached<Option<(BridgeDrive, Duty, Electrical)>>,
 }
 
 /// The electrical solution at one instant.
@@ -226,7 +226,7 @@ impl Plant {
     /// A plant at rest, at angle 0, winding and water at 15 C, dry, no fault.
     pub fn new(params: MotorParams) -> Self {
         let mut plant = Plant {
-            sane: params.sane(),
+            clamped: params.clamped(),
             params,
             water_ohms: DRY_WATER_OHMS,
             ambient_c: DEFAULT_AMBIENT_C,
@@ -240,8 +240,8 @@ impl Plant {
             supply_a: 0.0,
             torque: 0.0,
             last_hall: HallState::from_bits(0),
-            decay: Memo((0.0, 1.0)),
-            evaluated: Memo(None),
+            decay: Cached((0.0, 1.0)),
+            evaluated: Cached(None),
         };
         plant.last_hall = plant.hall_state();
         plant
@@ -283,8 +283,8 @@ impl Plant {
         } else {
             MAX_SUBSTEP_S
         };
-        let p = self.sane;
-        self.evaluated = Memo(None);
+        let p = self.clamped;
+        self.evaluated = Cached(None);
         let supply = if supply_v.is_nan() {
             0.0
         } else {
@@ -336,7 +336,7 @@ impl Plant {
         }
         let el = self.solve(drive, duty, supply_v);
         self.apply(el);
-        self.evaluated = Memo(Some((drive, duty, el)));
+        self.evaluated = Cached(Some((drive, duty, el)));
         self.halls_changed()
     }
 
@@ -359,11 +359,11 @@ impl Plant {
                 Some((d, u, el)) if d == drive && u == duty => el,
                 _ => self.solve(drive, duty, supply_v),
             };
-            let p = self.sane;
+            let p = self.clamped;
             let ambient = finite_clamp(self.ambient_c, ABSOLUTE_ZERO_C, MAX_WINDING_C, DEFAULT_AMBIENT_C);
             let decay = short_exp(-h / (p.r_th * p.c_th));
             self.integrate(&p, h, decay, el, ambient);
-            self.evaluated = Memo(None);
+            self.evaluated = Cached(None);
         }
         self.halls_changed()
     }
@@ -377,7 +377,7 @@ impl Plant {
             Some((d, u, el)) if d == drive && u == duty => el,
             _ => {
                 let el = self.solve(drive, duty, supply_v);
-                self.evaluated = Memo(Some((drive, duty, el)));
+                self.evaluated = Cached(Some((drive, duty, el)));
                 el
             }
         };
@@ -387,7 +387,7 @@ impl Plant {
         } else {
             return (self.winding_c, current);
         };
-        let p = self.sane;
+        let p = self.clamped;
         let ambient = finite_clamp(self.ambient_c, ABSOLUTE_ZERO_C, MAX_WINDING_C, DEFAULT_AMBIENT_C);
         (
             self.winding_after(&p, short_exp(-h / (p.r_th * p.c_th)), el, ambient),
@@ -399,7 +399,7 @@ impl Plant {
     /// the last [`Plant::evaluate`] (the event engine looks ahead a fraction of it). None before an evaluation.
     pub fn time_constant(&self) -> Option<f64> {
         let (_, _, el) = self.evaluated.0?;
-        let p = self.sane;
+        let p = self.clamped;
         let slope = 2.0 * p.prop_k * self.omega.abs() + p.friction - el.damping;
         let tau = p.inertia / slope;
         (tau.is_finite() && tau > 0.0).then_some(tau)
@@ -413,7 +413,7 @@ impl Plant {
             supply_v.clamp(0.0, MAX_SUPPLY_V)
         };
         let pwm_fraction = f64::from(duty.magnitude()) / f64::from(Duty::FULL);
-        self.electrical(&self.sane, drive, pwm_fraction * supply, pwm_fraction)
+        self.electrical(&self.clamped, drive, pwm_fraction * supply, pwm_fraction)
     }
 
     /// Seconds until the halls next change if the drive is held: the rotor reaching the next sector boundary in
@@ -425,7 +425,7 @@ impl Plant {
         if self.hall_fault.is_some() || self.blocked {
             return None;
         }
-        let p = self.sane;
+        let p = self.clamped;
         let w = self.omega;
         let acceleration = (self.torque - (p.prop_k * w * w.abs() + p.friction * w)) / p.inertia;
         let direction = if w != 0.0 { w.signum() } else { acceleration.signum() };
@@ -513,14 +513,14 @@ impl Plant {
 
     /// How much of the winding's distance from its settling temperature is left after `h` seconds:
     /// `exp(-h / tau)`. The bench steps with one `h` all along, so the last value is kept.
-    fn thermal_decay(&mut self, p: &Sane, h: f64) -> f64 {
+    fn thermal_decay(&mut self, p: &ClampedParams, h: f64) -> f64 {
         let exponent = -h / (p.r_th * p.c_th);
         let (last, decay) = self.decay.0;
         if exponent.to_bits() == last.to_bits() {
             return decay;
         }
         let decay = exponent.exp();
-        self.decay = Memo((exponent, decay));
+        self.decay = Cached((exponent, decay));
         decay
     }
 
@@ -532,7 +532,7 @@ impl Plant {
     )]
     fn substep(
         &mut self,
-        p: &Sane,
+        p: &ClampedParams,
         h: f64,
         decay: f64,
         drive: BridgeDrive,
@@ -545,7 +545,7 @@ impl Plant {
     }
 
     /// Speed, angle and temperature over `h` seconds from the electrical solution `el` at the start.
-    fn integrate(&mut self, p: &Sane, h: f64, decay: f64, el: Electrical, ambient: f64) {
+    fn integrate(&mut self, p: &ClampedParams, h: f64, decay: f64, el: Electrical, ambient: f64) {
         self.apply(el);
 
         if self.blocked {
@@ -570,7 +570,7 @@ impl Plant {
 
     /// The winding temperature after a time whose `decay` is `exp(-h / tau)`, with the copper loss of `el`: the
     /// exact solution of the first-order thermal model with the loss held.
-    fn winding_after(&self, p: &Sane, decay: f64, el: Electrical, ambient: f64) -> f64 {
+    fn winding_after(&self, p: &ClampedParams, decay: f64, el: Electrical, ambient: f64) -> f64 {
         let settled = ambient + el.copper_w * p.r_th;
         let next = settled + (self.winding_c - settled) * decay;
         if next.is_finite() {
@@ -588,7 +588,7 @@ impl Plant {
 
     /// Phase currents, supply current, torque and copper loss for `drive` with `pwm_v` on the Pwm phases, at the
     /// present angle and speed.
-    fn electrical(&self, p: &Sane, drive: BridgeDrive, pwm_v: f64, pwm_fraction: f64) -> Electrical {
+    fn electrical(&self, p: &ClampedParams, drive: BridgeDrive, pwm_v: f64, pwm_fraction: f64) -> Electrical {
         if drive.iter().filter(|d| **d != PhaseDrive::Float).count() < 2 {
             // No current path.
             return Electrical::default();
@@ -700,9 +700,9 @@ fn short_exp(x: f64) -> f64 {
 
 /// A value kept to save recomputing it: never part of what the plant is, so any two compare equal.
 #[derive(Debug, Clone, Copy)]
-struct Memo<T>(T);
+struct Cached<T>(T);
 
-impl<T> PartialEq for Memo<T> {
+impl<T> PartialEq for Cached<T> {
     fn eq(&self, _: &Self) -> bool {
         true
     }
