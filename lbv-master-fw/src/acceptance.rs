@@ -25,286 +25,20 @@
 //!
 //! The drive is *off* when the reported current is 0 (for Legacy brushed, which reports none: when MAX POWER is 0);
 //! the thruster is *at rest* when the drive is off and any reported speed is 0.
-
-use core::fmt;
+//!
+//! What the script reports, and the formats it reports in, are [`report`]'s.
 
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::{ErrorType, I2c, Operation};
 use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
-use crate::BusWork;
-use crate::config::MasterConfig;
 use crate::recovery::BusRecovery;
-use crate::shared::{QuietBuses, Severity, Shared, Text, text};
-use crate::thrusters::{BUSES, Failure};
+use crate::shared::{BUSES, QuietBuses, Shared};
+use crate::thrusters::PollFailure;
 
-/// The steps of the script, in the order they run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Step {
-    /// Which of the two family addresses answers.
-    Discovery,
-    /// Every forward speed step, with the status echo checked.
-    SpeedForward,
-    /// Every reverse speed step, with the status echo checked.
-    SpeedReverse,
-    /// Orders with a corrupted checksum change nothing.
-    BadChecksum,
-    /// Orders with an out-of-range SPEED byte change nothing.
-    OutOfRange,
-    /// The link failsafe stops the thruster after 1 s of silence, and only a new order restarts it.
-    Failsafe,
-    /// A held rotor is reported as STALL and stops the drive.
-    HeldRotor,
-    /// The water-sensor test resistor is reported as WATER.
-    Water,
-    /// The bus recovers after the thruster board is reset mid-transfer.
-    Reset,
-}
+pub mod report;
 
-impl Step {
-    /// Every step, in the order they run.
-    pub const ALL: [Step; 9] = [
-        Step::Discovery,
-        Step::SpeedForward,
-        Step::SpeedReverse,
-        Step::BadChecksum,
-        Step::OutOfRange,
-        Step::Failsafe,
-        Step::HeldRotor,
-        Step::Water,
-        Step::Reset,
-    ];
-
-    /// The step's name in the report lines.
-    pub const fn name(self) -> &'static str {
-        match self {
-            Step::Discovery => "discovery",
-            Step::SpeedForward => "speed-forward",
-            Step::SpeedReverse => "speed-reverse",
-            Step::BadChecksum => "bad-checksum",
-            Step::OutOfRange => "out-of-range",
-            Step::Failsafe => "failsafe",
-            Step::HeldRotor => "held-rotor",
-            Step::Water => "water",
-            Step::Reset => "reset",
-        }
-    }
-}
-
-/// A family's name in the report lines.
-pub const fn family_token(family: Family) -> &'static str {
-    match family {
-        Family::SeaBotix => "seabotix",
-        Family::Legacy => "legacy",
-    }
-}
-
-/// One measured figure of a step: a name and a whole number (milliseconds, counts, steps, 0.1 A).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Figure {
-    /// Its name, one word.
-    pub name: &'static str,
-    /// Its value.
-    pub value: i32,
-}
-
-/// Most figures a step reports.
-pub const MAX_FIGURES: usize = 8;
-
-/// The outcome of one step.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct StepResult {
-    /// Which step.
-    pub step: Step,
-    /// The thruster it tested; None for the discovery.
-    pub family: Option<Family>,
-    /// Whether it passed.
-    pub passed: bool,
-    /// What it measured.
-    pub figures: heapless::Vec<Figure, MAX_FIGURES>,
-}
-
-impl StepResult {
-    fn new(step: Step, family: Option<Family>) -> Self {
-        Self {
-            step,
-            family,
-            passed: true,
-            figures: heapless::Vec::new(),
-        }
-    }
-
-    /// Add a figure; beyond [`MAX_FIGURES`] it is dropped.
-    fn figure(&mut self, name: &'static str, value: impl TryInto<i32>) {
-        let value = value.try_into().unwrap_or(i32::MAX);
-        let _ = self.figures.push(Figure { name, value });
-    }
-
-    /// Add a duration in whole milliseconds, or -1 when the thing never happened.
-    fn millis(&mut self, name: &'static str, took: Option<Duration>) {
-        self.figure(
-            name,
-            took.map_or(-1, |took| i64::try_from(took.as_millis()).unwrap_or(i64::MAX)),
-        );
-    }
-
-    /// Fail the step unless `ok`.
-    fn require(&mut self, ok: bool) {
-        self.passed &= ok;
-    }
-
-    /// The value of the figure called `name`.
-    pub fn figure_value(&self, name: &str) -> Option<i32> {
-        self.figures
-            .iter()
-            .find(|figure| figure.name == name)
-            .map(|figure| figure.value)
-    }
-}
-
-/// The report line's body: `step=<name> [family=<family>] result=PASS|FAIL <figure>=<value> ...`.
-impl fmt::Display for StepResult {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "step={}", self.step.name())?;
-        if let Some(family) = self.family {
-            write!(f, " family={}", family_token(family))?;
-        }
-        write!(f, " result={}", if self.passed { "PASS" } else { "FAIL" })?;
-        for figure in &self.figures {
-            write!(f, " {}={}", figure.name, figure.value)?;
-        }
-        Ok(())
-    }
-}
-
-/// The final verdict: how many steps passed and failed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Verdict {
-    /// Steps that passed.
-    pub passed: u8,
-    /// Steps that failed.
-    pub failed: u8,
-}
-
-impl Verdict {
-    /// PASS: at least one step ran and none failed.
-    pub const fn pass(&self) -> bool {
-        self.failed == 0 && self.passed > 0
-    }
-
-    fn count(&mut self, result: &StepResult) {
-        if result.passed {
-            self.passed = self.passed.saturating_add(1);
-        } else {
-            self.failed = self.failed.saturating_add(1);
-        }
-    }
-}
-
-/// The report line's body: `verdict=PASS|FAIL passed=<n> failed=<m>`.
-impl fmt::Display for Verdict {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "verdict={} passed={} failed={}",
-            if self.pass() { "PASS" } else { "FAIL" },
-            self.passed,
-            self.failed
-        )
-    }
-}
-
-/// A step's result as a console text (STATUSTEXT holds 50 bytes: figures that do not fit are cut off):
-/// `<step> [<family>] PASS|FAIL <figure>=<value> ...`, Info when it passed, Error when it failed.
-pub fn step_text(result: &StepResult) -> (Severity, Text) {
-    struct Compact<'a>(&'a StepResult);
-    impl fmt::Display for Compact<'_> {
-        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-            let result = self.0;
-            write!(f, "{}", result.step.name())?;
-            if let Some(family) = result.family {
-                write!(f, " {}", family_token(family))?;
-            }
-            write!(f, " {}", if result.passed { "PASS" } else { "FAIL" })?;
-            for figure in &result.figures {
-                write!(f, " {}={}", figure.name, figure.value)?;
-            }
-            Ok(())
-        }
-    }
-    let severity = if result.passed { Severity::Info } else { Severity::Error };
-    (severity, text(format_args!("{}", Compact(result))))
-}
-
-/// The verdict as a console text: `acceptance PASS|FAIL passed=<n> failed=<m>`.
-pub fn verdict_text(verdict: &Verdict) -> (Severity, Text) {
-    let (severity, word) = if verdict.pass() {
-        (Severity::Notice, "PASS")
-    } else {
-        (Severity::Critical, "FAIL")
-    };
-    let line = text(format_args!(
-        "acceptance {word} passed={} failed={}",
-        verdict.passed, verdict.failed
-    ));
-    (severity, line)
-}
-
-/// A prompt as a console text: `DO: <instruction>`.
-pub fn prompt_text(prompt: Prompt) -> (Severity, Text) {
-    (Severity::Warning, text(format_args!("DO: {}", prompt.instruction())))
-}
-
-/// What the script needs a person (or the bench) to do to the thruster board.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Prompt {
-    /// Fit the water-sensor test resistor (470 kohm from PB12 to 3V3): the sensor reads water (< 1 Mohm) but no
-    /// ground fault (> 100 kohm).
-    FitWaterResistor,
-    /// Remove the test resistor.
-    RemoveWaterResistor,
-    /// Hold the rotor: with the motor-less image, press and hold the blue user button B1.
-    HoldRotor,
-    /// Let the rotor go (release B1).
-    ReleaseRotor,
-    /// Power-cycle the thruster board while the test keeps the bus busy. A power cycle, not the reset button:
-    /// the IDS latches (a Legacy water fault) outlast every other reset.
-    ResetThruster,
-}
-
-impl Prompt {
-    /// The prompt's name in the report lines.
-    pub const fn name(self) -> &'static str {
-        match self {
-            Prompt::FitWaterResistor => "fit-water-resistor",
-            Prompt::RemoveWaterResistor => "remove-water-resistor",
-            Prompt::HoldRotor => "hold-rotor",
-            Prompt::ReleaseRotor => "release-rotor",
-            Prompt::ResetThruster => "reset-thruster",
-        }
-    }
-
-    /// What to do, in words for the person at the bench (short enough for a console text).
-    pub const fn instruction(self) -> &'static str {
-        match self {
-            Prompt::FitWaterResistor => "fit 470k from PB12 to 3V3 on the thruster",
-            Prompt::RemoveWaterResistor => "remove the resistor from PB12",
-            Prompt::HoldRotor => "press and hold B1 on the thruster board",
-            Prompt::ReleaseRotor => "release B1 on the thruster board",
-            Prompt::ResetThruster => "power-cycle the thruster board (USB) now",
-        }
-    }
-
-    /// The operator acts while the test keeps the bus busy: the prompt returns as soon as the operator is told,
-    /// not once it is done.
-    pub const fn during_traffic(self) -> bool {
-        matches!(self, Prompt::ResetThruster)
-    }
-}
+use report::{Prompt, Step, StepResult, Verdict, family_token, prompt_text, step_text, verdict_text};
 
 /// The person at the bench (or the virtual bench acting for one), who is also told how the script goes. The
 /// console hears every prompt, step and verdict anyway ([`Script`]); these are for the report's other readers.
@@ -325,15 +59,15 @@ pub trait Operator {
     }
 }
 
-/// The acceptance image's work on the thruster buses: `config.acceptance.start` after boot, the script on the dev
-/// kit's bus, with every prompt, step and verdict said on the console as well as told to the operator; the other
-/// buses stay idle.
+/// The acceptance image's work on the thruster buses (its [`BusWork`](crate::BusWork) is in the crate root, which
+/// hands it `config.acceptance`): `setup.start` after boot, the script on the dev kit's bus, with every prompt,
+/// step and verdict said on the console as well as told to the operator; the other buses stay idle.
 #[derive(Debug)]
 pub struct Script<O>(pub O);
 
-impl<O: Operator> BusWork for Script<O> {
-    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
-        let setup = &config.acceptance;
+impl<O: Operator> Script<O> {
+    /// Run the script on `buses[setup.bus]`.
+    pub async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], setup: &AcceptanceSetup, shared: &Shared) {
         Timer::after(setup.start).await;
         let Some(bus) = buses.get_mut(usize::from(setup.bus)) else {
             return;
@@ -464,6 +198,33 @@ impl Default for AcceptanceConfig {
     }
 }
 
+/// Where the acceptance image runs its script, and the person at the bench's timings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct AcceptanceSetup {
+    /// The script's timings and limits.
+    pub script: AcceptanceConfig,
+    /// The bus the dev kits are wired on (its index, as in the thruster table).
+    pub bus: u8,
+    /// The script starts this long after boot, so that a thruster board powered up at the same time is running
+    /// and the host has attached to the log.
+    pub start: Duration,
+}
+
+impl AcceptanceSetup {
+    /// How long the person at the bench gets for each prompt before the script goes on. The power cycle happens while
+    /// the script keeps the bus busy (for `reset_window`, 15 s), so its prompt only gives time to reach the cable.
+    pub const fn prompt_wait(&self, prompt: Prompt) -> Duration {
+        match prompt {
+            Prompt::FitWaterResistor => Duration::from_secs(15),
+            Prompt::RemoveWaterResistor => Duration::from_secs(10),
+            Prompt::HoldRotor => Duration::from_secs(8),
+            Prompt::ReleaseRotor => Duration::from_secs(5),
+            Prompt::ResetThruster => Duration::from_secs(5),
+        }
+    }
+}
+
 /// The speed a status reports, in steps: SeaBotix SPEED; Legacy brushed MAX POWER (the power set into the
 /// motor). None for Legacy brushless, which reports only its current.
 pub fn reported_speed(status: &Status) -> Option<i8> {
@@ -530,7 +291,7 @@ pub const OUT_OF_RANGE_SPEEDS: [u8; 4] = [0x00, 0x18, 0xE7, 0xFF];
 
 /// Bus failures seen, by kind, and the recoveries run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-struct Failures {
+struct FailureCounts {
     nack: u32,
     timeout: u32,
     bus: u32,
@@ -539,7 +300,7 @@ struct Failures {
     recoveries_failed: u32,
 }
 
-impl Failures {
+impl FailureCounts {
     fn total(&self) -> u32 {
         self.nack
             .saturating_add(self.timeout)
@@ -550,14 +311,13 @@ impl Failures {
 
 /// What a run of polls saw.
 #[derive(Debug, Clone, Copy, Default)]
-struct Polled {
+struct PollRun {
     /// How long until the condition held; None if it never did.
     took: Option<Duration>,
     /// The last valid status.
     last: Option<Status>,
     /// Every fault bit any status reported.
     faults: Faults,
-    /// Polls made.
     polls: u32,
     /// Valid statuses for which `condition` did not hold.
     misses: u32,
@@ -571,7 +331,7 @@ struct Tester<'a, B, O> {
     operator: &'a mut O,
     config: &'a AcceptanceConfig,
     verdict: Verdict,
-    failures: Failures,
+    failures: FailureCounts,
 }
 
 impl<B, O> Tester<'_, B, O>
@@ -585,12 +345,12 @@ where
     }
 
     /// Count a failure and recover the bus when it may be stuck.
-    async fn failed(&mut self, failure: Failure) -> Failure {
+    async fn failed(&mut self, failure: PollFailure) -> PollFailure {
         let counter = match failure {
-            Failure::Nack => &mut self.failures.nack,
-            Failure::Timeout => &mut self.failures.timeout,
-            Failure::Bus | Failure::Mux => &mut self.failures.bus,
-            Failure::BadLength | Failure::BadType | Failure::BadChecksum | Failure::BadRange => {
+            PollFailure::Nack => &mut self.failures.nack,
+            PollFailure::Timeout => &mut self.failures.timeout,
+            PollFailure::Bus | PollFailure::Mux => &mut self.failures.bus,
+            PollFailure::BadLength | PollFailure::BadType | PollFailure::BadChecksum | PollFailure::BadRange => {
                 &mut self.failures.frame
             }
         };
@@ -605,24 +365,24 @@ where
     }
 
     /// Write `order` (any bytes, when given) to the thruster of `family`, then read its status.
-    async fn exchange(&mut self, family: Family, order: Option<&[u8]>) -> Result<Status, Failure> {
+    async fn exchange(&mut self, family: Family, order: Option<&[u8]>) -> Result<Status, PollFailure> {
         let address = family.address();
         if let Some(bytes) = order
             && let Err(error) = self.bus.write(address, bytes).await
         {
-            return Err(self.failed(Failure::of_bus_error(&error)).await);
+            return Err(self.failed(PollFailure::of_bus_error(&error)).await);
         }
         let mut buffer = [0; MAX_STATUS_LEN];
         // Never empty: status_len() is at most MAX_STATUS_LEN.
         let reply = buffer.get_mut(..family.status_len()).unwrap_or_default();
         if let Err(error) = self.bus.read(address, reply).await {
-            return Err(self.failed(Failure::of_bus_error(&error)).await);
+            return Err(self.failed(PollFailure::of_bus_error(&error)).await);
         }
         match Status::decode(family, reply) {
             Ok(Decoded { status, warning: None }) => Ok(status),
             // The thruster under test must send only values its encoding defines.
-            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(Failure::BadRange).await),
-            Err(error) => Err(self.failed(Failure::of_decode_error(error)).await),
+            Ok(Decoded { warning: Some(_), .. }) => Err(self.failed(PollFailure::BadRange).await),
+            Err(error) => Err(self.failed(PollFailure::of_decode_error(error)).await),
         }
     }
 
@@ -635,9 +395,9 @@ where
         within: Duration,
         whole: bool,
         mut condition: impl FnMut(&Status) -> bool,
-    ) -> Polled {
+    ) -> PollRun {
         let start = Instant::now();
-        let mut polled = Polled::default();
+        let mut polled = PollRun::default();
         loop {
             polled.polls = polled.polls.saturating_add(1);
             match self.exchange(family, order).await {
@@ -663,7 +423,7 @@ where
     }
 
     /// Order `step` and wait until the status follows it.
-    async fn drive(&mut self, family: Family, step: i8) -> Polled {
+    async fn drive(&mut self, family: Family, step: i8) -> PollRun {
         let config = self.config;
         let order = order_bytes(family, step);
         self.poll(family, Some(&order), config.settle, false, |status| {
@@ -689,7 +449,7 @@ where
                     let _ = found.push(family);
                     1
                 }
-                Err(Failure::Nack) => 0,
+                Err(PollFailure::Nack) => 0,
                 // Something answered, but not with a valid status of the family.
                 Err(_) => -1,
             };
@@ -976,7 +736,7 @@ where
             // Let other work run between polls without leaving the bus idle.
             embassy_futures::yield_now().await;
         }
-        let seen = Failures {
+        let seen = FailureCounts {
             nack: self.failures.nack.wrapping_sub(before.nack),
             timeout: self.failures.timeout.wrapping_sub(before.timeout),
             bus: self.failures.bus.wrapping_sub(before.bus),
@@ -1027,7 +787,7 @@ where
         operator,
         config,
         verdict: Verdict::default(),
-        failures: Failures::default(),
+        failures: FailureCounts::default(),
     };
     let found = tester.discovery().await;
     for family in found {

@@ -26,8 +26,7 @@
 use bat_proto::{BatteryInfo, BitReport, BmsAlarms, DcdcStatus, Frame, StatusBit};
 use embassy_time::{Duration, Instant, Timer, with_deadline};
 
-pub use crate::shared::BatterySummary;
-use crate::shared::{Outgoing, Severity, Shared, Text, text};
+use crate::shared::{BatterySummary, Outgoing, Severity, Shared, Text, text};
 
 /// A received classic CAN frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -8,63 +8,12 @@
 use embassy_time::Duration;
 use tmc_proto::Family;
 
-use crate::acceptance::{AcceptanceConfig, Prompt};
+use crate::acceptance::{AcceptanceConfig, AcceptanceSetup};
 use crate::console::ConsoleConfig;
 use crate::mixer::FrameKind;
+use crate::recovery::BusConfig;
 use crate::thrusters::{PollConfig, ThrusterSlot, ThrusterTable};
 use crate::vehicle::VehicleConfig;
-
-/// A thruster bus: its clock, and how long a transfer may stall before the master gives up on it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct BusConfig {
-    /// SCL frequency, Hz.
-    pub frequency_hz: u32,
-    /// A transfer stalled this long (SCL held low) is abandoned with a timeout; embassy-stm32's default is 1 s.
-    pub timeout: Duration,
-}
-
-impl BusConfig {
-    /// IDS 6.4.1: the motherboard is a 100 kbit/s I2C master. SMBus's SCL-low timeout, 25 ms, bounds a stalled
-    /// transfer.
-    pub const THRUSTERS: BusConfig = BusConfig {
-        frequency_hz: 100_000,
-        timeout: Duration::from_millis(25),
-    };
-
-    /// Half an SCL period, ns: the bus recovery clocks SCL at the bus's own speed.
-    pub const fn half_period_ns(&self) -> u32 {
-        let hz = if self.frequency_hz == 0 { 1 } else { self.frequency_hz };
-        500_000_000 / hz
-    }
-}
-
-/// Where the acceptance image runs its script, and the person at the bench's timings.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct AcceptanceSetup {
-    /// The script's timings and limits.
-    pub script: AcceptanceConfig,
-    /// The bus the dev kits are wired on (its index, as in the thruster table).
-    pub bus: u8,
-    /// The script starts this long after boot, so that a thruster board powered up at the same time is running
-    /// and the host has attached to the log.
-    pub start: Duration,
-}
-
-impl AcceptanceSetup {
-    /// How long the person at the bench gets for each prompt before the script goes on. The power cycle happens while
-    /// the script keeps the bus busy (for `reset_window`, 15 s), so its prompt only gives time to reach the cable.
-    pub const fn prompt_wait(&self, prompt: Prompt) -> Duration {
-        match prompt {
-            Prompt::FitWaterResistor => Duration::from_secs(15),
-            Prompt::RemoveWaterResistor => Duration::from_secs(10),
-            Prompt::HoldRotor => Duration::from_secs(8),
-            Prompt::ReleaseRotor => Duration::from_secs(5),
-            Prompt::ResetThruster => Duration::from_secs(5),
-        }
-    }
-}
 
 /// Everything fixed at build time for one master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -196,12 +145,5 @@ mod tests {
             assert_eq!(config.acceptance.script.expect, Some(family));
             assert_eq!(config.acceptance.bus, 1);
         }
-    }
-
-    #[test]
-    fn the_bus_runs_at_100_kbit_s_with_a_25_ms_timeout() {
-        assert_eq!(BusConfig::THRUSTERS.frequency_hz, 100_000);
-        assert_eq!(BusConfig::THRUSTERS.timeout, Duration::from_millis(25));
-        assert_eq!(BusConfig::THRUSTERS.half_period_ns(), 5_000);
     }
 }

@@ -24,17 +24,16 @@ use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
+use crate::framing::{Event, FrameParser};
 use crate::shared::{Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared};
 use crate::signing::{Refusal, SigningKey, SigningState};
 
-pub mod frame;
 pub mod inbound;
 pub mod outbound;
 
 include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 
-use frame::{Event, FrameParser};
-use outbound::{Framer, LinkQuality, Reports};
+use outbound::{ConsoleLinkQuality, Framer, Reports};
 
 /// The default ESC telemetry period (4 Hz); HEARTBEAT, SYS_STATUS, BATTERY_STATUS and ESC_INFO go every fourth
 /// (1 Hz).
@@ -538,12 +537,12 @@ async fn signing_room(shared: &Shared, stats: &ConsoleStats) -> Option<SigningKe
 
 /// Link quality between two snapshots of the counters; `refused` the vehicle's count of requests from other
 /// systems. The totals saturate in SYS_STATUS's 16-bit fields.
-pub(crate) fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters, refused: u32) -> LinkQuality {
+pub(crate) fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters, refused: u32) -> ConsoleLinkQuality {
     // A serial link carries far fewer than 400 000 frames a second: the product fits a u32 (no 64-bit division
     // code in the image).
     let corrupt = now.corrupt().wrapping_sub(before.corrupt()).min(400_000);
     let good = now.frames_in.wrapping_sub(before.frames_in).min(400_000);
-    LinkQuality {
+    ConsoleLinkQuality {
         drop_rate: (corrupt * 10_000).checked_div(corrupt + good).unwrap_or(0) as u16,
         errors: outbound::saturate(now.corrupt()),
         refused_other_system: outbound::saturate(refused),

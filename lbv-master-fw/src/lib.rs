@@ -1,7 +1,8 @@
 //! The LBV master node's hardware-free core.
 //!
-//! Everything here runs unchanged on the STM32 (through the binding in `main.rs`) and on the host, where tests
-//! and the bench drive it through simulated ports. It never touches a register and never panics on bus input.
+//! Everything here runs unchanged on the STM32 (through the binary's binding: `main.rs`, `stm32.rs` and `board.rs`)
+//! and on the host, where tests and the bench drive it through simulated ports. It never touches a register and
+//! never panics on bus input.
 //!
 //! [`run`] is the whole node: the STM32 binding builds its [`Ports`] from peripherals and calls it with [`CONFIG`];
 //! the bench and the tests call it with simulated ports (lbv-sim's buses, links and flash).
@@ -11,6 +12,7 @@ pub mod acceptance;
 pub mod battery;
 pub mod config;
 pub mod console;
+pub mod framing;
 pub mod mixer;
 pub mod params;
 pub mod poll;
@@ -32,8 +34,8 @@ use battery::{CanReceiver, can_task};
 use console::{ConsoleStats, console_rx_task, console_tx_task};
 use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
-use shared::{Severity, Shared, text};
-use thrusters::{BUSES, bus_task};
+use shared::{BUSES, Severity, Shared, text};
+use thrusters::bus_task;
 use vehicle::vehicle_task;
 
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
@@ -77,6 +79,12 @@ impl BusWork for Polling {
             poll_bus(third, 2, config, shared),
         )
         .await;
+    }
+}
+
+impl<O: acceptance::Operator> BusWork for acceptance::Script<O> {
+    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
+        acceptance::Script::run(self, buses, &config.acceptance, shared).await
     }
 }
 

@@ -37,7 +37,20 @@
 
 use tmc_proto::Speed;
 
-use crate::shared::{MAX_THRUSTERS, ManualInput};
+/// The pilot's sticks, as MAVLink MANUAL_CONTROL carries them: x forward, y right, r yaw clockwise, each
+/// -1000..=1000; z vertical thrust 0..=1000 with 500 neutral (the ArduSub convention; 1000 = up).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct ManualInput {
+    /// Surge, -1000 (astern) ..= 1000 (ahead).
+    pub x: i16,
+    /// Sway, -1000 (left) ..= 1000 (right).
+    pub y: i16,
+    /// Heave, 0 (down) ..= 1000 (up), 500 neutral.
+    pub z: i16,
+    /// Yaw, -1000 (counter-clockwise) ..= 1000 (clockwise), seen from above.
+    pub r: i16,
+}
 
 /// The LBV thruster layouts (see the module tables).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -103,10 +116,11 @@ impl FrameKind {
     }
 }
 
-/// Mix the pilot's sticks into one speed per thruster (slots beyond the frame's thrusters are ZERO).
+/// Mix the pilot's sticks into one speed per slot of the master's `N` thruster slots (slots beyond the frame's
+/// thrusters are ZERO).
 ///
 /// `gain_percent` is clamped to 1..=100; the sticks to their MANUAL_CONTROL ranges.
-pub fn mix(frame: FrameKind, input: ManualInput, gain_percent: u8) -> [Speed; MAX_THRUSTERS] {
+pub fn mix<const N: usize>(frame: FrameKind, input: ManualInput, gain_percent: u8) -> [Speed; N] {
     let axes = [
         stick(input.x),
         stick(input.y),
@@ -115,7 +129,7 @@ pub fn mix(frame: FrameKind, input: ManualInput, gain_percent: u8) -> [Speed; MA
     ];
     let gain = i32::from(gain_percent.clamp(1, 100));
     // Each thruster's demand in 1/100_000 of full scale: at most 4 axes * 1000 * 100, far from overflow.
-    let mut demand = [0i32; MAX_THRUSTERS];
+    let mut demand = [0i32; N];
     for (value, row) in demand.iter_mut().zip(frame.matrix()) {
         let mixed: i32 = row.iter().zip(axes).map(|(c, axis)| i32::from(*c) * axis).sum();
         *value = mixed * gain;
@@ -145,6 +159,7 @@ pub(crate) fn round_div(numerator: i32, denominator: i32) -> i32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::shared::MAX_THRUSTERS;
 
     const FRAMES: [FrameKind; 2] = [FrameKind::Lbv200_4, FrameKind::Lbv300_6];
 
@@ -247,9 +262,12 @@ mod tests {
         assert_eq!(steps(mix(f, sticks(1000, 0, 500, 0), 50)), [51, 51, 51, 51, 0, 0, 0, 0]);
         assert_eq!(steps(mix(f, sticks(1000, 0, 500, 0), 1)), [1, 1, 1, 1, 0, 0, 0, 0]);
         // Out-of-range gains are clamped.
-        assert_eq!(mix(f, sticks(1000, 0, 500, 0), 0), mix(f, sticks(1000, 0, 500, 0), 1));
         assert_eq!(
-            mix(f, sticks(1000, 0, 500, 0), 255),
+            mix::<MAX_THRUSTERS>(f, sticks(1000, 0, 500, 0), 0),
+            mix(f, sticks(1000, 0, 500, 0), 1)
+        );
+        assert_eq!(
+            mix::<MAX_THRUSTERS>(f, sticks(1000, 0, 500, 0), 255),
             mix(f, sticks(1000, 0, 500, 0), 100)
         );
         // 1000 * 25 % = 250 thousandths = 25.5 steps -> 26 (half away from zero).
@@ -297,7 +315,7 @@ mod tests {
                     for &y in &values {
                         for &r in &values {
                             for &z in &heaves {
-                                let out = mix(frame, sticks(x, y, z, r), gain);
+                                let out: [Speed; MAX_THRUSTERS] = mix(frame, sticks(x, y, z, r), gain);
                                 for speed in &out[frame.thrusters()..] {
                                     assert_eq!(*speed, Speed::ZERO);
                                 }
@@ -335,7 +353,7 @@ mod tests {
                         .map(|row| i32::from(row[0]) * x + i32::from(row[1]) * y + i32::from(row[3]) * r)
                         .collect();
                     let peak = demand.iter().map(|d| d.abs()).max().unwrap().max(1000);
-                    let out = mix(f, sticks(x as i16, y as i16, 500, r as i16), 100);
+                    let out: [Speed; MAX_THRUSTERS] = mix(f, sticks(x as i16, y as i16, 500, r as i16), 100);
                     for (speed, d) in out.iter().zip(&demand) {
                         let exact = f64::from(*d) * 102.0 / f64::from(peak);
                         assert!((f64::from(speed.step()) - exact).abs() <= 0.5, "{x} {y} {r}: {exact}");

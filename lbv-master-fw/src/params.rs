@@ -24,8 +24,10 @@ use core::fmt;
 use embassy_time::Duration;
 
 use crate::mixer::FrameKind;
-use crate::shared::ParamId;
 use crate::signing::SigningKey;
+
+/// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
+pub type ParamId = [u8; 16];
 
 /// What the ground-station heartbeat failsafe does (`FS_GCS_ENABLE`; 1 and 2 as in ArduSub, whose 3 holds depth).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -386,7 +388,6 @@ fn deciseconds(value: i32) -> Duration {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Settings {
-    /// The parameters.
     pub params: Params,
     /// The MAVLink 2 signing key; `None`: signing is off.
     pub signing: Option<SigningKey>,

@@ -81,7 +81,7 @@ pub async fn poll_thruster<I: I2c>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::BusConfig;
+    use crate::recovery::BusConfig;
     use crate::tests::scripted::SimThruster;
     use core::cell::{Cell, RefCell};
     use embassy_futures::block_on;

@@ -1,4 +1,4 @@
-//! Clearing a stuck thruster bus.
+//! The thruster buses: their speed and timeout ([`BusConfig`]), and clearing one that is stuck.
 //!
 //! A slave reset or disturbed in the middle of a byte it was sending can be left holding SDA low, waiting for
 //! clocks the master will never send: no START can be made and every transfer fails. UM10204 3.1.16: clock SCL
@@ -6,11 +6,35 @@
 //! [`clear_bus`] does that on two open-drain pins; the binding lends it the bus's pins (and re-initialises its I2C
 //! peripheral afterwards), the bench its simulated lines.
 
+use embassy_time::Duration;
 use embedded_hal::digital::{InputPin, OutputPin};
 use embedded_hal_async::delay::DelayNs;
 use embedded_hal_async::i2c::{ErrorType, I2c, Operation};
 
-use crate::config::BusConfig;
+/// A thruster bus: its clock, and how long a transfer may stall before the master gives up on it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct BusConfig {
+    /// SCL frequency, Hz.
+    pub frequency_hz: u32,
+    /// A transfer stalled this long (SCL held low) is abandoned with a timeout; embassy-stm32's default is 1 s.
+    pub timeout: Duration,
+}
+
+impl BusConfig {
+    /// IDS 6.4.1: the motherboard is a 100 kbit/s I2C master. SMBus's SCL-low timeout, 25 ms, bounds a stalled
+    /// transfer.
+    pub const THRUSTERS: BusConfig = BusConfig {
+        frequency_hz: 100_000,
+        timeout: Duration::from_millis(25),
+    };
+
+    /// Half an SCL period, ns: the bus recovery clocks SCL at the bus's own speed.
+    pub const fn half_period_ns(&self) -> u32 {
+        let hz = if self.frequency_hz == 0 { 1 } else { self.frequency_hz };
+        500_000_000 / hz
+    }
+}
 
 /// A thruster bus the master can clear when a transfer times out or fails on the bus.
 #[allow(async_fn_in_trait)]
@@ -72,7 +96,6 @@ where
 /// simulated bus); the STM32 binding switches its pins between the peripheral and GPIO itself.
 #[derive(Debug)]
 pub struct PinRecovery<I, Scl, Sda, D> {
-    /// The I2C master.
     pub i2c: I,
     /// SCL as an open-drain output.
     pub scl: Scl,
@@ -80,7 +103,7 @@ pub struct PinRecovery<I, Scl, Sda, D> {
     pub sda: Sda,
     /// Times the half periods.
     pub delay: D,
-    /// The bus's speed.
+    /// The bus's speed, at which the recovery clocks SCL.
     pub bus: BusConfig,
 }
 
@@ -105,11 +128,18 @@ mod tests {
     use super::*;
     use core::cell::{Cell, RefCell};
     use core::convert::Infallible;
-    use embassy_time::{Delay, Duration, Instant};
+    use embassy_time::{Delay, Instant};
     use lbv_sim::i2c::{Bus, Timing};
     use lbv_sim::{Executor, clock};
 
     const BUS: BusConfig = BusConfig::THRUSTERS;
+
+    #[test]
+    fn the_bus_runs_at_100_kbit_s_with_a_25_ms_timeout() {
+        assert_eq!(BusConfig::THRUSTERS.frequency_hz, 100_000);
+        assert_eq!(BusConfig::THRUSTERS.timeout, Duration::from_millis(25));
+        assert_eq!(BusConfig::THRUSTERS.half_period_ns(), 5_000);
+    }
 
     fn lines() -> Bus {
         Bus::new(Timing::new(BUS.frequency_hz, BUS.timeout))

@@ -1,6 +1,7 @@
 //! What the master's tasks tell one another: the console's commands, the vehicle's orders, the thrusters' and
 //! the battery's reports, and the messages queued for the console. Every task owns its own state machines and
-//! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them.
+//! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them,
+//! only on [`crate::params`] and [`crate::mixer`] for the settings and the pilot's sticks it carries.
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -11,7 +12,8 @@ use embassy_sync::watch::Watch;
 use embassy_time::Duration;
 use tmc_proto::{Order, Status};
 
-use crate::params::{ParamType, Settings};
+use crate::mixer::ManualInput;
+use crate::params::{ParamId, ParamType, Settings};
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
 pub const MAX_THRUSTERS: usize = 8;
@@ -42,24 +44,6 @@ impl core::fmt::Write for Truncating {
     }
 }
 
-/// The pilot's sticks, as MAVLink MANUAL_CONTROL carries them: x forward, y right, r yaw clockwise, each
-/// -1000..=1000; z vertical thrust 0..=1000 with 500 neutral (the ArduSub convention; 1000 = up).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct ManualInput {
-    /// Surge, -1000 (astern) ..= 1000 (ahead).
-    pub x: i16,
-    /// Sway, -1000 (left) ..= 1000 (right).
-    pub y: i16,
-    /// Heave, 0 (down) ..= 1000 (up), 500 neutral.
-    pub z: i16,
-    /// Yaw, -1000 (counter-clockwise) ..= 1000 (clockwise), seen from above.
-    pub r: i16,
-}
-
-/// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
-pub type ParamId = [u8; 16];
-
 /// Who sent a console message: its MAVLink system and component ids.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -74,11 +58,20 @@ pub struct Sender {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Request {
-    /// The sender.
     pub from: Sender,
     /// What it asks.
     pub command: Command,
 }
+
+// The MAV_CMD numbers the console decodes and the vehicle acknowledges (the dialect leaves COMMAND_LONG's command
+// a plain number).
+pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
+pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
+pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
+pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
+pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
+/// The older way to ask for AUTOPILOT_VERSION.
+pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
 
 /// What the console asked for, decoded from MAVLink by the console task.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -105,7 +98,7 @@ pub enum Command {
     Reboot,
     /// SETUP_SIGNING: the MAVLink 2 signing key (all zeros: signing off) and the timestamp to start from.
     SetupSigning {
-        /// The secret.
+        /// The 32-byte secret (SETUP_SIGNING.secret_key).
         key: [u8; 32],
         /// 10 us units since 2015-01-01.
         timestamp: u64,
@@ -230,7 +223,6 @@ pub enum Outgoing {
     CommandAck {
         /// The MAV_CMD answered.
         command: u16,
-        /// The result.
         result: AckResult,
         /// The command's sender, whom the answer is addressed to.
         to: Sender,
@@ -241,9 +233,8 @@ pub enum Outgoing {
         id: ParamId,
         /// The value (an integer parameter's as its float, MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST).
         value: f32,
-        /// Its type.
         param_type: ParamType,
-        /// Its index.
+        /// Its index in the parameter table (PARAM_VALUE.param_index).
         index: u16,
         /// How many parameters there are.
         count: u16,
@@ -292,7 +283,7 @@ pub struct LinkHealth {
     pub overcurrents: u32,
     /// The thruster did not acknowledge (missing or unpowered).
     pub nack: u32,
-    /// A transfer timed out (SCL held low past the bus's timeout, [`crate::config::BusConfig::timeout`]).
+    /// A transfer timed out (SCL held low past the bus's timeout, [`crate::recovery::BusConfig::timeout`]).
     pub timeout: u32,
     /// The status's checksum did not match.
     pub bad_checksum: u32,

@@ -268,17 +268,23 @@ mod acceptance {
     use defmt::{info, warn};
     use embassy_time::Timer;
     use lbv_master_fw::CONFIG;
-    use lbv_master_fw::acceptance::{Operator, Prompt, StepResult, Verdict, family_token};
+    use lbv_master_fw::acceptance::Operator;
+    use lbv_master_fw::acceptance::report::{Prompt, Report, StepResult, Verdict};
     use tmc_proto::Family;
 
-    /// A report line's body; the longest step has 8 figures of ~20 characters.
-    type Line = heapless::String<224>;
+    /// A report line; the longest, a step's with 8 figures of ~20 characters, is some 220 bytes.
+    type Line = heapless::String<256>;
 
-    fn line(args: core::fmt::Arguments<'_>) -> Line {
+    /// Log a report line, at WARN for a failed step.
+    fn log(report: &Report<'_>, warn: bool) {
         let mut line = Line::new();
-        // A line that does not fit is cut short; the parser still finds step, family and result first.
-        let _ = line.write_fmt(args);
-        line
+        // A line cut short does not read back in `lbv hil`, whose count of steps then disagrees with the verdict's.
+        let _ = write!(line, "{report}");
+        if warn {
+            warn!("{=str}", line.as_str());
+        } else {
+            info!("{=str}", line.as_str());
+        }
     }
 
     /// The person at the bench: told what to do in the log (and on the console), then given time to do it.
@@ -287,31 +293,20 @@ mod acceptance {
     impl Operator for Person {
         async fn prompt(&mut self, what: Prompt, family: Family) {
             let wait = CONFIG.acceptance.prompt_wait(what);
-            info!(
-                "ACCEPT prompt={=str} family={=str} wait_s={=u64}: {=str}",
-                what.name(),
-                family_token(family),
-                wait.as_secs(),
-                what.instruction()
-            );
+            log(&Report::prompt(what, family, wait), false);
             Timer::after(wait).await;
         }
 
         fn started(&mut self) {
-            info!("ACCEPT start");
+            log(&Report::Start, false);
         }
 
         fn reported(&mut self, result: &StepResult) {
-            let body = line(format_args!("{result}"));
-            if result.passed {
-                info!("ACCEPT {=str}", body.as_str());
-            } else {
-                warn!("ACCEPT {=str}", body.as_str());
-            }
+            log(&Report::Step(result.clone()), !result.passed);
         }
 
         fn concluded(&mut self, verdict: &Verdict) {
-            info!("ACCEPT {=str}", line(format_args!("{verdict}")).as_str());
+            log(&Report::Verdict(verdict.into()), false);
         }
     }
 }

@@ -8,8 +8,8 @@
 //! index plus one.
 //!
 //! The decisions live in small synchronous state machines that the virtual bench can reuse:
-//! - [`Failure`] classifies a failed poll (NACK, timeout, bus error, mux, decode errors);
-//! - [`Link`] keeps one thruster's health, its last valid status and its retry back-off;
+//! - [`PollFailure`] classifies a failed poll (NACK, timeout, bus error, mux, decode errors);
+//! - [`ThrusterLink`] keeps one thruster's health, its last valid status and its retry back-off;
 //! - [`FaultWatch`] turns the status's fault bits into changes worth a console text.
 //!
 //! [`bus_task`] wires them to a bus: every poll period it polls each due thruster once, in table order. A missing
@@ -28,8 +28,7 @@ use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm}
 
 use crate::poll::{PollError, Polled, poll_thruster};
 use crate::recovery::BusRecovery;
-pub use crate::shared::LinkHealth;
-use crate::shared::{MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
+use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
 
 #[cfg(test)]
 mod tests;
@@ -86,8 +85,6 @@ impl ThrusterSlot {
         }
     }
 }
-
-pub use crate::shared::BUSES;
 
 /// What is wrong with a thruster table; thrusters are named by their index in the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -239,7 +236,7 @@ impl Default for PollConfig {
 /// Why one poll failed, as the link health counts it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Failure {
+pub enum PollFailure {
     /// The thruster did not acknowledge: it is missing or unpowered.
     Nack,
     /// The transfer timed out. embedded-hal has no timeout kind: embassy-stm32 reports its timeout as
@@ -260,50 +257,50 @@ pub enum Failure {
     BadRange,
 }
 
-impl Failure {
+impl PollFailure {
     /// Class of a bus error, by its embedded-hal kind.
-    pub fn of_bus_error<E: embedded_hal::i2c::Error>(error: &E) -> Failure {
+    pub fn of_bus_error<E: embedded_hal::i2c::Error>(error: &E) -> PollFailure {
         match error.kind() {
-            ErrorKind::NoAcknowledge(_) => Failure::Nack,
-            ErrorKind::Other => Failure::Timeout,
-            _ => Failure::Bus,
+            ErrorKind::NoAcknowledge(_) => PollFailure::Nack,
+            ErrorKind::Other => PollFailure::Timeout,
+            _ => PollFailure::Bus,
         }
     }
 
     /// Class of a status that failed to decode.
-    pub const fn of_decode_error(error: DecodeError) -> Failure {
+    pub const fn of_decode_error(error: DecodeError) -> PollFailure {
         match error {
-            DecodeError::Length { .. } => Failure::BadLength,
-            DecodeError::MessageType { .. } => Failure::BadType,
-            DecodeError::Checksum { .. } => Failure::BadChecksum,
-            DecodeError::SpeedOutOfRange(_) => Failure::BadRange,
+            DecodeError::Length { .. } => PollFailure::BadLength,
+            DecodeError::MessageType { .. } => PollFailure::BadType,
+            DecodeError::Checksum { .. } => PollFailure::BadChecksum,
+            DecodeError::SpeedOutOfRange(_) => PollFailure::BadRange,
         }
     }
 
     /// Class of a failed [`poll_thruster`].
-    pub fn of_poll_error<E: embedded_hal::i2c::Error>(error: &PollError<E>) -> Failure {
+    pub fn of_poll_error<E: embedded_hal::i2c::Error>(error: &PollError<E>) -> PollFailure {
         match error {
-            PollError::Order(error) | PollError::Status(error) => Failure::of_bus_error(error),
-            PollError::Decode(error) => Failure::of_decode_error(*error),
+            PollError::Order(error) | PollError::Status(error) => PollFailure::of_bus_error(error),
+            PollError::Decode(error) => PollFailure::of_decode_error(*error),
         }
     }
 
     /// Whether the bus may be left stuck, so a recovery should follow.
     pub const fn needs_recovery(self) -> bool {
-        matches!(self, Failure::Timeout | Failure::Bus | Failure::Mux)
+        matches!(self, PollFailure::Timeout | PollFailure::Bus | PollFailure::Mux)
     }
 
     /// Short words for console texts.
     pub const fn reason(self) -> &'static str {
         match self {
-            Failure::Nack => "no answer",
-            Failure::Timeout => "timeout",
-            Failure::Bus => "bus error",
-            Failure::Mux => "mux error",
-            Failure::BadLength => "bad length",
-            Failure::BadType => "bad message type",
-            Failure::BadChecksum => "bad checksum",
-            Failure::BadRange => "value out of range",
+            PollFailure::Nack => "no answer",
+            PollFailure::Timeout => "timeout",
+            PollFailure::Bus => "bus error",
+            PollFailure::Mux => "mux error",
+            PollFailure::BadLength => "bad length",
+            PollFailure::BadType => "bad message type",
+            PollFailure::BadChecksum => "bad checksum",
+            PollFailure::BadRange => "value out of range",
         }
     }
 }
@@ -315,9 +312,9 @@ pub enum Outcome {
     /// The order was delivered and the status read.
     Answered(Status),
     /// The order was delivered (its write acknowledged), but the status could not be read.
-    NoStatus(Failure),
+    NoStatus(PollFailure),
     /// The order was not delivered.
-    NoOrder(Failure),
+    NoOrder(PollFailure),
 }
 
 impl Outcome {
@@ -325,13 +322,13 @@ impl Outcome {
     pub fn of_poll<E: embedded_hal::i2c::Error>(result: &Result<Polled, PollError<E>>) -> Outcome {
         match result {
             Ok(polled) => Outcome::Answered(polled.decoded.status),
-            Err(error) if error.delivered() => Outcome::NoStatus(Failure::of_poll_error(error)),
-            Err(error) => Outcome::NoOrder(Failure::of_poll_error(error)),
+            Err(error) if error.delivered() => Outcome::NoStatus(PollFailure::of_poll_error(error)),
+            Err(error) => Outcome::NoOrder(PollFailure::of_poll_error(error)),
         }
     }
 
     /// Why the poll failed, if it did.
-    pub const fn failure(&self) -> Option<Failure> {
+    pub const fn failure(&self) -> Option<PollFailure> {
         match self {
             Outcome::Answered(_) => None,
             Outcome::NoStatus(failure) | Outcome::NoOrder(failure) => Some(*failure),
@@ -358,9 +355,9 @@ pub enum LinkChange {
     /// The first delivered order after start-up or after being offline.
     Online,
     /// Taken offline, for this last failure.
-    Offline(Failure),
+    Offline(PollFailure),
     /// Orders delivered, but the status unreadable for `offline_after` polls in a row, for this last failure.
-    StatusLost(Failure),
+    StatusLost(PollFailure),
     /// A status read again after [`LinkChange::StatusLost`].
     StatusBack,
 }
@@ -368,7 +365,7 @@ pub enum LinkChange {
 /// One thruster's link: health counters, the last valid status and the retry schedule while offline.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Link {
+pub struct ThrusterLink {
     health: LinkHealth,
     state: LinkState,
     status: Option<Status>,
@@ -387,7 +384,7 @@ pub struct Link {
     offline_after: u16,
 }
 
-impl Link {
+impl ThrusterLink {
     /// A thruster not polled yet.
     pub const fn new(config: &PollConfig) -> Self {
         Self {
@@ -499,13 +496,13 @@ impl Link {
         health.polls = health.polls.saturating_add(1);
         if let Some(failure) = outcome.failure() {
             let counter = match failure {
-                Failure::Nack => &mut health.nack,
-                Failure::Timeout => &mut health.timeout,
-                Failure::Bus | Failure::Mux => &mut health.bus_error,
-                Failure::BadLength => &mut health.bad_length,
-                Failure::BadType => &mut health.bad_type,
-                Failure::BadChecksum => &mut health.bad_checksum,
-                Failure::BadRange => &mut health.bad_range,
+                PollFailure::Nack => &mut health.nack,
+                PollFailure::Timeout => &mut health.timeout,
+                PollFailure::Bus | PollFailure::Mux => &mut health.bus_error,
+                PollFailure::BadLength => &mut health.bad_length,
+                PollFailure::BadType => &mut health.bad_type,
+                PollFailure::BadChecksum => &mut health.bad_checksum,
+                PollFailure::BadRange => &mut health.bad_range,
             };
             *counter = counter.saturating_add(1);
         }
@@ -555,7 +552,7 @@ impl Link {
                 None
             }
             LinkState::Unknown | LinkState::Online => {
-                let missing = failure == Failure::Nack;
+                let missing = failure == PollFailure::Nack;
                 if missing || health.consecutive_failures >= self.offline_after.max(1) {
                     health.online = false;
                     self.state = LinkState::Offline;
@@ -730,7 +727,7 @@ async fn poll_slot<B: I2c>(
 
 /// What one bus task keeps between cycles.
 struct BusState {
-    links: [Link; MAX_THRUSTERS],
+    links: [ThrusterLink; MAX_THRUSTERS],
     faults: [FaultWatch; MAX_THRUSTERS],
     /// The mux control byte last written, None when unknown.
     mux: Option<u8>,
@@ -790,7 +787,7 @@ impl BusState {
                     (link.on_outcome(cycle, outcome), outcome)
                 }
                 Err(SlotError::Mux) => {
-                    let outcome = Outcome::NoOrder(Failure::Mux);
+                    let outcome = Outcome::NoOrder(PollFailure::Mux);
                     (link.on_outcome(cycle, outcome), outcome)
                 }
             };
@@ -859,7 +856,7 @@ where
     B: I2c + BusRecovery,
 {
     let mut state = BusState {
-        links: [Link::new(config); MAX_THRUSTERS],
+        links: [ThrusterLink::new(config); MAX_THRUSTERS],
         faults: [FaultWatch::new(); MAX_THRUSTERS],
         mux: None,
     };

@@ -61,21 +61,14 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Ticker, with_deadline};
 use tmc_proto::{Order, Speed};
 
-use crate::mixer::{FrameKind, mix, round_div};
+use crate::mixer::{FrameKind, ManualInput, mix, round_div};
 use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
-    AckResult, Command, MAX_THRUSTERS, ManualInput, Outgoing, Request, Sender, Severity, Shared, VehicleState, text,
+    AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
+    MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender, Severity, Shared, VehicleState, text,
 };
 use crate::signing::SigningKey;
 
-/// MAV_CMD_COMPONENT_ARM_DISARM.
-pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
-/// MAV_CMD_DO_MOTOR_TEST.
-pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
-/// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
-pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
-/// MAV_CMD_SET_MESSAGE_INTERVAL.
-pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
 /// Longest motor test.
 pub const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);
 
@@ -299,7 +292,7 @@ impl Vehicle {
         let mut orders = [Order::STOP; MAX_THRUSTERS];
         let wired = usize::from(self.thrusters);
         if self.armed {
-            let speeds = mix(params.frame(), self.input, params.gain_percent());
+            let speeds: [Speed; MAX_THRUSTERS] = mix(params.frame(), self.input, params.gain_percent());
             for (order, speed) in orders.iter_mut().zip(speeds).take(wired) {
                 *order = Order { speed, info };
             }
@@ -624,8 +617,8 @@ pub async fn vehicle_task(config: VehicleConfig, settings: Settings, shared: &Sh
 mod tests {
     use super::*;
     use crate::battery::tests::elapse;
-    use crate::params::Params;
-    use crate::shared::{Interval, Message, ParamId};
+    use crate::params::{ParamId, Params};
+    use crate::shared::{Interval, Message};
     use embassy_futures::block_on;
 
     fn t(ms: u64) -> Instant {

@@ -12,14 +12,13 @@ use std::process::{Command as Process, Stdio};
 
 use console_support::{clock, run_rx, run_tx};
 use embassy_time::Duration;
-use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
+use lbv_master_fw::mixer::ManualInput;
 use lbv_master_fw::params::ParamType;
 use lbv_master_fw::shared::{
-    AckResult, Command, Interval, ManualInput, Message, Outgoing, Sender, Severity, Shared, Text, ThrusterReport,
-    VehicleState,
+    AckResult, BatterySummary, Command, Interval, LinkHealth, Message, Outgoing, Sender, Severity, Shared, Text,
+    ThrusterReport, VehicleState,
 };
-use lbv_master_fw::thrusters::LinkHealth;
 use serde_json::Value;
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
 

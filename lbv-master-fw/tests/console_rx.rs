@@ -11,7 +11,8 @@ use lbv_master_fw::console::lbv::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavModeFlag, MavParamType, MavState, MavType,
     PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, STATUSTEXT_DATA,
 };
-use lbv_master_fw::shared::{Command, ManualInput};
+use lbv_master_fw::mixer::ManualInput;
+use lbv_master_fw::shared::Command;
 
 const GCS: (u8, u8) = (255, 190);
 const CONFIG: ConsoleConfig = ConsoleConfig::DEFAULT;

@@ -14,9 +14,9 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use console_support::{Line, clock, run_console, run_rx_requests, run_tx};
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::console::frame::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, inbound};
+use lbv_master_fw::framing::{Event, FrameParser};
 use lbv_master_fw::shared::{Command, Shared};
 use lbv_master_fw::signing::SigningKey;
 use lbv_master_fw::vehicle::VehicleConfig;

@@ -6,12 +6,12 @@ mod console_support;
 
 use console_support::{clock, ids, parse_all, run_tx};
 use embassy_time::Duration;
-use lbv_master_fw::battery::BatterySummary;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
 use lbv_master_fw::params::ParamType;
-use lbv_master_fw::shared::{AckResult, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState};
-use lbv_master_fw::thrusters::LinkHealth;
+use lbv_master_fw::shared::{
+    AckResult, BatterySummary, LinkHealth, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState,
+};
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
 
 const HEARTBEAT: u32 = 0;

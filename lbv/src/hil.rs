@@ -2,10 +2,8 @@
 //!
 //! It builds the motor-less thruster image and the master's acceptance image, flashes the thruster board and
 //! starts it, then flashes and runs the master board with `probe-rs run`, following its defmt log: the master's
-//! acceptance test (`lbv_master_fw::acceptance`) reports every step as a line
-//! `ACCEPT step=<name> [family=<family>] result=PASS|FAIL <figure>=<value> ...`, every prompt to the person at the
-//! bench as `ACCEPT prompt=<name> family=<family> wait_s=<s>: <instruction>`, and ends with
-//! `ACCEPT verdict=PASS|FAIL passed=<n> failed=<m>`.
+//! acceptance test reports its start, every prompt to the person at the bench, every step and the verdict as report
+//! lines, which [`Report::parse`] reads (their format is `lbv_master_fw::acceptance::report`'s).
 //!
 //! The pieces are separate so that they can be tested without boards: [`plan`] builds the commands, [`parse_line`]
 //! and [`Outcome`] read the log, [`follow`] runs the log through them against the clock, [`judge`] turns the
@@ -19,6 +17,7 @@ use std::process::{Child, ExitCode, Stdio};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
 use std::time::{Duration, Instant};
 
+use lbv_master_fw::acceptance::report::{MARKER, Report, Step, VerdictLine, family_token};
 use tmc_proto::Family;
 
 use crate::lines::{Line, Lines};
@@ -300,126 +299,38 @@ pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Comma
     ]
 }
 
-/// A step's report line, as read.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct StepLine {
-    /// The step's name.
-    pub step: String,
-    /// The thruster's family, when the step tests one.
-    pub family: Option<String>,
-    /// PASS.
-    pub passed: bool,
-    /// Its figures, in order, as written.
-    pub figures: Vec<(String, String)>,
+/// The image's text in a log line from where its report line begins: what probe-rs adds after it (a colour code,
+/// the log's location ` (file:line)`) left off.
+fn report_text(text: &str) -> &str {
+    let text = text.split('\u{1b}').next().unwrap_or(text).trim_end();
+    let location = |suffix: &str| {
+        suffix
+            .strip_suffix(')')
+            .and_then(|location| location.rsplit_once(':'))
+            .is_some_and(|(file, line)| {
+                !file.is_empty() && !line.is_empty() && line.bytes().all(|b| b.is_ascii_digit())
+            })
+    };
+    match text.rsplit_once(" (") {
+        Some((report, suffix)) if location(suffix) => report,
+        _ => text,
+    }
 }
 
-/// The verdict line, as read.
+/// Read one log line: the report line it holds, None for anything else (probe-rs's own output, other log lines, a
+/// report line cut off or malformed).
+pub fn parse_line(line: &str) -> Option<Report<'_>> {
+    let at = line.find(MARKER)?;
+    Report::parse(report_text(line.get(at..)?)).ok()
+}
+
+/// A failed step, as the summary names it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct VerdictLine {
-    /// verdict=PASS.
-    pub pass: bool,
-    /// Steps that passed.
-    pub passed: u32,
-    /// Steps that failed.
-    pub failed: u32,
-}
-
-/// One line of the test's report.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Event {
-    /// The test started.
-    Start,
-    /// A step ended.
-    Step(StepLine),
-    /// The person at the bench is asked to do something.
-    Prompt {
-        /// The prompt's name.
-        name: String,
-        /// The thruster it concerns.
-        family: String,
-        /// What to do.
-        instruction: String,
-    },
-    /// The verdict.
-    Verdict(VerdictLine),
-}
-
-/// `line` without terminal colour codes.
-fn plain(line: &str) -> String {
-    let mut out = String::with_capacity(line.len());
-    let mut chars = line.chars();
-    while let Some(c) = chars.next() {
-        if c == '\u{1b}' {
-            // CSI: ESC [ parameters final-byte.
-            if chars.next() == Some('[') {
-                for c in chars.by_ref() {
-                    if c.is_ascii_alphabetic() {
-                        break;
-                    }
-                }
-            }
-        } else {
-            out.push(c);
-        }
-    }
-    out
-}
-
-/// Read one log line: an [`Event`] when it is one of the test's report lines, None for anything else (probe-rs's
-/// own output, other log lines, a line cut off).
-pub fn parse_line(line: &str) -> Option<Event> {
-    let line = plain(line);
-    let at = line.find("ACCEPT ")?;
-    let body = line.get(at + "ACCEPT ".len()..)?.trim();
-    if body == "start" || body.starts_with("start ") {
-        return Some(Event::Start);
-    }
-    // key=value tokens; anything else (a location suffix, the prompt's words) is not a field.
-    let (fields, rest) = match body.split_once(": ") {
-        Some((fields, rest)) if body.starts_with("prompt=") => (fields, rest.trim()),
-        _ => (body, ""),
-    };
-    let pairs: Vec<(&str, &str)> = fields
-        .split_whitespace()
-        .filter_map(|token| token.split_once('='))
-        .collect();
-    let get = |key: &str| pairs.iter().find(|(k, _)| *k == key).map(|(_, v)| *v);
-    if let Some(verdict) = get("verdict") {
-        let pass = match verdict {
-            "PASS" => true,
-            "FAIL" => false,
-            _ => return None,
-        };
-        return Some(Event::Verdict(VerdictLine {
-            pass,
-            passed: get("passed")?.parse().ok()?,
-            failed: get("failed")?.parse().ok()?,
-        }));
-    }
-    if let Some(name) = get("prompt") {
-        return Some(Event::Prompt {
-            name: name.to_string(),
-            family: get("family").unwrap_or_default().to_string(),
-            instruction: rest.to_string(),
-        });
-    }
-    let step = get("step")?;
-    let passed = match get("result")? {
-        "PASS" => true,
-        "FAIL" => false,
-        _ => return None,
-    };
-    let figures = pairs
-        .iter()
-        .filter(|(key, _)| !matches!(*key, "step" | "family" | "result"))
-        .map(|(key, value)| (key.to_string(), value.to_string()))
-        .collect();
-    Some(Event::Step(StepLine {
-        step: step.to_string(),
-        family: get("family").map(str::to_string),
-        passed,
-        figures,
-    }))
+pub struct FailedStep {
+    /// Which step.
+    pub step: Step,
+    /// The thruster it tested, when it tests one.
+    pub family: Option<Family>,
 }
 
 /// Failed steps whose lines are kept for the summary; all are counted.
@@ -463,8 +374,8 @@ pub struct Outcome {
     pub passed: u64,
     /// Steps that failed.
     pub failed: u64,
-    /// The first failed steps' lines, in order.
-    pub failures: Vec<StepLine>,
+    /// The first failed steps, in order.
+    pub failures: Vec<FailedStep>,
     /// Prompts seen.
     pub prompts: u64,
     /// The verdict, once seen.
@@ -477,7 +388,7 @@ pub struct Outcome {
 
 impl Outcome {
     /// Take one log line; returns the report line it held, if any.
-    pub fn feed(&mut self, line: &LogLine) -> Option<Event> {
+    pub fn feed<'l>(&mut self, line: &'l LogLine) -> Option<Report<'l>> {
         if line.text.contains("panicked at") {
             self.panicked = true;
         }
@@ -485,20 +396,23 @@ impl Outcome {
             self.cut_lines += 1;
             return None;
         }
-        let event = parse_line(&line.text)?;
-        match &event {
-            Event::Start => self.started = true,
-            Event::Step(step) if step.passed => self.passed += 1,
-            Event::Step(step) => {
+        let report = parse_line(&line.text)?;
+        match &report {
+            Report::Start => self.started = true,
+            Report::Step(step) if step.passed => self.passed += 1,
+            Report::Step(step) => {
                 self.failed += 1;
                 if self.failures.len() < MAX_FAILURES {
-                    self.failures.push(step.clone());
+                    self.failures.push(FailedStep {
+                        step: step.step,
+                        family: step.family,
+                    });
                 }
             }
-            Event::Prompt { .. } => self.prompts += 1,
-            Event::Verdict(verdict) => self.verdict = Some(*verdict),
+            Report::Prompt { .. } => self.prompts += 1,
+            Report::Verdict(verdict) => self.verdict = Some(*verdict),
         }
-        Some(event)
+        Some(report)
     }
 
     /// Read a whole log.
@@ -595,25 +509,30 @@ pub fn judge(outcome: &Outcome, ending: Ending, timeout: Duration) -> (u8, Strin
 }
 
 /// A report line for the terminal.
-pub fn describe(event: &Event) -> String {
-    match event {
-        Event::Start => "acceptance test started".into(),
-        Event::Step(step) => {
-            let figures: Vec<String> = step.figures.iter().map(|(k, v)| format!("{k}={v}")).collect();
+pub fn describe(report: &Report<'_>) -> String {
+    match report {
+        Report::Start => "acceptance test started".into(),
+        Report::Step(step) => {
+            let figures: Vec<String> = step.figures.iter().map(|f| format!("{}={}", f.name, f.value)).collect();
             format!(
                 "  {} {:<9} {:<14} {}",
                 if step.passed { "ok  " } else { "FAIL" },
-                step.family.as_deref().unwrap_or(""),
-                step.step,
+                step.family.map_or("", family_token),
+                step.step.name(),
                 figures.join(" ")
             )
         }
-        Event::Prompt {
-            name,
+        Report::Prompt {
+            prompt,
             family,
             instruction,
-        } => format!(">>> {family} thruster: {instruction} ({name})"),
-        Event::Verdict(verdict) => format!(
+            ..
+        } => format!(
+            ">>> {} thruster: {instruction} ({})",
+            family_token(*family),
+            prompt.name()
+        ),
+        Report::Verdict(verdict) => format!(
             "verdict {}: {} passed, {} failed",
             if verdict.pass { "PASS" } else { "FAIL" },
             verdict.passed,
@@ -643,9 +562,9 @@ pub fn follow(
             if let Some(log) = log.as_mut() {
                 let _ = writeln!(log, "{}", line.text);
             }
-            if let Some(event) = outcome.feed(&line) {
-                let _ = writeln!(out, "{}", describe(&event));
-                if matches!(event, Event::Verdict(_)) {
+            if let Some(report) = outcome.feed(&line) {
+                let _ = writeln!(out, "{}", describe(&report));
+                if matches!(report, Report::Verdict(_)) {
                     return (outcome, Ending::Verdict);
                 }
             }
@@ -770,8 +689,13 @@ pub fn main(args: Args) -> ExitCode {
     }
     let (code, summary) = judge(&outcome, ending, options.timeout);
     // Written, not printed: a reader that went away (`| head`) is no reason to stop before the exit status.
-    for step in &outcome.failures {
-        let _ = writeln!(stdout, "failed: {} {}", step.family.as_deref().unwrap_or(""), step.step);
+    for failure in &outcome.failures {
+        let _ = writeln!(
+            stdout,
+            "failed: {} {}",
+            failure.family.map_or("", family_token),
+            failure.step.name()
+        );
     }
     if outcome.failed > outcome.failures.len() as u64 {
         let more = outcome.failed - outcome.failures.len() as u64;
@@ -790,6 +714,7 @@ pub fn main(args: Args) -> ExitCode {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use lbv_master_fw::acceptance::report::Prompt;
 
     const PASS_LOG: &str = include_str!("../tests/fixtures/hil-pass.log");
     const FAIL_LOG: &str = include_str!("../tests/fixtures/hil-fail.log");
@@ -880,23 +805,23 @@ mod tests {
             "\u{1b}[32mINFO \u{1b}[0m ACCEPT step=failsafe family=seabotix result=PASS ready=1 rest_ms=112 \
              (lbv-master-fw/src/stm32.rs:201)",
         );
+        let Some(Report::Step(step)) = step else {
+            panic!("{step:?}")
+        };
         assert_eq!(
-            step,
-            Some(Event::Step(StepLine {
-                step: "failsafe".into(),
-                family: Some("seabotix".into()),
-                passed: true,
-                figures: vec![("ready".into(), "1".into()), ("rest_ms".into(), "112".into())],
-            }))
+            (step.step, step.family, step.passed),
+            (Step::Failsafe, Some(Family::SeaBotix), true)
         );
+        let figures: Vec<(&str, i32)> = step.figures.iter().map(|f| (f.name, f.value)).collect();
+        assert_eq!(figures, [("ready", 1), ("rest_ms", 112)]);
         let discovery = parse_line("0.412 WARN  ACCEPT step=discovery result=FAIL seabotix=0 legacy=0 found=0");
-        let Some(Event::Step(discovery)) = discovery else {
+        let Some(Report::Step(discovery)) = discovery else {
             panic!()
         };
         assert_eq!((discovery.family, discovery.passed), (None, false));
         assert_eq!(
             parse_line("INFO  ACCEPT verdict=FAIL passed=16 failed=1"),
-            Some(Event::Verdict(VerdictLine {
+            Some(Report::Verdict(VerdictLine {
                 pass: false,
                 passed: 16,
                 failed: 1
@@ -906,13 +831,14 @@ mod tests {
             parse_line(
                 "INFO  ACCEPT prompt=hold-rotor family=legacy wait_s=8: press and hold B1 on the thruster board"
             ),
-            Some(Event::Prompt {
-                name: "hold-rotor".into(),
-                family: "legacy".into(),
-                instruction: "press and hold B1 on the thruster board".into(),
+            Some(Report::Prompt {
+                prompt: Prompt::HoldRotor,
+                family: Family::Legacy,
+                wait_s: 8,
+                instruction: "press and hold B1 on the thruster board",
             })
         );
-        assert_eq!(parse_line("INFO  ACCEPT start"), Some(Event::Start));
+        assert_eq!(parse_line("INFO  ACCEPT start"), Some(Report::Start));
         for noise in [
             "      Erasing ✔ 100% [####################]  48.00 KiB @  41.62 KiB/s",
             "INFO  lbv-master-fw: 1 thrusters",
@@ -948,7 +874,7 @@ mod tests {
     #[test]
     fn a_recorded_failing_run_fails_and_names_the_step() {
         let outcome = Outcome::of_log(FAIL_LOG);
-        let failed: Vec<&str> = outcome.failures.iter().map(|step| step.step.as_str()).collect();
+        let failed: Vec<&str> = outcome.failures.iter().map(|failure| failure.step.name()).collect();
         assert_eq!(failed, ["held-rotor"]);
         let (code, summary) = judge(&outcome, Ending::Verdict, Duration::from_secs(300));
         assert_eq!(code, EXIT_FAIL);

@@ -1,7 +1,7 @@
 //! The dev-kit acceptance test looped back inside one chip: the master's acceptance image
 //! (`lbv_master_fw::run` with `MasterConfig::devkit(family)` and the acceptance `Script`) drives one motor-less
 //! thruster controller of the family under test over the in-memory bus, and a scripted operator does at once what
-//! the prompts ask. The report lines are those of the master's acceptance image (`ACCEPT ...`), so
+//! the prompts ask. The report lines are those of the master's acceptance image (`acceptance::report::Report`), so
 //! `lbv hil --replay` judges them; the console's ground station must hear the verdict too.
 
 use embassy_executor::Spawner;
@@ -9,7 +9,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Timer};
 use lbv_master_fw::MasterConfig;
-use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict, family_token};
+use lbv_master_fw::acceptance::report::{Prompt, Report, StepResult, Verdict};
+use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::config::THRUSTER_BUS;
 use tmc_proto::Family;
 
@@ -59,12 +60,7 @@ struct ScriptedOperator {
 
 impl Operator for ScriptedOperator {
     async fn prompt(&mut self, what: Prompt, family: Family) {
-        say!(
-            "ACCEPT prompt={} family={} wait_s=0: {}",
-            what.name(),
-            family_token(family),
-            what.instruction()
-        );
+        say!("{}", Report::prompt(what, family, Duration::from_ticks(0)));
         match what {
             Prompt::FitWaterResistor => self.thruster.fit_water_resistor(true),
             Prompt::RemoveWaterResistor => self.thruster.fit_water_resistor(false),
@@ -75,15 +71,15 @@ impl Operator for ScriptedOperator {
     }
 
     fn started(&mut self) {
-        say!("ACCEPT start");
+        say!("{}", Report::Start);
     }
 
     fn reported(&mut self, result: &StepResult) {
-        say!("ACCEPT {result}");
+        say!("{}", Report::Step(result.clone()));
     }
 
     fn concluded(&mut self, verdict: &Verdict) {
-        say!("ACCEPT {verdict}");
+        say!("{}", Report::Verdict(verdict.into()));
         VERDICT.signal(*verdict);
     }
 }

@@ -12,7 +12,7 @@ use core::cell::Cell;
 
 use embassy_time::Delay;
 use embedded_hal_async::i2c::{ErrorKind, ErrorType, I2c, Operation};
-use lbv_master_fw::config::BusConfig;
+use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::thrusters::MUX_ADDRESS;
 use lbv_sim::i2c::{DeviceId, Route, Scl, Sda, Stats, Target, TargetError, Timing};

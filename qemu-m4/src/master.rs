@@ -11,8 +11,8 @@ use embassy_sync::pipe::Pipe;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::settings::{InRam, Reboot};
+use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::thrusters::BUSES;
 use lbv_master_fw::{BusWork, MasterConfig, Ports};
 use static_cell::StaticCell;
 

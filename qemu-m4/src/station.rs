@@ -6,8 +6,8 @@ use core::sync::atomic::{AtomicU8, Ordering};
 
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use lbv_master_fw::console::frame::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity};
+use lbv_master_fw::framing::{Event, FrameParser};
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message, MessageData};
 
 use crate::executors::BENCH_METER;
@@ -19,7 +19,7 @@ const GCS_SYSTEM: u8 = 255;
 const GCS_COMPONENT: u8 = 190;
 static SEQUENCE: AtomicU8 = AtomicU8::new(0);
 
-/// The beginning of the console text that carries the acceptance test's verdict (`acceptance::verdict_text`).
+/// The beginning of the console text that carries the acceptance test's verdict (`acceptance::report::verdict_text`).
 const VERDICT_PASS: &str = "acceptance PASS";
 const VERDICT_FAIL: &str = "acceptance FAIL";
 

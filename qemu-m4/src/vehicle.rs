@@ -16,8 +16,9 @@ use lbv_master_fw::config::{THRUSTER_BUS, VEHICLE};
 use lbv_master_fw::console::lbv::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavModeFlag, MavState, MavType,
 };
-use lbv_master_fw::shared::ManualInput;
-use lbv_master_fw::vehicle::{MAV_CMD_COMPONENT_ARM_DISARM, NEUTRAL};
+use lbv_master_fw::mixer::ManualInput;
+use lbv_master_fw::shared::MAV_CMD_COMPONENT_ARM_DISARM;
+use lbv_master_fw::vehicle::NEUTRAL;
 
 use crate::executors::{self, BENCH_METER};
 use crate::i2c::{self, Bus, MAX_THRUSTERS};

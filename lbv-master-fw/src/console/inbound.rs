@@ -6,27 +6,19 @@ use mavlink_core::MessageData;
 use mavlink_core::error::ParserError;
 
 use super::ConsoleConfig;
-use super::frame::{Frame, Version};
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, ESC_INFO_DATA,
     ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA,
     MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA,
     STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
-use crate::shared::{Command, Interval, ManualInput, Message};
+use crate::framing::{Frame, Version};
+use crate::mixer::ManualInput;
+use crate::shared::{
+    Command, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
+    MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, Message,
+};
 
-/// MAV_CMD_COMPONENT_ARM_DISARM.
-pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
-/// MAV_CMD_DO_MOTOR_TEST.
-pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
-/// MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN.
-pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
-/// MAV_CMD_SET_MESSAGE_INTERVAL.
-pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
-/// MAV_CMD_REQUEST_MESSAGE.
-pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
-/// MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: the older way to ask for AUTOPILOT_VERSION.
-pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
 /// Shortest message interval taken, ms: every paced message at 10 Hz together takes some 5 kB/s, under half of
 /// what 115200 baud carries, leaving room for the ground station's own frames and the parameter list.
 pub const MIN_INTERVAL_MS: u32 = 100;

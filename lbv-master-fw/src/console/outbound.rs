@@ -13,9 +13,8 @@ use super::lbv::{
     MavModeFlag, MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
     MavSysStatusSensorExtended, MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
-use crate::battery::BatterySummary;
-use crate::params::ParamType;
-use crate::shared::{AckResult, MAX_THRUSTERS, ParamId, Sender, Severity, Text, ThrusterReport, VehicleState};
+use crate::params::{ParamId, ParamType};
+use crate::shared::{AckResult, BatterySummary, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport, VehicleState};
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
 
@@ -99,7 +98,7 @@ pub fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
 
 /// Console link quality over the last telemetry period, for SYS_STATUS.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct LinkQuality {
+pub struct ConsoleLinkQuality {
     /// Corrupt frames as a share of all frames received, in 0.01 % (0..=10000).
     pub drop_rate: u16,
     /// Corrupt frames since start (saturating: a flood must not wrap it back to a small number).
@@ -148,7 +147,7 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 ///   and PREARM_CHECK are unhealthy.
 /// - voltage_battery mV, current_battery cA, battery_remaining %: from a fresh battery reading, else the
 ///   "unknown" values UINT16_MAX, -1, -1.
-/// - drop_rate_comm, errors_comm: the console link ([`LinkQuality`]).
+/// - drop_rate_comm, errors_comm: the console link ([`ConsoleLinkQuality`]).
 /// - errors_count1: thruster link errors (NACK, timeout, checksum, type, length, range, bus), summed over the
 ///   configured thrusters; errors_count2: battery CAN frames that did not decode; errors_count3: console
 ///   requests refused because they came from another system than the operator's; errors_count4: console frames
@@ -159,7 +158,7 @@ pub fn sys_status(
     reports: &Reports,
     battery: Option<&BatterySummary>,
     vehicle: Option<VehicleState>,
-    link: LinkQuality,
+    link: ConsoleLinkQuality,
 ) -> SYS_STATUS_DATA {
     let configured = reports.iter().take(thrusters);
     let all_online = configured.clone().all(|r| r.as_ref().is_some_and(reporting));
@@ -644,7 +643,7 @@ impl Framer {
 mod tests {
     use super::*;
     use crate::console::ConsoleCounters;
-    use crate::thrusters::LinkHealth;
+    use crate::shared::LinkHealth;
     use bat_proto::{BatteryInfo, DcdcStatus, StatusBit};
     use tmc_proto::{LegacyRevision, LegacyStatus, SeaBotixStatus, Speed};
 
@@ -708,7 +707,7 @@ mod tests {
         }
         let prearm = MavSysStatusSensor::MAV_SYS_STATUS_PREARM_CHECK;
         let rc = MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_RC_RECEIVER;
-        let link = LinkQuality::default();
+        let link = ConsoleLinkQuality::default();
         for (vehicle, prearm_ok, rc_ok) in [
             (Some(READY), true, true),
             (
@@ -950,7 +949,7 @@ mod tests {
         for r in reports.iter_mut().take(6) {
             *r = online(Some(seabotix(0, 0, 20)), 1);
         }
-        let link = LinkQuality {
+        let link = ConsoleLinkQuality {
             drop_rate: 250,
             errors: 3,
             refused_other_system: 4,

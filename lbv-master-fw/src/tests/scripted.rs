@@ -9,7 +9,7 @@ use tmc_proto::{
     Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Speed, Status, checksum,
 };
 
-use crate::config::BusConfig;
+use crate::recovery::BusConfig;
 
 /// How a scripted thruster behaves on the bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -1,7 +1,7 @@
 //! The state machines alone, then the bus task on a simulated bus on virtual time.
 
 use super::*;
-use crate::config::BusConfig;
+use crate::recovery::BusConfig;
 use crate::shared::Outgoing;
 use crate::sim::thruster_bus;
 use crate::tests::scripted::{Mode, SimThruster, speed};
@@ -34,69 +34,80 @@ fn seabotix_status(faults: Faults) -> Status {
 }
 
 // ---------------------------------------------------------------------------------------------------------------
-// Failure classification
+// PollFailure classification
 
 #[test]
 fn bus_errors_are_classified_by_kind() {
     use ErrorKind::*;
     assert_eq!(
-        Failure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Address)),
-        Failure::Nack
+        PollFailure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Address)),
+        PollFailure::Nack
     );
     assert_eq!(
-        Failure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Data)),
-        Failure::Nack
+        PollFailure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Data)),
+        PollFailure::Nack
     );
     assert_eq!(
-        Failure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Unknown)),
-        Failure::Nack
+        PollFailure::of_bus_error(&NoAcknowledge(NoAcknowledgeSource::Unknown)),
+        PollFailure::Nack
     );
     // embassy-stm32 reports its timeout as Other.
-    assert_eq!(Failure::of_bus_error(&Other), Failure::Timeout);
-    assert_eq!(Failure::of_bus_error(&Bus), Failure::Bus);
-    assert_eq!(Failure::of_bus_error(&ArbitrationLoss), Failure::Bus);
-    assert_eq!(Failure::of_bus_error(&Overrun), Failure::Bus);
+    assert_eq!(PollFailure::of_bus_error(&Other), PollFailure::Timeout);
+    assert_eq!(PollFailure::of_bus_error(&Bus), PollFailure::Bus);
+    assert_eq!(PollFailure::of_bus_error(&ArbitrationLoss), PollFailure::Bus);
+    assert_eq!(PollFailure::of_bus_error(&Overrun), PollFailure::Bus);
 }
 
 #[test]
 fn decode_errors_are_classified_by_variant() {
     let cases = [
-        (DecodeError::Length { expected: 7, actual: 4 }, Failure::BadLength),
+        (DecodeError::Length { expected: 7, actual: 4 }, PollFailure::BadLength),
         (
             DecodeError::MessageType {
                 expected: 0x53,
                 actual: 0x55,
             },
-            Failure::BadType,
+            PollFailure::BadType,
         ),
-        (DecodeError::Checksum { expected: 1, actual: 2 }, Failure::BadChecksum),
-        (DecodeError::SpeedOutOfRange(0), Failure::BadRange),
+        (
+            DecodeError::Checksum { expected: 1, actual: 2 },
+            PollFailure::BadChecksum,
+        ),
+        (DecodeError::SpeedOutOfRange(0), PollFailure::BadRange),
     ];
     for (error, failure) in cases {
-        assert_eq!(Failure::of_decode_error(error), failure);
-        assert_eq!(Failure::of_poll_error::<ErrorKind>(&PollError::Decode(error)), failure);
+        assert_eq!(PollFailure::of_decode_error(error), failure);
+        assert_eq!(
+            PollFailure::of_poll_error::<ErrorKind>(&PollError::Decode(error)),
+            failure
+        );
         assert!(!failure.needs_recovery());
     }
     assert_eq!(
-        Failure::of_poll_error(&PollError::Order(ErrorKind::Other)),
-        Failure::Timeout
+        PollFailure::of_poll_error(&PollError::Order(ErrorKind::Other)),
+        PollFailure::Timeout
     );
-    assert_eq!(Failure::of_poll_error(&PollError::Status(ErrorKind::Bus)), Failure::Bus);
-    assert!(Failure::Timeout.needs_recovery() && Failure::Bus.needs_recovery() && Failure::Mux.needs_recovery());
-    assert!(!Failure::Nack.needs_recovery());
+    assert_eq!(
+        PollFailure::of_poll_error(&PollError::Status(ErrorKind::Bus)),
+        PollFailure::Bus
+    );
+    assert!(
+        PollFailure::Timeout.needs_recovery() && PollFailure::Bus.needs_recovery() && PollFailure::Mux.needs_recovery()
+    );
+    assert!(!PollFailure::Nack.needs_recovery());
 }
 
 // ---------------------------------------------------------------------------------------------------------------
-// Link
+// ThrusterLink
 
 #[test]
 fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
-    let mut link = Link::new(&PollConfig::DEFAULT);
+    let mut link = ThrusterLink::new(&PollConfig::DEFAULT);
     assert_eq!(link.state(), LinkState::Unknown);
     assert!(link.due(at_ms(0)));
     assert_eq!(
-        link.on_outcome(at_ms(0), Outcome::NoOrder(Failure::Nack)),
-        Some(LinkChange::Offline(Failure::Nack))
+        link.on_outcome(at_ms(0), Outcome::NoOrder(PollFailure::Nack)),
+        Some(LinkChange::Offline(PollFailure::Nack))
     );
     assert_eq!(link.state(), LinkState::Offline);
     let mut retries = Vec::new();
@@ -106,7 +117,7 @@ fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
         if link.due(at_ms(now)) {
             retries.push(now);
             assert_eq!(
-                link.on_outcome(at_ms(now), Outcome::NoOrder(Failure::Nack)),
+                link.on_outcome(at_ms(now), Outcome::NoOrder(PollFailure::Nack)),
                 None,
                 "already offline"
             );
@@ -127,16 +138,16 @@ fn a_nack_takes_a_thruster_offline_at_once_and_retries_back_off_to_the_cap() {
     assert!(link.health().online && link.health().consecutive_failures == 0);
     assert!(link.due(at_ms(now + 1)), "online thrusters are always due");
     assert_eq!(
-        link.on_outcome(at_ms(now), Outcome::NoOrder(Failure::Nack)),
-        Some(LinkChange::Offline(Failure::Nack))
+        link.on_outcome(at_ms(now), Outcome::NoOrder(PollFailure::Nack)),
+        Some(LinkChange::Offline(PollFailure::Nack))
     );
     assert_eq!(link.retry_at(), Some(at_ms(now + 100)));
 }
 
 #[test]
 fn orders_not_delivered_take_a_thruster_offline_after_three_in_a_row() {
-    for failure in [Failure::Timeout, Failure::Bus, Failure::Mux] {
-        let mut link = Link::new(&PollConfig::DEFAULT);
+    for failure in [PollFailure::Timeout, PollFailure::Bus, PollFailure::Mux] {
+        let mut link = ThrusterLink::new(&PollConfig::DEFAULT);
         let good = Outcome::Answered(seabotix_status(Faults::NONE));
         let lost = Outcome::NoOrder(failure);
         assert_eq!(link.on_outcome(at_ms(0), good), Some(LinkChange::Online));
@@ -144,7 +155,7 @@ fn orders_not_delivered_take_a_thruster_offline_after_three_in_a_row() {
         assert_eq!(link.on_outcome(at_ms(40), lost), None);
         // A delivered order in between resets the run, even without a status.
         assert_eq!(
-            link.on_outcome(at_ms(60), Outcome::NoStatus(Failure::BadChecksum)),
+            link.on_outcome(at_ms(60), Outcome::NoStatus(PollFailure::BadChecksum)),
             None
         );
         assert_eq!(link.on_outcome(at_ms(80), lost), None);
@@ -160,7 +171,7 @@ fn orders_not_delivered_take_a_thruster_offline_after_three_in_a_row() {
         );
         let h = link.health();
         let counted = match failure {
-            Failure::Timeout => h.timeout,
+            PollFailure::Timeout => h.timeout,
             _ => h.bus_error,
         };
         assert_eq!(
@@ -174,14 +185,14 @@ fn orders_not_delivered_take_a_thruster_offline_after_three_in_a_row() {
 #[test]
 fn a_status_that_cannot_be_read_costs_the_telemetry_not_the_orders() {
     for failure in [
-        Failure::BadLength,
-        Failure::BadType,
-        Failure::BadChecksum,
-        Failure::Timeout,
-        Failure::Bus,
-        Failure::Nack,
+        PollFailure::BadLength,
+        PollFailure::BadType,
+        PollFailure::BadChecksum,
+        PollFailure::Timeout,
+        PollFailure::Bus,
+        PollFailure::Nack,
     ] {
-        let mut link = Link::new(&PollConfig::DEFAULT);
+        let mut link = ThrusterLink::new(&PollConfig::DEFAULT);
         let good = seabotix_status(Faults::NONE);
         assert_eq!(
             link.on_outcome(at_ms(0), Outcome::Answered(good)),
@@ -210,37 +221,37 @@ fn a_status_that_cannot_be_read_costs_the_telemetry_not_the_orders() {
 
 #[test]
 fn failures_before_the_first_answer_go_offline_from_unknown() {
-    let mut link = Link::new(&PollConfig::DEFAULT);
-    assert_eq!(link.on_outcome(at_ms(0), Outcome::NoOrder(Failure::Timeout)), None);
+    let mut link = ThrusterLink::new(&PollConfig::DEFAULT);
+    assert_eq!(link.on_outcome(at_ms(0), Outcome::NoOrder(PollFailure::Timeout)), None);
     assert_eq!(link.state(), LinkState::Unknown);
-    assert_eq!(link.on_outcome(at_ms(20), Outcome::NoOrder(Failure::Timeout)), None);
+    assert_eq!(link.on_outcome(at_ms(20), Outcome::NoOrder(PollFailure::Timeout)), None);
     assert_eq!(
-        link.on_outcome(at_ms(40), Outcome::NoOrder(Failure::Timeout)),
-        Some(LinkChange::Offline(Failure::Timeout))
+        link.on_outcome(at_ms(40), Outcome::NoOrder(PollFailure::Timeout)),
+        Some(LinkChange::Offline(PollFailure::Timeout))
     );
     link.on_recovery();
     assert_eq!(link.health().recoveries, 1);
     assert_eq!(link.report().status, None);
     // Orders delivered from the start but never a readable status: online, the telemetry lost.
-    let mut link = Link::new(&PollConfig::DEFAULT);
+    let mut link = ThrusterLink::new(&PollConfig::DEFAULT);
     assert_eq!(
-        link.on_outcome(at_ms(0), Outcome::NoStatus(Failure::BadChecksum)),
+        link.on_outcome(at_ms(0), Outcome::NoStatus(PollFailure::BadChecksum)),
         Some(LinkChange::Online)
     );
     assert_eq!(
-        link.on_outcome(at_ms(20), Outcome::NoStatus(Failure::BadChecksum)),
+        link.on_outcome(at_ms(20), Outcome::NoStatus(PollFailure::BadChecksum)),
         None
     );
     assert_eq!(
-        link.on_outcome(at_ms(40), Outcome::NoStatus(Failure::BadChecksum)),
-        Some(LinkChange::StatusLost(Failure::BadChecksum))
+        link.on_outcome(at_ms(40), Outcome::NoStatus(PollFailure::BadChecksum)),
+        Some(LinkChange::StatusLost(PollFailure::BadChecksum))
     );
     assert_eq!(link.report().status, None);
 }
 
 #[test]
 fn a_link_can_take_a_poll_result_directly() {
-    let mut link = Link::new(&PollConfig::DEFAULT);
+    let mut link = ThrusterLink::new(&PollConfig::DEFAULT);
     let result: Result<Polled, PollError<ErrorKind>> = Err(PollError::Order(ErrorKind::Other));
     assert_eq!(link.on_result(at_ms(0), &result), None);
     assert_eq!((link.health().timeout, link.health().delivered), (1, 0));
@@ -313,11 +324,11 @@ fn link_texts() {
         (Severity::Info, Text::try_from("T3 online").unwrap())
     );
     assert_eq!(
-        link_text(2, LinkChange::Offline(Failure::Nack)),
+        link_text(2, LinkChange::Offline(PollFailure::Nack)),
         (Severity::Warning, Text::try_from("T3 offline: no answer").unwrap())
     );
     assert_eq!(
-        link_text(7, LinkChange::Offline(Failure::BadChecksum)).1.as_str(),
+        link_text(7, LinkChange::Offline(PollFailure::BadChecksum)).1.as_str(),
         "T8 offline: bad checksum"
     );
 }

@@ -9,12 +9,12 @@
 use std::collections::BTreeMap;
 
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::console::frame::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{
     COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavMessage, MavModeFlag, MavParamType,
     MavState, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, SETUP_SIGNING_DATA,
 };
-use lbv_master_fw::shared::ManualInput;
+use lbv_master_fw::framing::{Event, FrameParser};
+use lbv_master_fw::mixer::ManualInput;
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message};
 
 /// QGroundControl's and MAVProxy's MAVLink system id, the master's default operator (`SYSID_MYGCS`).

@@ -16,11 +16,12 @@ use std::rc::Rc;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
-use lbv_master_fw::acceptance::{Operator, Prompt, Script, StepResult, Verdict};
+use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
+use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
+use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::thrusters::BUSES;
 use lbv_master_fw::{BusWork, MasterConfig, Polling, Ports};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;

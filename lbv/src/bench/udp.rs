@@ -16,8 +16,8 @@ use std::rc::Rc;
 use std::time::Instant as WallInstant;
 
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::console::frame::{Event, FrameParser};
 use lbv_master_fw::console::inbound;
+use lbv_master_fw::framing::{Event, FrameParser};
 
 use super::Bench;
 

@@ -4,7 +4,7 @@
 //! transfer to the thruster.
 
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::acceptance::{Prompt, Step, family_token};
+use lbv_master_fw::acceptance::report::{MARKER, Prompt, Report, Step, family_token};
 use serde_json::json;
 
 use super::fault::{Fault, WATER_OHMS};
@@ -86,7 +86,10 @@ pub fn acceptance(run: &mut Run) {
     run.check(
         "verdict PASS",
         verdict.is_some_and(|verdict| verdict.pass()),
-        verdict.map_or("no verdict before the end of the run".to_string(), |v| v.to_string()),
+        verdict.map_or("no verdict before the end of the run".to_string(), |v| {
+            let line = Report::Verdict((&v).into()).to_string();
+            line.strip_prefix(MARKER).unwrap_or(&line).to_string()
+        }),
     );
     run.check(
         "the console hears the verdict",

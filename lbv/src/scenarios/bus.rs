@@ -2,7 +2,7 @@
 //! middle of a transfer.
 
 use embassy_time::Duration;
-use lbv_master_fw::shared::ManualInput;
+use lbv_master_fw::mixer::ManualInput;
 
 use serde_json::json;
 

@@ -253,7 +253,7 @@ pub fn second_sysid(run: &mut Run) {
     // The operator drives ahead; system 42 steers astern.
     run.arm_and_go(AHEAD);
     for _ in 0..20 {
-        let astern = other.manual(lbv_master_fw::shared::ManualInput { x: -800, ..NEUTRAL });
+        let astern = other.manual(lbv_master_fw::mixer::ManualInput { x: -800, ..NEUTRAL });
         run.bench.send(astern);
         run.run_for(0.1);
     }

@@ -9,7 +9,8 @@ use tmc_proto::{Family, Faults};
 use super::fault::Fault;
 use crate::bench::trace::Trace;
 use crate::bench::{Bench, BenchConfig, Engine, STEP};
-use lbv_master_fw::shared::{LinkHealth, ManualInput};
+use lbv_master_fw::mixer::ManualInput;
+use lbv_master_fw::shared::LinkHealth;
 
 /// One check of a scenario.
 #[derive(Debug, Clone, Serialize, Deserialize)]

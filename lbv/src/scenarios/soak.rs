@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use embassy_time::Duration;
-use lbv_master_fw::shared::ManualInput;
+use lbv_master_fw::mixer::ManualInput;
 use serde_json::json;
 
 use super::fault::Fault;

@@ -2,7 +2,7 @@
 //! lost and its status bits switching.
 
 use bat_proto::StatusBit;
-use lbv_master_fw::shared::ManualInput;
+use lbv_master_fw::mixer::ManualInput;
 use serde_json::json;
 use tmc_proto::Family;
 

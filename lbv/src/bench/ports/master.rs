@@ -9,7 +9,7 @@ use std::rc::Rc;
 
 use embassy_time::Delay;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
-use lbv_master_fw::config::BusConfig;
+use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::settings::{Reboot, Store};
 use lbv_sim::Queue;

@@ -41,7 +41,7 @@ pub enum Version {
 /// A frame, borrowed from the parser's buffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Frame<'a> {
-    /// Protocol version.
+    /// By its start byte.
     pub version: Version,
     /// The sender's sequence number.
     pub sequence: u8,
@@ -49,7 +49,7 @@ pub struct Frame<'a> {
     pub system_id: u8,
     /// The sender's component id.
     pub component_id: u8,
-    /// The message id.
+    /// 24 bits in MAVLink 2, 8 in MAVLink 1.
     pub message_id: u32,
     /// The payload as sent (MAVLink 2 trims trailing zeros).
     pub payload: &'a [u8],
