@@ -68,9 +68,9 @@ impl OrderErrors {
     }
 }
 
-/// This controller's side of the link: its family, the last valid order and what was received.
+/// The link to the master as this controller keeps it: its family, the last valid order and what was received.
 #[derive(Debug, Clone)]
-pub struct Link {
+pub struct MasterLink {
     family: Family,
     order: Order,
     orders: u32,
@@ -78,7 +78,7 @@ pub struct Link {
     errors: OrderErrors,
 }
 
-impl Link {
+impl MasterLink {
     /// A controller of `family`, stopped until the first valid order.
     pub fn new(family: Family) -> Self {
         Self {
@@ -151,7 +151,7 @@ pub enum ServeEvent {
 /// gives, which must be ready at once (SCL is stretched until it is sent).
 pub async fn serve<T: I2cTarget>(
     target: &mut T,
-    link: &mut Link,
+    link: &mut MasterLink,
     request: Request,
     status: impl FnOnce() -> StatusFrame,
 ) -> Result<ServeEvent, T::Error> {
@@ -248,7 +248,7 @@ mod tests {
         status.encode()
     }
 
-    fn run(link: &mut Link, script: Vec<Transfer>) -> (Vec<ServeEvent>, Vec<Vec<u8>>) {
+    fn run(link: &mut MasterLink, script: Vec<Transfer>) -> (Vec<ServeEvent>, Vec<Vec<u8>>) {
         let mut master = ScriptedMaster {
             script: script.into(),
             ..Default::default()
@@ -268,7 +268,7 @@ mod tests {
     #[test]
     fn starts_stopped_and_answers_reads_with_the_frame_kept_ready() {
         for family in Family::ALL {
-            let mut link = Link::new(family);
+            let mut link = MasterLink::new(family);
             let (events, replies) = run(&mut link, vec![Transfer::Read]);
             assert_eq!(events, [ServeEvent::StatusSent]);
             assert_eq!(replies, [frame(family).as_bytes().to_vec()]);
@@ -280,7 +280,7 @@ mod tests {
 
     #[test]
     fn a_valid_order_is_taken_and_counted() {
-        let mut link = Link::new(Family::SeaBotix);
+        let mut link = MasterLink::new(Family::SeaBotix);
         let script = vec![
             Transfer::Write(order(Family::SeaBotix, 40)),
             Transfer::Write(order(Family::SeaBotix, 0)),
@@ -294,7 +294,7 @@ mod tests {
 
     #[test]
     fn a_zero_order_sent_as_0x7f_counts_as_zero() {
-        let mut link = Link::new(Family::Legacy);
+        let mut link = MasterLink::new(Family::Legacy);
         run(
             &mut link,
             vec![Transfer::Write(vec![
@@ -325,7 +325,7 @@ mod tests {
             Transfer::Write(vec![0; 12]),
             Transfer::Read,
         ];
-        let mut link = Link::new(family);
+        let mut link = MasterLink::new(family);
         let (events, replies) = run(&mut link, script);
 
         assert_eq!(events.len(), 8);
@@ -353,7 +353,7 @@ mod tests {
     #[test]
     fn the_latest_valid_order_wins() {
         let family = Family::Legacy;
-        let mut link = Link::new(family);
+        let mut link = MasterLink::new(family);
         let script = (1..=5).map(|step| Transfer::Write(order(family, -step * 20))).collect();
         run(&mut link, script);
         assert_eq!(link.order().speed.step(), -100);

@@ -34,7 +34,7 @@ extern crate self as thruster_fw;
 mod sim;
 
 pub use drive::{Direction, Duty};
-pub use i2c_slave::{I2cTarget, Link, OrderErrors, Request, ServeEvent, serve};
+pub use i2c_slave::{I2cTarget, MasterLink, OrderErrors, Request, ServeEvent, serve};
 pub use tasks::{Config, Ports, run, run_commutation};
 
 use tmc_proto::{Family, MotorKind};

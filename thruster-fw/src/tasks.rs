@@ -20,7 +20,7 @@ use crate::failsafe::LinkFailsafe;
 use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector, Thresholds};
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
-use crate::i2c_slave::{I2cTarget, Link, ServeEvent, serve};
+use crate::i2c_slave::{I2cTarget, MasterLink, ServeEvent, serve};
 use crate::overcurrent::TripRule;
 use crate::sensors::{CurrentSense, Ntc, WaterSensor};
 use crate::speed::SpeedConfig;
@@ -282,7 +282,7 @@ impl Default for Shared {
 /// The I2C slave: takes orders, answers reads with the frame the control task keeps ready, re-initialises the
 /// peripheral after any error (including a transfer stalled past the peripheral's timeout).
 pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: MotorKind, shared: &Shared) -> ! {
-    let mut link = Link::new(family);
+    let mut link = MasterLink::new(family);
     let idle = idle_status(family, motor).encode();
     loop {
         shared.health.report(TaskId::I2c as u8);

@@ -9,7 +9,7 @@ use core::cell::{Cell, RefCell};
 use lbv_sim::i2c::{Bus, Device, Reply, Route, Timing};
 use lbv_sim::{Executor, clock};
 use std::rc::Rc;
-use thruster_fw::Link;
+use thruster_fw::MasterLink;
 use tmc_proto::{LegacyRevision, LegacyStatus, MotorKind, SeaBotixStatus};
 
 /// How long a scripted thruster takes to show a new target in its status.
@@ -42,7 +42,7 @@ struct Defects {
 
 /// A thruster controller reduced to what the script can observe.
 struct Thruster {
-    link: Link,
+    link: MasterLink,
     defects: Defects,
     /// Answers nothing before this (booting).
     boot_until: Instant,
@@ -69,7 +69,7 @@ struct Thruster {
 impl Thruster {
     fn new(family: Family, defects: Defects) -> Self {
         Self {
-            link: Link::new(family),
+            link: MasterLink::new(family),
             defects,
             boot_until: Instant::from_ticks(0),
             reset_at: None,

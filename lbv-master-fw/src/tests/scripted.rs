@@ -4,7 +4,7 @@
 
 use embassy_time::Instant;
 use lbv_sim::i2c::{Device, Reply};
-use thruster_fw::Link;
+use thruster_fw::MasterLink;
 use tmc_proto::{
     Family, Faults, LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus, Speed, Status, checksum,
 };
@@ -32,7 +32,7 @@ pub(crate) enum Mode {
 #[derive(Debug)]
 pub(crate) struct SimThruster {
     /// Its controller core's link.
-    pub link: Link,
+    pub link: MasterLink,
     pub mode: Mode,
     /// Faults its status reports.
     pub faults: Faults,
@@ -49,7 +49,7 @@ pub(crate) struct SimThruster {
 impl SimThruster {
     pub(crate) fn new(family: Family) -> Self {
         Self {
-            link: Link::new(family),
+            link: MasterLink::new(family),
             mode: Mode::Good,
             faults: Faults::NONE,
             link_failsafe: false,
