@@ -113,8 +113,8 @@ builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
 release="target/$TARGET/release"
 mkdir -p target/images
 while read -r name package features _; do
-  if [ "$features" = - ]; then features=(); else features=(--features "$features"); fi
-  cargo build --release --target "$TARGET" -p "$package" "${features[@]}" --locked
+  if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
+  cargo build --release --target "$TARGET" -p "$package" "${flags[@]}" --locked
   cp "$release/$package" "target/images/$name"
 done <<<"$builds"
 
