@@ -6,7 +6,8 @@
 //! in a binding, the one struct it takes its peripherals from ([`chip!`](crate::chip)): a pin or peripheral that is
 //! not in the description is not in that struct, and one that does not fit its peripheral (SDA on a pin without
 //! that I2C's SDA function) fails embassy-stm32's trait bounds. Rows read `field: PIN @ "header" =
-//! constructor(args)`, the constructor one of [`Use`](crate::pins::Use)'s and the header where a wire meets the pin on the NUCLEO.
+//! constructor(args)`: the constructor one of [`Use`](crate::pins::Use)'s, the header where a wire meets the pin on
+//! the NUCLEO.
 
 use core::fmt;
 
