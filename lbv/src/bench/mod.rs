@@ -12,7 +12,6 @@
 //!   is the reference the event engine's fidelity is held against (`scenarios::fidelity`).
 
 pub mod battery;
-pub mod ground;
 pub mod master;
 pub mod plant;
 pub mod plot;
@@ -30,10 +29,10 @@ use lbv_master_fw::config::{THRUSTER_BUS, lbv300_6};
 use lbv_master_fw::thrusters::{MUX_ADDRESS, ThrusterSlot, ThrusterTable};
 use lbv_sim::i2c::{Bus, Route, Timing};
 use lbv_sim::{CanBus, Clock, Executor, Queue};
+use lbv_station::GroundStation;
 use tmc_proto::Family;
 
 use battery::{BatteryBoard, Rail};
-use ground::GroundStation;
 use master::{MasterBoard, Wiring};
 use thruster::ThrusterBoard;
 use trace::{Event, Recorder, Sample, ThrusterSample, Trace};

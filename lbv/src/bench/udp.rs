@@ -246,8 +246,8 @@ fn status_line(bench: &Bench, counters: LinkCounters) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::ground::GroundStation;
     use lbv_master_fw::console::lbv::PARAM_REQUEST_LIST_DATA;
+    use lbv_station::GroundStation;
     use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
 
     fn frame<D: MessageData>(message: &D) -> Vec<u8> {

@@ -7,13 +7,15 @@ use std::collections::BTreeMap;
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
 use lbv_master_fw::params::Settings;
 use lbv_master_fw::settings::ecc::{NmiAction, eccr, nmi_action};
+use lbv_master_fw::shared::{
+    MAV_CMD_COMPONENT_ARM_DISARM as ARM_DISARM, MAV_CMD_DO_MOTOR_TEST as MOTOR_TEST,
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN as REBOOT,
+};
 use lbv_master_fw::signing::TIMESTAMP_MAX;
+use lbv_station::{GCS_HEARTBEAT, GroundStation, OPERATOR, SIGNING_EPOCH, Signing};
 use serde_json::json;
 
 use super::harness::{AHEAD, NEUTRAL, Run, round};
-use crate::bench::ground::{
-    ARM_DISARM, GroundStation, MOTOR_TEST, OPERATOR, REBOOT, SIGNING_EPOCH, Signing, heartbeat_message,
-};
 
 /// MAV_RESULT values.
 const ACCEPTED: u8 = 0;
@@ -410,9 +412,7 @@ pub fn signing_reboot(run: &mut Run) {
     let unsigned_before = run.bench.ground.seen.unsigned;
     // Recorded then, signed with the key a year before the set-up.
     let year_old = [
-        run.bench
-            .ground
-            .frame_signed_at(&heartbeat_message(), SIGNING_EPOCH - YEAR),
+        run.bench.ground.frame_signed_at(&GCS_HEARTBEAT, SIGNING_EPOCH - YEAR),
         run.bench.ground.arm_signed_at(SIGNING_EPOCH - YEAR + 1),
     ];
 
@@ -458,7 +458,7 @@ pub fn signing_reboot(run: &mut Run) {
         ),
     );
 
-    let frame = run.bench.ground.frame_signed_at(&heartbeat_message(), TIMESTAMP_MAX);
+    let frame = run.bench.ground.frame_signed_at(&GCS_HEARTBEAT, TIMESTAMP_MAX);
     run.bench.send(frame);
     run.run_for(1.0);
     run.check(
