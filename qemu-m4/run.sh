@@ -48,7 +48,7 @@ for run in acceptance-seabotix acceptance-legacy vehicle; do
   log="$LOGS/$run.log"
   printf '\n--- %s (QEMU exit status %s; log %s)\n' "$run" "${status[$run]}" "$log"
   grep -E '^(ACCEPT step|ACCEPT verdict|PILOT|FAIL|panicked)' "$log" || true
-  grep -E '^(CALIBRATION|BUS|WATCHDOG|CONSOLE|STACK|CPU|LOAD|LATENCY)' "$log" || true
+  grep -E '^(CALIBRATION|BUS|HEAP|WATCHDOG|CONSOLE|STACK|CPU|LOAD|LATENCY)' "$log" || true
   # The image's own exit status: its verdict, and no watchdog that would have bitten.
   [ "${status[$run]}" -eq 0 ] || { echo "FAIL: $run ended with status ${status[$run]}" >&2; failed=1; }
   case "$run" in

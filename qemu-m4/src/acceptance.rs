@@ -12,6 +12,7 @@ use lbv_master_fw::MasterConfig;
 use lbv_master_fw::acceptance::report::{Prompt, Report, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::config::THRUSTER_BUS;
+use lbv_station::Seen;
 use tmc_proto::Family;
 
 use crate::i2c::{self, Bus};
@@ -29,6 +30,9 @@ static LEGACY: MasterConfig = MasterConfig::devkit(Family::Legacy);
 static VERDICT: Signal<CriticalSectionRawMutex, Verdict> = Signal::new();
 /// How long the console may take to pass the verdict on to the ground station.
 const CONSOLE_GRACE: Duration = Duration::from_millis(500);
+/// The beginning of the console text that carries the verdict (`acceptance::report::verdict_text`).
+const VERDICT_PASS: &str = "acceptance PASS";
+const VERDICT_FAIL: &str = "acceptance FAIL";
 
 /// Start the loop for `family`.
 pub fn start(thread: Spawner, family: Family) {
@@ -99,12 +103,10 @@ async fn finish_after_verdict(bus: &'static Bus) {
         verdict
     })
     .await;
-    let seen = station::seen();
-    let heard = seen.acceptance == Some(verdict.pass());
+    let (frames, texts, said) = station::seen(|seen| (seen.frames, seen.texts.len(), said(seen))).await;
+    let heard = said == Some(verdict.pass());
     say!(
-        "CONSOLE the ground station read {} frames, {} texts; it heard the verdict: {}",
-        seen.frames,
-        seen.texts,
+        "CONSOLE the ground station read {frames} frames, {texts} texts; it heard the verdict: {}",
         if heard { "yes" } else { "NO" }
     );
     let fed = report::bus(bus);
@@ -124,4 +126,17 @@ async fn finish_after_verdict(bus: &'static Bus) {
     report::thruster_load(dispatch);
     report::latency();
     report::exit(verdict.pass() && heard && fed && fit)
+}
+
+/// The verdict the console's last verdict text said: passed or not.
+fn said(seen: &Seen) -> Option<bool> {
+    seen.texts.iter().rev().find_map(|(_, text)| {
+        if text.starts_with(VERDICT_PASS) {
+            Some(true)
+        } else if text.starts_with(VERDICT_FAIL) {
+            Some(false)
+        } else {
+            None
+        }
+    })
 }

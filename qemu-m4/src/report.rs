@@ -86,7 +86,10 @@ pub fn bus(bus: &Bus) -> bool {
         if held { "STILL HELD LOW" } else { "free" },
         crate::DEFMT_FRAMES.load(Ordering::Relaxed)
     );
-    say!("BUS model heap: at most {} B in use of {HEAP_BYTES} B", heap::peak());
+    say!(
+        "HEAP of the bus model and the ground station: at most {} B in use of {HEAP_BYTES} B",
+        heap::peak()
+    );
     let mut fed = true;
     for (index, thruster) in bus.thrusters().iter().enumerate() {
         let (feeds, longest_gap_us) = thruster.watchdog();

@@ -1,84 +1,62 @@
-//! The ground station at the console link's other end: it reads everything the master sends and keeps what it
-//! has seen, and sends the pilot's messages with QGroundControl's identity.
+//! The ground station at the console link's other end: lbv-station's, as the operator (QGroundControl's
+//! identity). What is qemu-m4's is the plumbing: the console's in-memory link, and the bench's meter on both tasks.
 
-use core::cell::RefCell;
-use core::sync::atomic::{AtomicU8, Ordering};
-
-use embassy_sync::blocking_mutex::Mutex;
+use embassy_futures::select::select;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity};
-use lbv_master_fw::framing::{Event, FrameParser};
-use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message, MessageData};
+use embassy_sync::mutex::Mutex;
+use embassy_sync::signal::Signal;
+use embassy_time::{Instant, Timer};
+use lbv_station::{GroundStation, OPERATOR, Seen};
 
 use crate::executors::BENCH_METER;
 use crate::master::{DOWNLINK, UPLINK};
 use crate::meter::metered;
 
-/// The ground station's MAVLink identity (QGroundControl's).
-const GCS_SYSTEM: u8 = 255;
-const GCS_COMPONENT: u8 = 190;
-static SEQUENCE: AtomicU8 = AtomicU8::new(0);
+/// The station. A mutex that holds no critical section while it is held: the reader parses a whole chunk of the
+/// downlink under it, and a critical section that long would hold off the hall-edge interrupt.
+static STATION: Mutex<CriticalSectionRawMutex, GroundStation> = Mutex::new(GroundStation::with_system(OPERATOR));
+/// The station's schedule may have changed: the transmit task looks at it again.
+static RESCHEDULE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
-/// The beginning of the console text that carries the acceptance test's verdict (`acceptance::report::verdict_text`).
-const VERDICT_PASS: &str = "acceptance PASS";
-const VERDICT_FAIL: &str = "acceptance FAIL";
-
-/// What the station has seen of the master.
-#[derive(Debug, Clone, Copy)]
-pub struct Seen {
-    /// Frames read.
-    pub frames: u32,
-    /// Heartbeats.
-    pub heartbeats: u32,
-    /// The last heartbeat said armed.
-    pub armed: bool,
-    /// The last COMMAND_ACK: command, accepted.
-    pub ack: Option<(u16, bool)>,
-    /// STATUSTEXTs, and of those the critical ones.
-    pub texts: u32,
-    pub critical_texts: u32,
-    /// The acceptance test's verdict as the console said it: passed or not.
-    pub acceptance: Option<bool>,
-    /// Each thruster's speed and poll count (ESC telemetry).
-    pub rpm: [u16; 8],
-    pub polls: [u16; 8],
-    /// The battery voltage (SYS_STATUS), mV.
-    pub battery_mv: u16,
+/// Use the station: build a frame, look at what it has seen. (Nobody holds it across an await.)
+pub async fn with<R>(use_it: impl FnOnce(&mut GroundStation) -> R) -> R {
+    use_it(&mut *STATION.lock().await)
 }
 
-static SEEN: Mutex<CriticalSectionRawMutex, RefCell<Seen>> = Mutex::new(RefCell::new(Seen {
-    frames: 0,
-    heartbeats: 0,
-    armed: false,
-    ack: None,
-    texts: 0,
-    critical_texts: 0,
-    acceptance: None,
-    rpm: [0; 8],
-    polls: [0; 8],
-    battery_mv: 0,
-}));
-
-/// What the station has seen so far.
-pub fn seen() -> Seen {
-    SEEN.lock(|seen| *seen.borrow())
+/// What the station has seen.
+pub async fn seen<R>(look: impl FnOnce(&Seen) -> R) -> R {
+    with(|station| look(&station.seen)).await
 }
 
-/// Change what the station keeps (forget the last acknowledgement before a command).
-pub fn update(change: impl FnOnce(&mut Seen)) {
-    SEEN.lock(|seen| change(&mut seen.borrow_mut()));
+/// Change what the station sends by itself (its sticks, whether it is connected).
+pub async fn change(change: impl FnOnce(&mut GroundStation)) {
+    with(change).await;
+    RESCHEDULE.signal(());
 }
 
-/// Send one message to the master.
-pub async fn send<D: MessageData>(message: &D) {
-    let mut raw = MAVLinkV2MessageRaw::new();
-    let header = MavHeader {
-        system_id: u32::from(GCS_SYSTEM),
-        component_id: GCS_COMPONENT,
-        sequence: SEQUENCE.fetch_add(1, Ordering::Relaxed),
-    };
-    raw.serialize_message_data(header, message);
-    UPLINK.write_all(raw.raw_bytes()).await;
+/// Send frames to the master.
+pub async fn send(frames: &[u8]) {
+    UPLINK.write_all(frames).await;
+}
+
+/// Send what the station's schedule says when it says it: heartbeats, and the sticks while they are held.
+#[embassy_executor::task]
+pub async fn transmit() -> ! {
+    metered(&BENCH_METER, None, send_when_due()).await
+}
+
+async fn send_when_due() -> ! {
+    loop {
+        let (frames, next) = with(|station| (station.periodic(Instant::now()), station.next_due())).await;
+        send(&frames).await;
+        let changed = RESCHEDULE.wait();
+        match next {
+            Some(at) => {
+                select(Timer::at(at), changed).await;
+            }
+            None => changed.await,
+        }
+    }
 }
 
 /// Read everything the master sends.
@@ -88,66 +66,10 @@ pub async fn receive() -> ! {
 }
 
 async fn read_downlink() -> ! {
-    let mut parser = FrameParser::new();
     let mut buffer = [0u8; 128];
     loop {
         let n = DOWNLINK.read(&mut buffer).await;
-        let mut bytes = buffer.get(..n).unwrap_or_default();
-        while !bytes.is_empty() {
-            let taken = parser.push(bytes);
-            bytes = bytes.get(taken..).unwrap_or_default();
-            while let Some(event) = parser.next(|id| Some(MavMessage::extra_crc(id))) {
-                let Event::Frame(frame) = event else { continue };
-                let Ok(message) = MavMessage::parse(MavlinkVersion::V2, frame.message_id, frame.payload) else {
-                    continue;
-                };
-                update(|seen| take(seen, message));
-            }
-        }
-    }
-}
-
-/// Note one message.
-fn take(seen: &mut Seen, message: MavMessage) {
-    seen.frames += 1;
-    match message {
-        MavMessage::HEARTBEAT(heartbeat) => {
-            seen.heartbeats += 1;
-            seen.armed = heartbeat.base_mode.contains(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED);
-        }
-        MavMessage::COMMAND_ACK(ack) => seen.ack = Some((ack.command, ack.result == MavResult::MAV_RESULT_ACCEPTED)),
-        MavMessage::STATUSTEXT(text) => {
-            seen.texts += 1;
-            if text.severity == MavSeverity::MAV_SEVERITY_CRITICAL {
-                seen.critical_texts += 1;
-            }
-            let words = text.text.to_str().unwrap_or_default();
-            if words.starts_with(VERDICT_PASS) {
-                seen.acceptance = Some(true);
-            } else if words.starts_with(VERDICT_FAIL) {
-                seen.acceptance = Some(false);
-            }
-        }
-        MavMessage::ESC_TELEMETRY_1_TO_4(esc) => {
-            seen.rpm.iter_mut().zip(esc.rpm).for_each(|(slot, rpm)| *slot = rpm);
-            seen.polls
-                .iter_mut()
-                .zip(esc.count)
-                .for_each(|(slot, count)| *slot = count);
-        }
-        MavMessage::ESC_TELEMETRY_5_TO_8(esc) => {
-            seen.rpm
-                .iter_mut()
-                .skip(4)
-                .zip(esc.rpm)
-                .for_each(|(slot, rpm)| *slot = rpm);
-            seen.polls
-                .iter_mut()
-                .skip(4)
-                .zip(esc.count)
-                .for_each(|(slot, count)| *slot = count);
-        }
-        MavMessage::SYS_STATUS(status) => seen.battery_mv = status.voltage_battery,
-        _ => {}
+        let bytes = buffer.get(..n).unwrap_or_default();
+        with(|station| station.receive(Instant::now(), bytes)).await;
     }
 }

@@ -5,27 +5,24 @@
 //! out a thruster holding SDA low (which the master's recovery clears on the bus's lines), disarms, and lets the
 //! console failsafe disarm the vehicle, checking each answer.
 
-use core::sync::atomic::{AtomicBool, Ordering};
-
 use bat_proto::{BatteryInfo, DcdcStatus, Frame};
 use embassy_executor::Spawner;
 use embassy_time::{Duration, Instant, Timer};
 use lbv_master_fw::Polling;
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::config::{THRUSTER_BUS, VEHICLE};
-use lbv_master_fw::console::lbv::{
-    COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavModeFlag, MavState, MavType,
-};
+use lbv_master_fw::console::lbv::MavResult;
 use lbv_master_fw::mixer::ManualInput;
 use lbv_master_fw::shared::MAV_CMD_COMPONENT_ARM_DISARM;
 use lbv_master_fw::vehicle::NEUTRAL;
+use lbv_station::Seen;
 
 use crate::executors::{self, BENCH_METER};
 use crate::i2c::{self, Bus, MAX_THRUSTERS};
 use crate::master::{self, CAN, CONSOLE_STATS, MASTER_METER, MasterPorts};
 use crate::meter::metered;
 use crate::stacks::Stack;
-use crate::station::{self, Seen, seen, send};
+use crate::station;
 use crate::thruster::{self, HallInput};
 use crate::{report, say};
 
@@ -39,7 +36,7 @@ pub fn start(thread: Spawner) {
     report::spawn(thread, master(master::ports(buses, Polling)));
     report::spawn(thread, bat_board());
     report::spawn(thread, station::receive());
-    report::spawn(thread, heartbeats());
+    report::spawn(thread, station::transmit());
     report::spawn(thread, pilot(bus));
 }
 
@@ -78,86 +75,41 @@ async fn send_bat_frames() -> ! {
     report::fail("the BAT board's frame list ended")
 }
 
-/// The pilot's station sends its 1 Hz heartbeat while this is set.
-static CONNECTED: AtomicBool = AtomicBool::new(true);
-
-/// The station's heartbeat, 1 Hz while connected.
-#[embassy_executor::task]
-async fn heartbeats() -> ! {
-    metered(&BENCH_METER, None, send_heartbeats()).await
-}
-
-async fn send_heartbeats() -> ! {
-    loop {
-        if CONNECTED.load(Ordering::Relaxed) {
-            send(&HEARTBEAT_DATA {
-                custom_mode: 0,
-                mavtype: MavType::MAV_TYPE_GCS,
-                autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-                base_mode: MavModeFlag::empty(),
-                system_status: MavState::MAV_STATE_ACTIVE,
-                mavlink_version: 3,
-            })
-            .await;
-        }
-        Timer::after(Duration::from_secs(1)).await;
-    }
-}
-
-/// How often the pilot looks at what came in, and sends the sticks while flying (10 Hz, as QGroundControl).
+/// How often the pilot looks at what came in.
 const LOOK: Duration = Duration::from_millis(10);
-const STICK_PERIOD: Duration = Duration::from_millis(100);
 
-/// Wait up to `within` for `condition` on what the station has seen, sending `sticks` every 100 ms meanwhile;
-/// how long it took.
+/// Wait up to `within` for `condition` on what the station has seen, holding `sticks` meanwhile (the station
+/// sends them at 10 Hz, as QGroundControl); how long it took.
 async fn wait_for(
     within: Duration,
     sticks: Option<ManualInput>,
     condition: impl Fn(&Seen) -> bool,
 ) -> Option<Duration> {
+    station::change(|station| station.sticks = sticks).await;
     let start = Instant::now();
-    let mut next_stick = start;
     loop {
-        if condition(&seen()) {
+        if station::seen(&condition).await {
             return Some(start.elapsed());
         }
         if start.elapsed() >= within {
             return None;
         }
-        if let Some(sticks) = sticks
-            && Instant::now() >= next_stick
-        {
-            next_stick += STICK_PERIOD;
-            send(&MANUAL_CONTROL_DATA {
-                x: sticks.x,
-                y: sticks.y,
-                z: sticks.z,
-                r: sticks.r,
-                buttons: 0,
-                target: 1,
-                ..Default::default()
-            })
-            .await;
-        }
         Timer::after(LOOK).await;
     }
 }
 
-/// MAV_CMD_COMPONENT_ARM_DISARM.
+/// MAV_CMD_COMPONENT_ARM_DISARM, its answer awaited afresh.
 async fn arm(arm: bool) {
-    station::update(|seen| seen.ack = None);
-    send(&COMMAND_LONG_DATA {
-        param1: if arm { 1.0 } else { 0.0 },
-        command: MAV_CMD_COMPONENT_ARM_DISARM,
-        target_system: 1,
-        target_component: 1,
-        ..Default::default()
+    let frame = station::with(|station| {
+        station.seen.acks.clear();
+        station.arm(arm)
     })
     .await;
+    station::send(&frame).await;
 }
 
 fn accepted(seen: &Seen) -> bool {
-    seen.ack == Some((MAV_CMD_COMPONENT_ARM_DISARM, true))
+    seen.acks.last() == Some(&(MAV_CMD_COMPONENT_ARM_DISARM, MavResult::MAV_RESULT_ACCEPTED as u8))
 }
 
 /// Thrusters turning faster than `rpm`.
@@ -207,8 +159,11 @@ const STOPPED_RPM: u16 = 50;
 /// The pilot's session, then the figures.
 #[embassy_executor::task]
 async fn pilot(bus: &'static Bus) {
-    let pass = metered(&BENCH_METER, None, fly(bus)).await;
-    finish(bus, pass);
+    let (pass, frames) = metered(&BENCH_METER, None, async {
+        (fly(bus).await, station::seen(|seen| seen.frames).await)
+    })
+    .await;
+    finish(bus, pass, frames);
 }
 
 /// The pilot's steps; whether all passed.
@@ -222,7 +177,7 @@ async fn fly(bus: &Bus) -> bool {
         seen.polls.iter().take(MAX_THRUSTERS).all(|count| *count > 0)
     })
     .await;
-    let polls = seen().polls;
+    let polls = station::seen(|seen| seen.polls).await;
     tally.step(
         "thrusters-online",
         polled.is_some(),
@@ -235,10 +190,11 @@ async fn fly(bus: &Bus) -> bool {
 
     let expected_mv = PACK_DECIVOLTS * 100;
     let battery = wait_for(Duration::from_secs(3), None, |seen| seen.battery_mv == expected_mv).await;
+    let voltage_mv = station::seen(|seen| seen.battery_mv).await;
     tally.step(
         "battery",
         battery.is_some(),
-        format_args!("voltage_mv={} expected_mv={expected_mv}", seen().battery_mv),
+        format_args!("voltage_mv={voltage_mv} expected_mv={expected_mv}"),
     );
 
     arm(true).await;
@@ -251,7 +207,7 @@ async fn fly(bus: &Bus) -> bool {
     .await;
     // Keep flying a little, so the thrusters run at speed for a while.
     wait_for(Duration::from_secs(1), Some(FORWARD), |_| false).await;
-    let rpm = seen().rpm;
+    let rpm = station::seen(|seen| seen.rpm).await;
     tally.step(
         "fly-forward",
         driving.is_some(),
@@ -306,8 +262,8 @@ async fn fly(bus: &Bus) -> bool {
     })
     .await;
     wait_for(Duration::from_millis(500), Some(FORWARD), |_| false).await;
-    let critical_before = seen().critical_texts;
-    CONNECTED.store(false, Ordering::Relaxed);
+    let critical_before = station::seen(|seen| seen.critical_texts).await;
+    station::change(|station| station.connected = false).await;
     // The ground-station failsafe acts FS_GCS_TIMEOUT after the last heartbeat (the pilot-input one, earlier, only
     // holds the sticks at neutral).
     let within = VEHICLE.vehicle.defaults().params.gcs_timeout() + Duration::from_secs(1);
@@ -315,7 +271,6 @@ async fn fly(bus: &Bus) -> bool {
         !seen.armed && seen.critical_texts > critical_before && turning(seen, STOPPED_RPM) == 0
     })
     .await;
-    CONNECTED.store(true, Ordering::Relaxed);
     tally.step(
         "console-failsafe",
         rearmed.is_some() && failsafe.is_some(),
@@ -332,7 +287,7 @@ async fn fly(bus: &Bus) -> bool {
 }
 
 /// The figures of the run, then the exit status.
-fn finish(bus: &Bus, pass: bool) -> ! {
+fn finish(bus: &Bus, pass: bool, frames_read: u32) -> ! {
     let fed = report::bus(bus);
     let stats = CONSOLE_STATS.snapshot();
     say!(
@@ -340,7 +295,7 @@ fn finish(bus: &Bus, pass: bool) -> ! {
         stats.frames_in,
         stats.frames_out,
         stats.bad_frames,
-        seen().frames
+        frames_read
     );
     let fit = report::stacks(&[("master", Stack::Master), ("thruster", Stack::Thruster)]);
     let dispatch = report::cpu(
