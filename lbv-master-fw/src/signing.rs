@@ -294,7 +294,10 @@ impl SigningState {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavModeFlag, MavState, MavType};
+    use crate::console::lbv::HEARTBEAT_DATA;
+    // The ground station's HEARTBEAT is of the dialect in lbv-station's copy of this crate, a type apart from
+    // `HEARTBEAT_DATA` here; these tests take only its bytes.
+    use lbv_station::GCS_HEARTBEAT;
     use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
 
     const SECRET: [u8; 32] = [7; 32];
@@ -314,21 +317,10 @@ mod tests {
         state
     }
 
-    fn heartbeat() -> HEARTBEAT_DATA {
-        HEARTBEAT_DATA {
-            custom_mode: 0,
-            mavtype: MavType::MAV_TYPE_GCS,
-            autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-            base_mode: MavModeFlag::empty(),
-            system_status: MavState::MAV_STATE_ACTIVE,
-            mavlink_version: 3,
-        }
-    }
-
     /// An unsigned heartbeat with room for its signature.
     fn unsigned() -> (Vec<u8>, usize) {
         let mut raw = MAVLinkV2MessageRaw::new();
-        raw.serialize_message_data(MavHeader::default(), &heartbeat());
+        raw.serialize_message_data(MavHeader::default(), &GCS_HEARTBEAT);
         let mut buf = raw.raw_bytes().to_vec();
         let len = buf.len();
         buf.resize(len + SIGNATURE_LEN, 0);
@@ -343,7 +335,7 @@ mod tests {
             component_id: 190,
             sequence: 0,
         };
-        raw.serialize_message_data(header, &heartbeat());
+        raw.serialize_message_data(header, &GCS_HEARTBEAT);
         let mut buf = raw.raw_bytes().to_vec();
         let len = buf.len();
         buf.resize(len + SIGNATURE_LEN, 0);

@@ -7,7 +7,7 @@
 
 mod console_support;
 
-use console_support::{GCS_HEARTBEAT, clock, parse_all, v2};
+use console_support::{clock, parse_all, v2};
 use embassy_futures::block_on;
 use embassy_futures::join::join3;
 use embassy_futures::select::select;
@@ -21,6 +21,7 @@ use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, conso
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
 use lbv_sim::{Queue, SerialRx, SerialTx};
+use lbv_station::GCS_HEARTBEAT;
 use mavlink_core::MavHeader;
 
 /// QGroundControl's own ids: system 255, MAV_COMP_ID_MISSIONPLANNER (190).

@@ -34,6 +34,7 @@ use lbv_master_fw::{BusWork, Ports, run};
 use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Executor, Queue, SerialRx, SerialTx};
+use lbv_station::GCS_HEARTBEAT;
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, SigningConfig, SigningData};
 
 const KEY: [u8; 32] = *b"console-reboot-test-key-01234567";
@@ -248,7 +249,7 @@ impl GroundStation {
 }
 
 fn heartbeat() -> MavMessage {
-    MavMessage::HEARTBEAT(console_support::GCS_HEARTBEAT)
+    MavMessage::HEARTBEAT(GCS_HEARTBEAT)
 }
 
 fn command(command: u16, param1: f32) -> MavMessage {

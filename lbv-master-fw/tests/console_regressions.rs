@@ -9,11 +9,12 @@
 
 mod console_support;
 
-use console_support::{GCS_HEARTBEAT, Line, parse_all, run_console, v2};
+use console_support::{Line, parse_all, run_console, v2};
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::LINE_IDLE;
 use lbv_master_fw::console::lbv::{COMMAND_LONG_DATA, MavMessage, MavResult, PARAM_REQUEST_READ_DATA};
 use lbv_master_fw::vehicle::VehicleConfig;
+use lbv_station::GCS_HEARTBEAT;
 
 const GCS: (u8, u8) = (255, 190);
 

@@ -14,12 +14,13 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use console_support::{Line, clock, run_console, run_rx_requests, run_tx};
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType};
+use lbv_master_fw::console::lbv::MavMessage;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, inbound};
 use lbv_master_fw::framing::{Event, FrameParser};
 use lbv_master_fw::shared::{Command, Shared};
 use lbv_master_fw::signing::SigningKey;
 use lbv_master_fw::vehicle::VehicleConfig;
+use lbv_station::GCS_HEARTBEAT;
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, SigningConfig, SigningData};
 use serde_json::Value;
 
@@ -160,17 +161,6 @@ fn after_setup_signing_only_signed_commands_pass_and_everything_sent_is_signed()
     assert!(texts.contains(&"Signing on"), "{texts:?}");
 }
 
-fn heartbeat() -> HEARTBEAT_DATA {
-    HEARTBEAT_DATA {
-        custom_mode: 0,
-        mavtype: MavType::MAV_TYPE_GCS,
-        autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-        base_mode: MavModeFlag::empty(),
-        system_status: MavState::MAV_STATE_ACTIVE,
-        mavlink_version: 3,
-    }
-}
-
 #[test]
 fn mavlink_core_verifies_what_the_console_signs() {
     let _clock = clock();
@@ -227,10 +217,10 @@ fn the_console_accepts_what_mavlink_core_signs() {
     };
     let mut bytes = Vec::new();
     for _ in 0..3 {
-        mavlink_core::write_v2_msg_signed(&mut bytes, header, &MavMessage::HEARTBEAT(heartbeat()), Some(&signer))
+        mavlink_core::write_v2_msg_signed(&mut bytes, header, &MavMessage::HEARTBEAT(GCS_HEARTBEAT), Some(&signer))
             .unwrap();
     }
-    let unsigned_too = [bytes.clone(), console_support::v2(255, 190, 0, &heartbeat())].concat();
+    let unsigned_too = [bytes.clone(), console_support::v2(255, 190, 0, &GCS_HEARTBEAT)].concat();
     let (requests, counters) = run_rx_requests(&unsigned_too, 64, &ConsoleConfig::DEFAULT, &shared);
     assert_eq!(requests.len(), 3);
     assert!(

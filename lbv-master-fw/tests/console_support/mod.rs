@@ -12,7 +12,7 @@ use embassy_futures::join::join4;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::console::lbv::{HEARTBEAT_DATA, MavAutopilot, MavMessage, MavModeFlag, MavState, MavType};
+use lbv_master_fw::console::lbv::MavMessage;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::params::Settings;
 use lbv_master_fw::settings::{InRam, Reboot, settings_task};
@@ -20,16 +20,6 @@ use lbv_master_fw::shared::{Command, Request, Shared};
 use lbv_master_fw::signing::reservation_after;
 use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, MessageData};
-
-/// A ground station's HEARTBEAT (type GCS), as QGroundControl and MAVProxy send it.
-pub const GCS_HEARTBEAT: HEARTBEAT_DATA = HEARTBEAT_DATA {
-    custom_mode: 0,
-    mavtype: MavType::MAV_TYPE_GCS,
-    autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
-    base_mode: MavModeFlag::empty(),
-    system_status: MavState::MAV_STATE_ACTIVE,
-    mavlink_version: 3,
-};
 
 /// The virtual clock is one per process: tests that move it take it (at 0).
 pub fn clock() -> lbv_sim::Clock {
