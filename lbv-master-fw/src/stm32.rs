@@ -4,6 +4,7 @@ use core::num::{NonZeroU8, NonZeroU16};
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use defmt::{info, unwrap};
+use defmt_rtt as _;
 use embassy_embedded_hal::adapter::BlockingAsync;
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::NominalBitTiming;
@@ -21,7 +22,6 @@ use lbv_master_fw::settings::{Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, MasterConfig, Ports};
 use static_cell::StaticCell;
-use {defmt_rtt as _, panic_probe as _};
 
 use crate::board::{self, BatteryCan, Pin, ThrusterBus, set_i2c_timing};
 
@@ -216,6 +216,27 @@ async fn master(ports: MasterPorts, config: &'static MasterConfig) -> ! {
     static SHARED: StaticCell<Shared> = StaticCell::new();
     let shared = SHARED.init_with(Shared::new);
     lbv_master_fw::run(ports, config, shared, &CONSOLE_STATS).await
+}
+
+/// A panic logs its message when it is a plain string, and where, then stops on an undefined instruction: probe-rs
+/// reports it; without a probe the thrusters stop by their link failsafe. Formatting a message with arguments would
+/// link core::fmt (about 700 B here) for a path the lints keep out of the firmware's code. `lbv hil` looks for
+/// "panicked at".
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    let (file, line) = info.location().map_or(("?", 0), |at| (at.file(), at.line()));
+    match info.message().as_str() {
+        Some(message) => defmt::error!("panicked at {=str}:{=u32}: {=str}", file, line, message),
+        None => defmt::error!("panicked at {=str}:{=u32}", file, line),
+    }
+    cortex_m::asm::udf()
+}
+
+/// defmt's `panic!` / `unwrap!` take the same way out.
+#[defmt::panic_handler]
+fn defmt_panic() -> ! {
+    cortex_m::asm::udf()
 }
 
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).

@@ -380,7 +380,7 @@ pub struct Outcome {
     pub prompts: u64,
     /// The verdict, once seen.
     pub verdict: Option<VerdictLine>,
-    /// The firmware panicked (panic-probe's message).
+    /// The firmware panicked (its panic handler's "panicked at").
     pub panicked: bool,
     /// Lines cut for their length: never read as report lines.
     pub cut_lines: u64,

@@ -99,7 +99,7 @@ def test_each_fault_turns_the_outputs_off_at_once(fault, expected, figures):
     if fault == "panic":
         # The log says where (here the test's made-up location): the bounds check's message has arguments, which
         # the image does not format.
-        assert any("panic at " in text for _, text in chip.log.lines), chip.log_text()
+        assert any("panicked at " in text for _, text in chip.log.lines), chip.log_text()
 
 
 def test_a_hung_task_lets_the_watchdog_reset_and_the_latch_survives_it_but_not_a_power_cycle(expected):

@@ -70,8 +70,8 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
     // arguments would link all of core::fmt, about 2 KiB of the image, for a path the lints keep out of its code.
     let (file, line) = info.location().map_or(("?", 0), |at| (at.file(), at.line()));
     match info.message().as_str() {
-        Some(message) => defmt::error!("panic: {=str} at {=str}:{=u32}", message, file, line),
-        None => defmt::error!("panic at {=str}:{=u32}", file, line),
+        Some(message) => defmt::error!("panicked at {=str}:{=u32}: {=str}", file, line, message),
+        None => defmt::error!("panicked at {=str}:{=u32}", file, line),
     }
     // An undefined instruction: probe-rs reports the panic; without a probe the watchdog resets the chip.
     cortex_m::asm::udf()
