@@ -58,6 +58,10 @@ macro_rules! power_stage_rows {
                 adc: ADC1 = "water, NTC and current",
                 watchdog: IWDG = "independent watchdog",
             }
+            interrupts {
+                // Above every other interrupt, so a hall edge's commutation step never waits for a task.
+                commutation: UART4 = P1 "the commutation executor (UART4 itself is unused)",
+            }
         }
     };
 }
@@ -105,6 +109,9 @@ macro_rules! thruster_motorless_image {
                 adc: ADC1 = "water sensor",
                 watchdog: IWDG = "independent watchdog",
             }
+            interrupts {
+                commutation: UART4 = P1 "the commutation executor (UART4 itself is unused)",
+            }
         }
     };
 }
@@ -140,6 +147,7 @@ macro_rules! master_image {
                 console: LPUART1 = "console, MAVLink v2 at 115200 baud",
                 flash: FLASH = "the settings pages",
             }
+            interrupts {}
         }
     };
 }
@@ -149,7 +157,8 @@ macro_rules! master_image {
 #[macro_export]
 macro_rules! description_uses {
     ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
-        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }
+        interrupts { $($irq:ident : $irq_name:ident = $priority:ident $irq_what:literal),* $(,)? }) => {
         &[$($crate::pins::Use::$use($crate::pins::Pin::named(stringify!($pin)), $($args)*) $(.at($header))?),*]
     };
 }
@@ -159,14 +168,31 @@ macro_rules! description_uses {
 #[macro_export]
 macro_rules! description_peripherals {
     ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
-        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }
+        interrupts { $($irq:ident : $irq_name:ident = $priority:ident $irq_what:literal),* $(,)? }) => {
         &[$($crate::pins::Peripheral { name: stringify!($name), function: $what }),*]
+    };
+}
+
+/// A description's interrupts as [`Interrupt`](crate::pins::Interrupt)s.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! description_interrupts {
+    ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }
+        interrupts { $($irq:ident : $irq_name:ident = $priority:ident $irq_what:literal),* $(,)? }) => {
+        &[$($crate::pins::Interrupt {
+            name: stringify!($irq_name),
+            priority: stringify!($priority),
+            function: $irq_what,
+        }),*]
     };
 }
 
 /// In a binding: `let chip = g431_hw::chip!(master_image, chip);`, with `chip` the `embassy_stm32::Peripherals`,
 /// moves the description's pins and peripherals out of `chip` into a struct with one field per row and gives it
-/// back. Bound to the name `chip` again, it leaves nothing else of the chip in reach.
+/// back, each interrupt of the description at its priority. Bound to the name `chip` again, it leaves nothing else
+/// of the chip in reach.
 #[macro_export]
 macro_rules! chip {
     ($description:ident, $peripherals:ident) => {
@@ -178,14 +204,24 @@ macro_rules! chip {
 #[macro_export]
 macro_rules! chip_take {
     ([$chip:ident] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
-        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {{
+        peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }
+        interrupts { $($irq:ident : $irq_name:ident = $priority:ident $irq_what:literal),* $(,)? }) => {{
         /// The pins and peripherals of the image's description (`g431_hw::images`).
         #[allow(dead_code)]
         struct Chip {
             $($field: ::embassy_stm32::Peri<'static, ::embassy_stm32::peripherals::$pin>,)*
             $($peripheral: ::embassy_stm32::Peri<'static, ::embassy_stm32::peripherals::$name>,)*
+            $($irq: ::embassy_stm32::interrupt::Interrupt,)*
         }
-        Chip { $($field: $chip.$pin,)* $($peripheral: $chip.$name,)* }
+        Chip {
+            $($field: $chip.$pin,)*
+            $($peripheral: $chip.$name,)*
+            $($irq: {
+                use ::embassy_stm32::interrupt::{Interrupt, InterruptExt as _, Priority};
+                Interrupt::$irq_name.set_priority(Priority::$priority);
+                Interrupt::$irq_name
+            },)*
+        }
     }};
 }
 
@@ -196,6 +232,7 @@ pub const THRUSTER: Image = Image {
     removed: &["R60"],
     uses: crate::thruster_image!(crate::description_uses),
     peripherals: crate::thruster_image!(crate::description_peripherals),
+    interrupts: crate::thruster_image!(crate::description_interrupts),
 };
 
 /// The brushed thruster on its boards.
@@ -205,6 +242,7 @@ pub const THRUSTER_BRUSHED: Image = Image {
     removed: &[],
     uses: crate::thruster_brushed_image!(crate::description_uses),
     peripherals: crate::thruster_brushed_image!(crate::description_peripherals),
+    interrupts: crate::thruster_brushed_image!(crate::description_interrupts),
 };
 
 /// The motor-less thruster on a bare NUCLEO.
@@ -214,6 +252,7 @@ pub const THRUSTER_MOTORLESS: Image = Image {
     removed: &[],
     uses: crate::thruster_motorless_image!(crate::description_uses),
     peripherals: crate::thruster_motorless_image!(crate::description_peripherals),
+    interrupts: crate::thruster_motorless_image!(crate::description_interrupts),
 };
 
 /// The master on a bare NUCLEO.
@@ -223,6 +262,7 @@ pub const MASTER: Image = Image {
     removed: &[],
     uses: crate::master_image!(crate::description_uses),
     peripherals: crate::master_image!(crate::description_peripherals),
+    interrupts: crate::master_image!(crate::description_interrupts),
 };
 
 /// Every image's pins.
@@ -397,11 +437,19 @@ pub fn write_pin_table(images: &[(&str, &Image)], out: &mut impl fmt::Write) -> 
     Ok(())
 }
 
-/// Write the peripherals `image` takes besides its pins as a Markdown table.
+/// Write the peripherals `image` takes besides its pins, and the interrupts whose priority it sets, as a Markdown
+/// table.
 pub fn write_peripheral_table(image: &Image, out: &mut impl fmt::Write) -> fmt::Result {
     writeln!(out, "| peripheral | for |\n|---|---|")?;
     for peripheral in image.peripherals {
         writeln!(out, "| {} | {} |", peripheral.name, peripheral.function)?;
+    }
+    for interrupt in image.interrupts {
+        writeln!(
+            out,
+            "| {} interrupt, priority {} | {} |",
+            interrupt.name, interrupt.priority, interrupt.function
+        )?;
     }
     Ok(())
 }
@@ -481,6 +529,7 @@ mod tests {
             Use::analog(pin(C, 3), "water sensor", 9),
         ],
         peripherals: &[],
+        interrupts: &[],
     };
 
     #[test]
@@ -592,7 +641,8 @@ mod tests {
     fn descriptions_expand_to_pin_names() {
         macro_rules! pin_names {
             ([] pins { $($field:ident : $pin:ident $(@ $header:literal)? = $use:ident ($($args:tt)*)),* $(,)? }
-                peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }) => {
+                peripherals { $($peripheral:ident : $name:ident = $what:literal),* $(,)? }
+                interrupts { $($irq:ident : $irq_name:ident = $priority:ident $irq_what:literal),* $(,)? }) => {
                 [$(stringify!($pin)),*]
             };
         }

@@ -22,6 +22,7 @@
 //!         Use::digital(pin(C, 9), "I2C3 SDA", pins::i2c("I2C3_SDA", 8)),
 //!     ],
 //!     peripherals: &[],
+//!     interrupts: &[],
 //! };
 //! const _: () = assert!(pins::check(&OLD).is_ok());
 //! ```
@@ -267,6 +268,19 @@ pub struct Image {
     pub uses: &'static [Use],
     /// The peripherals it uses besides the pins.
     pub peripherals: &'static [Peripheral],
+    /// The interrupts whose priority it sets.
+    pub interrupts: &'static [Interrupt],
+}
+
+/// An interrupt whose priority an image sets (NVIC, RM0440 Table 97; embassy-stm32's `Priority`, P0 the highest).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Interrupt {
+    /// Its name in ST's vector table and embassy-stm32 (`UART4`).
+    pub name: &'static str,
+    /// Its priority, `P0` (highest) to `P15`.
+    pub priority: &'static str,
+    /// What the image uses it for.
+    pub function: &'static str,
 }
 
 /// A peripheral an image uses, with its name in embassy-stm32 and ST's documents (`I2C3`, `DMA1_CH1`).

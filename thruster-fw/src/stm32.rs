@@ -7,7 +7,6 @@ use embassy_stm32::adc::{Adc, AdcChannel, AdcConfig};
 use embassy_stm32::exti;
 use embassy_stm32::gpio::Pull;
 use embassy_stm32::i2c::{self, I2c, SlaveAddrConfig};
-use embassy_stm32::interrupt::{InterruptExt, Priority};
 use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
@@ -239,8 +238,7 @@ async fn main(spawner: Spawner) {
 
     let watchdog = Iwdg::start(chip.watchdog);
 
-    interrupt::UART4.set_priority(Priority::P1);
-    let high = COMMUTATION_EXECUTOR.start(interrupt::UART4);
+    let high = COMMUTATION_EXECUTOR.start(chip.commutation);
     #[cfg(feature = "motorless")]
     let (halls, bridge) = (ModelHalls::new(&board::MOTORLESS), ModelBridge(&board::MOTORLESS));
     high.spawn(unwrap!(commutation(halls, bridge)));

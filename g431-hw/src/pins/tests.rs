@@ -32,6 +32,7 @@ fn a_removed_link_frees_its_pin_only() {
         removed: &["R60"],
         uses: &[Use::analog(pin(B, 11), "sensor", 14)],
         peripherals: &[],
+        interrupts: &[],
     };
     assert_eq!(check(&FREE), Ok(()));
     const OTHER: Image = Image {
