@@ -21,16 +21,44 @@ const HALL: Mode = Input(Pull::Up);
 /// The thruster's boards.
 const POWER_STAGE: &[&Board] = &[&NUCLEO_G431RB, &IHM08M1];
 
-/// The rows of every thruster image with a power stage, then `$extra`, handed to `$then`.
+/// The rows every thruster image has (its I2C slave, the water sensor, the watchdog, the commutation executor),
+/// then the `pins` and `peripherals` given, handed to `$then`.
 #[doc(hidden)]
 #[macro_export]
-macro_rules! power_stage_rows {
-    ([$($then:ident)::+] [$($arg:tt)*] $($extra:tt)*) => {
+macro_rules! thruster_rows {
+    ([$($then:ident)::+] [$($arg:tt)*] pins { $($pins:tt)* } peripherals { $($peripherals:tt)* }) => {
         $($then)::+! { [$($arg)*]
             pins {
                 scl: PC8 @ "CN10 2" = digital("I2C slave SCL", i2c("I2C3_SCL", 8)),
                 // I2C3's other SDA pin (AF8): PC9 carries the IHM08M1's GPIO_BEMF.
                 sda: PC11 @ "CN7 2" = digital("I2C slave SDA", i2c("I2C3_SDA", 8)),
+                // The one ADC pin neither board touches; PC3, used before, carries the IHM08M1's BEMF1.
+                water: PB12 @ "CN10 16" = analog("water sensor", 11),
+                $($pins)*
+            }
+            peripherals {
+                slave: I2C3 = "I2C slave",
+                slave_tx_dma: DMA1_CH1 = "I2C slave transmit DMA",
+                slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
+                adc: ADC1 = "the analog inputs",
+                watchdog: IWDG = "independent watchdog",
+                $($peripherals)*
+            }
+            interrupts {
+                // Above every other interrupt, so a hall edge's commutation step never waits for a task.
+                commutation: UART4 = P1 "the commutation executor (UART4 itself is unused)",
+            }
+        }
+    };
+}
+
+/// The rows of every thruster image with a power stage, then `$extra` pins, handed to `$then`.
+#[doc(hidden)]
+#[macro_export]
+macro_rules! power_stage_rows {
+    ([$($then:ident)::+] [$($arg:tt)*] $($extra:tt)*) => {
+        $crate::thruster_rows! { [$($then)::+] [$($arg)*]
+            pins {
                 uh: PA8 = of("phase A high", "UH", af("TIM1_CH1", 6)),
                 ul: PA7 = of("phase A low", "UL", af("TIM1_CH1N", 6)),
                 vh: PA9 = of("phase B high", "VH", af("TIM1_CH2", 6)),
@@ -43,24 +71,13 @@ macro_rules! power_stage_rows {
                 h2: PB3 = of("hall H2", "H2", HALL),
                 h3: PB10 = of("hall H3", "H3", HALL),
                 current: PA0 = of("motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
-                // The one ADC pin neither board touches; PC3, used before, carries the IHM08M1's BEMF1.
-                water: PB12 @ "CN10 16" = analog("water sensor", 11),
                 $($extra)*
             }
             peripherals {
-                slave: I2C3 = "I2C slave",
-                slave_tx_dma: DMA1_CH1 = "I2C slave transmit DMA",
-                slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
                 bridge: TIM1 = "the bridge's PWM and break",
                 h1_exti: EXTI15 = "hall H1 edges",
                 h2_exti: EXTI3 = "hall H2 edges",
                 h3_exti: EXTI10 = "hall H3 edges",
-                adc: ADC1 = "water, NTC and current",
-                watchdog: IWDG = "independent watchdog",
-            }
-            interrupts {
-                // Above every other interrupt, so a hall edge's commutation step never waits for a task.
-                commutation: UART4 = P1 "the commutation executor (UART4 itself is unused)",
             }
         }
     };
@@ -94,24 +111,12 @@ macro_rules! thruster_brushed_image {
 #[macro_export]
 macro_rules! thruster_motorless_image {
     ($($then:ident)::+ $(, $arg:tt)*) => {
-        $($then)::+! { [$($arg),*]
+        $crate::thruster_rows! { [$($then)::+] [$($arg),*]
             pins {
-                scl: PC8 @ "CN10 2" = digital("I2C slave SCL", i2c("I2C3_SCL", 8)),
-                sda: PC11 @ "CN7 2" = digital("I2C slave SDA", i2c("I2C3_SDA", 8)),
-                water: PB12 @ "CN10 16" = analog("water sensor", 11),
                 // B1 connects PC13 to 3V3 when pressed (MB1367): pulled down, it reads low when released.
                 hold: PC13 = of("model rotor hold", "B1", Input(Pull::Down)),
             }
-            peripherals {
-                slave: I2C3 = "I2C slave",
-                slave_tx_dma: DMA1_CH1 = "I2C slave transmit DMA",
-                slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
-                adc: ADC1 = "water sensor",
-                watchdog: IWDG = "independent watchdog",
-            }
-            interrupts {
-                commutation: UART4 = P1 "the commutation executor (UART4 itself is unused)",
-            }
+            peripherals {}
         }
     };
 }
