@@ -126,6 +126,18 @@ fn pins(image: &g431_hw::pins::Image) -> Vec<Value> {
         .collect()
 }
 
+/// The interrupts whose priority the image's description sets, with the NVIC level (`P1` is 1).
+fn interrupts(image: &g431_hw::pins::Image) -> Vec<Value> {
+    image
+        .interrupts
+        .iter()
+        .map(|interrupt| {
+            let level = interrupt.priority.trim_start_matches('P').parse::<u8>().ok();
+            json!({ "name": interrupt.name, "priority": level, "function": interrupt.function })
+        })
+        .collect()
+}
+
 /// CCMR1, CCMR2, CCER of a bridge drive, as the binding maps it onto `g431_hw::tim1`.
 fn commutation(drive: BridgeDrive) -> Value {
     let step = BRIDGE.commutation(drive.map(|phase| match phase {
@@ -247,6 +259,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         "family": family.name(),
         "address": family.address(),
         "pins": pins(image),
+        "interrupts": interrupts(image),
         "registers": registers,
         "coast": commutation(thruster_fw::commutation::COAST),
         "forward": six_step,
@@ -294,6 +307,7 @@ fn master(image: &g431_hw::pins::Image) -> Value {
     json!({
         "kind": "master",
         "pins": pins(image),
+        "interrupts": interrupts(image),
         "registers": registers,
         "console_baud": config.console_baud,
         "can_bitrate": config.can_bitrate,

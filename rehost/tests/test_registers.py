@@ -4,6 +4,7 @@
 import pytest
 
 from conftest import ALL, THRUSTERS, boot
+from g431.core import IRQ0
 from g431.timers import CCER, CCMR1, CCMR2
 
 
@@ -50,6 +51,23 @@ def test_pins_are_set_up_as_described_and_no_other_is_touched(name, expected, bo
             if (letter, number) not in listed:
                 wrong.append(f"P{letter}{number} is changed from its reset state, but no image table lists it")
     assert not wrong, "\n".join(wrong)
+
+
+# RM0440 Table 97: the interrupts the images' descriptions name, by position.
+IRQ_POSITION = {"UART4": 52}
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_interrupts_run_at_the_priority_described(name, expected, booted):
+    chip = chip_for(name, booted)
+    for interrupt in expected["images"][name]["interrupts"]:
+        position = IRQ_POSITION[interrupt["name"]]
+        vector = IRQ0 + position
+        # The position is the one the image's own vector table gives the handler of that name.
+        assert chip.core.read32(chip.core.vtor + 4 * vector) | 1 == chip.image.symbols[interrupt["name"]] | 1
+        # The NVIC keeps the upper four bits of IPRn's byte (RM0440 16.1: 16 levels).
+        got = chip.nvic.priority(vector) >> 4
+        assert got == interrupt["priority"], f"{interrupt['name']} at level {got}, not {interrupt['priority']}"
 
 
 @pytest.mark.parametrize("name", [n for n in THRUSTERS if n != "thruster-fw-motorless"])
