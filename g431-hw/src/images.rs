@@ -308,7 +308,7 @@ const fn thruster(name: &'static str, features: &'static str, image: &'static Im
         package: "thruster-fw",
         features,
         image,
-        layout: &memory::G431RB,
+        layout: &memory::THRUSTER,
         flash_budget: 48 * KIB,
         ram_budget: 16 * KIB,
     }
@@ -320,7 +320,7 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
         package: "lbv-master-fw",
         features,
         image: &MASTER,
-        layout: &memory::G431RB,
+        layout: &memory::MASTER,
         flash_budget,
         ram_budget: 24 * KIB,
     }
