@@ -42,6 +42,7 @@ macro_rules! thruster_rows {
                 slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
                 adc: ADC1 = "the analog inputs",
                 watchdog: IWDG = "independent watchdog",
+                flash: FLASH = "the bootloader's state, where a new image confirms itself",
                 $($peripherals)*
             }
             interrupts {
@@ -498,17 +499,42 @@ pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Re
         "thruster peripherals" => write_peripheral_table(&THRUSTER, out),
         "master pins" => write_pin_table(&[("", &MASTER)], out),
         "master peripherals" => write_peripheral_table(&MASTER, out),
+        "thruster flash" => write_flash_table(&memory::THRUSTER, out),
+        "master flash" => write_flash_table(&memory::MASTER, out),
         _ => return None,
     })
 }
 
 /// The names of the docs' generated tables.
-pub const DOCS_TABLES: [&str; 4] = [
+pub const DOCS_TABLES: [&str; 6] = [
     "thruster pins",
     "thruster peripherals",
     "master pins",
     "master peripherals",
+    "thruster flash",
+    "master flash",
 ];
+
+/// A layout's flash regions as a Markdown table: start, size and what each holds.
+fn write_flash_table(layout: &Layout, out: &mut impl fmt::Write) -> fmt::Result {
+    writeln!(out, "| Region | Start | Size | Holds |\n|---|---|---|---|")?;
+    for region in layout
+        .regions
+        .iter()
+        .filter(|region| memory::FLASH.contains(region.span))
+    {
+        let span = region.span;
+        writeln!(
+            out,
+            "| {} | 0x{:08X} | {} KiB | {} |",
+            region.name,
+            span.origin,
+            span.length / KIB,
+            region.holds
+        )?;
+    }
+    Ok(())
+}
 
 #[cfg(test)]
 mod tests {

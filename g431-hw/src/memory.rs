@@ -48,7 +48,8 @@ impl Span {
         self.origin + self.length
     }
 
-    const fn contains(self, other: Span) -> bool {
+    /// Whether `other` lies wholly inside.
+    pub const fn contains(self, other: Span) -> bool {
         self.origin <= other.origin && other.end() <= self.end()
     }
 
@@ -134,48 +135,52 @@ pub enum PartitionError {
     Misplaced,
     /// DFU is not at least a page larger than ACTIVE.
     DfuTooSmall,
-    /// The state cannot hold its magic, its progress-valid word and four words per ACTIVE page (embassy-boot's
-    /// `assert_partitions`).
-    StateTooSmall,
 }
+
+// embassy-boot's state holds a magic word, a progress-valid word and four words per ACTIVE page
+// (`assert_partitions`). One page of state is enough for any ACTIVE this flash can hold beside its DFU: it counts
+// 2 + 4 x 31 words at most, of the 256 a page holds, so no partition split here can get that wrong.
+const _: () = assert!(2 + 4 * (FLASH.length / PAGE / 2) <= PAGE / WRITE_UNIT);
 
 /// Check partitions as embassy-boot's bootloader does at every start (`assert_partitions`, where a failure is a
 /// panic in the bootloader): here at build time instead.
 pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionError> {
-    let Partitions { bootloader, state, active, dfu } = *partitions;
+    let Partitions {
+        bootloader,
+        state,
+        active,
+        dfu,
+    } = *partitions;
     if bootloader.origin != FLASH.origin {
         return Err(PartitionError::BootloaderNotFirst);
     }
     let all = [bootloader, state, active, dfu];
-    let mut i = 0;
-    while i < all.len() {
-        let span = all[i];
+    let mut rest: &[Span] = &all;
+    while let [span, tail @ ..] = rest {
+        let span = *span;
         if span.origin % PAGE != 0 || span.length % PAGE != 0 || span.length == 0 {
             return Err(PartitionError::Unaligned);
         }
         if !FLASH.contains(span) {
             return Err(PartitionError::Misplaced);
         }
-        let mut j = i + 1;
-        while j < all.len() {
-            if span.overlaps(all[j]) {
+        let mut others = tail;
+        while let [other, more @ ..] = others {
+            if span.overlaps(*other) {
                 return Err(PartitionError::Misplaced);
             }
-            j += 1;
+            others = more;
         }
-        i += 1;
+        rest = tail;
     }
     if dfu.length < active.length + PAGE {
         return Err(PartitionError::DfuTooSmall);
-    }
-    if state.length / WRITE_UNIT < 2 + 4 * partitions.active_pages() {
-        return Err(PartitionError::StateTooSmall);
     }
     Ok(())
 }
 
 /// The thruster's flash: an 8 KiB bootloader (embassy's STM32 bootloader builds to about 6.3 KiB), one page of
-/// state (2 + 4 x 29 words of the 256 it holds), and the rest split between ACTIVE (58 KiB, 29 pages, for a
+/// state (118 words of the 256 it holds), and the rest split between ACTIVE (58 KiB, 29 pages, for a
 /// 32 KiB image and room to grow) and DFU (60 KiB). The thruster keeps no settings in flash.
 pub const THRUSTER_PARTITIONS: Partitions = Partitions {
     bootloader: Span {
@@ -383,7 +388,10 @@ impl fmt::Display for Layout {
         };
         // embassy-boot finds the partitions by these symbols, as offsets from the flash's start (embassy-stm32's
         // flash driver addresses the flash by offset).
-        writeln!(f, "\n/* The partitions, for embassy-boot: offsets from the start of flash. */")?;
+        writeln!(
+            f,
+            "\n/* The partitions, for embassy-boot: offsets from the start of flash. */"
+        )?;
         for (name, span) in [
             ("state", partitions.state),
             ("active", partitions.active),
@@ -449,6 +457,86 @@ mod tests {
 
     const ALL_RAM: Region = region("RAM", RAM.origin, RAM.length);
     const HALF_FLASH: Region = region("FLASH", FLASH.origin, 64 * KIB);
+
+    #[test]
+    fn the_thruster_layouts_print_the_partitions_for_embassy_boot() {
+        for layout in [THRUSTER, THRUSTER_BOOT] {
+            let text = layout.to_string();
+            for symbol in [
+                "__bootloader_state_start = 0x00002000;\n",
+                "__bootloader_state_end = 0x00002800;\n",
+                "__bootloader_active_start = 0x00002800;\n",
+                "__bootloader_active_end = 0x00011000;\n",
+                "__bootloader_dfu_start = 0x00011000;\n",
+                "__bootloader_dfu_end = 0x00020000;\n",
+            ] {
+                assert!(text.contains(symbol), "{symbol} in\n{text}");
+            }
+        }
+        let application = THRUSTER.to_string();
+        assert!(application.contains("  FLASH            : ORIGIN = 0x08002800, LENGTH = 58K\n"));
+        assert!(application.contains(".image_info ORIGIN(FLASH) + 0x200 :"));
+        let bootloader = THRUSTER_BOOT.to_string();
+        assert!(bootloader.contains("  FLASH            : ORIGIN = 0x08000000, LENGTH = 8K\n"));
+        assert!(!bootloader.contains(".image_info"));
+        assert!(!MASTER.to_string().contains("__bootloader"));
+    }
+
+    const fn span(origin_kib: u32, length_kib: u32) -> Span {
+        Span {
+            origin: FLASH.origin + origin_kib * KIB,
+            length: length_kib * KIB,
+        }
+    }
+
+    #[test]
+    fn partitions_embassy_boot_cannot_swap_in_are_refused() {
+        let good = THRUSTER_PARTITIONS;
+        assert_eq!(check_partitions(&good), Ok(()));
+        let cases = [
+            (
+                Partitions {
+                    bootloader: span(2, 6),
+                    ..good
+                },
+                PartitionError::BootloaderNotFirst,
+            ),
+            (
+                Partitions {
+                    state: Span {
+                        origin: good.state.origin,
+                        length: 1024,
+                    },
+                    ..good
+                },
+                PartitionError::Unaligned,
+            ),
+            (
+                Partitions {
+                    dfu: span(66, 60),
+                    ..good
+                },
+                PartitionError::Misplaced,
+            ),
+            (
+                Partitions {
+                    dfu: span(70, 60),
+                    ..good
+                },
+                PartitionError::Misplaced,
+            ),
+            (
+                Partitions {
+                    dfu: span(68, 58),
+                    ..good
+                },
+                PartitionError::DfuTooSmall,
+            ),
+        ];
+        for (partitions, refusal) in cases {
+            assert_eq!(check_partitions(&partitions), Err(refusal), "{partitions:?}");
+        }
+    }
 
     #[test]
     fn a_bad_layout_is_refused() {
