@@ -147,23 +147,23 @@ pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionEr
         return Err(PartitionError::BootloaderNotFirst);
     }
     let all = [bootloader, state, active, dfu];
-    let mut i = 0;
-    while i < all.len() {
-        let span = all[i];
+    let mut rest: &[Span] = &all;
+    while let [span, tail @ ..] = rest {
+        let span = *span;
         if span.origin % PAGE != 0 || span.length % PAGE != 0 || span.length == 0 {
             return Err(PartitionError::Unaligned);
         }
         if !FLASH.contains(span) {
             return Err(PartitionError::Misplaced);
         }
-        let mut j = i + 1;
-        while j < all.len() {
-            if span.overlaps(all[j]) {
+        let mut others = tail;
+        while let [other, more @ ..] = others {
+            if span.overlaps(*other) {
                 return Err(PartitionError::Misplaced);
             }
-            j += 1;
+            others = more;
         }
-        i += 1;
+        rest = tail;
     }
     if dfu.length < active.length + PAGE {
         return Err(PartitionError::DfuTooSmall);
