@@ -215,7 +215,10 @@ mod tests {
         // counts.
         assert_eq!(BOOT_TRIAL, Iwdg { pr: 3, rlr: 2124 });
         assert!(BOOT_TRIAL.timeout_us(LSI_MAX_HZ) >= BOOT_TRIAL_MIN_US);
-        assert!(BOOT_TRIAL.timeout_us(LSI_MIN_HZ) < 2_400_000, "and not much longer at the slowest");
+        assert!(
+            BOOT_TRIAL.timeout_us(LSI_MIN_HZ) < 2_400_000,
+            "and not much longer at the slowest"
+        );
         // The shortest: one count less no longer lasts.
         let shorter = Iwdg {
             rlr: BOOT_TRIAL.rlr - 1,

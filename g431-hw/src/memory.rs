@@ -142,7 +142,12 @@ pub enum PartitionError {
 /// Check partitions as embassy-boot's bootloader does at every start (`assert_partitions`, where a failure is a
 /// panic in the bootloader): here at build time instead.
 pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionError> {
-    let Partitions { bootloader, state, active, dfu } = *partitions;
+    let Partitions {
+        bootloader,
+        state,
+        active,
+        dfu,
+    } = *partitions;
     if bootloader.origin != FLASH.origin {
         return Err(PartitionError::BootloaderNotFirst);
     }
@@ -383,7 +388,10 @@ impl fmt::Display for Layout {
         };
         // embassy-boot finds the partitions by these symbols, as offsets from the flash's start (embassy-stm32's
         // flash driver addresses the flash by offset).
-        writeln!(f, "\n/* The partitions, for embassy-boot: offsets from the start of flash. */")?;
+        writeln!(
+            f,
+            "\n/* The partitions, for embassy-boot: offsets from the start of flash. */"
+        )?;
         for (name, span) in [
             ("state", partitions.state),
             ("active", partitions.active),
