@@ -158,6 +158,22 @@ macro_rules! master_image {
     };
 }
 
+/// The thruster's bootloader (thruster-boot): no pins; the flash it swaps images in, and the watchdog it starts
+/// just before it jumps to the image.
+#[macro_export]
+macro_rules! thruster_boot_image {
+    ($($then:ident)::+ $(, $arg:tt)*) => {
+        $($then)::+! { [$($arg),*]
+            pins {}
+            peripherals {
+                flash: FLASH = "the swap: its state, ACTIVE and DFU",
+                watchdog: IWDG = "started before the jump: an image that hangs before its own set-up is reset and reverted",
+            }
+            interrupts {}
+        }
+    };
+}
+
 /// A description's pins as [`Use`]s.
 #[doc(hidden)]
 #[macro_export]
@@ -271,8 +287,24 @@ pub const MASTER: Image = Image {
     interrupts: crate::master_image!(crate::description_interrupts),
 };
 
+/// The thruster's bootloader, on the thruster's boards.
+pub const THRUSTER_BOOT: Image = Image {
+    name: "thruster-boot",
+    boards: POWER_STAGE,
+    removed: &[],
+    uses: crate::thruster_boot_image!(crate::description_uses),
+    peripherals: crate::thruster_boot_image!(crate::description_peripherals),
+    interrupts: crate::thruster_boot_image!(crate::description_interrupts),
+};
+
 /// Every image's pins.
-pub const ALL: [&Image; 4] = [&THRUSTER, &THRUSTER_BRUSHED, &THRUSTER_MOTORLESS, &MASTER];
+pub const ALL: [&Image; 5] = [
+    &THRUSTER,
+    &THRUSTER_BRUSHED,
+    &THRUSTER_MOTORLESS,
+    &THRUSTER_BOOT,
+    &MASTER,
+];
 
 const _: () = {
     let mut rest: &[&Image] = &ALL;
@@ -297,7 +329,7 @@ pub struct Build {
     pub layout: &'static Layout,
     /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the vehicle's images keep
     /// 16 KiB of their `FLASH` region spare; the acceptance image, which runs only on the dev-kit bench and
-    /// carries its script beside the whole console, keeps 12 KiB.
+    /// carries its script beside the whole console, keeps 12 KiB; the bootloader has its whole partition.
     pub flash_budget: u32,
     /// Its budget for static RAM (`.data`, `.bss`, `.uninit`), in bytes; the rest of the RAM is stack.
     pub ram_budget: u32,
@@ -327,13 +359,26 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
     }
 }
 
+/// The thruster's bootloader: its partition, 8 KiB, is all its flash; its static RAM is next to nothing (the
+/// page buffer it swaps through is on its stack).
+const THRUSTER_BOOTLOADER: Build = Build {
+    name: "thruster-boot",
+    package: "thruster-boot",
+    features: "",
+    image: &THRUSTER_BOOT,
+    layout: &memory::THRUSTER_BOOT,
+    flash_budget: 8 * KIB,
+    ram_budget: KIB,
+};
+
 /// Every image `./test.sh` builds and holds to its budgets.
-pub const BUILDS: [Build; 8] = [
+pub const BUILDS: [Build; 9] = [
     thruster("thruster-fw", "", &THRUSTER),
     thruster("thruster-fw-legacy", "legacy", &THRUSTER),
     thruster("thruster-fw-brushed", "brushed", &THRUSTER_BRUSHED),
     thruster("thruster-fw-motorless", "motorless", &THRUSTER_MOTORLESS),
     thruster("thruster-fw-bringup", "bringup", &THRUSTER),
+    THRUSTER_BOOTLOADER,
     master("lbv-master-fw", "", 96 * KIB),
     master("lbv-master-fw-devkit", "devkit,legacy", 96 * KIB),
     master("lbv-master-fw-acceptance", "acceptance", 100 * KIB),
@@ -497,6 +542,7 @@ pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Re
             out,
         ),
         "thruster peripherals" => write_peripheral_table(&THRUSTER, out),
+        "thruster-boot peripherals" => write_peripheral_table(&THRUSTER_BOOT, out),
         "master pins" => write_pin_table(&[("", &MASTER)], out),
         "master peripherals" => write_peripheral_table(&MASTER, out),
         "thruster flash" => write_flash_table(&memory::THRUSTER, out),
@@ -506,9 +552,10 @@ pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Re
 }
 
 /// The names of the docs' generated tables.
-pub const DOCS_TABLES: [&str; 6] = [
+pub const DOCS_TABLES: [&str; 7] = [
     "thruster pins",
     "thruster peripherals",
+    "thruster-boot peripherals",
     "master pins",
     "master peripherals",
     "thruster flash",
@@ -652,6 +699,20 @@ mod tests {
                 "docs/hardware.md's {name} table is not the data's: regenerate it"
             );
         }
+    }
+
+    #[test]
+    fn each_crate_has_one_layout_and_the_bootloader_its_own() {
+        assert_eq!(layout_of("thruster-boot"), Ok(&memory::THRUSTER_BOOT));
+        assert_eq!(layout_of("thruster-fw"), Ok(&memory::THRUSTER));
+        assert_eq!(layout_of("lbv-master-fw"), Ok(&memory::MASTER));
+        assert_eq!(layout_of("lbv"), Err(LayoutOfError::Unknown));
+        // The bootloader fills its partition at most, and uses no pin.
+        let boot = BUILDS.iter().find(|build| build.name == "thruster-boot").unwrap();
+        assert_eq!(boot.flash_budget, memory::THRUSTER_PARTITIONS.bootloader.length);
+        assert!(boot.image.uses.is_empty());
+        let peripherals: Vec<&str> = boot.image.peripherals.iter().map(|p| p.name).collect();
+        assert_eq!(peripherals, ["FLASH", "IWDG"]);
     }
 
     #[test]
