@@ -32,8 +32,6 @@ use crate::params::{PARAM_COUNT, Param, Settings};
 use crate::shared::{Severity, Shared, text};
 use crate::signing::SigningKey;
 
-pub mod ecc;
-
 /// The STM32G431RB's flash kept for the settings, as offsets from the start of flash: its top 16 KiB, eight of
 /// the 2 KiB pages of its single bank (RM0440 3.3.1, category 2 devices). `memory.x` keeps the images below.
 pub const G431_STORAGE: Range<u32> = 0x1_C000..0x2_0000;

@@ -16,8 +16,9 @@ use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use g431_hw::clock;
+use g431_hw::flash::{self, NmiAction};
+use g431_hw::memory::Span;
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::settings::ecc::{self, NmiAction, eccr};
 use lbv_master_fw::settings::{Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, MasterConfig, Ports};
@@ -242,25 +243,22 @@ fn defmt_panic() -> ! {
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).
 static SETTINGS_ECC_ERRORS: AtomicU32 = AtomicU32::new(0);
 
-// The FLASH_ECCR decoding (`settings::ecc`) agrees with ST's SVD for the G431 as stm32-metapac has it.
-const _: () = {
-    use pac::flash::regs::Eccr;
-    assert!(Eccr(eccr::ECCD).eccd() && !Eccr(eccr::ECCD).eccc());
-    assert!(Eccr(eccr::ECCC).eccc() && Eccr(eccr::ECCCIE).eccie());
-    assert!(Eccr(eccr::SYSF_ECC).sysf_ecc() && Eccr(eccr::BK_ECC).bk_ecc());
-    assert!(Eccr(eccr::ADDR_ECC).addr_ecc() == eccr::ADDR_ECC && Eccr(!eccr::ADDR_ECC).addr_ecc() == 0);
+/// The pages the master keeps data in: its settings.
+const DATA_PAGES: [Span; 1] = match g431_hw::memory::MASTER.region("STORAGE") {
+    Some(region) => [region.span],
+    None => panic!("the master's layout keeps no settings"),
 };
 
 /// The NMI: an ECC double error in the settings pages (a write cut short by a power cut) is let pass, so the store
 /// reads the record, finds its CRC wrong and skips it; any other NMI stops the master here, and the thrusters stop
-/// by their link failsafe (`settings::ecc`, RM0440 3.3.2). It touches nothing a critical section guards, so it
+/// by their link failsafe (`g431_hw::flash`, RM0440 3.3.2). It touches nothing a critical section guards, so it
 /// logs nothing: a debugger reads `SETTINGS_ECC_ERRORS`, and after a stop FLASH_ECCR, which keeps the cause.
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
 unsafe fn NonMaskableInt() {
     let value = pac::FLASH.eccr().read().0;
-    match ecc::nmi_action(value) {
-        NmiAction::PassSettingsRead { clear } => {
+    match flash::nmi_action(value, &DATA_PAGES) {
+        NmiAction::PassDataRead { clear } => {
             pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear));
             SETTINGS_ECC_ERRORS.fetch_add(1, Ordering::Relaxed);
         }

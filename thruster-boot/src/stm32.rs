@@ -13,7 +13,9 @@ use embassy_stm32::flash::Flash;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::IWDG;
 use embassy_sync::blocking_mutex::Mutex;
+use g431_hw::flash::{self, NmiAction};
 use g431_hw::iwdg::{BOOT_TRIAL, DBGMCU_APB1FZR1};
+use g431_hw::memory::{Span, THRUSTER_PARTITIONS};
 use thruster_boot::{ACTIVE_START, Outcome, State};
 
 #[cortex_m_rt::entry]
@@ -70,16 +72,18 @@ fn start_trial_watchdog(_iwdg: embassy_stm32::Peri<'static, IWDG>) {
 /// or DFU. The read has completed with the cells' bits, and embassy-boot's format is built to take a torn word for
 /// what it is (an unfinished step, or no magic): clear the flag and let it go on. cortex-m-rt's default would spin
 /// here, and since every start reads the same word, the thruster would never start again. Any other NMI source
-/// (the clock security system, SRAM parity) resets the chip.
+/// (the clock security system, SRAM parity), or the same error in the bootloader's own code, resets the chip.
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
 unsafe fn NonMaskableInt() {
-    if pac::FLASH.eccr().read().eccd() {
-        pac::FLASH
-            .eccr()
-            .write_value(pac::flash::regs::Eccr(g431_hw::flash::ECCR_CLEAR_ECCD));
-    } else {
-        SCB::sys_reset();
+    const SWAPPED: [Span; 3] = [
+        THRUSTER_PARTITIONS.state,
+        THRUSTER_PARTITIONS.active,
+        THRUSTER_PARTITIONS.dfu,
+    ];
+    match flash::nmi_action(pac::FLASH.eccr().read().0, &SWAPPED) {
+        NmiAction::PassDataRead { clear } => pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear)),
+        NmiAction::Stop => SCB::sys_reset(),
     }
 }
 

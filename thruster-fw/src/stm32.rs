@@ -11,6 +11,8 @@ use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, Pl
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
 use g431_hw::clock;
+use g431_hw::flash::{self, NmiAction};
+use g431_hw::memory::{Span, THRUSTER_PARTITIONS};
 use thruster_fw::faults::ResetKind;
 use thruster_fw::tasks::Shared;
 use thruster_fw::{CONFIG, FAMILY, Ports};
@@ -104,14 +106,24 @@ unsafe fn DefaultHandler(_irqn: i16) -> ! {
     }
 }
 
-/// So does an NMI: this image keeps nothing in flash, so a flash ECC double error (which also trips TIM1's break
-/// through SYSCFG_CFGR2) or any other NMI source is a fault; the watchdog then resets.
+/// The pages the image reads data from: the bootloader's state (each start reads it) and the DFU partition.
+const DATA_PAGES: [Span; 2] = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.dfu];
+
+/// So does an NMI, but for a flash ECC double error in the state or DFU pages: a double word a power cut tore
+/// there reads back as it is and embassy-boot copes with its content, whereas stopping would stop every start
+/// that reads it (`g431_hw::flash`). Any other NMI source (the same error in the code also trips TIM1's break
+/// through SYSCFG_CFGR2) is a fault; the watchdog then resets.
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
-unsafe fn NonMaskableInt() -> ! {
-    board::stop_bridge();
-    loop {
-        cortex_m::asm::nop();
+unsafe fn NonMaskableInt() {
+    match flash::nmi_action(pac::FLASH.eccr().read().0, &DATA_PAGES) {
+        NmiAction::PassDataRead { clear } => pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear)),
+        NmiAction::Stop => {
+            board::stop_bridge();
+            loop {
+                cortex_m::asm::nop();
+            }
+        }
     }
 }
 
