@@ -28,6 +28,8 @@ use embedded_storage_async::nor_flash::NorFlash;
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::queue::{QueueConfig, QueueStorage};
 
+use g431_hw::memory::{self, Span};
+
 use crate::params::{PARAM_COUNT, Param, Settings};
 use crate::shared::{Severity, Shared, text};
 use crate::signing::SigningKey;
@@ -35,6 +37,13 @@ use crate::signing::SigningKey;
 /// The STM32G431RB's flash kept for the settings, as offsets from the start of flash: its top 16 KiB, eight of
 /// the 2 KiB pages of its single bank (RM0440 3.3.1, category 2 devices). `memory.x` keeps the images below.
 pub const G431_STORAGE: Range<u32> = 0x1_C000..0x2_0000;
+
+/// The pages the master keeps data in, for the binding's NMI handler ([`g431_hw::flash::nmi_action`]): the
+/// settings, where a power cut can leave a torn double word that the store skips.
+pub const DATA_PAGES: [Span; 1] = [Span {
+    origin: memory::FLASH.origin + G431_STORAGE.start,
+    length: G431_STORAGE.end - G431_STORAGE.start,
+}];
 
 /// Where the settings are kept.
 #[allow(async_fn_in_trait)]

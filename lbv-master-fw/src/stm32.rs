@@ -17,9 +17,8 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
-use g431_hw::memory::Span;
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::settings::{Reboot, Store};
+use lbv_master_fw::settings::{DATA_PAGES, Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, MasterConfig, Ports};
 use static_cell::StaticCell;
@@ -242,12 +241,6 @@ fn defmt_panic() -> ! {
 
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).
 static SETTINGS_ECC_ERRORS: AtomicU32 = AtomicU32::new(0);
-
-/// The pages the master keeps data in: its settings.
-const DATA_PAGES: [Span; 1] = match g431_hw::memory::MASTER.region("STORAGE") {
-    Some(region) => [region.span],
-    None => panic!("the master's layout keeps no settings"),
-};
 
 /// The NMI: an ECC double error in the settings pages (a write cut short by a power cut) is let pass, so the store
 /// reads the record, finds its CRC wrong and skips it; any other NMI stops the master here, and the thrusters stop

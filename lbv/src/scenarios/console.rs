@@ -4,9 +4,10 @@
 
 use std::collections::BTreeMap;
 
+use g431_hw::flash::{NmiAction, eccr, nmi_action};
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
 use lbv_master_fw::params::Settings;
-use lbv_master_fw::settings::ecc::{NmiAction, eccr, nmi_action};
+use lbv_master_fw::settings::DATA_PAGES;
 use lbv_master_fw::shared::{
     MAV_CMD_COMPONENT_ARM_DISARM as ARM_DISARM, MAV_CMD_DO_MOTOR_TEST as MOTOR_TEST,
     MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN as REBOOT,
@@ -670,9 +671,12 @@ pub fn settings_power_cut(run: &mut Run) {
     // On the chip each torn double word the store read back was an ECC double error and an NMI: the binding's
     // handler must let every one of them pass.
     let torn = run.bench.master.flash.ecc_error_offsets();
-    let passed = torn
-        .iter()
-        .all(|offset| matches!(nmi_action(eccr::ECCD | offset), NmiAction::PassSettingsRead { .. }));
+    let passed = torn.iter().all(|offset| {
+        matches!(
+            nmi_action(eccr::ECCD | offset, &DATA_PAGES),
+            NmiAction::PassDataRead { .. }
+        )
+    });
     run.metric(
         "ecc_double_errors_read",
         json!(run.bench.master.flash.stats().ecc_errors),
