@@ -15,7 +15,7 @@
 //!
 //! Every decoder answers every input with a value or a typed error; nothing here panics.
 //!
-//! Features: `verify` ([`Verifier`], no_std, the salty ed25519 embassy-boot uses), `sign` (`sign` and `keygen`, std,
+//! Features: `verify` (`Verifier`, no_std, the salty ed25519 embassy-boot uses), `sign` (`sign` and `keygen`, std,
 //! ed25519-dalek), `defmt`.
 //!
 //! ```
