@@ -109,8 +109,8 @@ fi
 
 step "firmware images (release, $TARGET)"
 # The images and their budgets are data, g431_hw::images::BUILDS: one line each of name, crate, features ("-" for
-# none), flash and static RAM budgets in bytes. Each image is kept under target/images/ (a crate's feature builds
-# overwrite one another's ELF).
+# none), flash and static RAM budgets and the size of the flash region it is linked into, in bytes. Each image is
+# kept under target/images/ (a crate's feature builds overwrite one another's ELF).
 builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
 release="target/$TARGET/release"
 mkdir -p target/images
@@ -121,16 +121,20 @@ while read -r name package features _; do
 done <<<"$builds"
 
 step "image sizes"
-# Flash holds code, constants and the initial values of .data; static RAM is .data + .bss + .uninit.
+# The flash map of each layout, then each image against its budget and the flash it is linked into. Flash holds
+# code, constants (the image information record among them) and the initial values of .data; static RAM is
+# .data + .bss + .uninit.
+cargo run --quiet --locked -p g431-hw --bin images -- partitions
 failed=0
-while read -r name _ _ flash_budget ram_budget; do
-  arm-none-eabi-size -A "target/images/$name" | awk -v name="$name" -v fb="$flash_budget" -v rb="$ram_budget" '
-    $1 ~ /^\.(vector_table|text|rodata|data)$/ { flash += $2 }
+while read -r name _ _ flash_budget ram_budget linked; do
+  arm-none-eabi-size -A "target/images/$name" |
+    awk -v name="$name" -v fb="$flash_budget" -v rb="$ram_budget" -v linked="$linked" '
+    $1 ~ /^\.(vector_table|image_info|text|rodata|data)$/ { flash += $2 }
     $1 ~ /^\.(data|bss|uninit)$/ { ram += $2 }
     END {
       ok = flash <= fb && ram <= rb
-      printf "%-25s flash %6d B = %5.1f of %3d KiB   static RAM %6d B = %5.1f of %2d KiB   %s\n",
-        name, flash, flash / 1024, fb / 1024, ram, ram / 1024, rb / 1024, ok ? "ok" : "OVER BUDGET"
+      printf "%-25s flash %6d B = %5.1f of %3d KiB (linked into %3d KiB)   static RAM %6d B = %5.1f of %2d KiB   %s\n",
+        name, flash, flash / 1024, fb / 1024, linked / 1024, ram, ram / 1024, rb / 1024, ok ? "ok" : "OVER BUDGET"
       exit !ok
     }' || failed=1
 done <<<"$builds"

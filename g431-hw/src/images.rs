@@ -42,6 +42,7 @@ macro_rules! thruster_rows {
                 slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
                 adc: ADC1 = "the analog inputs",
                 watchdog: IWDG = "independent watchdog",
+                flash: FLASH = "the bootloader's state, where a new image confirms itself",
                 $($peripherals)*
             }
             interrupts {
@@ -151,6 +152,22 @@ macro_rules! master_image {
                 can: FDCAN1 = "battery CAN, 1 Mbit/s",
                 console: LPUART1 = "console, MAVLink v2 at 115200 baud",
                 flash: FLASH = "the settings pages",
+            }
+            interrupts {}
+        }
+    };
+}
+
+/// The thruster's bootloader (thruster-boot): no pins; the flash it swaps images in, and the watchdog it starts
+/// just before it jumps to the image.
+#[macro_export]
+macro_rules! thruster_boot_image {
+    ($($then:ident)::+ $(, $arg:tt)*) => {
+        $($then)::+! { [$($arg),*]
+            pins {}
+            peripherals {
+                flash: FLASH = "the swap: its state, ACTIVE and DFU",
+                watchdog: IWDG = "started before the jump: an image that hangs before its own set-up is reset and reverted",
             }
             interrupts {}
         }
@@ -270,8 +287,24 @@ pub const MASTER: Image = Image {
     interrupts: crate::master_image!(crate::description_interrupts),
 };
 
+/// The thruster's bootloader, on the thruster's boards.
+pub const THRUSTER_BOOT: Image = Image {
+    name: "thruster-boot",
+    boards: POWER_STAGE,
+    removed: &[],
+    uses: crate::thruster_boot_image!(crate::description_uses),
+    peripherals: crate::thruster_boot_image!(crate::description_peripherals),
+    interrupts: crate::thruster_boot_image!(crate::description_interrupts),
+};
+
 /// Every image's pins.
-pub const ALL: [&Image; 4] = [&THRUSTER, &THRUSTER_BRUSHED, &THRUSTER_MOTORLESS, &MASTER];
+pub const ALL: [&Image; 5] = [
+    &THRUSTER,
+    &THRUSTER_BRUSHED,
+    &THRUSTER_MOTORLESS,
+    &THRUSTER_BOOT,
+    &MASTER,
+];
 
 const _: () = {
     let mut rest: &[&Image] = &ALL;
@@ -296,7 +329,7 @@ pub struct Build {
     pub layout: &'static Layout,
     /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the vehicle's images keep
     /// 16 KiB of their `FLASH` region spare; the acceptance image, which runs only on the dev-kit bench and
-    /// carries its script beside the whole console, keeps 12 KiB.
+    /// carries its script beside the whole console, keeps 12 KiB; the bootloader has its whole partition.
     pub flash_budget: u32,
     /// Its budget for static RAM (`.data`, `.bss`, `.uninit`), in bytes; the rest of the RAM is stack.
     pub ram_budget: u32,
@@ -308,7 +341,7 @@ const fn thruster(name: &'static str, features: &'static str, image: &'static Im
         package: "thruster-fw",
         features,
         image,
-        layout: &memory::G431RB,
+        layout: &memory::THRUSTER,
         flash_budget: 48 * KIB,
         ram_budget: 16 * KIB,
     }
@@ -320,19 +353,32 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
         package: "lbv-master-fw",
         features,
         image: &MASTER,
-        layout: &memory::G431RB,
+        layout: &memory::MASTER,
         flash_budget,
         ram_budget: 24 * KIB,
     }
 }
 
+/// The thruster's bootloader: its partition, 8 KiB, is all its flash; its static RAM is next to nothing (the
+/// page buffer it swaps through is on its stack).
+const THRUSTER_BOOTLOADER: Build = Build {
+    name: "thruster-boot",
+    package: "thruster-boot",
+    features: "",
+    image: &THRUSTER_BOOT,
+    layout: &memory::THRUSTER_BOOT,
+    flash_budget: 8 * KIB,
+    ram_budget: KIB,
+};
+
 /// Every image `./test.sh` builds and holds to its budgets.
-pub const BUILDS: [Build; 8] = [
+pub const BUILDS: [Build; 9] = [
     thruster("thruster-fw", "", &THRUSTER),
     thruster("thruster-fw-legacy", "legacy", &THRUSTER),
     thruster("thruster-fw-brushed", "brushed", &THRUSTER_BRUSHED),
     thruster("thruster-fw-motorless", "motorless", &THRUSTER_MOTORLESS),
     thruster("thruster-fw-bringup", "bringup", &THRUSTER),
+    THRUSTER_BOOTLOADER,
     master("lbv-master-fw", "", 96 * KIB),
     master("lbv-master-fw-devkit", "devkit,legacy", 96 * KIB),
     master("lbv-master-fw-acceptance", "acceptance", 100 * KIB),
@@ -496,19 +542,46 @@ pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Re
             out,
         ),
         "thruster peripherals" => write_peripheral_table(&THRUSTER, out),
+        "thruster-boot peripherals" => write_peripheral_table(&THRUSTER_BOOT, out),
         "master pins" => write_pin_table(&[("", &MASTER)], out),
         "master peripherals" => write_peripheral_table(&MASTER, out),
+        "thruster flash" => write_flash_table(&memory::THRUSTER, out),
+        "master flash" => write_flash_table(&memory::MASTER, out),
         _ => return None,
     })
 }
 
 /// The names of the docs' generated tables.
-pub const DOCS_TABLES: [&str; 4] = [
+pub const DOCS_TABLES: [&str; 7] = [
     "thruster pins",
     "thruster peripherals",
+    "thruster-boot peripherals",
     "master pins",
     "master peripherals",
+    "thruster flash",
+    "master flash",
 ];
+
+/// A layout's flash regions as a Markdown table: start, size and what each holds.
+fn write_flash_table(layout: &Layout, out: &mut impl fmt::Write) -> fmt::Result {
+    writeln!(out, "| Region | Start | Size | Holds |\n|---|---|---|---|")?;
+    for region in layout
+        .regions
+        .iter()
+        .filter(|region| memory::FLASH.contains(region.span))
+    {
+        let span = region.span;
+        writeln!(
+            out,
+            "| {} | 0x{:08X} | {} KiB | {} |",
+            region.name,
+            span.origin,
+            span.length / KIB,
+            region.holds
+        )?;
+    }
+    Ok(())
+}
 
 #[cfg(test)]
 mod tests {
@@ -626,6 +699,20 @@ mod tests {
                 "docs/hardware.md's {name} table is not the data's: regenerate it"
             );
         }
+    }
+
+    #[test]
+    fn each_crate_has_one_layout_and_the_bootloader_its_own() {
+        assert_eq!(layout_of("thruster-boot"), Ok(&memory::THRUSTER_BOOT));
+        assert_eq!(layout_of("thruster-fw"), Ok(&memory::THRUSTER));
+        assert_eq!(layout_of("lbv-master-fw"), Ok(&memory::MASTER));
+        assert_eq!(layout_of("lbv"), Err(LayoutOfError::Unknown));
+        // The bootloader fills its partition at most, and uses no pin.
+        let boot = BUILDS.iter().find(|build| build.name == "thruster-boot").unwrap();
+        assert_eq!(boot.flash_budget, memory::THRUSTER_PARTITIONS.bootloader.length);
+        assert!(boot.image.uses.is_empty());
+        let peripherals: Vec<&str> = boot.image.peripherals.iter().map(|p| p.name).collect();
+        assert_eq!(peripherals, ["FLASH", "IWDG"]);
     }
 
     #[test]

@@ -52,6 +52,43 @@ pub const fn for_timeout(timeout_us: u32) -> Option<Iwdg> {
     None
 }
 
+/// The shortest timeout that still lasts `min_us` at the fastest LSI; `None` when none can.
+pub const fn lasting_at_least(min_us: u32) -> Option<Iwdg> {
+    // The nominal timeout that the fastest LSI shortens to `min_us`, rounded up; then one count more for
+    // `for_timeout`'s rounding to the nearest count.
+    let nominal = (min_us as u64 * LSI_MAX_HZ as u64).div_ceil(LSI_HZ as u64);
+    if nominal > u32::MAX as u64 {
+        return None;
+    }
+    let Some(iwdg) = for_timeout(nominal as u32) else {
+        return None;
+    };
+    if iwdg.timeout_us(LSI_MAX_HZ) >= min_us {
+        Some(iwdg)
+    } else if iwdg.rlr < 0xFFF {
+        Some(Iwdg {
+            pr: iwdg.pr,
+            rlr: iwdg.rlr + 1,
+        })
+    } else {
+        None
+    }
+}
+
+/// How long an image the bootloader starts may take to reach its own watchdog set-up, at the least: the thruster's
+/// start-up (clocks, ADC calibration, the bridge and the I2C slave) takes milliseconds, so 2 s is generous, and
+/// still short enough that an image that hangs before that is reset, and reverted by the bootloader, in seconds.
+pub const BOOT_TRIAL_MIN_US: u32 = 2_000_000;
+
+/// The watchdog the bootloader (thruster-boot) starts just before it jumps to the image: an image that hangs
+/// before it sets up its own watchdog is reset, and embassy-boot then reverts it, since it never marked itself
+/// booted. The image's own set-up reprograms it while it runs (RM0440 IWDG: after KR = 0x5555, PR and RLR take
+/// new values once SR's PVU and RVU are clear; the refresh then reloads the counter from the new RLR).
+pub const BOOT_TRIAL: Iwdg = match lasting_at_least(BOOT_TRIAL_MIN_US) {
+    Some(iwdg) => iwdg,
+    None => panic!("the boot trial's timeout cannot be set"),
+};
+
 /// How a firmware feeds the watchdog: a health task checks every `feed_period_us` that every task reported since
 /// the last check and only then feeds it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -170,5 +207,28 @@ mod tests {
             ..schedule
         };
         assert_eq!(short.check(), Err(ScheduleError::TimeoutTooShort));
+    }
+
+    #[test]
+    fn the_boot_trial_outlasts_its_minimum_at_the_fastest_lsi() {
+        // 2 s at the fastest LSI (34 kHz) is 2125 ms at the nominal 32 kHz: beyond /16's 2048 ms, so /32 and 2125
+        // counts.
+        assert_eq!(BOOT_TRIAL, Iwdg { pr: 3, rlr: 2124 });
+        assert!(BOOT_TRIAL.timeout_us(LSI_MAX_HZ) >= BOOT_TRIAL_MIN_US);
+        assert!(
+            BOOT_TRIAL.timeout_us(LSI_MIN_HZ) < 2_400_000,
+            "and not much longer at the slowest"
+        );
+        // The shortest: one count less no longer lasts.
+        let shorter = Iwdg {
+            rlr: BOOT_TRIAL.rlr - 1,
+            ..BOOT_TRIAL
+        };
+        assert!(shorter.timeout_us(LSI_MAX_HZ) < BOOT_TRIAL_MIN_US);
+        for min_us in [125, 1_000, 250_000, 512_000, 1_000_000, 9_999_999, 30_000_000] {
+            let iwdg = lasting_at_least(min_us).unwrap();
+            assert!(iwdg.timeout_us(LSI_MAX_HZ) >= min_us, "{min_us}");
+        }
+        assert_eq!(lasting_at_least(32_000_000), None, "beyond /256 at the fastest LSI");
     }
 }

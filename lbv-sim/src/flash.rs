@@ -1,6 +1,7 @@
 //! NOR flash, as the STM32G4's: erased a page at a time to 0xFF, programmed a double word (8 bytes) at a time,
-//! each double word once between erases. It implements embedded-storage's blocking and async `NorFlash`, so a
-//! settings store (sequential-storage) runs on it as on the chip.
+//! each double word once between erases but with all zeros, which program over anything. It implements
+//! embedded-storage's blocking and async `NorFlash`, so a settings store (sequential-storage) runs on it as on the
+//! chip.
 //!
 //! It is a handle: clones share the memory, so the flash outlives the board that uses it (a master that reboots
 //! or loses power finds what it wrote). A power cut can be armed to land in the middle of an erase or a program:
@@ -9,7 +10,7 @@
 //! The STM32G4 keeps ECC bits with each double word (RM0440 3.3.2): one it was programming or erasing when the power
 //! went is left with data and ECC that disagree. Such a torn double word reads back as its cells hold it, and
 //! every read of it is recorded as an ECC double error (on the chip: FLASH_ECCR.ECCD and an NMI), with its
-//! offset, until it is erased again.
+//! offset, until it is erased again (or programmed with zeros).
 //!
 //! Erases and writes take no time unless the flash is wired to a CPU ([`Flash::stall_cpu`]): then each page erased
 //! and each double word programmed stalls that CPU for its [`FlashTiming`], as the G431's single bank stalls the
@@ -256,11 +257,19 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
             return Err(FlashError::PowerCut);
         }
         let start = offset as usize;
-        let erased = memory
+        let unit = WRITE_SIZE.max(1);
+        let stored = memory
             .bytes
             .get(start..start + bytes.len())
-            .is_some_and(|stored| stored.iter().all(|byte| *byte == 0xFF));
-        if !erased {
+            .ok_or(FlashError::OutOfBounds)?;
+        // Each double word must be erased, unless it is written all zeros: RM0440 3.3.7 refuses to program a
+        // double word twice "except if the data to write is full zero" (FLASH_SR.PROGERR), and zeros with their
+        // ECC bits, all zero too, make a whole word of any half-programmed one.
+        let programmable = stored
+            .chunks(unit)
+            .zip(bytes.chunks(unit))
+            .all(|(stored, data)| stored.iter().all(|byte| *byte == 0xFF) || data.iter().all(|byte| *byte == 0));
+        if !programmable {
             return Err(FlashError::NotErased);
         }
         for (at, byte) in (start..).zip(bytes) {
@@ -272,10 +281,12 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
                 *stored &= *byte;
             }
             memory.stats.programmed += 1;
-            if let Some((cpu, timing)) = &memory.stall
-                && at % WRITE_SIZE.max(1) == WRITE_SIZE.max(1) - 1
-            {
-                cpu.stall(timing.program_unit);
+            if at % unit == unit - 1 {
+                // Programmed to its last byte: its data and ECC agree again.
+                memory.torn_units.remove(&(at + 1 - unit));
+                if let Some((cpu, timing)) = &memory.stall {
+                    cpu.stall(timing.program_unit);
+                }
             }
         }
         Ok(())
@@ -359,7 +370,7 @@ mod tests {
         assert_eq!(read(&mut flash, 0, 128).unwrap(), vec![0xFF; 128]);
         flash.write(8, &[1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
         assert_eq!(read(&mut flash, 6, 4).unwrap(), [0xFF, 0xFF, 1, 2]);
-        assert_eq!(flash.write(8, &[0; 8]), Err(FlashError::NotErased));
+        assert_eq!(flash.write(8, &[0x0F; 8]), Err(FlashError::NotErased));
         assert_eq!(flash.write(3, &[0; 8]), Err(FlashError::NotAligned));
         assert_eq!(flash.write(128, &[0; 8]), Err(FlashError::OutOfBounds));
         assert_eq!(flash.erase(0, 32), Err(FlashError::NotAligned));
@@ -368,6 +379,28 @@ mod tests {
         flash.write(8, &[9; 8]).unwrap();
         assert_eq!(flash.stats().erases, 1);
         assert_eq!(flash.stats().programmed, 16);
+    }
+
+    #[test]
+    fn zeros_program_over_a_programmed_double_word_and_nothing_else_does() {
+        let mut flash = Small::new(1);
+        flash.write(0, &[0x5A; 16]).unwrap();
+        // RM0440 3.3.7: a programmed double word takes all zeros again, and only them.
+        flash.write(0, &[0; 8]).unwrap();
+        assert_eq!(read(&mut flash, 0, 16).unwrap(), [[0; 8], [0x5A; 8]].concat());
+        assert_eq!(flash.write(8, &[0, 0, 0, 0, 0, 0, 0, 1]), Err(FlashError::NotErased));
+        assert_eq!(
+            flash.write(0, &[[0; 8], [1; 8]].concat()),
+            Err(FlashError::NotErased),
+            "each double word is judged: the second is neither erased nor written zeros"
+        );
+        // Zeros make a whole word of a torn one: no ECC error on it after.
+        flash.cut_power_after(3);
+        assert_eq!(flash.write(16, &[0x33; 8]), Err(FlashError::PowerCut));
+        flash.power_on();
+        flash.write(16, &[0; 8]).unwrap();
+        read(&mut flash, 16, 8).unwrap();
+        assert_eq!(flash.ecc_error_offsets(), Vec::<u32>::new());
     }
 
     #[test]

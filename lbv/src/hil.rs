@@ -235,45 +235,52 @@ pub fn elf(target_dir: &Path, binary: &str) -> PathBuf {
     target_dir.join(TARGET).join("release").join(binary)
 }
 
-/// The commands, in order: build the thruster image (motor-less, of the chosen family) and the master image
-/// (acceptance, expecting that family) in `workspace`, flash the thruster board and reset it so that it runs, then
-/// flash and run the master board, streaming its defmt log. Only the last one's output is followed.
+/// The commands, in order: build the thruster image (motor-less, of the chosen family), its bootloader and the
+/// master image (acceptance, expecting that family) in `workspace`; erase the thruster board (so that no update
+/// left on trial by an earlier run reverts the new image), flash its bootloader and image and reset it so that it
+/// runs; then flash and run the master board, streaming its defmt log. Only the last one's output is followed.
 pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Command> {
     let legacy = options.family == Family::Legacy;
     let thruster_features = if legacy { "motorless,legacy" } else { "motorless" };
     let master_features = if legacy { "acceptance,legacy" } else { "acceptance" };
     let thruster_elf = elf(target_dir, "thruster-fw").display().to_string();
+    let bootloader_elf = elf(target_dir, "thruster-boot").display().to_string();
     let master_elf = elf(target_dir, "lbv-master-fw").display().to_string();
     let thruster_probe = probe_selector(&options.thruster_probe);
     let master_probe = probe_selector(&options.master_probe);
-    let build = |package: &str, features: &str| Command {
+    let build = |package: &str, features: &[&str]| Command {
         dir: Some(workspace.to_path_buf()),
         ..Command::new(
             "build",
             "cargo",
-            &[
-                "build",
-                "--release",
-                "--target",
-                TARGET,
-                "-p",
-                package,
-                "--features",
-                features,
-            ],
+            &[&["build", "--release", "--target", TARGET, "-p", package], features].concat(),
         )
     };
     vec![
         Command {
             what: "build the thruster image",
-            ..build("thruster-fw", thruster_features)
+            ..build("thruster-fw", &["--features", thruster_features])
+        },
+        Command {
+            what: "build the thruster's bootloader",
+            ..build("thruster-boot", &[])
         },
         Command {
             what: "build the master image",
-            ..build("lbv-master-fw", master_features)
+            ..build("lbv-master-fw", &["--features", master_features])
         },
         Command::new(
-            "flash the thruster board",
+            "erase the thruster board",
+            "probe-rs",
+            &["erase", "--chip", CHIP, "--probe", &thruster_probe],
+        ),
+        Command::new(
+            "flash the thruster's bootloader",
+            "probe-rs",
+            &["download", "--chip", CHIP, "--probe", &thruster_probe, &bootloader_elf],
+        ),
+        Command::new(
+            "flash the thruster image",
             "probe-rs",
             &["download", "--chip", CHIP, "--probe", &thruster_probe, &thruster_elf],
         ),
@@ -771,7 +778,7 @@ mod tests {
     }
 
     #[test]
-    fn the_plan_builds_flashes_the_thruster_then_runs_the_master() {
+    fn the_plan_builds_flashes_the_thruster_with_its_bootloader_then_runs_the_master() {
         let o = options("--master-probe 0671FF3 --thruster-probe 0483:3748:066DFF4");
         let commands = plan(&o, Path::new("/w"), Path::new("/t"));
         let lines: Vec<String> = commands.iter().map(Command::line).collect();
@@ -779,7 +786,11 @@ mod tests {
             lines,
             [
                 "cd /w && cargo build --release --target thumbv7em-none-eabihf -p thruster-fw --features motorless",
+                "cd /w && cargo build --release --target thumbv7em-none-eabihf -p thruster-boot",
                 "cd /w && cargo build --release --target thumbv7em-none-eabihf -p lbv-master-fw --features acceptance",
+                "probe-rs erase --chip STM32G431RBTx --probe 0483:3748:066DFF4",
+                "probe-rs download --chip STM32G431RBTx --probe 0483:3748:066DFF4 \
+                 /t/thumbv7em-none-eabihf/release/thruster-boot",
                 "probe-rs download --chip STM32G431RBTx --probe 0483:3748:066DFF4 \
                  /t/thumbv7em-none-eabihf/release/thruster-fw",
                 "probe-rs reset --chip STM32G431RBTx --probe 0483:3748:066DFF4",
@@ -788,15 +799,15 @@ mod tests {
             ]
         );
         // The log format is one argument, not split at its space.
-        assert!(commands[4].args.contains(&"{L} {s}".to_string()));
+        assert!(commands[7].args.contains(&"{L} {s}".to_string()));
         let legacy = plan(
             &options("--master-probe A --thruster-probe B --family legacy"),
             Path::new("/w"),
             Path::new("/t"),
         );
         assert_eq!(legacy[0].args.last().map(String::as_str), Some("motorless,legacy"));
-        assert_eq!(legacy[1].args.last().map(String::as_str), Some("acceptance,legacy"));
-        assert!(legacy[2].args.contains(&"0483:374e:B".to_string()));
+        assert_eq!(legacy[2].args.last().map(String::as_str), Some("acceptance,legacy"));
+        assert!(legacy[3].args.contains(&"0483:374e:B".to_string()));
     }
 
     #[test]

@@ -319,6 +319,8 @@ async fn controller(t: &'static Thruster, bus: &'static Bus) -> ! {
             // A power cut clears the latches, as the operator's power cycle does (a backup register would keep
             // them over any other reset).
             latch: VolatileLatch::default(),
+            // Started as the probe starts it, with no bootloader: nothing on trial.
+            boot: thruster_fw::trial::Confirmed,
         };
         thruster_fw::run(ports, &t.config, shared)
     });

@@ -36,6 +36,9 @@ class Image:
                     self.symbols.setdefault(symbol.name, symbol["st_value"])
             text = elf.get_section_by_name(".text")
             self.text = (text["sh_addr"], text.data())
+            # Where the image starts: the flash's first word for an image the chip starts itself, the ACTIVE
+            # partition for one a bootloader starts (g431_hw::memory).
+            self.vector_table = elf.get_section_by_name(".vector_table")["sh_addr"]
             self.defmt = Table(elf)
 
     def symbol(self, name):
@@ -169,7 +172,12 @@ class G431:
         self.core.uc.mem_write(SRAM_BASE, noise)
         self._paint_stack()
         self.core.uc.mem_write(FLASH_BASE, bytes(self.flash))
-        self.core.reset()
+        self._start()
+
+    def _start(self):
+        # An application image (linked into ACTIVE) starts as its bootloader starts it, with VTOR at its vector
+        # table: the bootloader itself is not loaded here.
+        self.core.reset(vector_table=self.image.vector_table)
 
     def _paint_stack(self):
         top = self.image.symbols.get("_stack_start", SRAM_BASE)
@@ -189,7 +197,7 @@ class G431:
             self.resets.append((self.core.cycles, kind))
             self._reset_peripherals(power_on=False, flags=flags)
             self._paint_stack()
-            self.core.reset()
+            self._start()
             return True
         return False
 

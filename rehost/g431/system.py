@@ -1,6 +1,7 @@
 """Clocks, power, flash, and the small system blocks: RCC (RM0440 7.4), PWR (6.4), FLASH (3.7), SYSCFG (9.1),
 DBGMCU (47.16) and TAMP's backup registers (38.6)."""
 
+from .core import FLASH_BASE
 from .peripheral import Peripheral, bit, field
 
 # RCC register offsets (RM0440 7.4.1-7.4.29).
@@ -146,7 +147,7 @@ class Flash(Peripheral):
             self.regs[FCR] = value
             if value & CR_STRT and value & CR_PER:
                 page = field(value, 3, 7)
-                self.chip.flash_erase(page * PAGE)
+                self.chip.flash_erase(FLASH_BASE + page * PAGE)
                 self.erases += 1
                 self.regs[FCR] = value & ~CR_STRT
                 self.regs[SR] = self.regs.get(SR, 0) | SR_EOP

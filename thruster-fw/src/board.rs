@@ -5,16 +5,26 @@
 //! build, `thruster_brushed_image!`, `thruster_motorless_image!`), checked at build time against what the boards put
 //! on each pin; every register value written here comes from `g431_hw`.
 
+use core::cell::RefCell;
+
+use embassy_boot::{AlignedBuffer, BlockingFirmwareState, FirmwareUpdaterError, State};
 use embassy_embedded_hal::SetConfig;
+use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
+use embassy_stm32::flash::{Blocking, Flash, WRITE_SIZE};
 use embassy_stm32::i2c::{self, I2c, SlaveCommandKind};
 use embassy_stm32::mode::Async;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::ADC1;
 use embassy_stm32::time::Hertz;
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
+use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use g431_hw::memory::{self, THRUSTER_PARTITIONS};
 use g431_hw::{adc, clock, iwdg};
+use static_cell::StaticCell;
 use thruster_fw::faults::{LatchStore, ResetKind, carried_latch, latch_word};
 use thruster_fw::tasks::Watchdog;
+use thruster_fw::trial::BootState;
 use thruster_fw::{CONFIG, FAMILY, I2cTarget, Request};
 use tmc_proto::Faults;
 #[cfg(not(feature = "motorless"))]
@@ -363,5 +373,39 @@ impl LatchStore for BackupLatch {
 
     fn save(&mut self, latched: Faults) {
         pac::TAMP.bkpr(LATCH_REGISTER).write(|w| w.set_bkp(latch_word(latched)));
+    }
+}
+
+/// The bootloader's state partition (g431_hw::memory::THRUSTER_PARTITIONS), read and written by embassy-boot's own
+/// code: a new image confirms itself there (`thruster_fw::trial`).
+pub struct BootRecord(BlockingPartition<'static, NoopRawMutex, Flash<'static, Blocking>>);
+
+impl BootRecord {
+    /// The state partition of the flash. Taking the flash interface keeps anyone else from it.
+    pub fn open(flash: embassy_stm32::Peri<'static, embassy_stm32::peripherals::FLASH>) -> Self {
+        static FLASH: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Flash<'static, Blocking>>>> = StaticCell::new();
+        let flash = FLASH.init(BlockingMutex::new(RefCell::new(Flash::new_blocking(flash))));
+        // embassy-stm32's flash is addressed by offset from the flash's start.
+        let state = THRUSTER_PARTITIONS.state;
+        BootRecord(BlockingPartition::new(
+            flash,
+            state.origin - memory::FLASH.origin,
+            state.length,
+        ))
+    }
+}
+
+impl BootState for BootRecord {
+    type Error = FirmwareUpdaterError;
+
+    async fn on_trial(&mut self) -> Result<bool, Self::Error> {
+        let mut word = AlignedBuffer([0; WRITE_SIZE]);
+        let state = BlockingFirmwareState::new(&mut self.0, &mut word.0).get_state()?;
+        Ok(state == State::Swap)
+    }
+
+    async fn confirm(&mut self) -> Result<(), Self::Error> {
+        let mut word = AlignedBuffer([0; WRITE_SIZE]);
+        BlockingFirmwareState::new(&mut self.0, &mut word.0).mark_booted()
     }
 }

@@ -10,6 +10,8 @@ use core::sync::atomic::{AtomicU32, Ordering};
 #[derive(Debug)]
 pub struct Health {
     reported: AtomicU32,
+    /// Complete rounds since start (wrapping).
+    rounds: AtomicU32,
     /// One bit per task: the first `tasks` bits set.
     expected: u32,
 }
@@ -33,6 +35,7 @@ impl Health {
         };
         Health {
             reported: AtomicU32::new(0),
+            rounds: AtomicU32::new(0),
             expected,
         }
     }
@@ -53,11 +56,21 @@ impl Health {
     pub fn check_and_clear(&self) -> bool {
         // Clear only if the round is complete, in one atomic step, so a report racing with the check is never
         // lost half-way.
-        self.reported
+        let complete = self
+            .reported
             .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |reported| {
                 (reported & self.expected == self.expected).then_some(0)
             })
-            .is_ok()
+            .is_ok();
+        if complete {
+            self.rounds.fetch_add(1, Ordering::Relaxed);
+        }
+        complete
+    }
+
+    /// How many checks found every task reported, since start (a new image's trial counts them).
+    pub fn rounds(&self) -> u32 {
+        self.rounds.load(Ordering::Relaxed)
     }
 
     /// Which tasks have not reported in this round (bit mask, bit n = task n), for a log line when the watchdog

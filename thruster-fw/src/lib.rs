@@ -24,6 +24,7 @@ pub mod overcurrent;
 pub mod sensors;
 pub mod speed;
 pub mod tasks;
+pub mod trial;
 
 // The host tests' slave port on lbv-sim's bus: the bench's own, one file (`lbv/src/bench/ports.rs` says why),
 // which names this crate as the bench does.

@@ -15,7 +15,7 @@ use thruster_fw::faults::ResetKind;
 use thruster_fw::tasks::Shared;
 use thruster_fw::{CONFIG, FAMILY, Ports};
 
-use crate::board::{self, BackupLatch, Iwdg, SlavePort};
+use crate::board::{self, BackupLatch, BootRecord, Iwdg, SlavePort};
 
 // The power stage, the halls and the analog inputs of a controller with a motor.
 #[cfg(not(feature = "motorless"))]
@@ -247,6 +247,7 @@ async fn main(spawner: Spawner) {
         sensors: analog,
         watchdog,
         latch,
+        boot: BootRecord::open(chip.flash),
     })));
 }
 
@@ -346,6 +347,6 @@ async fn commutation(halls: board::HallInputs, bridge: board::Stage) -> ! {
 
 /// The controller's other tasks, on the thread-mode executor.
 #[embassy_executor::task]
-async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg, BackupLatch>) -> ! {
+async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg, BackupLatch, BootRecord>) -> ! {
     thruster_fw::run(ports, &CONFIG, &SHARED).await
 }

@@ -3,7 +3,7 @@
 //! run the controller through [`run`] and [`run_commutation`].
 
 use core::cell::Cell;
-use embassy_futures::join::join4;
+use embassy_futures::join::join5;
 use embassy_futures::select::select3;
 
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
@@ -24,6 +24,7 @@ use crate::i2c_slave::{I2cTarget, MasterLink, ServeEvent, serve};
 use crate::overcurrent::TripRule;
 use crate::sensors::{CurrentSense, Ntc, WaterSensor};
 use crate::speed::SpeedConfig;
+use crate::trial::{BootState, trial_task};
 
 /// The three hall sensor inputs.
 #[allow(async_fn_in_trait)]
@@ -528,7 +529,7 @@ pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared
 
 /// What the controller's thread-mode tasks are wired to.
 #[derive(Debug)]
-pub struct Ports<T, S, W, L> {
+pub struct Ports<T, S, W, L, B> {
     /// The I2C slave port of the thruster interface.
     pub i2c: T,
     /// The ADC inputs.
@@ -537,13 +538,16 @@ pub struct Ports<T, S, W, L> {
     pub watchdog: W,
     /// Where the power-cycle fault latches outlast a reset.
     pub latch: L,
+    /// The bootloader's record of this image, which a new image confirms (see [`crate::trial`]).
+    pub boot: B,
 }
 
-/// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control and health. Commutation runs
+/// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control, health and a new image's
+/// trial. Commutation runs
 /// apart ([`run_commutation`]), on an executor of its own above these. They talk only through `shared`, which
 /// lives as long as the controller: a reset starts again from a fresh one.
-pub async fn run<T: I2cTarget, S: Sensors, W: Watchdog, L: LatchStore>(
-    ports: Ports<T, S, W, L>,
+pub async fn run<T: I2cTarget, S: Sensors, W: Watchdog, L: LatchStore, B: BootState>(
+    ports: Ports<T, S, W, L, B>,
     config: &Config,
     shared: &Shared,
 ) -> ! {
@@ -552,12 +556,14 @@ pub async fn run<T: I2cTarget, S: Sensors, W: Watchdog, L: LatchStore>(
         mut sensors,
         mut watchdog,
         mut latch,
+        mut boot,
     } = ports;
-    let (never, ..) = join4(
+    let (never, ..) = join5(
         i2c_task(&mut i2c, config.family, config.motor, shared),
         fault_task(&mut sensors, &mut latch, config, shared),
         control_task(config, shared),
         health_task(&mut watchdog, config.watchdog.feed, shared),
+        trial_task(&mut boot, shared),
     )
     .await;
     never

@@ -1,10 +1,12 @@
 //! The image descriptions (`g431_hw::images`) for the tools around the firmware:
 //!   images builds          one line per image ./test.sh builds: name, crate, features ("-" for none), flash and
-//!                          static RAM budgets in bytes
+//!                          static RAM budgets in bytes, and the flash it is linked into (its FLASH region) in bytes
+//!   images partitions      the flash map of every layout, region by region, for the size report
 //!   images docs [--write]  the docs' generated tables; with --write, rewritten in place in docs/hardware.md
 use std::process::ExitCode;
 
 use g431_hw::images::{BUILDS, DOCS_TABLES, write_docs_table};
+use g431_hw::memory::{FLASH, KIB};
 
 const DOCS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/hardware.md");
 
@@ -15,10 +17,33 @@ fn main() -> ExitCode {
         ["builds"] => {
             for build in BUILDS {
                 let features = if build.features.is_empty() { "-" } else { build.features };
+                let linked = build.layout.region("FLASH").map_or(0, |region| region.span.length);
                 println!(
-                    "{} {} {} {} {}",
+                    "{} {} {} {} {} {linked}",
                     build.name, build.package, features, build.flash_budget, build.ram_budget
                 );
+            }
+            ExitCode::SUCCESS
+        }
+        ["partitions"] => {
+            let mut shown = Vec::new();
+            for build in BUILDS {
+                if shown.contains(&build.layout) {
+                    continue;
+                }
+                shown.push(build.layout);
+                println!("{}", build.layout.chip);
+                for region in build.layout.regions.iter().filter(|region| FLASH.contains(region.span)) {
+                    let span = region.span;
+                    println!(
+                        "  {:<16} 0x{:08X}-0x{:08X} {:>3} KiB  {}",
+                        region.name,
+                        span.origin,
+                        span.end(),
+                        span.length / KIB,
+                        region.holds
+                    );
+                }
             }
             ExitCode::SUCCESS
         }
@@ -36,7 +61,7 @@ fn main() -> ExitCode {
             }
         },
         _ => {
-            eprintln!("usage: images builds | images docs [--write]");
+            eprintln!("usage: images builds | images partitions | images docs [--write]");
             ExitCode::from(2)
         }
     }

@@ -12,6 +12,7 @@ use std::rc::Rc;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant};
+use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Bus, DeviceId};
 use lbv_sim::{Executor, TaskId};
 use thruster_fw::commutation::{BridgeDrive, COAST};
@@ -24,7 +25,7 @@ use tmc_proto::{Family, MotorKind};
 use super::STEP;
 use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
-use super::ports::thruster::SlavePort;
+use super::ports::thruster::{BootRecord, SlavePort};
 
 /// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
 /// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
@@ -111,6 +112,8 @@ pub struct ThrusterBoard {
     pub device: DeviceId,
     /// The controller's task channels, fresh at every boot.
     shared: Rc<Shared>,
+    /// The bootloader's state partition, which outlasts a power cut.
+    boot_state: Flash<8, 2048>,
     tasks: Vec<TaskId>,
 }
 
@@ -153,6 +156,7 @@ impl ThrusterBoard {
             bus: bus.clone(),
             device,
             shared: Rc::new(Shared::new()),
+            boot_state: Flash::new(1),
             tasks: Vec::new(),
         }
     }
@@ -177,6 +181,7 @@ impl ThrusterBoard {
             watchdog: Dog(self.io.clone()),
             // Every bench boot follows a power cut: the latches start empty.
             latch: VolatileLatch::default(),
+            boot: BootRecord(self.boot_state.clone()),
         };
         let (config, shared) = (self.config.clone(), self.shared.clone());
         let run = executor.spawn(async move {

@@ -197,6 +197,7 @@ impl Rig {
                 sensors: ModelSensors::new(&controller.motorless, &CONFIG, Dry, Button(controller.clone())),
                 watchdog: Unwatched,
                 latch: VolatileLatch::default(),
+                boot: crate::trial::Confirmed,
             };
             crate::run(ports, &CONFIG, &controller.shared).await;
         });

@@ -4,10 +4,13 @@
 use super::*;
 use crate::faults::VolatileLatch;
 use crate::hall::FORWARD_SEQUENCE;
-use crate::sim::SlavePort;
+use crate::sim::{BootRecord, SlavePort};
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
+use embassy_boot::{FirmwareState, State};
+use embassy_futures::block_on;
 use embedded_hal_async::i2c::I2c;
+use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Bus, DeviceId, Route, Timing};
 use lbv_sim::{Clock, Executor, Queue, clock};
 use std::rc::Rc;
@@ -139,6 +142,8 @@ fn dry(config: &Config) -> RawSample {
 /// One controller on a bus, with a master that sends what the test queues, one transfer after the other.
 struct Bench {
     io: Rc<Io>,
+    /// The bootloader's state partition, which embassy-boot reads and writes.
+    boot: Flash<8, 2048>,
     bus: Bus,
     device: DeviceId,
     transfers: Queue<Vec<u8>>,
@@ -168,6 +173,32 @@ impl Bench {
 
     /// Start the controller at virtual time 0, with the latches a reset left in `latch`.
     fn with(config: Config, latch: VolatileLatch) -> Self {
+        Self::booted(config, latch, Flash::new(1))
+    }
+
+    /// Start a SeaBotix controller the bootloader has just swapped in: on trial.
+    fn on_trial() -> Self {
+        let boot = Flash::new(1);
+        let mut word = [0; 8];
+        block_on(FirmwareState::new(&mut boot.clone(), &mut word).mark_updated()).expect("state written");
+        let bench = Self::booted(
+            Config::reference(Family::SeaBotix, MotorKind::Brushless),
+            VolatileLatch::default(),
+            boot,
+        );
+        assert_eq!(bench.boot_state(), State::Swap);
+        bench
+    }
+
+    /// The bootloader's state as embassy-boot reads it.
+    fn boot_state(&self) -> State {
+        let mut word = [0; 8];
+        block_on(FirmwareState::new(&mut self.boot.clone(), &mut word).get_state()).expect("state read")
+    }
+
+    /// Start the controller at virtual time 0, with the latches a reset left in `latch` and the bootloader's state
+    /// in `boot`.
+    fn booted(config: Config, latch: VolatileLatch, boot: Flash<8, 2048>) -> Self {
         let clock = clock::take();
         let io = Rc::new(Io {
             inputs: Cell::new(dry(&config)),
@@ -193,6 +224,7 @@ impl Bench {
             sensors: TestSensors(io.clone()),
             watchdog: CountingWatchdog(io.clone()),
             latch: TestLatch(io.clone()),
+            boot: BootRecord(boot.clone()),
         };
         let (halls, bridge) = (TestHalls(io.clone()), TestBridge(io.clone()));
         let controller = io.clone();
@@ -219,6 +251,7 @@ impl Bench {
         });
         Self {
             io,
+            boot,
             bus,
             device,
             transfers,
@@ -1059,4 +1092,60 @@ fn the_adc_conversions_of_a_sample_fit_the_tick() {
             "{sequence_us} us of {tick:?}"
         );
     }
+}
+
+/// The master's poll, as lbv-master-fw runs it: an order at 50 Hz, each followed by a status read.
+fn poll(bench: &mut Bench, step: i8, duration: Duration) {
+    let end = Instant::now() + duration;
+    while Instant::now() < end {
+        bench.order(step);
+        bench.send(READ);
+        bench.elapse(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn a_new_image_confirms_itself_once_it_has_run_and_answered_the_master_at_rest() {
+    let mut bench = Bench::on_trial();
+    // Orders from the start: the trial's 25 orders come in half a second, its 30 watchdog rounds take 3 s.
+    poll(&mut bench, 0, Duration::from_millis(2900));
+    assert_eq!(bench.boot_state(), State::Swap, "confirmed before its watchdog rounds");
+    poll(&mut bench, 0, Duration::from_millis(200));
+    assert_eq!(
+        bench.boot_state(),
+        State::Boot,
+        "confirmed after 3 s of health and orders"
+    );
+    // Confirmed once: the state page was erased once and is left alone from then on.
+    let erases = bench.boot.stats().erases;
+    poll(&mut bench, 0, Duration::from_secs(2));
+    assert_eq!(bench.boot.stats().erases, erases);
+}
+
+#[test]
+fn a_new_image_stays_on_trial_without_a_master_or_while_it_drives() {
+    let mut bench = Bench::on_trial();
+    bench.elapse(Duration::from_secs(5));
+    assert_eq!(bench.boot_state(), State::Swap, "no master has spoken to it");
+
+    // Ordered to turn: the state page's erase would stall commutation, so it waits for a zero order.
+    let end = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < end {
+        bench.order(40);
+        bench.send(READ);
+        let next = Instant::now() + Duration::from_millis(20);
+        bench.turn_until(|_| Instant::now() >= next);
+    }
+    assert_eq!(bench.boot_state(), State::Swap, "confirmed while driving");
+    // At rest, with the master still polling, it confirms.
+    poll(&mut bench, 0, Duration::from_secs(1));
+    assert_eq!(bench.boot_state(), State::Boot);
+}
+
+#[test]
+fn an_image_not_on_trial_leaves_the_bootloader_state_alone() {
+    let mut bench = Bench::new(Family::SeaBotix);
+    poll(&mut bench, 0, Duration::from_secs(5));
+    assert_eq!(bench.boot_state(), State::Boot);
+    assert_eq!(bench.boot.stats().erases, 0);
 }

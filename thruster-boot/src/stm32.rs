@@ -1,0 +1,125 @@
+//! The bootloader on the chip: the flash through embassy-stm32's blocking driver, embassy-boot's preparation
+//! ([`thruster_boot::prepare`]), the trial watchdog, and the jump to ACTIVE.
+//!
+//! It never calls `embassy_stm32::init`: the image it starts finds the chip as the reset left it (the clocks on
+//! HSI16, RCC_CSR's reset flags still set for it to read), but for the watchdog started here and the flash
+//! interface, locked again after every operation.
+
+use core::cell::RefCell;
+
+use cortex_m::peripheral::SCB;
+use embassy_boot_stm32::BootLoader;
+use embassy_stm32::flash::Flash;
+use embassy_stm32::pac;
+use embassy_stm32::peripherals::IWDG;
+use embassy_sync::blocking_mutex::Mutex;
+use g431_hw::iwdg::{BOOT_TRIAL, DBGMCU_APB1FZR1};
+use thruster_boot::{ACTIVE_START, Outcome, State};
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    // SAFETY: the bootloader is the only code running and takes each peripheral once, through its description
+    // (`g431_hw::images`); `embassy_stm32::init`, which it skips, would only have checked that.
+    #[allow(unsafe_code)]
+    let chip = unsafe { embassy_stm32::Peripherals::steal() };
+    let chip = g431_hw::chip!(thruster_boot_image, chip);
+    let flash = Mutex::new(RefCell::new(Flash::new_blocking(chip.flash)));
+    let state = match thruster_boot::prepare(&flash) {
+        Outcome::Prepared { state, .. } => state,
+        // ACTIVE as it is: `prepare` says why that is the safe choice.
+        Outcome::Failed(_) => State::Boot,
+    };
+    start_trial_watchdog(chip.watchdog);
+    // SAFETY: ACTIVE starts with the vector table of an image linked there (g431_hw::memory::THRUSTER); `load` sets
+    // VTOR to it, loads its initial stack pointer and jumps to its reset handler, and nothing of the bootloader is
+    // used after that (the image's start-up initialises its own RAM).
+    #[allow(unsafe_code)]
+    unsafe {
+        BootLoader { state }.load(ACTIVE_START)
+    }
+}
+
+/// How often the start-up polls the watchdog's status before it goes on regardless: an update takes up to five
+/// LSI cycles (RM0440 IWDG_SR), 170 us at the slowest LSI, a few thousand polls at HSI16.
+const WATCHDOG_POLLS: u32 = 100_000;
+
+/// Start the independent watchdog with the trial timeout (`g431_hw::iwdg::BOOT_TRIAL`), RM0440's IWDG procedure
+/// as the thruster runs it: start, unlock, prescaler, reload, wait for the update, reload the counter. An image
+/// that hangs before its own watchdog set-up is reset, and embassy-boot reverts it if it was on trial. The wait
+/// for the update matters to the image: while PVU or RVU is set its own writes to PR and RLR would be ignored.
+fn start_trial_watchdog(_iwdg: embassy_stm32::Peri<'static, IWDG>) {
+    use pac::iwdg::vals::{Key, Pr};
+    // Frozen while a debugger halts the core, as the thruster's own watchdog is.
+    pac::DBGMCU
+        .apb1lfzr()
+        .write_value(pac::dbgmcu::regs::Apb1lfzr(DBGMCU_APB1FZR1));
+    let regs = pac::IWDG;
+    regs.kr().write(|w| w.set_key(Key::START));
+    regs.kr().write(|w| w.set_key(Key::ENABLE));
+    regs.pr().write(|w| w.set_pr(Pr::from_bits(BOOT_TRIAL.pr)));
+    regs.rlr().write(|w| w.set_rl(BOOT_TRIAL.rlr));
+    for _ in 0..WATCHDOG_POLLS {
+        if regs.sr().read().0 == 0 {
+            break;
+        }
+    }
+    regs.kr().write(|w| w.set_key(Key::RESET));
+}
+
+/// A read of a double word whose ECC shows two errors (`g431_hw::flash`): one a power cut tore in the state, ACTIVE
+/// or DFU. The read has completed with the cells' bits, and embassy-boot's format is built to take a torn word for
+/// what it is (an unfinished step, or no magic): clear the flag and let it go on. cortex-m-rt's default would spin
+/// here, and since every start reads the same word, the thruster would never start again. Any other NMI source
+/// (the clock security system, SRAM parity) resets the chip.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn NonMaskableInt() {
+    if pac::FLASH.eccr().read().eccd() {
+        pac::FLASH
+            .eccr()
+            .write_value(pac::flash::regs::Eccr(g431_hw::flash::ECCR_CLEAR_ECCD));
+    } else {
+        SCB::sys_reset();
+    }
+}
+
+/// A hard fault (flip-link turns a stack overflow into one) resets the chip: the next start tries again.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    SCB::sys_reset()
+}
+
+/// No interrupt is enabled; should one arrive, reset rather than spin.
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn DefaultHandler(_irqn: i16) -> ! {
+    SCB::sys_reset()
+}
+
+/// The image has no panic path left once optimised (see the size report); were one reached, reset rather than
+/// spin, without formatting a message nobody reads.
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    SCB::sys_reset()
+}
+
+/// The bootloader logs nothing. A build that unifies its features with the other images' turns embassy-stm32's
+/// defmt on: its log calls then land here, and go nowhere.
+#[defmt::global_logger]
+struct NoLog;
+
+// SAFETY: a logger that does nothing cannot be entered twice in a way that matters.
+#[allow(unsafe_code)]
+unsafe impl defmt::Logger for NoLog {
+    fn acquire() {}
+    unsafe fn flush() {}
+    unsafe fn release() {}
+    unsafe fn write(_bytes: &[u8]) {}
+}
+
+/// defmt's `panic!` and `unwrap!` in such a build take the same way out as a panic.
+#[defmt::panic_handler]
+fn defmt_panic() -> ! {
+    SCB::sys_reset()
+}

@@ -1,0 +1,95 @@
+//! A new image on trial. The bootloader (thruster-boot, embassy-boot) swaps a new image in and starts it on trial:
+//! until the image confirms itself, any reset (the watchdog's, a brown-out, a power cut) swaps the previous image
+//! back. The image confirms only once it has shown that it works here: every task reporting to the watchdog for
+//! [`TRIAL_ROUNDS`] rounds in a row, and [`TRIAL_ORDERS`] orders from the master taken and answered. It confirms
+//! while the master orders zero, since writing the bootloader's state erases a flash page, which stalls the CPU
+//! (commutation included) for as long as the erase takes (spec-notes: "tens of milliseconds").
+
+use embassy_time::{Duration, Ticker, Timer};
+
+use crate::control::LinkUpdate;
+use crate::drive::Duty;
+use crate::tasks::Shared;
+
+/// The bootloader's record of the image that runs (embassy-boot's state partition).
+#[allow(async_fn_in_trait)]
+pub trait BootState {
+    /// Why the record could not be read or written.
+    type Error;
+
+    /// Whether the image is on trial: swapped in by the bootloader and not confirmed yet.
+    async fn on_trial(&mut self) -> Result<bool, Self::Error>;
+
+    /// Confirm the image: the bootloader keeps it at the next reset.
+    async fn confirm(&mut self) -> Result<(), Self::Error>;
+}
+
+/// An image the bootloader did not start on trial (or no bootloader at all): nothing to confirm.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Confirmed;
+
+impl BootState for Confirmed {
+    type Error = core::convert::Infallible;
+
+    async fn on_trial(&mut self) -> Result<bool, Self::Error> {
+        Ok(false)
+    }
+
+    async fn confirm(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// Complete watchdog rounds (every task reported, the watchdog fed) the image must run before it confirms: 3 s at
+/// the reference's 100 ms feed.
+pub const TRIAL_ROUNDS: u32 = 30;
+
+/// Valid orders from the master the image must take before it confirms: half a second of the master's 50 Hz poll.
+pub const TRIAL_ORDERS: u32 = 25;
+
+/// How often the trial looks at its conditions.
+pub const TRIAL_CHECK: Duration = Duration::from_millis(100);
+
+/// How long a failed confirmation waits before the next attempt.
+pub const CONFIRM_RETRY: Duration = Duration::from_secs(1);
+
+/// Whether an image on trial has shown enough to confirm: `rounds` complete watchdog rounds, the master's orders,
+/// and the motor at rest by order and by duty.
+pub fn may_confirm(rounds: u32, link: Option<LinkUpdate>, duty: Duty) -> bool {
+    let Some(link) = link else {
+        return false;
+    };
+    rounds >= TRIAL_ROUNDS && link.orders >= TRIAL_ORDERS && link.order.speed.is_zero() && duty == Duty::ZERO
+}
+
+/// The trial: if the image is on trial, confirm it once [`may_confirm`] holds. An image that never gets there
+/// (a task that stops, a master it cannot answer) stays on trial, and the next reset reverts it.
+pub async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
+    match boot.on_trial().await {
+        Ok(true) => {
+            info!("image on trial: it confirms itself once it has run and answered the master");
+            let mut ticker = Ticker::every(TRIAL_CHECK);
+            loop {
+                ticker.next().await;
+                let (link, duty) = (shared.link.try_get(), shared.duty.try_get().unwrap_or(Duty::ZERO));
+                if !may_confirm(shared.health.rounds(), link, duty) {
+                    continue;
+                }
+                match boot.confirm().await {
+                    Ok(()) => {
+                        info!("image confirmed: the bootloader keeps it");
+                        break;
+                    }
+                    Err(_) => {
+                        warn!("the bootloader's state could not be written: trying again");
+                        Timer::after(CONFIRM_RETRY).await;
+                    }
+                }
+            }
+        }
+        Ok(false) => {}
+        Err(_) => warn!("the bootloader's state could not be read: the image is not confirmed"),
+    }
+    // Nothing more to do; like the other tasks, it never ends.
+    match core::future::pending::<core::convert::Infallible>().await {}
+}
