@@ -4,16 +4,17 @@
 #![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
 use embassy_boot::{BlockingFirmwareUpdater, FirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError, State};
+use g431_hw::memory::{IMAGE_INFO_OFFSET, IMAGE_INFO_SIZE, THRUSTER_PARTITIONS};
 use lbv_sim::flash::Stm32g4Flash;
 use update_image::{
     DEV_PUBLIC_KEY, HEADER_LEN, Header, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Verifier, VerifyError, Version,
     check_file, key_from_hex, keygen, public_key, sign, verify,
 };
 
-/// The thruster's ACTIVE partition: 32 KiB (the workspace's release profile holds its image to it).
-const ACTIVE: u32 = 32 * 1024;
-/// embassy-boot's DFU partition is one page larger than ACTIVE, for its swap.
-const DFU_PAGES: usize = (ACTIVE as usize) / 2048 + 1;
+/// The thruster's ACTIVE partition, the largest payload it takes.
+const ACTIVE: u32 = THRUSTER_PARTITIONS.active.length;
+/// Its DFU partition, in 2 KiB pages (at least one more than ACTIVE, for embassy-boot's swap).
+const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / 2048) as usize;
 
 const INFO: ImageInfo = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 4, 2));
 
@@ -185,4 +186,12 @@ fn the_development_key_pair_matches() {
     assert_eq!(public_key(&seed), DEV_PUBLIC_KEY);
     let (header, payload) = signed(3000, &seed);
     assert_eq!(verify(&header, &payload, &DEV_PUBLIC_KEY), Ok(()));
+}
+
+/// The format and the linker scripts g431-hw writes put the image info at the same place, of the same size.
+#[test]
+fn the_layout_places_the_image_info_where_the_format_reads_it() {
+    assert_eq!(INFO_OFFSET, IMAGE_INFO_OFFSET as usize);
+    assert_eq!(INFO_LEN, IMAGE_INFO_SIZE as usize);
+    assert!(DFU_PAGES * 2048 > ACTIVE as usize);
 }
