@@ -61,7 +61,7 @@ python3 docs/check-links.py
 
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
-cargo clippy -p tmc-proto -p bat-proto --all-targets --features defmt --locked -- -D warnings
+cargo clippy -p tmc-proto -p bat-proto -p update-image --all-targets --features defmt --locked -- -D warnings
 
 if $quick; then
   finish "installing the Debian and Python packages" "$packages" target/packages.log
@@ -87,6 +87,8 @@ for family in "" ",legacy"; do
   cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
 done
 cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
+# The update image's checks and streaming verification, as the firmware builds them (no_std).
+cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
 
 finish "installing the Debian and Python packages" "$packages" target/packages.log
 step "host tests (every bench scenario is one, on both engines)"
@@ -99,8 +101,8 @@ soak=$!
 
 if rustup toolchain list | grep -q '^nightly'; then
   step "fuzz targets build (nightly)"
-  # One target directory for the four: libFuzzer and the crates they share are built once.
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz; do
+  # One target directory for them all: libFuzzer and the crates they share are built once.
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
     cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
   done
 fi

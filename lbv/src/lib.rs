@@ -1,9 +1,10 @@
 //! The parts of the `lbv` host tools that read outside input: the capture decoders (`lbv decode`), the dev-kit
-//! bench-test runner (`lbv hil`) and the bounded line reader under them. A library, so that the fuzz targets in
-//! `lbv/fuzz` reach the same parsers the command runs.
+//! bench-test runner (`lbv hil`), the bounded line reader under them, and the update files and firmware ELFs of
+//! `lbv image`. A library, so that the fuzz targets in `lbv/fuzz` reach the same parsers the command runs.
 
 pub mod decode;
 pub mod hil;
+pub mod image;
 pub mod lines;
 
 /// Refuse a command line as clap does (the message, the command's usage, exit status 2): for the rules between

@@ -1,6 +1,6 @@
 //! `lbv`: host tools for the LBV propulsion. `lbv bench` runs the whole vehicle (the real master and thruster
 //! firmware cores, a battery board, simulated buses and motors) on virtual time; `lbv bench --udp` runs it in real
-//! time with its MAVLink console on UDP, for a ground station to fly.
+//! time with its MAVLink console on UDP, for a ground station to fly. `lbv image` signs update files.
 
 mod bench;
 mod scenarios;
@@ -12,7 +12,7 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
-use lbv::{decode, exit, hil};
+use lbv::{decode, exit, hil, image};
 
 use bench::Engine;
 use bench::plot::Format;
@@ -37,6 +37,9 @@ enum Command {
     Decode(decode::Command),
     /// The bench test between two NUCLEO-G431RB dev kits: build, flash, follow the master's log to the verdict
     Hil(hil::Args),
+    /// Field update: signing keys, signed update files made from firmware ELFs, what a file is
+    #[command(subcommand)]
+    Image(image::Command),
 }
 
 /// Set once standard output is gone (a reader that stopped early, as `lbv bench --all | head -1`): the run goes
@@ -188,6 +191,7 @@ fn main() -> ExitCode {
         }
         Command::Decode(command) => decode::main(command),
         Command::Hil(args) => hil::main(args),
+        Command::Image(command) => image::main(command),
     }
 }
 
