@@ -127,6 +127,19 @@ unsafe fn NonMaskableInt() {
     }
 }
 
+/// What this image is (target: this family's thruster; version: the crate's), where `lbv image` and a receiving
+/// thruster look for it (the linker script places `.image_info` at `g431_hw::memory::IMAGE_INFO_OFFSET`).
+#[allow(unsafe_code)] // a link section: the record's place is the linker script's, checked there by size
+#[unsafe(link_section = ".image_info")]
+#[used]
+static IMAGE_INFO: [u8; update_image::INFO_LEN] = {
+    let version = match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
+        Some(version) => version,
+        None => panic!("the crate's version is not major.minor.patch"),
+    };
+    update_image::ImageInfo::new(update_image::Target::thruster(FAMILY), version).to_bytes()
+};
+
 static SHARED: Shared = Shared::new();
 
 #[embassy_executor::main]
