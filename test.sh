@@ -15,6 +15,9 @@ case "${1:-}" in
 esac
 
 TARGET=thumbv7em-none-eabihf
+# The images built here stay on the bench: they may accept update files signed with the development key, which a
+# release build refuses unless asked (keys/README.md; checked at the end).
+export LBV_ALLOW_DEV_KEY=1
 
 started=$SECONDS
 step() { printf '\n=== [%d:%02d] %s\n' $(((SECONDS - started) / 60)) $(((SECONDS - started) % 60)) "$*"; }
@@ -76,6 +79,7 @@ RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
 step "clippy ($TARGET)"
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p thruster-boot --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
 # The first power-up build: duty limited to 10 %.
@@ -151,5 +155,14 @@ rehost/run.sh
 
 step "the cores on an emulated Cortex-M4 (QEMU mps2-an386): acceptance loops, vehicle, stack and CPU figures"
 finish qemu-m4 "$qemu" target/qemu-m4.log
+
+step "a release image refuses the development key unless asked"
+# Last, since it rebuilds the key's crate: the build script stops before anything is compiled against the key.
+if LBV_ALLOW_DEV_KEY= cargo build --release --target "$TARGET" -p thruster-fw --locked >target/dev-key.log 2>&1; then
+  echo "a release image was built with the development key and no LBV_ALLOW_DEV_KEY=1" >&2
+  exit 1
+fi
+grep -q "signed with the development key" target/dev-key.log || { cat target/dev-key.log; exit 1; }
+echo "refused: $(grep -o 'a release firmware build would accept[^(]*' target/dev-key.log | head -1)"
 
 step "all checks passed"

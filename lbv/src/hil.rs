@@ -248,12 +248,26 @@ pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Comma
     let master_elf = elf(target_dir, "lbv-master-fw").display().to_string();
     let thruster_probe = probe_selector(&options.thruster_probe);
     let master_probe = probe_selector(&options.master_probe);
+    // Bench images: they may accept update files signed with the development key (keys/README.md).
     let build = |package: &str, features: &[&str]| Command {
         dir: Some(workspace.to_path_buf()),
         ..Command::new(
             "build",
-            "cargo",
-            &[&["build", "--release", "--target", TARGET, "-p", package], features].concat(),
+            "env",
+            &[
+                &[
+                    "LBV_ALLOW_DEV_KEY=1",
+                    "cargo",
+                    "build",
+                    "--release",
+                    "--target",
+                    TARGET,
+                    "-p",
+                    package,
+                ],
+                features,
+            ]
+            .concat(),
         )
     };
     vec![
@@ -785,9 +799,9 @@ mod tests {
         assert_eq!(
             lines,
             [
-                "cd /w && cargo build --release --target thumbv7em-none-eabihf -p thruster-fw --features motorless",
-                "cd /w && cargo build --release --target thumbv7em-none-eabihf -p thruster-boot",
-                "cd /w && cargo build --release --target thumbv7em-none-eabihf -p lbv-master-fw --features acceptance",
+                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p thruster-fw --features motorless",
+                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p thruster-boot",
+                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p lbv-master-fw --features acceptance",
                 "probe-rs erase --chip STM32G431RBTx --probe 0483:3748:066DFF4",
                 "probe-rs download --chip STM32G431RBTx --probe 0483:3748:066DFF4 \
                  /t/thumbv7em-none-eabihf/release/thruster-boot",

@@ -40,6 +40,7 @@
 
 mod check;
 mod header;
+mod hex;
 mod info;
 mod key;
 #[cfg(feature = "sign")]
@@ -52,7 +53,7 @@ mod version;
 pub use check::{Refusal, check, check_file};
 pub use header::{Header, HeaderError};
 pub use info::{ImageInfo, InfoError};
-pub use key::{DEV_PUBLIC_KEY, key_from_hex};
+pub use key::{DEV_PUBLIC_KEY, UPDATE_KEY, UPDATE_KEY_IS_DEV, key_from_hex};
 #[cfg(feature = "sign")]
 pub use sign::{SignError, keygen, public_key, sign};
 pub use target::Target;
