@@ -10,6 +10,9 @@
 //! and reports an out-of-range field as a [`FieldWarning`] beside it ([`Decoded`]). Reserved bits are sent as zero
 //! and ignored on receipt (IDS 8.1).
 //!
+//! [`ext`] is this project's field-update extension, which an IDS-only controller discards (its first four bytes
+//! never carry a valid CSUM).
+//!
 //! ```
 //! use tmc_proto::{DecodeError, Family, Order, Speed};
 //!
@@ -28,6 +31,7 @@
 #![deny(missing_docs)]
 
 mod error;
+pub mod ext;
 mod family;
 mod faults;
 mod order;
