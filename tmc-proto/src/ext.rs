@@ -38,6 +38,9 @@
 //! the same sequence number: every command can be repeated. So a master tells "no extension" from byte 0 of the
 //! first reply: an IDS-only thruster answers the read with its status.
 //!
+//! A master reads [`Command::Version`] first: it says whether the thruster can take an update at all (it is not on
+//! trial, it checks signatures).
+//!
 //! After an [`Command::Erase`] the master waits [`ERASE_WAIT_MS`] before it reads: a page erase stalls the G431's
 //! CPU for about 25 ms, and a read that meets it is held (SCL stretched) until the master's 25 ms timeout.
 //! After a [`Command::Finish`] it waits [`FINISH_WAIT_MS`]: the thruster hashes the payload, checks its signature and
@@ -46,10 +49,10 @@
 //! Each frame ends with a CRC-32 ([`crc32`]) of every byte before it. The IDS's 8-bit sum misses many double
 //! errors and every swap of two bytes; a frame carries up to 64 bytes of an image and offsets into the flash, and
 //! CRC-32 finds every error of up to 4 bits in frames of this length (up to 80 bytes), every burst up to 32 bits,
-//! and all others but one in 2^32. CRC-16/CCITT would do for the frames, but the same CRC also stands for up to
-//! the whole payload in [`Command::Check`]'s reply, where a master resuming an interrupted transfer compares it
-//! with its own, and 2^-16 is too weak there. It is computed bit by bit (no table): 32 bits of code, and a 64-byte
-//! chunk costs a few microseconds on the thruster.
+//! and all but about one in 2^32 of the others. CRC-16/CCITT would do for the frames, but the same CRC also stands
+//! for up to the whole payload in [`Command::Check`]'s reply, where a master resuming an interrupted transfer
+//! compares it with its own, and 2^-16 is too weak there. It is computed bit by bit (no table, a few dozen bytes of
+//! code): a 64-byte chunk costs a few microseconds on the thruster.
 //!
 //! Frames are at most [`MAX_FRAME_LEN`] (80) bytes, so a thruster's receive buffer stays small. Multi-byte fields
 //! are little-endian.
@@ -125,6 +128,8 @@ pub const fn guard(mt: u8, command: u8, seq: u8) -> u8 {
 
 /// CRC-32 (IEEE 802.3, as zlib and PNG: reflected polynomial 0xEDB88320, initial and final XOR 0xFFFFFFFF) of
 /// `bytes`. `crc32(b"123456789")` is 0xCBF43926.
+// Out of line: every encoder and decoder calls it.
+#[inline(never)]
 pub const fn crc32(bytes: &[u8]) -> u32 {
     Crc32::new().update(bytes).finish()
 }
@@ -413,11 +418,13 @@ pub enum Refusal {
     NotFinished = 14,
     /// An update is finished and marked for the bootloader: only [`Command::Reboot`] (or a reset) now.
     Finished = 15,
+    /// The thruster's firmware cannot check signatures, so it marks no payload for the bootloader.
+    NoSignatureCheck = 16,
 }
 
 impl Refusal {
     /// Every refusal.
-    pub const ALL: [Refusal; 14] = [
+    pub const ALL: [Refusal; 15] = [
         Refusal::Driving,
         Refusal::OnTrial,
         Refusal::NotBegun,
@@ -432,6 +439,7 @@ impl Refusal {
         Refusal::NotErased,
         Refusal::NotFinished,
         Refusal::Finished,
+        Refusal::NoSignatureCheck,
     ];
 
     /// Its result code.
@@ -456,6 +464,7 @@ impl Refusal {
             13 => Some(Refusal::NotErased),
             14 => Some(Refusal::NotFinished),
             15 => Some(Refusal::Finished),
+            16 => Some(Refusal::NoSignatureCheck),
             _ => None,
         }
     }
@@ -477,6 +486,7 @@ impl Refusal {
             Refusal::NotErased => "the flash there is not erased: erase its page first",
             Refusal::NotFinished => "no finished update to reboot into",
             Refusal::Finished => "an update is finished: reboot to start it",
+            Refusal::NoSignatureCheck => "this thruster's firmware cannot check signatures: it takes no update",
         }
     }
 }
@@ -494,8 +504,11 @@ pub enum ReplyBody {
     Version {
         /// The extension's version the thruster speaks ([`PROTOCOL_VERSION`]).
         protocol: u8,
-        /// The running image is on trial (see [`Refusal::OnTrial`]).
+        /// The running image is on trial (see [`Refusal::OnTrial`]); flags bit 0.
         on_trial: bool,
+        /// The thruster checks signatures, so a finished update can be marked (see
+        /// [`Refusal::NoSignatureCheck`]); flags bit 1.
+        checks_signatures: bool,
         /// The longest payload it takes: its ACTIVE partition.
         max_payload: u32,
         /// The running image's information record, as its flash holds it (update-image's `ImageInfo`).
@@ -895,6 +908,8 @@ impl CommandFrame {
 impl Reply {
     /// The reply's bytes: MT, command, sequence number, result code, the fields (zero unless done), the CRC; always
     /// [`reply_len`] of its command.
+    // Out of line: a thruster encodes both its busy and its done replies with it.
+    #[inline(never)]
     pub fn encode(&self) -> FrameBytes {
         let kind = self.command();
         let result = match self {
@@ -909,10 +924,11 @@ impl Reply {
                 ReplyBody::Version {
                     protocol,
                     on_trial,
+                    checks_signatures,
                     max_payload,
                     info,
                 } => {
-                    out.put(&[*protocol, u8::from(*on_trial)]);
+                    out.put(&[*protocol, u8::from(*on_trial) | (u8::from(*checks_signatures) << 1)]);
                     out.put(&max_payload.to_le_bytes());
                     out.put(info);
                 }
@@ -983,13 +999,18 @@ impl Reply {
         }
         let mut fields = Fields(body.get(HEADER_LEN..).unwrap_or_default());
         let body = match kind {
-            CommandKind::Version => ReplyBody::Version {
-                protocol: fields.u8(),
-                // Bits 1-7 are reserved: not assumed zero (IDS 8.1's rule, kept here).
-                on_trial: fields.u8() & 1 != 0,
-                max_payload: fields.u32(),
-                info: fields.array(),
-            },
+            CommandKind::Version => {
+                let protocol = fields.u8();
+                // Bits 2-7 are reserved: not assumed zero (IDS 8.1's rule, kept here).
+                let flags = fields.u8();
+                ReplyBody::Version {
+                    protocol,
+                    on_trial: flags & 1 != 0,
+                    checks_signatures: flags & 2 != 0,
+                    max_payload: fields.u32(),
+                    info: fields.array(),
+                }
+            }
             CommandKind::Begin => ReplyBody::Begin {
                 payload_len: fields.u32(),
             },
@@ -1150,6 +1171,7 @@ mod tests {
             ReplyBody::Version {
                 protocol: PROTOCOL_VERSION,
                 on_trial: true,
+                checks_signatures: false,
                 max_payload: 58 * 1024,
                 info: *b"LBVI\x01\x01\0\0\x01\0\x02\0\x03\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0",
             },
@@ -1244,7 +1266,7 @@ mod tests {
         }
         assert_eq!(Refusal::from_code(0), None);
         assert_eq!(Refusal::from_code(1), None);
-        assert_eq!(Refusal::from_code(16), None);
+        assert_eq!(Refusal::from_code(17), None);
         for kind in CommandKind::ALL {
             assert_eq!(CommandKind::from_byte(kind.to_byte()), Some(kind));
         }

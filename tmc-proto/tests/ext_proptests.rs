@@ -39,14 +39,15 @@ fn kind() -> impl Strategy<Value = CommandKind> {
 fn body() -> impl Strategy<Value = ReplyBody> {
     let info = prop::array::uniform32(any::<u8>());
     prop_oneof![
-        (any::<u8>(), any::<bool>(), any::<u32>(), info).prop_map(|(protocol, on_trial, max_payload, info)| {
-            ReplyBody::Version {
+        (any::<u8>(), any::<bool>(), any::<bool>(), any::<u32>(), info).prop_map(
+            |(protocol, on_trial, checks_signatures, max_payload, info)| ReplyBody::Version {
                 protocol,
                 on_trial,
+                checks_signatures,
                 max_payload,
                 info,
             }
-        }),
+        ),
         any::<u32>().prop_map(|payload_len| ReplyBody::Begin { payload_len }),
         any::<u16>().prop_map(|page| ReplyBody::Erase { page }),
         (any::<u32>(), any::<u8>(), any::<u32>()).prop_map(|(offset, len, crc)| ReplyBody::Write { offset, len, crc }),
