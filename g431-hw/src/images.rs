@@ -42,7 +42,7 @@ macro_rules! thruster_rows {
                 slave_rx_dma: DMA1_CH2 = "I2C slave receive DMA",
                 adc: ADC1 = "the analog inputs",
                 watchdog: IWDG = "independent watchdog",
-                flash: FLASH = "the bootloader's state, where a new image confirms itself",
+                flash: FLASH = "the bootloader's state (a new image's trial) and the DFU partition (field update)",
                 $($peripherals)*
             }
             interrupts {
