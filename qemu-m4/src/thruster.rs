@@ -319,8 +319,10 @@ async fn controller(t: &'static Thruster, bus: &'static Bus) -> ! {
             // A power cut clears the latches, as the operator's power cycle does (a backup register would keep
             // them over any other reset).
             latch: VolatileLatch::default(),
-            // Started as the probe starts it, with no bootloader: nothing on trial.
+            // Started as the probe starts it, with no bootloader: nothing on trial, and no DFU partition to update.
             boot: thruster_fw::trial::Confirmed,
+            dfu: thruster_fw::update::NoUpdate,
+            updater: thruster_fw::update::NoUpdate,
         };
         thruster_fw::run(ports, &t.config, shared)
     });

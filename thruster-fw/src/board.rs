@@ -19,14 +19,17 @@ use embassy_stm32::peripherals::ADC1;
 use embassy_stm32::time::Hertz;
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
+use embedded_storage::nor_flash::ReadNorFlash;
 use g431_hw::memory::{self, THRUSTER_PARTITIONS};
 use g431_hw::{adc, clock, iwdg};
 use static_cell::StaticCell;
 use thruster_fw::faults::{LatchStore, ResetKind, carried_latch, latch_word};
 use thruster_fw::tasks::Watchdog;
 use thruster_fw::trial::BootState;
+use thruster_fw::update::{Updater, VerifyError};
 use thruster_fw::{CONFIG, FAMILY, I2cTarget, Request};
 use tmc_proto::Faults;
+use tmc_proto::ext::{INFO_LEN, SIGNATURE_LEN};
 #[cfg(not(feature = "motorless"))]
 use {
     core::future::poll_fn,
@@ -376,22 +379,74 @@ impl LatchStore for BackupLatch {
     }
 }
 
+/// The flash interface, shared by every partition the image reads or writes: the bootloader's state, the DFU
+/// partition and the running image's own record. Taken once: nobody else reaches the flash.
+pub type SharedFlash = BlockingMutex<NoopRawMutex, RefCell<Flash<'static, Blocking>>>;
+
+/// A partition of the flash (`g431_hw::memory::THRUSTER_PARTITIONS`).
+type Part = BlockingPartition<'static, NoopRawMutex, Flash<'static, Blocking>>;
+
+/// Open the flash interface for the partitions.
+pub fn open_flash(flash: embassy_stm32::Peri<'static, embassy_stm32::peripherals::FLASH>) -> &'static SharedFlash {
+    static FLASH: StaticCell<SharedFlash> = StaticCell::new();
+    FLASH.init(BlockingMutex::new(RefCell::new(Flash::new_blocking(flash))))
+}
+
+/// The partition at `span` (embassy-stm32's flash is addressed by offset from the flash's start).
+fn partition(flash: &'static SharedFlash, span: memory::Span) -> Part {
+    BlockingPartition::new(flash, span.origin - memory::FLASH.origin, span.length)
+}
+
 /// The bootloader's state partition (g431_hw::memory::THRUSTER_PARTITIONS), read and written by embassy-boot's own
 /// code: a new image confirms itself there (`thruster_fw::trial`).
-pub struct BootRecord(BlockingPartition<'static, NoopRawMutex, Flash<'static, Blocking>>);
+pub struct BootRecord(Part);
 
 impl BootRecord {
-    /// The state partition of the flash. Taking the flash interface keeps anyone else from it.
-    pub fn open(flash: embassy_stm32::Peri<'static, embassy_stm32::peripherals::FLASH>) -> Self {
-        static FLASH: StaticCell<BlockingMutex<NoopRawMutex, RefCell<Flash<'static, Blocking>>>> = StaticCell::new();
-        let flash = FLASH.init(BlockingMutex::new(RefCell::new(Flash::new_blocking(flash))));
-        // embassy-stm32's flash is addressed by offset from the flash's start.
-        let state = THRUSTER_PARTITIONS.state;
-        BootRecord(BlockingPartition::new(
-            flash,
-            state.origin - memory::FLASH.origin,
-            state.length,
-        ))
+    /// The state partition of the flash.
+    pub fn open(flash: &'static SharedFlash) -> Self {
+        BootRecord(partition(flash, THRUSTER_PARTITIONS.state))
+    }
+}
+
+/// The DFU partition a field update writes (`thruster_fw::update`), on embassy-stm32's blocking flash.
+pub type Dfu = Part;
+
+/// The DFU partition of the flash.
+pub fn dfu(flash: &'static SharedFlash) -> Dfu {
+    partition(flash, THRUSTER_PARTITIONS.dfu)
+}
+
+/// The field update's bootloader side: the running image's record from its own flash, and the system reset. The
+/// signature check is not on the chip yet: embassy-boot's `verify_and_mark_updated` with salty (the ed25519 its
+/// `ed25519-salty` feature brings) adds about 25 KiB, which takes the image past its 58 KiB ACTIVE partition, so
+/// every payload is refused as one this thruster cannot check, and nothing is ever marked for the swap.
+pub struct ImageSwap(&'static SharedFlash);
+
+impl ImageSwap {
+    /// On the flash's partitions.
+    pub fn new(flash: &'static SharedFlash) -> Self {
+        ImageSwap(flash)
+    }
+}
+
+impl Updater for ImageSwap {
+    fn running_info(&mut self) -> [u8; INFO_LEN] {
+        let mut info = [0xFF; INFO_LEN];
+        // A read inside ACTIVE cannot fail; were it to, the erased bytes say "no record".
+        let _ = partition(self.0, THRUSTER_PARTITIONS.active).read(memory::IMAGE_INFO_OFFSET, &mut info);
+        info
+    }
+
+    fn checks_signatures(&self) -> bool {
+        false
+    }
+
+    async fn verify_and_mark_updated(&mut self, _: &[u8; SIGNATURE_LEN], _: u32) -> Result<(), VerifyError> {
+        Err(VerifyError::Unavailable)
+    }
+
+    fn reboot(&mut self) {
+        cortex_m::peripheral::SCB::sys_reset()
     }
 }
 

@@ -1,14 +1,17 @@
-//! The I2C slave side of the thruster interface (IDS 6.4.2, 6.6): take orders, answer status reads.
+//! The I2C slave side of the thruster interface (IDS 6.4.2, 6.6): take orders, answer status reads; and take the
+//! field-update extension's commands ([`tmc_proto::ext`]: a write whose first byte is [`EXT_MT`]), answering the
+//! read after one with its reply instead of the status.
 
+use tmc_proto::ext::{self, CommandFrame, EXT_MT, FrameBytes, FrameError};
 use tmc_proto::{DecodeError, Family, Order, StatusFrame};
 
 /// What the master asked for once it matched this controller's address.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum Request {
-    /// The master writes (an order).
+    /// The master writes (an order, or an extension command).
     Write,
-    /// The master reads (the status).
+    /// The master reads (the status, or the reply to an extension command).
     Read,
 }
 
@@ -30,9 +33,9 @@ pub trait I2cTarget {
     fn reset(&mut self);
 }
 
-/// Writes are taken into a buffer longer than an order, so an over-long write is seen and rejected instead of
-/// being cut down to a plausible four bytes.
-const WRITE_BUFFER_LEN: usize = 8;
+/// Writes are taken into a buffer one byte longer than the longest frame (an extension command), so an over-long
+/// write is seen and rejected instead of being cut down to a plausible frame.
+const WRITE_BUFFER_LEN: usize = ext::MAX_FRAME_LEN + 1;
 
 /// Orders discarded since power-up, by reason (IDS 6.6.1: a bad message is discarded whole).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -68,6 +71,46 @@ impl OrderErrors {
     }
 }
 
+/// Extension commands discarded since power-up, by reason: a bad frame is discarded whole and changes nothing,
+/// as a bad order.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct CommandErrors {
+    /// Frames shorter or longer than any command, or not their command's length.
+    pub length: u32,
+    /// Frames whose GUARD byte was wrong.
+    pub guard: u32,
+    /// Frames whose CRC did not match.
+    pub crc: u32,
+    /// Frames of a command this controller does not know.
+    pub command: u32,
+    /// Writes whose chunk length was out of range.
+    pub field: u32,
+}
+
+impl CommandErrors {
+    fn count(&mut self, error: FrameError) {
+        let counter = match error {
+            FrameError::Short { .. } | FrameError::TooLong { .. } | FrameError::Length { .. } => &mut self.length,
+            FrameError::Guard { .. } => &mut self.guard,
+            FrameError::Crc { .. } => &mut self.crc,
+            // Only a frame opening with EXT_MT is decoded as a command; a reply's type would be a stray one.
+            FrameError::UnknownCommand(_) | FrameError::MessageType { .. } => &mut self.command,
+            FrameError::ChunkLength(_) | FrameError::UnknownResult(_) => &mut self.field,
+        };
+        *counter = counter.saturating_add(1);
+    }
+
+    /// All discarded commands.
+    pub fn total(&self) -> u32 {
+        self.length
+            .saturating_add(self.guard)
+            .saturating_add(self.crc)
+            .saturating_add(self.command)
+            .saturating_add(self.field)
+    }
+}
+
 /// The link to the master as this controller keeps it: its family, the last valid order and what was received.
 #[derive(Debug, Clone)]
 pub struct MasterLink {
@@ -76,6 +119,8 @@ pub struct MasterLink {
     orders: u32,
     zero_orders: u32,
     errors: OrderErrors,
+    commands: u32,
+    command_errors: CommandErrors,
 }
 
 impl MasterLink {
@@ -87,6 +132,8 @@ impl MasterLink {
             orders: 0,
             zero_orders: 0,
             errors: OrderErrors::default(),
+            commands: 0,
+            command_errors: CommandErrors::default(),
         }
     }
 
@@ -113,6 +160,26 @@ impl MasterLink {
     /// Orders discarded so far.
     pub fn errors(&self) -> OrderErrors {
         self.errors
+    }
+
+    /// Valid extension commands received (wrapping).
+    pub fn commands(&self) -> u32 {
+        self.commands
+    }
+
+    /// Extension commands discarded so far.
+    pub fn command_errors(&self) -> CommandErrors {
+        self.command_errors
+    }
+
+    /// Take an extension command from the master (a write opening with [`EXT_MT`]); a bad one is counted and
+    /// changes nothing else. The order stands either way.
+    // Out of line: inlined into the I2C task's poll it costs more flash, as built.
+    #[inline(never)]
+    pub fn accept_command(&mut self, bytes: &[u8]) -> Result<CommandFrame, FrameError> {
+        CommandFrame::decode(bytes)
+            .inspect(|_| self.commands = self.commands.wrapping_add(1))
+            .inspect_err(|error| self.command_errors.count(*error))
     }
 
     /// Take a write from the master: a valid order replaces the last one; anything else is counted and changes
@@ -145,15 +212,46 @@ pub enum ServeEvent {
     Rejected(DecodeError),
     /// The status frame was sent.
     StatusSent,
+    /// A valid extension command was taken.
+    Command(CommandFrame),
+    /// An extension command was discarded.
+    CommandRejected(FrameError),
+    /// The reply to an extension command was sent.
+    ReplySent,
 }
 
-/// Serve one transfer the master started with `request`: take the order, or send the status frame `status`
-/// gives, which must be ready at once (SCL is stretched until it is sent).
-pub async fn serve<T: I2cTarget>(
+/// What a read is answered with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Answer {
+    /// The status (IDS 8.4).
+    Status(StatusFrame),
+    /// The reply to the last extension command.
+    Reply(FrameBytes),
+}
+
+impl From<StatusFrame> for Answer {
+    fn from(status: StatusFrame) -> Self {
+        Answer::Status(status)
+    }
+}
+
+impl Answer {
+    fn as_bytes(&self) -> &[u8] {
+        match self {
+            Answer::Status(status) => status.as_bytes(),
+            Answer::Reply(reply) => reply.as_bytes(),
+        }
+    }
+}
+
+/// Serve one transfer the master started with `request`: take the order or the extension command, or send what
+/// `answer` gives (the status frame, or the reply to an extension command), which must be ready at once (SCL is
+/// stretched until it is sent).
+pub async fn serve<T: I2cTarget, A: Into<Answer>>(
     target: &mut T,
     link: &mut MasterLink,
     request: Request,
-    status: impl FnOnce() -> StatusFrame,
+    answer: impl FnOnce() -> A,
 ) -> Result<ServeEvent, T::Error> {
     match request {
         Request::Write => {
@@ -161,14 +259,27 @@ pub async fn serve<T: I2cTarget>(
             let received = target.respond_to_write(&mut buffer).await?;
             // A peripheral never reports more than the buffer holds; if one did, the whole buffer is judged.
             let bytes = buffer.get(..received).unwrap_or(&buffer);
-            Ok(match link.accept(bytes) {
-                Ok(order) => ServeEvent::Order(order),
-                Err(error) => ServeEvent::Rejected(error),
+            // No IDS message opens with EXT_MT (it is neither order type), so IDS writes take the path they
+            // always took.
+            Ok(if bytes.first() == Some(&EXT_MT) {
+                match link.accept_command(bytes) {
+                    Ok(frame) => ServeEvent::Command(frame),
+                    Err(error) => ServeEvent::CommandRejected(error),
+                }
+            } else {
+                match link.accept(bytes) {
+                    Ok(order) => ServeEvent::Order(order),
+                    Err(error) => ServeEvent::Rejected(error),
+                }
             })
         }
         Request::Read => {
-            target.respond_to_read(status().as_bytes()).await?;
-            Ok(ServeEvent::StatusSent)
+            let answer = answer().into();
+            target.respond_to_read(answer.as_bytes()).await?;
+            Ok(match answer {
+                Answer::Status(_) => ServeEvent::StatusSent,
+                Answer::Reply(_) => ServeEvent::ReplySent,
+            })
         }
     }
 }
@@ -345,9 +456,76 @@ mod tests {
                 checksum: 1,
                 speed_range: 1
             },
-            "12 bytes are cut to the 8-byte buffer and still rejected on length"
+            "12 zero bytes are rejected on length"
         );
         assert_eq!(link.errors().total(), 6);
+    }
+
+    #[test]
+    fn extension_commands_are_taken_apart_from_orders_and_bad_ones_counted() {
+        use tmc_proto::ext::{Command, CommandFrame, EXT_MT, Reply, crc32, guard};
+        let family = Family::SeaBotix;
+        let erase = CommandFrame {
+            seq: 3,
+            command: Command::Erase { page: 2 },
+        };
+        let good = erase.encode().as_bytes().to_vec();
+        let mut bad_crc = good.clone();
+        *bad_crc.last_mut().unwrap() ^= 0x10;
+        let mut bad_guard = good.clone();
+        bad_guard[3] = bad_guard[3].wrapping_add(1);
+        let mut unknown = vec![EXT_MT, 0x33, 1, guard(EXT_MT, 0x33, 1)];
+        unknown.extend(crc32(&unknown).to_le_bytes());
+        // Longer than any frame: cut to the buffer, and still rejected.
+        let mut too_long = good.clone();
+        too_long.resize(100, 0);
+        let script = vec![
+            Transfer::Write(order(family, 20)),
+            Transfer::Write(good.clone()),
+            Transfer::Write(bad_crc),
+            Transfer::Write(bad_guard),
+            Transfer::Write(unknown),
+            Transfer::Write(too_long),
+            Transfer::Write(good[..7].to_vec()),
+        ];
+        let mut link = MasterLink::new(family);
+        let (events, _) = run(&mut link, script);
+        assert_eq!(events[1], ServeEvent::Command(erase));
+        assert!(
+            events[2..]
+                .iter()
+                .all(|event| matches!(event, ServeEvent::CommandRejected(_)))
+        );
+        assert_eq!(link.commands(), 1);
+        assert_eq!(
+            link.command_errors(),
+            CommandErrors {
+                length: 2,
+                guard: 1,
+                crc: 1,
+                command: 1,
+                field: 0
+            }
+        );
+        assert_eq!(link.command_errors().total(), 5);
+        // The order stands and no order error was counted.
+        assert_eq!((link.order().speed.step(), link.orders()), (20, 1));
+        assert_eq!(link.errors().total(), 0);
+
+        // A read answered with a reply says so.
+        let reply = Reply::Busy {
+            seq: 3,
+            command: erase.command.kind(),
+        }
+        .encode();
+        let mut master = ScriptedMaster {
+            script: vec![Transfer::Read].into(),
+            ..Default::default()
+        };
+        let request = block_on(master.listen()).unwrap();
+        let event = block_on(serve(&mut master, &mut link, request, || Answer::Reply(reply))).unwrap();
+        assert_eq!(event, ServeEvent::ReplySent);
+        assert_eq!(master.replies, [reply.as_bytes().to_vec()]);
     }
 
     #[test]

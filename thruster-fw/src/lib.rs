@@ -25,6 +25,7 @@ pub mod sensors;
 pub mod speed;
 pub mod tasks;
 pub mod trial;
+pub mod update;
 
 // The host tests' slave port on lbv-sim's bus: the bench's own, one file (`lbv/src/bench/ports.rs` says why),
 // which names this crate as the bench does.
@@ -35,7 +36,7 @@ extern crate self as thruster_fw;
 mod sim;
 
 pub use drive::{Direction, Duty};
-pub use i2c_slave::{I2cTarget, MasterLink, OrderErrors, Request, ServeEvent, serve};
+pub use i2c_slave::{Answer, CommandErrors, I2cTarget, MasterLink, OrderErrors, Request, ServeEvent, serve};
 pub use tasks::{Config, Ports, run, run_commutation};
 
 use tmc_proto::{Family, MotorKind};

@@ -17,7 +17,7 @@ use thruster_fw::faults::ResetKind;
 use thruster_fw::tasks::Shared;
 use thruster_fw::{CONFIG, FAMILY, Ports};
 
-use crate::board::{self, BackupLatch, BootRecord, Iwdg, SlavePort};
+use crate::board::{self, BackupLatch, BootRecord, ImageSwap, Iwdg, SlavePort};
 
 // The power stage, the halls and the analog inputs of a controller with a motor.
 #[cfg(not(feature = "motorless"))]
@@ -267,12 +267,15 @@ async fn main(spawner: Spawner) {
     #[cfg(feature = "motorless")]
     let (halls, bridge) = (ModelHalls::new(&board::MOTORLESS), ModelBridge(&board::MOTORLESS));
     high.spawn(unwrap!(commutation(halls, bridge)));
+    let flash = board::open_flash(chip.flash);
     spawner.spawn(unwrap!(controller(Ports {
         i2c: SlavePort(slave),
         sensors: analog,
         watchdog,
         latch,
-        boot: BootRecord::open(chip.flash),
+        boot: BootRecord::open(flash),
+        dfu: board::dfu(flash),
+        updater: ImageSwap::new(flash),
     })));
 }
 
@@ -372,6 +375,6 @@ async fn commutation(halls: board::HallInputs, bridge: board::Stage) -> ! {
 
 /// The controller's other tasks, on the thread-mode executor.
 #[embassy_executor::task]
-async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg, BackupLatch, BootRecord>) -> ! {
+async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg, BackupLatch, BootRecord, board::Dfu, ImageSwap>) -> ! {
     thruster_fw::run(ports, &CONFIG, &SHARED).await
 }

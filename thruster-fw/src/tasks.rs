@@ -3,7 +3,7 @@
 //! run the controller through [`run`] and [`run_commutation`].
 
 use core::cell::Cell;
-use embassy_futures::join::join5;
+use embassy_futures::join::{join, join5};
 use embassy_futures::select::select3;
 
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
@@ -11,6 +11,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::{Duration, Instant, Ticker, Timer, with_timeout};
+use embedded_storage::nor_flash::NorFlash;
 use tmc_proto::{Family, MotorKind, SeaBotixStatus, StatusFrame};
 
 use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
@@ -20,11 +21,12 @@ use crate::failsafe::LinkFailsafe;
 use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector, Thresholds};
 use crate::hall::{HallState, HallTracker};
 use crate::health::Health;
-use crate::i2c_slave::{I2cTarget, MasterLink, ServeEvent, serve};
+use crate::i2c_slave::{Answer, I2cTarget, MasterLink, ServeEvent, serve};
 use crate::overcurrent::TripRule;
 use crate::sensors::{CurrentSense, Ntc, WaterSensor};
 use crate::speed::SpeedConfig;
 use crate::trial::{BootState, trial_task};
+use crate::update::{Replies, Updater, update_task};
 
 /// The three hall sensor inputs.
 #[allow(async_fn_in_trait)]
@@ -234,6 +236,9 @@ pub struct Shared {
     pub status: Watch<Mutex, StatusFrame, 1>,
     /// Wakes the commutation task when the duty or the fault verdict changed.
     pub wake: Signal<Mutex, ()>,
+    /// I2C <-> update: the field-update extension's latest command and its reply for the next read; trial ->
+    /// update: whether the image is on trial.
+    pub replies: Replies,
     /// Fault bits set at any sample since the last status read carried them (see [`Shared::note_unread`]).
     unread: BlockingMutex<Mutex, Cell<u8>>,
     /// Task heartbeats for the watchdog.
@@ -250,6 +255,7 @@ impl Shared {
             duty: Watch::new(),
             status: Watch::new(),
             wake: Signal::new(),
+            replies: Replies::new(),
             unread: BlockingMutex::new(Cell::new(0)),
             health: Health::new(TASKS),
         }
@@ -281,7 +287,8 @@ impl Default for Shared {
 }
 
 /// The I2C slave: takes orders, answers reads with the frame the control task keeps ready, re-initialises the
-/// peripheral after any error (including a transfer stalled past the peripheral's timeout).
+/// peripheral after any error (including a transfer stalled past the peripheral's timeout). Extension commands go
+/// to the update task, and the read after one gets its reply ([`crate::update`]) instead of the status.
 pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: MotorKind, shared: &Shared) -> ! {
     let mut link = MasterLink::new(family);
     let idle = idle_status(family, motor).encode();
@@ -298,29 +305,55 @@ pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: Motor
             }
         };
         let carried = Cell::new(0);
-        let frame = || {
-            carried.set(shared.take_unread());
-            shared.status.try_get().unwrap_or(idle).with_fault_bits(carried.get())
+        let reply = Cell::new(None);
+        let answer = || match shared.replies.for_read() {
+            Some(pending) => {
+                reply.set(Some(pending));
+                Answer::Reply(*pending.frame())
+            }
+            None => {
+                carried.set(shared.take_unread());
+                Answer::Status(shared.status.try_get().unwrap_or(idle).with_fault_bits(carried.get()))
+            }
         };
-        let served = serve(target, &mut link, request, frame).await;
+        let served = serve(target, &mut link, request, answer).await;
         if !matches!(served, Ok(ServeEvent::StatusSent)) {
             // Not carried to the master: they wait for the next read.
             shared.note_unread(carried.get());
         }
-        match served {
-            Ok(ServeEvent::Order(_) | ServeEvent::StatusSent) => shared.link.sender().send(LinkUpdate {
-                order: link.order(),
-                orders: link.orders(),
-                zero_orders: link.zero_orders(),
-                at: Instant::now(),
-            }),
+        let alive = match served {
+            Ok(ServeEvent::Order(_) | ServeEvent::StatusSent) => true,
+            Ok(ServeEvent::Command(frame)) => {
+                shared.replies.command(frame);
+                true
+            }
+            Ok(ServeEvent::ReplySent) => {
+                if let Some(sent) = reply.get() {
+                    shared.replies.sent(&sent);
+                }
+                true
+            }
             Ok(ServeEvent::Rejected(error)) => {
                 warn!("order discarded: {} ({} so far)", error, link.errors().total());
+                false
+            }
+            Ok(ServeEvent::CommandRejected(_)) => {
+                warn!("extension command discarded ({} so far)", link.command_errors().total());
+                false
             }
             Err(_) => {
                 warn!("I2C transfer failed: re-initialising the slave");
                 target.reset();
+                false
             }
+        };
+        if alive {
+            shared.link.sender().send(LinkUpdate {
+                order: link.order(),
+                orders: link.orders(),
+                zero_orders: link.zero_orders(),
+                at: Instant::now(),
+            });
         }
     }
 }
@@ -529,7 +562,7 @@ pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared
 
 /// What the controller's thread-mode tasks are wired to.
 #[derive(Debug)]
-pub struct Ports<T, S, W, L, B> {
+pub struct Ports<T, S, W, L, B, D, U> {
     /// The I2C slave port of the thruster interface.
     pub i2c: T,
     /// The ADC inputs.
@@ -540,30 +573,44 @@ pub struct Ports<T, S, W, L, B> {
     pub latch: L,
     /// The bootloader's record of this image, which a new image confirms (see [`crate::trial`]).
     pub boot: B,
+    /// The DFU partition a field update writes the new image into (see [`crate::update`]).
+    pub dfu: D,
+    /// The bootloader's and the chip's side of a field update: the signature check, the swap's mark, the reset.
+    pub updater: U,
 }
 
-/// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control, health and a new image's
-/// trial. Commutation runs
-/// apart ([`run_commutation`]), on an executor of its own above these. They talk only through `shared`, which
-/// lives as long as the controller: a reset starts again from a fresh one.
-pub async fn run<T: I2cTarget, S: Sensors, W: Watchdog, L: LatchStore, B: BootState>(
-    ports: Ports<T, S, W, L, B>,
-    config: &Config,
-    shared: &Shared,
-) -> ! {
+/// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control, health, a new image's trial
+/// and the field update's receiver. Commutation runs apart ([`run_commutation`]), on an executor of its own above
+/// these. They talk only through `shared`, which lives as long as the controller: a reset starts again from a
+/// fresh one.
+pub async fn run<T, S, W, L, B, D, U>(ports: Ports<T, S, W, L, B, D, U>, config: &Config, shared: &Shared) -> !
+where
+    T: I2cTarget,
+    S: Sensors,
+    W: Watchdog,
+    L: LatchStore,
+    B: BootState,
+    D: NorFlash,
+    U: Updater,
+{
     let Ports {
         mut i2c,
         mut sensors,
         mut watchdog,
         mut latch,
         mut boot,
+        mut dfu,
+        mut updater,
     } = ports;
-    let (never, ..) = join5(
-        i2c_task(&mut i2c, config.family, config.motor, shared),
-        fault_task(&mut sensors, &mut latch, config, shared),
-        control_task(config, shared),
-        health_task(&mut watchdog, config.watchdog.feed, shared),
-        trial_task(&mut boot, shared),
+    let ((never, ..), _) = join(
+        join5(
+            i2c_task(&mut i2c, config.family, config.motor, shared),
+            fault_task(&mut sensors, &mut latch, config, shared),
+            control_task(config, shared),
+            health_task(&mut watchdog, config.watchdog.feed, shared),
+            trial_task(&mut boot, shared),
+        ),
+        update_task(&mut dfu, &mut updater, config.family, shared),
     )
     .await;
     never

@@ -67,6 +67,7 @@ pub fn may_confirm(rounds: u32, link: Option<LinkUpdate>, duty: Duty) -> bool {
 pub async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
     match boot.on_trial().await {
         Ok(true) => {
+            shared.replies.set_on_trial(true);
             info!("image on trial: it confirms itself once it has run and answered the master");
             let mut ticker = Ticker::every(TRIAL_CHECK);
             loop {
@@ -78,6 +79,7 @@ pub async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
                 match boot.confirm().await {
                     Ok(()) => {
                         info!("image confirmed: the bootloader keeps it");
+                        shared.replies.set_on_trial(false);
                         break;
                     }
                     Err(_) => {

@@ -25,7 +25,7 @@ use tmc_proto::{Family, MotorKind};
 use super::STEP;
 use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
-use super::ports::thruster::{BootRecord, SlavePort};
+use super::ports::thruster::{BootRecord, BootUpdater, DFU_PAGES, SlavePort};
 
 /// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
 /// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
@@ -114,6 +114,8 @@ pub struct ThrusterBoard {
     shared: Rc<Shared>,
     /// The bootloader's state partition, which outlasts a power cut.
     boot_state: Flash<8, 2048>,
+    /// The DFU partition a field update writes, which outlasts a power cut.
+    dfu: Flash<8, 2048>,
     tasks: Vec<TaskId>,
 }
 
@@ -157,6 +159,7 @@ impl ThrusterBoard {
             device,
             shared: Rc::new(Shared::new()),
             boot_state: Flash::new(1),
+            dfu: Flash::new(DFU_PAGES),
             tasks: Vec::new(),
         }
     }
@@ -182,6 +185,10 @@ impl ThrusterBoard {
             // Every bench boot follows a power cut: the latches start empty.
             latch: VolatileLatch::default(),
             boot: BootRecord(self.boot_state.clone()),
+            dfu: self.dfu.clone(),
+            // No key yet (the bench's master sends no update): no signature checks against all zeros, so the
+            // thruster takes every command of an update but marks nothing.
+            updater: BootUpdater::new(self.config.family, self.dfu.clone(), self.boot_state.clone(), [0; 32]),
         };
         let (config, shared) = (self.config.clone(), self.shared.clone());
         let run = executor.spawn(async move {

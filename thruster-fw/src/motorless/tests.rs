@@ -198,6 +198,8 @@ impl Rig {
                 watchdog: Unwatched,
                 latch: VolatileLatch::default(),
                 boot: crate::trial::Confirmed,
+                dfu: crate::update::NoUpdate,
+                updater: crate::update::NoUpdate,
             };
             crate::run(ports, &CONFIG, &controller.shared).await;
         });

@@ -4,12 +4,13 @@
 use super::*;
 use crate::faults::VolatileLatch;
 use crate::hall::FORWARD_SEQUENCE;
-use crate::sim::{BootRecord, SlavePort};
+use crate::sim::{BootRecord, BootUpdater, DFU_PAGES, SlavePort};
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
 use embassy_boot::{FirmwareState, State};
 use embassy_futures::block_on;
 use embedded_hal_async::i2c::I2c;
+use lbv_sim::Cpu;
 use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Bus, DeviceId, Route, Timing};
 use lbv_sim::{Clock, Executor, Queue, clock};
@@ -144,6 +145,12 @@ struct Bench {
     io: Rc<Io>,
     /// The bootloader's state partition, which embassy-boot reads and writes.
     boot: Flash<8, 2048>,
+    /// The DFU partition a field update writes.
+    dfu: Flash<8, 2048>,
+    /// The controller's CPU, which the flash's erases and writes stall once wired to it.
+    cpu: Cpu,
+    /// Reboots the field update asked for.
+    reboots: Rc<Cell<u32>>,
     bus: Bus,
     device: DeviceId,
     transfers: Queue<Vec<u8>>,
@@ -199,6 +206,26 @@ impl Bench {
     /// Start the controller at virtual time 0, with the latches a reset left in `latch` and the bootloader's state
     /// in `boot`.
     fn booted(config: Config, latch: VolatileLatch, boot: Flash<8, 2048>) -> Self {
+        Self::with_flash(config, latch, boot, Flash::new(DFU_PAGES))
+    }
+
+    /// Start the controller at virtual time 0 with the bootloader's state in `boot` and the DFU partition `dfu`
+    /// (as a reset leaves them); field updates are signed with [`update::signing_key`].
+    fn with_flash(config: Config, latch: VolatileLatch, boot: Flash<8, 2048>, dfu: Flash<8, 2048>) -> Self {
+        let updater = BootUpdater::new(config.family, dfu.clone(), boot.clone(), update::public_key());
+        Self::with_updater(config, latch, boot, dfu, updater.clone(), updater.reboots)
+    }
+
+    /// [`Bench::with_flash`], the update's bootloader side being `updater` (which counts its reboots in
+    /// `reboots`).
+    fn with_updater<U: Updater + 'static>(
+        config: Config,
+        latch: VolatileLatch,
+        boot: Flash<8, 2048>,
+        dfu: Flash<8, 2048>,
+        updater: U,
+        reboots: Rc<Cell<u32>>,
+    ) -> Self {
         let clock = clock::take();
         let io = Rc::new(Io {
             inputs: Cell::new(dry(&config)),
@@ -225,14 +252,17 @@ impl Bench {
             watchdog: CountingWatchdog(io.clone()),
             latch: TestLatch(io.clone()),
             boot: BootRecord(boot.clone()),
+            dfu: dfu.clone(),
+            updater,
         };
         let (halls, bridge) = (TestHalls(io.clone()), TestBridge(io.clone()));
+        let cpu = Cpu::new();
         let controller = io.clone();
-        executor.spawn(async move {
+        executor.spawn_on(&cpu, async move {
             run(ports, &controller.config, &controller.shared).await;
         });
         let controller = io.clone();
-        executor.spawn(async move {
+        executor.spawn_on(&cpu, async move {
             run_commutation(halls, bridge, &controller.config, &controller.shared).await;
         });
         let (mut master, queue, master_io) = (bus.master(), transfers.clone(), io.clone());
@@ -252,6 +282,9 @@ impl Bench {
         Self {
             io,
             boot,
+            dfu,
+            cpu,
+            reboots,
             bus,
             device,
             transfers,
@@ -1149,3 +1182,5 @@ fn an_image_not_on_trial_leaves_the_bootloader_state_alone() {
     assert_eq!(bench.boot_state(), State::Boot);
     assert_eq!(bench.boot.stats().erases, 0);
 }
+
+mod update;

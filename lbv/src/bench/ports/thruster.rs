@@ -1,11 +1,18 @@
-//! The thruster controller's slave port on lbv-sim's simulated bus and its bootloader state on lbv-sim's flash, for
-//! the bench and thruster-fw's host tests (which include this file).
+//! The thruster controller's slave port on lbv-sim's simulated bus, and its bootloader state and field update on
+//! lbv-sim's flash, for the bench and thruster-fw's host tests (which include this file).
 
-use embassy_boot::{FirmwareState, FirmwareUpdaterError, State};
+use std::cell::Cell;
+use std::rc::Rc;
+
+use embassy_boot::{FirmwareState, FirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError, State};
 use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Target, TargetError};
 use thruster_fw::trial::BootState;
+use thruster_fw::update::{Updater, VerifyError};
 use thruster_fw::{I2cTarget, Request};
+use tmc_proto::Family;
+use tmc_proto::ext::{INFO_LEN, SIGNATURE_LEN};
+use update_image::{ImageInfo, Version};
 
 /// A firmware slave port on a simulated bus ([`lbv_sim::i2c::Bus::target`]), as the controller's I2C task takes it.
 #[derive(Debug)]
@@ -50,5 +57,78 @@ impl BootState for BootRecord {
     async fn confirm(&mut self) -> Result<(), FirmwareUpdaterError> {
         let mut word = [0; 8];
         FirmwareState::new(&mut self.0, &mut word).mark_booted().await
+    }
+}
+
+/// The DFU partition's pages (60 KiB, as on the G431: `g431_hw::memory::THRUSTER_PARTITIONS`).
+pub const DFU_PAGES: usize = 30;
+
+/// The bootloader's and the chip's side of a field update, as the binding's is on the G431: embassy-boot's own
+/// updater checks the payload's signature (ed25519 over its SHA-512, with salty) on the DFU partition and marks it
+/// in the state partition; a reboot is counted (the bench has no bootloader to swap the image in).
+#[derive(Debug, Clone)]
+pub struct BootUpdater {
+    /// The DFU partition.
+    pub dfu: Flash<8, 2048>,
+    /// The bootloader's state partition (the trial's [`BootRecord`] shares it).
+    pub state: Flash<8, 2048>,
+    /// The key signatures are checked against.
+    pub public_key: [u8; 32],
+    /// The running image's information record.
+    pub info: [u8; INFO_LEN],
+    /// Reboots asked for.
+    pub reboots: Rc<Cell<u32>>,
+}
+
+impl BootUpdater {
+    /// An updater for a thruster of `family` running version 0.1.0, checking signatures against `public_key`.
+    pub fn new(family: Family, dfu: Flash<8, 2048>, state: Flash<8, 2048>, public_key: [u8; 32]) -> Self {
+        Self {
+            dfu,
+            state,
+            public_key,
+            info: info_record(family, Version::new(0, 1, 0)),
+            reboots: Rc::new(Cell::new(0)),
+        }
+    }
+}
+
+/// The information record of a thruster image of `family` at `version`, as the image embeds it.
+pub fn info_record(family: Family, version: Version) -> [u8; INFO_LEN] {
+    ImageInfo::new(update_image::Target::thruster(family), version).to_bytes()
+}
+
+impl Updater for BootUpdater {
+    fn running_info(&mut self) -> [u8; INFO_LEN] {
+        self.info
+    }
+
+    fn checks_signatures(&self) -> bool {
+        true
+    }
+
+    async fn verify_and_mark_updated(
+        &mut self,
+        signature: &[u8; SIGNATURE_LEN],
+        payload_len: u32,
+    ) -> Result<(), VerifyError> {
+        let config = FirmwareUpdaterConfig {
+            dfu: self.dfu.clone(),
+            state: self.state.clone(),
+        };
+        let mut word = [0; 8];
+        let mut updater = FirmwareUpdater::new(config, &mut word);
+        updater
+            .verify_and_mark_updated(&self.public_key, signature, payload_len)
+            .await
+            .map_err(|error| match error {
+                FirmwareUpdaterError::Signature(_) => VerifyError::BadSignature,
+                FirmwareUpdaterError::BadState => VerifyError::OnTrial,
+                FirmwareUpdaterError::Flash(_) => VerifyError::Flash,
+            })
+    }
+
+    fn reboot(&mut self) {
+        self.reboots.set(self.reboots.get() + 1);
     }
 }

@@ -1,0 +1,604 @@
+//! The field update's receiver: the thruster's side of tmc-proto's extension ([`tmc_proto::ext`]), with which the
+//! master writes a signed image into the DFU partition over the thrusters' bus.
+//!
+//! The I2C task hands each valid extension command to [`update_task`] (through [`Shared`]) and answers the next
+//! read with the reply kept in [`Replies`]: "busy" until this task has carried the command out. The task owns the
+//! DFU flash (blocking NOR flash: on the G431 an erase or a write holds the CPU whatever the API, and blocking
+//! calls keep the receiver small) and the [`Updater`] port, and carries out one command at a time: erase a DFU
+//! page, write a chunk (inside the payload, aligned to the flash's 8-byte write unit, a short last chunk padded
+//! with 0xFF), read back CRCs, check the payload's information record and hand its signature to the port, which
+//! marks it for the bootloader to swap in, and reset on the master's word.
+//!
+//! Everything but `Version` is refused unless the master has ordered zero speed and the duty is zero: a page
+//! erase stalls the G431's CPU, commutation included, for tens of milliseconds (one flash bank, the code runs
+//! from it). An update under way is dropped as soon as the master orders a non-zero speed, even if it orders zero
+//! again before its next command. Nothing here erases or writes outside the DFU partition's payload, and nothing
+//! panics on a command: every refusal is a reply with its own code ([`Refusal`]) and changes nothing.
+
+use core::cell::Cell;
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use embassy_futures::yield_now;
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+use embassy_time::{Duration, with_timeout};
+use embedded_storage::nor_flash::{ErrorType, NorFlash, NorFlashErrorKind, ReadNorFlash};
+use g431_hw::memory::{IMAGE_INFO_OFFSET, THRUSTER_PARTITIONS};
+use tmc_proto::Family;
+use tmc_proto::ext::{
+    Command, CommandFrame, CommandKind, Crc32, FrameBytes, INFO_LEN, MAX_CHUNK, PAGE_LEN, PROTOCOL_VERSION, Refusal,
+    Reply, ReplyBody, SIGNATURE_LEN, WRITE_UNIT,
+};
+use update_image::{ImageInfo, Target};
+
+use crate::drive::Duty;
+use crate::tasks::Shared;
+
+/// The longest payload: the ACTIVE partition the bootloader swaps it into.
+pub const MAX_PAYLOAD: u32 = THRUSTER_PARTITIONS.active.length;
+
+/// Where a payload's information record starts (update-image's `ImageInfo`, just past the vector table).
+pub const INFO_OFFSET: u32 = IMAGE_INFO_OFFSET;
+
+/// A payload must be long enough to hold its information record.
+const INFO_END: u32 = INFO_OFFSET + INFO_LEN as u32;
+
+/// How long a reboot waits for the master to read its reply before the reset.
+pub const REBOOT_GRACE: Duration = Duration::from_millis(100);
+
+/// Why the [`Updater`] did not mark the payload.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum VerifyError {
+    /// The signature does not check against the thruster's key.
+    BadSignature,
+    /// The bootloader's state is not "booted" (the running image is on trial): embassy-boot refuses to mark.
+    OnTrial,
+    /// The flash failed.
+    Flash,
+    /// This controller cannot check signatures (its image has no signature check): it marks nothing.
+    Unavailable,
+}
+
+/// What an update needs of the bootloader and the chip: the running image's record, the signature check that
+/// marks the DFU payload for the swap, and the reset that starts it. The host tests and the bench implement it
+/// with embassy-boot's updater on lbv-sim's flash; the binding reads the record from the G431's flash and resets
+/// the core (its signature check is not wired yet: `NoSignatureCheck`).
+#[allow(async_fn_in_trait)]
+pub trait Updater {
+    /// The running image's information record, as its flash holds it (ACTIVE + [`INFO_OFFSET`]).
+    fn running_info(&mut self) -> [u8; INFO_LEN];
+
+    /// Whether [`Updater::verify_and_mark_updated`] checks signatures at all (a master asks before it sends a
+    /// payload for nothing).
+    fn checks_signatures(&self) -> bool;
+
+    /// Check `signature` (ed25519 over the SHA-512 of the first `payload_len` bytes of the DFU partition, as
+    /// embassy-boot's `verify_and_mark_updated` does) and, if it checks, mark the payload for the bootloader to
+    /// swap in at the next reset. `payload_len` is at most the DFU partition's capacity.
+    async fn verify_and_mark_updated(
+        &mut self,
+        signature: &[u8; SIGNATURE_LEN],
+        payload_len: u32,
+    ) -> Result<(), VerifyError>;
+
+    /// Reset the chip, so that the bootloader swaps the marked payload in. On the chip it does not return.
+    fn reboot(&mut self);
+}
+
+/// No update: a controller built without a DFU partition (the emulated Cortex-M4 and the motor-less tests): a
+/// flash of no capacity and an updater that marks nothing, so every command but `Version` is refused.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoUpdate;
+
+impl Updater for NoUpdate {
+    fn running_info(&mut self) -> [u8; INFO_LEN] {
+        [0xFF; INFO_LEN]
+    }
+
+    fn checks_signatures(&self) -> bool {
+        false
+    }
+
+    async fn verify_and_mark_updated(&mut self, _: &[u8; SIGNATURE_LEN], _: u32) -> Result<(), VerifyError> {
+        Err(VerifyError::Unavailable)
+    }
+
+    fn reboot(&mut self) {}
+}
+
+impl ErrorType for NoUpdate {
+    type Error = NorFlashErrorKind;
+}
+
+impl ReadNorFlash for NoUpdate {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, _: u32, _: &mut [u8]) -> Result<(), Self::Error> {
+        Err(NorFlashErrorKind::OutOfBounds)
+    }
+
+    fn capacity(&self) -> usize {
+        0
+    }
+}
+
+impl NorFlash for NoUpdate {
+    const WRITE_SIZE: usize = WRITE_UNIT as usize;
+    const ERASE_SIZE: usize = PAGE_LEN as usize;
+
+    fn erase(&mut self, _: u32, _: u32) -> Result<(), Self::Error> {
+        Err(NorFlashErrorKind::OutOfBounds)
+    }
+
+    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Self::Error> {
+        Err(NorFlashErrorKind::OutOfBounds)
+    }
+}
+
+/// The thruster family an information record names (`Ok(None)`: the master's), or a refusal for bytes that are no
+/// record (update-image's `ImageInfo`).
+pub fn info_family(info: &[u8; INFO_LEN]) -> Result<Option<Family>, Refusal> {
+    ImageInfo::parse(info)
+        .map(|info| info.target.family())
+        .map_err(|_| Refusal::NoImageInfo)
+}
+
+type Mutex = CriticalSectionRawMutex;
+
+/// The reply a read gets instead of the status: the one to the latest extension command, "busy" until the update
+/// task has carried it out, gone once read done.
+#[derive(Debug, Clone, Copy)]
+pub struct Pending {
+    command: CommandKind,
+    seq: u8,
+    done: bool,
+    frame: FrameBytes,
+}
+
+impl Pending {
+    /// The reply's bytes.
+    pub fn frame(&self) -> &FrameBytes {
+        &self.frame
+    }
+}
+
+/// The I2C task's and the update task's channels: the latest command, the reply to it, and whether it was read.
+pub struct Replies {
+    /// I2C -> update: the latest command (a newer one replaces one not taken yet).
+    commands: Signal<Mutex, CommandFrame>,
+    pending: BlockingMutex<Mutex, Cell<Option<Pending>>>,
+    /// A done reply was read.
+    read: Signal<Mutex, ()>,
+    /// Trial -> update: the running image is on trial.
+    on_trial: AtomicBool,
+}
+
+// The methods the tasks call are kept out of line (`inline(never)`): inlined into the tasks' poll functions they
+// cost more flash, as built.
+impl Replies {
+    /// Nothing pending.
+    pub const fn new() -> Self {
+        Self {
+            commands: Signal::new(),
+            pending: BlockingMutex::new(Cell::new(None)),
+            read: Signal::new(),
+            on_trial: AtomicBool::new(false),
+        }
+    }
+
+    /// A command arrived: the next read gets "busy" for it until it is done, and the update task gets it.
+    #[inline(never)]
+    pub fn command(&self, frame: CommandFrame) {
+        let command = frame.command.kind();
+        let busy = Reply::Busy {
+            seq: frame.seq,
+            command,
+        };
+        self.pending.lock(|pending| {
+            pending.set(Some(Pending {
+                command,
+                seq: frame.seq,
+                done: false,
+                frame: busy.encode(),
+            }))
+        });
+        self.commands.signal(frame);
+    }
+
+    /// The reply a read now gets, if any.
+    #[inline(never)]
+    pub fn for_read(&self) -> Option<Pending> {
+        self.pending.lock(Cell::get)
+    }
+
+    /// `sent` was read: a done reply is gone (the next read gets the status); a busy one stays.
+    #[inline(never)]
+    pub fn sent(&self, sent: &Pending) {
+        if !sent.done {
+            return;
+        }
+        self.pending.lock(|pending| {
+            if pending
+                .get()
+                .is_some_and(|now| now.done && now.command == sent.command && now.seq == sent.seq)
+            {
+                pending.set(None);
+            }
+        });
+        self.read.signal(());
+    }
+
+    /// The update task's reply; dropped if a newer command has replaced the one it answers.
+    #[inline(never)]
+    fn complete(&self, reply: Reply) {
+        self.pending.lock(|pending| {
+            if let Some(now) = pending.get()
+                && !now.done
+                && now.command == reply.command()
+                && now.seq == reply.seq()
+            {
+                pending.set(Some(Pending {
+                    done: true,
+                    frame: reply.encode(),
+                    ..now
+                }));
+            }
+        });
+    }
+
+    /// Whether the running image is on trial (the trial task says so once it has read the bootloader's state).
+    pub fn on_trial(&self) -> bool {
+        self.on_trial.load(Ordering::Relaxed)
+    }
+
+    pub(crate) fn set_on_trial(&self, on_trial: bool) {
+        self.on_trial.store(on_trial, Ordering::Relaxed);
+    }
+}
+
+impl Default for Replies {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl core::fmt::Debug for Replies {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Replies").finish_non_exhaustive()
+    }
+}
+
+/// How the motor stands when a command is carried out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Motion {
+    /// The last order is zero speed (or none came) and the duty is zero.
+    pub at_rest: bool,
+    /// Non-zero orders received so far (wrapping): a change since `Begin` drops the update.
+    pub turning_orders: u32,
+}
+
+impl Motion {
+    /// The link's last order and the duty as `shared` holds them now.
+    pub fn of(shared: &Shared) -> Motion {
+        let link = shared.link.try_get();
+        let duty = shared.duty.try_get().unwrap_or(Duty::ZERO);
+        Motion {
+            at_rest: link.is_none_or(|link| link.order.speed.is_zero()) && duty == Duty::ZERO,
+            turning_orders: link.map_or(0, |link| link.orders.wrapping_sub(link.zero_orders)),
+        }
+    }
+}
+
+/// An update under way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Session {
+    payload_len: u32,
+    /// [`Motion::turning_orders`] at `Begin`.
+    turning_orders: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stage {
+    Idle,
+    Begun(Session),
+    /// Marked for the bootloader: only a reboot now.
+    Finished,
+}
+
+/// What a command's reply is, and whether to reset once it has been read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Outcome {
+    /// The reply.
+    pub reply: Reply,
+    /// Reset after it.
+    pub reboot: bool,
+}
+
+/// The receiver's state: whether an update is under way, and for which payload.
+#[derive(Debug, Clone)]
+pub struct Receiver {
+    family: Family,
+    stage: Stage,
+}
+
+impl Receiver {
+    /// A thruster of `family`, no update under way (as after any reset).
+    pub fn new(family: Family) -> Self {
+        Self {
+            family,
+            stage: Stage::Idle,
+        }
+    }
+
+    /// The payload length of the update under way, if any.
+    pub fn begun(&self) -> Option<u32> {
+        match self.stage {
+            Stage::Begun(session) => Some(session.payload_len),
+            _ => None,
+        }
+    }
+
+    /// Whether an update is finished and marked for the bootloader.
+    pub fn finished(&self) -> bool {
+        self.stage == Stage::Finished
+    }
+
+    /// Carry out one command with the motor as `motion` says.
+    pub async fn handle<D: NorFlash, U: Updater>(
+        &mut self,
+        frame: CommandFrame,
+        motion: Motion,
+        on_trial: bool,
+        dfu: &mut D,
+        updater: &mut U,
+    ) -> Outcome {
+        let (seq, command) = (frame.seq, frame.command.kind());
+        let result = match self.prepare(&frame.command, motion, on_trial, dfu, updater) {
+            Next::Reply(result) => result,
+            Next::Crc { offset, len } => {
+                crc_of(dfu, offset, len)
+                    .await
+                    .map(|crc| ReplyBody::Check { offset, len, crc })
+            }
+            Next::Verify { payload_len, signature } => {
+                match updater.verify_and_mark_updated(&signature, payload_len).await {
+                    Ok(()) => {
+                        info!("update finished: marked for the bootloader");
+                        self.stage = Stage::Finished;
+                        Ok(ReplyBody::Finish { payload_len })
+                    }
+                    Err(error) => Err(match error {
+                        VerifyError::BadSignature => Refusal::BadSignature,
+                        VerifyError::OnTrial => Refusal::OnTrial,
+                        VerifyError::Flash => Refusal::FlashError,
+                        VerifyError::Unavailable => Refusal::NoSignatureCheck,
+                    }),
+                }
+            }
+        };
+        let reboot = matches!(result, Ok(ReplyBody::Reboot));
+        let reply = match result {
+            Ok(body) => Reply::Done { seq, body },
+            Err(refusal) => Reply::Refused { seq, command, refusal },
+        };
+        Outcome { reply, reboot }
+    }
+
+    /// The session a command needs.
+    fn session(&self) -> Result<Session, Refusal> {
+        match self.stage {
+            Stage::Begun(session) => Ok(session),
+            Stage::Idle => Err(Refusal::NotBegun),
+            Stage::Finished => Err(Refusal::Finished),
+        }
+    }
+
+    /// Everything of a command that needs no waiting: its checks, and the flash work (which blocks anyway). What is
+    /// left for [`Receiver::handle`] to wait for is a CRC over a long range, which lets the other tasks run
+    /// between chunks, and the signature check.
+    // Out of line: a plain function beside the update task's poll, smaller as built.
+    #[inline(never)]
+    fn prepare<D: NorFlash, U: Updater>(
+        &mut self,
+        command: &Command,
+        motion: Motion,
+        on_trial: bool,
+        dfu: &mut D,
+        updater: &mut U,
+    ) -> Next {
+        if let Stage::Begun(session) = self.stage
+            && session.turning_orders != motion.turning_orders
+        {
+            warn!("update dropped: the master ordered a non-zero speed");
+            self.stage = Stage::Idle;
+        }
+        // Only `Version` is answered whatever the motor does: the rest may touch the flash.
+        if !motion.at_rest && !matches!(command, Command::Version) {
+            return Next::Reply(Err(Refusal::Driving));
+        }
+        Next::Reply(match *command {
+            Command::Version => Ok(ReplyBody::Version {
+                protocol: PROTOCOL_VERSION,
+                on_trial,
+                checks_signatures: updater.checks_signatures(),
+                max_payload: MAX_PAYLOAD,
+                info: updater.running_info(),
+            }),
+            Command::Begin { payload_len, target } => self.begin(payload_len, target, motion, on_trial, dfu),
+            Command::Erase { page } => self.session().and_then(|session| {
+                let from = u32::from(page).saturating_mul(PAGE_LEN);
+                let to = from.saturating_add(PAGE_LEN);
+                if from >= session.payload_len || to as usize > dfu.capacity() {
+                    return Err(Refusal::OutOfRange);
+                }
+                dfu.erase(from, to).map_err(|_| Refusal::FlashError)?;
+                Ok(ReplyBody::Erase { page })
+            }),
+            Command::Write { offset, data } => self
+                .session()
+                .and_then(|session| write_chunk(dfu, session, offset, data.as_slice())),
+            Command::Check { offset, len } => match self.session() {
+                Ok(session) if u64::from(offset) + u64::from(len) > u64::from(session.payload_len) => {
+                    Err(Refusal::OutOfRange)
+                }
+                Ok(_) => return Next::Crc { offset, len },
+                Err(refusal) => Err(refusal),
+            },
+            Command::Finish { payload_len, signature } => match self.finishable(payload_len, dfu) {
+                Ok(()) => {
+                    return Next::Verify { payload_len, signature };
+                }
+                Err(refusal) => Err(refusal),
+            },
+            Command::Reboot => match self.stage {
+                Stage::Finished => Ok(ReplyBody::Reboot),
+                _ => Err(Refusal::NotFinished),
+            },
+        })
+    }
+
+    fn begin<D: NorFlash>(
+        &mut self,
+        payload_len: u32,
+        target: u8,
+        motion: Motion,
+        on_trial: bool,
+        dfu: &D,
+    ) -> Result<ReplyBody, Refusal> {
+        if self.stage == Stage::Finished {
+            return Err(Refusal::Finished);
+        }
+        if on_trial {
+            return Err(Refusal::OnTrial);
+        }
+        if target != Target::thruster(self.family).to_byte() {
+            return Err(Refusal::WrongFamily);
+        }
+        if !payload_len.is_multiple_of(WRITE_UNIT) {
+            return Err(Refusal::Unaligned);
+        }
+        // embassy-boot's verify asserts that the payload fits the DFU partition: refused here instead.
+        if payload_len > MAX_PAYLOAD || payload_len as usize > dfu.capacity() {
+            return Err(Refusal::TooLarge);
+        }
+        if payload_len < INFO_END {
+            return Err(Refusal::Truncated);
+        }
+        info!("update begun: {=u32} bytes", payload_len);
+        self.stage = Stage::Begun(Session {
+            payload_len,
+            turning_orders: motion.turning_orders,
+        });
+        Ok(ReplyBody::Begin { payload_len })
+    }
+
+    /// Whether the payload is one to check the signature of: the length begun with, and this family's record.
+    fn finishable<D: NorFlash>(&self, payload_len: u32, dfu: &mut D) -> Result<(), Refusal> {
+        let session = self.session()?;
+        if payload_len != session.payload_len {
+            return Err(Refusal::Truncated);
+        }
+        let mut info = [0; INFO_LEN];
+        dfu.read(INFO_OFFSET, &mut info).map_err(|_| Refusal::FlashError)?;
+        if info_family(&info)? != Some(self.family) {
+            return Err(Refusal::WrongFamily);
+        }
+        Ok(())
+    }
+}
+
+/// What is left of a command once [`Receiver::prepare`] is done with it.
+enum Next {
+    /// Its reply.
+    Reply(Result<ReplyBody, Refusal>),
+    /// A CRC of the DFU partition to compute.
+    Crc { offset: u32, len: u32 },
+    /// A signature to check.
+    Verify {
+        payload_len: u32,
+        signature: [u8; SIGNATURE_LEN],
+    },
+}
+
+/// Write a chunk at `offset` in erased flash, padded with 0xFF to the write unit, and read it back. A chunk the
+/// flash already holds is not written again, so that a master that lost a reply can send the command again.
+// Out of line, as `Receiver::prepare`.
+#[inline(never)]
+fn write_chunk<D: NorFlash>(dfu: &mut D, session: Session, offset: u32, data: &[u8]) -> Result<ReplyBody, Refusal> {
+    if !offset.is_multiple_of(WRITE_UNIT) {
+        return Err(Refusal::Unaligned);
+    }
+    if u64::from(offset) + data.len() as u64 > u64::from(session.payload_len) {
+        return Err(Refusal::OutOfRange);
+    }
+    // The payload's length is a multiple of the write unit, so the padding stays inside it.
+    let padded = data.len().next_multiple_of(WRITE_UNIT as usize);
+    let mut chunk = [0xFF; MAX_CHUNK];
+    let mut held = [0; MAX_CHUNK];
+    let (Some(to_write), Some(held)) = (chunk.get_mut(..padded), held.get_mut(..padded)) else {
+        return Err(Refusal::OutOfRange);
+    };
+    if let Some(start) = to_write.get_mut(..data.len()) {
+        start.copy_from_slice(data);
+    }
+    let flash = |_| Refusal::FlashError;
+    dfu.read(offset, held).map_err(flash)?;
+    if held != to_write {
+        if held.iter().any(|byte| *byte != 0xFF) {
+            return Err(Refusal::NotErased);
+        }
+        dfu.write(offset, to_write).map_err(flash)?;
+        dfu.read(offset, held).map_err(flash)?;
+    }
+    let crc = tmc_proto::ext::crc32(held.get(..data.len()).unwrap_or(held));
+    Ok(ReplyBody::Write {
+        offset,
+        len: data.len() as u8,
+        crc,
+    })
+}
+
+/// The CRC of `len` bytes of the DFU partition from `offset`, read a chunk at a time, letting the other tasks run
+/// between chunks (the whole payload takes some milliseconds of CPU).
+async fn crc_of<D: NorFlash>(dfu: &mut D, offset: u32, len: u32) -> Result<u32, Refusal> {
+    let mut crc = Crc32::new();
+    let mut buffer = [0; MAX_CHUNK];
+    let end = offset.saturating_add(len);
+    let mut at = offset;
+    while at < end {
+        let n = (end - at).min(MAX_CHUNK as u32);
+        let Some(piece) = buffer.get_mut(..n as usize) else {
+            break;
+        };
+        dfu.read(at, piece).map_err(|_| Refusal::FlashError)?;
+        crc = crc.update(piece);
+        at += n;
+        yield_now().await;
+    }
+    Ok(crc.finish())
+}
+
+/// The update task: carries out each extension command the I2C task hands over and leaves its reply for the next
+/// read; resets (through `updater`) once the master has read the reply to a `Reboot`, or after [`REBOOT_GRACE`].
+pub async fn update_task<D: NorFlash, U: Updater>(dfu: &mut D, updater: &mut U, family: Family, shared: &Shared) -> ! {
+    let mut receiver = Receiver::new(family);
+    let replies = &shared.replies;
+    loop {
+        let frame = replies.commands.wait().await;
+        let motion = Motion::of(shared);
+        let outcome = receiver.handle(frame, motion, replies.on_trial(), dfu, updater).await;
+        replies.read.reset();
+        replies.complete(outcome.reply);
+        if outcome.reboot {
+            // The master reads the reply first; one that never does holds the reset back only this long.
+            let _ = with_timeout(REBOOT_GRACE, replies.read.wait()).await;
+            info!("rebooting into the new image");
+            updater.reboot();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
