@@ -1,24 +1,12 @@
-//! Link the firmware image against its memory layout, `memory.x` generated from `g431_hw::images` (host builds
-//! need no link arguments), and, for
-//! every target, generate the console's MAVLink dialect (`mavlink/lbv.xml`) into `OUT_DIR/lbv.rs` and the image's
+//! Link the firmware image against its memory layout (`g431_hw::link`; host builds need nothing), and, for every
+//! target, generate the console's MAVLink dialect (`mavlink/lbv.xml`) into `OUT_DIR/lbv.rs` and the image's
 //! version for AUTOPILOT_VERSION into `OUT_DIR/build_info.rs`.
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let out_dir = std::env::var_os("OUT_DIR").ok_or("OUT_DIR is not set")?;
-    if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
-        let layout = g431_hw::images::layout_of(env!("CARGO_PKG_NAME"))?;
-        std::fs::write(Path::new(&out_dir).join("memory.x"), layout.to_string())?;
-        // The search path only for this crate's own binary: a crate linking this one as a library (qemu-m4)
-        // brings its own memory map.
-        println!("cargo:rustc-link-arg-bins=-L");
-        println!("cargo:rustc-link-arg-bins={}", Path::new(&out_dir).display());
-        println!("cargo:rustc-link-arg-bins=--nmagic");
-        println!("cargo:rustc-link-arg-bins=-Tlink.x");
-        println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
-    }
-    println!("cargo:rerun-if-changed=build.rs");
+    g431_hw::link::link_image(env!("CARGO_PKG_NAME"))?;
 
     // The console's MAVLink dialect: only the messages it uses, so the image carries only their codecs.
     let dialect = Path::new(env!("CARGO_MANIFEST_DIR")).join("mavlink/lbv.xml");

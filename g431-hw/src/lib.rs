@@ -10,7 +10,7 @@
 //!
 //! Sources are cited where a value is used. Where a primary document could not be read, the comment says which
 //! secondary source the value comes from.
-#![cfg_attr(not(test), no_std)]
+#![cfg_attr(not(any(test, feature = "build")), no_std)]
 #![forbid(unsafe_code)]
 
 pub mod adc;
@@ -20,6 +20,8 @@ pub mod flash;
 pub mod i2c;
 pub mod images;
 pub mod iwdg;
+#[cfg(feature = "build")]
+pub mod link;
 pub mod memory;
 pub mod pins;
 pub mod tim1;
