@@ -1,9 +1,10 @@
 //! A new image on trial. The bootloader (thruster-boot, embassy-boot) swaps a new image in and starts it on trial:
 //! until the image confirms itself, any reset (the watchdog's, a brown-out, a power cut) swaps the previous image
-//! back. The image confirms only once it has shown that it works here: every task reporting to the watchdog for
-//! [`TRIAL_ROUNDS`] rounds in a row, and [`TRIAL_ORDERS`] orders from the master taken and answered. It confirms
-//! while the master orders zero, since writing the bootloader's state erases a flash page, which stalls the CPU
-//! (commutation included) for as long as the erase takes (spec-notes: "tens of milliseconds").
+//! back. The image confirms only once it has shown that it works here: [`TRIAL_ROUNDS`] watchdog rounds in which
+//! every task reported (counted since start; a task that stops for good is a watchdog reset), and [`TRIAL_ORDERS`]
+//! orders from the master taken and answered. It confirms while the master orders zero, since writing the
+//! bootloader's state erases a flash page, which stalls the CPU (commutation included) for as long as the erase
+//! takes (spec-notes: "tens of milliseconds").
 
 use embassy_time::{Duration, Ticker, Timer};
 
