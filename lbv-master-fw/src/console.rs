@@ -3,12 +3,13 @@
 //!
 //! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too) through a [`Receiver`], which checks their
 //!   signatures when a key is set ([`crate::signing`]), decodes the few messages the master understands
-//!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it.
+//!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it; MAVLink
+//!   FTP and the apply command go to the update task instead ([`crate::update`]).
 //! - [`console_tx_task`] sends the telemetry an ArduSub or QGroundControl ground station displays (HEARTBEAT,
 //!   SYS_STATUS, BATTERY_STATUS, ESC_INFO at 1 Hz, ESC_TELEMETRY and ESC_STATUS at 4 Hz, at the intervals a
 //!   ground station sets) and every message the other tasks queue in [`Shared::outbox`] (COMMAND_ACK,
-//!   PARAM_VALUE, STATUSTEXT, a requested message such as AUTOPILOT_VERSION) as soon as it is queued, signed when
-//!   a key is set.
+//!   PARAM_VALUE, STATUSTEXT, a requested message such as AUTOPILOT_VERSION, an FTP reply) as soon as it is
+//!   queued, signed when a key is set.
 //!
 //! The dialect ([`lbv`]) is generated at build time from `mavlink/lbv.xml`, which holds only the messages used,
 //! copied from the official definitions; messages are encoded and decoded one type at a time, so the image
@@ -24,9 +25,16 @@ use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
-use crate::framing::{Event, FrameParser};
-use crate::shared::{Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared};
+use crate::framing::{Event, Frame, FrameParser};
+use crate::shared::{
+    Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateCommand,
+    UpdateRequest,
+};
 use crate::signing::{Refusal, SigningKey, SigningState};
+use crate::thrusters::ThrusterTable;
+use crate::update::UpdateSink;
+#[cfg(not(feature = "acceptance"))]
+use crate::update::Updates;
 
 pub mod inbound;
 pub mod outbound;
@@ -241,6 +249,8 @@ impl ConsoleStats {
 pub enum Received {
     /// A request for the vehicle.
     Request(Request),
+    /// A request for the update server: MAVLink FTP, or the apply command ([`crate::update::ENABLED`]).
+    Update(UpdateRequest),
     /// Nothing for the vehicle: counted and dropped, or not addressed to us, or telemetry of another system.
     Nothing,
 }
@@ -305,16 +315,10 @@ impl Receiver {
                     );
                     Received::Nothing
                 }
-                Ok(()) => match inbound::decode(&frame, config) {
-                    Ok(command) => {
+                Ok(()) => match decode(&frame, config) {
+                    Ok(received) => {
                         ConsoleStats::count(&stats.frames_in, 1);
-                        let from = Sender {
-                            system: frame.system_id,
-                            component: frame.component_id,
-                        };
-                        command.map_or(Received::Nothing, |command| {
-                            Received::Request(Request { from, command })
-                        })
+                        received
                     }
                     Err(_) => {
                         ConsoleStats::count(&stats.bad_frames, 1);
@@ -328,8 +332,34 @@ impl Receiver {
     }
 }
 
+/// What a frame that passed the signing checks asks, and of whom.
+fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Received, mavlink_core::error::ParserError> {
+    let from = Sender {
+        system: frame.system_id,
+        component: frame.component_id,
+    };
+    if crate::update::ENABLED
+        && let Some(payload) = inbound::ftp(frame, config)
+    {
+        return Ok(Received::Update(UpdateRequest {
+            from,
+            what: UpdateCommand::Ftp(payload),
+        }));
+    }
+    Ok(match inbound::decode(frame, config)? {
+        Some(Command::ApplyUpdate { target }) if crate::update::ENABLED => Received::Update(UpdateRequest {
+            from,
+            what: UpdateCommand::Apply(target),
+        }),
+        Some(command) => Received::Request(Request { from, command }),
+        None => Received::Nothing,
+    })
+}
+
 /// Read MAVLink frames from `rx` and send the [`Request`]s they carry to `shared.commands`, awaiting room (the
-/// vehicle task drains it).
+/// vehicle task drains it); serve the [`UpdateRequest`]s with an update server for `thrusters` whose images go
+/// to `sink` ([`Updates::serve`]), reading on only once the sink is [`UpdateSink::ready`] (a read of 64 bytes
+/// brings at most one write of image bytes).
 ///
 /// A frame begun when the line falls quiet for [`LINE_IDLE`] is given up and the bytes after its start read
 /// again, so noise never hides the frames behind it for longer. Frames from any system are read; only messages
@@ -337,10 +367,25 @@ impl Receiver {
 /// decides whether their sender may ask. With a signing key in force (`shared.settings`), frames that fail the
 /// signing checks are refused, and the reservations the link needs are asked for ([`ConsoleStats::follow`]). A
 /// read error is counted and reading resumes after a short pause.
-pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared: &Shared, stats: &ConsoleStats) -> ! {
+pub async fn console_rx_task<R: Read, U: UpdateSink>(
+    rx: &mut R,
+    config: &ConsoleConfig,
+    shared: &Shared,
+    stats: &ConsoleStats,
+    thrusters: &ThrusterTable,
+    sink: U,
+) -> ! {
+    #[cfg(not(feature = "acceptance"))]
+    let mut updates = Updates::new(thrusters, sink);
+    #[cfg(feature = "acceptance")]
+    let _ = (thrusters, sink);
     let mut receiver = Receiver::new();
     let mut chunk = [0u8; 64];
     loop {
+        // The sink's back-pressure holds the reading, not a request: a request kept across a wait would take
+        // its 251 bytes twice, in the task and on the stack the task is built on.
+        #[cfg(not(feature = "acceptance"))]
+        updates.sink.ready().await;
         let read = if receiver.pending() {
             match select(rx.read(&mut chunk), Timer::after(LINE_IDLE)).await {
                 Either::First(read) => Some(read),
@@ -369,8 +414,18 @@ pub async fn console_rx_task<R: Read>(rx: &mut R, config: &ConsoleConfig, shared
             let taken = receiver.push(rest);
             rest = rest.get(taken..).unwrap_or_default();
             while let Some(received) = receiver.next(config, stats.follow(shared), stats) {
-                if let Received::Request(request) = received {
-                    shared.commands.send(request).await;
+                match received {
+                    Received::Request(request) => shared.commands.send(request).await,
+                    // A cfg, not `if update::ENABLED`: an async branch never taken still costs its code.
+                    #[cfg(not(feature = "acceptance"))]
+                    Received::Update(request) => {
+                        if let Some(reply) = updates.serve(request, shared) {
+                            shared.outbox.send(reply).await;
+                        }
+                    }
+                    #[cfg(feature = "acceptance")]
+                    Received::Update(_) => {}
+                    Received::Nothing => {}
                 }
             }
             stats.follow(shared);
@@ -503,6 +558,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                 Outgoing::Text(severity, text) => out.push(&outbound::statustext(severity, &text)),
                 Outgoing::Message(message) => out.send(message, config, shared, &mut last),
                 Outgoing::Interval(message, interval) => schedule.set(message, interval),
+                Outgoing::Ftp { to, reply } => out.ftp_reply(to, &reply),
                 Outgoing::Reboot => {
                     out.flush().await;
                     // The acknowledgement must leave the port before the restart cuts it off.
@@ -620,22 +676,31 @@ impl<W: Write> Output<'_, W> {
         }
     }
 
+    /// Frame an FTP reply (nothing in an image without the update server, which has none to send).
+    fn ftp_reply(&mut self, to: Sender, reply: &FtpReply) {
+        #[cfg(not(feature = "acceptance"))]
+        {
+            let len = self.framer.frame_ftp(to, reply).len();
+            self.append(len, lbv::FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC);
+        }
+        let _ = (to, reply);
+    }
+
     /// Frame `message` into the batch, signed when a key is in force; a frame that does not fit is counted as a
     /// write error.
     fn push<D: MessageData>(&mut self, message: &D) {
-        let frame = self.framer.frame(message);
-        let len = frame.len();
-        match self.batch.get_mut(self.len..self.len + len) {
-            Some(slot) => slot.copy_from_slice(frame),
-            None => return ConsoleStats::count(&self.stats.write_errors, 1),
-        }
+        let len = self.framer.frame(message).len();
         self.append(len, D::EXTRA_CRC);
     }
 
-    /// Take the `len`-byte frame just copied to the end of the batch, signing it when a key is in force (not
-    /// generic: one copy for every message type).
+    /// Take the `len`-byte frame the framer holds into the batch, signing it when a key is in force (not generic:
+    /// one copy for every message type); a frame that does not fit is counted as a write error.
     #[inline(never)]
     fn append(&mut self, len: usize, extra_crc: u8) {
+        match self.batch.get_mut(self.len..self.len + len) {
+            Some(slot) => slot.copy_from_slice(self.framer.last(len)),
+            None => return ConsoleStats::count(&self.stats.write_errors, 1),
+        }
         let signed = match (self.key, self.batch.get_mut(self.len..)) {
             (Some(key), Some(rest)) => self
                 .stats

@@ -21,6 +21,7 @@ pub mod settings;
 pub mod shared;
 pub mod signing;
 pub mod thrusters;
+pub mod update;
 pub mod vehicle;
 
 use embassy_futures::join::{join, join3, join5};
@@ -36,12 +37,14 @@ use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
 use shared::{BUSES, Severity, Shared, text};
 use thrusters::bus_task;
+use update::UpdateSink;
 use vehicle::vehicle_task;
 
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
-/// CAN bus, the console's serial link, where the settings are kept, how it restarts, and what the buses are for.
+/// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for, and
+/// where update images go.
 #[derive(Debug)]
-pub struct Ports<B, C, R, W, S, X, J = Polling> {
+pub struct Ports<B, C, R, W, S, X, J = Polling, U = update::CheckOnly> {
     /// The thruster buses, each with its recovery.
     pub buses: [B; BUSES],
     /// The battery board's frames.
@@ -57,6 +60,9 @@ pub struct Ports<B, C, R, W, S, X, J = Polling> {
     pub reboot: X,
     /// The buses' work: [`Polling`] the thrusters (the vehicle), or the acceptance [`acceptance::Script`].
     pub work: J,
+    /// Where the update images received over MAVLink FTP go ([`update`]): [`update::CheckOnly`] until the I2C
+    /// transfer to the thrusters is there.
+    pub update: U,
 }
 
 /// What the master does with its thruster buses.
@@ -98,14 +104,15 @@ async fn poll_bus<B: I2c + BusRecovery>(bus: &mut B, index: u8, config: &MasterC
 }
 
 /// The master node: the settings loaded from their store, then the buses' work, the battery CAN task, the console's
-/// receive and transmit tasks, the vehicle task and the settings task, joined. They talk only through `shared` (and
+/// receive and transmit tasks (the receiving one serving the update images, [`update`]), the vehicle task and
+/// the settings task, joined. They talk only through `shared` (and
 /// the console tasks through `console`), which live as long as the node: a reboot starts again from fresh ones.
 ///
 /// Before any task runs, the settings are published and, with a signing key, a new signing reservation is stored
 /// past the one loaded (the start's floor, [`signing`]): the first frame read (one already waiting in the UART) is
 /// checked with the key, and the first telemetry goes out signed, above every timestamp used before the start.
-pub async fn run<B, C, R, W, S, X, J>(
-    ports: Ports<B, C, R, W, S, X, J>,
+pub async fn run<B, C, R, W, S, X, J, U>(
+    ports: Ports<B, C, R, W, S, X, J, U>,
     config: &MasterConfig,
     shared: &Shared,
     console: &ConsoleStats,
@@ -118,6 +125,7 @@ where
     S: SettingsStore,
     X: Reboot,
     J: BusWork,
+    U: UpdateSink,
 {
     let Ports {
         mut buses,
@@ -127,6 +135,7 @@ where
         mut settings,
         mut reboot,
         work,
+        update,
     } = ports;
     let stored = settings.load(config.vehicle.defaults()).await;
     let unreadable = settings.read_errors();
@@ -154,7 +163,14 @@ where
         join5(
             buses,
             can_task(&mut can, shared),
-            console_rx_task(&mut console_rx, &config.console, shared, console),
+            console_rx_task(
+                &mut console_rx,
+                &config.console,
+                shared,
+                console,
+                &config.thrusters,
+                update,
+            ),
             console_tx_task(&mut console_tx, &config.console, shared, console),
             vehicle_task(config.vehicle, stored, shared),
         ),

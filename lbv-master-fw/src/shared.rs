@@ -72,6 +72,58 @@ pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
 pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
 /// The older way to ask for AUTOPILOT_VERSION.
 pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
+/// Apply the update image received for a target ([`crate::update`]): MAV_CMD_USER_1, the first of common.xml's
+/// commands left to the vendor. MAVLink has no command that applies a file received over FTP; MAV_CMD_DO_UPGRADE
+/// (247, work in progress) names the component to upgrade by MAVLink component id, not a thruster slot.
+pub const MAV_CMD_LBV_APPLY_UPDATE: u16 = 31010;
+
+/// FILE_TRANSFER_PROTOCOL's payload: MAVLink FTP's header and data ([`crate::update::ftp`]).
+pub const FTP_PAYLOAD: usize = 251;
+/// A MAVLink FTP payload.
+pub type FtpPayload = [u8; FTP_PAYLOAD];
+
+/// A request for the update server: who sent it and what it asks. Apart from [`Request`]: an FTP payload is five
+/// times the size of every other command, and only the update server takes it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UpdateRequest {
+    pub from: Sender,
+    /// What it asks.
+    pub what: UpdateCommand,
+}
+
+/// What a ground station asks of the update server.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+// Boxing the payload needs an allocator; the apply command is rare and small.
+#[allow(clippy::large_enum_variant)]
+pub enum UpdateCommand {
+    /// A FILE_TRANSFER_PROTOCOL addressed to us: its payload.
+    Ftp(FtpPayload),
+    /// MAV_CMD_LBV_APPLY_UPDATE with param1 the target: a thruster slot from 0, 255 the master; `None` when param1
+    /// is not a whole number 0..=255.
+    Apply(Option<u8>),
+}
+
+/// The start of an FTP reply's payload: its 12-byte header and up to [`FTP_REPLY_DATA`] bytes of data (the rest
+/// of the 251 are zeros). The server's replies need no more (an ACK, a NAK's code, a CRC, one directory entry),
+/// and so fit in [`Outgoing`] beside the other messages for the console.
+pub type FtpReply = [u8; 12 + FTP_REPLY_DATA];
+/// Data bytes an [`FtpReply`] carries.
+pub const FTP_REPLY_DATA: usize = 28;
+
+/// The update server's counters (wrapping).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct UpdateCounters {
+    /// FTP requests answered with a NAK.
+    pub naks: u32,
+    /// Writes past the next byte expected (an earlier write was lost), dropped unanswered for the client to send
+    /// again.
+    pub gaps: u32,
+    /// Writes of bytes already received (their ACK was lost), ACKed again.
+    pub duplicates: u32,
+    /// Writes, removals and apply commands refused because they came from another system than the operator's.
+    pub refused: u32,
+}
 
 /// What the console asked for, decoded from MAVLink by the console task.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -116,6 +168,13 @@ pub enum Command {
         message: Option<Message>,
         /// The interval, `None` when the value asked is not one (NaN, below -1).
         interval: Option<Interval>,
+    },
+    /// MAV_CMD_LBV_APPLY_UPDATE (31010): taken by the update server (an image without one, the acceptance image,
+    /// answers MAV_RESULT_UNSUPPORTED). The target: a thruster slot from 0, 255 the master; `None` when param1 is
+    /// not a whole number 0..=255.
+    ApplyUpdate {
+        /// param1.
+        target: Option<u8>,
     },
     /// Any other command (COMMAND_LONG or COMMAND_INT): answered MAV_RESULT_UNSUPPORTED.
     Unsupported {
@@ -247,6 +306,13 @@ pub enum Outgoing {
     Interval(Message, Interval),
     /// Restart the master once everything queued before this has been sent (the reboot's COMMAND_ACK).
     Reboot,
+    /// FILE_TRANSFER_PROTOCOL: the update server's reply, to the request's sender.
+    Ftp {
+        /// Who asked (the message's target system and component).
+        to: Sender,
+        /// The payload's start.
+        reply: FtpReply,
+    },
 }
 
 /// Link health and error counters of one thruster. Counters saturate.
@@ -350,6 +416,8 @@ pub struct VehicleState {
     pub failsafe: bool,
     /// PARAM_SETs refused because their param_type was not the parameter's, wrapping.
     pub param_type_mismatches: u32,
+    /// `SYSID_MYGCS`: the operator's ground station, the only system that may change the vehicle.
+    pub operator: u8,
 }
 
 type Mutex = CriticalSectionRawMutex;

@@ -157,6 +157,8 @@ async fn main(spawner: Spawner) {
             settings,
             reboot: SystemReset,
             work: WORK,
+            // No I2C transfer to the thrusters yet: images are checked and dropped.
+            update: lbv_master_fw::update::CheckOnly,
         },
         config
     )));

@@ -99,6 +99,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         settings: flash_store(&g431_flash()),
         reboot: RebootRequest::default(),
         work: Polling,
+        update: crate::update::CheckOnly,
     };
     executor.spawn(async {
         run(ports, &config, &shared, &stats).await;

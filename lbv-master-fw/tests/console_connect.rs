@@ -98,7 +98,14 @@ fn connect(limit: Duration, mut script: impl FnMut(&mut Station) -> bool) -> Sta
         sequence: 0,
     };
     let tasks = join3(
-        console_rx_task(&mut rx, &config, &shared, &stats),
+        console_rx_task(
+            &mut rx,
+            &config,
+            &shared,
+            &stats,
+            &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::update::CheckOnly,
+        ),
         console_tx_task(&mut tx, &config, &shared, &stats),
         vehicle_task(vehicle, vehicle.defaults(), &shared),
     );

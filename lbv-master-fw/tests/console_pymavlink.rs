@@ -12,12 +12,12 @@ use std::process::{Command as Process, Stdio};
 
 use console_support::{clock, run_rx, run_tx};
 use embassy_time::Duration;
-use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
+use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, Received, Receiver};
 use lbv_master_fw::mixer::ManualInput;
 use lbv_master_fw::params::ParamType;
 use lbv_master_fw::shared::{
     AckResult, BatterySummary, Command, Interval, LinkHealth, Message, Outgoing, Sender, Severity, Shared, Text,
-    ThrusterReport, VehicleState,
+    ThrusterReport, UpdateCommand, UpdateRequest, VehicleState,
 };
 use serde_json::Value;
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
@@ -86,6 +86,57 @@ fn pymavlink_is_installed() {
     peer(&["check"], "");
 }
 
+/// The frames for the update server ([`ftp_frames_and_the_apply_command_go_to_the_update_server`]).
+const UPDATE_FRAMES: [&str; 5] = ["ftp_list", "ftp_write", "ftp_other_system", "ftp_v1", "apply_update"];
+
+/// A MAVLink FTP payload as pymavlink's MAVFTP packs it.
+fn ftp_payload(seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> [u8; 251] {
+    let mut payload = [0u8; 251];
+    payload[..2].copy_from_slice(&seq.to_le_bytes());
+    payload[2] = session;
+    payload[3] = opcode;
+    payload[4] = data.len() as u8;
+    payload[8..12].copy_from_slice(&offset.to_le_bytes());
+    payload[12..12 + data.len()].copy_from_slice(data);
+    payload
+}
+
+#[test]
+fn ftp_frames_and_the_apply_command_go_to_the_update_server() {
+    let frames = pymavlink_frames();
+    let gcs = Sender {
+        system: 255,
+        component: 190,
+    };
+    let write_data: Vec<u8> = (1..240).collect();
+    let expected = [
+        (
+            "ftp_list",
+            Some(UpdateCommand::Ftp(ftp_payload(7, 3, 3, 0, b"/update"))),
+        ),
+        // To component 0: any component of ours. A full payload: nothing trimmed.
+        (
+            "ftp_write",
+            Some(UpdateCommand::Ftp(ftp_payload(8, 3, 7, 239, &write_data))),
+        ),
+        ("ftp_other_system", None),
+        ("ftp_v1", Some(UpdateCommand::Ftp(ftp_payload(10, 3, 3, 0, b"/")))),
+        ("apply_update", Some(UpdateCommand::Apply(Some(2)))),
+    ];
+    assert_eq!(expected.map(|(name, _)| name), UPDATE_FRAMES);
+    for (name, what) in expected {
+        let mut receiver = Receiver::new();
+        let stats = ConsoleStats::new();
+        assert_eq!(receiver.push(&frames[name]), frames[name].len());
+        let got = receiver.next(&ConsoleConfig::DEFAULT, None, &stats);
+        let want = what.map_or(Received::Nothing, |what| {
+            Received::Update(UpdateRequest { from: gcs, what })
+        });
+        assert_eq!(got, Some(want), "{name}");
+        assert_eq!(stats.snapshot().frames_in, 1, "{name}");
+    }
+}
+
 #[test]
 fn frames_built_by_pymavlink_give_the_right_commands() {
     let frames = pymavlink_frames();
@@ -113,7 +164,7 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             }),
         ),
         ("motor_test_pwm", Some(Command::Unsupported { command: 209 })),
-        ("unknown_command", Some(Command::Unsupported { command: 31010 })),
+        ("unknown_command", Some(Command::Unsupported { command: 31011 })),
         ("arm_other_system", None),
         ("param_list", Some(Command::ParamRequestList)),
         (
@@ -191,7 +242,11 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             })),
         ),
     ];
-    assert_eq!(frames.len(), expected.len() + 1, "one unknown message besides");
+    assert_eq!(
+        frames.len(),
+        expected.len() + 1 + UPDATE_FRAMES.len(),
+        "one unknown message and the update server's besides"
+    );
     for (name, command) in &expected {
         let frame = &frames[*name];
         let (commands, counters) = run_rx(frame, 64, &ConsoleConfig::DEFAULT);
@@ -312,6 +367,20 @@ fn pymavlink_decodes_what_the_console_sends() {
                 .outbox
                 .try_send(Outgoing::Message(Message::AutopilotVersion))
                 .unwrap();
+            // An FTP reply of the update server: a listing entry to a MAVFTP client.
+            let mut reply = [0u8; 40];
+            reply[..12].copy_from_slice(&[8, 0, 3, 128, 21, 3, 0, 0, 0, 0, 0, 0]);
+            reply[12..33].copy_from_slice(b"Fthruster0.lbvu\t4176\0");
+            shared
+                .outbox
+                .try_send(Outgoing::Ftp {
+                    to: Sender {
+                        system: 255,
+                        component: 190,
+                    },
+                    reply,
+                })
+                .unwrap();
         }
         if elapsed == Duration::from_millis(600) {
             shared.vehicle.sender().send(VehicleState {
@@ -321,6 +390,7 @@ fn pymavlink_decodes_what_the_console_sends() {
                 armable: true,
                 failsafe: false,
                 param_type_mismatches: 0,
+                operator: 255,
             });
         }
     });
@@ -418,6 +488,28 @@ fn pymavlink_decodes_what_the_console_sends() {
     assert_eq!(params[1]["param_id"], "SYSID_MYGCS");
     assert_eq!(params[1]["param_value"], 255.0, "C_CAST: the float holds the integer");
     assert_eq!(params[1]["param_type"], 4, "MAV_PARAM_TYPE_INT16");
+
+    let ftp = of_type(&decoded, "FILE_TRANSFER_PROTOCOL");
+    assert_eq!(ftp.len(), 1);
+    assert_eq!(
+        (
+            &ftp[0]["target_network"],
+            &ftp[0]["target_system"],
+            &ftp[0]["target_component"]
+        ),
+        (&0.into(), &255.into(), &190.into())
+    );
+    let payload: Vec<u64> = ftp[0]["payload"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b.as_u64().unwrap())
+        .collect();
+    assert_eq!(payload.len(), 251, "zero-extended to its full length");
+    assert_eq!(payload[..12], [8, 0, 3, 128, 21, 3, 0, 0, 0, 0, 0, 0]);
+    let entry: Vec<u8> = payload[12..33].iter().map(|b| *b as u8).collect();
+    assert_eq!(entry, b"Fthruster0.lbvu\t4176\0");
+    assert!(payload[33..].iter().all(|b| *b == 0));
 
     let versions = of_type(&decoded, "AUTOPILOT_VERSION");
     assert_eq!(versions.len(), 1);

@@ -135,6 +135,7 @@ impl Board {
             settings: Store::g431(self.flash.clone()),
             reboot: restart.clone(),
             work: Idle,
+            update: lbv_master_fw::update::CheckOnly,
         };
         let mut executor = Executor::new();
         executor.spawn(async {

@@ -233,3 +233,56 @@ fn the_console_accepts_what_mavlink_core_signs() {
         (1, 0, 0)
     );
 }
+
+#[test]
+fn with_a_key_an_unsigned_ftp_request_or_apply_is_refused_like_any_unsigned_frame() {
+    use lbv_master_fw::console::lbv::{COMMAND_LONG_DATA, FILE_TRANSFER_PROTOCOL_DATA};
+    use lbv_master_fw::shared::Outgoing;
+
+    let mut settings = VehicleConfig::DEFAULT.defaults();
+    settings.signing = Some(SigningKey {
+        secret: KEY,
+        timestamp: signing_now(),
+    });
+    let shared = Shared::new();
+    console_support::publish(&shared, settings);
+    let signer = SigningData::from_config(SigningConfig::new(KEY, 3, true, false));
+    let header = MavHeader {
+        system_id: 255,
+        component_id: 190,
+        sequence: 0,
+    };
+    // ListDirectory "/update", as MAVFTP packs it.
+    let mut payload = [0u8; 251];
+    payload[..5].copy_from_slice(&[1, 0, 0, 3, 7]);
+    payload[12..19].copy_from_slice(b"/update");
+    let list = MavMessage::FILE_TRANSFER_PROTOCOL(FILE_TRANSFER_PROTOCOL_DATA {
+        target_network: 0,
+        target_system: 1,
+        target_component: 1,
+        payload,
+    });
+    let apply = COMMAND_LONG_DATA {
+        target_system: 1,
+        target_component: 1,
+        command: 31010,
+        param1: 0.0,
+        ..COMMAND_LONG_DATA::DEFAULT
+    };
+    let mut bytes = Vec::new();
+    mavlink_core::write_v2_msg_signed(&mut bytes, header, &list, Some(&signer)).unwrap();
+    mavlink_core::write_v2_msg(&mut bytes, header, &list).unwrap();
+    bytes.extend(console_support::v2(255, 190, 2, &apply));
+    let (requests, counters) = run_rx_requests(&bytes, 64, &ConsoleConfig::DEFAULT, &shared);
+    assert!(requests.is_empty());
+    assert_eq!((counters.unsigned, counters.frames_in), (2, 1));
+    // Only the signed listing was served.
+    let mut served = Vec::new();
+    while let Ok(message) = shared.outbox.try_receive() {
+        served.push(message);
+    }
+    assert!(
+        matches!(served.as_slice(), [Outgoing::Ftp { reply, .. }] if reply[3] == 128 && reply[5] == 3),
+        "{served:?}"
+    );
+}

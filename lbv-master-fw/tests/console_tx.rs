@@ -189,6 +189,7 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
                     armable: true,
                     failsafe: false,
                     param_type_mismatches: 0,
+                    operator: 255,
                 });
             }
         },
@@ -278,7 +279,14 @@ fn drop_rate_comes_from_the_receive_counters() {
     let capture = console_support::Capture::default();
     let mut tx = capture.clone();
     embassy_futures::block_on(embassy_futures::select::select3(
-        lbv_master_fw::console::console_rx_task(&mut rx, &config, &shared, &stats),
+        lbv_master_fw::console::console_rx_task(
+            &mut rx,
+            &config,
+            &shared,
+            &stats,
+            &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::update::CheckOnly,
+        ),
         lbv_master_fw::console::console_tx_task(&mut tx, &config, &shared, &stats),
         async {
             for _ in 0..120 {

@@ -34,6 +34,14 @@ def link(module, system=GCS_SYSTEM, component=GCS_COMPONENT):
     return module.MAVLink(None, srcSystem=system, srcComponent=component)
 
 
+def ftp(seq, session, opcode, offset, data):
+    """A MAVLink FTP payload as pymavlink.mavftp packs it: the 12-byte header, the data, zeros to 251 bytes."""
+    import struct
+
+    payload = struct.pack("<HBBBBBBI", seq, session, opcode, len(data), 0, 0, 0, offset) + data
+    return list(payload + bytes(251 - len(payload)))
+
+
 def emit():
     g = link(mav2)
     v = link(mav2, system=2, component=1)
@@ -51,7 +59,7 @@ def emit():
         "disarm": g.command_long_encode(1, 0, 400, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
         "motor_test": g.command_long_encode(1, 1, 209, 0, 3, 0, -40, 4.5, 0, 0, 0).pack(g),
         "motor_test_pwm": g.command_long_encode(1, 1, 209, 0, 3, 1, 1600, 2, 0, 0, 0).pack(g),
-        "unknown_command": g.command_long_encode(1, 1, 31010, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
+        "unknown_command": g.command_long_encode(1, 1, 31011, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
         "arm_other_system": g.command_long_encode(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
         "param_list": g.param_request_list_encode(1, 1).pack(g),
         "param_read_name": g.param_request_read_encode(1, 1, b"THR_MAX", -1).pack(g),
@@ -67,6 +75,12 @@ def emit():
         "esc_status_off": g.command_long_encode(1, 1, 511, 0, 291, -1, 0, 0, 0, 0, 0).pack(g),
         "arm_v1": g1.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g1),
         "manual_v1": g1.manual_control_encode(1, -1000, 1000, 0, 1000, 0).pack(g1),
+        # MAVLink FTP as pymavlink's MAVFTP sends it (the payload padded to 251 bytes), and the apply command.
+        "ftp_list": g.file_transfer_protocol_encode(0, 1, 1, ftp(7, 3, 3, 0, b"/update")).pack(g),
+        "ftp_write": g.file_transfer_protocol_encode(0, 1, 0, ftp(8, 3, 7, 239, bytes(range(1, 240)))).pack(g),
+        "ftp_other_system": g.file_transfer_protocol_encode(0, 2, 1, ftp(9, 3, 3, 0, b"/update")).pack(g),
+        "ftp_v1": g1.file_transfer_protocol_encode(0, 1, 1, ftp(10, 3, 3, 0, b"/")).pack(g1),
+        "apply_update": g.command_long_encode(1, 1, 31010, 0, 2, 0, 0, 0, 0, 0, 0).pack(g),
         # Not in the console's dialect.
         "system_time": g.system_time_encode(1234567, 890).pack(g),
     }

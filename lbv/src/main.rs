@@ -122,6 +122,10 @@ struct BenchArgs {
     /// Allow --udp-listen on an address other than loopback (exposes the vehicle to the network)
     #[arg(long, requires = "udp")]
     udp_any: bool,
+    /// Write each update image the master receives over MAVLink FTP, as its sink got it, to DIR/<file> (for
+    /// /update/thruster0.lbvu: DIR/thruster0.lbvu) once it is whole or stopped (a stopped one ends in .stopped)
+    #[arg(long, value_name = "DIR", requires = "udp")]
+    update_dir: Option<PathBuf>,
     /// Write the one scenario's report as JSON on standard output and nothing else: how --all runs each scenario,
     /// in a process of its own
     #[arg(long, hide = true, conflicts_with_all = ["all", "udp", "list", "json"])]
@@ -412,7 +416,13 @@ fn udp(options: &BenchArgs) -> ExitCode {
     let duration = options
         .duration
         .map(|seconds| embassy_time::Duration::from_micros((seconds * 1e6) as u64));
-    let clock = match bench::udp::serve(&mut bench, &link, duration, !options.quiet) {
+    let clock = match bench::udp::serve(
+        &mut bench,
+        &link,
+        duration,
+        !options.quiet,
+        options.update_dir.as_deref(),
+    ) {
         Ok(clock) => clock,
         Err(error) => {
             eprintln!("lbv: the UDP link failed: {error}");

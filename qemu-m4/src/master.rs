@@ -78,6 +78,7 @@ pub fn ports<J>(buses: [&'static Bus; BUSES], work: J) -> MasterPorts<J> {
         settings: InRam,
         reboot: NoReboot,
         work,
+        update: lbv_master_fw::update::CheckOnly,
     }
 }
 

@@ -8,15 +8,16 @@ use mavlink_core::error::ParserError;
 use super::ConsoleConfig;
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, ESC_INFO_DATA,
-    ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA,
-    MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA,
-    STATUSTEXT_DATA, SYS_STATUS_DATA,
+    ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA,
+    MANUAL_CONTROL_DATA, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA,
+    SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::framing::{Frame, Version};
 use crate::mixer::ManualInput;
 use crate::shared::{
-    Command, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
-    MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, Message,
+    Command, FtpPayload, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_LBV_APPLY_UPDATE,
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, MAV_CMD_REQUEST_MESSAGE,
+    MAV_CMD_SET_MESSAGE_INTERVAL, Message,
 };
 
 /// Shortest message interval taken, ms: every paced message at 10 Hz together takes some 5 kB/s, under half of
@@ -32,7 +33,7 @@ const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 18] = [
+const MESSAGES: [(u32, u8); 19] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
@@ -43,6 +44,7 @@ const MESSAGES: [(u32, u8); 18] = [
     (COMMAND_INT_DATA::ID, COMMAND_INT_DATA::EXTRA_CRC),
     (COMMAND_LONG_DATA::ID, COMMAND_LONG_DATA::EXTRA_CRC),
     (COMMAND_ACK_DATA::ID, COMMAND_ACK_DATA::EXTRA_CRC),
+    (FILE_TRANSFER_PROTOCOL_DATA::ID, FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC),
     (BATTERY_STATUS_DATA::ID, BATTERY_STATUS_DATA::EXTRA_CRC),
     (AUTOPILOT_VERSION_DATA::ID, AUTOPILOT_VERSION_DATA::EXTRA_CRC),
     (STATUSTEXT_DATA::ID, STATUSTEXT_DATA::EXTRA_CRC),
@@ -78,6 +80,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 ///   [`Command::Unsupported`] for the other throttle types; 246 with param1 exactly 1 (reboot the autopilot)
 ///   gives [`Command::Reboot`], other actions (shutdown, bootloader, none) [`Command::Unsupported`]; any other
 ///   command gives [`Command::Unsupported`]. The vehicle task answers every one with a COMMAND_ACK.
+///   31010 (MAV_CMD_LBV_APPLY_UPDATE) gives [`Command::ApplyUpdate`] of the target param1 names (a whole number
+///   0..=255, else `None`).
 /// - SETUP_SIGNING to our system and component (or 0): [`Command::SetupSigning`].
 /// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
 ///   command; PARAM_SET carries its param_type, which the vehicle checks against the parameter's.
@@ -138,6 +142,26 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Comman
         _ => None,
     };
     Ok(command)
+}
+
+/// The MAVLink FTP payload of a FILE_TRANSFER_PROTOCOL frame addressed to our system and component (or 0, on
+/// any network); `None` for any other frame. Read by hand: its fields are target_network, target_system,
+/// target_component and the payload, all bytes, and the generated decoder would cost a kilobyte of flash for it.
+pub fn ftp(frame: &Frame<'_>, config: &ConsoleConfig) -> Option<FtpPayload> {
+    if frame.message_id != FILE_TRANSFER_PROTOCOL_DATA::ID {
+        return None;
+    }
+    // MAVLink 2 trims trailing zeros: what is not there is 0.
+    let byte = |n: usize| frame.payload.get(n).copied().unwrap_or(0);
+    let (system, component) = (byte(1), byte(2));
+    if !((system == 0 || system == config.system_id) && (component == 0 || component == config.component_id)) {
+        return None;
+    }
+    let mut payload = [0; crate::shared::FTP_PAYLOAD];
+    for (to, from) in payload.iter_mut().zip(frame.payload.get(3..).unwrap_or_default()) {
+        *to = *from;
+    }
+    Some(payload)
 }
 
 /// The sticks of a MANUAL_CONTROL, with invalid axes neutral.
@@ -207,6 +231,10 @@ fn command(command: u16, [param1, param2, param3, param4]: [f32; 4], config: &Co
             interval: interval(param2),
         },
         MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN if param1 == REBOOT_AUTOPILOT => Command::Reboot,
+        MAV_CMD_LBV_APPLY_UPDATE => Command::ApplyUpdate {
+            // Only a whole number names a target (the cast saturates and reads NaN as 0).
+            target: Some(param1 as u8).filter(|target| f32::from(*target) == param1),
+        },
         MAV_CMD_DO_MOTOR_TEST if param2 == MOTOR_TEST_THROTTLE_PERCENT => {
             // Float to integer casts saturate and read NaN as 0; `max`/`min` would turn NaN into the bound.
             let percent = if param3.is_nan() {
@@ -295,6 +323,7 @@ mod tests {
             (291, 10),
             (11030, 144),
             (11031, 133),
+            (110, 84),
         ] {
             assert_eq!(extra_crc(id), Some(crc), "message {id}");
         }
@@ -360,8 +389,8 @@ mod tests {
             );
         }
         assert_eq!(
-            decode_long(&long(31010, [0.0; 4])),
-            Some(Command::Unsupported { command: 31010 })
+            decode_long(&long(31011, [0.0; 4])),
+            Some(Command::Unsupported { command: 31011 })
         );
     }
 

@@ -8,13 +8,16 @@ use tmc_proto::{MaxPower, MotorKind, Status};
 
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA, ESC_STATUS_DATA,
-    ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags, HEARTBEAT_DATA,
-    MavAutopilot, MavBatteryChargeState, MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType,
-    MavModeFlag, MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
-    MavSysStatusSensorExtended, MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags,
+    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MavAutopilot, MavBatteryChargeState, MavBatteryFault,
+    MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag, MavParamType, MavProtocolCapability, MavResult,
+    MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA,
+    SYS_STATUS_DATA,
 };
 use crate::params::{ParamId, ParamType};
-use crate::shared::{AckResult, BatterySummary, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport, VehicleState};
+use crate::shared::{
+    AckResult, BatterySummary, FtpReply, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport, VehicleState,
+};
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
 
@@ -28,8 +31,10 @@ pub const PRODUCT_ID: u16 = 0x0468;
 
 /// What the master can do, as AUTOPILOT_VERSION announces it: MAVLink 2, COMMAND_INT (the same commands as
 /// COMMAND_LONG), and integer parameters carried as the float of their value (PARAM_ENCODE_C_CAST, what ArduPilot
-/// and ArduSub announce and do). No mission, fence, rally or FTP bits: there are none, so a ground station does
-/// not ask for them.
+/// and ArduSub announce and do). No mission, fence or rally bits: there are none, so a ground station does not
+/// ask for them. No FTP bit either: the FTP server holds only the update files ([`crate::update`]), and the bit
+/// tells a ground station it may fetch its own files over FTP (ArduPilot's parameter and mission files); MAVProxy
+/// and pymavlink use FTP without looking at it.
 pub const CAPABILITIES: MavProtocolCapability = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST);
@@ -610,6 +615,31 @@ impl Framer {
         self.finish(D::ID, D::EXTRA_CRC, len)
     }
 
+    /// Frame a FILE_TRANSFER_PROTOCOL carrying the update server's `reply` to `to` (network 0). Encoded by hand:
+    /// its fields are bytes in this order (target_network, target_system, target_component, payload), and the
+    /// generated encoder costs a kilobyte of flash for its 251-byte array.
+    pub fn frame_ftp(&mut self, to: Sender, reply: &FtpReply) -> &[u8] {
+        let fields = [0, to.system, to.component].into_iter().chain(reply.iter().copied());
+        let mut len = 0;
+        for (n, (slot, byte)) in self.frame.iter_mut().skip(HEADER_LEN).zip(fields).enumerate() {
+            *slot = byte;
+            // MAVLink 2 sends the payload without its trailing zeros.
+            if byte != 0 {
+                len = n + 1;
+            }
+        }
+        self.finish(
+            FILE_TRANSFER_PROTOCOL_DATA::ID,
+            FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC,
+            len,
+        )
+    }
+
+    /// The frame last built: its `len` bytes.
+    pub fn last(&self, len: usize) -> &[u8] {
+        self.frame.get(..len).unwrap_or_default()
+    }
+
     /// The header and CRC around the `len`-byte payload just encoded.
     #[inline(never)]
     fn finish(&mut self, id: u32, extra_crc: u8, len: usize) -> &[u8] {
@@ -697,6 +727,7 @@ mod tests {
         armable: true,
         failsafe: false,
         param_type_mismatches: 0,
+        operator: 255,
     };
 
     #[test]
@@ -780,6 +811,7 @@ mod tests {
                 armable: true,
                 failsafe: false,
                 param_type_mismatches: 0,
+                operator: 255,
             }),
         ] {
             let hb = heartbeat(vehicle);
@@ -793,6 +825,7 @@ mod tests {
             armable: true,
             failsafe: false,
             param_type_mismatches: 0,
+            operator: 255,
         }));
         assert_eq!(hb.base_mode.bits(), 0xC1);
         assert_eq!(hb.system_status, MavState::MAV_STATE_ACTIVE);

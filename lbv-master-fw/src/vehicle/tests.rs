@@ -266,7 +266,8 @@ fn starts_disarmed_with_no_ground_station() {
             refused: 0,
             armable: false,
             failsafe: false,
-            param_type_mismatches: 0
+            param_type_mismatches: 0,
+            operator: 255
         }
     );
     assert_eq!(bench.orders(0), (STOP, vec![]));
@@ -295,7 +296,8 @@ fn arming_needs_the_operators_heartbeat() {
             refused: 0,
             armable: true,
             failsafe: false,
-            param_type_mismatches: 0
+            param_type_mismatches: 0,
+            operator: 255
         }
     );
     // Arming again is accepted and says nothing.
@@ -339,7 +341,8 @@ fn ground_station_failsafe_disarms_at_exactly_the_timeout() {
             refused: 0,
             armable: false,
             failsafe: true,
-            param_type_mismatches: 0
+            param_type_mismatches: 0,
+            operator: 255
         }
     );
     // Once.
@@ -1142,7 +1145,8 @@ fn vehicle_task_publishes_orders_state_settings_and_answers() {
                 refused: 0,
                 armable: false,
                 failsafe: false,
-                param_type_mismatches: 0
+                param_type_mismatches: 0,
+                operator: 255
             })
         );
         assert_eq!(
@@ -1164,7 +1168,8 @@ fn vehicle_task_publishes_orders_state_settings_and_answers() {
                 refused: 0,
                 armable: true,
                 failsafe: false,
-                param_type_mismatches: 0
+                param_type_mismatches: 0,
+                operator: 255
             })
         );
         let orders = shared.orders.try_get().unwrap();

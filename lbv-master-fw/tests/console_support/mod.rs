@@ -87,17 +87,27 @@ pub fn run_rx_requests(
     let mut rx = ScriptedRx::new(bytes.to_vec(), chunk);
     let idle = rx.idle.clone();
     let mut commands = vec![];
-    block_on(select(console_rx_task(&mut rx, config, shared, &stats), async {
-        loop {
-            while let Ok(command) = shared.commands.try_receive() {
-                commands.push(command);
+    block_on(select(
+        console_rx_task(
+            &mut rx,
+            config,
+            shared,
+            &stats,
+            &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::update::CheckOnly,
+        ),
+        async {
+            loop {
+                while let Ok(command) = shared.commands.try_receive() {
+                    commands.push(command);
+                }
+                if idle.get() {
+                    break;
+                }
+                yield_now().await;
             }
-            if idle.get() {
-                break;
-            }
-            yield_now().await;
-        }
-    }));
+        },
+    ));
     (commands, stats.snapshot())
 }
 
@@ -245,7 +255,14 @@ pub fn run_console(
     publish(&shared, settings);
     let (mut store, mut reboot) = (InRam, NoReboot);
     let tasks = join4(
-        console_rx_task(&mut rx, &config, &shared, &stats),
+        console_rx_task(
+            &mut rx,
+            &config,
+            &shared,
+            &stats,
+            &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::update::CheckOnly,
+        ),
         console_tx_task(&mut tx, &config, &shared, &stats),
         vehicle_task(VehicleConfig::DEFAULT, settings, &shared),
         settings_task(&mut store, &shared, &mut reboot),

@@ -28,7 +28,7 @@ use lbv_sim::i2c::Bus;
 use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
 
-use super::ports::master::{CanNode, RebootRequest, flash_store, g431_flash, thruster_bus};
+use super::ports::master::{CanNode, RebootRequest, UpdateRecorder, flash_store, g431_flash, thruster_bus};
 
 /// What the master's ports are wired to: its three thruster buses, its CAN node's receive queue and its console
 /// link, both ways.
@@ -98,6 +98,8 @@ pub struct MasterBoard {
     pub boots: u32,
     /// Its CPU: the flash's erases and writes stall it.
     pub cpu: Cpu,
+    /// Where its update images go: every one recorded, across reboots.
+    pub updates: UpdateRecorder,
     reboot: RebootRequest,
     task: Option<TaskId>,
 }
@@ -126,6 +128,7 @@ impl MasterBoard {
             flash,
             boots: 0,
             cpu,
+            updates: UpdateRecorder::default(),
             reboot: RebootRequest::default(),
             task: None,
         };
@@ -176,6 +179,7 @@ impl MasterBoard {
             settings: flash_store(&self.flash),
             reboot: self.reboot.clone(),
             work,
+            update: self.updates.clone(),
         };
         let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
         executor.spawn_on(&self.cpu, async move {

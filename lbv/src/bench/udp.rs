@@ -12,12 +12,14 @@
 use std::cell::Cell;
 use std::io::{self, ErrorKind, Write as _};
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
+use std::path::Path;
 use std::rc::Rc;
 use std::time::Instant as WallInstant;
 
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::inbound;
 use lbv_master_fw::framing::{Event, FrameParser};
+use lbv_master_fw::update::UpdateTarget;
 
 use super::Bench;
 
@@ -192,13 +194,21 @@ impl WallClock {
 }
 
 /// Run the bench in real time with its console on `link`, for `duration` of virtual time or until the process
-/// is stopped; with `status`, print a line every second (armed, each thruster's rpm, datagrams). Returns the
+/// is stopped; with `status`, print a line every second (armed, each thruster's rpm, datagrams); with
+/// `update_dir`, write there each update image the master's sink has finished ([`write_images`]). Returns the
 /// pacing.
-pub fn serve(bench: &mut Bench, link: &UdpLink, duration: Option<Duration>, status: bool) -> io::Result<WallClock> {
+pub fn serve(
+    bench: &mut Bench,
+    link: &UdpLink,
+    duration: Option<Duration>,
+    status: bool,
+    update_dir: Option<&Path>,
+) -> io::Result<WallClock> {
     link.attach(bench)?;
     let end = duration.map(|duration| bench.now() + duration);
     let mut clock = WallClock::start(bench);
     let mut next_status = bench.now();
+    let mut written = 0;
     while end.is_none_or(|end| bench.now() < end) {
         link.receive(bench);
         bench.run_for(SLICE);
@@ -208,9 +218,41 @@ pub fn serve(bench: &mut Bench, link: &UdpLink, duration: Option<Duration>, stat
             next_status += Duration::from_secs(1);
             status_line(bench, link.counters());
         }
+        if let Some(dir) = update_dir {
+            written = write_images(bench, dir, written)?;
+        }
         clock.hold(bench);
     }
     Ok(clock)
+}
+
+/// Write the update images the master's sink has finished since the first `written` ones to `dir`, each as
+/// `<file>` (`thruster0.lbvu`, `master.lbvu`) when it came whole, `<file>.stopped` when it was stopped, with a
+/// line on standard output; returns how many are written now. A later image for the same file replaces it.
+pub fn write_images(bench: &Bench, dir: &Path, written: usize) -> io::Result<usize> {
+    let images = bench.master.updates.images();
+    let finished = images.iter().take_while(|image| image.complete.is_some()).count();
+    for image in images.iter().take(finished).skip(written) {
+        let name = match image.target {
+            UpdateTarget::Thruster(slot) => format!("thruster{slot}.lbvu"),
+            UpdateTarget::Master => "master.lbvu".to_owned(),
+        };
+        let name = if image.complete == Some(true) {
+            name
+        } else {
+            format!("{name}.stopped")
+        };
+        std::fs::write(dir.join(&name), &image.bytes)?;
+        let mut out = io::stdout().lock();
+        let _ = writeln!(
+            out,
+            "update image: {} bytes to {}",
+            image.bytes.len(),
+            dir.join(&name).display()
+        );
+        let _ = out.flush();
+    }
+    Ok(finished.max(written))
 }
 
 fn status_line(bench: &Bench, counters: LinkCounters) {

@@ -1,5 +1,6 @@
 //! Flying `lbv bench --udp` from a Python ground-station script, for the pymavlink and MAVProxy tests: the bench
 //! runs in real time on loopback ports while the script flies it and prints a JSON summary.
+#![allow(dead_code, reason = "each test uses what it needs of these")]
 
 use std::io::Read as _;
 use std::net::UdpSocket;
@@ -31,6 +32,30 @@ impl Drop for Bench {
     }
 }
 
+/// A fresh directory under the system's temporary one, removed when dropped.
+pub struct TempDir(pub std::path::PathBuf);
+
+impl TempDir {
+    /// `lbv-<name>-<pid>`, empty.
+    pub fn new(name: &str) -> Self {
+        let path = std::env::temp_dir().join(format!("lbv-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&path);
+        std::fs::create_dir_all(&path).expect("create a temporary directory");
+        Self(path)
+    }
+
+    /// `name` in it, as a string for a command line.
+    pub fn join(&self, name: &str) -> String {
+        self.0.join(name).display().to_string()
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 /// `N` free loopback UDP ports (held together while they are chosen, so they differ).
 pub fn free_ports<const N: usize>() -> [u16; N] {
     let sockets = [(); N].map(|()| UdpSocket::bind("127.0.0.1:0").unwrap());
@@ -48,10 +73,24 @@ pub fn fly(
     listen: u16,
     needs: &str,
 ) -> (serde_json::Value, String) {
+    fly_with(script, args, bench_seconds, gcs, listen, needs, &[])
+}
+
+/// As [`fly`], with `bench_args` added to the bench's command line.
+pub fn fly_with(
+    script: &str,
+    args: &[String],
+    bench_seconds: &str,
+    gcs: u16,
+    listen: u16,
+    needs: &str,
+    bench_args: &[&str],
+) -> (serde_json::Value, String) {
     let bench = Command::new(env!("CARGO_BIN_EXE_lbv"))
         .args(["bench", "--udp", "--duration", bench_seconds])
         .args(["--udp-send", &format!("127.0.0.1:{gcs}")])
         .args(["--udp-listen", &format!("127.0.0.1:{listen}")])
+        .args(bench_args)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

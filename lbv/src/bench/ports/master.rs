@@ -1,9 +1,9 @@
 //! The master's ports on lbv-sim's simulated parts, for the bench and lbv-master-fw's host tests (which include
 //! this file): a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery CAN
-//! receiver on a simulated CAN node, the settings store on a simulated G431 flash, and a reboot that whoever runs
-//! the board carries out.
+//! receiver on a simulated CAN node, the settings store on a simulated G431 flash, a reboot that whoever runs
+//! the board carries out, and an update sink that records every image it is given.
 
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::convert::Infallible;
 use std::rc::Rc;
 
@@ -12,6 +12,8 @@ use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::settings::{Reboot, Store};
+use lbv_master_fw::update::ftp::Nak;
+use lbv_master_fw::update::{Applied, ImageHeader, UpdateSink, UpdateTarget};
 use lbv_sim::Queue;
 use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::{Bus, Master, Scl, Sda};
@@ -69,5 +71,79 @@ impl Reboot for RebootRequest {
     async fn reboot(&mut self) -> ! {
         self.0.set(self.0.get().saturating_add(1));
         core::future::pending().await
+    }
+}
+
+/// One image the update sink was given.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReceivedImage {
+    /// What it was for.
+    pub target: UpdateTarget,
+    /// The file as it came: its header, then the payload.
+    pub bytes: Vec<u8>,
+    /// `None` while it comes; then whether it came whole (`false`: stopped).
+    pub complete: Option<bool>,
+    /// Times it was applied.
+    pub applied: u32,
+}
+
+/// An update sink that records every image it is given, in order, and applies nothing ([`Applied::NotWired`], as
+/// the master has no transfer to the thrusters yet). A handle: the records outlive a reboot of the master.
+#[derive(Debug, Clone, Default)]
+pub struct UpdateRecorder(Rc<RefCell<Vec<ReceivedImage>>>);
+
+impl UpdateRecorder {
+    /// Every image so far, oldest first.
+    pub fn images(&self) -> Vec<ReceivedImage> {
+        self.0.borrow().clone()
+    }
+}
+
+impl UpdateSink for UpdateRecorder {
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+        self.0.borrow_mut().push(ReceivedImage {
+            target,
+            bytes: header.bytes.to_vec(),
+            complete: None,
+            applied: 0,
+        });
+        Ok(())
+    }
+
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+        let mut images = self.0.borrow_mut();
+        match images.last_mut() {
+            // The server hands on the bytes in order: anything else is its bug, refused here for a test to see.
+            Some(image) if image.complete.is_none() && image.bytes.len() as u64 == u64::from(offset) => {
+                image.bytes.extend_from_slice(data);
+                Ok(())
+            }
+            _ => Err(Nak::Fail),
+        }
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+        match self.0.borrow_mut().last_mut() {
+            Some(image) if image.complete.is_none() => {
+                image.complete = Some(complete);
+                Ok(())
+            }
+            _ => Err(Nak::Fail),
+        }
+    }
+
+    fn apply(&mut self, target: UpdateTarget) -> Result<Applied, Nak> {
+        let mut images = self.0.borrow_mut();
+        match images
+            .iter_mut()
+            .rev()
+            .find(|image| image.target == target && image.complete == Some(true))
+        {
+            Some(image) => {
+                image.applied += 1;
+                Ok(Applied::NotWired)
+            }
+            None => Err(Nak::Fail),
+        }
     }
 }

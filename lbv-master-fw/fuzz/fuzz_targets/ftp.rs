@@ -1,0 +1,176 @@
+//! The update server's MAVLink FTP decoder and state machine: any FILE_TRANSFER_PROTOCOL payloads (raw bytes, or
+//! well-formed requests of the opcodes it serves, with paths and image bytes that reach every branch), from the
+//! operator or another system, armed or not, as time passes, with apply commands between. Nothing panics; every
+//! reply answers its request (sequence + 1, its session and opcode, ACK or NAK); the sink gets each image's
+//! bytes in order, from its header on, never beyond the length the header gives.
+#![no_main]
+
+use arbitrary::Arbitrary;
+use embassy_time::Instant;
+use lbv_master_fw::config::VEHICLE;
+use lbv_master_fw::shared::{Outgoing, Sender};
+use lbv_master_fw::update::ftp::{ACK, NAK, Nak};
+use lbv_master_fw::update::{Applied, Context, HEADER_LEN, ImageHeader, UpdateServer, UpdateSink, UpdateTarget};
+// The host's time driver (the harness passes its own instants).
+use lbv_sim as _;
+use libfuzzer_sys::fuzz_target;
+
+#[derive(Arbitrary, Debug)]
+enum Step {
+    Raw { operator: bool, payload: Vec<u8> },
+    Request { operator: bool, session: u8, opcode: Opcode, offset: u32, data: Data },
+    Apply { operator: bool, slot: Option<u8> },
+    Wait(u16),
+    Arm(bool),
+}
+
+#[derive(Arbitrary, Debug, Clone, Copy)]
+enum Opcode {
+    Terminate,
+    Reset,
+    List,
+    Create,
+    Write,
+    Remove,
+    OpenWo,
+    Crc,
+    Other(u8),
+}
+
+#[derive(Arbitrary, Debug)]
+enum Data {
+    Path(Path),
+    /// Bytes of a valid-looking image, from `at`.
+    Image { at: u16, len: u8 },
+    Bytes(Vec<u8>),
+}
+
+#[derive(Arbitrary, Debug)]
+enum Path {
+    Thruster(u8),
+    Master,
+    Dir,
+    Root,
+}
+
+/// A SeaBotix image of 1200 payload bytes.
+fn image() -> Vec<u8> {
+    let mut file = b"LBVU".to_vec();
+    file.extend([1, 1, 0, 0]);
+    file.extend(1200u32.to_le_bytes());
+    file.extend([0; 68]);
+    file.extend((0..1200u32).map(|n| n as u8));
+    file
+}
+
+/// Checks the server's promises to its sink.
+#[derive(Default)]
+struct Sink {
+    /// The image under way: its next byte and length.
+    open: Option<(u32, u32)>,
+}
+
+impl UpdateSink for Sink {
+    fn begin(&mut self, _: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+        assert!(self.open.is_none(), "begun twice");
+        self.open = Some((HEADER_LEN as u32, header.file_len()));
+        Ok(())
+    }
+
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+        let (next, total) = self.open.expect("a write outside an image");
+        assert_eq!(offset, next, "out of order");
+        assert!(u64::from(offset) + data.len() as u64 <= u64::from(total), "past the header's length");
+        self.open = Some((next + data.len() as u32, total));
+        Ok(())
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+        let (next, total) = self.open.take().expect("finished, never begun");
+        assert!(!complete || next == total, "whole at {next} of {total}");
+        Ok(())
+    }
+
+    fn apply(&mut self, _: UpdateTarget) -> Result<Applied, Nak> {
+        Ok(Applied::NotWired)
+    }
+}
+
+fn payload(seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> [u8; 251] {
+    let mut p = [0u8; 251];
+    let data = &data[..data.len().min(239)];
+    p[..2].copy_from_slice(&seq.to_le_bytes());
+    p[2] = session;
+    p[3] = opcode;
+    p[4] = data.len() as u8;
+    p[8..12].copy_from_slice(&offset.to_le_bytes());
+    p[12..12 + data.len()].copy_from_slice(data);
+    p
+}
+
+fuzz_target!(|steps: Vec<Step>| {
+    let gcs = Sender { system: 255, component: 190 };
+    let other = Sender { system: 7, component: 1 };
+    let file = image();
+    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut sink = Sink::default();
+    let mut context = Context { armed: false, operator: 255 };
+    let mut now = Instant::from_ticks(0);
+    let mut out = |_: Outgoing| {};
+    for (n, step) in steps.into_iter().enumerate() {
+        let seq = n as u16;
+        let (from, request) = match step {
+            Step::Raw { operator, payload } => {
+                let mut p = [0u8; 251];
+                for (to, from) in p.iter_mut().zip(payload) {
+                    *to = from;
+                }
+                (if operator { gcs } else { other }, p)
+            }
+            Step::Request { operator, session, opcode, offset, data } => {
+                let opcode = match opcode {
+                    Opcode::Terminate => 1,
+                    Opcode::Reset => 2,
+                    Opcode::List => 3,
+                    Opcode::Create => 6,
+                    Opcode::Write => 7,
+                    Opcode::Remove => 8,
+                    Opcode::OpenWo => 11,
+                    Opcode::Crc => 14,
+                    Opcode::Other(byte) => byte,
+                };
+                let bytes = match data {
+                    Data::Path(Path::Thruster(slot)) => format!("/update/thruster{}.lbvu", slot % 10).into_bytes(),
+                    Data::Path(Path::Master) => b"/update/master.lbvu".to_vec(),
+                    Data::Path(Path::Dir) => b"/update".to_vec(),
+                    Data::Path(Path::Root) => b"/".to_vec(),
+                    Data::Image { at, len } => {
+                        let at = usize::from(at).min(file.len());
+                        file[at..(at + usize::from(len)).min(file.len())].to_vec()
+                    }
+                    Data::Bytes(bytes) => bytes,
+                };
+                (if operator { gcs } else { other }, payload(seq, session % 4, opcode, offset % 1400, &bytes))
+            }
+            Step::Apply { operator, slot } => {
+                server.apply(context, if operator { gcs } else { other }, slot, &mut sink, &mut out);
+                continue;
+            }
+            Step::Wait(ms) => {
+                now += embassy_time::Duration::from_millis(u64::from(ms));
+                continue;
+            }
+            Step::Arm(armed) => {
+                context.armed = armed;
+                continue;
+            }
+        };
+        if let Some(reply) = server.request(now, context, from, &request, &mut sink, &mut out) {
+            let seq = u16::from_le_bytes([request[0], request[1]]);
+            assert_eq!(u16::from_le_bytes([reply[0], reply[1]]), seq.wrapping_add(1));
+            assert_eq!((reply[2], reply[5]), (request[2], request[3]));
+            assert!(reply[3] == ACK || reply[3] == NAK);
+            assert!(usize::from(reply[4]) <= reply.len() - 12);
+        }
+    }
+});

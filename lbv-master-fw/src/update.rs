@@ -1,0 +1,865 @@
+//! Field update from the ground station: update images taken over MAVLink FTP and applied by a command.
+//!
+//! The master serves a small MAVLink FTP file system ([`ftp`] has the wire format) with one file per target:
+//! `/update/thruster0.lbvu` ... one per slot of the thruster table, and `/update/master.lbvu`. MAVProxy's
+//! `ftp put FILE /update/thruster0.lbvu` and pymavlink's `MAVFTP` upload to it; `ftp list /update` lists the
+//! targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets them.
+//! MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 255 the master) then applies an image received whole.
+//!
+//! The master has no room to keep a 32-60 KiB image (32 KiB of RAM, its flash nearly full), so each write goes
+//! on to an [`UpdateSink`] as it comes: for a thruster, the thruster's DFU partition over I2C once that is
+//! wired. A sink takes bytes in order, so the server does too (FTP clients write in order):
+//!
+//! - a write at the next byte expected is taken;
+//! - a write of bytes already taken is ACKed again and only what lies beyond it is taken: its ACK was lost, and
+//!   both MAVProxy and pymavlink send such a block again when they come round to it;
+//! - a write beyond the next byte (an earlier one was lost) is dropped unanswered, as ArduPilot drops a request
+//!   its queue has no room for: both clients end an upload at its first NAK, while they send an unanswered
+//!   block again once they have sent every other one (their writes go round the file), and the server takes
+//!   the lost block then and those after it in order.
+//!
+//! Requests are idempotent, so one sent again (its reply lost) gets the answer the first one got; ArduPilot
+//! keeps its last reply for that instead, which would cost RAM and flash here.
+//!
+//! The first write carries the file's 80-byte header ([`parse_header`]; MAVProxy writes 239 bytes at a time,
+//! pymavlink 80): a bad header, or one whose target does not fit the path (a thruster image for the master, a
+//! family the slot does not have), ends the upload with a NAK and a STATUSTEXT saying why, before anything goes
+//! to the sink. So does a file longer than its header says.
+//!
+//! Rules:
+//! - One session at a time: a second open gets [`Nak::NoSessionsAvailable`] (MAVProxy waits and tries again)
+//!   unless the session in use has been idle for [`TAKEOVER_IDLE`] or its image is whole. Listing, CRC and
+//!   removal need no session; a reply carries the request's session, as the clients route them by it.
+//! - Only the operator's ground station (`SYSID_MYGCS`) may write, remove or apply ([`Nak::FileProtected`],
+//!   COMMAND_ACK DENIED); anyone may list and read CRCs. With a signing key set, unsigned FTP frames are refused
+//!   before they get here, as every unsigned frame is ([`crate::signing`]).
+//! - Nothing is written, removed or applied while armed ([`Nak::Fail`], COMMAND_ACK TEMPORARILY_REJECTED, and
+//!   "disarm to update"); arming during an upload stops it at its next request.
+//! - Progress: a STATUSTEXT of the bytes received at most once per [`PROGRESS_PERIOD`], and one at the end.
+//!   What a script reads: `ftp list /update` (each file's size is the bytes received), `ftp crc`, and the apply
+//!   command's COMMAND_ACK.
+//!
+//! Slots count from 0 here, as the paths do: `thruster0.lbvu` is T1 of the console's texts.
+
+pub mod ftp;
+
+use core::fmt::{self, Write as _};
+
+use embassy_time::{Duration, Instant};
+use tmc_proto::Family;
+
+use crate::shared::{
+    AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAV_CMD_LBV_APPLY_UPDATE, MAX_THRUSTERS, Outgoing, Sender,
+    Severity, Shared, UpdateCommand, UpdateCounters, UpdateRequest, text,
+};
+use crate::thrusters::ThrusterTable;
+use ftp::{ACK, Nak, Opcode, Request};
+
+/// Whether the image has the update server. The acceptance image leaves it out: it runs only on the two-dev-kit
+/// bench with its test script, and its flash budget has no room left beside the script (its console answers FTP
+/// frames with nothing and the apply command with UNSUPPORTED).
+pub const ENABLED: bool = !cfg!(feature = "acceptance");
+
+/// A session idle this long may be taken over by a new open, its upload stopped (ArduPilot's
+/// FTP_SESSION_TIMEOUT).
+pub const TAKEOVER_IDLE: Duration = Duration::from_secs(3);
+/// Progress reports come at most this often.
+pub const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
+/// The update file's header (the `update-image` crate's format).
+pub const HEADER_LEN: usize = 80;
+/// The longest thruster payload: its ACTIVE partition, which the payload is an image of.
+pub const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
+/// The longest master payload: the flash its image is linked into.
+pub const MASTER_MAX_PAYLOAD: u32 = 112 * g431_hw::memory::KIB;
+/// The slot number of the master in the apply command's param1.
+pub const MASTER_SLOT: u8 = 255;
+
+/// What an update file is for: a slot of the thruster table, or the master.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum UpdateTarget {
+    /// The thruster in this slot of the table, from 0.
+    Thruster(u8),
+    /// The master itself.
+    Master,
+}
+
+impl UpdateTarget {
+    /// Its slot number: the thruster's, or [`MASTER_SLOT`].
+    pub const fn slot(self) -> u8 {
+        match self {
+            Self::Thruster(slot) => slot,
+            Self::Master => MASTER_SLOT,
+        }
+    }
+}
+
+/// What an update file's header says (the fields the server routes by; `update-image` checks the rest).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct ImageHeader {
+    /// The target byte: 1 SeaBotix thruster, 2 Legacy thruster, 3 master.
+    pub target: u8,
+    /// The payload's length after the header.
+    pub payload_len: u32,
+    /// The header as received.
+    pub bytes: [u8; HEADER_LEN],
+}
+
+impl ImageHeader {
+    /// The whole file's length: header and payload.
+    pub fn file_len(&self) -> u32 {
+        self.payload_len.saturating_add(HEADER_LEN as u32)
+    }
+}
+
+/// Why a header is refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum HeaderError {
+    /// Not `LBVU`: not an update file.
+    Magic,
+    /// A format other than 1.
+    Format(u8),
+    /// A target byte that names no target.
+    Target(u8),
+    /// The reserved field is not zero.
+    Reserved,
+}
+
+/// The header of an update file: magic `LBVU`, format 1, target 1..=3, reserved 0, payload length u32 LE (then
+/// the version and the signature, not read here). A stand-in for `update_image::Header::parse`, which it will
+/// give way to.
+pub fn parse_header(bytes: &[u8; HEADER_LEN]) -> Result<ImageHeader, HeaderError> {
+    let [m0, m1, m2, m3, format, target, r0, r1, l0, l1, l2, l3, ..] = *bytes;
+    if [m0, m1, m2, m3] != *b"LBVU" {
+        return Err(HeaderError::Magic);
+    }
+    if format != 1 {
+        return Err(HeaderError::Format(format));
+    }
+    if !(1..=3).contains(&target) {
+        return Err(HeaderError::Target(target));
+    }
+    if [r0, r1] != [0, 0] {
+        return Err(HeaderError::Reserved);
+    }
+    Ok(ImageHeader {
+        target,
+        payload_len: u32::from_le_bytes([l0, l1, l2, l3]),
+        bytes: *bytes,
+    })
+}
+
+/// The target byte of images for `family`'s thrusters.
+const fn thruster_kind(family: Family) -> u8 {
+    match family {
+        Family::SeaBotix => 1,
+        Family::Legacy => 2,
+    }
+}
+
+/// A target byte's name, for a person.
+fn kind_name(kind: u8) -> &'static str {
+    match kind {
+        1 => "SeaBotix",
+        2 => "Legacy",
+        _ => "master",
+    }
+}
+
+/// What [`UpdateSink::apply`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Applied {
+    /// The target is taking the image.
+    Started,
+    /// Nothing: the path to the target is not there yet (the image was checked, and that is all).
+    NotWired,
+}
+
+/// Where an upload's bytes go, in order. Thruster images will go on to the thruster's DFU partition over I2C;
+/// [`CheckOnly`] keeps nothing, and the bench's sink records everything.
+///
+/// The calls do not wait: a sink that forwards over a bus keeps what it is given (at most one FTP write's worth,
+/// [`ftp::DATA_LEN`] bytes, per call), and the console reads on only once the sink is [`UpdateSink::ready`]. An
+/// error NAKs the request and stops the upload. (Synchronous calls keep the server a plain state machine: as
+/// async code it took three times the flash.)
+#[allow(async_fn_in_trait)]
+pub trait UpdateSink {
+    /// Wait until the sink can take the calls of the next requests.
+    async fn ready(&mut self) {}
+    /// An image for `target` begins; its header has passed the server's checks.
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak>;
+    /// The file's bytes from `offset` on (past the header, always the next byte after the last write).
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak>;
+    /// The image that began is done: `complete` when every byte its header announces arrived, otherwise it was
+    /// stopped and what arrived is to be dropped.
+    fn finish(&mut self, complete: bool) -> Result<(), Nak>;
+    /// Apply the image received whole for `target`.
+    fn apply(&mut self, target: UpdateTarget) -> Result<Applied, Nak>;
+}
+
+/// A sink that keeps nothing and applies nothing ([`Applied::NotWired`]): the server still checks each image's
+/// header, length and CRC. What the STM32 binding has until the I2C transfer to the thrusters is there.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CheckOnly;
+
+impl UpdateSink for CheckOnly {
+    fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Nak> {
+        Ok(())
+    }
+
+    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Nak> {
+        Ok(())
+    }
+
+    fn finish(&mut self, _: bool) -> Result<(), Nak> {
+        Ok(())
+    }
+
+    fn apply(&mut self, _: UpdateTarget) -> Result<Applied, Nak> {
+        Ok(Applied::NotWired)
+    }
+}
+
+/// What the server must know of the vehicle for each request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Context {
+    /// The vehicle is armed.
+    pub armed: bool,
+    /// `SYSID_MYGCS`.
+    pub operator: u8,
+}
+
+impl Context {
+    /// The vehicle's state now (before the vehicle task has published it: disarmed, no operator).
+    pub fn of(shared: &Shared) -> Self {
+        let vehicle = shared.vehicle.try_get();
+        Self {
+            armed: vehicle.is_some_and(|v| v.armed),
+            // 0 is no system: nobody may write before the vehicle has said whom it takes orders from.
+            operator: vehicle.map_or(0, |v| v.operator),
+        }
+    }
+}
+
+/// An image: the upload under way, or the last one received whole.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+struct Image {
+    target: UpdateTarget,
+    /// Received whole, header and length checked.
+    whole: bool,
+    /// Bytes received, header included.
+    received: u32,
+    /// The file's length by its header, once the sink has begun it; 0 before.
+    total: u32,
+    /// [`ftp::crc32`] of the bytes received.
+    crc: u32,
+}
+
+/// The one session: an upload.
+#[derive(Debug, Clone, Copy)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+struct Session {
+    owner: Sender,
+    id: u8,
+    /// Its last request.
+    last: Instant,
+    /// Its last progress report.
+    reported: Instant,
+}
+
+/// Why an upload stops before its end.
+#[derive(Clone, Copy)]
+enum Stop {
+    /// Its session was closed (by its client, or taken over).
+    Closed,
+    Armed,
+    /// Refused or removed: the reason is told where it is found.
+    Quiet,
+}
+
+/// The MAVLink FTP server and its upload: a pure state machine on explicit time. Never panics on any request;
+/// every refusal, gap and write sent again is counted, and a request refused changes nothing but the upload it
+/// stops.
+///
+/// It holds the state of one image received whole at a time, the last one (the sink has the bytes, not the
+/// master), and of the upload under way: listing and CRC show them for their targets and nothing for the others,
+/// and only the image received whole can be applied. An upload that begins (its header passed) replaces the
+/// image of its own target; one refused or stopped leaves the image received before as it was.
+///
+/// Requests are idempotent rather than remembered: one sent again (its reply lost) gets the reply the first one
+/// got (a write of bytes already taken is ACKed again, a listing or CRC is the same) or, for a CreateFile whose
+/// session is now open, [`Nak::Fail`], which is ArduPilot's answer and what MAVProxy takes for "already open"
+/// after a retry.
+#[derive(Debug)]
+pub struct UpdateServer {
+    /// The family of each slot of the thruster table.
+    slots: [Option<Family>; MAX_THRUSTERS],
+    /// The session's upload (once opened; whole once received whole, until the session closes).
+    upload: Option<Image>,
+    /// The last image received whole.
+    held: Option<Image>,
+    session: Option<Session>,
+    counters: UpdateCounters,
+}
+
+impl UpdateServer {
+    /// No image, no session, for a master with `thrusters`.
+    pub fn new(thrusters: &ThrusterTable) -> Self {
+        let mut slots = [None; MAX_THRUSTERS];
+        for (slot, thruster) in slots.iter_mut().zip(thrusters.as_slice()) {
+            *slot = Some(thruster.family);
+        }
+        Self {
+            slots,
+            upload: None,
+            held: None,
+            session: None,
+            counters: UpdateCounters::default(),
+        }
+    }
+
+    /// The counters so far.
+    pub fn counters(&self) -> UpdateCounters {
+        self.counters
+    }
+
+    /// Bytes received for `target` and their CRC: the upload's or the image's, when it is `target`'s (0, 0
+    /// otherwise).
+    pub fn received(&self, target: UpdateTarget) -> (u32, u32) {
+        [self.upload, self.held]
+            .into_iter()
+            .flatten()
+            .find(|i| i.target == target)
+            .map_or((0, 0), |i| (i.received, i.crc))
+    }
+
+    /// Whether an image for `target` is held, received whole.
+    pub fn is_received(&self, target: UpdateTarget) -> bool {
+        self.held.is_some_and(|i| i.target == target)
+    }
+
+    /// The targets: the thruster table's slots, then the master.
+    fn targets(&self) -> impl Iterator<Item = UpdateTarget> + '_ {
+        (0..MAX_THRUSTERS as u8)
+            .filter(|slot| self.slots.get(usize::from(*slot)).is_some_and(Option::is_some))
+            .map(UpdateTarget::Thruster)
+            .chain([UpdateTarget::Master])
+    }
+
+    /// The target a request's path names: `/update/thruster<slot>.lbvu` or `/update/master.lbvu` (the leading `/`
+    /// may be left out), or `None` for `/` (`Some(None)`: `/update`).
+    fn lookup(&self, path: &[u8]) -> Result<Option<Option<UpdateTarget>>, Nak> {
+        let path = path.strip_prefix(b"/").unwrap_or(path);
+        if path.is_empty() {
+            return Ok(None);
+        }
+        let target = match path.strip_prefix(b"update") {
+            Some(b"" | b"/") => return Ok(Some(None)),
+            Some(b"/master.lbvu") => Some(UpdateTarget::Master),
+            Some(name) => match name.strip_prefix(b"/thruster") {
+                Some([digit, b'.', b'l', b'b', b'v', b'u']) => self
+                    .targets()
+                    .find(|t| *t == UpdateTarget::Thruster(digit.wrapping_sub(b'0'))),
+                _ => None,
+            },
+            None => None,
+        };
+        target.map(|target| Some(Some(target))).ok_or(Nak::FileNotFound)
+    }
+
+    /// The target a request's path names, which must be a file.
+    fn target(&self, request: &Request<'_>) -> Result<UpdateTarget, Nak> {
+        self.lookup(request.path()?)?.flatten().ok_or(Nak::FileNotFound)
+    }
+
+    /// Answer one FILE_TRANSFER_PROTOCOL payload from `from` at `now`; `out` takes the texts and progress. The
+    /// reply, or `None` when the request is left unanswered.
+    pub fn request(
+        &mut self,
+        now: Instant,
+        context: Context,
+        from: Sender,
+        payload: &FtpPayload,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Option<FtpReply> {
+        if context.armed && self.session.is_some() {
+            self.stop(Stop::Armed, sink, out);
+        }
+        let request = Request::parse(payload);
+        let ours = self.session.is_some_and(|s| s.owner == from && s.id == request.session);
+        let mut data = Buf::default();
+        let opcode = Opcode::from_byte(request.opcode);
+        let answer = match opcode {
+            // A reply sent to a server: answering it could set two servers talking.
+            Opcode::Other(ACK | ftp::NAK) => return None,
+            _ if request.data.is_none() => Err(Nak::InvalidDataSize),
+            Opcode::None => Ok(()),
+            Opcode::TerminateSession | Opcode::ResetSessions => {
+                // Reset closes every session of the sender, Terminate the one it names.
+                if ours || opcode == Opcode::ResetSessions && self.session.is_some_and(|s| s.owner == from) {
+                    self.stop(Stop::Closed, sink, out);
+                }
+                Ok(())
+            }
+            Opcode::ListDirectory => request
+                .path()
+                .and_then(|path| self.list(path, request.offset, &mut data)),
+            Opcode::CalcFileCrc32 => self.target(&request).map(|target| {
+                data.put(&self.received(target).1.to_le_bytes());
+            }),
+            Opcode::CreateFile | Opcode::OpenFileWO => self.open(now, context, from, &request, sink, out),
+            Opcode::WriteFile if !ours => Err(Nak::InvalidSession),
+            // A gap is left unanswered.
+            Opcode::WriteFile => self.write(now, &request, sink, out)?,
+            Opcode::RemoveFile => self.remove(context, from, &request, sink, out),
+            Opcode::Other(_) => Err(Nak::UnknownCommand),
+        };
+        Some(match answer {
+            Ok(()) => ftp::reply(&request, ACK, data.as_bytes()),
+            Err(reason) => {
+                self.counters.naks = self.counters.naks.wrapping_add(1);
+                ftp::nak(&request, reason)
+            }
+        })
+    }
+
+    /// The entries of `path` from entry `first` on, as ArduPilot lists them: `F<name>\t<size>\0` for a file (its
+    /// size the bytes held), `D<name>\0` for a directory, as many as fit in a reply (one: the clients ask for the
+    /// next from the offset after the last they got, until [`Nak::EndOfFile`]).
+    fn list(&self, path: &[u8], first: u32, data: &mut Buf) -> Result<(), Nak> {
+        let first = usize::try_from(first).unwrap_or(usize::MAX);
+        let listed = match self.lookup(path)? {
+            Some(Some(_)) => return Err(Nak::FileNotFound),
+            None => usize::from(first == 0 && data.entry(format_args!("Dupdate\0"))),
+            Some(None) => {
+                let mut listed = 0;
+                for target in self.targets().skip(first) {
+                    if !data.entry(format_args!("F{}\t{}\0", Name(target), self.received(target).0)) {
+                        break;
+                    }
+                    listed += 1;
+                }
+                listed
+            }
+        };
+        if listed == 0 { Err(Nak::EndOfFile) } else { Ok(()) }
+    }
+
+    /// Whether `from` may change `target`'s file now.
+    fn may_write(
+        &mut self,
+        context: Context,
+        from: Sender,
+        target: UpdateTarget,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Result<(), Nak> {
+        if from.system != context.operator {
+            self.counters.refused = self.counters.refused.wrapping_add(1);
+            return Err(Nak::FileProtected);
+        }
+        if context.armed {
+            note(out, Severity::Warning, target, "disarm to update");
+            return Err(Nak::Fail);
+        }
+        Ok(())
+    }
+
+    /// CreateFile / OpenFileWO: start an upload to the file `request` names, in a new session.
+    fn open(
+        &mut self,
+        now: Instant,
+        context: Context,
+        from: Sender,
+        request: &Request<'_>,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Result<(), Nak> {
+        let target = self.target(request)?;
+        self.may_write(context, from, target, out)?;
+        if let Some(session) = self.session {
+            if session.owner == from && session.id == request.session {
+                // One file per session, as ArduPilot has it.
+                return Err(Nak::Fail);
+            }
+            // A session whose image is whole has nothing left to lose.
+            let whole = self.upload.is_some_and(|i| i.whole);
+            if !whole && now.saturating_duration_since(session.last) < TAKEOVER_IDLE {
+                return Err(Nak::NoSessionsAvailable);
+            }
+            self.stop(Stop::Closed, sink, out);
+        }
+        self.session = Some(Session {
+            owner: from,
+            id: request.session,
+            last: now,
+            reported: now,
+        });
+        self.upload = Some(Image {
+            target,
+            whole: false,
+            received: 0,
+            total: 0,
+            crc: 0,
+        });
+        Ok(())
+    }
+
+    /// WriteFile in the session: take its bytes in order. `None`: left unanswered (a gap).
+    fn write(
+        &mut self,
+        now: Instant,
+        request: &Request<'_>,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Option<Result<(), Nak>> {
+        let Some((session, mut image)) = self.session.as_mut().zip(self.upload) else {
+            return Some(Err(Nak::InvalidSession));
+        };
+        session.last = now;
+        let target = image.target;
+        let data = request.data.unwrap_or_default();
+        let skip = usize::try_from(image.received.wrapping_sub(request.offset)).unwrap_or(usize::MAX);
+        let new = if request.offset > image.received {
+            None
+        } else {
+            data.get(skip..).filter(|new| !new.is_empty())
+        };
+        let Some(new) = new.filter(|_| !image.whole) else {
+            if image.whole && (new.is_some() || request.offset > image.received) {
+                // Bytes past the end of an image whole: it is not the file the ground station holds.
+                self.held = None;
+                return Some(self.refuse(target, "longer than its header says", sink, out));
+            }
+            if request.offset > image.received {
+                self.counters.gaps = self.counters.gaps.wrapping_add(1);
+                return None;
+            }
+            self.counters.duplicates = self.counters.duplicates.wrapping_add(1);
+            return Some(Ok(()));
+        };
+        let mut rest = new;
+        if image.received == 0 {
+            let Some((header, tail)) = new.split_first_chunk::<HEADER_LEN>() else {
+                return Some(self.refuse(target, "header not in the first write", sink, out));
+            };
+            let header = match self.check_header(target, header, out) {
+                Ok(header) => header,
+                Err(why) => return Some(self.refuse(target, why, sink, out)),
+            };
+            if sink.begin(target, &header).is_err() {
+                return Some(self.refuse(target, "refused by its sink", sink, out));
+            }
+            image.total = header.file_len();
+            self.upload = Some(image);
+            // The sink has begun it: an image of the same target held before is gone.
+            self.held = self.held.filter(|held| held.target != target);
+            rest = tail;
+            image.received = HEADER_LEN as u32;
+        }
+        if rest.len() as u64 > u64::from(image.total.saturating_sub(image.received)) {
+            return Some(self.refuse(target, "longer than its header says", sink, out));
+        }
+        if !rest.is_empty() && sink.write(image.received, rest).is_err() {
+            return Some(self.refuse(target, "refused by its sink", sink, out));
+        }
+        image.crc = ftp::crc32(image.crc, new);
+        image.received += rest.len() as u32;
+        image.whole = image.received == image.total;
+        if image.whole {
+            if sink.finish(true).is_err() {
+                return Some(self.refuse(target, "refused by its sink", sink, out));
+            }
+            self.held = Some(image);
+        }
+        self.upload = Some(image);
+        if let Some(session) = self.session.as_mut()
+            && (image.whole || now.saturating_duration_since(session.reported) >= PROGRESS_PERIOD)
+        {
+            session.reported = now;
+            if image.whole {
+                note(out, Severity::Info, target, "received, ready to apply");
+            } else {
+                note_of(out, target, "", image.received, image.total);
+            }
+        }
+        Some(Ok(()))
+    }
+
+    /// The header of an image for `target`, checked: why it is refused (a target that does not fit is told
+    /// here, in full).
+    fn check_header(
+        &self,
+        target: UpdateTarget,
+        bytes: &[u8; HEADER_LEN],
+        out: &mut impl FnMut(Outgoing),
+    ) -> Result<ImageHeader, &'static str> {
+        let (kind, max) = match target {
+            UpdateTarget::Thruster(slot) => (
+                self.slots
+                    .get(usize::from(slot))
+                    .copied()
+                    .flatten()
+                    .map_or(0, thruster_kind),
+                THRUSTER_MAX_PAYLOAD,
+            ),
+            UpdateTarget::Master => (3, MASTER_MAX_PAYLOAD),
+        };
+        match parse_header(bytes) {
+            Err(HeaderError::Magic) => Err("not an update file"),
+            Err(_) => Err("bad update file header"),
+            Ok(header) if header.target != kind => {
+                say(
+                    out,
+                    Severity::Warning,
+                    format_args!(
+                        "{}: {} image, slot is {}",
+                        Name(target),
+                        kind_name(header.target),
+                        kind_name(kind)
+                    ),
+                );
+                Err("")
+            }
+            Ok(header) if header.payload_len == 0 || header.payload_len % 8 != 0 || header.payload_len > max => {
+                Err("payload length not valid")
+            }
+            Ok(header) => Ok(header),
+        }
+    }
+
+    /// Stop the upload with `why` (told unless empty): NAK [`Nak::Fail`].
+    fn refuse(
+        &mut self,
+        target: UpdateTarget,
+        why: &str,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Result<(), Nak> {
+        if !why.is_empty() {
+            note(out, Severity::Warning, target, why);
+        }
+        self.stop(Stop::Quiet, sink, out);
+        Err(Nak::Fail)
+    }
+
+    /// RemoveFile: forget the image held, if it is for the file `request` names.
+    fn remove(
+        &mut self,
+        context: Context,
+        from: Sender,
+        request: &Request<'_>,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Result<(), Nak> {
+        let target = self.target(request)?;
+        self.may_write(context, from, target, out)?;
+        if self.upload.is_some_and(|i| i.target == target) {
+            self.stop(Stop::Quiet, sink, out);
+        }
+        self.held = self.held.filter(|held| held.target != target);
+        note(out, Severity::Info, target, "removed");
+        Ok(())
+    }
+
+    /// Close the session; an upload in it that is not whole stops (the sink drops what it began, the image is
+    /// forgotten), and `why` says so.
+    fn stop(&mut self, why: Stop, sink: &mut impl UpdateSink, out: &mut impl FnMut(Outgoing)) {
+        self.session = None;
+        let Some(image) = self.upload.take().filter(|i| !i.whole) else {
+            return;
+        };
+        if image.total == 0 {
+            // Nothing began: nothing to drop, or to tell.
+            return;
+        }
+        let _ = sink.finish(false);
+        match why {
+            Stop::Closed => note_of(out, image.target, "stopped at", image.received, image.total),
+            Stop::Armed => note(out, Severity::Warning, image.target, "stopped, armed"),
+            Stop::Quiet => {}
+        }
+    }
+
+    /// MAV_CMD_LBV_APPLY_UPDATE from `from` for `slot` (a thruster slot from 0, [`MASTER_SLOT`]; `None` for a
+    /// param1 that is neither): `out` takes the COMMAND_ACK, then a text.
+    pub fn apply(
+        &mut self,
+        context: Context,
+        from: Sender,
+        slot: Option<u8>,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) {
+        let target = match slot {
+            Some(MASTER_SLOT) => Some(UpdateTarget::Master),
+            Some(slot) => self.targets().find(|t| *t == UpdateTarget::Thruster(slot)),
+            None => None,
+        };
+        let receiving = self.upload.is_some_and(|i| Some(i.target) == target && !i.whole);
+        let (result, text) = match target {
+            _ if from.system != context.operator => {
+                self.counters.refused = self.counters.refused.wrapping_add(1);
+                (AckResult::Denied, None)
+            }
+            None => (AckResult::Denied, Some("no such target")),
+            Some(_) if context.armed => (AckResult::TemporarilyRejected, Some("disarm to update")),
+            Some(_) if receiving => (AckResult::TemporarilyRejected, Some("still receiving")),
+            Some(target) if !self.is_received(target) => (AckResult::Denied, Some("nothing to apply")),
+            Some(target) => match sink.apply(target) {
+                Ok(Applied::Started) => (AckResult::Accepted, Some("applying")),
+                Ok(Applied::NotWired) => (AckResult::Accepted, Some("valid; not sent, no I2C yet")),
+                Err(_) => (AckResult::Failed, Some("apply failed")),
+            },
+        };
+        out(Outgoing::CommandAck {
+            command: MAV_CMD_LBV_APPLY_UPDATE,
+            result,
+            to: from,
+        });
+        let severity = if result == AckResult::Accepted {
+            Severity::Info
+        } else {
+            Severity::Warning
+        };
+        match (target, text) {
+            (Some(target), Some(text)) => note(out, severity, target, text),
+            (None, Some(text)) => say(out, severity, format_args!("update: {text}")),
+            (_, None) => {}
+        }
+    }
+}
+
+/// A target's file name: "thruster2.lbvu", "master.lbvu".
+struct Name(UpdateTarget);
+
+impl fmt::Display for Name {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            UpdateTarget::Thruster(slot) => write!(f, "thruster{slot}.lbvu"),
+            UpdateTarget::Master => f.write_str("master.lbvu"),
+        }
+    }
+}
+
+/// "thruster2.lbvu: `what`": the texts name the file, as the ground station's user wrote it.
+fn note(out: &mut impl FnMut(Outgoing), severity: Severity, target: UpdateTarget, what: &str) {
+    say(out, severity, format_args!("{}: {what}", Name(target)));
+}
+
+/// "thruster2.lbvu: `before` `n` of `total` bytes" (a warning when `before` says why it stopped).
+fn note_of(out: &mut impl FnMut(Outgoing), target: UpdateTarget, before: &str, n: u32, total: u32) {
+    let severity = if before.is_empty() {
+        Severity::Info
+    } else {
+        Severity::Warning
+    };
+    let space = if before.is_empty() { "" } else { " " };
+    say(
+        out,
+        severity,
+        format_args!("{}: {before}{space}{n} of {total} bytes", Name(target)),
+    );
+}
+
+fn say(out: &mut impl FnMut(Outgoing), severity: Severity, args: fmt::Arguments<'_>) {
+    out(Outgoing::Text(severity, text(args)));
+}
+
+/// A reply's data being written: a listing entry, a CRC.
+#[derive(Default)]
+struct Buf {
+    bytes: [u8; FTP_REPLY_DATA],
+    len: usize,
+}
+
+impl Buf {
+    fn as_bytes(&self) -> &[u8] {
+        self.bytes.get(..self.len).unwrap_or_default()
+    }
+
+    /// Append `bytes`; `false`, and nothing appended, when they do not fit.
+    fn put(&mut self, bytes: &[u8]) -> bool {
+        let end = self.len + bytes.len();
+        match self.bytes.get_mut(self.len..end) {
+            Some(slot) => {
+                slot.copy_from_slice(bytes);
+                self.len = end;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Append one entry; `false`, and nothing appended, when it does not fit.
+    fn entry(&mut self, args: fmt::Arguments<'_>) -> bool {
+        let start = self.len;
+        if self.write_fmt(args).is_err() {
+            self.len = start;
+            return false;
+        }
+        true
+    }
+}
+
+impl fmt::Write for Buf {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        if self.put(s.as_bytes()) {
+            Ok(())
+        } else {
+            Err(fmt::Error)
+        }
+    }
+}
+
+/// The update server and where its images go: what the console's receive task serves MAVLink FTP and the apply
+/// command with.
+#[derive(Debug)]
+pub struct Updates<S> {
+    /// The server.
+    pub server: UpdateServer,
+    /// Its sink.
+    pub sink: S,
+}
+
+impl<S: UpdateSink> Updates<S> {
+    /// The server for `thrusters`, with `sink`.
+    pub fn new(thrusters: &ThrusterTable, sink: S) -> Self {
+        Self {
+            server: UpdateServer::new(thrusters),
+            sink,
+        }
+    }
+
+    /// Serve `request` with the vehicle's state in `shared`: acknowledgements, texts and progress go to
+    /// `shared.outbox` (dropped when it is full, as texts are); the FTP reply is returned, for the caller to
+    /// queue there after them, waiting for room (a client waits for it).
+    pub fn serve(&mut self, request: UpdateRequest, shared: &Shared) -> Option<Outgoing> {
+        let now = Instant::now();
+        let context = Context::of(shared);
+        let mut out = |message| {
+            let _ = shared.outbox.try_send(message);
+        };
+        let UpdateRequest { from, what } = request;
+        match what {
+            UpdateCommand::Ftp(payload) => {
+                let reply = self
+                    .server
+                    .request(now, context, from, &payload, &mut self.sink, &mut out);
+                reply.map(|reply| Outgoing::Ftp { to: from, reply })
+            }
+            UpdateCommand::Apply(slot) => {
+                self.server.apply(context, from, slot, &mut self.sink, &mut out);
+                None
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,1013 @@
+use super::*;
+use crate::config::{VEHICLE, devkit, lbv300_6};
+use crate::sim::{ReceivedImage, UpdateRecorder};
+use ftp::{DATA_LEN, NAK};
+use proptest::prelude::*;
+
+fn t(ms: u64) -> Instant {
+    Instant::from_millis(ms)
+}
+
+/// The operator's ground station (MAVProxy's ids) and another system.
+const GCS: Sender = Sender {
+    system: 255,
+    component: 190,
+};
+const OTHER: Sender = Sender {
+    system: 42,
+    component: 1,
+};
+const DISARMED: Context = Context {
+    armed: false,
+    operator: 255,
+};
+const ARMED: Context = Context {
+    armed: true,
+    operator: 255,
+};
+
+// Opcodes, as the clients send them.
+const TERMINATE: u8 = 1;
+const RESET: u8 = 2;
+const LIST: u8 = 3;
+const OPEN_RO: u8 = 4;
+const CREATE: u8 = 6;
+const WRITE: u8 = 7;
+const REMOVE: u8 = 8;
+const OPEN_WO: u8 = 11;
+const CRC: u8 = 14;
+
+/// A request payload as pymavlink's `FTP_OP.pack` builds it (then padded with zeros to 251 bytes).
+fn payload(seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> FtpPayload {
+    let mut p = [0u8; 251];
+    p[..2].copy_from_slice(&seq.to_le_bytes());
+    p[2] = session;
+    p[3] = opcode;
+    p[4] = data.len() as u8;
+    p[8..12].copy_from_slice(&offset.to_le_bytes());
+    p[12..12 + data.len()].copy_from_slice(data);
+    p
+}
+
+/// An update file: `LBVU`, format 1, `kind`, reserved 0, `payload_len`, a version and a signature, then
+/// `payload_len` bytes.
+fn update_file(kind: u8, payload_len: u32) -> Vec<u8> {
+    let mut file = b"LBVU".to_vec();
+    file.extend([1, kind, 0, 0]);
+    file.extend(payload_len.to_le_bytes());
+    file.extend([0, 1, 0, 0]);
+    file.extend([0x5A; 64]);
+    file.extend((0..payload_len).map(|n| (n * 7 + 3) as u8));
+    file
+}
+
+/// A reply, read back.
+#[derive(Debug, PartialEq)]
+struct Reply {
+    seq: u16,
+    session: u8,
+    opcode: u8,
+    req_opcode: u8,
+    offset: u32,
+    data: Vec<u8>,
+}
+
+fn read(reply: &FtpReply) -> Reply {
+    let size = usize::from(reply[4]);
+    Reply {
+        seq: u16::from_le_bytes([reply[0], reply[1]]),
+        session: reply[2],
+        opcode: reply[3],
+        req_opcode: reply[5],
+        offset: u32::from_le_bytes(reply[8..12].try_into().unwrap()),
+        data: reply[12..12 + size].to_vec(),
+    }
+}
+
+/// A server for the vehicle's table (six SeaBotix thrusters), its sink, and what it said.
+struct Server {
+    server: UpdateServer,
+    sink: UpdateRecorder,
+    said: Vec<Outgoing>,
+    seq: u16,
+}
+
+impl Server {
+    fn new() -> Self {
+        Self::with(&VEHICLE.thrusters)
+    }
+
+    fn with(table: &ThrusterTable) -> Self {
+        Self {
+            server: UpdateServer::new(table),
+            sink: UpdateRecorder::default(),
+            said: Vec::new(),
+            seq: 0,
+        }
+    }
+
+    /// Send a request; the reply, if any.
+    fn send(&mut self, ms: u64, context: Context, from: Sender, payload: &FtpPayload) -> Option<Reply> {
+        let mut said = Vec::new();
+        let reply = self
+            .server
+            .request(t(ms), context, from, payload, &mut self.sink, &mut |o| said.push(o));
+        self.said.extend(said);
+        reply.map(|r| read(&r))
+    }
+
+    /// Send a request from the operator, disarmed, with the next sequence number.
+    fn op(&mut self, ms: u64, session: u8, opcode: u8, offset: u32, data: &[u8]) -> Option<Reply> {
+        self.seq = self.seq.wrapping_add(1);
+        let p = payload(self.seq, session, opcode, offset, data);
+        self.send(ms, DISARMED, GCS, &p)
+    }
+
+    fn apply(&mut self, context: Context, from: Sender, slot: Option<u8>) -> Vec<Outgoing> {
+        let mut said = Vec::new();
+        self.server
+            .apply(context, from, slot, &mut self.sink, &mut |o| said.push(o));
+        said
+    }
+
+    /// Upload `file` to `path` in session `session` in writes of `block` bytes, in order; the last reply.
+    fn put(&mut self, ms: u64, session: u8, path: &str, file: &[u8], block: usize) -> Option<Reply> {
+        let created = self.op(ms, session, CREATE, 0, path.as_bytes());
+        if created.as_ref().is_none_or(|r| r.opcode != ACK) {
+            return created;
+        }
+        let mut last = created;
+        for (n, chunk) in file.chunks(block).enumerate() {
+            last = self.op(ms, session, WRITE, (n * block) as u32, chunk);
+            if last.as_ref().is_none_or(|r| r.opcode != ACK) {
+                break;
+            }
+        }
+        last
+    }
+
+    fn texts(&self) -> Vec<String> {
+        self.said
+            .iter()
+            .filter_map(|o| match o {
+                Outgoing::Text(_, text) => Some(text.to_string()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn images(&self) -> Vec<ReceivedImage> {
+        self.sink.images()
+    }
+}
+
+fn ack(reply: &Option<Reply>) -> bool {
+    reply.as_ref().is_some_and(|r| r.opcode == ACK)
+}
+
+fn nak(reply: &Option<Reply>) -> Option<u8> {
+    reply
+        .as_ref()
+        .filter(|r| r.opcode == NAK)
+        .and_then(|r| r.data.first().copied())
+}
+
+const THRUSTER0: &str = "/update/thruster0.lbvu";
+
+#[test]
+fn crc32_is_ardupilots() {
+    // zlib.crc32(b"123456789", 0xFFFFFFFF) ^ 0xFFFFFFFF, what MAVProxy's `ftp crclocal` computes.
+    assert_eq!(ftp::crc32(0, b"123456789"), 0x2DFD_2D88);
+    assert_eq!(ftp::crc32(ftp::crc32(0, b"1234"), b"56789"), 0x2DFD_2D88);
+    assert_eq!(ftp::crc32(0, b""), 0);
+}
+
+#[test]
+fn headers_are_read_as_update_image_lays_them_out() {
+    let file = update_file(2, 4096);
+    let header = parse_header(file[..80].try_into().unwrap()).unwrap();
+    assert_eq!((header.target, header.payload_len, header.file_len()), (2, 4096, 4176));
+    assert_eq!(header.bytes[..], file[..80]);
+    let with = |n: usize, byte: u8| {
+        let mut bytes: [u8; 80] = file[..80].try_into().unwrap();
+        bytes[n] = byte;
+        parse_header(&bytes)
+    };
+    assert_eq!(with(0, b'X'), Err(HeaderError::Magic));
+    assert_eq!(with(4, 2), Err(HeaderError::Format(2)));
+    assert_eq!(with(5, 0), Err(HeaderError::Target(0)));
+    assert_eq!(with(5, 4), Err(HeaderError::Target(4)));
+    assert_eq!(with(7, 1), Err(HeaderError::Reserved));
+}
+
+#[test]
+fn the_listing_shows_the_directory_and_one_file_per_target() {
+    let mut s = Server::new();
+    let root = s.op(0, 0, LIST, 0, b"/").unwrap();
+    assert_eq!(
+        (root.opcode, root.req_opcode, root.data.as_slice()),
+        (ACK, LIST, &b"Dupdate\0"[..])
+    );
+    assert_eq!(nak(&s.op(0, 0, LIST, 1, b"/")), Some(Nak::EndOfFile as u8));
+    // One entry per reply, each at its offset, then the end.
+    let mut names = Vec::new();
+    for offset in 0.. {
+        let reply = s.op(0, 0, LIST, offset, b"/update").unwrap();
+        if reply.opcode == NAK {
+            assert_eq!(reply.data, [Nak::EndOfFile as u8]);
+            break;
+        }
+        assert_eq!(reply.offset, offset, "the offset is echoed");
+        names.push(String::from_utf8(reply.data).unwrap());
+    }
+    let expected: Vec<String> = (0..6)
+        .map(|n| format!("Fthruster{n}.lbvu\t0\0"))
+        .chain(["Fmaster.lbvu\t0\0".to_owned()])
+        .collect();
+    assert_eq!(names, expected);
+    // The same directory, written as clients may write it.
+    for path in [&b"update"[..], b"/update/", b"update/", b"/update\0"] {
+        assert!(ack(&s.op(0, 0, LIST, 0, path)), "{path:?}");
+    }
+    for path in [&b"/updates"[..], b"/foo", b"/update/x"] {
+        assert_eq!(
+            nak(&s.op(0, 0, LIST, 0, path)),
+            Some(Nak::FileNotFound as u8),
+            "{path:?}"
+        );
+    }
+    // A file is not a directory.
+    assert_eq!(
+        nak(&s.op(0, 0, LIST, 0, THRUSTER0.as_bytes())),
+        Some(Nak::FileNotFound as u8)
+    );
+    // The dev kit's table has one thruster.
+    let mut kit = Server::with(&devkit(Family::Legacy));
+    assert_eq!(kit.op(0, 0, LIST, 0, b"/update").unwrap().data, b"Fthruster0.lbvu\t0\0");
+    assert_eq!(kit.op(0, 0, LIST, 1, b"/update").unwrap().data, b"Fmaster.lbvu\t0\0");
+    assert_eq!(nak(&kit.op(0, 0, LIST, 2, b"/update")), Some(Nak::EndOfFile as u8));
+}
+
+#[test]
+fn a_put_goes_to_the_sink_byte_for_byte_in_order() {
+    let mut s = Server::new();
+    let file = update_file(1, 4096);
+    // MAVProxy writes 239 bytes at a time, pymavlink 80.
+    for (block, session) in [(239, 7), (80, 8)] {
+        let created = s.op(0, session, CREATE, 0, THRUSTER0.as_bytes()).unwrap();
+        assert_eq!(
+            created,
+            Reply {
+                seq: s.seq.wrapping_add(1),
+                session,
+                opcode: ACK,
+                req_opcode: CREATE,
+                offset: 0,
+                data: vec![]
+            },
+            "a reply carries the request's sequence + 1 and its session"
+        );
+        for (n, chunk) in file.chunks(block).enumerate() {
+            let offset = (n * block) as u32;
+            let reply = s.op(10, session, WRITE, offset, chunk).unwrap();
+            assert_eq!((reply.opcode, reply.req_opcode, reply.offset), (ACK, WRITE, offset));
+            assert!(reply.data.is_empty());
+        }
+        assert!(s.server.is_received(UpdateTarget::Thruster(0)));
+        assert_eq!(
+            s.server.received(UpdateTarget::Thruster(0)),
+            (4176, ftp::crc32(0, &file))
+        );
+        assert!(ack(&s.op(20, session, TERMINATE, 0, &[])));
+        let images = s.images();
+        let last = images.last().unwrap();
+        assert_eq!(
+            (last.target, last.complete, &last.bytes),
+            (UpdateTarget::Thruster(0), Some(true), &file)
+        );
+    }
+    assert_eq!(s.images().len(), 2);
+    assert!(
+        s.texts()
+            .iter()
+            .all(|t| t == "thruster0.lbvu: received, ready to apply"),
+        "{:?}",
+        s.texts()
+    );
+    // The listing and the CRC show it.
+    assert_eq!(
+        s.op(30, 0, LIST, 0, b"/update").unwrap().data,
+        b"Fthruster0.lbvu\t4176\0"
+    );
+    let crc = s.op(30, 0, CRC, 0, THRUSTER0.as_bytes()).unwrap();
+    assert_eq!(
+        (crc.opcode, crc.data),
+        (ACK, ftp::crc32(0, &file).to_le_bytes().to_vec())
+    );
+    assert_eq!(s.op(30, 0, CRC, 0, b"/update/master.lbvu").unwrap().data, [0; 4]);
+}
+
+#[test]
+fn progress_is_told_at_most_once_a_second() {
+    let mut s = Server::new();
+    let file = update_file(1, 8000);
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    for (n, chunk) in file.chunks(239).enumerate() {
+        // A write every 100 ms.
+        assert!(ack(&s.op(100 * n as u64, 1, WRITE, (n * 239) as u32, chunk)));
+    }
+    let texts = s.texts();
+    assert_eq!(
+        texts.first().map(String::as_str),
+        Some("thruster0.lbvu: 2629 of 8080 bytes")
+    );
+    assert_eq!(texts.len(), 4, "{texts:?}");
+    assert_eq!(
+        texts.last().map(String::as_str),
+        Some("thruster0.lbvu: received, ready to apply")
+    );
+}
+
+#[test]
+fn a_write_sent_again_is_acked_again_and_a_gap_is_left_unanswered() {
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    assert!(ack(&s.op(0, 3, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 3, WRITE, 0, &file[..239])));
+    // Its ACK was lost: the same block again, with the same or a new sequence number.
+    let seq = s.seq;
+    let again = s
+        .send(0, DISARMED, GCS, &payload(seq, 3, WRITE, 0, &file[..239]))
+        .unwrap();
+    assert_eq!((again.opcode, again.seq, again.offset), (ACK, seq.wrapping_add(1), 0));
+    assert!(ack(&s.op(0, 3, WRITE, 0, &file[..239])));
+    // A write beyond the next byte (the one before it was lost): no answer, nothing taken.
+    assert_eq!(s.op(0, 3, WRITE, 478, &file[478..717]), None);
+    assert_eq!(s.server.received(UpdateTarget::Thruster(0)).0, 239);
+    // The lost block comes round again, and then the one after it.
+    assert!(ack(&s.op(0, 3, WRITE, 239, &file[239..478])));
+    assert!(ack(&s.op(0, 3, WRITE, 478, &file[478..717])));
+    // A block that overlaps what was taken (another block size): only its new bytes are taken.
+    assert!(ack(&s.op(0, 3, WRITE, 700, &file[700..939])));
+    assert!(ack(&s.op(0, 3, WRITE, 939, &file[939..])));
+    assert_eq!(s.images()[0].bytes, file);
+    // The last block again after the image is whole: ACKed, nothing changes.
+    assert!(ack(&s.op(0, 3, WRITE, 939, &file[939..])));
+    let counters = s.server.counters();
+    assert_eq!((counters.duplicates, counters.gaps, counters.naks), (3, 1, 0));
+    assert_eq!(s.images().len(), 1);
+    assert_eq!(s.images()[0].complete, Some(true));
+}
+
+#[test]
+fn bad_headers_and_targets_that_do_not_fit_are_refused_before_the_sink_sees_them() {
+    let file = update_file(1, 1024);
+    let mut magic = file.clone();
+    magic[0] = b'X';
+    let mut format = file.clone();
+    format[4] = 9;
+    let legacy = update_file(2, 1024);
+    let master = update_file(3, 1024);
+    let cases: [(&str, &[u8], &str); 8] = [
+        (THRUSTER0, &magic, "thruster0.lbvu: not an update file"),
+        (THRUSTER0, &format, "thruster0.lbvu: bad update file header"),
+        (THRUSTER0, &legacy, "thruster0.lbvu: Legacy image, slot is SeaBotix"),
+        (THRUSTER0, &master, "thruster0.lbvu: master image, slot is SeaBotix"),
+        (
+            "/update/master.lbvu",
+            &file,
+            "master.lbvu: SeaBotix image, slot is master",
+        ),
+        (
+            THRUSTER0,
+            &update_file(1, 0),
+            "thruster0.lbvu: payload length not valid",
+        ),
+        (
+            THRUSTER0,
+            &update_file(1, 1001),
+            "thruster0.lbvu: payload length not valid",
+        ),
+        (
+            THRUSTER0,
+            &update_file(1, THRUSTER_MAX_PAYLOAD + 8)[..239],
+            "thruster0.lbvu: payload length not valid",
+        ),
+    ];
+    for (path, bytes, text) in cases {
+        let mut s = Server::new();
+        let reply = s.put(0, 1, path, bytes, 239);
+        assert_eq!(nak(&reply), Some(Nak::Fail as u8), "{text}");
+        assert_eq!(s.texts(), [text]);
+        assert!(s.images().is_empty(), "{text}: the sink never began");
+        // The upload is over: the session is closed and nothing is held.
+        assert_eq!(nak(&s.op(0, 1, WRITE, 239, &[1; 10])), Some(Nak::InvalidSession as u8));
+        assert_eq!(s.server.received(UpdateTarget::Thruster(0)), (0, 0));
+    }
+    // The dev kit's Legacy slot takes a Legacy image; the master slot a master image.
+    let mut kit = Server::with(&devkit(Family::Legacy));
+    assert!(ack(&kit.put(0, 1, THRUSTER0, &legacy, 239)));
+    assert!(ack(&kit.put(0, 2, "/update/master.lbvu", &master, 239)));
+    // A table of mixed families: each slot its own.
+    let mut mixed = Server::with(&lbv300_6(
+        [Family::SeaBotix, Family::Legacy].repeat(3).try_into().unwrap(),
+    ));
+    assert!(ack(&mixed.put(0, 1, "/update/thruster1.lbvu", &legacy, 239)));
+    assert_eq!(
+        nak(&mixed.put(0, 2, "/update/thruster2.lbvu", &legacy, 239)),
+        Some(Nak::Fail as u8)
+    );
+}
+
+#[test]
+fn the_header_must_come_in_the_first_write() {
+    let mut s = Server::new();
+    let file = update_file(1, 1024);
+    assert_eq!(nak(&s.put(0, 1, THRUSTER0, &file, 64)), Some(Nak::Fail as u8));
+    assert_eq!(s.texts(), ["thruster0.lbvu: header not in the first write"]);
+    // A first write of the header alone is enough (pymavlink writes 80 bytes at a time).
+    assert!(ack(&s.put(0, 2, THRUSTER0, &file, 80)));
+}
+
+#[test]
+fn a_file_longer_than_its_header_says_is_refused() {
+    // The last block goes past the end.
+    let mut s = Server::new();
+    let mut file = update_file(1, 1000);
+    file.extend([0xEE; 100]);
+    assert_eq!(nak(&s.put(0, 1, THRUSTER0, &file, 239)), Some(Nak::Fail as u8));
+    assert_eq!(s.texts(), ["thruster0.lbvu: longer than its header says"]);
+    assert_eq!(s.images()[0].complete, Some(false), "the sink dropped it");
+    assert!(!s.server.is_received(UpdateTarget::Thruster(0)));
+    // Or a block comes after the image is whole.
+    let mut s = Server::new();
+    // 1912 bytes: eight whole blocks of 239.
+    let mut file = update_file(1, 1832);
+    assert_eq!(file.len(), 239 * 8);
+    file.extend([0xEE; 50]);
+    assert_eq!(nak(&s.put(0, 1, THRUSTER0, &file, 239)), Some(Nak::Fail as u8));
+    assert!(
+        s.texts()
+            .contains(&"thruster0.lbvu: longer than its header says".to_owned())
+    );
+    assert!(
+        !s.server.is_received(UpdateTarget::Thruster(0)),
+        "not the file the ground station holds"
+    );
+    assert_eq!(s.server.received(UpdateTarget::Thruster(0)), (0, 0));
+}
+
+#[test]
+fn one_session_at_a_time() {
+    let mut s = Server::new();
+    let file = update_file(1, 2000);
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    // Another session, another client: busy while the first is active.
+    assert_eq!(
+        nak(&s.op(1000, 2, CREATE, 0, b"/update/thruster1.lbvu")),
+        Some(Nak::NoSessionsAvailable as u8)
+    );
+    let other = payload(1, 9, CREATE, 0, b"/update/thruster1.lbvu");
+    let mut operator_elsewhere = GCS;
+    operator_elsewhere.component = 1;
+    assert_eq!(
+        nak(&s.send(1000, DISARMED, operator_elsewhere, &other)),
+        Some(Nak::NoSessionsAvailable as u8)
+    );
+    // The same session opening again: one file per session.
+    assert_eq!(
+        nak(&s.op(1000, 1, CREATE, 0, THRUSTER0.as_bytes())),
+        Some(Nak::Fail as u8)
+    );
+    // Writes in another session than the one open.
+    assert_eq!(
+        nak(&s.op(1000, 2, WRITE, 239, &file[239..478])),
+        Some(Nak::InvalidSession as u8)
+    );
+    // Listing, CRC need no session.
+    assert!(ack(&s.op(1000, 5, LIST, 0, b"/update")));
+    assert!(ack(&s.op(1000, 5, CRC, 0, THRUSTER0.as_bytes())));
+    // Idle for 3 s: a new open takes over, and the upload in the old one stops.
+    assert!(ack(&s.op(3000, 2, CREATE, 0, b"/update/thruster1.lbvu")));
+    assert_eq!(s.texts(), ["thruster0.lbvu: stopped at 239 of 2080 bytes"]);
+    assert_eq!(s.images()[0].complete, Some(false));
+    assert_eq!(s.server.received(UpdateTarget::Thruster(0)), (0, 0));
+    assert_eq!(
+        nak(&s.op(3000, 1, WRITE, 239, &file[239..478])),
+        Some(Nak::InvalidSession as u8)
+    );
+}
+
+#[test]
+fn terminate_and_reset_close_the_session() {
+    let mut s = Server::new();
+    let file = update_file(1, 2000);
+    // Terminating a session that is not open: nothing to do, ACKed (as ArduPilot does).
+    assert!(ack(&s.op(0, 4, TERMINATE, 0, &[])));
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    // Another session's terminate, or another system's reset, leave it open.
+    assert!(ack(&s.op(0, 4, TERMINATE, 0, &[])));
+    assert!(ack(&s.send(0, DISARMED, OTHER, &payload(1, 0, RESET, 0, &[]))));
+    assert!(ack(&s.op(0, 1, WRITE, 239, &file[239..478])));
+    // Its own terminate stops the upload: the sink drops it.
+    assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    assert_eq!(s.texts(), ["thruster0.lbvu: stopped at 478 of 2080 bytes"]);
+    assert_eq!(s.images()[0].complete, Some(false));
+    // Reset closes every session of its sender.
+    assert!(ack(&s.op(0, 2, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 9, RESET, 0, &[])));
+    assert_eq!(
+        nak(&s.op(0, 2, WRITE, 0, &file[..239])),
+        Some(Nak::InvalidSession as u8)
+    );
+    // Before the header came, the sink had not begun: nothing to drop.
+    assert_eq!(s.images().len(), 1);
+}
+
+#[test]
+fn only_the_operator_writes_and_nothing_changes_while_armed() {
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    let create = payload(1, 1, CREATE, 0, THRUSTER0.as_bytes());
+    assert_eq!(
+        nak(&s.send(0, DISARMED, OTHER, &create)),
+        Some(Nak::FileProtected as u8)
+    );
+    assert_eq!(
+        nak(&s.send(0, DISARMED, OTHER, &payload(2, 0, REMOVE, 0, THRUSTER0.as_bytes()))),
+        Some(Nak::FileProtected as u8)
+    );
+    // Anyone may read.
+    assert!(ack(&s.send(0, DISARMED, OTHER, &payload(3, 0, LIST, 0, b"/update"))));
+    assert!(ack(&s.send(
+        0,
+        DISARMED,
+        OTHER,
+        &payload(4, 0, CRC, 0, THRUSTER0.as_bytes())
+    )));
+    assert_eq!(s.server.counters().refused, 2);
+    // Armed: no upload starts, nothing is removed.
+    assert_eq!(nak(&s.send(0, ARMED, GCS, &create)), Some(Nak::Fail as u8));
+    assert_eq!(
+        nak(&s.send(0, ARMED, GCS, &payload(5, 0, REMOVE, 0, THRUSTER0.as_bytes()))),
+        Some(Nak::Fail as u8)
+    );
+    assert_eq!(
+        s.texts(),
+        ["thruster0.lbvu: disarm to update", "thruster0.lbvu: disarm to update"]
+    );
+    // Arming during an upload stops it at its next request.
+    s.said.clear();
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    let write = payload(9, 1, WRITE, 239, &file[239..478]);
+    assert_eq!(nak(&s.send(0, ARMED, GCS, &write)), Some(Nak::InvalidSession as u8));
+    assert_eq!(s.texts(), ["thruster0.lbvu: stopped, armed"]);
+    assert_eq!(s.images()[0].complete, Some(false));
+    // Nothing was ever held: nothing to apply.
+    assert!(!s.server.is_received(UpdateTarget::Thruster(0)));
+}
+
+#[test]
+fn opcodes_it_does_not_serve_and_bad_payloads() {
+    let mut s = Server::new();
+    // OpenFileRO, ReadFile, CreateDirectory, RemoveDirectory, TruncateFile, Rename, BurstReadFile,
+    // ListDirectoryWithTime (MAVProxy's first try), and bytes that are no opcode.
+    for opcode in [OPEN_RO, 5, 9, 10, 12, 13, 15, 16, 17, 99, 127, 130, 255] {
+        let reply = s.op(0, 0, opcode, 0, b"@PARAM/param.pck").unwrap();
+        assert_eq!(
+            (reply.opcode, reply.req_opcode, reply.data),
+            (NAK, opcode, vec![Nak::UnknownCommand as u8])
+        );
+    }
+    // A reply sent to the server is not answered.
+    assert_eq!(s.op(0, 0, ACK, 0, &[]), None);
+    assert_eq!(s.op(0, 0, NAK, 0, &[1]), None);
+    // None: ACKed.
+    assert!(ack(&s.op(0, 0, 0, 0, &[])));
+    // A size beyond the data room, for any opcode.
+    for opcode in [0, LIST, CREATE, WRITE, CRC, 99] {
+        let mut p = payload(1, 0, opcode, 0, b"/update");
+        p[4] = DATA_LEN as u8 + 1;
+        assert_eq!(
+            nak(&s.send(0, DISARMED, GCS, &p)),
+            Some(Nak::InvalidDataSize as u8),
+            "{opcode}"
+        );
+    }
+    // Paths: empty, a NUL inside; a trailing NUL is allowed.
+    assert_eq!(nak(&s.op(0, 0, LIST, 0, b"")), Some(Nak::InvalidDataSize as u8));
+    assert_eq!(
+        nak(&s.op(0, 0, LIST, 0, b"/upd\0ate")),
+        Some(Nak::InvalidDataSize as u8)
+    );
+    assert!(ack(&s.op(0, 0, CRC, 0, b"/update/thruster5.lbvu\0")));
+    // No such files: slots beyond the table, other names.
+    for path in [
+        "/update/thruster6.lbvu",
+        "/update/thruster9.lbvu",
+        "/update/thrusterA.lbvu",
+        "/update/thruster0.bin",
+    ] {
+        assert_eq!(
+            nak(&s.op(0, 0, CRC, 0, path.as_bytes())),
+            Some(Nak::FileNotFound as u8),
+            "{path}"
+        );
+        assert_eq!(
+            nak(&s.op(0, 0, CREATE, 0, path.as_bytes())),
+            Some(Nak::FileNotFound as u8),
+            "{path}"
+        );
+    }
+    assert_eq!(nak(&s.op(0, 0, CREATE, 0, b"/update")), Some(Nak::FileNotFound as u8));
+    assert!(s.texts().is_empty());
+    assert_eq!(s.server.counters().naks, 13 + 6 + 2 + 8 + 1);
+}
+
+#[test]
+fn open_file_wo_starts_an_upload_too() {
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    assert!(ack(&s.op(0, 1, OPEN_WO, 0, THRUSTER0.as_bytes())));
+    for (n, chunk) in file.chunks(239).enumerate() {
+        assert!(ack(&s.op(0, 1, WRITE, (n * 239) as u32, chunk)));
+    }
+    assert!(s.server.is_received(UpdateTarget::Thruster(0)));
+}
+
+#[test]
+fn remove_forgets_and_a_refused_upload_keeps_the_image_held() {
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    assert!(ack(&s.put(0, 1, THRUSTER0, &file, 239)));
+    assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    // A refused upload to another slot, or to this one, leaves it.
+    assert_eq!(
+        nak(&s.put(0, 2, "/update/master.lbvu", &file, 239)),
+        Some(Nak::Fail as u8)
+    );
+    assert_eq!(
+        nak(&s.put(0, 3, THRUSTER0, &update_file(2, 1000), 239)),
+        Some(Nak::Fail as u8)
+    );
+    assert!(s.server.is_received(UpdateTarget::Thruster(0)));
+    // An upload to this slot that begins replaces it.
+    assert!(ack(&s.op(0, 4, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(
+        s.server.is_received(UpdateTarget::Thruster(0)),
+        "not until its header passes"
+    );
+    assert!(ack(&s.op(0, 4, WRITE, 0, &file[..239])));
+    assert!(!s.server.is_received(UpdateTarget::Thruster(0)));
+    assert!(ack(&s.op(0, 4, TERMINATE, 0, &[])));
+    assert!(ack(&s.put(0, 5, THRUSTER0, &file, 239)));
+    assert!(ack(&s.op(0, 5, TERMINATE, 0, &[])));
+    // Removed: the listing shows nothing, nothing to apply.
+    s.said.clear();
+    assert!(ack(&s.op(0, 0, REMOVE, 0, THRUSTER0.as_bytes())));
+    assert_eq!(s.texts(), ["thruster0.lbvu: removed"]);
+    assert_eq!(s.op(0, 0, LIST, 0, b"/update").unwrap().data, b"Fthruster0.lbvu\t0\0");
+    assert!(!s.server.is_received(UpdateTarget::Thruster(0)));
+    // Removing during an upload stops it.
+    assert!(ack(&s.op(0, 6, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 6, WRITE, 0, &file[..239])));
+    assert!(ack(&s.op(0, 0, REMOVE, 0, THRUSTER0.as_bytes())));
+    assert_eq!(
+        nak(&s.op(0, 6, WRITE, 239, &file[239..478])),
+        Some(Nak::InvalidSession as u8)
+    );
+    assert_eq!(s.images().last().unwrap().complete, Some(false));
+}
+
+fn acked(said: &[Outgoing]) -> Option<AckResult> {
+    said.iter().find_map(|o| match o {
+        Outgoing::CommandAck { command, result, to } => {
+            assert_eq!((*command, *to), (MAV_CMD_LBV_APPLY_UPDATE, GCS));
+            Some(*result)
+        }
+        _ => None,
+    })
+}
+
+fn text_of(said: &[Outgoing]) -> Vec<String> {
+    said.iter()
+        .filter_map(|o| match o {
+            Outgoing::Text(_, text) => Some(text.to_string()),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    let said = s.apply(DISARMED, GCS, Some(0));
+    assert_eq!(
+        (acked(&said), text_of(&said)),
+        (Some(AckResult::Denied), vec!["thruster0.lbvu: nothing to apply".into()])
+    );
+    // Another system: DENIED, counted, no text.
+    let mut other = OTHER;
+    other.component = 190;
+    let said = s.apply(DISARMED, other, Some(0));
+    assert!(matches!(said.as_slice(), [Outgoing::CommandAck { result: AckResult::Denied, to, .. }] if *to == other));
+    assert_eq!(s.server.counters().refused, 1);
+    // No such target.
+    for slot in [Some(6), Some(200), None] {
+        let said = s.apply(DISARMED, GCS, slot);
+        assert_eq!(
+            (acked(&said), text_of(&said)),
+            (Some(AckResult::Denied), vec!["update: no such target".into()])
+        );
+    }
+    // Still receiving.
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    let said = s.apply(DISARMED, GCS, Some(0));
+    assert_eq!(acked(&said), Some(AckResult::TemporarilyRejected));
+    assert_eq!(text_of(&said), ["thruster0.lbvu: still receiving"]);
+    for (n, chunk) in file.chunks(239).enumerate().skip(1) {
+        assert!(ack(&s.op(0, 1, WRITE, (n * 239) as u32, chunk)));
+    }
+    // Whole, before and after the session closes; armed: not now.
+    let said = s.apply(ARMED, GCS, Some(0));
+    assert_eq!(acked(&said), Some(AckResult::TemporarilyRejected));
+    assert_eq!(text_of(&said), ["thruster0.lbvu: disarm to update"]);
+    assert!(s.images()[0].applied == 0);
+    for n in 1..=2 {
+        let said = s.apply(DISARMED, GCS, Some(0));
+        assert_eq!(acked(&said), Some(AckResult::Accepted));
+        assert_eq!(text_of(&said), ["thruster0.lbvu: valid; not sent, no I2C yet"]);
+        assert_eq!(s.images()[0].applied, n);
+        assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    }
+    // Another slot, and the master: nothing there.
+    assert_eq!(acked(&s.apply(DISARMED, GCS, Some(3))), Some(AckResult::Denied));
+    assert_eq!(
+        acked(&s.apply(DISARMED, GCS, Some(MASTER_SLOT))),
+        Some(AckResult::Denied)
+    );
+    // The sink may fail it, or say it started.
+    struct Refusing;
+    impl UpdateSink for Refusing {
+        fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Nak> {
+            Ok(())
+        }
+        fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Nak> {
+            Ok(())
+        }
+        fn finish(&mut self, _: bool) -> Result<(), Nak> {
+            Ok(())
+        }
+        fn apply(&mut self, target: UpdateTarget) -> Result<Applied, Nak> {
+            match target {
+                UpdateTarget::Master => Err(Nak::Fail),
+                UpdateTarget::Thruster(_) => Ok(Applied::Started),
+            }
+        }
+    }
+    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    for (target, path, kind, result, text) in [
+        (
+            UpdateTarget::Thruster(0),
+            THRUSTER0,
+            1,
+            AckResult::Accepted,
+            "thruster0.lbvu: applying",
+        ),
+        (
+            UpdateTarget::Master,
+            "/update/master.lbvu",
+            3,
+            AckResult::Failed,
+            "master.lbvu: apply failed",
+        ),
+    ] {
+        let file = update_file(kind, 152);
+        let mut said = Vec::new();
+        let mut out = |o| said.push(o);
+        let create = payload(1, 1, CREATE, 0, path.as_bytes());
+        assert!(
+            server
+                .request(t(0), DISARMED, GCS, &create, &mut Refusing, &mut out)
+                .is_some()
+        );
+        let write = payload(2, 1, WRITE, 0, &file);
+        assert_eq!(
+            server
+                .request(t(0), DISARMED, GCS, &write, &mut Refusing, &mut out)
+                .map(|r| r[3]),
+            Some(ACK)
+        );
+        let terminate = payload(3, 1, TERMINATE, 0, &[]);
+        assert!(
+            server
+                .request(t(0), DISARMED, GCS, &terminate, &mut Refusing, &mut out)
+                .is_some()
+        );
+        assert!(server.is_received(target), "{target:?}");
+        said.clear();
+        server.apply(DISARMED, GCS, Some(target.slot()), &mut Refusing, &mut |o| said.push(o));
+        assert_eq!((acked(&said), text_of(&said)), (Some(result), vec![text.to_owned()]));
+    }
+    // One image is held at a time: the master's replaced the thruster's.
+    assert!(!server.is_received(UpdateTarget::Thruster(0)));
+}
+
+#[test]
+fn a_sink_that_refuses_ends_the_upload() {
+    #[derive(Default)]
+    struct Picky {
+        finished: Vec<bool>,
+        refuse: u8,
+    }
+    impl UpdateSink for Picky {
+        fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Nak> {
+            if self.refuse == 1 { Err(Nak::Fail) } else { Ok(()) }
+        }
+        fn write(&mut self, offset: u32, _: &[u8]) -> Result<(), Nak> {
+            if self.refuse == 2 && offset > 500 {
+                Err(Nak::Fail)
+            } else {
+                Ok(())
+            }
+        }
+        fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+            self.finished.push(complete);
+            if self.refuse == 3 && complete {
+                Err(Nak::Fail)
+            } else {
+                Ok(())
+            }
+        }
+        fn apply(&mut self, _: UpdateTarget) -> Result<Applied, Nak> {
+            Ok(Applied::NotWired)
+        }
+    }
+    let file = update_file(1, 1000);
+    for (refuse, finished) in [(1, vec![]), (2, vec![false]), (3, vec![true, false])] {
+        let mut server = UpdateServer::new(&VEHICLE.thrusters);
+        let mut sink = Picky {
+            refuse,
+            ..Picky::default()
+        };
+        let mut texts = Vec::new();
+        let mut out = |o| {
+            if let Outgoing::Text(_, text) = o {
+                texts.push(text.to_string());
+            }
+        };
+        let create = payload(1, 1, CREATE, 0, THRUSTER0.as_bytes());
+        assert!(
+            server
+                .request(t(0), DISARMED, GCS, &create, &mut sink, &mut out)
+                .is_some()
+        );
+        let mut last = None;
+        for (n, chunk) in file.chunks(239).enumerate() {
+            let write = payload(2 + n as u16, 1, WRITE, (n * 239) as u32, chunk);
+            last = server.request(t(0), DISARMED, GCS, &write, &mut sink, &mut out);
+            if last.is_some_and(|r| r[3] == NAK) {
+                break;
+            }
+        }
+        assert_eq!(last.map(|r| (r[3], r[12])), Some((NAK, Nak::Fail as u8)), "{refuse}");
+        assert_eq!(texts, ["thruster0.lbvu: refused by its sink"], "{refuse}");
+        assert_eq!(sink.finished, finished, "{refuse}");
+        assert!(!server.is_received(UpdateTarget::Thruster(0)));
+    }
+}
+
+#[test]
+fn check_only_checks_and_applies_nothing() {
+    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let file = update_file(1, 1000);
+    let mut said = Vec::new();
+    let mut out = |o| said.push(o);
+    let create = payload(1, 1, CREATE, 0, THRUSTER0.as_bytes());
+    server.request(t(0), DISARMED, GCS, &create, &mut CheckOnly, &mut out);
+    for (n, chunk) in file.chunks(239).enumerate() {
+        let write = payload(2 + n as u16, 1, WRITE, (n * 239) as u32, chunk);
+        assert_eq!(
+            server
+                .request(t(0), DISARMED, GCS, &write, &mut CheckOnly, &mut out)
+                .map(|r| r[3]),
+            Some(ACK)
+        );
+    }
+    assert_eq!(server.received(UpdateTarget::Thruster(0)), (1080, ftp::crc32(0, &file)));
+    said.clear();
+    server.apply(DISARMED, GCS, Some(0), &mut CheckOnly, &mut |o| said.push(o));
+    assert_eq!(acked(&said), Some(AckResult::Accepted));
+}
+
+/// What a client may send, in any mix.
+#[derive(Debug, Clone)]
+enum Step {
+    Raw(Vec<u8>),
+    Op {
+        from_operator: bool,
+        session: u8,
+        opcode: u8,
+        offset: u32,
+        data: Vec<u8>,
+    },
+    Apply(Option<u8>),
+    Time(u16),
+    Arm(bool),
+}
+
+fn step() -> impl Strategy<Value = Step> {
+    let opcode = prop_oneof![
+        Just(TERMINATE),
+        Just(RESET),
+        Just(LIST),
+        Just(CREATE),
+        Just(WRITE),
+        Just(REMOVE),
+        Just(OPEN_WO),
+        Just(CRC),
+        any::<u8>()
+    ];
+    let path = prop_oneof![
+        Just(THRUSTER0.as_bytes().to_vec()),
+        Just(b"/update/thruster3.lbvu".to_vec()),
+        Just(b"/update/master.lbvu".to_vec()),
+        Just(b"/update".to_vec()),
+        proptest::collection::vec(any::<u8>(), 0..40),
+    ];
+    let file = update_file(1, 1200);
+    let data = prop_oneof![
+        path,
+        (0usize..1280, 1usize..240)
+            .prop_map(move |(at, len)| file[at.min(file.len())..(at + len).min(file.len())].to_vec()),
+    ];
+    prop_oneof![
+        proptest::collection::vec(any::<u8>(), 251).prop_map(Step::Raw),
+        (
+            any::<bool>(),
+            0u8..3,
+            opcode,
+            prop_oneof![(0u32..1300), any::<u32>()],
+            data
+        )
+            .prop_map(|(from_operator, session, opcode, offset, data)| Step::Op {
+                from_operator,
+                session,
+                opcode,
+                offset,
+                data
+            }),
+        proptest::option::of(any::<u8>()).prop_map(Step::Apply),
+        any::<u16>().prop_map(Step::Time),
+        any::<bool>().prop_map(Step::Arm),
+    ]
+}
+
+proptest! {
+    /// Whatever comes, nothing panics, every request but a reply or a gap is answered with the request's
+    /// sequence + 1 and session, the sink only ever gets bytes in order (the recorder refuses any other), and a
+    /// text never says the sink refused.
+    #[test]
+    fn any_requests_in_any_order(steps in proptest::collection::vec(step(), 0..200)) {
+        let mut s = Server::new();
+        let mut ms = 0u64;
+        let mut context = DISARMED;
+        for (n, step) in steps.into_iter().enumerate() {
+            let seq = n as u16;
+            match step {
+                Step::Raw(bytes) => {
+                    let p: FtpPayload = bytes.try_into().unwrap();
+                    if let Some(reply) = s.send(ms, context, GCS, &p) {
+                        prop_assert_eq!(reply.seq, u16::from_le_bytes([p[0], p[1]]).wrapping_add(1));
+                        prop_assert_eq!((reply.session, reply.req_opcode), (p[2], p[3]));
+                    }
+                }
+                Step::Op { from_operator, session, opcode, offset, data } => {
+                    let from = if from_operator { GCS } else { OTHER };
+                    let p = payload(seq, session, opcode, offset, &data);
+                    if let Some(reply) = s.send(ms, context, from, &p) {
+                        prop_assert_eq!((reply.seq, reply.session, reply.req_opcode), (seq.wrapping_add(1), session, opcode));
+                        prop_assert!(reply.opcode == ACK || reply.opcode == NAK);
+                    } else {
+                        prop_assert!(opcode == WRITE || opcode == ACK || opcode == NAK);
+                    }
+                }
+                Step::Apply(slot) => {
+                    let said = s.apply(context, GCS, slot);
+                    prop_assert!(acked(&said).is_some());
+                }
+                Step::Time(dt) => ms += u64::from(dt),
+                Step::Arm(armed) => context.armed = armed,
+            }
+        }
+        prop_assert!(s.texts().iter().all(|t| !t.contains("refused by its sink")), "{:?}", s.texts());
+        for image in s.images() {
+            prop_assert!(image.bytes.len() <= HEADER_LEN + THRUSTER_MAX_PAYLOAD as usize);
+        }
+    }
+}

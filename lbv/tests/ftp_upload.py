@@ -1,0 +1,191 @@
+#!/usr/bin/env python3
+"""Field update over MAVLink FTP with pymavlink's own client (pymavlink.mavftp), for tests/udp_ftp.rs.
+
+    ftp_upload.py GCS_PORT BENCH_PORT WORK_DIR [TIMEOUT_S]
+
+Listens on 127.0.0.1:GCS_PORT like a ground station (`lbv bench --udp` sends there; the script answers to where
+the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operator (system 255):
+
+    list       ListDirectory `/` and `/update`: the directory, then one file per thruster slot and the master's
+    put        a 4176-byte SeaBotix update file (80-byte header, 4096-byte payload) to /update/thruster0.lbvu with
+               MAVFTP's put; STATUSTEXT "thruster0.lbvu: received, ready to apply"
+    listed     `/update` again: thruster0.lbvu now 4176 bytes
+    crc        CalcFileCRC32 of /update/thruster0.lbvu: ArduPilot's CRC32 of the file (what MAVProxy's `ftp
+               crclocal` computes)
+    refused    the same image to /update/thruster1.lbvu, a Legacy slot: the put fails, STATUSTEXT says why
+    apply      MAV_CMD_LBV_APPLY_UPDATE (31010) param1 0: COMMAND_ACK ACCEPTED and what was done; param1 2
+               (nothing received there): DENIED
+
+The file put is left in WORK_DIR/thruster0.lbvu for the test to compare with what the bench's sink got. Prints a
+JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when
+pymavlink is missing.
+"""
+import json
+import os
+import random
+import struct
+import sys
+import time
+import zlib
+
+os.environ["MAVLINK20"] = "1"
+os.environ["MAVLINK_DIALECT"] = "ardupilotmega"
+try:
+    from pymavlink import mavftp, mavutil
+except ImportError as error:
+    print(f"pymavlink is missing ({error}): pip install pymavlink", file=sys.stderr)
+    sys.exit(3)
+
+VEHICLE = (1, 1)
+GCS_SYSTEM, GCS_COMPONENT = 255, 190
+APPLY_UPDATE = 31010
+CALC_FILE_CRC32 = 14
+PAYLOAD_LEN = 4096
+
+
+class Failed(Exception):
+    pass
+
+
+def update_file(target, payload_len, seed):
+    """An update file as the update-image crate lays it out: LBVU, format 1, target, reserved 0, payload length,
+    version 0.1.0, a signature (not checked by the master), then the payload."""
+    rng = random.Random(seed)
+    header = b"LBVU" + struct.pack("<BBHI", 1, target, 0, payload_len) + bytes([0, 1, 0, 0]) + bytes(64)
+    return header + bytes(rng.randrange(256) for _ in range(payload_len))
+
+
+def ardupilot_crc32(data):
+    """ArduPilot's crc_crc32 from 0 (no inversions), as MAVProxy's `ftp crclocal` computes it."""
+    return zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF
+
+
+class Ground:
+    def __init__(self, gcs_port, bench_port, timeout):
+        self.link = mavutil.mavlink_connection(
+            f"udpin:127.0.0.1:{gcs_port}",
+            dialect="ardupilotmega",
+            source_system=GCS_SYSTEM,
+            source_component=GCS_COMPONENT,
+        )
+        self.bench_port = bench_port
+        self.deadline = time.monotonic() + timeout
+        self.start = time.monotonic()
+        self.texts = []
+        self.acks = []
+        self.crcs = []
+        # Every message read, whoever reads it (MAVFTP's own loop only wants FILE_TRANSFER_PROTOCOL).
+        self.link.message_hooks.append(self.hook)
+
+    def hook(self, link, msg):
+        kind = msg.get_type()
+        if kind == "BAD_DATA" or msg.get_srcSystem() != VEHICLE[0]:
+            return
+        if kind == "STATUSTEXT":
+            self.texts.append(msg.text)
+        elif kind == "COMMAND_ACK":
+            self.acks.append((msg.command, msg.result))
+        elif kind == "FILE_TRANSFER_PROTOCOL":
+            payload = bytes(msg.payload)
+            if payload[3] == 128 and payload[5] == CALC_FILE_CRC32 and payload[4] == 4:
+                self.crcs.append(struct.unpack("<I", payload[12:16])[0])
+
+    def elapsed(self):
+        return round(time.monotonic() - self.start, 2)
+
+    def pump(self, seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.link.recv_match(blocking=True, timeout=0.05)
+
+    def wait(self, done, within, what):
+        end = min(time.monotonic() + within, self.deadline)
+        while not done():
+            if time.monotonic() >= end:
+                raise Failed(f"{what}: not within {within} s")
+            self.link.recv_match(blocking=True, timeout=0.05)
+
+    def connect(self):
+        self.wait(lambda: self.link.messages.get("HEARTBEAT") is not None, 15.0, "the vehicle's HEARTBEAT")
+        # Where udpin answers: the senders seen (newer pymavlink keeps a set, older versions the last one).
+        clients = getattr(self.link, "clients", None)
+        addresses = sorted(clients) if clients is not None else [self.link.last_address]
+        if addresses != [("127.0.0.1", self.bench_port)]:
+            raise Failed(f"the vehicle sends from {addresses}, not 127.0.0.1:{self.bench_port}")
+        self.link.target_system, self.link.target_component = VEHICLE
+
+    def apply(self, slot):
+        since = len(self.acks)
+        self.link.mav.command_long_send(*VEHICLE, APPLY_UPDATE, 0, float(slot), 0, 0, 0, 0, 0, 0)
+
+        def answered():
+            return any(command == APPLY_UPDATE for command, _ in self.acks[since:])
+
+        self.wait(answered, 5.0, f"the apply command's COMMAND_ACK (slot {slot})")
+        return next(result for command, result in self.acks[since:] if command == APPLY_UPDATE)
+
+
+def listing(ret):
+    return [[entry.name, entry.size_b, entry.is_dir] for entry in ret.directory_listing or []]
+
+
+def main():
+    if len(sys.argv) < 4:
+        print(__doc__, file=sys.stderr)
+        return 2
+    gcs_port, bench_port, work = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+    timeout = float(sys.argv[4]) if len(sys.argv) > 4 else 30.0
+    ground = Ground(gcs_port, bench_port, timeout)
+    summary = {}
+    try:
+        ground.connect()
+        # pymavlink's client resets the vehicle's FTP sessions as it starts.
+        ftp = mavftp.MAVFTP(ground.link, *VEHICLE)
+
+        ret = ftp.cmd_list(["/"])
+        summary["root"] = listing(ret)
+        ret = ftp.cmd_list(["/update"])
+        summary["before"] = listing(ret)
+
+        image = update_file(1, PAYLOAD_LEN, seed=7)
+        local = os.path.join(work, "thruster0.lbvu")
+        with open(local, "wb") as file:
+            file.write(image)
+        since = len(ground.texts)
+        ftp.cmd_put([local, "/update/thruster0.lbvu"])
+        ret = ftp.process_ftp_reply("put", timeout=20)
+        if ret.error_code != 0:
+            raise Failed(f"put: MAVFTP error {ret.error_code}; texts {ground.texts[since:]}")
+        ground.wait(
+            lambda: "thruster0.lbvu: received, ready to apply" in ground.texts[since:], 3.0, "the ready STATUSTEXT"
+        )
+        summary["put"] = {"bytes": len(image), "texts": ground.texts[since:]}
+
+        summary["after"] = listing(ftp.cmd_list(["/update"]))
+        ftp.cmd_crc(["/update/thruster0.lbvu"])
+        ground.wait(lambda: ground.crcs, 3.0, "the CRC32 reply")
+        summary["crc"] = {"vehicle": ground.crcs[-1], "local": ardupilot_crc32(image)}
+
+        since = len(ground.texts)
+        ftp.cmd_put([local, "/update/thruster1.lbvu"])
+        ret = ftp.process_ftp_reply("put", timeout=10)
+        ground.pump(0.3)
+        summary["refused"] = {"error": int(ret.error_code), "texts": ground.texts[since:]}
+
+        since = len(ground.texts)
+        summary["apply"] = {"thruster0": ground.apply(0), "thruster2": ground.apply(2)}
+        ground.pump(0.3)
+        summary["apply"]["texts"] = ground.texts[since:]
+    except Failed as failure:
+        summary.update(failed=str(failure), texts=ground.texts[-10:], elapsed_s=ground.elapsed())
+        print(json.dumps(summary))
+        print(f"ftp_upload: {failure}", file=sys.stderr)
+        return 1
+    summary["elapsed_s"] = ground.elapsed()
+    summary["passed"] = True
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

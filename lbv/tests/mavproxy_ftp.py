@@ -1,0 +1,192 @@
+#!/usr/bin/env python3
+"""Field update with MAVProxy, a real ground station, typed at its prompt, for tests/mavproxy_ftp.rs.
+
+    mavproxy_ftp.py GCS_PORT OBSERVER_PORT WORK_DIR [TIMEOUT_S]
+
+Starts MAVProxy headless on udpin:127.0.0.1:GCS_PORT (where `lbv bench --udp` sends) with its default modules
+(ftp and cmdlong among them) and forwards what the vehicle sends to OBSERVER_PORT, where pymavlink watches the
+STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type them:
+
+    connect   MAVProxy sees the vehicle
+    list      `ftp list /update`: one file per thruster slot and the master's, 0 bytes each
+    lossy     `ftp set pkt_loss_tx 20`, `ftp set pkt_loss_rx 20`, `ftp set loss_seed 5` (MAVProxy's own link
+              simulator: a fifth of its requests and of the vehicle's replies lost, the same ones every run) and
+              `ftp set debug 2` (MAVProxy prints every request, reply and loss), then `ftp put
+              WORK_DIR/thruster2.lbvu /update/thruster2.lbvu`: "Sent file of length 4176"; the vehicle's
+              "thruster2.lbvu: received, ready to apply"; the writes MAVProxy sent more than once
+    crc       `ftp crc /update/thruster2.lbvu` (losses off again): the CRC32 `ftp crclocal` gives the file
+    listed    `ftp list /update`: thruster2.lbvu 4176 bytes
+    apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK ACCEPTED, "thruster2.lbvu: valid; not sent, no I2C yet"
+    remove    `ftp rm /update/thruster2.lbvu`: "thruster2.lbvu: removed"; `long MAV_CMD_USER_1 2`: DENIED
+
+The file put stays in WORK_DIR for the test to compare with what the bench's sink got. Prints a JSON summary;
+exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when pymavlink or MAVProxy is
+missing.
+"""
+import json
+import os
+import random
+import re
+import shutil
+import struct
+import sys
+import tempfile
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from mavproxy_pilot import Failed, MavProxy, Observer  # noqa: E402 (pymavlink checked there)
+
+APPLY_UPDATE = 31010
+PAYLOAD_LEN = 4096
+
+
+def update_file(target, payload_len, seed):
+    """An update file as the update-image crate lays it out (see ftp_upload.py)."""
+    rng = random.Random(seed)
+    header = b"LBVU" + struct.pack("<BBHI", 1, target, 0, payload_len) + bytes([0, 1, 0, 0]) + bytes(64)
+    return header + bytes(rng.randrange(256) for _ in range(payload_len))
+
+
+class Session:
+    def __init__(self, gcs_port, observer_port, work, timeout):
+        self.work = work
+        self.state_dir = tempfile.mkdtemp(prefix="mavproxy-ftp-")
+        self.observer = Observer(observer_port)
+        self.mavproxy = MavProxy(gcs_port, observer_port, self.state_dir)
+        self.start = time.monotonic()
+        self.deadline = self.start + timeout
+        self.summary = {}
+
+    def elapsed(self):
+        return round(time.monotonic() - self.start, 2)
+
+    def wait(self, done, within, what):
+        end = min(time.monotonic() + within, self.deadline)
+        while True:
+            self.observer.pump()
+            self.mavproxy.drain()
+            if done():
+                return
+            if self.mavproxy.process.poll() is not None:
+                raise Failed(f"{what}: MAVProxy exited ({self.mavproxy.process.returncode})")
+            if time.monotonic() >= end:
+                raise Failed(f"{what}: not within {within} s")
+
+    def lines(self, since, pattern):
+        return [m for t, line in self.mavproxy.log if t >= since for m in [re.search(pattern, line)] if m]
+
+    def ack(self, since):
+        acks = [m.result for _, m in self.observer.since(since, "COMMAND_ACK") if m.command == APPLY_UPDATE]
+        return acks[-1] if acks else None
+
+    def listing(self):
+        since = time.monotonic()
+        self.mavproxy.type("ftp list /update")
+        self.wait(lambda: self.lines(since, r"Total size"), 10.0, "the listing")
+        return [[m.group(1), int(m.group(2))] for m in self.lines(since, r"^\s+(\S+\.lbvu)\t(\d+)")]
+
+    # The steps, in order.
+
+    def connect(self):
+        self.wait(lambda: self.mavproxy.said("Detected vehicle 1:1"), 20.0, "MAVProxy sees the vehicle")
+        self.wait(lambda: self.observer.since(0.0, "HEARTBEAT"), 5.0, "the observer sees the vehicle")
+
+    def list(self):
+        self.summary["list"] = self.listing()
+
+    def lossy(self):
+        image = update_file(1, PAYLOAD_LEN, seed=11)
+        local = os.path.join(self.work, "thruster2.lbvu")
+        with open(local, "wb") as file:
+            file.write(image)
+        for setting in ("pkt_loss_tx 20", "pkt_loss_rx 20", "loss_seed 5", "debug 2"):
+            self.mavproxy.type(f"ftp set {setting}")
+        since = time.monotonic()
+        self.mavproxy.type(f"ftp put {local} /update/thruster2.lbvu")
+        self.wait(lambda: self.lines(since, r"Sent file of length (\d+)"), 25.0, "MAVProxy's put")
+        sent = int(self.lines(since, r"Sent file of length (\d+)")[-1].group(1))
+        self.wait(
+            lambda: "thruster2.lbvu: received, ready to apply" in self.observer.texts(since),
+            3.0,
+            "the vehicle's ready STATUSTEXT",
+        )
+        # MAVProxy's debug lines: "> OP seq:.. opcode:7 ... ofs:N" for each write it sends.
+        writes = [int(m.group(1)) for m in self.lines(since, r"^> OP .*opcode:7 .*ofs:(\d+)")]
+        self.summary["put"] = {
+            "sent": sent,
+            "bytes": len(image),
+            "seconds": round(time.monotonic() - since, 2),
+            "texts": self.observer.texts(since),
+            "failed": [line for t, line in self.mavproxy.log if t >= since and re.search(r"(Write|Create) failed", line)],
+            "lost_requests": len(self.lines(since, r"dropping packet TX")),
+            "lost_replies": len(self.lines(since, r"dropping packet RX")),
+            "writes": len(writes),
+            "sent_again": sorted({offset for offset in writes if writes.count(offset) > 1}),
+        }
+        for setting in ("pkt_loss_tx 0", "pkt_loss_rx 0", "debug 0"):
+            self.mavproxy.type(f"ftp set {setting}")
+
+    def crc(self):
+        local = os.path.join(self.work, "thruster2.lbvu")
+        since = time.monotonic()
+        self.mavproxy.type(f"ftp crclocal {local}")
+        self.mavproxy.type("ftp crc /update/thruster2.lbvu")
+        self.wait(lambda: self.lines(since, r"crc: \S+ (0x[0-9a-f]{8})"), 10.0, "the vehicle's CRC")
+        remote = self.lines(since, r"crc: \S+ (0x[0-9a-f]{8})")[-1].group(1)
+        mine = self.lines(since, r"(0x[0-9a-f]{8})")
+        self.summary["crc"] = {"vehicle": remote, "seen": [m.group(1) for m in mine]}
+
+    def listed(self):
+        self.summary["listed"] = self.listing()
+
+    def apply(self):
+        since = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_1 2")
+        self.wait(lambda: self.ack(since) is not None, 5.0, "the apply command's COMMAND_ACK")
+        self.wait(lambda: self.observer.texts(since), 2.0, "the apply command's STATUSTEXT")
+        self.summary["apply"] = {"result": self.ack(since), "texts": self.observer.texts(since)}
+
+    def remove(self):
+        since = time.monotonic()
+        self.mavproxy.type("ftp rm /update/thruster2.lbvu")
+        self.wait(lambda: "thruster2.lbvu: removed" in self.observer.texts(since), 5.0, "the removal")
+        again = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_1 2")
+        self.wait(lambda: self.ack(again) is not None, 5.0, "the second apply's COMMAND_ACK")
+        self.summary["remove"] = {"apply": self.ack(again), "texts": self.observer.texts(since)}
+
+    STEPS = ["connect", "list", "lossy", "crc", "listed", "apply", "remove"]
+
+    def run(self):
+        for step in self.STEPS:
+            getattr(self, step)()
+            self.summary.setdefault("steps", []).append(step)
+        self.summary["elapsed_s"] = self.elapsed()
+
+
+def main():
+    if len(sys.argv) < 4:
+        print(__doc__, file=sys.stderr)
+        return 2
+    gcs_port, observer_port, work = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+    timeout = float(sys.argv[4]) if len(sys.argv) > 4 else 60.0
+    session = Session(gcs_port, observer_port, work, timeout)
+    try:
+        session.run()
+    except Failed as failure:
+        session.mavproxy.drain()
+        session.summary.update(failed=str(failure), elapsed_s=session.elapsed())
+        session.summary["mavproxy"] = [line for _, line in session.mavproxy.log][-40:]
+        print(json.dumps(session.summary))
+        print(f"mavproxy_ftp: {failure}", file=sys.stderr)
+        return 1
+    finally:
+        session.mavproxy.stop()
+        shutil.rmtree(session.state_dir, ignore_errors=True)
+    session.summary["passed"] = True
+    print(json.dumps(session.summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

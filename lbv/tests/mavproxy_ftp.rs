@@ -1,0 +1,103 @@
+//! Field update with MAVProxy, a real ground station, over a lossy link (`tests/mavproxy_ftp.py`): `ftp list`,
+//! `ftp put` of a SeaBotix update file to /update/thruster2.lbvu with MAVProxy's own link simulator losing a
+//! fifth of its requests and of the vehicle's replies (so that blocks are sent again, both those the vehicle
+//! never got and those whose ACK was lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply,
+//! `ftp rm`. The bench writes what its master's update sink received (`--update-dir`), which must be the file,
+//! byte for byte. Runs in real time (about 10 s).
+//!
+//! Needs python3 with MAVProxy and pymavlink (`pip install mavproxy pymavlink`); without them this test fails,
+//! it does not skip.
+
+mod support;
+
+const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_ftp.py");
+/// How long the bench runs, s; the script is done well before.
+const BENCH_SECONDS: &str = "60";
+/// The script's own time limit, s.
+const SCRIPT_SECONDS: &str = "50";
+
+#[test]
+fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_byte() {
+    let [gcs, bench_port, observer] = support::free_ports();
+    let dir = support::TempDir::new("mavproxy-ftp");
+    let (local, received) = (dir.join("local"), dir.join("received"));
+    for path in [&local, &received] {
+        std::fs::create_dir_all(path).unwrap();
+    }
+    let args = [
+        gcs.to_string(),
+        observer.to_string(),
+        local.clone(),
+        SCRIPT_SECONDS.to_string(),
+    ];
+    let (summary, bench_output) = support::fly_with(
+        SCRIPT,
+        &args,
+        BENCH_SECONDS,
+        gcs,
+        bench_port,
+        "mavproxy pymavlink",
+        &["--update-dir", &received],
+    );
+    assert_eq!(
+        summary["steps"],
+        serde_json::json!(["connect", "list", "lossy", "crc", "listed", "apply", "remove"]),
+        "{summary}"
+    );
+    let files = |sizes: [u64; 7]| {
+        let names = (0..6)
+            .map(|n| format!("thruster{n}.lbvu"))
+            .chain(["master.lbvu".to_owned()]);
+        serde_json::Value::from(
+            names
+                .zip(sizes)
+                .map(|(name, size)| serde_json::json!([name, size]))
+                .collect::<Vec<_>>(),
+        )
+    };
+    assert_eq!(summary["list"], files([0; 7]), "{summary}");
+    let put = &summary["put"];
+    assert_eq!((&put["sent"], &put["bytes"]), (&4176.into(), &4176.into()), "{summary}");
+    assert_eq!(put["failed"], serde_json::json!([]), "{summary}");
+    assert_eq!(
+        put["texts"].as_array().and_then(|texts| texts.last()),
+        Some(&"thruster2.lbvu: received, ready to apply".into()),
+        "{summary}"
+    );
+    // The loss was there both ways, and MAVProxy sent blocks again.
+    assert!(put["lost_requests"].as_u64() > Some(0), "{summary}");
+    assert!(put["lost_replies"].as_u64() > Some(0), "{summary}");
+    assert!(
+        put["sent_again"].as_array().is_some_and(|again| !again.is_empty()),
+        "{summary}"
+    );
+    // `ftp crc` and `ftp crclocal` print the same CRC32.
+    let crc = &summary["crc"];
+    assert!(
+        crc["seen"]
+            .as_array()
+            .is_some_and(|seen| seen.len() == 2 && seen.iter().all(|c| *c == crc["vehicle"])),
+        "{summary}"
+    );
+    assert_eq!(summary["listed"], files([0, 0, 4176, 0, 0, 0, 0]), "{summary}");
+    assert_eq!(summary["apply"]["result"], 0, "ACCEPTED: {summary}");
+    assert_eq!(
+        summary["apply"]["texts"],
+        serde_json::json!(["thruster2.lbvu: valid; not sent, no I2C yet"]),
+        "{summary}"
+    );
+    assert_eq!(summary["remove"]["apply"], 2, "DENIED once removed: {summary}");
+    // The denial's own text may come in before the script stops listening, or after.
+    let removed = &summary["remove"]["texts"];
+    assert!(
+        *removed == serde_json::json!(["thruster2.lbvu: removed"])
+            || *removed == serde_json::json!(["thruster2.lbvu: removed", "thruster2.lbvu: nothing to apply"]),
+        "{summary}"
+    );
+    // Whatever was lost on the way, the sink got the file, byte for byte.
+    let sent = std::fs::read(format!("{local}/thruster2.lbvu")).unwrap();
+    let got = std::fs::read(format!("{received}/thruster2.lbvu")).unwrap();
+    assert_eq!(sent.len(), 4176);
+    assert!(got == sent, "the sink got {} bytes, not the file put", got.len());
+    println!("mavproxy: {summary}\nbench:\n{bench_output}");
+}

@@ -1,0 +1,86 @@
+//! Field update from a ground station, with pymavlink's own MAVLink FTP client (`tests/ftp_upload.py`, on
+//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, puts a SeaBotix update file to
+//! /update/thruster0.lbvu, reads its CRC32, sees the same file refused for the Legacy slot 1, and applies the
+//! image. The bench writes what its master's update sink received (`--update-dir`), which must be the file, byte
+//! for byte. Runs in real time (about 10 s).
+//!
+//! Needs python3 with pymavlink (`pip install pymavlink`); without it this test fails, it does not skip.
+
+mod support;
+
+const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/ftp_upload.py");
+/// How long the bench runs, s; the script is done well before.
+const BENCH_SECONDS: &str = "40";
+/// The script's own time limit, s.
+const SCRIPT_SECONDS: &str = "35";
+
+#[test]
+fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it() {
+    let [gcs, bench_port] = support::free_ports();
+    let dir = support::TempDir::new("udp-ftp");
+    let (local, received) = (dir.join("local"), dir.join("received"));
+    for path in [&local, &received] {
+        std::fs::create_dir_all(path).unwrap();
+    }
+    let args = [
+        gcs.to_string(),
+        bench_port.to_string(),
+        local.clone(),
+        SCRIPT_SECONDS.to_string(),
+    ];
+    let (summary, bench_output) = support::fly_with(
+        SCRIPT,
+        &args,
+        BENCH_SECONDS,
+        gcs,
+        bench_port,
+        "pymavlink",
+        &["--update-dir", &received],
+    );
+    // The directory, then one file per slot of the dive vehicle's table and the master's.
+    assert_eq!(summary["root"], serde_json::json!([["update", 0, true]]), "{summary}");
+    let files = |sizes: [u64; 7]| {
+        let names = (0..6)
+            .map(|n| format!("thruster{n}.lbvu"))
+            .chain(["master.lbvu".to_owned()]);
+        serde_json::Value::from(
+            names
+                .zip(sizes)
+                .map(|(name, size)| serde_json::json!([name, size, false]))
+                .collect::<Vec<_>>(),
+        )
+    };
+    assert_eq!(summary["before"], files([0; 7]), "{summary}");
+    assert_eq!(summary["after"], files([4176, 0, 0, 0, 0, 0, 0]), "{summary}");
+    assert_eq!(
+        summary["put"]["texts"],
+        serde_json::json!(["thruster0.lbvu: received, ready to apply"]),
+        "{summary}"
+    );
+    assert_eq!(summary["crc"]["vehicle"], summary["crc"]["local"], "{summary}");
+    // MAVFTP's error for the NAK: Fail (1), and why.
+    assert_eq!(summary["refused"]["error"], 1, "{summary}");
+    assert_eq!(
+        summary["refused"]["texts"],
+        serde_json::json!(["thruster1.lbvu: SeaBotix image, slot is Legacy"]),
+        "{summary}"
+    );
+    // ACCEPTED, and what it did; DENIED where nothing was received.
+    assert_eq!(summary["apply"]["thruster0"], 0, "{summary}");
+    assert_eq!(summary["apply"]["thruster2"], 2, "{summary}");
+    assert_eq!(
+        summary["apply"]["texts"],
+        serde_json::json!([
+            "thruster0.lbvu: valid; not sent, no I2C yet",
+            "thruster2.lbvu: nothing to apply"
+        ]),
+        "{summary}"
+    );
+    // What the sink got is the file pymavlink read, byte for byte; the refused one never reached it.
+    let sent = std::fs::read(format!("{local}/thruster0.lbvu")).unwrap();
+    let got = std::fs::read(format!("{received}/thruster0.lbvu")).unwrap();
+    assert_eq!(sent.len(), 4176);
+    assert!(got == sent, "the sink got {} bytes, not the file put", got.len());
+    assert!(!std::path::Path::new(&format!("{received}/thruster1.lbvu")).exists());
+    println!("script: {summary}\nbench:\n{bench_output}");
+}
