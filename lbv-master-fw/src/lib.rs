@@ -12,6 +12,7 @@ pub mod acceptance;
 pub mod battery;
 pub mod config;
 pub mod console;
+pub mod courier;
 pub mod framing;
 pub mod mixer;
 pub mod params;
@@ -33,6 +34,7 @@ pub use poll::{PollError, poll_thruster};
 
 use battery::{CanReceiver, can_task};
 use console::{ConsoleStats, console_rx_task, console_tx_task};
+use courier::Transfers;
 use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
 use shared::{BUSES, Severity, Shared, text};
@@ -44,7 +46,7 @@ use vehicle::vehicle_task;
 /// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for, and
 /// where update images go.
 #[derive(Debug)]
-pub struct Ports<B, C, R, W, S, X, J = Polling, U = update::CheckOnly> {
+pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly> {
     /// The thruster buses, each with its recovery.
     pub buses: [B; BUSES],
     /// The battery board's frames.
@@ -72,17 +74,22 @@ pub trait BusWork {
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared);
 }
 
-/// The vehicle's work: every bus that has thrusters in the table is polled by its own task ([`bus_task`]).
+/// The vehicle's work: every bus that has thrusters in the table is polled by its own task ([`bus_task`]), which
+/// also carries the update images in `transfers` to its thrusters, between polls.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct Polling;
+pub struct Polling<'a> {
+    /// The images on their way to the thrusters: the update sink's ([`update::ThrusterSink`]), or `None` when
+    /// none are sent.
+    pub transfers: Option<&'a Transfers>,
+}
 
-impl BusWork for Polling {
+impl BusWork for Polling<'_> {
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
         let [first, second, third] = buses;
         join3(
-            poll_bus(first, 0, config, shared),
-            poll_bus(second, 1, config, shared),
-            poll_bus(third, 2, config, shared),
+            poll_bus(first, 0, config, shared, self.transfers),
+            poll_bus(second, 1, config, shared, self.transfers),
+            poll_bus(third, 2, config, shared, self.transfers),
         )
         .await;
     }
@@ -95,9 +102,15 @@ impl<O: acceptance::Operator> BusWork for acceptance::Script<O> {
 }
 
 /// Poll bus `index` forever, or wait forever when no thruster hangs on it.
-async fn poll_bus<B: I2c + BusRecovery>(bus: &mut B, index: u8, config: &MasterConfig, shared: &Shared) {
+async fn poll_bus<B: I2c + BusRecovery>(
+    bus: &mut B,
+    index: u8,
+    config: &MasterConfig,
+    shared: &Shared,
+    transfers: Option<&Transfers>,
+) {
     if config.thrusters.uses_bus(index) {
-        bus_task(bus, index, config.thrusters.as_slice(), &config.poll, shared).await
+        bus_task(bus, index, config.thrusters.as_slice(), &config.poll, shared, transfers).await
     } else {
         core::future::pending().await
     }

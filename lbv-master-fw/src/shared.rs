@@ -257,6 +257,8 @@ pub enum AckResult {
     Unsupported,
     /// MAV_RESULT_FAILED (4).
     Failed,
+    /// MAV_RESULT_IN_PROGRESS (5): a final COMMAND_ACK follows.
+    InProgress,
 }
 
 /// STATUSTEXT severities used (MAV_SEVERITY).

@@ -51,9 +51,14 @@ type Settings = Store<BlockingAsync<Flash<'static, Blocking>>>;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
-type Work = lbv_master_fw::Polling;
+type Work = lbv_master_fw::Polling<'static>;
 #[cfg(not(feature = "acceptance"))]
-const WORK: Work = lbv_master_fw::Polling;
+const WORK: Work = lbv_master_fw::Polling {
+    transfers: Some(&TRANSFERS),
+};
+/// Update images on their way from the console's update server to the thrusters' bus tasks.
+#[cfg(not(feature = "acceptance"))]
+static TRANSFERS: lbv_master_fw::courier::Transfers = lbv_master_fw::courier::Transfers::new();
 #[cfg(feature = "acceptance")]
 type Work = lbv_master_fw::acceptance::Script<acceptance::Person>;
 #[cfg(feature = "acceptance")]
@@ -157,7 +162,9 @@ async fn main(spawner: Spawner) {
             settings,
             reboot: SystemReset,
             work: WORK,
-            // No I2C transfer to the thrusters yet: images are checked and dropped.
+            #[cfg(not(feature = "acceptance"))]
+            update: lbv_master_fw::update::ThrusterSink::new(&TRANSFERS),
+            #[cfg(feature = "acceptance")]
             update: lbv_master_fw::update::CheckOnly,
         },
         config

@@ -98,7 +98,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         console_tx: SerialTx(console_out.clone()),
         settings: flash_store(&g431_flash()),
         reboot: RebootRequest::default(),
-        work: Polling,
+        work: Polling::default(),
         update: crate::update::CheckOnly,
     };
     executor.spawn(async {

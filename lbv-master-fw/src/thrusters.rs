@@ -26,6 +26,7 @@ use embedded_hal::i2c::ErrorKind;
 use embedded_hal_async::i2c::I2c;
 use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm};
 
+use crate::courier::{self, ExchangeError, Transfers};
 use crate::poll::{PollError, Polled, poll_thruster};
 use crate::recovery::BusRecovery;
 use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
@@ -699,10 +700,22 @@ enum SlotError<E> {
     Poll(PollError<E>),
 }
 
-/// Select the slot's mux channel if needed, then poll the thruster.
+/// Select the slot's mux channel if needed.
 ///
 /// `selected` is the control byte last written to the mux, None when unknown; it is forgotten after any error so
-/// the next poll writes it again.
+/// the next transfer writes it again.
+async fn select<B: I2c>(bus: &mut B, slot: &ThrusterSlot, selected: &mut Option<u8>) -> Result<(), ()> {
+    if let Some(mask) = mux_mask(slot)?
+        && *selected != Some(mask)
+    {
+        *selected = None;
+        bus.write(MUX_ADDRESS, &[mask]).await.map_err(|_| ())?;
+        *selected = Some(mask);
+    }
+    Ok(())
+}
+
+/// Select the slot's mux channel if needed, then poll the thruster.
 async fn poll_slot<B: I2c>(
     bus: &mut B,
     slot: &ThrusterSlot,
@@ -710,14 +723,7 @@ async fn poll_slot<B: I2c>(
     order: Order,
     form: Option<StatusForm>,
 ) -> Result<Polled, SlotError<B::Error>> {
-    let mask = mux_mask(slot).map_err(|()| SlotError::Mux)?;
-    if let Some(mask) = mask
-        && *selected != Some(mask)
-    {
-        *selected = None;
-        bus.write(MUX_ADDRESS, &[mask]).await.map_err(|_| SlotError::Mux)?;
-        *selected = Some(mask);
-    }
+    select(bus, slot, selected).await.map_err(|()| SlotError::Mux)?;
     let result = poll_thruster(bus, slot.family, order, form).await;
     result.map_err(|error| {
         *selected = None;
@@ -832,6 +838,37 @@ impl BusState {
         polled
     }
 
+    /// One exchange of the update on its way to a thruster of bus `bus_index`, if there is one; returns whether
+    /// there was. A failed exchange is the courier's to retry; the bus is recovered as after a failed poll.
+    async fn carry<B: I2c + BusRecovery>(
+        &mut self,
+        bus: &mut B,
+        bus_index: u8,
+        table: &[ThrusterSlot],
+        transfers: &Transfers,
+        shared: &Shared,
+    ) -> bool {
+        let on_bus = |slot: u8| table.get(usize::from(slot)).is_some_and(|s| s.bus == bus_index);
+        let Some((exchange, slot)) = transfers
+            .next(on_bus)
+            .and_then(|exchange| Some((exchange, table.get(usize::from(exchange.slot))?)))
+        else {
+            return false;
+        };
+        let result = match select(bus, slot, &mut self.mux).await {
+            Ok(()) => courier::exchange(bus, slot.family.address(), &exchange).await,
+            Err(()) => Err(ExchangeError::Bus),
+        };
+        if result == Err(ExchangeError::Bus) {
+            self.mux = None;
+            let _ = bus.recover().await;
+        }
+        transfers.done(&exchange, result, &mut |message| {
+            let _ = shared.outbox.try_send(message);
+        });
+        true
+    }
+
     /// The earliest retry of an offline thruster of the bus.
     fn next_retry(&self, bus_index: u8, table: &[ThrusterSlot]) -> Option<Instant> {
         table
@@ -851,7 +888,17 @@ impl BusState {
 /// a zero period the cycles run back to back, yielding between cycles so other tasks run, and sleeping until the
 /// next retry when every thruster of the bus is offline. Each poll's report goes to `shared.thrusters[i]`; link
 /// and fault changes go to the console as texts.
-pub async fn bus_task<B>(bus: &mut B, bus_index: u8, table: &[ThrusterSlot], config: &PollConfig, shared: &Shared) -> !
+///
+/// With `transfers`, each cycle also carries one exchange of an update image on its way to a thruster of the bus
+/// ([`crate::courier`]).
+pub async fn bus_task<B>(
+    bus: &mut B,
+    bus_index: u8,
+    table: &[ThrusterSlot],
+    config: &PollConfig,
+    shared: &Shared,
+    transfers: Option<&Transfers>,
+) -> !
 where
     B: I2c + BusRecovery,
 {
@@ -868,7 +915,12 @@ where
             // during one waits here until it is done.
             let _turn = shared.quiet.busy(bus_index).await;
             let cycle = if back_to_back { Instant::now() } else { next };
-            state.cycle(bus, bus_index, table, cycle, shared).await
+            let polled = state.cycle(bus, bus_index, table, cycle, shared).await;
+            let carried = match transfers {
+                Some(transfers) => state.carry(bus, bus_index, table, transfers, shared).await,
+                None => false,
+            };
+            polled + usize::from(carried)
         };
         if back_to_back {
             if polled > 0 {

@@ -48,6 +48,7 @@ use core::fmt::{self, Write as _};
 use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
+use crate::courier::Transfers;
 use crate::shared::{
     AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAV_CMD_LBV_APPLY_UPDATE, MAX_THRUSTERS, Outgoing, Sender,
     Severity, Shared, UpdateCommand, UpdateCounters, UpdateRequest, text,
@@ -172,8 +173,10 @@ fn kind_name(kind: u8) -> &'static str {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum Applied {
-    /// The target is taking the image.
+    /// The target is taking the image: the final result follows as a second COMMAND_ACK.
     Started,
+    /// Not yet: the image is still on its way to the target.
+    Pending,
     /// Nothing: the path to the target is not there yet (the image was checked, and that is all).
     NotWired,
 }
@@ -196,8 +199,8 @@ pub trait UpdateSink {
     /// The image that began is done: `complete` when every byte its header announces arrived, otherwise it was
     /// stopped and what arrived is to be dropped.
     fn finish(&mut self, complete: bool) -> Result<(), Nak>;
-    /// Apply the image received whole for `target`.
-    fn apply(&mut self, target: UpdateTarget) -> Result<Applied, Nak>;
+    /// Apply the image received whole for `target`, as `from` asks.
+    fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak>;
 }
 
 /// A sink that keeps nothing and applies nothing ([`Applied::NotWired`]): the server still checks each image's
@@ -218,8 +221,75 @@ impl UpdateSink for CheckOnly {
         Ok(())
     }
 
-    fn apply(&mut self, _: UpdateTarget) -> Result<Applied, Nak> {
+    fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
         Ok(Applied::NotWired)
+    }
+}
+
+/// The vehicle's sink: thruster images go on to their thrusters over the bus as they come ([`crate::courier`],
+/// through the [`Transfers`] the bus tasks serve); images for the master are checked and dropped (its own update
+/// is not there yet).
+#[derive(Debug, Clone, Copy)]
+pub struct ThrusterSink<'a> {
+    transfers: &'a Transfers,
+    /// The image begun is a thruster's.
+    thruster: bool,
+}
+
+impl<'a> ThrusterSink<'a> {
+    /// A sink handing thruster images to `transfers`, which the bus tasks serve too ([`crate::Polling`]).
+    pub const fn new(transfers: &'a Transfers) -> Self {
+        Self {
+            transfers,
+            thruster: false,
+        }
+    }
+}
+
+impl UpdateSink for ThrusterSink<'_> {
+    async fn ready(&mut self) {
+        self.transfers.room().await;
+    }
+
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+        self.thruster = matches!(target, UpdateTarget::Thruster(_));
+        match target {
+            UpdateTarget::Thruster(slot) => self
+                .transfers
+                .with(|courier| courier.begin(slot, header.target, header.payload_len, &header.bytes)),
+            UpdateTarget::Master => Ok(()),
+        }
+        .map_err(|_| Nak::Fail)
+    }
+
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+        if !self.thruster {
+            return Ok(());
+        }
+        let offset = offset.checked_sub(HEADER_LEN as u32).ok_or(Nak::Fail)?;
+        self.transfers
+            .with(|courier| courier.write(offset, data))
+            .map_err(|_| Nak::Fail)
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+        if !self.thruster {
+            return Ok(());
+        }
+        self.transfers
+            .with(|courier| courier.finish(complete))
+            .map_err(|_| Nak::Fail)
+    }
+
+    fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak> {
+        match target {
+            UpdateTarget::Thruster(slot) => match self.transfers.with(|courier| courier.apply(slot, from)) {
+                Ok(true) => Ok(Applied::Started),
+                Ok(false) => Ok(Applied::Pending),
+                Err(_) => Err(Nak::Fail),
+            },
+            UpdateTarget::Master => Ok(Applied::NotWired),
+        }
     }
 }
 
@@ -711,10 +781,11 @@ impl UpdateServer {
             Some(_) if context.armed => (AckResult::TemporarilyRejected, Some("disarm to update")),
             Some(_) if receiving => (AckResult::TemporarilyRejected, Some("still receiving")),
             Some(target) if !self.is_received(target) => (AckResult::Denied, Some("nothing to apply")),
-            Some(target) => match sink.apply(target) {
-                Ok(Applied::Started) => (AckResult::Accepted, Some("applying")),
+            Some(target) => match sink.apply(target, from) {
+                Ok(Applied::Started) => (AckResult::InProgress, Some("applying")),
+                Ok(Applied::Pending) => (AckResult::TemporarilyRejected, Some("still on its way")),
                 Ok(Applied::NotWired) => (AckResult::Accepted, Some("valid; not sent, no I2C yet")),
-                Err(_) => (AckResult::Failed, Some("apply failed")),
+                Err(_) => (AckResult::Failed, Some("not on the target: send it again")),
             },
         };
         out(Outgoing::CommandAck {
@@ -722,7 +793,7 @@ impl UpdateServer {
             result,
             to: from,
         });
-        let severity = if result == AckResult::Accepted {
+        let severity = if matches!(result, AckResult::Accepted | AckResult::InProgress) {
             Severity::Info
         } else {
             Severity::Warning

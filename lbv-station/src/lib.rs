@@ -14,6 +14,7 @@ extern crate alloc;
 mod seen;
 #[cfg(feature = "signing")]
 mod signing;
+mod upload;
 
 use alloc::vec::Vec;
 
@@ -30,6 +31,7 @@ use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message, Mess
 pub use seen::Seen;
 #[cfg(feature = "signing")]
 pub use signing::{SIGNING_EPOCH, Signing};
+pub use upload::{Upload, UploadState};
 
 /// QGroundControl's and MAVProxy's MAVLink system id, the master's default operator (`SYSID_MYGCS`).
 pub const OPERATOR: u8 = 255;

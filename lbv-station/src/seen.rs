@@ -48,6 +48,8 @@ pub struct Seen {
     pub timestamps_back: u32,
     /// The newest signature timestamp verified.
     pub newest_timestamp: u64,
+    /// FILE_TRANSFER_PROTOCOL payloads not yet taken by an [`crate::Upload`].
+    pub ftp: Vec<[u8; 251]>,
 }
 
 impl Seen {
@@ -73,6 +75,7 @@ impl Seen {
             unsigned: 0,
             timestamps_back: 0,
             newest_timestamp: 0,
+            ftp: Vec::new(),
         }
     }
 
@@ -88,6 +91,7 @@ impl Seen {
                 self.acks.push((ack.command, ack.result as u8));
                 self.acks_to.push((ack.target_system, ack.command, ack.result as u8));
             }
+            MavMessage::FILE_TRANSFER_PROTOCOL(ftp) => self.ftp.push(ftp.payload),
             MavMessage::STATUSTEXT(text) => {
                 if text.severity == MavSeverity::MAV_SEVERITY_CRITICAL {
                     self.critical_texts += 1;

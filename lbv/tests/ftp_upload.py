@@ -7,22 +7,22 @@ Listens on 127.0.0.1:GCS_PORT like a ground station (`lbv bench --udp` sends the
 the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operator (system 255):
 
     list       ListDirectory `/` and `/update`: the directory, then one file per thruster slot and the master's
-    put        a 4176-byte SeaBotix update file (80-byte header, 4096-byte payload) to /update/thruster0.lbvu with
-               MAVFTP's put; STATUSTEXT "thruster0.lbvu: received, ready to apply"
+    put        WORK_DIR/thruster0.lbvu (the test's signed SeaBotix update file: 80-byte header, 4096-byte payload)
+               to /update/thruster0.lbvu with MAVFTP's put; STATUSTEXT "thruster0.lbvu: received, ready to apply",
+               then "thruster0.lbvu: 4096 B verified, 0 pages kept" once the thruster holds it
     listed     `/update` again: thruster0.lbvu now 4176 bytes
     crc        CalcFileCRC32 of /update/thruster0.lbvu: ArduPilot's CRC32 of the file (what MAVProxy's `ftp
                crclocal` computes)
     refused    the same image to /update/thruster1.lbvu, a Legacy slot: the put fails, STATUSTEXT says why
-    apply      MAV_CMD_LBV_APPLY_UPDATE (31010) param1 0: COMMAND_ACK ACCEPTED and what was done; param1 2
-               (nothing received there): DENIED
+    apply      MAV_CMD_LBV_APPLY_UPDATE (31010) param1 0: COMMAND_ACK IN_PROGRESS, then the final one once the
+               thruster runs the image (ACCEPTED) or refused it, and what was done; param1 2 (nothing received
+               there): DENIED
 
-The file put is left in WORK_DIR/thruster0.lbvu for the test to compare with what the bench's sink got. Prints a
-JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when
+Prints a JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when
 pymavlink is missing.
 """
 import json
 import os
-import random
 import struct
 import sys
 import time
@@ -40,19 +40,11 @@ VEHICLE = (1, 1)
 GCS_SYSTEM, GCS_COMPONENT = 255, 190
 APPLY_UPDATE = 31010
 CALC_FILE_CRC32 = 14
-PAYLOAD_LEN = 4096
+IN_PROGRESS = 5
 
 
 class Failed(Exception):
     pass
-
-
-def update_file(target, payload_len, seed):
-    """An update file as the update-image crate lays it out: LBVU, format 1, target, reserved 0, payload length,
-    version 0.1.0, a signature (not checked by the master), then the payload."""
-    rng = random.Random(seed)
-    header = b"LBVU" + struct.pack("<BBHI", 1, target, 0, payload_len) + bytes([0, 1, 0, 0]) + bytes(64)
-    return header + bytes(rng.randrange(256) for _ in range(payload_len))
 
 
 def ardupilot_crc32(data):
@@ -115,14 +107,15 @@ class Ground:
         self.link.target_system, self.link.target_component = VEHICLE
 
     def apply(self, slot):
+        """The apply command's COMMAND_ACK results, up to its final one."""
         since = len(self.acks)
         self.link.mav.command_long_send(*VEHICLE, APPLY_UPDATE, 0, float(slot), 0, 0, 0, 0, 0, 0)
 
-        def answered():
-            return any(command == APPLY_UPDATE for command, _ in self.acks[since:])
+        def results():
+            return [result for command, result in self.acks[since:] if command == APPLY_UPDATE]
 
-        self.wait(answered, 5.0, f"the apply command's COMMAND_ACK (slot {slot})")
-        return next(result for command, result in self.acks[since:] if command == APPLY_UPDATE)
+        self.wait(lambda: results() and results()[-1] != IN_PROGRESS, 10.0, f"the final COMMAND_ACK (slot {slot})")
+        return results()
 
 
 def listing(ret):
@@ -147,17 +140,18 @@ def main():
         ret = ftp.cmd_list(["/update"])
         summary["before"] = listing(ret)
 
-        image = update_file(1, PAYLOAD_LEN, seed=7)
         local = os.path.join(work, "thruster0.lbvu")
-        with open(local, "wb") as file:
-            file.write(image)
+        with open(local, "rb") as file:
+            image = file.read()
         since = len(ground.texts)
         ftp.cmd_put([local, "/update/thruster0.lbvu"])
         ret = ftp.process_ftp_reply("put", timeout=20)
         if ret.error_code != 0:
             raise Failed(f"put: MAVFTP error {ret.error_code}; texts {ground.texts[since:]}")
         ground.wait(
-            lambda: "thruster0.lbvu: received, ready to apply" in ground.texts[since:], 3.0, "the ready STATUSTEXT"
+            lambda: "thruster0.lbvu: 4096 B verified, 0 pages kept" in ground.texts[since:],
+            5.0,
+            "the thruster's copy verified",
         )
         summary["put"] = {"bytes": len(image), "texts": ground.texts[since:]}
 

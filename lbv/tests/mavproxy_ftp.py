@@ -12,23 +12,24 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
     lossy     `ftp set pkt_loss_tx 20`, `ftp set pkt_loss_rx 20`, `ftp set loss_seed 5` (MAVProxy's own link
               simulator: a fifth of its requests and of the vehicle's replies lost, the same ones every run) and
               `ftp set debug 2` (MAVProxy prints every request, reply and loss), then `ftp put
-              WORK_DIR/thruster2.lbvu /update/thruster2.lbvu`: "Sent file of length 4176"; the vehicle's
-              "thruster2.lbvu: received, ready to apply"; the writes MAVProxy sent more than once
+              WORK_DIR/thruster2.lbvu /update/thruster2.lbvu` (the test's SeaBotix update file, signed with the
+              development key): "Sent file of length 4176"; the vehicle's "thruster2.lbvu: received, ready to
+              apply" and, once the thruster holds it, "thruster2.lbvu: 4096 B verified, 0 pages kept"; the writes
+              MAVProxy sent more than once
     crc       `ftp crc /update/thruster2.lbvu` (losses off again): the CRC32 `ftp crclocal` gives the file
     listed    `ftp list /update`: thruster2.lbvu 4176 bytes
-    apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK ACCEPTED, "thruster2.lbvu: valid; not sent, no I2C yet"
+    apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED once the thruster runs the image, and
+              the texts on the way
     remove    `ftp rm /update/thruster2.lbvu`: "thruster2.lbvu: removed"; `long MAV_CMD_USER_1 2`: DENIED
 
-The file put stays in WORK_DIR for the test to compare with what the bench's sink got. Prints a JSON summary;
+Prints a JSON summary;
 exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when pymavlink or MAVProxy is
 missing.
 """
 import json
 import os
-import random
 import re
 import shutil
-import struct
 import sys
 import tempfile
 import time
@@ -37,14 +38,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from mavproxy_pilot import Failed, MavProxy, Observer  # noqa: E402 (pymavlink checked there)
 
 APPLY_UPDATE = 31010
-PAYLOAD_LEN = 4096
-
-
-def update_file(target, payload_len, seed):
-    """An update file as the update-image crate lays it out (see ftp_upload.py)."""
-    rng = random.Random(seed)
-    header = b"LBVU" + struct.pack("<BBHI", 1, target, 0, payload_len) + bytes([0, 1, 0, 0]) + bytes(64)
-    return header + bytes(rng.randrange(256) for _ in range(payload_len))
+IN_PROGRESS = 5
 
 
 class Session:
@@ -75,9 +69,13 @@ class Session:
     def lines(self, since, pattern):
         return [m for t, line in self.mavproxy.log if t >= since for m in [re.search(pattern, line)] if m]
 
+    def acks(self, since):
+        return [m.result for _, m in self.observer.since(since, "COMMAND_ACK") if m.command == APPLY_UPDATE]
+
     def ack(self, since):
-        acks = [m.result for _, m in self.observer.since(since, "COMMAND_ACK") if m.command == APPLY_UPDATE]
-        return acks[-1] if acks else None
+        """The apply command's final COMMAND_ACK result, None before it."""
+        acks = self.acks(since)
+        return acks[-1] if acks and acks[-1] != IN_PROGRESS else None
 
     def listing(self):
         since = time.monotonic()
@@ -95,10 +93,9 @@ class Session:
         self.summary["list"] = self.listing()
 
     def lossy(self):
-        image = update_file(1, PAYLOAD_LEN, seed=11)
         local = os.path.join(self.work, "thruster2.lbvu")
-        with open(local, "wb") as file:
-            file.write(image)
+        with open(local, "rb") as file:
+            image = file.read()
         for setting in ("pkt_loss_tx 20", "pkt_loss_rx 20", "loss_seed 5", "debug 2"):
             self.mavproxy.type(f"ftp set {setting}")
         since = time.monotonic()
@@ -106,9 +103,9 @@ class Session:
         self.wait(lambda: self.lines(since, r"Sent file of length (\d+)"), 25.0, "MAVProxy's put")
         sent = int(self.lines(since, r"Sent file of length (\d+)")[-1].group(1))
         self.wait(
-            lambda: "thruster2.lbvu: received, ready to apply" in self.observer.texts(since),
-            3.0,
-            "the vehicle's ready STATUSTEXT",
+            lambda: "thruster2.lbvu: 4096 B verified, 0 pages kept" in self.observer.texts(since),
+            5.0,
+            "the thruster's copy verified",
         )
         # MAVProxy's debug lines: "> OP seq:.. opcode:7 ... ofs:N" for each write it sends.
         writes = [int(m.group(1)) for m in self.lines(since, r"^> OP .*opcode:7 .*ofs:(\d+)")]
@@ -142,9 +139,9 @@ class Session:
     def apply(self):
         since = time.monotonic()
         self.mavproxy.type("long MAV_CMD_USER_1 2")
-        self.wait(lambda: self.ack(since) is not None, 5.0, "the apply command's COMMAND_ACK")
-        self.wait(lambda: self.observer.texts(since), 2.0, "the apply command's STATUSTEXT")
-        self.summary["apply"] = {"result": self.ack(since), "texts": self.observer.texts(since)}
+        self.wait(lambda: self.ack(since) is not None, 10.0, "the apply command's final COMMAND_ACK")
+        self.wait(lambda: len(self.observer.texts(since)) >= 3, 2.0, "the apply command's STATUSTEXTs")
+        self.summary["apply"] = {"results": self.acks(since), "texts": self.observer.texts(since)}
 
     def remove(self):
         since = time.monotonic()

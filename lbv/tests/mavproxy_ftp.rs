@@ -1,14 +1,17 @@
 //! Field update with MAVProxy, a real ground station, over a lossy link (`tests/mavproxy_ftp.py`): `ftp list`,
-//! `ftp put` of a SeaBotix update file to /update/thruster2.lbvu with MAVProxy's own link simulator losing a
+//! `ftp put` of a SeaBotix update file signed with the development key to /update/thruster2.lbvu (which the master
+//! writes on into the thruster) with MAVProxy's own link simulator losing a
 //! fifth of its requests and of the vehicle's replies (so that blocks are sent again, both those the vehicle
-//! never got and those whose ACK was lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply,
-//! `ftp rm`. The bench writes what its master's update sink received (`--update-dir`), which must be the file,
+//! never got and those whose ACK was lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply (the
+//! thruster checks the signature, its bootloader swaps the image in, it runs it), `ftp rm`. The bench writes what its master's update sink received (`--update-dir`), which must be the file,
 //! byte for byte. Runs in real time (about 10 s).
 //!
 //! Needs python3 with MAVProxy and pymavlink (`pip install mavproxy pymavlink`); without them this test fails,
 //! it does not skip.
 
 mod support;
+
+use update_image::{INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_ftp.py");
 /// How long the bench runs, s; the script is done well before.
@@ -24,6 +27,17 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     for path in [&local, &received] {
         std::fs::create_dir_all(path).unwrap();
     }
+    let mut payload: Vec<u8> = (0..4096u32)
+        .map(|n| (n.wrapping_mul(2_246_822_519) >> 9) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0)).to_bytes();
+    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let seed = key_from_hex(include_str!("../../keys/dev.key")).unwrap();
+    std::fs::write(
+        format!("{local}/thruster2.lbvu"),
+        update_image::sign(&payload, &seed).unwrap(),
+    )
+    .unwrap();
     let args = [
         gcs.to_string(),
         observer.to_string(),
@@ -61,7 +75,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     assert_eq!(put["failed"], serde_json::json!([]), "{summary}");
     assert_eq!(
         put["texts"].as_array().and_then(|texts| texts.last()),
-        Some(&"thruster2.lbvu: received, ready to apply".into()),
+        Some(&"thruster2.lbvu: 4096 B verified, 0 pages kept".into()),
         "{summary}"
     );
     // The loss was there both ways, and MAVProxy sent blocks again.
@@ -80,10 +94,18 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         "{summary}"
     );
     assert_eq!(summary["listed"], files([0, 0, 4176, 0, 0, 0, 0]), "{summary}");
-    assert_eq!(summary["apply"]["result"], 0, "ACCEPTED: {summary}");
+    assert_eq!(
+        summary["apply"]["results"],
+        serde_json::json!([5, 0]),
+        "IN_PROGRESS, ACCEPTED: {summary}"
+    );
     assert_eq!(
         summary["apply"]["texts"],
-        serde_json::json!(["thruster2.lbvu: valid; not sent, no I2C yet"]),
+        serde_json::json!([
+            "thruster2.lbvu: applying",
+            "thruster2.lbvu: signature good, restarting",
+            "thruster2.lbvu: runs 0.2.0, on trial"
+        ]),
         "{summary}"
     );
     assert_eq!(summary["remove"]["apply"], 2, "DENIED once removed: {summary}");

@@ -1,12 +1,14 @@
 //! Field update from a ground station, with pymavlink's own MAVLink FTP client (`tests/ftp_upload.py`, on
-//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, puts a SeaBotix update file to
-//! /update/thruster0.lbvu, reads its CRC32, sees the same file refused for the Legacy slot 1, and applies the
-//! image. The bench writes what its master's update sink received (`--update-dir`), which must be the file, byte
-//! for byte. Runs in real time (about 10 s).
+//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, puts a SeaBotix update file signed
+//! with the development key to /update/thruster0.lbvu, reads its CRC32, sees the same file refused for the Legacy
+//! slot 1, and applies the image, which the thruster checks, swaps in and runs. The bench writes what its master's
+//! update sink received (`--update-dir`), which must be the file, byte for byte. Runs in real time (about 15 s).
 //!
 //! Needs python3 with pymavlink (`pip install pymavlink`); without it this test fails, it does not skip.
 
 mod support;
+
+use update_image::{INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/ftp_upload.py");
 /// How long the bench runs, s; the script is done well before.
@@ -22,6 +24,17 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     for path in [&local, &received] {
         std::fs::create_dir_all(path).unwrap();
     }
+    let mut payload: Vec<u8> = (0..4096u32)
+        .map(|n| (n.wrapping_mul(2_654_435_761) >> 7) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0)).to_bytes();
+    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let seed = key_from_hex(include_str!("../../keys/dev.key")).unwrap();
+    std::fs::write(
+        format!("{local}/thruster0.lbvu"),
+        update_image::sign(&payload, &seed).unwrap(),
+    )
+    .unwrap();
     let args = [
         gcs.to_string(),
         bench_port.to_string(),
@@ -54,7 +67,10 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     assert_eq!(summary["after"], files([4176, 0, 0, 0, 0, 0, 0]), "{summary}");
     assert_eq!(
         summary["put"]["texts"],
-        serde_json::json!(["thruster0.lbvu: received, ready to apply"]),
+        serde_json::json!([
+            "thruster0.lbvu: received, ready to apply",
+            "thruster0.lbvu: 4096 B verified, 0 pages kept"
+        ]),
         "{summary}"
     );
     assert_eq!(summary["crc"]["vehicle"], summary["crc"]["local"], "{summary}");
@@ -65,13 +81,15 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         serde_json::json!(["thruster1.lbvu: SeaBotix image, slot is Legacy"]),
         "{summary}"
     );
-    // ACCEPTED, and what it did; DENIED where nothing was received.
-    assert_eq!(summary["apply"]["thruster0"], 0, "{summary}");
-    assert_eq!(summary["apply"]["thruster2"], 2, "{summary}");
+    // IN_PROGRESS, then ACCEPTED once the thruster runs it, and what it did; DENIED where nothing was received.
+    assert_eq!(summary["apply"]["thruster0"], serde_json::json!([5, 0]), "{summary}");
+    assert_eq!(summary["apply"]["thruster2"], serde_json::json!([2]), "{summary}");
     assert_eq!(
         summary["apply"]["texts"],
         serde_json::json!([
-            "thruster0.lbvu: valid; not sent, no I2C yet",
+            "thruster0.lbvu: applying",
+            "thruster0.lbvu: signature good, restarting",
+            "thruster0.lbvu: runs 0.2.0, on trial",
             "thruster2.lbvu: nothing to apply"
         ]),
         "{summary}"

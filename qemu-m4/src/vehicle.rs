@@ -33,7 +33,7 @@ pub fn start(thread: Spawner) {
     let Some(bus) = buses.get(usize::from(THRUSTER_BUS)).copied() else {
         report::fail("the vehicle has no thruster bus");
     };
-    report::spawn(thread, master(master::ports(buses, Polling)));
+    report::spawn(thread, master(master::ports(buses, Polling::default())));
     report::spawn(thread, bat_board());
     report::spawn(thread, station::receive());
     report::spawn(thread, station::transmit());
@@ -42,7 +42,7 @@ pub fn start(thread: Spawner) {
 
 /// The vehicle's master image.
 #[embassy_executor::task]
-async fn master(ports: MasterPorts<Polling>) -> ! {
+async fn master(ports: MasterPorts<Polling<'static>>) -> ! {
     master::run(ports, &VEHICLE).await
 }
 

@@ -533,6 +533,7 @@ pub fn result(result: AckResult) -> MavResult {
         AckResult::Denied => MavResult::MAV_RESULT_DENIED,
         AckResult::Unsupported => MavResult::MAV_RESULT_UNSUPPORTED,
         AckResult::Failed => MavResult::MAV_RESULT_FAILED,
+        AckResult::InProgress => MavResult::MAV_RESULT_IN_PROGRESS,
     }
 }
 

@@ -763,7 +763,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         fn finish(&mut self, _: bool) -> Result<(), Nak> {
             Ok(())
         }
-        fn apply(&mut self, target: UpdateTarget) -> Result<Applied, Nak> {
+        fn apply(&mut self, target: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
             match target {
                 UpdateTarget::Master => Err(Nak::Fail),
                 UpdateTarget::Thruster(_) => Ok(Applied::Started),
@@ -776,7 +776,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
             UpdateTarget::Thruster(0),
             THRUSTER0,
             1,
-            AckResult::Accepted,
+            AckResult::InProgress,
             "thruster0.lbvu: applying",
         ),
         (
@@ -784,7 +784,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
             "/update/master.lbvu",
             3,
             AckResult::Failed,
-            "master.lbvu: apply failed",
+            "master.lbvu: not on the target: send it again",
         ),
     ] {
         let file = update_file(kind, 152);
@@ -844,7 +844,7 @@ fn a_sink_that_refuses_ends_the_upload() {
                 Ok(())
             }
         }
-        fn apply(&mut self, _: UpdateTarget) -> Result<Applied, Nak> {
+        fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
             Ok(Applied::NotWired)
         }
     }

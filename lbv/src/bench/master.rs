@@ -20,15 +20,17 @@ use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
+use lbv_master_fw::courier::Transfers;
 use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::{BusWork, MasterConfig, Polling, Ports};
+use lbv_master_fw::update::ThrusterSink;
+use lbv_master_fw::{MasterConfig, Polling, Ports};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
 
-use super::ports::master::{CanNode, RebootRequest, UpdateRecorder, flash_store, g431_flash, thruster_bus};
+use super::ports::master::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, g431_flash, thruster_bus};
 
 /// What the master's ports are wired to: its three thruster buses, its CAN node's receive queue and its console
 /// link, both ways.
@@ -159,18 +161,17 @@ impl MasterBoard {
     fn start(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
         self.reboot = RebootRequest::default();
         self.boots += 1;
-        let task = if self.acceptance {
+        let script = self.acceptance.then(|| {
             let desk = Rc::new(Desk::default());
             self.desk = Some(desk.clone());
-            self.spawn(wiring, executor, Script(DeskOperator(desk)))
-        } else {
-            self.spawn(wiring, executor, Polling)
-        };
-        self.task = Some(task);
+            Script(DeskOperator(desk))
+        });
+        self.task = Some(self.spawn(wiring, executor, script));
     }
 
-    /// The node on its ports, with `work` on its thruster buses.
-    fn spawn(&self, wiring: &Wiring, executor: &mut Executor<'static>, work: impl BusWork + 'static) -> TaskId {
+    /// The node on its ports: the acceptance `script` on its thruster buses, or without one the vehicle's polling,
+    /// which carries the update images the console receives to the thrusters (each recorded too).
+    fn spawn(&self, wiring: &Wiring, executor: &mut Executor<'static>, script: Option<Script<DeskOperator>>) -> TaskId {
         let ports = Ports {
             buses: wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus)),
             can: CanNode(wiring.can.clone()),
@@ -178,12 +179,45 @@ impl MasterBoard {
             console_tx: SerialTx(wiring.console_out.clone()),
             settings: flash_store(&self.flash),
             reboot: self.reboot.clone(),
-            work,
-            update: self.updates.clone(),
+            work: (),
+            update: (),
         };
+        let recorder = self.updates.clone();
         let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
         executor.spawn_on(&self.cpu, async move {
-            lbv_master_fw::run(ports, &config, &shared, &stats).await;
+            // The node's static: what its console hands on and its bus tasks carry.
+            let transfers = Transfers::new();
+            let update = Recorded {
+                recorder,
+                sink: ThrusterSink::new(&transfers),
+            };
+            match script {
+                Some(script) => lbv_master_fw::run(with(ports, script, update), &config, &shared, &stats).await,
+                None => {
+                    let polling = Polling {
+                        transfers: Some(&transfers),
+                    };
+                    lbv_master_fw::run(with(ports, polling, update), &config, &shared, &stats).await
+                }
+            }
         })
+    }
+}
+
+/// `ports` with `work` on the thruster buses and `update` for the images.
+fn with<B, C, R, W, S, X, J, U>(
+    ports: Ports<B, C, R, W, S, X, (), ()>,
+    work: J,
+    update: U,
+) -> Ports<B, C, R, W, S, X, J, U> {
+    Ports {
+        buses: ports.buses,
+        can: ports.can,
+        console_rx: ports.console_rx,
+        console_tx: ports.console_tx,
+        settings: ports.settings,
+        reboot: ports.reboot,
+        work,
+        update,
     }
 }

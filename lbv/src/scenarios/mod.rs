@@ -4,7 +4,8 @@
 //!
 //! - [`harness`]: the run, its checks and report, and the checks every run gets;
 //! - [`fault`]: the one [`Fault`] type the scenarios, the soak and the acceptance operator inject and clear;
-//! - the scenario groups: [`vehicle`], [`console`], [`thruster_faults`], [`bus`], [`soak`], [`acceptance`].
+//! - the scenario groups: [`vehicle`], [`console`], [`thruster_faults`], [`bus`], [`update`], [`soak`],
+//!   [`acceptance`].
 
 pub mod acceptance;
 pub mod bus;
@@ -13,6 +14,7 @@ pub mod fault;
 pub mod harness;
 pub mod soak;
 pub mod thruster_faults;
+pub mod update;
 pub mod vehicle;
 
 #[cfg(test)]
@@ -34,6 +36,7 @@ use thruster_faults::{
     ground_fault, ground_glitch, hall, hall_glitches, info_power, overcurrent, overtemp, rocking_rotor, stall, water,
     water_threshold,
 };
+use update::field_update;
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
 
 /// `lbv bench`'s default seed, which the tests run every scenario with.
@@ -316,6 +319,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 12.0,
         vehicle: lbv300,
         run: settings_quiet_bus,
+    },
+    Scenario {
+        name: "field-update",
+        about: "every thruster updated from the ground station over FTP and the bus; wrong key, family, armed, power cut",
+        seconds: 120.0,
+        vehicle: mixed,
+        run: field_update,
     },
     Scenario {
         name: "acceptance",

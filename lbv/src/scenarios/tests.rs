@@ -82,6 +82,7 @@ scenario_tests! {
     settings_persist: "settings-persist",
     settings_power_cut: "settings-power-cut",
     settings_quiet_bus: "settings-quiet-bus",
+    field_update: "field-update",
     acceptance: "acceptance",
     soak: "soak",
 }

@@ -12,6 +12,7 @@ use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::settings::{Reboot, Store};
+use lbv_master_fw::shared::Sender;
 use lbv_master_fw::update::ftp::Nak;
 use lbv_master_fw::update::{Applied, ImageHeader, UpdateSink, UpdateTarget};
 use lbv_sim::Queue;
@@ -132,7 +133,7 @@ impl UpdateSink for UpdateRecorder {
         }
     }
 
-    fn apply(&mut self, target: UpdateTarget) -> Result<Applied, Nak> {
+    fn apply(&mut self, target: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
         let mut images = self.0.borrow_mut();
         match images
             .iter_mut()
@@ -145,5 +146,40 @@ impl UpdateSink for UpdateRecorder {
             }
             None => Err(Nak::Fail),
         }
+    }
+}
+
+/// A sink whose images are also recorded: `sink` answers, `recorder` keeps a copy of everything it is given.
+#[derive(Debug, Clone)]
+pub struct Recorded<S> {
+    /// Keeps the copy.
+    pub recorder: UpdateRecorder,
+    /// Takes the images.
+    pub sink: S,
+}
+
+impl<S: UpdateSink> UpdateSink for Recorded<S> {
+    async fn ready(&mut self) {
+        self.sink.ready().await;
+    }
+
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+        let _ = self.recorder.begin(target, header);
+        self.sink.begin(target, header)
+    }
+
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+        let _ = self.recorder.write(offset, data);
+        self.sink.write(offset, data)
+    }
+
+    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+        let _ = self.recorder.finish(complete);
+        self.sink.finish(complete)
+    }
+
+    fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak> {
+        let _ = self.recorder.apply(target, from);
+        self.sink.apply(target, from)
     }
 }

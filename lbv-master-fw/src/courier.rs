@@ -1,0 +1,627 @@
+//! An update image's way into a thruster: written into its DFU partition over the thruster's own bus with
+//! tmc-proto's extension ([`tmc_proto::ext`]; docs/thruster.md, "Field-update extension"), then applied.
+//!
+//! The master has no room for a whole image, so the bytes go on as the ground station sends them. The update
+//! server's sink (`update::ThrusterSink`) gathers them a flash page (2 KiB) at a time in [`Transfers`], and the bus
+//! task of the thruster's bus writes each page between its polls, one exchange (a command and its reply) per poll
+//! cycle, so every thruster of the bus, the one being updated too, keeps being polled. The console reads on once
+//! there is room for the next write's bytes: the upload goes at the pace of the bus.
+//!
+//! The [`Courier`] is the whole transfer as a state machine on explicit time, fed the exchanges' outcomes:
+//!
+//! 1. `Version`: the thruster speaks the extension (an IDS-only controller answers with its status frame) and can
+//!    check signatures (otherwise it could never take the image: refused before anything is sent).
+//! 2. `Begin` with the payload's length and the update file's target byte (the thruster refuses another family).
+//! 3. For each page: `Check` what the thruster holds there; a page it already holds (from a transfer that was
+//!    interrupted) is not written again, so sending the same file again resumes. Otherwise `Erase` it and `Write`
+//!    it in 64-byte chunks, each chunk's read-back CRC compared with the bytes sent.
+//! 4. `Check` of the whole payload against the CRC of every byte received: written and verified.
+//! 5. On the apply command: `Finish` (the thruster checks the image's information record and the signature, and
+//!    marks it for its bootloader), `Reboot`, then `Version` until it answers again, running the new version.
+//!
+//! An exchange that fails (no answer, a bus error, a reply that does not decode, or one still busy) is sent again
+//! at the next cycle with the same sequence number (every command can be repeated); a thruster silent for
+//! [`SILENCE_LIMIT`] ends the transfer. A thruster that reset meanwhile answers `NotBegun`: the courier begins
+//! again and goes on with the page it holds. Any other refusal ends the transfer with the refusal's own sentence,
+//! and so does a read-back that differs.
+
+use core::cell::RefCell;
+
+use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::signal::Signal;
+use embassy_time::{Duration, Instant, Timer};
+use embedded_hal_async::i2c::I2c;
+use tmc_proto::ext::{
+    self, Chunk, Command, CommandFrame, Crc32, FrameError, MAX_CHUNK, Refusal, Reply, ReplyBody, SIGNATURE_LEN,
+};
+
+use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Text, text};
+
+/// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
+const PAGE: usize = ext::PAGE_LEN as usize;
+/// The most bytes the sink is handed at once: one MAVLink FTP write's data.
+pub const MAX_WRITE: usize = 239;
+/// The sink's buffer: a page, and room for one write beyond it.
+const BUFFER: usize = PAGE + MAX_WRITE;
+/// The update file's header, before the payload: its signature is the last 64 bytes.
+const FILE_HEADER_LEN: usize = 80;
+/// A thruster that answers no exchange for this long is given up.
+pub const SILENCE_LIMIT: Duration = Duration::from_secs(3);
+/// After `Reboot`, the bootloader swaps the image in (two erases and a write per page of ACTIVE, some 2.5 s for
+/// 29 pages on the G431) before the thruster answers again: it has this long.
+pub const RESTART_LIMIT: Duration = Duration::from_secs(15);
+/// The first `Version` after `Reboot` is sent this long after it.
+const RESTART_FIRST_ASK: Duration = Duration::from_millis(200);
+/// A reply read busy is read again this often, up to [`BUSY_READS`] times in one exchange; then the command is
+/// sent again at the next cycle.
+const BUSY_PAUSE: Duration = Duration::from_millis(2);
+const BUSY_READS: u32 = 20;
+/// Times a thruster may be found reset within one transfer before it is given up.
+const RESTARTS_LIMIT: u8 = 3;
+
+/// Where the bus task is in a transfer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+enum Step {
+    /// Ask what runs, and whether the thruster speaks the extension.
+    Hello,
+    /// Begin the payload.
+    Begin,
+    /// Wait for the sink's next page.
+    Idle,
+    /// Compare the page at the buffer's start with what the thruster holds.
+    CheckPage,
+    /// Erase that page.
+    Erase,
+    /// Write the chunk at this offset within the page.
+    Write(u16),
+    /// Compare the whole payload.
+    Verify,
+    /// Written and verified: wait for the apply command.
+    Written,
+    /// Have the thruster check and mark the image.
+    Finish,
+    /// Have it reset into its bootloader.
+    Reboot,
+    /// Wait for it to answer again, since the reboot.
+    Restart(Instant),
+}
+
+/// One image on its way to one thruster.
+#[derive(Debug, Clone, Copy)]
+struct Transfer {
+    slot: u8,
+    /// The update file's target byte.
+    kind: u8,
+    payload_len: u32,
+    /// The image's version, as its header gives it.
+    version: [u8; 4],
+    signature: [u8; SIGNATURE_LEN],
+    step: Step,
+    /// Payload bytes the sink took.
+    received: u32,
+    /// Their CRC.
+    crc: Crc32,
+    /// The sink has every byte.
+    complete: bool,
+    /// Where the buffer's first byte goes in the payload: the page being written.
+    page_offset: u32,
+    /// Pages the thruster held already.
+    skipped: u16,
+    seq: u8,
+    /// When the exchanges of this step began failing, none answered since.
+    silent_since: Option<Instant>,
+    /// Times the thruster was found reset.
+    restarts: u8,
+    /// Who applies it: the final COMMAND_ACK goes there.
+    applier: Option<Sender>,
+}
+
+/// What a bus task sends next, to whom.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Exchange {
+    /// The thruster's slot in the table.
+    pub slot: u8,
+    /// The command and its sequence number.
+    pub frame: CommandFrame,
+    /// How long to wait before the reply is read: a page erase stalls the thruster's CPU, the signature check
+    /// takes time.
+    pub wait: Duration,
+}
+
+/// Why an exchange got no reply to its command.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ExchangeError {
+    /// The bus transfer failed (no acknowledge, a timeout, a bus error).
+    Bus,
+    /// What was read is not an extension reply: from an IDS-only controller, a status frame (its type is in the
+    /// error).
+    Frame(FrameError),
+    /// A reply to another command (a stale one).
+    Stale,
+    /// Still busy after every read.
+    Busy,
+}
+
+/// A transfer that ends early, and why: what the operator is told.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Ending {
+    Refused(Refusal),
+    NoExtension,
+    Silent,
+    ReadBack,
+    Mismatch,
+    Restarts,
+    NotBack,
+    OldVersion([u8; 4]),
+}
+
+impl Ending {
+    fn describe(self, f: &mut impl core::fmt::Write) -> core::fmt::Result {
+        match self {
+            Ending::Refused(refusal) => f.write_str(refusal.describe()),
+            Ending::NoExtension => f.write_str("the thruster does not take updates"),
+            Ending::Silent => f.write_str("the thruster stopped answering"),
+            Ending::ReadBack => f.write_str("the flash read back differs"),
+            Ending::Mismatch => f.write_str("the thruster's copy differs"),
+            Ending::Restarts => f.write_str("the thruster keeps resetting"),
+            Ending::NotBack => f.write_str("the thruster did not come back"),
+            Ending::OldVersion([major, minor, p0, p1]) => {
+                write!(f, "still runs {major}.{minor}.{}", u16::from_le_bytes([p0, p1]))
+            }
+        }
+    }
+}
+
+/// What the courier does not take: a call for a transfer it does not have (ended, or never begun), bytes out of
+/// order or beyond its buffer, an image whose header lacks its fields.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NotTaken;
+
+/// The transfer under way and the bytes waiting for the thruster: the state [`ThrusterSink`] and the bus tasks
+/// share.
+#[derive(Debug)]
+pub struct Courier {
+    transfer: Option<Transfer>,
+    buffer: [u8; BUFFER],
+    fill: usize,
+}
+
+impl Default for Courier {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Courier {
+    /// Nothing under way.
+    pub const fn new() -> Self {
+        Self {
+            transfer: None,
+            buffer: [0; BUFFER],
+            fill: 0,
+        }
+    }
+
+    /// Whether the sink may hand on one more write's bytes.
+    pub fn has_room(&self) -> bool {
+        self.transfer.is_none() || self.fill + MAX_WRITE <= BUFFER
+    }
+
+    /// An image for `slot` begins: `header` is its update file's header, which the update server has checked
+    /// (`kind` its target byte, `payload_len` its payload's length). One under way for another thruster is dropped,
+    /// unless it is being applied.
+    pub fn begin(&mut self, slot: u8, kind: u8, payload_len: u32, header: &[u8; FILE_HEADER_LEN]) -> Result<(), NotTaken> {
+        if self.transfer.is_some_and(|t| t.applier.is_some()) {
+            return Err(NotTaken);
+        }
+        let [.., v0, v1, v2, v3] = *header.first_chunk::<16>().ok_or(NotTaken)?;
+        let signature = *header.last_chunk::<SIGNATURE_LEN>().ok_or(NotTaken)?;
+        self.transfer = Some(Transfer {
+            slot,
+            kind,
+            payload_len,
+            version: [v0, v1, v2, v3],
+            signature,
+            step: Step::Hello,
+            received: 0,
+            crc: Crc32::new(),
+            complete: false,
+            page_offset: 0,
+            skipped: 0,
+            seq: 0,
+            silent_since: None,
+            restarts: 0,
+            applier: None,
+        });
+        self.fill = 0;
+        Ok(())
+    }
+
+    /// The payload's next bytes, at `offset` from the payload's start.
+    pub fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), NotTaken> {
+        let fill = self.fill;
+        let transfer = self
+            .transfer
+            .as_mut()
+            .filter(|t| !t.complete && t.received == offset)
+            .ok_or(NotTaken)?;
+        let room = self.buffer.get_mut(fill..fill + data.len()).ok_or(NotTaken)?;
+        room.copy_from_slice(data);
+        self.fill += data.len();
+        transfer.received += data.len() as u32;
+        transfer.crc = transfer.crc.update(data);
+        Ok(())
+    }
+
+    /// The upload is over: `complete` when every byte came (the last page goes on, then the whole payload is
+    /// checked), otherwise the transfer is dropped (what the thruster holds stays, for a resumed transfer).
+    pub fn finish(&mut self, complete: bool) -> Result<(), NotTaken> {
+        match self.transfer.as_mut() {
+            Some(transfer) if complete && transfer.received == transfer.payload_len => {
+                transfer.complete = true;
+                Ok(())
+            }
+            Some(transfer) if transfer.applier.is_none() => {
+                self.transfer = None;
+                self.fill = 0;
+                if complete { Err(NotTaken) } else { Ok(()) }
+            }
+            _ => Err(NotTaken),
+        }
+    }
+
+    /// The apply command for `slot`, from `from`: `Ok(true)` when the thruster is to take it now (the final
+    /// COMMAND_ACK goes to `from`), `Ok(false)` when it is still on its way there, an error when it is not (it
+    /// failed, or never came).
+    pub fn apply(&mut self, slot: u8, from: Sender) -> Result<bool, NotTaken> {
+        match self.transfer.as_mut().filter(|t| t.slot == slot) {
+            Some(transfer) if transfer.step == Step::Written => {
+                transfer.step = Step::Finish;
+                transfer.applier = Some(from);
+                transfer.silent_since = None;
+                Ok(true)
+            }
+            Some(transfer) if transfer.applier.is_none() && transfer.complete => Ok(false),
+            _ => Err(NotTaken),
+        }
+    }
+
+    /// The page at the buffer's start, once it is whole (or the payload's last).
+    fn page(&self) -> Option<&[u8]> {
+        let transfer = self.transfer.as_ref()?;
+        let len = self.fill.min(PAGE);
+        let last = transfer.complete && transfer.page_offset + len as u32 == transfer.payload_len;
+        (len == PAGE || last && len > 0)
+            .then(|| self.buffer.get(..len))
+            .flatten()
+    }
+
+    /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's).
+    pub fn next(&mut self, now: Instant, ours: impl FnOnce(u8) -> bool) -> Option<Exchange> {
+        let page = self.page().map(|page| (page.len() as u32, ext::crc32(page)));
+        let chunk = |at: u16| {
+            let start = usize::from(at);
+            let end = page.map_or(start, |(len, _)| (len as usize).min(start + MAX_CHUNK));
+            self.buffer.get(start..end).and_then(Chunk::new)
+        };
+        let transfer = self.transfer.as_ref().filter(|t| ours(t.slot))?;
+        let step = match (transfer.step, page) {
+            (Step::Idle, Some(_)) => Step::CheckPage,
+            (Step::Idle, None) if transfer.complete && transfer.page_offset == transfer.payload_len => Step::Verify,
+            (Step::Restart(since), _) if now < since + RESTART_FIRST_ASK => return None,
+            (step, _) => step,
+        };
+        let command = match step {
+            Step::Hello | Step::Restart(_) => Command::Version,
+            Step::Begin => Command::Begin {
+                payload_len: transfer.payload_len,
+                target: transfer.kind,
+            },
+            Step::Idle | Step::Written => return None,
+            Step::CheckPage => Command::Check {
+                offset: transfer.page_offset,
+                len: page?.0,
+            },
+            Step::Erase => Command::Erase {
+                page: u16::try_from(transfer.page_offset / ext::PAGE_LEN).ok()?,
+            },
+            Step::Write(at) => Command::Write {
+                offset: transfer.page_offset + u32::from(at),
+                data: chunk(at)?,
+            },
+            Step::Verify => Command::Check {
+                offset: 0,
+                len: transfer.payload_len,
+            },
+            Step::Finish => Command::Finish {
+                payload_len: transfer.payload_len,
+                signature: transfer.signature,
+            },
+            Step::Reboot => Command::Reboot,
+        };
+        let wait = match command {
+            Command::Erase { .. } => ext::ERASE_WAIT_MS,
+            Command::Finish { .. } => ext::FINISH_WAIT_MS,
+            _ => 0,
+        };
+        let slot = transfer.slot;
+        let seq = transfer.seq;
+        if let Some(transfer) = self.transfer.as_mut() {
+            transfer.step = step;
+        }
+        Some(Exchange {
+            slot,
+            frame: CommandFrame { seq, command },
+            wait: Duration::from_millis(u64::from(wait)),
+        })
+    }
+
+    /// What `exchange` got, at `now`: the transfer moves on, or ends; `out` takes the texts and the apply
+    /// command's final acknowledgement.
+    pub fn on_result(
+        &mut self,
+        now: Instant,
+        exchange: &Exchange,
+        result: Result<Reply, ExchangeError>,
+        out: &mut impl FnMut(Outgoing),
+    ) {
+        let page = self.page().map(|page| (page.len(), ext::crc32(page)));
+        let Some(transfer) = self.transfer.as_mut().filter(|t| t.slot == exchange.slot) else {
+            return;
+        };
+        let slot = transfer.slot;
+        let reply = match result {
+            Ok(reply) if reply.seq() == exchange.frame.seq && reply.command() == exchange.frame.command.kind() => reply,
+            Err(ExchangeError::Frame(FrameError::MessageType { .. })) if transfer.step == Step::Hello => {
+                return self.end(Ending::NoExtension, out);
+            }
+            _ => {
+                // Sent again at the next cycle, unless the thruster has been silent too long. While it restarts
+                // it has its own limit.
+                let since = *transfer.silent_since.get_or_insert(now);
+                let limit = match transfer.step {
+                    Step::Restart(rebooted) => now >= rebooted + RESTART_LIMIT,
+                    _ => now >= since + SILENCE_LIMIT,
+                };
+                if limit {
+                    let ending = match transfer.step {
+                        Step::Restart(_) => Ending::NotBack,
+                        _ => Ending::Silent,
+                    };
+                    self.end(ending, out);
+                }
+                return;
+            }
+        };
+        transfer.silent_since = None;
+        transfer.seq = transfer.seq.wrapping_add(1);
+        let body = match reply {
+            Reply::Done { body, .. } => body,
+            // A reset thruster forgets what it began: begin again, then go on with the page held.
+            Reply::Refused {
+                refusal: Refusal::NotBegun,
+                ..
+            } if !matches!(transfer.step, Step::Hello | Step::Begin | Step::Reboot) => {
+                transfer.restarts += 1;
+                if transfer.restarts > RESTARTS_LIMIT {
+                    return self.end(Ending::Restarts, out);
+                }
+                transfer.step = Step::Begin;
+                return;
+            }
+            // Reset between Finish and Reboot: the bootloader has swapped the image in already.
+            Reply::Refused {
+                refusal: Refusal::NotFinished | Refusal::NotBegun,
+                ..
+            } if transfer.step == Step::Reboot => {
+                transfer.step = Step::Restart(now);
+                return;
+            }
+            Reply::Refused { refusal, .. } => return self.end(Ending::Refused(refusal), out),
+            // Not returned by the exchange: read again.
+            Reply::Busy { .. } => return,
+        };
+        let page_len = page.map_or(0, |(len, _)| len);
+        transfer.step = match (transfer.step, body) {
+            (Step::Hello, ReplyBody::Version { checks_signatures, .. }) => {
+                if !checks_signatures {
+                    return self.end(Ending::Refused(Refusal::NoSignatureCheck), out);
+                }
+                Step::Begin
+            }
+            // Begun again after a reset while being applied: the payload is whole in DFU already.
+            (Step::Begin, ReplyBody::Begin { .. }) if transfer.applier.is_some() => Step::Finish,
+            (Step::Begin, ReplyBody::Begin { .. }) => Step::Idle,
+            (Step::CheckPage, ReplyBody::Check { crc, .. }) if page.is_some_and(|(_, page_crc)| page_crc == crc) => {
+                transfer.skipped += 1;
+                return self.page_done(page_len);
+            }
+            (Step::CheckPage, ReplyBody::Check { .. }) => Step::Erase,
+            (Step::Erase, ReplyBody::Erase { .. }) => Step::Write(0),
+            (Step::Write(at), ReplyBody::Write { len, crc, .. }) => {
+                let start = usize::from(at);
+                let sent = self.buffer.get(start..start + usize::from(len)).map(ext::crc32);
+                if sent != Some(crc) {
+                    return self.end(Ending::ReadBack, out);
+                }
+                let next = start + usize::from(len);
+                if next >= page_len {
+                    return self.page_done(page_len);
+                }
+                Step::Write(u16::try_from(next).unwrap_or(u16::MAX))
+            }
+            (Step::Verify, ReplyBody::Check { crc, .. }) if crc == transfer.crc.finish() => {
+                let (n, skipped) = (transfer.payload_len, transfer.skipped);
+                say(
+                    out,
+                    Severity::Info,
+                    slot,
+                    format_args!("{n} B verified, {skipped} pages kept"),
+                );
+                Step::Written
+            }
+            (Step::Verify, ReplyBody::Check { .. }) => return self.end(Ending::Mismatch, out),
+            (Step::Finish, ReplyBody::Finish { .. }) => Step::Reboot,
+            (Step::Reboot, ReplyBody::Reboot) => {
+                say(out, Severity::Info, slot, format_args!("signature good, restarting"));
+                Step::Restart(now)
+            }
+            (Step::Restart(_), ReplyBody::Version { info, on_trial, .. }) => {
+                let running = info
+                    .get(8..12)
+                    .and_then(|v| <[u8; 4]>::try_from(v).ok())
+                    .unwrap_or_default();
+                if running != transfer.version {
+                    return self.end(Ending::OldVersion(running), out);
+                }
+                let [major, minor, p0, p1] = running;
+                let trial = if on_trial { ", on trial" } else { "" };
+                say(
+                    out,
+                    Severity::Info,
+                    slot,
+                    format_args!("runs {major}.{minor}.{}{trial}", u16::from_le_bytes([p0, p1])),
+                );
+                self.acknowledge(AckResult::Accepted, out);
+                self.transfer = None;
+                return;
+            }
+            // A reply that does not fit the step: ask again.
+            (step, _) => step,
+        };
+    }
+
+    /// The page at the buffer's start is on the thruster: the next one moves up.
+    fn page_done(&mut self, len: usize) {
+        if let Some(transfer) = self.transfer.as_mut() {
+            transfer.page_offset += len as u32;
+            transfer.step = Step::Idle;
+        }
+        self.buffer.copy_within(len.min(self.fill)..self.fill, 0);
+        self.fill = self.fill.saturating_sub(len);
+    }
+
+    /// The transfer ends early: the operator is told why, the applier gets FAILED.
+    fn end(&mut self, ending: Ending, out: &mut impl FnMut(Outgoing)) {
+        let Some(transfer) = self.transfer else {
+            return;
+        };
+        let mut why = text(format_args!("thruster{}.lbvu: ", transfer.slot));
+        let _ = ending.describe(&mut Tail(&mut why));
+        out(Outgoing::Text(Severity::Warning, why));
+        self.acknowledge(AckResult::Failed, out);
+        self.transfer = None;
+        self.fill = 0;
+    }
+
+    /// The apply command's final COMMAND_ACK, if it was applied.
+    fn acknowledge(&self, result: AckResult, out: &mut impl FnMut(Outgoing)) {
+        if let Some(to) = self.transfer.and_then(|t| t.applier) {
+            out(Outgoing::CommandAck {
+                command: MAV_CMD_LBV_APPLY_UPDATE,
+                result,
+                to,
+            });
+        }
+    }
+}
+
+/// Appends to a text, cutting what does not fit.
+struct Tail<'a>(&'a mut Text);
+
+impl core::fmt::Write for Tail<'_> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        for c in s.chars() {
+            if self.0.push(c).is_err() {
+                break;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// "thruster2.lbvu: `args`", as the update server names the file the ground station wrote.
+fn say(out: &mut impl FnMut(Outgoing), severity: Severity, slot: u8, args: core::fmt::Arguments<'_>) {
+    out(Outgoing::Text(
+        severity,
+        text(format_args!("thruster{slot}.lbvu: {args}")),
+    ));
+}
+
+/// The courier, where the console's sink and the bus tasks meet.
+pub struct Transfers {
+    courier: Mutex<CriticalSectionRawMutex, RefCell<Courier>>,
+    /// Bus task -> sink: the courier moved on.
+    moved: Signal<CriticalSectionRawMutex, ()>,
+}
+
+impl core::fmt::Debug for Transfers {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Transfers").finish_non_exhaustive()
+    }
+}
+
+impl Default for Transfers {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Transfers {
+    /// Nothing under way.
+    pub const fn new() -> Self {
+        Self {
+            courier: Mutex::new(RefCell::new(Courier::new())),
+            moved: Signal::new(),
+        }
+    }
+
+    /// Work on the courier.
+    pub fn with<T>(&self, f: impl FnOnce(&mut Courier) -> T) -> T {
+        self.courier.lock(|courier| f(&mut courier.borrow_mut()))
+    }
+
+    /// The next exchange for a thruster `ours` says yes to, if there is one.
+    pub fn next(&self, ours: impl FnOnce(u8) -> bool) -> Option<Exchange> {
+        self.with(|courier| courier.next(Instant::now(), ours))
+    }
+
+    /// What `exchange` got: `out` takes the texts and acknowledgements; the sink hears that the courier moved on.
+    pub fn done(&self, exchange: &Exchange, result: Result<Reply, ExchangeError>, out: &mut impl FnMut(Outgoing)) {
+        self.with(|courier| courier.on_result(Instant::now(), exchange, result, out));
+        self.moved.signal(());
+    }
+
+    /// Wait until the sink may hand on one more write's bytes.
+    pub async fn room(&self) {
+        while !self.with(|courier| courier.has_room()) {
+            self.moved.wait().await;
+        }
+    }
+}
+
+/// Send the exchange's command to the thruster at `address` and read its reply, reading again while it is busy.
+pub async fn exchange<B: I2c>(bus: &mut B, address: u8, exchange: &Exchange) -> Result<Reply, ExchangeError> {
+    bus.write(address, exchange.frame.encode().as_bytes())
+        .await
+        .map_err(|_| ExchangeError::Bus)?;
+    if exchange.wait > Duration::from_ticks(0) {
+        Timer::after(exchange.wait).await;
+    }
+    let mut bytes = [0; ext::MAX_FRAME_LEN];
+    let reply = bytes
+        .get_mut(..ext::reply_len(exchange.frame.command.kind()))
+        .unwrap_or_default();
+    for _ in 0..BUSY_READS {
+        bus.read(address, reply).await.map_err(|_| ExchangeError::Bus)?;
+        match Reply::decode(reply) {
+            Ok(Reply::Busy { .. }) => Timer::after(BUSY_PAUSE).await,
+            Ok(reply) => return Ok(reply),
+            Err(error) => return Err(ExchangeError::Frame(error)),
+        }
+    }
+    Err(ExchangeError::Busy)
+}

@@ -1,0 +1,249 @@
+//! Field update from the ground station: update files put over MAVLink FTP to the master, which writes each into
+//! its thruster's DFU partition over the thrusters' bus between its polls, and applied by the operator's command
+//! (docs/field-update.md). The ground station is lbv-station's scripted one, its uploads stop-and-wait as
+//! MAVProxy's `ftp put` goes when its window is one block.
+
+use embassy_time::Instant;
+use lbv_master_fw::shared::MAV_CMD_LBV_APPLY_UPDATE;
+use lbv_master_fw::update::TAKEOVER_IDLE;
+use lbv_station::{Upload, UploadState};
+use serde_json::json;
+use tmc_proto::Family;
+use update_image::{INFO_OFFSET, ImageInfo, Target, Version};
+
+use super::fault::Fault;
+use super::harness::{Run, round};
+
+/// The development key's secret, which the bench's thrusters accept (keys/README.md).
+const DEV_KEY: &str = include_str!("../../../keys/dev.key");
+/// The images' payload: 32 KiB, the thruster application's budget.
+const PAYLOAD_LEN: usize = 32 * 1024;
+/// MAV_RESULT_IN_PROGRESS and MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED.
+const IN_PROGRESS: u8 = 5;
+const ACCEPTED: u8 = 0;
+const FAILED: u8 = 4;
+/// The version the update brings (the bench's thrusters run 0.1.0).
+const NEW: Version = Version::new(0, 2, 0);
+
+/// A signed update file for `family`'s thrusters at `version`: a made-up 32 KiB payload with its image info at
+/// 0x200, signed with `seed`.
+fn update_file(family: Family, version: Version, seed: &[u8; 32]) -> Vec<u8> {
+    let mut payload: Vec<u8> = (0..PAYLOAD_LEN as u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 11) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::thruster(family), version).to_bytes();
+    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    update_image::sign(&payload, seed).expect("the payload holds its image info")
+}
+
+fn dev_key() -> [u8; 32] {
+    update_image::key_from_hex(DEV_KEY).expect("keys/dev.key is a key")
+}
+
+/// Put `file` to `path`, giving up after `limit` s; returns how it ended and the seconds it took.
+fn put(run: &mut Run, path: &str, file: Vec<u8>, limit: f64) -> (UploadState, f64) {
+    put_until(run, path, file, limit, |_| false)
+}
+
+/// As [`put`], but stopping (the ground station goes quiet) once `stop` says so, given the bytes acknowledged.
+fn put_until(
+    run: &mut Run,
+    path: &str,
+    file: Vec<u8>,
+    limit: f64,
+    mut stop: impl FnMut(usize) -> bool,
+) -> (UploadState, f64) {
+    let mut upload = Upload::new(path, file);
+    let start = run.bench.seconds();
+    while run.bench.seconds() - start < limit {
+        if let Some(frame) = upload.poll(run.bench.now(), &mut run.bench.ground) {
+            run.bench.send(frame);
+        }
+        match upload.state() {
+            UploadState::Sending(acked) if !stop(*acked) => run.run_for(0.005),
+            _ => break,
+        }
+    }
+    (upload.state().clone(), round(run.bench.seconds() - start, 2))
+}
+
+/// Send the apply command for `slot` and wait up to `limit` s for its final COMMAND_ACK; returns the results of
+/// the acknowledgements it got (the first IN_PROGRESS when it started) and the seconds to the last.
+fn apply(run: &mut Run, slot: u8, limit: f64) -> (Vec<u8>, f64) {
+    let acks_before = run.bench.ground.seen.acks.len();
+    let command = run.bench.ground.command(
+        MAV_CMD_LBV_APPLY_UPDATE,
+        [f32::from(slot), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    );
+    run.bench.send(command);
+    let results = |bench: &crate::bench::Bench| -> Vec<u8> {
+        bench.ground.seen.acks[acks_before..]
+            .iter()
+            .filter(|(command, _)| *command == MAV_CMD_LBV_APPLY_UPDATE)
+            .map(|(_, result)| *result)
+            .collect()
+    };
+    let took = run.run_until(limit, |bench| results(bench).last().is_some_and(|r| *r != IN_PROGRESS));
+    (results(&run.bench), took.map_or(f64::NAN, |t| round(t, 2)))
+}
+
+/// Texts for `file` since `since`.
+fn texts_since(run: &Run, since: Instant, file: &str) -> Vec<String> {
+    run.bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .filter(|(at, text)| *at >= since && text.starts_with(file))
+        .map(|(_, text)| text.clone())
+        .collect()
+}
+
+/// Every thruster of the vehicle updated in turn from the ground station, the others polled meanwhile; then what is
+/// refused, and a transfer cut by a thruster's power cut that resumes.
+pub fn field_update(run: &mut Run) {
+    let key = dev_key();
+    run.run_for(1.0);
+    let families: Vec<Family> = run.bench.thrusters.iter().map(|t| t.config.family).collect();
+    let mut times = Vec::new();
+    for (slot, family) in families.iter().enumerate() {
+        let file_name = format!("thruster{slot}.lbvu");
+        let path = format!("/update/{file_name}");
+        let polls_before = polls_of_others(run, slot);
+        let start = run.bench.now();
+        let (put_state, put_s) = put(run, &path, update_file(*family, NEW, &key), 60.0);
+        let verified = run.run_until(5.0, |bench| {
+            bench
+                .ground
+                .seen
+                .texts
+                .iter()
+                .any(|(at, text)| *at >= start && text.contains("B verified"))
+        });
+        let (acks, apply_s) = apply(run, slot as u8, 30.0);
+        let texts = texts_since(run, start, &file_name);
+        let runs_new = texts.iter().any(|text| text.ends_with("runs 0.2.0, on trial"));
+        run.check(
+            &format!("T{} ({family:?}) is updated from the ground station", slot + 1),
+            put_state == UploadState::Done && verified.is_some() && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
+            format!("put {put_state:?} in {put_s} s, apply acks {acks:?} in {apply_s} s, texts {texts:?}"),
+        );
+        let polls_after = polls_of_others(run, slot);
+        let rate = (polls_after - polls_before) as f64 / (run.bench.now() - start).as_micros() as f64 * 1e6;
+        run.check(
+            &format!("the other thrusters are polled while T{} is updated", slot + 1),
+            rate > 40.0 * (families.len() - 1) as f64,
+            format!("{} polls/s of the other {}", round(rate, 1), families.len() - 1),
+        );
+        times.push(json!({"slot": slot, "put_s": put_s, "apply_s": apply_s}));
+    }
+    run.metric("update_times", json!(times));
+
+    // Signed with another key: written, then refused by the thruster's signature check.
+    let start = run.bench.now();
+    let stranger = update_file(families[0], Version::new(0, 3, 0), &[0x42; 32]);
+    let (state, _) = put(run, "/update/thruster0.lbvu", stranger, 60.0);
+    run.run_until(5.0, |bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, t)| *at >= start && t.contains("B verified"))
+    });
+    let (acks, _) = apply(run, 0, 30.0);
+    let texts = texts_since(run, start, "thruster0.lbvu");
+    run.check(
+        "an image signed with another key is refused by the thruster",
+        state == UploadState::Done && acks == [IN_PROGRESS, FAILED] && texts.iter().any(|t| t.contains("signature")),
+        format!("put {state:?}, acks {acks:?}, texts {texts:?}"),
+    );
+
+    // The other family's image, for slot 1 (Legacy in the mixed vehicle): the master refuses it at its header.
+    let start = run.bench.now();
+    let other = if families[1] == Family::SeaBotix {
+        Family::Legacy
+    } else {
+        Family::SeaBotix
+    };
+    let (state, _) = put(run, "/update/thruster1.lbvu", update_file(other, NEW, &key), 10.0);
+    let texts = texts_since(run, start, "thruster1.lbvu");
+    run.check(
+        "an image of the other family is refused at its header",
+        state == UploadState::Refused(1) && texts.iter().any(|t| t.contains("image, slot is")),
+        format!("put {state:?}, texts {texts:?}"),
+    );
+
+    // Armed: nothing is written.
+    let start = run.bench.now();
+    let arm = run.bench.ground.arm(true);
+    run.bench.send(arm);
+    run.run_for(0.3);
+    let (state, _) = put(run, "/update/thruster2.lbvu", update_file(families[2], NEW, &key), 10.0);
+    let disarm = run.bench.ground.arm(false);
+    run.bench.send(disarm);
+    run.run_for(0.3);
+    let texts = texts_since(run, start, "thruster2.lbvu");
+    run.check(
+        "an update while armed is refused",
+        state == UploadState::Refused(1) && texts.iter().any(|t| t.contains("disarm to update")),
+        format!("put {state:?}, texts {texts:?}"),
+    );
+
+    // A thruster's power cut while its upload is under way stops the upload; sent again, it resumes from the pages
+    // the thruster holds.
+    let start = run.bench.now();
+    let mut acked_at_cut = 0;
+    let (stopped, _) = put_until(
+        run,
+        "/update/thruster4.lbvu",
+        update_file(families[4], Version::new(0, 3, 0), &key),
+        60.0,
+        |acked| {
+            acked_at_cut = acked;
+            acked > PAYLOAD_LEN / 2
+        },
+    );
+    run.inject(Fault::PowerCut { thruster: 4 });
+    run.run_for(0.2);
+    run.clear(Fault::PowerCut { thruster: 4 });
+    // The ground station sends the file again once the master lets a new session take over the idle one.
+    run.run_for(TAKEOVER_IDLE.as_micros() as f64 / 1e6 + 0.5);
+    let (resumed, resume_s) = put(
+        run,
+        "/update/thruster4.lbvu",
+        update_file(families[4], Version::new(0, 3, 0), &key),
+        60.0,
+    );
+    let verified = run.run_until(5.0, |bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, t)| *at >= start && t.starts_with("thruster4.lbvu") && t.contains("B verified"))
+    });
+    let texts = texts_since(run, start, "thruster4.lbvu");
+    let kept = texts
+        .iter()
+        .find(|t| t.contains("pages kept"))
+        .cloned()
+        .unwrap_or_default();
+    run.check(
+        "an upload stopped by a thruster's power cut, sent again, resumes from the pages it holds",
+        matches!(stopped, UploadState::Sending(_))
+            && resumed == UploadState::Done
+            && verified.is_some()
+            && !kept.contains(" 0 pages"),
+        format!("stopped at {acked_at_cut} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
+    );
+}
+
+/// Valid statuses the master read from every thruster but `slot`.
+fn polls_of_others(run: &Run, slot: usize) -> u64 {
+    (0..run.bench.thrusters.len())
+        .filter(|i| *i != slot)
+        .filter_map(|i| run.bench.master.shared.thrusters.get(i).and_then(|w| w.try_get()))
+        .map(|report| u64::from(report.health.good))
+        .sum()
+}
