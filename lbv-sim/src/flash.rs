@@ -4,7 +4,8 @@
 //! chip.
 //!
 //! It is a handle: clones share the memory, so the flash outlives the board that uses it (a master that reboots
-//! or loses power finds what it wrote). A power cut can be armed to land in the middle of an erase or a program:
+//! or loses power finds what it wrote). A handle may see only a partition of the memory ([`Flash::partition`]), as
+//! a firmware's updater sees its DFU partition of the chip's one flash. A power cut can be armed to land in the middle of an erase or a program:
 //! the operation stops at that byte, leaving the page torn, and the flash answers nothing until power returns.
 //!
 //! The STM32G4 keeps ECC bits with each double word (RM0440 3.3.2): one it was programming or erasing when the power
@@ -134,7 +135,13 @@ impl Memory {
 
 /// A NOR flash of pages of `ERASE_SIZE` bytes, programmed `WRITE_SIZE` bytes at a time; clones share it.
 #[derive(Debug, Clone)]
-pub struct Flash<const WRITE_SIZE: usize, const ERASE_SIZE: usize>(Rc<RefCell<Memory>>);
+pub struct Flash<const WRITE_SIZE: usize, const ERASE_SIZE: usize> {
+    memory: Rc<RefCell<Memory>>,
+    /// Where this handle's offset 0 is in the memory.
+    origin: usize,
+    /// How many bytes of the memory, from `origin`, this handle sees.
+    length: usize,
+}
 
 /// The STM32G4's flash: 8-byte double words, 2 KiB pages (RM0440 3.3.7, 3.3.6).
 pub type Stm32g4Flash = Flash<8, 2048>;
@@ -142,72 +149,101 @@ pub type Stm32g4Flash = Flash<8, 2048>;
 impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_SIZE> {
     /// `pages` erased pages.
     pub fn new(pages: usize) -> Self {
-        Self(Rc::new(RefCell::new(Memory {
-            bytes: vec![0xFF; pages.saturating_mul(ERASE_SIZE)],
-            until_cut: None,
-            powered: true,
-            stats: FlashStats::default(),
-            torn_units: BTreeSet::new(),
-            ecc_offsets: BTreeSet::new(),
-            stall: None,
-        })))
+        let length = pages.saturating_mul(ERASE_SIZE);
+        Self {
+            memory: Rc::new(RefCell::new(Memory {
+                bytes: vec![0xFF; length],
+                until_cut: None,
+                powered: true,
+                stats: FlashStats::default(),
+                torn_units: BTreeSet::new(),
+                ecc_offsets: BTreeSet::new(),
+                stall: None,
+            })),
+            origin: 0,
+            length,
+        }
+    }
+
+    /// A handle on the `length` bytes of this one from `offset`, as a firmware addresses one partition of its
+    /// chip's flash: its offset 0 is `offset` here. It shares the memory, and so the power, any armed cut, the
+    /// statistics and the CPU stall, with every other handle. None unless it lies within this handle and starts
+    /// and ends on page boundaries.
+    pub fn partition(&self, offset: u32, length: u32) -> Option<Self> {
+        let (offset, length) = (offset as usize, length as usize);
+        let page = ERASE_SIZE.max(1);
+        let end = offset.checked_add(length)?;
+        if end > self.length || !offset.is_multiple_of(page) || !length.is_multiple_of(page) {
+            return None;
+        }
+        Some(Self {
+            memory: Rc::clone(&self.memory),
+            origin: self.origin + offset,
+            length,
+        })
     }
 
     /// Let every erase and write stall `cpu` for `timing` from now on (every handle on this flash).
     pub fn stall_cpu(&self, cpu: &Cpu, timing: FlashTiming) {
-        self.0.borrow_mut().stall = Some((cpu.clone(), timing));
+        self.memory.borrow_mut().stall = Some((cpu.clone(), timing));
     }
 
     /// Erases and writes take no time again.
     pub fn stall_nothing(&self) {
-        self.0.borrow_mut().stall = None;
+        self.memory.borrow_mut().stall = None;
     }
 
-    /// The offsets of the torn double words that reads have touched (each an ECC double error on the chip).
+    /// The offsets of the torn double words in this handle's bytes that reads have touched (each an ECC double
+    /// error on the chip).
     pub fn ecc_error_offsets(&self) -> Vec<u32> {
-        let memory = self.0.borrow();
+        let memory = self.memory.borrow();
         memory
             .ecc_offsets
-            .iter()
-            .filter_map(|offset| u32::try_from(*offset).ok())
+            .range(self.origin..self.origin + self.length)
+            .filter_map(|offset| u32::try_from(*offset - self.origin).ok())
             .collect()
     }
 
-    /// A copy of everything in it.
+    /// A copy of everything this handle sees.
     pub fn contents(&self) -> Vec<u8> {
-        self.0.borrow().bytes.clone()
+        let memory = self.memory.borrow();
+        memory
+            .bytes
+            .get(self.origin..self.origin + self.length)
+            .map(<[u8]>::to_vec)
+            .unwrap_or_default()
     }
 
     /// Cut the power once `bytes` more bytes have been erased or programmed: the operation under way then stops
     /// where it is.
     pub fn cut_power_after(&self, bytes: usize) {
-        self.0.borrow_mut().until_cut = Some(bytes);
+        self.memory.borrow_mut().until_cut = Some(bytes);
     }
 
     /// Power back on (a cut armed and not yet reached is disarmed).
     pub fn power_on(&self) {
-        let mut memory = self.0.borrow_mut();
+        let mut memory = self.memory.borrow_mut();
         memory.powered = true;
         memory.until_cut = None;
     }
 
     /// Whether it has power.
     pub fn powered(&self) -> bool {
-        self.0.borrow().powered
+        self.memory.borrow().powered
     }
 
-    /// What it has done so far.
+    /// What the whole memory has done so far, through any handle.
     pub fn stats(&self) -> FlashStats {
-        self.0.borrow().stats
+        self.memory.borrow().stats
     }
 
     fn read_at(&self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
         nor_flash::check_read(self, offset, bytes.len())?;
-        let mut memory = self.0.borrow_mut();
+        let mut memory = self.memory.borrow_mut();
         if !memory.powered {
             return Err(FlashError::PowerCut);
         }
-        let start = offset as usize;
+        let start = self.origin + offset as usize;
         let stored = memory
             .bytes
             .get(start..start + bytes.len())
@@ -225,12 +261,13 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
 
     fn erase_range(&self, from: u32, to: u32) -> Result<(), FlashError> {
         nor_flash::check_erase(self, from, to)?;
-        let mut memory = self.0.borrow_mut();
+        let mut memory = self.memory.borrow_mut();
         if !memory.powered {
             return Err(FlashError::PowerCut);
         }
         let unit = WRITE_SIZE.max(1);
-        for page in (from as usize..to as usize).step_by(ERASE_SIZE.max(1)) {
+        let (from, to) = (self.origin + from as usize, self.origin + to as usize);
+        for page in (from..to).step_by(ERASE_SIZE.max(1)) {
             for at in page..page + ERASE_SIZE {
                 if !memory.spend(at, unit) {
                     return Err(FlashError::PowerCut);
@@ -252,11 +289,11 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
 
     fn program(&self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
         nor_flash::check_write(self, offset, bytes.len())?;
-        let mut memory = self.0.borrow_mut();
+        let mut memory = self.memory.borrow_mut();
         if !memory.powered {
             return Err(FlashError::PowerCut);
         }
-        let start = offset as usize;
+        let start = self.origin + offset as usize;
         let unit = WRITE_SIZE.max(1);
         let stored = memory
             .bytes
@@ -305,7 +342,7 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_flash::ReadNorFlash f
     }
 
     fn capacity(&self) -> usize {
-        self.0.borrow().bytes.len()
+        self.length
     }
 }
 
@@ -332,7 +369,7 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> embedded_storage_async::n
     }
 
     fn capacity(&self) -> usize {
-        self.0.borrow().bytes.len()
+        self.length
     }
 }
 
@@ -453,6 +490,49 @@ mod tests {
         flash.stall_nothing();
         flash.erase(0, 64).unwrap();
         assert_eq!(cpu.stalls(), 4);
+    }
+
+    #[test]
+    fn a_partition_sees_its_pages_of_the_memory_from_its_own_offset_0() {
+        let mut whole = Small::new(4);
+        let mut second = whole.partition(64, 128).unwrap();
+        assert_eq!(second.capacity(), 128);
+        assert!(whole.partition(32, 64).is_none(), "not on a page boundary");
+        assert!(whole.partition(64, 32).is_none(), "not whole pages");
+        assert!(whole.partition(192, 128).is_none(), "past the end");
+        let mut third = second.partition(64, 64).unwrap();
+
+        second.write(8, &[7; 8]).unwrap();
+        assert_eq!(
+            read(&mut whole, 72, 8).unwrap(),
+            [7; 8],
+            "offset 8 of the partition is 72 of the memory"
+        );
+        third.write(0, &[9; 8]).unwrap();
+        assert_eq!(read(&mut second, 64, 8).unwrap(), [9; 8]);
+        assert_eq!(
+            third.write(64, &[0; 8]),
+            Err(FlashError::OutOfBounds),
+            "its end is its own"
+        );
+        assert_eq!(second.contents().len(), 128);
+        assert_eq!(&second.contents()[64..72], &[9; 8]);
+
+        third.erase(0, 64).unwrap();
+        assert_eq!(read(&mut whole, 128, 8).unwrap(), [0xFF; 8]);
+        assert_eq!(read(&mut whole, 72, 8).unwrap(), [7; 8], "only its page erased");
+        assert_eq!(whole.stats().erases, 1, "one memory, one count");
+
+        // A torn double word is reported at its offset in each handle that sees it.
+        third.cut_power_after(3);
+        assert_eq!(third.write(16, &[1; 8]), Err(FlashError::PowerCut));
+        assert!(!whole.powered(), "the power is the chip's");
+        whole.power_on();
+        read(&mut whole, 0, 256).unwrap();
+        assert_eq!(third.ecc_error_offsets(), vec![16]);
+        assert_eq!(second.ecc_error_offsets(), vec![80]);
+        assert_eq!(whole.ecc_error_offsets(), vec![144]);
+        assert_eq!(whole.partition(0, 64).unwrap().ecc_error_offsets(), Vec::<u32>::new());
     }
 
     #[test]

@@ -372,6 +372,14 @@ impl Bench {
             self.reboot_master();
             self.executor.run_until_idle();
         }
+        // A thruster asked to reset (the field update's Reboot): the bench has no reset but the power, so it
+        // power-cycles it, and its bootloader runs before it starts again.
+        while let Some(index) = self.thrusters.iter().position(ThrusterBoard::reboot_requested) {
+            self.note(format!("T{}: reboots", index + 1));
+            self.power(index, false);
+            self.power(index, true);
+            self.executor.run_until_idle();
+        }
     }
 
     /// Fixed-step engine: one step.

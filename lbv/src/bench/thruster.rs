@@ -4,28 +4,43 @@
 //! The board is two parts: what is around the controller ([`ThrusterIo`]: the motor, the power stage, the watchdog
 //! hardware), which lives as long as the bench, and the controller itself (its tasks and their channels), which a
 //! power cycle drops and boots afresh.
+//!
+//! The chip's flash outlasts both: one lbv-sim flash laid out as the G431's (`THRUSTER_PARTITIONS`), holding at
+//! first a factory image in ACTIVE. Every boot runs the thruster's bootloader on it (`thruster_boot::prepare`,
+//! embassy-boot's swap and revert) before the controller starts, from whatever image ACTIVE then holds; the
+//! controller's field update writes the DFU partition and marks the state partition, and its reset request
+//! ([`BootUpdater::reboot`]) has the bench reset the board.
 
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
 use std::rc::Rc;
 
+use embassy_boot::{BlockingFirmwareState, State};
+use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Instant};
-use lbv_sim::flash::Flash;
+use embassy_time::{Duration, Instant, Timer};
+use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
+use g431_hw::memory::{FLASH, PAGE, Span, THRUSTER_PARTITIONS};
+use lbv_sim::flash::{FlashStats, FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::{Bus, DeviceId};
 use lbv_sim::{Executor, TaskId};
+use thruster_boot::Outcome;
 use thruster_fw::commutation::{BridgeDrive, COAST};
 use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
 use thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors, Shared, Watchdog};
 use thruster_fw::{Config, Duty, Ports};
 use tmc_proto::{Family, MotorKind};
+use update_image::{DEV_PUBLIC_KEY, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
 
 use super::STEP;
 use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
-use super::ports::thruster::{BootRecord, BootUpdater, DFU_PAGES, SlavePort};
+use super::ports::thruster::{BootRecord, BootUpdater, SlavePort};
+
+#[cfg(test)]
+mod tests;
 
 /// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
 /// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
@@ -90,6 +105,63 @@ struct Lazy {
     dirty: Cell<bool>,
 }
 
+/// The length of the image a bench thruster leaves the factory with, about the application's.
+pub const FACTORY_IMAGE_LEN: usize = 32 * 1024;
+
+/// The version of the image a bench thruster leaves the factory with.
+pub const FACTORY_VERSION: Version = Version::new(0, 1, 0);
+
+/// A made-up thruster image of `len` bytes (a multiple of the flash's 8-byte double word) for `family` at
+/// `version`: its information record at [`INFO_OFFSET`], as a real image embeds it, and every other byte drawn
+/// from `seed` (xorshift32), so that images of two seeds differ throughout.
+pub fn made_up_image(family: Family, version: Version, len: usize, seed: u32) -> Vec<u8> {
+    let mut x = seed.wrapping_mul(0x9E37_79B9) | 1;
+    let mut image: Vec<u8> = (0..len)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            x as u8
+        })
+        .collect();
+    let info = ImageInfo::new(Target::thruster(family), version).to_bytes();
+    if let Some(record) = image.get_mut(INFO_OFFSET..INFO_OFFSET + INFO_LEN) {
+        record.copy_from_slice(&info);
+    }
+    image
+}
+
+/// The image a bench thruster of `family` leaves the factory with: [`FACTORY_VERSION`], [`FACTORY_IMAGE_LEN`] bytes.
+pub fn factory_image(family: Family) -> Vec<u8> {
+    made_up_image(family, FACTORY_VERSION, FACTORY_IMAGE_LEN, 1)
+}
+
+/// The partition at `span` (an address range, as `THRUSTER_PARTITIONS` gives it) of the thruster's `flash`, whose
+/// offset 0 is the flash's first address, as embassy-stm32's flash driver addresses it.
+pub fn partition(flash: &Stm32g4Flash, span: Span) -> Stm32g4Flash {
+    flash
+        .partition(span.origin - FLASH.origin, span.length)
+        .expect("the thruster's partitions lie within its flash, on page boundaries")
+}
+
+/// The G431's flash, erased but for `image` at the start of ACTIVE, as a probe leaves it.
+fn factory_flash(image: &[u8]) -> Stm32g4Flash {
+    let flash = Stm32g4Flash::new((FLASH.length / PAGE) as usize);
+    partition(&flash, THRUSTER_PARTITIONS.active)
+        .write(0, image)
+        .expect("the factory image fits ACTIVE");
+    flash
+}
+
+/// How long the flash's work between two looks at its statistics kept the G431 busy: the bootloader copies from
+/// the flash bank it runs from, so every erase and program stalls it.
+fn flash_busy(before: FlashStats, after: FlashStats) -> Duration {
+    let timing = FlashTiming::G431;
+    let erases = after.erases.saturating_sub(before.erases);
+    let units = after.programmed.saturating_sub(before.programmed) / Stm32g4Flash::WRITE_SIZE as u64;
+    Duration::from_ticks(erases * timing.erase_page.as_ticks() + units * timing.program_unit.as_ticks())
+}
+
 /// The first point of the fixed-step engine's grid after `t`.
 fn next_grid_point(t: Instant) -> Instant {
     Instant::from_ticks((t.as_ticks() / STEP.as_ticks() + 1) * STEP.as_ticks())
@@ -112,10 +184,15 @@ pub struct ThrusterBoard {
     pub device: DeviceId,
     /// The controller's task channels, fresh at every boot.
     shared: Rc<Shared>,
-    /// The bootloader's state partition, which outlasts a power cut.
-    boot_state: Flash<8, 2048>,
-    /// The DFU partition a field update writes, which outlasts a power cut.
-    dfu: Flash<8, 2048>,
+    /// The chip's flash (bootloader, state, ACTIVE, DFU), which outlasts a power cut.
+    flash: Stm32g4Flash,
+    /// The field update's side of the chip, as the controller was last booted with it (its running image's
+    /// information record); its reboot counter lives as long as the board.
+    updater: BootUpdater,
+    /// Reboots asked for through the updater that a boot has since served.
+    reboots_served: u32,
+    /// What the bootloader did at the last boot.
+    boot_outcome: Option<Outcome>,
     tasks: Vec<TaskId>,
 }
 
@@ -128,10 +205,19 @@ impl Deref for ThrusterBoard {
 }
 
 impl ThrusterBoard {
-    /// A thruster of `family` at `device` on `bus`, its motor at `angle` (mechanical radians); not powered yet. On
+    /// A thruster of `family` at `device` on `bus`, its motor at `angle` (mechanical radians); not powered yet. Its
+    /// flash holds a factory image of this family, version [`FACTORY_VERSION`], in ACTIVE, and nothing else. On
     /// the event engine `rail` is the pack's terminals and `index` its place there; without, the fixed-step engine
     /// steps the plant.
     pub fn new(family: Family, bus: &Bus, device: DeviceId, angle: f64, rail: Option<(Rc<Rail>, usize)>) -> Self {
+        let flash = factory_flash(&factory_image(family));
+        let updater = BootUpdater::new(
+            family,
+            partition(&flash, THRUSTER_PARTITIONS.dfu),
+            partition(&flash, THRUSTER_PARTITIONS.state),
+            // The bench's images are signed with the development key (lbv image sign --allow-dev-key).
+            DEV_PUBLIC_KEY,
+        );
         Self {
             config: Config::reference(family, MotorKind::Brushless),
             io: Rc::new(ThrusterIo {
@@ -158,23 +244,44 @@ impl ThrusterBoard {
             bus: bus.clone(),
             device,
             shared: Rc::new(Shared::new()),
-            boot_state: Flash::new(1),
-            dfu: Flash::new(DFU_PAGES),
+            flash,
+            updater,
+            reboots_served: 0,
+            boot_outcome: None,
             tasks: Vec::new(),
         }
     }
 
-    /// Power up: the controller boots with fresh state and its slave port answers again. A powered controller is
-    /// left as it is.
+    /// Power up: the bootloader prepares ACTIVE (swapping a new image in, or an unconfirmed one out), then the
+    /// controller boots with fresh state from the image ACTIVE holds and its slave port answers again. A powered
+    /// controller is left as it is.
+    ///
+    /// The bootloader's flash work is done at once; the controller starts, and acknowledges on the bus, only once
+    /// the time that work takes on the G431 has passed ([`FlashTiming::G431`]: about 3 s for a swap), and its
+    /// watchdog runs from then, as the bootloader starts it just before the jump. A power cut in that time finds
+    /// the swap done (thruster-boot's own tests cut the power inside it).
     pub fn boot(&mut self, executor: &mut Executor<'static>) {
         if self.powered() {
             return;
         }
-        self.bus.set_powered(self.device, true);
-        self.io.last_feed.set(Instant::now());
+        let before = self.flash.stats();
+        self.boot_outcome = Some(thruster_boot::prepare(&Mutex::new(RefCell::new(self.flash.clone()))));
+        let starts = Instant::now() + flash_busy(before, self.flash.stats());
+        let in_bootloader = starts > Instant::now();
+        self.updater.info = self.read_running_info();
+        // A reset asked for before this boot is the one this boot is.
+        self.reboots_served = self.updater.reboots.get();
+
+        if !in_bootloader {
+            self.bus.set_powered(self.device, true);
+        }
+        self.io.last_feed.set(starts);
         let Some(port) = self.bus.target(self.device) else {
             return;
         };
+        // Wait for the bootloader only when it has work to wait for: a boot with nothing to swap runs its tasks at
+        // once, as it always has.
+        let bootloader = in_bootloader.then(|| (self.bus.clone(), self.device));
         let ports = Ports {
             i2c: SlavePort(port),
             sensors: Adc {
@@ -184,22 +291,42 @@ impl ThrusterBoard {
             watchdog: Dog(self.io.clone()),
             // Every bench boot follows a power cut: the latches start empty.
             latch: VolatileLatch::default(),
-            boot: BootRecord(self.boot_state.clone()),
-            dfu: self.dfu.clone(),
-            // No key yet (the bench's master sends no update): no signature checks against all zeros, so the
-            // thruster takes every command of an update but marks nothing.
-            updater: BootUpdater::new(self.config.family, self.dfu.clone(), self.boot_state.clone(), [0; 32]),
+            boot: BootRecord(partition(&self.flash, THRUSTER_PARTITIONS.state)),
+            dfu: partition(&self.flash, THRUSTER_PARTITIONS.dfu),
+            updater: self.updater.clone(),
         };
         let (config, shared) = (self.config.clone(), self.shared.clone());
         let run = executor.spawn(async move {
+            if let Some((bus, device)) = bootloader {
+                Timer::at(starts).await;
+                bus.set_powered(device, true);
+            }
             thruster_fw::run(ports, &config, &shared).await;
         });
         let (halls, stage) = (Halls(self.io.clone()), Stage(self.io.clone()));
         let (config, shared) = (self.config.clone(), self.shared.clone());
         let commutation = executor.spawn(async move {
+            if in_bootloader {
+                Timer::at(starts).await;
+            }
             thruster_fw::run_commutation(halls, stage, &config, &shared).await;
         });
         self.tasks = vec![run, commutation];
+    }
+
+    /// The information record of the image in ACTIVE, read where the image embeds it; erased bytes if unreadable
+    /// (what a thruster without a record reports).
+    fn read_running_info(&self) -> [u8; INFO_LEN] {
+        let mut info = [0xFF; INFO_LEN];
+        match partition(&self.flash, THRUSTER_PARTITIONS.active).read(INFO_OFFSET as u32, &mut info) {
+            Ok(()) => info,
+            Err(_) => [0xFF; INFO_LEN],
+        }
+    }
+
+    /// Whether the controller asked for a reset that it has not had yet.
+    pub fn reboot_requested(&self) -> bool {
+        self.updater.reboots.get() != self.reboots_served
     }
 
     /// Cut the power: the controller stops where it is, the bridge coasts, the slave port stops answering, and
@@ -252,7 +379,8 @@ impl ThrusterBoard {
     /// Count a watchdog reset if the controller has gone unfed past its timeout at `now`.
     pub fn watch(&self, now: Instant) {
         let io = &self.io;
-        if self.powered() && now - io.last_feed.get() > self.config.watchdog.timeout {
+        // The bootloader starts the watchdog at its end, which may not have come yet.
+        if self.powered() && now.saturating_duration_since(io.last_feed.get()) > self.config.watchdog.timeout {
             io.watchdog_bites.set(io.watchdog_bites.get() + 1);
             io.last_feed.set(now);
         }
@@ -269,6 +397,51 @@ impl ThrusterBoard {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),
         }
+    }
+}
+
+/// What a scenario looks at across a field update: the flash, the bootloader's work, the image that runs.
+#[allow(
+    dead_code,
+    reason = "for scenarios that update a thruster over the bus; today the bench's own tests read them"
+)]
+impl ThrusterBoard {
+    /// The chip's flash, the whole of it (`THRUSTER_PARTITIONS` says where each partition is).
+    pub fn flash(&self) -> &Stm32g4Flash {
+        &self.flash
+    }
+
+    /// The field update's side of the chip the controller runs with: a handle on the same flash and the same
+    /// reboot counter, reporting the running image the last boot found.
+    pub fn updater(&self) -> BootUpdater {
+        self.updater.clone()
+    }
+
+    /// The information record of the image the controller runs (what its extension's `Version` reports).
+    pub fn running_info(&self) -> [u8; INFO_LEN] {
+        self.updater.info
+    }
+
+    /// The image the controller runs, from its information record; None if ACTIVE holds none.
+    pub fn running_image(&self) -> Option<ImageInfo> {
+        ImageInfo::parse(&self.updater.info).ok()
+    }
+
+    /// What the bootloader did at the last boot (None before the first).
+    pub fn boot_outcome(&self) -> Option<&Outcome> {
+        self.boot_outcome.as_ref()
+    }
+
+    /// The bootloader's state as embassy-boot reads it now (`Swap`: an image on trial); None if unreadable.
+    pub fn boot_state(&self) -> Option<State> {
+        let mut word = [0; 8];
+        let state = partition(&self.flash, THRUSTER_PARTITIONS.state);
+        BlockingFirmwareState::new(state, &mut word).get_state().ok()
+    }
+
+    /// Resets the controller asked for through its updater since the bench was built.
+    pub fn reboots(&self) -> u32 {
+        self.updater.reboots.get()
     }
 }
 

@@ -5,6 +5,7 @@ use std::cell::Cell;
 use std::rc::Rc;
 
 use embassy_boot::{FirmwareState, FirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError, State};
+use g431_hw::memory::{PAGE, THRUSTER_PARTITIONS};
 use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Target, TargetError};
 use thruster_fw::trial::BootState;
@@ -60,12 +61,18 @@ impl BootState for BootRecord {
     }
 }
 
-/// The DFU partition's pages (60 KiB, as on the G431: `g431_hw::memory::THRUSTER_PARTITIONS`).
-pub const DFU_PAGES: usize = 30;
+/// The DFU partition's pages (60 KiB, as on the G431), for a DFU flash of its own.
+#[allow(
+    dead_code,
+    reason = "thruster-fw's tests give the controller a DFU flash of its own; the bench a partition of its chip's"
+)]
+pub const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / PAGE) as usize;
 
 /// The bootloader's and the chip's side of a field update, as the binding's is on the G431: embassy-boot's own
 /// updater checks the payload's signature (ed25519 over its SHA-512, with salty) on the DFU partition and marks it
-/// in the state partition; a reboot is counted (the bench has no bootloader to swap the image in).
+/// in the state partition; a reboot is counted, and the bench, which watches the count, resets the thruster (its
+/// bootloader then swaps the image in). The partitions may be whole flashes or views of one chip's flash
+/// ([`Flash::partition`]).
 #[derive(Debug, Clone)]
 pub struct BootUpdater {
     /// The DFU partition.
@@ -76,7 +83,7 @@ pub struct BootUpdater {
     pub public_key: [u8; 32],
     /// The running image's information record.
     pub info: [u8; INFO_LEN],
-    /// Reboots asked for.
+    /// Reboots asked for (clones share the count).
     pub reboots: Rc<Cell<u32>>,
 }
 
