@@ -327,9 +327,11 @@ pub struct Build {
     pub image: &'static Image,
     /// Its memory layout, printed as its `memory.x`.
     pub layout: &'static Layout,
-    /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the vehicle's images keep
-    /// 16 KiB of their `FLASH` region spare; the acceptance image, which runs only on the dev-kit bench and
-    /// carries its script beside the whole console, keeps 12 KiB; the bootloader has its whole partition.
+    /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the vehicle's master images, which
+    /// carry field update (the MAVLink FTP server and the transfer to the thrusters), keep 4 KiB of their `FLASH`
+    /// region spare; the acceptance image, which runs only on the dev-kit bench and carries its script beside the
+    /// whole console, keeps 12 KiB; the thruster's images 10 KiB of ACTIVE; the bootloader has its whole
+    /// partition.
     pub flash_budget: u32,
     /// Its budget for static RAM (`.data`, `.bss`, `.uninit`), in bytes; the rest of the RAM is stack.
     pub ram_budget: u32,
@@ -379,8 +381,8 @@ pub const BUILDS: [Build; 9] = [
     thruster("thruster-fw-motorless", "motorless", &THRUSTER_MOTORLESS),
     thruster("thruster-fw-bringup", "bringup", &THRUSTER),
     THRUSTER_BOOTLOADER,
-    master("lbv-master-fw", "", 96 * KIB),
-    master("lbv-master-fw-devkit", "devkit,legacy", 96 * KIB),
+    master("lbv-master-fw", "", 108 * KIB),
+    master("lbv-master-fw-devkit", "devkit,legacy", 108 * KIB),
     master("lbv-master-fw-acceptance", "acceptance", 100 * KIB),
 ];
 

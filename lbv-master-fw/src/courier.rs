@@ -213,7 +213,13 @@ impl Courier {
     /// An image for `slot` begins: `header` is its update file's header, which the update server has checked
     /// (`kind` its target byte, `payload_len` its payload's length). One under way for another thruster is dropped,
     /// unless it is being applied.
-    pub fn begin(&mut self, slot: u8, kind: u8, payload_len: u32, header: &[u8; FILE_HEADER_LEN]) -> Result<(), NotTaken> {
+    pub fn begin(
+        &mut self,
+        slot: u8,
+        kind: u8,
+        payload_len: u32,
+        header: &[u8; FILE_HEADER_LEN],
+    ) -> Result<(), NotTaken> {
         if self.transfer.is_some_and(|t| t.applier.is_some()) {
             return Err(NotTaken);
         }
@@ -300,6 +306,8 @@ impl Courier {
     }
 
     /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's).
+    // Out of line: every bus task calls it, and its code would be copied into each.
+    #[inline(never)]
     pub fn next(&mut self, now: Instant, ours: impl FnOnce(u8) -> bool) -> Option<Exchange> {
         let page = self.page().map(|page| (page.len() as u32, ext::crc32(page)));
         let chunk = |at: u16| {
@@ -361,6 +369,7 @@ impl Courier {
 
     /// What `exchange` got, at `now`: the transfer moves on, or ends; `out` takes the texts and the apply
     /// command's final acknowledgement.
+    #[inline(never)]
     pub fn on_result(
         &mut self,
         now: Instant,
@@ -625,3 +634,6 @@ pub async fn exchange<B: I2c>(bus: &mut B, address: u8, exchange: &Exchange) -> 
     }
     Err(ExchangeError::Busy)
 }
+
+#[cfg(test)]
+mod tests;

@@ -52,17 +52,36 @@ type Settings = Store<BlockingAsync<Flash<'static, Blocking>>>;
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
 type Work = lbv_master_fw::Polling<'static>;
-#[cfg(not(feature = "acceptance"))]
-const WORK: Work = lbv_master_fw::Polling {
-    transfers: Some(&TRANSFERS),
-};
-/// Update images on their way from the console's update server to the thrusters' bus tasks.
-#[cfg(not(feature = "acceptance"))]
-static TRANSFERS: lbv_master_fw::courier::Transfers = lbv_master_fw::courier::Transfers::new();
 #[cfg(feature = "acceptance")]
 type Work = lbv_master_fw::acceptance::Script<acceptance::Person>;
+/// Where the console's update server hands the images it receives: on to the thrusters, or in the acceptance
+/// image (which has no server) nowhere.
+#[cfg(not(feature = "acceptance"))]
+type Sink = lbv_master_fw::update::ThrusterSink<'static>;
 #[cfg(feature = "acceptance")]
-const WORK: Work = lbv_master_fw::acceptance::Script(acceptance::Person);
+type Sink = lbv_master_fw::update::CheckOnly;
+
+/// The buses' work and the update sink. The vehicle's share the images on their way from the console's update
+/// server to the thrusters' bus tasks, set up at start in a `StaticCell` (zeroed RAM): as a plain static their 2.4 KiB
+/// would be `.data`, its initial values kept in flash.
+#[cfg(not(feature = "acceptance"))]
+fn work_and_sink() -> (Work, Sink) {
+    static TRANSFERS: StaticCell<lbv_master_fw::courier::Transfers> = StaticCell::new();
+    let transfers: &'static _ = TRANSFERS.init_with(lbv_master_fw::courier::Transfers::new);
+    (
+        lbv_master_fw::Polling {
+            transfers: Some(transfers),
+        },
+        lbv_master_fw::update::ThrusterSink::new(transfers),
+    )
+}
+#[cfg(feature = "acceptance")]
+fn work_and_sink() -> (Work, Sink) {
+    (
+        lbv_master_fw::acceptance::Script(acceptance::Person),
+        lbv_master_fw::update::CheckOnly,
+    )
+}
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
@@ -153,6 +172,7 @@ async fn main(spawner: Spawner) {
         config
     });
 
+    let (work, update) = work_and_sink();
     spawner.spawn(unwrap!(master(
         Ports {
             buses: [bus1, bus2, bus3],
@@ -161,11 +181,8 @@ async fn main(spawner: Spawner) {
             console_tx,
             settings,
             reboot: SystemReset,
-            work: WORK,
-            #[cfg(not(feature = "acceptance"))]
-            update: lbv_master_fw::update::ThrusterSink::new(&TRANSFERS),
-            #[cfg(feature = "acceptance")]
-            update: lbv_master_fw::update::CheckOnly,
+            work,
+            update,
         },
         config
     )));
@@ -214,7 +231,7 @@ fn nominal_bit_timing() -> NominalBitTiming {
 
 /// The master's ports on the NUCLEO.
 type MasterPorts =
-    Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Settings, SystemReset, Work>;
+    Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Settings, SystemReset, Work, Sink>;
 
 /// The whole node, on the thread-mode executor. Its channels are set up at start in a `StaticCell` (zeroed RAM): a
 /// static with an initial value would take 2.5 KiB of flash, and inside the task's future they would be built on

@@ -21,6 +21,7 @@ const PAYLOAD_LEN: usize = 32 * 1024;
 /// MAV_RESULT_IN_PROGRESS and MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED.
 const IN_PROGRESS: u8 = 5;
 const ACCEPTED: u8 = 0;
+const DENIED: u8 = 2;
 const FAILED: u8 = 4;
 /// The version the update brings (the bench's thrusters run 0.1.0).
 const NEW: Version = Version::new(0, 2, 0);
@@ -174,6 +175,22 @@ pub fn field_update(run: &mut Run) {
         format!("put {state:?}, texts {texts:?}"),
     );
 
+    // A truncated file: the ground station closes the session short of the length its header gives.
+    let start = run.bench.now();
+    let mut short = update_file(families[2], NEW, &key);
+    short.truncate(short.len() / 2);
+    let (state, _) = put(run, "/update/thruster2.lbvu", short, 60.0);
+    let (acks, _) = apply(run, 2, 5.0);
+    let texts = texts_since(run, start, "thruster2.lbvu");
+    run.check(
+        "a truncated file stops short and cannot be applied",
+        state == UploadState::Done
+            && acks == [DENIED]
+            && texts.iter().any(|t| t.contains("stopped at 16424 of 32848 bytes"))
+            && texts.iter().any(|t| t.contains("nothing to apply")),
+        format!("put {state:?}, acks {acks:?}, texts {texts:?}"),
+    );
+
     // Armed: nothing is written.
     let start = run.bench.now();
     let arm = run.bench.ground.arm(true);
@@ -236,6 +253,41 @@ pub fn field_update(run: &mut Run) {
             && verified.is_some()
             && !kept.contains(" 0 pages"),
         format!("stopped at {acked_at_cut} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
+    );
+
+    // The master reset in the middle of an upload: the upload stops; sent again, it resumes from the pages the
+    // thruster holds.
+    let start = run.bench.now();
+    let file = update_file(families[5], Version::new(0, 3, 0), &key);
+    let mut acked_at_reset = 0;
+    let (stopped, _) = put_until(run, "/update/thruster5.lbvu", file.clone(), 60.0, |acked| {
+        acked_at_reset = acked;
+        acked > PAYLOAD_LEN / 2
+    });
+    run.bench.reboot_master();
+    run.run_for(1.0);
+    let (resumed, resume_s) = put(run, "/update/thruster5.lbvu", file, 60.0);
+    let verified = run.run_until(5.0, |bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, t)| *at >= start && t.starts_with("thruster5.lbvu") && t.contains("B verified"))
+    });
+    let texts = texts_since(run, start, "thruster5.lbvu");
+    let kept = texts
+        .iter()
+        .find(|t| t.contains("pages kept"))
+        .cloned()
+        .unwrap_or_default();
+    run.check(
+        "an upload stopped by the master's reset, sent again, resumes from the pages the thruster holds",
+        matches!(stopped, UploadState::Sending(_))
+            && resumed == UploadState::Done
+            && verified.is_some()
+            && !kept.contains(" 0 pages"),
+        format!("stopped at {acked_at_reset} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
     );
 }
 

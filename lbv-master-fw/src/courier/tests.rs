@@ -1,0 +1,345 @@
+//! The courier's decisions, exchange by exchange, on explicit time; the whole path over the bus runs in the bench's
+//! `field-update` scenario.
+
+use super::*;
+use tmc_proto::ext::CommandKind;
+
+const GCS: Sender = Sender {
+    system: 255,
+    component: 190,
+};
+
+fn t(ms: u64) -> Instant {
+    Instant::from_millis(ms)
+}
+
+/// A file header: target 1, version 0.2.0, a signature of 0x5A.
+fn header(payload_len: u32) -> [u8; FILE_HEADER_LEN] {
+    let mut header = [0x5A; FILE_HEADER_LEN];
+    header[..16].copy_from_slice(&[b'L', b'B', b'V', b'U', 1, 1, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0]);
+    header[8..12].copy_from_slice(&payload_len.to_le_bytes());
+    header
+}
+
+/// A courier with a transfer of `payload` begun for slot 0 and every byte handed on (at most a page and a write).
+fn courier_with(payload: &[u8]) -> Courier {
+    let mut courier = Courier::new();
+    courier
+        .begin(0, 1, payload.len() as u32, &header(payload.len() as u32))
+        .unwrap();
+    for (n, block) in payload.chunks(MAX_WRITE).enumerate() {
+        courier.write((n * MAX_WRITE) as u32, block).unwrap();
+    }
+    courier.finish(true).unwrap();
+    courier
+}
+
+fn done(exchange: &Exchange, body: ReplyBody) -> Result<Reply, ExchangeError> {
+    Ok(Reply::Done {
+        seq: exchange.frame.seq,
+        body,
+    })
+}
+
+fn refused(exchange: &Exchange, refusal: Refusal) -> Result<Reply, ExchangeError> {
+    Ok(Reply::Refused {
+        seq: exchange.frame.seq,
+        command: exchange.frame.command.kind(),
+        refusal,
+    })
+}
+
+fn version(checks_signatures: bool, version: [u8; 4]) -> ReplyBody {
+    let mut info = [0; ext::INFO_LEN];
+    info[8..12].copy_from_slice(&version);
+    ReplyBody::Version {
+        protocol: 1,
+        on_trial: false,
+        checks_signatures,
+        max_payload: 58 * 1024,
+        info,
+    }
+}
+
+/// What a thruster holding `dfu` and running `running` answers to `exchange` (and does: erases, writes).
+fn answer(dfu: &mut [u8], exchange: &Exchange, running: [u8; 4]) -> Result<Reply, ExchangeError> {
+    let body = match exchange.frame.command {
+        Command::Version => version(true, running),
+        Command::Begin { payload_len, .. } => ReplyBody::Begin { payload_len },
+        Command::Erase { page } => {
+            let start = usize::from(page) * PAGE;
+            dfu[start..start + PAGE].fill(0xFF);
+            ReplyBody::Erase { page }
+        }
+        Command::Write { offset, data } => {
+            let (at, bytes) = (offset as usize, data.as_slice());
+            dfu[at..at + bytes.len()].copy_from_slice(bytes);
+            ReplyBody::Write {
+                offset,
+                len: data.len(),
+                crc: ext::crc32(&dfu[at..at + bytes.len()]),
+            }
+        }
+        Command::Check { offset, len } => ReplyBody::Check {
+            offset,
+            len,
+            crc: ext::crc32(&dfu[offset as usize..(offset + len) as usize]),
+        },
+        Command::Finish { payload_len, .. } => ReplyBody::Finish { payload_len },
+        Command::Reboot => ReplyBody::Reboot,
+    };
+    done(exchange, body)
+}
+
+/// Hand `image` to the courier as the sink does (a write whenever there is room) while a thruster holding `dfu`
+/// answers every exchange, one per 20 ms, until the courier has nothing more to send; returns what it said and
+/// the commands it sent.
+fn carry(courier: &mut Courier, image: &[u8], dfu: &mut [u8], running: [u8; 4]) -> (Vec<Outgoing>, Vec<CommandKind>) {
+    let (mut said, mut sent) = (Vec::new(), Vec::new());
+    let mut offset = 0;
+    for ms in (0..1_000_000).step_by(20) {
+        while offset < image.len() && courier.has_room() {
+            let end = (offset + MAX_WRITE).min(image.len());
+            courier.write(offset as u32, &image[offset..end]).unwrap();
+            offset = end;
+            if offset == image.len() {
+                courier.finish(true).unwrap();
+            }
+        }
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            if courier.transfer.is_some_and(|t| matches!(t.step, Step::Restart(_))) {
+                continue;
+            }
+            break;
+        };
+        sent.push(exchange.frame.command.kind());
+        let result = answer(dfu, &exchange, running);
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    (said, sent)
+}
+
+fn begun(image: &[u8]) -> Courier {
+    let mut courier = Courier::new();
+    courier
+        .begin(0, 1, image.len() as u32, &header(image.len() as u32))
+        .unwrap();
+    courier
+}
+
+fn texts(said: &[Outgoing]) -> Vec<String> {
+    said.iter()
+        .filter_map(|o| match o {
+            Outgoing::Text(_, text) => Some(text.as_str().to_owned()),
+            _ => None,
+        })
+        .collect()
+}
+
+fn payload(len: usize) -> Vec<u8> {
+    (0..len).map(|i| (i * 7 + 1) as u8).collect()
+}
+
+#[test]
+fn an_image_is_written_page_by_page_verified_then_applied() {
+    let image = payload(5000);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let (said, sent) = carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    assert_eq!(&dfu[..image.len()], image.as_slice());
+    assert_eq!(texts(&said), ["thruster0.lbvu: 5000 B verified, 0 pages kept"]);
+    let count = |kind| sent.iter().filter(|k| **k == kind).count();
+    // 3 pages: each checked and erased; 32 + 32 + 14 chunks; the whole payload checked once more.
+    assert_eq!(
+        [
+            CommandKind::Version,
+            CommandKind::Begin,
+            CommandKind::Erase,
+            CommandKind::Write,
+            CommandKind::Check
+        ]
+        .map(count),
+        [1, 1, 3, 79, 4]
+    );
+    assert_eq!(courier.apply(0, GCS), Ok(true));
+    let (said, sent) = carry(&mut courier, &[], &mut dfu, [0, 2, 0, 0]);
+    assert_eq!(sent, [CommandKind::Finish, CommandKind::Reboot, CommandKind::Version]);
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: signature good, restarting",
+            "thruster0.lbvu: runs 0.2.0"
+        ]
+    );
+    assert!(said.contains(&Outgoing::CommandAck {
+        command: MAV_CMD_LBV_APPLY_UPDATE,
+        result: AckResult::Accepted,
+        to: GCS
+    }));
+    assert!(courier.transfer.is_none());
+}
+
+#[test]
+fn a_thruster_that_comes_back_on_its_old_image_fails_the_apply() {
+    let image = payload(64);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    assert_eq!(courier.apply(0, GCS), Ok(true));
+    let (said, _) = carry(&mut courier, &[], &mut dfu, [0, 1, 0, 0]);
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: signature good, restarting",
+            "thruster0.lbvu: still runs 0.1.0"
+        ]
+    );
+    assert!(said.contains(&Outgoing::CommandAck {
+        command: MAV_CMD_LBV_APPLY_UPDATE,
+        result: AckResult::Failed,
+        to: GCS
+    }));
+}
+
+#[test]
+fn pages_the_thruster_holds_are_kept() {
+    let image = payload(3 * PAGE);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    dfu[..2 * PAGE].copy_from_slice(&image[..2 * PAGE]);
+    let mut courier = begun(&image);
+    let (said, sent) = carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    assert_eq!(
+        sent.iter().filter(|k| **k == CommandKind::Erase).count(),
+        1,
+        "only the page it did not hold"
+    );
+    assert_eq!(texts(&said), ["thruster0.lbvu: 6144 B verified, 2 pages kept"]);
+    assert_eq!(&dfu[..image.len()], image.as_slice());
+}
+
+#[test]
+fn an_ids_only_controller_or_one_without_signatures_is_refused_before_anything_is_written() {
+    let mut courier = courier_with(&payload(64));
+    let hello = courier.next(t(0), |_| true).unwrap();
+    assert_eq!(hello.frame.command, Command::Version);
+    let status_frame = Err(ExchangeError::Frame(FrameError::MessageType {
+        expected: ext::EXT_REPLY_MT,
+        actual: 0x53,
+    }));
+    let mut said = Vec::new();
+    courier.on_result(t(0), &hello, status_frame, &mut |o| said.push(o));
+    assert_eq!(texts(&said), ["thruster0.lbvu: the thruster does not take updates"]);
+    assert!(courier.next(t(20), |_| true).is_none());
+    assert_eq!(courier.write(64, &[0; 8]), Err(NotTaken));
+
+    let mut courier = courier_with(&payload(64));
+    let hello = courier.next(t(0), |_| true).unwrap();
+    let mut said = Vec::new();
+    courier.on_result(t(0), &hello, done(&hello, version(false, [0; 4])), &mut |o| {
+        said.push(o)
+    });
+    let said = texts(&said);
+    assert!(
+        said.len() == 1 && said[0].starts_with("thruster0.lbvu: this thruster's firmware cannot"),
+        "{said:?}"
+    );
+    assert!(courier.transfer.is_none());
+}
+
+#[test]
+fn a_failed_exchange_is_sent_again_with_its_sequence_number_until_the_thruster_is_silent_too_long() {
+    let mut courier = courier_with(&payload(64));
+    let first = courier.next(t(0), |_| true).unwrap();
+    let mut said = Vec::new();
+    let mut ms = 0;
+    while ms < SILENCE_LIMIT.as_millis() {
+        let again = courier.next(t(ms), |_| true).unwrap();
+        assert_eq!(again.frame, first.frame);
+        courier.on_result(t(ms), &again, Err(ExchangeError::Bus), &mut |o| said.push(o));
+        assert!(said.is_empty(), "given up after {ms} ms");
+        ms += 20;
+    }
+    let last = courier.next(t(ms), |_| true).unwrap();
+    courier.on_result(t(ms), &last, Err(ExchangeError::Busy), &mut |o| said.push(o));
+    assert_eq!(texts(&said), ["thruster0.lbvu: the thruster stopped answering"]);
+    assert!(courier.transfer.is_none());
+}
+
+#[test]
+fn a_thruster_reset_mid_page_is_begun_again_and_the_page_written_again() {
+    let image = payload(PAGE);
+    let mut courier = courier_with(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let mut said = Vec::new();
+    let mut begins = 0;
+    let mut reset = false;
+    for ms in (0..200_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            break;
+        };
+        begins += usize::from(matches!(exchange.frame.command, Command::Begin { .. }));
+        let result = match exchange.frame.command {
+            // The third chunk finds the thruster reset: it has forgotten the update.
+            Command::Write { offset: 128, .. } if !reset => {
+                reset = true;
+                refused(&exchange, Refusal::NotBegun)
+            }
+            _ => answer(&mut dfu, &exchange, [0, 1, 0, 0]),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(begins, 2);
+    assert_eq!(&dfu[..PAGE], image.as_slice());
+    assert_eq!(texts(&said), ["thruster0.lbvu: 2048 B verified, 0 pages kept"]);
+}
+
+#[test]
+fn a_read_back_that_differs_or_a_refusal_ends_the_transfer_with_its_reason() {
+    let mut courier = courier_with(&payload(PAGE));
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let mut said = Vec::new();
+    for ms in (0..100_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            break;
+        };
+        let result = match exchange.frame.command {
+            Command::Write { offset, data } => done(
+                &exchange,
+                ReplyBody::Write {
+                    offset,
+                    len: data.len(),
+                    crc: 0xDEAD_BEEF,
+                },
+            ),
+            _ => answer(&mut dfu, &exchange, [0, 1, 0, 0]),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(texts(&said), ["thruster0.lbvu: the flash read back differs"]);
+    assert_eq!(courier.apply(0, GCS), Err(NotTaken));
+
+    let mut courier = courier_with(&payload(64));
+    let hello = courier.next(t(0), |_| true).unwrap();
+    courier.on_result(t(0), &hello, done(&hello, version(true, [0; 4])), &mut |_| {});
+    let begin = courier.next(t(20), |_| true).unwrap();
+    let mut said = Vec::new();
+    courier.on_result(t(20), &begin, refused(&begin, Refusal::OnTrial), &mut |o| said.push(o));
+    let said = texts(&said);
+    assert!(
+        said.len() == 1 && said[0].starts_with("thruster0.lbvu: the running image is on trial"),
+        "{said:?}"
+    );
+}
+
+#[test]
+fn a_thruster_of_another_bus_is_not_served_and_a_stale_reply_is_not_taken() {
+    let mut courier = courier_with(&payload(64));
+    assert!(courier.next(t(0), |slot| slot != 0).is_none());
+    let hello = courier.next(t(0), |_| true).unwrap();
+    let stale = Ok(Reply::Done {
+        seq: hello.frame.seq.wrapping_sub(1),
+        body: version(true, [0; 4]),
+    });
+    courier.on_result(t(0), &hello, stale, &mut |_| {});
+    assert_eq!(courier.next(t(20), |_| true).map(|e| e.frame), Some(hello.frame));
+}
