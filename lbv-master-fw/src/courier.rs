@@ -180,7 +180,7 @@ impl Ending {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NotTaken;
 
-/// The transfer under way and the bytes waiting for the thruster: the state [`ThrusterSink`] and the bus tasks
+/// The transfer under way and the bytes waiting for the thruster: the state [`crate::update::ThrusterSink`] and the bus tasks
 /// share.
 #[derive(Debug)]
 pub struct Courier {
