@@ -17,7 +17,9 @@
 //!    it in 64-byte chunks, each chunk's read-back CRC compared with the bytes sent.
 //! 4. `Check` of the whole payload against the CRC of every byte received: written and verified.
 //! 5. On the apply command: `Finish` (the thruster checks the image's information record and the signature, and
-//!    marks it for its bootloader), `Reboot`, then `Version` until it answers again, running the new version.
+//!    marks it for its bootloader), `Reboot`, then `Version` until it answers again, running the new version on
+//!    trial, and then until it has confirmed itself: the apply command's final COMMAND_ACK says ACCEPTED only then
+//!    (a reset before that and the bootloader reverts it: FAILED, "reverted to 0.1.0").
 //!
 //! An exchange that fails (no answer, a bus error, a reply that does not decode, or one still busy) is sent again
 //! at the next cycle with the same sequence number (every command can be repeated); a thruster silent for
@@ -53,6 +55,11 @@ pub const SILENCE_LIMIT: Duration = Duration::from_secs(3);
 pub const RESTART_LIMIT: Duration = Duration::from_secs(15);
 /// The first `Version` after `Reboot` is sent this long after it.
 const RESTART_FIRST_ASK: Duration = Duration::from_millis(200);
+/// A new image on trial confirms itself after 3 s of every task healthy and 25 orders from the master
+/// (docs/thruster.md, "A new image on trial"): it has this long.
+pub const CONFIRM_LIMIT: Duration = Duration::from_secs(30);
+/// While it is on trial, `Version` is asked this often.
+const TRIAL_ASK: Duration = Duration::from_millis(500);
 /// A reply read busy is read again this often, up to [`BUSY_READS`] times in one exchange; then the command is
 /// sent again at the next cycle.
 const BUSY_PAUSE: Duration = Duration::from_millis(2);
@@ -86,6 +93,8 @@ enum Step {
     Reboot,
     /// Wait for it to answer again, since the reboot.
     Restart(Instant),
+    /// The new image runs on trial, since then: wait for it to confirm itself, asking again at `next`.
+    Trial { since: Instant, next: Instant },
 }
 
 /// One image on its way to one thruster.
@@ -156,6 +165,8 @@ enum Ending {
     Restarts,
     NotBack,
     OldVersion([u8; 4]),
+    Reverted([u8; 4]),
+    NotConfirmed,
 }
 
 impl Ending {
@@ -168,9 +179,9 @@ impl Ending {
             Ending::Mismatch => f.write_str("the thruster's copy differs"),
             Ending::Restarts => f.write_str("the thruster keeps resetting"),
             Ending::NotBack => f.write_str("the thruster did not come back"),
-            Ending::OldVersion([major, minor, p0, p1]) => {
-                write!(f, "still runs {major}.{minor}.{}", u16::from_le_bytes([p0, p1]))
-            }
+            Ending::OldVersion(version) => write!(f, "still runs {}", Ver(version)),
+            Ending::Reverted(version) => write!(f, "reverted to {}", Ver(version)),
+            Ending::NotConfirmed => f.write_str("the new image did not confirm"),
         }
     }
 }
@@ -320,10 +331,11 @@ impl Courier {
             (Step::Idle, Some(_)) => Step::CheckPage,
             (Step::Idle, None) if transfer.complete && transfer.page_offset == transfer.payload_len => Step::Verify,
             (Step::Restart(since), _) if now < since + RESTART_FIRST_ASK => return None,
+            (Step::Trial { next, .. }, _) if now < next => return None,
             (step, _) => step,
         };
         let command = match step {
-            Step::Hello | Step::Restart(_) => Command::Version,
+            Step::Hello | Step::Restart(_) | Step::Trial { .. } => Command::Version,
             Step::Begin => Command::Begin {
                 payload_len: transfer.payload_len,
                 target: transfer.kind,
@@ -393,11 +405,13 @@ impl Courier {
                 let since = *transfer.silent_since.get_or_insert(now);
                 let limit = match transfer.step {
                     Step::Restart(rebooted) => now >= rebooted + RESTART_LIMIT,
+                    // A reset on trial brings the bootloader's revert first.
+                    Step::Trial { .. } => now >= since + RESTART_LIMIT,
                     _ => now >= since + SILENCE_LIMIT,
                 };
                 if limit {
                     let ending = match transfer.step {
-                        Step::Restart(_) => Ending::NotBack,
+                        Step::Restart(_) | Step::Trial { .. } => Ending::NotBack,
                         _ => Ending::Silent,
                     };
                     self.end(ending, out);
@@ -426,6 +440,14 @@ impl Courier {
                 refusal: Refusal::NotFinished | Refusal::NotBegun,
                 ..
             } if transfer.step == Step::Reboot => {
+                transfer.step = Step::Restart(now);
+                return;
+            }
+            // Reset during Finish, after it marked the image: the bootloader has swapped it in.
+            Reply::Refused {
+                refusal: Refusal::OnTrial,
+                ..
+            } if transfer.applier.is_some() => {
                 transfer.step = Step::Restart(now);
                 return;
             }
@@ -478,25 +500,45 @@ impl Courier {
                 say(out, Severity::Info, slot, format_args!("signature good, restarting"));
                 Step::Restart(now)
             }
-            (Step::Restart(_), ReplyBody::Version { info, on_trial, .. }) => {
+            (Step::Restart(_) | Step::Trial { .. }, ReplyBody::Version { info, on_trial, .. }) => {
                 let running = info
                     .get(8..12)
                     .and_then(|v| <[u8; 4]>::try_from(v).ok())
                     .unwrap_or_default();
-                if running != transfer.version {
-                    return self.end(Ending::OldVersion(running), out);
+                match transfer.step {
+                    _ if running != transfer.version => {
+                        let ending = match transfer.step {
+                            Step::Restart(_) => Ending::OldVersion(running),
+                            _ => Ending::Reverted(running),
+                        };
+                        return self.end(ending, out);
+                    }
+                    _ if !on_trial => {
+                        say(out, Severity::Info, slot, format_args!("{} confirmed", Ver(running)));
+                        self.acknowledge(AckResult::Accepted, out);
+                        self.transfer = None;
+                        return;
+                    }
+                    Step::Trial { since, .. } if now >= since + CONFIRM_LIMIT => {
+                        return self.end(Ending::NotConfirmed, out);
+                    }
+                    Step::Trial { since, .. } => Step::Trial {
+                        since,
+                        next: now + TRIAL_ASK,
+                    },
+                    _ => {
+                        say(
+                            out,
+                            Severity::Info,
+                            slot,
+                            format_args!("runs {}, on trial", Ver(running)),
+                        );
+                        Step::Trial {
+                            since: now,
+                            next: now + TRIAL_ASK,
+                        }
+                    }
                 }
-                let [major, minor, p0, p1] = running;
-                let trial = if on_trial { ", on trial" } else { "" };
-                say(
-                    out,
-                    Severity::Info,
-                    slot,
-                    format_args!("runs {major}.{minor}.{}{trial}", u16::from_le_bytes([p0, p1])),
-                );
-                self.acknowledge(AckResult::Accepted, out);
-                self.transfer = None;
-                return;
             }
             // A reply that does not fit the step: ask again.
             (step, _) => step,
@@ -535,6 +577,16 @@ impl Courier {
                 to,
             });
         }
+    }
+}
+
+/// A version as the image info holds it (major, minor, patch u16 LE), for a person: "0.2.0".
+struct Ver([u8; 4]);
+
+impl core::fmt::Display for Ver {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let [major, minor, p0, p1] = self.0;
+        write!(f, "{major}.{minor}.{}", u16::from_le_bytes([p0, p1]))
     }
 }
 

@@ -15,8 +15,8 @@ the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operato
                crclocal` computes)
     refused    the same image to /update/thruster1.lbvu, a Legacy slot: the put fails, STATUSTEXT says why
     apply      MAV_CMD_LBV_APPLY_UPDATE (31010) param1 0: COMMAND_ACK IN_PROGRESS, then the final one once the
-               thruster runs the image (ACCEPTED) or refused it, and what was done; param1 2 (nothing received
-               there): DENIED
+               thruster has confirmed the image (ACCEPTED) or it failed, and what was done; param1 2 (nothing
+               received there): DENIED
 
 Prints a JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when
 pymavlink is missing.
@@ -114,7 +114,7 @@ class Ground:
         def results():
             return [result for command, result in self.acks[since:] if command == APPLY_UPDATE]
 
-        self.wait(lambda: results() and results()[-1] != IN_PROGRESS, 10.0, f"the final COMMAND_ACK (slot {slot})")
+        self.wait(lambda: results() and results()[-1] != IN_PROGRESS, 20.0, f"the final COMMAND_ACK (slot {slot})")
         return results()
 
 

@@ -18,8 +18,8 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
               MAVProxy sent more than once
     crc       `ftp crc /update/thruster2.lbvu` (losses off again): the CRC32 `ftp crclocal` gives the file
     listed    `ftp list /update`: thruster2.lbvu 4176 bytes
-    apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED once the thruster runs the image, and
-              the texts on the way
+    apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED once the thruster runs the image and
+              has confirmed it, and the texts on the way
     remove    `ftp rm /update/thruster2.lbvu`: "thruster2.lbvu: removed"; `long MAV_CMD_USER_1 2`: DENIED
 
 Prints a JSON summary;
@@ -139,8 +139,8 @@ class Session:
     def apply(self):
         since = time.monotonic()
         self.mavproxy.type("long MAV_CMD_USER_1 2")
-        self.wait(lambda: self.ack(since) is not None, 10.0, "the apply command's final COMMAND_ACK")
-        self.wait(lambda: len(self.observer.texts(since)) >= 3, 2.0, "the apply command's STATUSTEXTs")
+        self.wait(lambda: self.ack(since) is not None, 20.0, "the apply command's final COMMAND_ACK")
+        self.wait(lambda: len(self.observer.texts(since)) >= 4, 2.0, "the apply command's STATUSTEXTs")
         self.summary["apply"] = {"results": self.acks(since), "texts": self.observer.texts(since)}
 
     def remove(self):

@@ -113,7 +113,8 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         serde_json::json!([
             "thruster2.lbvu: applying",
             "thruster2.lbvu: signature good, restarting",
-            "thruster2.lbvu: runs 0.2.0, on trial"
+            "thruster2.lbvu: runs 0.2.0, on trial",
+            "thruster2.lbvu: 0.2.0 confirmed"
         ]),
         "{summary}"
     );

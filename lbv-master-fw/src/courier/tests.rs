@@ -168,7 +168,7 @@ fn an_image_is_written_page_by_page_verified_then_applied() {
         texts(&said),
         [
             "thruster0.lbvu: signature good, restarting",
-            "thruster0.lbvu: runs 0.2.0"
+            "thruster0.lbvu: 0.2.0 confirmed"
         ]
     );
     assert!(said.contains(&Outgoing::CommandAck {
@@ -342,4 +342,118 @@ fn a_thruster_of_another_bus_is_not_served_and_a_stale_reply_is_not_taken() {
     });
     courier.on_result(t(0), &hello, stale, &mut |_| {});
     assert_eq!(courier.next(t(20), |_| true).map(|e| e.frame), Some(hello.frame));
+}
+
+/// A Version reply running `running`, on trial or not.
+fn running(exchange: &Exchange, running: [u8; 4], on_trial: bool) -> Result<Reply, ExchangeError> {
+    let mut body = version(true, running);
+    if let ReplyBody::Version { on_trial: trial, .. } = &mut body {
+        *trial = on_trial;
+    }
+    done(exchange, body)
+}
+
+/// A courier whose transfer has been applied and whose thruster has just been told to reboot, at `t(0)`.
+fn rebooting() -> Courier {
+    let image = payload(64);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    courier.apply(0, GCS).unwrap();
+    for command in [CommandKind::Finish, CommandKind::Reboot] {
+        let exchange = courier.next(t(0), |_| true).unwrap();
+        assert_eq!(exchange.frame.command.kind(), command);
+        let result = answer(&mut dfu, &exchange, [0, 1, 0, 0]);
+        courier.on_result(t(0), &exchange, result, &mut |_| {});
+    }
+    courier
+}
+
+#[test]
+fn the_apply_is_accepted_only_once_the_new_image_has_confirmed_itself() {
+    let mut courier = rebooting();
+    let mut said = Vec::new();
+    // Silent while its bootloader swaps, then on trial for a while, then confirmed.
+    let mut asked = Vec::new();
+    for ms in (20..10_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        asked.push(ms);
+        let result = match ms {
+            ..3_000 => Err(ExchangeError::Bus),
+            3_000..6_000 => running(&exchange, [0, 2, 0, 0], true),
+            _ => running(&exchange, [0, 2, 0, 0], false),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: runs 0.2.0, on trial",
+            "thruster0.lbvu: 0.2.0 confirmed"
+        ]
+    );
+    assert_eq!(
+        said.last(),
+        Some(&Outgoing::CommandAck {
+            command: MAV_CMD_LBV_APPLY_UPDATE,
+            result: AckResult::Accepted,
+            to: GCS
+        })
+    );
+    // Every cycle from 200 ms after the reboot until it answers; twice a second while it is on trial.
+    let on_trial = asked.iter().filter(|ms| (3_000..6_000).contains(*ms)).count();
+    assert_eq!((asked.first(), on_trial), (Some(&200), 6));
+    assert!(courier.transfer.is_none());
+}
+
+#[test]
+fn a_new_image_reset_before_it_confirms_is_reverted_and_the_apply_fails() {
+    let mut courier = rebooting();
+    let mut said = Vec::new();
+    for ms in (200..20_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        let result = match ms {
+            ..1_000 => running(&exchange, [0, 2, 0, 0], true),
+            // Reset: silent while the bootloader swaps the old image back, then the old image answers.
+            1_000..4_000 => Err(ExchangeError::Bus),
+            _ => running(&exchange, [0, 1, 0, 0], false),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: runs 0.2.0, on trial",
+            "thruster0.lbvu: reverted to 0.1.0"
+        ]
+    );
+    assert!(said.contains(&Outgoing::CommandAck {
+        command: MAV_CMD_LBV_APPLY_UPDATE,
+        result: AckResult::Failed,
+        to: GCS
+    }));
+}
+
+#[test]
+fn a_new_image_that_never_confirms_fails_the_apply() {
+    let mut courier = rebooting();
+    let mut said = Vec::new();
+    for ms in (200..40_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        let result = running(&exchange, [0, 2, 0, 0], true);
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: runs 0.2.0, on trial",
+            "thruster0.lbvu: the new image did not confirm"
+        ]
+    );
 }

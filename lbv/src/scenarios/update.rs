@@ -71,12 +71,36 @@ fn put_until(
 /// Send the apply command for `slot` and wait up to `limit` s for its final COMMAND_ACK; returns the results of
 /// the acknowledgements it got (the first IN_PROGRESS when it started) and the seconds to the last.
 fn apply(run: &mut Run, slot: u8, limit: f64) -> (Vec<u8>, f64) {
+    apply_cut(run, slot, limit, None)
+}
+
+/// As [`apply`], cutting the thruster's power for 0.1 s `cut.1` s after the master says `cut.0` of it.
+fn apply_cut(run: &mut Run, slot: u8, limit: f64, cut: Option<(&str, f64)>) -> (Vec<u8>, f64) {
+    let start = run.bench.now();
     let acks_before = run.bench.ground.seen.acks.len();
     let command = run.bench.ground.command(
         MAV_CMD_LBV_APPLY_UPDATE,
         [f32::from(slot), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
     );
     run.bench.send(command);
+    if let Some((text, after)) = cut {
+        let file = format!("thruster{slot}.lbvu: {text}");
+        run.run_until(limit, |bench| {
+            bench
+                .ground
+                .seen
+                .texts
+                .iter()
+                .any(|(at, said)| *at >= start && said.starts_with(&file))
+        });
+        run.run_for(after);
+        let thruster = usize::from(slot);
+        run.bench
+            .note(format!("power cut: T{} ({text} + {after} s)", thruster + 1));
+        run.inject(Fault::PowerCut { thruster });
+        run.run_for(0.1);
+        run.clear(Fault::PowerCut { thruster });
+    }
     let results = |bench: &crate::bench::Bench| -> Vec<u8> {
         bench.ground.seen.acks[acks_before..]
             .iter()
@@ -84,8 +108,16 @@ fn apply(run: &mut Run, slot: u8, limit: f64) -> (Vec<u8>, f64) {
             .map(|(_, result)| *result)
             .collect()
     };
-    let took = run.run_until(limit, |bench| results(bench).last().is_some_and(|r| *r != IN_PROGRESS));
-    (results(&run.bench), took.map_or(f64::NAN, |t| round(t, 2)))
+    run.run_until(limit, |bench| results(bench).last().is_some_and(|r| *r != IN_PROGRESS));
+    (
+        results(&run.bench),
+        round((run.bench.now() - start).as_micros() as f64 / 1e6, 2),
+    )
+}
+
+/// The version thruster `index` runs now, as its ACTIVE partition holds it.
+fn running(run: &Run, index: usize) -> Option<Version> {
+    run.bench.thrusters.get(index)?.running_image().map(|info| info.version)
 }
 
 /// Texts for `file` since `since`.
@@ -106,7 +138,7 @@ pub fn field_update(run: &mut Run) {
     let key = dev_key();
     run.run_for(1.0);
     let families: Vec<Family> = run.bench.thrusters.iter().map(|t| t.config.family).collect();
-    let mut times = Vec::new();
+    let (mut put_times, mut apply_times) = (Vec::new(), Vec::new());
     for (slot, family) in families.iter().enumerate() {
         let file_name = format!("thruster{slot}.lbvu");
         let path = format!("/update/{file_name}");
@@ -123,7 +155,8 @@ pub fn field_update(run: &mut Run) {
         });
         let (acks, apply_s) = apply(run, slot as u8, 30.0);
         let texts = texts_since(run, start, &file_name);
-        let runs_new = texts.iter().any(|text| text.ends_with("runs 0.2.0, on trial"));
+        let runs_new = texts.iter().any(|text| text.ends_with("runs 0.2.0, on trial"))
+            && texts.last().is_some_and(|text| text.ends_with("0.2.0 confirmed"));
         run.check(
             &format!("T{} ({family:?}) is updated from the ground station", slot + 1),
             put_state == UploadState::Done && verified.is_some() && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
@@ -136,9 +169,13 @@ pub fn field_update(run: &mut Run) {
             rate > 40.0 * (families.len() - 1) as f64,
             format!("{} polls/s of the other {}", round(rate, 1), families.len() - 1),
         );
-        times.push(json!({"slot": slot, "put_s": put_s, "apply_s": apply_s}));
+        put_times.push(put_s);
+        apply_times.push(apply_s);
     }
-    run.metric("update_times", json!(times));
+    // Per thruster, in table order: the FTP put of a 32 KiB image (its bytes on the thruster), and the apply
+    // (checked, swapped in, confirmed).
+    run.metric("update_put_s", json!(put_times));
+    run.metric("update_apply_s", json!(apply_times));
 
     // Signed with another key: written, then refused by the thruster's signature check.
     let start = run.bench.now();
@@ -255,6 +292,16 @@ pub fn field_update(run: &mut Run) {
         format!("stopped at {acked_at_cut} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
     );
 
+    // Power cuts while an image is applied. In the thruster's signature check (Finish): it comes back with the image
+    // marked or not, begins again where it must, and takes it.
+    let start = run.bench.now();
+    let (acks, took) = apply_cut(run, 4, 60.0, Some(("applying", 0.02)));
+    let texts = texts_since(run, start, "thruster4.lbvu");
+    run.check(
+        "a power cut in the thruster's signature check: the image is applied all the same",
+        acks == [IN_PROGRESS, ACCEPTED] && running(run, 4) == Some(Version::new(0, 3, 0)),
+        format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 4)),
+    );
     // The master reset in the middle of an upload: the upload stops; sent again, it resumes from the pages the
     // thruster holds.
     let start = run.bench.now();
@@ -288,6 +335,33 @@ pub fn field_update(run: &mut Run) {
             && verified.is_some()
             && !kept.contains(" 0 pages"),
         format!("stopped at {acked_at_reset} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
+    );
+
+    // On trial, before the new image confirms itself: the bootloader reverts it, and the apply fails saying so.
+    let start = run.bench.now();
+    let (state, _) = put(
+        run,
+        "/update/thruster3.lbvu",
+        update_file(families[3], Version::new(0, 3, 0), &key),
+        60.0,
+    );
+    run.run_until(5.0, |bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, t)| *at >= start && t.starts_with("thruster3.lbvu") && t.contains("B verified"))
+    });
+    let (acks, took) = apply_cut(run, 3, 60.0, Some(("runs 0.3.0, on trial", 0.5)));
+    let texts = texts_since(run, start, "thruster3.lbvu");
+    run.check(
+        "a power cut before the new image confirms itself: it is reverted, and the apply fails",
+        state == UploadState::Done
+            && acks == [IN_PROGRESS, FAILED]
+            && texts.last().is_some_and(|t| t.ends_with("reverted to 0.2.0"))
+            && running(run, 3) == Some(NEW),
+        format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 3)),
     );
 }
 
