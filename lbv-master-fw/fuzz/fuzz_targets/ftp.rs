@@ -91,7 +91,7 @@ impl UpdateSink for Sink {
         Ok(())
     }
 
-    fn apply(&mut self, _: UpdateTarget) -> Result<Applied, Nak> {
+    fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
         Ok(Applied::NotWired)
     }
 }

@@ -1,0 +1,83 @@
+//! The courier that carries an update image to a thruster: any update file headers, any image bytes handed on in
+//! any sizes and at any offsets, finished or dropped, applied or not, and for every exchange it asks for any reply
+//! bytes a thruster (or the bus's noise) gives, decoded as the bus task decodes them, or a failed transfer, as
+//! time passes. Nothing panics; the sink always gets room again once the bus task has had its exchanges; an
+//! exchange is only ever asked for the slot begun with.
+#![no_main]
+
+use arbitrary::Arbitrary;
+use embassy_time::{Duration, Instant};
+use lbv_master_fw::courier::{Courier, ExchangeError, MAX_WRITE};
+use lbv_master_fw::shared::Sender;
+// The host's time driver (the harness passes its own instants).
+use lbv_sim as _;
+use libfuzzer_sys::fuzz_target;
+use tmc_proto::ext::{self, Reply};
+
+#[derive(Arbitrary, Debug)]
+enum Step {
+    Begin { slot: u8, kind: u8, payload_len: u32, header: Vec<u8> },
+    Write { offset: u32, data: Vec<u8> },
+    Finish(bool),
+    Apply(u8),
+    /// The bus task's turn: the reply's bytes (or none: the transfer failed).
+    Exchange { reply: Option<Vec<u8>>, busy: bool },
+    Wait(u16),
+}
+
+fuzz_target!(|steps: Vec<Step>| {
+    let mut courier = Courier::new();
+    let mut now = Instant::from_ticks(0);
+    let mut slot_begun = None;
+    for step in steps {
+        match step {
+            Step::Begin { slot, kind, payload_len, header } => {
+                let mut bytes = [0u8; 80];
+                for (to, from) in bytes.iter_mut().zip(header) {
+                    *to = from;
+                }
+                if courier.begin(slot, kind, payload_len, &bytes).is_ok() {
+                    slot_begun = Some(slot);
+                }
+            }
+            Step::Write { offset, data } => {
+                let data = data.get(..MAX_WRITE).unwrap_or(&data);
+                let _ = courier.write(offset, data);
+            }
+            Step::Finish(complete) => {
+                let _ = courier.finish(complete);
+            }
+            Step::Apply(slot) => {
+                let _ = courier.apply(slot, Sender { system: 255, component: 190 });
+            }
+            Step::Exchange { reply, busy } => {
+                let Some(exchange) = courier.next(now, |_| true) else { continue };
+                assert_eq!(Some(exchange.slot), slot_begun, "an exchange for a slot never begun");
+                let result = match reply {
+                    Some(bytes) => {
+                        let len = ext::reply_len(exchange.frame.command.kind()).min(bytes.len());
+                        match Reply::decode(&bytes[..len]) {
+                            Ok(reply) => Ok(reply),
+                            Err(error) => Err(ExchangeError::Frame(error)),
+                        }
+                    }
+                    None if busy => Err(ExchangeError::Busy),
+                    None => Err(ExchangeError::Bus),
+                };
+                courier.on_result(now, &exchange, result, &mut |_| {});
+            }
+            Step::Wait(ms) => now += Duration::from_millis(u64::from(ms)),
+        }
+    }
+    // Left to a thruster that answers nothing, the courier gives up within its limits and makes room.
+    for _ in 0..10_000 {
+        if courier.has_room() && courier.next(now, |_| true).is_none() {
+            break;
+        }
+        if let Some(exchange) = courier.next(now, |_| true) {
+            courier.on_result(now, &exchange, Err(ExchangeError::Bus), &mut |_| {});
+        }
+        now += Duration::from_millis(20);
+    }
+    assert!(courier.has_room(), "the sink is left waiting");
+});
