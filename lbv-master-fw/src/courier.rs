@@ -35,7 +35,8 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
 use tmc_proto::ext::{
-    self, Chunk, Command, CommandFrame, Crc32, FrameError, MAX_CHUNK, Refusal, Reply, ReplyBody, SIGNATURE_LEN,
+    self, Chunk, Command, CommandFrame, CommandKind, Crc32, FrameError, MAX_CHUNK, Refusal, Reply, ReplyBody,
+    SIGNATURE_LEN,
 };
 
 use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Text, text};
@@ -137,6 +138,37 @@ pub struct Exchange {
     /// How long to wait before the reply is read: a page erase stalls the thruster's CPU, the signature check
     /// takes time.
     pub wait: Duration,
+}
+
+impl Exchange {
+    /// What its reply is read against: the few bytes of it a bus task keeps while the exchange is on the bus.
+    pub fn sent(&self) -> Sent {
+        Sent {
+            slot: self.slot,
+            seq: self.frame.seq,
+            command: self.frame.command.kind(),
+            wait: self.wait,
+        }
+    }
+}
+
+/// An exchange's command as sent: whom to, its sequence number and kind, and the wait before its reply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Sent {
+    /// The thruster's slot in the table.
+    pub slot: u8,
+    /// The command's sequence number.
+    pub seq: u8,
+    /// Which command.
+    pub command: CommandKind,
+    /// As [`Exchange::wait`].
+    pub wait: Duration,
+}
+
+impl From<&Exchange> for Sent {
+    fn from(exchange: &Exchange) -> Self {
+        exchange.sent()
+    }
 }
 
 /// Why an exchange got no reply to its command.
@@ -385,17 +417,18 @@ impl Courier {
     pub fn on_result(
         &mut self,
         now: Instant,
-        exchange: &Exchange,
+        exchange: impl Into<Sent>,
         result: Result<Reply, ExchangeError>,
         out: &mut impl FnMut(Outgoing),
     ) {
+        let exchange: Sent = exchange.into();
         let page = self.page().map(|page| (page.len(), ext::crc32(page)));
         let Some(transfer) = self.transfer.as_mut().filter(|t| t.slot == exchange.slot) else {
             return;
         };
         let slot = transfer.slot;
         let reply = match result {
-            Ok(reply) if reply.seq() == exchange.frame.seq && reply.command() == exchange.frame.command.kind() => reply,
+            Ok(reply) if reply.seq() == exchange.seq && reply.command() == exchange.command => reply,
             Err(ExchangeError::Frame(FrameError::MessageType { .. })) if transfer.step == Step::Hello => {
                 return self.end(Ending::NoExtension, out);
             }
@@ -651,7 +684,7 @@ impl Transfers {
     }
 
     /// What `exchange` got: `out` takes the texts and acknowledgements; the sink hears that the courier moved on.
-    pub fn done(&self, exchange: &Exchange, result: Result<Reply, ExchangeError>, out: &mut impl FnMut(Outgoing)) {
+    pub fn done(&self, exchange: Sent, result: Result<Reply, ExchangeError>, out: &mut impl FnMut(Outgoing)) {
         self.with(|courier| courier.on_result(Instant::now(), exchange, result, out));
         self.moved.signal(());
     }
@@ -664,18 +697,22 @@ impl Transfers {
     }
 }
 
-/// Send the exchange's command to the thruster at `address` and read its reply, reading again while it is busy.
-pub async fn exchange<B: I2c>(bus: &mut B, address: u8, exchange: &Exchange) -> Result<Reply, ExchangeError> {
-    bus.write(address, exchange.frame.encode().as_bytes())
-        .await
-        .map_err(|_| ExchangeError::Bus)?;
-    if exchange.wait > Duration::from_ticks(0) {
-        Timer::after(exchange.wait).await;
+/// Send the command in `buffer` (an exchange's, encoded: its first `len` bytes) to the thruster at `address` and read
+/// its reply into the same buffer, reading again while it is busy. The caller's one buffer is all the bytes kept
+/// across the transfers: the bus task's future holds them once for each of the master's three buses.
+pub async fn exchange<B: I2c>(
+    bus: &mut B,
+    address: u8,
+    buffer: &mut [u8; ext::MAX_FRAME_LEN],
+    len: usize,
+    sent: &Sent,
+) -> Result<Reply, ExchangeError> {
+    let command = buffer.get(..len).ok_or(ExchangeError::Bus)?;
+    bus.write(address, command).await.map_err(|_| ExchangeError::Bus)?;
+    if sent.wait > Duration::from_ticks(0) {
+        Timer::after(sent.wait).await;
     }
-    let mut bytes = [0; ext::MAX_FRAME_LEN];
-    let reply = bytes
-        .get_mut(..ext::reply_len(exchange.frame.command.kind()))
-        .unwrap_or_default();
+    let reply = buffer.get_mut(..ext::reply_len(sent.command)).unwrap_or_default();
     for _ in 0..BUSY_READS {
         bus.read(address, reply).await.map_err(|_| ExchangeError::Bus)?;
         match Reply::decode(reply) {

@@ -38,7 +38,7 @@ use courier::Transfers;
 use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
 use shared::{BUSES, Severity, Shared, text};
-use thrusters::bus_task;
+use thrusters::{Links, bus_task};
 use update::UpdateSink;
 use vehicle::vehicle_task;
 
@@ -86,10 +86,11 @@ pub struct Polling<'a> {
 impl BusWork for Polling<'_> {
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
         let [first, second, third] = buses;
+        let links = Links::new(&config.poll);
         join3(
-            poll_bus(first, 0, config, shared, self.transfers),
-            poll_bus(second, 1, config, shared, self.transfers),
-            poll_bus(third, 2, config, shared, self.transfers),
+            poll_bus(first, 0, config, shared, &links, self.transfers),
+            poll_bus(second, 1, config, shared, &links, self.transfers),
+            poll_bus(third, 2, config, shared, &links, self.transfers),
         )
         .await;
     }
@@ -107,10 +108,20 @@ async fn poll_bus<B: I2c + BusRecovery>(
     index: u8,
     config: &MasterConfig,
     shared: &Shared,
+    links: &Links,
     transfers: Option<&Transfers>,
 ) {
     if config.thrusters.uses_bus(index) {
-        bus_task(bus, index, config.thrusters.as_slice(), &config.poll, shared, transfers).await
+        bus_task(
+            bus,
+            index,
+            config.thrusters.as_slice(),
+            &config.poll,
+            shared,
+            links,
+            transfers,
+        )
+        .await
     } else {
         core::future::pending().await
     }

@@ -20,6 +20,8 @@
 //! row). After a timeout or a bus error the bus is recovered (up to 9 SCL pulses, then STOP) and polling goes on
 //! with the next thruster.
 
+use core::cell::Cell;
+
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::i2c::ErrorKind;
@@ -731,15 +733,30 @@ async fn poll_slot<B: I2c>(
     })
 }
 
+/// Each thruster's link health and fault watch, kept between cycles by the task of its bus. One for the whole table,
+/// which the bus tasks share: a slot is only ever touched by its own bus's task, and the master keeps one copy
+/// instead of one for each of its three buses (912 B of RAM each, counted twice: the node's future is built on the
+/// stack before it moves into its task).
+#[derive(Debug)]
+pub struct Links([Cell<(ThrusterLink, FaultWatch)>; MAX_THRUSTERS]);
+
+impl Links {
+    /// Every thruster's link as `config` starts it.
+    pub fn new(config: &PollConfig) -> Self {
+        Self(core::array::from_fn(|_| {
+            Cell::new((ThrusterLink::new(config), FaultWatch::new()))
+        }))
+    }
+}
+
 /// What one bus task keeps between cycles.
-struct BusState {
-    links: [ThrusterLink; MAX_THRUSTERS],
-    faults: [FaultWatch; MAX_THRUSTERS],
+struct BusState<'a> {
+    links: &'a Links,
     /// The mux control byte last written, None when unknown.
     mux: Option<u8>,
 }
 
-impl BusState {
+impl BusState<'_> {
     /// Poll every due thruster of bus `bus_index` once, in table order; `cycle` is the cycle's start. Returns
     /// how many were polled.
     async fn cycle<B: I2c + BusRecovery>(
@@ -757,15 +774,15 @@ impl BusState {
             if slot.bus != bus_index {
                 continue;
             }
-            let (Some(link), Some(faults), Some(order), Some(report)) = (
-                self.links.get_mut(index),
-                self.faults.get_mut(index),
-                orders.get(index),
-                shared.thrusters.get(index),
-            ) else {
+            let (Some(entry), Some(order), Some(report)) =
+                (self.links.0.get(index), orders.get(index), shared.thrusters.get(index))
+            else {
                 // Beyond MAX_THRUSTERS: nowhere to publish it.
                 continue;
             };
+            // Taken out for the poll and put back after it: only this task touches its slots.
+            let (mut link, mut faults) = entry.get();
+            let (link, faults) = (&mut link, &mut faults);
             if !link.due(cycle) {
                 continue;
             }
@@ -834,6 +851,7 @@ impl BusState {
                     shared.say(severity, text);
                 }
             }
+            entry.set((*link, *faults));
         }
         polled
     }
@@ -849,21 +867,27 @@ impl BusState {
         shared: &Shared,
     ) -> bool {
         let on_bus = |slot: u8| table.get(usize::from(slot)).is_some_and(|s| s.bus == bus_index);
-        let Some((exchange, slot)) = transfers
-            .next(on_bus)
-            .and_then(|exchange| Some((exchange, table.get(usize::from(exchange.slot))?)))
-        else {
+        // Only the encoded command (then its reply) and a few bytes of the exchange are kept across the transfers:
+        // the rest goes out of scope here.
+        let Some((slot, sent, mut buffer, len)) = transfers.next(on_bus).and_then(|exchange| {
+            let slot = table.get(usize::from(exchange.slot))?;
+            let frame = exchange.frame.encode();
+            let mut buffer = [0; tmc_proto::ext::MAX_FRAME_LEN];
+            let len = frame.as_bytes().len();
+            buffer.get_mut(..len)?.copy_from_slice(frame.as_bytes());
+            Some((slot, exchange.sent(), buffer, len))
+        }) else {
             return false;
         };
         let result = match select(bus, slot, &mut self.mux).await {
-            Ok(()) => courier::exchange(bus, slot.family.address(), &exchange).await,
+            Ok(()) => courier::exchange(bus, slot.family.address(), &mut buffer, len, &sent).await,
             Err(()) => Err(ExchangeError::Bus),
         };
         if result == Err(ExchangeError::Bus) {
             self.mux = None;
             let _ = bus.recover().await;
         }
-        transfers.done(&exchange, result, &mut |message| {
+        transfers.done(sent, result, &mut |message| {
             let _ = shared.outbox.try_send(message);
         });
         true
@@ -873,9 +897,9 @@ impl BusState {
     fn next_retry(&self, bus_index: u8, table: &[ThrusterSlot]) -> Option<Instant> {
         table
             .iter()
-            .zip(self.links.iter())
+            .zip(self.links.0.iter())
             .filter(|(slot, _)| slot.bus == bus_index)
-            .filter_map(|(_, link)| link.retry_at())
+            .filter_map(|(_, entry)| entry.get().0.retry_at())
             .min()
     }
 }
@@ -889,24 +913,25 @@ impl BusState {
 /// next retry when every thruster of the bus is offline. Each poll's report goes to `shared.thrusters[i]`; link
 /// and fault changes go to the console as texts.
 ///
-/// With `transfers`, each cycle also carries one exchange of an update image on its way to a thruster of the bus
-/// ([`crate::courier`]).
+/// Its thrusters' link health is kept in `links`, which the other bus tasks may share. With `transfers`, each cycle
+/// also carries one exchange of an update image on its way to a thruster of the bus ([`crate::courier`]).
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the bus, its place, and what it shares with the other tasks"
+)]
 pub async fn bus_task<B>(
     bus: &mut B,
     bus_index: u8,
     table: &[ThrusterSlot],
     config: &PollConfig,
     shared: &Shared,
+    links: &Links,
     transfers: Option<&Transfers>,
 ) -> !
 where
     B: I2c + BusRecovery,
 {
-    let mut state = BusState {
-        links: [ThrusterLink::new(config); MAX_THRUSTERS],
-        faults: [FaultWatch::new(); MAX_THRUSTERS],
-        mux: None,
-    };
+    let mut state = BusState { links, mux: None };
     let back_to_back = config.period == Duration::from_ticks(0);
     let mut next = Instant::now();
     loop {

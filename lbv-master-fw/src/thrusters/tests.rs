@@ -500,7 +500,7 @@ impl Bench {
         let mut executor = Executor::new();
         let mut port = thruster_bus(&self.bus, &BusConfig::THRUSTERS);
         executor.spawn(async move {
-            bus_task(&mut port, 0, table, config, &self.shared, None).await;
+            bus_task(&mut port, 0, table, config, &self.shared, &Links::new(config), None).await;
         });
         script(&mut Runner {
             bench: self,
@@ -1174,7 +1174,7 @@ fn each_bus_task_polls_only_its_own_bus() {
         let mut port = thruster_bus(&bench.bus, &BusConfig::THRUSTERS);
         let (table, config, shared) = (&table, &config, &shared);
         executor.spawn(async move {
-            bus_task(&mut port, index as u8, table, config, shared, None).await;
+            bus_task(&mut port, index as u8, table, config, shared, &Links::new(config), None).await;
         });
     }
     executor.run_for(&clock, Duration::from_secs(1), BIT);
