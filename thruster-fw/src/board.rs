@@ -416,10 +416,8 @@ pub fn dfu(flash: &'static SharedFlash) -> Dfu {
     partition(flash, THRUSTER_PARTITIONS.dfu)
 }
 
-/// The field update's bootloader side: the running image's record from its own flash, and the system reset. The
-/// signature check is not on the chip yet: embassy-boot's `verify_and_mark_updated` with salty (the ed25519 its
-/// `ed25519-salty` feature brings) adds about 25 KiB, which takes the image past its 58 KiB ACTIVE partition, so
-/// every payload is refused as one this thruster cannot check, and nothing is ever marked for the swap.
+/// The field update's bootloader side: the running image's record from its own flash, the signature check that
+/// marks the payload in DFU for the bootloader, and the system reset.
 pub struct ImageSwap(&'static SharedFlash);
 
 impl ImageSwap {
@@ -428,6 +426,9 @@ impl ImageSwap {
         ImageSwap(flash)
     }
 }
+
+/// DFU is hashed this many bytes at a time, the other tasks let run between two.
+const HASH_CHUNK: usize = 256;
 
 impl Updater for ImageSwap {
     fn running_info(&mut self) -> [u8; INFO_LEN] {
@@ -438,11 +439,40 @@ impl Updater for ImageSwap {
     }
 
     fn checks_signatures(&self) -> bool {
-        false
+        true
     }
 
-    async fn verify_and_mark_updated(&mut self, _: &[u8; SIGNATURE_LEN], _: u32) -> Result<(), VerifyError> {
-        Err(VerifyError::Unavailable)
+    /// What embassy-boot's `verify_and_mark_updated` does with its `ed25519-salty` feature, with update-image's
+    /// `Verifier` (the same salty, and a signature's S must be below the group order): DFU's first `payload_len`
+    /// bytes hashed with SHA-512, the signature checked over the digest with the image's update key, then the
+    /// state marked for the swap. Refused while the running image is on trial, as embassy-boot refuses.
+    async fn verify_and_mark_updated(
+        &mut self,
+        signature: &[u8; SIGNATURE_LEN],
+        payload_len: u32,
+    ) -> Result<(), VerifyError> {
+        let mut word = AlignedBuffer([0; WRITE_SIZE]);
+        let mut state_partition = partition(self.0, THRUSTER_PARTITIONS.state);
+        let mut state = BlockingFirmwareState::new(&mut state_partition, &mut word.0);
+        if state.get_state().map_err(|_| VerifyError::Flash)? == State::Swap {
+            return Err(VerifyError::OnTrial);
+        }
+        let dfu = partition(self.0, THRUSTER_PARTITIONS.dfu);
+        let mut verifier = update_image::Verifier::new();
+        let mut chunk = [0; HASH_CHUNK];
+        let mut offset = 0;
+        while offset < payload_len {
+            let len = usize::try_from(payload_len - offset).map_or(HASH_CHUNK, |left| left.min(HASH_CHUNK));
+            let bytes = chunk.get_mut(..len).unwrap_or_default();
+            dfu.read(offset, bytes).map_err(|_| VerifyError::Flash)?;
+            verifier.update(bytes);
+            offset += len as u32;
+            embassy_futures::yield_now().await;
+        }
+        verifier
+            .finish(signature, &update_image::UPDATE_KEY)
+            .map_err(|_| VerifyError::BadSignature)?;
+        state.mark_updated().map_err(|_| VerifyError::Flash)
     }
 
     fn reboot(&mut self) {

@@ -59,9 +59,13 @@ impl Verifier {
     }
 
     /// Whether `signature` is `public_key`'s over the payload hashed, as embassy-boot would answer for the same
-    /// bytes in DFU. The caller sees to it that the bytes hashed are the header's `payload_len` (or uses
-    /// [`finish_header`](Verifier::finish_header)).
+    /// bytes in DFU, but for one thing: a signature whose S is not below the group order L is refused, as RFC 8032
+    /// (5.1.7) asks and salty does not check, so that a payload's signature has one encoding only. The caller sees
+    /// to it that the bytes hashed are the header's `payload_len` (or uses [`finish_header`](Verifier::finish_header)).
     pub fn finish(self, signature: &[u8; 64], public_key: &[u8; 32]) -> Result<(), VerifyError> {
+        if !s_below_order(signature) {
+            return Err(VerifyError::Signature);
+        }
         let public_key = salty::PublicKey::try_from(public_key).map_err(|_| VerifyError::PublicKey)?;
         let signature = salty::Signature::from(signature);
         let digest = self.digest();
@@ -80,6 +84,24 @@ impl Verifier {
         }
         self.finish(&header.signature, public_key)
     }
+}
+
+/// The order L of ed25519's base point, little-endian: 2^252 + 27742317777372353535851937790883648493.
+const ORDER: [u8; 32] = [
+    0xED, 0xD3, 0xF5, 0x5C, 0x1A, 0x63, 0x12, 0x58, 0xD6, 0x9C, 0xF7, 0xA2, 0xDE, 0xF9, 0xDE, 0x14, 0, 0, 0, 0, 0, 0,
+    0, 0, 0, 0, 0, 0, 0, 0, 0, 0x10,
+];
+
+/// Whether the signature's S (its second half, little-endian) is below [`ORDER`].
+fn s_below_order(signature: &[u8; 64]) -> bool {
+    let s = signature.last_chunk::<32>().map_or(&ORDER, |s| s);
+    // Compared from the most significant byte down.
+    for (s, l) in s.iter().rev().zip(ORDER.iter().rev()) {
+        if s != l {
+            return s < l;
+        }
+    }
+    false
 }
 
 impl Default for Verifier {

@@ -195,3 +195,41 @@ fn the_layout_places_the_image_info_where_the_format_reads_it() {
     assert_eq!(INFO_LEN, IMAGE_INFO_SIZE as usize);
     assert!(DFU_PAGES * 2048 > ACTIVE as usize);
 }
+
+/// The group order L, little-endian.
+const ORDER: [u8; 32] = [
+    0xED, 0xD3, 0xF5, 0x5C, 0x1A, 0x63, 0x12, 0x58, 0xD6, 0x9C, 0xF7, 0xA2, 0xDE, 0xF9, 0xDE, 0x14, 0, 0, 0, 0, 0, 0,
+    0, 0, 0, 0, 0, 0, 0, 0, 0, 0x10,
+];
+
+#[test]
+fn a_second_encoding_of_a_signature_s_plus_the_order_is_refused_where_embassy_boot_takes_it() {
+    let (header, payload) = signed(4096, &[0x11; 32]);
+    let public = public_key(&[0x11; 32]);
+    // S + L: the same point equation holds, so salty (and embassy-boot through it) accepts it.
+    let mut other = header.signature;
+    let mut carry = 0u16;
+    for (s, l) in other[32..].iter_mut().zip(ORDER) {
+        let sum = u16::from(*s) + u16::from(l) + carry;
+        *s = sum as u8;
+        carry = sum >> 8;
+    }
+    assert_eq!(carry, 0);
+    let len = payload.len() as u32;
+    assert_eq!(
+        embassy_boot_answer(&payload, &public, &other, len).0,
+        true,
+        "salty takes S + L"
+    );
+    let mut verifier = Verifier::new();
+    verifier.update(&payload);
+    assert_eq!(verifier.finish(&other, &public), Err(VerifyError::Signature));
+    // The signature as signed still verifies.
+    assert_eq!(verify(&header, &payload, &public), Ok(()));
+    // S = L - 1 is the largest S taken to the curve check; S = L is refused before it.
+    let mut at_order = header.signature;
+    at_order[32..].copy_from_slice(&ORDER);
+    let mut verifier = Verifier::new();
+    verifier.update(&payload);
+    assert_eq!(verifier.finish(&at_order, &public), Err(VerifyError::Signature));
+}
