@@ -457,7 +457,7 @@ impl Updater for ImageSwap {
         if state.get_state().map_err(|_| VerifyError::Flash)? == State::Swap {
             return Err(VerifyError::OnTrial);
         }
-        let dfu = partition(self.0, THRUSTER_PARTITIONS.dfu);
+        let mut dfu = partition(self.0, THRUSTER_PARTITIONS.dfu);
         let mut verifier = update_image::Verifier::new();
         let mut chunk = [0; HASH_CHUNK];
         let mut offset = 0;
