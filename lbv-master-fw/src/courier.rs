@@ -180,8 +180,6 @@ pub enum ExchangeError {
     /// What was read is not an extension reply: from an IDS-only controller, a status frame (its type is in the
     /// error).
     Frame(FrameError),
-    /// A reply to another command (a stale one).
-    Stale,
     /// Still busy after every read.
     Busy,
 }
@@ -223,8 +221,8 @@ impl Ending {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NotTaken;
 
-/// The transfer under way and the bytes waiting for the thruster: the state [`crate::update::ThrusterSink`] and the bus tasks
-/// share.
+/// The transfer under way and the bytes waiting for the thruster: the state [`crate::update::ThrusterSink`] and the
+/// bus tasks share.
 #[derive(Debug)]
 pub struct Courier {
     transfer: Option<Transfer>,

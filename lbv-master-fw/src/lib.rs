@@ -62,8 +62,8 @@ pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly> 
     pub reboot: X,
     /// The buses' work: [`Polling`] the thrusters (the vehicle), or the acceptance [`acceptance::Script`].
     pub work: J,
-    /// Where the update images received over MAVLink FTP go ([`update`]): [`update::CheckOnly`] until the I2C
-    /// transfer to the thrusters is there.
+    /// Where the update images received over MAVLink FTP go ([`update`]): the vehicle's [`update::ThrusterSink`],
+    /// or [`update::CheckOnly`] in an image that sends none on (the acceptance image, the tests).
     pub update: U,
 }
 

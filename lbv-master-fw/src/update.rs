@@ -7,8 +7,9 @@
 //! MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 255 the master) then applies an image received whole.
 //!
 //! The master has no room to keep a 32-60 KiB image (32 KiB of RAM, its flash nearly full), so each write goes
-//! on to an [`UpdateSink`] as it comes: for a thruster, the thruster's DFU partition over I2C once that is
-//! wired. A sink takes bytes in order, so the server does too (FTP clients write in order):
+//! on to an [`UpdateSink`] as it comes: for a thruster, the thruster's DFU partition over its bus
+//! ([`ThrusterSink`], [`crate::courier`]). A sink takes bytes in order, so the server does too (FTP clients write in
+//! order):
 //!
 //! - a write at the next byte expected is taken;
 //! - a write of bytes already taken is ACKed again and only what lies beyond it is taken: its ACK was lost, and
@@ -181,8 +182,8 @@ pub enum Applied {
     NotWired,
 }
 
-/// Where an upload's bytes go, in order. Thruster images will go on to the thruster's DFU partition over I2C;
-/// [`CheckOnly`] keeps nothing, and the bench's sink records everything.
+/// Where an upload's bytes go, in order. [`ThrusterSink`] sends thruster images on to the thruster's DFU
+/// partition over its bus; [`CheckOnly`] keeps nothing, and the bench also records everything.
 ///
 /// The calls do not wait: a sink that forwards over a bus keeps what it is given (at most one FTP write's worth,
 /// [`ftp::DATA_LEN`] bytes, per call), and the console reads on only once the sink is [`UpdateSink::ready`]. An
@@ -204,7 +205,7 @@ pub trait UpdateSink {
 }
 
 /// A sink that keeps nothing and applies nothing ([`Applied::NotWired`]): the server still checks each image's
-/// header, length and CRC. What the STM32 binding has until the I2C transfer to the thrusters is there.
+/// header, length and CRC. The acceptance image's (it has no update server) and the tests'.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct CheckOnly;
 

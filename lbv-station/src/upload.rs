@@ -1,7 +1,7 @@
 //! A file put to the master over MAVLink FTP, one request at a time, as a ground station's `ftp put` does: close
 //! whatever sessions it left open before (ResetSessions), open the file for writing (CreateFile), write it from the
-//! start in 239-byte blocks, each waited for, then close the session. A request unanswered for [`RETRY_AFTER`] is sent again (the master answers a repeated write as it
-//! answered the first); a NAK ends the upload.
+//! start in 239-byte blocks, each waited for, then close the session. A request unanswered for [`RETRY_AFTER`] is
+//! sent again (the master answers a repeated write as it answered the first); a NAK ends the upload.
 
 use alloc::string::String;
 use alloc::vec::Vec;

@@ -88,8 +88,9 @@ pub struct ReceivedImage {
     pub applied: u32,
 }
 
-/// An update sink that records every image it is given, in order, and applies nothing ([`Applied::NotWired`], as
-/// the master has no transfer to the thrusters yet). A handle: the records outlive a reboot of the master.
+/// An update sink that records every image it is given, in order, and applies nothing ([`Applied::NotWired`]): the
+/// bench's copy of what its master's sink got ([`Recorded`]), and the update server's tests' sink. A handle: the
+/// records outlive a reboot of the master.
 #[derive(Debug, Clone, Default)]
 pub struct UpdateRecorder(Rc<RefCell<Vec<ReceivedImage>>>);
 
