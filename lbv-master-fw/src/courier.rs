@@ -96,6 +96,8 @@ enum Step {
     Restart(Instant),
     /// The new image runs on trial, since then: wait for it to confirm itself, asking again at `next`.
     Trial { since: Instant, next: Instant },
+    /// The thruster's running image is on trial, so it takes no update yet: begin again at this instant.
+    Settle(Instant),
 }
 
 /// One image on its way to one thruster.
@@ -126,6 +128,8 @@ struct Transfer {
     restarts: u8,
     /// Who applies it: the final COMMAND_ACK goes there.
     applier: Option<Sender>,
+    /// Since when `Begin` has been refused because the running image is on trial.
+    settling_since: Option<Instant>,
 }
 
 /// What a bus task sends next, to whom.
@@ -282,6 +286,7 @@ impl Courier {
             silent_since: None,
             restarts: 0,
             applier: None,
+            settling_since: None,
         });
         self.fill = 0;
         Ok(())
@@ -361,7 +366,8 @@ impl Courier {
             (Step::Idle, Some(_)) => Step::CheckPage,
             (Step::Idle, None) if transfer.complete && transfer.page_offset == transfer.payload_len => Step::Verify,
             (Step::Restart(since), _) if now < since + RESTART_FIRST_ASK => return None,
-            (Step::Trial { next, .. }, _) if now < next => return None,
+            (Step::Trial { next, .. } | Step::Settle(next), _) if now < next => return None,
+            (Step::Settle(_), _) => Step::Begin,
             (step, _) => step,
         };
         let command = match step {
@@ -370,7 +376,8 @@ impl Courier {
                 payload_len: transfer.payload_len,
                 target: transfer.kind,
             },
-            Step::Idle | Step::Written => return None,
+            // Turned into `Begin` above once it is time.
+            Step::Idle | Step::Written | Step::Settle(_) => return None,
             Step::CheckPage => Command::Check {
                 offset: transfer.page_offset,
                 len: page?.0,
@@ -482,6 +489,24 @@ impl Courier {
                 transfer.step = Step::Restart(now);
                 return;
             }
+            // An image on trial takes no update until it has confirmed itself: wait for that.
+            Reply::Refused {
+                refusal: Refusal::OnTrial,
+                ..
+            } if transfer.step == Step::Begin && now < *transfer.settling_since.get_or_insert(now) + CONFIRM_LIMIT => {
+                transfer.step = Step::Settle(now + TRIAL_ASK);
+                return;
+            }
+            // The thruster holds a finished update, signed and checked, that an apply whose master was reset left
+            // unstarted: start it, then begin once it has confirmed itself.
+            Reply::Refused {
+                refusal: Refusal::Finished,
+                ..
+            } if transfer.step == Step::Begin && transfer.applier.is_none() => {
+                say(out, Severity::Info, slot, format_args!("starting the update it holds"));
+                transfer.step = Step::Reboot;
+                return;
+            }
             Reply::Refused { refusal, .. } => return self.end(Ending::Refused(refusal), out),
             // Not returned by the exchange: read again.
             Reply::Busy { .. } => return,
@@ -495,8 +520,14 @@ impl Courier {
                 Step::Begin
             }
             // Begun again after a reset while being applied: the payload is whole in DFU already.
-            (Step::Begin, ReplyBody::Begin { .. }) if transfer.applier.is_some() => Step::Finish,
-            (Step::Begin, ReplyBody::Begin { .. }) => Step::Idle,
+            (Step::Begin, ReplyBody::Begin { .. }) => {
+                transfer.settling_since = None;
+                if transfer.applier.is_some() {
+                    Step::Finish
+                } else {
+                    Step::Idle
+                }
+            }
             (Step::CheckPage, ReplyBody::Check { crc, .. }) if page.is_some_and(|(_, page_crc)| page_crc == crc) => {
                 transfer.skipped += 1;
                 return self.page_done(page_len);
@@ -528,9 +559,13 @@ impl Courier {
             (Step::Verify, ReplyBody::Check { .. }) => return self.end(Ending::Mismatch, out),
             (Step::Finish, ReplyBody::Finish { .. }) => Step::Reboot,
             (Step::Reboot, ReplyBody::Reboot) => {
-                say(out, Severity::Info, slot, format_args!("signature good, restarting"));
+                if transfer.applier.is_some() {
+                    say(out, Severity::Info, slot, format_args!("signature good, restarting"));
+                }
                 Step::Restart(now)
             }
+            // Back from starting the update it held: now this one.
+            (Step::Restart(_), ReplyBody::Version { .. }) if transfer.applier.is_none() => Step::Begin,
             (Step::Restart(_) | Step::Trial { .. }, ReplyBody::Version { info, on_trial, .. }) => {
                 let running = info
                     .get(8..12)

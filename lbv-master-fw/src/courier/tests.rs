@@ -323,12 +323,10 @@ fn a_read_back_that_differs_or_a_refusal_ends_the_transfer_with_its_reason() {
     courier.on_result(t(0), &hello, done(&hello, version(true, [0; 4])), &mut |_| {});
     let begin = courier.next(t(20), |_| true).unwrap();
     let mut said = Vec::new();
-    courier.on_result(t(20), &begin, refused(&begin, Refusal::OnTrial), &mut |o| said.push(o));
-    let said = texts(&said);
-    assert!(
-        said.len() == 1 && said[0].starts_with("thruster0.lbvu: the running image is on trial"),
-        "{said:?}"
-    );
+    courier.on_result(t(20), &begin, refused(&begin, Refusal::WrongFamily), &mut |o| {
+        said.push(o)
+    });
+    assert_eq!(texts(&said), ["thruster0.lbvu: the image is for another target"]);
 }
 
 #[test]
@@ -456,4 +454,94 @@ fn a_new_image_that_never_confirms_fails_the_apply() {
             "thruster0.lbvu: the new image did not confirm"
         ]
     );
+}
+
+/// The answer of a thruster whose running image is on trial until `confirmed_at` ms: `Begin` refused until then.
+fn on_trial_until(dfu: &mut [u8], exchange: &Exchange, ms: u64, confirmed_at: u64) -> Result<Reply, ExchangeError> {
+    match exchange.frame.command {
+        Command::Begin { .. } if ms < confirmed_at => refused(exchange, Refusal::OnTrial),
+        _ => answer(dfu, exchange, [0, 2, 0, 0]),
+    }
+}
+
+#[test]
+fn an_upload_to_a_thruster_on_trial_waits_for_it_to_confirm_or_gives_up() {
+    let image = payload(64);
+    let mut courier = courier_with(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let (mut said, mut begins) = (Vec::new(), Vec::new());
+    for ms in (0..20_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        if matches!(exchange.frame.command, Command::Begin { .. }) {
+            begins.push(ms);
+        }
+        let result = on_trial_until(&mut dfu, &exchange, ms, 3_000);
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    // Asked twice a second until it had confirmed itself, then written.
+    assert_eq!(begins.len(), 7, "{begins:?}");
+    assert!(begins.windows(2).all(|w| w[1] - w[0] >= 500), "{begins:?}");
+    assert_eq!(texts(&said), ["thruster0.lbvu: 64 B verified, 0 pages kept"]);
+
+    let mut courier = courier_with(&image);
+    let mut said = Vec::new();
+    for ms in (0..40_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        let result = on_trial_until(&mut dfu, &exchange, ms, u64::MAX);
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    let said = texts(&said);
+    assert!(
+        said.len() == 1 && said[0].starts_with("thruster0.lbvu: the running image is on trial"),
+        "{said:?}"
+    );
+    assert!(courier.transfer.is_none());
+}
+
+#[test]
+fn a_finished_update_left_by_a_master_reset_is_started_and_the_new_upload_goes_on() {
+    let image = payload(64);
+    let mut courier = courier_with(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let mut said = Vec::new();
+    let mut sent = Vec::new();
+    let mut rebooted_at = None;
+    for ms in (0..20_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        sent.push(exchange.frame.command.kind());
+        let result = match (exchange.frame.command, rebooted_at) {
+            // A finished update waits in it; after the reboot it runs that image on trial for 3 s.
+            (Command::Begin { .. }, None) => refused(&exchange, Refusal::Finished),
+            (Command::Reboot, _) => {
+                rebooted_at = Some(ms);
+                answer(&mut dfu, &exchange, [0, 1, 0, 0])
+            }
+            (_, Some(at)) => on_trial_until(&mut dfu, &exchange, ms, at + 3_000),
+            _ => answer(&mut dfu, &exchange, [0, 1, 0, 0]),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(
+        sent[..4],
+        [
+            CommandKind::Version,
+            CommandKind::Begin,
+            CommandKind::Reboot,
+            CommandKind::Version
+        ]
+    );
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: starting the update it holds",
+            "thruster0.lbvu: 64 B verified, 0 pages kept"
+        ]
+    );
+    assert_eq!(&dfu[..64], image.as_slice());
 }
