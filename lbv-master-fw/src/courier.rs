@@ -39,7 +39,7 @@ use tmc_proto::ext::{
     SIGNATURE_LEN,
 };
 
-use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Text, text};
+use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, text};
 
 /// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
 const PAGE: usize = ext::PAGE_LEN as usize;
@@ -203,9 +203,9 @@ enum Ending {
     NotConfirmed,
 }
 
-impl Ending {
-    fn describe(self, f: &mut impl core::fmt::Write) -> core::fmt::Result {
-        match self {
+impl core::fmt::Display for Ending {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
             Ending::Refused(refusal) => f.write_str(refusal.describe()),
             Ending::NoExtension => f.write_str("the thruster does not take updates"),
             Ending::Silent => f.write_str("the thruster stopped answering"),
@@ -626,9 +626,7 @@ impl Courier {
         let Some(transfer) = self.transfer else {
             return;
         };
-        let mut why = text(format_args!("thruster{}.lbvu: ", transfer.slot));
-        let _ = ending.describe(&mut Tail(&mut why));
-        out(Outgoing::Text(Severity::Warning, why));
+        say(out, Severity::Warning, transfer.slot, format_args!("{ending}"));
         self.acknowledge(AckResult::Failed, out);
         self.transfer = None;
         self.fill = 0;
@@ -653,20 +651,6 @@ impl core::fmt::Display for Ver {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         let [major, minor, p0, p1] = self.0;
         write!(f, "{major}.{minor}.{}", u16::from_le_bytes([p0, p1]))
-    }
-}
-
-/// Appends to a text, cutting what does not fit.
-struct Tail<'a>(&'a mut Text);
-
-impl core::fmt::Write for Tail<'_> {
-    fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        for c in s.chars() {
-            if self.0.push(c).is_err() {
-                break;
-            }
-        }
-        Ok(())
     }
 }
 

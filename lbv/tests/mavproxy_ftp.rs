@@ -11,8 +11,6 @@
 
 mod support;
 
-use update_image::{INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
-
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_ftp.py");
 /// How long the bench runs, s; the script is done well before.
 const BENCH_SECONDS: &str = "60";
@@ -27,17 +25,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     for path in [&local, &received] {
         std::fs::create_dir_all(path).unwrap();
     }
-    let mut payload: Vec<u8> = (0..4096u32)
-        .map(|n| (n.wrapping_mul(2_246_822_519) >> 9) as u8)
-        .collect();
-    let info = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0)).to_bytes();
-    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
-    let seed = key_from_hex(include_str!("../../keys/dev.key")).unwrap();
-    std::fs::write(
-        format!("{local}/thruster2.lbvu"),
-        update_image::sign(&payload, &seed).unwrap(),
-    )
-    .unwrap();
+    std::fs::write(format!("{local}/thruster2.lbvu"), support::signed_update_file()).unwrap();
     let args = [
         gcs.to_string(),
         observer.to_string(),
@@ -100,16 +88,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         "IN_PROGRESS, ACCEPTED: {summary}"
     );
     assert_eq!(
-        // The thruster's own texts; the master also says it is offline while it restarts.
-        serde_json::Value::from(
-            summary["apply"]["texts"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .filter(|text| text.as_str().is_some_and(|text| !text.starts_with('T')))
-                .cloned()
-                .collect::<Vec<_>>()
-        ),
+        support::file_texts(&summary["apply"]["texts"]),
         serde_json::json!([
             "thruster2.lbvu: applying",
             "thruster2.lbvu: signature good, restarting",

@@ -8,8 +8,6 @@
 
 mod support;
 
-use update_image::{INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
-
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/ftp_upload.py");
 /// How long the bench runs, s; the script is done well before.
 const BENCH_SECONDS: &str = "40";
@@ -24,17 +22,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     for path in [&local, &received] {
         std::fs::create_dir_all(path).unwrap();
     }
-    let mut payload: Vec<u8> = (0..4096u32)
-        .map(|n| (n.wrapping_mul(2_654_435_761) >> 7) as u8)
-        .collect();
-    let info = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0)).to_bytes();
-    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
-    let seed = key_from_hex(include_str!("../../keys/dev.key")).unwrap();
-    std::fs::write(
-        format!("{local}/thruster0.lbvu"),
-        update_image::sign(&payload, &seed).unwrap(),
-    )
-    .unwrap();
+    std::fs::write(format!("{local}/thruster0.lbvu"), support::signed_update_file()).unwrap();
     let args = [
         gcs.to_string(),
         bench_port.to_string(),
@@ -85,16 +73,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     assert_eq!(summary["apply"]["thruster0"], serde_json::json!([5, 0]), "{summary}");
     assert_eq!(summary["apply"]["thruster2"], serde_json::json!([2]), "{summary}");
     assert_eq!(
-        // The thruster's own texts; the master also says it is offline while it restarts.
-        serde_json::Value::from(
-            summary["apply"]["texts"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .filter(|text| text.as_str().is_some_and(|text| !text.starts_with('T')))
-                .cloned()
-                .collect::<Vec<_>>()
-        ),
+        support::file_texts(&summary["apply"]["texts"]),
         serde_json::json!([
             "thruster0.lbvu: applying",
             "thruster0.lbvu: signature good, restarting",

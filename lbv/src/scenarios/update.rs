@@ -132,6 +132,50 @@ fn texts_since(run: &Run, since: Instant, file: &str) -> Vec<String> {
         .collect()
 }
 
+/// Wait up to 5 s from now for the master to say that thruster `slot` holds its whole image, verified, since
+/// `since`; whether it did.
+fn verified(run: &mut Run, since: Instant, slot: usize) -> bool {
+    let file = format!("thruster{slot}.lbvu");
+    let said = |bench: &crate::bench::Bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, text)| *at >= since && text.starts_with(&file) && text.contains("B verified"))
+    };
+    run.run_until(5.0, said).is_some()
+}
+
+/// An upload of `file` to thruster `slot` cut half-way by `interrupt`, then sent again: it must resume from the
+/// pages the thruster holds. `what` names the interruption in the check.
+fn resumes(run: &mut Run, slot: usize, file: Vec<u8>, what: &str, interrupt: impl FnOnce(&mut Run)) {
+    let start = run.bench.now();
+    let path = format!("/update/thruster{slot}.lbvu");
+    let mut acked_at_cut = 0;
+    let (stopped, _) = put_until(run, &path, file.clone(), 60.0, |acked| {
+        acked_at_cut = acked;
+        acked > PAYLOAD_LEN / 2
+    });
+    interrupt(run);
+    let (resumed, resume_s) = put(run, &path, file, 60.0);
+    let verified = verified(run, start, slot);
+    let texts = texts_since(run, start, &format!("thruster{slot}.lbvu"));
+    let kept = texts
+        .iter()
+        .find(|t| t.contains("pages kept"))
+        .cloned()
+        .unwrap_or_default();
+    run.check(
+        &format!("an upload stopped by {what}, sent again, resumes from the pages the thruster holds"),
+        matches!(stopped, UploadState::Sending(_))
+            && resumed == UploadState::Done
+            && verified
+            && !kept.contains(" 0 pages"),
+        format!("stopped at {acked_at_cut} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
+    );
+}
+
 /// Every thruster of the vehicle updated in turn from the ground station, the others polled meanwhile; then what is
 /// refused, and a transfer cut by a thruster's power cut that resumes.
 pub fn field_update(run: &mut Run) {
@@ -145,21 +189,14 @@ pub fn field_update(run: &mut Run) {
         let polls_before = polls_of_others(run, slot);
         let start = run.bench.now();
         let (put_state, put_s) = put(run, &path, update_file(*family, NEW, &key), 60.0);
-        let verified = run.run_until(5.0, |bench| {
-            bench
-                .ground
-                .seen
-                .texts
-                .iter()
-                .any(|(at, text)| *at >= start && text.contains("B verified"))
-        });
+        let verified = verified(run, start, slot);
         let (acks, apply_s) = apply(run, slot as u8, 30.0);
         let texts = texts_since(run, start, &file_name);
         let runs_new = texts.iter().any(|text| text.ends_with("runs 0.2.0, on trial"))
             && texts.last().is_some_and(|text| text.ends_with("0.2.0 confirmed"));
         run.check(
             &format!("T{} ({family:?}) is updated from the ground station", slot + 1),
-            put_state == UploadState::Done && verified.is_some() && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
+            put_state == UploadState::Done && verified && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
             format!("put {put_state:?} in {put_s} s, apply acks {acks:?} in {apply_s} s, texts {texts:?}"),
         );
         let polls_after = polls_of_others(run, slot);
@@ -181,14 +218,7 @@ pub fn field_update(run: &mut Run) {
     let start = run.bench.now();
     let stranger = update_file(families[0], Version::new(0, 3, 0), &[0x42; 32]);
     let (state, _) = put(run, "/update/thruster0.lbvu", stranger, 60.0);
-    run.run_until(5.0, |bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, t)| *at >= start && t.contains("B verified"))
-    });
+    verified(run, start, 0);
     let (acks, _) = apply(run, 0, 30.0);
     let texts = texts_since(run, start, "thruster0.lbvu");
     run.check(
@@ -244,53 +274,15 @@ pub fn field_update(run: &mut Run) {
         format!("put {state:?}, texts {texts:?}"),
     );
 
-    // A thruster's power cut while its upload is under way stops the upload; sent again, it resumes from the pages
-    // the thruster holds.
-    let start = run.bench.now();
-    let mut acked_at_cut = 0;
-    let (stopped, _) = put_until(
-        run,
-        "/update/thruster4.lbvu",
-        update_file(families[4], Version::new(0, 3, 0), &key),
-        60.0,
-        |acked| {
-            acked_at_cut = acked;
-            acked > PAYLOAD_LEN / 2
-        },
-    );
-    run.inject(Fault::PowerCut { thruster: 4 });
-    run.run_for(0.2);
-    run.clear(Fault::PowerCut { thruster: 4 });
-    // The ground station sends the file again once the master lets a new session take over the idle one.
-    run.run_for(TAKEOVER_IDLE.as_micros() as f64 / 1e6 + 0.5);
-    let (resumed, resume_s) = put(
-        run,
-        "/update/thruster4.lbvu",
-        update_file(families[4], Version::new(0, 3, 0), &key),
-        60.0,
-    );
-    let verified = run.run_until(5.0, |bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, t)| *at >= start && t.starts_with("thruster4.lbvu") && t.contains("B verified"))
+    // A thruster's power cut while its upload is under way stops the upload; sent again once the master lets a new
+    // session take over the idle one, it resumes.
+    let file = update_file(families[4], Version::new(0, 3, 0), &key);
+    resumes(run, 4, file, "a thruster's power cut", |run| {
+        run.inject(Fault::PowerCut { thruster: 4 });
+        run.run_for(0.2);
+        run.clear(Fault::PowerCut { thruster: 4 });
+        run.run_for(TAKEOVER_IDLE.as_micros() as f64 / 1e6 + 0.5);
     });
-    let texts = texts_since(run, start, "thruster4.lbvu");
-    let kept = texts
-        .iter()
-        .find(|t| t.contains("pages kept"))
-        .cloned()
-        .unwrap_or_default();
-    run.check(
-        "an upload stopped by a thruster's power cut, sent again, resumes from the pages it holds",
-        matches!(stopped, UploadState::Sending(_))
-            && resumed == UploadState::Done
-            && verified.is_some()
-            && !kept.contains(" 0 pages"),
-        format!("stopped at {acked_at_cut} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
-    );
 
     // Power cuts while an image is applied. In the thruster's signature check (Finish): it comes back with the image
     // marked or not, begins again where it must, and takes it.
@@ -302,40 +294,12 @@ pub fn field_update(run: &mut Run) {
         acks == [IN_PROGRESS, ACCEPTED] && running(run, 4) == Some(Version::new(0, 3, 0)),
         format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 4)),
     );
-    // The master reset in the middle of an upload: the upload stops; sent again, it resumes from the pages the
-    // thruster holds.
-    let start = run.bench.now();
+    // The master reset in the middle of an upload.
     let file = update_file(families[5], Version::new(0, 3, 0), &key);
-    let mut acked_at_reset = 0;
-    let (stopped, _) = put_until(run, "/update/thruster5.lbvu", file.clone(), 60.0, |acked| {
-        acked_at_reset = acked;
-        acked > PAYLOAD_LEN / 2
+    resumes(run, 5, file, "the master's reset", |run| {
+        run.bench.reboot_master();
+        run.run_for(1.0);
     });
-    run.bench.reboot_master();
-    run.run_for(1.0);
-    let (resumed, resume_s) = put(run, "/update/thruster5.lbvu", file, 60.0);
-    let verified = run.run_until(5.0, |bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, t)| *at >= start && t.starts_with("thruster5.lbvu") && t.contains("B verified"))
-    });
-    let texts = texts_since(run, start, "thruster5.lbvu");
-    let kept = texts
-        .iter()
-        .find(|t| t.contains("pages kept"))
-        .cloned()
-        .unwrap_or_default();
-    run.check(
-        "an upload stopped by the master's reset, sent again, resumes from the pages the thruster holds",
-        matches!(stopped, UploadState::Sending(_))
-            && resumed == UploadState::Done
-            && verified.is_some()
-            && !kept.contains(" 0 pages"),
-        format!("stopped at {acked_at_reset} B, sent again: {resumed:?} in {resume_s} s, texts {texts:?}"),
-    );
 
     // On trial, before the new image confirms itself: the bootloader reverts it, and the apply fails saying so.
     let start = run.bench.now();
@@ -345,14 +309,7 @@ pub fn field_update(run: &mut Run) {
         update_file(families[3], Version::new(0, 3, 0), &key),
         60.0,
     );
-    run.run_until(5.0, |bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, t)| *at >= start && t.starts_with("thruster3.lbvu") && t.contains("B verified"))
-    });
+    verified(run, start, 3);
     let (acks, took) = apply_cut(run, 3, 60.0, Some(("runs 0.3.0, on trial", 0.5)));
     let texts = texts_since(run, start, "thruster3.lbvu");
     run.check(

@@ -121,3 +121,26 @@ pub fn fly_with(
     assert_eq!(summary["passed"], true, "{summary}");
     (summary, bench_output)
 }
+
+/// A SeaBotix thruster's update file at 0.2.0, signed with the development key (keys/dev.key), as `lbv image sign
+/// --allow-dev-key` makes one: a 4096-byte made-up payload with its image info at 0x200.
+pub fn signed_update_file() -> Vec<u8> {
+    use update_image::{INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
+    let mut payload: Vec<u8> = (0..4096u32)
+        .map(|n| (n.wrapping_mul(2_654_435_761) >> 7) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0)).to_bytes();
+    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let seed = key_from_hex(include_str!("../../../keys/dev.key")).unwrap();
+    update_image::sign(&payload, &seed).unwrap()
+}
+
+/// The texts of a summary's list that name an update file: the master also says a thruster is offline ("T3
+/// offline") while it restarts into its new image.
+pub fn file_texts(texts: &serde_json::Value) -> serde_json::Value {
+    let texts = texts.as_array().into_iter().flatten();
+    texts
+        .filter(|text| text.as_str().is_some_and(|text| !text.starts_with('T')))
+        .cloned()
+        .collect()
+}
