@@ -90,11 +90,13 @@ fn tolerance(metric: &str) -> Within {
 /// sweeps add up, so the prompts are held to 2 % of the test's ~39 s, as `acceptance_seconds` is. The field update's
 /// uploads are stop-and-wait: each of a file's 138 blocks waits for its reply, and its page for some 34 exchanges on
 /// the bus, each of whose transfers the fixed-step engine ends up to 50 us later; a block's round trip moves by up
-/// to a millisecond, and the scenario's dozen uploads add up to a few tenths of a second by its end.
+/// to a millisecond, and the scenario's dozen uploads add up to a few tenths of a second. Its noisy bus ends an
+/// upload whose ground station sends a lost request again after 1 s: whether the noise's end meets one request or
+/// the next moves what follows by up to that second.
 fn event_slack(scenario: &str) -> f64 {
     match scenario {
         "acceptance" => 0.8,
-        "field-update" => 0.5,
+        "field-update" => 1.1,
         _ => 0.105,
     }
 }

@@ -43,16 +43,17 @@ fn dev_key() -> [u8; 32] {
 
 /// Put `file` to `path`, giving up after `limit` s; returns how it ended and the seconds it took.
 fn put(run: &mut Run, path: &str, file: Vec<u8>, limit: f64) -> (UploadState, f64) {
-    put_until(run, path, file, limit, |_| false)
+    put_until(run, path, file, limit, |_, _| false)
 }
 
-/// As [`put`], but stopping (the ground station goes quiet) once `stop` says so, given the bytes acknowledged.
+/// As [`put`], but stopping (the ground station goes quiet) once `stop` says so, given the run (to inject faults
+/// into) and the bytes acknowledged.
 fn put_until(
     run: &mut Run,
     path: &str,
     file: Vec<u8>,
     limit: f64,
-    mut stop: impl FnMut(usize) -> bool,
+    mut stop: impl FnMut(&mut Run, usize) -> bool,
 ) -> (UploadState, f64) {
     let mut upload = Upload::new(path, file);
     let start = run.bench.seconds();
@@ -61,7 +62,7 @@ fn put_until(
             run.bench.send(frame);
         }
         match upload.state() {
-            UploadState::Sending(acked) if !stop(*acked) => run.run_for(0.005),
+            UploadState::Sending(acked) if !stop(run, *acked) => run.run_for(0.005),
             _ => break,
         }
     }
@@ -134,7 +135,7 @@ fn texts_since(run: &Run, since: Instant, file: &str) -> Vec<String> {
 
 /// Wait up to 5 s from now for the master to say that thruster `slot` holds its whole image, verified, since
 /// `since`; whether it did.
-fn verified(run: &mut Run, since: Instant, slot: usize) -> bool {
+fn wait_verified(run: &mut Run, since: Instant, slot: usize) -> bool {
     let file = format!("thruster{slot}.lbvu");
     let said = |bench: &crate::bench::Bench| {
         bench
@@ -153,13 +154,13 @@ fn resumes(run: &mut Run, slot: usize, file: Vec<u8>, what: &str, interrupt: imp
     let start = run.bench.now();
     let path = format!("/update/thruster{slot}.lbvu");
     let mut acked_at_cut = 0;
-    let (stopped, _) = put_until(run, &path, file.clone(), 60.0, |acked| {
+    let (stopped, _) = put_until(run, &path, file.clone(), 60.0, |_, acked| {
         acked_at_cut = acked;
         acked > PAYLOAD_LEN / 2
     });
     interrupt(run);
     let (resumed, resume_s) = put(run, &path, file, 60.0);
-    let verified = verified(run, start, slot);
+    let verified = wait_verified(run, start, slot);
     let texts = texts_since(run, start, &format!("thruster{slot}.lbvu"));
     let kept = texts
         .iter()
@@ -176,6 +177,54 @@ fn resumes(run: &mut Run, slot: usize, file: Vec<u8>, what: &str, interrupt: imp
     );
 }
 
+/// An upload of `file` to thruster `slot` during which the bus is noisy for `seconds` from a third of the way: every
+/// byte the thruster sends has bits flipped, and every command's byte 3 (its guard) too, so that the thruster
+/// discards it. Returns how the upload ended and the texts said for the file.
+fn noisy_upload(run: &mut Run, slot: usize, file: Vec<u8>, seconds: f64) -> (UploadState, bool, Vec<String>) {
+    let start = run.bench.now();
+    let faults = [
+        Fault::NoisyStatus {
+            thruster: slot,
+            mask: 0x10,
+        },
+        Fault::CorruptOrders {
+            thruster: slot,
+            mask: 0x55,
+        },
+    ];
+    let mut noise_from = None;
+    let (state, _) = put_until(
+        run,
+        &format!("/update/thruster{slot}.lbvu"),
+        file,
+        90.0,
+        |run, acked| {
+            let now = run.bench.seconds();
+            match noise_from {
+                None if acked > PAYLOAD_LEN / 3 => {
+                    faults.iter().for_each(|fault| run.inject(*fault));
+                    noise_from = Some(now);
+                }
+                Some(from) if now >= from + seconds && from.is_finite() => {
+                    faults.iter().for_each(|fault| run.clear(*fault));
+                    noise_from = Some(f64::INFINITY);
+                }
+                _ => {}
+            }
+            false
+        },
+    );
+    if noise_from.is_some_and(f64::is_finite) {
+        faults.iter().for_each(|fault| run.clear(*fault));
+    }
+    let verified = wait_verified(run, start, slot);
+    (
+        state,
+        verified,
+        texts_since(run, start, &format!("thruster{slot}.lbvu")),
+    )
+}
+
 /// Every thruster of the vehicle updated in turn from the ground station, the others polled meanwhile; then what is
 /// refused, and a transfer cut by a thruster's power cut that resumes.
 pub fn field_update(run: &mut Run) {
@@ -189,7 +238,7 @@ pub fn field_update(run: &mut Run) {
         let polls_before = polls_of_others(run, slot);
         let start = run.bench.now();
         let (put_state, put_s) = put(run, &path, update_file(*family, NEW, &key), 60.0);
-        let verified = verified(run, start, slot);
+        let verified = wait_verified(run, start, slot);
         let (acks, apply_s) = apply(run, slot as u8, 30.0);
         let texts = texts_since(run, start, &file_name);
         let runs_new = texts.iter().any(|text| text.ends_with("runs 0.2.0, on trial"))
@@ -218,7 +267,7 @@ pub fn field_update(run: &mut Run) {
     let start = run.bench.now();
     let stranger = update_file(families[0], Version::new(0, 3, 0), &[0x42; 32]);
     let (state, _) = put(run, "/update/thruster0.lbvu", stranger, 60.0);
-    verified(run, start, 0);
+    wait_verified(run, start, 0);
     let (acks, _) = apply(run, 0, 30.0);
     let texts = texts_since(run, start, "thruster0.lbvu");
     run.check(
@@ -274,6 +323,42 @@ pub fn field_update(run: &mut Run) {
         format!("put {state:?}, texts {texts:?}"),
     );
 
+    // A noisy bus in the middle of an upload: for 2 s, within the 3 s a silent thruster is given, the exchanges are
+    // sent again until they get through; for 4 s, the transfer ends, and the file sent again resumes.
+    let file = update_file(families[2], Version::new(0, 3, 0), &key);
+    let (state, verified, texts) = noisy_upload(run, 2, file.clone(), 2.0);
+    run.check(
+        "2 s of a noisy bus in an upload: it goes on once the noise stops",
+        state == UploadState::Done && verified,
+        format!("put {state:?}, verified {verified}, texts {texts:?}"),
+    );
+    let (state, verified, texts) = noisy_upload(run, 1, update_file(families[1], Version::new(0, 3, 0), &key), 4.0);
+    let ended = texts.iter().any(|t| t.ends_with("the thruster stopped answering"));
+    run.check(
+        "4 s of a noisy bus in an upload: the transfer ends saying why, and the upload is refused",
+        state == UploadState::Refused(1) && !verified && ended,
+        format!("put {state:?}, verified {verified}, texts {texts:?}"),
+    );
+    let start = run.bench.now();
+    run.run_for(TAKEOVER_IDLE.as_micros() as f64 / 1e6 + 0.5);
+    let (state, _) = put(
+        run,
+        "/update/thruster1.lbvu",
+        update_file(families[1], Version::new(0, 3, 0), &key),
+        60.0,
+    );
+    let verified = wait_verified(run, start, 1);
+    let texts = texts_since(run, start, "thruster1.lbvu");
+    run.check(
+        "after 4 s of a noisy bus the file sent again resumes from the pages the thruster holds",
+        state == UploadState::Done
+            && verified
+            && texts
+                .iter()
+                .any(|t| t.contains("pages kept") && !t.contains(" 0 pages")),
+        format!("put {state:?}, verified {verified}, texts {texts:?}"),
+    );
+
     // A thruster's power cut while its upload is under way stops the upload; sent again once the master lets a new
     // session take over the idle one, it resumes.
     let file = update_file(families[4], Version::new(0, 3, 0), &key);
@@ -309,7 +394,7 @@ pub fn field_update(run: &mut Run) {
         update_file(families[3], Version::new(0, 3, 0), &key),
         60.0,
     );
-    verified(run, start, 3);
+    wait_verified(run, start, 3);
     let (acks, took) = apply_cut(run, 3, 60.0, Some(("runs 0.3.0, on trial", 0.5)));
     let texts = texts_since(run, start, "thruster3.lbvu");
     run.check(
