@@ -3,7 +3,9 @@
 //! printed as JSON for `rehost/run.py`, which runs the images on the Unicorn engine.
 //!
 //! `rehost expected` prints everything; `rehost status FAMILY HEX` decodes a status frame the thruster image
-//! sent, `rehost order FAMILY HEX` an order the master image sent.
+//! sent, `rehost order FAMILY HEX` an order the master image sent; `rehost update FAMILY` gives a field update for
+//! that family's thruster (a payload signed with the development key, and the extension's commands that finish
+//! it, with a good and a bad signature), `rehost reply HEX` decodes an extension reply the thruster image sent.
 
 use std::process::ExitCode;
 
@@ -15,7 +17,9 @@ use serde_json::{Value, json};
 use thruster_fw::commutation::{BridgeDrive, PhaseDrive, drive_for};
 use thruster_fw::hall::FORWARD_SEQUENCE;
 use thruster_fw::{Direction, Duty};
+use tmc_proto::ext::{self, Command, CommandFrame, Reply};
 use tmc_proto::{Family, Order, Speed, Status};
+use update_image::{HEADER_LEN, INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -23,7 +27,13 @@ fn main() -> ExitCode {
         ["expected"] => Ok(expected()),
         ["status", family, hex] => family_of(family).and_then(|family| decode_status(family, hex)),
         ["order", family, hex] => family_of(family).and_then(|family| decode_order(family, hex)),
-        _ => Err("usage: rehost expected | rehost status FAMILY HEX | rehost order FAMILY HEX".to_string()),
+        ["update", family] => family_of(family).and_then(update),
+        ["reply", hex] => decode_reply(hex),
+        _ => Err(
+            "usage: rehost expected | rehost status FAMILY HEX | rehost order FAMILY HEX | rehost update FAMILY \
+             | rehost reply HEX"
+                .to_string(),
+        ),
     };
     match result {
         Ok(value) => {
@@ -46,7 +56,7 @@ fn family_of(name: &str) -> Result<Family, String> {
 }
 
 fn bytes_of(hex: &str) -> Result<Vec<u8>, String> {
-    if !hex.len().is_multiple_of(2) || hex.len() > 64 {
+    if !hex.len().is_multiple_of(2) || hex.len() > 2 * ext::MAX_FRAME_LEN {
         return Err(format!("{hex:?} is not a short even-length hex string"));
     }
     (0..hex.len())
@@ -389,4 +399,55 @@ fn decode_order(family: Family, hex: &str) -> Result<Value, String> {
     let bytes = bytes_of(hex)?;
     let order = Order::decode(family, &bytes).map_err(|error| error.to_string())?;
     Ok(json!({ "step": order.speed.step(), "canonical": order.encode(family).as_slice() == bytes.as_slice() }))
+}
+
+/// A field update for a `family` thruster, for the image built with the development key (test.sh builds them so):
+/// a 4 KiB payload with its image info (0.2.0) signed with keys/dev.key, where it goes (the DFU partition), and the
+/// extension's `Begin` and `Finish` frames, `Finish` also with a signature one bit off.
+fn update(family: Family) -> Result<Value, String> {
+    let mut payload: Vec<u8> = (0..4096u32)
+        .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::thruster(family), Version::new(0, 2, 0)).to_bytes();
+    payload
+        .get_mut(INFO_OFFSET..INFO_OFFSET + info.len())
+        .ok_or("no room for the image info")?
+        .copy_from_slice(&info);
+    let seed = key_from_hex(include_str!("../../keys/dev.key")).ok_or("keys/dev.key is not a key")?;
+    let file = update_image::sign(&payload, &seed).map_err(|error| format!("{error:?}"))?;
+    let (header, payload) = file.split_at(HEADER_LEN);
+    let header = update_image::Header::parse(header).map_err(|error| format!("{error:?}"))?;
+    let payload_len = header.payload_len;
+    let frame = |seq, command| hex(CommandFrame { seq, command }.encode().as_bytes());
+    let mut forged = header.signature;
+    if let Some(byte) = forged.first_mut() {
+        *byte ^= 1;
+    }
+    let target = Target::thruster(family).to_byte();
+    Ok(json!({
+        "dfu": g431_hw::memory::THRUSTER_PARTITIONS.dfu.origin,
+        "state": g431_hw::memory::THRUSTER_PARTITIONS.state.origin,
+        "payload": hex(payload),
+        "begin": frame(1, Command::Begin { payload_len, target }),
+        "finish_forged": frame(2, Command::Finish { payload_len, signature: forged }),
+        "finish": frame(3, Command::Finish { payload_len, signature: header.signature }),
+        "begin_reply_len": ext::reply_len(ext::CommandKind::Begin),
+        "finish_reply_len": ext::reply_len(ext::CommandKind::Finish),
+        "finish_wait_ms": ext::FINISH_WAIT_MS,
+    }))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|byte| format!("{byte:02x}")).collect()
+}
+
+/// An extension reply: its command, sequence number and result ("done", "busy", or the refusal's name).
+fn decode_reply(hex: &str) -> Result<Value, String> {
+    let reply = Reply::decode(&bytes_of(hex)?).map_err(|error| error.to_string())?;
+    let result = match reply {
+        Reply::Done { .. } => "done".to_string(),
+        Reply::Busy { .. } => "busy".to_string(),
+        Reply::Refused { refusal, .. } => format!("{refusal:?}"),
+    };
+    Ok(json!({ "command": format!("{:?}", reply.command()), "seq": reply.seq(), "result": result }))
 }
