@@ -78,9 +78,12 @@ step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
 step "clippy ($TARGET)"
-cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p thruster-boot --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p thruster-fw -p lbv-master-fw --features legacy --locked -- -D warnings
+# One chip per invocation: the thruster's images are built for the STM32G431, the master's for the STM32G474.
+cargo clippy --release --target "$TARGET" -p thruster-fw --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p lbv-master-fw --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p lbv-boot --features thruster --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p lbv-boot --features master --locked -- -D warnings
+cargo clippy --release --target "$TARGET" -p thruster-fw --features legacy --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
 # The first power-up build: duty limited to 10 %.
 cargo clippy --release --target "$TARGET" -p thruster-fw --features bringup --locked -- -D warnings

@@ -1,6 +1,6 @@
 //! A flash ECC double error, and what an image's NMI handler does about it.
 //!
-//! The G431 keeps 8 ECC bits with every 64-bit double word of its flash (RM0440 3.3.2, "Error code correction
+//! The G4 keeps 8 ECC bits with every 64-bit double word of its flash (RM0440 3.3.2, "Error code correction
 //! (ECC)"). One wrong bit is corrected on the fly; two are only detected: FLASH_ECCR.ECCD is set, the double word's
 //! address kept in ADDR_ECC, and an NMI raised; the read itself completes with what the cells hold. A power cut
 //! while a double word is being programmed, or while its page is being erased, can leave it so. In the pages an
@@ -13,9 +13,10 @@
 //! kept) and the read completes. Anything else — an ECC error in the code, in the system memory, or an NMI of
 //! another cause — is not one to run on.
 
-use crate::memory::{FLASH, Span};
+use crate::memory::{FLASH_ORIGIN, G474_BANK2, G474RE, Span};
 
-/// FLASH_ECCR's fields (RM0440 3.7.7; positions as in ST's SVD for category 2 devices, one bank).
+/// FLASH_ECCR's fields (RM0440 3.7.7; positions as in ST's SVD for the category 2 devices, the G431; the category 3
+/// devices, the G474, have the same, and set BK_ECC in dual-bank mode).
 pub mod eccr {
     /// ECC detection: two errors in a double word (cleared by writing 1).
     pub const ECCD: u32 = 1 << 31;
@@ -31,8 +32,8 @@ pub mod eccr {
     pub const ADDR_ECC: u32 = 0x7_FFFF;
 }
 
-// The address field reaches every byte of the flash.
-const _: () = assert!(eccr::ADDR_ECC >= FLASH.length - 1);
+// The address field reaches every byte of a bank.
+const _: () = assert!(eccr::ADDR_ECC >= G474_BANK2 - FLASH_ORIGIN - 1);
 
 /// An ECC error as FLASH_ECCR reports it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -61,10 +62,30 @@ impl EccError {
         }
     }
 
+    /// The double word's address in the main flash: in bank 2 (only ever reported by the G474 in dual-bank mode)
+    /// the offset counts from that bank's start.
+    pub const fn address(&self) -> u32 {
+        if self.bank2 {
+            G474_BANK2 + self.offset
+        } else {
+            FLASH_ORIGIN + self.offset
+        }
+    }
+
     /// Whether the error is in the main flash inside `span`.
     pub const fn within(&self, span: Span) -> bool {
-        let address = FLASH.origin + self.offset;
-        !self.system_memory && !self.bank2 && span.origin <= address && address < span.end()
+        let address = self.address();
+        !self.system_memory && address < G474RE.flash.end() && span.origin <= address && address < span.end()
+    }
+}
+
+/// FLASH_ECCR's address bits for an ECC error at `address` in the main flash: the offset from its bank's start,
+/// and BK_ECC in the G474's bank 2 (what a model of the chip reports; [`EccError::address`] reads it back).
+pub const fn eccr_address(address: u32) -> u32 {
+    if address >= G474_BANK2 {
+        eccr::BK_ECC | (address - G474_BANK2)
+    } else {
+        address - FLASH_ORIGIN
     }
 }
 
@@ -103,22 +124,29 @@ pub const fn nmi_action(eccr: u32, data: &[Span]) -> NmiAction {
 mod tests {
     use super::eccr::*;
     use super::*;
-    use crate::memory::{MASTER, THRUSTER_PARTITIONS};
+    use crate::memory::{MASTER_PARTITIONS, MASTER_STORAGE, THRUSTER_PARTITIONS};
 
     const PASS: NmiAction = NmiAction::PassDataRead { clear: ECCD };
 
+    /// The settings, in bank 2 of the G474 (offset 0x3_C000 there).
     fn settings() -> Span {
-        MASTER.region("STORAGE").expect("the master keeps settings").span
+        MASTER_STORAGE
     }
 
     #[test]
     fn a_double_error_in_a_data_page_is_passed() {
-        // The first and the last double word of the master's 16 KiB at 0x0801_C000, and one inside.
-        for offset in [0x1_C000, 0x1_D238, 0x1_FFF8] {
-            assert_eq!(nmi_action(ECCD | offset, &[settings()]), PASS, "{offset:#x}");
-            let error = EccError::decode(ECCD | offset);
+        // The first and the last double word of the master's 16 KiB at 0x0807_C000, and one inside: bank 2.
+        for offset in [0x3_C000, 0x3_D238, 0x3_FFF8] {
+            assert_eq!(nmi_action(ECCD | BK_ECC | offset, &[settings()]), PASS, "{offset:#x}");
+            let error = EccError::decode(ECCD | BK_ECC | offset);
             assert!(error.double && error.within(settings()) && !error.corrected);
-            assert_eq!(error.offset, offset);
+            assert_eq!(error.address(), 0x0804_0000 + offset);
+            assert_eq!(eccr_address(error.address()), BK_ECC | offset);
+        }
+        // The master's state (bank 1) and DFU (bank 2).
+        let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.dfu];
+        for eccr in [0x2000, 0x2FF8, BK_ECC, BK_ECC | 0x3_BFF8] {
+            assert_eq!(nmi_action(ECCD | eccr, &master), PASS, "{eccr:#x}");
         }
         // The thruster's state page and the ends of its DFU partition.
         let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.dfu];
@@ -129,37 +157,45 @@ mod tests {
 
     #[test]
     fn a_double_error_anywhere_else_stops() {
-        // The master's last code double word, its first (the vector table), beyond the 128 KiB.
-        for offset in [0x1_BFF8, 0x0, 0x400, 0x2_0000, 0x7_FFF8] {
-            assert_eq!(nmi_action(ECCD | offset, &[settings()]), NmiAction::Stop, "{offset:#x}");
+        // The settings' offsets in bank 1 (the master's code), DFU's last double word, and the master's ACTIVE.
+        for eccr in [0x3_C000, 0x3_FFF8, BK_ECC | 0x3_BFF8, 0x0, 0x3000, 0x3_E7F8] {
+            assert_eq!(nmi_action(ECCD | eccr, &[settings()]), NmiAction::Stop, "{eccr:#x}");
+        }
+        let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.dfu];
+        for eccr in [0x0, 0x1FF8, 0x3000, 0x3_E7F8, BK_ECC | 0x3_C000] {
+            assert_eq!(nmi_action(ECCD | eccr, &master), NmiAction::Stop, "{eccr:#x}");
         }
         // The thruster's bootloader and ACTIVE (its code).
         let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.dfu];
         for offset in [0x0, 0x1FF8, 0x2800, 0x1_0FF8] {
             assert_eq!(nmi_action(ECCD | offset, &thruster), NmiAction::Stop, "{offset:#x}");
         }
-        // The system memory and a second bank, at an offset that would be in the settings pages.
-        assert_eq!(nmi_action(ECCD | SYSF_ECC | 0x1_C000, &[settings()]), NmiAction::Stop);
-        assert_eq!(nmi_action(ECCD | BK_ECC | 0x1_C000, &[settings()]), NmiAction::Stop);
+        // The system memory, at an offset that would be in the settings pages; the thruster's DFU offset in a
+        // second bank, which the G431 does not have.
+        assert_eq!(
+            nmi_action(ECCD | SYSF_ECC | BK_ECC | 0x3_C000, &[settings()]),
+            NmiAction::Stop
+        );
+        assert_eq!(nmi_action(ECCD | BK_ECC | 0x1_1000, &thruster), NmiAction::Stop);
         // No data pages at all.
-        assert_eq!(nmi_action(ECCD | 0x1_C000, &[]), NmiAction::Stop);
+        assert_eq!(nmi_action(ECCD | BK_ECC | 0x3_C000, &[]), NmiAction::Stop);
     }
 
     #[test]
     fn an_nmi_that_is_no_double_error_stops() {
         // Another cause (FLASH_ECCR clear), or only a corrected error on record.
         assert_eq!(nmi_action(0, &[settings()]), NmiAction::Stop);
-        assert_eq!(nmi_action(ECCC | 0x1_C000, &[settings()]), NmiAction::Stop);
+        assert_eq!(nmi_action(ECCC | BK_ECC | 0x3_C000, &[settings()]), NmiAction::Stop);
     }
 
     #[test]
     fn clearing_keeps_the_correction_interrupt_enable_and_writes_only_ecc_d() {
         assert_eq!(
-            nmi_action(ECCD | ECCC | ECCCIE | 0x1_E000, &[settings()]),
+            nmi_action(ECCD | ECCC | ECCCIE | BK_ECC | 0x3_E000, &[settings()]),
             NmiAction::PassDataRead { clear: ECCD | ECCCIE }
         );
         // ECCC is cleared by writing 1 too: left as it is (0 written), as are the read-only fields.
-        let NmiAction::PassDataRead { clear } = nmi_action(ECCD | ECCC | 0x1_E000, &[settings()]) else {
+        let NmiAction::PassDataRead { clear } = nmi_action(ECCD | ECCC | BK_ECC | 0x3_E000, &[settings()]) else {
             panic!("passed")
         };
         assert_eq!(clear & (ECCC | ADDR_ECC | SYSF_ECC | BK_ECC), 0);

@@ -13,7 +13,7 @@ use core::fmt;
 
 use crate::memory::{self, KIB, Layout};
 use crate::pins::Mode::{Alternate, Analog, Input};
-use crate::pins::{Board, IHM08M1, Image, Mode, NUCLEO_G431RB, Pull, af, i2c};
+use crate::pins::{Board, IHM08M1, Image, Mode, NUCLEO_G431RB, NUCLEO_G474RE, Pull, af, i2c};
 
 /// The hall inputs with their internal pull-ups, which hold a line high whenever an open-collector sensor lets go.
 const HALL: Mode = Input(Pull::Up);
@@ -122,7 +122,9 @@ macro_rules! thruster_motorless_image {
     };
 }
 
-/// The master's description, on a bare NUCLEO.
+/// The master's description, on a bare NUCLEO-G474RE: the pins and alternate functions are the G431's (the two
+/// chips share the LQFP64 pinout and these functions, DS12288 Table 13 and DS12589 Table 13), which embassy-stm32's
+/// trait bounds check again in the image's build for the G474.
 #[macro_export]
 macro_rules! master_image {
     ($($then:ident)::+ $(, $arg:tt)*) => {
@@ -151,17 +153,18 @@ macro_rules! master_image {
                 bus3_rx_dma: DMA1_CH6 = "thruster bus 3 receive DMA",
                 can: FDCAN1 = "battery CAN, 1 Mbit/s",
                 console: LPUART1 = "console, MAVLink v2 at 115200 baud",
-                flash: FLASH = "the settings pages",
+                flash: FLASH = "the settings pages, the bootloader's state (a new image's trial) and DFU (field update)",
+                watchdog: IWDG = "independent watchdog, fed by a task of the one executor",
             }
             interrupts {}
         }
     };
 }
 
-/// The thruster's bootloader (thruster-boot): no pins; the flash it swaps images in, and the watchdog it starts
-/// just before it jumps to the image.
+/// The bootloader (lbv-boot), the thruster's and the master's: no pins; the flash it swaps images in, and the
+/// watchdog it starts just before it jumps to the image.
 #[macro_export]
-macro_rules! thruster_boot_image {
+macro_rules! boot_image {
     ($($then:ident)::+ $(, $arg:tt)*) => {
         $($then)::+! { [$($arg),*]
             pins {}
@@ -277,10 +280,10 @@ pub const THRUSTER_MOTORLESS: Image = Image {
     interrupts: crate::thruster_motorless_image!(crate::description_interrupts),
 };
 
-/// The master on a bare NUCLEO.
+/// The master on a bare NUCLEO-G474RE.
 pub const MASTER: Image = Image {
     name: "lbv-master-fw",
-    boards: &[&NUCLEO_G431RB],
+    boards: &[&NUCLEO_G474RE],
     removed: &[],
     uses: crate::master_image!(crate::description_uses),
     peripherals: crate::master_image!(crate::description_peripherals),
@@ -292,18 +295,26 @@ pub const THRUSTER_BOOT: Image = Image {
     name: "thruster-boot",
     boards: POWER_STAGE,
     removed: &[],
-    uses: crate::thruster_boot_image!(crate::description_uses),
-    peripherals: crate::thruster_boot_image!(crate::description_peripherals),
-    interrupts: crate::thruster_boot_image!(crate::description_interrupts),
+    uses: crate::boot_image!(crate::description_uses),
+    peripherals: crate::boot_image!(crate::description_peripherals),
+    interrupts: crate::boot_image!(crate::description_interrupts),
+};
+
+/// The master's bootloader, on the master's board.
+pub const MASTER_BOOT: Image = Image {
+    name: "master-boot",
+    boards: &[&NUCLEO_G474RE],
+    ..THRUSTER_BOOT
 };
 
 /// Every image's pins.
-pub const ALL: [&Image; 5] = [
+pub const ALL: [&Image; 6] = [
     &THRUSTER,
     &THRUSTER_BRUSHED,
     &THRUSTER_MOTORLESS,
     &THRUSTER_BOOT,
     &MASTER,
+    &MASTER_BOOT,
 ];
 
 const _: () = {
@@ -327,11 +338,10 @@ pub struct Build {
     pub image: &'static Image,
     /// Its memory layout, printed as its `memory.x`.
     pub layout: &'static Layout,
-    /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the vehicle's master images, which
-    /// carry field update (the MAVLink FTP server and the transfer to the thrusters), keep 4 KiB of their `FLASH`
-    /// region spare; the acceptance image, which runs only on the dev-kit bench and carries its script beside the
-    /// whole console, keeps 12 KiB; the thruster's images, which carry the signature check (salty's ed25519 and
-    /// SHA-512, some 15 KiB), 1 KiB of ACTIVE; the bootloader has its whole partition.
+    /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: the master's images hold to what
+    /// they need and a margin, well inside their 238 KiB ACTIVE, so that growth is a decision and not an accident;
+    /// the thruster's images, which carry the signature check (salty's ed25519 and SHA-512, some 15 KiB), 1 KiB of
+    /// ACTIVE spare; a bootloader has its whole partition.
     pub flash_budget: u32,
     /// Its budget for static RAM (`.data`, `.bss`, `.uninit`), in bytes; the rest of the RAM is stack.
     pub ram_budget: u32,
@@ -361,36 +371,46 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
     }
 }
 
-/// The thruster's bootloader: its partition, 8 KiB, is all its flash; its static RAM is next to nothing (the
-/// page buffer it swaps through is on its stack).
-const THRUSTER_BOOTLOADER: Build = Build {
-    name: "thruster-boot",
-    package: "thruster-boot",
-    features: "",
-    image: &THRUSTER_BOOT,
-    layout: &memory::THRUSTER_BOOT,
-    flash_budget: 8 * KIB,
-    ram_budget: KIB,
-};
+/// A bootloader: its partition, 8 KiB, is all its flash; its static RAM is next to nothing (the page buffer it
+/// swaps through is on its stack).
+const fn bootloader(
+    name: &'static str,
+    features: &'static str,
+    image: &'static Image,
+    layout: &'static Layout,
+) -> Build {
+    Build {
+        name,
+        package: "lbv-boot",
+        features,
+        image,
+        layout,
+        flash_budget: 8 * KIB,
+        ram_budget: KIB,
+    }
+}
 
 /// Every image `./test.sh` builds and holds to its budgets.
-pub const BUILDS: [Build; 9] = [
+pub const BUILDS: [Build; 10] = [
     thruster("thruster-fw", "", &THRUSTER),
     thruster("thruster-fw-legacy", "legacy", &THRUSTER),
     thruster("thruster-fw-brushed", "brushed", &THRUSTER_BRUSHED),
     thruster("thruster-fw-motorless", "motorless", &THRUSTER_MOTORLESS),
     thruster("thruster-fw-bringup", "bringup", &THRUSTER),
-    THRUSTER_BOOTLOADER,
+    bootloader("thruster-boot", "thruster", &THRUSTER_BOOT, &memory::THRUSTER_BOOT),
+    bootloader("master-boot", "master", &MASTER_BOOT, &memory::MASTER_BOOT),
     master("lbv-master-fw", "", 108 * KIB),
     master("lbv-master-fw-devkit", "devkit,legacy", 108 * KIB),
     master("lbv-master-fw-acceptance", "acceptance", 100 * KIB),
 ];
 
-/// The one memory layout of every image built from `package`.
-pub fn layout_of(package: &str) -> Result<&'static Layout, LayoutOfError> {
+/// The one memory layout of every image built from `package` whose features are all `enabled`: a crate whose
+/// images differ in layout tells them apart by a feature (lbv-boot's `thruster` and `master`).
+pub fn layout_of(package: &str, enabled: impl Fn(&str) -> bool) -> Result<&'static Layout, LayoutOfError> {
     let mut layouts = BUILDS
         .iter()
         .filter(|build| build.package == package)
+        .filter(|build| build.features.split(',').filter(|f| !f.is_empty()).all(&enabled))
         .map(|build| build.layout);
     let layout = layouts.next().ok_or(LayoutOfError::Unknown)?;
     if layouts.any(|other| other != layout) {
@@ -402,17 +422,22 @@ pub fn layout_of(package: &str) -> Result<&'static Layout, LayoutOfError> {
 /// Why a crate has no one memory layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LayoutOfError {
-    /// No image is built from it.
+    /// No image is built from it with these features.
     Unknown,
-    /// Its images differ in layout: its build script would have to tell them apart by their features.
+    /// Its images with these features differ in layout: its build script cannot tell which it is building.
     Several,
 }
 
 impl fmt::Display for LayoutOfError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
-            LayoutOfError::Unknown => "no image in g431_hw::images::BUILDS is built from this crate",
-            LayoutOfError::Several => "this crate's images in g431_hw::images::BUILDS differ in memory layout",
+            LayoutOfError::Unknown => {
+                "no image in g431_hw::images::BUILDS is built from this crate with these features \
+                 (lbv-boot: --features thruster or --features master)"
+            }
+            LayoutOfError::Several => {
+                "this crate's images in g431_hw::images::BUILDS with these features differ in memory layout"
+            }
         })
     }
 }
@@ -544,7 +569,7 @@ pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Re
             out,
         ),
         "thruster peripherals" => write_peripheral_table(&THRUSTER, out),
-        "thruster-boot peripherals" => write_peripheral_table(&THRUSTER_BOOT, out),
+        "bootloader peripherals" => write_peripheral_table(&THRUSTER_BOOT, out),
         "master pins" => write_pin_table(&[("", &MASTER)], out),
         "master peripherals" => write_peripheral_table(&MASTER, out),
         "thruster flash" => write_flash_table(&memory::THRUSTER, out),
@@ -557,7 +582,7 @@ pub fn write_docs_table(name: &str, out: &mut impl fmt::Write) -> Option<fmt::Re
 pub const DOCS_TABLES: [&str; 7] = [
     "thruster pins",
     "thruster peripherals",
-    "thruster-boot peripherals",
+    "bootloader peripherals",
     "master pins",
     "master peripherals",
     "thruster flash",
@@ -570,7 +595,7 @@ fn write_flash_table(layout: &Layout, out: &mut impl fmt::Write) -> fmt::Result 
     for region in layout
         .regions
         .iter()
-        .filter(|region| memory::FLASH.contains(region.span))
+        .filter(|region| layout.chip.flash.contains(region.span))
     {
         let span = region.span;
         writeln!(
@@ -704,17 +729,37 @@ mod tests {
     }
 
     #[test]
-    fn each_crate_has_one_layout_and_the_bootloader_its_own() {
-        assert_eq!(layout_of("thruster-boot"), Ok(&memory::THRUSTER_BOOT));
-        assert_eq!(layout_of("thruster-fw"), Ok(&memory::THRUSTER));
-        assert_eq!(layout_of("lbv-master-fw"), Ok(&memory::MASTER));
-        assert_eq!(layout_of("lbv"), Err(LayoutOfError::Unknown));
-        // The bootloader fills its partition at most, and uses no pin.
-        let boot = BUILDS.iter().find(|build| build.name == "thruster-boot").unwrap();
-        assert_eq!(boot.flash_budget, memory::THRUSTER_PARTITIONS.bootloader.length);
-        assert!(boot.image.uses.is_empty());
-        let peripherals: Vec<&str> = boot.image.peripherals.iter().map(|p| p.name).collect();
-        assert_eq!(peripherals, ["FLASH", "IWDG"]);
+    fn each_crate_has_one_layout_and_the_bootloader_one_per_board() {
+        let with = |features: &'static [&'static str]| move |feature: &str| features.contains(&feature);
+        assert_eq!(layout_of("lbv-boot", with(&["thruster"])), Ok(&memory::THRUSTER_BOOT));
+        assert_eq!(layout_of("lbv-boot", with(&["master"])), Ok(&memory::MASTER_BOOT));
+        assert_eq!(layout_of("lbv-boot", with(&[])), Err(LayoutOfError::Unknown));
+        assert_eq!(
+            layout_of("lbv-boot", with(&["thruster", "master"])),
+            Err(LayoutOfError::Several)
+        );
+        assert_eq!(layout_of("thruster-fw", with(&["stm32"])), Ok(&memory::THRUSTER));
+        assert_eq!(
+            layout_of("thruster-fw", with(&["stm32", "legacy", "brushed"])),
+            Ok(&memory::THRUSTER)
+        );
+        assert_eq!(
+            layout_of("lbv-master-fw", with(&["stm32", "acceptance"])),
+            Ok(&memory::MASTER)
+        );
+        assert_eq!(layout_of("lbv", with(&[])), Err(LayoutOfError::Unknown));
+        // A bootloader fills its partition at most, and uses no pin.
+        for (name, partitions) in [
+            ("thruster-boot", memory::THRUSTER_PARTITIONS),
+            ("master-boot", memory::MASTER_PARTITIONS),
+        ] {
+            let boot = BUILDS.iter().find(|build| build.name == name).unwrap();
+            assert_eq!(boot.flash_budget, partitions.bootloader.length);
+            assert_eq!(boot.layout.chip, partitions.chip);
+            assert!(boot.image.uses.is_empty());
+            let peripherals: Vec<&str> = boot.image.peripherals.iter().map(|p| p.name).collect();
+            assert_eq!(peripherals, ["FLASH", "IWDG"]);
+        }
     }
 
     #[test]

@@ -89,6 +89,22 @@ pub const BOOT_TRIAL: Iwdg = match lasting_at_least(BOOT_TRIAL_MIN_US) {
     None => panic!("the boot trial's timeout cannot be set"),
 };
 
+/// The master's watchdog: fed every 250 ms by a task of the one executor every other task runs on, so that a task
+/// that stops yielding (the executor stuck) resets the master within a second. Its longest stretch without a yield
+/// is the signature check's last step (ed25519, some 6 M instructions: under 50 ms at 170 MHz). Set up by the image
+/// over the bootloader's trial timeout.
+pub const MASTER_SCHEDULE: Schedule = Schedule {
+    feed_period_us: 250_000,
+    slowest_report_us: 100_000,
+    timeout_us: 1_000_000,
+};
+
+/// [`MASTER_SCHEDULE`]'s IWDG_PR and IWDG_RLR.
+pub const MASTER: Iwdg = match MASTER_SCHEDULE.check() {
+    Ok(iwdg) => iwdg,
+    Err(_) => panic!("the master's watchdog schedule is unsound"),
+};
+
 /// How a firmware feeds the watchdog: a health task checks every `feed_period_us` that every task reported since
 /// the last check and only then feeds it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -207,6 +223,13 @@ mod tests {
             ..schedule
         };
         assert_eq!(short.check(), Err(ScheduleError::TimeoutTooShort));
+    }
+
+    #[test]
+    fn the_master_s_watchdog_outlasts_two_feeds_and_bites_within_a_second_and_a_half() {
+        assert_eq!(MASTER, Iwdg { pr: 1, rlr: 3999 });
+        assert!(MASTER.timeout_us(LSI_MAX_HZ) >= 2 * MASTER_SCHEDULE.feed_period_us);
+        assert!(MASTER_SCHEDULE.worst_bite_us() < 1_500_000);
     }
 
     #[test]

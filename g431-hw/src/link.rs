@@ -14,7 +14,12 @@ pub fn link_image(package: &str) -> Result<(), Box<dyn std::error::Error>> {
         return Ok(());
     }
     let out = PathBuf::from(std::env::var_os("OUT_DIR").ok_or("OUT_DIR is not set")?);
-    std::fs::write(out.join("memory.x"), layout_of(package)?.to_string())?;
+    // Cargo tells a build script its crate's features as CARGO_FEATURE_<NAME> (upper case, `-` as `_`).
+    let enabled = |feature: &str| {
+        let name = feature.to_uppercase().replace('-', "_");
+        std::env::var_os(format!("CARGO_FEATURE_{name}")).is_some()
+    };
+    std::fs::write(out.join("memory.x"), layout_of(package, enabled)?.to_string())?;
     // flip-link takes the search path as two arguments.
     println!("cargo:rustc-link-arg-bins=-L");
     println!("cargo:rustc-link-arg-bins={}", out.display());

@@ -1,9 +1,10 @@
-//! The STM32G431RB's memories and how an image lays itself out in them. Each firmware image's linker script
-//! `memory.x` is this data printed (a [`Layout`]'s `Display`, written by the firmware crates' build scripts), and
-//! [`check`] refuses a layout whose regions leave the chip's memories, overlap, or split a flash page.
+//! The two chips' memories and how an image lays itself out in them: the thruster's STM32G431RB and the master's
+//! STM32G474RE. Each firmware image's linker script `memory.x` is this data printed (a [`Layout`]'s `Display`,
+//! written by the firmware crates' build scripts), and [`check`] refuses a layout whose regions leave its chip's
+//! memories, overlap, or split a flash page.
 //!
-//! The thruster boots through an A/B bootloader (embassy-boot): [`THRUSTER_PARTITIONS`] splits the flash into the
-//! bootloader, its state, the ACTIVE image and the DFU partition a new image is written to, and
+//! Both boot through an A/B bootloader (embassy-boot): [`THRUSTER_PARTITIONS`] and [`MASTER_PARTITIONS`] split the
+//! flash into the bootloader, its state, the ACTIVE image and the DFU partition a new image is written to, and
 //! [`check_partitions`] refuses a split embassy-boot cannot swap in.
 
 use core::fmt;
@@ -13,25 +14,62 @@ use crate::pins::same;
 /// One KiB.
 pub const KIB: u32 = 1024;
 
-/// The main flash: 128 KiB from 0x0800_0000 in one bank (RM0440 3.3.1, Table 8: category 2 devices).
-pub const FLASH: Span = Span {
-    origin: 0x0800_0000,
-    length: 128 * KIB,
-};
+/// Where the main flash starts on every STM32G4 (RM0440 2.4, Table 4), and where embassy-stm32's flash driver and
+/// embassy-boot count their offsets from.
+pub const FLASH_ORIGIN: u32 = 0x0800_0000;
 
-/// A flash page, the unit of erase (RM0440 3.3.1: 2 KiB pages in the category 2 devices' single bank).
+/// A flash page, the unit of erase: 2 KiB in the G431's single bank and in each of the G474's two banks in its
+/// dual-bank mode (RM0440 3.3.1, Tables 7 and 8).
 pub const PAGE: u32 = 2 * KIB;
 
 /// The flash's write unit, a double word (RM0440 3.3.7: "the Flash memory is programmed 72 bits at a time", 64
 /// data bits and 8 ECC bits).
 pub const WRITE_UNIT: u32 = 8;
 
-/// The RAM the linker sees as one: SRAM1 (16 KiB) + SRAM2 (6 KiB) + CCM SRAM's data-bus alias (10 KiB), back to
-/// back from 0x2000_0000 (RM0440 2.4 and Table 4, the G431's memory map).
-pub const RAM: Span = Span {
-    origin: 0x2000_0000,
-    length: 32 * KIB,
+/// A chip's memories, as an image's linker script sees them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Chip {
+    /// Its part number, for the generated file's comment and probe-rs.
+    pub part: &'static str,
+    /// The main flash.
+    pub flash: Span,
+    /// The RAM the linker sees as one.
+    pub ram: Span,
+}
+
+/// The thruster's chip (NUCLEO-G431RB): 128 KiB of flash in one bank (RM0440 3.3.1, Table 8: category 2 devices);
+/// SRAM1 (16 KiB) + SRAM2 (6 KiB) + CCM SRAM's data-bus alias (10 KiB), back to back from 0x2000_0000 (RM0440 2.4
+/// and Table 4, the G431's memory map).
+pub const G431RB: Chip = Chip {
+    part: "STM32G431RB",
+    flash: Span {
+        origin: FLASH_ORIGIN,
+        length: 128 * KIB,
+    },
+    ram: Span {
+        origin: 0x2000_0000,
+        length: 32 * KIB,
+    },
 };
+
+/// The master's chip (NUCLEO-G474RE): 512 KiB of flash, two banks of 256 KiB with 2 KiB pages in dual-bank mode
+/// (DBANK = 1, the factory setting; RM0440 3.3.1, Table 7: category 3 devices), bank 2 from 0x0804_0000; SRAM1
+/// (80 KiB) + SRAM2 (16 KiB) + CCM SRAM's data-bus alias (32 KiB), back to back from 0x2000_0000 (RM0440 2.4 and
+/// Table 3, the 128 KiB devices' memory map).
+pub const G474RE: Chip = Chip {
+    part: "STM32G474RE",
+    flash: Span {
+        origin: FLASH_ORIGIN,
+        length: 512 * KIB,
+    },
+    ram: Span {
+        origin: 0x2000_0000,
+        length: 128 * KIB,
+    },
+};
+
+/// Where the G474's second flash bank starts in dual-bank mode (RM0440 3.3.1, Table 7).
+pub const G474_BANK2: u32 = FLASH_ORIGIN + 256 * KIB;
 
 /// An address range.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -72,8 +110,10 @@ pub struct Region {
 /// An image's memory layout.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Layout {
-    /// The board it is for, for the generated file's comment.
-    pub chip: &'static str,
+    /// The image it is for, for the generated file's comment.
+    pub image: &'static str,
+    /// The chip it is linked for.
+    pub chip: &'static Chip,
     /// Every region, flash first.
     pub regions: &'static [Region],
     /// Where the image stands to a bootloader.
@@ -106,6 +146,8 @@ pub const IMAGE_INFO_SIZE: u32 = 32;
 /// swap, the previous one waits to be reverted to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Partitions {
+    /// The chip whose flash they split.
+    pub chip: &'static Chip,
     /// The bootloader's image.
     pub bootloader: Span,
     /// embassy-boot's state: a magic word, then the swap's progress.
@@ -135,23 +177,22 @@ pub enum PartitionError {
     Misplaced,
     /// DFU is not at least a page larger than ACTIVE.
     DfuTooSmall,
+    /// The state partition cannot hold the swap's progress: a magic word, a progress-valid word and four words per
+    /// ACTIVE page (embassy-boot's `assert_partitions`).
+    StateTooSmall,
 }
-
-// embassy-boot's state holds a magic word, a progress-valid word and four words per ACTIVE page
-// (`assert_partitions`). One page of state is enough for any ACTIVE this flash can hold beside its DFU: it counts
-// 2 + 4 x 31 words at most, of the 256 a page holds, so no partition split here can get that wrong.
-const _: () = assert!(2 + 4 * (FLASH.length / PAGE / 2) <= PAGE / WRITE_UNIT);
 
 /// Check partitions as embassy-boot's bootloader does at every start (`assert_partitions`, where a failure is a
 /// panic in the bootloader): here at build time instead.
 pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionError> {
     let Partitions {
+        chip,
         bootloader,
         state,
         active,
         dfu,
     } = *partitions;
-    if bootloader.origin != FLASH.origin {
+    if bootloader.origin != chip.flash.origin {
         return Err(PartitionError::BootloaderNotFirst);
     }
     let all = [bootloader, state, active, dfu];
@@ -161,7 +202,7 @@ pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionEr
         if span.origin % PAGE != 0 || span.length % PAGE != 0 || span.length == 0 {
             return Err(PartitionError::Unaligned);
         }
-        if !FLASH.contains(span) {
+        if !chip.flash.contains(span) {
             return Err(PartitionError::Misplaced);
         }
         let mut others = tail;
@@ -176,127 +217,170 @@ pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionEr
     if dfu.length < active.length + PAGE {
         return Err(PartitionError::DfuTooSmall);
     }
+    if state.length < (2 + 4 * partitions.active_pages()) * WRITE_UNIT {
+        return Err(PartitionError::StateTooSmall);
+    }
     Ok(())
+}
+
+/// A span of the flash, in KiB from its start.
+const fn kib(origin: u32, length: u32) -> Span {
+    Span {
+        origin: FLASH_ORIGIN + origin * KIB,
+        length: length * KIB,
+    }
 }
 
 /// The thruster's flash: an 8 KiB bootloader (embassy's STM32 bootloader builds to about 6.3 KiB), one page of
 /// state (118 words of the 256 it holds), and the rest split between ACTIVE (58 KiB, 29 pages, for a
 /// 32 KiB image and room to grow) and DFU (60 KiB). The thruster keeps no settings in flash.
 pub const THRUSTER_PARTITIONS: Partitions = Partitions {
-    bootloader: Span {
-        origin: FLASH.origin,
-        length: 8 * KIB,
-    },
-    state: Span {
-        origin: FLASH.origin + 8 * KIB,
-        length: 2 * KIB,
-    },
-    active: Span {
-        origin: FLASH.origin + 10 * KIB,
-        length: 58 * KIB,
-    },
-    dfu: Span {
-        origin: FLASH.origin + 68 * KIB,
-        length: 60 * KIB,
-    },
+    chip: &G431RB,
+    bootloader: kib(0, 8),
+    state: kib(8, 2),
+    active: kib(10, 58),
+    dfu: kib(68, 60),
 };
 
-const _: () = assert!(check_partitions(&THRUSTER_PARTITIONS).is_ok());
+/// The master's flash, one bank for the image that runs and one for what is written: bank 1 holds the bootloader
+/// (8 KiB, the thruster's bootloader built for this chip), its state (two pages: 478 words of the 512 they hold)
+/// and ACTIVE (238 KiB, 119 pages); bank 2 holds DFU (240 KiB, ACTIVE and a page) and the settings' 16 KiB
+/// ([`MASTER_STORAGE`]), which end the flash as on the master's first board, where flashing an image never reaches
+/// them. ACTIVE can grow no further than DFU allows, so bank 1's top 6 KiB stay unused. The running image writes
+/// DFU and its settings in the bank it does not run from, which RM0440 3.3.8 allows without stalling it (a page
+/// erase in the bank code runs from stalls every fetch for tens of milliseconds).
+pub const MASTER_PARTITIONS: Partitions = Partitions {
+    chip: &G474RE,
+    bootloader: kib(0, 8),
+    state: kib(8, 4),
+    active: kib(12, 238),
+    dfu: kib(256, 240),
+};
+
+/// Where the master keeps its settings: the top 16 KiB of the G474RE's flash, eight pages of bank 2.
+pub const MASTER_STORAGE: Span = kib(496, 16);
+
+const _: () = {
+    assert!(check_partitions(&THRUSTER_PARTITIONS).is_ok());
+    assert!(check_partitions(&MASTER_PARTITIONS).is_ok());
+    assert!(MASTER_PARTITIONS.active.end() <= G474_BANK2 && MASTER_PARTITIONS.dfu.origin == G474_BANK2);
+    assert!(MASTER_PARTITIONS.dfu.end() == MASTER_STORAGE.origin && MASTER_STORAGE.end() == G474RE.flash.end());
+};
+
+const fn region(name: &'static str, span: Span, holds: &'static str) -> Region {
+    Region { name, span, holds }
+}
+
+const STACK_AND_STATICS: &str = "static data and, below it (flip-link), the stack";
 
 /// The thruster's application, linked into ACTIVE.
 pub const THRUSTER: Layout = Layout {
-    chip: "STM32G431RB (NUCLEO-G431RB), the thruster's application",
+    image: "the thruster's application (NUCLEO-G431RB)",
+    chip: &G431RB,
     regions: &[
-        Region {
-            name: "BOOTLOADER",
-            span: THRUSTER_PARTITIONS.bootloader,
-            holds: "the bootloader (thruster-boot); nothing is linked here",
-        },
-        Region {
-            name: "BOOTLOADER_STATE",
-            span: THRUSTER_PARTITIONS.state,
-            holds: "the bootloader's state; nothing is linked here",
-        },
-        Region {
-            name: "FLASH",
-            span: THRUSTER_PARTITIONS.active,
-            holds: "the image (the ACTIVE partition)",
-        },
-        Region {
-            name: "DFU",
-            span: THRUSTER_PARTITIONS.dfu,
-            holds: "a new image, written by the running one; nothing is linked here",
-        },
-        Region {
-            name: "RAM",
-            span: RAM,
-            holds: "static data and, below it (flip-link), the stack",
-        },
+        region(
+            "BOOTLOADER",
+            THRUSTER_PARTITIONS.bootloader,
+            "the bootloader (lbv-boot); nothing is linked here",
+        ),
+        region(
+            "BOOTLOADER_STATE",
+            THRUSTER_PARTITIONS.state,
+            "the bootloader's state; nothing is linked here",
+        ),
+        region("FLASH", THRUSTER_PARTITIONS.active, "the image (the ACTIVE partition)"),
+        region(
+            "DFU",
+            THRUSTER_PARTITIONS.dfu,
+            "a new image, written by the running one; nothing is linked here",
+        ),
+        region("RAM", G431RB.ram, STACK_AND_STATICS),
     ],
     boot: Boot::Application(&THRUSTER_PARTITIONS),
 };
 
 /// The thruster's bootloader, linked into its partition.
 pub const THRUSTER_BOOT: Layout = Layout {
-    chip: "STM32G431RB (NUCLEO-G431RB), the thruster's bootloader",
+    image: "the thruster's bootloader (NUCLEO-G431RB)",
+    chip: &G431RB,
     regions: &[
-        Region {
-            name: "FLASH",
-            span: THRUSTER_PARTITIONS.bootloader,
-            holds: "the bootloader",
-        },
-        Region {
-            name: "BOOTLOADER_STATE",
-            span: THRUSTER_PARTITIONS.state,
-            holds: "its state: the swap's progress",
-        },
-        Region {
-            name: "ACTIVE",
-            span: THRUSTER_PARTITIONS.active,
-            holds: "the image it starts",
-        },
-        Region {
-            name: "DFU",
-            span: THRUSTER_PARTITIONS.dfu,
-            holds: "the image it swaps in, and after the swap the one it reverts to",
-        },
-        Region {
-            name: "RAM",
-            span: RAM,
-            holds: "static data and, below it (flip-link), the stack",
-        },
+        region("FLASH", THRUSTER_PARTITIONS.bootloader, "the bootloader"),
+        region(
+            "BOOTLOADER_STATE",
+            THRUSTER_PARTITIONS.state,
+            "its state: the swap's progress",
+        ),
+        region("ACTIVE", THRUSTER_PARTITIONS.active, "the image it starts"),
+        region(
+            "DFU",
+            THRUSTER_PARTITIONS.dfu,
+            "the image it swaps in, and after the swap the one it reverts to",
+        ),
+        region("RAM", G431RB.ram, STACK_AND_STATICS),
     ],
     boot: Boot::Bootloader(&THRUSTER_PARTITIONS),
 };
 
-/// The master: linked into the lower 112 KiB, the top 16 KiB (pages 56-63) kept for its settings, so that flashing
-/// an image never erases them; all of the RAM.
+/// The master's application, linked into ACTIVE.
 pub const MASTER: Layout = Layout {
-    chip: "STM32G431RB (NUCLEO-G431RB), the master",
+    image: "the master's application (NUCLEO-G474RE)",
+    chip: &G474RE,
     regions: &[
-        Region {
-            name: "FLASH",
-            span: Span {
-                origin: FLASH.origin,
-                length: 112 * KIB,
-            },
-            holds: "the image",
-        },
-        Region {
-            name: "STORAGE",
-            span: Span {
-                origin: FLASH.origin + 112 * KIB,
-                length: 16 * KIB,
-            },
-            holds: "the master's settings (lbv-master-fw/src/settings.rs); nothing is linked here",
-        },
-        Region {
-            name: "RAM",
-            span: RAM,
-            holds: "static data and, below it (flip-link), the stack",
-        },
+        region(
+            "BOOTLOADER",
+            MASTER_PARTITIONS.bootloader,
+            "the bootloader (lbv-boot); nothing is linked here",
+        ),
+        region(
+            "BOOTLOADER_STATE",
+            MASTER_PARTITIONS.state,
+            "the bootloader's state; nothing is linked here",
+        ),
+        region(
+            "FLASH",
+            MASTER_PARTITIONS.active,
+            "the image (the ACTIVE partition, bank 1)",
+        ),
+        region(
+            "DFU",
+            MASTER_PARTITIONS.dfu,
+            "a new image, written by the running one (bank 2); nothing is linked here",
+        ),
+        region(
+            "STORAGE",
+            MASTER_STORAGE,
+            "the master's settings (lbv-master-fw/src/settings.rs); nothing is linked here",
+        ),
+        region("RAM", G474RE.ram, STACK_AND_STATICS),
     ],
-    boot: Boot::None,
+    boot: Boot::Application(&MASTER_PARTITIONS),
+};
+
+/// The master's bootloader, linked into its partition.
+pub const MASTER_BOOT: Layout = Layout {
+    image: "the master's bootloader (NUCLEO-G474RE)",
+    chip: &G474RE,
+    regions: &[
+        region("FLASH", MASTER_PARTITIONS.bootloader, "the bootloader"),
+        region(
+            "BOOTLOADER_STATE",
+            MASTER_PARTITIONS.state,
+            "its state: the swap's progress",
+        ),
+        region("ACTIVE", MASTER_PARTITIONS.active, "the image it starts (bank 1)"),
+        region(
+            "DFU",
+            MASTER_PARTITIONS.dfu,
+            "the image it swaps in, and after the swap the one it reverts to (bank 2)",
+        ),
+        region(
+            "STORAGE",
+            MASTER_STORAGE,
+            "the master's settings, which it never touches",
+        ),
+        region("RAM", G474RE.ram, STACK_AND_STATICS),
+    ],
+    boot: Boot::Bootloader(&MASTER_PARTITIONS),
 };
 
 /// Why a layout does not fit the chip.
@@ -329,14 +413,15 @@ impl Layout {
 /// Check a layout: every region inside the flash (whole pages) or the RAM, no two overlapping, and the `FLASH` and
 /// `RAM` regions cortex-m-rt links into present. A `const fn`, so the tables here are checked at build time.
 pub const fn check(layout: &Layout) -> Result<(), LayoutError> {
+    let chip = layout.chip;
     let mut rest = layout.regions;
     while let [region, tail @ ..] = rest {
         let span = region.span;
-        if FLASH.contains(span) {
+        if chip.flash.contains(span) {
             if span.origin % PAGE != 0 || span.length % PAGE != 0 {
                 return Err(LayoutError::Unaligned(region.name));
             }
-        } else if !RAM.contains(span) {
+        } else if !chip.ram.contains(span) {
             return Err(LayoutError::Outside(region.name));
         }
         let mut others = tail;
@@ -361,12 +446,17 @@ const _: () = {
     assert!(check(&MASTER).is_ok());
     assert!(check(&THRUSTER).is_ok());
     assert!(check(&THRUSTER_BOOT).is_ok());
+    assert!(check(&MASTER_BOOT).is_ok());
 };
 
 /// The layout as a linker script's MEMORY block: the image's `memory.x`.
 impl fmt::Display for Layout {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "/* {}: generated from g431_hw::memory; do not edit.", self.chip)?;
+        writeln!(
+            f,
+            "/* {}, {}: generated from g431_hw::memory; do not edit.",
+            self.image, self.chip.part
+        )?;
         for region in self.regions {
             writeln!(f, "   {}: {}", region.name, region.holds)?;
         }
@@ -397,7 +487,7 @@ impl fmt::Display for Layout {
             ("active", partitions.active),
             ("dfu", partitions.dfu),
         ] {
-            let start = span.origin - FLASH.origin;
+            let start = span.origin - FLASH_ORIGIN;
             writeln!(f, "__bootloader_{name}_start = 0x{start:08X};")?;
             writeln!(f, "__bootloader_{name}_end = 0x{:08X};", start + span.length)?;
         }
@@ -424,18 +514,23 @@ mod tests {
     #[test]
     fn the_layout_prints_as_a_linker_script() {
         let text = MASTER.to_string();
+        assert!(
+            text.starts_with("/* the master's application (NUCLEO-G474RE), STM32G474RE:"),
+            "{text}"
+        );
         assert!(text.contains("\nMEMORY\n{\n"), "{text}");
+        for line in [
+            "  FLASH            : ORIGIN = 0x08003000, LENGTH = 238K\n",
+            "  DFU              : ORIGIN = 0x08040000, LENGTH = 240K\n",
+            "  STORAGE          : ORIGIN = 0x0807C000, LENGTH = 16K\n",
+            "  RAM              : ORIGIN = 0x20000000, LENGTH = 128K\n}\n",
+        ] {
+            assert!(text.contains(line), "{line} in\n{text}");
+        }
+        let thruster = THRUSTER.to_string();
         assert!(
-            text.contains("  FLASH            : ORIGIN = 0x08000000, LENGTH = 112K\n"),
-            "{text}"
-        );
-        assert!(
-            text.contains("  STORAGE          : ORIGIN = 0x0801C000, LENGTH = 16K\n"),
-            "{text}"
-        );
-        assert!(
-            text.contains("  RAM              : ORIGIN = 0x20000000, LENGTH = 32K\n}\n"),
-            "{text}"
+            thruster.contains("  RAM              : ORIGIN = 0x20000000, LENGTH = 32K\n}\n"),
+            "{thruster}"
         );
     }
 
@@ -449,14 +544,15 @@ mod tests {
 
     const fn layout(regions: &'static [Region]) -> Layout {
         Layout {
-            chip: "test",
+            image: "test",
+            chip: &G431RB,
             regions,
             boot: Boot::None,
         }
     }
 
-    const ALL_RAM: Region = region("RAM", RAM.origin, RAM.length);
-    const HALF_FLASH: Region = region("FLASH", FLASH.origin, 64 * KIB);
+    const ALL_RAM: Region = region("RAM", G431RB.ram.origin, G431RB.ram.length);
+    const HALF_FLASH: Region = region("FLASH", FLASH_ORIGIN, 64 * KIB);
 
     #[test]
     fn the_thruster_layouts_print_the_partitions_for_embassy_boot() {
@@ -479,14 +575,29 @@ mod tests {
         let bootloader = THRUSTER_BOOT.to_string();
         assert!(bootloader.contains("  FLASH            : ORIGIN = 0x08000000, LENGTH = 8K\n"));
         assert!(!bootloader.contains(".image_info"));
-        assert!(!MASTER.to_string().contains("__bootloader"));
+    }
+
+    #[test]
+    fn the_master_layouts_print_their_partitions_for_embassy_boot() {
+        for layout in [MASTER, MASTER_BOOT] {
+            let text = layout.to_string();
+            for symbol in [
+                "__bootloader_state_start = 0x00002000;\n",
+                "__bootloader_state_end = 0x00003000;\n",
+                "__bootloader_active_start = 0x00003000;\n",
+                "__bootloader_active_end = 0x0003E800;\n",
+                "__bootloader_dfu_start = 0x00040000;\n",
+                "__bootloader_dfu_end = 0x0007C000;\n",
+            ] {
+                assert!(text.contains(symbol), "{symbol} in\n{text}");
+            }
+        }
+        assert!(MASTER.to_string().contains(".image_info ORIGIN(FLASH) + 0x200 :"));
+        assert!(!MASTER_BOOT.to_string().contains(".image_info"));
     }
 
     const fn span(origin_kib: u32, length_kib: u32) -> Span {
-        Span {
-            origin: FLASH.origin + origin_kib * KIB,
-            length: length_kib * KIB,
-        }
+        kib(origin_kib, length_kib)
     }
 
     #[test]
@@ -533,6 +644,24 @@ mod tests {
                 PartitionError::DfuTooSmall,
             ),
         ];
+        let master = MASTER_PARTITIONS;
+        let cases = cases.into_iter().chain([
+            (
+                Partitions {
+                    state: span(8, 2),
+                    ..master
+                },
+                PartitionError::StateTooSmall,
+            ),
+            (
+                // The G474's flash under the G431's partitions' chip: DFU leaves the flash.
+                Partitions {
+                    chip: &G431RB,
+                    ..master
+                },
+                PartitionError::Misplaced,
+            ),
+        ]);
         for (partitions, refusal) in cases {
             assert_eq!(check_partitions(&partitions), Err(refusal), "{partitions:?}");
         }
@@ -540,17 +669,17 @@ mod tests {
 
     #[test]
     fn a_bad_layout_is_refused() {
-        const OVERLAP: Layout = layout(&[HALF_FLASH, region("DFU", FLASH.origin + 62 * KIB, 4 * KIB), ALL_RAM]);
+        const OVERLAP: Layout = layout(&[HALF_FLASH, region("DFU", FLASH_ORIGIN + 62 * KIB, 4 * KIB), ALL_RAM]);
         assert_eq!(check(&OVERLAP), Err(LayoutError::Overlap("FLASH", "DFU")));
-        const UNALIGNED: Layout = layout(&[region("FLASH", FLASH.origin, 63 * KIB), ALL_RAM]);
+        const UNALIGNED: Layout = layout(&[region("FLASH", FLASH_ORIGIN, 63 * KIB), ALL_RAM]);
         assert_eq!(check(&UNALIGNED), Err(LayoutError::Unaligned("FLASH")));
-        const OUTSIDE: Layout = layout(&[region("FLASH", FLASH.origin, 130 * KIB), ALL_RAM]);
+        const OUTSIDE: Layout = layout(&[region("FLASH", FLASH_ORIGIN, 130 * KIB), ALL_RAM]);
         assert_eq!(check(&OUTSIDE), Err(LayoutError::Outside("FLASH")));
-        const TOO_MUCH_RAM: Layout = layout(&[HALF_FLASH, region("RAM", RAM.origin, 33 * KIB)]);
+        const TOO_MUCH_RAM: Layout = layout(&[HALF_FLASH, region("RAM", G431RB.ram.origin, 33 * KIB)]);
         assert_eq!(check(&TOO_MUCH_RAM), Err(LayoutError::Outside("RAM")));
         const NO_FLASH: Layout = layout(&[ALL_RAM]);
         assert_eq!(check(&NO_FLASH), Err(LayoutError::Missing("FLASH")));
-        const FITS: Layout = layout(&[HALF_FLASH, region("DFU", FLASH.origin + 64 * KIB, 4 * KIB), ALL_RAM]);
+        const FITS: Layout = layout(&[HALF_FLASH, region("DFU", FLASH_ORIGIN + 64 * KIB, 4 * KIB), ALL_RAM]);
         assert_eq!(check(&FITS), Ok(()));
     }
 }

@@ -433,6 +433,13 @@ pub const NUCLEO_G431RB: Board = Board {
     ],
 };
 
+/// The master's board: the same MB1367 board as the NUCLEO-G431RB with an STM32G474RE fitted (UM2505 covers both),
+/// so the same signals on the same pins, the 24 MHz HSE crystal among them.
+pub const NUCLEO_G474RE: Board = Board {
+    name: "NUCLEO-G474RE",
+    signals: NUCLEO_G431RB.signals,
+};
+
 /// X-NUCLEO-IHM08M1 on the morpho connectors of a NUCLEO-G431RB. UM1996's tables and the board's schematic could
 /// not be read here; the mapping is the one a public G474RE + IHM08M1 project derived pin by pin from UM1996
 /// tables 3/4, the schematic and UM2505 (okhsunrog/oxifoc, `docs/hw/nucleo-g474re-ihm08m1.md`; the G474RE is the

@@ -1,4 +1,4 @@
-//! NUCLEO-G431RB wiring of the master node and the adapters from embassy-stm32 peripherals to the core's ports;
+//! NUCLEO-G474RE wiring of the master node and the adapters from embassy-stm32 peripherals to the core's ports;
 //! the settings they are configured with are the core's (`lbv_master_fw::CONFIG`).
 //!
 //! The pins and peripherals are the image's description, `g431_hw::images::MASTER`, checked at build time against
@@ -21,6 +21,36 @@ use g431_hw::fdcan;
 use lbv_master_fw::CONFIG;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::{BusRecovery, clear_bus};
+
+/// The independent watchdog, started with the master's timeout (`g431_hw::iwdg::MASTER`) over the one the
+/// bootloader started it with: RM0440's IWDG procedure (start, unlock, prescaler, reload, wait for the update,
+/// reload the counter). Fed by [`Watchdog::feed`]; taking the peripheral keeps anyone else from it.
+pub struct Watchdog(());
+
+impl Watchdog {
+    /// Set the watchdog up; it has been running since the bootloader started it.
+    pub fn start(_iwdg: Peri<'static, embassy_stm32::peripherals::IWDG>) -> Self {
+        use pac::iwdg::vals::{Key, Pr};
+        // Frozen while a debugger halts the core, so a breakpoint does not reset the master under the probe.
+        pac::DBGMCU
+            .apb1lfzr()
+            .write_value(pac::dbgmcu::regs::Apb1lfzr(g431_hw::iwdg::DBGMCU_APB1FZR1));
+        let regs = pac::IWDG;
+        regs.kr().write(|w| w.set_key(Key::START));
+        regs.kr().write(|w| w.set_key(Key::ENABLE));
+        regs.pr().write(|w| w.set_pr(Pr::from_bits(g431_hw::iwdg::MASTER.pr)));
+        regs.rlr().write(|w| w.set_rl(g431_hw::iwdg::MASTER.rlr));
+        // A few LSI cycles; were the LSI dead, the watchdog (running since START) resets the chip.
+        while regs.sr().read().0 != 0 {}
+        regs.kr().write(|w| w.set_key(Key::RESET));
+        Watchdog(())
+    }
+
+    /// Reload the counter.
+    pub fn feed(&mut self) {
+        pac::IWDG.kr().write(|w| w.set_key(pac::iwdg::vals::Key::RESET));
+    }
+}
 
 /// The battery bus's nominal bit timing, from the 24 MHz crystal: 24 tq, sample point 79 %, SJW 5, which
 /// tolerates 0.81 % of clock error per node (`g431_hw::fdcan`).

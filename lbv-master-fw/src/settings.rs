@@ -34,16 +34,19 @@ use crate::params::{PARAM_COUNT, Param, Settings};
 use crate::shared::{Severity, Shared, text};
 use crate::signing::SigningKey;
 
-/// The STM32G431RB's flash kept for the settings, as offsets from the start of flash: its top 16 KiB, eight of
-/// the 2 KiB pages of its single bank (RM0440 3.3.1, category 2 devices). `memory.x` keeps the images below.
-pub const G431_STORAGE: Range<u32> = 0x1_C000..0x2_0000;
+/// The master's flash kept for the settings ([`memory::MASTER_STORAGE`]), as offsets from the start of flash: the
+/// top 16 KiB of the STM32G474RE, eight 2 KiB pages of bank 2. `memory.x` keeps the images and DFU below.
+pub const STORAGE: Range<u32> =
+    memory::MASTER_STORAGE.origin - memory::FLASH_ORIGIN..memory::MASTER_STORAGE.end() - memory::FLASH_ORIGIN;
 
 /// The pages the master keeps data in, for the binding's NMI handler ([`g431_hw::flash::nmi_action`]): the
-/// settings, where a power cut can leave a torn double word that the store skips.
-pub const DATA_PAGES: [Span; 1] = [Span {
-    origin: memory::FLASH.origin + G431_STORAGE.start,
-    length: G431_STORAGE.end - G431_STORAGE.start,
-}];
+/// settings, where a power cut can leave a torn double word that the store skips; the bootloader's state and DFU,
+/// which the field update writes and reads back.
+pub const DATA_PAGES: [Span; 3] = [
+    memory::MASTER_STORAGE,
+    memory::MASTER_PARTITIONS.state,
+    memory::MASTER_PARTITIONS.dfu,
+];
 
 /// Where the settings are kept.
 #[allow(async_fn_in_trait)]
@@ -201,11 +204,11 @@ impl<F: NorFlash> Store<F> {
         })
     }
 
-    /// The store in the pages the G431 images leave for it ([`G431_STORAGE`]) of `flash`, the whole 128 KiB flash
+    /// The store in the pages the master's layout leaves for it ([`STORAGE`]) of `flash`, the whole 512 KiB flash
     /// (its 2 KiB pages are checked when the image is built).
-    pub const fn g431(flash: F) -> Self {
+    pub const fn master(flash: F) -> Self {
         Self {
-            queue: QueueStorage::new(flash, const { QueueConfig::new(G431_STORAGE) }, Cache::new_uncached()),
+            queue: QueueStorage::new(flash, const { QueueConfig::new(STORAGE) }, Cache::new_uncached()),
             buffer: Buffer([0; RECORD.next_multiple_of(8)]),
             held: None,
             read_errors: 0,
@@ -431,16 +434,13 @@ mod tests {
     fn the_storage_pages_are_the_layout_s() {
         // The image's memory layout (its memory.x) keeps the images out of the top 16 KiB; the store uses exactly
         // that.
-        let layout = g431_hw::images::layout_of("lbv-master-fw").unwrap();
+        let layout = g431_hw::images::layout_of("lbv-master-fw", |_| true).unwrap();
         let storage = layout.region("STORAGE").expect("a STORAGE region").span;
-        let flash = g431_hw::memory::FLASH;
-        assert_eq!(
-            G431_STORAGE,
-            storage.origin - flash.origin..storage.end() - flash.origin
-        );
-        assert_eq!(G431_STORAGE, 0x1_C000..0x1_C000 + 16 * 1024);
-        assert_eq!((G431_STORAGE.end - G431_STORAGE.start) % 2048, 0, "whole 2 KiB pages");
-        assert_eq!(G431_STORAGE.end, 128 * 1024, "the top of the 128 KiB flash");
+        let origin = g431_hw::memory::FLASH_ORIGIN;
+        assert_eq!(STORAGE, storage.origin - origin..storage.end() - origin);
+        assert_eq!(STORAGE, 0x7_C000..0x7_C000 + 16 * 1024);
+        assert_eq!((STORAGE.end - STORAGE.start) % 2048, 0, "whole 2 KiB pages");
+        assert_eq!(STORAGE.end, 512 * 1024, "the top of the 512 KiB flash");
     }
 
     #[test]

@@ -45,6 +45,19 @@ bind_interrupts!(struct Irqs {
 
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
 
+/// What this image is (target: the master; version: the crate's), where `lbv image` and the master's own update look
+/// for it (the linker script places `.image_info` at `g431_hw::memory::IMAGE_INFO_OFFSET`).
+#[allow(unsafe_code)] // a link section: the record's place is the linker script's, checked there by size
+#[unsafe(link_section = ".image_info")]
+#[used]
+static IMAGE_INFO: [u8; update_image::INFO_LEN] = {
+    let version = match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
+        Some(version) => version,
+        None => panic!("the crate's version is not major.minor.patch"),
+    };
+    update_image::ImageInfo::new(update_image::Target::Master, version).to_bytes()
+};
+
 /// Where the settings are kept: embassy-stm32's flash driver (blocking: the G431 has one bank, so the CPU waits out
 /// every write and erase anyway) behind the async NOR flash port.
 type Settings = Store<BlockingAsync<Flash<'static, Blocking>>>;
@@ -160,7 +173,7 @@ async fn main(spawner: Spawner) {
     let (console_tx, console_rx) = uart.split();
 
     // The settings, in the flash pages the images leave free (`memory.x`).
-    let settings = Store::g431(BlockingAsync::new(Flash::new_blocking(chip.flash)));
+    let settings = Store::master(BlockingAsync::new(Flash::new_blocking(chip.flash)));
 
     // The build's configuration with the chip's 96-bit unique device id for AUTOPILOT_VERSION (RM0440 section
     // 48.1: UID_BASE 0x1FFF_7590, the address stm32-metapac gives the G431's UID block), read here so that the core
@@ -171,6 +184,9 @@ async fn main(spawner: Spawner) {
         config.console.uid = embassy_stm32::uid::uid();
         config
     });
+
+    let watchdog = board::Watchdog::start(chip.watchdog);
+    spawner.spawn(unwrap!(feed(watchdog)));
 
     let (work, update) = work_and_sink();
     spawner.spawn(unwrap!(master(
@@ -226,6 +242,17 @@ fn nominal_bit_timing() -> NominalBitTiming {
         seg1: NonZeroU8::new(timing.tseg1).unwrap_or(one),
         seg2: NonZeroU8::new(timing.tseg2).unwrap_or(one),
         sync_jump_width: NonZeroU8::new(timing.sjw).unwrap_or(one),
+    }
+}
+
+/// Feed the watchdog every `g431_hw::iwdg::MASTER_SCHEDULE` period. A task of the executor every other task runs
+/// on: one that stops yielding stops this one too, and the watchdog resets the master.
+#[embassy_executor::task]
+async fn feed(mut watchdog: board::Watchdog) -> ! {
+    let period = embassy_time::Duration::from_micros(g431_hw::iwdg::MASTER_SCHEDULE.feed_period_us.into());
+    loop {
+        watchdog.feed();
+        embassy_time::Timer::after(period).await;
     }
 }
 

@@ -18,7 +18,7 @@ use tmc_proto::Family;
 use crate::config::VEHICLE;
 use crate::console::ConsoleStats;
 use crate::shared::{MAX_THRUSTERS, Shared};
-use crate::sim::{CanNode, RebootRequest, flash_store, g431_flash, thruster_bus};
+use crate::sim::{CanNode, RebootRequest, flash_store, master_flash, thruster_bus};
 use crate::tests::scripted::SimThruster;
 use crate::thrusters::MUX_ADDRESS;
 use crate::{Polling, Ports, run};
@@ -96,7 +96,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         can: CanNode::default(),
         console_rx: SerialRx::new(console_in.clone()),
         console_tx: SerialTx(console_out.clone()),
-        settings: flash_store(&g431_flash()),
+        settings: flash_store(&master_flash()),
         reboot: RebootRequest::default(),
         work: Polling::default(),
         update: crate::update::CheckOnly,

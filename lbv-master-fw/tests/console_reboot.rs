@@ -106,7 +106,7 @@ impl Board {
     fn new() -> Self {
         Self {
             clock: lbv_sim::clock::take(),
-            flash: Stm32g4Flash::new(64),
+            flash: Stm32g4Flash::new(256),
             input: Queue::new(),
             output: Queue::new(),
         }
@@ -132,7 +132,7 @@ impl Board {
             can: NoCan,
             console_rx: SerialRx::new(self.input.clone()),
             console_tx: SerialTx(self.output.clone()),
-            settings: Store::g431(self.flash.clone()),
+            settings: Store::master(self.flash.clone()),
             reboot: restart.clone(),
             work: Idle,
             update: lbv_master_fw::update::CheckOnly,

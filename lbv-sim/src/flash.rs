@@ -28,13 +28,17 @@ use embedded_storage::nor_flash::{self, NorFlashError, NorFlashErrorKind};
 
 use crate::cpu::Cpu;
 
-/// How long the flash's work stalls the CPU it is wired to.
+/// How long the flash's work takes, and what it stalls.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FlashTiming {
     /// One page erase.
     pub erase_page: Duration,
     /// Programming one write unit (a double word on the STM32G4).
     pub program_unit: Duration,
+    /// Where the bank the code runs from ends, in bytes from the flash's start: work below stalls the CPU it is
+    /// wired to; work beyond (the other bank of a dual-bank flash, RM0440 3.3.8) runs beside the code, and the
+    /// async calls wait it out instead, letting every other task run.
+    pub stalls_below: usize,
 }
 
 impl FlashTiming {
@@ -46,6 +50,14 @@ impl FlashTiming {
     pub const G431: FlashTiming = FlashTiming {
         erase_page: Duration::from_millis(25),
         program_unit: Duration::from_micros(100),
+        stalls_below: usize::MAX,
+    };
+
+    /// The STM32G474 in dual-bank mode, with the code in bank 1: the G431's figures (the same flash), and work in
+    /// bank 2 (from 256 KiB) beside the code.
+    pub const G474_DUAL_BANK: FlashTiming = FlashTiming {
+        stalls_below: 256 * 1024,
+        ..FlashTiming::G431
     };
 }
 
@@ -259,7 +271,8 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
         Ok(())
     }
 
-    fn erase_range(&self, from: u32, to: u32) -> Result<(), FlashError> {
+    /// Erase; the time the work took beside the code (none when it stalled the CPU, or takes no time).
+    fn erase_range(&self, from: u32, to: u32) -> Result<Duration, FlashError> {
         nor_flash::check_erase(self, from, to)?;
         let mut memory = self.memory.borrow_mut();
         if !memory.powered {
@@ -267,6 +280,7 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
         }
         let unit = WRITE_SIZE.max(1);
         let (from, to) = (self.origin + from as usize, self.origin + to as usize);
+        let mut beside = Duration::from_ticks(0);
         for page in (from..to).step_by(ERASE_SIZE.max(1)) {
             for at in page..page + ERASE_SIZE {
                 if !memory.spend(at, unit) {
@@ -280,14 +294,17 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
                 }
             }
             memory.stats.erases += 1;
-            if let Some((cpu, timing)) = &memory.stall {
-                cpu.stall(timing.erase_page);
+            match &memory.stall {
+                Some((cpu, timing)) if page < timing.stalls_below => cpu.stall(timing.erase_page),
+                Some((_, timing)) => beside += timing.erase_page,
+                None => {}
             }
         }
-        Ok(())
+        Ok(beside)
     }
 
-    fn program(&self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+    /// Program; the time the work took beside the code (none when it stalled the CPU, or takes no time).
+    fn program(&self, offset: u32, bytes: &[u8]) -> Result<Duration, FlashError> {
         nor_flash::check_write(self, offset, bytes.len())?;
         let mut memory = self.memory.borrow_mut();
         if !memory.powered {
@@ -309,6 +326,7 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
         if !programmable {
             return Err(FlashError::NotErased);
         }
+        let mut beside = Duration::from_ticks(0);
         for (at, byte) in (start..).zip(bytes) {
             if !memory.spend(at, WRITE_SIZE) {
                 return Err(FlashError::PowerCut);
@@ -321,12 +339,14 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> Flash<WRITE_SIZE, ERASE_S
             if at % unit == unit - 1 {
                 // Programmed to its last byte: its data and ECC agree again.
                 memory.torn_units.remove(&(at + 1 - unit));
-                if let Some((cpu, timing)) = &memory.stall {
-                    cpu.stall(timing.program_unit);
+                match &memory.stall {
+                    Some((cpu, timing)) if at < timing.stalls_below => cpu.stall(timing.program_unit),
+                    Some((_, timing)) => beside += timing.program_unit,
+                    None => {}
                 }
             }
         }
-        Ok(())
+        Ok(beside)
     }
 }
 
@@ -351,11 +371,11 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> nor_flash::NorFlash for F
     const ERASE_SIZE: usize = ERASE_SIZE;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
-        self.erase_range(from, to)
+        self.erase_range(from, to).map(drop)
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
-        self.program(offset, bytes)
+        self.program(offset, bytes).map(drop)
     }
 }
 
@@ -380,11 +400,22 @@ impl<const WRITE_SIZE: usize, const ERASE_SIZE: usize> embedded_storage_async::n
     const ERASE_SIZE: usize = ERASE_SIZE;
 
     async fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
-        self.erase_range(from, to)
+        let beside = self.erase_range(from, to)?;
+        wait_out(beside).await;
+        Ok(())
     }
 
     async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
-        self.program(offset, bytes)
+        let beside = self.program(offset, bytes)?;
+        wait_out(beside).await;
+        Ok(())
+    }
+}
+
+/// Wait out work the flash did beside the code, as an async driver waits for its end-of-operation interrupt.
+async fn wait_out(beside: Duration) {
+    if beside.as_ticks() > 0 {
+        embassy_time::Timer::after(beside).await;
     }
 }
 
@@ -477,6 +508,7 @@ mod tests {
         let timing = FlashTiming {
             erase_page: Duration::from_millis(20),
             program_unit: Duration::from_micros(100),
+            stalls_below: usize::MAX,
         };
         flash.clone().stall_cpu(&cpu, timing);
         // Two pages erased and two double words written in one go: the stalls add up.
@@ -490,6 +522,26 @@ mod tests {
         flash.stall_nothing();
         flash.erase(0, 64).unwrap();
         assert_eq!(cpu.stalls(), 4);
+    }
+
+    #[test]
+    fn work_in_the_other_bank_takes_its_time_beside_the_cpu() {
+        let _clock = crate::clock::take();
+        let cpu = Cpu::new();
+        let flash = Small::new(2);
+        let timing = FlashTiming {
+            erase_page: Duration::from_millis(20),
+            program_unit: Duration::from_micros(100),
+            stalls_below: 64,
+        };
+        flash.stall_cpu(&cpu, timing);
+        // Page 1 is the other bank: no stall, the time is the caller's to wait out.
+        assert_eq!(flash.erase_range(64, 128), Ok(Duration::from_millis(20)));
+        assert_eq!(flash.program(64, &[1; 16]), Ok(Duration::from_micros(200)));
+        assert_eq!(cpu.stalls(), 0);
+        // Page 0 is the code's bank: the CPU stalls, nothing is left to wait.
+        assert_eq!(flash.erase_range(0, 64), Ok(Duration::from_ticks(0)));
+        assert_eq!(cpu.stalls(), 1);
     }
 
     #[test]

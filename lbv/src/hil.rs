@@ -44,8 +44,10 @@ pub const EXIT_NO_VERDICT: u8 = 4;
 
 /// The firmware target.
 const TARGET: &str = "thumbv7em-none-eabihf";
-/// The chip of both NUCLEO-G431RB boards, as probe-rs names it.
-pub const CHIP: &str = "STM32G431RBTx";
+/// The thruster's chip (NUCLEO-G431RB), as probe-rs names it.
+pub const THRUSTER_CHIP: &str = "STM32G431RBTx";
+/// The master's chip (NUCLEO-G474RE), as probe-rs names it.
+pub const MASTER_CHIP: &str = "STM32G474RETx";
 /// The NUCLEO-G431RB's on-board ST-LINK/V3E, as probe-rs selects probes: VID:PID.
 pub const ST_LINK_V3E: &str = "0483:374e";
 /// The defmt line format asked of probe-rs: level and message, one line per log frame.
@@ -235,16 +237,18 @@ pub fn elf(target_dir: &Path, binary: &str) -> PathBuf {
     target_dir.join(TARGET).join("release").join(binary)
 }
 
-/// The commands, in order: build the thruster image (motor-less, of the chosen family), its bootloader and the
-/// master image (acceptance, expecting that family) in `workspace`; erase the thruster board (so that no update
-/// left on trial by an earlier run reverts the new image), flash its bootloader and image and reset it so that it
-/// runs; then flash and run the master board, streaming its defmt log. Only the last one's output is followed.
+/// The commands, in order: build the thruster image (motor-less, of the chosen family) and its bootloader in
+/// `workspace`; erase the thruster board (so that no update left on trial by an earlier run reverts the new
+/// image), flash its bootloader and image and reset it so that it runs; then the same for the master (its
+/// bootloader, and its acceptance image expecting that family), whose image is run with its defmt log streamed.
+/// Only the last one's output is followed. The two bootloaders are one crate built for each board, so each is
+/// flashed before the other is built.
 pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Command> {
     let legacy = options.family == Family::Legacy;
     let thruster_features = if legacy { "motorless,legacy" } else { "motorless" };
     let master_features = if legacy { "acceptance,legacy" } else { "acceptance" };
     let thruster_elf = elf(target_dir, "thruster-fw").display().to_string();
-    let bootloader_elf = elf(target_dir, "thruster-boot").display().to_string();
+    let bootloader_elf = elf(target_dir, "lbv-boot").display().to_string();
     let master_elf = elf(target_dir, "lbv-master-fw").display().to_string();
     let thruster_probe = probe_selector(&options.thruster_probe);
     let master_probe = probe_selector(&options.master_probe);
@@ -277,31 +281,66 @@ pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Comma
         },
         Command {
             what: "build the thruster's bootloader",
-            ..build("thruster-boot", &[])
+            ..build("lbv-boot", &["--features", "thruster"])
+        },
+        Command::new(
+            "erase the thruster board",
+            "probe-rs",
+            &["erase", "--chip", THRUSTER_CHIP, "--probe", &thruster_probe],
+        ),
+        Command::new(
+            "flash the thruster's bootloader",
+            "probe-rs",
+            &[
+                "download",
+                "--chip",
+                THRUSTER_CHIP,
+                "--probe",
+                &thruster_probe,
+                &bootloader_elf,
+            ],
+        ),
+        Command::new(
+            "flash the thruster image",
+            "probe-rs",
+            &[
+                "download",
+                "--chip",
+                THRUSTER_CHIP,
+                "--probe",
+                &thruster_probe,
+                &thruster_elf,
+            ],
+        ),
+        Command::new(
+            "start the thruster board",
+            "probe-rs",
+            &["reset", "--chip", THRUSTER_CHIP, "--probe", &thruster_probe],
+        ),
+        Command {
+            what: "build the master's bootloader",
+            ..build("lbv-boot", &["--features", "master"])
         },
         Command {
             what: "build the master image",
             ..build("lbv-master-fw", &["--features", master_features])
         },
         Command::new(
-            "erase the thruster board",
+            "erase the master board",
             "probe-rs",
-            &["erase", "--chip", CHIP, "--probe", &thruster_probe],
+            &["erase", "--chip", MASTER_CHIP, "--probe", &master_probe],
         ),
         Command::new(
-            "flash the thruster's bootloader",
+            "flash the master's bootloader",
             "probe-rs",
-            &["download", "--chip", CHIP, "--probe", &thruster_probe, &bootloader_elf],
-        ),
-        Command::new(
-            "flash the thruster image",
-            "probe-rs",
-            &["download", "--chip", CHIP, "--probe", &thruster_probe, &thruster_elf],
-        ),
-        Command::new(
-            "start the thruster board",
-            "probe-rs",
-            &["reset", "--chip", CHIP, "--probe", &thruster_probe],
+            &[
+                "download",
+                "--chip",
+                MASTER_CHIP,
+                "--probe",
+                &master_probe,
+                &bootloader_elf,
+            ],
         ),
         Command::new(
             "flash and run the master board, following its log",
@@ -309,7 +348,7 @@ pub fn plan(options: &Options, workspace: &Path, target_dir: &Path) -> Vec<Comma
             &[
                 "run",
                 "--chip",
-                CHIP,
+                MASTER_CHIP,
                 "--probe",
                 &master_probe,
                 "--log-format",
@@ -792,7 +831,7 @@ mod tests {
     }
 
     #[test]
-    fn the_plan_builds_flashes_the_thruster_with_its_bootloader_then_runs_the_master() {
+    fn the_plan_flashes_each_board_with_its_bootloader_then_runs_the_master() {
         let o = options("--master-probe 0671FF3 --thruster-probe 0483:3748:066DFF4");
         let commands = plan(&o, Path::new("/w"), Path::new("/t"));
         let lines: Vec<String> = commands.iter().map(Command::line).collect();
@@ -800,28 +839,32 @@ mod tests {
             lines,
             [
                 "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p thruster-fw --features motorless",
-                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p thruster-boot",
-                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p lbv-master-fw --features acceptance",
+                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p lbv-boot --features thruster",
                 "probe-rs erase --chip STM32G431RBTx --probe 0483:3748:066DFF4",
                 "probe-rs download --chip STM32G431RBTx --probe 0483:3748:066DFF4 \
-                 /t/thumbv7em-none-eabihf/release/thruster-boot",
+                 /t/thumbv7em-none-eabihf/release/lbv-boot",
                 "probe-rs download --chip STM32G431RBTx --probe 0483:3748:066DFF4 \
                  /t/thumbv7em-none-eabihf/release/thruster-fw",
                 "probe-rs reset --chip STM32G431RBTx --probe 0483:3748:066DFF4",
-                "probe-rs run --chip STM32G431RBTx --probe 0483:374e:0671FF3 --log-format '{L} {s}' \
+                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p lbv-boot --features master",
+                "cd /w && env LBV_ALLOW_DEV_KEY=1 cargo build --release --target thumbv7em-none-eabihf -p lbv-master-fw --features acceptance",
+                "probe-rs erase --chip STM32G474RETx --probe 0483:374e:0671FF3",
+                "probe-rs download --chip STM32G474RETx --probe 0483:374e:0671FF3 \
+                 /t/thumbv7em-none-eabihf/release/lbv-boot",
+                "probe-rs run --chip STM32G474RETx --probe 0483:374e:0671FF3 --log-format '{L} {s}' \
                  /t/thumbv7em-none-eabihf/release/lbv-master-fw",
             ]
         );
         // The log format is one argument, not split at its space.
-        assert!(commands[7].args.contains(&"{L} {s}".to_string()));
+        assert!(commands[10].args.contains(&"{L} {s}".to_string()));
         let legacy = plan(
             &options("--master-probe A --thruster-probe B --family legacy"),
             Path::new("/w"),
             Path::new("/t"),
         );
         assert_eq!(legacy[0].args.last().map(String::as_str), Some("motorless,legacy"));
-        assert_eq!(legacy[2].args.last().map(String::as_str), Some("acceptance,legacy"));
-        assert!(legacy[3].args.contains(&"0483:374e:B".to_string()));
+        assert_eq!(legacy[7].args.last().map(String::as_str), Some("acceptance,legacy"));
+        assert!(legacy[2].args.contains(&"0483:374e:B".to_string()));
     }
 
     #[test]

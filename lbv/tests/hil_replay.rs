@@ -74,7 +74,7 @@ fn a_dry_run_prints_the_commands_and_runs_nothing() {
         "{out}"
     );
     assert!(
-        out.contains("probe-rs run --chip STM32G431RBTx --probe 0483:374e:0671FF3"),
+        out.contains("probe-rs run --chip STM32G474RETx --probe 0483:374e:0671FF3"),
         "{out}"
     );
 }

@@ -1,5 +1,6 @@
-"""An STM32G431RB: the core, its memories and the peripherals the project's images use, at their RM0440 Table 4
-addresses, with the three resets the images tell apart (RM0440 7.1: power-on, system, independent watchdog)."""
+"""An STM32G4 (the thruster's G431RB or the master's G474RE, whichever the image is linked for): the core, its
+memories and the peripherals the project's images use, at their RM0440 Table 4 addresses, with the three resets the
+images tell apart (RM0440 7.1: power-on, system, independent watchdog)."""
 
 import random
 import struct
@@ -7,7 +8,7 @@ import struct
 from elftools.elf.elffile import ELFFile
 
 from . import adc, dma, fdcan, i2c, iwdg, timers, uart
-from .core import FLASH_BASE, FLASH_SIZE, FLASH_SIZE_ADDRESS, SRAM_BASE, SRAM_SIZE, UID_ADDRESS, Core, Stop
+from .core import FLASH_BASE, FLASH_SIZE_ADDRESS, G431RB, G474RE, SRAM_BASE, UID_ADDRESS, Core, Stop
 from .defmt import Log, Rtt, Table
 from .gpio import Exti, Gpio
 from .nvic import Nvic
@@ -40,25 +41,28 @@ class Image:
             # partition for one a bootloader starts (g431_hw::memory).
             self.vector_table = elf.get_section_by_name(".vector_table")["sh_addr"]
             self.defmt = Table(elf)
+        # The chip its layout is for: the master's partitions reach past the G431's 128 KiB (g431_hw::memory).
+        self.part = G474RE if self.symbols.get("__bootloader_dfu_end", 0) > G431RB.flash_size else G431RB
 
     def symbol(self, name):
         return self.symbols[name]
 
 
-class G431:
+class Stm32g4:
     def __init__(self, image, seed=1):
         self.image = image if isinstance(image, Image) else Image(image)
+        self.part = self.image.part
         self.random = random.Random(seed)
-        self.core = Core()
+        self.core = Core(self.part)
         core = self.core
         core.flash_store = self._cpu_flash_store
         core.service = self._service
-        self.flash = bytearray(b"\xff" * FLASH_SIZE)
+        self.flash = bytearray(b"\xff" * self.part.flash_size)
         for address, data in self.image.segments:
             self.flash[address - FLASH_BASE : address - FLASH_BASE + len(data)] = data
         system = bytearray(0x8000)
         system[UID_ADDRESS - 0x1FFF_0000 : UID_ADDRESS - 0x1FFF_0000 + 12] = UID
-        system[FLASH_SIZE_ADDRESS - 0x1FFF_0000 : FLASH_SIZE_ADDRESS - 0x1FFF_0000 + 2] = struct.pack("<H", 128)
+        system[FLASH_SIZE_ADDRESS - 0x1FFF_0000 : FLASH_SIZE_ADDRESS - 0x1FFF_0000 + 2] = struct.pack("<H", self.part.flash_size // 1024)
         core.uc.mem_write(0x1FFF_0000, bytes(system))
         core.hook_sev(*self.image.text)
 
@@ -168,7 +172,7 @@ class G431:
     def power_on(self):
         """Power applied: every register at its reset value, the backup domain cleared, RAM holding noise."""
         self._reset_peripherals(power_on=True, flags=BORRSTF | PINRSTF)
-        noise = bytes(self.random.getrandbits(8) for _ in range(SRAM_SIZE))
+        noise = bytes(self.random.getrandbits(8) for _ in range(self.part.sram_size))
         self.core.uc.mem_write(SRAM_BASE, noise)
         self._paint_stack()
         self.core.uc.mem_write(FLASH_BASE, bytes(self.flash))

@@ -32,9 +32,7 @@ from unicorn import (
 from unicorn import arm_const as arm
 
 FLASH_BASE = 0x0800_0000
-FLASH_SIZE = 128 * 1024
 SRAM_BASE = 0x2000_0000
-SRAM_SIZE = 32 * 1024
 # System memory: the unique device id (RM0440 48.1, UID_BASE 0x1FFF_7590) and the flash size (48.2, 0x1FFF_75E0).
 SYSTEM_BASE = 0x1FFF_0000
 SYSTEM_SIZE = 0x8000
@@ -61,6 +59,25 @@ SEV = 0xBF40
 
 # What a spinning loop must leave unchanged from one pass to the next.
 SPIN_REGISTERS = [getattr(arm, f"UC_ARM_REG_R{n}") for n in range(13)] + [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_XPSR]
+
+
+class Part:
+    """What tells the two chips apart here: their memories, DBGMCU's device id (RM0440 47.16.1) and the user option
+    bytes' production value (RM0440 3.4.1: 0xFFEF_F8AA, DBANK = 1), which on the G474 selects its dual-bank mode: two
+    banks of 2 KiB pages, bank 2 at 0x0804_0000 (RM0440 3.3.1, Table 7)."""
+
+    def __init__(self, name, flash_kib, sram_kib, dev_id, dual_bank):
+        self.name = name
+        self.flash_size = flash_kib * 1024
+        self.sram_size = sram_kib * 1024
+        self.dev_id = dev_id
+        self.optr = 0xFFEF_F8AA
+        # In dual-bank mode, where bank 2 starts; None with one bank.
+        self.bank2 = FLASH_BASE + self.flash_size // 2 if dual_bank else None
+
+
+G431RB = Part("STM32G431RB", flash_kib=128, sram_kib=32, dev_id=0x468, dual_bank=False)
+G474RE = Part("STM32G474RE", flash_kib=512, sram_kib=128, dev_id=0x469, dual_bank=True)
 
 
 class Stop(Exception):
@@ -110,7 +127,8 @@ def thumb_instructions(code: bytes) -> int:
 class Core:
     hz = 170_000_000
 
-    def __init__(self):
+    def __init__(self, part):
+        self.part = part
         self.uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
         self.uc.ctl_set_cpu_model(arm.UC_CPU_ARM_CORTEX_M4)
         self.cycles = 0
@@ -136,8 +154,8 @@ class Core:
         self.flash_store = None  # (address, size, value): the flash interface takes CPU stores into flash
         self.service = lambda: False  # the chip's work between runs (resets, draining the log); True: look again
 
-        self.uc.mem_map(FLASH_BASE, FLASH_SIZE, UC_PROT_READ | UC_PROT_EXEC)
-        self.uc.mem_map(SRAM_BASE, SRAM_SIZE, UC_PROT_ALL)
+        self.uc.mem_map(FLASH_BASE, part.flash_size, UC_PROT_READ | UC_PROT_EXEC)
+        self.uc.mem_map(SRAM_BASE, part.sram_size, UC_PROT_ALL)
         self.uc.mem_map(SYSTEM_BASE, SYSTEM_SIZE, UC_PROT_READ)
         self.uc.hook_add(UC_HOOK_BLOCK, self._on_block)
         self.uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
@@ -387,7 +405,7 @@ class Core:
 
     def _on_bad_access(self, uc, access, address, size, value, _data):
         pc = uc.reg_read(arm.UC_ARM_REG_PC)
-        if access == UC_MEM_WRITE_PROT and FLASH_BASE <= address < FLASH_BASE + FLASH_SIZE and self.flash_store:
+        if access == UC_MEM_WRITE_PROT and FLASH_BASE <= address < FLASH_BASE + self.part.flash_size and self.flash_store:
             # A store into flash goes to the flash interface's programming sequence (RM0440 3.3.7).
             self.flash_store(address, size, value & 0xFFFF_FFFF)
             return True

@@ -98,11 +98,12 @@ class Pwr(Peripheral):
     resets = {0x00: 0x0000_0200, 0x80: 0x0000_0100}
 
 
-# FLASH (3.7): ACR 0x00, KEYR 0x08, SR 0x10, CR 0x14, ECCR 0x18.
-ACR, KEYR, SR, FCR, ECCR = 0x00, 0x08, 0x10, 0x14, 0x18
+# FLASH (3.7): ACR 0x00, KEYR 0x08, SR 0x10, CR 0x14, ECCR 0x18, OPTR 0x20.
+ACR, KEYR, SR, FCR, ECCR, OPTR = 0x00, 0x08, 0x10, 0x14, 0x18, 0x20
 KEY1, KEY2 = 0x4567_0123, 0xCDEF_89AB
 SR_EOP, SR_PROGERR, SR_PGSERR, SR_BSY = 1 << 0, 1 << 3, 1 << 7, 1 << 16
-CR_PG, CR_PER, CR_STRT, CR_LOCK = 1 << 0, 1 << 1, 1 << 16, 1 << 31
+CR_PG, CR_PER, CR_BKER, CR_STRT, CR_EOPIE, CR_LOCK = 1 << 0, 1 << 1, 1 << 11, 1 << 16, 1 << 24, 1 << 31
+FLASH_IRQ = 4  # RM0440 Table 97
 PAGE = 2048
 
 # DS12589 Table 41 (flash memory characteristics): 64-bit programming 81.7 us typical, page erase 22 ms typical.
@@ -111,16 +112,18 @@ ERASE_US = 22_000
 
 
 class Flash(Peripheral):
-    """The G431's one bank of 2 KiB pages, programmed 64 bits at a time (RM0440 3.3.7, 3.3.8).
+    """The flash interface: the G431's one bank of 2 KiB pages, or the G474's two in dual-bank mode (PNB counts
+    the pages of the bank BKER picks), programmed 64 bits at a time (RM0440 3.3.7, 3.3.8).
 
     The CPU's stores into flash arrive here (`store`): with PG set they fill a double word, which is programmed
     when its second word is written; a write to a word that is not erased sets PROGERR. While an erase or a program
-    runs, the core stalls, since it fetches from the same bank (3.3.7): the clock advances with no instruction run.
+    runs in the bank the code runs from (bank 1 for every image here), the core stalls, since it fetches from that
+    bank (3.3.7): the clock advances with no instruction run. One in the other bank runs beside the code (3.3.8,
+    read-while-write); its end raises the FLASH interrupt when EOPIE is set, as the async driver waits for it.
     """
 
-    resets = {ACR: 0x0000_0600, FCR: CR_LOCK}
-
     def __init__(self, chip, name, base):
+        self.resets = {ACR: 0x0000_0600, FCR: CR_LOCK, OPTR: chip.part.optr}
         super().__init__(chip, name, base)
         self.keys = []
         self.pending = {}  # address of a double word -> first word
@@ -140,18 +143,22 @@ class Flash(Peripheral):
                 self.regs[FCR] = self.regs.get(FCR, 0) & ~CR_LOCK
         elif offset == SR:
             self.regs[SR] = self.regs.get(SR, 0) & ~(value & 0xC3FB)  # rc_w1 flags
+            if not self.regs[SR] & SR_EOP:
+                self.chip.irq(self, FLASH_IRQ, False)
         elif offset == FCR:
             if self.regs.get(FCR, 0) & CR_LOCK:
                 self.regs[SR] = self.regs.get(SR, 0) | SR_PGSERR
                 return
             self.regs[FCR] = value
             if value & CR_STRT and value & CR_PER:
-                page = field(value, 3, 7)
-                self.chip.flash_erase(FLASH_BASE + page * PAGE)
+                bank2 = self.chip.part.bank2
+                address = FLASH_BASE + field(value, 3, 7) * PAGE
+                if bank2 is not None and value & CR_BKER:
+                    address += bank2 - FLASH_BASE
+                self.chip.flash_erase(address)
                 self.erases += 1
                 self.regs[FCR] = value & ~CR_STRT
-                self.regs[SR] = self.regs.get(SR, 0) | SR_EOP
-                self.chip.core.stall(self.chip.core.hz * ERASE_US // 1_000_000)
+                self._done(address, ERASE_US)
         elif offset == ACR:
             self.regs[ACR] = value
         else:
@@ -176,9 +183,18 @@ class Flash(Peripheral):
             return None
         self.chip.flash_program(double, first, value)
         self.programs += 1
-        self.regs[SR] = self.regs.get(SR, 0) | SR_EOP
-        self.chip.core.stall(self.chip.core.hz * PROGRAM_US // 1_000_000)
+        self._done(double, PROGRAM_US)
         return value
+
+    def _done(self, address, us):
+        """An operation at `address` that takes `us`: the core stalls for it when it runs from that bank; EOP is
+        set, and with EOPIE the FLASH interrupt raised (cleared with EOP)."""
+        bank2 = self.chip.part.bank2
+        if bank2 is None or address < bank2:
+            self.chip.core.stall(self.chip.core.hz * us // 1_000_000)
+        self.regs[SR] = self.regs.get(SR, 0) | SR_EOP
+        if self.regs.get(FCR, 0) & CR_EOPIE:
+            self.chip.irq(self, FLASH_IRQ, True)
 
     def latency(self):
         return self.regs.get(ACR, 0) & 0xF
@@ -188,10 +204,12 @@ class Syscfg(Peripheral):
     pass
 
 
-# DBGMCU (47.16.4-47.16.7): IDCODE 0x00 (the G431's DEV_ID 0x468, RM0440 47.16.1), CR 0x04, APB1FZR1 0x08,
-# APB1FZR2 0x0C, APB2FZR 0x10.
+# DBGMCU (47.16.4-47.16.7): IDCODE 0x00 (revision 0x2001 and the part's DEV_ID, RM0440 47.16.1), CR 0x04,
+# APB1FZR1 0x08, APB1FZR2 0x0C, APB2FZR 0x10.
 class Dbgmcu(Peripheral):
-    resets = {0x00: 0x2001_6468}
+    def __init__(self, chip, name, base):
+        self.resets = {0x00: 0x2001_6000 | chip.part.dev_id}
+        super().__init__(chip, name, base)
 
 
 # TAMP (38.6): the backup registers BKPxR from 0x100, kept over every reset but a power-on (backup domain).

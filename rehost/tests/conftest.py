@@ -12,7 +12,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "rehost"))
 
-from g431.chip import G431, Image  # noqa: E402
+from g431.chip import Stm32g4, Image  # noqa: E402
 
 IMAGES = pathlib.Path(os.environ.get("REHOST_IMAGES", ROOT / "target" / "images"))
 REHOST = os.environ.get("REHOST_BIN", str(ROOT / "target" / "debug" / "rehost"))
@@ -48,7 +48,7 @@ def expected():
 
 def boot(name, **options):
     """A chip running `name`, brought to its first idle (both executors waiting, nothing pending)."""
-    chip = G431(image(name), **options)
+    chip = Stm32g4(image(name), **options)
     chip.run_until(chip.idle, seconds=0.05, what=f"{name} reaching idle")
     return chip
 

@@ -3,7 +3,7 @@ frames, and a ground station on the virtual COM port speaking MAVLink through py
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from conftest import G431, image
+from conftest import Stm32g4, image
 
 MUX_ADDRESS = 0x70  # TCA9548A with A0-A2 low (TI SCPS207, 8.6.1)
 THRUSTER_BUS = 2  # I2C2: `BusConfig`'s bus 1, the second of the three (lbv_master_fw::config)
@@ -103,7 +103,7 @@ class Ground:
 
 def start(name, expected, family="SeaBotix", thrusters=6, seed=1):
     """A booted master with `thrusters` modelled thrusters on mux channels 0.. of I2C2."""
-    chip = G431(image(name), seed=seed)
+    chip = Stm32g4(image(name), seed=seed)
     channels = {n: {address_of(expected, family): Thruster(expected["statuses"][family])} for n in range(thrusters)}
     mux = Mux(channels)
     if thrusters > 1:

@@ -3,7 +3,7 @@ and a board whose crystal does not start hangs as a real one would."""
 
 import pytest
 
-from conftest import ALL, BOOT_INSTRUCTIONS, G431, boot, image
+from conftest import ALL, BOOT_INSTRUCTIONS, Stm32g4, boot, image
 from g431.core import Stop
 
 
@@ -29,7 +29,7 @@ def test_reaches_idle_without_a_fault_or_a_warning(name):
 
 @pytest.mark.parametrize("name", ["thruster-fw", "lbv-master-fw"])
 def test_a_crystal_that_does_not_start_hangs_the_start_up(name):
-    chip = G431(image(name))
+    chip = Stm32g4(image(name))
     chip.rcc.hse_starts = False
     with pytest.raises(Stop):
         chip.run_until(chip.idle, seconds=0.02, what="idle without HSE")

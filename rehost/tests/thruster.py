@@ -1,7 +1,7 @@
 """A thruster image on its bench: its analog inputs at a working point, the bus master the tests play, and the
 hall sensors of a turning rotor."""
 
-from conftest import G431, image
+from conftest import Stm32g4, image
 
 # Analog inputs by the function g431_hw::images gives them.
 WATER, NTC, CURRENT = "water sensor", ("motor NTC", "power-stage NTC"), "motor current"
@@ -24,7 +24,7 @@ def set_analog(chip, spec, water="dry", ntc="ntc_25c", current="current_zero"):
 
 def start(name, expected, **analog):
     spec = expected["images"][name]
-    chip = G431(image(name))
+    chip = Stm32g4(image(name))
     set_analog(chip, spec, **analog)
     if spec["forward"]:
         set_halls(chip, spec["forward"][0]["hall"])  # a rotor at rest in a valid sector: 111 would be a hall fault

@@ -394,7 +394,7 @@ pub fn open_flash(flash: embassy_stm32::Peri<'static, embassy_stm32::peripherals
 
 /// The partition at `span` (embassy-stm32's flash is addressed by offset from the flash's start).
 fn partition(flash: &'static SharedFlash, span: memory::Span) -> Part {
-    BlockingPartition::new(flash, span.origin - memory::FLASH.origin, span.length)
+    BlockingPartition::new(flash, span.origin - memory::FLASH_ORIGIN, span.length)
 }
 
 /// The bootloader's state partition (g431_hw::memory::THRUSTER_PARTITIONS), read and written by embassy-boot's own

@@ -6,7 +6,7 @@
 use std::process::ExitCode;
 
 use g431_hw::images::{BUILDS, DOCS_TABLES, write_docs_table};
-use g431_hw::memory::{FLASH, KIB};
+use g431_hw::memory::KIB;
 
 const DOCS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/hardware.md");
 
@@ -32,8 +32,19 @@ fn main() -> ExitCode {
                     continue;
                 }
                 shown.push(build.layout);
-                println!("{}", build.layout.chip);
-                for region in build.layout.regions.iter().filter(|region| FLASH.contains(region.span)) {
+                let chip = build.layout.chip;
+                println!(
+                    "{}, {} ({} KiB of flash)",
+                    build.layout.image,
+                    chip.part,
+                    chip.flash.length / KIB
+                );
+                for region in build
+                    .layout
+                    .regions
+                    .iter()
+                    .filter(|region| chip.flash.contains(region.span))
+                {
                     let span = region.span;
                     println!(
                         "  {:<16} 0x{:08X}-0x{:08X} {:>3} KiB  {}",

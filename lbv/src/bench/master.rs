@@ -30,7 +30,7 @@ use lbv_sim::i2c::Bus;
 use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
 
-use super::ports::master::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, g431_flash, thruster_bus};
+use super::ports::master::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, master_flash, thruster_bus};
 
 /// What the master's ports are wired to: its three thruster buses, its CAN node's receive queue and its console
 /// link, both ways.
@@ -116,7 +116,7 @@ impl MasterBoard {
         let mut config = config;
         config.console.uid = BENCH_UID;
         let cpu = Cpu::new();
-        let flash = g431_flash();
+        let flash = master_flash();
         flash.stall_cpu(&cpu, FlashTiming::G431);
         for bus in &wiring.buses {
             bus.set_master_cpu(&cpu);

@@ -6,7 +6,7 @@
 //! power cycle drops and boots afresh.
 //!
 //! The chip's flash outlasts both: one lbv-sim flash laid out as the G431's (`THRUSTER_PARTITIONS`), holding at
-//! first a factory image in ACTIVE. Every boot runs the thruster's bootloader on it (`thruster_boot::prepare`,
+//! first a factory image in ACTIVE. Every boot runs the thruster's bootloader on it (`lbv_boot::prepare`,
 //! embassy-boot's swap and revert) before the controller starts, from whatever image ACTIVE then holds; the
 //! controller's field update writes the DFU partition and marks the state partition, and its reset request
 //! ([`BootUpdater::reboot`]) has the bench reset the board.
@@ -21,11 +21,11 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
-use g431_hw::memory::{FLASH, PAGE, Span, THRUSTER_PARTITIONS};
+use g431_hw::memory::{FLASH_ORIGIN, PAGE, Span, THRUSTER_PARTITIONS};
+use lbv_boot::Outcome;
 use lbv_sim::flash::{FlashStats, FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::{Bus, DeviceId};
 use lbv_sim::{Executor, TaskId};
-use thruster_boot::Outcome;
 use thruster_fw::commutation::{BridgeDrive, COAST};
 use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
@@ -140,13 +140,13 @@ pub fn factory_image(family: Family) -> Vec<u8> {
 /// offset 0 is the flash's first address, as embassy-stm32's flash driver addresses it.
 pub fn partition(flash: &Stm32g4Flash, span: Span) -> Stm32g4Flash {
     flash
-        .partition(span.origin - FLASH.origin, span.length)
+        .partition(span.origin - FLASH_ORIGIN, span.length)
         .expect("the thruster's partitions lie within its flash, on page boundaries")
 }
 
 /// The G431's flash, erased but for `image` at the start of ACTIVE, as a probe leaves it.
 fn factory_flash(image: &[u8]) -> Stm32g4Flash {
-    let flash = Stm32g4Flash::new((FLASH.length / PAGE) as usize);
+    let flash = Stm32g4Flash::new((THRUSTER_PARTITIONS.chip.flash.length / PAGE) as usize);
     partition(&flash, THRUSTER_PARTITIONS.active)
         .write(0, image)
         .expect("the factory image fits ACTIVE");
@@ -259,13 +259,16 @@ impl ThrusterBoard {
     /// The bootloader's flash work is done at once; the controller starts, and acknowledges on the bus, only once
     /// the time that work takes on the G431 has passed ([`FlashTiming::G431`]: about 3 s for a swap), and its
     /// watchdog runs from then, as the bootloader starts it just before the jump. A power cut in that time finds
-    /// the swap done (thruster-boot's own tests cut the power inside it).
+    /// the swap done (lbv-boot's own tests cut the power inside it).
     pub fn boot(&mut self, executor: &mut Executor<'static>) {
         if self.powered() {
             return;
         }
         let before = self.flash.stats();
-        self.boot_outcome = Some(thruster_boot::prepare(&Mutex::new(RefCell::new(self.flash.clone()))));
+        self.boot_outcome = Some(lbv_boot::prepare(
+            &Mutex::new(RefCell::new(self.flash.clone())),
+            &THRUSTER_PARTITIONS,
+        ));
         let starts = Instant::now() + flash_busy(before, self.flash.stats());
         let in_bootloader = starts > Instant::now();
         self.updater.info = self.read_running_info();

@@ -4,7 +4,8 @@
 
 use std::collections::BTreeMap;
 
-use g431_hw::flash::{NmiAction, eccr, nmi_action};
+use g431_hw::flash::{NmiAction, eccr, eccr_address, nmi_action};
+use g431_hw::memory::FLASH_ORIGIN;
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
 use lbv_master_fw::params::Settings;
 use lbv_master_fw::settings::DATA_PAGES;
@@ -673,7 +674,7 @@ pub fn settings_power_cut(run: &mut Run) {
     let torn = run.bench.master.flash.ecc_error_offsets();
     let passed = torn.iter().all(|offset| {
         matches!(
-            nmi_action(eccr::ECCD | offset, &DATA_PAGES),
+            nmi_action(eccr::ECCD | eccr_address(FLASH_ORIGIN + offset), &DATA_PAGES),
             NmiAction::PassDataRead { .. }
         )
     });

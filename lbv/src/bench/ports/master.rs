@@ -1,6 +1,6 @@
 //! The master's ports on lbv-sim's simulated parts, for the bench and lbv-master-fw's host tests (which include
 //! this file): a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery CAN
-//! receiver on a simulated CAN node, the settings store on a simulated G431 flash, a reboot that whoever runs
+//! receiver on a simulated CAN node, the settings store on a simulated G474 flash, a reboot that whoever runs
 //! the board carries out, and an update sink that records every image it is given.
 
 use std::cell::{Cell, RefCell};
@@ -8,6 +8,7 @@ use std::convert::Infallible;
 use std::rc::Rc;
 
 use embassy_time::Delay;
+use g431_hw::memory;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
@@ -45,15 +46,15 @@ impl CanReceiver for CanNode {
     }
 }
 
-/// The G431's 128 KiB of flash, erased: 64 pages of 2 KiB (RM0440 3.3.1).
-pub fn g431_flash() -> Stm32g4Flash {
-    Stm32g4Flash::new(64)
+/// The master's flash, erased: the G474RE's 512 KiB, 256 pages of 2 KiB in its two banks (RM0440 3.3.1).
+pub fn master_flash() -> Stm32g4Flash {
+    Stm32g4Flash::new((memory::G474RE.flash.length / memory::PAGE) as usize)
 }
 
-/// The settings store on a simulated G431 `flash`, in the pages the binding gives it (a handle: the memory stays
-/// with whoever holds another).
+/// The settings store on a simulated master's `flash`, in the pages the binding gives it (a handle: the memory
+/// stays with whoever holds another).
 pub fn flash_store(flash: &Stm32g4Flash) -> Store<Stm32g4Flash> {
-    Store::g431(flash.clone())
+    Store::master(flash.clone())
 }
 
 /// A simulated master's reboot: it counts the request and waits; whoever runs the board sees

@@ -60,19 +60,19 @@ macro_rules! assert_image {
 }
 
 fn offset(span: Span) -> usize {
-    (span.origin - FLASH.origin) as usize
+    (span.origin - FLASH_ORIGIN) as usize
 }
 
 /// A chip's flash, erased but for `old` in ACTIVE, as a probe flashes it.
 fn flashed(old: &[u8]) -> Stm32g4Flash {
-    let mut flash = Stm32g4Flash::new((FLASH.length / PAGE) as usize);
+    let mut flash = Stm32g4Flash::new((LAYOUT.chip.flash.length / PAGE) as usize);
     flash.write(offset(LAYOUT.active) as u32, old).unwrap();
     flash
 }
 
 /// Another chip's flash with the same contents, none of its history.
 fn copy(flash: &Stm32g4Flash) -> Stm32g4Flash {
-    let mut copy = Stm32g4Flash::new((FLASH.length / PAGE) as usize);
+    let mut copy = Stm32g4Flash::new((LAYOUT.chip.flash.length / PAGE) as usize);
     copy.write(0, &flash.contents()).unwrap();
     copy
 }
@@ -98,7 +98,7 @@ fn spent(flash: &Stm32g4Flash) -> usize {
 
 /// A reset: the bootloader's preparation on the flash as the last power-down left it.
 fn reset(flash: &Stm32g4Flash) -> Outcome {
-    prepare(&Mutex::new(RefCell::new(flash.clone())))
+    prepare(&Mutex::new(RefCell::new(flash.clone())), &LAYOUT)
 }
 
 /// Resets, power restored before each, until the bootloader prepares (at most a few: a cut stops at most one).
@@ -133,7 +133,7 @@ fn with_state<R>(
 ) -> R {
     let shared = Mutex::new(RefCell::new(flash.clone()));
     let mut aligned = [0; 8];
-    let mut state = BlockingFirmwareState::new(partitions(&shared).state, &mut aligned);
+    let mut state = BlockingFirmwareState::new(partitions(&shared, &LAYOUT).state, &mut aligned);
     f(&mut state)
 }
 
@@ -145,7 +145,7 @@ fn state(flash: &Stm32g4Flash) -> State {
 /// arrive), and the state is marked for the swap.
 fn receive(flash: &Stm32g4Flash, new: &[u8]) {
     let shared = Mutex::new(RefCell::new(flash.clone()));
-    let config = partitions(&shared);
+    let config = partitions(&shared, &LAYOUT);
     let mut aligned = [0; 8];
     let mut updater = BlockingFirmwareUpdater::new(
         FirmwareUpdaterConfig {
@@ -393,7 +393,7 @@ fn a_power_cut_while_marking_updated_leaves_the_old_image_and_the_update_can_be_
     for cut in magic_cut_points() {
         let flash = copy(&base);
         let shared = Mutex::new(RefCell::new(flash.clone()));
-        let config = partitions(&shared);
+        let config = partitions(&shared, &LAYOUT);
         let mut aligned = [0; 8];
         let mut updater = BlockingFirmwareUpdater::new(
             FirmwareUpdaterConfig {
@@ -478,7 +478,7 @@ fn a_torn_magic_word_reads_as_no_update_and_stays_torn_until_the_state_is_marked
     let (old, new) = (image(16), image(17));
     let flash = flashed(&old);
     let shared = Mutex::new(RefCell::new(flash.clone()));
-    let config = partitions(&shared);
+    let config = partitions(&shared, &LAYOUT);
     let mut aligned = [0; 8];
     let mut updater = BlockingFirmwareUpdater::new(
         FirmwareUpdaterConfig {

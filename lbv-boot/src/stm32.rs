@@ -1,5 +1,5 @@
 //! The bootloader on the chip: the flash through embassy-stm32's blocking driver, embassy-boot's preparation
-//! ([`thruster_boot::prepare`]), the trial watchdog, and the jump to ACTIVE.
+//! ([`lbv_boot::prepare`]) on the board's partitions, the trial watchdog, and the jump to ACTIVE.
 //!
 //! It never calls `embassy_stm32::init`: the image it starts finds the chip as the reset left it (the clocks on
 //! HSI16, RCC_CSR's reset flags still set for it to read), but for the watchdog started here and the flash
@@ -15,8 +15,14 @@ use embassy_stm32::peripherals::IWDG;
 use embassy_sync::blocking_mutex::Mutex;
 use g431_hw::flash::{self, NmiAction};
 use g431_hw::iwdg::{BOOT_TRIAL, DBGMCU_APB1FZR1};
-use g431_hw::memory::{Span, THRUSTER_PARTITIONS};
-use thruster_boot::{ACTIVE_START, Outcome, State};
+use g431_hw::memory::{Partitions, Span};
+use lbv_boot::{Outcome, State};
+
+/// The board's partitions.
+#[cfg(feature = "thruster")]
+const LAYOUT: Partitions = g431_hw::memory::THRUSTER_PARTITIONS;
+#[cfg(feature = "master")]
+const LAYOUT: Partitions = g431_hw::memory::MASTER_PARTITIONS;
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -24,20 +30,20 @@ fn main() -> ! {
     // (`g431_hw::images`); `embassy_stm32::init`, which it skips, would only have checked that.
     #[allow(unsafe_code)]
     let chip = unsafe { embassy_stm32::Peripherals::steal() };
-    let chip = g431_hw::chip!(thruster_boot_image, chip);
+    let chip = g431_hw::chip!(boot_image, chip);
     let flash = Mutex::new(RefCell::new(Flash::new_blocking(chip.flash)));
-    let state = match thruster_boot::prepare(&flash) {
+    let state = match lbv_boot::prepare(&flash, &LAYOUT) {
         Outcome::Prepared { state, .. } => state,
         // ACTIVE as it is: `prepare` says why that is the safe choice.
         Outcome::Failed(_) => State::Boot,
     };
     start_trial_watchdog(chip.watchdog);
-    // SAFETY: ACTIVE starts with the vector table of an image linked there (g431_hw::memory::THRUSTER); `load` sets
+    // SAFETY: ACTIVE starts with the vector table of an image linked there (g431_hw::memory::THRUSTER, MASTER); `load` sets
     // VTOR to it, loads its initial stack pointer and jumps to its reset handler, and nothing of the bootloader is
     // used after that (the image's start-up initialises its own RAM).
     #[allow(unsafe_code)]
     unsafe {
-        BootLoader { state }.load(ACTIVE_START)
+        BootLoader { state }.load(LAYOUT.active.origin)
     }
 }
 
@@ -46,12 +52,12 @@ fn main() -> ! {
 const WATCHDOG_POLLS: u32 = 100_000;
 
 /// Start the independent watchdog with the trial timeout (`g431_hw::iwdg::BOOT_TRIAL`), RM0440's IWDG procedure
-/// as the thruster runs it: start, unlock, prescaler, reload, wait for the update, reload the counter. An image
+/// as the images run it: start, unlock, prescaler, reload, wait for the update, reload the counter. An image
 /// that hangs before its own watchdog set-up is reset, and embassy-boot reverts it if it was on trial. The wait
 /// for the update matters to the image: while PVU or RVU is set its own writes to PR and RLR would be ignored.
 fn start_trial_watchdog(_iwdg: embassy_stm32::Peri<'static, IWDG>) {
     use pac::iwdg::vals::{Key, Pr};
-    // Frozen while a debugger halts the core, as the thruster's own watchdog is.
+    // Frozen while a debugger halts the core, as the images' own watchdogs are.
     pac::DBGMCU
         .apb1lfzr()
         .write_value(pac::dbgmcu::regs::Apb1lfzr(DBGMCU_APB1FZR1));
@@ -71,16 +77,12 @@ fn start_trial_watchdog(_iwdg: embassy_stm32::Peri<'static, IWDG>) {
 /// A read of a double word whose ECC shows two errors (`g431_hw::flash`): one a power cut tore in the state, ACTIVE
 /// or DFU. The read has completed with the cells' bits, and embassy-boot's format is built to take a torn word for
 /// what it is (an unfinished step, or no magic): clear the flag and let it go on. cortex-m-rt's default would spin
-/// here, and since every start reads the same word, the thruster would never start again. Any other NMI source
+/// here, and since every start reads the same word, the board would never start again. Any other NMI source
 /// (the clock security system, SRAM parity), or the same error in the bootloader's own code, resets the chip.
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
 unsafe fn NonMaskableInt() {
-    const SWAPPED: [Span; 3] = [
-        THRUSTER_PARTITIONS.state,
-        THRUSTER_PARTITIONS.active,
-        THRUSTER_PARTITIONS.dfu,
-    ];
+    const SWAPPED: [Span; 3] = [LAYOUT.state, LAYOUT.active, LAYOUT.dfu];
     match flash::nmi_action(pac::FLASH.eccr().read().0, &SWAPPED) {
         NmiAction::PassDataRead { clear } => pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear)),
         NmiAction::Stop => SCB::sys_reset(),

@@ -1,4 +1,5 @@
-//! thruster-boot: the thruster's bootloader for the STM32G431.
+//! lbv-boot: the bootloader of the thruster (STM32G431, feature `thruster`) and of the master (STM32G474, feature
+//! `master`).
 //!
 //! The binding (`stm32.rs`) exists only for the firmware target; on the host this binary is a stub and the
 //! bootloader's decision is tested through the library, on lbv-sim's flash.
@@ -10,7 +11,8 @@ mod stm32;
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!(
-        "thruster-boot runs on the STM32G431: cargo build --release -p thruster-boot --target thumbv7em-none-eabihf"
+        "lbv-boot runs on the boards: cargo build --release -p lbv-boot --features thruster (or master) \
+         --target thumbv7em-none-eabihf"
     );
     std::process::exit(2);
 }

@@ -17,7 +17,7 @@ use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embedded_storage::nor_flash::NorFlash;
-use g431_hw::memory::{FLASH, PAGE, Span, THRUSTER_PARTITIONS};
+use g431_hw::memory::{FLASH_ORIGIN, PAGE, Partitions, Span};
 
 pub use embassy_boot::{BootError, State};
 
@@ -30,9 +30,6 @@ pub type SharedFlash<F> = Mutex<NoopRawMutex, RefCell<F>>;
 /// One partition of the shared flash.
 pub type Partition<'a, F> = BlockingPartition<'a, NoopRawMutex, F>;
 
-/// Where the image the bootloader starts begins: ACTIVE's first word is its vector table.
-pub const ACTIVE_START: u32 = THRUSTER_PARTITIONS.active.origin;
-
 /// How many times [`prepare`] runs embassy-boot before it gives up. Each attempt resumes from the progress the
 /// last one recorded, so a transient error costs nothing; an error that stays is not worth waiting for.
 pub const ATTEMPTS: u32 = 3;
@@ -43,20 +40,21 @@ const BUFFER: usize = PAGE as usize;
 /// The partition at `span` of the flash, addressed from the flash's start as embassy-stm32's flash driver (and the
 /// `__bootloader_*` symbols of the image's memory.x, printed from the same partitions) address it.
 fn partition<F: NorFlash>(flash: &SharedFlash<F>, span: Span) -> Partition<'_, F> {
-    BlockingPartition::new(flash, span.origin - FLASH.origin, span.length)
+    BlockingPartition::new(flash, span.origin - FLASH_ORIGIN, span.length)
 }
 
-/// embassy-boot's ACTIVE, DFU and state partitions on `flash`, at the thruster's offsets. The bootloader takes them
-/// from the constants rather than from the linker's symbols (`BootLoaderConfig::from_linkerfile_blocking`): the
-/// same values, but known to the compiler, so embassy-boot's checks of the partitions' sizes fold away instead of
-/// staying in the image as panics (g431-hw checks the same rules at build time, `check_partitions`).
-pub fn partitions<F: NorFlash>(
-    flash: &SharedFlash<F>,
-) -> BootLoaderConfig<Partition<'_, F>, Partition<'_, F>, Partition<'_, F>> {
+/// embassy-boot's ACTIVE, DFU and state partitions on `flash`, at the offsets `layout` gives. The bootloader takes
+/// them from the constants rather than from the linker's symbols (`BootLoaderConfig::from_linkerfile_blocking`):
+/// the same values, but known to the compiler, so embassy-boot's checks of the partitions' sizes fold away instead
+/// of staying in the image as panics (g431-hw checks the same rules at build time, `check_partitions`).
+pub fn partitions<'a, F: NorFlash>(
+    flash: &'a SharedFlash<F>,
+    layout: &Partitions,
+) -> BootLoaderConfig<Partition<'a, F>, Partition<'a, F>, Partition<'a, F>> {
     BootLoaderConfig {
-        active: partition(flash, THRUSTER_PARTITIONS.active),
-        dfu: partition(flash, THRUSTER_PARTITIONS.dfu),
-        state: partition(flash, THRUSTER_PARTITIONS.state),
+        active: partition(flash, layout.active),
+        dfu: partition(flash, layout.dfu),
+        state: partition(flash, layout.state),
     }
 }
 
@@ -75,20 +73,21 @@ pub enum Outcome {
     Failed(BootError),
 }
 
-/// Run embassy-boot's preparation (swap, resume or revert) on `flash`, up to [`ATTEMPTS`] times.
+/// Run embassy-boot's preparation (swap, resume or revert) on `flash`, laid out as `layout`, up to [`ATTEMPTS`]
+/// times.
 ///
-/// When every attempt fails, the bootloader starts ACTIVE all the same, and that is the safe choice for a thruster:
-/// stopping here leaves it silent on the bus with no way back but a debug probe, in the water. An error that stays
+/// When every attempt fails, the bootloader starts ACTIVE all the same, and that is the safe choice for a thruster
+/// or a master: stopping here leaves it silent with no way back but a debug probe, in the water. An error that stays
 /// is not the flash's doing: embassy-boot programs only erased double words, or zeros over its own progress words,
-/// which the G4 always takes (RM0440 3.3.7); what remains is a write protection (RM0440 3.5, WRPERR), which the
-/// thruster does not set, and which stops the swap at the first page it protects. A power cut does not end here
+/// which the G4 always takes (RM0440 3.3.7); what remains is a write protection (RM0440 3.5, WRPERR), which
+/// neither image sets, and which stops the swap at the first page it protects. A power cut does not end here
 /// either: the next start resumes the swap. Should ACTIVE not run, the watchdog the binding starts before the jump
 /// resets the chip, and the next start tries again.
-pub fn prepare<F: NorFlash>(flash: &SharedFlash<F>) -> Outcome {
+pub fn prepare<F: NorFlash>(flash: &SharedFlash<F>, layout: &Partitions) -> Outcome {
     let mut buffer = AlignedBuffer([0; BUFFER]);
     let mut attempt = 1;
     loop {
-        match BootLoader::new(partitions(flash)).prepare_boot(&mut buffer.0) {
+        match BootLoader::new(partitions(flash, layout)).prepare_boot(&mut buffer.0) {
             Ok(state) => return Outcome::Prepared { state, attempt },
             Err(error) if attempt >= ATTEMPTS => return Outcome::Failed(error),
             Err(_) => attempt += 1,
