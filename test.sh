@@ -2,7 +2,7 @@
 # The whole test suite: installs what it needs, then runs rustfmt, clippy (host and firmware target), rustdoc, the host
 # tests (every virtual-bench scenario among them, on both engines), a simulated hour of the bench's soak, both
 # firmware images in release and their size report against the flash / RAM budgets, the images themselves run under
-# register-level models of the STM32G431 (rehost/), and the cores on an emulated Cortex-M4 (QEMU).
+# register-level models of the STM32G4 (rehost/), and the cores on an emulated Cortex-M4 (QEMU).
 # Usage: ./test.sh           the whole suite (CI runs exactly this through .ci/run)
 #        ./test.sh --quick   rustfmt, clippy for the host and the host tests only: the inner loop
 set -euo pipefail
@@ -150,7 +150,7 @@ done <<<"$builds"
 step "an hour of random faults and traffic on the bench (the soak, run beside the steps above)"
 finish soak "$soak" target/soak.log
 
-step "the images that ship, run under register-level models of the STM32G431 (Unicorn): boot, registers, buses, faults"
+step "the images that ship, run under register-level models of the STM32G4 (Unicorn): boot, registers, buses, faults"
 # rehost's tests run on one core: the QEMU runs go on beside them, their output shown after.
 qemu-m4/run.sh >target/qemu-m4.log 2>&1 &
 qemu=$!

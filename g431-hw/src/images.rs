@@ -367,7 +367,7 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
         image: &MASTER,
         layout: &memory::MASTER,
         flash_budget,
-        ram_budget: 24 * KIB,
+        ram_budget: 28 * KIB,
     }
 }
 
@@ -399,9 +399,9 @@ pub const BUILDS: [Build; 10] = [
     thruster("thruster-fw-bringup", "bringup", &THRUSTER),
     bootloader("thruster-boot", "thruster", &THRUSTER_BOOT, &memory::THRUSTER_BOOT),
     bootloader("master-boot", "master", &MASTER_BOOT, &memory::MASTER_BOOT),
-    master("lbv-master-fw", "", 108 * KIB),
-    master("lbv-master-fw-devkit", "devkit,legacy", 108 * KIB),
-    master("lbv-master-fw-acceptance", "acceptance", 100 * KIB),
+    master("lbv-master-fw", "", 140 * KIB),
+    master("lbv-master-fw-devkit", "devkit,legacy", 140 * KIB),
+    master("lbv-master-fw-acceptance", "acceptance", 132 * KIB),
 ];
 
 /// The one memory layout of every image built from `package` whose features are all `enabled`: a crate whose

@@ -80,7 +80,7 @@ pub const fn lasting_at_least(min_us: u32) -> Option<Iwdg> {
 /// still short enough that an image that hangs before that is reset, and reverted by the bootloader, in seconds.
 pub const BOOT_TRIAL_MIN_US: u32 = 2_000_000;
 
-/// The watchdog the bootloader (thruster-boot) starts just before it jumps to the image: an image that hangs
+/// The watchdog the bootloader (lbv-boot) starts just before it jumps to the image: an image that hangs
 /// before it sets up its own watchdog is reset, and embassy-boot then reverts it, since it never marked itself
 /// booted. The image's own set-up reprograms it while it runs (RM0440 IWDG: after KR = 0x5555, PR and RLR take
 /// new values once SR's PVU and RVU are clear; the refresh then reloads the counter from the new RLR).

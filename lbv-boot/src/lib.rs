@@ -1,5 +1,6 @@
-//! The thruster's bootloader, hardware-free: embassy-boot's decision on a NOR flash laid out as the thruster's
-//! ([`THRUSTER_PARTITIONS`]), and what the bootloader does when it fails.
+//! The bootloader of the thruster and of the master, hardware-free: embassy-boot's decision on a NOR flash laid out
+//! as the board's partitions ([`THRUSTER_PARTITIONS`](g431_hw::memory::THRUSTER_PARTITIONS),
+//! [`MASTER_PARTITIONS`](g431_hw::memory::MASTER_PARTITIONS)), and what the bootloader does when it fails.
 //!
 //! embassy-boot keeps the images in two partitions: ACTIVE, the image that runs, and DFU, where the running image
 //! writes a new one and marks it updated. At the next reset [`prepare`] swaps the two a page at a time, noting its

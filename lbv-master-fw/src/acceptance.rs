@@ -29,11 +29,11 @@
 //! What the script reports, and the formats it reports in, are [`report`]'s.
 
 use embassy_time::{Duration, Instant, Timer};
-use embedded_hal_async::i2c::{ErrorType, I2c, Operation};
+use embedded_hal_async::i2c::I2c;
 use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
 use crate::recovery::BusRecovery;
-use crate::shared::{BUSES, QuietBuses, Shared};
+use crate::shared::{BUSES, Shared};
 use crate::thrusters::PollFailure;
 
 pub mod report;
@@ -72,44 +72,13 @@ impl<O: Operator> Script<O> {
         let Some(bus) = buses.get_mut(usize::from(setup.bus)) else {
             return;
         };
-        let mut bus = InTurn {
-            bus,
-            quiet: &shared.quiet,
-            index: setup.bus,
-        };
         let mut operator = Announced {
             operator: self.0,
             shared,
         };
         operator.started();
-        let verdict = acceptance_test(&mut bus, &mut operator, &setup.script).await;
+        let verdict = acceptance_test(bus, &mut operator, &setup.script).await;
         operator.concluded(&verdict);
-    }
-}
-
-/// The script's bus with each transfer and recovery in the bus's turn ([`QuietBuses::busy`]), as the polling
-/// takes its cycles: a settings write's flash stall then never catches a transfer half done.
-struct InTurn<'a, B> {
-    bus: &'a mut B,
-    quiet: &'a QuietBuses,
-    index: u8,
-}
-
-impl<B: ErrorType> ErrorType for InTurn<'_, B> {
-    type Error = B::Error;
-}
-
-impl<B: I2c> I2c for InTurn<'_, B> {
-    async fn transaction(&mut self, address: u8, operations: &mut [Operation<'_>]) -> Result<(), Self::Error> {
-        let _turn = self.quiet.busy(self.index).await;
-        self.bus.transaction(address, operations).await
-    }
-}
-
-impl<B: BusRecovery> BusRecovery for InTurn<'_, B> {
-    async fn recover(&mut self) -> bool {
-        let _turn = self.quiet.busy(self.index).await;
-        self.bus.recover().await
     }
 }
 

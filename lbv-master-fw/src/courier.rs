@@ -2,7 +2,7 @@
 //! tmc-proto's extension ([`tmc_proto::ext`]; docs/thruster.md, "Field-update extension"), then applied.
 //!
 //! The master has no room for a whole image, so the bytes go on as the ground station sends them. The update
-//! server's sink (`update::ThrusterSink`) gathers them a flash page (2 KiB) at a time in [`Transfers`], and the bus
+//! server's sink (`update::VehicleSink`) gathers them a flash page (2 KiB) at a time in [`Transfers`], and the bus
 //! task of the thruster's bus writes each page between its polls, one exchange (a command and its reply) per poll
 //! cycle, so every thruster of the bus, the one being updated too, keeps being polled. The console reads on once
 //! there is room for the next write's bytes: the upload goes at the pace of the bus.
@@ -225,7 +225,7 @@ impl core::fmt::Display for Ending {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NotTaken;
 
-/// The transfer under way and the bytes waiting for the thruster: the state [`crate::update::ThrusterSink`] and the
+/// The transfer under way and the bytes waiting for the thruster: the state [`crate::update::VehicleSink`] and the
 /// bus tasks share.
 #[derive(Debug)]
 pub struct Courier {

@@ -15,6 +15,7 @@ pub mod console;
 pub mod courier;
 pub mod framing;
 pub mod mixer;
+pub mod own;
 pub mod params;
 pub mod poll;
 pub mod recovery;
@@ -25,7 +26,7 @@ pub mod thrusters;
 pub mod update;
 pub mod vehicle;
 
-use embassy_futures::join::{join, join3, join5};
+use embassy_futures::join::{join3, join5};
 use embedded_hal_async::i2c::I2c;
 use embedded_io_async::{Read, Write};
 
@@ -35,6 +36,7 @@ pub use poll::{PollError, poll_thruster};
 use battery::{CanReceiver, can_task};
 use console::{ConsoleStats, console_rx_task, console_tx_task};
 use courier::Transfers;
+use own::OwnUpdate;
 use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
 use shared::{BUSES, Severity, Shared, text};
@@ -43,10 +45,10 @@ use update::UpdateSink;
 use vehicle::vehicle_task;
 
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
-/// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for, and
-/// where update images go.
+/// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for,
+/// where update images go, and how it updates itself.
 #[derive(Debug)]
-pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly> {
+pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly, O = ()> {
     /// The thruster buses, each with its recovery.
     pub buses: [B; BUSES],
     /// The battery board's frames.
@@ -62,9 +64,11 @@ pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly> 
     pub reboot: X,
     /// The buses' work: [`Polling`] the thrusters (the vehicle), or the acceptance [`acceptance::Script`].
     pub work: J,
-    /// Where the update images received over MAVLink FTP go ([`update`]): the vehicle's [`update::ThrusterSink`],
+    /// Where the update images received over MAVLink FTP go ([`update`]): the vehicle's [`update::VehicleSink`],
     /// or [`update::CheckOnly`] in an image that sends none on (the acceptance image, the tests).
     pub update: U,
+    /// The master's own update ([`own`]): [`own::Updating`] on its flash, or `()` without a bootloader.
+    pub own: O,
 }
 
 /// What the master does with its thruster buses.
@@ -78,7 +82,7 @@ pub trait BusWork {
 /// also carries the update images in `transfers` to its thrusters, between polls.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Polling<'a> {
-    /// The images on their way to the thrusters: the update sink's ([`update::ThrusterSink`]), or `None` when
+    /// The images on their way to the thrusters: the update sink's ([`update::VehicleSink`]), or `None` when
     /// none are sent.
     pub transfers: Option<&'a Transfers>,
 }
@@ -135,8 +139,8 @@ async fn poll_bus<B: I2c + BusRecovery>(
 /// Before any task runs, the settings are published and, with a signing key, a new signing reservation is stored
 /// past the one loaded (the start's floor, [`signing`]): the first frame read (one already waiting in the UART) is
 /// checked with the key, and the first telemetry goes out signed, above every timestamp used before the start.
-pub async fn run<B, C, R, W, S, X, J, U>(
-    ports: Ports<B, C, R, W, S, X, J, U>,
+pub async fn run<B, C, R, W, S, X, J, U, O>(
+    ports: Ports<B, C, R, W, S, X, J, U, O>,
     config: &MasterConfig,
     shared: &Shared,
     console: &ConsoleStats,
@@ -150,6 +154,7 @@ where
     X: Reboot,
     J: BusWork,
     U: UpdateSink,
+    O: OwnUpdate,
 {
     let Ports {
         mut buses,
@@ -160,6 +165,7 @@ where
         mut reboot,
         work,
         update,
+        own,
     } = ports;
     let stored = settings.load(config.vehicle.defaults()).await;
     let unreadable = settings.read_errors();
@@ -183,7 +189,7 @@ where
         work.run(&mut buses, config, shared).await;
         core::future::pending::<()>().await
     };
-    let ((_, never, ..), _) = join(
+    let ((_, never, ..), ..) = join3(
         join5(
             buses,
             can_task(&mut can, shared),
@@ -199,6 +205,7 @@ where
             vehicle_task(config.vehicle, stored, shared),
         ),
         settings_task(&mut settings, shared, &mut reboot),
+        own.run(shared),
     )
     .await;
     never

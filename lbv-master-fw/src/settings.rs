@@ -308,9 +308,8 @@ pub const SIGNING_RETRY: Duration = Duration::from_secs(5);
 /// (Warning); a settings change is retried with the next change, a reservation every [`SIGNING_RETRY`] until it
 /// is stored (until then the console signs and accepts nothing beyond the last one).
 ///
-/// Every write, an erase included, is made in a quiet window of the thruster buses (`shared.quiet`): the flash
-/// stalls the CPU and every interrupt meanwhile, which no transfer in flight would survive
-/// ([`crate::shared::QuietBuses`]).
+/// The settings' pages are in the G474's bank 2 and the code in bank 1, so a write or an erase runs beside the code
+/// (RM0440 3.3.8): the thruster buses go on meanwhile.
 pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &Shared, reboot: &mut R) -> ! {
     let mut settings = shared.settings.receiver();
     let mut signing_time = shared.signing_time.receiver();
@@ -347,17 +346,11 @@ pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &
         };
         let result = match select3(changed, reservation, shared.reboot.wait()).await {
             Either3::First(()) => match shared.settings.try_get() {
-                Some(new) => {
-                    let _quiet = shared.quiet.quiet().await;
-                    store.save(&new).await
-                }
+                Some(new) => store.save(&new).await,
                 None => Ok(()),
             },
             Either3::Second(reservation) => {
-                let result = {
-                    let _quiet = shared.quiet.quiet().await;
-                    store.save_signing_time(reservation).await
-                };
+                let result = store.save_signing_time(reservation).await;
                 unsaved = result.is_err().then_some(reservation);
                 if result.is_ok() {
                     stored.send(reservation);
@@ -365,8 +358,6 @@ pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &
                 result
             }
             Either3::Third(()) => {
-                // Held to the restart: no poll starts again.
-                let _quiet = shared.quiet.quiet().await;
                 if let Some(new) = settings.as_mut().and_then(|receiver| receiver.try_changed()) {
                     let _ = store.save(&new).await;
                 }

@@ -6,7 +6,6 @@
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
-use embassy_sync::mutex::{Mutex as AsyncMutex, MutexGuard};
 use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::Duration;
@@ -424,60 +423,6 @@ pub struct VehicleState {
 
 type Mutex = CriticalSectionRawMutex;
 
-/// The thruster buses' quiet windows for flash writes.
-///
-/// On the G431 a flash write or page erase stalls the CPU and every interrupt (one bank, the code runs from it):
-/// a page erase for about 20 ms. A transfer caught by the stall waits on its interrupt, SCL held, and can outlast
-/// the bus timeout (25 ms, the SMBus figure the thrusters use too). So each bus task holds its bus's turn
-/// ([`QuietBuses::busy`]) through a poll cycle, from its first transfer to the end of its last, and the settings
-/// store writes only while it holds all three ([`QuietBuses::quiet`]): between cycles, with every bus idle. The
-/// cycles that fall due meanwhile start when the write is done, a stall late.
-pub struct QuietBuses([AsyncMutex<Mutex, ()>; BUSES]);
-
-/// Bus `index`'s turn, held through one poll cycle (nothing for a bus beyond I2C3).
-pub type BusTurn<'a> = Option<MutexGuard<'a, Mutex, ()>>;
-
-impl QuietBuses {
-    /// Every bus free.
-    pub const fn new() -> Self {
-        Self([const { AsyncMutex::new(()) }; BUSES])
-    }
-
-    /// Wait until no flash write is under way, then hold bus `index` busy until the turn is dropped.
-    pub async fn busy(&self, index: u8) -> BusTurn<'_> {
-        match self.0.get(usize::from(index)) {
-            Some(turn) => Some(turn.lock().await),
-            None => None,
-        }
-    }
-
-    /// Wait until every bus is between cycles and hold them all there until the guards are dropped. A bus task
-    /// holds only its own turn, so this never deadlocks; it waits at most one poll cycle per bus.
-    pub async fn quiet(&self) -> [MutexGuard<'_, Mutex, ()>; BUSES] {
-        let [first, second, third] = &self.0;
-        [first.lock().await, second.lock().await, third.lock().await]
-    }
-
-    /// Whether bus `index` is in a poll cycle or held quiet now.
-    pub fn is_held(&self, index: u8) -> bool {
-        self.0
-            .get(usize::from(index))
-            .is_some_and(|turn| turn.try_lock().is_err())
-    }
-}
-
-impl core::fmt::Debug for QuietBuses {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("QuietBuses").finish_non_exhaustive()
-    }
-}
-
-impl Default for QuietBuses {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
 /// The channels between the master's tasks.
 pub struct Shared {
     /// Console -> vehicle: decoded commands and their senders, in order.
@@ -500,8 +445,6 @@ pub struct Shared {
     pub signing_stored: Watch<Mutex, u64, 1>,
     /// Console -> settings store: the reboot's acknowledgement has been sent; restart.
     pub reboot: Signal<Mutex, ()>,
-    /// Bus tasks <-> settings store: flash writes only between poll cycles.
-    pub quiet: QuietBuses,
 }
 
 impl Shared {
@@ -518,7 +461,6 @@ impl Shared {
             signing_time: Watch::new(),
             signing_stored: Watch::new(),
             reboot: Signal::new(),
-            quiet: QuietBuses::new(),
         }
     }
 

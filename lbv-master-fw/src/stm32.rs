@@ -5,19 +5,22 @@ use core::sync::atomic::{AtomicU32, Ordering};
 
 use defmt::{info, unwrap};
 use defmt_rtt as _;
-use embassy_embedded_hal::adapter::BlockingAsync;
+use embassy_embedded_hal::flash::partition::Partition;
 use embassy_executor::Spawner;
 use embassy_stm32::can::config::NominalBitTiming;
 use embassy_stm32::can::{self, CanConfigurator};
-use embassy_stm32::flash::{Blocking, Flash};
+use embassy_stm32::flash::{Async, Flash};
 use embassy_stm32::i2c::{self, I2c};
 use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::mutex::Mutex;
 use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
 use lbv_master_fw::console::ConsoleStats;
+use lbv_master_fw::own::{OwnFlash, OwnImage, Updating};
 use lbv_master_fw::settings::{DATA_PAGES, Reboot, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::{CONFIG, MasterConfig, Ports};
@@ -41,6 +44,7 @@ bind_interrupts!(struct Irqs {
     FDCAN1_IT0 => can::IT0InterruptHandler<peripherals::FDCAN1>;
     FDCAN1_IT1 => can::IT1InterruptHandler<peripherals::FDCAN1>;
     LPUART1 => usart::BufferedInterruptHandler<peripherals::LPUART1>;
+    FLASH => embassy_stm32::flash::InterruptHandler;
 });
 
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
@@ -58,9 +62,15 @@ static IMAGE_INFO: [u8; update_image::INFO_LEN] = {
     update_image::ImageInfo::new(update_image::Target::Master, version).to_bytes()
 };
 
-/// Where the settings are kept: embassy-stm32's flash driver (blocking: the G431 has one bank, so the CPU waits out
-/// every write and erase anyway) behind the async NOR flash port.
-type Settings = Store<BlockingAsync<Flash<'static, Blocking>>>;
+/// The chip's flash through embassy-stm32's async driver, which waits for an erase or a program by its interrupt:
+/// the settings and DFU are in bank 2, where the work runs beside the code in bank 1 (RM0440 3.3.8).
+type ChipFlash = Mutex<CriticalSectionRawMutex, Flash<'static, Async>>;
+/// The whole flash, addressed from its start, shared by the settings and the master's own update.
+type WholeFlash = Partition<'static, CriticalSectionRawMutex, Flash<'static, Async>>;
+/// Where the settings are kept.
+type Settings = Store<WholeFlash>;
+/// The master's own update, on the same flash.
+type Own = Updating<'static, WholeFlash>;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
@@ -70,7 +80,7 @@ type Work = lbv_master_fw::acceptance::Script<acceptance::Person>;
 /// Where the console's update server hands the images it receives: on to the thrusters, or in the acceptance
 /// image (which has no server) nowhere.
 #[cfg(not(feature = "acceptance"))]
-type Sink = lbv_master_fw::update::ThrusterSink<'static>;
+type Sink = lbv_master_fw::update::VehicleSink<'static>;
 #[cfg(feature = "acceptance")]
 type Sink = lbv_master_fw::update::CheckOnly;
 
@@ -78,18 +88,18 @@ type Sink = lbv_master_fw::update::CheckOnly;
 /// server to the thrusters' bus tasks, set up at start in a `StaticCell` (zeroed RAM): as a plain static their 2.4 KiB
 /// would be `.data`, its initial values kept in flash.
 #[cfg(not(feature = "acceptance"))]
-fn work_and_sink() -> (Work, Sink) {
+fn work_and_sink(own: &'static OwnImage) -> (Work, Sink) {
     static TRANSFERS: StaticCell<lbv_master_fw::courier::Transfers> = StaticCell::new();
     let transfers: &'static _ = TRANSFERS.init_with(lbv_master_fw::courier::Transfers::new);
     (
         lbv_master_fw::Polling {
             transfers: Some(transfers),
         },
-        lbv_master_fw::update::ThrusterSink::new(transfers),
+        lbv_master_fw::update::VehicleSink::new(transfers, own),
     )
 }
 #[cfg(feature = "acceptance")]
-fn work_and_sink() -> (Work, Sink) {
+fn work_and_sink(_own: &'static OwnImage) -> (Work, Sink) {
     (
         lbv_master_fw::acceptance::Script(acceptance::Person),
         lbv_master_fw::update::CheckOnly,
@@ -172,11 +182,21 @@ async fn main(spawner: Spawner) {
     ));
     let (console_tx, console_rx) = uart.split();
 
-    // The settings, in the flash pages the images leave free (`memory.x`).
-    let settings = Store::master(BlockingAsync::new(Flash::new_blocking(chip.flash)));
+    // The settings, in the flash pages the images leave free (`memory.x`), and the master's own update, on one
+    // flash. Its image in a `StaticCell` (zeroed RAM): as a plain static its 2.3 KiB buffer would be `.data`.
+    static FLASH: StaticCell<ChipFlash> = StaticCell::new();
+    static OWN_IMAGE: StaticCell<OwnImage> = StaticCell::new();
+    let flash: &'static ChipFlash = FLASH.init(Mutex::new(Flash::new(chip.flash, Irqs)));
+    let whole = || Partition::new(flash, 0, g431_hw::memory::G474RE.flash.length);
+    let settings = Store::master(whole());
+    let own_image: &'static OwnImage = OWN_IMAGE.init_with(OwnImage::new);
+    let own = Updating {
+        flash: OwnFlash::new(whole()),
+        image: own_image,
+    };
 
     // The build's configuration with the chip's 96-bit unique device id for AUTOPILOT_VERSION (RM0440 section
-    // 48.1: UID_BASE 0x1FFF_7590, the address stm32-metapac gives the G431's UID block), read here so that the core
+    // 48.1: UID_BASE 0x1FFF_7590, the address stm32-metapac gives the G4's UID block), read here so that the core
     // stays free of hardware. In a static (zeroed RAM): a copy inside the task would be moved with the task.
     static MASTER_CONFIG: StaticCell<MasterConfig> = StaticCell::new();
     let config = MASTER_CONFIG.init_with(|| {
@@ -188,7 +208,7 @@ async fn main(spawner: Spawner) {
     let watchdog = board::Watchdog::start(chip.watchdog);
     spawner.spawn(unwrap!(feed(watchdog)));
 
-    let (work, update) = work_and_sink();
+    let (work, update) = work_and_sink(own_image);
     spawner.spawn(unwrap!(master(
         Ports {
             buses: [bus1, bus2, bus3],
@@ -199,6 +219,7 @@ async fn main(spawner: Spawner) {
             reboot: SystemReset,
             work,
             update,
+            own,
         },
         config
     )));
@@ -257,8 +278,17 @@ async fn feed(mut watchdog: board::Watchdog) -> ! {
 }
 
 /// The master's ports on the NUCLEO.
-type MasterPorts =
-    Ports<ThrusterBus, BatteryCan, BufferedUartRx<'static>, BufferedUartTx<'static>, Settings, SystemReset, Work, Sink>;
+type MasterPorts = Ports<
+    ThrusterBus,
+    BatteryCan,
+    BufferedUartRx<'static>,
+    BufferedUartTx<'static>,
+    Settings,
+    SystemReset,
+    Work,
+    Sink,
+    Own,
+>;
 
 /// The whole node, on the thread-mode executor. Its channels are set up at start in a `StaticCell` (zeroed RAM): a
 /// static with an initial value would take 2.5 KiB of flash, and inside the task's future they would be built on

@@ -100,6 +100,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         reboot: RebootRequest::default(),
         work: Polling::default(),
         update: crate::update::CheckOnly,
+        own: (),
     };
     executor.spawn(async {
         run(ports, &config, &shared, &stats).await;

@@ -936,9 +936,6 @@ where
     let mut next = Instant::now();
     loop {
         let polled = {
-            // Between cycles the bus is idle: a settings write waits for that (`shared.quiet`), and a cycle due
-            // during one waits here until it is done.
-            let _turn = shared.quiet.busy(bus_index).await;
             let cycle = if back_to_back { Instant::now() } else { next };
             let polled = state.cycle(bus, bus_index, table, cycle, shared).await;
             let carried = match transfers {

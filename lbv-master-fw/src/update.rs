@@ -6,9 +6,9 @@
 //! targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets them.
 //! MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 255 the master) then applies an image received whole.
 //!
-//! The master has no room to keep a 32-60 KiB image (32 KiB of RAM, its flash nearly full), so each write goes
-//! on to an [`UpdateSink`] as it comes: for a thruster, the thruster's DFU partition over its bus
-//! ([`ThrusterSink`], [`crate::courier`]). A sink takes bytes in order, so the server does too (FTP clients write in
+//! The master keeps no image itself: each write goes on to an [`UpdateSink`] as it comes ([`VehicleSink`]): for a
+//! thruster, the thruster's DFU partition over its bus ([`crate::courier`]); for the master, its own DFU
+//! partition ([`crate::own`]). A sink takes bytes in order, so the server does too (FTP clients write in
 //! order):
 //!
 //! - a write at the next byte expected is taken;
@@ -50,6 +50,7 @@ use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
 use crate::courier::Transfers;
+use crate::own::OwnImage;
 use crate::shared::{
     AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAV_CMD_LBV_APPLY_UPDATE, MAX_THRUSTERS, Outgoing, Sender,
     Severity, Shared, UpdateCommand, UpdateCounters, UpdateRequest, text,
@@ -71,8 +72,8 @@ pub const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
 pub const HEADER_LEN: usize = 80;
 /// The longest thruster payload: its ACTIVE partition, which the payload is an image of.
 pub const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
-/// The longest master payload: the flash its image is linked into.
-pub const MASTER_MAX_PAYLOAD: u32 = 112 * g431_hw::memory::KIB;
+/// The longest master payload: its ACTIVE partition, which the payload is an image of.
+pub const MASTER_MAX_PAYLOAD: u32 = g431_hw::memory::MASTER_PARTITIONS.active.length;
 /// The slot number of the master in the apply command's param1.
 pub const MASTER_SLOT: u8 = 255;
 
@@ -182,8 +183,8 @@ pub enum Applied {
     NotWired,
 }
 
-/// Where an upload's bytes go, in order. [`ThrusterSink`] sends thruster images on to the thruster's DFU
-/// partition over its bus; [`CheckOnly`] keeps nothing, and the bench also records everything.
+/// Where an upload's bytes go, in order. [`VehicleSink`] sends thruster images on to the thruster's DFU
+/// partition over its bus and the master's into its own; [`CheckOnly`] keeps nothing, and the bench also records everything.
 ///
 /// The calls do not wait: a sink that forwards over a bus keeps what it is given (at most one FTP write's worth,
 /// [`ftp::DATA_LEN`] bytes, per call), and the console reads on only once the sink is [`UpdateSink::ready`]. An
@@ -228,58 +229,69 @@ impl UpdateSink for CheckOnly {
 }
 
 /// The vehicle's sink: thruster images go on to their thrusters over the bus as they come ([`crate::courier`],
-/// through the [`Transfers`] the bus tasks serve); images for the master are checked and dropped (its own update
-/// is not there yet).
+/// through the [`Transfers`] the bus tasks serve), the master's own into its DFU partition ([`crate::own`], through
+/// the [`OwnImage`] its own task serves).
 #[derive(Debug, Clone, Copy)]
-pub struct ThrusterSink<'a> {
+pub struct VehicleSink<'a> {
     transfers: &'a Transfers,
-    /// The image begun is a thruster's.
-    thruster: bool,
+    own: &'a OwnImage,
+    /// The target of the image begun.
+    target: Option<UpdateTarget>,
 }
 
-impl<'a> ThrusterSink<'a> {
-    /// A sink handing thruster images to `transfers`, which the bus tasks serve too ([`crate::Polling`]).
-    pub const fn new(transfers: &'a Transfers) -> Self {
+impl<'a> VehicleSink<'a> {
+    /// A sink handing thruster images to `transfers`, which the bus tasks serve too ([`crate::Polling`]), and the
+    /// master's to `own`.
+    pub const fn new(transfers: &'a Transfers, own: &'a OwnImage) -> Self {
         Self {
             transfers,
-            thruster: false,
+            own,
+            target: None,
         }
     }
 }
 
-impl UpdateSink for ThrusterSink<'_> {
+impl UpdateSink for VehicleSink<'_> {
     async fn ready(&mut self) {
         self.transfers.room().await;
+        self.own.room().await;
     }
 
     fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
-        self.thruster = matches!(target, UpdateTarget::Thruster(_));
+        self.target = Some(target);
         match target {
             UpdateTarget::Thruster(slot) => self
                 .transfers
-                .with(|courier| courier.begin(slot, header.target, header.payload_len, &header.bytes)),
-            UpdateTarget::Master => Ok(()),
+                .with(|courier| courier.begin(slot, header.target, header.payload_len, &header.bytes))
+                .map_err(|_| Nak::Fail),
+            UpdateTarget::Master => self.own.begin(header).map_err(|_| Nak::Fail),
         }
-        .map_err(|_| Nak::Fail)
     }
 
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
-        if !self.thruster {
-            return Ok(());
-        }
         let offset = offset.checked_sub(HEADER_LEN as u32).ok_or(Nak::Fail)?;
-        self.transfers
-            .with(|courier| courier.write(offset, data))
-            .map_err(|_| Nak::Fail)
+        match self.target {
+            Some(UpdateTarget::Thruster(_)) => self
+                .transfers
+                .with(|courier| courier.write(offset, data))
+                .map_err(|_| Nak::Fail),
+            Some(UpdateTarget::Master) => self.own.write(offset, data).map_err(|_| Nak::Fail),
+            None => Err(Nak::Fail),
+        }
     }
 
     fn finish(&mut self, complete: bool) -> Result<(), Nak> {
-        if !self.thruster {
-            return Ok(());
+        match self.target {
+            Some(UpdateTarget::Thruster(_)) => self
+                .transfers
+                .with(|courier| courier.finish(complete))
+                .map_err(|_| Nak::Fail),
+            Some(UpdateTarget::Master) => {
+                self.own.finish(complete);
+                Ok(())
+            }
+            None => Ok(()),
         }
-        self.transfers
-            .with(|courier| courier.finish(complete))
-            .map_err(|_| Nak::Fail)
     }
 
     fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak> {
@@ -289,7 +301,10 @@ impl UpdateSink for ThrusterSink<'_> {
                 Ok(false) => Ok(Applied::Pending),
                 Err(_) => Err(Nak::Fail),
             },
-            UpdateTarget::Master => Ok(Applied::NotWired),
+            UpdateTarget::Master => match self.own.apply(from) {
+                Ok(()) => Ok(Applied::Started),
+                Err(_) => Err(Nak::Fail),
+            },
         }
     }
 }

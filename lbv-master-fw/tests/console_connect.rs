@@ -197,7 +197,7 @@ fn check_autopilot_version(v: &AUTOPILOT_VERSION_DATA) {
         assert!(!caps.contains(absent), "{absent:?}");
     }
     assert_eq!(caps.bits() & 2, 0, "not the deprecated PARAM_FLOAT");
-    assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0468));
+    assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0469));
     assert_eq!(&v.uid2[..12], &UID);
     assert_eq!(&v.uid2[12..], &[0; 6]);
     let word = |n: usize| u32::from_le_bytes(UID[n * 4..n * 4 + 4].try_into().unwrap());

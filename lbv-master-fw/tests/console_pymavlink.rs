@@ -528,7 +528,7 @@ fn pymavlink_decodes_what_the_console_sends() {
     );
     assert_eq!(
         (&v["vendor_id"], &v["product_id"]),
-        (&Value::from(0x0483), &Value::from(0x0468))
+        (&Value::from(0x0483), &Value::from(0x0469))
     );
     let mut uid2: Vec<Value> = b"0123456789AB".iter().map(|&b| Value::from(b)).collect();
     uid2.extend(std::iter::repeat_n(Value::from(0), 6));

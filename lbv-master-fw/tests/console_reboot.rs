@@ -136,6 +136,7 @@ impl Board {
             reboot: restart.clone(),
             work: Idle,
             update: lbv_master_fw::update::CheckOnly,
+            own: (),
         };
         let mut executor = Executor::new();
         executor.spawn(async {

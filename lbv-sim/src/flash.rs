@@ -59,6 +59,14 @@ impl FlashTiming {
         stalls_below: 256 * 1024,
         ..FlashTiming::G431
     };
+
+    /// How long the work done between two looks at a flash's statistics takes, one operation after another (as a
+    /// bootloader does it, waiting for each).
+    pub fn work_time(&self, before: FlashStats, after: FlashStats) -> Duration {
+        let erases = after.erases.saturating_sub(before.erases);
+        let units = after.programmed.saturating_sub(before.programmed) / 8;
+        Duration::from_ticks(erases * self.erase_page.as_ticks() + units * self.program_unit.as_ticks())
+    }
 }
 
 /// Why a flash operation failed.

@@ -24,7 +24,7 @@ fn pymavlink_arms_flies_and_disarms_the_bench_over_udp() {
     assert_ne!(version["flight_sw_version"], 0, "{summary}");
     assert_eq!(
         (&version["vendor_id"], &version["product_id"]),
-        (&0x0483.into(), &0x0468.into()),
+        (&0x0483.into(), &0x0469.into()),
         "{summary}"
     );
     // FS_PILOT_INPUT is INT8: set as INT8, refused as INT32 (the value unchanged, a warning).

@@ -79,6 +79,7 @@ pub fn ports<J>(buses: [&'static Bus; BUSES], work: J) -> MasterPorts<J> {
         reboot: NoReboot,
         work,
         update: lbv_master_fw::update::CheckOnly,
+        own: (),
     }
 }
 

@@ -146,7 +146,7 @@ class Rtt:
         _, buffer, size, write, read = struct.unpack("<5I", header)
         if size == 0 or write == read or write >= size or read >= size:
             return
-        if not 0x2000_0000 <= buffer < 0x2000_0000 + self.core.part.sram_size - size:
+        if not 0x2000_0000 <= buffer <= 0x2000_0000 + self.core.part.sram_size - size:
             return
         if write > read:
             data = bytes(uc.mem_read(buffer + read, write - read))

@@ -1,4 +1,4 @@
-//! A new image on trial. The bootloader (thruster-boot, embassy-boot) swaps a new image in and starts it on trial:
+//! A new image on trial. The bootloader (lbv-boot, embassy-boot) swaps a new image in and starts it on trial:
 //! until the image confirms itself, any reset (the watchdog's, a brown-out, a power cut) swaps the previous image
 //! back. The image confirms only once it has shown that it works here: [`TRIAL_ROUNDS`] watchdog rounds in which
 //! every task reported (counted since start; a task that stops for good is a watchdog reset), and [`TRIAL_ORDERS`]

@@ -26,8 +26,9 @@ include!(concat!(env!("OUT_DIR"), "/build_info.rs"));
 /// AUTOPILOT_VERSION.vendor_id: 0x0483, STMicroelectronics' USB vendor id (the G431's maker; the console's ST-LINK
 /// virtual COM port enumerates under it). The board has no USB id of its own.
 pub const VENDOR_ID: u16 = 0x0483;
-/// AUTOPILOT_VERSION.product_id: 0x0468, the STM32G431's device id (DBGMCU_IDCODE.DEV_ID, RM0440 section 47.6.1).
-pub const PRODUCT_ID: u16 = 0x0468;
+/// AUTOPILOT_VERSION.product_id: 0x0469, the device id of the master's STM32G474 (DBGMCU_IDCODE.DEV_ID, RM0440
+/// section 47.6.1: 0x469 for the G47x/G48x, 0x468 for the G431/G441).
+pub const PRODUCT_ID: u16 = 0x0469;
 
 /// What the master can do, as AUTOPILOT_VERSION announces it: MAVLink 2, COMMAND_INT (the same commands as
 /// COMMAND_LONG), and integer parameters carried as the float of their value (PARAM_ENCODE_C_CAST, what ArduPilot
@@ -959,7 +960,7 @@ mod tests {
         assert_eq!(&v.uid2[..12], &uid);
         assert_eq!(&v.uid2[12..], &[0; 6]);
         assert_eq!(v.uid, 0x0403_0201 | (0x0807_0605u64 ^ 0x0C0B_0A09) << 32);
-        assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0468));
+        assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0469));
         assert_eq!(autopilot_version(&[0; 12]).uid, 0, "unknown");
     }
 

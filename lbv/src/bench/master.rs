@@ -3,34 +3,50 @@
 //! the acceptance script, whose operator is the scenario (through a [`Desk`]).
 //!
 //! What the master is wired to ([`Wiring`]) lives as long as the bench, and so does its flash
-//! ([`MasterBoard::flash`], the G431's 128 KiB with the settings in their pages); the node itself (its tasks and
-//! their state) is dropped and booted afresh by [`MasterBoard::reboot`], which the bench also calls when the
-//! master asks for it (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN). Both images keep their settings in that flash.
+//! ([`MasterBoard::flash`], the G474's 512 KiB: a factory image in ACTIVE, the settings in their pages); the node
+//! itself (its tasks and their state) is dropped and booted afresh by [`MasterBoard::reboot`], which the bench also
+//! calls when the master asks for it (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, or the restart into an update). Every
+//! boot first runs the bootloader on that flash (`lbv_boot::prepare`: the swap of an update, or the revert of one
+//! that never confirmed); the master's tasks start once the time its flash work takes has passed. Both images keep
+//! their settings in that flash.
 //!
-//! The master runs on a [`Cpu`] its flash stalls as the G431's does ([`FlashTiming::G431`]: a page erase 25 ms):
-//! meanwhile none of its tasks runs, and a transfer it has under way on a thruster bus waits for it. A reset ends
-//! a stall.
+//! The master runs on a [`Cpu`] its flash stalls as the G474's does with the code in bank 1
+//! ([`FlashTiming::G474_DUAL_BANK`]): work in bank 1 stalls it (a page erase 25 ms), and meanwhile none of its tasks
+//! runs; work in bank 2 (the settings, DFU) runs beside it, the task that asked for it waiting. A reset ends a
+//! stall.
 
 use core::cell::{Cell, RefCell};
 use std::rc::Rc;
 
+use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
+use g431_hw::memory::MASTER_PARTITIONS;
+use lbv_boot::Outcome;
 use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::courier::Transfers;
+use lbv_master_fw::own::{OwnFlash, OwnImage, Updating};
 use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::update::ThrusterSink;
+use lbv_master_fw::update::VehicleSink;
 use lbv_master_fw::{MasterConfig, Polling, Ports};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
+use update_image::{INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
 
 use super::ports::master::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, master_flash, thruster_bus};
+use super::thruster::{made_up_image, partition};
+
+/// The version of the image a bench master leaves the factory with.
+pub const MASTER_FACTORY_VERSION: Version = Version::new(0, 1, 0);
+
+/// The length of the image a bench master leaves the factory with, about the application's.
+pub const MASTER_FACTORY_IMAGE_LEN: usize = 136 * 1024;
 
 /// What the master's ports are wired to: its three thruster buses, its CAN node's receive queue and its console
 /// link, both ways.
@@ -98,8 +114,13 @@ pub struct MasterBoard {
     pub flash: Stm32g4Flash,
     /// Times it has booted.
     pub boots: u32,
-    /// Its CPU: the flash's erases and writes stall it.
+    /// Its CPU: the flash's erases and writes in bank 1 stall it.
     pub cpu: Cpu,
+    /// What the bootloader did at the last boot.
+    pub boot_outcome: Option<Outcome>,
+    /// The next boot's bootloader loses the power after this many bytes of flash work (a cut mid-swap): the board
+    /// then stays off until the next [`MasterBoard::reboot`].
+    pub cut_in_bootloader: Option<usize>,
     /// Where its update images go: every one recorded, across reboots.
     pub updates: UpdateRecorder,
     reboot: RebootRequest,
@@ -117,7 +138,10 @@ impl MasterBoard {
         config.console.uid = BENCH_UID;
         let cpu = Cpu::new();
         let flash = master_flash();
-        flash.stall_cpu(&cpu, FlashTiming::G431);
+        let factory = made_up_image(Target::Master, MASTER_FACTORY_VERSION, MASTER_FACTORY_IMAGE_LEN, 1);
+        embedded_storage::nor_flash::NorFlash::write(&mut partition(&flash, MASTER_PARTITIONS.active), 0, &factory)
+            .expect("the factory image fits ACTIVE");
+        flash.stall_cpu(&cpu, FlashTiming::G474_DUAL_BANK);
         for bus in &wiring.buses {
             bus.set_master_cpu(&cpu);
         }
@@ -130,12 +154,26 @@ impl MasterBoard {
             flash,
             boots: 0,
             cpu,
+            boot_outcome: None,
+            cut_in_bootloader: None,
             updates: UpdateRecorder::default(),
             reboot: RebootRequest::default(),
             task: None,
         };
         board.start(wiring, executor);
         board
+    }
+
+    /// The image ACTIVE holds now, by its information record.
+    pub fn running_image(&self) -> Option<ImageInfo> {
+        let mut info = [0xFF; INFO_LEN];
+        embedded_storage::nor_flash::ReadNorFlash::read(
+            &mut partition(&self.flash, MASTER_PARTITIONS.active),
+            INFO_OFFSET as u32,
+            &mut info,
+        )
+        .ok()?;
+        ImageInfo::parse(&info).ok()
     }
 
     /// Whether the master has asked to restart since it booted.
@@ -161,6 +199,23 @@ impl MasterBoard {
     fn start(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
         self.reboot = RebootRequest::default();
         self.boots += 1;
+        // The bootloader, on the flash as the last power-down left it: its work is done at once, and the master's
+        // tasks wait for the time it takes, one operation after another.
+        let before = self.flash.stats();
+        self.flash.stall_nothing();
+        if let Some(bytes) = self.cut_in_bootloader.take() {
+            self.flash.cut_power_after(bytes);
+        }
+        self.boot_outcome = Some(lbv_boot::prepare(
+            &Mutex::new(RefCell::new(self.flash.clone())),
+            &MASTER_PARTITIONS,
+        ));
+        self.flash.stall_cpu(&self.cpu, FlashTiming::G474_DUAL_BANK);
+        if !self.flash.powered() {
+            return;
+        }
+        self.cpu
+            .stall(FlashTiming::G474_DUAL_BANK.work_time(before, self.flash.stats()));
         let script = self.acceptance.then(|| {
             let desk = Rc::new(Desk::default());
             self.desk = Some(desk.clone());
@@ -181,35 +236,43 @@ impl MasterBoard {
             reboot: self.reboot.clone(),
             work: (),
             update: (),
+            own: (),
         };
         let recorder = self.updates.clone();
         let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
+        let flash = self.flash.clone();
         executor.spawn_on(&self.cpu, async move {
-            // The node's static: what its console hands on and its bus tasks carry.
+            // The node's statics: what its console hands on, its bus tasks carry and its own update writes.
             let transfers = Transfers::new();
+            let image = OwnImage::new();
             let update = Recorded {
                 recorder,
-                sink: ThrusterSink::new(&transfers),
+                sink: VehicleSink::new(&transfers, &image),
+            };
+            let own = Updating {
+                flash: OwnFlash::new(flash),
+                image: &image,
             };
             match script {
-                Some(script) => lbv_master_fw::run(with(ports, script, update), &config, &shared, &stats).await,
+                Some(script) => lbv_master_fw::run(with(ports, script, update, own), &config, &shared, &stats).await,
                 None => {
                     let polling = Polling {
                         transfers: Some(&transfers),
                     };
-                    lbv_master_fw::run(with(ports, polling, update), &config, &shared, &stats).await
+                    lbv_master_fw::run(with(ports, polling, update, own), &config, &shared, &stats).await
                 }
             }
         })
     }
 }
 
-/// `ports` with `work` on the thruster buses and `update` for the images.
-fn with<B, C, R, W, S, X, J, U>(
-    ports: Ports<B, C, R, W, S, X, (), ()>,
+/// `ports` with `work` on the thruster buses, `update` for the images and `own` for the master's own.
+fn with<B, C, R, W, S, X, J, U, O>(
+    ports: Ports<B, C, R, W, S, X, (), (), ()>,
     work: J,
     update: U,
-) -> Ports<B, C, R, W, S, X, J, U> {
+    own: O,
+) -> Ports<B, C, R, W, S, X, J, U, O> {
     Ports {
         buses: ports.buses,
         can: ports.can,
@@ -219,5 +282,6 @@ fn with<B, C, R, W, S, X, J, U>(
         reboot: ports.reboot,
         work,
         update,
+        own,
     }
 }

@@ -173,6 +173,8 @@ pub struct Bench {
     /// Random choices of the scenario.
     pub random: Random,
     texts_seen: usize,
+    /// Bytes the console link has carried so far: to the master, and from it.
+    pub console_bytes: (u64, u64),
     next_sample: Instant,
     /// Steps taken (fixed-step engine) or instants run (event engine).
     steps: u64,
@@ -246,6 +248,7 @@ impl Bench {
             recorder: Recorder::new(true),
             random,
             texts_seen: 0,
+            console_bytes: (0, 0),
             next_sample: Instant::from_ticks(0),
             steps: 0,
             rail,
@@ -508,10 +511,12 @@ impl Bench {
             outgoing.extend(self.ground.periodic(now));
         }
         if !outgoing.is_empty() && self.ground.connected {
+            self.console_bytes.0 += outgoing.len() as u64;
             self.wiring.console_in.send(outgoing);
             handed = true;
         }
         let received = self.wiring.console_out.take();
+        self.console_bytes.1 += received.len() as u64;
         if let Some(sink) = self.console_sink.as_mut() {
             if !received.is_empty() {
                 sink(&received);

@@ -23,7 +23,7 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
 use g431_hw::memory::{FLASH_ORIGIN, PAGE, Span, THRUSTER_PARTITIONS};
 use lbv_boot::Outcome;
-use lbv_sim::flash::{FlashStats, FlashTiming, Stm32g4Flash};
+use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::{Bus, DeviceId};
 use lbv_sim::{Executor, TaskId};
 use thruster_fw::commutation::{BridgeDrive, COAST};
@@ -111,10 +111,10 @@ pub const FACTORY_IMAGE_LEN: usize = 32 * 1024;
 /// The version of the image a bench thruster leaves the factory with.
 pub const FACTORY_VERSION: Version = Version::new(0, 1, 0);
 
-/// A made-up thruster image of `len` bytes (a multiple of the flash's 8-byte double word) for `family` at
-/// `version`: its information record at [`INFO_OFFSET`], as a real image embeds it, and every other byte drawn
-/// from `seed` (xorshift32), so that images of two seeds differ throughout.
-pub fn made_up_image(family: Family, version: Version, len: usize, seed: u32) -> Vec<u8> {
+/// A made-up image of `len` bytes (a multiple of the flash's 8-byte double word) for `target` at `version`: its
+/// information record at [`INFO_OFFSET`], as a real image embeds it, and every other byte drawn from `seed`
+/// (xorshift32), so that images of two seeds differ throughout.
+pub fn made_up_image(target: Target, version: Version, len: usize, seed: u32) -> Vec<u8> {
     let mut x = seed.wrapping_mul(0x9E37_79B9) | 1;
     let mut image: Vec<u8> = (0..len)
         .map(|_| {
@@ -124,7 +124,7 @@ pub fn made_up_image(family: Family, version: Version, len: usize, seed: u32) ->
             x as u8
         })
         .collect();
-    let info = ImageInfo::new(Target::thruster(family), version).to_bytes();
+    let info = ImageInfo::new(target, version).to_bytes();
     if let Some(record) = image.get_mut(INFO_OFFSET..INFO_OFFSET + INFO_LEN) {
         record.copy_from_slice(&info);
     }
@@ -133,7 +133,7 @@ pub fn made_up_image(family: Family, version: Version, len: usize, seed: u32) ->
 
 /// The image a bench thruster of `family` leaves the factory with: [`FACTORY_VERSION`], [`FACTORY_IMAGE_LEN`] bytes.
 pub fn factory_image(family: Family) -> Vec<u8> {
-    made_up_image(family, FACTORY_VERSION, FACTORY_IMAGE_LEN, 1)
+    made_up_image(Target::thruster(family), FACTORY_VERSION, FACTORY_IMAGE_LEN, 1)
 }
 
 /// The partition at `span` (an address range, as `THRUSTER_PARTITIONS` gives it) of the thruster's `flash`, whose
@@ -151,15 +151,6 @@ fn factory_flash(image: &[u8]) -> Stm32g4Flash {
         .write(0, image)
         .expect("the factory image fits ACTIVE");
     flash
-}
-
-/// How long the flash's work between two looks at its statistics kept the G431 busy: the bootloader copies from
-/// the flash bank it runs from, so every erase and program stalls it.
-fn flash_busy(before: FlashStats, after: FlashStats) -> Duration {
-    let timing = FlashTiming::G431;
-    let erases = after.erases.saturating_sub(before.erases);
-    let units = after.programmed.saturating_sub(before.programmed) / Stm32g4Flash::WRITE_SIZE as u64;
-    Duration::from_ticks(erases * timing.erase_page.as_ticks() + units * timing.program_unit.as_ticks())
 }
 
 /// The first point of the fixed-step engine's grid after `t`.
@@ -193,6 +184,9 @@ pub struct ThrusterBoard {
     reboots_served: u32,
     /// What the bootloader did at the last boot.
     boot_outcome: Option<Outcome>,
+    /// The next boot's bootloader loses the power after this many bytes of flash work (a cut mid-swap): the
+    /// board then stays off until the next boot.
+    pub cut_in_bootloader: Option<usize>,
     tasks: Vec<TaskId>,
 }
 
@@ -248,6 +242,7 @@ impl ThrusterBoard {
             updater,
             reboots_served: 0,
             boot_outcome: None,
+            cut_in_bootloader: None,
             tasks: Vec::new(),
         }
     }
@@ -259,17 +254,25 @@ impl ThrusterBoard {
     /// The bootloader's flash work is done at once; the controller starts, and acknowledges on the bus, only once
     /// the time that work takes on the G431 has passed ([`FlashTiming::G431`]: about 3 s for a swap), and its
     /// watchdog runs from then, as the bootloader starts it just before the jump. A power cut in that time finds
-    /// the swap done (lbv-boot's own tests cut the power inside it).
+    /// the swap done; one inside the swap itself is [`ThrusterBoard::cut_in_bootloader`].
     pub fn boot(&mut self, executor: &mut Executor<'static>) {
         if self.powered() {
             return;
         }
         let before = self.flash.stats();
+        self.flash.power_on();
+        if let Some(bytes) = self.cut_in_bootloader.take() {
+            self.flash.cut_power_after(bytes);
+        }
         self.boot_outcome = Some(lbv_boot::prepare(
             &Mutex::new(RefCell::new(self.flash.clone())),
             &THRUSTER_PARTITIONS,
         ));
-        let starts = Instant::now() + flash_busy(before, self.flash.stats());
+        if !self.flash.powered() {
+            // The power went in the bootloader's work: the board stays off until the next boot.
+            return;
+        }
+        let starts = Instant::now() + FlashTiming::G431.work_time(before, self.flash.stats());
         let in_bootloader = starts > Instant::now();
         self.updater.info = self.read_running_info();
         // A reset asked for before this boot is the one this boot is.

@@ -87,7 +87,7 @@ fn results(run: &Run, to: u8, command: u16) -> Vec<u8> {
 }
 
 /// The operator sets parameter `name` to `value`; true once the vehicle has answered with that value.
-fn set_param(run: &mut Run, name: &str, value: f32) -> bool {
+pub(super) fn set_param(run: &mut Run, name: &str, value: f32) -> bool {
     run.bench.ground.seen.params.remove(name);
     let frame = run.bench.ground.param_set(name, value);
     run.bench.send(frame);
@@ -103,7 +103,7 @@ fn set_param(run: &mut Run, name: &str, value: f32) -> bool {
 }
 
 /// Every parameter as the vehicle reports it to the operator now (PARAM_REQUEST_LIST).
-fn read_params(run: &mut Run) -> BTreeMap<String, f32> {
+pub(super) fn read_params(run: &mut Run) -> BTreeMap<String, f32> {
     run.bench.ground.seen.params.clear();
     let frame = run.bench.ground.param_list();
     run.bench.send(frame);
@@ -118,7 +118,7 @@ fn read_params(run: &mut Run) -> BTreeMap<String, f32> {
 }
 
 /// Whether `read` holds every value of `expected`.
-fn holds(read: &BTreeMap<String, f32>, expected: &BTreeMap<&str, f32>) -> bool {
+pub(super) fn holds(read: &BTreeMap<String, f32>, expected: &BTreeMap<&str, f32>) -> bool {
     expected.iter().all(|(name, value)| read.get(*name) == Some(value))
 }
 
@@ -629,8 +629,7 @@ pub fn settings_power_cut(run: &mut Run) {
         run.run_until(0.2, |bench| {
             !bench.master.flash.powered() || bench.ground.seen.params.contains_key("LBV_GAIN")
         });
-        // Let the write finish (or the cut land): it waits for the thruster buses' quiet window, up to a poll
-        // cycle.
+        // Let the write finish (or the cut land).
         run.run_until(0.1, |bench| {
             !bench.master.flash.powered() || bench.master.flash.stats().programmed > programmed
         });
@@ -741,11 +740,11 @@ fn flash_power_back(run: &mut Run) {
 }
 
 /// The operator changes a parameter over and over while the vehicle drives ahead, until the settings log has gone
-/// round its pages and erased the oldest several times. Each page erase stalls the master's CPU for 25 ms on the
-/// bench (`FlashTiming::G431`), as long as the thruster bus's timeout: the master writes only between poll cycles,
-/// with every bus idle, so no transfer is caught by a stall. The thrusters miss no order (no timeout, no failed
-/// poll, no link failsafe) and keep driving; the cycles due during a stall merely start late.
-pub fn settings_quiet_bus(run: &mut Run) {
+/// round its pages and erased the oldest several times. The settings are in the G474's bank 2, so a page erase
+/// (25 ms on the bench) runs beside the code in bank 1 and stalls nothing (`FlashTiming::G474_DUAL_BANK`); the
+/// master still writes only between poll cycles, with every bus idle. The thrusters miss no order (no timeout, no
+/// failed poll, no link failsafe) and keep driving.
+pub fn settings_while_driving(run: &mut Run) {
     run.arm_and_go(AHEAD);
     run.run_for(1.0);
     let thrusters = run.bench.thrusters.len();
@@ -754,7 +753,8 @@ pub fn settings_quiet_bus(run: &mut Run) {
     let flash_before = run.bench.master.flash.stats();
     let stalls_before = run.bench.master.cpu.stalls();
     let mut answered = 0;
-    // 168 records fill the eight pages; every 21 writes after that erase one: 4 erases by the 252nd.
+    // 168 records fill the eight pages; every 21 records after that erase one. The writes take their time beside
+    // the code (bank 2), and changes that come meanwhile go into the next record together: fewer than 260.
     let n = 260u32;
     for write in 0..n {
         let value = 10.0 + (write % 50) as f32;
@@ -767,8 +767,8 @@ pub fn settings_quiet_bus(run: &mut Run) {
     let stalled_ms = run.bench.master.cpu.stalled_total().as_millis();
     let stalls = run.bench.master.cpu.stalls() - stalls_before;
     run.check(
-        "every change is answered and the log erased pages meanwhile, each stalling the master",
-        answered == n && erases >= 4,
+        "every change is answered and the log erased pages meanwhile, in bank 2: the master never stalls",
+        answered == n && erases >= 3 && stalls == 0,
         format!("{answered} of {n} answered, {erases} erases, {stalls} stalls, {stalled_ms} ms stalled since boot"),
     );
     let after: Vec<_> = (0..thrusters).map(|index| run.health(index)).collect();

@@ -27,7 +27,7 @@ pub use harness::{Options, Report, Scenario, run_guarded};
 use acceptance::acceptance;
 use bus::{bad_frames, link_failsafe, missing_thruster, reset_mid_transfer, six_byte_status, status_noise, stuck_sda};
 use console::{
-    ground_station_1hz, second_sysid, settings_persist, settings_power_cut, settings_quiet_bus, signing,
+    ground_station_1hz, second_sysid, settings_persist, settings_power_cut, settings_while_driving, signing,
     signing_reboot, stray_byte,
 };
 use harness::{dev_kits, lbv300, legacy6, mixed};
@@ -36,7 +36,7 @@ use thruster_faults::{
     ground_fault, ground_glitch, hall, hall_glitches, info_power, overcurrent, overtemp, rocking_rotor, stall, water,
     water_threshold,
 };
-use update::field_update;
+use update::{field_update, master_update};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
 
 /// `lbv bench`'s default seed, which the tests run every scenario with.
@@ -314,11 +314,11 @@ pub const SCENARIOS: &[Scenario] = &[
         run: settings_power_cut,
     },
     Scenario {
-        name: "settings-quiet-bus",
-        about: "parameter writes and page erases (25 ms CPU stalls) while driving: no thruster misses an order",
+        name: "settings-while-driving",
+        about: "parameter writes and page erases while driving (bank 2, beside the code): no thruster misses an order",
         seconds: 12.0,
         vehicle: lbv300,
-        run: settings_quiet_bus,
+        run: settings_while_driving,
     },
     Scenario {
         name: "field-update",
@@ -326,6 +326,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 120.0,
         vehicle: mixed,
         run: field_update,
+    },
+    Scenario {
+        name: "master-update",
+        about: "the master updated from the ground station over its console link; wrong key, power cuts, revert",
+        seconds: 240.0,
+        vehicle: lbv300,
+        run: master_update,
     },
     Scenario {
         name: "acceptance",

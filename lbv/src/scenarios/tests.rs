@@ -81,8 +81,9 @@ scenario_tests! {
     signing_reboot: "signing-reboot",
     settings_persist: "settings-persist",
     settings_power_cut: "settings-power-cut",
-    settings_quiet_bus: "settings-quiet-bus",
+    settings_while_driving: "settings-while-driving",
     field_update: "field-update",
+    master_update: "master-update",
     acceptance: "acceptance",
     soak: "soak",
 }

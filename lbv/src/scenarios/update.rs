@@ -72,28 +72,22 @@ fn put_until(
 /// Send the apply command for `slot` and wait up to `limit` s for its final COMMAND_ACK; returns the results of
 /// the acknowledgements it got (the first IN_PROGRESS when it started) and the seconds to the last.
 fn apply(run: &mut Run, slot: u8, limit: f64) -> (Vec<u8>, f64) {
-    apply_cut(run, slot, limit, None)
+    apply_with(run, slot, limit, |_| false, |_| {}, 0.0)
 }
 
-/// As [`apply`], cutting the thruster's power for 0.1 s `cut.1` s after the master says `cut.0` of it.
-fn apply_cut(run: &mut Run, slot: u8, limit: f64, cut: Option<(&str, f64)>) -> (Vec<u8>, f64) {
+/// As [`apply`], cutting the thruster's power for 0.1 s `after` s after the master says `text` of it.
+fn apply_cut(run: &mut Run, slot: u8, limit: f64, text: &str, after: f64) -> (Vec<u8>, f64) {
     let start = run.bench.now();
-    let acks_before = run.bench.ground.seen.acks.len();
-    let command = run.bench.ground.command(
-        MAV_CMD_LBV_APPLY_UPDATE,
-        [f32::from(slot), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-    );
-    run.bench.send(command);
-    if let Some((text, after)) = cut {
-        let file = format!("thruster{slot}.lbvu: {text}");
-        run.run_until(limit, |bench| {
-            bench
-                .ground
-                .seen
-                .texts
-                .iter()
-                .any(|(at, said)| *at >= start && said.starts_with(&file))
-        });
+    let file = format!("thruster{slot}.lbvu: {text}");
+    let said = |bench: &crate::bench::Bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, said)| *at >= start && said.starts_with(&file))
+    };
+    let cut = |run: &mut Run| {
         run.run_for(after);
         let thruster = usize::from(slot);
         run.bench
@@ -101,19 +95,8 @@ fn apply_cut(run: &mut Run, slot: u8, limit: f64, cut: Option<(&str, f64)>) -> (
         run.inject(Fault::PowerCut { thruster });
         run.run_for(0.1);
         run.clear(Fault::PowerCut { thruster });
-    }
-    let results = |bench: &crate::bench::Bench| -> Vec<u8> {
-        bench.ground.seen.acks[acks_before..]
-            .iter()
-            .filter(|(command, _)| *command == MAV_CMD_LBV_APPLY_UPDATE)
-            .map(|(_, result)| *result)
-            .collect()
     };
-    run.run_until(limit, |bench| results(bench).last().is_some_and(|r| *r != IN_PROGRESS));
-    (
-        results(&run.bench),
-        round((run.bench.now() - start).as_micros() as f64 / 1e6, 2),
-    )
+    apply_with(run, slot, limit, said, cut, limit)
 }
 
 /// The version thruster `index` runs now, as its ACTIVE partition holds it.
@@ -372,7 +355,7 @@ pub fn field_update(run: &mut Run) {
     // Power cuts while an image is applied. In the thruster's signature check (Finish): it comes back with the image
     // marked or not, begins again where it must, and takes it.
     let start = run.bench.now();
-    let (acks, took) = apply_cut(run, 4, 60.0, Some(("applying", 0.02)));
+    let (acks, took) = apply_cut(run, 4, 60.0, "applying", 0.02);
     let texts = texts_since(run, start, "thruster4.lbvu");
     run.check(
         "a power cut in the thruster's signature check: the image is applied all the same",
@@ -395,7 +378,7 @@ pub fn field_update(run: &mut Run) {
         60.0,
     );
     wait_verified(run, start, 3);
-    let (acks, took) = apply_cut(run, 3, 60.0, Some(("runs 0.3.0, on trial", 0.5)));
+    let (acks, took) = apply_cut(run, 3, 60.0, "runs 0.3.0, on trial", 0.5);
     let texts = texts_since(run, start, "thruster3.lbvu");
     run.check(
         "a power cut before the new image confirms itself: it is reverted, and the apply fails",
@@ -403,6 +386,36 @@ pub fn field_update(run: &mut Run) {
             && acks == [IN_PROGRESS, FAILED]
             && texts.last().is_some_and(|t| t.ends_with("reverted to 0.2.0"))
             && running(run, 3) == Some(NEW),
+        format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 3)),
+    );
+
+    // A power cut in the middle of the thruster's swap (100 kB into its bootloader's flash work, of some 240): off
+    // until the power comes back a second later, when its bootloader finishes the swap; the image then confirms.
+    let start = run.bench.now();
+    let (state, _) = put(
+        run,
+        "/update/thruster3.lbvu",
+        update_file(families[3], Version::new(0, 3, 0), &key),
+        60.0,
+    );
+    wait_verified(run, start, 3);
+    run.bench.thrusters[3].cut_in_bootloader = Some(100_000);
+    let (acks, took) = apply_with(
+        run,
+        3,
+        60.0,
+        |bench| bench.thrusters[3].cut_in_bootloader.is_none() && !bench.thrusters[3].powered(),
+        |run| {
+            run.bench.note("power cut: T4 (mid-swap), power back after 1 s");
+            run.run_for(1.0);
+            run.bench.power(3, true);
+        },
+        60.0,
+    );
+    let texts = texts_since(run, start, "thruster3.lbvu");
+    run.check(
+        "a power cut in the thruster's swap: the next start finishes it, and the new image confirms",
+        state == UploadState::Done && acks == [IN_PROGRESS, ACCEPTED] && running(run, 3) == Some(Version::new(0, 3, 0)),
         format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 3)),
     );
 }
@@ -414,4 +427,242 @@ fn polls_of_others(run: &Run, slot: usize) -> u64 {
         .filter_map(|i| run.bench.master.shared.thrusters.get(i).and_then(|w| w.try_get()))
         .map(|report| u64::from(report.health.good))
         .sum()
+}
+
+/// The master's image in the scenario: 136 KiB, about the application's.
+const MASTER_PAYLOAD_LEN: usize = 136 * 1024;
+
+/// A signed update file for the master at `version`: a made-up payload with its image info at 0x200, signed with
+/// `seed`.
+fn master_file(version: Version, seed: &[u8; 32]) -> Vec<u8> {
+    let mut payload: Vec<u8> = (0..MASTER_PAYLOAD_LEN as u32)
+        .map(|i| (i.wrapping_mul(2_246_822_519) >> 13) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::Master, version).to_bytes();
+    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    update_image::sign(&payload, seed).expect("the payload holds its image info")
+}
+
+/// The version the master's ACTIVE partition holds now.
+fn master_runs(run: &Run) -> Option<Version> {
+    run.bench.master.running_image().map(|info| info.version)
+}
+
+/// The master updated from the ground station over its own console link: the image put into its DFU partition
+/// while it polls the thrusters, applied (its signature checked, the restart, the bootloader's swap, the new image
+/// on trial until it hears the operator), the settings kept; what is refused; and power cuts mid-upload, mid-swap
+/// and before the new image confirms.
+pub fn master_update(run: &mut Run) {
+    let key = dev_key();
+    run.run_for(1.0);
+    let expected = std::collections::BTreeMap::from([("LBV_GAIN", 80.0), ("FS_GCS_TIMEOUT", 10.0)]);
+    let set = expected
+        .iter()
+        .all(|(name, value)| super::console::set_param(run, name, *value));
+    run.check("the parameters are set", set, format!("{expected:?}"));
+
+    let start = run.bench.now();
+    let polls_before = polls_of_others(run, usize::MAX);
+    let bytes_before = run.bench.console_bytes;
+    let (put_state, put_s) = put(run, "/update/master.lbvu", master_file(NEW, &key), 120.0);
+    let polls = polls_of_others(run, usize::MAX) - polls_before;
+    // The bench's console link carries bytes at once; at the console's 115200 baud (10 bits a byte), what the put
+    // moved each way, requests and their replies one after another as a stop-and-wait put sends them.
+    let (to_master, from_master) = (
+        run.bench.console_bytes.0 - bytes_before.0,
+        run.bench.console_bytes.1 - bytes_before.1,
+    );
+    let put_at_115200 = round((to_master + from_master) as f64 * 10.0 / 115_200.0, 1);
+    let rate = polls as f64 / put_s / run.bench.thrusters.len() as f64;
+    let (acks, apply_s) = apply(run, 255, 60.0);
+    let texts = texts_since(run, start, "master.lbvu");
+    let expected_texts = [
+        "master.lbvu: applying",
+        "master.lbvu: signature good, restarting",
+        "master.lbvu: runs 0.2.0, on trial",
+        "master.lbvu: 0.2.0 confirmed",
+    ];
+    run.check(
+        "the master is updated from the ground station: put, applied, swapped in, confirmed",
+        put_state == UploadState::Done
+            && acks == [IN_PROGRESS, ACCEPTED]
+            && expected_texts.iter().all(|t| texts.iter().any(|said| said == t))
+            && master_runs(run) == Some(NEW),
+        format!(
+            "put {put_state:?} in {put_s} s, apply acks {acks:?} in {apply_s} s, runs {:?}, texts {texts:?}",
+            master_runs(run)
+        ),
+    );
+    run.check(
+        "the thrusters are polled while the master's image is put",
+        rate > 40.0,
+        format!("{} polls/s each", round(rate, 1)),
+    );
+    run.metric("master_update_put_s", json!(put_s));
+    run.metric("master_update_put_bytes", json!([to_master, from_master]));
+    run.metric("master_update_put_at_115200_s", json!(put_at_115200));
+    run.metric("master_update_apply_s", json!(apply_s));
+    run.run_for(0.5);
+    let read = super::console::read_params(run);
+    run.check(
+        "the settings survive the master's update",
+        super::console::holds(&read, &expected),
+        format!("{read:?}"),
+    );
+
+    // Signed with another key: written to DFU, refused at the apply; the master goes on running what it ran.
+    let start = run.bench.now();
+    let boots = run.bench.master.boots;
+    let (state, _) = put(
+        run,
+        "/update/master.lbvu",
+        master_file(Version::new(0, 3, 0), &[0x42; 32]),
+        120.0,
+    );
+    let (acks, _) = apply(run, 255, 10.0);
+    let texts = texts_since(run, start, "master.lbvu");
+    run.check(
+        "a master image signed with another key is refused, and the master goes on",
+        state == UploadState::Done
+            && acks == [IN_PROGRESS, FAILED]
+            && texts.iter().any(|t| t == "master.lbvu: signature bad: image refused")
+            && run.bench.master.boots == boots
+            && master_runs(run) == Some(NEW),
+        format!(
+            "put {state:?}, acks {acks:?}, boots {}, texts {texts:?}",
+            run.bench.master.boots - boots
+        ),
+    );
+
+    // A thruster's image sent to the master's path: refused at its header.
+    let start = run.bench.now();
+    let (state, _) = put(
+        run,
+        "/update/master.lbvu",
+        update_file(Family::SeaBotix, NEW, &key),
+        10.0,
+    );
+    let texts = texts_since(run, start, "master.lbvu");
+    run.check(
+        "a thruster's image is refused by the master at its header",
+        state == UploadState::Refused(1),
+        format!("put {state:?}, texts {texts:?}"),
+    );
+
+    // A power cut half-way through the upload: the master comes back on its image, and the file sent again goes in.
+    let next = Version::new(0, 3, 0);
+    let (stopped, _) = put_until(
+        run,
+        "/update/master.lbvu",
+        master_file(next, &key),
+        120.0,
+        |_, acked| acked > MASTER_PAYLOAD_LEN / 2,
+    );
+    run.bench.note("power cut: master (mid-upload)");
+    run.bench.reboot_master();
+    run.run_for(1.0);
+    let came_back = master_runs(run) == Some(NEW);
+    let (state, _) = put(run, "/update/master.lbvu", master_file(next, &key), 120.0);
+    run.check(
+        "a power cut mid-upload leaves the master on its image, and the file sent again goes in",
+        matches!(stopped, UploadState::Sending(_)) && came_back && state == UploadState::Done,
+        format!("stopped {stopped:?}, came back on {NEW}: {came_back}, sent again {state:?}"),
+    );
+
+    // A power cut in the bootloader's swap (400 kB into its flash work, about half-way): the next start resumes it.
+    let start = run.bench.now();
+    run.bench.master.cut_in_bootloader = Some(400_000);
+    let (acks, took) = apply_with(
+        run,
+        255,
+        90.0,
+        |bench| !bench.master.flash.powered(),
+        |run| {
+            run.bench.note("power cut: master (mid-swap), power back after 0.5 s");
+            run.run_for(0.5);
+            run.bench.reboot_master();
+        },
+        60.0,
+    );
+    let texts = texts_since(run, start, "master.lbvu");
+    run.check(
+        "a power cut mid-swap: the next start finishes the swap, and the new image confirms",
+        acks == [IN_PROGRESS, ACCEPTED] && master_runs(run) == Some(next),
+        format!(
+            "acks {acks:?} in {took} s, runs {:?}, texts {texts:?}",
+            master_runs(run)
+        ),
+    );
+
+    // A power cut while the new image is on trial: the bootloader swaps the previous one back.
+    let newest = Version::new(0, 4, 0);
+    let (state, _) = put(run, "/update/master.lbvu", master_file(newest, &key), 120.0);
+    let start = run.bench.now();
+    let on_trial = |bench: &crate::bench::Bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(at, said)| *at >= start && said == "master.lbvu: runs 0.4.0, on trial")
+    };
+    let cut = |run: &mut Run| {
+        // Half a second into the trial, well before the 3 s of heartbeats it needs.
+        run.run_for(0.5);
+        run.bench.note("power cut: master (on trial)");
+        run.bench.reboot_master();
+    };
+    let (acks, _) = apply_with(run, 255, 90.0, on_trial, cut, 20.0);
+    let texts = texts_since(run, start, "master.lbvu");
+    run.check(
+        "a power cut before the new master image confirms: the previous one is swapped back",
+        state == UploadState::Done
+            && acks == [IN_PROGRESS]
+            && !texts.iter().any(|t| t.ends_with("0.4.0 confirmed"))
+            && master_runs(run) == Some(next),
+        format!("acks {acks:?}, runs {:?}, texts {texts:?}", master_runs(run)),
+    );
+    let read = super::console::read_params(run);
+    run.check(
+        "the settings survive every cut",
+        super::console::holds(&read, &expected),
+        format!("{read:?}"),
+    );
+}
+
+/// Send the apply command for `slot` (255: the master) and run until its final COMMAND_ACK or `limit` s; should
+/// `when` hold first, `act`, then run on for at most `settle` s. The acknowledgements' results (the first
+/// IN_PROGRESS when it started) and the seconds to the last.
+fn apply_with(
+    run: &mut Run,
+    slot: u8,
+    limit: f64,
+    when: impl Fn(&crate::bench::Bench) -> bool,
+    act: impl FnOnce(&mut Run),
+    settle: f64,
+) -> (Vec<u8>, f64) {
+    let start = run.bench.now();
+    let acks_before = run.bench.ground.seen.acks.len();
+    let command = run.bench.ground.command(
+        MAV_CMD_LBV_APPLY_UPDATE,
+        [f32::from(slot), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    );
+    run.bench.send(command);
+    let results = move |bench: &crate::bench::Bench| -> Vec<u8> {
+        bench.ground.seen.acks[acks_before..]
+            .iter()
+            .filter(|(command, _)| *command == MAV_CMD_LBV_APPLY_UPDATE)
+            .map(|(_, result)| *result)
+            .collect()
+    };
+    let done = move |bench: &crate::bench::Bench| results(bench).last().is_some_and(|r| *r != IN_PROGRESS);
+    let fired = run.run_until(limit, |bench| done(bench) || when(bench));
+    if fired.is_some() && !done(&run.bench) {
+        act(run);
+        run.run_until(settle, done);
+    }
+    (
+        results(&run.bench),
+        round((run.bench.now() - start).as_micros() as f64 / 1e6, 2),
+    )
 }

@@ -93,14 +93,14 @@ fn rebooted_into(bench: &mut Bench, new: &[u8]) -> (Duration, Instant) {
     assert_eq!(thruster.reboots(), 1);
     assert!(!thruster.reboot_requested(), "served");
     assert_eq!(thruster.boot_outcome(), Some(&swapped()));
-    let swap = flash_busy(before, thruster.flash().stats());
+    let swap = FlashTiming::G431.work_time(before, thruster.flash().stats());
     (swap, reset + swap)
 }
 
 #[test]
 fn a_signed_image_is_swapped_in_at_the_reset_confirms_itself_on_trial_and_stays() {
     let mut bench = Bench::new(&BenchConfig::lbv300(1), Engine::Events);
-    let new = made_up_image(Family::SeaBotix, new_version(), FACTORY_IMAGE_LEN, 2);
+    let new = made_up_image(Target::ThrusterSeabotix, new_version(), FACTORY_IMAGE_LEN, 2);
     let (swap, starts) = rebooted_into(&mut bench, &new);
     assert!(
         (Duration::from_secs(2)..Duration::from_secs(4)).contains(&swap),
@@ -166,7 +166,7 @@ fn a_signed_image_is_swapped_in_at_the_reset_confirms_itself_on_trial_and_stays(
 #[test]
 fn a_new_image_cut_off_before_it_confirms_is_reverted_by_the_bootloader() {
     let mut bench = Bench::new(&BenchConfig::lbv300(2), Engine::Events);
-    let new = made_up_image(Family::SeaBotix, new_version(), FACTORY_IMAGE_LEN, 2);
+    let new = made_up_image(Target::ThrusterSeabotix, new_version(), FACTORY_IMAGE_LEN, 2);
     let (swap, _) = rebooted_into(&mut bench, &new);
     bench.run_for(swap + Duration::from_secs(1));
     let thruster = &bench.thrusters[0];

@@ -1,0 +1,535 @@
+//! The master's own update: an image sent to `/update/master.lbvu` is written to the master's DFU partition (bank 2
+//! of its G474, beside the code) as it arrives; the apply command checks it and marks it for the bootloader's swap,
+//! and the master restarts into it. The new image runs on trial and confirms itself once it has heard the operator's
+//! ground station for [`TRIAL_HEARD`]; otherwise it restarts after [`TRIAL_LIMIT`] and the bootloader swaps the
+//! previous image back (so does any reset before it confirms: a power cut, the watchdog).
+//!
+//! What is checked, and when:
+//! - as the upload begins: the running image is not on trial (DFU holds the image a revert needs), the payload fits
+//!   ACTIVE, and the flash has the bootloader's partitions;
+//! - once its first page is in: its image info (update-image's `check`: a master image, the header's version);
+//! - when applied: the ed25519 signature over DFU, with the image's update key, as the thruster checks its own.
+//!
+//! A power cut at any moment leaves a master that boots and can be updated again: while DFU is being written or
+//! checked the running image is untouched (the state says nothing yet); the state's mark is one word, which a cut
+//! leaves whole or not there (embassy-boot); the swap resumes where it stopped; a new image that has not confirmed
+//! is swapped back at the next start. The settings' pages are none of these, and keep what they hold.
+//!
+//! The console's update sink ([`crate::update::VehicleSink`]) hands the bytes to an [`OwnImage`], and
+//! [`own_image_task`] writes them, a page at a time, between its trial checks.
+
+use core::cell::RefCell;
+
+use embassy_boot::{AlignedBuffer, FirmwareState, State};
+use embassy_embedded_hal::flash::partition::Partition;
+use embassy_futures::select::select;
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
+use embassy_sync::blocking_mutex::raw::{CriticalSectionRawMutex, NoopRawMutex};
+use embassy_sync::mutex::Mutex;
+use embassy_sync::signal::Signal;
+use embassy_time::{Duration, Instant, Timer};
+use embedded_storage_async::nor_flash::{NorFlash, ReadNorFlash};
+use g431_hw::memory::{FLASH_ORIGIN, IMAGE_INFO_OFFSET, MASTER_PARTITIONS, PAGE, Span};
+use update_image::{Header, INFO_LEN, ImageInfo, Refusal, Target, Version};
+
+use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Shared, text};
+use crate::update::ftp::DATA_LEN;
+use crate::update::{HEADER_LEN, ImageHeader};
+
+/// The operator's heartbeat must be live this long, without a gap, before an image on trial confirms itself.
+pub const TRIAL_HEARD: Duration = Duration::from_secs(3);
+/// An image on trial that has not confirmed this long after its start restarts, and the bootloader swaps the
+/// previous image back.
+pub const TRIAL_LIMIT: Duration = Duration::from_secs(60);
+/// How often the trial looks at the heartbeat.
+pub const TRIAL_CHECK: Duration = Duration::from_millis(100);
+
+/// A flash page, the unit DFU is written in.
+pub const PAGE_BYTES: usize = PAGE as usize;
+/// A page and one FTP write: the sink takes a write while the page before it is still to be programmed.
+const BUFFER: usize = PAGE_BYTES + DATA_LEN;
+/// DFU is hashed this many bytes at a time, the other tasks let run between two.
+const HASH_CHUNK: usize = 256;
+/// The largest payload: ACTIVE, which it is an image of.
+const MAX_PAYLOAD: u32 = MASTER_PARTITIONS.active.length;
+
+/// Why the master does not take an image of its own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum NotTaken {
+    /// The flash has no bootloader's partitions here (or has not been looked at yet).
+    NoBootloader,
+    /// The running image is on trial: DFU holds the image a revert would need.
+    OnTrial,
+    /// The payload is larger than ACTIVE.
+    TooLarge,
+    /// The image's info, or a flash write, refused it: the reason has been told.
+    Refused,
+    /// No image is received whole.
+    Nothing,
+}
+
+/// What the task found in the flash at start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Flash {
+    /// Not looked at yet, or no bootloader's state there.
+    Unknown,
+    /// The bootloader's partitions, the running image on trial or not.
+    Ready { on_trial: bool },
+}
+
+/// An image on its way into DFU.
+#[derive(Debug, Clone, Copy)]
+struct Incoming {
+    header: [u8; HEADER_LEN],
+    payload_len: u32,
+    /// DFU offset of the buffer's first byte.
+    page_offset: u32,
+    /// Every byte is in the buffer or in DFU.
+    complete: bool,
+    /// Refused (its info, or a flash write): what is left of it is dropped.
+    refused: bool,
+}
+
+/// Between the console's sink and the task.
+struct Stage {
+    flash: Flash,
+    image: Option<Incoming>,
+    buffer: [u8; BUFFER],
+    fill: usize,
+    /// The apply command's sender, once applied.
+    apply: Option<Sender>,
+    /// A refusal to tell, found by the sink.
+    untold: Option<NotTaken>,
+}
+
+/// The master's image on its way into its DFU partition: the sink's side and the task's.
+pub struct OwnImage {
+    stage: BlockingMutex<CriticalSectionRawMutex, RefCell<Stage>>,
+    /// Sink -> task: bytes, an end or an apply to see to.
+    work: Signal<CriticalSectionRawMutex, ()>,
+    /// Task -> sink: a page went to flash.
+    moved: Signal<CriticalSectionRawMutex, ()>,
+}
+
+impl core::fmt::Debug for OwnImage {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("OwnImage").finish_non_exhaustive()
+    }
+}
+
+impl Default for OwnImage {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl OwnImage {
+    /// Nothing under way; master images are refused until the task has looked at the flash.
+    pub const fn new() -> Self {
+        Self {
+            stage: BlockingMutex::new(RefCell::new(Stage {
+                flash: Flash::Unknown,
+                image: None,
+                buffer: [0; BUFFER],
+                fill: 0,
+                apply: None,
+                untold: None,
+            })),
+            work: Signal::new(),
+            moved: Signal::new(),
+        }
+    }
+
+    fn with<R>(&self, f: impl FnOnce(&mut Stage) -> R) -> R {
+        self.stage.lock(|stage| f(&mut stage.borrow_mut()))
+    }
+
+    /// An image begins (its header passed the update server's checks): the one before it is dropped.
+    pub fn begin(&self, header: &ImageHeader) -> Result<(), NotTaken> {
+        let result = self.with(|stage| {
+            stage.image = None;
+            stage.fill = 0;
+            stage.apply = None;
+            let refusal = match stage.flash {
+                Flash::Unknown => NotTaken::NoBootloader,
+                Flash::Ready { on_trial: true } => NotTaken::OnTrial,
+                Flash::Ready { .. } if header.payload_len > MAX_PAYLOAD => NotTaken::TooLarge,
+                Flash::Ready { .. } => {
+                    stage.image = Some(Incoming {
+                        header: header.bytes,
+                        payload_len: header.payload_len,
+                        page_offset: 0,
+                        complete: false,
+                        refused: false,
+                    });
+                    return Ok(());
+                }
+            };
+            stage.untold = Some(refusal);
+            Err(refusal)
+        });
+        self.work.signal(());
+        result
+    }
+
+    /// Payload bytes from `offset`, the next ones: kept until the task writes them.
+    pub fn write(&self, offset: u32, data: &[u8]) -> Result<(), NotTaken> {
+        let result = self.with(|stage| {
+            let Stage {
+                image, buffer, fill, ..
+            } = stage;
+            let image = image
+                .as_mut()
+                .filter(|i| !i.refused && !i.complete)
+                .ok_or(NotTaken::Refused)?;
+            let end = *fill + data.len();
+            let at = image.page_offset.checked_add(*fill as u32);
+            match buffer.get_mut(*fill..end) {
+                Some(room) if at == Some(offset) => {
+                    room.copy_from_slice(data);
+                    *fill = end;
+                    Ok(())
+                }
+                _ => Err(NotTaken::Refused),
+            }
+        });
+        self.work.signal(());
+        result
+    }
+
+    /// The image ends: whole, or stopped (what arrived is dropped).
+    pub fn finish(&self, complete: bool) {
+        self.with(|stage| match stage.image.as_mut() {
+            Some(image) if complete => image.complete = true,
+            _ => {
+                stage.image = None;
+                stage.fill = 0;
+            }
+        });
+        self.work.signal(());
+    }
+
+    /// Apply the image received whole, for `from`: the task checks its signature once every byte is in DFU.
+    pub fn apply(&self, from: Sender) -> Result<(), NotTaken> {
+        let result = self.with(|stage| match stage.image {
+            Some(image) if image.complete && !image.refused => {
+                stage.apply = Some(from);
+                Ok(())
+            }
+            _ => Err(NotTaken::Nothing),
+        });
+        self.work.signal(());
+        result
+    }
+
+    /// Wait until the next FTP write fits.
+    pub async fn room(&self) {
+        while self.with(|stage| stage.fill > PAGE_BYTES) {
+            self.moved.wait().await;
+        }
+    }
+
+    /// The task's side: what it found in the flash (`None`: no bootloader's state there), which decides whether
+    /// an upload may begin.
+    pub fn found(&self, on_trial: Option<bool>) {
+        self.with(|stage| {
+            stage.flash = match on_trial {
+                Some(on_trial) => Flash::Ready { on_trial },
+                None => Flash::Unknown,
+            }
+        });
+    }
+
+    /// The task's side: the next piece for DFU, a whole page or the last bytes once the image is complete (padded
+    /// with erased bytes to the write unit), copied into `page` and taken out of the buffer; its DFU offset and
+    /// length.
+    pub fn take_page(&self, page: &mut [u8; PAGE_BYTES]) -> Option<(u32, usize)> {
+        self.with(|stage| {
+            let Stage {
+                image, buffer, fill, ..
+            } = stage;
+            let image = image.as_mut().filter(|i| !i.refused)?;
+            let len = if *fill >= PAGE_BYTES {
+                PAGE_BYTES
+            } else if image.complete && *fill > 0 {
+                *fill
+            } else {
+                return None;
+            };
+            page.fill(0xFF);
+            page.get_mut(..len)?.copy_from_slice(buffer.get(..len)?);
+            buffer.copy_within(len..*fill, 0);
+            *fill -= len;
+            let offset = image.page_offset;
+            image.page_offset += len as u32;
+            Some((offset, len.next_multiple_of(8)))
+        })
+    }
+}
+
+/// The master's flash as the task needs it (any async NOR flash addressed from the flash's start): the ACTIVE
+/// image's info, DFU and the bootloader's state, at [`MASTER_PARTITIONS`]' offsets.
+pub struct OwnFlash<F: NorFlash> {
+    flash: Mutex<NoopRawMutex, F>,
+}
+
+impl<F: NorFlash> core::fmt::Debug for OwnFlash<F> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("OwnFlash").finish_non_exhaustive()
+    }
+}
+
+impl<F: NorFlash> OwnFlash<F> {
+    /// `flash`, the whole chip's.
+    pub fn new(flash: F) -> Self {
+        Self {
+            flash: Mutex::new(flash),
+        }
+    }
+
+    fn partition(&self, span: Span) -> Partition<'_, NoopRawMutex, F> {
+        Partition::new(&self.flash, span.origin - FLASH_ORIGIN, span.length)
+    }
+}
+
+/// What the master does for its own update: [`Updating`] on its flash, or `()` on a board with no bootloader
+/// (the cores on an emulated Cortex-M4, the tests), where master images are refused.
+#[allow(async_fn_in_trait)]
+pub trait OwnUpdate {
+    /// Do it, for as long as the master runs.
+    async fn run(self, shared: &Shared);
+}
+
+impl OwnUpdate for () {
+    async fn run(self, _: &Shared) {
+        core::future::pending().await
+    }
+}
+
+/// The master's own update on `flash`, with the images the console's sink hands to `image`.
+#[derive(Debug)]
+pub struct Updating<'a, F: NorFlash> {
+    /// The chip's flash.
+    pub flash: OwnFlash<F>,
+    /// The sink's side.
+    pub image: &'a OwnImage,
+}
+
+impl<F: NorFlash> OwnUpdate for Updating<'_, F> {
+    async fn run(self, shared: &Shared) {
+        own_image_task(&self.flash, self.image, shared).await
+    }
+}
+
+/// A version as a person reads it, "0.2.0"; the image info's, or "?" without one.
+fn version_of(info: &[u8; INFO_LEN]) -> Option<Version> {
+    ImageInfo::parse(info).ok().map(|info| info.version)
+}
+
+/// "master.lbvu: `args`", as the update server names the file the ground station wrote.
+async fn say(shared: &Shared, severity: Severity, args: core::fmt::Arguments<'_>) {
+    shared
+        .outbox
+        .send(Outgoing::Text(severity, text(format_args!("master.lbvu: {args}"))))
+        .await;
+}
+
+async fn acknowledge(shared: &Shared, result: AckResult, to: Sender) {
+    shared
+        .outbox
+        .send(Outgoing::CommandAck {
+            command: MAV_CMD_LBV_APPLY_UPDATE,
+            result,
+            to,
+        })
+        .await;
+}
+
+/// The master's own update and its trial, on `flash` (the whole chip's, [`OwnFlash`]): writes what `own` receives
+/// into DFU, checks and marks it when applied, and confirms an image on trial once the operator is heard.
+pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, shared: &Shared) -> ! {
+    let mut info = [0xFF; INFO_LEN];
+    let _ = flash
+        .partition(MASTER_PARTITIONS.active)
+        .read(IMAGE_INFO_OFFSET, &mut info)
+        .await;
+    let running = version_of(&info);
+    let mut word = AlignedBuffer([0; 8]);
+    let mut state = FirmwareState::new(flash.partition(MASTER_PARTITIONS.state), &mut word.0);
+    let mut on_trial = match state.get_state().await {
+        Ok(found) => {
+            let on_trial = found == State::Swap;
+            own.found(Some(on_trial));
+            on_trial
+        }
+        Err(_) => false,
+    };
+    if on_trial {
+        say(
+            shared,
+            Severity::Info,
+            format_args!("runs {}, on trial", Shown(running)),
+        )
+        .await;
+    }
+    let started = Instant::now();
+    let mut heard_since = None;
+    let mut dfu = flash.partition(MASTER_PARTITIONS.dfu);
+    let mut page = [0xFF; PAGE_BYTES];
+    loop {
+        select(own.work.wait(), Timer::after(TRIAL_CHECK)).await;
+        if on_trial {
+            let now = Instant::now();
+            let heard = shared.vehicle.try_get().is_some_and(|v| v.console_alive);
+            heard_since = if heard { heard_since.or(Some(now)) } else { None };
+            if heard_since.is_some_and(|since| now >= since + TRIAL_HEARD) {
+                if state.mark_booted().await.is_ok() {
+                    on_trial = false;
+                    own.found(Some(false));
+                    say(shared, Severity::Info, format_args!("{} confirmed", Shown(running))).await;
+                    if let Some(operator) = shared.vehicle.try_get().map(|v| v.operator) {
+                        let to = Sender {
+                            system: operator,
+                            component: 0,
+                        };
+                        acknowledge(shared, AckResult::Accepted, to).await;
+                    }
+                }
+            } else if now >= started + TRIAL_LIMIT {
+                say(
+                    shared,
+                    Severity::Warning,
+                    format_args!("no GCS heard on trial: reverting"),
+                )
+                .await;
+                shared.outbox.send(Outgoing::Reboot).await;
+                on_trial = false;
+            }
+        }
+        if let Some(refusal) = own.with(|stage| stage.untold.take()) {
+            let kib = MAX_PAYLOAD / 1024;
+            let why = match refusal {
+                NotTaken::NoBootloader => format_args!("no bootloader here to swap it in"),
+                NotTaken::OnTrial => format_args!("on trial: wait for it to confirm"),
+                NotTaken::TooLarge => format_args!("larger than ACTIVE ({kib} KiB)"),
+                NotTaken::Refused | NotTaken::Nothing => format_args!("refused"),
+            };
+            say(shared, Severity::Warning, why).await;
+        }
+        while let Some((offset, len)) = own.take_page(&mut page) {
+            let written = program(&mut dfu, offset, page.get(..len).unwrap_or_default()).await;
+            let refusal = match written {
+                Ok(()) if offset == 0 => check_info(own, &page),
+                Ok(()) => Ok(()),
+                Err(()) => Err(None),
+            };
+            own.moved.signal(());
+            if let Err(refusal) = refusal {
+                own.with(|stage| {
+                    if let Some(image) = stage.image.as_mut() {
+                        image.refused = true;
+                    }
+                    stage.fill = 0;
+                });
+                match refusal {
+                    Some(refusal) => say(shared, Severity::Warning, format_args!("refused: {refusal}")).await,
+                    None => {
+                        say(
+                            shared,
+                            Severity::Warning,
+                            format_args!("DFU write failed: send it again"),
+                        )
+                        .await
+                    }
+                }
+                break;
+            }
+        }
+        let ready = own.with(|stage| match (stage.image, stage.apply) {
+            (Some(image), Some(from)) if stage.fill == 0 && image.page_offset >= image.payload_len => {
+                stage.apply = None;
+                Some((image.header, image.payload_len, from))
+            }
+            _ => None,
+        });
+        if let Some((header, payload_len, from)) = ready {
+            match verify(&mut dfu, &header, payload_len).await {
+                Ok(()) if state.mark_updated().await.is_ok() => {
+                    say(shared, Severity::Info, format_args!("signature good, restarting")).await;
+                    shared.outbox.send(Outgoing::Reboot).await;
+                }
+                Ok(()) => {
+                    say(
+                        shared,
+                        Severity::Warning,
+                        format_args!("state not written: send it again"),
+                    )
+                    .await;
+                    acknowledge(shared, AckResult::Failed, from).await;
+                }
+                Err(()) => {
+                    say(shared, Severity::Warning, format_args!("signature bad: image refused")).await;
+                    acknowledge(shared, AckResult::Failed, from).await;
+                }
+            }
+        }
+    }
+}
+
+/// The first page is in DFU: hold the header to its image info (update-image's `check`). `None` when the header
+/// itself does not parse (the update server has read it already, so that is the flash's doing).
+fn check_info(own: &OwnImage, first: &[u8; PAGE_BYTES]) -> Result<(), Option<Refusal>> {
+    let header = own.with(|stage| stage.image.map(|i| i.header)).ok_or(None)?;
+    let header = Header::parse(&header).map_err(|_| None)?;
+    let info = first
+        .get(IMAGE_INFO_OFFSET as usize..)
+        .and_then(|bytes| ImageInfo::parse(bytes).ok());
+    let Some(info) = info else {
+        return Err(Some(Refusal::TooShort {
+            len: header.payload_len,
+        }));
+    };
+    update_image::check(&header, &info, Target::Master, MAX_PAYLOAD).map_err(Some)
+}
+
+/// Erase DFU's page at `offset` and program `data` there.
+async fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(), ()> {
+    dfu.erase(offset, offset + PAGE).await.map_err(drop)?;
+    dfu.write(offset, data).await.map_err(drop)
+}
+
+/// DFU's first `payload_len` bytes hashed with SHA-512 and the header's signature checked over the digest with the
+/// image's update key (update-image's `Verifier`, salty, as the thruster checks its own).
+async fn verify<D: NorFlash>(dfu: &mut D, header: &[u8; HEADER_LEN], payload_len: u32) -> Result<(), ()> {
+    let header = Header::parse(header).map_err(drop)?;
+    let mut verifier = update_image::Verifier::new();
+    let mut chunk = [0; HASH_CHUNK];
+    let mut offset = 0;
+    while offset < payload_len {
+        let len = usize::try_from(payload_len - offset).map_or(HASH_CHUNK, |left| left.min(HASH_CHUNK));
+        let bytes = chunk.get_mut(..len).unwrap_or_default();
+        dfu.read(offset, bytes).await.map_err(drop)?;
+        verifier.update(bytes);
+        offset += len as u32;
+        embassy_futures::yield_now().await;
+    }
+    verifier
+        .finish(&header.signature, &update_image::UPDATE_KEY)
+        .map_err(drop)
+}
+
+/// A version for a person, "?" when the image has no info.
+struct Shown(Option<Version>);
+
+impl core::fmt::Display for Shown {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.0 {
+            Some(version) => write!(f, "{version}"),
+            None => f.write_str("?"),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
