@@ -17,6 +17,9 @@ the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operato
     apply      MAV_CMD_LBV_APPLY_UPDATE (31010) param1 0: COMMAND_ACK IN_PROGRESS, then the final one once the
                thruster has confirmed the image (ACCEPTED) or it failed, and what was done; param1 2 (nothing
                received there): DENIED
+    master     WORK_DIR/master.lbvu (a master image, 4096-byte payload) to /update/master.lbvu, applied with
+               param1 255: IN_PROGRESS, the master restarts into its bootloader's swap, and the new image sends
+               ACCEPTED once it has heard this ground station's heartbeats (sent at 1 Hz throughout)
 
 Prints a JSON summary on stdout; exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when
 pymavlink is missing.
@@ -66,6 +69,7 @@ class Ground:
         self.texts = []
         self.acks = []
         self.crcs = []
+        self.heartbeat_at = 0.0
         # Every message read, whoever reads it (MAVFTP's own loop only wants FILE_TRANSFER_PROTOCOL).
         self.link.message_hooks.append(self.hook)
 
@@ -85,9 +89,16 @@ class Ground:
     def elapsed(self):
         return round(time.monotonic() - self.start, 2)
 
+    def beat(self):
+        """A GCS HEARTBEAT once a second, as a ground station sends them."""
+        if time.monotonic() >= self.heartbeat_at:
+            self.heartbeat_at = time.monotonic() + 1.0
+            self.link.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
     def pump(self, seconds):
         end = time.monotonic() + seconds
         while time.monotonic() < end:
+            self.beat()
             self.link.recv_match(blocking=True, timeout=0.05)
 
     def wait(self, done, within, what):
@@ -95,6 +106,7 @@ class Ground:
         while not done():
             if time.monotonic() >= end:
                 raise Failed(f"{what}: not within {within} s")
+            self.beat()
             self.link.recv_match(blocking=True, timeout=0.05)
 
     def connect(self):
@@ -106,7 +118,7 @@ class Ground:
             raise Failed(f"the vehicle sends from {addresses}, not 127.0.0.1:{self.bench_port}")
         self.link.target_system, self.link.target_component = VEHICLE
 
-    def apply(self, slot):
+    def apply(self, slot, within=20.0):
         """The apply command's COMMAND_ACK results, up to its final one."""
         since = len(self.acks)
         self.link.mav.command_long_send(*VEHICLE, APPLY_UPDATE, 0, float(slot), 0, 0, 0, 0, 0, 0)
@@ -114,7 +126,7 @@ class Ground:
         def results():
             return [result for command, result in self.acks[since:] if command == APPLY_UPDATE]
 
-        self.wait(lambda: results() and results()[-1] != IN_PROGRESS, 20.0, f"the final COMMAND_ACK (slot {slot})")
+        self.wait(lambda: results() and results()[-1] != IN_PROGRESS, within, f"the final COMMAND_ACK (slot {slot})")
         return results()
 
 
@@ -170,6 +182,17 @@ def main():
         summary["apply"] = {"thruster0": ground.apply(0), "thruster2": ground.apply(2)}
         ground.pump(0.3)
         summary["apply"]["texts"] = ground.texts[since:]
+
+        local = os.path.join(work, "master.lbvu")
+        since = len(ground.texts)
+        ftp.cmd_put([local, "/update/master.lbvu"])
+        ret = ftp.process_ftp_reply("put", timeout=20)
+        if ret.error_code != 0:
+            raise Failed(f"put master: MAVFTP error {ret.error_code}; texts {ground.texts[since:]}")
+        results = ground.apply(255, within=40.0)
+        ground.pump(0.3)
+        texts = [text for text in ground.texts[since:] if text.startswith("master.lbvu:")]
+        summary["master"] = {"results": results, "texts": texts}
     except Failed as failure:
         summary.update(failed=str(failure), texts=ground.texts[-10:], elapsed_s=ground.elapsed())
         print(json.dumps(summary))

@@ -1,8 +1,11 @@
 //! Field update from a ground station, with pymavlink's own MAVLink FTP client (`tests/ftp_upload.py`, on
 //! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, puts a SeaBotix update file signed
 //! with the development key to /update/thruster0.lbvu, reads its CRC32, sees the same file refused for the Legacy
-//! slot 1, and applies the image, which the thruster checks, swaps in and runs. The bench writes what its master's
-//! update sink received (`--update-dir`), which must be the file, byte for byte. Runs in real time (about 15 s).
+//! slot 1, and applies the image, which the thruster checks, swaps in and runs; then puts a master image to
+//! /update/master.lbvu and applies it: the master checks it, restarts into its bootloader's swap, and the new image
+//! confirms itself once it has heard the script's heartbeats. The bench writes what its master's update sink
+//! received (`--update-dir`), which must be the file, byte for byte. Runs in real time (about 35 s: the master's
+//! swap alone takes 11 s).
 //!
 //! Needs python3 with pymavlink (`pip install pymavlink`); without it this test fails, it does not skip.
 
@@ -10,9 +13,9 @@ mod support;
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/ftp_upload.py");
 /// How long the bench runs, s; the script is done well before.
-const BENCH_SECONDS: &str = "40";
+const BENCH_SECONDS: &str = "90";
 /// The script's own time limit, s.
-const SCRIPT_SECONDS: &str = "35";
+const SCRIPT_SECONDS: &str = "80";
 
 #[test]
 fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it() {
@@ -23,6 +26,8 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         std::fs::create_dir_all(path).unwrap();
     }
     std::fs::write(format!("{local}/thruster0.lbvu"), support::signed_update_file()).unwrap();
+    let master = support::signed_update_file_for(update_image::Target::Master);
+    std::fs::write(format!("{local}/master.lbvu"), &master).unwrap();
     let args = [
         gcs.to_string(),
         bench_port.to_string(),
@@ -89,5 +94,20 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     assert_eq!(sent.len(), 4176);
     assert!(got == sent, "the sink got {} bytes, not the file put", got.len());
     assert!(!std::path::Path::new(&format!("{received}/thruster1.lbvu")).exists());
+    // The master's own: IN_PROGRESS, then ACCEPTED from the new image once it has confirmed itself.
+    assert_eq!(summary["master"]["results"], serde_json::json!([5, 0]), "{summary}");
+    assert_eq!(
+        summary["master"]["texts"],
+        serde_json::json!([
+            "master.lbvu: received, ready to apply",
+            "master.lbvu: applying",
+            "master.lbvu: signature good, restarting",
+            "master.lbvu: runs 0.2.0, on trial",
+            "master.lbvu: 0.2.0 confirmed"
+        ]),
+        "{summary}"
+    );
+    let got = std::fs::read(format!("{received}/master.lbvu")).unwrap();
+    assert!(got == master, "the sink got {} bytes, not the master's file", got.len());
     println!("script: {summary}\nbench:\n{bench_output}");
 }
