@@ -424,14 +424,17 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                 Ok(()) => Ok(()),
                 Err(()) => Err(None),
             };
-            own.moved.signal(());
-            if let Err(refusal) = refusal {
+            if refusal.is_err() {
+                // What is left of the image is dropped, and the sink's next write refused.
                 own.with(|stage| {
                     if let Some(image) = stage.image.as_mut() {
                         image.refused = true;
                     }
                     stage.fill = 0;
                 });
+            }
+            own.moved.signal(());
+            if let Err(refusal) = refusal {
                 match refusal {
                     Some(refusal) => say(shared, Severity::Warning, format_args!("refused: {refusal}")).await,
                     None => {

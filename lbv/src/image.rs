@@ -21,13 +21,15 @@ use update_image::{
 
 use crate::exit;
 
-/// The largest update file read: far more than any payload the G431's 128 KiB of flash holds.
+/// The largest update file read: the master's G474 has 512 KiB of flash, more than any payload (its ACTIVE
+/// partition is 238 KiB).
 pub const MAX_UPDATE_FILE: u64 = 512 * 1024;
 /// The largest ELF read. A release image carries its full debug info (the workspace's release profile has
 /// `debug = 2`), several MiB of it beside the few tens of KiB that load.
 pub const MAX_ELF: u64 = 64 * 1024 * 1024;
-/// The largest payload: the G431's whole flash. An ELF whose segments span more is not an image for it.
-pub const MAX_PAYLOAD: u64 = 128 * 1024;
+/// The largest payload: the whole flash of the larger chip, the master's G474. An ELF whose segments span more is
+/// not an image for either board.
+pub const MAX_PAYLOAD: u64 = g431_hw::memory::G474RE.flash.length as u64;
 /// The largest key file read: one line of 64 hex digits.
 const MAX_KEY_FILE: u64 = 4096;
 
@@ -340,7 +342,7 @@ impl fmt::Display for ElfError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             ElfError::NotElf(error) => write!(f, "not an ELF file ({error})"),
-            ElfError::NotArm => f.write_str("not a 32-bit little-endian ARM ELF: not a firmware image for the G431"),
+            ElfError::NotArm => f.write_str("not a 32-bit little-endian ARM ELF: not a firmware image for the STM32G4"),
             ElfError::NoSegments => f.write_str("no loadable segment: nothing would go into flash"),
             ElfError::BelowBase { segment, base } => {
                 write!(f, "a segment loads at {segment:#010x}, below the base {base:#010x}")

@@ -27,11 +27,12 @@ fn main() -> ExitCode {
         ["expected"] => Ok(expected()),
         ["status", family, hex] => family_of(family).and_then(|family| decode_status(family, hex)),
         ["order", family, hex] => family_of(family).and_then(|family| decode_order(family, hex)),
+        ["update", "master"] => master_update(),
         ["update", family] => family_of(family).and_then(update),
         ["reply", hex] => decode_reply(hex),
         _ => Err(
             "usage: rehost expected | rehost status FAMILY HEX | rehost order FAMILY HEX | rehost update FAMILY \
-             | rehost reply HEX"
+             | rehost update master | rehost reply HEX"
                 .to_string(),
         ),
     };
@@ -434,6 +435,32 @@ fn update(family: Family) -> Result<Value, String> {
         "begin_reply_len": ext::reply_len(ext::CommandKind::Begin),
         "finish_reply_len": ext::reply_len(ext::CommandKind::Finish),
         "finish_wait_ms": ext::FINISH_WAIT_MS,
+    }))
+}
+
+/// A master update file (a 4096-byte payload at 0.2.0, signed with the development key), the same file with its
+/// signature one bit off, and where the master's DFU and state partitions are.
+fn master_update() -> Result<Value, String> {
+    let mut payload: Vec<u8> = (0..4096u32)
+        .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
+        .collect();
+    let info = ImageInfo::new(Target::Master, Version::new(0, 2, 0)).to_bytes();
+    payload
+        .get_mut(INFO_OFFSET..INFO_OFFSET + info.len())
+        .ok_or("no room for the image info")?
+        .copy_from_slice(&info);
+    let seed = key_from_hex(include_str!("../../keys/dev.key")).ok_or("keys/dev.key is not a key")?;
+    let file = update_image::sign(&payload, &seed).map_err(|error| format!("{error:?}"))?;
+    let mut forged = file.clone();
+    // The signature's first byte (the header's offset 16).
+    if let Some(byte) = forged.get_mut(16) {
+        *byte ^= 1;
+    }
+    Ok(json!({
+        "dfu": g431_hw::memory::MASTER_PARTITIONS.dfu.origin,
+        "state": g431_hw::memory::MASTER_PARTITIONS.state.origin,
+        "file": hex(&file),
+        "forged": hex(&forged),
     }))
 }
 
