@@ -54,13 +54,7 @@ static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
 #[allow(unsafe_code)] // a link section: the record's place is the linker script's, checked there by size
 #[unsafe(link_section = ".image_info")]
 #[used]
-static IMAGE_INFO: [u8; update_image::INFO_LEN] = {
-    let version = match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
-        Some(version) => version,
-        None => panic!("the crate's version is not major.minor.patch"),
-    };
-    update_image::ImageInfo::new(update_image::Target::Master, version).to_bytes()
-};
+static IMAGE_INFO: [u8; update_image::INFO_LEN] = update_image::image_info!(update_image::Target::Master);
 
 /// The chip's flash through embassy-stm32's async driver, which waits for an erase or a program by its interrupt:
 /// the settings and DFU are in bank 2, where the work runs beside the code in bank 1 (RM0440 3.3.8).

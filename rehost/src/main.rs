@@ -406,16 +406,7 @@ fn decode_order(family: Family, hex: &str) -> Result<Value, String> {
 /// a 4 KiB payload with its image info (0.2.0) signed with keys/dev.key, where it goes (the DFU partition), and the
 /// extension's `Begin` and `Finish` frames, `Finish` also with a signature one bit off.
 fn update(family: Family) -> Result<Value, String> {
-    let mut payload: Vec<u8> = (0..4096u32)
-        .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
-        .collect();
-    let info = ImageInfo::new(Target::thruster(family), Version::new(0, 2, 0)).to_bytes();
-    payload
-        .get_mut(INFO_OFFSET..INFO_OFFSET + info.len())
-        .ok_or("no room for the image info")?
-        .copy_from_slice(&info);
-    let seed = key_from_hex(include_str!("../../keys/dev.key")).ok_or("keys/dev.key is not a key")?;
-    let file = update_image::sign(&payload, &seed).map_err(|error| format!("{error:?}"))?;
+    let file = signed_file(Target::thruster(family))?;
     let (header, payload) = file.split_at(HEADER_LEN);
     let header = update_image::Header::parse(header).map_err(|error| format!("{error:?}"))?;
     let payload_len = header.payload_len;
@@ -441,16 +432,7 @@ fn update(family: Family) -> Result<Value, String> {
 /// A master update file (a 4096-byte payload at 0.2.0, signed with the development key), the same file with its
 /// signature one bit off, and where the master's DFU and state partitions are.
 fn master_update() -> Result<Value, String> {
-    let mut payload: Vec<u8> = (0..4096u32)
-        .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
-        .collect();
-    let info = ImageInfo::new(Target::Master, Version::new(0, 2, 0)).to_bytes();
-    payload
-        .get_mut(INFO_OFFSET..INFO_OFFSET + info.len())
-        .ok_or("no room for the image info")?
-        .copy_from_slice(&info);
-    let seed = key_from_hex(include_str!("../../keys/dev.key")).ok_or("keys/dev.key is not a key")?;
-    let file = update_image::sign(&payload, &seed).map_err(|error| format!("{error:?}"))?;
+    let file = signed_file(Target::Master)?;
     let mut forged = file.clone();
     // The signature's first byte (the header's offset 16).
     if let Some(byte) = forged.get_mut(16) {
@@ -462,6 +444,20 @@ fn master_update() -> Result<Value, String> {
         "file": hex(&file),
         "forged": hex(&forged),
     }))
+}
+
+/// An update file for `target`: a 4 KiB payload with its image info (0.2.0), signed with keys/dev.key.
+fn signed_file(target: Target) -> Result<Vec<u8>, String> {
+    let mut payload: Vec<u8> = (0..4096u32)
+        .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
+        .collect();
+    let info = ImageInfo::new(target, Version::new(0, 2, 0)).to_bytes();
+    payload
+        .get_mut(INFO_OFFSET..INFO_OFFSET + info.len())
+        .ok_or("no room for the image info")?
+        .copy_from_slice(&info);
+    let seed = key_from_hex(include_str!("../../keys/dev.key")).ok_or("keys/dev.key is not a key")?;
+    update_image::sign(&payload, &seed).map_err(|error| format!("{error:?}"))
 }
 
 fn hex(bytes: &[u8]) -> String {

@@ -132,13 +132,7 @@ unsafe fn NonMaskableInt() {
 #[allow(unsafe_code)] // a link section: the record's place is the linker script's, checked there by size
 #[unsafe(link_section = ".image_info")]
 #[used]
-static IMAGE_INFO: [u8; update_image::INFO_LEN] = {
-    let version = match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
-        Some(version) => version,
-        None => panic!("the crate's version is not major.minor.patch"),
-    };
-    update_image::ImageInfo::new(update_image::Target::thruster(FAMILY), version).to_bytes()
-};
+static IMAGE_INFO: [u8; update_image::INFO_LEN] = update_image::image_info!(update_image::Target::thruster(FAMILY));
 
 static SHARED: Shared = Shared::new();
 

@@ -107,6 +107,24 @@ impl fmt::Display for InfoError {
 
 impl core::error::Error for InfoError {}
 
+/// The record's bytes for a firmware of `target` at the version of the crate that invokes it (its
+/// `CARGO_PKG_VERSION`), for the image's `.image_info` static; a version that is not plain `x.y.z` stops the build:
+///
+/// ```ignore
+/// #[unsafe(link_section = ".image_info")]
+/// #[used]
+/// static IMAGE_INFO: [u8; update_image::INFO_LEN] = update_image::image_info!(update_image::Target::Master);
+/// ```
+#[macro_export]
+macro_rules! image_info {
+    ($target:expr) => {
+        match $crate::Version::parse(env!("CARGO_PKG_VERSION")) {
+            Some(version) => $crate::ImageInfo::new($target, version).to_bytes(),
+            None => panic!("the crate's version is not major.minor.patch"),
+        }
+    };
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -41,29 +41,21 @@ fn flashed() -> Stm32g4Flash {
     flash
 }
 
-fn state_of(flash: &Stm32g4Flash) -> State {
-    let state = flash
-        .partition(
-            MASTER_PARTITIONS.state.origin - FLASH_ORIGIN,
-            MASTER_PARTITIONS.state.length,
-        )
-        .unwrap();
+/// embassy-boot's state partition of `flash`, through its own code.
+fn with_state<R>(flash: &Stm32g4Flash, f: impl AsyncFnOnce(&mut FirmwareState<'_, Stm32g4Flash>) -> R) -> R {
+    let span = MASTER_PARTITIONS.state;
+    let state = flash.partition(span.origin - FLASH_ORIGIN, span.length).unwrap();
     let mut word = AlignedBuffer([0; 8]);
-    embassy_futures::block_on(FirmwareState::new(state, &mut word.0).get_state()).unwrap()
+    embassy_futures::block_on(f(&mut FirmwareState::new(state, &mut word.0)))
 }
 
-fn mark(flash: &Stm32g4Flash, updated: bool) {
-    let state = flash
-        .partition(
-            MASTER_PARTITIONS.state.origin - FLASH_ORIGIN,
-            MASTER_PARTITIONS.state.length,
-        )
-        .unwrap();
-    let mut word = AlignedBuffer([0; 8]);
-    let mut state = FirmwareState::new(state, &mut word.0);
-    if updated {
-        embassy_futures::block_on(state.mark_updated()).unwrap();
-    }
+fn state_of(flash: &Stm32g4Flash) -> State {
+    with_state(flash, async |state| state.get_state().await).unwrap()
+}
+
+/// Marked for the swap, as the image before it left it: the image running now is on trial.
+fn on_trial(flash: &Stm32g4Flash) {
+    with_state(flash, async |state| state.mark_updated().await).unwrap();
 }
 
 fn dfu(flash: &Stm32g4Flash, len: usize) -> Vec<u8> {
@@ -240,7 +232,7 @@ fn an_image_larger_than_active_is_refused_before_anything_is_written() {
 #[test]
 fn an_image_on_trial_confirms_once_the_operator_is_heard_for_three_seconds() {
     let flash = flashed();
-    mark(&flash, true);
+    on_trial(&flash);
     let (own, shared) = (OwnImage::new(), Shared::new());
     let updating = OwnFlash::new(flash.clone());
     let mut bench = Bench::new(&own, &shared, &updating);
@@ -277,7 +269,7 @@ fn an_image_on_trial_confirms_once_the_operator_is_heard_for_three_seconds() {
 #[test]
 fn an_image_on_trial_that_never_hears_the_operator_restarts_to_be_reverted() {
     let flash = flashed();
-    mark(&flash, true);
+    on_trial(&flash);
     let (own, shared) = (OwnImage::new(), Shared::new());
     let updating = OwnFlash::new(flash.clone());
     let mut bench = Bench::new(&own, &shared, &updating);
