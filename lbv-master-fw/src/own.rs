@@ -81,6 +81,8 @@ enum Flash {
 /// An image on its way into DFU.
 #[derive(Debug, Clone, Copy)]
 struct Incoming {
+    /// Which upload it is: one more than the one begun before.
+    generation: u32,
     header: [u8; HEADER_LEN],
     payload_len: u32,
     /// DFU offset of the buffer's first byte.
@@ -95,6 +97,8 @@ struct Incoming {
 struct Stage {
     flash: Flash,
     image: Option<Incoming>,
+    /// Uploads begun so far.
+    begun: u32,
     buffer: [u8; BUFFER],
     fill: usize,
     /// The apply command's sender, once applied.
@@ -131,6 +135,7 @@ impl OwnImage {
             stage: BlockingMutex::new(RefCell::new(Stage {
                 flash: Flash::Unknown,
                 image: None,
+                begun: 0,
                 buffer: [0; BUFFER],
                 fill: 0,
                 apply: None,
@@ -156,7 +161,9 @@ impl OwnImage {
                 Flash::Ready { on_trial: true } => NotTaken::OnTrial,
                 Flash::Ready { .. } if header.payload_len > MAX_PAYLOAD => NotTaken::TooLarge,
                 Flash::Ready { .. } => {
+                    stage.begun = stage.begun.wrapping_add(1);
                     stage.image = Some(Incoming {
+                        generation: stage.begun,
                         header: header.bytes,
                         payload_len: header.payload_len,
                         page_offset: 0,
@@ -242,9 +249,8 @@ impl OwnImage {
     }
 
     /// The task's side: the next piece for DFU, a whole page or the last bytes once the image is complete (padded
-    /// with erased bytes to the write unit), copied into `page` and taken out of the buffer; its DFU offset and
-    /// length.
-    pub fn take_page(&self, page: &mut [u8; PAGE_BYTES]) -> Option<(u32, usize)> {
+    /// with erased bytes to the write unit), copied into `page` and taken out of the buffer.
+    pub fn take_page(&self, page: &mut [u8; PAGE_BYTES]) -> Option<Piece> {
         self.with(|stage| {
             let Stage {
                 image, buffer, fill, ..
@@ -263,9 +269,38 @@ impl OwnImage {
             *fill -= len;
             let offset = image.page_offset;
             image.page_offset += len as u32;
-            Some((offset, len.next_multiple_of(8)))
+            Some(Piece {
+                offset,
+                len: len.next_multiple_of(8),
+                generation: image.generation,
+                header: image.header,
+            })
         })
     }
+
+    /// The piece's image is refused (its info, or its write): what is left of it is dropped, and the sink's next
+    /// write refused. An upload begun since is not touched.
+    fn refuse(&self, piece: &Piece) {
+        self.with(|stage| {
+            if let Some(image) = stage.image.as_mut().filter(|i| i.generation == piece.generation) {
+                image.refused = true;
+                stage.fill = 0;
+            }
+        });
+    }
+}
+
+/// A piece of an image for DFU, as [`OwnImage::take_page`] hands it to the task.
+#[derive(Debug, Clone, Copy)]
+pub struct Piece {
+    /// Its offset in DFU.
+    pub offset: u32,
+    /// Its length, a whole number of double words.
+    pub len: usize,
+    /// Which upload it is of.
+    generation: u32,
+    /// That upload's header.
+    header: [u8; HEADER_LEN],
 }
 
 /// The master's flash as the task needs it (any async NOR flash addressed from the flash's start): the ACTIVE
@@ -417,21 +452,15 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
             };
             say(shared, Severity::Warning, why).await;
         }
-        while let Some((offset, len)) = own.take_page(&mut page) {
-            let written = program(&mut dfu, offset, page.get(..len).unwrap_or_default()).await;
+        while let Some(piece) = own.take_page(&mut page) {
+            let written = program(&mut dfu, piece.offset, page.get(..piece.len).unwrap_or_default()).await;
             let refusal = match written {
-                Ok(()) if offset == 0 => check_info(own, &page),
+                Ok(()) if piece.offset == 0 => check_info(&piece.header, &page),
                 Ok(()) => Ok(()),
                 Err(()) => Err(None),
             };
             if refusal.is_err() {
-                // What is left of the image is dropped, and the sink's next write refused.
-                own.with(|stage| {
-                    if let Some(image) = stage.image.as_mut() {
-                        image.refused = true;
-                    }
-                    stage.fill = 0;
-                });
+                own.refuse(&piece);
             }
             own.moved.signal(());
             if let Err(refusal) = refusal {
@@ -480,11 +509,10 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
     }
 }
 
-/// The first page is in DFU: hold the header to its image info (update-image's `check`). `None` when the header
-/// itself does not parse (the update server has read it already, so that is the flash's doing).
-fn check_info(own: &OwnImage, first: &[u8; PAGE_BYTES]) -> Result<(), Option<Refusal>> {
-    let header = own.with(|stage| stage.image.map(|i| i.header)).ok_or(None)?;
-    let header = Header::parse(&header).map_err(|_| None)?;
+/// The first page is in DFU: hold its upload's header to its image info (update-image's `check`). `None` when the
+/// header itself does not parse (the update server has read it already).
+fn check_info(header: &[u8; HEADER_LEN], first: &[u8; PAGE_BYTES]) -> Result<(), Option<Refusal>> {
+    let header = Header::parse(header).map_err(|_| None)?;
     let info = first
         .get(IMAGE_INFO_OFFSET as usize..)
         .and_then(|bytes| ImageInfo::parse(bytes).ok());

@@ -70,9 +70,10 @@ fuzz_target!(|steps: Vec<Step>| {
             }
             Step::Drain(pieces) => {
                 for _ in 0..pieces {
-                    let Some((offset, len)) = own.take_page(&mut page) else {
+                    let Some(piece) = own.take_page(&mut page) else {
                         break;
                     };
+                    let (offset, len) = (piece.offset, piece.len);
                     assert!(len <= PAGE_BYTES && len % 8 == 0 && len > 0, "a piece of {len} bytes");
                     if let Some(expected) = next {
                         assert_eq!(offset, expected, "pieces out of order");

@@ -295,3 +295,38 @@ fn without_a_bootloader_state_readable_master_images_are_refused() {
     assert_eq!(own.begin(&header), Err(NotTaken::NoBootloader));
     let _ = shared;
 }
+
+#[test]
+fn a_refusal_found_in_a_page_of_an_upload_stopped_meanwhile_does_not_touch_the_next_one() {
+    let flash = flashed();
+    // DFU's erases take their 25 ms beside the code, so the task is still at the first page when the next
+    // upload begins.
+    flash.stall_cpu(&lbv_sim::Cpu::new(), lbv_sim::flash::FlashTiming::G474_DUAL_BANK);
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    // A thruster's payload under a master header: its first page will be refused.
+    let mut stranger = signed(Target::ThrusterSeabotix, 8000);
+    stranger[5] = Target::Master.to_byte();
+    own.begin(&parse_header(stranger[..HEADER_LEN].try_into().unwrap()).unwrap())
+        .unwrap();
+    for (index, piece) in stranger[HEADER_LEN..].chunks(DATA_LEN).take(9).enumerate() {
+        own.write((index * DATA_LEN) as u32, piece).unwrap();
+    }
+    bench.run(Duration::from_millis(1));
+    own.finish(false);
+    let file = signed(Target::Master, 5000);
+    bench.upload(&file).unwrap();
+    // Three pages' erases and writes, 25 ms and more each.
+    bench.run(Duration::from_millis(200));
+    assert!(
+        dfu(&flash, file.len() - HEADER_LEN) == file[HEADER_LEN..],
+        "DFU holds the second upload"
+    );
+    own.apply(OPERATOR).unwrap();
+    bench.run(Duration::from_millis(100));
+    let texts = texts(&bench.said());
+    assert!(texts[0].starts_with("master.lbvu: refused: "), "{texts:?}");
+    assert_eq!(texts[1..], ["master.lbvu: signature good, restarting"]);
+    assert_eq!(state_of(&flash), State::Swap);
+}
