@@ -99,6 +99,14 @@ fn apply_cut(run: &mut Run, slot: u8, limit: f64, text: &str, after: f64) -> (Ve
     apply_with(run, slot, limit, said, cut, limit)
 }
 
+/// Put `file` to thruster `slot` and wait for its copy to be verified; how the put ended.
+fn put_verified(run: &mut Run, slot: usize, file: Vec<u8>) -> UploadState {
+    let start = run.bench.now();
+    let (state, _) = put(run, &format!("/update/thruster{slot}.lbvu"), file, 60.0);
+    wait_verified(run, start, slot);
+    state
+}
+
 /// The version thruster `index` runs now, as its ACTIVE partition holds it.
 fn running(run: &Run, index: usize) -> Option<Version> {
     run.bench.thrusters.get(index)?.running_image().map(|info| info.version)
@@ -371,13 +379,7 @@ pub fn field_update(run: &mut Run) {
 
     // On trial, before the new image confirms itself: the bootloader reverts it, and the apply fails saying so.
     let start = run.bench.now();
-    let (state, _) = put(
-        run,
-        "/update/thruster3.lbvu",
-        update_file(families[3], Version::new(0, 3, 0), &key),
-        60.0,
-    );
-    wait_verified(run, start, 3);
+    let state = put_verified(run, 3, update_file(families[3], Version::new(0, 3, 0), &key));
     let (acks, took) = apply_cut(run, 3, 60.0, "runs 0.3.0, on trial", 0.5);
     let texts = texts_since(run, start, "thruster3.lbvu");
     run.check(
@@ -392,13 +394,7 @@ pub fn field_update(run: &mut Run) {
     // A power cut in the middle of the thruster's swap (100 kB into its bootloader's flash work, of some 240): off
     // until the power comes back a second later, when its bootloader finishes the swap; the image then confirms.
     let start = run.bench.now();
-    let (state, _) = put(
-        run,
-        "/update/thruster3.lbvu",
-        update_file(families[3], Version::new(0, 3, 0), &key),
-        60.0,
-    );
-    wait_verified(run, start, 3);
+    let state = put_verified(run, 3, update_file(families[3], Version::new(0, 3, 0), &key));
     run.bench.thrusters[3].cut_in_bootloader = Some(100_000);
     let (acks, took) = apply_with(
         run,
