@@ -79,14 +79,7 @@ fn apply(run: &mut Run, slot: u8, limit: f64) -> (Vec<u8>, f64) {
 fn apply_cut(run: &mut Run, slot: u8, limit: f64, text: &str, after: f64) -> (Vec<u8>, f64) {
     let start = run.bench.now();
     let file = format!("thruster{slot}.lbvu: {text}");
-    let said = |bench: &crate::bench::Bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, said)| *at >= start && said.starts_with(&file))
-    };
+    let said = |bench: &crate::bench::Bench| said_since(bench, start, |said| said.starts_with(&file));
     let cut = |run: &mut Run| {
         run.run_for(after);
         let thruster = usize::from(slot);
@@ -129,14 +122,21 @@ fn texts_since(run: &Run, since: Instant, file: &str) -> Vec<String> {
 fn wait_verified(run: &mut Run, since: Instant, slot: usize) -> bool {
     let file = format!("thruster{slot}.lbvu");
     let said = |bench: &crate::bench::Bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, text)| *at >= since && text.starts_with(&file) && text.contains("B verified"))
+        said_since(bench, since, |text| {
+            text.starts_with(&file) && text.contains("B verified")
+        })
     };
     run.run_until(5.0, said).is_some()
+}
+
+/// Whether the ground station has seen a text since `since` that `matches`.
+fn said_since(bench: &crate::bench::Bench, since: Instant, matches: impl Fn(&str) -> bool) -> bool {
+    bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .any(|(at, text)| *at >= since && matches(text))
 }
 
 /// An upload of `file` to thruster `slot` cut half-way by `interrupt`, then sent again: it must resume from the
@@ -594,14 +594,8 @@ pub fn master_update(run: &mut Run) {
     let newest = Version::new(0, 4, 0);
     let (state, _) = put(run, "/update/master.lbvu", master_file(newest, &key), 120.0);
     let start = run.bench.now();
-    let on_trial = |bench: &crate::bench::Bench| {
-        bench
-            .ground
-            .seen
-            .texts
-            .iter()
-            .any(|(at, said)| *at >= start && said == "master.lbvu: runs 0.4.0, on trial")
-    };
+    let on_trial =
+        |bench: &crate::bench::Bench| said_since(bench, start, |said| said == "master.lbvu: runs 0.4.0, on trial");
     let cut = |run: &mut Run| {
         // Half a second into the trial, well before the 3 s of heartbeats it needs.
         run.run_for(0.5);
