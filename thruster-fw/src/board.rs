@@ -443,7 +443,7 @@ impl Updater for ImageSwap {
     }
 
     /// What embassy-boot's `verify_and_mark_updated` does with its `ed25519-salty` feature, with update-image's
-    /// `Verifier` (the same salty, and a signature's S must be below the group order): DFU's first `payload_len`
+    /// `Verifier` (the same answer, but that a signature's S must be below the group order): DFU's first `payload_len`
     /// bytes hashed with SHA-512, the signature checked over the digest with the image's update key, then the
     /// state marked for the swap. Refused while the running image is on trial, as embassy-boot refuses.
     async fn verify_and_mark_updated(

@@ -64,7 +64,7 @@ pub enum VerifyError {
 /// What an update needs of the bootloader and the chip: the running image's record, the signature check that
 /// marks the DFU payload for the swap, and the reset that starts it. The host tests and the bench implement it
 /// with embassy-boot's updater on lbv-sim's flash; the binding reads the record from the G431's flash, checks the
-/// signature with update-image's `Verifier` (salty, as embassy-boot) and resets the core.
+/// signature with update-image's `Verifier` (answering as embassy-boot) and resets the core.
 #[allow(async_fn_in_trait)]
 pub trait Updater {
     /// The running image's information record, as its flash holds it (ACTIVE + [`INFO_OFFSET`]).
