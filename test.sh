@@ -145,6 +145,11 @@ while read -r name _ _ flash_budget ram_budget linked; do
       exit !ok
     }' || failed=1
 done <<<"$builds"
+# Where the two applications' code goes, by crate and by module of their own crate.
+for image in thruster-fw lbv-master-fw; do
+  printf '\n%s, code by crate:\n' "$image"
+  python3 g431-hw/bloat.py "target/images/$image" "$image" 12
+done
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 
 step "an hour of random faults and traffic on the bench (the soak, run beside the steps above)"

@@ -16,8 +16,8 @@ use super::harness::{Run, round};
 
 /// The development key's secret, which the bench's thrusters accept (keys/README.md).
 const DEV_KEY: &str = include_str!("../../../keys/dev.key");
-/// The images' payload: 32 KiB, the thruster application's budget.
-const PAYLOAD_LEN: usize = 32 * 1024;
+/// The images' payload: the thruster application's flash budget, the largest image an update carries to it.
+const PAYLOAD_LEN: usize = g431_hw::images::THRUSTER_FLASH_BUDGET as usize;
 /// MAV_RESULT_IN_PROGRESS and MAV_RESULT_ACCEPTED, MAV_RESULT_FAILED.
 const IN_PROGRESS: u8 = 5;
 const ACCEPTED: u8 = 0;
@@ -26,8 +26,8 @@ const FAILED: u8 = 4;
 /// The version the update brings (the bench's thrusters run 0.1.0).
 const NEW: Version = Version::new(0, 2, 0);
 
-/// A signed update file for `family`'s thrusters at `version`: a made-up 32 KiB payload with its image info at
-/// 0x200, signed with `seed`.
+/// A signed update file for `family`'s thrusters at `version`: a made-up payload of [`PAYLOAD_LEN`] bytes with its
+/// image info at 0x200, signed with `seed`.
 fn update_file(family: Family, version: Version, seed: &[u8; 32]) -> Vec<u8> {
     let mut payload: Vec<u8> = (0..PAYLOAD_LEN as u32)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 11) as u8)
@@ -249,7 +249,7 @@ pub fn field_update(run: &mut Run) {
         put_times.push(put_s);
         apply_times.push(apply_s);
     }
-    // Per thruster, in table order: the FTP put of a 32 KiB image (its bytes on the thruster), and the apply
+    // Per thruster, in table order: the FTP put of a whole-budget image (its bytes on the thruster), and the apply
     // (checked, swapped in, confirmed).
     run.metric("update_put_s", json!(put_times));
     run.metric("update_apply_s", json!(apply_times));
@@ -285,7 +285,9 @@ pub fn field_update(run: &mut Run) {
     // A truncated file: the ground station closes the session short of the length its header gives.
     let start = run.bench.now();
     let mut short = update_file(families[2], NEW, &key);
-    short.truncate(short.len() / 2);
+    let whole = short.len();
+    short.truncate(whole / 2);
+    let stopped = format!("stopped at {} of {whole} bytes", short.len());
     let (state, _) = put(run, "/update/thruster2.lbvu", short, 60.0);
     let (acks, _) = apply(run, 2, 5.0);
     let texts = texts_since(run, start, "thruster2.lbvu");
@@ -293,7 +295,7 @@ pub fn field_update(run: &mut Run) {
         "a truncated file stops short and cannot be applied",
         state == UploadState::Done
             && acks == [DENIED]
-            && texts.iter().any(|t| t.contains("stopped at 16424 of 32848 bytes"))
+            && texts.iter().any(|t| t.contains(&stopped))
             && texts.iter().any(|t| t.contains("nothing to apply")),
         format!("put {state:?}, acks {acks:?}, texts {texts:?}"),
     );
@@ -425,8 +427,8 @@ fn polls_of_others(run: &Run, slot: usize) -> u64 {
         .sum()
 }
 
-/// The master's image in the scenario: 136 KiB, about the application's.
-const MASTER_PAYLOAD_LEN: usize = 136 * 1024;
+/// The master's image in the scenario: its application's flash budget, the largest image its own update carries.
+const MASTER_PAYLOAD_LEN: usize = g431_hw::images::MASTER_FLASH_BUDGET as usize;
 
 /// A signed update file for the master at `version`: a made-up payload with its image info at 0x200, signed with
 /// `seed`.
