@@ -552,7 +552,10 @@ impl Courier {
                     out,
                     Severity::Info,
                     slot,
-                    format_args!("{n} B verified, {skipped} pages kept"),
+                    format_args!(
+                        "{n} B verified, {skipped} page{} kept",
+                        if skipped == 1 { "" } else { "s" }
+                    ),
                 );
                 Step::Written
             }

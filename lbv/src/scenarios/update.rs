@@ -3,6 +3,7 @@
 //! (docs/field-update.md). The ground station is lbv-station's scripted one, its uploads stop-and-wait as
 //! MAVProxy's `ftp put` goes when its window is one block.
 
+use embassy_boot::State;
 use embassy_time::Instant;
 use lbv_master_fw::shared::MAV_CMD_LBV_APPLY_UPDATE;
 use lbv_master_fw::update::TAKEOVER_IDLE;
@@ -153,11 +154,7 @@ fn resumes(run: &mut Run, slot: usize, file: Vec<u8>, what: &str, interrupt: imp
     let (resumed, resume_s) = put(run, &path, file, 60.0);
     let verified = wait_verified(run, start, slot);
     let texts = texts_since(run, start, &format!("thruster{slot}.lbvu"));
-    let kept = texts
-        .iter()
-        .find(|t| t.contains("pages kept"))
-        .cloned()
-        .unwrap_or_default();
+    let kept = texts.iter().find(|t| t.ends_with(" kept")).cloned().unwrap_or_default();
     run.check(
         &format!("an upload stopped by {what}, sent again, resumes from the pages the thruster holds"),
         matches!(stopped, UploadState::Sending(_))
@@ -344,11 +341,7 @@ pub fn field_update(run: &mut Run) {
     let texts = texts_since(run, start, "thruster1.lbvu");
     run.check(
         "after 4 s of a noisy bus the file sent again resumes from the pages the thruster holds",
-        state == UploadState::Done
-            && verified
-            && texts
-                .iter()
-                .any(|t| t.contains("pages kept") && !t.contains(" 0 pages")),
+        state == UploadState::Done && verified && texts.iter().any(|t| t.ends_with(" kept") && !t.contains(" 0 pages")),
         format!("put {state:?}, verified {verified}, texts {texts:?}"),
     );
 
@@ -415,6 +408,67 @@ pub fn field_update(run: &mut Run) {
         "a power cut in the thruster's swap: the next start finishes it, and the new image confirms",
         state == UploadState::Done && acks == [IN_PROGRESS, ACCEPTED] && running(run, 3) == Some(Version::new(0, 3, 0)),
         format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 3)),
+    );
+
+    master_resets_while_applied(run, families[2], &key);
+}
+
+/// The master reset while it applies an image to T3 (slot 2). In the thruster's signature check: the thruster
+/// finishes it and keeps the image marked for its bootloader, still running the one before, and the master forgets
+/// the transfer; the same file sent again has the master start the update the thruster holds first, then write
+/// the file again, which its apply takes. On trial: the thruster confirms the new image once the master polls it
+/// again, though the master that asked for it is gone.
+fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
+    let reset_master = |run: &mut Run, when: &str| {
+        run.bench.note(format!("master reset ({when})"));
+        run.bench.reboot_master();
+    };
+    let before = running(run, 2);
+    let (v4, v5) = (Version::new(0, 4, 0), Version::new(0, 5, 0));
+    let file = update_file(family, v4, key);
+    let start = run.bench.now();
+    put_verified(run, 2, file.clone());
+    let applying = move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "thruster2.lbvu: applying");
+    let cut = |run: &mut Run| {
+        run.run_for(0.02);
+        reset_master(run, "T3's signature check");
+    };
+    let (acks, _) = apply_with(run, 2, 60.0, applying, cut, 2.0);
+    let held = (running(run, 2), run.bench.thrusters[2].boot_state());
+    let again = run.bench.now();
+    let (state, put_s) = put(run, "/update/thruster2.lbvu", file, 120.0);
+    let verified = wait_verified(run, again, 2);
+    let (reapplied, _) = apply(run, 2, 60.0);
+    let texts = texts_since(run, again, "thruster2.lbvu");
+    run.check(
+        "a master reset in the thruster's signature check: the file sent again starts the update the thruster holds",
+        acks == [IN_PROGRESS]
+            && held == (before, Some(State::Swap))
+            && state == UploadState::Done
+            && verified
+            && texts.iter().any(|t| t.ends_with("starting the update it holds"))
+            && reapplied == [IN_PROGRESS, ACCEPTED]
+            && running(run, 2) == Some(v4),
+        format!(
+            "acks {acks:?}, then runs and holds {held:?}; put again {state:?} in {put_s} s, apply {reapplied:?}, runs {:?}, \
+             texts {texts:?}",
+            running(run, 2)
+        ),
+    );
+
+    let start = run.bench.now();
+    put_verified(run, 2, update_file(family, v5, key));
+    let on_trial =
+        move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "thruster2.lbvu: runs 0.5.0, on trial");
+    let (acks, _) = apply_with(run, 2, 60.0, on_trial, |run| reset_master(run, "T3 on trial"), 0.0);
+    let confirmed = run.run_until(30.0, |bench| bench.thrusters[2].boot_state() == Some(State::Boot));
+    run.check(
+        "a master reset while the new image is on trial: the thruster confirms it once the master polls again",
+        acks == [IN_PROGRESS] && confirmed.is_some() && running(run, 2) == Some(v5),
+        format!(
+            "acks {acks:?}, confirmed after {confirmed:?} s, runs {:?}",
+            running(run, 2)
+        ),
     );
 }
 
