@@ -341,6 +341,13 @@ impl Courier {
         }
     }
 
+    /// Whether thruster `slot` has been told to restart into its update and has not answered since: silent while
+    /// its bootloader swaps the image in, as it should be.
+    pub fn restarting(&self, slot: u8) -> bool {
+        self.transfer
+            .is_some_and(|t| t.slot == slot && matches!(t.step, Step::Reboot | Step::Restart(_)))
+    }
+
     /// The page at the buffer's start, once it is whole (or the payload's last).
     fn page(&self) -> Option<&[u8]> {
         let transfer = self.transfer.as_ref()?;

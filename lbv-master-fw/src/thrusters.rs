@@ -647,11 +647,16 @@ pub fn fault_severity(family: Family, fault: Faults) -> Severity {
     }
 }
 
-/// The console text for a link change of thruster `index` (0-based; texts count from 1).
-pub fn link_text(index: usize, change: LinkChange) -> (Severity, Text) {
+/// The console text for a link change of thruster `index` (0-based; texts count from 1). One that goes offline
+/// while `restarting` into its update (its bootloader swapping the image in) is told as that, not as a fault.
+pub fn link_text(index: usize, change: LinkChange, restarting: bool) -> (Severity, Text) {
     let number = index.saturating_add(1);
     match change {
         LinkChange::Online => (Severity::Info, text(format_args!("T{number} online"))),
+        LinkChange::Offline(_) if restarting => (
+            Severity::Info,
+            text(format_args!("T{number} offline: restarting into its update")),
+        ),
         LinkChange::Offline(failure) => (
             Severity::Warning,
             text(format_args!("T{number} offline: {}", failure.reason())),
@@ -758,7 +763,7 @@ struct BusState<'a> {
 
 impl BusState<'_> {
     /// Poll every due thruster of bus `bus_index` once, in table order; `cycle` is the cycle's start. Returns
-    /// how many were polled.
+    /// how many were polled. `transfers` tells a thruster restarting into its update from one that fails.
     async fn cycle<B: I2c + BusRecovery>(
         &mut self,
         bus: &mut B,
@@ -766,6 +771,7 @@ impl BusState<'_> {
         table: &[ThrusterSlot],
         cycle: Instant,
         shared: &Shared,
+        transfers: Option<&Transfers>,
     ) -> usize {
         // STOP until the vehicle has published orders.
         let orders = shared.orders.try_get().unwrap_or([Order::STOP; MAX_THRUSTERS]);
@@ -827,7 +833,9 @@ impl BusState<'_> {
             }
             report.sender().send(link.report());
             if let Some(change) = change {
-                let (severity, text) = link_text(index, change);
+                let restarting = u8::try_from(index)
+                    .is_ok_and(|slot| transfers.is_some_and(|t| t.with(|courier| courier.restarting(slot))));
+                let (severity, text) = link_text(index, change, restarting);
                 shared.say(severity, text);
             }
             if matches!(outcome, Outcome::Answered(_)) && link.on_link_failsafe(failsafe) {
@@ -937,7 +945,7 @@ where
     loop {
         let polled = {
             let cycle = if back_to_back { Instant::now() } else { next };
-            let polled = state.cycle(bus, bus_index, table, cycle, shared).await;
+            let polled = state.cycle(bus, bus_index, table, cycle, shared, transfers).await;
             let carried = match transfers {
                 Some(transfers) => state.carry(bus, bus_index, table, transfers, shared).await,
                 None => false,

@@ -320,17 +320,28 @@ fn fault_changes_and_their_texts() {
 #[test]
 fn link_texts() {
     assert_eq!(
-        link_text(2, LinkChange::Online),
+        link_text(2, LinkChange::Online, false),
         (Severity::Info, Text::try_from("T3 online").unwrap())
     );
     assert_eq!(
-        link_text(2, LinkChange::Offline(PollFailure::Nack)),
+        link_text(2, LinkChange::Offline(PollFailure::Nack), false),
         (Severity::Warning, Text::try_from("T3 offline: no answer").unwrap())
     );
     assert_eq!(
-        link_text(7, LinkChange::Offline(PollFailure::BadChecksum)).1.as_str(),
+        link_text(7, LinkChange::Offline(PollFailure::BadChecksum), false)
+            .1
+            .as_str(),
         "T8 offline: bad checksum"
     );
+    assert_eq!(
+        link_text(2, LinkChange::Offline(PollFailure::Nack), true),
+        (
+            Severity::Info,
+            Text::try_from("T3 offline: restarting into its update").unwrap()
+        )
+    );
+    // Only going offline is the restart's: coming back is told as ever.
+    assert_eq!(link_text(2, LinkChange::Online, true).1.as_str(), "T3 online");
 }
 
 #[test]

@@ -231,10 +231,18 @@ pub fn field_update(run: &mut Run) {
         let texts = texts_since(run, start, &file_name);
         let runs_new = texts.iter().any(|text| text.ends_with("runs 0.2.0, on trial"))
             && texts.last().is_some_and(|text| text.ends_with("0.2.0 confirmed"));
+        // Its restart is told as the update's, not as a link fault.
+        let link = texts_since(run, start, &format!("T{} offline", slot + 1));
         run.check(
             &format!("T{} ({family:?}) is updated from the ground station", slot + 1),
-            put_state == UploadState::Done && verified && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
-            format!("put {put_state:?} in {put_s} s, apply acks {acks:?} in {apply_s} s, texts {texts:?}"),
+            put_state == UploadState::Done
+                && verified
+                && acks == [IN_PROGRESS, ACCEPTED]
+                && runs_new
+                && link.iter().all(|text| text.ends_with("restarting into its update")),
+            format!(
+                "put {put_state:?} in {put_s} s, apply acks {acks:?} in {apply_s} s, texts {texts:?}, link {link:?}"
+            ),
         );
         let polls_after = polls_of_others(run, slot);
         let rate = (polls_after - polls_before) as f64 / (run.bench.now() - start).as_micros() as f64 * 1e6;
