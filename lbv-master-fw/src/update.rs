@@ -195,14 +195,34 @@ pub trait UpdateSink {
     /// Wait until the sink can take the calls of the next requests.
     async fn ready(&mut self) {}
     /// An image for `target` begins; its header has passed the server's checks.
-    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak>;
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Refused>;
     /// The file's bytes from `offset` on (past the header, always the next byte after the last write).
-    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak>;
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused>;
     /// The image that began is done: `complete` when every byte its header announces arrived, otherwise it was
     /// stopped and what arrived is to be dropped.
-    fn finish(&mut self, complete: bool) -> Result<(), Nak>;
+    fn finish(&mut self, complete: bool) -> Result<(), Refused>;
     /// Apply the image received whole for `target`, as `from` asks.
     fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak>;
+}
+
+/// Why a sink did not take an upload's call: the upload stops.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refused {
+    /// The sink tells the operator why itself, with what it knows (the courier as its transfer ends, the master's
+    /// own task once it has looked at its flash): the server adds nothing.
+    Told,
+    /// Why, for the server to tell.
+    Because(&'static str),
+}
+
+impl Refused {
+    /// What the server says of it: nothing when the sink tells it.
+    fn why(self) -> &'static str {
+        match self {
+            Refused::Told => "",
+            Refused::Because(why) => why,
+        }
+    }
 }
 
 /// A sink that keeps nothing and applies nothing ([`Applied::NotWired`]): the server still checks each image's
@@ -211,15 +231,15 @@ pub trait UpdateSink {
 pub struct CheckOnly;
 
 impl UpdateSink for CheckOnly {
-    fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Nak> {
+    fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
         Ok(())
     }
 
-    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Nak> {
+    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
         Ok(())
     }
 
-    fn finish(&mut self, _: bool) -> Result<(), Nak> {
+    fn finish(&mut self, _: bool) -> Result<(), Refused> {
         Ok(())
     }
 
@@ -257,35 +277,39 @@ impl UpdateSink for VehicleSink<'_> {
         self.own.room().await;
     }
 
-    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Refused> {
         self.target = Some(target);
         match target {
+            // The courier takes a new image unless one is being applied.
             UpdateTarget::Thruster(slot) => self
                 .transfers
                 .with(|courier| courier.begin(slot, header.target, header.payload_len, &header.bytes))
-                .map_err(|_| Nak::Fail),
-            UpdateTarget::Master => self.own.begin(header).map_err(|_| Nak::Fail),
+                .map_err(|_| Refused::Because("wait: another update is being applied")),
+            UpdateTarget::Master => self.own.begin(header).map_err(|_| Refused::Told),
         }
     }
 
-    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
-        let offset = offset.checked_sub(HEADER_LEN as u32).ok_or(Nak::Fail)?;
+    // A transfer the courier or the own task has ended was ended saying why.
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused> {
+        let offset = offset
+            .checked_sub(HEADER_LEN as u32)
+            .ok_or(Refused::Because("no header"))?;
         match self.target {
             Some(UpdateTarget::Thruster(_)) => self
                 .transfers
                 .with(|courier| courier.write(offset, data))
-                .map_err(|_| Nak::Fail),
-            Some(UpdateTarget::Master) => self.own.write(offset, data).map_err(|_| Nak::Fail),
-            None => Err(Nak::Fail),
+                .map_err(|_| Refused::Told),
+            Some(UpdateTarget::Master) => self.own.write(offset, data).map_err(|_| Refused::Told),
+            None => Err(Refused::Because("nothing begun")),
         }
     }
 
-    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+    fn finish(&mut self, complete: bool) -> Result<(), Refused> {
         match self.target {
             Some(UpdateTarget::Thruster(_)) => self
                 .transfers
                 .with(|courier| courier.finish(complete))
-                .map_err(|_| Nak::Fail),
+                .map_err(|_| Refused::Told),
             Some(UpdateTarget::Master) => {
                 self.own.finish(complete);
                 Ok(())
@@ -638,8 +662,8 @@ impl UpdateServer {
                 Ok(header) => header,
                 Err(why) => return Some(self.refuse(target, why, sink, out)),
             };
-            if sink.begin(target, &header).is_err() {
-                return Some(self.refuse(target, "refused by its sink", sink, out));
+            if let Err(refused) = sink.begin(target, &header) {
+                return Some(self.refuse(target, refused.why(), sink, out));
             }
             image.total = header.file_len();
             self.upload = Some(image);
@@ -651,15 +675,17 @@ impl UpdateServer {
         if rest.len() as u64 > u64::from(image.total.saturating_sub(image.received)) {
             return Some(self.refuse(target, "longer than its header says", sink, out));
         }
-        if !rest.is_empty() && sink.write(image.received, rest).is_err() {
-            return Some(self.refuse(target, "refused by its sink", sink, out));
+        if !rest.is_empty()
+            && let Err(refused) = sink.write(image.received, rest)
+        {
+            return Some(self.refuse(target, refused.why(), sink, out));
         }
         image.crc = ftp::crc32(image.crc, new);
         image.received += rest.len() as u32;
         image.whole = image.received == image.total;
         if image.whole {
-            if sink.finish(true).is_err() {
-                return Some(self.refuse(target, "refused by its sink", sink, out));
+            if let Err(refused) = sink.finish(true) {
+                return Some(self.refuse(target, refused.why(), sink, out));
             }
             self.held = Some(image);
         }

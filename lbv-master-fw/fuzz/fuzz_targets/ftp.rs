@@ -10,7 +10,7 @@ use embassy_time::Instant;
 use lbv_master_fw::config::VEHICLE;
 use lbv_master_fw::shared::{Outgoing, Sender};
 use lbv_master_fw::update::ftp::{ACK, NAK, Nak};
-use lbv_master_fw::update::{Applied, Context, HEADER_LEN, ImageHeader, UpdateServer, UpdateSink, UpdateTarget};
+use lbv_master_fw::update::{Applied, Context, HEADER_LEN, ImageHeader, Refused, UpdateServer, UpdateSink, UpdateTarget};
 // The host's time driver (the harness passes its own instants).
 use lbv_sim as _;
 use libfuzzer_sys::fuzz_target;
@@ -71,13 +71,13 @@ struct Sink {
 }
 
 impl UpdateSink for Sink {
-    fn begin(&mut self, _: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+    fn begin(&mut self, _: UpdateTarget, header: &ImageHeader) -> Result<(), Refused> {
         assert!(self.open.is_none(), "begun twice");
         self.open = Some((HEADER_LEN as u32, header.file_len()));
         Ok(())
     }
 
-    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused> {
         let (next, total) = self.open.expect("a write outside an image");
         assert_eq!(offset, next, "out of order");
         assert!(u64::from(offset) + data.len() as u64 <= u64::from(total), "past the header's length");
@@ -85,7 +85,7 @@ impl UpdateSink for Sink {
         Ok(())
     }
 
-    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+    fn finish(&mut self, complete: bool) -> Result<(), Refused> {
         let (next, total) = self.open.take().expect("finished, never begun");
         assert!(!complete || next == total, "whole at {next} of {total}");
         Ok(())

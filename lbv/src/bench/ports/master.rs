@@ -15,7 +15,7 @@ use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::settings::{Reboot, Store};
 use lbv_master_fw::shared::Sender;
 use lbv_master_fw::update::ftp::Nak;
-use lbv_master_fw::update::{Applied, ImageHeader, UpdateSink, UpdateTarget};
+use lbv_master_fw::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget};
 use lbv_sim::Queue;
 use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::{Bus, Master, Scl, Sda};
@@ -103,7 +103,7 @@ impl UpdateRecorder {
 }
 
 impl UpdateSink for UpdateRecorder {
-    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Refused> {
         self.0.borrow_mut().push(ReceivedImage {
             target,
             bytes: header.bytes.to_vec(),
@@ -113,7 +113,7 @@ impl UpdateSink for UpdateRecorder {
         Ok(())
     }
 
-    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused> {
         let mut images = self.0.borrow_mut();
         match images.last_mut() {
             // The server hands on the bytes in order: anything else is its bug, refused here for a test to see.
@@ -121,17 +121,17 @@ impl UpdateSink for UpdateRecorder {
                 image.bytes.extend_from_slice(data);
                 Ok(())
             }
-            _ => Err(Nak::Fail),
+            _ => Err(Refused::Because("out of order")),
         }
     }
 
-    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+    fn finish(&mut self, complete: bool) -> Result<(), Refused> {
         match self.0.borrow_mut().last_mut() {
             Some(image) if image.complete.is_none() => {
                 image.complete = Some(complete);
                 Ok(())
             }
-            _ => Err(Nak::Fail),
+            _ => Err(Refused::Because("finished twice")),
         }
     }
 
@@ -165,17 +165,17 @@ impl<S: UpdateSink> UpdateSink for Recorded<S> {
         self.sink.ready().await;
     }
 
-    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Nak> {
+    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Refused> {
         let _ = self.recorder.begin(target, header);
         self.sink.begin(target, header)
     }
 
-    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Nak> {
+    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused> {
         let _ = self.recorder.write(offset, data);
         self.sink.write(offset, data)
     }
 
-    fn finish(&mut self, complete: bool) -> Result<(), Nak> {
+    fn finish(&mut self, complete: bool) -> Result<(), Refused> {
         let _ = self.recorder.finish(complete);
         self.sink.finish(complete)
     }
