@@ -27,8 +27,8 @@ use mavlink_core::MessageData;
 
 use crate::framing::{Event, Frame, FrameParser};
 use crate::shared::{
-    Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateCommand,
-    UpdateRequest,
+    Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction,
+    UpdateCommand, UpdateRequest,
 };
 use crate::signing::{Refusal, SigningKey, SigningState};
 use crate::thrusters::ThrusterTable;
@@ -347,9 +347,12 @@ fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Received, mavlink
         }));
     }
     Ok(match inbound::decode(frame, config)? {
-        Some(Command::ApplyUpdate { target }) if crate::update::ENABLED => Received::Update(UpdateRequest {
+        Some(Command::Update { action, target }) if crate::update::ENABLED => Received::Update(UpdateRequest {
             from,
-            what: UpdateCommand::Apply(target),
+            what: match action {
+                UpdateAction::Apply => UpdateCommand::Apply(target),
+                UpdateAction::QueryVersion => UpdateCommand::QueryVersion(target),
+            },
         }),
         Some(command) => Received::Request(Request { from, command }),
         None => Received::Nothing,

@@ -39,7 +39,7 @@ use tmc_proto::ext::{
     SIGNATURE_LEN,
 };
 
-use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, text};
+use crate::shared::{AckResult, Outgoing, Sender, Severity, UpdateAction, text};
 
 /// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
 const PAGE: usize = ext::PAGE_LEN as usize;
@@ -130,6 +130,33 @@ struct Transfer {
     applier: Option<Sender>,
     /// Since when `Begin` has been refused because the running image is on trial.
     settling_since: Option<Instant>,
+    /// Only a version query: `Version` asked, its answer told, nothing sent.
+    query: bool,
+}
+
+impl Transfer {
+    /// A transfer of a `payload_len` image to `slot` (`kind` its target byte), at its first step.
+    fn new(slot: u8, kind: u8, payload_len: u32, version: [u8; 4], signature: [u8; SIGNATURE_LEN]) -> Self {
+        Self {
+            slot,
+            kind,
+            payload_len,
+            version,
+            signature,
+            step: Step::Hello,
+            received: 0,
+            crc: Crc32::new(),
+            complete: false,
+            page_offset: 0,
+            skipped: 0,
+            seq: 0,
+            silent_since: None,
+            restarts: 0,
+            applier: None,
+            settling_since: None,
+            query: false,
+        }
+    }
 }
 
 /// What a bus task sends next, to whom.
@@ -270,23 +297,21 @@ impl Courier {
         }
         let [.., v0, v1, v2, v3] = *header.first_chunk::<16>().ok_or(NotTaken)?;
         let signature = *header.last_chunk::<SIGNATURE_LEN>().ok_or(NotTaken)?;
+        self.transfer = Some(Transfer::new(slot, kind, payload_len, [v0, v1, v2, v3], signature));
+        self.fill = 0;
+        Ok(())
+    }
+
+    /// Ask thruster `slot` which image it runs, for `from`: the answer goes out as a text (`runs 0.2.0`) and the
+    /// final COMMAND_ACK of MAV_CMD_LBV_QUERY_VERSION. Not while a transfer is under way.
+    pub fn query(&mut self, slot: u8, from: Sender) -> Result<(), NotTaken> {
+        if self.transfer.is_some() {
+            return Err(NotTaken);
+        }
         self.transfer = Some(Transfer {
-            slot,
-            kind,
-            payload_len,
-            version: [v0, v1, v2, v3],
-            signature,
-            step: Step::Hello,
-            received: 0,
-            crc: Crc32::new(),
-            complete: false,
-            page_offset: 0,
-            skipped: 0,
-            seq: 0,
-            silent_since: None,
-            restarts: 0,
-            applier: None,
-            settling_since: None,
+            applier: Some(from),
+            query: true,
+            ..Transfer::new(slot, 0, 0, [0; 4], [0; SIGNATURE_LEN])
         });
         self.fill = 0;
         Ok(())
@@ -520,6 +545,28 @@ impl Courier {
         };
         let page_len = page.map_or(0, |(len, _)| len);
         transfer.step = match (transfer.step, body) {
+            (
+                Step::Hello,
+                ReplyBody::Version {
+                    info,
+                    on_trial,
+                    checks_signatures,
+                    ..
+                },
+            ) if transfer.query => {
+                let trial = if on_trial { ", on trial" } else { "" };
+                let updates = if checks_signatures { "" } else { ", no updates" };
+                let running = Ver(version_in(&info));
+                say(
+                    out,
+                    Severity::Info,
+                    slot,
+                    format_args!("runs {running}{trial}{updates}"),
+                );
+                self.acknowledge(AckResult::Accepted, out);
+                self.transfer = None;
+                return;
+            }
             (Step::Hello, ReplyBody::Version { checks_signatures, .. }) => {
                 if !checks_signatures {
                     return self.end(Ending::Refused(Refusal::NoSignatureCheck), out);
@@ -577,10 +624,7 @@ impl Courier {
             // Back from starting the update it held: now this one.
             (Step::Restart(_), ReplyBody::Version { .. }) if transfer.applier.is_none() => Step::Begin,
             (Step::Restart(_) | Step::Trial { .. }, ReplyBody::Version { info, on_trial, .. }) => {
-                let running = info
-                    .get(8..12)
-                    .and_then(|v| <[u8; 4]>::try_from(v).ok())
-                    .unwrap_or_default();
+                let running = version_in(&info);
                 match transfer.step {
                     _ if running != transfer.version => {
                         let ending = match transfer.step {
@@ -642,16 +686,30 @@ impl Courier {
         self.fill = 0;
     }
 
-    /// The apply command's final COMMAND_ACK, if it was applied.
+    /// The apply (or version) command's final COMMAND_ACK, if there was one.
     fn acknowledge(&self, result: AckResult, out: &mut impl FnMut(Outgoing)) {
-        if let Some(to) = self.transfer.and_then(|t| t.applier) {
+        if let Some(transfer) = self.transfer
+            && let Some(to) = transfer.applier
+        {
+            let action = if transfer.query {
+                UpdateAction::QueryVersion
+            } else {
+                UpdateAction::Apply
+            };
             out(Outgoing::CommandAck {
-                command: MAV_CMD_LBV_APPLY_UPDATE,
+                command: action.command(),
                 result,
                 to,
             });
         }
     }
+}
+
+/// The version an image info record holds (major, minor, patch u16 LE, at its bytes 8..12).
+fn version_in(info: &[u8]) -> [u8; 4] {
+    info.get(8..12)
+        .and_then(|v| <[u8; 4]>::try_from(v).ok())
+        .unwrap_or_default()
 }
 
 /// A version as the image info holds it (major, minor, patch u16 LE), for a person: "0.2.0".

@@ -75,6 +75,8 @@ pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
 /// commands left to the vendor. MAVLink has no command that applies a file received over FTP; MAV_CMD_DO_UPGRADE
 /// (247, work in progress) names the component to upgrade by MAVLink component id, not a thruster slot.
 pub const MAV_CMD_LBV_APPLY_UPDATE: u16 = 31010;
+/// Ask a thruster which image it runs, over the field update's extension ([`crate::courier`]): MAV_CMD_USER_2.
+pub const MAV_CMD_LBV_QUERY_VERSION: u16 = 31011;
 
 /// FILE_TRANSFER_PROTOCOL's payload: MAVLink FTP's header and data ([`crate::update::ftp`]).
 pub const FTP_PAYLOAD: usize = 251;
@@ -100,6 +102,8 @@ pub enum UpdateCommand {
     /// MAV_CMD_LBV_APPLY_UPDATE with param1 the target: a thruster slot from 0, 255 the master; `None` when param1
     /// is not a whole number 0..=255.
     Apply(Option<u8>),
+    /// MAV_CMD_LBV_QUERY_VERSION with param1 the target, as [`UpdateCommand::Apply`].
+    QueryVersion(Option<u8>),
 }
 
 /// The start of an FTP reply's payload: its 12-byte header and up to [`FTP_REPLY_DATA`] bytes of data (the rest
@@ -122,6 +126,26 @@ pub struct UpdateCounters {
     pub duplicates: u32,
     /// Writes, removals and apply commands refused because they came from another system than the operator's.
     pub refused: u32,
+}
+
+/// What an update command asks of its target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum UpdateAction {
+    /// MAV_CMD_LBV_APPLY_UPDATE: apply the image received for it.
+    Apply,
+    /// MAV_CMD_LBV_QUERY_VERSION: say which image it runs.
+    QueryVersion,
+}
+
+impl UpdateAction {
+    /// Its MAV_CMD, which its COMMAND_ACKs answer.
+    pub const fn command(self) -> u16 {
+        match self {
+            UpdateAction::Apply => MAV_CMD_LBV_APPLY_UPDATE,
+            UpdateAction::QueryVersion => MAV_CMD_LBV_QUERY_VERSION,
+        }
+    }
 }
 
 /// What the console asked for, decoded from MAVLink by the console task.
@@ -168,10 +192,12 @@ pub enum Command {
         /// The interval, `None` when the value asked is not one (NaN, below -1).
         interval: Option<Interval>,
     },
-    /// MAV_CMD_LBV_APPLY_UPDATE (31010): taken by the update server (an image without one, the acceptance image,
-    /// answers MAV_RESULT_UNSUPPORTED). The target: a thruster slot from 0, 255 the master; `None` when param1 is
-    /// not a whole number 0..=255.
-    ApplyUpdate {
+    /// MAV_CMD_LBV_APPLY_UPDATE (31010) or MAV_CMD_LBV_QUERY_VERSION (31011): taken by the update server (an
+    /// image without one, the acceptance image, answers MAV_RESULT_UNSUPPORTED). The target: a thruster slot from
+    /// 0, 255 the master; `None` when param1 is not a whole number 0..=255.
+    Update {
+        /// Which of the two.
+        action: UpdateAction,
         /// param1.
         target: Option<u8>,
     },

@@ -52,8 +52,8 @@ use tmc_proto::Family;
 use crate::courier::Transfers;
 use crate::own::OwnImage;
 use crate::shared::{
-    AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAV_CMD_LBV_APPLY_UPDATE, MAX_THRUSTERS, Outgoing, Sender,
-    Severity, Shared, UpdateCommand, UpdateCounters, UpdateRequest, text,
+    AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction,
+    UpdateCommand, UpdateCounters, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
 use ftp::{ACK, Nak, Opcode, Request};
@@ -203,6 +203,12 @@ pub trait UpdateSink {
     fn finish(&mut self, complete: bool) -> Result<(), Refused>;
     /// Apply the image received whole for `target`, as `from` asks.
     fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak>;
+    /// Ask thruster `slot` which image it runs, for `from`, who gets the answer (a text and the final
+    /// COMMAND_ACK). A sink that reaches no thruster refuses.
+    fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
+        let _ = (slot, from);
+        Err(Refused::Because("no thruster bus here"))
+    }
 }
 
 /// Why a sink did not take an upload's call: the upload stops.
@@ -330,6 +336,12 @@ impl UpdateSink for VehicleSink<'_> {
                 Err(_) => Err(Nak::Fail),
             },
         }
+    }
+
+    fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
+        self.transfers
+            .with(|courier| courier.query(slot, from))
+            .map_err(|_| Refused::Because("wait: an update is under way"))
     }
 }
 
@@ -830,21 +842,62 @@ impl UpdateServer {
                 Err(_) => (AckResult::Failed, Some("not on the target: send it again")),
             },
         };
-        out(Outgoing::CommandAck {
-            command: MAV_CMD_LBV_APPLY_UPDATE,
-            result,
-            to: from,
-        });
-        let severity = if matches!(result, AckResult::Accepted | AckResult::InProgress) {
-            Severity::Info
-        } else {
-            Severity::Warning
+        answer(out, UpdateAction::Apply, from, target, result, text);
+    }
+
+    /// MAV_CMD_LBV_QUERY_VERSION for `slot`, from `from`: which image thruster `slot` runs, asked over its bus
+    /// whatever the vehicle does (the thruster answers `Version` even while it drives). The operator's only, as it
+    /// holds the courier for the exchange. IN_PROGRESS, then the courier's text (`runs 0.2.0`) and ACCEPTED, or
+    /// FAILED with why; the master's own version is AUTOPILOT_VERSION's.
+    pub fn query_version(
+        &mut self,
+        context: Context,
+        from: Sender,
+        slot: Option<u8>,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) {
+        let target = slot.and_then(|slot| self.targets().find(|t| *t == UpdateTarget::Thruster(slot)));
+        let (result, text) = match (target, slot) {
+            _ if from.system != context.operator => {
+                self.counters.refused = self.counters.refused.wrapping_add(1);
+                (AckResult::Denied, None)
+            }
+            (_, Some(MASTER_SLOT)) => (AckResult::Denied, Some("the master's is in AUTOPILOT_VERSION")),
+            (Some(UpdateTarget::Thruster(slot)), _) => match sink.query_version(slot, from) {
+                Ok(()) => (AckResult::InProgress, None),
+                Err(refused) => (AckResult::TemporarilyRejected, Some(refused.why())),
+            },
+            _ => (AckResult::Denied, Some("no such target")),
         };
-        match (target, text) {
-            (Some(target), Some(text)) => note(out, severity, target, text),
-            (None, Some(text)) => say(out, severity, format_args!("update: {text}")),
-            (_, None) => {}
-        }
+        answer(out, UpdateAction::QueryVersion, from, target, result, text);
+    }
+}
+
+/// An update command's COMMAND_ACK, and its text if it has one (about `target`, or the command when it names
+/// none).
+fn answer(
+    out: &mut impl FnMut(Outgoing),
+    action: UpdateAction,
+    to: Sender,
+    target: Option<UpdateTarget>,
+    result: AckResult,
+    text: Option<&str>,
+) {
+    out(Outgoing::CommandAck {
+        command: action.command(),
+        result,
+        to,
+    });
+    let severity = if matches!(result, AckResult::Accepted | AckResult::InProgress) {
+        Severity::Info
+    } else {
+        Severity::Warning
+    };
+    match (target, text) {
+        (Some(target), Some(text)) => note(out, severity, target, text),
+        (None, Some(text)) => say(out, severity, format_args!("update: {text}")),
+        (_, None) => {}
     }
 }
 
@@ -968,6 +1021,10 @@ impl<S: UpdateSink> Updates<S> {
             }
             UpdateCommand::Apply(slot) => {
                 self.server.apply(context, from, slot, &mut self.sink, &mut out);
+                None
+            }
+            UpdateCommand::QueryVersion(slot) => {
+                self.server.query_version(context, from, slot, &mut self.sink, &mut out);
                 None
             }
         }

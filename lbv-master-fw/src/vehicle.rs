@@ -64,9 +64,8 @@ use tmc_proto::{Order, Speed};
 use crate::mixer::{FrameKind, ManualInput, mix, round_div};
 use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
-    AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_LBV_APPLY_UPDATE,
-    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender,
-    Severity, Shared, VehicleState, text,
+    AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
+    MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender, Severity, Shared, VehicleState, text,
 };
 use crate::signing::SigningKey;
 
@@ -269,7 +268,7 @@ impl Vehicle {
             }
             Command::Unsupported { command } => ack(out, command, AckResult::Unsupported, from),
             // Only an image without the update server sends it here (the console hands it to the update task).
-            Command::ApplyUpdate { .. } => ack(out, MAV_CMD_LBV_APPLY_UPDATE, AckResult::Unsupported, from),
+            Command::Update { action, .. } => ack(out, action.command(), AckResult::Unsupported, from),
             Command::ParamSet { id, value, param_type } => match Param::from_id(&id) {
                 Some(param) if !param.takes_type(param_type) => {
                     self.param_type_mismatches = self.param_type_mismatches.wrapping_add(1);
@@ -553,7 +552,7 @@ fn command_long(command: &Command) -> Option<u16> {
         Command::Reboot => Some(MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN),
         Command::Unsupported { command } | Command::RequestMessage { command, .. } => Some(*command),
         Command::MessageInterval { .. } => Some(MAV_CMD_SET_MESSAGE_INTERVAL),
-        Command::ApplyUpdate { .. } => Some(MAV_CMD_LBV_APPLY_UPDATE),
+        Command::Update { action, .. } => Some(action.command()),
         Command::Heartbeat
         | Command::Manual(_)
         | Command::ParamRequestList

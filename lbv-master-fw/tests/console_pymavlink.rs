@@ -87,7 +87,14 @@ fn pymavlink_is_installed() {
 }
 
 /// The frames for the update server ([`ftp_frames_and_the_apply_command_go_to_the_update_server`]).
-const UPDATE_FRAMES: [&str; 5] = ["ftp_list", "ftp_write", "ftp_other_system", "ftp_v1", "apply_update"];
+const UPDATE_FRAMES: [&str; 6] = [
+    "ftp_list",
+    "ftp_write",
+    "ftp_other_system",
+    "ftp_v1",
+    "apply_update",
+    "query_version",
+];
 
 /// A MAVLink FTP payload as pymavlink's MAVFTP packs it.
 fn ftp_payload(seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> [u8; 251] {
@@ -122,6 +129,7 @@ fn ftp_frames_and_the_apply_command_go_to_the_update_server() {
         ("ftp_other_system", None),
         ("ftp_v1", Some(UpdateCommand::Ftp(ftp_payload(10, 3, 3, 0, b"/")))),
         ("apply_update", Some(UpdateCommand::Apply(Some(2)))),
+        ("query_version", Some(UpdateCommand::QueryVersion(Some(4)))),
     ];
     assert_eq!(expected.map(|(name, _)| name), UPDATE_FRAMES);
     for (name, what) in expected {
@@ -164,7 +172,7 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             }),
         ),
         ("motor_test_pwm", Some(Command::Unsupported { command: 209 })),
-        ("unknown_command", Some(Command::Unsupported { command: 31011 })),
+        ("unknown_command", Some(Command::Unsupported { command: 31012 })),
         ("arm_other_system", None),
         ("param_list", Some(Command::ParamRequestList)),
         (

@@ -106,8 +106,8 @@ fn inputs() -> Vec<(Vec<u8>, Option<Command>)> {
             Some(Command::Unsupported { command: 209 }),
         ),
         (
-            v2(s, c, 6, &command((1, 1), 31011, [0.0; 4])),
-            Some(Command::Unsupported { command: 31011 }),
+            v2(s, c, 6, &command((1, 1), 31012, [0.0; 4])),
+            Some(Command::Unsupported { command: 31012 }),
         ),
         (
             v2(

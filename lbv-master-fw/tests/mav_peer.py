@@ -59,7 +59,7 @@ def emit():
         "disarm": g.command_long_encode(1, 0, 400, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
         "motor_test": g.command_long_encode(1, 1, 209, 0, 3, 0, -40, 4.5, 0, 0, 0).pack(g),
         "motor_test_pwm": g.command_long_encode(1, 1, 209, 0, 3, 1, 1600, 2, 0, 0, 0).pack(g),
-        "unknown_command": g.command_long_encode(1, 1, 31011, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
+        "unknown_command": g.command_long_encode(1, 1, 31012, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
         "arm_other_system": g.command_long_encode(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
         "param_list": g.param_request_list_encode(1, 1).pack(g),
         "param_read_name": g.param_request_read_encode(1, 1, b"THR_MAX", -1).pack(g),
@@ -81,6 +81,7 @@ def emit():
         "ftp_other_system": g.file_transfer_protocol_encode(0, 2, 1, ftp(9, 3, 3, 0, b"/update")).pack(g),
         "ftp_v1": g1.file_transfer_protocol_encode(0, 1, 1, ftp(10, 3, 3, 0, b"/")).pack(g1),
         "apply_update": g.command_long_encode(1, 1, 31010, 0, 2, 0, 0, 0, 0, 0, 0).pack(g),
+        "query_version": g.command_long_encode(1, 1, 31011, 0, 4, 0, 0, 0, 0, 0, 0).pack(g),
         # Not in the console's dialect.
         "system_time": g.system_time_encode(1234567, 890).pack(g),
     }

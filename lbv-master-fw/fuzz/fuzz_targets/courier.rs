@@ -1,8 +1,8 @@
 //! The courier that carries an update image to a thruster: any update file headers, any image bytes handed on in
-//! any sizes and at any offsets, finished or dropped, applied or not, and for every exchange it asks for any reply
-//! bytes a thruster (or the bus's noise) gives, decoded as the bus task decodes them, or a failed transfer, as
-//! time passes. Nothing panics; the sink always gets room again once the bus task has had its exchanges; an
-//! exchange is only ever asked for the slot begun with.
+//! any sizes and at any offsets, finished or dropped, applied or not, version queries, and for every exchange it
+//! asks for any reply bytes a thruster (or the bus's noise) gives, decoded as the bus task decodes them, or a
+//! failed transfer, as time passes. Nothing panics; the sink always gets room again once the bus task has had its exchanges; an
+//! exchange is only ever asked for the slot begun with or queried.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -20,6 +20,7 @@ enum Step {
     Write { offset: u32, data: Vec<u8> },
     Finish(bool),
     Apply(u8),
+    Query(u8),
     /// The bus task's turn: the reply's bytes (or none: the transfer failed).
     Exchange { reply: Option<Vec<u8>>, busy: bool },
     Wait(u16),
@@ -49,6 +50,11 @@ fuzz_target!(|steps: Vec<Step>| {
             }
             Step::Apply(slot) => {
                 let _ = courier.apply(slot, Sender { system: 255, component: 190 });
+            }
+            Step::Query(slot) => {
+                if courier.query(slot, Sender { system: 255, component: 190 }).is_ok() {
+                    slot_begun = Some(slot);
+                }
             }
             Step::Exchange { reply, busy } => {
                 let Some(exchange) = courier.next(now, |_| true) else { continue };

@@ -16,8 +16,8 @@ use crate::framing::{Frame, Version};
 use crate::mixer::ManualInput;
 use crate::shared::{
     Command, FtpPayload, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_LBV_APPLY_UPDATE,
-    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, MAV_CMD_REQUEST_MESSAGE,
-    MAV_CMD_SET_MESSAGE_INTERVAL, Message,
+    MAV_CMD_LBV_QUERY_VERSION, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+    MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, Message, UpdateAction,
 };
 
 /// Shortest message interval taken, ms: every paced message at 10 Hz together takes some 5 kB/s, under half of
@@ -80,8 +80,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 ///   [`Command::Unsupported`] for the other throttle types; 246 with param1 exactly 1 (reboot the autopilot)
 ///   gives [`Command::Reboot`], other actions (shutdown, bootloader, none) [`Command::Unsupported`]; any other
 ///   command gives [`Command::Unsupported`]. The vehicle task answers every one with a COMMAND_ACK.
-///   31010 (MAV_CMD_LBV_APPLY_UPDATE) gives [`Command::ApplyUpdate`] of the target param1 names (a whole number
-///   0..=255, else `None`).
+///   31010 (MAV_CMD_LBV_APPLY_UPDATE) and 31011 (MAV_CMD_LBV_QUERY_VERSION) give [`Command::Update`] of the
+///   target param1 names (a whole number 0..=255, else `None`).
 /// - SETUP_SIGNING to our system and component (or 0): [`Command::SetupSigning`].
 /// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
 ///   command; PARAM_SET carries its param_type, which the vehicle checks against the parameter's.
@@ -231,7 +231,12 @@ fn command(command: u16, [param1, param2, param3, param4]: [f32; 4], config: &Co
             interval: interval(param2),
         },
         MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN if param1 == REBOOT_AUTOPILOT => Command::Reboot,
-        MAV_CMD_LBV_APPLY_UPDATE => Command::ApplyUpdate {
+        MAV_CMD_LBV_APPLY_UPDATE | MAV_CMD_LBV_QUERY_VERSION => Command::Update {
+            action: if command == MAV_CMD_LBV_APPLY_UPDATE {
+                UpdateAction::Apply
+            } else {
+                UpdateAction::QueryVersion
+            },
             // Only a whole number names a target (the cast saturates and reads NaN as 0).
             target: Some(param1 as u8).filter(|target| f32::from(*target) == param1),
         },
@@ -389,8 +394,8 @@ mod tests {
             );
         }
         assert_eq!(
-            decode_long(&long(31011, [0.0; 4])),
-            Some(Command::Unsupported { command: 31011 })
+            decode_long(&long(31012, [0.0; 4])),
+            Some(Command::Unsupported { command: 31012 })
         );
     }
 

@@ -2,6 +2,7 @@
 //! `field-update` scenario.
 
 use super::*;
+use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use tmc_proto::ext::CommandKind;
 
 const GCS: Sender = Sender {
@@ -544,4 +545,64 @@ fn a_finished_update_left_by_a_master_reset_is_started_and_the_new_upload_goes_o
         ]
     );
     assert_eq!(&dfu[..64], image.as_slice());
+}
+
+/// The COMMAND_ACKs in `said`: command, result.
+fn acks(said: &[Outgoing]) -> Vec<(u16, AckResult)> {
+    said.iter()
+        .filter_map(|o| match o {
+            Outgoing::CommandAck { command, result, .. } => Some((*command, *result)),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn a_version_query_asks_version_tells_what_runs_and_sends_nothing_else() {
+    const QUERY: u16 = MAV_CMD_LBV_QUERY_VERSION;
+    let mut courier = Courier::new();
+    courier.query(3, GCS).unwrap();
+    // One at a time, and no image begins meanwhile.
+    assert_eq!(courier.query(2, GCS), Err(NotTaken));
+    assert_eq!(courier.begin(0, 1, 64, &header(64)), Err(NotTaken));
+    assert!(courier.next(t(0), |slot| slot != 3).is_none(), "another bus's task");
+    let ask = courier.next(t(0), |_| true).unwrap();
+    assert_eq!((ask.slot, ask.frame.command), (3, Command::Version));
+    let mut said = Vec::new();
+    let mut on_trial = version(true, [0, 4, 2, 0]);
+    if let ReplyBody::Version { on_trial: trial, .. } = &mut on_trial {
+        *trial = true;
+    }
+    courier.on_result(t(5), &ask, done(&ask, on_trial), &mut |o| said.push(o));
+    assert_eq!(texts(&said), ["thruster3.lbvu: runs 0.4.2, on trial"]);
+    assert_eq!(acks(&said), [(QUERY, AckResult::Accepted)]);
+    assert!(courier.transfer.is_none() && courier.next(t(20), |_| true).is_none());
+
+    // A thruster that cannot check signatures says so; an IDS-only one, and a silent one, fail the query.
+    courier.query(0, GCS).unwrap();
+    let ask = courier.next(t(0), |_| true).unwrap();
+    let mut said = Vec::new();
+    courier.on_result(t(0), &ask, done(&ask, version(false, [1, 0, 0, 0])), &mut |o| {
+        said.push(o)
+    });
+    assert_eq!(texts(&said), ["thruster0.lbvu: runs 1.0.0, no updates"]);
+    courier.query(0, GCS).unwrap();
+    let ask = courier.next(t(0), |_| true).unwrap();
+    let status_frame = Err(ExchangeError::Frame(FrameError::MessageType {
+        expected: ext::EXT_REPLY_MT,
+        actual: 0x53,
+    }));
+    let mut said = Vec::new();
+    courier.on_result(t(0), &ask, status_frame, &mut |o| said.push(o));
+    assert_eq!(texts(&said), ["thruster0.lbvu: the thruster does not take updates"]);
+    assert_eq!(acks(&said), [(QUERY, AckResult::Failed)]);
+    courier.query(0, GCS).unwrap();
+    let mut said = Vec::new();
+    for ms in [0, 1000, 2000, 3000] {
+        let ask = courier.next(t(ms), |_| true).unwrap();
+        courier.on_result(t(ms), &ask, Err(ExchangeError::Bus), &mut |o| said.push(o));
+    }
+    assert_eq!(texts(&said), ["thruster0.lbvu: the thruster stopped answering"]);
+    assert_eq!(acks(&said), [(QUERY, AckResult::Failed)]);
+    assert!(courier.transfer.is_none());
 }

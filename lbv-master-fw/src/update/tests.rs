@@ -1,5 +1,6 @@
 use super::*;
 use crate::config::{VEHICLE, devkit, lbv300_6};
+use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use crate::sim::{ReceivedImage, UpdateRecorder};
 use ftp::{DATA_LEN, NAK};
 use proptest::prelude::*;
@@ -1024,4 +1025,82 @@ proptest! {
             prop_assert!(image.bytes.len() <= HEADER_LEN + THRUSTER_MAX_PAYLOAD as usize);
         }
     }
+}
+
+#[test]
+fn a_version_query_goes_to_the_sink_for_the_operator_and_a_thruster_slot_only() {
+    /// Takes a query for slot 1 only, as the courier takes one when no update is under way.
+    struct Asked(Vec<u8>);
+    impl UpdateSink for Asked {
+        fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
+            Ok(())
+        }
+        fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
+            Ok(())
+        }
+        fn finish(&mut self, _: bool) -> Result<(), Refused> {
+            Ok(())
+        }
+        fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
+            Err(Nak::Fail)
+        }
+        fn query_version(&mut self, slot: u8, _: Sender) -> Result<(), Refused> {
+            self.0.push(slot);
+            if slot == 1 {
+                Ok(())
+            } else {
+                Err(Refused::Because("wait: an update is under way"))
+            }
+        }
+    }
+    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut sink = Asked(Vec::new());
+    let mut ask = |context, from, slot| {
+        let mut said = Vec::new();
+        server.query_version(context, from, slot, &mut sink, &mut |o| said.push(o));
+        let ack = said.iter().find_map(|o| match o {
+            Outgoing::CommandAck { command, result, .. } => Some((*command, *result)),
+            _ => None,
+        });
+        (
+            ack.map(|(_, result)| result),
+            ack.map(|(command, _)| command),
+            text_of(&said),
+        )
+    };
+    let query = Some(MAV_CMD_LBV_QUERY_VERSION);
+    // Armed or not: the thruster answers `Version` whatever it does.
+    assert_eq!(ask(ARMED, GCS, Some(1)), (Some(AckResult::InProgress), query, vec![]));
+    assert_eq!(
+        ask(DISARMED, GCS, Some(2)),
+        (
+            Some(AckResult::TemporarilyRejected),
+            query,
+            vec!["thruster2.lbvu: wait: an update is under way".to_owned()]
+        )
+    );
+    assert_eq!(ask(DISARMED, OTHER, Some(1)), (Some(AckResult::Denied), query, vec![]));
+    assert_eq!(
+        ask(DISARMED, GCS, Some(MASTER_SLOT)),
+        (
+            Some(AckResult::Denied),
+            query,
+            vec!["update: the master's is in AUTOPILOT_VERSION".to_owned()]
+        )
+    );
+    for nowhere in [Some(200), None] {
+        assert_eq!(
+            ask(DISARMED, GCS, nowhere),
+            (
+                Some(AckResult::Denied),
+                query,
+                vec!["update: no such target".to_owned()]
+            )
+        );
+    }
+    assert_eq!(
+        sink.0,
+        [1, 2],
+        "only the operator's queries of thruster slots reach the sink"
+    );
 }

@@ -5,7 +5,7 @@
 
 use embassy_boot::State;
 use embassy_time::Instant;
-use lbv_master_fw::shared::MAV_CMD_LBV_APPLY_UPDATE;
+use lbv_master_fw::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use lbv_master_fw::update::TAKEOVER_IDLE;
 use lbv_station::{Upload, UploadState};
 use serde_json::json;
@@ -258,6 +258,16 @@ pub fn field_update(run: &mut Run) {
     // (checked, swapped in, confirmed).
     run.metric("update_put_s", json!(put_times));
     run.metric("update_apply_s", json!(apply_times));
+
+    // What a thruster runs, asked over its bus.
+    let start = run.bench.now();
+    let (acks, took) = query_version(run, 1, 5.0);
+    let texts = texts_since(run, start, "thruster1.lbvu");
+    run.check(
+        "the ground station asks T2 which image it runs",
+        acks == [IN_PROGRESS, ACCEPTED] && texts == ["thruster1.lbvu: runs 0.2.0"],
+        format!("acks {acks:?} in {took} s, texts {texts:?}"),
+    );
 
     // Signed with another key: written, then refused by the thruster's signature check.
     let start = run.bench.now();
@@ -682,6 +692,30 @@ pub fn master_update(run: &mut Run) {
         super::console::holds(&read, &expected),
         format!("{read:?}"),
     );
+}
+
+/// Ask thruster `slot` which image it runs and wait up to `limit` s for the final COMMAND_ACK; the results of the
+/// acknowledgements, and the seconds to the last.
+fn query_version(run: &mut Run, slot: u8, limit: f64) -> (Vec<u8>, f64) {
+    let start = run.bench.now();
+    let acks_before = run.bench.ground.seen.acks.len();
+    let command = run.bench.ground.command(
+        MAV_CMD_LBV_QUERY_VERSION,
+        [f32::from(slot), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    );
+    run.bench.send(command);
+    let results = move |bench: &crate::bench::Bench| -> Vec<u8> {
+        bench.ground.seen.acks[acks_before..]
+            .iter()
+            .filter(|(command, _)| *command == MAV_CMD_LBV_QUERY_VERSION)
+            .map(|(_, result)| *result)
+            .collect()
+    };
+    run.run_until(limit, |bench| results(bench).last().is_some_and(|r| *r != IN_PROGRESS));
+    (
+        results(&run.bench),
+        round((run.bench.now() - start).as_micros() as f64 / 1e6, 2),
+    )
 }
 
 /// Send the apply command for `slot` (255: the master) and run until its final COMMAND_ACK or `limit` s; should

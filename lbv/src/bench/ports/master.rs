@@ -184,4 +184,8 @@ impl<S: UpdateSink> UpdateSink for Recorded<S> {
         let _ = self.recorder.apply(target, from);
         self.sink.apply(target, from)
     }
+
+    fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
+        self.sink.query_version(slot, from)
+    }
 }
