@@ -20,6 +20,7 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
     listed    `ftp list /update`: thruster2.lbvu 4176 bytes
     apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED once the thruster runs the image and
               has confirmed it, and the texts on the way
+    version   `long MAV_CMD_USER_2 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED, and "thruster2.lbvu: runs 0.2.0"
     remove    `ftp rm /update/thruster2.lbvu`: "thruster2.lbvu: removed"; `long MAV_CMD_USER_1 2`: DENIED
 
 Prints a JSON summary;
@@ -38,6 +39,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from mavproxy_pilot import Failed, MavProxy, Observer  # noqa: E402 (pymavlink checked there)
 
 APPLY_UPDATE = 31010
+QUERY_VERSION = 31011
 IN_PROGRESS = 5
 
 
@@ -69,12 +71,12 @@ class Session:
     def lines(self, since, pattern):
         return [m for t, line in self.mavproxy.log if t >= since for m in [re.search(pattern, line)] if m]
 
-    def acks(self, since):
-        return [m.result for _, m in self.observer.since(since, "COMMAND_ACK") if m.command == APPLY_UPDATE]
+    def acks(self, since, command=APPLY_UPDATE):
+        return [m.result for _, m in self.observer.since(since, "COMMAND_ACK") if m.command == command]
 
-    def ack(self, since):
-        """The apply command's final COMMAND_ACK result, None before it."""
-        acks = self.acks(since)
+    def ack(self, since, command=APPLY_UPDATE):
+        """The command's final COMMAND_ACK result, None before it."""
+        acks = self.acks(since, command)
         return acks[-1] if acks and acks[-1] != IN_PROGRESS else None
 
     def listing(self):
@@ -143,6 +145,13 @@ class Session:
         self.wait(lambda: len(self.observer.texts(since)) >= 4, 2.0, "the apply command's STATUSTEXTs")
         self.summary["apply"] = {"results": self.acks(since), "texts": self.observer.texts(since)}
 
+    def version(self):
+        since = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_2 2")
+        self.wait(lambda: self.ack(since, QUERY_VERSION) is not None, 5.0, "the version query's final COMMAND_ACK")
+        self.wait(lambda: self.observer.texts(since), 2.0, "the version query's STATUSTEXT")
+        self.summary["version"] = {"results": self.acks(since, QUERY_VERSION), "texts": self.observer.texts(since)}
+
     def remove(self):
         since = time.monotonic()
         self.mavproxy.type("ftp rm /update/thruster2.lbvu")
@@ -152,7 +161,7 @@ class Session:
         self.wait(lambda: self.ack(again) is not None, 5.0, "the second apply's COMMAND_ACK")
         self.summary["remove"] = {"apply": self.ack(again), "texts": self.observer.texts(since)}
 
-    STEPS = ["connect", "list", "lossy", "crc", "listed", "apply", "remove"]
+    STEPS = ["connect", "list", "lossy", "crc", "listed", "apply", "version", "remove"]
 
     def run(self):
         for step in self.STEPS:

@@ -1,10 +1,11 @@
 //! Field update with MAVProxy, a real ground station, over a lossy link (`tests/mavproxy_ftp.py`): `ftp list`,
 //! `ftp put` of a SeaBotix update file signed with the development key to /update/thruster2.lbvu (which the master
-//! writes on into the thruster) with MAVProxy's own link simulator losing a
-//! fifth of its requests and of the vehicle's replies (so that blocks are sent again, both those the vehicle
-//! never got and those whose ACK was lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply (the
-//! thruster checks the signature, its bootloader swaps the image in, it runs it), `ftp rm`. The bench writes what its master's update sink received (`--update-dir`), which must be the file,
-//! byte for byte. Runs in real time (about 10 s).
+//! writes on into the thruster) with MAVProxy's own link simulator losing a fifth of its requests and of the
+//! vehicle's replies (so that blocks are sent again, both those the vehicle never got and those whose ACK was
+//! lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply (the thruster checks the signature,
+//! its bootloader swaps the image in, it runs it), `long MAV_CMD_USER_2 2` to ask what it runs, `ftp rm`. The
+//! bench writes what its master's update sink received (`--update-dir`), which must be the file, byte for byte.
+//! Runs in real time (about 10 s).
 //!
 //! Needs python3 with MAVProxy and pymavlink (`pip install mavproxy pymavlink`); without them this test fails,
 //! it does not skip.
@@ -43,7 +44,9 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     );
     assert_eq!(
         summary["steps"],
-        serde_json::json!(["connect", "list", "lossy", "crc", "listed", "apply", "remove"]),
+        serde_json::json!([
+            "connect", "list", "lossy", "crc", "listed", "apply", "version", "remove"
+        ]),
         "{summary}"
     );
     let files = |sizes: [u64; 7]| {
@@ -95,6 +98,12 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
             "thruster2.lbvu: runs 0.2.0, on trial",
             "thruster2.lbvu: 0.2.0 confirmed"
         ]),
+        "{summary}"
+    );
+    assert_eq!(summary["version"]["results"], serde_json::json!([5, 0]), "{summary}");
+    assert_eq!(
+        support::file_texts(&summary["version"]["texts"]),
+        serde_json::json!(["thruster2.lbvu: runs 0.2.0"]),
         "{summary}"
     );
     assert_eq!(summary["remove"]["apply"], 2, "DENIED once removed: {summary}");
