@@ -341,6 +341,7 @@ impl UpdateSink for VehicleSink<'_> {
     fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
         self.transfers
             .with(|courier| courier.query(slot, from))
+            // One thing at a time: an image on its way to a thruster, or held there until it is applied.
             .map_err(|_| Refused::Because("wait: an update is under way"))
     }
 }
