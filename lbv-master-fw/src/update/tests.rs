@@ -683,6 +683,40 @@ fn remove_forgets_and_a_refused_upload_keeps_the_image_held() {
     assert_eq!(s.images().last().unwrap().complete, Some(false));
 }
 
+/// A sink that takes every image and keeps nothing: an apply starts for a thruster and fails for the master; a
+/// version query is taken for slot 1 only, as the courier takes one when it carries nothing (each slot asked is
+/// kept).
+#[derive(Default)]
+struct Nowhere {
+    queried: Vec<u8>,
+}
+
+impl UpdateSink for Nowhere {
+    fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
+        Ok(())
+    }
+    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
+        Ok(())
+    }
+    fn finish(&mut self, _: bool) -> Result<(), Refused> {
+        Ok(())
+    }
+    fn apply(&mut self, target: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
+        match target {
+            UpdateTarget::Master => Err(Nak::Fail),
+            UpdateTarget::Thruster(_) => Ok(Applied::Started),
+        }
+    }
+    fn query_version(&mut self, slot: u8, _: Sender) -> Result<(), Refused> {
+        self.queried.push(slot);
+        if slot == 1 {
+            Ok(())
+        } else {
+            Err(Refused::Because("wait: an update is under way"))
+        }
+    }
+}
+
 fn acked(said: &[Outgoing]) -> Option<AckResult> {
     said.iter().find_map(|o| match o {
         Outgoing::CommandAck { command, result, to } => {
@@ -753,24 +787,6 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         Some(AckResult::Denied)
     );
     // The sink may fail it, or say it started.
-    struct Refusing;
-    impl UpdateSink for Refusing {
-        fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
-            Ok(())
-        }
-        fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
-            Ok(())
-        }
-        fn finish(&mut self, _: bool) -> Result<(), Refused> {
-            Ok(())
-        }
-        fn apply(&mut self, target: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
-            match target {
-                UpdateTarget::Master => Err(Nak::Fail),
-                UpdateTarget::Thruster(_) => Ok(Applied::Started),
-            }
-        }
-    }
     let mut server = UpdateServer::new(&VEHICLE.thrusters);
     for (target, path, kind, result, text) in [
         (
@@ -794,25 +810,27 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         let create = payload(1, 1, CREATE, 0, path.as_bytes());
         assert!(
             server
-                .request(t(0), DISARMED, GCS, &create, &mut Refusing, &mut out)
+                .request(t(0), DISARMED, GCS, &create, &mut Nowhere::default(), &mut out)
                 .is_some()
         );
         let write = payload(2, 1, WRITE, 0, &file);
         assert_eq!(
             server
-                .request(t(0), DISARMED, GCS, &write, &mut Refusing, &mut out)
+                .request(t(0), DISARMED, GCS, &write, &mut Nowhere::default(), &mut out)
                 .map(|r| r[3]),
             Some(ACK)
         );
         let terminate = payload(3, 1, TERMINATE, 0, &[]);
         assert!(
             server
-                .request(t(0), DISARMED, GCS, &terminate, &mut Refusing, &mut out)
+                .request(t(0), DISARMED, GCS, &terminate, &mut Nowhere::default(), &mut out)
                 .is_some()
         );
         assert!(server.is_received(target), "{target:?}");
         said.clear();
-        server.apply(DISARMED, GCS, Some(target.slot()), &mut Refusing, &mut |o| said.push(o));
+        server.apply(DISARMED, GCS, Some(target.slot()), &mut Nowhere::default(), &mut |o| {
+            said.push(o)
+        });
         assert_eq!((acked(&said), text_of(&said)), (Some(result), vec![text.to_owned()]));
     }
     // One image is held at a time: the master's replaced the thruster's.
@@ -1029,32 +1047,8 @@ proptest! {
 
 #[test]
 fn a_version_query_goes_to_the_sink_for_the_operator_and_a_thruster_slot_only() {
-    /// Takes a query for slot 1 only, as the courier takes one when no update is under way.
-    struct Asked(Vec<u8>);
-    impl UpdateSink for Asked {
-        fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
-            Ok(())
-        }
-        fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
-            Ok(())
-        }
-        fn finish(&mut self, _: bool) -> Result<(), Refused> {
-            Ok(())
-        }
-        fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
-            Err(Nak::Fail)
-        }
-        fn query_version(&mut self, slot: u8, _: Sender) -> Result<(), Refused> {
-            self.0.push(slot);
-            if slot == 1 {
-                Ok(())
-            } else {
-                Err(Refused::Because("wait: an update is under way"))
-            }
-        }
-    }
     let mut server = UpdateServer::new(&VEHICLE.thrusters);
-    let mut sink = Asked(Vec::new());
+    let mut sink = Nowhere::default();
     let mut ask = |context, from, slot| {
         let mut said = Vec::new();
         server.query_version(context, from, slot, &mut sink, &mut |o| said.push(o));
@@ -1099,7 +1093,7 @@ fn a_version_query_goes_to_the_sink_for_the_operator_and_a_thruster_slot_only() 
         );
     }
     assert_eq!(
-        sink.0,
+        sink.queried,
         [1, 2],
         "only the operator's queries of thruster slots reach the sink"
     );
