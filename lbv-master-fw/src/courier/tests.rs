@@ -606,3 +606,35 @@ fn a_version_query_asks_version_tells_what_runs_and_sends_nothing_else() {
     assert_eq!(acks(&said), [(QUERY, AckResult::Failed)]);
     assert!(courier.transfer.is_none());
 }
+
+#[test]
+fn a_version_query_rides_out_a_noisy_bus_and_stale_replies_short_of_the_silence_limit() {
+    let mut courier = Courier::new();
+    courier.query(1, GCS).unwrap();
+    let mut said = Vec::new();
+    // 2.9 s of a noisy bus: failed transfers, replies that do not decode, busy, and one for another sequence number.
+    let noise = [
+        Err(ExchangeError::Bus),
+        Err(ExchangeError::Frame(FrameError::Crc { expected: 1, actual: 2 })),
+        Err(ExchangeError::Busy),
+    ];
+    for (n, ms) in (0..2900).step_by(20).enumerate() {
+        let ask = courier.next(t(ms), |_| true).unwrap();
+        assert_eq!(ask.frame.command, Command::Version);
+        let result = match n % 4 {
+            3 => Ok(Reply::Done {
+                seq: ask.frame.seq.wrapping_add(1),
+                body: version(true, [9, 9, 9, 0]),
+            }),
+            k => noise[k].clone(),
+        };
+        courier.on_result(t(ms), &ask, result, &mut |o| said.push(o));
+    }
+    assert!(said.is_empty(), "{:?}", texts(&said));
+    let ask = courier.next(t(2900), |_| true).unwrap();
+    courier.on_result(t(2900), &ask, done(&ask, version(true, [0, 2, 0, 0])), &mut |o| {
+        said.push(o)
+    });
+    assert_eq!(texts(&said), ["thruster1.lbvu: runs 0.2.0"]);
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_QUERY_VERSION, AckResult::Accepted)]);
+}
