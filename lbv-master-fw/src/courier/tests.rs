@@ -626,7 +626,7 @@ fn a_version_query_rides_out_a_noisy_bus_and_stale_replies_short_of_the_silence_
                 seq: ask.frame.seq.wrapping_add(1),
                 body: version(true, [9, 9, 9, 0]),
             }),
-            k => noise[k].clone(),
+            k => noise[k],
         };
         courier.on_result(t(ms), &ask, result, &mut |o| said.push(o));
     }
