@@ -1,6 +1,9 @@
-//! The public key the firmware accepts update files signed with (`update_image::UPDATE_KEY`): the file named by
-//! `LBV_UPDATE_KEY`, the development key (keys/dev.pub) by default. A release build for the firmware target refuses
-//! the development key unless `LBV_ALLOW_DEV_KEY=1` asks for it (keys/README.md): its secret is published.
+//! The public key the firmware accepts update files signed with (`update_image::UPDATE_KEY`, feature `key`): the
+//! file named by `LBV_UPDATE_KEY`, the development key (keys/dev.pub) by default. Every build for the firmware
+//! target, whatever its profile, refuses the development key unless `LBV_ALLOW_DEV_KEY=1` asks for it
+//! (keys/README.md): its secret is published, and an image that embeds it passes the key on to every image after
+//! it. A build without the feature (the bootloader's, which checks with the key of the image that runs) embeds no
+//! key and refuses nothing.
 use std::path::PathBuf;
 
 // The key file reader the crate itself uses.
@@ -9,6 +12,9 @@ mod hex;
 use hex::key_from_hex;
 
 fn main() -> Result<(), String> {
+    if std::env::var_os("CARGO_FEATURE_KEY").is_none() {
+        return Ok(());
+    }
     println!("cargo:rerun-if-env-changed=LBV_UPDATE_KEY");
     println!("cargo:rerun-if-env-changed=LBV_ALLOW_DEV_KEY");
     let manifest = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").map_err(|e| e.to_string())?);
@@ -24,13 +30,12 @@ fn main() -> Result<(), String> {
     let key = read(&path)?;
     let development = key == read(&dev_path)?;
     let firmware = std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none");
-    let release = std::env::var("PROFILE").as_deref() == Ok("release");
     let allowed = std::env::var("LBV_ALLOW_DEV_KEY").as_deref() == Ok("1");
-    if firmware && release && development && !allowed {
+    if firmware && development && !allowed {
         return Err(
-            "a release firmware build would accept update files signed with the development key, whose \
-                    secret is published (keys/README.md): set LBV_UPDATE_KEY=path/to/your.pub, or \
-                    LBV_ALLOW_DEV_KEY=1 for an image that stays on the bench"
+            "a firmware build would accept update files signed with the development key, whose secret is \
+                    published (keys/README.md): set LBV_UPDATE_KEY=path/to/your.pub, or LBV_ALLOW_DEV_KEY=1 for \
+                    an image that stays on the bench"
                 .into(),
         );
     }

@@ -143,14 +143,14 @@ mod tests {
             assert_eq!(error.address(), 0x0804_0000 + offset);
             assert_eq!(eccr_address(error.address()), BK_ECC | offset);
         }
-        // The master's state (bank 1) and DFU (bank 2).
-        let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.dfu];
-        for eccr in [0x2000, 0x2FF8, BK_ECC, BK_ECC | 0x3_BFF8] {
+        // The master's state, record and DFU, all in bank 2.
+        let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.record, MASTER_PARTITIONS.dfu];
+        for eccr in [BK_ECC, BK_ECC | 0xFF8, BK_ECC | 0x1000, BK_ECC | 0x27F8, BK_ECC | 0x2800, BK_ECC | 0x3_BFF8] {
             assert_eq!(nmi_action(ECCD | eccr, &master), PASS, "{eccr:#x}");
         }
-        // The thruster's state page and the ends of its DFU partition.
-        let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.dfu];
-        for offset in [0x2000, 0x27F8, 0x1_1000, 0x1_FFF8] {
+        // The thruster's state page, the ends of its record and of its DFU partition.
+        let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.record, THRUSTER_PARTITIONS.dfu];
+        for offset in [0x4000, 0x47F8, 0x4800, 0x5FF8, 0x1_2800, 0x1_F7F8] {
             assert_eq!(nmi_action(ECCD | offset, &thruster), PASS, "{offset:#x}");
         }
     }
@@ -161,13 +161,14 @@ mod tests {
         for eccr in [0x3_C000, 0x3_FFF8, BK_ECC | 0x3_BFF8, 0x0, 0x3000, 0x3_E7F8] {
             assert_eq!(nmi_action(ECCD | eccr, &[settings()]), NmiAction::Stop, "{eccr:#x}");
         }
-        let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.dfu];
-        for eccr in [0x0, 0x1FF8, 0x3000, 0x3_E7F8, BK_ECC | 0x3_C000] {
+        // The master's bootloader and ACTIVE (bank 1: its code), and its settings.
+        let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.record, MASTER_PARTITIONS.dfu];
+        for eccr in [0x0, 0x3FF8, 0x4000, 0x3_CFF8, 0x3_FFF8, BK_ECC | 0x3_C000] {
             assert_eq!(nmi_action(ECCD | eccr, &master), NmiAction::Stop, "{eccr:#x}");
         }
         // The thruster's bootloader and ACTIVE (its code).
-        let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.dfu];
-        for offset in [0x0, 0x1FF8, 0x2800, 0x1_0FF8] {
+        let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.record, THRUSTER_PARTITIONS.dfu];
+        for offset in [0x0, 0x3FF8, 0x6000, 0x1_27F8, 0x1_F800] {
             assert_eq!(nmi_action(ECCD | offset, &thruster), NmiAction::Stop, "{offset:#x}");
         }
         // The system memory, at an offset that would be in the settings pages; the thruster's DFU offset in a
@@ -176,7 +177,7 @@ mod tests {
             nmi_action(ECCD | SYSF_ECC | BK_ECC | 0x3_C000, &[settings()]),
             NmiAction::Stop
         );
-        assert_eq!(nmi_action(ECCD | BK_ECC | 0x1_1000, &thruster), NmiAction::Stop);
+        assert_eq!(nmi_action(ECCD | BK_ECC | 0x1_2800, &thruster), NmiAction::Stop);
         // No data pages at all.
         assert_eq!(nmi_action(ECCD | BK_ECC | 0x3_C000, &[]), NmiAction::Stop);
     }

@@ -161,8 +161,10 @@ macro_rules! master_image {
     };
 }
 
-/// The bootloader (lbv-boot), the thruster's and the master's: no pins; the flash it swaps images in, and the
-/// watchdog it starts just before it jumps to the image.
+/// The bootloader (lbv-boot), the thruster's and the master's: no pin it takes a peripheral through (the thruster's
+/// holds the gate inputs off by GPIO registers before anything else, [`THRUSTER_GATES_OFF`], and the image it starts
+/// takes them over); the flash it checks and swaps images in, and the watchdog it starts first and feeds through
+/// the swap.
 #[macro_export]
 macro_rules! boot_image {
     ($($then:ident)::+ $(, $arg:tt)*) => {
@@ -170,7 +172,7 @@ macro_rules! boot_image {
             pins {}
             peripherals {
                 flash: FLASH = "the swap: its state, ACTIVE and DFU",
-                watchdog: IWDG = "started before the jump: an image that hangs before its own set-up is reset and reverted",
+                watchdog: IWDG = "started first and fed through the check and the swap; an image that hangs before its own set-up is reset and reverted",
             }
             interrupts {}
         }
@@ -290,6 +292,15 @@ pub const MASTER: Image = Image {
     interrupts: crate::master_image!(crate::description_interrupts),
 };
 
+/// What the thruster's bootloader writes before anything else: the IHM08M1's six gate inputs (the brushless image's
+/// TIM1 outputs, which the brushed one uses a part of) driven to their off level, PA7..PA10 on port A and PB0, PB1
+/// on port B. Until then the L6398's low-side inputs are held off only by their weak internal pull-ups (3-20 uA,
+/// datasheet table 8), and a drifting LIN would brake a windmilling motor through a swap that takes seconds.
+pub const THRUSTER_GATES_OFF: [crate::tim1::GatesOff; 2] = [
+    crate::tim1::gates_off(&THRUSTER, crate::tim1::IHM08M1.driver, crate::pins::Port::A),
+    crate::tim1::gates_off(&THRUSTER, crate::tim1::IHM08M1.driver, crate::pins::Port::B),
+];
+
 /// The thruster's bootloader, on the thruster's boards.
 pub const THRUSTER_BOOT: Image = Image {
     name: "thruster-boot",
@@ -339,9 +350,8 @@ pub struct Build {
     /// Its memory layout, printed as its `memory.x`.
     pub layout: &'static Layout,
     /// Its budget for flash (code, constants, `.data`'s initial values), in bytes: each application holds to what
-    /// it needs and a margin, inside its ACTIVE partition (the thruster's 58 KiB, which its signature check, 6.9 KiB,
-    /// shares; the master's 238 KiB), so that growth is a decision and not an accident; a bootloader has its whole
-    /// partition.
+    /// it needs and a margin, inside its ACTIVE partition (the thruster's 50 KiB, the master's 228 KiB), so that
+    /// growth is a decision and not an accident; a bootloader has its whole partition.
     pub flash_budget: u32,
     /// Its budget for static RAM (`.data`, `.bss`, `.uninit`), in bytes; the rest of the RAM is stack.
     pub ram_budget: u32,
@@ -349,7 +359,7 @@ pub struct Build {
 
 /// The flash budget of every thruster application ([`Build::flash_budget`]): the largest image field update has to
 /// carry to a thruster.
-pub const THRUSTER_FLASH_BUDGET: u32 = 52 * KIB;
+pub const THRUSTER_FLASH_BUDGET: u32 = 48 * KIB;
 
 const fn thruster(name: &'static str, features: &'static str, image: &'static Image) -> Build {
     Build {
@@ -379,8 +389,8 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
     }
 }
 
-/// A bootloader: its partition, 8 KiB, is all its flash; its static RAM is next to nothing (the page buffer it
-/// swaps through is on its stack).
+/// A bootloader: its partition is all its flash; its static RAM is next to nothing (the page buffer it swaps
+/// through and the signature check's state are on its stack).
 const fn bootloader(
     name: &'static str,
     features: &'static str,
@@ -393,7 +403,10 @@ const fn bootloader(
         features,
         image,
         layout,
-        flash_budget: 8 * KIB,
+        flash_budget: match layout.boot {
+            memory::Boot::Bootloader(partitions) => partitions.bootloader.length,
+            _ => 0,
+        },
         ram_budget: KIB,
     }
 }
@@ -756,7 +769,7 @@ mod tests {
             Ok(&memory::MASTER)
         );
         assert_eq!(layout_of("lbv", with(&[])), Err(LayoutOfError::Unknown));
-        // A bootloader fills its partition at most, and uses no pin.
+        // A bootloader fills its partition at most, and takes no pin through embassy (the gates are GPIO writes).
         for (name, partitions) in [
             ("thruster-boot", memory::THRUSTER_PARTITIONS),
             ("master-boot", memory::MASTER_PARTITIONS),
@@ -768,6 +781,35 @@ mod tests {
             let peripherals: Vec<&str> = boot.image.peripherals.iter().map(|p| p.name).collect();
             assert_eq!(peripherals, ["FLASH", "IWDG"]);
         }
+    }
+
+    #[test]
+    fn the_thruster_bootloader_holds_every_gate_input_off() {
+        use crate::pins::Port;
+        let [a, b] = THRUSTER_GATES_OFF;
+        assert_eq!((a.port, b.port), (Port::A, Port::B));
+        // L6398: HIN (TIM1_CHx: PA8, PA9, PA10) active high, so low is off; LIN (TIM1_CHxN: PA7, PB0, PB1) active
+        // low, so high is off.
+        let reset = |pins: &[u32]| pins.iter().map(|n| 1u32 << (n + 16)).sum::<u32>();
+        let set = |pins: &[u32]| pins.iter().map(|n| 1u32 << n).sum::<u32>();
+        assert_eq!(a.bsrr, reset(&[8, 9, 10]) | set(&[7]));
+        assert_eq!(b.bsrr, set(&[0, 1]));
+        let output = |pins: &[u32]| pins.iter().map(|n| 1u32 << (2 * n)).sum::<u32>();
+        assert_eq!(a.moder_output, output(&[7, 8, 9, 10]));
+        assert_eq!(a.moder_mask, 3 * a.moder_output);
+        assert_eq!(b.moder_output, output(&[0, 1]));
+        // Every TIM1 channel output the brushless and brushed images use is among them, and the break input is not.
+        for image in [&THRUSTER, &THRUSTER_BRUSHED] {
+            for used in image.uses {
+                if let Mode::Alternate { signal, .. } = used.mode
+                    && signal.starts_with("TIM1_CH")
+                {
+                    let write = if used.pin.port == Port::A { a } else { b };
+                    assert_ne!(write.moder_output & (1 << (2 * used.pin.number)), 0, "{signal} on {}", used.pin);
+                }
+            }
+        }
+        assert_eq!(crate::tim1::gate_off_level("TIM1_BKIN", crate::tim1::IHM08M1.driver), None);
     }
 
     #[test]

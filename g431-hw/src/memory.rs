@@ -138,12 +138,12 @@ pub enum Boot {
 /// tools and a thruster receiving an image look for it.
 pub const IMAGE_INFO_OFFSET: u32 = 0x200;
 
-/// The information record's size in bytes.
-pub const IMAGE_INFO_SIZE: u32 = 32;
+/// The size of the information record and the update key after it (update-image's `IMAGE_RECORD_LEN`), in bytes.
+pub const IMAGE_INFO_SIZE: u32 = 64;
 
 /// The flash of an A/B bootloader (embassy-boot): the bootloader, where the chip starts; its state (the swap's
-/// progress, page by page); ACTIVE, the image it starts; DFU, where a new image is written and where, after the
-/// swap, the previous one waits to be reverted to.
+/// progress, page by page); its record (what lbv-boot keeps beside embassy-boot's state); ACTIVE, the image it
+/// starts; DFU, where a new image is written and where, after the swap, the previous one waits to be reverted to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Partitions {
     /// The chip whose flash they split.
@@ -152,6 +152,11 @@ pub struct Partitions {
     pub bootloader: Span,
     /// embassy-boot's state: a magic word, then the swap's progress.
     pub state: Span,
+    /// lbv-boot's record, [`RECORD_PAGES`] pages: the ticket page ([`Partitions::ticket`]: the update's length
+    /// and signature, written by the application before it marks the update, and the bootloader's verdict on it),
+    /// then the security counter's journal ([`Partitions::counter`], two pages written in turn, so that a power cut
+    /// in an erase always leaves the other page's entries).
+    pub record: Span,
     /// The image that runs.
     pub active: Span,
     /// The image to swap in, one page larger than ACTIVE: embassy-boot's swap moves every page of ACTIVE one
@@ -159,10 +164,30 @@ pub struct Partitions {
     pub dfu: Span,
 }
 
+/// The pages of [`Partitions::record`]: the ticket page and the counter journal's two.
+pub const RECORD_PAGES: u32 = 3;
+
 impl Partitions {
     /// The flash's pages the swap moves.
     pub const fn active_pages(&self) -> u32 {
         self.active.length / PAGE
+    }
+
+    /// The record's first page: the update's ticket and the bootloader's verdict (update-image's `Ticket`,
+    /// `Verdict`).
+    pub const fn ticket(&self) -> Span {
+        Span {
+            origin: self.record.origin,
+            length: PAGE,
+        }
+    }
+
+    /// The record's other two pages: the security counter's journal.
+    pub const fn counter(&self) -> Span {
+        Span {
+            origin: self.record.origin + PAGE,
+            length: self.record.length - PAGE,
+        }
     }
 }
 
@@ -180,6 +205,8 @@ pub enum PartitionError {
     /// The state partition cannot hold the swap's progress: a magic word, a progress-valid word and four words per
     /// ACTIVE page (embassy-boot's `assert_partitions`).
     StateTooSmall,
+    /// The record is not [`RECORD_PAGES`] pages.
+    RecordSize,
 }
 
 /// Check partitions as embassy-boot's bootloader does at every start (`assert_partitions`, where a failure is a
@@ -189,13 +216,14 @@ pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionEr
         chip,
         bootloader,
         state,
+        record,
         active,
         dfu,
     } = *partitions;
     if bootloader.origin != chip.flash.origin {
         return Err(PartitionError::BootloaderNotFirst);
     }
-    let all = [bootloader, state, active, dfu];
+    let all = [bootloader, state, record, active, dfu];
     let mut rest: &[Span] = &all;
     while let [span, tail @ ..] = rest {
         let span = *span;
@@ -220,6 +248,9 @@ pub const fn check_partitions(partitions: &Partitions) -> Result<(), PartitionEr
     if state.length < (2 + 4 * partitions.active_pages()) * WRITE_UNIT {
         return Err(PartitionError::StateTooSmall);
     }
+    if record.length != RECORD_PAGES * PAGE {
+        return Err(PartitionError::RecordSize);
+    }
     Ok(())
 }
 
@@ -231,30 +262,34 @@ const fn kib(origin: u32, length: u32) -> Span {
     }
 }
 
-/// The thruster's flash: an 8 KiB bootloader (embassy's STM32 bootloader builds to about 6.3 KiB), one page of
-/// state (118 words of the 256 it holds), and the rest split between ACTIVE (58 KiB, 29 pages, for a
-/// 32 KiB image and room to grow) and DFU (60 KiB). The thruster keeps no settings in flash.
+/// The thruster's flash: a 16 KiB bootloader (lbv-boot: embassy-boot's swap and the signature check before it, 15 KiB),
+/// one page of state (102 words of the 256 it holds), the record's three pages, and the rest split between ACTIVE
+/// (50 KiB, 25 pages) and DFU (52 KiB); the last page is left unused, since ACTIVE and DFU grow by whole pages
+/// together. The thruster keeps no settings in flash.
 pub const THRUSTER_PARTITIONS: Partitions = Partitions {
     chip: &G431RB,
-    bootloader: kib(0, 8),
-    state: kib(8, 2),
-    active: kib(10, 58),
-    dfu: kib(68, 60),
+    bootloader: kib(0, 16),
+    state: kib(16, 2),
+    record: kib(18, 6),
+    active: kib(24, 50),
+    dfu: kib(74, 52),
 };
 
-/// The master's flash, one bank for the image that runs and one for what is written: bank 1 holds the bootloader
-/// (8 KiB, the thruster's bootloader built for this chip), its state (two pages: 478 words of the 512 they hold)
-/// and ACTIVE (238 KiB, 119 pages); bank 2 holds DFU (240 KiB, ACTIVE and a page) and the settings' 16 KiB
-/// ([`MASTER_STORAGE`]), which end the flash as on the master's first board, where flashing an image never reaches
-/// them. ACTIVE can grow no further than DFU allows, so bank 1's top 6 KiB stay unused. The running image writes
-/// DFU and its settings in the bank it does not run from, which RM0440 3.3.8 allows without stalling it (a page
-/// erase in the bank code runs from stalls every fetch for tens of milliseconds).
+/// The master's flash, one bank for the image that runs and one for everything written: bank 1 holds the
+/// bootloader (16 KiB, the thruster's bootloader built for this chip) and ACTIVE (228 KiB, 114 pages); bank 2 holds
+/// the bootloader's state (two pages: 458 words of the 512 they hold), its record (three pages), DFU (230 KiB,
+/// ACTIVE and a page) and the settings' 16 KiB ([`MASTER_STORAGE`]), which end the flash as on the master's first
+/// board, where flashing an image never reaches them. ACTIVE can grow no further than DFU allows, so bank 1's top
+/// 12 KiB stay unused. The running image writes the state, the record, DFU and its settings in the bank it does not
+/// run from, which RM0440 3.3.8 allows without stalling it (a page erase in the bank code runs from stalls every
+/// fetch for tens of milliseconds).
 pub const MASTER_PARTITIONS: Partitions = Partitions {
     chip: &G474RE,
-    bootloader: kib(0, 8),
-    state: kib(8, 4),
-    active: kib(12, 238),
-    dfu: kib(256, 240),
+    bootloader: kib(0, 16),
+    state: kib(256, 4),
+    record: kib(260, 6),
+    active: kib(16, 228),
+    dfu: kib(266, 230),
 };
 
 /// Where the master keeps its settings: the top 16 KiB of the G474RE's flash, eight pages of bank 2.
@@ -263,7 +298,9 @@ pub const MASTER_STORAGE: Span = kib(496, 16);
 const _: () = {
     assert!(check_partitions(&THRUSTER_PARTITIONS).is_ok());
     assert!(check_partitions(&MASTER_PARTITIONS).is_ok());
-    assert!(MASTER_PARTITIONS.active.end() <= G474_BANK2 && MASTER_PARTITIONS.dfu.origin == G474_BANK2);
+    // Bank 1 holds what runs, bank 2 everything the running master writes.
+    assert!(MASTER_PARTITIONS.active.end() <= G474_BANK2 && MASTER_PARTITIONS.state.origin == G474_BANK2);
+    assert!(MASTER_PARTITIONS.record.origin >= G474_BANK2 && MASTER_PARTITIONS.dfu.origin >= G474_BANK2);
     assert!(MASTER_PARTITIONS.dfu.end() == MASTER_STORAGE.origin && MASTER_STORAGE.end() == G474RE.flash.end());
 };
 
@@ -288,6 +325,11 @@ pub const THRUSTER: Layout = Layout {
             THRUSTER_PARTITIONS.state,
             "the bootloader's state; nothing is linked here",
         ),
+        region(
+            "BOOT_RECORD",
+            THRUSTER_PARTITIONS.record,
+            "the bootloader's record: an update's ticket and verdict, the security counter; nothing is linked here",
+        ),
         region("FLASH", THRUSTER_PARTITIONS.active, "the image (the ACTIVE partition)"),
         region(
             "DFU",
@@ -310,11 +352,16 @@ pub const THRUSTER_BOOT: Layout = Layout {
             THRUSTER_PARTITIONS.state,
             "its state: the swap's progress",
         ),
+        region(
+            "BOOT_RECORD",
+            THRUSTER_PARTITIONS.record,
+            "its record: an update's ticket and its verdict, the security counter",
+        ),
         region("ACTIVE", THRUSTER_PARTITIONS.active, "the image it starts"),
         region(
             "DFU",
             THRUSTER_PARTITIONS.dfu,
-            "the image it swaps in, and after the swap the one it reverts to",
+            "the image it checks and swaps in, and after the swap the one it reverts to",
         ),
         region("RAM", G431RB.ram, STACK_AND_STATICS),
     ],
@@ -332,14 +379,20 @@ pub const MASTER: Layout = Layout {
             "the bootloader (lbv-boot); nothing is linked here",
         ),
         region(
-            "BOOTLOADER_STATE",
-            MASTER_PARTITIONS.state,
-            "the bootloader's state; nothing is linked here",
-        ),
-        region(
             "FLASH",
             MASTER_PARTITIONS.active,
             "the image (the ACTIVE partition, bank 1)",
+        ),
+        region(
+            "BOOTLOADER_STATE",
+            MASTER_PARTITIONS.state,
+            "the bootloader's state (bank 2); nothing is linked here",
+        ),
+        region(
+            "BOOT_RECORD",
+            MASTER_PARTITIONS.record,
+            "the bootloader's record (bank 2): an update's ticket and verdict, the security counter; nothing is \
+             linked here",
         ),
         region(
             "DFU",
@@ -362,16 +415,21 @@ pub const MASTER_BOOT: Layout = Layout {
     chip: &G474RE,
     regions: &[
         region("FLASH", MASTER_PARTITIONS.bootloader, "the bootloader"),
+        region("ACTIVE", MASTER_PARTITIONS.active, "the image it starts (bank 1)"),
         region(
             "BOOTLOADER_STATE",
             MASTER_PARTITIONS.state,
-            "its state: the swap's progress",
+            "its state: the swap's progress (bank 2)",
         ),
-        region("ACTIVE", MASTER_PARTITIONS.active, "the image it starts (bank 1)"),
+        region(
+            "BOOT_RECORD",
+            MASTER_PARTITIONS.record,
+            "its record: an update's ticket and its verdict, the security counter (bank 2)",
+        ),
         region(
             "DFU",
             MASTER_PARTITIONS.dfu,
-            "the image it swaps in, and after the swap the one it reverts to (bank 2)",
+            "the image it checks and swaps in, and after the swap the one it reverts to (bank 2)",
         ),
         region(
             "STORAGE",
@@ -520,8 +578,10 @@ mod tests {
         );
         assert!(text.contains("\nMEMORY\n{\n"), "{text}");
         for line in [
-            "  FLASH            : ORIGIN = 0x08003000, LENGTH = 238K\n",
-            "  DFU              : ORIGIN = 0x08040000, LENGTH = 240K\n",
+            "  FLASH            : ORIGIN = 0x08004000, LENGTH = 228K\n",
+            "  BOOTLOADER_STATE : ORIGIN = 0x08040000, LENGTH = 4K\n",
+            "  BOOT_RECORD      : ORIGIN = 0x08041000, LENGTH = 6K\n",
+            "  DFU              : ORIGIN = 0x08042800, LENGTH = 230K\n",
             "  STORAGE          : ORIGIN = 0x0807C000, LENGTH = 16K\n",
             "  RAM              : ORIGIN = 0x20000000, LENGTH = 128K\n}\n",
         ] {
@@ -559,21 +619,22 @@ mod tests {
         for layout in [THRUSTER, THRUSTER_BOOT] {
             let text = layout.to_string();
             for symbol in [
-                "__bootloader_state_start = 0x00002000;\n",
-                "__bootloader_state_end = 0x00002800;\n",
-                "__bootloader_active_start = 0x00002800;\n",
-                "__bootloader_active_end = 0x00011000;\n",
-                "__bootloader_dfu_start = 0x00011000;\n",
-                "__bootloader_dfu_end = 0x00020000;\n",
+                "__bootloader_state_start = 0x00004000;\n",
+                "__bootloader_state_end = 0x00004800;\n",
+                "__bootloader_active_start = 0x00006000;\n",
+                "__bootloader_active_end = 0x00012800;\n",
+                "__bootloader_dfu_start = 0x00012800;\n",
+                "__bootloader_dfu_end = 0x0001F800;\n",
             ] {
                 assert!(text.contains(symbol), "{symbol} in\n{text}");
             }
         }
         let application = THRUSTER.to_string();
-        assert!(application.contains("  FLASH            : ORIGIN = 0x08002800, LENGTH = 58K\n"));
+        assert!(application.contains("  FLASH            : ORIGIN = 0x08006000, LENGTH = 50K\n"));
+        assert!(application.contains("  BOOT_RECORD      : ORIGIN = 0x08004800, LENGTH = 6K\n"));
         assert!(application.contains(".image_info ORIGIN(FLASH) + 0x200 :"));
         let bootloader = THRUSTER_BOOT.to_string();
-        assert!(bootloader.contains("  FLASH            : ORIGIN = 0x08000000, LENGTH = 8K\n"));
+        assert!(bootloader.contains("  FLASH            : ORIGIN = 0x08000000, LENGTH = 16K\n"));
         assert!(!bootloader.contains(".image_info"));
     }
 
@@ -582,11 +643,11 @@ mod tests {
         for layout in [MASTER, MASTER_BOOT] {
             let text = layout.to_string();
             for symbol in [
-                "__bootloader_state_start = 0x00002000;\n",
-                "__bootloader_state_end = 0x00003000;\n",
-                "__bootloader_active_start = 0x00003000;\n",
-                "__bootloader_active_end = 0x0003E800;\n",
-                "__bootloader_dfu_start = 0x00040000;\n",
+                "__bootloader_state_start = 0x00040000;\n",
+                "__bootloader_state_end = 0x00041000;\n",
+                "__bootloader_active_start = 0x00004000;\n",
+                "__bootloader_active_end = 0x0003D000;\n",
+                "__bootloader_dfu_start = 0x00042800;\n",
                 "__bootloader_dfu_end = 0x0007C000;\n",
             ] {
                 assert!(text.contains(symbol), "{symbol} in\n{text}");
@@ -624,31 +685,45 @@ mod tests {
             ),
             (
                 Partitions {
-                    dfu: span(66, 60),
+                    dfu: span(72, 52),
                     ..good
                 },
                 PartitionError::Misplaced,
             ),
             (
                 Partitions {
-                    dfu: span(70, 60),
+                    dfu: span(78, 52),
                     ..good
                 },
                 PartitionError::Misplaced,
             ),
             (
                 Partitions {
-                    dfu: span(68, 58),
+                    record: span(16, 6),
+                    ..good
+                },
+                PartitionError::Misplaced,
+            ),
+            (
+                Partitions {
+                    dfu: span(74, 50),
                     ..good
                 },
                 PartitionError::DfuTooSmall,
+            ),
+            (
+                Partitions {
+                    record: span(18, 4),
+                    ..good
+                },
+                PartitionError::RecordSize,
             ),
         ];
         let master = MASTER_PARTITIONS;
         let cases = cases.into_iter().chain([
             (
                 Partitions {
-                    state: span(8, 2),
+                    state: span(256, 2),
                     ..master
                 },
                 PartitionError::StateTooSmall,

@@ -80,6 +80,69 @@ pub struct Bridge {
     pub max_duty: u16,
 }
 
+/// One GPIO port's part in holding a power stage's gate-driver inputs off by software, before TIM1 drives them:
+/// the pins' levels set first (GPIOx_BSRR, RM0440 9.4.7: the low half sets, the high half resets), then the pins
+/// made general-purpose outputs (GPIOx_MODER = 01, RM0440 9.4.1), so that no pin drives the wrong level between the
+/// two writes. Push-pull is OTYPER's reset value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GatesOff {
+    /// The port.
+    pub port: crate::pins::Port,
+    /// What to write to its BSRR.
+    pub bsrr: u32,
+    /// The MODER bits to clear (two per pin).
+    pub moder_mask: u32,
+    /// The MODER bits to set after (01 per pin: output).
+    pub moder_output: u32,
+}
+
+/// The level that turns a TIM1 channel's gate input off: a high-side input (CHx) is off at its inactive level, a
+/// low-side one (CHxN) likewise, from `driver`'s polarity; `None` for a signal that is no gate output (the break
+/// input, another timer).
+pub const fn gate_off_level(signal: &str, driver: GateDriver) -> Option<bool> {
+    let high_side = crate::pins::same(signal, "TIM1_CH1")
+        || crate::pins::same(signal, "TIM1_CH2")
+        || crate::pins::same(signal, "TIM1_CH3");
+    let low_side = crate::pins::same(signal, "TIM1_CH1N")
+        || crate::pins::same(signal, "TIM1_CH2N")
+        || crate::pins::same(signal, "TIM1_CH3N");
+    if high_side {
+        Some(!driver.high_active_high)
+    } else if low_side {
+        Some(!driver.low_active_high)
+    } else {
+        None
+    }
+}
+
+/// The writes to `port` that hold every gate input `image` wires to TIM1 at its off level (see [`GatesOff`]).
+pub const fn gates_off(image: &crate::pins::Image, driver: GateDriver, port: crate::pins::Port) -> GatesOff {
+    let mut out = GatesOff {
+        port,
+        bsrr: 0,
+        moder_mask: 0,
+        moder_output: 0,
+    };
+    let mut rest = image.uses;
+    while let [used, tail @ ..] = rest {
+        rest = tail;
+        let crate::pins::Mode::Alternate { signal, .. } = used.mode else {
+            continue;
+        };
+        let Some(high) = gate_off_level(signal, driver) else {
+            continue;
+        };
+        if used.pin.port as u8 != port as u8 {
+            continue;
+        }
+        let n = used.pin.number as u32;
+        out.bsrr |= if high { 1 << n } else { 1 << (n + 16) };
+        out.moder_mask |= 0b11 << (2 * n);
+        out.moder_output |= 0b01 << (2 * n);
+    }
+    out
+}
+
 /// The X-NUCLEO-IHM08M1 as the thruster drives it.
 ///
 /// - 1 us dead time in TIM1, on top of the L6398's own fixed 320 ns (NuttX's IHM08M1 support, which also keeps a

@@ -1,5 +1,6 @@
-//! The bootloader of the thruster and of the master, hardware-free: embassy-boot's decision on a NOR flash laid out
-//! as the board's partitions ([`THRUSTER_PARTITIONS`](g431_hw::memory::THRUSTER_PARTITIONS),
+//! The bootloader of the thruster and of the master, hardware-free: what lbv-boot checks before embassy-boot's swap,
+//! embassy-boot's decision on a NOR flash laid out as the board's partitions
+//! ([`THRUSTER_PARTITIONS`](g431_hw::memory::THRUSTER_PARTITIONS),
 //! [`MASTER_PARTITIONS`](g431_hw::memory::MASTER_PARTITIONS)), and what the bootloader does when it fails.
 //!
 //! embassy-boot keeps the images in two partitions: ACTIVE, the image that runs, and DFU, where the running image
@@ -9,18 +10,49 @@
 //! waits in DFU, one page up). The binding (`main.rs`, `stm32.rs`) runs [`prepare`] on the chip's flash and starts
 //! ACTIVE; the host tests run the same function on lbv-sim's flash, with embassy-boot's own updater on the
 //! application's side.
+//!
+//! # What it checks before a swap begins
+//!
+//! Whatever the application did, an image is swapped in only once the bootloader has checked it, as MCUboot checks
+//! its secondary slot ([`judge`]): the application's [`Ticket`] (the payload's length and signature, in the record's
+//! first page) is there and its length fits ACTIVE; the payload's image info (format 2) is for the running image's
+//! target; it is not older than the running image unless signed as a rollback, and its security counter is not below
+//! the one the bootloader keeps ([`check_upgrade`]); DFU holds nothing but erased bytes past the payload in its last
+//! page; and the ed25519 signature over SHA-512 of DFU `[0, payload_len)` checks with the key the *running* image
+//! embeds (update-image's `KEY_OFFSET`), so the key an image carries decides which files the vehicle takes after it.
+//! DFU's pages past the payload are then erased, so nothing unsigned reaches ACTIVE. An image that fails is not
+//! swapped: the bootloader writes its [`Verdict`] beside the ticket, clears the mark, and the old image starts and
+//! tells why. The check reads only, so a power cut in it costs nothing: the next start checks again.
+//!
+//! # The security counter
+//!
+//! The highest security counter of a confirmed image is kept in the record's counter journal, two pages of
+//! [`checked_word`] entries written in turn: at every start where the running image is confirmed (embassy-boot's
+//! state is not on trial) and its counter is above the stored one, the bootloader raises it. An entry a power cut
+//! tears never reads as one, and the page with the highest entry is never the one erased, so a cut leaves the old
+//! value or the new one, never less. It is kept in flash rather than in the G4's one-time-programmable area: OTP
+//! double words cannot be erased, so a development board would be held forever to the highest counter it ever ran,
+//! and the record's two pages last for hundreds of raises between erases.
+//!
+//! The watchdog runs through all of it: the binding starts it before [`prepare`], whose `feed` is called between
+//! every flash operation and every chunk hashed.
 #![cfg_attr(not(test), no_std)]
 
 use core::cell::RefCell;
 
-use embassy_boot::{AlignedBuffer, BootLoader, BootLoaderConfig};
+use embassy_boot::{AlignedBuffer, BlockingFirmwareState, BootLoader, BootLoaderConfig};
 use embassy_embedded_hal::flash::partition::BlockingPartition;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
-use embedded_storage::nor_flash::NorFlash;
-use g431_hw::memory::{FLASH_ORIGIN, PAGE, Partitions, Span};
+use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
+use g431_hw::memory::{FLASH_ORIGIN, PAGE, Partitions, Span, WRITE_UNIT};
+use update_image::{
+    INFO_LEN, INFO_OFFSET, ImageInfo, KEY_LEN, KEY_OFFSET, MIN_PAYLOAD, Refusal, Slots, TICKET_LEN, TICKET_OFFSET,
+    Ticket, VERDICT_OFFSET, Verifier, check_upgrade, checked_word, read_checked_word,
+};
 
 pub use embassy_boot::{BootError, State};
+pub use update_image::Verdict;
 
 #[cfg(test)]
 mod tests;
@@ -31,16 +63,20 @@ pub type SharedFlash<F> = Mutex<NoopRawMutex, RefCell<F>>;
 /// One partition of the shared flash.
 pub type Partition<'a, F> = BlockingPartition<'a, NoopRawMutex, F>;
 
-/// How many times [`prepare`] runs embassy-boot before it gives up. Each attempt resumes from the progress the
-/// last one recorded, so a transient error costs nothing; an error that stays is not worth waiting for.
+/// How many times [`prepare`] runs before it gives up. Each attempt resumes from the progress the last one
+/// recorded, so a transient error costs nothing; an error that stays is not worth waiting for.
 pub const ATTEMPTS: u32 = 3;
 
-/// Every copy goes through one page of RAM (on the stack): a page moves with one read and one write.
+/// Every copy goes through one page of RAM (on the stack): a page moves with one read and one write, and the
+/// check hashes a page at a time.
 const BUFFER: usize = PAGE as usize;
+
+/// The erased value of a flash byte.
+const ERASED: u8 = 0xFF;
 
 /// The partition at `span` of the flash, addressed from the flash's start as embassy-stm32's flash driver (and the
 /// `__bootloader_*` symbols of the image's memory.x, printed from the same partitions) address it.
-fn partition<F: NorFlash>(flash: &SharedFlash<F>, span: Span) -> Partition<'_, F> {
+pub fn partition<F: NorFlash>(flash: &SharedFlash<F>, span: Span) -> Partition<'_, F> {
     BlockingPartition::new(flash, span.origin - FLASH_ORIGIN, span.length)
 }
 
@@ -70,28 +106,298 @@ pub enum Outcome {
         /// The attempt that succeeded.
         attempt: u32,
     },
+    /// An image was marked for the swap and the check refused it: its verdict is written, the mark cleared, and
+    /// the image that ran starts again.
+    Refused {
+        /// Why.
+        verdict: Verdict,
+        /// The attempt that succeeded.
+        attempt: u32,
+    },
     /// Every attempt failed with a flash error, the last one this: ACTIVE is started as it is.
     Failed(BootError),
 }
 
-/// Run embassy-boot's preparation (swap, resume or revert) on `flash`, laid out as `layout`, up to [`ATTEMPTS`]
-/// times.
+/// A flash that calls `feed` before every erase and write: the watchdog fed between the operations of a swap
+/// (each a few tens of milliseconds at most), and so through the longest of them.
+struct Fed<F, W> {
+    flash: F,
+    feed: W,
+}
+
+impl<F: ErrorType, W> ErrorType for Fed<F, W> {
+    type Error = F::Error;
+}
+
+impl<F: ReadNorFlash, W> ReadNorFlash for Fed<F, W> {
+    const READ_SIZE: usize = F::READ_SIZE;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.flash.read(offset, bytes)
+    }
+
+    fn capacity(&self) -> usize {
+        self.flash.capacity()
+    }
+}
+
+impl<F: NorFlash, W: FnMut()> NorFlash for Fed<F, W> {
+    const WRITE_SIZE: usize = F::WRITE_SIZE;
+    const ERASE_SIZE: usize = F::ERASE_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        (self.feed)();
+        self.flash.erase(from, to)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        (self.feed)();
+        self.flash.write(offset, bytes)
+    }
+}
+
+/// Check an update marked for the swap, then run embassy-boot's preparation (swap, resume or revert) on `flash`,
+/// laid out as `layout`, up to [`ATTEMPTS`] times; `feed` keeps the watchdog from biting meanwhile.
 ///
 /// When every attempt fails, the bootloader starts ACTIVE all the same, and that is the safe choice for a thruster
 /// or a master: stopping here leaves it silent with no way back but a debug probe, in the water. An error that stays
 /// is not the flash's doing: embassy-boot programs only erased double words, or zeros over its own progress words,
 /// which the G4 always takes (RM0440 3.3.7); what remains is a write protection (RM0440 3.5, WRPERR), which
 /// neither image sets, and which stops the swap at the first page it protects. A power cut does not end here
-/// either: the next start resumes the swap. Should ACTIVE not run, the watchdog the binding starts before the jump
-/// resets the chip, and the next start tries again.
-pub fn prepare<F: NorFlash>(flash: &SharedFlash<F>, layout: &Partitions) -> Outcome {
+/// either: the next start resumes the swap. Should ACTIVE not run, the watchdog the binding starts resets the chip,
+/// and the next start tries again.
+pub fn prepare<F: NorFlash>(flash: F, layout: &Partitions, feed: impl FnMut()) -> Outcome {
+    let flash = Mutex::new(RefCell::new(Fed { flash, feed }));
     let mut buffer = AlignedBuffer([0; BUFFER]);
     let mut attempt = 1;
     loop {
-        match BootLoader::new(partitions(flash, layout)).prepare_boot(&mut buffer.0) {
-            Ok(state) => return Outcome::Prepared { state, attempt },
+        match prepare_once(&flash, layout, &mut buffer.0) {
+            Ok(Ok(state)) => return Outcome::Prepared { state, attempt },
+            Ok(Err(verdict)) => return Outcome::Refused { verdict, attempt },
             Err(error) if attempt >= ATTEMPTS => return Outcome::Failed(error),
             Err(_) => attempt += 1,
         }
     }
+}
+
+/// One attempt of [`prepare`]: the state embassy-boot read, or the verdict on an update refused.
+fn prepare_once<F: NorFlash, W: FnMut()>(
+    flash: &SharedFlash<Fed<F, W>>,
+    layout: &Partitions,
+    buffer: &mut [u8; BUFFER],
+) -> Result<Result<State, Verdict>, BootError> {
+    let mut loader = BootLoader::new(partitions(flash, layout));
+    let state = loader.read_state(buffer)?;
+    let mut active = partition(flash, layout.active);
+    if state != State::Swap {
+        raise_counter(flash, layout, &mut active)?;
+    } else if !swap_begun(&mut partition(flash, layout.state))? {
+        let stored = stored_counter(&mut partition(flash, layout.counter()))?.unwrap_or(0);
+        let mut dfu = partition(flash, layout.dfu);
+        let verdict = judge(
+            &mut dfu,
+            &mut active,
+            &mut partition(flash, layout.ticket()),
+            stored,
+            buffer,
+            || flash.lock(|flash| (flash.borrow_mut().feed)()),
+        );
+        match verdict {
+            Ok(payload_len) => erase_past(&mut dfu, payload_len, layout.active.length)?,
+            Err(verdict) => {
+                refuse(flash, layout, verdict)?;
+                return Ok(Err(verdict));
+            }
+        }
+    }
+    Ok(Ok(loader.prepare_boot(buffer)?))
+}
+
+/// Whether embassy-boot has begun the swap marked in its state: its progress-validity word or its first progress
+/// word is written (embassy-boot's state layout: magic, progress validity, then one word per step of the swap).
+/// Before it has, DFU holds what the application wrote and has to be checked; after, the check was done before the
+/// swap began, and the swap resumes.
+fn swap_begun<F: NorFlash>(state: &mut Partition<'_, F>) -> Result<bool, BootError> {
+    let mut words = [0; 2 * WRITE_UNIT as usize];
+    state.read(WRITE_UNIT, &mut words)?;
+    Ok(words.iter().any(|byte| *byte != ERASED))
+}
+
+/// Read `N` bytes at `offset`.
+fn read_array<const N: usize, F: NorFlash>(flash: &mut Partition<'_, F>, offset: u32) -> Result<[u8; N], BootError> {
+    let mut bytes = [0; N];
+    flash.read(offset, &mut bytes)?;
+    Ok(bytes)
+}
+
+/// The bootloader's check of an image marked for the swap ([module docs](crate)): the payload's length when it may
+/// be swapped in, or why not. Reads only; `feed` is called between the chunks it hashes.
+pub fn judge<F: NorFlash>(
+    dfu: &mut Partition<'_, F>,
+    active: &mut Partition<'_, F>,
+    ticket_page: &mut Partition<'_, F>,
+    stored_counter: u32,
+    buffer: &mut [u8; BUFFER],
+    mut feed: impl FnMut(),
+) -> Result<u32, Verdict> {
+    fn flash<E>(_: E) -> Verdict {
+        Verdict::Flash
+    }
+    let ticket = read_array::<TICKET_LEN, F>(ticket_page, TICKET_OFFSET).map_err(flash)?;
+    let ticket = Ticket::parse(&ticket).ok_or(Verdict::NoTicket)?;
+    let len = ticket.payload_len;
+    if !len.is_multiple_of(WRITE_UNIT) || len < MIN_PAYLOAD || len > active.capacity() as u32 {
+        return Err(Verdict::Length);
+    }
+    let image = read_array::<INFO_LEN, F>(dfu, INFO_OFFSET as u32).map_err(flash)?;
+    let image = ImageInfo::parse(&image)
+        .ok()
+        .filter(|info| info.format >= update_image::INFO_FORMAT)
+        .ok_or(Verdict::NoInfo)?;
+    let running = read_array::<INFO_LEN, F>(active, INFO_OFFSET as u32).map_err(flash)?;
+    let running = ImageInfo::parse(&running)
+        .ok()
+        .filter(|info| info.format >= update_image::INFO_FORMAT)
+        .ok_or(Verdict::NoKey)?;
+    let key = read_array::<KEY_LEN, F>(active, KEY_OFFSET as u32).map_err(flash)?;
+    if image.target != running.target {
+        return Err(Verdict::Target);
+    }
+    check_upgrade(&image, Some(&running), stored_counter).map_err(|refusal| match refusal {
+        Refusal::Older { .. } => Verdict::Older,
+        _ => Verdict::Counter,
+    })?;
+    // The last page's bytes past the payload, which the swap would copy with it.
+    let tail = len.next_multiple_of(PAGE) - len;
+    let tail_bytes = buffer.get_mut(..tail as usize).ok_or(Verdict::Length)?;
+    dfu.read(len, tail_bytes).map_err(flash)?;
+    if tail_bytes.iter().any(|byte| *byte != ERASED) {
+        return Err(Verdict::PastPayload);
+    }
+    let mut verifier = Verifier::new();
+    let mut offset = 0;
+    while offset < len {
+        let chunk = (len - offset).min(PAGE);
+        let bytes = buffer.get_mut(..chunk as usize).ok_or(Verdict::Length)?;
+        dfu.read(offset, bytes).map_err(flash)?;
+        verifier.update(bytes);
+        offset += chunk;
+        feed();
+    }
+    verifier
+        .finish(&ticket.signature, &key)
+        .map(|()| len)
+        .map_err(|_| Verdict::Signature)
+}
+
+/// Erase DFU's pages past the payload's last, up to ACTIVE's length: what the swap copies into ACTIVE beside the
+/// payload is erased flash.
+fn erase_past<F: NorFlash>(dfu: &mut Partition<'_, F>, payload_len: u32, active_len: u32) -> Result<(), BootError> {
+    let from = payload_len.next_multiple_of(PAGE);
+    if from < active_len {
+        dfu.erase(from, active_len)?;
+    }
+    Ok(())
+}
+
+/// Refuse the update marked: write its verdict beside its ticket (unless a start before this one wrote it already;
+/// in the next slot if that start's was torn), then clear the mark with embassy-boot's own `mark_booted`, so that the image that ran starts again and a power
+/// cut between the two only has the next start judge it again.
+fn refuse<F: NorFlash, W: FnMut()>(
+    flash: &SharedFlash<Fed<F, W>>,
+    layout: &Partitions,
+    verdict: Verdict,
+) -> Result<(), BootError> {
+    let mut ticket = partition(flash, layout.ticket());
+    let slots = Slots(read_array(&mut ticket, VERDICT_OFFSET)?);
+    if slots.value().is_none()
+        && let Some(free) = slots.free()
+    {
+        ticket.write(VERDICT_OFFSET + free, &verdict.to_word())?;
+    }
+    let mut word = AlignedBuffer([0; WRITE_UNIT as usize]);
+    BlockingFirmwareState::new(partition(flash, layout.state), &mut word.0)
+        .mark_booted()
+        .map_err(|_| BootError::Flash(embedded_storage::nor_flash::NorFlashErrorKind::Other))
+}
+
+/// The highest security counter the journal holds, `None` when it holds none: every [`checked_word`] entry of both
+/// its pages (one torn by a power cut is none).
+pub fn stored_counter<F: NorFlash>(journal: &mut Partition<'_, F>) -> Result<Option<u32>, BootError> {
+    Ok(scan(journal)?.into_iter().filter_map(|page| page.highest).max())
+}
+
+/// One page of the counter journal.
+#[derive(Debug, Clone, Copy)]
+struct JournalPage {
+    /// Its highest entry.
+    highest: Option<u32>,
+    /// Its first erased double word, where the next entry goes.
+    free: Option<u32>,
+    /// Every byte erased.
+    erased: bool,
+}
+
+/// Both pages of the counter journal.
+fn scan<F: NorFlash>(journal: &mut Partition<'_, F>) -> Result<[JournalPage; 2], BootError> {
+    let mut pages = [JournalPage {
+        highest: None,
+        free: None,
+        erased: true,
+    }; 2];
+    for (index, page) in pages.iter_mut().enumerate() {
+        let start = index as u32 * PAGE;
+        for offset in (start..start + PAGE).step_by(WRITE_UNIT as usize) {
+            let word = read_array::<{ WRITE_UNIT as usize }, _>(journal, offset)?;
+            if word.iter().all(|byte| *byte == ERASED) {
+                page.free = page.free.or(Some(offset));
+                continue;
+            }
+            page.erased = false;
+            // An entry after an erased word would be one written out of turn; the journal appends only, so the
+            // next free word is the one after the last written.
+            page.free = None;
+            if let Some(value) = read_checked_word(word) {
+                page.highest = Some(page.highest.map_or(value, |highest| highest.max(value)));
+            }
+        }
+    }
+    Ok(pages)
+}
+
+/// At a start where the running image is confirmed: raise the stored counter to its own, if it is higher. The new
+/// entry goes after the last one of the page holding the highest; when that page is full, into the other, erased
+/// first if it must be: the highest entry stays whole through any power cut.
+fn raise_counter<F: NorFlash, W: FnMut()>(
+    flash: &SharedFlash<Fed<F, W>>,
+    layout: &Partitions,
+    active: &mut Partition<'_, Fed<F, W>>,
+) -> Result<(), BootError> {
+    let info = read_array::<INFO_LEN, _>(active, INFO_OFFSET as u32)?;
+    let Some(counter) = ImageInfo::parse(&info).ok().map(|info| info.security_counter) else {
+        return Ok(());
+    };
+    let mut journal = partition(flash, layout.counter());
+    let pages = scan(&mut journal)?;
+    let highest = pages.iter().filter_map(|page| page.highest).max();
+    if highest.is_some_and(|highest| highest >= counter) || (highest.is_none() && counter == 0) {
+        return Ok(());
+    }
+    // The page holding the highest entry (the first page when there is none), and the other.
+    let [first, second] = pages;
+    let (current, other, other_start) = if second.highest.is_some() && second.highest >= first.highest {
+        (second, first, 0)
+    } else {
+        (first, second, PAGE)
+    };
+    let entry = checked_word(counter);
+    if let Some(free) = current.free {
+        journal.write(free, &entry)?;
+        return Ok(());
+    }
+    if !other.erased {
+        journal.erase(other_start, other_start + PAGE)?;
+    }
+    journal.write(other_start, &entry)?;
+    Ok(())
 }

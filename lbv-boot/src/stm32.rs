@@ -1,18 +1,16 @@
-//! The bootloader on the chip: the flash through embassy-stm32's blocking driver, embassy-boot's preparation
-//! ([`lbv_boot::prepare`]) on the board's partitions, the trial watchdog, and the jump to ACTIVE.
+//! The bootloader on the chip: the watchdog started first, the flash through embassy-stm32's blocking driver, the
+//! check and embassy-boot's preparation ([`lbv_boot::prepare`]) on the board's partitions with the watchdog fed
+//! between every flash operation, and the jump to ACTIVE.
 //!
 //! It never calls `embassy_stm32::init`: the image it starts finds the chip as the reset left it (the clocks on
 //! HSI16, RCC_CSR's reset flags still set for it to read), but for the watchdog started here and the flash
 //! interface, locked again after every operation.
-
-use core::cell::RefCell;
 
 use cortex_m::peripheral::SCB;
 use embassy_boot_stm32::BootLoader;
 use embassy_stm32::flash::Flash;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::IWDG;
-use embassy_sync::blocking_mutex::Mutex;
 use g431_hw::flash::{self, NmiAction};
 use g431_hw::iwdg::{BOOT_TRIAL, DBGMCU_APB1FZR1};
 use g431_hw::memory::{Partitions, Span};
@@ -31,13 +29,20 @@ fn main() -> ! {
     #[allow(unsafe_code)]
     let chip = unsafe { embassy_stm32::Peripherals::steal() };
     let chip = g431_hw::chip!(boot_image, chip);
-    let flash = Mutex::new(RefCell::new(Flash::new_blocking(chip.flash)));
-    let state = match lbv_boot::prepare(&flash, &LAYOUT) {
+    #[cfg(feature = "thruster")]
+    hold_gates_off();
+    // The watchdog first: a swap or a check that hangs resets the chip, and the next start resumes it.
+    start_trial_watchdog(chip.watchdog);
+    let feed = || pac::IWDG.kr().write(|w| w.set_key(pac::iwdg::vals::Key::RESET));
+    let state = match lbv_boot::prepare(Flash::new_blocking(chip.flash), &LAYOUT, feed) {
         Outcome::Prepared { state, .. } => state,
+        // The image that ran, its update refused (the verdict is in the record for it to tell).
+        Outcome::Refused { .. } => State::Boot,
         // ACTIVE as it is: `prepare` says why that is the safe choice.
         Outcome::Failed(_) => State::Boot,
     };
-    start_trial_watchdog(chip.watchdog);
+    // The image starts with the whole trial timeout before it.
+    feed();
     // SAFETY: ACTIVE starts with the vector table of an image linked there (g431_hw::memory::THRUSTER, MASTER); `load` sets
     // VTOR to it, loads its initial stack pointer and jumps to its reset handler, and nothing of the bootloader is
     // used after that (the image's start-up initialises its own RAM).
@@ -47,14 +52,35 @@ fn main() -> ! {
     }
 }
 
+/// Drive the power stage's six gate inputs to their off level (`g431_hw::images::THRUSTER_GATES_OFF`) before the
+/// bootloader does anything that takes time: the image it starts takes them over for TIM1. GPIOA and GPIOB's clocks
+/// first (RCC_AHB2ENR bits 0 and 1, RM0440 7.4.16), then each port's levels, then its modes.
+#[cfg(feature = "thruster")]
+fn hold_gates_off() {
+    pac::RCC.ahb2enr().modify(|w| {
+        w.set_gpioaen(true);
+        w.set_gpioben(true);
+    });
+    for gates in g431_hw::images::THRUSTER_GATES_OFF {
+        let port = match gates.port {
+            g431_hw::pins::Port::A => pac::GPIOA,
+            _ => pac::GPIOB,
+        };
+        port.bsrr().write_value(pac::gpio::regs::Bsrr(gates.bsrr));
+        port.moder()
+            .modify(|w| w.0 = (w.0 & !gates.moder_mask) | gates.moder_output);
+    }
+}
+
 /// How often the start-up polls the watchdog's status before it goes on regardless: an update takes up to five
 /// LSI cycles (RM0440 IWDG_SR), 170 us at the slowest LSI, a few thousand polls at HSI16.
 const WATCHDOG_POLLS: u32 = 100_000;
 
 /// Start the independent watchdog with the trial timeout (`g431_hw::iwdg::BOOT_TRIAL`), RM0440's IWDG procedure
-/// as the images run it: start, unlock, prescaler, reload, wait for the update, reload the counter. An image
-/// that hangs before its own watchdog set-up is reset, and embassy-boot reverts it if it was on trial. The wait
-/// for the update matters to the image: while PVU or RVU is set its own writes to PR and RLR would be ignored.
+/// as the images run it: start, unlock, prescaler, reload, wait for the update, reload the counter. It runs
+/// through the bootloader's check and swap, fed between their steps; an image that hangs before its own watchdog
+/// set-up is reset, and embassy-boot reverts it if it was on trial. The wait for the update matters to the image:
+/// while PVU or RVU is set its own writes to PR and RLR would be ignored.
 fn start_trial_watchdog(_iwdg: embassy_stm32::Peri<'static, IWDG>) {
     use pac::iwdg::vals::{Key, Pr};
     // Frozen while a debugger halts the core, as the images' own watchdogs are.
@@ -74,15 +100,15 @@ fn start_trial_watchdog(_iwdg: embassy_stm32::Peri<'static, IWDG>) {
     regs.kr().write(|w| w.set_key(Key::RESET));
 }
 
-/// A read of a double word whose ECC shows two errors (`g431_hw::flash`): one a power cut tore in the state, ACTIVE
-/// or DFU. The read has completed with the cells' bits, and embassy-boot's format is built to take a torn word for
+/// A read of a double word whose ECC shows two errors (`g431_hw::flash`): one a power cut tore in the state, the
+/// record, ACTIVE or DFU. The read has completed with the cells' bits, and embassy-boot's format is built to take a torn word for
 /// what it is (an unfinished step, or no magic): clear the flag and let it go on. cortex-m-rt's default would spin
 /// here, and since every start reads the same word, the board would never start again. Any other NMI source
 /// (the clock security system, SRAM parity), or the same error in the bootloader's own code, resets the chip.
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
 unsafe fn NonMaskableInt() {
-    const SWAPPED: [Span; 3] = [LAYOUT.state, LAYOUT.active, LAYOUT.dfu];
+    const SWAPPED: [Span; 4] = [LAYOUT.state, LAYOUT.record, LAYOUT.active, LAYOUT.dfu];
     match flash::nmi_action(pac::FLASH.eccr().read().0, &SWAPPED) {
         NmiAction::PassDataRead { clear } => pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear)),
         NmiAction::Stop => SCB::sys_reset(),

@@ -15,8 +15,8 @@ use object::Endianness;
 use object::elf::{ELFCLASS32, EM_ARM, FileHeader32, PT_LOAD};
 use object::read::elf::{FileHeader, ProgramHeader};
 use update_image::{
-    DEV_PUBLIC_KEY, HEADER_LEN, Header, INFO_OFFSET, ImageInfo, InfoError, PAD_BYTE, Verifier, WRITE_UNIT, check_file,
-    key_from_hex, public_key,
+    DEV_PUBLIC_KEY, HEADER_LEN, Header, INFO_FORMAT, INFO_LEN, INFO_OFFSET, ImageInfo, InfoError, KEY_LEN, KEY_OFFSET,
+    PAD_BYTE, Refusal, Verifier, VerifyError, WRITE_UNIT, check_file, key_from_hex, public_key,
 };
 
 use crate::exit;
@@ -38,9 +38,15 @@ keygen makes a signing key pair; sign turns a firmware ELF into a signed update 
 inspect says what an update file or a firmware ELF is and checks the signature. The development
 key (keys/dev.key) is published with the source: sign refuses it without --allow-dev-key.
 
+An image embeds the public key the vehicle checks the next update with, once the image runs.
+sign refuses an ELF whose embedded key is not the signing key's public half (--rotate-key signs it
+all the same, to move the vehicle to the embedded key), and one of image info format 1, which
+embeds none.
+
 Exit status: 0 done (inspect: the file is consistent and its signature verifies); 1 inspect
-found a failure (a file refused, a signature that does not verify, an ELF without image info);
-2 bad command line, a file that cannot be read or written, a key or ELF sign cannot use.";
+found a failure (a file refused, a signature that does not verify, an ELF without image info
+or update key); 2 bad command line, a file that cannot be read or written, a key or ELF sign
+cannot use.";
 
 /// `lbv image`'s commands.
 #[derive(Debug, clap::Subcommand)]
@@ -79,9 +85,21 @@ pub struct SignArgs {
     /// Where the payload starts, the ACTIVE partition's start [default: the ELF's lowest load address]
     #[arg(long, value_name = "ADDRESS", value_parser = address)]
     pub base: Option<u32>,
-    /// Sign with the development key all the same (its secret is public: for bench images only)
+    /// Sign with the development key all the same (its secret is public: for bench images only); also needed to
+    /// rotate to it
     #[arg(long)]
     pub allow_dev_key: bool,
+    /// The image's security counter, set in its image info before signing: once it confirms, the vehicle takes no
+    /// image with a lower one [default: the ELF's own, 0 from a build]
+    #[arg(long, value_name = "N", value_parser = counter)]
+    pub security_counter: Option<u32>,
+    /// Sign the image as a rollback: the vehicle takes it over a newer version (still held to the security counter)
+    #[arg(long)]
+    pub allow_rollback: bool,
+    /// Sign an ELF that embeds another update key than the signing key's public half: once the image confirms,
+    /// the vehicle takes only files signed with the embedded key
+    #[arg(long)]
+    pub rotate_key: bool,
 }
 
 /// `lbv image inspect`'s command line.
@@ -102,6 +120,16 @@ fn address(text: &str) -> Result<u32, String> {
         None => text.parse(),
     };
     parsed.map_err(|_| format!("{text:?} is not a 32-bit address (0x08002800, say)"))
+}
+
+/// `--security-counter`: a whole number that fits the image info's u32.
+fn counter(text: &str) -> Result<u32, String> {
+    text.parse().map_err(|_| {
+        format!(
+            "{text:?} is not a security counter: a whole number from 0 to {}",
+            u32::MAX
+        )
+    })
 }
 
 /// A line on standard output; a reader that went away (`| head`) is not a panic, and the work is done all the same.
@@ -195,6 +223,24 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|byte| format!("{byte:02x}")).collect()
 }
 
+/// A public key in hex, and "(the development key)" after it when it is that one.
+fn key_words(key: &[u8; KEY_LEN]) -> String {
+    if *key == DEV_PUBLIC_KEY {
+        format!("{} (the development key)", hex(key))
+    } else {
+        hex(key)
+    }
+}
+
+/// The update key a payload embeds after its image info, at [`KEY_OFFSET`]; `None` when it ends before. Only an
+/// image info of format 2 is followed by one.
+fn embedded_key(payload: &[u8]) -> Option<[u8; KEY_LEN]> {
+    payload
+        .get(KEY_OFFSET..)
+        .and_then(|rest| rest.first_chunk::<KEY_LEN>())
+        .copied()
+}
+
 /// `lbv image sign ELF --key FILE.key --out FILE.lbvu`
 fn sign(args: &SignArgs) -> Result<u8, Trouble> {
     if has_extension(&args.key, "pub") {
@@ -216,16 +262,66 @@ fn sign(args: &SignArgs) -> Result<u8, Trouble> {
         .into());
     }
     let elf = read_input(&args.elf)?;
-    let payload = payload_from_elf(&elf, args.base).map_err(|error| format!("{}: {error}", args.elf.display()))?;
-    let info = payload
-        .info()
-        .map_err(|error| format!("{}: {error}", args.elf.display()))?;
-    let file = update_image::sign(&payload.bytes, &seed).map_err(|error| format!("{}: {error}", args.elf.display()))?;
+    let elf_name = args.elf.display();
+    let mut payload = payload_from_elf(&elf, args.base).map_err(|error| format!("{elf_name}: {error}"))?;
+    let built = payload.info().map_err(|error| format!("{elf_name}: {error}"))?;
+    // The key it embeds is the one the vehicle checks every later file with: an image without one would strand it.
+    if built.format < INFO_FORMAT {
+        return Err(format!(
+            "{elf_name}: {} (build it again from the current sources)",
+            Refusal::NoKey
+        )
+        .into());
+    }
+    let embedded = payload.key().ok_or_else(|| {
+        format!(
+            "{elf_name}: the image ends at {:#x}, before the update key after its image info ({KEY_OFFSET:#x}..{:#x})",
+            payload.bytes.len(),
+            KEY_OFFSET + KEY_LEN
+        )
+    })?;
+    let rotates = embedded != public;
+    if rotates && !args.rotate_key {
+        return Err(format!(
+            "{elf_name} embeds the update key {}, not the public half of {} ({}): once installed, the vehicle \
+             would take only files signed with the key it embeds. Build the image with LBV_UPDATE_KEY naming \
+             the signing key's .pub, or pass --rotate-key to move the vehicle to the embedded key",
+            key_words(&embedded),
+            args.key.display(),
+            hex(&public)
+        )
+        .into());
+    }
+    if rotates && embedded == DEV_PUBLIC_KEY && !args.allow_dev_key {
+        return Err(format!(
+            "{elf_name} embeds the development key: --rotate-key would move the vehicle to a key whose secret is \
+             published with the source, so that anyone could sign the images it runs next. Build the image with \
+             your own key (LBV_UPDATE_KEY), or pass --allow-dev-key as well for a bench vehicle"
+        )
+        .into());
+    }
+    // The info is in the signed payload: what is set here is signed with the rest.
+    let info = built
+        .with_security_counter(args.security_counter.unwrap_or(built.security_counter))
+        .with_rollback(args.allow_rollback || built.rollback);
+    payload.set_info(&info);
+    let file = update_image::sign(&payload.bytes, &seed).map_err(|error| format!("{elf_name}: {error}"))?;
     // What the devices will do with it, before it leaves: the same checks, salty's verification.
     let (header, _) =
         check_file(&file, info.target, u32::MAX).map_err(|refusal| format!("made a bad file: {refusal}"))?;
-    update_image::verify(&header, file.get(HEADER_LEN..).unwrap_or_default(), &public)
+    let signed_payload = file.get(HEADER_LEN..).unwrap_or_default();
+    update_image::verify(&header, signed_payload, &public)
         .map_err(|error| format!("made a file that does not verify: {error}"))?;
+    // A vehicle running this image checks the next file with the embedded key: one no signature verifies with
+    // would leave it unable to take any.
+    if update_image::verify(&header, signed_payload, &embedded) == Err(VerifyError::PublicKey) {
+        return Err(format!(
+            "{elf_name} embeds {} as its update key, which is not an ed25519 public key: no file would verify \
+             with it, so a vehicle that installed this image could take no update after it",
+            hex(&embedded)
+        )
+        .into());
+    }
     std::fs::write(&args.out, &file).map_err(|error| format!("cannot write {}: {error}", args.out.display()))?;
     say!(
         "wrote {}: {}, version {}, a payload of {} bytes from {:#010x}, signed with {}{}",
@@ -241,6 +337,23 @@ fn sign(args: &SignArgs) -> Result<u8, Trouble> {
             ""
         }
     );
+    if info.security_counter > 0 {
+        say!(
+            "  security counter {}: once it confirms, the vehicle takes no image with a lower one",
+            info.security_counter
+        );
+    }
+    if info.rollback {
+        say!("  signed as a rollback: the vehicle takes it over a newer version");
+    }
+    if rotates {
+        say!(
+            "  key rotation: once this image confirms, the vehicle takes only files signed with the key it embeds, \
+             {}, and no longer files signed with {}",
+            key_words(&embedded),
+            args.key.display()
+        );
+    }
     Ok(exit::OK)
 }
 
@@ -298,6 +411,22 @@ impl Payload {
         let at = u64::from(self.base) + INFO_OFFSET as u64;
         ImageInfo::parse(self.bytes.get(INFO_OFFSET..).unwrap_or_default())
             .map_err(|error| ElfError::NoInfo { at, error })
+    }
+
+    /// The update key the image embeds after its info; `None` when the payload ends before it.
+    pub fn key(&self) -> Option<[u8; KEY_LEN]> {
+        embedded_key(&self.bytes)
+    }
+
+    /// Writes `info` (in format 2) over the image info at `base + INFO_OFFSET`; nothing when the payload ends before.
+    pub fn set_info(&mut self, info: &ImageInfo) {
+        if let Some(slot) = self
+            .bytes
+            .get_mut(INFO_OFFSET..)
+            .and_then(|rest| rest.first_chunk_mut::<INFO_LEN>())
+        {
+            *slot = info.to_bytes();
+        }
     }
 }
 
@@ -460,6 +589,10 @@ fn inspect(args: &InspectArgs) -> Result<u8, Trouble> {
     say!("{name}: update file, format {}", update_image::FORMAT);
     say!("  target     {}", header.target);
     say!("  version    {}", header.version);
+    // The payload's own info, signed where the header is not; one that does not read is refused below.
+    if let Ok(info) = ImageInfo::parse(payload.get(INFO_OFFSET..).unwrap_or_default()) {
+        say_info(&info);
+    }
     let mut hash = Verifier::new();
     hash.update(payload);
     let digest = hash.digest();
@@ -474,30 +607,56 @@ fn inspect(args: &InspectArgs) -> Result<u8, Trouble> {
         return Ok(exit::FAILED);
     }
     let dev = update_image::verify(&header, payload, &DEV_PUBLIC_KEY).is_ok();
-    let verifies = match key {
+    // The key it verifies with, if any.
+    let signer = match key {
         Some((public, path)) => {
             let answer = update_image::verify(&header, payload, &public);
             match &answer {
                 Ok(()) => say!("  signature  verifies with {}", path.display()),
                 Err(error) => say!("  signature  DOES NOT VERIFY with {}: {error}", path.display()),
             }
-            answer.is_ok()
+            answer.is_ok().then_some(public)
         }
         None if dev => {
             say!("  signature  verifies with the development key");
-            true
+            Some(DEV_PUBLIC_KEY)
         }
         None => {
             say!("  signature  not the development key's; give --key FILE.pub to check it with yours");
-            false
+            None
         }
     };
+    // check_file took it, so its info is format 2 and the payload holds the key after it.
+    if let Some(embedded) = embedded_key(payload) {
+        say!("  key        {}", key_words(&embedded));
+        match signer {
+            Some(signer) if signer == embedded => {
+                say!("             the key that signed it: the vehicle goes on taking files signed with it");
+            }
+            Some(_) => say!(
+                "             a rotation to another key than the one that signed it: once this image confirms, the \
+                 vehicle takes only files signed with this one"
+            ),
+            None => {}
+        }
+    }
     if dev {
         say!("  dev key    signed with the development key: anyone can sign for a vehicle that takes it");
     } else if args.key.is_some() {
         say!("  dev key    not signed with the development key");
     }
-    Ok(if verifies { exit::OK } else { exit::FAILED })
+    Ok(if signer.is_some() { exit::OK } else { exit::FAILED })
+}
+
+/// The image info's lines beyond target and version, for an update file and an ELF alike.
+fn say_info(info: &ImageInfo) {
+    say!("  info       format {}", info.format);
+    say!("  counter    {}", info.security_counter);
+    if info.rollback {
+        say!("  rollback   yes: signed to replace a newer version");
+    } else {
+        say!("  rollback   no");
+    }
 }
 
 /// An update file or an ELF, each read to its own cap (its first 4 bytes say which), so that no file makes it
@@ -552,11 +711,26 @@ fn inspect_elf(elf: &[u8], path: &Path) -> u8 {
     say!("{name}: firmware ELF (not signed; lbv image sign makes its update file)");
     say!("  target     {}", info.target);
     say!("  version    {}", info.version);
+    say_info(&info);
     say!(
         "  payload    {} bytes from {:#010x}, SHA-512 {}...",
         payload.bytes.len(),
         payload.base,
         hex(hash.digest().get(..16).unwrap_or_default())
     );
+    if info.format < INFO_FORMAT {
+        say!("  key        none: {} (sign refuses it)", Refusal::NoKey);
+        return exit::FAILED;
+    }
+    let Some(key) = payload.key() else {
+        say!(
+            "  key        none: the image ends at {:#x}, before the key after its image info ({KEY_OFFSET:#x}..{:#x})",
+            payload.bytes.len(),
+            KEY_OFFSET + KEY_LEN
+        );
+        return exit::FAILED;
+    };
+    say!("  key        {}", key_words(&key));
+    say!("             once this image runs, the vehicle takes only files signed with this key");
     exit::OK
 }

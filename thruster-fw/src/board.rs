@@ -26,10 +26,11 @@ use static_cell::StaticCell;
 use thruster_fw::faults::{LatchStore, ResetKind, carried_latch, latch_word};
 use thruster_fw::tasks::Watchdog;
 use thruster_fw::trial::BootState;
-use thruster_fw::update::{Updater, VerifyError};
+use thruster_fw::update::{MarkError, Updater, mark_for_swap, verdict_in};
 use thruster_fw::{CONFIG, FAMILY, I2cTarget, Request};
 use tmc_proto::Faults;
-use tmc_proto::ext::{INFO_LEN, SIGNATURE_LEN};
+use tmc_proto::ext::INFO_LEN;
+use update_image::{Ticket, Verdict};
 #[cfg(not(feature = "motorless"))]
 use {
     core::future::poll_fn,
@@ -416,8 +417,9 @@ pub fn dfu(flash: &'static SharedFlash) -> Dfu {
     partition(flash, THRUSTER_PARTITIONS.dfu)
 }
 
-/// The field update's bootloader side: the running image's record from its own flash, the signature check that
-/// marks the payload in DFU for the bootloader, and the system reset.
+/// The field update's bootloader side: the running image's record from its own flash, the ticket and the mark
+/// that hand a payload in DFU to the bootloader (which checks its signature before it swaps it in), the
+/// bootloader's verdict on the last one, and the system reset.
 pub struct ImageSwap(&'static SharedFlash);
 
 impl ImageSwap {
@@ -426,9 +428,6 @@ impl ImageSwap {
         ImageSwap(flash)
     }
 }
-
-/// DFU is hashed this many bytes at a time, the other tasks let run between two.
-const HASH_CHUNK: usize = 256;
 
 impl Updater for ImageSwap {
     fn running_info(&mut self) -> [u8; INFO_LEN] {
@@ -442,37 +441,14 @@ impl Updater for ImageSwap {
         true
     }
 
-    /// What embassy-boot's `verify_and_mark_updated` does with its `ed25519-salty` feature, with update-image's
-    /// `Verifier` (the same answer, but that a signature's S must be below the group order): DFU's first `payload_len`
-    /// bytes hashed with SHA-512, the signature checked over the digest with the image's update key, then the
-    /// state marked for the swap. Refused while the running image is on trial, as embassy-boot refuses.
-    async fn verify_and_mark_updated(
-        &mut self,
-        signature: &[u8; SIGNATURE_LEN],
-        payload_len: u32,
-    ) -> Result<(), VerifyError> {
-        let mut word = AlignedBuffer([0; WRITE_SIZE]);
-        let mut state_partition = partition(self.0, THRUSTER_PARTITIONS.state);
-        let mut state = BlockingFirmwareState::new(&mut state_partition, &mut word.0);
-        if state.get_state().map_err(|_| VerifyError::Flash)? == State::Swap {
-            return Err(VerifyError::OnTrial);
-        }
-        let mut dfu = partition(self.0, THRUSTER_PARTITIONS.dfu);
-        let mut verifier = update_image::Verifier::new();
-        let mut chunk = [0; HASH_CHUNK];
-        let mut offset = 0;
-        while offset < payload_len {
-            let len = usize::try_from(payload_len - offset).map_or(HASH_CHUNK, |left| left.min(HASH_CHUNK));
-            let bytes = chunk.get_mut(..len).unwrap_or_default();
-            dfu.read(offset, bytes).map_err(|_| VerifyError::Flash)?;
-            verifier.update(bytes);
-            offset += len as u32;
-            embassy_futures::yield_now().await;
-        }
-        verifier
-            .finish(signature, &update_image::UPDATE_KEY)
-            .map_err(|_| VerifyError::BadSignature)?;
-        state.mark_updated().map_err(|_| VerifyError::Flash)
+    fn mark_updated(&mut self, ticket: &Ticket) -> Result<(), MarkError> {
+        let mut ticket_page = partition(self.0, THRUSTER_PARTITIONS.ticket());
+        let mut state = partition(self.0, THRUSTER_PARTITIONS.state);
+        mark_for_swap(&mut ticket_page, &mut state, ticket)
+    }
+
+    fn verdict(&mut self) -> Option<Verdict> {
+        verdict_in(&mut partition(self.0, THRUSTER_PARTITIONS.ticket()))
     }
 
     fn reboot(&mut self) {

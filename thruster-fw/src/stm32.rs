@@ -106,10 +106,15 @@ unsafe fn DefaultHandler(_irqn: i16) -> ! {
     }
 }
 
-/// The pages the image reads data from: the bootloader's state (each start reads it) and the DFU partition.
-const DATA_PAGES: [Span; 2] = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.dfu];
+/// The pages the image reads data from: the bootloader's state (each start reads it), its record (the verdict
+/// beside the last ticket) and the DFU partition.
+const DATA_PAGES: [Span; 3] = [
+    THRUSTER_PARTITIONS.state,
+    THRUSTER_PARTITIONS.record,
+    THRUSTER_PARTITIONS.dfu,
+];
 
-/// So does an NMI, but for a flash ECC double error in the state or DFU pages: a double word a power cut tore
+/// So does an NMI, but for a flash ECC double error in the state, the bootloader's record or DFU pages: a double word a power cut tore
 /// there reads back as it is and embassy-boot copes with its content, whereas stopping would stop every start
 /// that reads it (`g431_hw::flash`). Any other NMI source (the same error in the code also trips TIM1's break
 /// through SYSCFG_CFGR2) is a fault; the watchdog then resets.
@@ -127,12 +132,14 @@ unsafe fn NonMaskableInt() {
     }
 }
 
-/// What this image is (target: this family's thruster; version: the crate's), where `lbv image` and a receiving
-/// thruster look for it (the linker script places `.image_info` at `g431_hw::memory::IMAGE_INFO_OFFSET`).
+/// What this image is (target: this family's thruster; version: the crate's) and the key it takes updates with,
+/// where `lbv image`, a receiving thruster and the bootloader look for them (the linker script places
+/// `.image_info` at `g431_hw::memory::IMAGE_INFO_OFFSET`).
 #[allow(unsafe_code)] // a link section: the record's place is the linker script's, checked there by size
 #[unsafe(link_section = ".image_info")]
 #[used]
-static IMAGE_INFO: [u8; update_image::INFO_LEN] = update_image::image_info!(update_image::Target::thruster(FAMILY));
+static IMAGE_INFO: [u8; update_image::IMAGE_RECORD_LEN] =
+    update_image::image_info!(update_image::Target::thruster(FAMILY));
 
 static SHARED: Shared = Shared::new();
 

@@ -90,9 +90,46 @@ pub async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
                 }
             }
         }
-        Ok(false) => {}
-        Err(_) => warn!("the bootloader's state could not be read: the image is not confirmed"),
+        Ok(false) => shared.replies.set_on_trial(false),
+        Err(_) => {
+            // Fail closed: DFU may hold the image a revert needs, so no update may begin over it.
+            shared.replies.set_on_trial(true);
+            warn!("the bootloader's state could not be read: the image is not confirmed, and takes no update");
+        }
     }
     // Nothing more to do; like the other tasks, it never ends.
     match core::future::pending::<core::convert::Infallible>().await {}
+}
+
+#[cfg(test)]
+mod tests {
+    use embassy_futures::poll_once;
+
+    use super::*;
+
+    /// A state partition that cannot be read.
+    struct Unreadable;
+
+    impl BootState for Unreadable {
+        type Error = ();
+
+        async fn on_trial(&mut self) -> Result<bool, ()> {
+            Err(())
+        }
+
+        async fn confirm(&mut self) -> Result<(), ()> {
+            Err(())
+        }
+    }
+
+    #[test]
+    fn an_image_whose_state_cannot_be_read_takes_no_update_as_if_on_trial() {
+        let shared = Shared::new();
+        assert!(shared.replies.on_trial(), "until the state is read");
+        let _ = poll_once(trial_task(&mut Unreadable, &shared));
+        assert!(shared.replies.on_trial(), "fails closed");
+        let shared = Shared::new();
+        let _ = poll_once(trial_task(&mut Confirmed, &shared));
+        assert!(!shared.replies.on_trial(), "read, and not on trial");
+    }
 }

@@ -6,18 +6,24 @@
 //! DFU flash (blocking NOR flash: on the G431 an erase or a write holds the CPU whatever the API, and blocking
 //! calls keep the receiver small) and the [`Updater`] port, and carries out one command at a time: erase a DFU
 //! page, write a chunk (inside the payload, aligned to the flash's 8-byte write unit, a short last chunk padded
-//! with 0xFF), read back CRCs, check the payload's information record and hand its signature to the port, which
-//! marks it for the bootloader to swap in, and reset on the master's word.
+//! with 0xFF), read back CRCs, check the payload's information record (its family, a format that names the key
+//! for the next update, no older version unless signed as a rollback, no lower security counter) and hand the
+//! payload's ticket (length and signature) to the port, which marks it for the bootloader, and reset on the
+//! master's word. The signature is the bootloader's to check (lbv-boot checks every image before it swaps it in,
+//! with the running image's key): one that does not check comes back as the bootloader's verdict in the next
+//! `Version`, the old image still running.
 //!
 //! Everything but `Version` is refused unless the master has ordered zero speed and the duty is zero: a page
 //! erase stalls the G431's CPU, commutation included, for tens of milliseconds (one flash bank, the code runs
-//! from it). An update under way is dropped as soon as the master orders a non-zero speed, even if it orders zero
+//! from it). `Finish` looks at the motor and writes the bootloader's state in one synchronous step, with no await
+//! between, so no order can slip in between the look and the erase. An update under way is dropped as soon as the master orders a non-zero speed, even if it orders zero
 //! again before its next command. Nothing here erases or writes outside the DFU partition's payload, and nothing
 //! panics on a command: every refusal is a reply with its own code ([`Refusal`]) and changes nothing.
 
 use core::cell::Cell;
 use core::sync::atomic::{AtomicBool, Ordering};
 
+use embassy_boot::{AlignedBuffer, BlockingFirmwareState, State};
 use embassy_futures::yield_now;
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -28,9 +34,12 @@ use g431_hw::memory::{IMAGE_INFO_OFFSET, THRUSTER_PARTITIONS};
 use tmc_proto::Family;
 use tmc_proto::ext::{
     Command, CommandFrame, CommandKind, Crc32, FrameBytes, INFO_LEN, MAX_CHUNK, PAGE_LEN, PROTOCOL_VERSION, Refusal,
-    Reply, ReplyBody, SIGNATURE_LEN, WRITE_UNIT,
+    Reply, ReplyBody, WRITE_UNIT,
 };
-use update_image::{ImageInfo, Target};
+use update_image::{
+    INFO_FORMAT, ImageInfo, Refusal as ImageRefusal, SLOTS, Slots, TICKET_OFFSET, Target, Ticket, VERDICT_OFFSET,
+    Verdict, check_upgrade,
+};
 
 use crate::drive::Duty;
 use crate::tasks::Shared;
@@ -41,8 +50,8 @@ pub const MAX_PAYLOAD: u32 = THRUSTER_PARTITIONS.active.length;
 /// Where a payload's information record starts (update-image's `ImageInfo`, just past the vector table).
 pub const INFO_OFFSET: u32 = IMAGE_INFO_OFFSET;
 
-/// A payload must be long enough to hold its information record.
-const INFO_END: u32 = INFO_OFFSET + INFO_LEN as u32;
+/// A payload must be long enough to hold its information record and the key after it.
+const INFO_END: u32 = update_image::MIN_PAYLOAD;
 
 /// How long a reboot waits for the master to read its reply before the reset.
 pub const REBOOT_GRACE: Duration = Duration::from_millis(100);
@@ -50,41 +59,74 @@ pub const REBOOT_GRACE: Duration = Duration::from_millis(100);
 /// Why the [`Updater`] did not mark the payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum VerifyError {
-    /// The signature does not check against the thruster's key.
-    BadSignature,
+pub enum MarkError {
     /// The bootloader's state is not "booted" (the running image is on trial): embassy-boot refuses to mark.
     OnTrial,
-    /// The flash failed.
+    /// The flash failed, or did not keep what was written.
     Flash,
-    /// This controller cannot check signatures (its image has no signature check): it marks nothing.
+    /// This controller has no bootloader to hand an image to: it marks nothing.
     Unavailable,
 }
 
-/// What an update needs of the bootloader and the chip: the running image's record, the signature check that
-/// marks the DFU payload for the swap, and the reset that starts it. The host tests and the bench implement it
-/// with embassy-boot's updater on lbv-sim's flash; the binding reads the record from the G431's flash, checks the
-/// signature with update-image's `Verifier` (answering as embassy-boot) and resets the core.
-#[allow(async_fn_in_trait)]
+/// What an update needs of the bootloader and the chip: the running image's record, the mark that hands the DFU
+/// payload to the bootloader with its [`Ticket`], the bootloader's verdict on the last image marked, and the
+/// reset that starts it. The host tests and the bench implement it with embassy-boot's state on lbv-sim's flash,
+/// the binding on the G431's; both mark through [`mark_for_swap`].
 pub trait Updater {
     /// The running image's information record, as its flash holds it (ACTIVE + [`INFO_OFFSET`]).
     fn running_info(&mut self) -> [u8; INFO_LEN];
 
-    /// Whether [`Updater::verify_and_mark_updated`] checks signatures at all (a master asks before it sends a
-    /// payload for nothing).
+    /// Whether an image marked here is checked before it runs (a bootloader that checks signatures is there): a
+    /// master asks before it sends a payload for nothing.
     fn checks_signatures(&self) -> bool;
 
-    /// Check `signature` (ed25519 over the SHA-512 of the first `payload_len` bytes of the DFU partition, as
-    /// embassy-boot's `verify_and_mark_updated` does) and, if it checks, mark the payload for the bootloader to
-    /// swap in at the next reset. `payload_len` is at most the DFU partition's capacity.
-    async fn verify_and_mark_updated(
-        &mut self,
-        signature: &[u8; SIGNATURE_LEN],
-        payload_len: u32,
-    ) -> Result<(), VerifyError>;
+    /// Write `ticket` (the payload's length and signature) for the bootloader and mark DFU's payload for the swap
+    /// at the next reset. Synchronous: the caller has just looked at the motor.
+    fn mark_updated(&mut self, ticket: &Ticket) -> Result<(), MarkError>;
+
+    /// Why the bootloader refused the last image marked, as it wrote it beside that image's ticket.
+    fn verdict(&mut self) -> Option<Verdict>;
 
     /// Reset the chip, so that the bootloader swaps the marked payload in. On the chip it does not return.
     fn reboot(&mut self);
+}
+
+/// Hand a payload to the bootloader: erase the record's ticket page and write `ticket` there (read back), then mark
+/// the state for the swap with embassy-boot's own `mark_updated`, and read the mark back (the G4's flash drivers
+/// can answer Ok for an erase or program that failed). Refused while the running image is on trial, as embassy-boot
+/// refuses. `ticket_page` is the record's first page (g431-hw's `Partitions::ticket`), `state` embassy-boot's state
+/// partition.
+pub fn mark_for_swap<T: NorFlash, S: NorFlash>(
+    ticket_page: &mut T,
+    state: &mut S,
+    ticket: &Ticket,
+) -> Result<(), MarkError> {
+    let mut word = AlignedBuffer([0; WRITE_UNIT as usize]);
+    let mut boot = BlockingFirmwareState::new(state, &mut word.0);
+    if boot.get_state().map_err(|_| MarkError::Flash)? == State::Swap {
+        return Err(MarkError::OnTrial);
+    }
+    let bytes = ticket.to_bytes();
+    let flash = |_| MarkError::Flash;
+    ticket_page.erase(0, PAGE_LEN).map_err(flash)?;
+    ticket_page.write(TICKET_OFFSET, &bytes).map_err(flash)?;
+    let mut back = [0; update_image::TICKET_LEN];
+    ticket_page.read(TICKET_OFFSET, &mut back).map_err(flash)?;
+    if back != bytes {
+        return Err(MarkError::Flash);
+    }
+    boot.mark_updated().map_err(|_| MarkError::Flash)?;
+    match boot.get_state() {
+        Ok(State::Swap) => Ok(()),
+        _ => Err(MarkError::Flash),
+    }
+}
+
+/// The bootloader's verdict in the record's ticket page, if it left one.
+pub fn verdict_in<T: NorFlash>(ticket_page: &mut T) -> Option<Verdict> {
+    let mut slots = [0; 8 * SLOTS];
+    ticket_page.read(VERDICT_OFFSET, &mut slots).ok()?;
+    Verdict::from_slots(&Slots(slots))
 }
 
 /// No update: a controller built without a DFU partition (the emulated Cortex-M4 and the motor-less tests): a
@@ -101,8 +143,12 @@ impl Updater for NoUpdate {
         false
     }
 
-    async fn verify_and_mark_updated(&mut self, _: &[u8; SIGNATURE_LEN], _: u32) -> Result<(), VerifyError> {
-        Err(VerifyError::Unavailable)
+    fn mark_updated(&mut self, _: &Ticket) -> Result<(), MarkError> {
+        Err(MarkError::Unavailable)
+    }
+
+    fn verdict(&mut self) -> Option<Verdict> {
+        None
     }
 
     fn reboot(&mut self) {}
@@ -171,7 +217,8 @@ pub struct Replies {
     pending: BlockingMutex<Mutex, Cell<Option<Pending>>>,
     /// A done reply was read.
     read: Signal<Mutex, ()>,
-    /// Trial -> update: the running image is on trial.
+    /// Trial -> update: the running image is on trial, or (until the trial task has read the bootloader's state,
+    /// and when it cannot) it may be: no update begins over the image a revert may need.
     on_trial: AtomicBool,
 }
 
@@ -184,7 +231,7 @@ impl Replies {
             commands: Signal::new(),
             pending: BlockingMutex::new(Cell::new(None)),
             read: Signal::new(),
-            on_trial: AtomicBool::new(false),
+            on_trial: AtomicBool::new(true),
         }
     }
 
@@ -362,21 +409,6 @@ impl Receiver {
                     .await
                     .map(|crc| ReplyBody::Check { offset, len, crc })
             }
-            Next::Verify { payload_len, signature } => {
-                match updater.verify_and_mark_updated(&signature, payload_len).await {
-                    Ok(()) => {
-                        info!("update finished: marked for the bootloader");
-                        self.stage = Stage::Finished;
-                        Ok(ReplyBody::Finish { payload_len })
-                    }
-                    Err(error) => Err(match error {
-                        VerifyError::BadSignature => Refusal::BadSignature,
-                        VerifyError::OnTrial => Refusal::OnTrial,
-                        VerifyError::Flash => Refusal::FlashError,
-                        VerifyError::Unavailable => Refusal::NoSignatureCheck,
-                    }),
-                }
-            }
         };
         let reboot = matches!(result, Ok(ReplyBody::Reboot));
         let reply = match result {
@@ -397,7 +429,7 @@ impl Receiver {
 
     /// Everything of a command that needs no waiting: its checks, and the flash work (which blocks anyway). What is
     /// left for [`Receiver::handle`] to wait for is a CRC over a long range, which lets the other tasks run
-    /// between chunks, and the signature check.
+    /// between chunks.
     // Out of line: a plain function beside the update task's poll, smaller as built.
     #[inline(never)]
     fn prepare<D: NorFlash, U: Updater>(
@@ -423,6 +455,9 @@ impl Receiver {
                 protocol: PROTOCOL_VERSION,
                 on_trial,
                 checks_signatures: updater.checks_signatures(),
+                marked: self.finished(),
+                dev_key: update_image::UPDATE_KEY_IS_DEV,
+                verdict: updater.verdict().map_or(0, Verdict::code),
                 max_payload: MAX_PAYLOAD,
                 info: updater.running_info(),
             }),
@@ -446,12 +481,20 @@ impl Receiver {
                 Ok(_) => return Next::Crc { offset, len },
                 Err(refusal) => Err(refusal),
             },
-            Command::Finish { payload_len, signature } => match self.finishable(payload_len, dfu) {
-                Ok(()) => {
-                    return Next::Verify { payload_len, signature };
-                }
-                Err(refusal) => Err(refusal),
-            },
+            // The motor was seen at rest just above, and nothing here awaits: the look and the state's erase are
+            // one step.
+            Command::Finish { payload_len, signature } => self.finishable(payload_len, dfu, updater).and_then(|()| {
+                updater
+                    .mark_updated(&Ticket { payload_len, signature })
+                    .map_err(|error| match error {
+                        MarkError::OnTrial => Refusal::OnTrial,
+                        MarkError::Flash => Refusal::FlashError,
+                        MarkError::Unavailable => Refusal::NoSignatureCheck,
+                    })?;
+                info!("update finished: marked for the bootloader");
+                self.stage = Stage::Finished;
+                Ok(ReplyBody::Finish { payload_len })
+            }),
             Command::Reboot => match self.stage {
                 Stage::Finished => Ok(ReplyBody::Reboot),
                 _ => Err(Refusal::NotFinished),
@@ -494,8 +537,15 @@ impl Receiver {
         Ok(ReplyBody::Begin { payload_len })
     }
 
-    /// Whether the payload is one to check the signature of: the length begun with, and this family's record.
-    fn finishable<D: NorFlash>(&self, payload_len: u32, dfu: &mut D) -> Result<(), Refusal> {
+    /// Whether the payload is one to hand the bootloader: the length begun with, this family's record, of a format
+    /// that names the key for the next update, and no step back from the running image (its version unless signed
+    /// as a rollback, its security counter). The bootloader checks all of it again, and the signature.
+    fn finishable<D: NorFlash, U: Updater>(
+        &self,
+        payload_len: u32,
+        dfu: &mut D,
+        updater: &mut U,
+    ) -> Result<(), Refusal> {
         let session = self.session()?;
         if payload_len != session.payload_len {
             return Err(Refusal::Truncated);
@@ -505,7 +555,16 @@ impl Receiver {
         if info_family(&info)? != Some(self.family) {
             return Err(Refusal::WrongFamily);
         }
-        Ok(())
+        let image = ImageInfo::parse(&info).map_err(|_| Refusal::NoImageInfo)?;
+        if image.format < INFO_FORMAT {
+            return Err(Refusal::NoKey);
+        }
+        let running = ImageInfo::parse(&updater.running_info()).ok();
+        let floor = running.map_or(0, |running| running.security_counter);
+        check_upgrade(&image, running.as_ref(), floor).map_err(|refusal| match refusal {
+            ImageRefusal::Older { .. } => Refusal::Older,
+            _ => Refusal::CounterBelow,
+        })
     }
 }
 
@@ -515,11 +574,6 @@ enum Next {
     Reply(Result<ReplyBody, Refusal>),
     /// A CRC of the DFU partition to compute.
     Crc { offset: u32, len: u32 },
-    /// A signature to check.
-    Verify {
-        payload_len: u32,
-        signature: [u8; SIGNATURE_LEN],
-    },
 }
 
 /// Write a chunk at `offset` in erased flash, padded with 0xFF to the write unit, and read it back. A chunk the

@@ -420,11 +420,18 @@ pub enum Refusal {
     Finished = 15,
     /// The thruster's firmware cannot check signatures, so it marks no payload for the bootloader.
     NoSignatureCheck = 16,
+    /// The image is older than the one that runs, and was not signed as a rollback.
+    Older = 17,
+    /// The image's security counter is below the running image's.
+    CounterBelow = 18,
+    /// The image's information record is of format 1: it names no update key, so nothing after it could be
+    /// checked.
+    NoKey = 19,
 }
 
 impl Refusal {
     /// Every refusal.
-    pub const ALL: [Refusal; 15] = [
+    pub const ALL: [Refusal; 18] = [
         Refusal::Driving,
         Refusal::OnTrial,
         Refusal::NotBegun,
@@ -440,6 +447,9 @@ impl Refusal {
         Refusal::NotFinished,
         Refusal::Finished,
         Refusal::NoSignatureCheck,
+        Refusal::Older,
+        Refusal::CounterBelow,
+        Refusal::NoKey,
     ];
 
     /// Its result code.
@@ -465,6 +475,9 @@ impl Refusal {
             14 => Some(Refusal::NotFinished),
             15 => Some(Refusal::Finished),
             16 => Some(Refusal::NoSignatureCheck),
+            17 => Some(Refusal::Older),
+            18 => Some(Refusal::CounterBelow),
+            19 => Some(Refusal::NoKey),
             _ => None,
         }
     }
@@ -487,6 +500,9 @@ impl Refusal {
             Refusal::NotFinished => "no finished update to reboot into",
             Refusal::Finished => "an update is finished: reboot to start it",
             Refusal::NoSignatureCheck => "this thruster's firmware cannot check signatures: it takes no update",
+            Refusal::Older => "the image is older than the one that runs (sign it with --allow-rollback to go back)",
+            Refusal::CounterBelow => "the image's security counter is below the running image's",
+            Refusal::NoKey => "the image names no update key (image info format 1)",
         }
     }
 }
@@ -507,8 +523,17 @@ pub enum ReplyBody {
         /// The running image is on trial (see [`Refusal::OnTrial`]); flags bit 0.
         on_trial: bool,
         /// The thruster checks signatures, so a finished update can be marked (see
-        /// [`Refusal::NoSignatureCheck`]); flags bit 1.
+        /// [`Refusal::NoSignatureCheck`]); flags bit 1. Its bootloader checks each image before it swaps it in.
         checks_signatures: bool,
+        /// It holds an update marked for its bootloader, which the next reset swaps in ([`Command::Finish`] done,
+        /// no [`Command::Reboot`] yet); flags bit 2.
+        marked: bool,
+        /// The running image takes update files signed with the development key, whose secret is published;
+        /// flags bit 3.
+        dev_key: bool,
+        /// Why its bootloader refused the last image marked, as update-image's `Verdict` codes it (1..=15), or 0
+        /// for no refusal since; flags bits 4-7.
+        verdict: u8,
         /// The longest payload it takes: its ACTIVE partition.
         max_payload: u32,
         /// The running image's information record, as its flash holds it (update-image's `ImageInfo`).
@@ -925,10 +950,18 @@ impl Reply {
                     protocol,
                     on_trial,
                     checks_signatures,
+                    marked,
+                    dev_key,
+                    verdict,
                     max_payload,
                     info,
                 } => {
-                    out.put(&[*protocol, u8::from(*on_trial) | (u8::from(*checks_signatures) << 1)]);
+                    let flags = u8::from(*on_trial)
+                        | u8::from(*checks_signatures) << 1
+                        | u8::from(*marked) << 2
+                        | u8::from(*dev_key) << 3
+                        | (*verdict & 0x0F) << 4;
+                    out.put(&[*protocol, flags]);
                     out.put(&max_payload.to_le_bytes());
                     out.put(info);
                 }
@@ -1001,12 +1034,15 @@ impl Reply {
         let body = match kind {
             CommandKind::Version => {
                 let protocol = fields.u8();
-                // Bits 2-7 are reserved: not assumed zero (IDS 8.1's rule, kept here).
+                // A thruster from before bits 2-7 had meanings sends them as zero.
                 let flags = fields.u8();
                 ReplyBody::Version {
                     protocol,
                     on_trial: flags & 1 != 0,
                     checks_signatures: flags & 2 != 0,
+                    marked: flags & 4 != 0,
+                    dev_key: flags & 8 != 0,
+                    verdict: flags >> 4,
                     max_payload: fields.u32(),
                     info: fields.array(),
                 }
@@ -1172,6 +1208,9 @@ mod tests {
                 protocol: PROTOCOL_VERSION,
                 on_trial: true,
                 checks_signatures: false,
+                marked: true,
+                dev_key: false,
+                verdict: 3,
                 max_payload: 58 * 1024,
                 info: *b"LBVI\x01\x01\0\0\x01\0\x02\0\x03\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0",
             },
@@ -1266,7 +1305,7 @@ mod tests {
         }
         assert_eq!(Refusal::from_code(0), None);
         assert_eq!(Refusal::from_code(1), None);
-        assert_eq!(Refusal::from_code(17), None);
+        assert_eq!(Refusal::from_code(20), None);
         for kind in CommandKind::ALL {
             assert_eq!(CommandKind::from_byte(kind.to_byte()), Some(kind));
         }

@@ -39,13 +39,18 @@ fn kind() -> impl Strategy<Value = CommandKind> {
 fn body() -> impl Strategy<Value = ReplyBody> {
     let info = prop::array::uniform32(any::<u8>());
     prop_oneof![
-        (any::<u8>(), any::<bool>(), any::<bool>(), any::<u32>(), info).prop_map(
-            |(protocol, on_trial, checks_signatures, max_payload, info)| ReplyBody::Version {
-                protocol,
-                on_trial,
-                checks_signatures,
-                max_payload,
-                info,
+        (any::<u8>(), any::<[bool; 4]>(), 0u8..16, any::<u32>(), info).prop_map(
+            |(protocol, [on_trial, checks_signatures, marked, dev_key], verdict, max_payload, info)| {
+                ReplyBody::Version {
+                    protocol,
+                    on_trial,
+                    checks_signatures,
+                    marked,
+                    dev_key,
+                    verdict,
+                    max_payload,
+                    info,
+                }
             }
         ),
         any::<u32>().prop_map(|payload_len| ReplyBody::Begin { payload_len }),

@@ -3,8 +3,9 @@
 use core::cmp::Ordering;
 use core::fmt;
 
+use crate::bootloader::MIN_PAYLOAD;
 use crate::{
-    HEADER_LEN, Header, HeaderError, INFO_LEN, INFO_OFFSET, ImageInfo, InfoError, Target, Version, WRITE_UNIT,
+    HEADER_LEN, Header, HeaderError, INFO_FORMAT, INFO_OFFSET, ImageInfo, InfoError, Target, Version, WRITE_UNIT,
 };
 
 /// Why an update is refused, each with a one-line reason for a person (its `Display`).
@@ -44,7 +45,7 @@ pub enum Refusal {
         /// The largest payload the device takes: its ACTIVE partition's size.
         max: u32,
     },
-    /// The payload ends before the image info it must hold.
+    /// The payload ends before the image info and the key it must hold.
     TooShort {
         /// Payload length.
         len: u32,
@@ -70,6 +71,23 @@ pub enum Refusal {
         /// The device's own.
         device: Target,
     },
+    /// The payload's image info is of format 1: it carries no update key, so the vehicle could check no update
+    /// after it.
+    NoKey,
+    /// The image is older than the one that runs, and was not signed as a rollback (`--allow-rollback`).
+    Older {
+        /// The image's.
+        image: Version,
+        /// The one that runs.
+        running: Version,
+    },
+    /// The image's security counter is below the one the device holds to.
+    CounterBelow {
+        /// The image's.
+        image: u32,
+        /// The device's.
+        floor: u32,
+    },
 }
 
 /// Checks the header of an update against the payload's image info (read from the payload at
@@ -82,6 +100,29 @@ pub enum Refusal {
 pub fn check(header: &Header, info: &ImageInfo, device: Target, max_payload: u32) -> Result<(), Refusal> {
     check_length(header, max_payload)?;
     check_info(header, info, device)
+}
+
+/// Whether `image` may replace the image that runs (`running`, when its info reads): no older version unless
+/// signed as a rollback, and a security counter at least `floor` (the bootloader's stored counter; an
+/// application that does not read it holds to the running image's own). Equal versions and counters are taken:
+/// the same image may be installed again.
+pub fn check_upgrade(image: &ImageInfo, running: Option<&ImageInfo>, floor: u32) -> Result<(), Refusal> {
+    if let Some(running) = running
+        && image.version < running.version
+        && !image.rollback
+    {
+        return Err(Refusal::Older {
+            image: image.version,
+            running: running.version,
+        });
+    }
+    if image.security_counter < floor {
+        return Err(Refusal::CounterBelow {
+            image: image.security_counter,
+            floor,
+        });
+    }
+    Ok(())
 }
 
 /// Checks a whole update file held in memory: its header parses, its length is the header's, its payload holds an
@@ -114,7 +155,7 @@ fn check_length(header: &Header, max_payload: u32) -> Result<(), Refusal> {
     if len > max_payload {
         return Err(Refusal::TooLarge { len, max: max_payload });
     }
-    if (len as usize) < INFO_OFFSET + INFO_LEN {
+    if len < MIN_PAYLOAD {
         return Err(Refusal::TooShort { len });
     }
     Ok(())
@@ -139,6 +180,9 @@ fn check_info(header: &Header, info: &ImageInfo, device: Target) -> Result<(), R
             image: info.target,
             device,
         });
+    }
+    if info.format < INFO_FORMAT {
+        return Err(Refusal::NoKey);
     }
     Ok(())
 }
@@ -184,8 +228,7 @@ impl fmt::Display for Refusal {
             }
             Refusal::TooShort { len } => write!(
                 f,
-                "a payload of {len} bytes ends before its image info ({INFO_OFFSET:#x}..{:#x})",
-                INFO_OFFSET + INFO_LEN
+                "a payload of {len} bytes ends before its image info and key ({INFO_OFFSET:#x}..{MIN_PAYLOAD:#x})"
             ),
             Refusal::TargetMismatch { header, payload } => write!(
                 f,
@@ -198,6 +241,16 @@ impl fmt::Display for Refusal {
             }
             Refusal::WrongTarget { image, device } => {
                 write!(f, "signed for {}, {}", for_whom(image), this_is(device))
+            }
+            Refusal::NoKey => {
+                f.write_str("an image of info format 1 names no update key: nothing after it could be checked")
+            }
+            Refusal::Older { image, running } => write!(
+                f,
+                "version {image} is older than the {running} that runs (sign it with --allow-rollback to go back)"
+            ),
+            Refusal::CounterBelow { image, floor } => {
+                write!(f, "security counter {image} is below the vehicle's {floor}")
             }
         }
     }
@@ -224,7 +277,7 @@ mod tests {
     /// An update file with a payload of `len` bytes holding the image info of `info`.
     fn file(header: &Header, info: &ImageInfo, len: usize) -> Vec<u8> {
         let mut payload = vec![0xFF; len];
-        if let Some(slot) = payload.get_mut(INFO_OFFSET..INFO_OFFSET + INFO_LEN) {
+        if let Some(slot) = payload.get_mut(INFO_OFFSET..INFO_OFFSET + crate::INFO_LEN) {
             slot.copy_from_slice(&info.to_bytes());
         }
         let mut file = header.to_bytes().to_vec();
@@ -240,10 +293,10 @@ mod tests {
             assert_eq!(check(&header, &info, target, MAX), Ok(()));
             assert_eq!(check_file(&file(&header, &info, 1024), target, MAX), Ok((header, info)));
         }
-        // At the limits: exactly the info's end, exactly the partition.
+        // At the limits: exactly the key's end, exactly the partition.
         let info = ImageInfo::new(Target::Master, VERSION);
         assert_eq!(
-            check(&header(Target::Master, 0x220), &info, Target::Master, MAX),
+            check(&header(Target::Master, 0x240), &info, Target::Master, MAX),
             Ok(())
         );
         assert_eq!(check(&header(Target::Master, MAX), &info, Target::Master, MAX), Ok(()));
@@ -265,7 +318,9 @@ mod tests {
             refuse(at(MAX + 8), seabotix),
             Some(Refusal::TooLarge { len: MAX + 8, max: MAX })
         );
-        assert_eq!(refuse(at(0x218), seabotix), Some(Refusal::TooShort { len: 0x218 }));
+        assert_eq!(refuse(at(0x238), seabotix), Some(Refusal::TooShort { len: 0x238 }));
+        let format_1 = ImageInfo { format: 1, ..seabotix };
+        assert_eq!(refuse(at(1024), format_1), Some(Refusal::NoKey));
         assert_eq!(
             refuse(header(Target::ThrusterLegacy, 1024), seabotix),
             Some(Refusal::TargetMismatch {
@@ -378,7 +433,19 @@ mod tests {
         );
         assert_eq!(
             Refusal::TooShort { len: 16 }.to_string(),
-            "a payload of 16 bytes ends before its image info (0x200..0x220)"
+            "a payload of 16 bytes ends before its image info and key (0x200..0x240)"
+        );
+        assert_eq!(
+            Refusal::Older {
+                image: Version::new(0, 1, 0),
+                running: Version::new(0, 3, 0)
+            }
+            .to_string(),
+            "version 0.1.0 is older than the 0.3.0 that runs (sign it with --allow-rollback to go back)"
+        );
+        assert_eq!(
+            Refusal::CounterBelow { image: 2, floor: 3 }.to_string(),
+            "security counter 2 is below the vehicle's 3"
         );
         assert_eq!(
             Refusal::TargetMismatch {
@@ -398,10 +465,45 @@ mod tests {
                 payload: VERSION,
             },
             wrong,
+            Refusal::NoKey,
         ];
         for refusal in all {
             let text = refusal.to_string();
             assert!(!text.is_empty() && !text.contains('\n'), "{text:?}");
         }
+    }
+
+    #[test]
+    fn no_older_image_unless_signed_to_go_back_and_no_counter_below_the_floor() {
+        let running = ImageInfo::new(Target::Master, Version::new(0, 3, 0)).with_security_counter(2);
+        let at = |major, minor, patch, counter| {
+            ImageInfo::new(Target::Master, Version::new(major, minor, patch)).with_security_counter(counter)
+        };
+        // Newer, the same, and no running info to compare with: taken.
+        assert_eq!(check_upgrade(&at(0, 3, 1, 2), Some(&running), 2), Ok(()));
+        assert_eq!(check_upgrade(&at(0, 3, 0, 2), Some(&running), 2), Ok(()));
+        assert_eq!(check_upgrade(&at(0, 1, 0, 2), None, 2), Ok(()));
+        // Older: refused, unless signed as a rollback, which is still held to the counter.
+        assert_eq!(
+            check_upgrade(&at(0, 2, 9, 2), Some(&running), 2),
+            Err(Refusal::Older {
+                image: Version::new(0, 2, 9),
+                running: running.version
+            })
+        );
+        assert_eq!(
+            check_upgrade(&at(0, 1, 0, 2).with_rollback(true), Some(&running), 2),
+            Ok(())
+        );
+        assert_eq!(
+            check_upgrade(&at(0, 1, 0, 1).with_rollback(true), Some(&running), 2),
+            Err(Refusal::CounterBelow { image: 1, floor: 2 })
+        );
+        // The counter: equal taken, below refused, whatever the version.
+        assert_eq!(check_upgrade(&at(1, 0, 0, 3), Some(&running), 3), Ok(()));
+        assert_eq!(
+            check_upgrade(&at(1, 0, 0, 2), Some(&running), 3),
+            Err(Refusal::CounterBelow { image: 2, floor: 3 })
+        );
     }
 }

@@ -8,6 +8,7 @@ pub const DEV_PUBLIC_KEY: [u8; 32] = [
     0x43, 0xf8, 0xd8, 0xf2, 0xde, 0xa9, 0xdd, 0xe1, 0x54, 0x67, 0x91, 0xc9, 0x54,
 ];
 
+#[cfg(feature = "key")]
 include!(concat!(env!("OUT_DIR"), "/update_key.rs"));
 
 pub use crate::hex::key_from_hex;

@@ -15,8 +15,8 @@
 //!
 //! Every decoder answers every input with a value or a typed error; nothing here panics.
 //!
-//! Features: `verify` (`Verifier`, no_std, the salty ed25519 embassy-boot uses), `sign` (`sign` and `keygen`, std,
-//! ed25519-dalek), `defmt`.
+//! Features: `key` (the [`UPDATE_KEY`] a firmware takes updates with, from `LBV_UPDATE_KEY`), `verify` (`Verifier`,
+//! no_std, the salty ed25519 embassy-boot uses), `sign` (`sign` and `keygen`, std, ed25519-dalek), `defmt`.
 //!
 //! ```
 //! use update_image::{INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
@@ -38,6 +38,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+mod bootloader;
 mod check;
 mod header;
 mod hex;
@@ -50,10 +51,16 @@ mod target;
 mod verify;
 mod version;
 
-pub use check::{Refusal, check, check_file};
+pub use bootloader::{
+    MIN_PAYLOAD, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Ticket, VERDICT_OFFSET, Verdict, checked_word,
+    read_checked_word,
+};
+pub use check::{Refusal, check, check_file, check_upgrade};
 pub use header::{Header, HeaderError};
-pub use info::{ImageInfo, InfoError};
-pub use key::{DEV_PUBLIC_KEY, UPDATE_KEY, UPDATE_KEY_IS_DEV, key_from_hex};
+pub use info::{ImageInfo, InfoError, image_record};
+pub use key::{DEV_PUBLIC_KEY, key_from_hex};
+#[cfg(feature = "key")]
+pub use key::{UPDATE_KEY, UPDATE_KEY_IS_DEV};
 #[cfg(feature = "sign")]
 pub use sign::{SignError, keygen, public_key, sign};
 pub use target::Target;
@@ -71,6 +78,17 @@ pub const INFO_OFFSET: usize = 0x200;
 /// Length of the [`ImageInfo`] record, in bytes.
 pub const INFO_LEN: usize = 32;
 
+/// Where an image keeps, right after its [`ImageInfo`], the ed25519 public key it takes updates with (its build's
+/// [`UPDATE_KEY`], feature `key`): the bootloader checks a new image's signature with the key of the image that
+/// runs, so the key an image embeds decides which files the vehicle takes after it. Format-2 images only.
+pub const KEY_OFFSET: usize = INFO_OFFSET + INFO_LEN;
+
+/// Length of the embedded key, in bytes.
+pub const KEY_LEN: usize = 32;
+
+/// What an image's `.image_info` section holds: its [`ImageInfo`] and its update key ([`image_record`]).
+pub const IMAGE_RECORD_LEN: usize = INFO_LEN + KEY_LEN;
+
 /// Length of the update file's [`Header`], in bytes.
 pub const HEADER_LEN: usize = 80;
 
@@ -81,6 +99,10 @@ pub const WRITE_UNIT: usize = 8;
 /// What the payload is padded with: erased flash.
 pub const PAD_BYTE: u8 = 0xFF;
 
-/// The highest format version this crate reads, in both the header and the image info. A record of another
-/// version is refused, not guessed at.
+/// The update file's format: the [`Header`] this crate writes and reads. A header of another format is refused,
+/// not guessed at.
 pub const FORMAT: u8 = 1;
+
+/// The [`ImageInfo`]'s format this crate writes; it reads formats 1 and 2 (format 1 has no flags, no security
+/// counter and no key record after it).
+pub const INFO_FORMAT: u8 = 2;

@@ -82,7 +82,7 @@ mod tests {
     #[test]
     fn pads_to_the_write_unit_and_takes_the_header_from_the_info() {
         let info = ImageInfo::new(Target::ThrusterLegacy, Version::new(0, 3, 1));
-        for len in [0x220, 0x221, 0x227, 0x228, 0x229, 4093] {
+        for len in [0x240, 0x241, 0x247, 0x248, 0x249, 4093] {
             let payload = payload(len, info);
             let file = sign(&payload, &[7; 32]).unwrap();
             let padded = len.div_ceil(8) * 8;

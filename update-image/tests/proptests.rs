@@ -20,7 +20,11 @@ fn version() -> impl Strategy<Value = Version> {
 }
 
 fn info() -> impl Strategy<Value = ImageInfo> {
-    (target(), version()).prop_map(|(target, version)| ImageInfo::new(target, version))
+    (target(), version(), any::<u32>(), any::<bool>()).prop_map(|(target, version, counter, rollback)| {
+        ImageInfo::new(target, version)
+            .with_security_counter(counter)
+            .with_rollback(rollback)
+    })
 }
 
 fn header() -> impl Strategy<Value = Header> {
@@ -87,7 +91,7 @@ proptest! {
     #[test]
     fn consistent_files_pass_and_altered_ones_do_not(
         info in info(),
-        units in ((INFO_OFFSET + INFO_LEN) / WRITE_UNIT)..600,
+        units in (update_image::MIN_PAYLOAD as usize / WRITE_UNIT)..600,
         fill in any::<u8>(),
         other in info(),
     ) {

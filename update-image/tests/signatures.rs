@@ -65,7 +65,7 @@ fn embassy_boot_answer(payload: &[u8], public: &[u8; 32], signature: &[u8; 64], 
 fn salty_verifies_what_dalek_signs() {
     let seed = keygen().unwrap();
     let public = public_key(&seed);
-    for len in [0x220, 0x1001, 20_000, ACTIVE as usize] {
+    for len in [0x240, 0x1001, 20_000, ACTIVE as usize] {
         let (header, payload) = signed(len, &seed);
         assert_eq!(verify(&header, &payload, &public), Ok(()));
         // In chunks of every size, as the master sees it stream through.
@@ -113,7 +113,7 @@ fn salty_refuses_what_embassy_boot_refuses() {
 fn embassy_boot_accepts_a_signed_update_and_marks_it_for_swap() {
     let seed = keygen().unwrap();
     let public = public_key(&seed);
-    for len in [0x220, 5000, ACTIVE as usize - 3] {
+    for len in [0x240, 5000, ACTIVE as usize - 3] {
         let (header, payload) = signed(len, &seed);
         assert_eq!(
             embassy_boot_answer(&payload, &public, &header.signature, header.payload_len),
@@ -192,7 +192,8 @@ fn the_development_key_pair_matches() {
 #[test]
 fn the_layout_places_the_image_info_where_the_format_reads_it() {
     assert_eq!(INFO_OFFSET, IMAGE_INFO_OFFSET as usize);
-    assert_eq!(INFO_LEN, IMAGE_INFO_SIZE as usize);
+    assert_eq!(update_image::IMAGE_RECORD_LEN, IMAGE_INFO_SIZE as usize);
+    assert_eq!(update_image::KEY_OFFSET, INFO_OFFSET + INFO_LEN);
     assert!(DFU_PAGES * 2048 > ACTIVE as usize);
 }
 

@@ -18,7 +18,6 @@
 use core::cell::{Cell, RefCell};
 use std::rc::Rc;
 
-use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 use g431_hw::memory::MASTER_PARTITIONS;
@@ -206,10 +205,7 @@ impl MasterBoard {
         if let Some(bytes) = self.cut_in_bootloader.take() {
             self.flash.cut_power_after(bytes);
         }
-        self.boot_outcome = Some(lbv_boot::prepare(
-            &Mutex::new(RefCell::new(self.flash.clone())),
-            &MASTER_PARTITIONS,
-        ));
+        self.boot_outcome = Some(lbv_boot::prepare(self.flash.clone(), &MASTER_PARTITIONS, || {}));
         self.flash.stall_cpu(&self.cpu, FlashTiming::G474_DUAL_BANK);
         if !self.flash.powered() {
             return;

@@ -16,7 +16,6 @@ use core::ops::Deref;
 use std::rc::Rc;
 
 use embassy_boot::{BlockingFirmwareState, State};
-use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
@@ -32,7 +31,7 @@ use thruster_fw::hall::HallState;
 use thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors, Shared, Watchdog};
 use thruster_fw::{Config, Duty, Ports};
 use tmc_proto::{Family, MotorKind};
-use update_image::{DEV_PUBLIC_KEY, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
+use update_image::{DEV_PUBLIC_KEY, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version, image_record};
 
 use super::STEP;
 use super::battery::Rail;
@@ -124,9 +123,11 @@ pub fn made_up_image(target: Target, version: Version, len: usize, seed: u32) ->
             x as u8
         })
         .collect();
-    let info = ImageInfo::new(target, version).to_bytes();
-    if let Some(record) = image.get_mut(INFO_OFFSET..INFO_OFFSET + INFO_LEN) {
-        record.copy_from_slice(&info);
+    // Its image info and, after it, the key the bench's update files are signed with (the development key): the
+    // bootloader checks the next image with it.
+    let record = image_record(ImageInfo::new(target, version), &DEV_PUBLIC_KEY);
+    if let Some(slot) = image.get_mut(INFO_OFFSET..INFO_OFFSET + record.len()) {
+        slot.copy_from_slice(&record);
     }
     image
 }
@@ -207,10 +208,8 @@ impl ThrusterBoard {
         let flash = factory_flash(&factory_image(family));
         let updater = BootUpdater::new(
             family,
-            partition(&flash, THRUSTER_PARTITIONS.dfu),
+            partition(&flash, THRUSTER_PARTITIONS.ticket()),
             partition(&flash, THRUSTER_PARTITIONS.state),
-            // The bench's images are signed with the development key (lbv image sign --allow-dev-key).
-            DEV_PUBLIC_KEY,
         );
         Self {
             config: Config::reference(family, MotorKind::Brushless),
@@ -264,10 +263,7 @@ impl ThrusterBoard {
         if let Some(bytes) = self.cut_in_bootloader.take() {
             self.flash.cut_power_after(bytes);
         }
-        self.boot_outcome = Some(lbv_boot::prepare(
-            &Mutex::new(RefCell::new(self.flash.clone())),
-            &THRUSTER_PARTITIONS,
-        ));
+        self.boot_outcome = Some(lbv_boot::prepare(self.flash.clone(), &THRUSTER_PARTITIONS, || {}));
         if !self.flash.powered() {
             // The power went in the bootloader's work: the board stays off until the next boot.
             return;

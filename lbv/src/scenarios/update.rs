@@ -10,7 +10,7 @@ use lbv_master_fw::update::TAKEOVER_IDLE;
 use lbv_station::{Upload, UploadState};
 use serde_json::json;
 use tmc_proto::Family;
-use update_image::{INFO_OFFSET, ImageInfo, Target, Version};
+use update_image::{DEV_PUBLIC_KEY, INFO_OFFSET, ImageInfo, Target, Version, image_record};
 
 use super::fault::Fault;
 use super::harness::{Run, round};
@@ -28,13 +28,14 @@ const FAILED: u8 = 4;
 const NEW: Version = Version::new(0, 2, 0);
 
 /// A signed update file for `family`'s thrusters at `version`: a made-up payload of [`PAYLOAD_LEN`] bytes with its
-/// image info at 0x200, signed with `seed`.
+/// image info at 0x200 and the development key after it (the key the next update is checked with), signed with
+/// `seed`.
 fn update_file(family: Family, version: Version, seed: &[u8; 32]) -> Vec<u8> {
     let mut payload: Vec<u8> = (0..PAYLOAD_LEN as u32)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 11) as u8)
         .collect();
-    let info = ImageInfo::new(Target::thruster(family), version).to_bytes();
-    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let record = image_record(ImageInfo::new(Target::thruster(family), version), &DEV_PUBLIC_KEY);
+    payload[INFO_OFFSET..INFO_OFFSET + record.len()].copy_from_slice(&record);
     update_image::sign(&payload, seed).expect("the payload holds its image info")
 }
 
@@ -502,14 +503,14 @@ fn polls_of_others(run: &Run, slot: usize) -> u64 {
 /// The master's image in the scenario: its application's flash budget, the largest image its own update carries.
 const MASTER_PAYLOAD_LEN: usize = g431_hw::images::MASTER_FLASH_BUDGET as usize;
 
-/// A signed update file for the master at `version`: a made-up payload with its image info at 0x200, signed with
-/// `seed`.
+/// A signed update file for the master at `version`: a made-up payload with its image info at 0x200 and the
+/// development key after it, signed with `seed`.
 fn master_file(version: Version, seed: &[u8; 32]) -> Vec<u8> {
     let mut payload: Vec<u8> = (0..MASTER_PAYLOAD_LEN as u32)
         .map(|i| (i.wrapping_mul(2_246_822_519) >> 13) as u8)
         .collect();
-    let info = ImageInfo::new(Target::Master, version).to_bytes();
-    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let record = image_record(ImageInfo::new(Target::Master, version), &DEV_PUBLIC_KEY);
+    payload[INFO_OFFSET..INFO_OFFSET + record.len()].copy_from_slice(&record);
     update_image::sign(&payload, seed).expect("the payload holds its image info")
 }
 

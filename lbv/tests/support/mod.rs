@@ -123,7 +123,7 @@ pub fn fly_with(
 }
 
 /// A SeaBotix thruster's update file at 0.2.0, signed with the development key (keys/dev.key), as `lbv image sign
-/// --allow-dev-key` makes one: a 4096-byte made-up payload with its image info at 0x200.
+/// --allow-dev-key` makes one: a 4096-byte made-up payload with its image info at 0x200 and the key after it.
 pub fn signed_update_file() -> Vec<u8> {
     signed_update_file_for(update_image::Target::ThrusterSeabotix)
 }
@@ -131,12 +131,12 @@ pub fn signed_update_file() -> Vec<u8> {
 /// The same for `target` (the master's: `Target::Master`).
 #[allow(dead_code, reason = "not every test that includes this module updates the master")]
 pub fn signed_update_file_for(target: update_image::Target) -> Vec<u8> {
-    use update_image::{INFO_OFFSET, ImageInfo, Version, key_from_hex};
+    use update_image::{DEV_PUBLIC_KEY, INFO_OFFSET, ImageInfo, Version, image_record, key_from_hex};
     let mut payload: Vec<u8> = (0..4096u32)
         .map(|n| (n.wrapping_mul(2_654_435_761) >> 7) as u8)
         .collect();
-    let info = ImageInfo::new(target, Version::new(0, 2, 0)).to_bytes();
-    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let record = image_record(ImageInfo::new(target, Version::new(0, 2, 0)), &DEV_PUBLIC_KEY);
+    payload[INFO_OFFSET..INFO_OFFSET + record.len()].copy_from_slice(&record);
     let seed = key_from_hex(include_str!("../../../keys/dev.key")).unwrap();
     update_image::sign(&payload, &seed).unwrap()
 }

@@ -147,6 +147,8 @@ struct Bench {
     boot: Flash<8, 2048>,
     /// The DFU partition a field update writes.
     dfu: Flash<8, 2048>,
+    /// The bootloader record's first page, where a field update writes its ticket.
+    ticket: Flash<8, 2048>,
     /// The controller's CPU, which the flash's erases and writes stall once wired to it.
     cpu: Cpu,
     /// Reboots the field update asked for.
@@ -210,22 +212,11 @@ impl Bench {
     }
 
     /// Start the controller at virtual time 0 with the bootloader's state in `boot` and the DFU partition `dfu`
-    /// (as a reset leaves them); field updates are signed with [`update::signing_key`].
+    /// (as a reset leaves them), and an empty bootloader record.
     fn with_flash(config: Config, latch: VolatileLatch, boot: Flash<8, 2048>, dfu: Flash<8, 2048>) -> Self {
-        let updater = BootUpdater::new(config.family, dfu.clone(), boot.clone(), update::public_key());
-        Self::with_updater(config, latch, boot, dfu, updater.clone(), updater.reboots)
-    }
-
-    /// [`Bench::with_flash`], the update's bootloader side being `updater` (which counts its reboots in
-    /// `reboots`).
-    fn with_updater<U: Updater + 'static>(
-        config: Config,
-        latch: VolatileLatch,
-        boot: Flash<8, 2048>,
-        dfu: Flash<8, 2048>,
-        updater: U,
-        reboots: Rc<Cell<u32>>,
-    ) -> Self {
+        let ticket = Flash::new(1);
+        let updater = BootUpdater::new(config.family, ticket.clone(), boot.clone());
+        let reboots = updater.reboots.clone();
         let clock = clock::take();
         let io = Rc::new(Io {
             inputs: Cell::new(dry(&config)),
@@ -283,6 +274,7 @@ impl Bench {
             io,
             boot,
             dfu,
+            ticket,
             cpu,
             reboots,
             bus,

@@ -9,7 +9,7 @@ use embassy_time::Instant;
 use lbv_sim::flash::Flash;
 use tmc_proto::ext::Chunk;
 use tmc_proto::{Order, Speed};
-use update_image::{Target, Version};
+use update_image::{ImageInfo, Target, Verdict, Version};
 
 const REST: Motion = Motion {
     at_rest: true,
@@ -26,8 +26,7 @@ struct Rig {
 impl Rig {
     fn new() -> Self {
         let dfu = Flash::new(DFU_PAGES);
-        // No key: nothing here gets as far as a signature that checks.
-        let updater = BootUpdater::new(Family::SeaBotix, dfu.clone(), Flash::new(1), [0; 32]);
+        let updater = BootUpdater::new(Family::SeaBotix, Flash::new(1), Flash::new(1));
         Self {
             receiver: Receiver::new(Family::SeaBotix),
             dfu,
@@ -254,16 +253,106 @@ fn finish_and_reboot_need_their_predecessors() {
     record[5] = 3;
     rig.at_rest(write(INFO_OFFSET, &record)).unwrap();
     assert_eq!(rig.at_rest(finish), Err(Refusal::WrongFamily));
-    // This family's record, and an all-zero key no signature checks against.
+    // This family's record, older than the 0.1.0 that runs.
     rig.at_rest(Command::Erase { page: 0 }).unwrap();
     rig.at_rest(write(
         INFO_OFFSET,
         &info_record(Family::SeaBotix, Version::new(0, 0, 0)),
     ))
     .unwrap();
-    assert_eq!(rig.at_rest(finish), Err(Refusal::BadSignature));
+    assert_eq!(rig.at_rest(finish), Err(Refusal::Older));
     assert!(!rig.receiver.finished());
     assert_eq!(rig.at_rest(Command::Reboot), Err(Refusal::NotFinished));
+    // A newer one: marked, its ticket written for the bootloader, which checks the signature.
+    rig.at_rest(Command::Erase { page: 0 }).unwrap();
+    rig.at_rest(write(
+        INFO_OFFSET,
+        &info_record(Family::SeaBotix, Version::new(0, 2, 0)),
+    ))
+    .unwrap();
+    assert_eq!(rig.at_rest(finish), Ok(ReplyBody::Finish { payload_len: 4096 }));
+    assert!(rig.receiver.finished());
+    assert_eq!(
+        update_image::Ticket::parse(&rig.updater.ticket.contents()),
+        Some(update_image::Ticket {
+            payload_len: 4096,
+            signature: [0; 64]
+        })
+    );
+    assert_eq!(rig.at_rest(Command::Reboot), Ok(ReplyBody::Reboot));
+}
+
+/// The rig with a payload of 4096 bytes begun and `info` in its record (in the format `info` says).
+fn holding(info: ImageInfo, running: ImageInfo) -> Rig {
+    let mut rig = Rig::new();
+    rig.updater.info = running.to_bytes();
+    rig.begin(4096).unwrap();
+    rig.at_rest(Command::Erase { page: 0 }).unwrap();
+    let mut record = info.to_bytes();
+    record[4] = info.format;
+    rig.at_rest(write(INFO_OFFSET, &record)).unwrap();
+    rig
+}
+
+const FINISH: Command = Command::Finish {
+    payload_len: 4096,
+    signature: [0x5A; 64],
+};
+
+#[test]
+fn no_step_back_unless_signed_for_it_and_never_below_the_running_counter() {
+    let at = |minor, counter| {
+        ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, minor, 0)).with_security_counter(counter)
+    };
+    let running = at(3, 3);
+    let cases = [
+        (at(2, 3), Err(Refusal::Older)),
+        (at(2, 3).with_rollback(true), Ok(ReplyBody::Finish { payload_len: 4096 })),
+        (at(4, 2), Err(Refusal::CounterBelow)),
+        (at(2, 2).with_rollback(true), Err(Refusal::CounterBelow)),
+        (at(3, 3), Ok(ReplyBody::Finish { payload_len: 4096 })),
+        (ImageInfo { format: 1, ..at(4, 0) }.with_security_counter(0), Err(Refusal::NoKey)),
+    ];
+    for (image, expected) in cases {
+        let mut rig = holding(image, running);
+        assert_eq!(rig.at_rest(FINISH), expected, "{image:?}");
+        assert_eq!(rig.receiver.finished(), expected.is_ok(), "{image:?}");
+    }
+}
+
+#[test]
+fn the_version_says_what_is_marked_and_what_the_bootloader_refused() {
+    let newer = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0));
+    let mut rig = holding(newer, ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 1, 0)));
+    let flags = |rig: &mut Rig| match rig.at_rest(Command::Version) {
+        Ok(ReplyBody::Version {
+            marked,
+            verdict,
+            dev_key,
+            ..
+        }) => (marked, verdict, dev_key),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(flags(&mut rig), (false, 0, update_image::UPDATE_KEY_IS_DEV));
+    rig.at_rest(FINISH).unwrap();
+    assert_eq!(flags(&mut rig).0, true, "marked once finished");
+    // The bootloader refused it (as it writes its verdict beside the ticket): the next start tells it.
+    let mut page = rig.updater.ticket.clone();
+    page.write(update_image::VERDICT_OFFSET, &Verdict::Signature.to_word()).unwrap();
+    let mut restarted = Rig::new();
+    restarted.updater.ticket = page;
+    assert_eq!(flags(&mut restarted), (false, Verdict::Signature.code(), update_image::UPDATE_KEY_IS_DEV));
+}
+
+#[test]
+fn a_mark_on_a_running_image_on_trial_is_refused_and_writes_nothing() {
+    let newer = ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 2, 0));
+    let mut rig = holding(newer, ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 1, 0)));
+    let mut word = [0; 8];
+    block_on(embassy_boot::FirmwareState::new(&mut rig.updater.state.clone(), &mut word).mark_updated()).unwrap();
+    let before = rig.updater.ticket.stats();
+    assert_eq!(rig.at_rest(FINISH), Err(Refusal::OnTrial));
+    assert_eq!(rig.updater.ticket.stats(), before, "no ticket written");
 }
 
 #[test]
@@ -277,7 +366,7 @@ fn the_information_record_is_read_as_update_image_writes_it() {
     let mut other = record;
     other[5] = 3;
     assert_eq!(info_family(&other), Ok(None));
-    for (at, byte) in [(0, b'X'), (4, 2), (5, 0), (5, 0xFF)] {
+    for (at, byte) in [(0, b'X'), (4, 3), (5, 0), (5, 0xFF)] {
         let mut bad = record;
         bad[at] = byte;
         assert_eq!(info_family(&bad), Err(Refusal::NoImageInfo), "byte {at} = {byte:#x}");

@@ -4,16 +4,16 @@
 use std::cell::Cell;
 use std::rc::Rc;
 
-use embassy_boot::{FirmwareState, FirmwareUpdater, FirmwareUpdaterConfig, FirmwareUpdaterError, State};
+use embassy_boot::{FirmwareState, FirmwareUpdaterError, State};
 use g431_hw::memory::{PAGE, THRUSTER_PARTITIONS};
 use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Target, TargetError};
 use thruster_fw::trial::BootState;
-use thruster_fw::update::{Updater, VerifyError};
+use thruster_fw::update::{MarkError, Updater, mark_for_swap, verdict_in};
 use thruster_fw::{I2cTarget, Request};
 use tmc_proto::Family;
-use tmc_proto::ext::{INFO_LEN, SIGNATURE_LEN};
-use update_image::{ImageInfo, Version};
+use tmc_proto::ext::INFO_LEN;
+use update_image::{ImageInfo, Ticket, Verdict, Version};
 
 /// A firmware slave port on a simulated bus ([`lbv_sim::i2c::Bus::target`]), as the controller's I2C task takes it.
 #[derive(Debug)]
@@ -68,19 +68,17 @@ impl BootState for BootRecord {
 )]
 pub const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / PAGE) as usize;
 
-/// The bootloader's and the chip's side of a field update, as the binding's is on the G431: embassy-boot's own
-/// updater checks the payload's signature (ed25519 over its SHA-512, with salty) on the DFU partition and marks it
-/// in the state partition; a reboot is counted, and the bench, which watches the count, resets the thruster (its
-/// bootloader then swaps the image in). The partitions may be whole flashes or views of one chip's flash
-/// ([`Flash::partition`]).
+/// The bootloader's and the chip's side of a field update, as the binding's is on the G431: the ticket written and
+/// the payload marked in the state partition ([`thruster_fw::update::mark_for_swap`]), the bootloader's verdict
+/// read beside the ticket; a reboot is counted, and the bench, which watches the count, resets the thruster (its
+/// bootloader then checks the image and swaps it in). The partitions may be whole flashes or views of one chip's
+/// flash ([`Flash::partition`]).
 #[derive(Debug, Clone)]
 pub struct BootUpdater {
-    /// The DFU partition.
-    pub dfu: Flash<8, 2048>,
+    /// The bootloader record's first page: the ticket, the verdict.
+    pub ticket: Flash<8, 2048>,
     /// The bootloader's state partition (the trial's [`BootRecord`] shares it).
     pub state: Flash<8, 2048>,
-    /// The key signatures are checked against.
-    pub public_key: [u8; 32],
     /// The running image's information record.
     pub info: [u8; INFO_LEN],
     /// Reboots asked for (clones share the count).
@@ -88,12 +86,11 @@ pub struct BootUpdater {
 }
 
 impl BootUpdater {
-    /// An updater for a thruster of `family` running version 0.1.0, checking signatures against `public_key`.
-    pub fn new(family: Family, dfu: Flash<8, 2048>, state: Flash<8, 2048>, public_key: [u8; 32]) -> Self {
+    /// An updater for a thruster of `family` running version 0.1.0.
+    pub fn new(family: Family, ticket: Flash<8, 2048>, state: Flash<8, 2048>) -> Self {
         Self {
-            dfu,
+            ticket,
             state,
-            public_key,
             info: info_record(family, Version::new(0, 1, 0)),
             reboots: Rc::new(Cell::new(0)),
         }
@@ -114,25 +111,12 @@ impl Updater for BootUpdater {
         true
     }
 
-    async fn verify_and_mark_updated(
-        &mut self,
-        signature: &[u8; SIGNATURE_LEN],
-        payload_len: u32,
-    ) -> Result<(), VerifyError> {
-        let config = FirmwareUpdaterConfig {
-            dfu: self.dfu.clone(),
-            state: self.state.clone(),
-        };
-        let mut word = [0; 8];
-        let mut updater = FirmwareUpdater::new(config, &mut word);
-        updater
-            .verify_and_mark_updated(&self.public_key, signature, payload_len)
-            .await
-            .map_err(|error| match error {
-                FirmwareUpdaterError::Signature(_) => VerifyError::BadSignature,
-                FirmwareUpdaterError::BadState => VerifyError::OnTrial,
-                FirmwareUpdaterError::Flash(_) => VerifyError::Flash,
-            })
+    fn mark_updated(&mut self, ticket: &Ticket) -> Result<(), MarkError> {
+        mark_for_swap(&mut self.ticket.clone(), &mut self.state.clone(), ticket)
+    }
+
+    fn verdict(&mut self) -> Option<Verdict> {
+        verdict_in(&mut self.ticket.clone())
     }
 
     fn reboot(&mut self) {

@@ -1,13 +1,11 @@
 //! The bench thruster across a field update, as the board goes through one: a signed image written to DFU and
-//! marked, the reset the updater asks for, embassy-boot's swap by the thruster's bootloader, the trial, and a
-//! revert when the new image is cut off before it confirms. On virtual time, against the bench's master.
-
-use core::pin::pin;
-use core::task::{Context, Poll, Waker};
+//! marked with its ticket, the reset the updater asks for, the thruster's bootloader's check and embassy-boot's
+//! swap, the trial, a revert when the new image is cut off before it confirms, and a forged image the bootloader
+//! refuses. On virtual time, against the bench's master.
 
 use thruster_fw::trial::{TRIAL_CHECK, TRIAL_ROUNDS};
 use thruster_fw::update::Updater;
-use update_image::{HEADER_LEN, Header, key_from_hex, sign};
+use update_image::{HEADER_LEN, Header, Ticket, Verdict, key_from_hex, sign};
 
 use super::*;
 use crate::bench::{Bench, BenchConfig, Engine};
@@ -19,32 +17,31 @@ fn new_version() -> Version {
     Version::new(0, 2, 0)
 }
 
-/// The value of a future that completes at its first poll, as embassy-boot's updater does on lbv-sim's flash.
-fn ready<T>(future: impl Future<Output = T>) -> T {
-    match pin!(future).poll(&mut Context::from_waker(Waker::noop())) {
-        Poll::Ready(value) => value,
-        Poll::Pending => panic!("lbv-sim's flash never makes the updater wait"),
-    }
-}
-
-/// The payload and signature of `image`'s update file, as `lbv image sign` makes it with keys/dev.key.
-fn signed(image: &[u8]) -> (Vec<u8>, [u8; 64]) {
-    let seed = key_from_hex(DEV_KEY.trim()).unwrap();
-    let file = sign(image, &seed).unwrap();
+/// The payload and signature of `image`'s update file, as `lbv image sign` makes it with `seed` (keys/dev.key).
+fn signed_with(image: &[u8], seed: &[u8; 32]) -> (Vec<u8>, [u8; 64]) {
+    let file = sign(image, seed).unwrap();
     let header = Header::parse(&file).unwrap();
     (file[HEADER_LEN..].to_vec(), header.signature)
 }
 
-/// The thruster receives `image` as its update task does: the payload's DFU pages erased and written, then the
-/// updater it runs with checks the signature against its key and marks the payload for the swap.
-fn receive(thruster: &ThrusterBoard, image: &[u8]) {
-    let (payload, signature) = signed(image);
+/// The thruster receives `image`, signed with `seed`, as its update task does: the payload's DFU pages erased and
+/// written, then its ticket written and the payload marked for the bootloader.
+fn receive_signed(thruster: &ThrusterBoard, image: &[u8], seed: &[u8; 32]) {
+    let (payload, signature) = signed_with(image, seed);
     let mut dfu = partition(thruster.flash(), THRUSTER_PARTITIONS.dfu);
     let pages = payload.len().div_ceil(PAGE as usize) as u32;
     dfu.erase(0, pages * PAGE).unwrap();
     dfu.write(0, &payload).unwrap();
-    let length = payload.len() as u32;
-    ready(thruster.updater().verify_and_mark_updated(&signature, length)).unwrap();
+    let payload_len = payload.len() as u32;
+    thruster
+        .updater()
+        .mark_updated(&Ticket { payload_len, signature })
+        .unwrap();
+}
+
+/// The same, signed with the development key, which the bench's images take updates with.
+fn receive(thruster: &ThrusterBoard, image: &[u8]) {
+    receive_signed(thruster, image, &key_from_hex(DEV_KEY.trim()).unwrap());
 }
 
 fn running_version(thruster: &ThrusterBoard) -> Option<Version> {
@@ -103,8 +100,8 @@ fn a_signed_image_is_swapped_in_at_the_reset_confirms_itself_on_trial_and_stays(
     let new = made_up_image(Target::ThrusterSeabotix, new_version(), FACTORY_IMAGE_LEN, 2);
     let (swap, starts) = rebooted_into(&mut bench, &new);
     assert!(
-        (Duration::from_secs(2)..Duration::from_secs(4)).contains(&swap),
-        "a swap of ACTIVE's 29 pages at the G431's timing: {swap:?}"
+        (Duration::from_secs(2)..Duration::from_secs(3)).contains(&swap),
+        "a swap of ACTIVE's 25 pages, and the erase of DFU past the payload, at the G431's timing: {swap:?}"
     );
     let thruster = &bench.thrusters[0];
     assert_eq!(running_version(thruster), Some(new_version()));
@@ -235,4 +232,29 @@ fn a_reboot_asked_through_the_updater_power_cycles_the_thruster_on_both_engines(
             "{engine:?}"
         );
     }
+}
+
+#[test]
+fn an_image_its_bootloader_refuses_is_not_swapped_in_and_the_thruster_says_why() {
+    let mut bench = Bench::new(&BenchConfig::lbv300(1), Engine::Events);
+    bench.run_for(Duration::from_secs(1));
+    let new = made_up_image(Target::ThrusterSeabotix, new_version(), FACTORY_IMAGE_LEN, 2);
+    // Validly signed, but not with the key the running image embeds (the development key's).
+    receive_signed(&bench.thrusters[0], &new, &[0x42; 32]);
+    bench.thrusters[0].updater().reboot();
+    bench.run_for(Duration::from_millis(1));
+    let thruster = &bench.thrusters[0];
+    assert_eq!(
+        thruster.boot_outcome(),
+        Some(&Outcome::Refused {
+            verdict: Verdict::Signature,
+            attempt: 1
+        })
+    );
+    assert_eq!(running_version(thruster), Some(FACTORY_VERSION));
+    assert!(active_holds(thruster, &factory_image(Family::SeaBotix)));
+    assert_eq!(thruster.boot_state(), Some(State::Boot), "the mark cleared");
+    assert_eq!(thruster.updater().verdict(), Some(Verdict::Signature), "what Version reports");
+    bench.run_for(Duration::from_secs(1));
+    assert!(answering(&bench.thrusters[0]), "at once: nothing was swapped");
 }

@@ -1,47 +1,40 @@
-//! The field update over the bus, on virtual time: a master writes a signed image into the DFU partition with
-//! tmc-proto's extension, through the controller as it ships (`run`), and embassy-boot's own updater checks the
-//! signature (salty) and marks the image in the bootloader's state. Images are signed here with ed25519-dalek over
-//! their SHA-512, as embassy-boot verifies them.
+//! The field update over the bus, on virtual time: a master writes an image into the DFU partition with tmc-proto's
+//! extension, through the controller as it ships (`run`), which checks its image info and hands its ticket (length
+//! and signature) to the bootloader with embassy-boot's mark. The signature is the bootloader's to check (lbv-boot's
+//! tests, and the bench's field update, where the thruster's bootloader runs): here it is bytes the thruster keeps.
 
 use super::*;
 use crate::update::{INFO_OFFSET, MAX_PAYLOAD};
 use core::future::Future;
-use ed25519_dalek::{Signer, SigningKey};
 use embedded_hal_async::i2c::ErrorKind;
 use lbv_sim::flash::FlashTiming;
 use lbv_sim::i2c::Master;
-use sha2::{Digest, Sha512};
 use tmc_proto::ext::{
     self, Chunk, Command, CommandFrame, CommandKind, ERASE_WAIT_MS, FINISH_WAIT_MS, FrameError, MAX_CHUNK, PAGE_LEN,
     Refusal, Reply, ReplyBody, SIGNATURE_LEN, crc32, reply_len,
 };
-use update_image::{Target, Version};
+use update_image::{ImageInfo, Target, Ticket, Version};
 
-/// The key images are signed with in these tests.
-pub(super) fn signing_key() -> SigningKey {
-    SigningKey::from_bytes(&[0x5A; 32])
-}
-
-/// The thruster's public key: [`signing_key`]'s.
-pub(super) fn public_key() -> [u8; 32] {
-    signing_key().verifying_key().to_bytes()
-}
-
-/// embassy-boot's message: ed25519 over the payload's SHA-512.
+/// The signature a master sends with `payload`: bytes of its own here, which the thruster keeps for its bootloader
+/// in the ticket.
 fn sign(payload: &[u8]) -> [u8; SIGNATURE_LEN] {
-    signing_key().sign(&Sha512::digest(payload)).to_bytes()
+    let crc = crc32(payload).to_le_bytes();
+    core::array::from_fn(|i| crc[i % 4] ^ i as u8)
 }
 
-/// A payload of `len` bytes for `target` (the information record's target byte), with its record at 0x200 and
-/// made-up code around it.
-fn payload(target: u8, len: usize) -> Vec<u8> {
+/// A payload of `len` bytes holding `info` at 0x200 and made-up code around it.
+fn payload_of(info: ImageInfo, len: usize) -> Vec<u8> {
     let mut bytes: Vec<u8> = (0..len as u32)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
         .collect();
-    let mut info = crate::sim::info_record(Family::SeaBotix, Version::new(0, 2, 0));
-    info[5] = target;
-    bytes[INFO_OFFSET as usize..][..32].copy_from_slice(&info);
+    bytes[INFO_OFFSET as usize..][..32].copy_from_slice(&info.to_bytes());
     bytes
+}
+
+/// A payload of `len` bytes for `target` (the information record's target byte), version 0.2.0.
+fn payload(target: u8, len: usize) -> Vec<u8> {
+    let target = Target::from_byte(target).expect("a target");
+    payload_of(ImageInfo::new(target, Version::new(0, 2, 0)), len)
 }
 
 /// A master speaking the extension on the bench's bus: one command at a time, its reply read after it.
@@ -266,6 +259,9 @@ fn a_whole_image_is_written_read_back_checked_finished_and_marked_for_the_swap()
             protocol: ext::PROTOCOL_VERSION,
             on_trial: false,
             checks_signatures: true,
+            marked: false,
+            dev_key: update_image::UPDATE_KEY_IS_DEV,
+            verdict: 0,
             max_payload: MAX_PAYLOAD,
             info: expected_info
         }
@@ -273,6 +269,14 @@ fn a_whole_image_is_written_read_back_checked_finished_and_marked_for_the_swap()
     assert_eq!(reboot_asked, ReplyBody::Reboot);
     assert_eq!(&bench.dfu.contents()[..image.len()], &image[..]);
     assert_eq!(bench.boot_state(), State::Swap, "marked for the bootloader to swap in");
+    assert_eq!(
+        Ticket::parse(&bench.ticket.contents()),
+        Some(Ticket {
+            payload_len: 32768,
+            signature: sign(&image)
+        }),
+        "the ticket the bootloader checks it with"
+    );
     // The reset comes once the master has read the reply.
     bench.elapse(Duration::from_millis(1));
     assert_eq!(bench.reboots.get(), 1);
@@ -294,67 +298,6 @@ fn a_whole_image_is_written_read_back_checked_finished_and_marked_for_the_swap()
     // 512 writes of 77 bytes and their replies of 17, 16 erases and theirs: 4.5 s of bit times. The master's 30 ms
     // after each erase and the reads held by the writes' programming (0.8 ms a chunk) bring it to 5.2 s.
     assert!((5_000..6_000).contains(&transfer.as_millis()), "{transfer:?}");
-}
-
-#[test]
-fn a_read_before_the_work_is_done_is_busy_and_the_master_reads_again() {
-    // A signature check that takes 40 ms and lets the other tasks run meanwhile.
-    struct SlowCheck(BootUpdater);
-    impl Updater for SlowCheck {
-        fn running_info(&mut self) -> [u8; ext::INFO_LEN] {
-            self.0.running_info()
-        }
-        fn checks_signatures(&self) -> bool {
-            true
-        }
-        async fn verify_and_mark_updated(
-            &mut self,
-            signature: &[u8; SIGNATURE_LEN],
-            payload_len: u32,
-        ) -> Result<(), crate::update::VerifyError> {
-            Timer::after_millis(40).await;
-            self.0.verify_and_mark_updated(signature, payload_len).await
-        }
-        fn reboot(&mut self) {
-            self.0.reboot()
-        }
-    }
-    let (boot, dfu) = (Flash::new(1), Flash::new(DFU_PAGES));
-    let updater = BootUpdater::new(Family::SeaBotix, dfu.clone(), boot.clone(), public_key());
-    let reboots = updater.reboots.clone();
-    let config = Config::reference(Family::SeaBotix, MotorKind::Brushless);
-    let mut bench = Bench::with_updater(config, VolatileLatch::default(), boot, dfu, SlowCheck(updater), reboots);
-    let image = payload(1, 4096);
-    let (seq, replies) = bench.script(|mut master| async move {
-        master.begin(&image).await;
-        master.write_pages(&image, pages_of(&image)).await;
-        let seq = master
-            .send(Command::Finish {
-                payload_len: 4096,
-                signature: sign(&image),
-            })
-            .await;
-        let mut replies = Vec::new();
-        loop {
-            Timer::after_millis(10).await;
-            let reply = master.read(CommandKind::Finish).await.unwrap().unwrap();
-            replies.push(reply);
-            if !matches!(reply, Reply::Busy { .. }) {
-                break (seq, replies);
-            }
-        }
-    });
-    // Busy at 10, 20 and 30 ms; done once the 40 ms check is.
-    let busy = Reply::Busy {
-        seq,
-        command: CommandKind::Finish,
-    };
-    let done = Reply::Done {
-        seq,
-        body: ReplyBody::Finish { payload_len: 4096 },
-    };
-    assert_eq!(replies, [busy, busy, busy, done]);
-    assert_eq!(bench.boot_state(), State::Swap);
 }
 
 #[test]
@@ -485,7 +428,7 @@ fn refusals_over_the_bus_each_with_its_own_code() {
         let mut refused = async |master: &mut Client, command| seen.push(master.refused(command).await);
         refused(&mut master, Command::Erase { page: 0 }).await;
         refused(&mut master, Command::Reboot).await;
-        for (payload_len, target) in [(4096, 2), (4097, 1), (MAX_PAYLOAD + 8, 1), (0x218, 1)] {
+        for (payload_len, target) in [(4096, 2), (4097, 1), (MAX_PAYLOAD + 8, 1), (0x238, 1)] {
             refused(&mut master, Command::Begin { payload_len, target }).await;
         }
         master.begin(&image).await;
@@ -520,13 +463,14 @@ fn refusals_over_the_bus_each_with_its_own_code() {
             },
         )
         .await;
-        // This family's image, signed for another one's bytes.
-        master.write_pages(&image, 0..2).await;
+        // This family's image, older than the one that runs (0.1.0) and not signed as a rollback.
+        let older = payload_of(ImageInfo::new(Target::ThrusterSeabotix, Version::new(0, 0, 9)), 4096);
+        master.write_pages(&older, 0..1).await;
         refused(
             &mut master,
             Command::Finish {
                 payload_len: 4096,
-                signature: sign(&legacy_image),
+                signature: sign(&older),
             },
         )
         .await;
@@ -547,6 +491,18 @@ fn refusals_over_the_bus_each_with_its_own_code() {
             Command::Finish {
                 payload_len: 4096,
                 signature: sign(&bare),
+            },
+        )
+        .await;
+        // A format-1 record: no key for the update after it.
+        let mut format_1 = image.clone();
+        format_1[INFO_OFFSET as usize + 4] = 1;
+        master.write_pages(&format_1, 0..1).await;
+        refused(
+            &mut master,
+            Command::Finish {
+                payload_len: 4096,
+                signature: sign(&format_1),
             },
         )
         .await;
@@ -579,9 +535,10 @@ fn refusals_over_the_bus_each_with_its_own_code() {
             OutOfRange,
             WrongFamily,
             NotErased,
-            BadSignature,
+            Older,
             Truncated,
             NoImageInfo,
+            NoKey,
             Finished,
             Finished
         ]
