@@ -291,11 +291,13 @@ pub fn judge<F: NorFlash>(
 }
 
 /// Erase DFU's pages past the payload's last, up to ACTIVE's length: what the swap copies into ACTIVE beside the
-/// payload is erased flash.
+/// payload is erased flash. A page at a time, so that the watchdog is fed between two (a hundred pages of the
+/// master's bank 2 take seconds).
 fn erase_past<F: NorFlash>(dfu: &mut Partition<'_, F>, payload_len: u32, active_len: u32) -> Result<(), BootError> {
-    let from = payload_len.next_multiple_of(PAGE);
-    if from < active_len {
-        dfu.erase(from, active_len)?;
+    let mut page = payload_len.next_multiple_of(PAGE);
+    while page < active_len {
+        dfu.erase(page, page + PAGE)?;
+        page += PAGE;
     }
     Ok(())
 }

@@ -659,7 +659,10 @@ impl<W: Write> Output<'_, W> {
                 ));
             }
             Message::BatteryStatus => self.push(&outbound::battery_status(shared.battery.try_get().as_ref())),
-            Message::AutopilotVersion => self.push(&outbound::autopilot_version(&config.uid)),
+            Message::AutopilotVersion => self.push(&outbound::autopilot_version(
+                &config.uid,
+                update_image::UPDATE_KEY_IS_DEV,
+            )),
             Message::EscTelemetry1To4 => self.push(&outbound::esc_telemetry_1_to_4(thrusters, &reports)),
             Message::EscTelemetry5To8 if thrusters > 4 => {
                 self.push(&outbound::esc_telemetry_5_to_8(thrusters, &reports))

@@ -14,12 +14,18 @@
 //! 2. `Begin` with the payload's length and the update file's target byte (the thruster refuses another family).
 //! 3. For each page: `Check` what the thruster holds there; a page it already holds (from a transfer that was
 //!    interrupted) is not written again, so sending the same file again resumes. Otherwise `Erase` it and `Write`
-//!    it in 64-byte chunks, each chunk's read-back CRC compared with the bytes sent.
+//!    it in 64-byte chunks, each chunk's read-back CRC compared with the bytes sent. Before the first page goes on,
+//!    its image info (payload offset 0x200, signed) is held to the header and to the image the thruster runs
+//!    (update-image's `check` and `check_upgrade`): the header's version must be the payload's, the info of format
+//!    2, the image not older than the running one unless signed as a rollback, its security counter not below the
+//!    running image's. A refusal ends the transfer with its sentence, nothing written.
 //! 4. `Check` of the whole payload against the CRC of every byte received: written and verified.
-//! 5. On the apply command: `Finish` (the thruster checks the image's information record and the signature, and
-//!    marks it for its bootloader), `Reboot`, then `Version` until it answers again, running the new version on
-//!    trial, and then until it has confirmed itself: the apply command's final COMMAND_ACK says ACCEPTED only then
-//!    (a reset before that and the bootloader reverts it: FAILED, "reverted to 0.1.0").
+//! 5. On the apply command: `Finish` (the thruster checks the image's information record, writes the ticket its
+//!    bootloader checks the image with, and marks it), `Reboot`, then `Version` until it answers again, running the
+//!    new version on trial, and then until it has confirmed itself: the apply command's final COMMAND_ACK says
+//!    ACCEPTED only then (a reset before that and the bootloader reverts it: FAILED, "reverted to 0.1.0"). Its
+//!    bootloader checks the signature before it swaps: one that refuses starts the old image again, whose `Version`
+//!    carries the verdict ("T1: refused by its bootloader: signature", FAILED).
 //!
 //! An exchange that fails (no answer, a bus error, a reply that does not decode, or one still busy) is sent again
 //! at the next cycle with the same sequence number (every command can be repeated); a thruster silent for
@@ -38,8 +44,9 @@ use tmc_proto::ext::{
     self, Chunk, Command, CommandFrame, CommandKind, Crc32, FrameError, MAX_CHUNK, Refusal, Reply, ReplyBody,
     SIGNATURE_LEN,
 };
+use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Target, Version, check_upgrade};
 
-use crate::shared::{AckResult, Outgoing, Sender, Severity, UpdateAction, text};
+use crate::shared::{AckResult, Outgoing, Sender, Severity, UpdateAction, texts, verdict_texts};
 
 /// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
 const PAGE: usize = ext::PAGE_LEN as usize;
@@ -132,6 +139,10 @@ struct Transfer {
     settling_since: Option<Instant>,
     /// Only a version query: `Version` asked, its answer told, nothing sent.
     query: bool,
+    /// The running image's information record, as the thruster's last `Version` gave it: what the image is held to.
+    running: [u8; ext::INFO_LEN],
+    /// The longest payload the thruster takes, as its last `Version` gave it.
+    max_payload: u32,
 }
 
 impl Transfer {
@@ -155,7 +166,42 @@ impl Transfer {
             applier: None,
             settling_since: None,
             query: false,
+            running: [0; ext::INFO_LEN],
+            max_payload: 0,
         }
+    }
+
+    /// What the thruster's `Version` says of the image it runs.
+    fn heard(&mut self, info: [u8; ext::INFO_LEN], max_payload: u32) {
+        self.running = info;
+        self.max_payload = max_payload;
+    }
+
+    /// Whether the image whose first page (or whole payload, if shorter) is `first` may go on: its signed image
+    /// info against the header (update-image's `check`: length, target, version, an info of format 2) and against
+    /// the image the thruster runs (`check_upgrade`, its counter the floor: the master does not read the
+    /// bootloader's own).
+    fn check_image(&self, first: &[u8]) -> Result<(), update_image::Refusal> {
+        use update_image::Refusal as Why;
+        let target = Target::from_byte(self.kind).ok_or(Why::Header(HeaderError::Target(self.kind)))?;
+        let header = Header {
+            target,
+            payload_len: self.payload_len,
+            version: Version::from_bytes(self.version),
+            signature: self.signature,
+        };
+        let info = match ImageInfo::parse(first.get(INFO_OFFSET..).unwrap_or_default()) {
+            Ok(info) => info,
+            Err(_) if self.payload_len < MIN_PAYLOAD => return Err(Why::TooShort { len: self.payload_len }),
+            Err(error) => return Err(Why::Info(error)),
+        };
+        update_image::check(&header, &info, target, self.max_payload)?;
+        let running = ImageInfo::parse(&self.running).ok();
+        check_upgrade(
+            &info,
+            running.as_ref(),
+            running.map_or(0, |running| running.security_counter),
+        )
     }
 }
 
@@ -219,6 +265,10 @@ pub enum ExchangeError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Ending {
     Refused(Refusal),
+    /// The image's own info refused it, before anything was written.
+    Image(update_image::Refusal),
+    /// The thruster came back on its old image, its bootloader having refused the new one: its verdict's code.
+    Verdict(u8),
     NoExtension,
     Silent,
     ReadBack,
@@ -234,6 +284,8 @@ impl core::fmt::Display for Ending {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match *self {
             Ending::Refused(refusal) => f.write_str(refusal.describe()),
+            Ending::Image(refusal) => write!(f, "{refusal}"),
+            Ending::Verdict(_) => f.write_str(BOOTLOADER_REFUSED),
             Ending::NoExtension => f.write_str("the thruster does not take updates"),
             Ending::Silent => f.write_str("the thruster stopped answering"),
             Ending::ReadBack => f.write_str("the flash read back differs"),
@@ -246,6 +298,9 @@ impl core::fmt::Display for Ending {
         }
     }
 }
+
+/// What a thruster's bootloader did to the image it was to swap in, its verdict after it.
+const BOOTLOADER_REFUSED: &str = "refused by its bootloader";
 
 /// What the courier does not take: a call for a transfer it does not have (ended, or never begun), bytes out of
 /// order or beyond its buffer, an image whose header lacks its fields.
@@ -551,26 +606,39 @@ impl Courier {
                     info,
                     on_trial,
                     checks_signatures,
+                    marked,
+                    dev_key,
                     ..
                 },
             ) if transfer.query => {
                 let trial = if on_trial { ", on trial" } else { "" };
                 let updates = if checks_signatures { "" } else { ", no updates" };
+                let marked = if marked { ", update marked" } else { "" };
+                let dev_key = if dev_key { ", dev key" } else { "" };
                 let running = Ver(version_in(&info));
                 say(
                     out,
                     Severity::Info,
                     slot,
-                    format_args!("runs {running}{trial}{updates}"),
+                    format_args!("runs {running}{trial}{updates}{marked}{dev_key}"),
                 );
                 self.acknowledge(AckResult::Accepted, out);
                 self.transfer = None;
                 return;
             }
-            (Step::Hello, ReplyBody::Version { checks_signatures, .. }) => {
+            (
+                Step::Hello,
+                ReplyBody::Version {
+                    checks_signatures,
+                    info,
+                    max_payload,
+                    ..
+                },
+            ) => {
                 if !checks_signatures {
                     return self.end(Ending::Refused(Refusal::NoSignatureCheck), out);
                 }
+                transfer.heard(info, max_payload);
                 Step::Begin
             }
             // Begun again after a reset while being applied: the payload is whole in DFU already.
@@ -581,6 +649,13 @@ impl Courier {
                 } else {
                     Step::Idle
                 }
+            }
+            // Nothing of the image has gone on yet: its info decides whether anything does.
+            (Step::CheckPage, ReplyBody::Check { .. })
+                if transfer.page_offset == 0
+                    && let Err(refusal) = transfer.check_image(self.buffer.get(..page_len).unwrap_or_default()) =>
+            {
+                return self.end(Ending::Image(refusal), out);
             }
             (Step::CheckPage, ReplyBody::Check { crc, .. }) if page.is_some_and(|(_, page_crc)| page_crc == crc) => {
                 transfer.skipped += 1;
@@ -616,18 +691,36 @@ impl Courier {
             (Step::Verify, ReplyBody::Check { .. }) => return self.end(Ending::Mismatch, out),
             (Step::Finish, ReplyBody::Finish { .. }) => Step::Reboot,
             (Step::Reboot, ReplyBody::Reboot) => {
+                // Its bootloader checks the signature before it swaps: nothing says yet that it is good.
                 if transfer.applier.is_some() {
-                    say(out, Severity::Info, slot, format_args!("signature good, restarting"));
+                    say(
+                        out,
+                        Severity::Info,
+                        slot,
+                        format_args!("marked, restarting into its update"),
+                    );
                 }
                 Step::Restart(now)
             }
             // Back from starting the update it held: now this one.
-            (Step::Restart(_), ReplyBody::Version { .. }) if transfer.applier.is_none() => Step::Begin,
-            (Step::Restart(_) | Step::Trial { .. }, ReplyBody::Version { info, on_trial, .. }) => {
+            (Step::Restart(_), ReplyBody::Version { info, max_payload, .. }) if transfer.applier.is_none() => {
+                transfer.heard(info, max_payload);
+                Step::Begin
+            }
+            (
+                Step::Restart(_) | Step::Trial { .. },
+                ReplyBody::Version {
+                    info,
+                    on_trial,
+                    verdict,
+                    ..
+                },
+            ) => {
                 let running = version_in(&info);
                 match transfer.step {
                     _ if running != transfer.version => {
                         let ending = match transfer.step {
+                            Step::Restart(_) if verdict != 0 => Ending::Verdict(verdict),
                             Step::Restart(_) => Ending::OldVersion(running),
                             _ => Ending::Reverted(running),
                         };
@@ -680,7 +773,18 @@ impl Courier {
         let Some(transfer) = self.transfer else {
             return;
         };
-        say(out, Severity::Warning, transfer.slot, format_args!("{ending}"));
+        match ending {
+            // "T1: ", not "thruster0.lbvu: ": it is the thruster's bootloader that refused, and it leaves room for
+            // the verdict.
+            Ending::Verdict(code) => {
+                let who = u16::from(transfer.slot) + 1;
+                let (first, second) = verdict_texts(format_args!("T{who}"), BOOTLOADER_REFUSED, code.into());
+                for text in [Some(first), second].into_iter().flatten() {
+                    out(Outgoing::Text(Severity::Warning, text));
+                }
+            }
+            _ => say(out, Severity::Warning, transfer.slot, format_args!("{ending}")),
+        }
         self.acknowledge(AckResult::Failed, out);
         self.transfer = None;
         self.fill = 0;
@@ -722,12 +826,13 @@ impl core::fmt::Display for Ver {
     }
 }
 
-/// "thruster2.lbvu: `args`", as the update server names the file the ground station wrote.
+/// "thruster2.lbvu: `args`", as the update server names the file the ground station wrote (in two texts when one
+/// cannot hold it: a refusal's sentence goes on in the second).
 fn say(out: &mut impl FnMut(Outgoing), severity: Severity, slot: u8, args: core::fmt::Arguments<'_>) {
-    out(Outgoing::Text(
-        severity,
-        text(format_args!("thruster{slot}.lbvu: {args}")),
-    ));
+    let (first, second) = texts(format_args!("thruster{slot}.lbvu"), args);
+    for text in [Some(first), second].into_iter().flatten() {
+        out(Outgoing::Text(severity, text));
+    }
 }
 
 /// The courier, where the console's sink and the bus tasks meet.

@@ -44,6 +44,13 @@ use thrusters::{Links, bus_task};
 use update::UpdateSink;
 use vehicle::vehicle_task;
 
+/// What an image that takes update files signed with the development key (update-image's `UPDATE_KEY_IS_DEV`)
+/// says at every start, as a warning: the key's secret is published, so anyone can sign an image it takes
+/// (AUTOPILOT_VERSION says it too, [`console::outbound::DEV_KEY_MARK`]).
+pub const DEV_KEY_TEXT: &str = "Takes update files signed with the development key";
+// Whole in one STATUSTEXT.
+const _: () = assert!(DEV_KEY_TEXT.len() <= shared::TEXT_LEN);
+
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
 /// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for,
 /// where update images go, and how it updates itself.
@@ -182,6 +189,9 @@ where
             // The console signs and accepts nothing until the settings task stores one.
             Err(_) => shared.say(Severity::Warning, text(format_args!("Signing: reservation not stored"))),
         }
+    }
+    if update_image::UPDATE_KEY_IS_DEV {
+        shared.say(Severity::Warning, text(format_args!("{DEV_KEY_TEXT}")));
     }
     shared.settings.sender().send(stored);
     console.follow(shared);

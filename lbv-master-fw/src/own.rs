@@ -7,8 +7,19 @@
 //! What is checked, and when:
 //! - as the upload begins: the running image is not on trial (DFU holds the image a revert needs), the payload fits
 //!   ACTIVE, and the flash has the bootloader's partitions;
-//! - once its first page is in: its image info (update-image's `check`: a master image, the header's version);
+//! - once its first page is in: its image info (update-image's `check`: a master image, the header's version, an
+//!   info of format 2; and `check_upgrade`: not older than the running image unless signed as a rollback, its
+//!   security counter not below the running image's);
 //! - when applied: the ed25519 signature over DFU, with the image's update key, as the thruster checks its own.
+//!
+//! The bootloader checks again before it swaps (lbv-boot): the apply writes the payload's length and signature in
+//! the record's ticket page (update-image's `Ticket`) before it marks the state. A bootloader that refuses the image
+//! writes its `Verdict` there and starts this image again, which tells the operator once it hears them, then notes
+//! in the same page that it did (the told word), so that the next start does not tell it again.
+//!
+//! Once the image is marked, nothing writes DFU or the state until the restart: the [`OwnImage`] is latched (a new
+//! upload and its writes are refused, no page goes to DFU), and [`Shared::restarting`] tells the update server to
+//! change no update file.
 //!
 //! A power cut at any moment leaves a master that boots and can be updated again: while DFU is being written or
 //! checked the running image is untouched (the state says nothing yet); the state's mark is one word, which a cut
@@ -19,6 +30,7 @@
 //! [`own_image_task`] writes them, a page at a time, between its trial checks.
 
 use core::cell::RefCell;
+use core::sync::atomic::Ordering;
 
 use embassy_boot::{AlignedBuffer, FirmwareState, State};
 use embassy_embedded_hal::flash::partition::Partition;
@@ -30,9 +42,14 @@ use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_storage_async::nor_flash::{NorFlash, ReadNorFlash};
 use g431_hw::memory::{FLASH_ORIGIN, IMAGE_INFO_OFFSET, MASTER_PARTITIONS, PAGE, Span};
-use update_image::{Header, INFO_LEN, ImageInfo, Refusal, Target, Version};
+use update_image::{
+    Header, INFO_LEN, ImageInfo, Refusal, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Target, Ticket,
+    VERDICT_OFFSET, Version, check_upgrade, checked_word,
+};
 
-use crate::shared::{AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Shared, text};
+use crate::shared::{
+    AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Shared, Text, texts, verdict_texts,
+};
 use crate::update::ftp::DATA_LEN;
 use crate::update::{HEADER_LEN, ImageHeader};
 
@@ -67,6 +84,8 @@ pub enum NotTaken {
     Refused,
     /// No image is received whole.
     Nothing,
+    /// An image is marked for the swap: the master restarts into it, and nothing changes DFU until then.
+    Restarting,
 }
 
 /// What the task found in the flash at start.
@@ -76,6 +95,8 @@ enum Flash {
     Unknown,
     /// The bootloader's partitions, the running image on trial or not.
     Ready { on_trial: bool },
+    /// An image is marked for the swap: latched until the restart.
+    Marked,
 }
 
 /// An image on its way into DFU.
@@ -157,6 +178,7 @@ impl OwnImage {
             stage.fill = 0;
             stage.apply = None;
             let refusal = match stage.flash {
+                Flash::Marked => NotTaken::Restarting,
                 Flash::Unknown => NotTaken::NoBootloader,
                 Flash::Ready { on_trial: true } => NotTaken::OnTrial,
                 Flash::Ready { .. } if header.payload_len > MAX_PAYLOAD => NotTaken::TooLarge,
@@ -183,6 +205,10 @@ impl OwnImage {
     /// Payload bytes from `offset`, the next ones: kept until the task writes them.
     pub fn write(&self, offset: u32, data: &[u8]) -> Result<(), NotTaken> {
         let result = self.with(|stage| {
+            if stage.flash == Flash::Marked {
+                stage.untold = Some(NotTaken::Restarting);
+                return Err(NotTaken::Restarting);
+            }
             let Stage {
                 image, buffer, fill, ..
             } = stage;
@@ -208,6 +234,7 @@ impl OwnImage {
     /// The image ends: whole, or stopped (what arrived is dropped).
     pub fn finish(&self, complete: bool) {
         self.with(|stage| match stage.image.as_mut() {
+            _ if stage.flash == Flash::Marked => {}
             Some(image) if complete => image.complete = true,
             _ => {
                 stage.image = None;
@@ -220,6 +247,7 @@ impl OwnImage {
     /// Apply the image received whole, for `from`: the task checks its signature once every byte is in DFU.
     pub fn apply(&self, from: Sender) -> Result<(), NotTaken> {
         let result = self.with(|stage| match stage.image {
+            _ if stage.flash == Flash::Marked => Err(NotTaken::Restarting),
             Some(image) if image.complete && !image.refused => {
                 stage.apply = Some(from);
                 Ok(())
@@ -241,17 +269,40 @@ impl OwnImage {
     /// an upload may begin.
     pub fn found(&self, on_trial: Option<bool>) {
         self.with(|stage| {
-            stage.flash = match on_trial {
-                Some(on_trial) => Flash::Ready { on_trial },
-                None => Flash::Unknown,
+            stage.flash = match (stage.flash, on_trial) {
+                // Only the restart undoes the mark.
+                (Flash::Marked, _) => Flash::Marked,
+                (_, Some(on_trial)) => Flash::Ready { on_trial },
+                (_, None) => Flash::Unknown,
             }
         });
+    }
+
+    /// The task's side: an image is marked for the swap, and the master restarts into it. From now on nothing is
+    /// taken and nothing goes to DFU: an upload begun while the image was being checked is dropped, and a new one
+    /// is refused.
+    pub fn mark(&self) {
+        self.with(|stage| {
+            stage.flash = Flash::Marked;
+            stage.image = None;
+            stage.fill = 0;
+            stage.apply = None;
+        });
+        self.moved.signal(());
+    }
+
+    /// Whether an image is marked for the swap ([`OwnImage::mark`]).
+    pub fn marked(&self) -> bool {
+        self.with(|stage| stage.flash == Flash::Marked)
     }
 
     /// The task's side: the next piece for DFU, a whole page or the last bytes once the image is complete (padded
     /// with erased bytes to the write unit), copied into `page` and taken out of the buffer.
     pub fn take_page(&self, page: &mut [u8; PAGE_BYTES]) -> Option<Piece> {
         self.with(|stage| {
+            if stage.flash == Flash::Marked {
+                return None;
+            }
             let Stage {
                 image, buffer, fill, ..
             } = stage;
@@ -357,17 +408,17 @@ impl<F: NorFlash> OwnUpdate for Updating<'_, F> {
     }
 }
 
-/// A version as a person reads it, "0.2.0"; the image info's, or "?" without one.
-fn version_of(info: &[u8; INFO_LEN]) -> Option<Version> {
-    ImageInfo::parse(info).ok().map(|info| info.version)
+/// "master.lbvu: `args`", as the update server names the file the ground station wrote (in two texts when one
+/// cannot hold it: a refusal's sentence goes on in the second).
+async fn say(shared: &Shared, severity: Severity, args: core::fmt::Arguments<'_>) {
+    tell(shared, severity, texts(format_args!("master.lbvu"), args)).await;
 }
 
-/// "master.lbvu: `args`", as the update server names the file the ground station wrote.
-async fn say(shared: &Shared, severity: Severity, args: core::fmt::Arguments<'_>) {
-    shared
-        .outbox
-        .send(Outgoing::Text(severity, text(format_args!("master.lbvu: {args}"))))
-        .await;
+/// Queue one or two texts.
+async fn tell(shared: &Shared, severity: Severity, (first, second): (Text, Option<Text>)) {
+    for text in [Some(first), second].into_iter().flatten() {
+        shared.outbox.send(Outgoing::Text(severity, text)).await;
+    }
 }
 
 async fn acknowledge(shared: &Shared, result: AckResult, to: Sender) {
@@ -381,15 +432,42 @@ async fn acknowledge(shared: &Shared, result: AckResult, to: Sender) {
         .await;
 }
 
+/// The operator's ground station, once its heartbeat is heard: who gets the final COMMAND_ACK of an apply that
+/// the restart cut short.
+fn operator_heard(shared: &Shared) -> Option<Sender> {
+    shared
+        .vehicle
+        .try_get()
+        .filter(|vehicle| vehicle.console_alive)
+        .map(|vehicle| Sender {
+            system: vehicle.operator,
+            component: 0,
+        })
+}
+
+/// Why an apply did not mark the image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum NotMarked {
+    /// The signature does not check with the update key.
+    Signature,
+    /// The ticket did not read back as written.
+    Ticket,
+    /// The state did not read back marked for the swap.
+    State,
+}
+
 /// The master's own update and its trial, on `flash` (the whole chip's, [`OwnFlash`]): writes what `own` receives
-/// into DFU, checks and marks it when applied, and confirms an image on trial once the operator is heard.
+/// into DFU, checks and marks it when applied, confirms an image on trial once the operator is heard, and tells the
+/// operator once when the bootloader refused the image marked before the last restart.
 pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, shared: &Shared) -> ! {
     let mut info = [0xFF; INFO_LEN];
     let _ = flash
         .partition(MASTER_PARTITIONS.active)
         .read(IMAGE_INFO_OFFSET, &mut info)
         .await;
-    let running = version_of(&info);
+    let running = ImageInfo::parse(&info).ok();
+    let mut ticket_page = flash.partition(MASTER_PARTITIONS.ticket());
+    let mut untold = untold_verdict(&mut ticket_page).await;
     let mut word = AlignedBuffer([0; 8]);
     let mut state = FirmwareState::new(flash.partition(MASTER_PARTITIONS.state), &mut word.0);
     let mut on_trial = match state.get_state().await {
@@ -404,7 +482,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
         say(
             shared,
             Severity::Info,
-            format_args!("runs {}, on trial", Shown(running)),
+            format_args!("runs {}, on trial", Shown(running.map(|info| info.version))),
         )
         .await;
     }
@@ -422,7 +500,8 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                 if state.mark_booted().await.is_ok() {
                     on_trial = false;
                     own.found(Some(false));
-                    say(shared, Severity::Info, format_args!("{} confirmed", Shown(running))).await;
+                    let version = Shown(running.map(|info| info.version));
+                    say(shared, Severity::Info, format_args!("{version} confirmed")).await;
                     if let Some(operator) = shared.vehicle.try_get().map(|v| v.operator) {
                         let to = Sender {
                             system: operator,
@@ -442,27 +521,45 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                 on_trial = false;
             }
         }
+        // Told once the operator is heard: a text at the start, before any ground station listens, would be lost
+        // and yet noted as told.
+        if let Some((verdict, free)) = untold
+            && let Some(operator) = operator_heard(shared)
+        {
+            let told = verdict_texts(format_args!("master.lbvu"), "refused by the bootloader", verdict);
+            tell(shared, Severity::Warning, told).await;
+            acknowledge(shared, AckResult::Failed, operator).await;
+            // A write that fails leaves it to be told again at the next start.
+            if let Some(free) = free {
+                let _ = ticket_page.write(TOLD_OFFSET + free, &checked_word(verdict)).await;
+            }
+            untold = None;
+        }
         if let Some(refusal) = own.with(|stage| stage.untold.take()) {
             let kib = MAX_PAYLOAD / 1024;
             let why = match refusal {
                 NotTaken::NoBootloader => format_args!("no bootloader here to swap it in"),
                 NotTaken::OnTrial => format_args!("on trial: wait for it to confirm"),
                 NotTaken::TooLarge => format_args!("larger than ACTIVE ({kib} KiB)"),
+                NotTaken::Restarting => format_args!("marked for the swap: restarting"),
                 NotTaken::Refused | NotTaken::Nothing => format_args!("refused"),
             };
             say(shared, Severity::Warning, why).await;
         }
         while let Some(piece) = own.take_page(&mut page) {
+            // The page is out of the buffer: the console reads on while it is programmed (bank 2, beside the code),
+            // rather than leave the next request to overrun the UART's receive buffer for the page's tens of ms.
+            own.moved.signal(());
             let written = program(&mut dfu, piece.offset, page.get(..piece.len).unwrap_or_default()).await;
             let refusal = match written {
-                Ok(()) if piece.offset == 0 => check_info(&piece.header, &page),
+                Ok(()) if piece.offset == 0 => check_info(&piece.header, &page, running.as_ref()),
                 Ok(()) => Ok(()),
                 Err(()) => Err(None),
             };
             if refusal.is_err() {
                 own.refuse(&piece);
+                own.moved.signal(());
             }
-            own.moved.signal(());
             if let Err(refusal) = refusal {
                 match refusal {
                     Some(refusal) => say(shared, Severity::Warning, format_args!("refused: {refusal}")).await,
@@ -486,22 +583,27 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
             _ => None,
         });
         if let Some((header, payload_len, from)) = ready {
-            match verify(&mut dfu, &header, payload_len).await {
-                Ok(()) if state.mark_updated().await.is_ok() => {
+            let marked = mark(&mut dfu, &mut ticket_page, &mut state, &header, payload_len).await;
+            // Past the signature, the ticket's page was erased: a verdict not told yet went with it, and a told
+            // word written now would silence the bootloader's verdict on this image.
+            if marked != Err(NotMarked::Signature) {
+                untold = None;
+            }
+            match marked {
+                Ok(()) => {
+                    // Latched before anything else runs: an upload begun during the check goes no further.
+                    own.mark();
+                    shared.restarting.store(true, Ordering::Relaxed);
                     say(shared, Severity::Info, format_args!("signature good, restarting")).await;
                     shared.outbox.send(Outgoing::Reboot).await;
                 }
-                Ok(()) => {
-                    say(
-                        shared,
-                        Severity::Warning,
-                        format_args!("state not written: send it again"),
-                    )
-                    .await;
-                    acknowledge(shared, AckResult::Failed, from).await;
-                }
-                Err(()) => {
-                    say(shared, Severity::Warning, format_args!("signature bad: image refused")).await;
+                Err(why) => {
+                    let why = match why {
+                        NotMarked::Signature => format_args!("signature bad: image refused"),
+                        NotMarked::Ticket => format_args!("ticket not written: send it again"),
+                        NotMarked::State => format_args!("state not written: send it again"),
+                    };
+                    say(shared, Severity::Warning, why).await;
                     acknowledge(shared, AckResult::Failed, from).await;
                 }
             }
@@ -509,9 +611,60 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
     }
 }
 
-/// The first page is in DFU: hold its upload's header to its image info (update-image's `check`). `None` when the
-/// header itself does not parse (the update server has read it already).
-fn check_info(header: &[u8; HEADER_LEN], first: &[u8; PAGE_BYTES]) -> Result<(), Option<Refusal>> {
+/// The bootloader's verdict on the image marked before the last restart, if it refused one and that was not told
+/// yet (the verdict's slots hold a word, the told slots none), with where the told word goes (`None`: every told
+/// slot is torn, and it is told at every start).
+async fn untold_verdict<P: NorFlash>(page: &mut P) -> Option<(u32, Option<u32>)> {
+    let mut verdict = Slots([0xFF; 8 * SLOTS]);
+    let mut told = Slots([0xFF; 8 * SLOTS]);
+    page.read(VERDICT_OFFSET, &mut verdict.0).await.ok()?;
+    page.read(TOLD_OFFSET, &mut told.0).await.ok()?;
+    let verdict = verdict.value().filter(|_| told.value().is_none())?;
+    Some((verdict, told.free()))
+}
+
+/// Check the signature over DFU's payload, hand the bootloader its ticket, and mark the image for the swap. The
+/// flash is read back after each write: embassy-stm32's async driver can answer Ok to an erase or a program that
+/// did not happen.
+async fn mark<D: NorFlash, P: NorFlash, S: NorFlash>(
+    dfu: &mut D,
+    ticket_page: &mut P,
+    state: &mut FirmwareState<'_, S>,
+    header: &[u8; HEADER_LEN],
+    payload_len: u32,
+) -> Result<(), NotMarked> {
+    let header = Header::parse(header).map_err(|_| NotMarked::Signature)?;
+    verify(dfu, &header, payload_len)
+        .await
+        .map_err(|()| NotMarked::Signature)?;
+    let ticket = Ticket {
+        payload_len,
+        signature: header.signature,
+    }
+    .to_bytes();
+    let mut back = [0; TICKET_LEN];
+    let written = async {
+        ticket_page.erase(0, PAGE).await?;
+        ticket_page.write(TICKET_OFFSET, &ticket).await?;
+        ticket_page.read(TICKET_OFFSET, &mut back).await
+    };
+    if written.await.is_err() || back != ticket {
+        return Err(NotMarked::Ticket);
+    }
+    if state.mark_updated().await.is_err() || !matches!(state.get_state().await, Ok(State::Swap)) {
+        return Err(NotMarked::State);
+    }
+    Ok(())
+}
+
+/// The first page is in DFU: hold its upload's header to its image info (update-image's `check`), and the image to
+/// the one that runs (`check_upgrade`: not older unless signed as a rollback, a security counter not below the
+/// running image's). `None` when the header itself does not parse (the update server has read it already).
+fn check_info(
+    header: &[u8; HEADER_LEN],
+    first: &[u8; PAGE_BYTES],
+    running: Option<&ImageInfo>,
+) -> Result<(), Option<Refusal>> {
     let header = Header::parse(header).map_err(|_| None)?;
     let info = first
         .get(IMAGE_INFO_OFFSET as usize..)
@@ -521,7 +674,8 @@ fn check_info(header: &[u8; HEADER_LEN], first: &[u8; PAGE_BYTES]) -> Result<(),
             len: header.payload_len,
         }));
     };
-    update_image::check(&header, &info, Target::Master, MAX_PAYLOAD).map_err(Some)
+    update_image::check(&header, &info, Target::Master, MAX_PAYLOAD).map_err(Some)?;
+    check_upgrade(&info, running, running.map_or(0, |running| running.security_counter)).map_err(Some)
 }
 
 /// Erase DFU's page at `offset` and program `data` there.
@@ -532,8 +686,7 @@ async fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(
 
 /// DFU's first `payload_len` bytes hashed with SHA-512 and the header's signature checked over the digest with the
 /// image's update key (update-image's `Verifier`, salty, as the thruster checks its own).
-async fn verify<D: NorFlash>(dfu: &mut D, header: &[u8; HEADER_LEN], payload_len: u32) -> Result<(), ()> {
-    let header = Header::parse(header).map_err(drop)?;
+async fn verify<D: NorFlash>(dfu: &mut D, header: &Header, payload_len: u32) -> Result<(), ()> {
     let mut verifier = update_image::Verifier::new();
     let mut chunk = [0; HASH_CHUNK];
     let mut offset = 0;

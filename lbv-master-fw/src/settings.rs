@@ -40,11 +40,13 @@ pub const STORAGE: Range<u32> =
     memory::MASTER_STORAGE.origin - memory::FLASH_ORIGIN..memory::MASTER_STORAGE.end() - memory::FLASH_ORIGIN;
 
 /// The pages the master keeps data in, for the binding's NMI handler ([`g431_hw::flash::nmi_action`]): the
-/// settings, where a power cut can leave a torn double word that the store skips; the bootloader's state and DFU,
-/// which the field update writes and reads back.
-pub const DATA_PAGES: [Span; 3] = [
+/// settings, where a power cut can leave a torn double word that the store skips; the bootloader's state, its
+/// record (the update's ticket, the bootloader's verdict and the told word, each read as a checked word that a torn
+/// one is not) and DFU, which the field update writes and reads back.
+pub const DATA_PAGES: [Span; 4] = [
     memory::MASTER_STORAGE,
     memory::MASTER_PARTITIONS.state,
+    memory::MASTER_PARTITIONS.record,
     memory::MASTER_PARTITIONS.dfu,
 ];
 
@@ -432,6 +434,35 @@ mod tests {
         assert_eq!(STORAGE, 0x7_C000..0x7_C000 + 16 * 1024);
         assert_eq!((STORAGE.end - STORAGE.start) % 2048, 0, "whole 2 KiB pages");
         assert_eq!(STORAGE.end, 512 * 1024, "the top of the 512 KiB flash");
+    }
+
+    #[test]
+    fn an_ecc_error_in_a_page_the_master_writes_is_let_pass_and_one_in_its_code_is_not() {
+        use g431_hw::flash::{NmiAction, eccr, nmi_action};
+        use g431_hw::memory::{G474_BANK2, MASTER_PARTITIONS};
+        // A double error at `address`, as FLASH_ECCR reports it: bank 2 and the offset in it, or bank 1's offset.
+        let ecc = |address: u32| match address.checked_sub(G474_BANK2) {
+            Some(offset) => eccr::ECCD | eccr::BK_ECC | offset,
+            None => eccr::ECCD | (address - g431_hw::memory::FLASH_ORIGIN),
+        };
+        let p = MASTER_PARTITIONS;
+        // The record: the ticket and the verdict the bootloader wrote, torn by a power cut, are read at start.
+        for span in [
+            memory::MASTER_STORAGE,
+            p.state,
+            p.record,
+            p.ticket(),
+            p.counter(),
+            p.dfu,
+        ] {
+            for address in [span.origin, span.end() - 8] {
+                let action = nmi_action(ecc(address), &DATA_PAGES);
+                assert!(matches!(action, NmiAction::PassDataRead { .. }), "{address:#x}");
+            }
+        }
+        for address in [p.bootloader.origin, p.active.origin, p.active.end() - 8] {
+            assert_eq!(nmi_action(ecc(address), &DATA_PAGES), NmiAction::Stop, "{address:#x}");
+        }
     }
 
     #[test]

@@ -3,6 +3,8 @@
 //! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them,
 //! only on [`crate::params`] and [`crate::mixer`] for the settings and the pilot's sticks it carries.
 
+use core::sync::atomic::AtomicBool;
+
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
@@ -20,8 +22,10 @@ pub const MAX_THRUSTERS: usize = 8;
 /// Thruster buses a master has: I2C1..3.
 pub const BUSES: usize = 3;
 
-/// A STATUSTEXT's text: at most 50 bytes (MAVLink STATUSTEXT.text).
-pub type Text = heapless::String<50>;
+/// The longest STATUSTEXT text, in bytes (MAVLink STATUSTEXT.text).
+pub const TEXT_LEN: usize = 50;
+/// A STATUSTEXT's text: at most [`TEXT_LEN`] bytes.
+pub type Text = heapless::String<TEXT_LEN>;
 
 /// Format a text; what does not fit in 50 bytes is cut off at a character boundary.
 pub fn text(args: core::fmt::Arguments<'_>) -> Text {
@@ -30,9 +34,9 @@ pub fn text(args: core::fmt::Arguments<'_>) -> Text {
     writer.0
 }
 
-struct Truncating(Text);
+struct Truncating<const N: usize>(heapless::String<N>);
 
-impl core::fmt::Write for Truncating {
+impl<const N: usize> core::fmt::Write for Truncating<N> {
     fn write_str(&mut self, s: &str) -> core::fmt::Result {
         for c in s.chars() {
             if self.0.push(c).is_err() {
@@ -40,6 +44,44 @@ impl core::fmt::Write for Truncating {
             }
         }
         Ok(())
+    }
+}
+
+/// "`who`: `what`" for a person, in one text or, when one STATUSTEXT cannot hold it, in two, so that a reason is
+/// not cut short. The first ends at a ": ", else at a ", ", else at a space: the last one that leaves the rest room
+/// in the second ("`who`: " and the rest); failing that, at the last space that fits, the rest cut at its end.
+pub fn texts(who: core::fmt::Arguments<'_>, what: core::fmt::Arguments<'_>) -> (Text, Option<Text>) {
+    let mut whole = Truncating(heapless::String::<{ 3 * TEXT_LEN }>::new());
+    let _ = core::fmt::Write::write_fmt(&mut whole, format_args!("{who}: "));
+    let start = whole.0.len();
+    let _ = core::fmt::Write::write_fmt(&mut whole, what);
+    let whole = whole.0.as_str();
+    if whole.len() <= TEXT_LEN {
+        return (text(format_args!("{whole}")), None);
+    }
+    // The spaces the first text may end before, last first: past `who`, within its room. Bytes, not characters:
+    // the marks are ASCII, so a cut before one is a character boundary.
+    let bytes = whole.as_bytes();
+    let spaces = || (start..=TEXT_LEN).rev().filter(|at| bytes.get(*at) == Some(&b' '));
+    let after = |at: usize| at.checked_sub(1).and_then(|before| bytes.get(before)).copied();
+    let rest_fits = |at: usize| start + whole.len() - at - 1 <= TEXT_LEN;
+    let cut = [Some(b':'), Some(b','), None]
+        .into_iter()
+        .find_map(|mark| spaces().find(|at| mark.is_none_or(|mark| after(*at) == Some(mark)) && rest_fits(*at)))
+        .or_else(|| spaces().next());
+    match cut.and_then(|at| Some((whole.get(..at)?, whole.get(at + 1..)?))) {
+        Some((first, rest)) => (text(format_args!("{first}")), Some(text(format_args!("{who}: {rest}")))),
+        None => (text(format_args!("{whole}")), None),
+    }
+}
+
+/// The texts that tell that a bootloader refused `who`'s image, `code` its verdict (update-image's `Verdict`):
+/// "`who`: `what`: signature" ([`texts`]: "`who`: `what`:" and "`who`: security counter below the vehicle's"
+/// when that is too long for one), or "`who`: `what` (code 12)" for a code this build does not know.
+pub fn verdict_texts(who: core::fmt::Arguments<'_>, what: &str, code: u32) -> (Text, Option<Text>) {
+    match u8::try_from(code).ok().and_then(update_image::Verdict::from_code) {
+        Some(verdict) => texts(who, format_args!("{what}: {verdict}")),
+        None => texts(who, format_args!("{what} (code {code})")),
     }
 }
 
@@ -471,6 +513,9 @@ pub struct Shared {
     pub signing_stored: Watch<Mutex, u64, 1>,
     /// Console -> settings store: the reboot's acknowledgement has been sent; restart.
     pub reboot: Signal<Mutex, ()>,
+    /// The master's own update -> update server: the master's image is marked for the swap and it restarts into
+    /// it; no update file changes until then ([`crate::own`]). Only a restart clears it.
+    pub restarting: AtomicBool,
 }
 
 impl Shared {
@@ -487,6 +532,7 @@ impl Shared {
             signing_time: Watch::new(),
             signing_stored: Watch::new(),
             reboot: Signal::new(),
+            restarting: AtomicBool::new(false),
         }
     }
 
@@ -505,5 +551,87 @@ impl Default for Shared {
 impl core::fmt::Debug for Shared {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Shared").finish_non_exhaustive()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn both(texts: (Text, Option<Text>)) -> Vec<String> {
+        [Some(texts.0), texts.1]
+            .into_iter()
+            .flatten()
+            .map(|text| text.to_string())
+            .collect()
+    }
+
+    #[test]
+    fn a_sentence_too_long_for_one_text_goes_on_in_a_second_cut_where_it_reads() {
+        // One text when it fits, to the last byte.
+        let fits = "x".repeat(TEXT_LEN - "T1: ".len());
+        assert_eq!(
+            both(texts(format_args!("T1"), format_args!("{fits}"))),
+            [format!("T1: {fits}")]
+        );
+        // At a colon, then at a comma, when the rest fits in the second; else at the last space that fits.
+        assert_eq!(
+            both(texts(
+                format_args!("T1"),
+                format_args!("refused by its bootloader: security counter below the vehicle's")
+            )),
+            [
+                "T1: refused by its bootloader:",
+                "T1: security counter below the vehicle's"
+            ]
+        );
+        assert_eq!(
+            both(texts(
+                format_args!("thruster0.lbvu"),
+                format_args!("the header says version 0.5.0, the payload is version 0.4.0")
+            )),
+            [
+                "thruster0.lbvu: the header says version 0.5.0,",
+                "thruster0.lbvu: the payload is version 0.4.0"
+            ]
+        );
+        assert_eq!(
+            both(texts(
+                format_args!("T1"),
+                format_args!("{} {}", "a".repeat(40), "b".repeat(60))
+            )),
+            [format!("T1: {}", "a".repeat(40)), format!("T1: {}", "b".repeat(46))]
+        );
+        // No space to cut at: cut at 50 bytes, as one text is.
+        let word = "y".repeat(60);
+        assert_eq!(
+            both(texts(format_args!("T1"), format_args!("{word}"))),
+            [format!("T1: {}", &word[..46])]
+        );
+    }
+
+    #[test]
+    fn a_verdict_reads_as_its_sentence_or_its_code() {
+        assert_eq!(
+            both(verdict_texts(format_args!("T3"), "refused by its bootloader", 1)),
+            ["T3: refused by its bootloader: signature"]
+        );
+        assert_eq!(
+            both(verdict_texts(
+                format_args!("master.lbvu"),
+                "refused by the bootloader",
+                9
+            )),
+            [
+                "master.lbvu: refused by the bootloader:",
+                "master.lbvu: the running image names no key"
+            ]
+        );
+        for code in [0, 15, 300] {
+            assert_eq!(
+                both(verdict_texts(format_args!("T1"), "refused by its bootloader", code)),
+                [format!("T1: refused by its bootloader (code {code})")]
+            );
+        }
     }
 }

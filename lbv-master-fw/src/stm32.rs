@@ -49,21 +49,26 @@ bind_interrupts!(struct Irqs {
 
 static CONSOLE_STATS: ConsoleStats = ConsoleStats::new();
 
-/// What this image is (target: the master; version: the crate's), where `lbv image` and the master's own update look
-/// for it (the linker script places `.image_info` at `g431_hw::memory::IMAGE_INFO_OFFSET`).
+/// What this image is (target: the master; version: the crate's) and, after it, the key it takes updates with, where
+/// `lbv image`, the master's own update and the bootloader look for them (the linker script places `.image_info` at
+/// `g431_hw::memory::IMAGE_INFO_OFFSET`): the bootloader checks the next image's signature with this key.
 #[allow(unsafe_code)] // a link section: the record's place is the linker script's, checked there by size
 #[unsafe(link_section = ".image_info")]
 #[used]
-static IMAGE_INFO: [u8; update_image::INFO_LEN] = update_image::image_info!(update_image::Target::Master);
+static IMAGE_INFO: [u8; update_image::IMAGE_RECORD_LEN] = update_image::image_info!(update_image::Target::Master);
+
+// The record fills the room the linker script keeps for it.
+const _: () = assert!(update_image::IMAGE_RECORD_LEN == g431_hw::memory::IMAGE_INFO_SIZE as usize);
 
 /// The chip's flash through embassy-stm32's async driver, which waits for an erase or a program by its interrupt:
-/// the settings and DFU are in bank 2, where the work runs beside the code in bank 1 (RM0440 3.3.8).
+/// the settings, the bootloader's state and record, and DFU are in bank 2, where the work runs beside the code in
+/// bank 1 (RM0440 3.3.8).
 type ChipFlash = Mutex<CriticalSectionRawMutex, Flash<'static, Async>>;
 /// The whole flash, addressed from its start, shared by the settings and the master's own update.
 type WholeFlash = Partition<'static, CriticalSectionRawMutex, Flash<'static, Async>>;
 /// Where the settings are kept.
 type Settings = Store<WholeFlash>;
-/// The master's own update, on the same flash.
+/// The master's own update, on the same flash, at `g431_hw::memory::MASTER_PARTITIONS`' offsets.
 type Own = Updating<'static, WholeFlash>;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.

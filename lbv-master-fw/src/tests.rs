@@ -189,5 +189,11 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
         texts.iter().any(|text| text.starts_with("T1 online")),
         "link texts: {texts:?}"
     );
+    // The host build takes the development key unless LBV_UPDATE_KEY names another.
+    assert_eq!(
+        texts.contains(&crate::DEV_KEY_TEXT),
+        update_image::UPDATE_KEY_IS_DEV,
+        "start-up texts: {texts:?}"
+    );
     assert_eq!(MAX_THRUSTERS, 8);
 }

@@ -36,6 +36,9 @@
 //!   before they get here, as every unsigned frame is ([`crate::signing`]).
 //! - Nothing is written, removed or applied while armed ([`Nak::Fail`], COMMAND_ACK TEMPORARILY_REJECTED, and
 //!   "disarm to update"); arming during an upload stops it at its next request.
+//! - Nor once the master's own image is marked for the swap, until it has restarted into it ([`Nak::Fail`],
+//!   COMMAND_ACK TEMPORARILY_REJECTED, and "master restarting into its update"): an upload under way stops at its
+//!   next write.
 //! - Progress: a STATUSTEXT of the bytes received at most once per [`PROGRESS_PERIOD`], and one at the end.
 //!   What a script reads: `ftp list /update` (each file's size is the bytes received), `ftp crc`, and the apply
 //!   command's COMMAND_ACK.
@@ -45,6 +48,7 @@
 pub mod ftp;
 
 use core::fmt::{self, Write as _};
+use core::sync::atomic::Ordering;
 
 use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
@@ -76,6 +80,8 @@ pub const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.activ
 pub const MASTER_MAX_PAYLOAD: u32 = g431_hw::memory::MASTER_PARTITIONS.active.length;
 /// The slot number of the master in the apply command's param1.
 pub const MASTER_SLOT: u8 = 255;
+/// Why no update file changes while the master's own image is marked for the swap ([`Context::restarting`]).
+const RESTARTING: &str = "master restarting into its update";
 
 /// What an update file is for: a slot of the thruster table, or the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -354,6 +360,9 @@ pub struct Context {
     pub armed: bool,
     /// `SYSID_MYGCS`.
     pub operator: u8,
+    /// The master's own image is marked for the swap and the master restarts into it ([`Shared::restarting`]):
+    /// nothing is written, removed or applied until then.
+    pub restarting: bool,
 }
 
 impl Context {
@@ -364,6 +373,7 @@ impl Context {
             armed: vehicle.is_some_and(|v| v.armed),
             // 0 is no system: nobody may write before the vehicle has said whom it takes orders from.
             operator: vehicle.map_or(0, |v| v.operator),
+            restarting: shared.restarting.load(Ordering::Relaxed),
         }
     }
 }
@@ -538,6 +548,11 @@ impl UpdateServer {
             }),
             Opcode::CreateFile | Opcode::OpenFileWO => self.open(now, context, from, &request, sink, out),
             Opcode::WriteFile if !ours => Err(Nak::InvalidSession),
+            // The upload stops here, told why, rather than halfway through at the restart.
+            Opcode::WriteFile if context.restarting => match self.upload {
+                Some(image) => self.refuse(image.target, RESTARTING, sink, out),
+                None => Err(Nak::Fail),
+            },
             // A gap is left unanswered.
             Opcode::WriteFile => self.write(now, &request, sink, out)?,
             Opcode::RemoveFile => self.remove(context, from, &request, sink, out),
@@ -585,6 +600,10 @@ impl UpdateServer {
         if from.system != context.operator {
             self.counters.refused = self.counters.refused.wrapping_add(1);
             return Err(Nak::FileProtected);
+        }
+        if context.restarting {
+            note(out, Severity::Warning, target, RESTARTING);
+            return Err(Nak::Fail);
         }
         if context.armed {
             note(out, Severity::Warning, target, "disarm to update");
@@ -833,6 +852,7 @@ impl UpdateServer {
                 (AckResult::Denied, None)
             }
             None => (AckResult::Denied, Some("no such target")),
+            Some(_) if context.restarting => (AckResult::TemporarilyRejected, Some(RESTARTING)),
             Some(_) if context.armed => (AckResult::TemporarilyRejected, Some("disarm to update")),
             Some(_) if receiving => (AckResult::TemporarilyRejected, Some("still receiving")),
             Some(target) if !self.is_received(target) => (AckResult::Denied, Some("nothing to apply")),

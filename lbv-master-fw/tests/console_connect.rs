@@ -198,6 +198,13 @@ fn check_autopilot_version(v: &AUTOPILOT_VERSION_DATA) {
     }
     assert_eq!(caps.bits() & 2, 0, "not the deprecated PARAM_FLOAT");
     assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0469));
+    // An image that takes development-key files says so (the host build does unless LBV_UPDATE_KEY names another).
+    let dev_key = if update_image::UPDATE_KEY_IS_DEV {
+        *b"DEVKEY\0\0"
+    } else {
+        [0; 8]
+    };
+    assert_eq!(v.middleware_custom_version, dev_key);
     assert_eq!(&v.uid2[..12], &UID);
     assert_eq!(&v.uid2[12..], &[0; 6]);
     let word = |n: usize| u32::from_le_bytes(UID[n * 4..n * 4 + 4].try_into().unwrap());

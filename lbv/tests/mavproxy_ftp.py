@@ -9,6 +9,12 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
 
     connect   MAVProxy sees the vehicle
     list      `ftp list /update`: one file per thruster slot and the master's, 0 bytes each
+    older     `ftp put WORK_DIR/older.lbvu /update/thruster2.lbvu`, a validly signed 0.0.9, older than the 0.1.0
+              the thruster runs: refused with its reason at its first page, before anything is written
+    flipped   `ftp put WORK_DIR/flipped.lbvu /update/thruster2.lbvu`, a 0.3.0 with one payload bit flipped after
+              signing: received whole, then `long MAV_CMD_USER_1 2`: the thruster marks it, restarts, and its
+              bootloader refuses it: FAILED and "T3: refused by its bootloader: signature"; `long MAV_CMD_USER_2 2`:
+              it still runs 0.1.0
     lossy     `ftp set pkt_loss_tx 20`, `ftp set pkt_loss_rx 20`, `ftp set loss_seed 5` (MAVProxy's own link
               simulator: a fifth of its requests and of the vehicle's replies lost, the same ones every run) and
               `ftp set debug 2` (MAVProxy prints every request, reply and loss), then `ftp put
@@ -20,7 +26,7 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
     listed    `ftp list /update`: thruster2.lbvu 4176 bytes
     apply     `long MAV_CMD_USER_1 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED once the thruster runs the image and
               has confirmed it, and the texts on the way
-    version   `long MAV_CMD_USER_2 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED, and "thruster2.lbvu: runs 0.2.0"
+    version   `long MAV_CMD_USER_2 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED, and "thruster2.lbvu: runs 0.2.0, dev key"
     remove    `ftp rm /update/thruster2.lbvu`: "thruster2.lbvu: removed"; `long MAV_CMD_USER_1 2`: DENIED
 
 Prints a JSON summary;
@@ -94,6 +100,41 @@ class Session:
     def list(self):
         self.summary["list"] = self.listing()
 
+    def put(self, name):
+        """`ftp put` of WORK_DIR/`name` to thruster2's file; the vehicle's texts since."""
+        since = time.monotonic()
+        self.mavproxy.type(f"ftp put {os.path.join(self.work, name)} /update/thruster2.lbvu")
+        return since
+
+    def older(self):
+        since = self.put("older.lbvu")
+        self.wait(lambda: any("(not a rollback)" in text for text in self.observer.texts(since)), 15.0, "the refusal")
+        self.wait(lambda: self.lines(since, r"(Write|Create) failed|Sent file of length"), 10.0, "MAVProxy's put ends")
+        self.summary["older"] = {
+            "texts": self.observer.texts(since),
+            "failed": [m.group(0) for m in self.lines(since, r"(Write|Create) failed.*")],
+        }
+
+    def flipped(self):
+        since = self.put("flipped.lbvu")
+        self.wait(
+            lambda: "thruster2.lbvu: 4096 B verified, 0 pages kept" in self.observer.texts(since),
+            20.0,
+            "the flipped image on the thruster",
+        )
+        applied = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_1 2")
+        self.wait(lambda: self.ack(applied) is not None, 20.0, "the apply's final COMMAND_ACK")
+        asked = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_2 2")
+        self.wait(lambda: self.ack(asked, QUERY_VERSION) is not None, 5.0, "the version query's COMMAND_ACK")
+        self.wait(lambda: self.observer.texts(asked), 2.0, "the version query's STATUSTEXT")
+        self.summary["flipped"] = {
+            "results": self.acks(applied),
+            "texts": self.observer.texts(applied),
+            "version": self.observer.texts(asked),
+        }
+
     def lossy(self):
         local = os.path.join(self.work, "thruster2.lbvu")
         with open(local, "rb") as file:
@@ -161,7 +202,7 @@ class Session:
         self.wait(lambda: self.ack(again) is not None, 5.0, "the second apply's COMMAND_ACK")
         self.summary["remove"] = {"apply": self.ack(again), "texts": self.observer.texts(since)}
 
-    STEPS = ["connect", "list", "lossy", "crc", "listed", "apply", "version", "remove"]
+    STEPS = ["connect", "list", "older", "flipped", "lossy", "crc", "listed", "apply", "version", "remove"]
 
     def run(self):
         for step in self.STEPS:

@@ -1,5 +1,7 @@
 //! Field update with MAVProxy, a real ground station, over a lossy link (`tests/mavproxy_ftp.py`): `ftp list`,
-//! `ftp put` of a SeaBotix update file signed with the development key to /update/thruster2.lbvu (which the master
+//! `ftp put` of a validly signed image older than the one the thruster runs (refused with its reason at its first
+//! page) and of one with a payload bit flipped (written, applied, refused by the thruster's bootloader, which
+//! starts the image that ran), then `ftp put` of a SeaBotix update file signed with the development key to /update/thruster2.lbvu (which the master
 //! writes on into the thruster) with MAVProxy's own link simulator losing a fifth of its requests and of the
 //! vehicle's replies (so that blocks are sent again, both those the vehicle never got and those whose ACK was
 //! lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply (the thruster checks the signature,
@@ -14,9 +16,9 @@ mod support;
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_ftp.py");
 /// How long the bench runs, s; the script is done well before.
-const BENCH_SECONDS: &str = "60";
+const BENCH_SECONDS: &str = "100";
 /// The script's own time limit, s.
-const SCRIPT_SECONDS: &str = "50";
+const SCRIPT_SECONDS: &str = "90";
 
 #[test]
 fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_byte() {
@@ -27,6 +29,11 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         std::fs::create_dir_all(path).unwrap();
     }
     std::fs::write(format!("{local}/thruster2.lbvu"), support::signed_update_file()).unwrap();
+    let seabotix = update_image::Target::ThrusterSeabotix;
+    let older = support::update_file(seabotix, update_image::Version::new(0, 0, 9), None);
+    std::fs::write(format!("{local}/older.lbvu"), older).unwrap();
+    let flipped = support::update_file(seabotix, update_image::Version::new(0, 3, 0), Some(3000));
+    std::fs::write(format!("{local}/flipped.lbvu"), flipped).unwrap();
     let args = [
         gcs.to_string(),
         observer.to_string(),
@@ -45,7 +52,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     assert_eq!(
         summary["steps"],
         serde_json::json!([
-            "connect", "list", "lossy", "crc", "listed", "apply", "version", "remove"
+            "connect", "list", "older", "flipped", "lossy", "crc", "listed", "apply", "version", "remove"
         ]),
         "{summary}"
     );
@@ -61,6 +68,31 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         )
     };
     assert_eq!(summary["list"], files([0; 7]), "{summary}");
+    // The older image: refused at its first page, saying why; MAVProxy's put ends in a failed write.
+    let older = &summary["older"];
+    assert_eq!(
+        older["texts"],
+        serde_json::json!([
+            "thruster2.lbvu: 0.0.9 is older than the 0.1.0 that",
+            "thruster2.lbvu: runs (not a rollback)"
+        ]),
+        "{summary}"
+    );
+    assert!(older["failed"].as_array().is_some_and(|failed| !failed.is_empty()), "{summary}");
+    // The flipped one: written, marked, refused by the bootloader after the restart; the thruster runs 0.1.0.
+    let flipped = &summary["flipped"];
+    assert_eq!(flipped["results"], serde_json::json!([5, 4]), "IN_PROGRESS, FAILED: {summary}");
+    assert!(
+        flipped["texts"]
+            .as_array()
+            .is_some_and(|texts| texts.contains(&"T3: refused by its bootloader: signature".into())),
+        "{summary}"
+    );
+    assert_eq!(
+        support::file_texts(&flipped["version"]),
+        serde_json::json!(["thruster2.lbvu: runs 0.1.0, dev key"]),
+        "{summary}"
+    );
     let put = &summary["put"];
     assert_eq!((&put["sent"], &put["bytes"]), (&4176.into(), &4176.into()), "{summary}");
     assert_eq!(put["failed"], serde_json::json!([]), "{summary}");
@@ -94,7 +126,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         support::file_texts(&summary["apply"]["texts"]),
         serde_json::json!([
             "thruster2.lbvu: applying",
-            "thruster2.lbvu: signature good, restarting",
+            "thruster2.lbvu: marked, restarting into its update",
             "thruster2.lbvu: runs 0.2.0, on trial",
             "thruster2.lbvu: 0.2.0 confirmed"
         ]),
@@ -103,7 +135,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     assert_eq!(summary["version"]["results"], serde_json::json!([5, 0]), "{summary}");
     assert_eq!(
         support::file_texts(&summary["version"]["texts"]),
-        serde_json::json!(["thruster2.lbvu: runs 0.2.0"]),
+        serde_json::json!(["thruster2.lbvu: runs 0.2.0, dev key"]),
         "{summary}"
     );
     assert_eq!(summary["remove"]["apply"], 2, "DENIED once removed: {summary}");

@@ -81,7 +81,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         support::file_texts(&summary["apply"]["texts"]),
         serde_json::json!([
             "thruster0.lbvu: applying",
-            "thruster0.lbvu: signature good, restarting",
+            "thruster0.lbvu: marked, restarting into its update",
             "thruster0.lbvu: runs 0.2.0, on trial",
             "thruster0.lbvu: 0.2.0 confirmed",
             "thruster2.lbvu: nothing to apply"

@@ -49,7 +49,12 @@ class Image:
 
 
 class Stm32g4:
-    def __init__(self, image, seed=1):
+    """The chip with `image` in its flash, started as the image expects: from its vector table. With `application`
+    (an image linked into ACTIVE) beside a bootloader `image`, both are in the flash as a board flashed with both
+    holds them: the chip starts the bootloader, and the log read is the application's (the bootloader logs
+    nothing)."""
+
+    def __init__(self, image, seed=1, application=None):
         self.image = image if isinstance(image, Image) else Image(image)
         self.part = self.image.part
         self.random = random.Random(seed)
@@ -58,13 +63,16 @@ class Stm32g4:
         core.flash_store = self._cpu_flash_store
         core.service = self._service
         self.flash = bytearray(b"\xff" * self.part.flash_size)
-        for address, data in self.image.segments:
-            self.flash[address - FLASH_BASE : address - FLASH_BASE + len(data)] = data
+        images = [self.image] if application is None else [self.image, application]
+        for each in images:
+            for address, data in each.segments:
+                self.flash[address - FLASH_BASE : address - FLASH_BASE + len(data)] = data
         system = bytearray(0x8000)
         system[UID_ADDRESS - 0x1FFF_0000 : UID_ADDRESS - 0x1FFF_0000 + 12] = UID
         system[FLASH_SIZE_ADDRESS - 0x1FFF_0000 : FLASH_SIZE_ADDRESS - 0x1FFF_0000 + 2] = struct.pack("<H", self.part.flash_size // 1024)
         core.uc.mem_write(0x1FFF_0000, bytes(system))
-        core.hook_sev(*self.image.text)
+        for each in images:
+            core.hook_sev(*each.text)
 
         self.peripherals = []
         self._lines = {}
@@ -102,8 +110,9 @@ class Stm32g4:
         self.fdcan.ram = self.fdcan_ram
         self.lpuart = add(uart.Lpuart, "LPUART1", 0x4000_8000)
 
-        self.log = Log(self.image.defmt)
-        rtt = self.image.symbols.get("_SEGGER_RTT")
+        logging = images[-1]
+        self.log = Log(logging.defmt)
+        rtt = logging.symbols.get("_SEGGER_RTT")
         self.rtt = Rtt(core, rtt, self.log) if rtt else None
         self.resets = []  # (cycle, kind) of every reset after the first power-on
         self._reset_request = None
@@ -146,12 +155,14 @@ class Stm32g4:
         offset = address - FLASH_BASE
         struct.pack_into("<II", self.flash, offset, first, second)
         self.core.uc.mem_write(address, struct.pack("<II", first, second))
+        self.core.code_written(address, 8)
 
     def flash_erase(self, address):
         offset = address - FLASH_BASE
         page = 2048
         self.flash[offset : offset + page] = b"\xff" * page
         self.core.uc.mem_write(address, b"\xff" * page)
+        self.core.code_written(address, page)
 
     def _cpu_flash_store(self, address, size, value):
         if size != 4:
@@ -176,6 +187,7 @@ class Stm32g4:
         self.core.uc.mem_write(SRAM_BASE, noise)
         self._paint_stack()
         self.core.uc.mem_write(FLASH_BASE, bytes(self.flash))
+        self.core.code_written(FLASH_BASE, len(self.flash))
         self._start()
 
     def _start(self):

@@ -57,6 +57,9 @@ WFI = 0xBF30
 SEV = 0xBF40
 
 
+# The granularity at which code rewritten in memory is forgotten: a flash page (RM0440 3.3.1).
+CODE_PAGE_BITS = 11
+
 # What a spinning loop must leave unchanged from one pass to the next.
 SPIN_REGISTERS = [getattr(arm, f"UC_ARM_REG_R{n}") for n in range(13)] + [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_XPSR]
 
@@ -136,6 +139,7 @@ class Core:
         self._events = []  # (cycle, sequence, callback)
         self._sequence = 0
         self._block_sizes = {}
+        self._code_pages = {}  # 2 KiB page -> the blocks translated from it (keys of _block_sizes)
         self._stop_at = 0
         self._stop_reason = None
         self._attention = False
@@ -244,6 +248,11 @@ class Core:
         self.sleeping = False
         self.event = False
         self.fault = None
+        # A spin seen before the reset (a run that stopped on it) is not the new start's.
+        self._spin = 0
+        self._repeats = 0
+        self._last_block = None
+        self._last_registers = None
         msp = self.read32(vector_table)
         pc = self.read32(vector_table + 4)
         self.uc.reg_write(arm.UC_ARM_REG_MSP, msp)
@@ -324,6 +333,8 @@ class Core:
             code = bytes(uc.mem_read(address, size)) if size else b""
             known = (thumb_instructions(code) if size else 1, bool(size) and stores_nothing(code))
             self._block_sizes[(address, size)] = known
+            for page in range(address >> CODE_PAGE_BITS, ((address + max(size, 1) - 1) >> CODE_PAGE_BITS) + 1):
+                self._code_pages.setdefault(page, set()).add((address, size))
         count, pure = known
         self.cycles += count
         self.instructions += count
@@ -349,6 +360,17 @@ class Core:
         if self._attention or self.cycles >= self._stop_at or (self.nvic is not None and self.nvic.wants_attention()):
             self._attention = False
             self._stop()
+
+    def code_written(self, address, length):
+        """Memory was rewritten (flash programmed or erased): code translated from it before is forgotten, Unicorn's
+        translation and the counts here, so that what runs there next is what the memory now holds."""
+        first, last = address >> CODE_PAGE_BITS, (address + max(length, 1) - 1) >> CODE_PAGE_BITS
+        for page in range(first, last + 1):
+            blocks = self._code_pages.pop(page, None)
+            if blocks:
+                for key in blocks:
+                    self._block_sizes.pop(key, None)
+                self.uc.ctl_remove_cache(page << CODE_PAGE_BITS, (page + 1) << CODE_PAGE_BITS)
 
     def request_stop(self):
         """Stop at the next block, where the state is whole: a peripheral changed something the run loop must see.

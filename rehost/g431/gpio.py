@@ -1,4 +1,8 @@
-"""GPIO ports (RM0440 9.4) and the EXTI lines they feed through SYSCFG_EXTICRx (RM0440 15.5, 9.2.3)."""
+"""GPIO ports (RM0440 9.4) and the EXTI lines they feed through SYSCFG_EXTICRx (RM0440 15.5, 9.2.3).
+
+A port's registers take no access while its clock is off (RCC_AHB2ENR's GPIOxEN, clear after every reset; RM0440
+7.4.16: "when the peripheral clock is not active, the peripheral registers read or write access is not supported"):
+here a write is then lost and a read gives 0, so an image that forgets the clock leaves its pins as they were."""
 
 from .peripheral import Peripheral, bit, field
 
@@ -14,6 +18,7 @@ RESETS = {
 PIN_FIELDS = ((MODER, 2), (OTYPER, 1), (OSPEEDR, 2), (PUPDR, 2))
 
 INPUT, OUTPUT, ALTERNATE, ANALOG = 0, 1, 2, 3
+AHB2ENR = 0x4C  # RCC_AHB2ENR (RM0440 7.4.16): GPIOAEN is bit 0, ... GPIOGEN bit 6
 MODE_NAMES = {INPUT: "input", OUTPUT: "output", ALTERNATE: "alternate", ANALOG: "analog"}
 PULL_NAMES = {0: "none", 1: "up", 2: "down"}
 
@@ -63,7 +68,12 @@ class Gpio(Peripheral):
         if before != after:
             self.chip.exti.edge(self.letter, pin, after)
 
+    def clocked(self):
+        return bool(bit(self.chip.rcc.regs.get(AHB2ENR, 0), "ABCDEFG".index(self.letter)))
+
     def read(self, offset):
+        if not self.clocked():
+            return 0
         if offset == IDR:
             return sum(self.level(pin) << pin for pin in range(16))
         if offset == BSRR:
@@ -71,6 +81,8 @@ class Gpio(Peripheral):
         return super().read(offset)
 
     def write(self, offset, value):
+        if not self.clocked():
+            return
         self.writes.add(offset)
         if offset == BSRR:
             odr = self.regs.get(ODR, 0)

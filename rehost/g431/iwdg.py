@@ -18,6 +18,12 @@ class Iwdg(Peripheral):
         self.unlocked = False
         self.reloads = 0
         self._generation = 0
+        self._deadline = None
+        self._divider = 4
+        self.started_at = None  # the cycle of KR = 0xCCCC
+        # Every reload (KR = 0xCCCC or 0xAAAA) while it runs: (cycle, the counter's value just before it), so a test
+        # sees how close to zero it came.
+        self.refreshes = []
 
     def reset(self):
         super().reset()
@@ -25,11 +31,22 @@ class Iwdg(Peripheral):
         self.unlocked = False
         self.reloads = 0
         self._generation += 1
+        self._deadline = None
+        self.started_at = None
+        self.refreshes = []
 
     def timeout_cycles(self):
         divider = 4 << (self.regs.get(PR, 0) & 7)
         ticks = (self.regs.get(RLR, 0xFFF) & 0xFFF) + 1
         return ticks * divider * self.chip.core.hz // self.lsi_hz
+
+    def counter(self):
+        """The down-counter's value now (RM0440 42.3.2): the LSI ticks left before it reaches zero and resets the
+        chip; None while it is stopped."""
+        if not self.running or self._deadline is None:
+            return None
+        left = max(self._deadline - self.chip.core.cycles, 0)
+        return left * self.lsi_hz // (self._divider * self.chip.core.hz)
 
     def write(self, offset, value):
         self.writes.add(offset)
@@ -38,8 +55,11 @@ class Iwdg(Peripheral):
             if key == UNLOCK:
                 self.unlocked = True
             elif key in (START, RELOAD):
-                if key == START:
+                if key == START and not self.running:
                     self.running = True
+                    self.started_at = self.chip.core.cycles
+                elif self.running:
+                    self.refreshes.append((self.chip.core.cycles, self.counter()))
                 self.unlocked = False
                 self.reloads += 1
                 self._arm()
@@ -51,7 +71,9 @@ class Iwdg(Peripheral):
     def _arm(self):
         self._generation += 1
         generation = self._generation
-        self.chip.core.at(self.chip.core.cycles + self.timeout_cycles(), lambda: self._expire(generation))
+        self._divider = 4 << (self.regs.get(PR, 0) & 7)
+        self._deadline = self.chip.core.cycles + self.timeout_cycles()
+        self.chip.core.at(self._deadline, lambda: self._expire(generation))
 
     def _expire(self, generation):
         if generation == self._generation and self.running:

@@ -116,10 +116,14 @@ class Flash(Peripheral):
     the pages of the bank BKER picks), programmed 64 bits at a time (RM0440 3.3.7, 3.3.8).
 
     The CPU's stores into flash arrive here (`store`): with PG set they fill a double word, which is programmed
-    when its second word is written; a write to a word that is not erased sets PROGERR. While an erase or a program
-    runs in the bank the code runs from (bank 1 for every image here), the core stalls, since it fetches from that
-    bank (3.3.7): the clock advances with no instruction run. One in the other bank runs beside the code (3.3.8,
-    read-while-write); its end raises the FLASH interrupt when EOPIE is set, as the async driver waits for it.
+    when its second word is written; a write to a word that is not erased sets PROGERR. Each operation takes the
+    datasheet's typical time. While one runs in the bank the code runs from (bank 1 for every image here), the core
+    stalls, since it fetches from that bank (3.3.7): the clock advances with no instruction run. One in the other
+    bank runs beside the code (3.3.8, read-while-write) with SR.BSY set until it ends; its end sets EOP and raises
+    the FLASH interrupt when EOPIE is set, as the async driver waits for it. Starting another operation while BSY is
+    set is what every procedure of 3.3.7 forbids: the run stops there.
+
+    `operations` lists every erase and program as (first cycle, last cycle, "erase" or "program", address).
     """
 
     def __init__(self, chip, name, base):
@@ -129,11 +133,18 @@ class Flash(Peripheral):
         self.pending = {}  # address of a double word -> first word
         self.erases = 0
         self.programs = 0
+        self.operations = []
 
     def reset(self, flags=None):
         super().reset()
         self.keys = []
         self.pending = {}
+
+    def _busy(self, what):
+        if self.regs.get(SR, 0) & SR_BSY:
+            self.chip.core.fail(f"{what} while the flash is busy (SR.BSY): RM0440 3.3.7 waits for BSY to clear first")
+            return True
+        return False
 
     def write(self, offset, value):
         self.writes.add(offset)
@@ -155,10 +166,12 @@ class Flash(Peripheral):
                 address = FLASH_BASE + field(value, 3, 7) * PAGE
                 if bank2 is not None and value & CR_BKER:
                     address += bank2 - FLASH_BASE
+                self.regs[FCR] = value & ~CR_STRT
+                if self._busy(f"a page erase at {address:#010x}"):
+                    return
                 self.chip.flash_erase(address)
                 self.erases += 1
-                self.regs[FCR] = value & ~CR_STRT
-                self._done(address, ERASE_US)
+                self._done(address, ERASE_US, "erase")
         elif offset == ACR:
             self.regs[ACR] = value
         else:
@@ -181,18 +194,29 @@ class Flash(Peripheral):
         if self.chip.flash_word(double) != 0xFFFF_FFFF or self.chip.flash_word(double + 4) != 0xFFFF_FFFF:
             self.regs[SR] = self.regs.get(SR, 0) | SR_PROGERR
             return None
+        if self._busy(f"a double word programmed at {double:#010x}"):
+            return None
         self.chip.flash_program(double, first, value)
         self.programs += 1
-        self._done(double, PROGRAM_US)
+        self._done(double, PROGRAM_US, "program")
         return value
 
-    def _done(self, address, us):
-        """An operation at `address` that takes `us`: the core stalls for it when it runs from that bank; EOP is
-        set, and with EOPIE the FLASH interrupt raised (cleared with EOP)."""
+    def _done(self, address, us, kind):
+        """An operation at `address` that takes `us`: the core stalls for it when it runs from that bank, or BSY is
+        set until it ends; at its end EOP is set, and with EOPIE the FLASH interrupt raised (cleared with EOP)."""
+        core = self.chip.core
+        start, cycles = core.cycles, core.hz * us // 1_000_000
+        self.operations.append((start, start + cycles, kind, address))
         bank2 = self.chip.part.bank2
         if bank2 is None or address < bank2:
-            self.chip.core.stall(self.chip.core.hz * us // 1_000_000)
-        self.regs[SR] = self.regs.get(SR, 0) | SR_EOP
+            core.stall(cycles)
+            self._end()
+        else:
+            self.regs[SR] = self.regs.get(SR, 0) | SR_BSY
+            core.at(start + cycles, self._end)
+
+    def _end(self):
+        self.regs[SR] = (self.regs.get(SR, 0) & ~SR_BSY) | SR_EOP
         if self.regs.get(FCR, 0) & CR_EOPIE:
             self.chip.irq(self, FLASH_IRQ, True)
 

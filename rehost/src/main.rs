@@ -1,15 +1,20 @@
 //! The register-level run's reference: what each firmware image must leave in the G431's registers after start-up
 //! (computed by `g431-hw` from the reference manual's rules), the pins it may touch, and tmc-proto's encodings,
-//! printed as JSON for `rehost/run.py`, which runs the images on the Unicorn engine.
+//! printed as JSON for the tests in `rehost/tests`, which run the images on the Unicorn engine.
 //!
-//! `rehost expected` prints everything; `rehost status FAMILY HEX` decodes a status frame the thruster image
-//! sent, `rehost order FAMILY HEX` an order the master image sent; `rehost update FAMILY` gives a field update for
-//! that family's thruster (a payload signed with the development key, and the extension's commands that finish
-//! it, with a good and a bad signature), `rehost reply HEX` decodes an extension reply the thruster image sent.
+//! `rehost expected` prints everything, the boards' partitions and what their bootloader reads and writes there
+//! among it; `rehost status FAMILY HEX` decodes a status frame the thruster image sent, `rehost order FAMILY HEX`
+//! an order the master image sent; `rehost update FAMILY` gives a field update for that family's thruster (a
+//! payload signed with the development key, and the extension's commands that finish it, with a good and a bad
+//! signature), `rehost reply HEX` decodes an extension reply the thruster image sent; `rehost sign SEED` signs the
+//! payload it reads (hex) on its standard input with that secret key, as `lbv image sign` does, and gives the key's
+//! public half and the ticket an application writes for it.
 
+use std::io::Read;
 use std::process::ExitCode;
 
 use g431_hw::clock::{self, registers as rcc};
+use g431_hw::memory::{self, Partitions, Span};
 use g431_hw::pins::{Mode, Pull};
 use g431_hw::tim1::{IHM08M1 as BRIDGE, PhaseMode};
 use g431_hw::{adc, fdcan, i2c, images, iwdg};
@@ -19,7 +24,10 @@ use thruster_fw::hall::FORWARD_SEQUENCE;
 use thruster_fw::{Direction, Duty};
 use tmc_proto::ext::{self, Command, CommandFrame, Reply};
 use tmc_proto::{Family, Order, Speed, Status};
-use update_image::{HEADER_LEN, INFO_OFFSET, ImageInfo, Target, Version, key_from_hex};
+use update_image::{
+    HEADER_LEN, INFO_OFFSET, ImageInfo, KEY_LEN, KEY_OFFSET, MIN_PAYLOAD, SLOTS, TICKET_OFFSET, TOLD_OFFSET, Target,
+    Ticket, VERDICT_OFFSET, Verdict, Version, key_from_hex,
+};
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -30,9 +38,10 @@ fn main() -> ExitCode {
         ["update", "master"] => master_update(),
         ["update", family] => family_of(family).and_then(update),
         ["reply", hex] => decode_reply(hex),
+        ["sign", seed] => sign_stdin(seed),
         _ => Err(
             "usage: rehost expected | rehost status FAMILY HEX | rehost order FAMILY HEX | rehost update FAMILY \
-             | rehost update master | rehost reply HEX"
+             | rehost update master | rehost reply HEX | rehost sign SEED < PAYLOAD_HEX"
                 .to_string(),
         ),
     };
@@ -57,8 +66,15 @@ fn family_of(name: &str) -> Result<Family, String> {
 }
 
 fn bytes_of(hex: &str) -> Result<Vec<u8>, String> {
-    if !hex.len().is_multiple_of(2) || hex.len() > 2 * ext::MAX_FRAME_LEN {
-        return Err(format!("{hex:?} is not a short even-length hex string"));
+    if hex.len() > 2 * ext::MAX_FRAME_LEN {
+        return Err(format!("{hex:?} is longer than a frame"));
+    }
+    hex_bytes(hex)
+}
+
+fn hex_bytes(hex: &str) -> Result<Vec<u8>, String> {
+    if !hex.len().is_multiple_of(2) {
+        return Err(format!("{} hex digits: not whole bytes", hex.len()));
     }
     (0..hex.len())
         .step_by(2)
@@ -375,6 +391,71 @@ fn expected() -> Value {
         "orders": orders(),
         "statuses": statuses(),
         "forward_direction": format!("{:?}", Direction::Forward),
+        "boot": boot(),
+    })
+}
+
+fn span(span: Span) -> Value {
+    json!({ "origin": span.origin, "length": span.length })
+}
+
+fn partitions(partitions: &Partitions) -> Value {
+    json!({
+        "bootloader": span(partitions.bootloader),
+        "state": span(partitions.state),
+        "record": span(partitions.record),
+        "ticket": span(partitions.ticket()),
+        "counter": span(partitions.counter()),
+        "active": span(partitions.active),
+        "dfu": span(partitions.dfu),
+    })
+}
+
+/// What the bootloader tests need: each board's partitions (g431_hw::memory), where an image keeps its information
+/// record and key and what they hold, where the application's ticket and the bootloader's verdict go in the
+/// record's first page (update-image's `bootloader` module) and each verdict's word, the trial watchdog, and the
+/// thruster's gate inputs the bootloader holds off.
+fn boot() -> Value {
+    let verdicts: serde_json::Map<String, Value> = Verdict::ALL
+        .into_iter()
+        .map(|verdict| {
+            (
+                format!("{verdict:?}"),
+                json!({ "code": verdict.code(), "word": hex(&verdict.to_word()) }),
+            )
+        })
+        .collect();
+    let targets: serde_json::Map<String, Value> = Target::ALL
+        .into_iter()
+        .map(|target| (format!("{target:?}"), json!(target.to_byte())))
+        .collect();
+    let gates: Vec<Value> = images::THRUSTER_GATES_OFF
+        .iter()
+        .map(|gates| {
+            json!({
+                "port": gates.port.letter().to_string(), "bsrr": gates.bsrr, "moder_mask": gates.moder_mask,
+                "moder_output": gates.moder_output,
+            })
+        })
+        .collect();
+    json!({
+        "page": memory::PAGE,
+        "write_unit": memory::WRITE_UNIT,
+        "thruster": partitions(&memory::THRUSTER_PARTITIONS),
+        "master": partitions(&memory::MASTER_PARTITIONS),
+        "master_storage": span(memory::MASTER_STORAGE),
+        "info_offset": INFO_OFFSET,
+        "key_offset": KEY_OFFSET,
+        "key_len": KEY_LEN,
+        "min_payload": MIN_PAYLOAD,
+        "ticket_offset": TICKET_OFFSET,
+        "verdict_offset": VERDICT_OFFSET,
+        "told_offset": TOLD_OFFSET,
+        "slots": SLOTS,
+        "verdicts": verdicts,
+        "targets": targets,
+        "trial": { "pr": iwdg::BOOT_TRIAL.pr, "rlr": iwdg::BOOT_TRIAL.rlr },
+        "thruster_gates_off": gates,
     })
 }
 
@@ -403,10 +484,11 @@ fn decode_order(family: Family, hex: &str) -> Result<Value, String> {
 }
 
 /// A field update for a `family` thruster, for the image built with the development key (test.sh builds them so):
-/// a 4 KiB payload with its image info (0.2.0) signed with keys/dev.key, where it goes (the DFU partition), and the
-/// extension's `Begin` and `Finish` frames, `Finish` also with a signature one bit off.
+/// a 4 KiB payload ([`signed_file`]) signed with keys/dev.key, where it goes (the DFU partition) and where the
+/// thruster hands it to its bootloader (the state, the record's ticket page), the extension's `Begin` and `Finish`
+/// frames, `Finish` also with a signature one bit off, `Version` and `Reboot`, and the ticket each `Finish` leaves.
 fn update(family: Family) -> Result<Value, String> {
-    let file = signed_file(Target::thruster(family))?;
+    let file = signed_file(Target::thruster(family), memory::THRUSTER_PARTITIONS.active.origin)?;
     let (header, payload) = file.split_at(HEADER_LEN);
     let header = update_image::Header::parse(header).map_err(|error| format!("{error:?}"))?;
     let payload_len = header.payload_len;
@@ -416,55 +498,119 @@ fn update(family: Family) -> Result<Value, String> {
         *byte ^= 1;
     }
     let target = Target::thruster(family).to_byte();
+    let ticket = |signature| hex(&Ticket { payload_len, signature }.to_bytes());
+    let layout = memory::THRUSTER_PARTITIONS;
     Ok(json!({
-        "dfu": g431_hw::memory::THRUSTER_PARTITIONS.dfu.origin,
-        "state": g431_hw::memory::THRUSTER_PARTITIONS.state.origin,
+        "active": layout.active.origin,
+        "dfu": layout.dfu.origin,
+        "state": layout.state.origin,
+        "ticket_page": layout.ticket().origin,
         "payload": hex(payload),
+        "ticket": ticket(header.signature),
+        "ticket_forged": ticket(forged),
+        "reset_handler": RESET_HANDLER_OFFSET + layout.active.origin,
         "begin": frame(1, Command::Begin { payload_len, target }),
         "finish_forged": frame(2, Command::Finish { payload_len, signature: forged }),
         "finish": frame(3, Command::Finish { payload_len, signature: header.signature }),
+        "version": frame(4, Command::Version),
+        "reboot": frame(5, Command::Reboot),
         "begin_reply_len": ext::reply_len(ext::CommandKind::Begin),
         "finish_reply_len": ext::reply_len(ext::CommandKind::Finish),
+        "version_reply_len": ext::reply_len(ext::CommandKind::Version),
+        "reboot_reply_len": ext::reply_len(ext::CommandKind::Reboot),
         "finish_wait_ms": ext::FINISH_WAIT_MS,
     }))
 }
 
-/// A master update file (a 4096-byte payload at 0.2.0, signed with the development key), the same file with its
-/// signature one bit off, and where the master's DFU and state partitions are.
+/// A master update file (a 4096-byte payload, [`signed_file`], signed with the development key), the same file with
+/// its signature one bit off, the ticket the master writes for the good one, and where the master's DFU, state and
+/// ticket page are.
 fn master_update() -> Result<Value, String> {
-    let file = signed_file(Target::Master)?;
+    let file = signed_file(Target::Master, memory::MASTER_PARTITIONS.active.origin)?;
+    let (header, _) = file.split_at(HEADER_LEN);
+    let header = update_image::Header::parse(header).map_err(|error| format!("{error:?}"))?;
+    let ticket = Ticket {
+        payload_len: header.payload_len,
+        signature: header.signature,
+    };
     let mut forged = file.clone();
     // The signature's first byte (the header's offset 16).
     if let Some(byte) = forged.get_mut(16) {
         *byte ^= 1;
     }
     Ok(json!({
-        "dfu": g431_hw::memory::MASTER_PARTITIONS.dfu.origin,
-        "state": g431_hw::memory::MASTER_PARTITIONS.state.origin,
+        "dfu": memory::MASTER_PARTITIONS.dfu.origin,
+        "state": memory::MASTER_PARTITIONS.state.origin,
+        "ticket_page": memory::MASTER_PARTITIONS.ticket().origin,
+        "ticket": hex(&ticket.to_bytes()),
         "file": hex(&file),
         "forged": hex(&forged),
     }))
 }
 
-/// An update file for `target`: a 4 KiB payload with its image info (0.2.0), signed with keys/dev.key.
-fn signed_file(target: Target) -> Result<Vec<u8>, String> {
+/// Where an update's made-up image has its reset handler, from its start: just past its image info and key.
+const RESET_HANDLER_OFFSET: u32 = MIN_PAYLOAD;
+
+/// An update file for `target`, whose ACTIVE partition starts at `active`: a 4 KiB payload signed with keys/dev.key,
+/// laid out as an image: a vector table (an initial stack pointer, the reset handler), the image info (format 2,
+/// 0.2.0) and the development public key after it, the reset handler (`b .`), then arbitrary bytes.
+fn signed_file(target: Target, active: u32) -> Result<Vec<u8>, String> {
     let mut payload: Vec<u8> = (0..4096u32)
         .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
         .collect();
-    let info = ImageInfo::new(target, Version::new(0, 2, 0)).to_bytes();
-    payload
-        .get_mut(INFO_OFFSET..INFO_OFFSET + info.len())
-        .ok_or("no room for the image info")?
-        .copy_from_slice(&info);
     let seed = key_from_hex(include_str!("../../keys/dev.key")).ok_or("keys/dev.key is not a key")?;
+    let record = update_image::image_record(
+        ImageInfo::new(target, Version::new(0, 2, 0)),
+        &update_image::public_key(&seed),
+    );
+    // The top of the smaller RAM, the G431's 32 KiB: inside either chip's.
+    let stack_pointer = memory::G431RB.ram.end();
+    let reset = RESET_HANDLER_OFFSET as usize;
+    for (at, bytes) in [
+        (0, &stack_pointer.to_le_bytes()[..]),
+        (4, &((active + RESET_HANDLER_OFFSET) | 1).to_le_bytes()[..]),
+        (INFO_OFFSET, &record[..]),
+        // `b .` (ARMv7-M A7.7.12, encoding T2 with offset -4): it stays there.
+        (reset, &[0xFE, 0xE7][..]),
+    ] {
+        payload
+            .get_mut(at..at + bytes.len())
+            .ok_or("no room in the payload")?
+            .copy_from_slice(bytes);
+    }
     update_image::sign(&payload, &seed).map_err(|error| format!("{error:?}"))
+}
+
+/// The payload on standard input (hex) signed with the secret key `seed` (64 hex digits), as `lbv image sign` signs
+/// it: the padded payload's length, its signature, the ticket an application writes for it, and the key's public
+/// half (what an image embeds after its information record to take it).
+fn sign_stdin(seed: &str) -> Result<Value, String> {
+    let seed = key_from_hex(seed).ok_or("the seed is not 64 hex digits")?;
+    let mut text = String::new();
+    std::io::stdin()
+        .read_to_string(&mut text)
+        .map_err(|error| error.to_string())?;
+    let payload = hex_bytes(text.trim())?;
+    let file = update_image::sign(&payload, &seed).map_err(|error| error.to_string())?;
+    let header = update_image::Header::parse(&file).map_err(|error| format!("{error:?}"))?;
+    let ticket = Ticket {
+        payload_len: header.payload_len,
+        signature: header.signature,
+    };
+    Ok(json!({
+        "payload_len": header.payload_len,
+        "signature": hex(&header.signature),
+        "ticket": hex(&ticket.to_bytes()),
+        "public_key": hex(&update_image::public_key(&seed)),
+    }))
 }
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|byte| format!("{byte:02x}")).collect()
 }
 
-/// An extension reply: its command, sequence number and result ("done", "busy", or the refusal's name).
+/// An extension reply: its command, sequence number and result ("done", "busy", or the refusal's name), and a
+/// `Version` reply's flags, the bootloader's verdict by its name.
 fn decode_reply(hex: &str) -> Result<Value, String> {
     let reply = Reply::decode(&bytes_of(hex)?).map_err(|error| error.to_string())?;
     let result = match reply {
@@ -472,5 +618,26 @@ fn decode_reply(hex: &str) -> Result<Value, String> {
         Reply::Busy { .. } => "busy".to_string(),
         Reply::Refused { refusal, .. } => format!("{refusal:?}"),
     };
-    Ok(json!({ "command": format!("{:?}", reply.command()), "seq": reply.seq(), "result": result }))
+    let version = match reply {
+        Reply::Done {
+            body:
+                ext::ReplyBody::Version {
+                    on_trial,
+                    checks_signatures,
+                    marked,
+                    dev_key,
+                    verdict,
+                    ..
+                },
+            ..
+        } => json!({
+            "on_trial": on_trial, "checks_signatures": checks_signatures, "marked": marked, "dev_key": dev_key,
+            "verdict_code": verdict,
+            "verdict": Verdict::from_code(verdict).map(|verdict| format!("{verdict:?}")),
+        }),
+        _ => Value::Null,
+    };
+    Ok(json!({
+        "command": format!("{:?}", reply.command()), "seq": reply.seq(), "result": result, "version": version,
+    }))
 }

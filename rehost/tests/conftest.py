@@ -37,8 +37,15 @@ def image(name):
     return _images[name]
 
 
-def rehost(*args):
-    return json.loads(subprocess.run([REHOST, *args], check=True, capture_output=True, text=True).stdout)
+def rehost(*args, input=None):
+    return json.loads(subprocess.run([REHOST, *args], check=True, capture_output=True, text=True, input=input).stdout)
+
+
+def sign(seed, payload):
+    """`payload` signed with the secret key `seed` (hex), as `lbv image sign` signs it (`rehost sign`): its padded
+    length, signature, ticket and the key's public half, as bytes."""
+    signed = rehost("sign", seed, input=payload.hex())
+    return {key: value if key == "payload_len" else bytes.fromhex(value) for key, value in signed.items()}
 
 
 @pytest.fixture(scope="session")

@@ -500,7 +500,7 @@ impl Refusal {
             Refusal::NotFinished => "no finished update to reboot into",
             Refusal::Finished => "an update is finished: reboot to start it",
             Refusal::NoSignatureCheck => "this thruster's firmware cannot check signatures: it takes no update",
-            Refusal::Older => "the image is older than the one that runs (sign it with --allow-rollback to go back)",
+            Refusal::Older => "the image is older than the one that runs, and not signed as a rollback",
             Refusal::CounterBelow => "the image's security counter is below the running image's",
             Refusal::NoKey => "the image names no update key (image info format 1)",
         }

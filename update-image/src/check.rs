@@ -247,7 +247,7 @@ impl fmt::Display for Refusal {
             }
             Refusal::Older { image, running } => write!(
                 f,
-                "version {image} is older than the {running} that runs (sign it with --allow-rollback to go back)"
+                "{image} is older than the {running} that runs (not a rollback)"
             ),
             Refusal::CounterBelow { image, floor } => {
                 write!(f, "security counter {image} is below the vehicle's {floor}")
@@ -441,7 +441,7 @@ mod tests {
                 running: Version::new(0, 3, 0)
             }
             .to_string(),
-            "version 0.1.0 is older than the 0.3.0 that runs (sign it with --allow-rollback to go back)"
+            "0.1.0 is older than the 0.3.0 that runs (not a rollback)"
         );
         assert_eq!(
             Refusal::CounterBelow { image: 2, floor: 3 }.to_string(),

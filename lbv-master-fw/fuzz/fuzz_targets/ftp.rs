@@ -1,8 +1,9 @@
 //! The update server's MAVLink FTP decoder and state machine: any FILE_TRANSFER_PROTOCOL payloads (raw bytes, or
 //! well-formed requests of the opcodes it serves, with paths and image bytes that reach every branch), from the
-//! operator or another system, armed or not, as time passes, with apply commands between. Nothing panics; every
-//! reply answers its request (sequence + 1, its session and opcode, ACK or NAK); the sink gets each image's
-//! bytes in order, from its header on, never beyond the length the header gives.
+//! operator or another system, armed or not, as time passes, with apply commands between, and at any moment the
+//! master marked to restart into its own update. Nothing panics; every reply answers its request (sequence + 1, its
+//! session and opcode, ACK or NAK); the sink gets each image's bytes in order, from its header on, never beyond the
+//! length the header gives, and nothing begun, written or applied once the master restarts.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -22,6 +23,8 @@ enum Step {
     Apply { operator: bool, slot: Option<u8> },
     Wait(u16),
     Arm(bool),
+    /// The master's own image is marked: it restarts into it (for good).
+    Restart,
 }
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
@@ -68,16 +71,20 @@ fn image() -> Vec<u8> {
 struct Sink {
     /// The image under way: its next byte and length.
     open: Option<(u32, u32)>,
+    /// The master restarts into its own update: nothing may change.
+    restarting: bool,
 }
 
 impl UpdateSink for Sink {
     fn begin(&mut self, _: UpdateTarget, header: &ImageHeader) -> Result<(), Refused> {
+        assert!(!self.restarting, "begun while the master restarts");
         assert!(self.open.is_none(), "begun twice");
         self.open = Some((HEADER_LEN as u32, header.file_len()));
         Ok(())
     }
 
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused> {
+        assert!(!self.restarting, "written while the master restarts");
         let (next, total) = self.open.expect("a write outside an image");
         assert_eq!(offset, next, "out of order");
         assert!(u64::from(offset) + data.len() as u64 <= u64::from(total), "past the header's length");
@@ -92,6 +99,7 @@ impl UpdateSink for Sink {
     }
 
     fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
+        assert!(!self.restarting, "applied while the master restarts");
         Ok(Applied::NotWired)
     }
 }
@@ -114,7 +122,7 @@ fuzz_target!(|steps: Vec<Step>| {
     let file = image();
     let mut server = UpdateServer::new(&VEHICLE.thrusters);
     let mut sink = Sink::default();
-    let mut context = Context { armed: false, operator: 255 };
+    let mut context = Context { armed: false, operator: 255, restarting: false };
     let mut now = Instant::from_ticks(0);
     let mut out = |_: Outgoing| {};
     for (n, step) in steps.into_iter().enumerate() {
@@ -162,6 +170,11 @@ fuzz_target!(|steps: Vec<Step>| {
             }
             Step::Arm(armed) => {
                 context.armed = armed;
+                continue;
+            }
+            Step::Restart => {
+                context.restarting = true;
+                sink.restarting = true;
                 continue;
             }
         };

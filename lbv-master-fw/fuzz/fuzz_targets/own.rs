@@ -1,7 +1,8 @@
 //! The master's own image on its way into DFU: any headers, any bytes handed on in any sizes and at any offsets,
-//! finished or dropped, applied or not, with the task taking pages out at any moment, whatever it found in the flash.
-//! Nothing panics; the pieces the task takes are contiguous from DFU's offset 0, none longer than a page, each a
-//! whole number of double words; an upload begins only on a flash with the bootloader's state, not on trial.
+//! finished or dropped, applied or not, with the task taking pages out at any moment, whatever it found in the flash,
+//! and an image marked for the swap at any moment. Nothing panics; the pieces the task takes are contiguous from
+//! DFU's offset 0, none longer than a page, each a whole number of double words; an upload begins only on a flash
+//! with the bootloader's state, not on trial; once an image is marked, nothing is taken and no piece goes to DFU.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -21,6 +22,8 @@ enum Step {
     Apply,
     /// The task's turn: it takes up to this many pieces.
     Drain(u8),
+    /// The task marked an image for the swap.
+    Mark,
 }
 
 fuzz_target!(|steps: Vec<Step>| {
@@ -29,6 +32,7 @@ fuzz_target!(|steps: Vec<Step>| {
     let mut found = None;
     // The next DFU offset the task must be given, once an upload has begun.
     let mut next = None;
+    let mut marked = false;
     for step in steps {
         match step {
             Step::Found(on_trial) => {
@@ -45,7 +49,9 @@ fuzz_target!(|steps: Vec<Step>| {
                     payload_len,
                     bytes,
                 };
-                match own.begin(&header) {
+                let begun = own.begin(&header);
+                match begun {
+                    _ if marked => assert_eq!(begun, Err(NotTaken::Restarting), "begun once marked"),
                     Ok(()) => {
                         assert_eq!(found, Some(false), "begun on a flash that was not ready");
                         next = Some(0);
@@ -57,7 +63,8 @@ fuzz_target!(|steps: Vec<Step>| {
             }
             Step::Write { offset, data } => {
                 let data = &data[..data.len().min(239)];
-                let _ = own.write(offset, data);
+                let written = own.write(offset, data);
+                assert!(!marked || written == Err(NotTaken::Restarting), "taken once marked");
             }
             Step::Finish(complete) => {
                 own.finish(complete);
@@ -66,13 +73,19 @@ fuzz_target!(|steps: Vec<Step>| {
                 }
             }
             Step::Apply => {
-                let _ = own.apply(Sender::default());
+                let applied = own.apply(Sender::default());
+                assert!(!marked || applied == Err(NotTaken::Restarting), "applied once marked");
+            }
+            Step::Mark => {
+                own.mark();
+                marked = true;
             }
             Step::Drain(pieces) => {
                 for _ in 0..pieces {
                     let Some(piece) = own.take_page(&mut page) else {
                         break;
                     };
+                    assert!(!marked, "a piece for DFU once marked");
                     let (offset, len) = (piece.offset, piece.len);
                     assert!(len <= PAGE_BYTES && len % 8 == 0 && len > 0, "a piece of {len} bytes");
                     if let Some(expected) = next {

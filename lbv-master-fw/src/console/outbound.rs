@@ -40,11 +40,17 @@ pub const CAPABILITIES: MavProtocolCapability = MavProtocolCapability::MAV_PROTO
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST);
 
+/// AUTOPILOT_VERSION.middleware_custom_version of an image that takes update files signed with the development key
+/// (`dev_key`, update-image's `UPDATE_KEY_IS_DEV`), whose secret is published: "DEVKEY" in ASCII, NUL-padded. Zeros
+/// otherwise. The field is free: the master has no middleware.
+pub const DEV_KEY_MARK: [u8; 8] = *b"DEVKEY\0\0";
+
 /// AUTOPILOT_VERSION: the crate version ([`FLIGHT_SW_VERSION`]) and git revision ([`GIT_REVISION`]) the image was
 /// built from, [`CAPABILITIES`], [`VENDOR_ID`] / [`PRODUCT_ID`], and the chip's 96-bit unique id `uid`: whole in
 /// uid2 (its first 12 bytes, the rest 0), folded into uid (the X/Y word, and the wafer/lot words XORed above it).
-/// No middleware, OS or board version (0).
-pub fn autopilot_version(uid: &[u8; 12]) -> AUTOPILOT_VERSION_DATA {
+/// No middleware, OS or board version (0); middleware_custom_version is [`DEV_KEY_MARK`] when the image takes
+/// development-key files (`dev_key`).
+pub fn autopilot_version(uid: &[u8; 12], dev_key: bool) -> AUTOPILOT_VERSION_DATA {
     let word = |n: usize| {
         let mut bytes = [0u8; 4];
         if let Some(src) = uid.get(n * 4..n * 4 + 4) {
@@ -66,7 +72,7 @@ pub fn autopilot_version(uid: &[u8; 12]) -> AUTOPILOT_VERSION_DATA {
         vendor_id: VENDOR_ID,
         product_id: PRODUCT_ID,
         flight_custom_version: GIT_REVISION,
-        middleware_custom_version: [0; 8],
+        middleware_custom_version: if dev_key { DEV_KEY_MARK } else { [0; 8] },
         os_custom_version: [0; 8],
         uid2,
     }
@@ -946,7 +952,7 @@ mod tests {
     #[test]
     fn autopilot_version_carries_the_build_and_the_chip() {
         let uid: [u8; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12];
-        let v = autopilot_version(&uid);
+        let v = autopilot_version(&uid, false);
         assert_eq!(v.capabilities.bits(), 0x2_2008);
         let part = |s: &str| s.parse::<u32>().unwrap();
         assert_eq!(
@@ -961,7 +967,18 @@ mod tests {
         assert_eq!(&v.uid2[12..], &[0; 6]);
         assert_eq!(v.uid, 0x0403_0201 | (0x0807_0605u64 ^ 0x0C0B_0A09) << 32);
         assert_eq!((v.vendor_id, v.product_id), (0x0483, 0x0469));
-        assert_eq!(autopilot_version(&[0; 12]).uid, 0, "unknown");
+        assert_eq!(autopilot_version(&[0; 12], false).uid, 0, "unknown");
+        assert_eq!(
+            v.middleware_custom_version, [0; 8],
+            "nothing to say without the development key"
+        );
+    }
+
+    #[test]
+    fn autopilot_version_says_when_the_image_takes_development_key_files() {
+        let v = autopilot_version(&[0; 12], true);
+        assert_eq!(&v.middleware_custom_version, b"DEVKEY\0\0");
+        assert_eq!(v.flight_custom_version, GIT_REVISION, "the rest as without");
     }
 
     #[test]
@@ -1096,7 +1113,7 @@ mod tests {
         let mut framer = Framer::new(1, 1);
         let mut raw = mavlink_core::MAVLinkV2MessageRaw::new();
         for sequence in 0..3u8 {
-            let version = autopilot_version(&[7; 12]);
+            let version = autopilot_version(&[7; 12], true);
             let ours = framer.frame(&version).to_vec();
             let header = mavlink_core::MavHeader {
                 system_id: 1,

@@ -4,6 +4,7 @@
 use super::*;
 use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use tmc_proto::ext::CommandKind;
+use update_image::{DEV_PUBLIC_KEY, IMAGE_RECORD_LEN, image_record};
 
 const GCS: Sender = Sender {
     system: 255,
@@ -14,12 +15,26 @@ fn t(ms: u64) -> Instant {
     Instant::from_millis(ms)
 }
 
+/// The shortest payload: its image info and key, and no more.
+const SMALL: usize = MIN_PAYLOAD as usize;
+
 /// A file header: target 1, version 0.2.0, a signature of 0x5A.
 fn header(payload_len: u32) -> [u8; FILE_HEADER_LEN] {
+    header_of(payload_len, [0, 2, 0, 0])
+}
+
+/// A file header: target 1, `version`, a signature of 0x5A.
+fn header_of(payload_len: u32, version: [u8; 4]) -> [u8; FILE_HEADER_LEN] {
     let mut header = [0x5A; FILE_HEADER_LEN];
-    header[..16].copy_from_slice(&[b'L', b'B', b'V', b'U', 1, 1, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0]);
+    header[..8].copy_from_slice(&[b'L', b'B', b'V', b'U', 1, 1, 0, 0]);
     header[8..12].copy_from_slice(&payload_len.to_le_bytes());
+    header[12..16].copy_from_slice(&version);
     header
+}
+
+/// The image info of a SeaBotix image at `version`.
+fn info_of(version: [u8; 4]) -> ImageInfo {
+    ImageInfo::new(Target::ThrusterSeabotix, Version::from_bytes(version))
 }
 
 /// A courier with a transfer of `payload` begun for slot 0 and every byte handed on (at most a page and a write).
@@ -51,21 +66,32 @@ fn refused(exchange: &Exchange, refusal: Refusal) -> Result<Reply, ExchangeError
 }
 
 fn version(checks_signatures: bool, version: [u8; 4]) -> ReplyBody {
-    let mut info = [0; ext::INFO_LEN];
-    info[8..12].copy_from_slice(&version);
+    running_info(checks_signatures, info_of(version))
+}
+
+/// A thruster's `Version` reply, its running image's info `info`.
+fn running_info(checks_signatures: bool, info: ImageInfo) -> ReplyBody {
     ReplyBody::Version {
         protocol: 1,
         on_trial: false,
         checks_signatures,
+        marked: false,
+        dev_key: false,
+        verdict: 0,
         max_payload: 58 * 1024,
-        info,
+        info: info.to_bytes(),
     }
 }
 
 /// What a thruster holding `dfu` and running `running` answers to `exchange` (and does: erases, writes).
 fn answer(dfu: &mut [u8], exchange: &Exchange, running: [u8; 4]) -> Result<Reply, ExchangeError> {
+    answer_as(dfu, exchange, info_of(running))
+}
+
+/// As [`answer`], the running image's info `running`.
+fn answer_as(dfu: &mut [u8], exchange: &Exchange, running: ImageInfo) -> Result<Reply, ExchangeError> {
     let body = match exchange.frame.command {
-        Command::Version => version(true, running),
+        Command::Version => running_info(true, running),
         Command::Begin { payload_len, .. } => ReplyBody::Begin { payload_len },
         Command::Erase { page } => {
             let start = usize::from(page) * PAGE;
@@ -96,10 +122,20 @@ fn answer(dfu: &mut [u8], exchange: &Exchange, running: [u8; 4]) -> Result<Reply
 /// answers every exchange, one per 20 ms, until the courier has nothing more to send; returns what it said and
 /// the commands it sent.
 fn carry(courier: &mut Courier, image: &[u8], dfu: &mut [u8], running: [u8; 4]) -> (Vec<Outgoing>, Vec<CommandKind>) {
+    carry_as(courier, image, dfu, info_of(running))
+}
+
+/// As [`carry`], the running image's info `running`.
+fn carry_as(
+    courier: &mut Courier,
+    image: &[u8],
+    dfu: &mut [u8],
+    running: ImageInfo,
+) -> (Vec<Outgoing>, Vec<CommandKind>) {
     let (mut said, mut sent) = (Vec::new(), Vec::new());
     let mut offset = 0;
     for ms in (0..1_000_000).step_by(20) {
-        while offset < image.len() && courier.has_room() {
+        while offset < image.len() && courier.has_room() && courier.transfer.is_some() {
             let end = (offset + MAX_WRITE).min(image.len());
             courier.write(offset as u32, &image[offset..end]).unwrap();
             offset = end;
@@ -114,7 +150,7 @@ fn carry(courier: &mut Courier, image: &[u8], dfu: &mut [u8], running: [u8; 4]) 
             break;
         };
         sent.push(exchange.frame.command.kind());
-        let result = answer(dfu, &exchange, running);
+        let result = answer_as(dfu, &exchange, running);
         courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
     }
     (said, sent)
@@ -137,8 +173,16 @@ fn texts(said: &[Outgoing]) -> Vec<String> {
         .collect()
 }
 
+/// A SeaBotix image of `len` bytes at version 0.2.0 (at least [`SMALL`]).
 fn payload(len: usize) -> Vec<u8> {
-    (0..len).map(|i| (i * 7 + 1) as u8).collect()
+    image(info_of([0, 2, 0, 0]), len)
+}
+
+/// An image of `len` bytes whose image info is `info` (at least [`SMALL`]).
+fn image(info: ImageInfo, len: usize) -> Vec<u8> {
+    let mut payload: Vec<u8> = (0..len).map(|i| (i * 7 + 1) as u8).collect();
+    payload[INFO_OFFSET..INFO_OFFSET + IMAGE_RECORD_LEN].copy_from_slice(&image_record(info, &DEV_PUBLIC_KEY));
+    payload
 }
 
 #[test]
@@ -168,7 +212,7 @@ fn an_image_is_written_page_by_page_verified_then_applied() {
     assert_eq!(
         texts(&said),
         [
-            "thruster0.lbvu: signature good, restarting",
+            "thruster0.lbvu: marked, restarting into its update",
             "thruster0.lbvu: 0.2.0 confirmed"
         ]
     );
@@ -182,7 +226,7 @@ fn an_image_is_written_page_by_page_verified_then_applied() {
 
 #[test]
 fn a_thruster_that_comes_back_on_its_old_image_fails_the_apply() {
-    let image = payload(64);
+    let image = payload(SMALL);
     let mut courier = begun(&image);
     let mut dfu = vec![0u8; 8 * PAGE];
     carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
@@ -191,7 +235,7 @@ fn a_thruster_that_comes_back_on_its_old_image_fails_the_apply() {
     assert_eq!(
         texts(&said),
         [
-            "thruster0.lbvu: signature good, restarting",
+            "thruster0.lbvu: marked, restarting into its update",
             "thruster0.lbvu: still runs 0.1.0"
         ]
     );
@@ -220,7 +264,7 @@ fn pages_the_thruster_holds_are_kept() {
 
 #[test]
 fn an_ids_only_controller_or_one_without_signatures_is_refused_before_anything_is_written() {
-    let mut courier = courier_with(&payload(64));
+    let mut courier = courier_with(&payload(SMALL));
     let hello = courier.next(t(0), |_| true).unwrap();
     assert_eq!(hello.frame.command, Command::Version);
     let status_frame = Err(ExchangeError::Frame(FrameError::MessageType {
@@ -231,25 +275,28 @@ fn an_ids_only_controller_or_one_without_signatures_is_refused_before_anything_i
     courier.on_result(t(0), &hello, status_frame, &mut |o| said.push(o));
     assert_eq!(texts(&said), ["thruster0.lbvu: the thruster does not take updates"]);
     assert!(courier.next(t(20), |_| true).is_none());
-    assert_eq!(courier.write(64, &[0; 8]), Err(NotTaken));
+    assert_eq!(courier.write(SMALL as u32, &[0; 8]), Err(NotTaken));
 
-    let mut courier = courier_with(&payload(64));
+    let mut courier = courier_with(&payload(SMALL));
     let hello = courier.next(t(0), |_| true).unwrap();
     let mut said = Vec::new();
     courier.on_result(t(0), &hello, done(&hello, version(false, [0; 4])), &mut |o| {
         said.push(o)
     });
-    let said = texts(&said);
-    assert!(
-        said.len() == 1 && said[0].starts_with("thruster0.lbvu: this thruster's firmware cannot"),
-        "{said:?}"
+    // A sentence too long for one text goes on in a second.
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: this thruster's firmware cannot",
+            "thruster0.lbvu: check signatures: it takes no upda"
+        ]
     );
     assert!(courier.transfer.is_none());
 }
 
 #[test]
 fn a_failed_exchange_is_sent_again_with_its_sequence_number_until_the_thruster_is_silent_too_long() {
-    let mut courier = courier_with(&payload(64));
+    let mut courier = courier_with(&payload(SMALL));
     let first = courier.next(t(0), |_| true).unwrap();
     let mut said = Vec::new();
     let mut ms = 0;
@@ -319,7 +366,7 @@ fn a_read_back_that_differs_or_a_refusal_ends_the_transfer_with_its_reason() {
     assert_eq!(texts(&said), ["thruster0.lbvu: the flash read back differs"]);
     assert_eq!(courier.apply(0, GCS), Err(NotTaken));
 
-    let mut courier = courier_with(&payload(64));
+    let mut courier = courier_with(&payload(SMALL));
     let hello = courier.next(t(0), |_| true).unwrap();
     courier.on_result(t(0), &hello, done(&hello, version(true, [0; 4])), &mut |_| {});
     let begin = courier.next(t(20), |_| true).unwrap();
@@ -332,7 +379,7 @@ fn a_read_back_that_differs_or_a_refusal_ends_the_transfer_with_its_reason() {
 
 #[test]
 fn a_thruster_of_another_bus_is_not_served_and_a_stale_reply_is_not_taken() {
-    let mut courier = courier_with(&payload(64));
+    let mut courier = courier_with(&payload(SMALL));
     assert!(courier.next(t(0), |slot| slot != 0).is_none());
     let hello = courier.next(t(0), |_| true).unwrap();
     let stale = Ok(Reply::Done {
@@ -354,7 +401,7 @@ fn running(exchange: &Exchange, running: [u8; 4], on_trial: bool) -> Result<Repl
 
 /// A courier whose transfer has been applied and whose thruster has just been told to reboot, at `t(0)`.
 fn rebooting() -> Courier {
-    let image = payload(64);
+    let image = payload(SMALL);
     let mut courier = begun(&image);
     let mut dfu = vec![0u8; 8 * PAGE];
     carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
@@ -467,7 +514,7 @@ fn on_trial_until(dfu: &mut [u8], exchange: &Exchange, ms: u64, confirmed_at: u6
 
 #[test]
 fn an_upload_to_a_thruster_on_trial_waits_for_it_to_confirm_or_gives_up() {
-    let image = payload(64);
+    let image = payload(SMALL);
     let mut courier = courier_with(&image);
     let mut dfu = vec![0u8; 8 * PAGE];
     let (mut said, mut begins) = (Vec::new(), Vec::new());
@@ -484,7 +531,7 @@ fn an_upload_to_a_thruster_on_trial_waits_for_it_to_confirm_or_gives_up() {
     // Asked twice a second until it had confirmed itself, then written.
     assert_eq!(begins.len(), 7, "{begins:?}");
     assert!(begins.windows(2).all(|w| w[1] - w[0] >= 500), "{begins:?}");
-    assert_eq!(texts(&said), ["thruster0.lbvu: 64 B verified, 0 pages kept"]);
+    assert_eq!(texts(&said), ["thruster0.lbvu: 576 B verified, 0 pages kept"]);
 
     let mut courier = courier_with(&image);
     let mut said = Vec::new();
@@ -495,17 +542,19 @@ fn an_upload_to_a_thruster_on_trial_waits_for_it_to_confirm_or_gives_up() {
         let result = on_trial_until(&mut dfu, &exchange, ms, u64::MAX);
         courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
     }
-    let said = texts(&said);
-    assert!(
-        said.len() == 1 && said[0].starts_with("thruster0.lbvu: the running image is on trial"),
-        "{said:?}"
+    assert_eq!(
+        texts(&said),
+        [
+            "thruster0.lbvu: the running image is on trial and",
+            "thruster0.lbvu: has not confirmed itself yet"
+        ]
     );
     assert!(courier.transfer.is_none());
 }
 
 #[test]
 fn a_finished_update_left_by_a_master_reset_is_started_and_the_new_upload_goes_on() {
-    let image = payload(64);
+    let image = payload(SMALL);
     let mut courier = courier_with(&image);
     let mut dfu = vec![0u8; 8 * PAGE];
     let mut said = Vec::new();
@@ -541,10 +590,10 @@ fn a_finished_update_left_by_a_master_reset_is_started_and_the_new_upload_goes_o
         texts(&said),
         [
             "thruster0.lbvu: starting the update it holds",
-            "thruster0.lbvu: 64 B verified, 0 pages kept"
+            "thruster0.lbvu: 576 B verified, 0 pages kept"
         ]
     );
-    assert_eq!(&dfu[..64], image.as_slice());
+    assert_eq!(&dfu[..SMALL], image.as_slice());
 }
 
 /// The COMMAND_ACKs in `said`: command, result.
@@ -637,4 +686,155 @@ fn a_version_query_rides_out_a_noisy_bus_and_stale_replies_short_of_the_silence_
     });
     assert_eq!(texts(&said), ["thruster1.lbvu: runs 0.2.0"]);
     assert_eq!(acks(&said), [(MAV_CMD_LBV_QUERY_VERSION, AckResult::Accepted)]);
+}
+
+/// A Version reply of a thruster back on `running` after its bootloader refused the image: verdict `code`.
+fn back_refused(exchange: &Exchange, running: [u8; 4], code: u8) -> Result<Reply, ExchangeError> {
+    let mut body = version(true, running);
+    if let ReplyBody::Version { verdict, .. } = &mut body {
+        *verdict = code;
+    }
+    done(exchange, body)
+}
+
+#[test]
+fn a_thruster_whose_bootloader_refused_the_image_fails_the_apply_with_the_verdict() {
+    for (code, said_as) in [
+        (1, &["T1: refused by its bootloader: signature"][..]),
+        // Too long for one text: the verdict is not cut short.
+        (
+            4,
+            &[
+                "T1: refused by its bootloader:",
+                "T1: security counter below the vehicle's",
+            ],
+        ),
+        (14, &["T1: refused by its bootloader (code 14)"]),
+    ] {
+        let mut courier = rebooting();
+        let mut said = Vec::new();
+        // Silent a moment (no swap: the bootloader refused, wrote its verdict and started the old image).
+        for ms in (20..2_000).step_by(20) {
+            let Some(exchange) = courier.next(t(ms), |_| true) else {
+                continue;
+            };
+            let result = match ms {
+                ..500 => Err(ExchangeError::Bus),
+                _ => back_refused(&exchange, [0, 1, 0, 0], code),
+            };
+            courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+        }
+        assert_eq!(texts(&said), said_as, "code {code}");
+        assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Failed)]);
+        assert!(courier.transfer.is_none());
+    }
+    // Back on the old image with no verdict: as before, it still runs it.
+    let mut courier = rebooting();
+    let mut said = Vec::new();
+    let exchange = courier.next(t(200), |_| true).unwrap();
+    courier.on_result(t(200), &exchange, back_refused(&exchange, [0, 1, 0, 0], 0), &mut |o| {
+        said.push(o)
+    });
+    assert_eq!(texts(&said), ["thruster0.lbvu: still runs 0.1.0"]);
+}
+
+/// Carry `payload` under a header of `header_version` to a thruster running `running`: what was said and sent.
+fn carry_image(payload: &[u8], header_version: [u8; 4], running: ImageInfo) -> (Vec<String>, Vec<CommandKind>) {
+    let mut courier = Courier::new();
+    let len = payload.len() as u32;
+    courier.begin(0, 1, len, &header_of(len, header_version)).unwrap();
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let (said, sent) = carry_as(&mut courier, payload, &mut dfu, running);
+    (texts(&said), sent)
+}
+
+#[test]
+fn an_image_is_held_to_its_header_and_to_the_running_image_before_anything_is_written() {
+    let running = info_of([0, 3, 0, 0]).with_security_counter(5);
+    let nothing_written = |sent: &[CommandKind]| sent == [CommandKind::Version, CommandKind::Begin, CommandKind::Check];
+    let newer = info_of([0, 4, 0, 0]).with_security_counter(5);
+    // A relabelled header: its version is not the signed image's.
+    let (said, sent) = carry_image(&image(newer, 3 * PAGE), [0, 5, 0, 0], running);
+    assert_eq!(
+        said,
+        [
+            "thruster0.lbvu: the header says version 0.5.0,",
+            "thruster0.lbvu: the payload is version 0.4.0"
+        ]
+    );
+    assert!(nothing_written(&sent), "{sent:?}");
+    // An image info of format 1: no key for the update after it.
+    let mut format_1 = image(newer, 3 * PAGE);
+    format_1[INFO_OFFSET + 4] = 1;
+    format_1[INFO_OFFSET + 12..INFO_OFFSET + 16].fill(0);
+    let (said, sent) = carry_image(&format_1, [0, 4, 0, 0], running);
+    assert_eq!(
+        said,
+        [
+            "thruster0.lbvu: an image of info format 1 names no",
+            "thruster0.lbvu: update key: nothing after it could"
+        ]
+    );
+    assert!(nothing_written(&sent), "{sent:?}");
+    // Older than what runs, not signed as a rollback.
+    let older = info_of([0, 2, 0, 0]).with_security_counter(5);
+    let (said, sent) = carry_image(&image(older, 3 * PAGE), [0, 2, 0, 0], running);
+    assert_eq!(
+        said,
+        [
+            "thruster0.lbvu: 0.2.0 is older than the 0.3.0 that",
+            "thruster0.lbvu: runs (not a rollback)"
+        ]
+    );
+    assert!(nothing_written(&sent), "{sent:?}");
+    // A security counter below the running image's, even signed as a rollback.
+    let below = info_of([0, 4, 0, 0]).with_security_counter(4);
+    let (said, sent) = carry_image(&image(below.with_rollback(true), 3 * PAGE), [0, 4, 0, 0], running);
+    assert_eq!(
+        said,
+        [
+            "thruster0.lbvu: security counter 4 is below the",
+            "thruster0.lbvu: vehicle's 5"
+        ]
+    );
+    assert!(nothing_written(&sent), "{sent:?}");
+    // The same image already on the thruster (a transfer resumed) is refused all the same.
+    let mut courier = Courier::new();
+    let payload = image(older, 3 * PAGE);
+    courier
+        .begin(
+            0,
+            1,
+            payload.len() as u32,
+            &header_of(payload.len() as u32, [0, 2, 0, 0]),
+        )
+        .unwrap();
+    let mut dfu = vec![0u8; 8 * PAGE];
+    dfu[..payload.len()].copy_from_slice(&payload);
+    let (said, _) = carry_as(&mut courier, &payload, &mut dfu, running);
+    assert_eq!(texts(&said)[0], "thruster0.lbvu: 0.2.0 is older than the 0.3.0 that");
+    // Signed as a rollback, an older image goes on; so do a newer one and the same one again.
+    for (info, version) in [
+        (older.with_rollback(true), [0, 2, 0, 0]),
+        (newer, [0, 4, 0, 0]),
+        (running, [0, 3, 0, 0]),
+    ] {
+        let (said, sent) = carry_image(&image(info, 3 * PAGE), version, running);
+        assert_eq!(said, ["thruster0.lbvu: 6144 B verified, 0 pages kept"], "{info:?}");
+        assert_eq!(sent.iter().filter(|k| **k == CommandKind::Erase).count(), 3);
+    }
+}
+
+#[test]
+fn a_version_query_says_what_the_thruster_holds_and_takes() {
+    let mut courier = Courier::new();
+    courier.query(0, GCS).unwrap();
+    let ask = courier.next(t(0), |_| true).unwrap();
+    let mut body = version(true, [0, 2, 0, 0]);
+    if let ReplyBody::Version { marked, dev_key, .. } = &mut body {
+        (*marked, *dev_key) = (true, true);
+    }
+    let mut said = Vec::new();
+    courier.on_result(t(0), &ask, done(&ask, body), &mut |o| said.push(o));
+    assert_eq!(texts(&said), ["thruster0.lbvu: runs 0.2.0, update marked, dev key"]);
 }

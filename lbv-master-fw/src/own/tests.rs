@@ -1,15 +1,21 @@
 //! The master's own update on lbv-sim's G474 flash, on virtual time: an image written page by page into DFU and
-//! marked for the swap when its signature is good; refused, with its reason, when its signature is bad, its info is
-//! not a master's, it is too large or the running image is on trial; and the trial confirmed once the operator is
-//! heard, or given up (back to the previous image) when not.
+//! marked for the swap when its signature is good, its ticket handed to the bootloader, and nothing written after
+//! the mark; refused, with its reason, when its signature is bad, its info is not a master's or is older than the
+//! running image's, it is too large or the running image is on trial; the bootloader's refusal told once; and the
+//! trial confirmed once the operator is heard, or given up (back to the previous image) when not.
 
+use std::cell::RefCell;
+use std::ops::Range;
+use std::rc::Rc;
 use std::vec::Vec;
 
 use embassy_time::Duration;
 use lbv_sim::Executor;
 use lbv_sim::clock::{self, Clock};
-use lbv_sim::flash::Stm32g4Flash;
-use update_image::{INFO_OFFSET, ImageInfo, Version, key_from_hex};
+use lbv_sim::flash::{FlashError, Stm32g4Flash};
+use update_image::{
+    DEV_PUBLIC_KEY, INFO_OFFSET, ImageInfo, Verdict, Version, image_record, key_from_hex, read_checked_word,
+};
 
 use super::*;
 use crate::shared::VehicleState;
@@ -23,22 +29,97 @@ const OPERATOR: Sender = Sender {
 
 /// A signed update file of `len` payload bytes for `target`, version 0.2.0, with the development key.
 fn signed(target: Target, len: usize) -> Vec<u8> {
+    signed_as(ImageInfo::new(target, Version::new(0, 2, 0)), len)
+}
+
+/// A signed update file of `len` payload bytes whose image info is `info`, with the development key (which it
+/// embeds after its info, as a build does).
+fn signed_as(info: ImageInfo, len: usize) -> Vec<u8> {
     let mut payload: Vec<u8> = (0..len as u32)
         .map(|n| (n.wrapping_mul(2_654_435_761) >> 9) as u8)
         .collect();
-    let info = ImageInfo::new(target, Version::new(0, 2, 0)).to_bytes();
-    payload[INFO_OFFSET..INFO_OFFSET + info.len()].copy_from_slice(&info);
+    let record = image_record(info, &DEV_PUBLIC_KEY);
+    payload[INFO_OFFSET..INFO_OFFSET + record.len()].copy_from_slice(&record);
     let seed = key_from_hex(include_str!("../../../keys/dev.key")).unwrap();
     update_image::sign(&payload, &seed).unwrap()
 }
 
 /// The flash as a probe leaves it: the running image (0.1.0) in ACTIVE, the bootloader's state erased.
 fn flashed() -> Stm32g4Flash {
+    flashed_with(ImageInfo::new(Target::Master, Version::new(0, 1, 0)))
+}
+
+/// The flash as a probe leaves it, the running image's info `info`.
+fn flashed_with(info: ImageInfo) -> Stm32g4Flash {
     let mut flash = master_flash();
-    let info = ImageInfo::new(Target::Master, Version::new(0, 1, 0)).to_bytes();
+    let record = image_record(info, &DEV_PUBLIC_KEY);
     let active = MASTER_PARTITIONS.active.origin - FLASH_ORIGIN;
-    embassy_futures::block_on(flash.write(active + IMAGE_INFO_OFFSET, &info)).unwrap();
+    embassy_futures::block_on(flash.write(active + IMAGE_INFO_OFFSET, &record)).unwrap();
     flash
+}
+
+/// Where `span` starts, from the flash's start.
+fn at(span: Span) -> u32 {
+    span.origin - FLASH_ORIGIN
+}
+
+/// The master's flash with a hand in it: `on_read` runs at every read (given its offset from the flash's start),
+/// and erases and writes within `lost` answer Ok and do nothing, as embassy-stm32's async driver can.
+struct Meddled<'a> {
+    flash: Stm32g4Flash,
+    on_read: OnRead<'a>,
+    lost: Range<u32>,
+}
+
+/// What runs at every read of a [`Meddled`] flash; shared, so that a test sets it once the flash is in use.
+type OnRead<'a> = Rc<RefCell<Option<Box<dyn FnMut(u32) + 'a>>>>;
+
+impl<'a> Meddled<'a> {
+    fn new(flash: &Stm32g4Flash) -> Self {
+        Self {
+            flash: flash.clone(),
+            on_read: Rc::default(),
+            lost: 0..0,
+        }
+    }
+}
+
+impl embedded_storage_async::nor_flash::ErrorType for Meddled<'_> {
+    type Error = FlashError;
+}
+
+impl ReadNorFlash for Meddled<'_> {
+    const READ_SIZE: usize = 1;
+
+    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), FlashError> {
+        if let Some(hook) = self.on_read.borrow_mut().as_mut() {
+            hook(offset);
+        }
+        self.flash.read(offset, bytes).await
+    }
+
+    fn capacity(&self) -> usize {
+        ReadNorFlash::capacity(&self.flash)
+    }
+}
+
+impl NorFlash for Meddled<'_> {
+    const WRITE_SIZE: usize = 8;
+    const ERASE_SIZE: usize = PAGE_BYTES;
+
+    async fn erase(&mut self, from: u32, to: u32) -> Result<(), FlashError> {
+        if self.lost.contains(&from) {
+            return Ok(());
+        }
+        self.flash.erase(from, to).await
+    }
+
+    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), FlashError> {
+        if self.lost.contains(&offset) {
+            return Ok(());
+        }
+        self.flash.write(offset, bytes).await
+    }
 }
 
 /// embassy-boot's state partition of `flash`, through its own code.
@@ -72,7 +153,7 @@ struct Bench<'a> {
 }
 
 impl<'a> Bench<'a> {
-    fn new(own: &'a OwnImage, shared: &'a Shared, updating: &'a OwnFlash<Stm32g4Flash>) -> Self {
+    fn new<F: NorFlash>(own: &'a OwnImage, shared: &'a Shared, updating: &'a OwnFlash<F>) -> Self {
         let clock = clock::take();
         let mut executor = Executor::new();
         executor.spawn(async move {
@@ -209,8 +290,14 @@ fn a_thruster_image_under_a_master_header_is_refused_at_its_first_page() {
     file[5] = Target::Master.to_byte();
     assert_eq!(bench.upload(&file), Err(NotTaken::Refused));
     let said = bench.said();
-    assert_eq!(texts(&said).len(), 1, "{said:?}");
-    assert!(texts(&said)[0].starts_with("master.lbvu: refused: "), "{said:?}");
+    // Said whole as two texts would hold it.
+    assert_eq!(
+        texts(&said),
+        [
+            "master.lbvu: refused: the header is for the",
+            "master.lbvu: master, the payload for the SeaBotix "
+        ]
+    );
     assert_eq!(own.apply(OPERATOR), Err(NotTaken::Nothing));
     assert_eq!(state_of(&flash), State::Boot);
 }
@@ -225,7 +312,7 @@ fn an_image_larger_than_active_is_refused_before_anything_is_written() {
     header.payload_len = MASTER_PARTITIONS.active.length + 8;
     assert_eq!(own.begin(&header), Err(NotTaken::TooLarge));
     bench.run(Duration::from_millis(10));
-    assert_eq!(texts(&bench.said()), ["master.lbvu: larger than ACTIVE (238 KiB)"]);
+    assert_eq!(texts(&bench.said()), ["master.lbvu: larger than ACTIVE (228 KiB)"]);
     assert_eq!(flash.stats().erases, 0);
 }
 
@@ -327,6 +414,282 @@ fn a_refusal_found_in_a_page_of_an_upload_stopped_meanwhile_does_not_touch_the_n
     bench.run(Duration::from_millis(100));
     let texts = texts(&bench.said());
     assert!(texts[0].starts_with("master.lbvu: refused: "), "{texts:?}");
-    assert_eq!(texts[1..], ["master.lbvu: signature good, restarting"]);
+    assert_eq!(texts.last().unwrap(), "master.lbvu: signature good, restarting");
     assert_eq!(state_of(&flash), State::Swap);
+}
+
+/// The bytes of `span` in `flash`.
+fn bytes_of(flash: &Stm32g4Flash, span: Span) -> Vec<u8> {
+    let start = at(span) as usize;
+    flash.contents()[start..start + span.length as usize].to_vec()
+}
+
+#[test]
+fn nothing_reaches_dfu_once_the_image_is_marked_not_even_an_upload_begun_during_its_check() {
+    let flash = flashed();
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let meddled = Meddled::new(&flash);
+    let hook = meddled.on_read.clone();
+    let updating = OwnFlash::new(meddled);
+    let mut bench = Bench::new(&own, &shared, &updating);
+    let file = signed(Target::Master, 5000);
+    bench.upload(&file).unwrap();
+    // During the signature check (between two of its chunks), another master upload begins, all of it arrives
+    // (one page: the sink holds it for the task) and is applied: a forgery, the good image's bytes changed.
+    let mut forged = signed(Target::Master, PAGE_BYTES);
+    forged[HEADER_LEN + 0x400..HEADER_LEN + 0x500].fill(0);
+    let forgery = parse_header(forged[..HEADER_LEN].try_into().unwrap()).unwrap();
+    let during_check = at(MASTER_PARTITIONS.dfu) + 4 * HASH_CHUNK as u32;
+    let own_ref = &own;
+    let forged_payload = forged[HEADER_LEN..].to_vec();
+    *hook.borrow_mut() = Some(Box::new(move |offset| {
+        if offset == during_check {
+            own_ref.begin(&forgery).unwrap();
+            for (index, piece) in forged_payload.chunks(DATA_LEN).enumerate() {
+                own_ref.write((index * DATA_LEN) as u32, piece).unwrap();
+            }
+            own_ref.finish(true);
+            own_ref.apply(OPERATOR).unwrap();
+        }
+    }));
+    own.apply(OPERATOR).unwrap();
+    bench.run(Duration::from_millis(500));
+    *hook.borrow_mut() = None;
+    assert_eq!(state_of(&flash), State::Swap, "the good image is marked");
+    assert_eq!(
+        dfu(&flash, file.len() - HEADER_LEN),
+        file[HEADER_LEN..],
+        "DFU holds the image marked, not a byte of the forgery"
+    );
+    let said = bench.said();
+    assert_eq!(texts(&said), ["master.lbvu: signature good, restarting"]);
+    assert!(matches!(said.last(), Some(Outgoing::Reboot)), "{said:?}");
+    // Latched until the restart: no upload begins, and the update server is told to change nothing.
+    assert!(own.marked() && shared.restarting.load(Ordering::Relaxed));
+    assert_eq!(own.begin(&forgery), Err(NotTaken::Restarting));
+    assert_eq!(own.write(0, &[0; 8]), Err(NotTaken::Restarting));
+    assert_eq!(own.apply(OPERATOR), Err(NotTaken::Restarting));
+    let erases = flash.stats().erases;
+    bench.run(Duration::from_millis(500));
+    assert_eq!(texts(&bench.said()), ["master.lbvu: marked for the swap: restarting"]);
+    assert_eq!(flash.stats().erases, erases, "no page erased after the mark");
+    assert_eq!(dfu(&flash, file.len() - HEADER_LEN), file[HEADER_LEN..]);
+}
+
+#[test]
+fn the_apply_hands_the_bootloader_its_ticket_before_it_marks_the_image() {
+    let flash = flashed();
+    // A verdict on an image marked before: the new ticket's page starts afresh.
+    let ticket_page = at(MASTER_PARTITIONS.ticket());
+    let mut writer = flash.clone();
+    embassy_futures::block_on(writer.write(ticket_page + VERDICT_OFFSET, &Verdict::Signature.to_word())).unwrap();
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    let file = signed(Target::Master, 5000);
+    bench.upload(&file).unwrap();
+    own.apply(OPERATOR).unwrap();
+    bench.run(Duration::from_millis(100));
+    assert_eq!(state_of(&flash), State::Swap);
+    let page = bytes_of(&flash, MASTER_PARTITIONS.ticket());
+    let ticket = Ticket::parse(&page).expect("a ticket");
+    assert_eq!(ticket.payload_len, (file.len() - HEADER_LEN) as u32);
+    assert_eq!(ticket.signature[..], file[16..HEADER_LEN]);
+    assert!(
+        page[TICKET_LEN..].iter().all(|byte| *byte == 0xFF),
+        "no verdict left from before"
+    );
+}
+
+#[test]
+fn a_ticket_or_a_state_the_flash_did_not_take_fails_the_apply_and_nothing_is_latched() {
+    for (lost, why) in [
+        (
+            MASTER_PARTITIONS.ticket(),
+            "master.lbvu: ticket not written: send it again",
+        ),
+        (MASTER_PARTITIONS.state, "master.lbvu: state not written: send it again"),
+    ] {
+        let flash = flashed();
+        let (own, shared) = (OwnImage::new(), Shared::new());
+        let mut meddled = Meddled::new(&flash);
+        // The driver answers Ok, and the flash keeps what it held.
+        meddled.lost = at(lost)..at(lost) + lost.length;
+        let updating = OwnFlash::new(meddled);
+        let mut bench = Bench::new(&own, &shared, &updating);
+        let file = signed(Target::Master, 5000);
+        bench.upload(&file).unwrap();
+        own.apply(OPERATOR).unwrap();
+        bench.run(Duration::from_millis(100));
+        let said = bench.said();
+        assert_eq!(texts(&said), [why]);
+        assert_eq!(acks(&said), [AckResult::Failed]);
+        assert!(!said.iter().any(|out| matches!(out, Outgoing::Reboot)));
+        assert_eq!(state_of(&flash), State::Boot);
+        assert!(!own.marked() && !shared.restarting.load(Ordering::Relaxed));
+        // It may be sent again.
+        drop(bench);
+        let mut bench = Bench::new(&own, &shared, &updating);
+        bench.upload(&file).unwrap();
+    }
+}
+
+/// The ticket page as a bootloader that refused the image marked leaves it: the ticket, then its verdict `code`.
+fn refused_by_the_bootloader(flash: &Stm32g4Flash, code: u32) {
+    let ticket_page = at(MASTER_PARTITIONS.ticket());
+    let ticket = Ticket {
+        payload_len: 5000,
+        signature: [0x5A; 64],
+    };
+    let mut writer = flash.clone();
+    embassy_futures::block_on(async {
+        writer.write(ticket_page, &ticket.to_bytes()).await.unwrap();
+        writer
+            .write(ticket_page + VERDICT_OFFSET, &checked_word(code))
+            .await
+            .unwrap();
+    });
+}
+
+#[test]
+fn the_bootloaders_refusal_is_told_to_the_operator_once() {
+    let flash = flashed();
+    refused_by_the_bootloader(&flash, Verdict::Signature.code().into());
+    let told = at(MASTER_PARTITIONS.ticket()) + TOLD_OFFSET;
+    {
+        let (own, shared) = (OwnImage::new(), Shared::new());
+        let updating = OwnFlash::new(flash.clone());
+        let mut bench = Bench::new(&own, &shared, &updating);
+        // Nobody listens yet: kept for when the operator is heard.
+        bench.run(Duration::from_secs(2));
+        assert!(bench.said().is_empty());
+        bench.hear_operator(true);
+        bench.run(Duration::from_millis(200));
+        let said = bench.said();
+        assert_eq!(texts(&said), ["master.lbvu: refused by the bootloader: signature"]);
+        assert!(matches!(
+            said.as_slice(),
+            [
+                Outgoing::Text(Severity::Warning, _),
+                Outgoing::CommandAck {
+                    command: MAV_CMD_LBV_APPLY_UPDATE,
+                    result: AckResult::Failed,
+                    to: Sender { system: 255, .. }
+                }
+            ]
+        ));
+        let word: [u8; 8] = flash.contents()[told as usize..told as usize + 8].try_into().unwrap();
+        assert!(read_checked_word(word).is_some(), "noted as told");
+        bench.run(Duration::from_secs(1));
+        assert!(bench.said().is_empty(), "told once");
+    }
+    // The next start has nothing to tell.
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    bench.hear_operator(true);
+    bench.run(Duration::from_secs(1));
+    assert!(bench.said().is_empty());
+}
+
+#[test]
+fn a_verdict_too_long_for_one_text_or_unknown_is_told_whole() {
+    for (code, said) in [
+        (
+            Verdict::Counter.code().into(),
+            &[
+                "master.lbvu: refused by the bootloader:",
+                "master.lbvu: security counter below the vehicle's",
+            ][..],
+        ),
+        (14, &["master.lbvu: refused by the bootloader (code 14)"]),
+    ] {
+        let flash = flashed();
+        refused_by_the_bootloader(&flash, code);
+        // The first told slot torn by a power cut: the word goes in the next.
+        let told = (at(MASTER_PARTITIONS.ticket()) + TOLD_OFFSET) as usize;
+        let mut torn = checked_word(code);
+        // A bit that was to be programmed to 0, still erased.
+        torn[1] |= 0x80;
+        embassy_futures::block_on(flash.clone().write(told as u32, &torn)).unwrap();
+        let (own, shared) = (OwnImage::new(), Shared::new());
+        let updating = OwnFlash::new(flash.clone());
+        let mut bench = Bench::new(&own, &shared, &updating);
+        bench.hear_operator(true);
+        bench.run(Duration::from_millis(200));
+        assert_eq!(texts(&bench.said()), said, "code {code}");
+        let word: [u8; 8] = flash.contents()[told + 8..told + 16].try_into().unwrap();
+        assert_eq!(read_checked_word(word), Some(code));
+    }
+}
+
+#[test]
+fn an_image_older_than_the_running_one_or_below_its_counter_is_refused_at_its_first_page() {
+    let running = ImageInfo::new(Target::Master, Version::new(0, 3, 0)).with_security_counter(2);
+    let at_version =
+        |minor, counter| ImageInfo::new(Target::Master, Version::new(0, minor, 0)).with_security_counter(counter);
+    for (image, refused) in [
+        (
+            at_version(2, 2),
+            Some("master.lbvu: refused: 0.2.0 is older than the"),
+        ),
+        (
+            at_version(4, 1),
+            Some("master.lbvu: refused: security counter 1 is below"),
+        ),
+        (
+            at_version(2, 1).with_rollback(true),
+            Some("master.lbvu: refused: security counter 1 is below"),
+        ),
+        // Signed to go back, at the counter: taken; so are a newer image and the same one again.
+        (at_version(2, 2).with_rollback(true), None),
+        (at_version(4, 2), None),
+        (running, None),
+    ] {
+        let flash = flashed_with(running);
+        let (own, shared) = (OwnImage::new(), Shared::new());
+        let updating = OwnFlash::new(flash.clone());
+        let mut bench = Bench::new(&own, &shared, &updating);
+        let file = signed_as(image, 5000);
+        let uploaded = bench.upload(&file);
+        let said = texts(&bench.said());
+        match refused {
+            Some(refused) => {
+                assert_eq!(uploaded, Err(NotTaken::Refused), "{image:?}");
+                assert!(said[0].starts_with(refused), "{image:?}: {said:?}");
+                // Whole, in at most two texts: nothing cut at the end.
+                assert!(said.len() <= 2 && said.last().is_some_and(|text| text.len() < 50), "{said:?}");
+                assert_eq!(own.apply(OPERATOR), Err(NotTaken::Nothing));
+            }
+            None => {
+                assert_eq!((uploaded, said.len()), (Ok(()), 0), "{image:?}: {said:?}");
+                own.apply(OPERATOR).unwrap();
+                bench.run(Duration::from_millis(100));
+                assert_eq!(state_of(&flash), State::Swap, "{image:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_verdict_not_told_before_the_next_image_is_marked_leaves_the_new_tickets_page_alone() {
+    let flash = flashed();
+    refused_by_the_bootloader(&flash, Verdict::Signature.code().into());
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    // Applied before the operator's heartbeat was heard: the verdict is still to tell.
+    let file = signed(Target::Master, 5000);
+    bench.upload(&file).unwrap();
+    own.apply(OPERATOR).unwrap();
+    bench.run(Duration::from_millis(100));
+    assert_eq!(state_of(&flash), State::Swap);
+    bench.hear_operator(true);
+    bench.run(Duration::from_millis(500));
+    let said = texts(&bench.said());
+    assert_eq!(said, ["master.lbvu: signature good, restarting"]);
+    // The page holds the new ticket and nothing after it: the bootloader's verdict on this image will be told.
+    let page = bytes_of(&flash, MASTER_PARTITIONS.ticket());
+    assert!(Ticket::parse(&page).is_some());
+    assert!(page[TICKET_LEN..].iter().all(|byte| *byte == 0xFF));
 }

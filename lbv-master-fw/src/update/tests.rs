@@ -21,10 +21,16 @@ const OTHER: Sender = Sender {
 const DISARMED: Context = Context {
     armed: false,
     operator: 255,
+    restarting: false,
 };
 const ARMED: Context = Context {
     armed: true,
-    operator: 255,
+    ..DISARMED
+};
+/// The master's own image is marked for the swap: it restarts into it.
+const RESTARTING: Context = Context {
+    restarting: true,
+    ..DISARMED
 };
 
 // Opcodes, as the clients send them.
@@ -569,6 +575,73 @@ fn only_the_operator_writes_and_nothing_changes_while_armed() {
     assert_eq!(s.images()[0].complete, Some(false));
     // Nothing was ever held: nothing to apply.
     assert!(!s.server.is_received(UpdateTarget::Thruster(0)));
+}
+
+#[test]
+fn nothing_changes_once_the_master_is_marked_to_restart_into_its_update() {
+    const MASTER: &str = "/update/master.lbvu";
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    // An image held for thruster 0, and an upload under way to thruster 1 when the master's own image is marked.
+    assert!(ack(&s.put(0, 1, THRUSTER0, &file, 239)));
+    assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    assert!(ack(&s.op(0, 2, CREATE, 0, b"/update/thruster1.lbvu")));
+    assert!(ack(&s.op(0, 2, WRITE, 0, &file[..239])));
+    let before = s.images();
+    s.said.clear();
+    // Its next write is refused, and the upload stops.
+    let write = payload(40, 2, WRITE, 239, &file[239..478]);
+    assert_eq!(nak(&s.send(0, RESTARTING, GCS, &write)), Some(Nak::Fail as u8));
+    assert_eq!(s.texts(), ["thruster1.lbvu: master restarting into its update"]);
+    assert_eq!(s.images().last().unwrap().complete, Some(false), "dropped, not taken");
+    // No upload begins, for any target, and nothing is removed.
+    s.said.clear();
+    for (n, path) in [THRUSTER0, "/update/thruster1.lbvu", MASTER].into_iter().enumerate() {
+        for opcode in [CREATE, OPEN_WO, REMOVE] {
+            let request = payload(50 + n as u16, 3, opcode, 0, path.as_bytes());
+            assert_eq!(
+                nak(&s.send(0, RESTARTING, GCS, &request)),
+                Some(Nak::Fail as u8),
+                "{path} {opcode}"
+            );
+        }
+    }
+    assert_eq!(s.texts().len(), 9);
+    assert!(
+        s.texts()
+            .iter()
+            .all(|text| text.ends_with(".lbvu: master restarting into its update")),
+        "{:?}",
+        s.texts()
+    );
+    assert!(s.server.is_received(UpdateTarget::Thruster(0)), "the image held stays");
+    // The image held is not applied.
+    let said = s.apply(RESTARTING, GCS, Some(0));
+    assert_eq!(
+        (acked(&said), text_of(&said)),
+        (
+            Some(AckResult::TemporarilyRejected),
+            vec!["thruster0.lbvu: master restarting into its update".into()]
+        )
+    );
+    let images = s.images();
+    assert_eq!(images.len(), before.len(), "the sink began nothing");
+    assert_eq!(images[0].applied, 0, "nor applied anything");
+    assert_eq!(
+        images.last().unwrap().bytes,
+        before.last().unwrap().bytes,
+        "nor took any byte"
+    );
+    // Anyone may still read.
+    assert!(ack(&s.send(0, RESTARTING, OTHER, &payload(60, 0, LIST, 0, b"/update"))));
+}
+
+#[test]
+fn the_context_says_when_the_master_restarts_into_its_update() {
+    let shared = Shared::new();
+    assert!(!Context::of(&shared).restarting);
+    shared.restarting.store(true, Ordering::Relaxed);
+    assert!(Context::of(&shared).restarting);
 }
 
 #[test]

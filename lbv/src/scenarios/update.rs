@@ -266,21 +266,26 @@ pub fn field_update(run: &mut Run) {
     let texts = texts_since(run, start, "thruster1.lbvu");
     run.check(
         "the ground station asks T2 which image it runs",
-        acks == [IN_PROGRESS, ACCEPTED] && texts == ["thruster1.lbvu: runs 0.2.0"],
+        acks == [IN_PROGRESS, ACCEPTED] && texts == ["thruster1.lbvu: runs 0.2.0, dev key"],
         format!("acks {acks:?} in {took} s, texts {texts:?}"),
     );
 
-    // Signed with another key: written, then refused by the thruster's signature check.
+    // Signed with another key than the one the running image embeds: written and marked, then refused by the
+    // thruster's bootloader, which starts the image that ran; the master reads why in its Version.
     let start = run.bench.now();
     let stranger = update_file(families[0], Version::new(0, 3, 0), &[0x42; 32]);
     let (state, _) = put(run, "/update/thruster0.lbvu", stranger, 60.0);
     wait_verified(run, start, 0);
     let (acks, _) = apply(run, 0, 30.0);
-    let texts = texts_since(run, start, "thruster0.lbvu");
+    let texts = texts_since(run, start, "T1: refused by its bootloader");
+    let runs = run.bench.thrusters[0].running_image().map(|info| info.version);
     run.check(
-        "an image signed with another key is refused by the thruster",
-        state == UploadState::Done && acks == [IN_PROGRESS, FAILED] && texts.iter().any(|t| t.contains("signature")),
-        format!("put {state:?}, acks {acks:?}, texts {texts:?}"),
+        "an image signed with another key is refused by the thruster's bootloader",
+        state == UploadState::Done
+            && acks == [IN_PROGRESS, FAILED]
+            && texts == ["T1: refused by its bootloader: signature"]
+            && runs == Some(NEW),
+        format!("put {state:?}, acks {acks:?}, texts {texts:?}, runs {runs:?}"),
     );
 
     // The other family's image, for slot 1 (Legacy in the mixed vehicle): the master refuses it at its header.
@@ -374,13 +379,13 @@ pub fn field_update(run: &mut Run) {
         run.run_for(TAKEOVER_IDLE.as_micros() as f64 / 1e6 + 0.5);
     });
 
-    // Power cuts while an image is applied. In the thruster's signature check (Finish): it comes back with the image
-    // marked or not, begins again where it must, and takes it.
+    // Power cuts while an image is applied. In the thruster's Finish (its ticket and its mark written): it comes back
+    // with the image marked or not, begins again where it must, and takes it.
     let start = run.bench.now();
     let (acks, took) = apply_cut(run, 4, 60.0, "applying", 0.02);
     let texts = texts_since(run, start, "thruster4.lbvu");
     run.check(
-        "a power cut in the thruster's signature check: the image is applied all the same",
+        "a power cut as the thruster marks the image: it is applied all the same",
         acks == [IN_PROGRESS, ACCEPTED] && running(run, 4) == Some(Version::new(0, 3, 0)),
         format!("acks {acks:?} in {took} s, runs {:?}, texts {texts:?}", running(run, 4)),
     );
@@ -432,8 +437,8 @@ pub fn field_update(run: &mut Run) {
     master_resets_while_applied(run, families[2], &key);
 }
 
-/// The master reset while it applies an image to T3 (slot 2). In the thruster's signature check: the thruster
-/// finishes it and keeps the image marked for its bootloader, still running the one before, and the master forgets
+/// The master reset while it applies an image to T3 (slot 2). In the thruster's Finish: the thruster finishes it and
+/// keeps the image marked for its bootloader, still running the one before, and the master forgets
 /// the transfer; the same file sent again has the master start the update the thruster holds first, then write
 /// the file again, which its apply takes. On trial: the thruster confirms the new image once the master polls it
 /// again, though the master that asked for it is gone.
@@ -450,7 +455,7 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
     let applying = move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "thruster2.lbvu: applying");
     let cut = |run: &mut Run| {
         run.run_for(0.02);
-        reset_master(run, "T3's signature check");
+        reset_master(run, "T3's Finish");
     };
     let (acks, _) = apply_with(run, 2, 60.0, applying, cut, 2.0);
     let held = (running(run, 2), run.bench.thrusters[2].boot_state());
@@ -460,7 +465,7 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
     let (reapplied, _) = apply(run, 2, 60.0);
     let texts = texts_since(run, again, "thruster2.lbvu");
     run.check(
-        "a master reset in the thruster's signature check: the file sent again starts the update the thruster holds",
+        "a master reset in the thruster's Finish: the file sent again starts the update the thruster holds",
         acks == [IN_PROGRESS]
             && held == (before, Some(State::Swap))
             && state == UploadState::Done

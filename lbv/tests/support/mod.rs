@@ -131,14 +131,25 @@ pub fn signed_update_file() -> Vec<u8> {
 /// The same for `target` (the master's: `Target::Master`).
 #[allow(dead_code, reason = "not every test that includes this module updates the master")]
 pub fn signed_update_file_for(target: update_image::Target) -> Vec<u8> {
-    use update_image::{DEV_PUBLIC_KEY, INFO_OFFSET, ImageInfo, Version, image_record, key_from_hex};
+    update_file(target, update_image::Version::new(0, 2, 0), None)
+}
+
+/// An update file for `target` at `version`, signed with the development key; with `flip`, that byte of the
+/// payload has a bit flipped after signing (a file its bootloader refuses).
+#[allow(dead_code, reason = "not every test that includes this module needs other versions")]
+pub fn update_file(target: update_image::Target, version: update_image::Version, flip: Option<usize>) -> Vec<u8> {
+    use update_image::{DEV_PUBLIC_KEY, HEADER_LEN, INFO_OFFSET, ImageInfo, image_record, key_from_hex};
     let mut payload: Vec<u8> = (0..4096u32)
         .map(|n| (n.wrapping_mul(2_654_435_761) >> 7) as u8)
         .collect();
-    let record = image_record(ImageInfo::new(target, Version::new(0, 2, 0)), &DEV_PUBLIC_KEY);
+    let record = image_record(ImageInfo::new(target, version), &DEV_PUBLIC_KEY);
     payload[INFO_OFFSET..INFO_OFFSET + record.len()].copy_from_slice(&record);
     let seed = key_from_hex(include_str!("../../../keys/dev.key")).unwrap();
-    update_image::sign(&payload, &seed).unwrap()
+    let mut file = update_image::sign(&payload, &seed).unwrap();
+    if let Some(at) = flip {
+        file[HEADER_LEN + at] ^= 0x04;
+    }
+    file
 }
 
 /// The texts of a summary's list that name an update file: the master also says a thruster is offline ("T3
