@@ -145,11 +145,22 @@ mod tests {
         }
         // The master's state, record and DFU, all in bank 2.
         let master = [MASTER_PARTITIONS.state, MASTER_PARTITIONS.record, MASTER_PARTITIONS.dfu];
-        for eccr in [BK_ECC, BK_ECC | 0xFF8, BK_ECC | 0x1000, BK_ECC | 0x27F8, BK_ECC | 0x2800, BK_ECC | 0x3_BFF8] {
+        for eccr in [
+            BK_ECC,
+            BK_ECC | 0xFF8,
+            BK_ECC | 0x1000,
+            BK_ECC | 0x27F8,
+            BK_ECC | 0x2800,
+            BK_ECC | 0x3_BFF8,
+        ] {
             assert_eq!(nmi_action(ECCD | eccr, &master), PASS, "{eccr:#x}");
         }
         // The thruster's state page, the ends of its record and of its DFU partition.
-        let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.record, THRUSTER_PARTITIONS.dfu];
+        let thruster = [
+            THRUSTER_PARTITIONS.state,
+            THRUSTER_PARTITIONS.record,
+            THRUSTER_PARTITIONS.dfu,
+        ];
         for offset in [0x4000, 0x47F8, 0x4800, 0x5FF8, 0x1_2800, 0x1_F7F8] {
             assert_eq!(nmi_action(ECCD | offset, &thruster), PASS, "{offset:#x}");
         }
@@ -167,7 +178,11 @@ mod tests {
             assert_eq!(nmi_action(ECCD | eccr, &master), NmiAction::Stop, "{eccr:#x}");
         }
         // The thruster's bootloader and ACTIVE (its code).
-        let thruster = [THRUSTER_PARTITIONS.state, THRUSTER_PARTITIONS.record, THRUSTER_PARTITIONS.dfu];
+        let thruster = [
+            THRUSTER_PARTITIONS.state,
+            THRUSTER_PARTITIONS.record,
+            THRUSTER_PARTITIONS.dfu,
+        ];
         for offset in [0x0, 0x3FF8, 0x6000, 0x1_27F8, 0x1_F800] {
             assert_eq!(nmi_action(ECCD | offset, &thruster), NmiAction::Stop, "{offset:#x}");
         }

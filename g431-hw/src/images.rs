@@ -375,7 +375,7 @@ const fn thruster(name: &'static str, features: &'static str, image: &'static Im
 
 /// The flash budget of the vehicle's master application ([`Build::flash_budget`]): the largest image the master's
 /// own update carries.
-pub const MASTER_FLASH_BUDGET: u32 = 136 * KIB;
+pub const MASTER_FLASH_BUDGET: u32 = 144 * KIB;
 
 const fn master(name: &'static str, features: &'static str, flash_budget: u32) -> Build {
     Build {
@@ -805,11 +805,19 @@ mod tests {
                     && signal.starts_with("TIM1_CH")
                 {
                     let write = if used.pin.port == Port::A { a } else { b };
-                    assert_ne!(write.moder_output & (1 << (2 * used.pin.number)), 0, "{signal} on {}", used.pin);
+                    assert_ne!(
+                        write.moder_output & (1 << (2 * used.pin.number)),
+                        0,
+                        "{signal} on {}",
+                        used.pin
+                    );
                 }
             }
         }
-        assert_eq!(crate::tim1::gate_off_level("TIM1_BKIN", crate::tim1::IHM08M1.driver), None);
+        assert_eq!(
+            crate::tim1::gate_off_level("TIM1_BKIN", crate::tim1::IHM08M1.driver),
+            None
+        );
     }
 
     #[test]

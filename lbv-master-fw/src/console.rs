@@ -4,7 +4,9 @@
 //! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too) through a [`Receiver`], which checks their
 //!   signatures when a key is set ([`crate::signing`]), decodes the few messages the master understands
 //!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it; MAVLink
-//!   FTP and the apply command go to the update task instead ([`crate::update`]).
+//!   FTP and the apply command go to the update server it runs instead ([`crate::update`]). It never stops reading
+//!   for the update or for anyone on the link, and limits per requester what makes the vehicle send more than it
+//!   costs ([`limit`]).
 //! - [`console_tx_task`] sends the telemetry an ArduSub or QGroundControl ground station displays (HEARTBEAT,
 //!   SYS_STATUS, BATTERY_STATUS, ESC_INFO at 1 Hz, ESC_TELEMETRY and ESC_STATUS at 4 Hz, at the intervals a
 //!   ground station sets) and every message the other tasks queue in [`Shared::outbox`] (COMMAND_ACK,
@@ -18,9 +20,14 @@
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use embassy_futures::select::{Either, select};
+#[cfg(not(feature = "acceptance"))]
+use core::future::poll_fn;
+
+use embassy_futures::select::{Either, Either3, select, select3};
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+#[cfg(not(feature = "acceptance"))]
+use embassy_sync::channel::TrySendError;
 use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
@@ -35,8 +42,12 @@ use crate::thrusters::ThrusterTable;
 use crate::update::UpdateSink;
 #[cfg(not(feature = "acceptance"))]
 use crate::update::Updates;
+#[cfg(not(feature = "acceptance"))]
+use crate::update::ftp::Opcode;
+use limit::Limiter;
 
 pub mod inbound;
+pub mod limit;
 pub mod outbound;
 
 include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
@@ -110,6 +121,9 @@ pub struct ConsoleStats {
     out_of_range: AtomicU32,
     frames_out: AtomicU32,
     write_errors: AtomicU32,
+    rate_limited: AtomicU32,
+    requests_dropped: AtomicU32,
+    replies_dropped: AtomicU32,
     signing: Mutex<CriticalSectionRawMutex, RefCell<SigningState>>,
 }
 
@@ -152,6 +166,15 @@ pub struct ConsoleCounters {
     pub frames_out: u32,
     /// Frames the serial port failed to write.
     pub write_errors: u32,
+    /// Requests dropped unanswered because their requester's allowance had no room for what they would make the
+    /// vehicle send ([`limit`]).
+    pub rate_limited: u32,
+    /// Update requests dropped unanswered because the update sink had no room and the receive task held as many
+    /// as it keeps already (a ground station sends them again).
+    pub requests_dropped: u32,
+    /// FTP replies dropped because the outbox was full: every reply to a listing or a CRC, and to anyone but the
+    /// operator's system (a ground station asks again).
+    pub replies_dropped: u32,
 }
 
 impl ConsoleCounters {
@@ -186,6 +209,9 @@ impl ConsoleStats {
             out_of_range: AtomicU32::new(0),
             frames_out: AtomicU32::new(0),
             write_errors: AtomicU32::new(0),
+            rate_limited: AtomicU32::new(0),
+            requests_dropped: AtomicU32::new(0),
+            replies_dropped: AtomicU32::new(0),
             signing: Mutex::new(RefCell::new(SigningState::new())),
         }
     }
@@ -206,6 +232,9 @@ impl ConsoleStats {
             out_of_range: load(&self.out_of_range),
             frames_out: load(&self.frames_out),
             write_errors: load(&self.write_errors),
+            rate_limited: load(&self.rate_limited),
+            requests_dropped: load(&self.requests_dropped),
+            replies_dropped: load(&self.replies_dropped),
         }
     }
 
@@ -360,9 +389,21 @@ fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Received, mavlink
 }
 
 /// Read MAVLink frames from `rx` and send the [`Request`]s they carry to `shared.commands`, awaiting room (the
-/// vehicle task drains it); serve the [`UpdateRequest`]s with an update server for `thrusters` whose images go
-/// to `sink` ([`Updates::serve`]), reading on only once the sink is [`UpdateSink::ready`] (a read of 64 bytes
-/// brings at most one write of image bytes).
+/// vehicle task drains it at once); serve the [`UpdateRequest`]s with an update server for `thrusters` whose images
+/// go to `sink` ([`Updates::serve`]). Reading never waits for the update sink or for room for an FTP reply: the
+/// operator's HEARTBEAT and MANUAL_CONTROL are read as they come whatever the update does.
+///
+/// - A request that changes an upload or the images (every FTP opcode but ListDirectory, CalcFileCrc32 and those
+///   not served, and the update commands) is held, in order, and served as soon as the sink is
+///   [`UpdateSink::ready`] (at once when it is: the task looks before it reads on), one at a time; [`HELD`] of them
+///   at most, and the operator's (its system's) only once one is held. A request beyond them is dropped unanswered,
+///   which a ground station takes for a lost frame and sends again ([`ConsoleCounters::requests_dropped`]).
+/// - Its reply, when it is for the operator's system and the outbox is full, waits for room while reading goes on
+///   (no held request is served meanwhile, so the replies keep their order); any other FTP reply (to a listing, a
+///   CRC, or to another system) is dropped when the outbox is full ([`ConsoleCounters::replies_dropped`]).
+/// - Requests that make the vehicle send more than they cost (the parameter list and reads, requested messages,
+///   FTP listings and CRCs) are limited per requester ([`limit`]), the operator's included; what is over its
+///   allowance is dropped unanswered ([`ConsoleCounters::rate_limited`]).
 ///
 /// A frame begun when the line falls quiet for [`LINE_IDLE`] is given up and the bytes after its start read
 /// again, so noise never hides the frames behind it for longer. Frames from any system are read; only messages
@@ -380,22 +421,35 @@ pub async fn console_rx_task<R: Read, U: UpdateSink>(
 ) -> ! {
     #[cfg(not(feature = "acceptance"))]
     let mut updates = Updates::new(thrusters, sink);
+    #[cfg(not(feature = "acceptance"))]
+    let mut held = Held::new();
     #[cfg(feature = "acceptance")]
     let _ = (thrusters, sink);
+    let mut limiter = Limiter::new();
     let mut receiver = Receiver::new();
     let mut chunk = [0u8; 64];
     loop {
-        // The sink's back-pressure holds the reading, not a request: a request kept across a wait would take
-        // its 251 bytes twice, in the task and on the stack the task is built on.
-        #[cfg(not(feature = "acceptance"))]
-        updates.sink.ready().await;
-        let read = if receiver.pending() {
-            match select(rx.read(&mut chunk), Timer::after(LINE_IDLE)).await {
-                Either::First(read) => Some(read),
-                Either::Second(()) => None,
+        let pending = receiver.pending();
+        let idle = async {
+            if pending {
+                Timer::after(LINE_IDLE).await;
+            } else {
+                core::future::pending::<()>().await;
             }
-        } else {
-            Some(rx.read(&mut chunk).await)
+        };
+        #[cfg(not(feature = "acceptance"))]
+        let unblocked = held.unblocked(&mut updates.sink, shared);
+        #[cfg(feature = "acceptance")]
+        let unblocked = core::future::pending::<()>();
+        // What was held goes on first, one request at a time, whenever it can; reading goes on meanwhile.
+        let read = match select3(unblocked, rx.read(&mut chunk), idle).await {
+            Either3::First(()) => {
+                #[cfg(not(feature = "acceptance"))]
+                held.go_on(&mut updates, shared, stats);
+                continue;
+            }
+            Either3::Second(read) => Some(read),
+            Either3::Third(()) => None,
         };
         let mut rest = match read {
             None => {
@@ -418,14 +472,17 @@ pub async fn console_rx_task<R: Read, U: UpdateSink>(
             rest = rest.get(taken..).unwrap_or_default();
             while let Some(received) = receiver.next(config, stats.follow(shared), stats) {
                 match received {
-                    Received::Request(request) => shared.commands.send(request).await,
-                    // A cfg, not `if update::ENABLED`: an async branch never taken still costs its code.
-                    #[cfg(not(feature = "acceptance"))]
-                    Received::Update(request) => {
-                        if let Some(reply) = updates.serve(request, shared) {
-                            shared.outbox.send(reply).await;
+                    Received::Request(request) => {
+                        let cost = limit::cost(&request.command);
+                        if limiter.allow(request.from, cost, operator(shared), Instant::now()) {
+                            shared.commands.send(request).await;
+                        } else {
+                            ConsoleStats::count(&stats.rate_limited, 1);
                         }
                     }
+                    // A cfg, not `if update::ENABLED`: an async branch never taken still costs its code.
+                    #[cfg(not(feature = "acceptance"))]
+                    Received::Update(request) => held.take(request, &mut updates, &mut limiter, shared, stats),
                     #[cfg(feature = "acceptance")]
                     Received::Update(_) => {}
                     Received::Nothing => {}
@@ -436,6 +493,116 @@ pub async fn console_rx_task<R: Read, U: UpdateSink>(
                 break;
             }
         }
+    }
+}
+
+/// `SYSID_MYGCS` as the vehicle last said (0, nobody, before it has).
+fn operator(shared: &Shared) -> u8 {
+    shared.vehicle.try_get().map_or(0, |state| state.operator)
+}
+
+/// Update requests held until the update sink is ready for them, served in order; see [`console_rx_task`]. Eight:
+/// MAVProxy and pymavlink keep five writes in flight (their `write_qsize`) and, after 0.2 s without an answer, take
+/// one for lost and send the next; a page on its way to a thruster keeps the sink busy some 0.7 s, so a client's
+/// upload sends eight writes meanwhile, all of which are kept for it (which the clients' round-robin resends would
+/// otherwise find gaps behind, slowing the upload). 2 KiB of RAM.
+#[cfg(not(feature = "acceptance"))]
+pub const HELD: usize = 8;
+
+/// What the receive task holds for the update server: the requests waiting for the sink, and a reply to the
+/// operator waiting for room in the outbox.
+#[cfg(not(feature = "acceptance"))]
+struct Held {
+    requests: heapless::Deque<UpdateRequest, HELD>,
+    reply: Option<Outgoing>,
+}
+
+#[cfg(not(feature = "acceptance"))]
+impl Held {
+    const fn new() -> Self {
+        Self {
+            requests: heapless::Deque::new(),
+            reply: None,
+        }
+    }
+
+    /// Take `request` as it is read: a listing or a CRC (over its requester's allowance: dropped) is answered at
+    /// once; a request that changes something is held, to be served in order once the sink is ready (at once when
+    /// it is: the receive task looks before it reads on).
+    fn take<S: UpdateSink>(
+        &mut self,
+        request: UpdateRequest,
+        updates: &mut Updates<S>,
+        limiter: &mut Limiter,
+        shared: &Shared,
+        stats: &ConsoleStats,
+    ) {
+        let operator = operator(shared);
+        let Some(cost) = reads(&request) else {
+            let room = self.requests.is_empty() || request.from.system == operator;
+            if !room || self.requests.push_back(request).is_err() {
+                ConsoleStats::count(&stats.requests_dropped, 1);
+            }
+            return;
+        };
+        if !limiter.allow(request.from, cost, operator, Instant::now()) {
+            return ConsoleStats::count(&stats.rate_limited, 1);
+        }
+        if let Some(reply) = updates.serve(request, shared)
+            && shared.outbox.try_send(reply).is_err()
+        {
+            ConsoleStats::count(&stats.replies_dropped, 1);
+        }
+    }
+
+    /// [`Held::unblocked`] has returned: send the reply held, or serve the next request, the sink being ready.
+    fn go_on<S: UpdateSink>(&mut self, updates: &mut Updates<S>, shared: &Shared, stats: &ConsoleStats) {
+        if let Some(reply) = self.reply.take() {
+            if let Err(TrySendError::Full(reply)) = shared.outbox.try_send(reply) {
+                self.reply = Some(reply);
+            }
+            return;
+        }
+        let Some(request) = self.requests.pop_front() else {
+            return;
+        };
+        // The operator's system's reply waits for room; any other is dropped when there is none.
+        match updates
+            .serve(request, shared)
+            .map(|reply| shared.outbox.try_send(reply))
+        {
+            None | Some(Ok(())) => {}
+            Some(Err(TrySendError::Full(reply))) => match reply {
+                Outgoing::Ftp { to, .. } if to.system == operator(shared) => self.reply = Some(reply),
+                _ => ConsoleStats::count(&stats.replies_dropped, 1),
+            },
+        }
+    }
+
+    /// Until what is held can go on: the outbox has room for the reply held, or else the sink is ready for the next
+    /// request (never, when nothing is held).
+    async fn unblocked<S: UpdateSink>(&self, sink: &mut S, shared: &Shared) {
+        if self.reply.is_some() {
+            poll_fn(|cx| shared.outbox.poll_ready_to_send(cx)).await;
+        } else if !self.requests.is_empty() {
+            sink.ready().await;
+        } else {
+            core::future::pending::<()>().await;
+        }
+    }
+}
+
+/// What a request that only reads (a listing, a CRC, an opcode not served) costs its requester's allowance
+/// ([`limit`]); `None` for one that changes an upload or the images, which is served in order.
+#[cfg(not(feature = "acceptance"))]
+fn reads(request: &UpdateRequest) -> Option<u32> {
+    let UpdateCommand::Ftp(payload) = &request.what else {
+        return None;
+    };
+    match Opcode::from_byte(payload.get(3).copied().unwrap_or(0)) {
+        Opcode::ListDirectory | Opcode::CalcFileCrc32 => Some(1),
+        Opcode::None | Opcode::Other(_) => Some(0),
+        _ => None,
     }
 }
 

@@ -32,6 +32,18 @@
 //! [`SILENCE_LIMIT`] ends the transfer. A thruster that reset meanwhile answers `NotBegun`: the courier begins
 //! again and goes on with the page it holds. Any other refusal ends the transfer with the refusal's own sentence,
 //! and so does a read-back that differs.
+//!
+//! The courier also keeps what each thruster's last `Version` said of its images ([`Courier::hold`]): whether one is
+//! on trial or holds an update marked for its bootloader, either of which ends in a reset the vehicle must not take
+//! in the water, so it keeps the vehicle from arming ([`UpdateHold`]). It learns it from every `Version` it reads
+//! (a transfer's, a version query's), and it asks for it itself: a thruster that answers its polls again (at the
+//! master's start, or after it was offline) may have reset into a swap or a revert, or have been marked while the
+//! master was reset, and a power cycle of the vehicle brings every thruster back on whatever its bootloader started,
+//! on trial perhaps; tracking only what the master saw would miss those. So each thruster is asked as soon as it
+//! answers (and holds the vehicle until it has said), and one on trial is asked again every [`TRIAL_ASK`] until it
+//! has confirmed itself. These looks, and the ground station's version queries, go on the bus when no transfer has an
+//! exchange to make (none, one written whole and waiting for its apply, or one waiting for its next page), one at a
+//! time, and a transfer's exchanges wait while one is under way.
 
 use core::cell::RefCell;
 
@@ -46,7 +58,9 @@ use tmc_proto::ext::{
 };
 use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Target, Version, check_upgrade};
 
-use crate::shared::{AckResult, Outgoing, Sender, Severity, UpdateAction, texts, verdict_texts};
+use crate::shared::{
+    AckResult, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction, UpdateHold, texts, verdict_texts,
+};
 
 /// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
 const PAGE: usize = ext::PAGE_LEN as usize;
@@ -64,10 +78,13 @@ pub const RESTART_LIMIT: Duration = Duration::from_secs(15);
 /// The first `Version` after `Reboot` is sent this long after it.
 const RESTART_FIRST_ASK: Duration = Duration::from_millis(200);
 /// A new image on trial confirms itself after 3 s of every task healthy and 25 orders from the master
-/// (docs/thruster.md, "A new image on trial"): it has this long.
+/// (docs/thruster.md, "A new image on trial"): an upload waits this long for a running image on trial to confirm
+/// before it gives up, and an apply tells every so long that its new image is still on trial. The apply itself
+/// waits for as long as the thruster runs the new image on trial: its final answer is what the thruster did,
+/// confirmed or reverted, and a thruster kept from confirming (driven, or unwell) may still confirm later.
 pub const CONFIRM_LIMIT: Duration = Duration::from_secs(30);
-/// While it is on trial, `Version` is asked this often.
-const TRIAL_ASK: Duration = Duration::from_millis(500);
+/// While an image is on trial, `Version` is asked this often.
+pub const TRIAL_ASK: Duration = Duration::from_millis(500);
 /// A reply read busy is read again this often, up to [`BUSY_READS`] times in one exchange; then the command is
 /// sent again at the next cycle.
 const BUSY_PAUSE: Duration = Duration::from_millis(2);
@@ -137,8 +154,6 @@ struct Transfer {
     applier: Option<Sender>,
     /// Since when `Begin` has been refused because the running image is on trial.
     settling_since: Option<Instant>,
-    /// Only a version query: `Version` asked, its answer told, nothing sent.
-    query: bool,
     /// The running image's information record, as the thruster's last `Version` gave it: what the image is held to.
     running: [u8; ext::INFO_LEN],
     /// The longest payload the thruster takes, as its last `Version` gave it.
@@ -165,10 +180,18 @@ impl Transfer {
             restarts: 0,
             applier: None,
             settling_since: None,
-            query: false,
             running: [0; ext::INFO_LEN],
             max_payload: 0,
         }
+    }
+
+    /// Whether it is being applied: asked to, or marked and restarting into it (an update the thruster held).
+    fn applying(&self) -> bool {
+        self.applier.is_some()
+            || matches!(
+                self.step,
+                Step::Finish | Step::Reboot | Step::Restart(_) | Step::Trial { .. }
+            )
     }
 
     /// What the thruster's `Version` says of the image it runs.
@@ -277,7 +300,6 @@ enum Ending {
     NotBack,
     OldVersion([u8; 4]),
     Reverted([u8; 4]),
-    NotConfirmed,
 }
 
 impl core::fmt::Display for Ending {
@@ -294,7 +316,6 @@ impl core::fmt::Display for Ending {
             Ending::NotBack => f.write_str("the thruster did not come back"),
             Ending::OldVersion(version) => write!(f, "still runs {}", Ver(version)),
             Ending::Reverted(version) => write!(f, "reverted to {}", Ver(version)),
-            Ending::NotConfirmed => f.write_str("the new image did not confirm"),
         }
     }
 }
@@ -307,13 +328,58 @@ const BOOTLOADER_REFUSED: &str = "refused by its bootloader";
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NotTaken;
 
-/// The transfer under way and the bytes waiting for the thruster: the state [`crate::update::VehicleSink`] and the
-/// bus tasks share.
+/// What the master knows of a thruster's images, by the last `Version` it answered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+enum Standing {
+    /// Not answering its polls (or not in the table), and never asked since: asked once it answers.
+    Away,
+    /// Answering, not asked yet: it may have come up on trial.
+    Unasked,
+    /// Runs a confirmed image and holds no mark, or takes no update.
+    Settled,
+    /// Its image is on trial: asked again every [`TRIAL_ASK`].
+    OnTrial,
+    /// It holds an update marked for its bootloader.
+    Marked,
+}
+
+impl Standing {
+    /// What a `Version` reply says.
+    fn of(on_trial: bool, marked: bool) -> Self {
+        match (on_trial, marked) {
+            (_, true) => Self::Marked,
+            (true, _) => Self::OnTrial,
+            _ => Self::Settled,
+        }
+    }
+}
+
+/// A `Version` asked alone: the ground station's version query, or the master's own look at a thruster.
+#[derive(Debug, Clone, Copy)]
+struct Query {
+    slot: u8,
+    seq: u8,
+    /// Who asked (MAV_CMD_LBV_QUERY_VERSION), told what runs; `None`: the master's own look, asked once per turn.
+    asker: Option<Sender>,
+    /// When its exchanges began failing, none answered since.
+    silent_since: Option<Instant>,
+}
+
+/// The transfer under way and the bytes waiting for the thruster, the version query, and what each thruster's
+/// images are: the state [`crate::update::VehicleSink`] and the bus tasks share.
 #[derive(Debug)]
 pub struct Courier {
     transfer: Option<Transfer>,
     buffer: [u8; BUFFER],
     fill: usize,
+    query: Option<Query>,
+    /// The last query's sequence number.
+    query_seq: u8,
+    /// Each slot's thruster, by its last `Version`.
+    standing: [Standing; MAX_THRUSTERS],
+    /// When the thrusters on trial are next asked.
+    trial_ask: Instant,
 }
 
 impl Default for Courier {
@@ -329,6 +395,10 @@ impl Courier {
             transfer: None,
             buffer: [0; BUFFER],
             fill: 0,
+            query: None,
+            query_seq: 0,
+            standing: [Standing::Away; MAX_THRUSTERS],
+            trial_ask: Instant::from_ticks(0),
         }
     }
 
@@ -358,18 +428,78 @@ impl Courier {
     }
 
     /// Ask thruster `slot` which image it runs, for `from`: the answer goes out as a text (`runs 0.2.0`) and the
-    /// final COMMAND_ACK of MAV_CMD_LBV_QUERY_VERSION. Not while a transfer is under way.
-    pub fn query(&mut self, slot: u8, from: Sender) -> Result<(), NotTaken> {
-        if self.transfer.is_some() {
-            return Err(NotTaken);
+    /// final COMMAND_ACK of MAV_CMD_LBV_QUERY_VERSION. Whenever no transfer has an exchange to make (an image
+    /// written whole and not applied waits meanwhile); refused, saying why, while one has, or while another query
+    /// runs.
+    pub fn query(&mut self, slot: u8, from: Sender) -> Result<(), &'static str> {
+        if !self.quiet() {
+            return Err("wait: an update is under way");
         }
-        self.transfer = Some(Transfer {
-            applier: Some(from),
-            query: true,
-            ..Transfer::new(slot, 0, 0, [0; 4], [0; SIGNATURE_LEN])
-        });
-        self.fill = 0;
+        if self.query.is_some_and(|query| query.asker.is_some()) {
+            return Err("wait: another query is under way");
+        }
+        // It takes the place of the master's own look, which asks again at its next turn.
+        self.ask(slot, Some(from));
         Ok(())
+    }
+
+    /// A query of `slot` begins.
+    fn ask(&mut self, slot: u8, asker: Option<Sender>) {
+        self.query_seq = self.query_seq.wrapping_add(1);
+        self.query = Some(Query {
+            slot,
+            seq: self.query_seq,
+            asker,
+            silent_since: None,
+        });
+    }
+
+    /// Whether the transfer has no exchange to make: there is none, it waits for its apply, or for its next page.
+    fn quiet(&self) -> bool {
+        self.transfer.is_none_or(|transfer| match transfer.step {
+            Step::Written => true,
+            Step::Idle => !transfer.complete && self.page().is_none(),
+            _ => false,
+        })
+    }
+
+    /// The first `count` slots have thrusters, which have not said yet what they run: at the master's start, each
+    /// is asked once it answers its polls (one that does not answer its first is not waited for, [`Courier::seen`]).
+    pub fn expect(&mut self, count: usize) {
+        for standing in self.standing.iter_mut().take(count) {
+            *standing = Standing::Unasked;
+        }
+    }
+
+    /// Thruster `slot` answers its polls again (`true`: it may have reset, into a swap or a revert; it is asked
+    /// what it runs), or it stopped answering (one never asked is not waited for; what one said stays).
+    pub fn seen(&mut self, slot: u8, answering: bool) {
+        if let Some(standing) = self.standing.get_mut(usize::from(slot)) {
+            *standing = match (*standing, answering) {
+                (_, true) => Standing::Unasked,
+                (Standing::Unasked, false) => Standing::Away,
+                (standing, false) => standing,
+            };
+        }
+    }
+
+    /// What of the thrusters' updates keeps the vehicle from arming: an apply under way, then a thruster that
+    /// holds a mark, runs an image on trial, or has not said yet what it runs.
+    pub fn hold(&self) -> Option<UpdateHold> {
+        if let Some(transfer) = self.transfer.filter(Transfer::applying) {
+            return Some(UpdateHold::Applying(transfer.slot));
+        }
+        (0..).zip(self.standing).find_map(|(slot, standing)| match standing {
+            Standing::Marked => Some(UpdateHold::Marked(slot)),
+            Standing::OnTrial => Some(UpdateHold::OnTrial(slot)),
+            Standing::Unasked => Some(UpdateHold::Unasked(slot)),
+            Standing::Away | Standing::Settled => None,
+        })
+    }
+
+    /// Who applies the image of `slot` under way, if it is being applied.
+    pub fn applier(&self, slot: u8) -> Option<Sender> {
+        self.transfer.filter(|t| t.slot == slot).and_then(|t| t.applier)
     }
 
     /// The payload's next bytes, at `offset` from the payload's start.
@@ -441,14 +571,28 @@ impl Courier {
     /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's).
     // Out of line: every bus task calls it, and its code would be copied into each.
     #[inline(never)]
-    pub fn next(&mut self, now: Instant, ours: impl FnOnce(u8) -> bool) -> Option<Exchange> {
+    pub fn next(&mut self, now: Instant, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
+        if self.query.is_none() && self.quiet() {
+            let due =
+                |standing| standing == Standing::Unasked || standing == Standing::OnTrial && now >= self.trial_ask;
+            let slot = (0..)
+                .zip(self.standing)
+                .find(|(slot, standing)| ours(*slot) && due(*standing));
+            if let Some((slot, _)) = slot {
+                self.ask(slot, None);
+            }
+        }
+        // One at a time: a transfer waits for the query's end.
+        if let Some(query) = self.query {
+            return self.exchange(query.slot, query.seq, Command::Version, None, ours);
+        }
         let page = self.page().map(|page| (page.len() as u32, ext::crc32(page)));
         let chunk = |at: u16| {
             let start = usize::from(at);
             let end = page.map_or(start, |(len, _)| (len as usize).min(start + MAX_CHUNK));
             self.buffer.get(start..end).and_then(Chunk::new)
         };
-        let transfer = self.transfer.as_ref().filter(|t| ours(t.slot))?;
+        let transfer = self.transfer.as_ref()?;
         let step = match (transfer.step, page) {
             (Step::Idle, Some(_)) => Step::CheckPage,
             (Step::Idle, None) if transfer.complete && transfer.page_offset == transfer.payload_len => Step::Verify,
@@ -486,14 +630,28 @@ impl Courier {
             },
             Step::Reboot => Command::Reboot,
         };
+        self.exchange(transfer.slot, transfer.seq, command, Some(step), ours)
+    }
+
+    /// The exchange of `command` to `slot`, if `ours` says it is the asking bus task's; the transfer moves to `step`
+    /// as it goes on the bus.
+    fn exchange(
+        &mut self,
+        slot: u8,
+        seq: u8,
+        command: Command,
+        step: Option<Step>,
+        ours: impl Fn(u8) -> bool,
+    ) -> Option<Exchange> {
+        if !ours(slot) {
+            return None;
+        }
         let wait = match command {
             Command::Erase { .. } => ext::ERASE_WAIT_MS,
             Command::Finish { .. } => ext::FINISH_WAIT_MS,
             _ => 0,
         };
-        let slot = transfer.slot;
-        let seq = transfer.seq;
-        if let Some(transfer) = self.transfer.as_mut() {
+        if let (Some(transfer), Some(step)) = (self.transfer.as_mut(), step) {
             transfer.step = step;
         }
         Some(Exchange {
@@ -514,6 +672,12 @@ impl Courier {
         out: &mut impl FnMut(Outgoing),
     ) {
         let exchange: Sent = exchange.into();
+        if let Some(query) = self
+            .query
+            .filter(|query| query.slot == exchange.slot && exchange.command == CommandKind::Version)
+        {
+            return self.answered(now, query, result, out);
+        }
         let page = self.page().map(|page| (page.len(), ext::crc32(page)));
         let Some(transfer) = self.transfer.as_mut().filter(|t| t.slot == exchange.slot) else {
             return;
@@ -598,34 +762,15 @@ impl Courier {
             // Not returned by the exchange: read again.
             Reply::Busy { .. } => return,
         };
+        // What the thruster's images are now, for arming (its first `Version` said whether it runs one on trial or
+        // holds one marked, which `Begin` is refused for; once it is applied, the apply holds the vehicle).
+        if let ReplyBody::Version { on_trial, marked, .. } = body
+            && let Some(standing) = self.standing.get_mut(usize::from(slot))
+        {
+            *standing = Standing::of(on_trial, marked);
+        }
         let page_len = page.map_or(0, |(len, _)| len);
         transfer.step = match (transfer.step, body) {
-            (
-                Step::Hello,
-                ReplyBody::Version {
-                    info,
-                    on_trial,
-                    checks_signatures,
-                    marked,
-                    dev_key,
-                    ..
-                },
-            ) if transfer.query => {
-                let trial = if on_trial { ", on trial" } else { "" };
-                let updates = if checks_signatures { "" } else { ", no updates" };
-                let marked = if marked { ", update marked" } else { "" };
-                let dev_key = if dev_key { ", dev key" } else { "" };
-                let running = Ver(version_in(&info));
-                say(
-                    out,
-                    Severity::Info,
-                    slot,
-                    format_args!("runs {running}{trial}{updates}{marked}{dev_key}"),
-                );
-                self.acknowledge(AckResult::Accepted, out);
-                self.transfer = None;
-                return;
-            }
             (
                 Step::Hello,
                 ReplyBody::Version {
@@ -732,8 +877,18 @@ impl Courier {
                         self.transfer = None;
                         return;
                     }
+                    // Still on trial: said every so long, and watched until it confirms or is reverted.
                     Step::Trial { since, .. } if now >= since + CONFIRM_LIMIT => {
-                        return self.end(Ending::NotConfirmed, out);
+                        say(
+                            out,
+                            Severity::Warning,
+                            slot,
+                            format_args!("{} still on trial", Ver(running)),
+                        );
+                        Step::Trial {
+                            since: now,
+                            next: now + TRIAL_ASK,
+                        }
                     }
                     Step::Trial { since, .. } => Step::Trial {
                         since,
@@ -768,11 +923,96 @@ impl Courier {
         self.fill = self.fill.saturating_sub(len);
     }
 
-    /// The transfer ends early: the operator is told why, the applier gets FAILED.
+    /// What a query's `Version` got, at `now`: what the thruster runs, told to who asked.
+    fn answered(
+        &mut self,
+        now: Instant,
+        query: Query,
+        result: Result<Reply, ExchangeError>,
+        out: &mut impl FnMut(Outgoing),
+    ) {
+        let slot = query.slot;
+        let standing = self.standing.get_mut(usize::from(slot));
+        let ending = match result {
+            Ok(Reply::Done {
+                seq,
+                body:
+                    ReplyBody::Version {
+                        info,
+                        on_trial,
+                        checks_signatures,
+                        marked,
+                        dev_key,
+                        ..
+                    },
+            }) if seq == query.seq => {
+                if let Some(standing) = standing {
+                    *standing = Standing::of(on_trial, marked);
+                }
+                if query.asker.is_some() {
+                    let trial = if on_trial { ", on trial" } else { "" };
+                    let updates = if checks_signatures { "" } else { ", no updates" };
+                    let marked = if marked { ", update marked" } else { "" };
+                    let dev_key = if dev_key { ", dev key" } else { "" };
+                    let running = Ver(version_in(&info));
+                    say(
+                        out,
+                        Severity::Info,
+                        slot,
+                        format_args!("runs {running}{trial}{updates}{marked}{dev_key}"),
+                    );
+                }
+                None
+            }
+            // An IDS-only controller answers with its status frame: it takes no update, and holds none.
+            Err(ExchangeError::Frame(FrameError::MessageType { .. })) => {
+                if let Some(standing) = standing {
+                    *standing = Standing::Settled;
+                }
+                Some(Ending::NoExtension)
+            }
+            // The ground station's query rides out a noisy bus short of the silence limit; the master's own look
+            // asks again at its next turn.
+            _ => {
+                let since = self
+                    .query
+                    .as_mut()
+                    .map_or(now, |query| *query.silent_since.get_or_insert(now));
+                if query.asker.is_some() && now < since + SILENCE_LIMIT {
+                    return;
+                }
+                Some(Ending::Silent)
+            }
+        };
+        self.query = None;
+        self.trial_ask = now + TRIAL_ASK;
+        if let Some(to) = query.asker {
+            if let Some(ending) = ending {
+                say(out, Severity::Warning, slot, format_args!("{ending}"));
+            }
+            out(Outgoing::CommandAck {
+                command: UpdateAction::QueryVersion.command(),
+                result: if ending.is_some() {
+                    AckResult::Failed
+                } else {
+                    AckResult::Accepted
+                },
+                to,
+            });
+        }
+    }
+
+    /// The transfer ends early: the operator is told why, the applier gets FAILED. A thruster that was being
+    /// applied an image is asked again what it runs.
     fn end(&mut self, ending: Ending, out: &mut impl FnMut(Outgoing)) {
         let Some(transfer) = self.transfer else {
             return;
         };
+        if transfer.applying()
+            && let Some(standing) = self.standing.get_mut(usize::from(transfer.slot))
+        {
+            *standing = Standing::Unasked;
+        }
         match ending {
             // "T1: ", not "thruster0.lbvu: ": it is the thruster's bootloader that refused, and it leaves room for
             // the verdict.
@@ -790,18 +1030,13 @@ impl Courier {
         self.fill = 0;
     }
 
-    /// The apply (or version) command's final COMMAND_ACK, if there was one.
+    /// The apply command's final COMMAND_ACK, if there was one.
     fn acknowledge(&self, result: AckResult, out: &mut impl FnMut(Outgoing)) {
         if let Some(transfer) = self.transfer
             && let Some(to) = transfer.applier
         {
-            let action = if transfer.query {
-                UpdateAction::QueryVersion
-            } else {
-                UpdateAction::Apply
-            };
             out(Outgoing::CommandAck {
-                command: action.command(),
+                command: UpdateAction::Apply.command(),
                 result,
                 to,
             });
@@ -869,8 +1104,15 @@ impl Transfers {
     }
 
     /// The next exchange for a thruster `ours` says yes to, if there is one.
-    pub fn next(&self, ours: impl FnOnce(u8) -> bool) -> Option<Exchange> {
+    pub fn next(&self, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
         self.with(|courier| courier.next(Instant::now(), ours))
+    }
+
+    /// Tell the vehicle what of the thrusters' updates keeps it from arming now ([`Courier::hold`]).
+    // Out of line: the bus tasks call it at every change.
+    #[inline(never)]
+    pub fn publish(&self, shared: &Shared) {
+        shared.holds.set_thrusters(self.with(|courier| courier.hold()));
     }
 
     /// What `exchange` got: `out` takes the texts and acknowledgements; the sink hears that the courier moved on.

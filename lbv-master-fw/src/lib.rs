@@ -98,6 +98,11 @@ impl BusWork for Polling<'_> {
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
         let [first, second, third] = buses;
         let links = Links::new(&config.poll);
+        // Before the vehicle can arm, every thruster is asked what it runs: it may have come up on trial ([`courier`]).
+        if let Some(transfers) = self.transfers {
+            transfers.with(|courier| courier.expect(config.thrusters.as_slice().len()));
+            transfers.publish(shared);
+        }
         join3(
             poll_bus(first, 0, config, shared, &links, self.transfers),
             poll_bus(second, 1, config, shared, &links, self.transfers),
@@ -194,6 +199,8 @@ where
         shared.say(Severity::Warning, text(format_args!("{DEV_KEY_TEXT}")));
     }
     shared.settings.sender().send(stored);
+    // Until the own update has read whether the running image is on trial, no arm is taken ([`own`]).
+    shared.holds.set_master(Some(shared::UpdateHold::MasterStarting));
     console.follow(shared);
     let buses = async {
         work.run(&mut buses, config, shared).await;

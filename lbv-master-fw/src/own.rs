@@ -21,6 +21,15 @@
 //! upload and its writes are refused, no page goes to DFU), and [`Shared::restarting`] tells the update server to
 //! change no update file.
 //!
+//! No reset while diving: from the apply command to the restart, and while the new image is on trial, the vehicle
+//! is kept from arming ([`OwnImage::hold`], published to [`Shared::holds`]); an apply is refused while armed (the
+//! update server). An apply sent again while one runs starts no second one: it is answered as the one under way
+//! ([`NotTaken::Applying`]). The trial's limit never restarts an armed vehicle: the vehicle task can take an arm
+//! command before this task has read the bootloader's state at the start (the node's tasks start in that order), so
+//! the start holds arming until it has ([`UpdateHold::MasterStarting`]), and a limit reached while armed waits for
+//! the disarm all the same. Who applied the image is kept in the ticket's page beside it
+//! ([`update_image::APPLIER_OFFSET`]), so that the final answer after the restart goes to the component that asked.
+//!
 //! A power cut at any moment leaves a master that boots and can be updated again: while DFU is being written or
 //! checked the running image is untouched (the state says nothing yet); the state's mark is one word, which a cut
 //! leaves whole or not there (embassy-boot); the swap resumes where it stopped; a new image that has not confirmed
@@ -43,12 +52,13 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_storage_async::nor_flash::{NorFlash, ReadNorFlash};
 use g431_hw::memory::{FLASH_ORIGIN, IMAGE_INFO_OFFSET, MASTER_PARTITIONS, PAGE, Span};
 use update_image::{
-    Header, INFO_LEN, ImageInfo, Refusal, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Target, Ticket,
-    VERDICT_OFFSET, Version, check_upgrade, checked_word,
+    APPLIER_OFFSET, Header, INFO_LEN, ImageInfo, Refusal, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Target,
+    Ticket, VERDICT_OFFSET, Version, check_upgrade, checked_word, read_checked_word,
 };
 
 use crate::shared::{
-    AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Shared, Text, texts, verdict_texts,
+    AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Shared, Text, UpdateHold, text, texts,
+    verdict_texts,
 };
 use crate::update::ftp::DATA_LEN;
 use crate::update::{HEADER_LEN, ImageHeader};
@@ -86,6 +96,8 @@ pub enum NotTaken {
     Nothing,
     /// An image is marked for the swap: the master restarts into it, and nothing changes DFU until then.
     Restarting,
+    /// An apply is under way already, for this sender: no second one starts.
+    Applying(Sender),
 }
 
 /// What the task found in the flash at start.
@@ -122,8 +134,10 @@ struct Stage {
     begun: u32,
     buffer: [u8; BUFFER],
     fill: usize,
-    /// The apply command's sender, once applied.
+    /// The apply command's sender, once applied, until the task takes it.
     apply: Option<Sender>,
+    /// The apply command's sender, while the task checks and marks its image.
+    checking: Option<Sender>,
     /// A refusal to tell, found by the sink.
     untold: Option<NotTaken>,
 }
@@ -160,6 +174,7 @@ impl OwnImage {
                 buffer: [0; BUFFER],
                 fill: 0,
                 apply: None,
+                checking: None,
                 untold: None,
             })),
             work: Signal::new(),
@@ -244,10 +259,12 @@ impl OwnImage {
         self.work.signal(());
     }
 
-    /// Apply the image received whole, for `from`: the task checks its signature once every byte is in DFU.
+    /// Apply the image received whole, for `from`: the task checks its signature once every byte is in DFU. Not
+    /// while an apply runs: [`NotTaken::Applying`] names whom that one answers.
     pub fn apply(&self, from: Sender) -> Result<(), NotTaken> {
         let result = self.with(|stage| match stage.image {
             _ if stage.flash == Flash::Marked => Err(NotTaken::Restarting),
+            _ if let Some(by) = stage.apply.or(stage.checking) => Err(NotTaken::Applying(by)),
             Some(image) if image.complete && !image.refused => {
                 stage.apply = Some(from);
                 Ok(())
@@ -287,6 +304,7 @@ impl OwnImage {
             stage.image = None;
             stage.fill = 0;
             stage.apply = None;
+            stage.checking = None;
         });
         self.moved.signal(());
     }
@@ -294,6 +312,17 @@ impl OwnImage {
     /// Whether an image is marked for the swap ([`OwnImage::mark`]).
     pub fn marked(&self) -> bool {
         self.with(|stage| stage.flash == Flash::Marked)
+    }
+
+    /// What of the master's own update keeps the vehicle from arming: marked and restarting, an apply under way, or
+    /// the running image on trial.
+    pub fn hold(&self) -> Option<UpdateHold> {
+        self.with(|stage| match stage.flash {
+            Flash::Marked => Some(UpdateHold::MasterRestarting),
+            _ if stage.apply.or(stage.checking).is_some() => Some(UpdateHold::MasterApplying),
+            Flash::Ready { on_trial: true } => Some(UpdateHold::MasterOnTrial),
+            _ => None,
+        })
     }
 
     /// The task's side: the next piece for DFU, a whole page or the last bytes once the image is complete (padded
@@ -388,7 +417,9 @@ pub trait OwnUpdate {
 }
 
 impl OwnUpdate for () {
-    async fn run(self, _: &Shared) {
+    /// Nothing to hold arming for ([`crate::run`] holds it until the own update has started).
+    async fn run(self, shared: &Shared) {
+        shared.holds.set_master(None);
         core::future::pending().await
     }
 }
@@ -468,6 +499,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
     let running = ImageInfo::parse(&info).ok();
     let mut ticket_page = flash.partition(MASTER_PARTITIONS.ticket());
     let mut untold = untold_verdict(&mut ticket_page).await;
+    let applier = applier_of(&mut ticket_page).await;
     let mut word = AlignedBuffer([0; 8]);
     let mut state = FirmwareState::new(flash.partition(MASTER_PARTITIONS.state), &mut word.0);
     let mut on_trial = match state.get_state().await {
@@ -478,6 +510,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
         }
         Err(_) => false,
     };
+    shared.holds.set_master(own.hold());
     if on_trial {
         say(
             shared,
@@ -490,8 +523,10 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
     let mut heard_since = None;
     let mut dfu = flash.partition(MASTER_PARTITIONS.dfu);
     let mut page = [0xFF; PAGE_BYTES];
+    let mut waits_for_disarm = false;
     loop {
         select(own.work.wait(), Timer::after(TRIAL_CHECK)).await;
+        shared.holds.set_master(own.hold());
         if on_trial {
             let now = Instant::now();
             let heard = shared.vehicle.try_get().is_some_and(|v| v.console_alive);
@@ -502,13 +537,22 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                     own.found(Some(false));
                     let version = Shown(running.map(|info| info.version));
                     say(shared, Severity::Info, format_args!("{version} confirmed")).await;
-                    if let Some(operator) = shared.vehicle.try_get().map(|v| v.operator) {
-                        let to = Sender {
-                            system: operator,
-                            component: 0,
-                        };
+                    let operator = shared.vehicle.try_get().map(|v| Sender {
+                        system: v.operator,
+                        component: 0,
+                    });
+                    if let Some(to) = applier.or(operator) {
                         acknowledge(shared, AckResult::Accepted, to).await;
                     }
+                }
+            } else if now >= started + TRIAL_LIMIT && shared.vehicle.try_get().is_some_and(|v| v.armed) {
+                // Never a restart in the water.
+                if !waits_for_disarm {
+                    waits_for_disarm = true;
+                    shared.say(
+                        Severity::Warning,
+                        text(format_args!("master.lbvu: reverting once disarmed")),
+                    );
                 }
             } else if now >= started + TRIAL_LIMIT {
                 say(
@@ -528,7 +572,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
         {
             let told = verdict_texts(format_args!("master.lbvu"), "refused by the bootloader", verdict);
             tell(shared, Severity::Warning, told).await;
-            acknowledge(shared, AckResult::Failed, operator).await;
+            acknowledge(shared, AckResult::Failed, applier.unwrap_or(operator)).await;
             // A write that fails leaves it to be told again at the next start.
             if let Some(free) = free {
                 let _ = ticket_page.write(TOLD_OFFSET + free, &checked_word(verdict)).await;
@@ -542,7 +586,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                 NotTaken::OnTrial => format_args!("on trial: wait for it to confirm"),
                 NotTaken::TooLarge => format_args!("larger than ACTIVE ({kib} KiB)"),
                 NotTaken::Restarting => format_args!("marked for the swap: restarting"),
-                NotTaken::Refused | NotTaken::Nothing => format_args!("refused"),
+                NotTaken::Refused | NotTaken::Nothing | NotTaken::Applying(_) => format_args!("refused"),
             };
             say(shared, Severity::Warning, why).await;
         }
@@ -577,13 +621,13 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
         }
         let ready = own.with(|stage| match (stage.image, stage.apply) {
             (Some(image), Some(from)) if stage.fill == 0 && image.page_offset >= image.payload_len => {
-                stage.apply = None;
+                stage.checking = stage.apply.take();
                 Some((image.header, image.payload_len, from))
             }
             _ => None,
         });
         if let Some((header, payload_len, from)) = ready {
-            let marked = mark(&mut dfu, &mut ticket_page, &mut state, &header, payload_len).await;
+            let marked = mark(&mut dfu, &mut ticket_page, &mut state, &header, payload_len, from).await;
             // Past the signature, the ticket's page was erased: a verdict not told yet went with it, and a told
             // word written now would silence the bootloader's verdict on this image.
             if marked != Err(NotMarked::Signature) {
@@ -598,6 +642,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                     shared.outbox.send(Outgoing::Reboot).await;
                 }
                 Err(why) => {
+                    own.with(|stage| stage.checking = None);
                     let why = match why {
                         NotMarked::Signature => format_args!("signature bad: image refused"),
                         NotMarked::Ticket => format_args!("ticket not written: send it again"),
@@ -623,15 +668,25 @@ async fn untold_verdict<P: NorFlash>(page: &mut P) -> Option<(u32, Option<u32>)>
     Some((verdict, told.free()))
 }
 
-/// Check the signature over DFU's payload, hand the bootloader its ticket, and mark the image for the swap. The
-/// flash is read back after each write: embassy-stm32's async driver can answer Ok to an erase or a program that
-/// did not happen.
+/// Who applied the image whose ticket the page holds (written by [`mark`]), if a whole word says so.
+async fn applier_of<P: NorFlash>(page: &mut P) -> Option<Sender> {
+    let mut word = [0xFF; 8];
+    page.read(APPLIER_OFFSET, &mut word).await.ok()?;
+    let [component, system, ..] = read_checked_word(word)?.to_le_bytes();
+    Some(Sender { system, component })
+}
+
+/// Check the signature over DFU's payload, hand the bootloader its ticket and note who applied it (`from`, whom the
+/// final answer goes to after the restart), and mark the image for the swap. The flash is read back after each
+/// write: embassy-stm32's async driver can answer Ok to an erase or a program that did not happen. A note that did
+/// not take costs only where the final answer goes (the operator's system, component 0).
 async fn mark<D: NorFlash, P: NorFlash, S: NorFlash>(
     dfu: &mut D,
     ticket_page: &mut P,
     state: &mut FirmwareState<'_, S>,
     header: &[u8; HEADER_LEN],
     payload_len: u32,
+    from: Sender,
 ) -> Result<(), NotMarked> {
     let header = Header::parse(header).map_err(|_| NotMarked::Signature)?;
     verify(dfu, &header, payload_len)
@@ -651,6 +706,8 @@ async fn mark<D: NorFlash, P: NorFlash, S: NorFlash>(
     if written.await.is_err() || back != ticket {
         return Err(NotMarked::Ticket);
     }
+    let applier = u32::from_le_bytes([from.component, from.system, 0, 0]);
+    let _ = ticket_page.write(APPLIER_OFFSET, &checked_word(applier)).await;
     if state.mark_updated().await.is_err() || !matches!(state.get_state().await, Ok(State::Swap)) {
         return Err(NotMarked::State);
     }

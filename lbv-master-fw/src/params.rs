@@ -14,6 +14,13 @@
 //! | `LBV_POWER_CAP` | power cap sent in each order's INFO byte, % | 1-100 | 100 |
 //! | `LBV_FRAME` | thruster layout (only while disarmed) | 4, 6 | the build's |
 //! | `LBV_MTEST_MAX` | motor test throttle limit, % | 1-100 | 30 |
+//! | `LBV_UPD_UNSIGNED` | field update over a link without signing (only while disarmed) | 0 refused, 1 allowed | 0 |
+//!
+//! `LBV_UPD_UNSIGNED` has no ArduPilot counterpart (ArduPilot takes MAVLink FTP from anyone): without signing,
+//! anyone on the link can claim `SYSID_MYGCS`, so the update server refuses uploads, removals and the apply
+//! command unless the link is signed or this is 1 ([`crate::update::Context::unsigned`]). On a link without
+//! signing whoever can send can set it too: it keeps an update from happening by mistake, not from someone who
+//! sets out to; signing does that.
 //!
 //! Values are kept as integers in a parameter's own unit (the timeouts in tenths of a second) and go over MAVLink
 //! as floats in the displayed unit, with their type ([`Param::param_type`]): the two timeouts REAL32, SYSID_MYGCS
@@ -99,10 +106,12 @@ pub enum Param {
     Frame,
     /// `LBV_MTEST_MAX`: largest motor test throttle in % (30: thrusters are tested in air).
     MotorTestMax,
+    /// `LBV_UPD_UNSIGNED`: 1 lets the field update go over a link without signing (0, the default, refuses it).
+    UnsignedUpdates,
 }
 
 /// How many parameters there are.
-pub const PARAM_COUNT: usize = 9;
+pub const PARAM_COUNT: usize = 10;
 
 impl Param {
     /// Every parameter, in index order.
@@ -116,6 +125,7 @@ impl Param {
         Self::PowerCap,
         Self::Frame,
         Self::MotorTestMax,
+        Self::UnsignedUpdates,
     ];
 
     /// The MAVLink name (at most 16 characters).
@@ -130,6 +140,7 @@ impl Param {
             Self::PowerCap => "LBV_POWER_CAP",
             Self::Frame => "LBV_FRAME",
             Self::MotorTestMax => "LBV_MTEST_MAX",
+            Self::UnsignedUpdates => "LBV_UPD_UNSIGNED",
         }
     }
 
@@ -143,6 +154,7 @@ impl Param {
             Self::OperatorId => (1, 255),
             Self::Gain | Self::PowerCap | Self::MotorTestMax => (1, 100),
             Self::Frame => (4, 6),
+            Self::UnsignedUpdates => (0, 1),
         }
     }
 
@@ -171,6 +183,7 @@ impl Param {
             Self::PowerCap => 100,
             Self::Frame => 6,
             Self::MotorTestMax => 30,
+            Self::UnsignedUpdates => 0,
         }
     }
 
@@ -186,7 +199,8 @@ impl Param {
             | Self::Gain
             | Self::PowerCap
             | Self::Frame
-            | Self::MotorTestMax => ParamType::Int8,
+            | Self::MotorTestMax
+            | Self::UnsignedUpdates => ParamType::Int8,
         }
     }
 
@@ -200,9 +214,10 @@ impl Param {
         param_type == self.param_type().mav() || param_type == ParamType::Real32.mav()
     }
 
-    /// Changing it while armed would hand the vehicle to another station or remix the thrusters mid-dive.
+    /// Changing it while armed would hand the vehicle to another station or remix the thrusters mid-dive; who may
+    /// update is decided on the surface too.
     pub const fn only_disarmed(self) -> bool {
-        matches!(self, Self::OperatorId | Self::Frame)
+        matches!(self, Self::OperatorId | Self::Frame | Self::UnsignedUpdates)
     }
 
     /// The index in PARAM_VALUE.
@@ -367,6 +382,11 @@ impl Params {
         self.percent(Param::MotorTestMax)
     }
 
+    /// `LBV_UPD_UNSIGNED`: the field update may go over a link without signing.
+    pub fn unsigned_updates(&self) -> bool {
+        self.get(Param::UnsignedUpdates) == 1
+    }
+
     /// `LBV_FRAME`.
     pub fn frame(&self) -> FrameKind {
         u8::try_from(self.get(Param::Frame))
@@ -448,6 +468,20 @@ mod tests {
     }
 
     #[test]
+    fn updates_over_a_link_without_signing_are_refused_unless_allowed_while_disarmed() {
+        let mut params = Params::defaults(FrameKind::Lbv300_6);
+        assert_eq!(Param::from_id(&id("LBV_UPD_UNSIGNED")), Some(Param::UnsignedUpdates));
+        assert!(!params.unsigned_updates(), "refused by default");
+        assert!(params.set(Param::UnsignedUpdates, 1));
+        assert!(params.unsigned_updates());
+        assert!(!params.set(Param::UnsignedUpdates, 2));
+        assert!(params.set(Param::UnsignedUpdates, 0));
+        assert!(!params.unsigned_updates());
+        assert!(Param::UnsignedUpdates.only_disarmed());
+        assert_eq!(Param::UnsignedUpdates.param_type(), ParamType::Int8);
+    }
+
+    #[test]
     fn one_lost_frame_of_a_1_hz_stream_trips_neither_failsafe_by_default() {
         let defaults = Params::defaults(FrameKind::Lbv300_6);
         // Two seconds between frames, and late by up to half a second.
@@ -504,6 +538,7 @@ mod tests {
                 ParamType::Int8,
                 ParamType::Real32,
                 ParamType::Int16,
+                ParamType::Int8,
                 ParamType::Int8,
                 ParamType::Int8,
                 ParamType::Int8,

@@ -150,10 +150,12 @@ fn encode(settings: &Settings, signing_time: u64) -> [u8; RECORD] {
 }
 
 /// The settings (over `defaults`) and the signing link's timestamp of a record, or `None` when `bytes` is not a
-/// whole record of this format.
+/// whole record of this format. A record of fewer parameters, written by an image from before the last ones were
+/// added (they are only ever added at the end), reads with those at their defaults: an update keeps the settings.
 fn decode(bytes: &[u8], defaults: Settings) -> Option<(Settings, u64)> {
-    let (head, mut rest) = bytes.split_first_chunk::<2>()?;
-    if *head != [FORMAT, PARAM_COUNT as u8] || rest.len() != RECORD - 2 {
+    let ([format, count], mut rest) = bytes.split_first_chunk::<2>()?;
+    let count = usize::from(*count);
+    if *format != FORMAT || count > PARAM_COUNT || rest.len() != RECORD - 2 - 4 * (PARAM_COUNT - count) {
         return None;
     }
     let mut take = |n: usize| {
@@ -162,7 +164,7 @@ fn decode(bytes: &[u8], defaults: Settings) -> Option<(Settings, u64)> {
         Some(taken)
     };
     let mut settings = defaults;
-    for param in Param::ALL {
+    for param in Param::ALL.into_iter().take(count) {
         let value = take(4)?.first_chunk::<4>().copied()?;
         settings.params.set(param, i32::from_le_bytes(value));
     }
@@ -561,13 +563,56 @@ mod tests {
     }
 
     #[test]
+    fn a_record_of_an_image_with_fewer_parameters_keeps_its_settings() {
+        // What the image before LBV_UPD_UNSIGNED wrote: nine parameters, then the signing key and the link's time.
+        let mut old = vec![FORMAT, 9];
+        for param in Param::ALL.into_iter().take(9) {
+            let value = if param == Param::OperatorId {
+                200
+            } else {
+                param.default_value()
+            };
+            old.extend(value.to_le_bytes());
+        }
+        old.extend([7; 32]);
+        old.extend(5u64.to_le_bytes());
+        old.extend(6_000_000u64.to_le_bytes());
+        assert_eq!(old.len(), RECORD - 4);
+        let mut flash = flash();
+        {
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            push(&mut store, &old);
+        }
+        let (settings, errors) = load(&mut flash);
+        assert_eq!(errors, 0);
+        assert_eq!(settings.params.operator(), 200);
+        assert!(!settings.params.unsigned_updates(), "the new one at its default");
+        assert_eq!(
+            settings.signing,
+            Some(SigningKey {
+                secret: [7; 32],
+                timestamp: 6_000_000
+            }),
+            "the key kept, from the link's reservation on"
+        );
+        // A count that does not fit the length, or more parameters than this image has, is no record of it.
+        let mut short = old.clone();
+        short[1] = 8;
+        let mut more = encode(&defaults(), 0).to_vec();
+        more[1] = PARAM_COUNT as u8 + 1;
+        for bad in [short, more] {
+            assert_eq!(decode(&bad, defaults()), None);
+        }
+    }
+
+    #[test]
     fn many_changes_wear_every_page_and_the_last_one_wins() {
         let mut flash = flash();
         let start = flash.stats_snapshot();
         let mut store = Store::new(&mut flash, RANGE).unwrap();
         block_on(store.load(defaults()));
         let mut last = defaults();
-        // Enough writes to go round the eight pages several times (21 records to a page).
+        // Enough writes to go round the eight pages several times (19 records to a page).
         for n in 0..1000 {
             last = with(|s| {
                 s.params.set(Param::Gain, 1 + n % 100);
@@ -646,23 +691,23 @@ mod tests {
 
     #[test]
     fn a_power_cut_during_a_write_loses_at_most_that_write() {
-        // One record: an 8-byte header and 86 bytes of data in 11 double words.
-        assert_eq!(power_cut_during_a_write(0), 96);
+        // One record: an 8-byte header and 90 bytes of data in 13 double words.
+        assert_eq!(power_cut_during_a_write(0), 104);
     }
 
     #[test]
     fn a_power_cut_while_the_store_moves_to_a_new_page_loses_at_most_that_write() {
-        // 21 records to a page: after 20 (and one more), the interrupted write closes its page and opens the
-        // next (two page markers more); after 167, the log has gone round the eight pages and must erase the
+        // 19 records to a page: after 18 (and one more), the interrupted write closes its page and opens the
+        // next (two page markers more); after 151, the log has gone round the eight pages and must erase the
         // oldest first.
         assert_eq!(
-            power_cut_during_a_write(20),
-            96 + 16,
+            power_cut_during_a_write(18),
+            104 + 16,
             "the write that moves to a new page"
         );
         assert_eq!(
-            power_cut_during_a_write(167),
-            2048 + 96 + 16,
+            power_cut_during_a_write(151),
+            2048 + 104 + 16,
             "the write that erases a page first"
         );
     }

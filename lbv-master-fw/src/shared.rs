@@ -3,9 +3,11 @@
 //! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them,
 //! only on [`crate::params`] and [`crate::mixer`] for the settings and the pilot's sticks it carries.
 
+use core::cell::Cell;
 use core::sync::atomic::AtomicBool;
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
+use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::signal::Signal;
@@ -491,6 +493,96 @@ pub struct VehicleState {
 
 type Mutex = CriticalSectionRawMutex;
 
+/// What of a field update keeps the vehicle from arming ([`crate::vehicle::Vehicle::arm_check`]): a reset that is
+/// coming, or may come, which a vehicle in the water must not take. Thruster slots count from 0 here; the text
+/// names them as the console does, from T1.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum UpdateHold {
+    /// The master has not read yet whether its own image is on trial (its first moments).
+    MasterStarting,
+    /// The master's own image is being applied: its signature checked, then the mark and the restart.
+    MasterApplying,
+    /// The master's image is marked for the swap: it restarts into it.
+    MasterRestarting,
+    /// The master's running image is on trial: it restarts if it does not confirm.
+    MasterOnTrial,
+    /// An update is being applied to thruster `slot`: marked, its restart, its trial.
+    Applying(u8),
+    /// Thruster `slot`'s image is on trial, as its last `Version` said.
+    OnTrial(u8),
+    /// Thruster `slot` holds an update marked for its bootloader, which its next reset swaps in.
+    Marked(u8),
+    /// Thruster `slot` answers again (or at the master's start) and has not said yet what it runs: it may have
+    /// come up on trial.
+    Unasked(u8),
+}
+
+impl core::fmt::Display for UpdateHold {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let (slot, what) = match *self {
+            Self::MasterStarting => (None, "master starting"),
+            Self::MasterApplying => (None, "master update being applied"),
+            Self::MasterRestarting => (None, "master restarting into its update"),
+            Self::MasterOnTrial => (None, "master image on trial"),
+            Self::Applying(slot) => (Some(slot), "update being applied"),
+            Self::OnTrial(slot) => (Some(slot), "image on trial"),
+            Self::Marked(slot) => (Some(slot), "holds an update marked"),
+            Self::Unasked(slot) => (Some(slot), "image not asked yet"),
+        };
+        if let Some(slot) = slot {
+            write!(f, "T{} ", u16::from(slot) + 1)?;
+        }
+        f.write_str(what)
+    }
+}
+
+/// The holds the field update puts on arming: the master's own update's (its task and the update sink set it) and
+/// the thrusters' (the courier's users set it: the bus tasks and the sink). Each is set, synchronously, as soon as
+/// what it says changes, so that an arm command read after an apply command is refused.
+pub struct UpdateHolds(BlockingMutex<Mutex, Cell<[Option<UpdateHold>; 2]>>);
+
+impl UpdateHolds {
+    /// Nothing held.
+    pub const fn new() -> Self {
+        Self(BlockingMutex::new(Cell::new([None, None])))
+    }
+
+    /// The master's own update's hold.
+    pub fn set_master(&self, hold: Option<UpdateHold>) {
+        self.0.lock(|holds| {
+            let [_, thrusters] = holds.get();
+            holds.set([hold, thrusters]);
+        });
+    }
+
+    /// The thrusters' hold.
+    pub fn set_thrusters(&self, hold: Option<UpdateHold>) {
+        self.0.lock(|holds| {
+            let [master, _] = holds.get();
+            holds.set([master, hold]);
+        });
+    }
+
+    /// What holds the vehicle from arming now: the master's first.
+    pub fn get(&self) -> Option<UpdateHold> {
+        let [master, thrusters] = self.0.lock(Cell::get);
+        master.or(thrusters)
+    }
+}
+
+impl Default for UpdateHolds {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl core::fmt::Debug for UpdateHolds {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_tuple("UpdateHolds").field(&self.get()).finish()
+    }
+}
+
 /// The channels between the master's tasks.
 pub struct Shared {
     /// Console -> vehicle: decoded commands and their senders, in order.
@@ -516,6 +608,8 @@ pub struct Shared {
     /// The master's own update -> update server: the master's image is marked for the swap and it restarts into
     /// it; no update file changes until then ([`crate::own`]). Only a restart clears it.
     pub restarting: AtomicBool,
+    /// The master's own update, the courier's users -> vehicle: what keeps the vehicle from arming.
+    pub holds: UpdateHolds,
 }
 
 impl Shared {
@@ -533,6 +627,7 @@ impl Shared {
             signing_stored: Watch::new(),
             reboot: Signal::new(),
             restarting: AtomicBool::new(false),
+            holds: UpdateHolds::new(),
         }
     }
 

@@ -197,3 +197,118 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
     );
     assert_eq!(MAX_THRUSTERS, 8);
 }
+
+#[test]
+fn an_arm_waiting_when_the_master_starts_on_trial_is_refused_until_its_image_has_confirmed() {
+    use embassy_boot::{AlignedBuffer, FirmwareState};
+    use g431_hw::memory::{FLASH_ORIGIN, MASTER_PARTITIONS};
+    use lbv_station::GroundStation;
+
+    use crate::own::{OwnFlash, OwnImage, Updating};
+
+    // The master's flash as the bootloader leaves it after a swap: the running image on trial.
+    let flash = master_flash();
+    let span = MASTER_PARTITIONS.state;
+    let state = flash.partition(span.origin - FLASH_ORIGIN, span.length).unwrap();
+    let mut word = AlignedBuffer([0; 8]);
+    embassy_futures::block_on(FirmwareState::new(state, &mut word.0).mark_updated()).unwrap();
+
+    let config = VEHICLE;
+    let timing = Timing::new(config.bus.frequency_hz, config.bus.timeout);
+    let buses = [Bus::new(timing), Bus::new(timing), Bus::new(timing)];
+    let (console_in, console_out) = (Queue::new(), Queue::new());
+    let (shared, stats, image) = (Shared::new(), ConsoleStats::new(), OwnImage::new());
+    let clock = clock::take();
+    let mut executor = Executor::new();
+    let ports = Ports {
+        buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
+        can: CanNode::default(),
+        console_rx: SerialRx::new(console_in.clone()),
+        console_tx: SerialTx(console_out.clone()),
+        settings: flash_store(&master_flash()),
+        reboot: RebootRequest::default(),
+        work: Polling::default(),
+        update: crate::update::CheckOnly,
+        own: Updating {
+            flash: OwnFlash::new(flash.clone()),
+            image: &image,
+        },
+    };
+    // The operator's heartbeat and arm are in the UART before the master runs: the vehicle task takes them before
+    // the own update has read the bootloader's state.
+    let mut ground = GroundStation::default();
+    console_in.send(ground.heartbeat());
+    console_in.send(ground.arm(true));
+    executor.spawn(async {
+        run(ports, &config, &shared, &stats).await;
+    });
+    let mut until = |ground: &mut GroundStation, ms: u64| {
+        while clock.now() < Instant::from_millis(ms) {
+            if clock.now().as_millis().is_multiple_of(1000) {
+                console_in.send(ground.heartbeat());
+            }
+            executor.run_for(&clock, Duration::from_millis(1), Duration::from_millis(1));
+            ground.receive(clock.now(), &console_out.take());
+        }
+    };
+    until(&mut ground, 200);
+    // Once it has read it: on trial.
+    console_in.send(ground.arm(true));
+    until(&mut ground, 400);
+    // Heard for 3 s, it confirms itself: then the arm is taken.
+    until(&mut ground, 4_000);
+    console_in.send(ground.arm(true));
+    until(&mut ground, 5_200);
+    let arms: Vec<u8> = ground
+        .seen
+        .acks
+        .iter()
+        .filter(|(command, _)| *command == 400)
+        .map(|(_, r)| *r)
+        .collect();
+    let texts: Vec<&str> = ground.seen.texts.iter().map(|(_, text)| text.as_str()).collect();
+    assert_eq!(arms, [1, 1, 0], "TEMPORARILY_REJECTED twice, then ACCEPTED: {texts:?}");
+    let refusals: Vec<&str> = texts
+        .iter()
+        .copied()
+        .filter(|t| t.starts_with("Arm rejected"))
+        .collect();
+    assert_eq!(
+        refusals,
+        ["Arm rejected: master starting", "Arm rejected: master image on trial"]
+    );
+    assert!(texts.contains(&"master.lbvu: ? confirmed"), "{texts:?}");
+    assert!(ground.seen.armed);
+}
+
+#[test]
+fn polling_holds_arming_until_every_thruster_of_the_table_has_said_what_it_runs_or_is_found_missing() {
+    use crate::courier::Transfers;
+    use crate::shared::UpdateHold;
+    use crate::{BusWork, CONFIG};
+
+    // No thruster on the buses: each is found missing by its first poll, and not waited for after it.
+    let config = CONFIG;
+    let timing = Timing::new(config.bus.frequency_hz, config.bus.timeout);
+    let buses = [Bus::new(timing), Bus::new(timing), Bus::new(timing)];
+    buses[1].fit_mux(MUX_ADDRESS);
+    let mut ports = buses.each_ref().map(|bus| thruster_bus(bus, &config.bus));
+    let (shared, transfers) = (Shared::new(), Transfers::new());
+    let clock = clock::take();
+    let mut executor = Executor::new();
+    executor.spawn(async {
+        Polling {
+            transfers: Some(&transfers),
+        }
+        .run(&mut ports, &config, &shared)
+        .await;
+    });
+    executor.run_for(&clock, Duration::from_micros(1), Duration::from_micros(1));
+    assert_eq!(
+        shared.holds.get(),
+        Some(UpdateHold::Unasked(0)),
+        "before any poll has an answer"
+    );
+    executor.run_for(&clock, Duration::from_millis(100), Duration::from_micros(100));
+    assert_eq!(shared.holds.get(), None);
+}

@@ -833,8 +833,25 @@ impl BusState<'_> {
             }
             report.sender().send(link.report());
             if let Some(change) = change {
+                let answering = match change {
+                    LinkChange::Online => Some(true),
+                    LinkChange::Offline(_) => Some(false),
+                    LinkChange::StatusLost(_) | LinkChange::StatusBack => None,
+                };
                 let restarting = u8::try_from(index)
-                    .is_ok_and(|slot| transfers.is_some_and(|t| t.with(|courier| courier.restarting(slot))));
+                    .ok()
+                    .zip(transfers)
+                    .is_some_and(|(slot, transfers)| {
+                        let restarting = transfers.with(|courier| {
+                            // One that answers again is asked what it runs before the vehicle arms.
+                            if let Some(answering) = answering {
+                                courier.seen(slot, answering);
+                            }
+                            courier.restarting(slot)
+                        });
+                        transfers.publish(shared);
+                        restarting
+                    });
                 let (severity, text) = link_text(index, change, restarting);
                 shared.say(severity, text);
             }
@@ -898,6 +915,7 @@ impl BusState<'_> {
         transfers.done(sent, result, &mut |message| {
             let _ = shared.outbox.try_send(message);
         });
+        transfers.publish(shared);
         true
     }
 

@@ -13,7 +13,13 @@
 //!
 //! - a write at the next byte expected is taken;
 //! - a write of bytes already taken is ACKed again and only what lies beyond it is taken: its ACK was lost, and
-//!   both MAVProxy and pymavlink send such a block again when they come round to it;
+//!   both MAVProxy and pymavlink send such a block again when they come round to it. The server keeps the CRC of
+//!   what it took, not the bytes, and where the upload's CRC stood after each of its last [`MARKS`] writes: a
+//!   write sent again from one of those points is checked against them (up to the next point, or the end of what
+//!   was taken), and refused when its bytes differ ("bytes sent again differ"). A write sent again from another
+//!   point (another block size, or one older than the last [`MARKS`] writes) cannot be checked and is taken as
+//!   before; so is one whose bytes differ but happen to have the same CRC-32 (the signature, checked before the
+//!   image is applied, is what stands against a forged image, not this check);
 //! - a write beyond the next byte (an earlier one was lost) is dropped unanswered, as ArduPilot drops a request
 //!   its queue has no room for: both clients end an upload at its first NAK, while they send an unanswered
 //!   block again once they have sent every other one (their writes go round the file), and the server takes
@@ -25,15 +31,25 @@
 //! The first write carries the file's 80-byte header ([`parse_header`]; MAVProxy writes 239 bytes at a time,
 //! pymavlink 80): a bad header, or one whose target does not fit the path (a thruster image for the master, a
 //! family the slot does not have), ends the upload with a NAK and a STATUSTEXT saying why, before anything goes
-//! to the sink. So does a file longer than its header says.
+//! to the sink. So does a file longer than its header says; once an image is whole, a write past its end is refused
+//! and the image kept.
 //!
 //! Rules:
 //! - One session at a time: a second open gets [`Nak::NoSessionsAvailable`] (MAVProxy waits and tries again)
 //!   unless the session in use has been idle for [`TAKEOVER_IDLE`] or its image is whole. Listing, CRC and
 //!   removal need no session; a reply carries the request's session, as the clients route them by it.
+//!   TerminateSession closes the session it names if it is the sender's, ResetSessions the sender's session; either
+//!   of a session that is not the sender's (another client's, or another session of its) is NAKed
+//!   [`Nak::InvalidSession`] and leaves it open (ArduPilot's answer for a request on a session other than the one
+//!   open); with no session open there is nothing to close, and they are ACKed. A RemoveFile of a file another
+//!   client is uploading (its session live, its image not whole) is refused ([`Nak::Fail`], "another component is
+//!   uploading it").
 //! - Only the operator's ground station (`SYSID_MYGCS`) may write, remove or apply ([`Nak::FileProtected`],
 //!   COMMAND_ACK DENIED); anyone may list and read CRCs. With a signing key set, unsigned FTP frames are refused
 //!   before they get here, as every unsigned frame is ([`crate::signing`]).
+//! - Without a signing key anyone on the link can claim `SYSID_MYGCS`: nothing is written, removed or applied
+//!   ([`Nak::Fail`], COMMAND_ACK DENIED, and "refused, the link is not signed") unless `LBV_UPD_UNSIGNED` is 1
+//!   ([`crate::params::Param::UnsignedUpdates`], [`Context::unsigned`]).
 //! - Nothing is written, removed or applied while armed ([`Nak::Fail`], COMMAND_ACK TEMPORARILY_REJECTED, and
 //!   "disarm to update"); arming during an upload stops it at its next request.
 //! - Nor once the master's own image is marked for the swap, until it has restarted into it ([`Nak::Fail`],
@@ -54,10 +70,10 @@ use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
 use crate::courier::Transfers;
-use crate::own::OwnImage;
+use crate::own::{NotTaken, OwnImage};
 use crate::shared::{
     AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction,
-    UpdateCommand, UpdateCounters, UpdateRequest, text,
+    UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
 use ftp::{ACK, Nak, Opcode, Request};
@@ -82,6 +98,16 @@ pub const MASTER_MAX_PAYLOAD: u32 = g431_hw::memory::MASTER_PARTITIONS.active.le
 pub const MASTER_SLOT: u8 = 255;
 /// Why no update file changes while the master's own image is marked for the swap ([`Context::restarting`]).
 const RESTARTING: &str = "master restarting into its update";
+/// Why an upload, or a write to an image whole, is refused: bytes past the end its header gives.
+const LONGER: &str = "longer than its header says";
+/// Why a write of bytes already taken is refused: they are not the bytes taken ([`Marks::check`]).
+const DIFFER: &str = "bytes sent again differ";
+/// Why no update file changes over a link without signing ([`Context::unsigned`]).
+pub const UNSIGNED: &str = "refused, the link is not signed";
+/// Writes whose end the upload's CRC is kept for (by [`UpdateServer`]'s WriteFile): a write sent again from one of
+/// them is checked. MAVProxy and pymavlink keep five writes in flight and send again those whose ACK was lost: 16
+/// covers them with room, for 128 bytes of RAM.
+pub const MARKS: usize = 16;
 
 /// What an update file is for: a slot of the thruster table, or the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -187,6 +213,8 @@ pub enum Applied {
     Pending,
     /// Nothing: the path to the target is not there yet (the image was checked, and that is all).
     NotWired,
+    /// Nothing new: an apply of the target is under way already, for this sender, whose final answer it gets.
+    Applying(Sender),
 }
 
 /// Where an upload's bytes go, in order. [`VehicleSink`] sends thruster images on to the thruster's DFU
@@ -214,6 +242,11 @@ pub trait UpdateSink {
     fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
         let _ = (slot, from);
         Err(Refused::Because("no thruster bus here"))
+    }
+    /// Tell the vehicle, in `holds`, what of the updates keeps it from arming now: called as soon as an apply has
+    /// been taken, so that an arm command read after it is refused. A sink that applies nothing holds nothing.
+    fn publish(&self, holds: &UpdateHolds) {
+        let _ = holds;
     }
 }
 
@@ -332,23 +365,34 @@ impl UpdateSink for VehicleSink<'_> {
 
     fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak> {
         match target {
-            UpdateTarget::Thruster(slot) => match self.transfers.with(|courier| courier.apply(slot, from)) {
-                Ok(true) => Ok(Applied::Started),
-                Ok(false) => Ok(Applied::Pending),
-                Err(_) => Err(Nak::Fail),
-            },
+            UpdateTarget::Thruster(slot) => self.transfers.with(|courier| {
+                if let Some(by) = courier.applier(slot) {
+                    return Ok(Applied::Applying(by));
+                }
+                match courier.apply(slot, from) {
+                    Ok(true) => Ok(Applied::Started),
+                    Ok(false) => Ok(Applied::Pending),
+                    Err(_) => Err(Nak::Fail),
+                }
+            }),
             UpdateTarget::Master => match self.own.apply(from) {
                 Ok(()) => Ok(Applied::Started),
+                Err(NotTaken::Applying(by)) => Ok(Applied::Applying(by)),
                 Err(_) => Err(Nak::Fail),
             },
         }
     }
 
     fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
+        // One exchange at a time: not while a transfer has one to make.
         self.transfers
             .with(|courier| courier.query(slot, from))
-            // One thing at a time: an image on its way to a thruster, or held there until it is applied.
-            .map_err(|_| Refused::Because("wait: an update is under way"))
+            .map_err(Refused::Because)
+    }
+
+    fn publish(&self, holds: &UpdateHolds) {
+        holds.set_thrusters(self.transfers.with(|courier| courier.hold()));
+        holds.set_master(self.own.hold());
     }
 }
 
@@ -363,17 +407,23 @@ pub struct Context {
     /// The master's own image is marked for the swap and the master restarts into it ([`Shared::restarting`]):
     /// nothing is written, removed or applied until then.
     pub restarting: bool,
+    /// No signing key is in force, so anyone on the link can claim `SYSID_MYGCS`, and `LBV_UPD_UNSIGNED` does not
+    /// allow updates without one: nothing is written, removed or applied.
+    pub unsigned: bool,
 }
 
 impl Context {
-    /// The vehicle's state now (before the vehicle task has published it: disarmed, no operator).
+    /// The vehicle's state now (before the vehicle task has published it: disarmed, no operator; before the
+    /// settings are: unsigned).
     pub fn of(shared: &Shared) -> Self {
         let vehicle = shared.vehicle.try_get();
+        let settings = shared.settings.try_get();
         Self {
             armed: vehicle.is_some_and(|v| v.armed),
             // 0 is no system: nobody may write before the vehicle has said whom it takes orders from.
             operator: vehicle.map_or(0, |v| v.operator),
             restarting: shared.restarting.load(Ordering::Relaxed),
+            unsigned: settings.is_none_or(|s| s.signing.is_none() && !s.params.unsigned_updates()),
         }
     }
 }
@@ -437,7 +487,56 @@ pub struct UpdateServer {
     /// The last image received whole.
     held: Option<Image>,
     session: Option<Session>,
+    /// Where the upload's CRC stood after each of its last writes ([`Marks`]).
+    marks: Marks,
     counters: UpdateCounters,
+}
+
+/// Where an upload's CRC stood after each of its last [`MARKS`] writes (and at its start): the file offset and
+/// [`ftp::crc32`] of every byte before it, oldest overwritten first. A write of bytes already taken that starts at
+/// one of them is checked against the next ([`Marks::check`]).
+#[derive(Debug, Clone, Copy)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+struct Marks {
+    at: [(u32, u32); MARKS],
+    next: usize,
+}
+
+impl Marks {
+    /// Only the start: offset 0, CRC 0.
+    const fn new() -> Self {
+        Self {
+            // Every slot the start: a slot not yet written says nothing wrong.
+            at: [(0, 0); MARKS],
+            next: 0,
+        }
+    }
+
+    /// The upload's CRC stood at `crc` after its first `offset` bytes.
+    fn push(&mut self, offset: u32, crc: u32) {
+        if let Some(slot) = self.at.get_mut(self.next % MARKS) {
+            *slot = (offset, crc);
+        }
+        self.next = (self.next + 1) % MARKS;
+    }
+
+    /// The CRC after the first `offset` bytes, if it is kept.
+    fn crc_at(&self, offset: u32) -> Option<u32> {
+        self.at.iter().find(|(at, _)| *at == offset).map(|&(_, crc)| crc)
+    }
+
+    /// Whether `data`, written at `offset` below `received` (whose CRC is `crc`), holds the bytes taken there:
+    /// `Some(false)` when it does not, `None` when that cannot be told (no mark where it starts, or none where its
+    /// overlap with what was taken ends).
+    fn check(&self, offset: u32, data: &[u8], received: u32, crc: u32) -> Option<bool> {
+        let start = self.crc_at(offset)?;
+        let taken = received.saturating_sub(offset);
+        let len = u32::try_from(data.len()).unwrap_or(u32::MAX).min(taken);
+        let end = offset + len;
+        let expected = if end == received { crc } else { self.crc_at(end)? };
+        let overlap = data.get(..len as usize)?;
+        Some(ftp::crc32(start, overlap) == expected)
+    }
 }
 
 impl UpdateServer {
@@ -452,6 +551,7 @@ impl UpdateServer {
             upload: None,
             held: None,
             session: None,
+            marks: Marks::new(),
             counters: UpdateCounters::default(),
         }
     }
@@ -533,13 +633,15 @@ impl UpdateServer {
             Opcode::Other(ACK | ftp::NAK) => return None,
             _ if request.data.is_none() => Err(Nak::InvalidDataSize),
             Opcode::None => Ok(()),
-            Opcode::TerminateSession | Opcode::ResetSessions => {
-                // Reset closes every session of the sender, Terminate the one it names.
-                if ours || opcode == Opcode::ResetSessions && self.session.is_some_and(|s| s.owner == from) {
+            // Reset closes every session of the sender, Terminate the one it names; another's stays open.
+            Opcode::TerminateSession | Opcode::ResetSessions => match self.session {
+                None => Ok(()),
+                Some(s) if ours || opcode == Opcode::ResetSessions && s.owner == from => {
                     self.stop(Stop::Closed, sink, out);
+                    Ok(())
                 }
-                Ok(())
-            }
+                Some(_) => Err(Nak::InvalidSession),
+            },
             Opcode::ListDirectory => request
                 .path()
                 .and_then(|path| self.list(path, request.offset, &mut data)),
@@ -549,13 +651,16 @@ impl UpdateServer {
             Opcode::CreateFile | Opcode::OpenFileWO => self.open(now, context, from, &request, sink, out),
             Opcode::WriteFile if !ours => Err(Nak::InvalidSession),
             // The upload stops here, told why, rather than halfway through at the restart.
-            Opcode::WriteFile if context.restarting => match self.upload {
-                Some(image) => self.refuse(image.target, RESTARTING, sink, out),
+            Opcode::WriteFile if context.restarting || context.unsigned => match self.upload {
+                Some(image) => {
+                    let why = if context.restarting { RESTARTING } else { UNSIGNED };
+                    self.refuse(image.target, why, sink, out)
+                }
                 None => Err(Nak::Fail),
             },
             // A gap is left unanswered.
             Opcode::WriteFile => self.write(now, &request, sink, out)?,
-            Opcode::RemoveFile => self.remove(context, from, &request, sink, out),
+            Opcode::RemoveFile => self.remove(now, context, from, &request, sink, out),
             Opcode::Other(_) => Err(Nak::UnknownCommand),
         };
         Some(match answer {
@@ -605,6 +710,10 @@ impl UpdateServer {
             note(out, Severity::Warning, target, RESTARTING);
             return Err(Nak::Fail);
         }
+        if context.unsigned {
+            note(out, Severity::Warning, target, UNSIGNED);
+            return Err(Nak::Fail);
+        }
         if context.armed {
             note(out, Severity::Warning, target, "disarm to update");
             return Err(Nak::Fail);
@@ -649,6 +758,7 @@ impl UpdateServer {
             total: 0,
             crc: 0,
         });
+        self.marks = Marks::new();
         Ok(())
     }
 
@@ -666,25 +776,30 @@ impl UpdateServer {
         session.last = now;
         let target = image.target;
         let data = request.data.unwrap_or_default();
-        let skip = usize::try_from(image.received.wrapping_sub(request.offset)).unwrap_or(usize::MAX);
-        let new = if request.offset > image.received {
-            None
-        } else {
-            data.get(skip..).filter(|new| !new.is_empty())
-        };
-        let Some(new) = new.filter(|_| !image.whole) else {
-            if image.whole && (new.is_some() || request.offset > image.received) {
-                // Bytes past the end of an image whole: it is not the file the ground station holds.
-                self.held = None;
-                return Some(self.refuse(target, "longer than its header says", sink, out));
+        // A refused write ends the session; an image whole stays as it was received (only an upload not whole is
+        // dropped, [`UpdateServer::stop`]).
+        if request.offset > image.received {
+            if image.whole {
+                // Bytes past the end of an image whole.
+                return Some(self.refuse(target, LONGER, sink, out));
             }
-            if request.offset > image.received {
-                self.counters.gaps = self.counters.gaps.wrapping_add(1);
-                return None;
-            }
+            self.counters.gaps = self.counters.gaps.wrapping_add(1);
+            return None;
+        }
+        // Bytes already taken, sent again: they must be the bytes taken.
+        if request.offset < image.received
+            && self.marks.check(request.offset, data, image.received, image.crc) == Some(false)
+        {
+            return Some(self.refuse(target, DIFFER, sink, out));
+        }
+        let skip = usize::try_from(image.received - request.offset).unwrap_or(usize::MAX);
+        let Some(new) = data.get(skip..).filter(|new| !new.is_empty()) else {
             self.counters.duplicates = self.counters.duplicates.wrapping_add(1);
             return Some(Ok(()));
         };
+        if image.whole {
+            return Some(self.refuse(target, LONGER, sink, out));
+        }
         let mut rest = new;
         if image.received == 0 {
             let Some((header, tail)) = new.split_first_chunk::<HEADER_LEN>() else {
@@ -705,7 +820,7 @@ impl UpdateServer {
             image.received = HEADER_LEN as u32;
         }
         if rest.len() as u64 > u64::from(image.total.saturating_sub(image.received)) {
-            return Some(self.refuse(target, "longer than its header says", sink, out));
+            return Some(self.refuse(target, LONGER, sink, out));
         }
         if !rest.is_empty()
             && let Err(refused) = sink.write(image.received, rest)
@@ -715,6 +830,7 @@ impl UpdateServer {
         image.crc = ftp::crc32(image.crc, new);
         image.received += rest.len() as u32;
         image.whole = image.received == image.total;
+        self.marks.push(image.received, image.crc);
         if image.whole {
             if let Err(refused) = sink.finish(true) {
                 return Some(self.refuse(target, refused.why(), sink, out));
@@ -795,6 +911,7 @@ impl UpdateServer {
     /// RemoveFile: forget the image held, if it is for the file `request` names.
     fn remove(
         &mut self,
+        now: Instant,
         context: Context,
         from: Sender,
         request: &Request<'_>,
@@ -803,6 +920,16 @@ impl UpdateServer {
     ) -> Result<(), Nak> {
         let target = self.target(request)?;
         self.may_write(context, from, target, out)?;
+        // Another client's upload of it, live (not whole, not idle long enough to be taken over): left alone.
+        let uploading = self.upload.is_some_and(|i| i.target == target && !i.whole);
+        if uploading
+            && self
+                .session
+                .is_some_and(|s| s.owner != from && now.saturating_duration_since(s.last) < TAKEOVER_IDLE)
+        {
+            note(out, Severity::Warning, target, "another component is uploading it");
+            return Err(Nak::Fail);
+        }
         if self.upload.is_some_and(|i| i.target == target) {
             self.stop(Stop::Quiet, sink, out);
         }
@@ -831,7 +958,9 @@ impl UpdateServer {
     }
 
     /// MAV_CMD_LBV_APPLY_UPDATE from `from` for `slot` (a thruster slot from 0, [`MASTER_SLOT`]; `None` for a
-    /// param1 that is neither): `out` takes the COMMAND_ACK, then a text.
+    /// param1 that is neither): `out` takes the COMMAND_ACK, then a text. One sent again while the target's apply
+    /// runs starts nothing: it is answered as the one under way (IN_PROGRESS `applying` for its sender, whose final
+    /// answer follows once; TEMPORARILY_REJECTED `applying` for another), never FAILED.
     pub fn apply(
         &mut self,
         context: Context,
@@ -858,6 +987,9 @@ impl UpdateServer {
             Some(target) if !self.is_received(target) => (AckResult::Denied, Some("nothing to apply")),
             Some(target) => match sink.apply(target, from) {
                 Ok(Applied::Started) => (AckResult::InProgress, Some("applying")),
+                // The same apply sent again (its answer lost): the one under way, whose final answer follows.
+                Ok(Applied::Applying(by)) if by == from => (AckResult::InProgress, Some("applying")),
+                Ok(Applied::Applying(_)) => (AckResult::TemporarilyRejected, Some("applying")),
                 Ok(Applied::Pending) => (AckResult::TemporarilyRejected, Some("still on its way")),
                 Ok(Applied::NotWired) => (AckResult::Accepted, Some("valid; not sent, no I2C yet")),
                 Err(_) => (AckResult::Failed, Some("not on the target: send it again")),
@@ -1025,7 +1157,8 @@ impl<S: UpdateSink> Updates<S> {
 
     /// Serve `request` with the vehicle's state in `shared`: acknowledgements, texts and progress go to
     /// `shared.outbox` (dropped when it is full, as texts are); the FTP reply is returned, for the caller to
-    /// queue there after them, waiting for room (a client waits for it).
+    /// queue there after them (the console's receive task decides whether it waits for room). The apply command
+    /// over a link without signing is DENIED here, before the server sees it ([`Context::unsigned`]).
     pub fn serve(&mut self, request: UpdateRequest, shared: &Shared) -> Option<Outgoing> {
         let now = Instant::now();
         let context = Context::of(shared);
@@ -1040,8 +1173,21 @@ impl<S: UpdateSink> Updates<S> {
                     .request(now, context, from, &payload, &mut self.sink, &mut out);
                 reply.map(|reply| Outgoing::Ftp { to: from, reply })
             }
+            UpdateCommand::Apply(_) if context.unsigned && from.system == context.operator => {
+                answer(
+                    &mut out,
+                    UpdateAction::Apply,
+                    from,
+                    None,
+                    AckResult::Denied,
+                    Some(UNSIGNED),
+                );
+                None
+            }
             UpdateCommand::Apply(slot) => {
                 self.server.apply(context, from, slot, &mut self.sink, &mut out);
+                // Held from the moment it is taken: an arm command read next is refused.
+                self.sink.publish(&shared.holds);
                 None
             }
             UpdateCommand::QueryVersion(slot) => {

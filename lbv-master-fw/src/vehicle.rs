@@ -22,6 +22,12 @@
 //!   The rule is [`Vehicle::arm_check`], which also gives SYS_STATUS's pre-arm check bit
 //!   ([`VehicleState::armable`]), so a ground station that waits for it can always arm.
 //!   Disarm is always accepted and stops a motor test too. Arming starts from neutral sticks.
+//! - No reset while diving: arm is also answered TEMPORARILY_REJECTED, with "Arm rejected: " and why, while the
+//!   field update holds the vehicle ([`UpdateHold`], from `Shared::holds`): an apply runs (the master's own or a
+//!   thruster's), an image is on trial (the master's, or a thruster's by its last `Version`), a thruster holds an
+//!   update marked for its bootloader, the master is marked and restarting, or a thruster that came back has not
+//!   said yet what it runs. Each of these ends in a reset (a swap, a revert, a restart) that a vehicle in the
+//!   water must not take; the update server refuses an apply while armed ([`crate::update`]).
 //! - MANUAL_CONTROL is applied only while armed (ignored while disarmed) and forgotten on disarm: the orders
 //!   are the mixer's output for the last input ([`crate::mixer`]), with `LBV_GAIN`.
 //! - Motor test (MAV_CMD_DO_MOTOR_TEST, 209): thruster 1..=`thrusters` (else DENIED), only while disarmed with a
@@ -65,7 +71,8 @@ use crate::mixer::{FrameKind, ManualInput, mix, round_div};
 use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
     AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
-    MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender, Severity, Shared, VehicleState, text,
+    MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender, Severity, Shared, UpdateHold, VehicleState,
+    text,
 };
 use crate::signing::SigningKey;
 
@@ -134,6 +141,8 @@ pub enum ArmRefusal {
     MotorTest,
     /// The operator's heartbeat has not been heard within `FS_GCS_TIMEOUT`.
     NoHeartbeat,
+    /// The field update holds the vehicle: a reset is coming, or may come.
+    Update(UpdateHold),
 }
 
 /// Arming, failsafes, operator, motor test, settings -> orders. Pure state machine with explicit time.
@@ -155,6 +164,8 @@ pub struct Vehicle {
     /// The pilot-input failsafe has acted and no MANUAL_CONTROL has come since.
     pilot_lost: bool,
     param_type_mismatches: u32,
+    /// What of the field update keeps the vehicle from arming, as last told ([`Vehicle::hold_for_update`]).
+    update_hold: Option<UpdateHold>,
 }
 
 impl Vehicle {
@@ -172,7 +183,13 @@ impl Vehicle {
             refused: 0,
             pilot_lost: false,
             param_type_mismatches: 0,
+            update_hold: None,
         }
+    }
+
+    /// What of the field update keeps the vehicle from arming now (`Shared::holds`); an armed vehicle stays armed.
+    pub fn hold_for_update(&mut self, hold: Option<UpdateHold>) {
+        self.update_hold = hold;
     }
 
     /// The settings in force.
@@ -330,6 +347,8 @@ impl Vehicle {
             Err(ArmRefusal::MotorTest)
         } else if !self.heartbeat_live(now) {
             Err(ArmRefusal::NoHeartbeat)
+        } else if let Some(hold) = self.update_hold {
+            Err(ArmRefusal::Update(hold))
         } else {
             Ok(())
         }
@@ -428,6 +447,11 @@ impl Vehicle {
                     Severity::Warning,
                     format_args!("Arm rejected: no ground station heartbeat"),
                 );
+                return;
+            }
+            Err(ArmRefusal::Update(hold)) => {
+                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
+                say(out, Severity::Warning, format_args!("Arm rejected: {hold}"));
                 return;
             }
             Ok(()) => {}
@@ -594,6 +618,7 @@ pub async fn vehicle_task(config: VehicleConfig, settings: Settings, shared: &Sh
             Either::Second(()) => None,
         };
         let now = Instant::now();
+        vehicle.hold_for_update(shared.holds.get());
         let mut replies = heapless::Vec::<Outgoing, MAX_REPLIES>::new();
         let mut push = |reply| {
             // Bounded by construction (MAX_REPLIES); a reply beyond it would be dropped, not panic.

@@ -326,7 +326,7 @@ fn qgroundcontrol_initial_connect_then_arm() {
                     .collect();
                 match values.first() {
                     Some(first) if values.len() == usize::from(first.param_count) => {
-                        assert_eq!(first.param_count, 9);
+                        assert_eq!(first.param_count, 10);
                         for (n, p) in values.iter().enumerate() {
                             assert_eq!(usize::from(p.param_index), n);
                             let name = p.param_id.to_str().unwrap();

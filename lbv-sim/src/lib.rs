@@ -7,6 +7,7 @@
 //! - [`i2c`]: I2C buses with bit-time accounting, devices and firmware slave ports, a TCA9548A, NACKs, clock
 //!   stretching, corruption, SDA held low, and the lines as GPIOs for the bus recovery;
 //! - [`Queue`], [`SerialRx`], [`SerialTx`], [`CanBus`]: serial links and a CAN bus;
+//! - [`SerialLine`]: a serial link at its baud rate, between UARTs with buffers of fixed size;
 //! - [`flash`]: NOR flash with power-cut faults and the CPU stall of its erases and writes ([`Cpu`]);
 //! - [`in_one_critical_section`]: a run at the cost of one critical section.
 //!
@@ -29,6 +30,7 @@ mod executor;
 pub mod flash;
 pub mod i2c;
 mod queue;
+mod uart;
 
 #[cfg(feature = "std")]
 pub use clock::Clock;
@@ -47,3 +49,4 @@ pub fn in_one_critical_section<R>(f: impl FnOnce() -> R) -> R {
 #[cfg(feature = "std")]
 pub use executor::{Executor, TaskId};
 pub use queue::{CanBus, Queue, SerialRx, SerialTx};
+pub use uart::{LineRx, LineTx, SerialLine};

@@ -20,8 +20,9 @@ use alloc::vec::Vec;
 
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::{
-    COMMAND_LONG_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavMessage, MavModeFlag, MavParamType,
-    MavState, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, SETUP_SIGNING_DATA,
+    COMMAND_LONG_DATA, FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavMessage,
+    MavModeFlag, MavParamType, MavState, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
+    SETUP_SIGNING_DATA,
 };
 use lbv_master_fw::framing::{Event, FrameParser};
 use lbv_master_fw::mixer::ManualInput;
@@ -55,6 +56,8 @@ pub const GCS_HEARTBEAT: HEARTBEAT_DATA = HEARTBEAT_DATA {
 pub struct GroundStation {
     /// Its MAVLink system id.
     pub system: u8,
+    /// Its MAVLink component id (MAV_COMP_ID_MISSIONPLANNER, 190, for a ground station).
+    pub component: u8,
     /// Whether it is connected: false models the console link dropping out (it sends nothing by itself).
     pub connected: bool,
     /// The pilot's sticks, sent while set.
@@ -83,8 +86,15 @@ impl Default for GroundStation {
 impl GroundStation {
     /// A station with MAVLink system id `system`.
     pub const fn with_system(system: u8) -> Self {
+        Self::with_ids(system, COMPONENT)
+    }
+
+    /// A sender with MAVLink system id `system` and component id `component` (a companion computer of the
+    /// operator's system, say).
+    pub const fn with_ids(system: u8, component: u8) -> Self {
         Self {
             system,
+            component,
             connected: true,
             sticks: None,
             lose_heartbeats: 0,
@@ -103,7 +113,7 @@ impl GroundStation {
     fn header(&mut self) -> MavHeader {
         let header = MavHeader {
             system_id: u32::from(self.system),
-            component_id: COMPONENT,
+            component_id: self.component,
             sequence: self.sequence,
         };
         self.sequence = self.sequence.wrapping_add(1);
@@ -230,6 +240,18 @@ impl GroundStation {
         self.frame(&PARAM_REQUEST_LIST_DATA {
             target_system: 1,
             target_component: 1,
+        })
+    }
+
+    /// A MAVLink FTP request to the vehicle (FILE_TRANSFER_PROTOCOL), as the clients lay it out: `seq`, `session`,
+    /// `opcode`, `offset` and `data` (at most 239 bytes).
+    pub fn ftp_request(&mut self, seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> Vec<u8> {
+        let payload = upload::request(seq, session, opcode, offset, data);
+        self.frame(&FILE_TRANSFER_PROTOCOL_DATA {
+            target_network: 0,
+            target_system: 1,
+            target_component: 1,
+            payload,
         })
     }
 

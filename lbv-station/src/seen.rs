@@ -20,6 +20,8 @@ pub struct Seen {
     pub acks: Vec<(u16, u8)>,
     /// COMMAND_ACKs with whom they are addressed to: (target system, command, result).
     pub acks_to: Vec<(u8, u16, u8)>,
+    /// COMMAND_ACKs with the component they are addressed to: (target component, command, result).
+    pub acks_to_component: Vec<(u8, u16, u8)>,
     /// STATUSTEXTs with their arrival time.
     pub texts: Vec<(Instant, String)>,
     /// Of those, the ones of severity CRITICAL.
@@ -61,6 +63,7 @@ impl Seen {
             armed: false,
             acks: Vec::new(),
             acks_to: Vec::new(),
+            acks_to_component: Vec::new(),
             texts: Vec::new(),
             critical_texts: 0,
             rpm: [0; 8],
@@ -90,6 +93,8 @@ impl Seen {
             MavMessage::COMMAND_ACK(ack) => {
                 self.acks.push((ack.command, ack.result as u8));
                 self.acks_to.push((ack.target_system, ack.command, ack.result as u8));
+                self.acks_to_component
+                    .push((ack.target_component, ack.command, ack.result as u8));
             }
             MavMessage::FILE_TRANSFER_PROTOCOL(ftp) => self.ftp.push(ftp.payload),
             MavMessage::STATUSTEXT(text) => {

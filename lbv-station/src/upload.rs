@@ -128,7 +128,7 @@ impl Upload {
 }
 
 /// A request payload: seq, session, opcode, size, (padding), offset, data.
-fn request(seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> [u8; 251] {
+pub(crate) fn request(seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]) -> [u8; 251] {
     let data = data.get(..BLOCK).unwrap_or(data);
     let [s0, s1] = seq.to_le_bytes();
     let [o0, o1, o2, o3] = offset.to_le_bytes();

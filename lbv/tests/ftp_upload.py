@@ -7,6 +7,9 @@ Listens on 127.0.0.1:GCS_PORT like a ground station (`lbv bench --udp` sends the
 the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operator (system 255):
 
     list       ListDirectory `/` and `/update`: the directory, then one file per thruster slot and the master's
+    unsigned   a put over the link without signing: refused ("thruster0.lbvu: refused, the link is not signed");
+               then PARAM_SET LBV_UPD_UNSIGNED 1 (the vehicle answers PARAM_VALUE 1), which allows updates over it
+               (tests/mavproxy_ftp.rs signs the link instead, as docs/field-update.md recommends)
     put        WORK_DIR/thruster0.lbvu (the test's signed SeaBotix update file: 80-byte header, 4096-byte payload)
                to /update/thruster0.lbvu with MAVFTP's put; STATUSTEXT "thruster0.lbvu: received, ready to apply",
                then "thruster0.lbvu: 4096 B verified, 0 pages kept" once the thruster holds it
@@ -69,6 +72,7 @@ class Ground:
         self.texts = []
         self.acks = []
         self.crcs = []
+        self.values = {}
         self.heartbeat_at = 0.0
         # Every message read, whoever reads it (MAVFTP's own loop only wants FILE_TRANSFER_PROTOCOL).
         self.link.message_hooks.append(self.hook)
@@ -81,6 +85,8 @@ class Ground:
             self.texts.append(msg.text)
         elif kind == "COMMAND_ACK":
             self.acks.append((msg.command, msg.result))
+        elif kind == "PARAM_VALUE":
+            self.values[msg.param_id] = msg.param_value
         elif kind == "FILE_TRANSFER_PROTOCOL":
             payload = bytes(msg.payload)
             if payload[3] == 128 and payload[5] == CALC_FILE_CRC32 and payload[4] == 4:
@@ -118,6 +124,13 @@ class Ground:
             raise Failed(f"the vehicle sends from {addresses}, not 127.0.0.1:{self.bench_port}")
         self.link.target_system, self.link.target_component = VEHICLE
 
+    def set_param(self, name, value):
+        """PARAM_SET, as pymavlink sends it (REAL32); the value the vehicle answers with."""
+        self.values.pop(name, None)
+        self.link.mav.param_set_send(*VEHICLE, name.encode(), value, mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+        self.wait(lambda: name in self.values, 3.0, f"PARAM_VALUE {name}")
+        return self.values[name]
+
     def apply(self, slot, within=20.0):
         """The apply command's COMMAND_ACK results, up to its final one."""
         since = len(self.acks)
@@ -151,6 +164,14 @@ def main():
         summary["root"] = listing(ret)
         ret = ftp.cmd_list(["/update"])
         summary["before"] = listing(ret)
+
+        local = os.path.join(work, "thruster0.lbvu")
+        since = len(ground.texts)
+        ftp.cmd_put([local, "/update/thruster0.lbvu"])
+        ret = ftp.process_ftp_reply("put", timeout=10)
+        ground.pump(0.3)
+        summary["unsigned"] = {"error": int(ret.error_code), "texts": ground.texts[since:]}
+        summary["allowed"] = ground.set_param("LBV_UPD_UNSIGNED", 1.0)
 
         local = os.path.join(work, "thruster0.lbvu")
         with open(local, "rb") as file:

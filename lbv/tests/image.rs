@@ -132,11 +132,11 @@ fn the_payload_is_the_flash_from_the_lowest_load_address() {
 
 #[test]
 fn a_master_image_larger_than_the_thruster_s_flash_is_taken() {
-    // The master's ACTIVE partition on its G474 (0x0800_3000), 136 KiB of code: more than the G431's whole flash.
+    // The master's ACTIVE partition on its G474 (0x0800_4000), 136 KiB of code: more than the G431's whole flash.
     let info = ImageInfo::new(Target::Master, Version::new(0, 2, 0));
-    let master = [Segment::flash(0x0800_3000, text(136 * 1024, Some(info), &KEY))];
+    let master = [Segment::flash(0x0800_4000, text(136 * 1024, Some(info), &KEY))];
     let payload = payload_from_elf(&elf(&master), None).unwrap();
-    assert_eq!((payload.base, payload.bytes.len()), (0x0800_3000, 136 * 1024));
+    assert_eq!((payload.base, payload.bytes.len()), (0x0800_4000, 136 * 1024));
     assert_eq!(payload.info(), Ok(info));
 }
 

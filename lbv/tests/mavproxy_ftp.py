@@ -9,6 +9,12 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
 
     connect   MAVProxy sees the vehicle
     list      `ftp list /update`: one file per thruster slot and the master's, 0 bytes each
+    unsigned  `ftp put WORK_DIR/thruster2.lbvu /update/thruster2.lbvu` over the link without signing (the vehicle's
+              LBV_UPD_UNSIGNED at its default, 0): refused at its CreateFile, "thruster2.lbvu: refused, the link is
+              not signed"
+    signing   `signing setup PASSPHRASE`, as docs/field-update.md says to before updating: MAVProxy sends the key to
+              the vehicle (SETUP_SIGNING) and signs every frame from then on; the vehicle's frames come signed too
+              (every step after goes over the signed link)
     older     `ftp put WORK_DIR/older.lbvu /update/thruster2.lbvu`, a validly signed 0.0.9, older than the 0.1.0
               the thruster runs: refused with its reason at its first page, before anything is written
     flipped   `ftp put WORK_DIR/flipped.lbvu /update/thruster2.lbvu`, a 0.3.0 with one payload bit flipped after
@@ -45,6 +51,8 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from mavproxy_pilot import Failed, MavProxy, Observer  # noqa: E402 (pymavlink checked there)
 
 APPLY_UPDATE = 31010
+# MAVProxy makes the key of it (SHA-256); the vehicle keeps it in its flash, and takes only frames signed with it.
+PASSPHRASE = "lbv-bench-mavproxy-ftp"
 QUERY_VERSION = 31011
 IN_PROGRESS = 5
 
@@ -105,6 +113,27 @@ class Session:
         since = time.monotonic()
         self.mavproxy.type(f"ftp put {os.path.join(self.work, name)} /update/thruster2.lbvu")
         return since
+
+    def unsigned(self):
+        since = self.put("thruster2.lbvu")
+        refusal = "thruster2.lbvu: refused, the link is not signed"
+        self.wait(lambda: refusal in self.observer.texts(since), 10.0, "the refusal")
+        self.wait(lambda: self.lines(since, r"(Write|Create) failed|Sent file of length"), 10.0, "MAVProxy's put ends")
+        self.summary["unsigned"] = {
+            "texts": self.observer.texts(since),
+            "failed": [m.group(0) for m in self.lines(since, r"(Write|Create) failed.*")],
+        }
+
+    def signing(self):
+        since = time.monotonic()
+        self.mavproxy.type(f"signing setup {PASSPHRASE}")
+
+        def signed_heartbeats():
+            # The incompatibility flags of the frame as it came: bit 0, signed (pymavlink reads it without the key).
+            return [bool(m.get_msgbuf()[2] & 0x01) for _, m in self.observer.since(since, "HEARTBEAT")]
+
+        self.wait(lambda: signed_heartbeats()[-2:] == [True, True], 10.0, "the vehicle signing its frames")
+        self.summary["signing"] = {"signed": signed_heartbeats()[-1], "mavproxy": self.mavproxy.said("Sent secret_key")}
 
     def older(self):
         since = self.put("older.lbvu")
@@ -202,7 +231,20 @@ class Session:
         self.wait(lambda: self.ack(again) is not None, 5.0, "the second apply's COMMAND_ACK")
         self.summary["remove"] = {"apply": self.ack(again), "texts": self.observer.texts(since)}
 
-    STEPS = ["connect", "list", "older", "flipped", "lossy", "crc", "listed", "apply", "version", "remove"]
+    STEPS = [
+        "connect",
+        "list",
+        "unsigned",
+        "signing",
+        "older",
+        "flipped",
+        "lossy",
+        "crc",
+        "listed",
+        "apply",
+        "version",
+        "remove",
+    ]
 
     def run(self):
         for step in self.STEPS:

@@ -1,5 +1,6 @@
 //! Field update with MAVProxy, a real ground station, over a lossy link (`tests/mavproxy_ftp.py`): `ftp list`,
-//! `ftp put` of a validly signed image older than the one the thruster runs (refused with its reason at its first
+//! `ftp put` over the link without signing (refused, saying why), `signing setup PASSPHRASE` (the key sent to the
+//! vehicle, every frame signed from then on), `ftp put` of a validly signed image older than the one the thruster runs (refused with its reason at its first
 //! page) and of one with a payload bit flipped (written, applied, refused by the thruster's bootloader, which
 //! starts the image that ran), then `ftp put` of a SeaBotix update file signed with the development key to /update/thruster2.lbvu (which the master
 //! writes on into the thruster) with MAVProxy's own link simulator losing a fifth of its requests and of the
@@ -52,7 +53,8 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     assert_eq!(
         summary["steps"],
         serde_json::json!([
-            "connect", "list", "older", "flipped", "lossy", "crc", "listed", "apply", "version", "remove"
+            "connect", "list", "unsigned", "signing", "older", "flipped", "lossy", "crc", "listed", "apply", "version",
+            "remove"
         ]),
         "{summary}"
     );
@@ -68,6 +70,22 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         )
     };
     assert_eq!(summary["list"], files([0; 7]), "{summary}");
+    // Over the link without signing: refused at its CreateFile, saying why; then MAVProxy sets signing up.
+    let unsigned = &summary["unsigned"];
+    assert_eq!(
+        unsigned["texts"],
+        serde_json::json!(["thruster2.lbvu: refused, the link is not signed"]),
+        "{summary}"
+    );
+    assert!(
+        unsigned["failed"].as_array().is_some_and(|failed| !failed.is_empty()),
+        "{summary}"
+    );
+    assert_eq!(
+        summary["signing"],
+        serde_json::json!({"signed": true, "mavproxy": true}),
+        "{summary}"
+    );
     // The older image: refused at its first page, saying why; MAVProxy's put ends in a failed write.
     let older = &summary["older"];
     assert_eq!(
@@ -78,10 +96,17 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         ]),
         "{summary}"
     );
-    assert!(older["failed"].as_array().is_some_and(|failed| !failed.is_empty()), "{summary}");
+    assert!(
+        older["failed"].as_array().is_some_and(|failed| !failed.is_empty()),
+        "{summary}"
+    );
     // The flipped one: written, marked, refused by the bootloader after the restart; the thruster runs 0.1.0.
     let flipped = &summary["flipped"];
-    assert_eq!(flipped["results"], serde_json::json!([5, 4]), "IN_PROGRESS, FAILED: {summary}");
+    assert_eq!(
+        flipped["results"],
+        serde_json::json!([5, 4]),
+        "IN_PROGRESS, FAILED: {summary}"
+    );
     assert!(
         flipped["texts"]
             .as_array()

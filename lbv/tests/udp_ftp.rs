@@ -1,5 +1,6 @@
 //! Field update from a ground station, with pymavlink's own MAVLink FTP client (`tests/ftp_upload.py`, on
-//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, puts a SeaBotix update file signed
+//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, sees a put refused over the link
+//! without signing and allows updates over it (`LBV_UPD_UNSIGNED` 1), puts a SeaBotix update file signed
 //! with the development key to /update/thruster0.lbvu, reads its CRC32, sees the same file refused for the Legacy
 //! slot 1, and applies the image, which the thruster checks, swaps in and runs; then puts a master image to
 //! /update/master.lbvu and applies it: the master checks it, restarts into its bootloader's swap, and the new image
@@ -57,6 +58,16 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         )
     };
     assert_eq!(summary["before"], files([0; 7]), "{summary}");
+    // Without signing: refused, saying why, until LBV_UPD_UNSIGNED allows it. pymavlink sends its first writes
+    // before the CreateFile's answer, so it reports the NAK of its first write (InvalidSession, 4: no session was
+    // opened) rather than the CreateFile's (Fail).
+    assert_ne!(summary["unsigned"]["error"], 0, "{summary}");
+    assert_eq!(
+        summary["unsigned"]["texts"],
+        serde_json::json!(["thruster0.lbvu: refused, the link is not signed"]),
+        "{summary}"
+    );
+    assert_eq!(summary["allowed"], 1.0, "{summary}");
     assert_eq!(summary["after"], files([4176, 0, 0, 0, 0, 0, 0]), "{summary}");
     assert_eq!(
         summary["put"]["texts"],

@@ -193,6 +193,10 @@ def test_a_master_image_put_over_ftp_is_checked_on_the_chip_and_marked_for_the_s
     # The vehicle takes the operator's orders once it has published whom it takes them from.
     ground.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
     chip.run_for(0.2)
+    # The VCP has no signing: updates over it must be allowed (LBV_UPD_UNSIGNED, kept in flash like any parameter).
+    ground.send(mavlink.MAVLink_param_set_message(1, 1, b"LBV_UPD_UNSIGNED", 1.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    allowed = ground.wait("PARAM_VALUE", 1.0, lambda m: m.param_id == "LBV_UPD_UNSIGNED")
+    assert allowed.param_value == 1.0
     ftp = Ftp(chip, ground)
 
     forged = bytes.fromhex(update["forged"])

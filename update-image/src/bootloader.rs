@@ -8,11 +8,12 @@
 //! tells it, then notes that it did (the told word). Every page of the record is written only after an erase, a
 //! double word at a time:
 //!
-//! | offset | length | written by      | what                                                        |
-//! |--------|--------|-----------------|-------------------------------------------------------------|
-//! | 0      | 72     | the application | the [`Ticket`]                                              |
-//! | 128    | 64     | the bootloader  | the [`Verdict`] on that ticket: [`SLOTS`] [`checked_word`]s |
-//! | 192    | 64     | the application | the verdict was told: [`SLOTS`] [`checked_word`]s           |
+//! | offset | length | written by      | what                                                              |
+//! |--------|--------|-----------------|-------------------------------------------------------------------|
+//! | 0      | 72     | the application | the [`Ticket`]                                                    |
+//! | 128    | 64     | the bootloader  | the [`Verdict`] on that ticket: [`SLOTS`] [`checked_word`]s       |
+//! | 192    | 64     | the application | the verdict was told: [`SLOTS`] [`checked_word`]s                 |
+//! | 256    | 8      | the application | who applied the image: a [`checked_word`] ([`APPLIER_OFFSET`])    |
 //!
 //! A checked word is a u32 and its complement: a double word torn by a power cut (some of its bits programmed,
 //! the rest still erased) never reads as one, so a torn verdict is no verdict, and a torn counter entry (lbv-boot
@@ -35,6 +36,11 @@ pub const VERDICT_OFFSET: u32 = 128;
 
 /// Where the application notes that it told the verdict: [`SLOTS`] double words.
 pub const TOLD_OFFSET: u32 = 192;
+
+/// Where the application notes who applied the image (its MAVLink system and component, `component | system << 8`,
+/// as a [`checked_word`]), written with the ticket: the image that runs after the restart answers the apply there.
+/// The bootloader does not read it.
+pub const APPLIER_OFFSET: u32 = 256;
 
 /// The double words of the verdict's and of the told mark's slots.
 pub const SLOTS: usize = 8;

@@ -245,10 +245,9 @@ impl fmt::Display for Refusal {
             Refusal::NoKey => {
                 f.write_str("an image of info format 1 names no update key: nothing after it could be checked")
             }
-            Refusal::Older { image, running } => write!(
-                f,
-                "{image} is older than the {running} that runs (not a rollback)"
-            ),
+            Refusal::Older { image, running } => {
+                write!(f, "{image} is older than the {running} that runs (not a rollback)")
+            }
             Refusal::CounterBelow { image, floor } => {
                 write!(f, "security counter {image} is below the vehicle's {floor}")
             }

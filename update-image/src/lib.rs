@@ -52,8 +52,8 @@ mod verify;
 mod version;
 
 pub use bootloader::{
-    MIN_PAYLOAD, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Ticket, VERDICT_OFFSET, Verdict, checked_word,
-    read_checked_word,
+    APPLIER_OFFSET, MIN_PAYLOAD, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Ticket, VERDICT_OFFSET, Verdict,
+    checked_word, read_checked_word,
 };
 pub use check::{Refusal, check, check_file, check_upgrade};
 pub use header::{Header, HeaderError};

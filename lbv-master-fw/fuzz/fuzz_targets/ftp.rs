@@ -1,9 +1,10 @@
 //! The update server's MAVLink FTP decoder and state machine: any FILE_TRANSFER_PROTOCOL payloads (raw bytes, or
 //! well-formed requests of the opcodes it serves, with paths and image bytes that reach every branch), from the
 //! operator or another system, armed or not, as time passes, with apply commands between, and at any moment the
-//! master marked to restart into its own update. Nothing panics; every reply answers its request (sequence + 1, its
-//! session and opcode, ACK or NAK); the sink gets each image's bytes in order, from its header on, never beyond the
-//! length the header gives, and nothing begun, written or applied once the master restarts.
+//! master marked to restart into its own update, and the link's signing going off and on. Nothing panics; every reply
+//! answers its request (sequence + 1, its session and opcode, ACK or NAK); the sink gets each image's bytes in order,
+//! from its header on, never beyond the length the header gives, nothing begun, written or applied once the master
+//! restarts, and nothing begun or written over a link without signing.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -25,6 +26,8 @@ enum Step {
     Arm(bool),
     /// The master's own image is marked: it restarts into it (for good).
     Restart,
+    /// The link's signing goes off (`true`: updates over it refused) or on.
+    Unsigned(bool),
 }
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
@@ -73,11 +76,14 @@ struct Sink {
     open: Option<(u32, u32)>,
     /// The master restarts into its own update: nothing may change.
     restarting: bool,
+    /// The link is not signed: nothing may begin or be written.
+    unsigned: bool,
 }
 
 impl UpdateSink for Sink {
     fn begin(&mut self, _: UpdateTarget, header: &ImageHeader) -> Result<(), Refused> {
         assert!(!self.restarting, "begun while the master restarts");
+        assert!(!self.unsigned, "begun over a link without signing");
         assert!(self.open.is_none(), "begun twice");
         self.open = Some((HEADER_LEN as u32, header.file_len()));
         Ok(())
@@ -85,6 +91,7 @@ impl UpdateSink for Sink {
 
     fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused> {
         assert!(!self.restarting, "written while the master restarts");
+        assert!(!self.unsigned, "written over a link without signing");
         let (next, total) = self.open.expect("a write outside an image");
         assert_eq!(offset, next, "out of order");
         assert!(u64::from(offset) + data.len() as u64 <= u64::from(total), "past the header's length");
@@ -122,7 +129,7 @@ fuzz_target!(|steps: Vec<Step>| {
     let file = image();
     let mut server = UpdateServer::new(&VEHICLE.thrusters);
     let mut sink = Sink::default();
-    let mut context = Context { armed: false, operator: 255, restarting: false };
+    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false };
     let mut now = Instant::from_ticks(0);
     let mut out = |_: Outgoing| {};
     for (n, step) in steps.into_iter().enumerate() {
@@ -175,6 +182,11 @@ fuzz_target!(|steps: Vec<Step>| {
             Step::Restart => {
                 context.restarting = true;
                 sink.restarting = true;
+                continue;
+            }
+            Step::Unsigned(unsigned) => {
+                context.unsigned = unsigned;
+                sink.unsigned = unsigned;
                 continue;
             }
         };

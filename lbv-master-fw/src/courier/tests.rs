@@ -485,23 +485,46 @@ fn a_new_image_reset_before_it_confirms_is_reverted_and_the_apply_fails() {
 }
 
 #[test]
-fn a_new_image_that_never_confirms_fails_the_apply() {
+fn a_new_image_kept_on_trial_past_the_confirm_limit_is_watched_and_its_confirmation_accepted() {
+    // A thruster kept from confirming (driven, unwell) for 75 s, then confirmed: the apply's final answer is what it
+    // did, not a FAILED at the limit.
     let mut courier = rebooting();
     let mut said = Vec::new();
-    for ms in (200..40_000).step_by(20) {
+    for ms in (200..80_000).step_by(20) {
         let Some(exchange) = courier.next(t(ms), |_| true) else {
             continue;
         };
-        let result = running(&exchange, [0, 2, 0, 0], true);
+        let result = running(&exchange, [0, 2, 0, 0], ms < 75_000);
         courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
     }
     assert_eq!(
         texts(&said),
         [
             "thruster0.lbvu: runs 0.2.0, on trial",
-            "thruster0.lbvu: the new image did not confirm"
+            "thruster0.lbvu: 0.2.0 still on trial",
+            "thruster0.lbvu: 0.2.0 still on trial",
+            "thruster0.lbvu: 0.2.0 confirmed"
         ]
     );
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+    assert_eq!(courier.hold(), None, "confirmed: nothing holds the vehicle");
+
+    // Kept on trial, then reset: the bootloader reverts it, and the apply fails saying so.
+    let mut courier = rebooting();
+    let mut said = Vec::new();
+    for ms in (200..60_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        let result = match ms {
+            ..45_000 => running(&exchange, [0, 2, 0, 0], true),
+            45_000..48_000 => Err(ExchangeError::Bus),
+            _ => running(&exchange, [0, 1, 0, 0], false),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert_eq!(texts(&said).last().unwrap(), "thruster0.lbvu: reverted to 0.1.0");
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Failed)]);
 }
 
 /// The answer of a thruster whose running image is on trial until `confirmed_at` ms: `Begin` refused until then.
@@ -611,9 +634,9 @@ fn a_version_query_asks_version_tells_what_runs_and_sends_nothing_else() {
     const QUERY: u16 = MAV_CMD_LBV_QUERY_VERSION;
     let mut courier = Courier::new();
     courier.query(3, GCS).unwrap();
-    // One at a time, and no image begins meanwhile.
-    assert_eq!(courier.query(2, GCS), Err(NotTaken));
-    assert_eq!(courier.begin(0, 1, 64, &header(64)), Err(NotTaken));
+    // One at a time; an image begun meanwhile waits for its end, on every bus.
+    assert_eq!(courier.query(2, GCS), Err("wait: another query is under way"));
+    courier.begin(0, 1, 64, &header(64)).unwrap();
     assert!(courier.next(t(0), |slot| slot != 3).is_none(), "another bus's task");
     let ask = courier.next(t(0), |_| true).unwrap();
     assert_eq!((ask.slot, ask.frame.command), (3, Command::Version));
@@ -625,9 +648,17 @@ fn a_version_query_asks_version_tells_what_runs_and_sends_nothing_else() {
     courier.on_result(t(5), &ask, done(&ask, on_trial), &mut |o| said.push(o));
     assert_eq!(texts(&said), ["thruster3.lbvu: runs 0.4.2, on trial"]);
     assert_eq!(acks(&said), [(QUERY, AckResult::Accepted)]);
-    assert!(courier.transfer.is_none() && courier.next(t(20), |_| true).is_none());
+    let hello = courier.next(t(20), |_| true).unwrap();
+    assert_eq!(
+        (hello.slot, hello.frame.command),
+        (0, Command::Version),
+        "the transfer goes on"
+    );
+    // Not while the transfer has an exchange to make.
+    assert_eq!(courier.query(1, GCS), Err("wait: an update is under way"));
 
     // A thruster that cannot check signatures says so; an IDS-only one, and a silent one, fail the query.
+    let mut courier = Courier::new();
     courier.query(0, GCS).unwrap();
     let ask = courier.next(t(0), |_| true).unwrap();
     let mut said = Vec::new();
@@ -837,4 +868,233 @@ fn a_version_query_says_what_the_thruster_holds_and_takes() {
     let mut said = Vec::new();
     courier.on_result(t(0), &ask, done(&ask, body), &mut |o| said.push(o));
     assert_eq!(texts(&said), ["thruster0.lbvu: runs 0.2.0, update marked, dev key"]);
+}
+
+/// A Version reply of a thruster running 0.2.0, on trial and marked as said.
+fn standing(exchange: &Exchange, on_trial: bool, marked: bool) -> Result<Reply, ExchangeError> {
+    let mut body = version(true, [0, 2, 0, 0]);
+    if let ReplyBody::Version {
+        on_trial: trial,
+        marked: mark,
+        ..
+    } = &mut body
+    {
+        (*trial, *mark) = (on_trial, marked);
+    }
+    done(exchange, body)
+}
+
+#[test]
+fn a_thruster_that_answers_again_is_asked_what_it_runs_and_holds_arming_until_it_has_confirmed() {
+    let mut courier = Courier::new();
+    assert_eq!(courier.hold(), None, "nothing answers yet");
+    // T3 answers its polls (the master's start, or back from being offline): it may have come up on trial.
+    courier.seen(2, true);
+    assert_eq!(courier.hold(), Some(UpdateHold::Unasked(2)));
+    assert!(courier.next(t(0), |slot| slot != 2).is_none(), "another bus's task");
+    let ask = courier.next(t(0), |_| true).unwrap();
+    assert_eq!((ask.slot, ask.frame.command), (2, Command::Version));
+    // The same look asked again (the reply lost): the same frame; a stale reply is not taken.
+    courier.on_result(t(0), &ask, Err(ExchangeError::Bus), &mut |_| {
+        panic!("a look says nothing")
+    });
+    assert_eq!(courier.hold(), Some(UpdateHold::Unasked(2)));
+    let again = courier.next(t(20), |_| true).unwrap();
+    assert_eq!(again.frame.command, Command::Version);
+    let stale = Ok(Reply::Done {
+        seq: again.frame.seq.wrapping_sub(1),
+        body: version(true, [0; 4]),
+    });
+    courier.on_result(t(20), &again, stale, &mut |_| panic!("a look says nothing"));
+    assert_eq!(courier.hold(), Some(UpdateHold::Unasked(2)));
+    // On trial: held, and asked again twice a second, not at every cycle.
+    let ask = courier.next(t(40), |_| true).unwrap();
+    courier.on_result(t(40), &ask, standing(&ask, true, false), &mut |_| {
+        panic!("a look says nothing")
+    });
+    assert_eq!(courier.hold(), Some(UpdateHold::OnTrial(2)));
+    let asked: Vec<u64> = (60..2_000)
+        .step_by(20)
+        .filter(|ms| {
+            let Some(ask) = courier.next(t(*ms), |_| true) else {
+                return false;
+            };
+            courier.on_result(t(*ms), &ask, standing(&ask, true, false), &mut |_| {});
+            true
+        })
+        .collect();
+    assert_eq!(asked, [540, 1040, 1540]);
+    // Offline meanwhile (reset, say): what it said holds until it answers again, and is asked again then.
+    courier.seen(2, false);
+    assert_eq!(courier.hold(), Some(UpdateHold::OnTrial(2)));
+    courier.seen(2, true);
+    assert_eq!(courier.hold(), Some(UpdateHold::Unasked(2)));
+    // Confirmed: nothing holds, and nothing is asked.
+    let ask = courier.next(t(2_000), |_| true).unwrap();
+    courier.on_result(t(2_000), &ask, standing(&ask, false, false), &mut |_| {});
+    assert_eq!(courier.hold(), None);
+    assert!(
+        (2_020..10_000)
+            .step_by(20)
+            .all(|ms| courier.next(t(ms), |_| true).is_none())
+    );
+    // One that holds a mark (the master was reset between Finish and Reboot) holds until it restarts.
+    courier.seen(5, true);
+    let ask = courier.next(t(10_000), |_| true).unwrap();
+    courier.on_result(t(10_000), &ask, standing(&ask, false, true), &mut |_| {});
+    assert_eq!(courier.hold(), Some(UpdateHold::Marked(5)));
+    assert!(
+        courier.next(t(10_020), |_| true).is_none(),
+        "marked: asked again only once it answers again"
+    );
+    // One never asked that stops answering (missing) is not waited for; an IDS-only one takes no update.
+    courier.seen(5, true);
+    courier.seen(5, false);
+    courier.seen(6, true);
+    let ask = courier.next(t(11_000), |_| true).unwrap();
+    let status_frame = Err(ExchangeError::Frame(FrameError::MessageType {
+        expected: ext::EXT_REPLY_MT,
+        actual: 0x53,
+    }));
+    courier.on_result(t(11_000), &ask, status_frame, &mut |_| panic!("a look says nothing"));
+    assert_eq!(courier.hold(), None);
+}
+
+#[test]
+fn a_thruster_is_looked_at_only_when_no_transfer_has_an_exchange_to_make() {
+    let image = payload(3 * PAGE);
+    let mut courier = begun(&image);
+    courier.seen(1, true);
+    // The transfer's Version and Begin come first.
+    for (ms, command) in [(0, CommandKind::Version), (20, CommandKind::Begin)] {
+        let exchange = courier.next(t(ms), |_| true).unwrap();
+        assert_eq!((exchange.slot, exchange.frame.command.kind()), (0, command));
+        let result = answer(&mut [0; 8 * PAGE], &exchange, [0, 1, 0, 0]);
+        courier.on_result(t(ms), &exchange, result, &mut |_| {});
+    }
+    // Waiting for its first page: T2 is asked, and the page that comes meanwhile waits for the answer.
+    let ask = courier.next(t(40), |_| true).unwrap();
+    assert_eq!((ask.slot, ask.frame.command), (1, Command::Version));
+    for (n, block) in image[..PAGE + MAX_WRITE].chunks(MAX_WRITE).enumerate() {
+        courier.write((n * MAX_WRITE) as u32, block).unwrap();
+    }
+    assert!(courier.next(t(50), |slot| slot == 0).is_none(), "T1's bus waits");
+    courier.on_result(t(60), &ask, standing(&ask, false, false), &mut |_| {});
+    let check = courier.next(t(60), |_| true).unwrap();
+    assert_eq!((check.slot, check.frame.command.kind()), (0, CommandKind::Check));
+    // With a page to write, nobody else is asked.
+    courier.seen(1, true);
+    courier.on_result(
+        t(60),
+        &check,
+        answer(&mut [0; 8 * PAGE], &check, [0, 1, 0, 0]),
+        &mut |_| {},
+    );
+    assert_eq!(courier.next(t(80), |_| true).unwrap().slot, 0);
+}
+
+#[test]
+fn a_version_query_is_answered_while_an_image_written_whole_waits_for_its_apply() {
+    let image = payload(SMALL);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    assert!(courier.transfer.is_some_and(|t| t.step == Step::Written));
+    // Of the thruster that holds it, and of another.
+    for slot in [0, 3] {
+        courier.query(slot, GCS).unwrap();
+        let ask = courier.next(t(0), |_| true).unwrap();
+        assert_eq!((ask.slot, ask.frame.command), (slot, Command::Version));
+        let mut said = Vec::new();
+        courier.on_result(t(0), &ask, running(&ask, [0, 1, 0, 0], false), &mut |o| said.push(o));
+        assert_eq!(texts(&said), [format!("thruster{slot}.lbvu: runs 0.1.0")]);
+        assert_eq!(acks(&said), [(MAV_CMD_LBV_QUERY_VERSION, AckResult::Accepted)]);
+    }
+    // An apply taken while a query runs waits for its end, then goes on.
+    courier.query(0, GCS).unwrap();
+    assert_eq!(courier.apply(0, GCS), Ok(true));
+    let ask = courier.next(t(0), |_| true).unwrap();
+    assert_eq!(ask.frame.command, Command::Version);
+    courier.on_result(t(0), &ask, running(&ask, [0, 1, 0, 0], false), &mut |_| {});
+    let (said, sent) = carry(&mut courier, &[], &mut dfu, [0, 2, 0, 0]);
+    assert_eq!(sent[..2], [CommandKind::Finish, CommandKind::Reboot]);
+    assert_eq!(texts(&said).last().unwrap(), "thruster0.lbvu: 0.2.0 confirmed");
+}
+
+#[test]
+fn an_apply_holds_the_vehicle_from_the_command_to_the_confirmation_or_until_the_thruster_is_asked_again() {
+    let image = payload(SMALL);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    assert_eq!(courier.hold(), None, "written, not applied");
+    assert_eq!(courier.applier(0), None);
+    assert_eq!(courier.apply(0, GCS), Ok(true));
+    // The same apply again while it runs: the one under way, for its applier; the transfer stays where it is.
+    assert_eq!(courier.applier(0), Some(GCS));
+    assert_eq!(courier.applier(1), None);
+    assert_eq!(courier.hold(), Some(UpdateHold::Applying(0)));
+    // At every step of the apply, until the new image has confirmed.
+    let mut holds = Vec::new();
+    let mut said = Vec::new();
+    for ms in (0..6_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            holds.push(courier.hold());
+            continue;
+        };
+        let result = match exchange.frame.command {
+            Command::Version if ms < 3_000 => running(&exchange, [0, 2, 0, 0], true),
+            Command::Version => running(&exchange, [0, 2, 0, 0], false),
+            _ => answer(&mut dfu, &exchange, [0, 1, 0, 0]),
+        };
+        holds.push(courier.hold());
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+        if courier.transfer.is_some() {
+            assert_eq!(courier.hold(), Some(UpdateHold::Applying(0)), "at {ms} ms");
+        }
+    }
+    assert!(holds.contains(&Some(UpdateHold::Applying(0))));
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+    assert_eq!(courier.hold(), None);
+
+    // An apply that ends without an answer (the thruster silent since its reboot): it may be anywhere in its swap,
+    // so it is asked again before the vehicle arms.
+    let mut courier = rebooting();
+    for ms in (200..20_000).step_by(20) {
+        if let Some(exchange) = courier.next(t(ms), |slot| slot != 0) {
+            panic!("only T1 is on the bus: {exchange:?}");
+        }
+        if let Some(exchange) = courier.next(t(ms), |_| true) {
+            courier.on_result(t(ms), &exchange, Err(ExchangeError::Bus), &mut |_| {});
+        }
+        if courier.transfer.is_none() {
+            break;
+        }
+    }
+    assert!(courier.transfer.is_none());
+    assert_eq!(courier.hold(), Some(UpdateHold::Unasked(0)));
+}
+
+#[test]
+fn the_ground_stations_query_takes_the_place_of_a_look_under_way_whose_late_answer_is_not_taken() {
+    let mut courier = Courier::new();
+    courier.seen(1, true);
+    let look = courier.next(t(0), |_| true).unwrap();
+    assert_eq!(look.slot, 1);
+    courier.query(4, GCS).unwrap();
+    // A second query meanwhile waits for this one.
+    assert_eq!(courier.query(4, GCS), Err("wait: another query is under way"));
+    // The look's answer comes late: it is not the query's, and T2 is asked again later.
+    let mut said = Vec::new();
+    courier.on_result(t(5), &look, standing(&look, true, false), &mut |o| said.push(o));
+    assert!(said.is_empty());
+    assert_eq!(courier.hold(), Some(UpdateHold::Unasked(1)));
+    let ask = courier.next(t(20), |_| true).unwrap();
+    assert_eq!(ask.slot, 4);
+    courier.on_result(t(20), &ask, running(&ask, [0, 2, 0, 0], false), &mut |o| said.push(o));
+    assert_eq!(texts(&said), ["thruster4.lbvu: runs 0.2.0"]);
+    let look = courier.next(t(40), |_| true).unwrap();
+    assert_eq!(look.slot, 1);
+    courier.on_result(t(40), &look, standing(&look, false, false), &mut |_| {});
+    assert_eq!(courier.hold(), None);
 }

@@ -418,6 +418,13 @@ fn a_refusal_found_in_a_page_of_an_upload_stopped_meanwhile_does_not_touch_the_n
     assert_eq!(state_of(&flash), State::Swap);
 }
 
+/// Who applied the image, as the ticket's page notes it.
+fn applier_in(page: &[u8]) -> Option<Sender> {
+    let word = page[APPLIER_OFFSET as usize..][..8].try_into().unwrap();
+    let [component, system, ..] = read_checked_word(word)?.to_le_bytes();
+    Some(Sender { system, component })
+}
+
 /// The bytes of `span` in `flash`.
 fn bytes_of(flash: &Stm32g4Flash, span: Span) -> Vec<u8> {
     let start = at(span) as usize;
@@ -449,7 +456,8 @@ fn nothing_reaches_dfu_once_the_image_is_marked_not_even_an_upload_begun_during_
                 own_ref.write((index * DATA_LEN) as u32, piece).unwrap();
             }
             own_ref.finish(true);
-            own_ref.apply(OPERATOR).unwrap();
+            // No second apply starts while one runs: it is answered as the one under way.
+            assert_eq!(own_ref.apply(OPERATOR), Err(NotTaken::Applying(OPERATOR)));
         }
     }));
     own.apply(OPERATOR).unwrap();
@@ -495,8 +503,11 @@ fn the_apply_hands_the_bootloader_its_ticket_before_it_marks_the_image() {
     let ticket = Ticket::parse(&page).expect("a ticket");
     assert_eq!(ticket.payload_len, (file.len() - HEADER_LEN) as u32);
     assert_eq!(ticket.signature[..], file[16..HEADER_LEN]);
+    assert_eq!(applier_in(&page), Some(OPERATOR), "who applied it, beside the ticket");
     assert!(
-        page[TICKET_LEN..].iter().all(|byte| *byte == 0xFF),
+        page[TICKET_LEN..APPLIER_OFFSET as usize]
+            .iter()
+            .all(|byte| *byte == 0xFF),
         "no verdict left from before"
     );
 }
@@ -629,10 +640,7 @@ fn an_image_older_than_the_running_one_or_below_its_counter_is_refused_at_its_fi
     let at_version =
         |minor, counter| ImageInfo::new(Target::Master, Version::new(0, minor, 0)).with_security_counter(counter);
     for (image, refused) in [
-        (
-            at_version(2, 2),
-            Some("master.lbvu: refused: 0.2.0 is older than the"),
-        ),
+        (at_version(2, 2), Some("master.lbvu: refused: 0.2.0 is older than the")),
         (
             at_version(4, 1),
             Some("master.lbvu: refused: security counter 1 is below"),
@@ -658,7 +666,10 @@ fn an_image_older_than_the_running_one_or_below_its_counter_is_refused_at_its_fi
                 assert_eq!(uploaded, Err(NotTaken::Refused), "{image:?}");
                 assert!(said[0].starts_with(refused), "{image:?}: {said:?}");
                 // Whole, in at most two texts: nothing cut at the end.
-                assert!(said.len() <= 2 && said.last().is_some_and(|text| text.len() < 50), "{said:?}");
+                assert!(
+                    said.len() <= 2 && said.last().is_some_and(|text| text.len() < 50),
+                    "{said:?}"
+                );
                 assert_eq!(own.apply(OPERATOR), Err(NotTaken::Nothing));
             }
             None => {
@@ -688,8 +699,149 @@ fn a_verdict_not_told_before_the_next_image_is_marked_leaves_the_new_tickets_pag
     bench.run(Duration::from_millis(500));
     let said = texts(&bench.said());
     assert_eq!(said, ["master.lbvu: signature good, restarting"]);
-    // The page holds the new ticket and nothing after it: the bootloader's verdict on this image will be told.
+    // The page holds the new ticket and nothing after it but who applied it: the bootloader's verdict on this image
+    // will be told.
     let page = bytes_of(&flash, MASTER_PARTITIONS.ticket());
     assert!(Ticket::parse(&page).is_some());
-    assert!(page[TICKET_LEN..].iter().all(|byte| *byte == 0xFF));
+    assert!(
+        page[TICKET_LEN..APPLIER_OFFSET as usize]
+            .iter()
+            .all(|byte| *byte == 0xFF)
+    );
+    assert_eq!(applier_in(&page), Some(OPERATOR));
+    assert!(page[APPLIER_OFFSET as usize + 8..].iter().all(|byte| *byte == 0xFF));
+}
+
+#[test]
+fn the_vehicle_is_held_from_arming_from_the_apply_to_the_restart_and_a_second_apply_starts_nothing() {
+    let flash = flashed();
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let meddled = Meddled::new(&flash);
+    let hook = meddled.on_read.clone();
+    let updating = OwnFlash::new(meddled);
+    let mut bench = Bench::new(&own, &shared, &updating);
+    assert_eq!((own.hold(), shared.holds.get()), (None, None));
+    // A bad signature first: held during its check, free again after it.
+    let mut bad = signed(Target::Master, 5000);
+    bad[HEADER_LEN + 3000] ^= 0x10;
+    bench.upload(&bad).unwrap();
+    own.apply(OPERATOR).unwrap();
+    assert_eq!(
+        own.hold(),
+        Some(UpdateHold::MasterApplying),
+        "from the moment it is taken"
+    );
+    bench.run(Duration::from_millis(200));
+    assert_eq!(acks(&bench.said()), [AckResult::Failed]);
+    assert_eq!((own.hold(), shared.holds.get()), (None, None));
+
+    // A good one: during its check (between two of its chunks) the vehicle is held, and the same apply sent again,
+    // or another's, starts nothing: it is answered as the one under way.
+    let file = signed(Target::Master, 5000);
+    bench.upload(&file).unwrap();
+    let during_check = at(MASTER_PARTITIONS.dfu) + 4 * HASH_CHUNK as u32;
+    let seen = Rc::new(RefCell::new(Vec::new()));
+    let (own_ref, shared_ref, seen_ref) = (&own, &shared, seen.clone());
+    let stranger = Sender {
+        system: OPERATOR.system,
+        component: 1,
+    };
+    *hook.borrow_mut() = Some(Box::new(move |offset| {
+        if offset == during_check {
+            seen_ref
+                .borrow_mut()
+                .push((shared_ref.holds.get(), own_ref.apply(OPERATOR), own_ref.apply(stranger)));
+        }
+    }));
+    own.apply(OPERATOR).unwrap();
+    // Applied again before the task took it: the same.
+    assert_eq!(own.apply(OPERATOR), Err(NotTaken::Applying(OPERATOR)));
+    bench.run(Duration::from_millis(500));
+    *hook.borrow_mut() = None;
+    assert_eq!(
+        *seen.borrow(),
+        [(
+            Some(UpdateHold::MasterApplying),
+            Err(NotTaken::Applying(OPERATOR)),
+            Err(NotTaken::Applying(OPERATOR))
+        )],
+        "read once: one check"
+    );
+    let said = bench.said();
+    assert_eq!(texts(&said), ["master.lbvu: signature good, restarting"]);
+    assert!(acks(&said).is_empty(), "the final answer comes after the restart");
+    // Marked: held until the restart.
+    assert_eq!(own.hold(), Some(UpdateHold::MasterRestarting));
+    assert_eq!(shared.holds.get(), Some(UpdateHold::MasterRestarting));
+}
+
+#[test]
+fn an_image_on_trial_holds_the_vehicle_until_it_confirms_and_answers_the_component_that_applied_it() {
+    let flash = flashed();
+    let applier = Sender {
+        system: 255,
+        component: 191,
+    };
+    {
+        let (own, shared) = (OwnImage::new(), Shared::new());
+        let updating = OwnFlash::new(flash.clone());
+        let mut bench = Bench::new(&own, &shared, &updating);
+        bench.upload(&signed(Target::Master, 5000)).unwrap();
+        own.apply(applier).unwrap();
+        bench.run(Duration::from_millis(100));
+        assert_eq!(state_of(&flash), State::Swap);
+    }
+    // The restart: the bootloader swaps it in (here, only the state says so) and it runs on trial.
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    assert_eq!(shared.holds.get(), Some(UpdateHold::MasterOnTrial));
+    bench.said();
+    bench.hear_operator(true);
+    bench.run(Duration::from_millis(3200));
+    assert_eq!(state_of(&flash), State::Boot);
+    let said = bench.said();
+    assert_eq!(texts(&said), ["master.lbvu: 0.1.0 confirmed"]);
+    assert_eq!(
+        said.last(),
+        Some(&Outgoing::CommandAck {
+            command: MAV_CMD_LBV_APPLY_UPDATE,
+            result: AckResult::Accepted,
+            to: applier
+        }),
+        "to the component that applied it, not to component 0"
+    );
+    assert_eq!(shared.holds.get(), None);
+}
+
+#[test]
+fn the_trial_limit_never_restarts_an_armed_vehicle_it_waits_for_the_disarm() {
+    let flash = flashed();
+    on_trial(&flash);
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    // Armed before the task has read the bootloader's state (an arm the vehicle task took at the very start, had
+    // the start not held it: see the node's test of that), the operator not heard for 3 s without a gap.
+    let updating = OwnFlash::new(flash.clone());
+    shared.vehicle.sender().send(VehicleState {
+        armed: true,
+        console_alive: false,
+        refused: 0,
+        armable: false,
+        failsafe: false,
+        param_type_mismatches: 0,
+        operator: OPERATOR.system,
+    });
+    let mut bench = Bench::new(&own, &shared, &updating);
+    assert_eq!(texts(&bench.said()), ["master.lbvu: runs 0.1.0, on trial"]);
+    bench.run(TRIAL_LIMIT + Duration::from_secs(30));
+    let said = bench.said();
+    assert_eq!(texts(&said), ["master.lbvu: reverting once disarmed"], "said once");
+    assert!(!said.iter().any(|out| matches!(out, Outgoing::Reboot)));
+    // Disarmed (the operator's heartbeat lost, say): now it restarts, and the bootloader reverts the image.
+    bench.hear_operator(false);
+    bench.run(Duration::from_millis(200));
+    let said = bench.said();
+    assert_eq!(texts(&said), ["master.lbvu: no GCS heard on trial: reverting"]);
+    assert!(matches!(said.last(), Some(Outgoing::Reboot)));
+    assert_eq!(state_of(&flash), State::Swap);
 }

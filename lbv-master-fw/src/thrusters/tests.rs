@@ -507,11 +507,36 @@ impl Bench {
 
     /// Run bus 0's task alongside `script` until the script ends; virtual time starts at 0.
     fn run<'a>(&'a self, table: &'a [ThrusterSlot], config: &'a PollConfig, script: impl FnOnce(&mut Runner<'a>)) {
+        self.run_carrying(table, config, None, script);
+    }
+
+    /// As [`Bench::run`], the bus task carrying `transfers` too.
+    fn run_carrying<'a>(
+        &'a self,
+        table: &'a [ThrusterSlot],
+        config: &'a PollConfig,
+        transfers: Option<&'a Transfers>,
+        script: impl FnOnce(&mut Runner<'a>),
+    ) {
         let clock = clock::take();
         let mut executor = Executor::new();
         let mut port = thruster_bus(&self.bus, &BusConfig::THRUSTERS);
         executor.spawn(async move {
-            bus_task(&mut port, 0, table, config, &self.shared, &Links::new(config), None).await;
+            // As `Polling::run` does at the start: every thruster of the table is to be asked what it runs.
+            if let Some(transfers) = transfers {
+                transfers.with(|courier| courier.expect(table.len()));
+                transfers.publish(&self.shared);
+            }
+            bus_task(
+                &mut port,
+                0,
+                table,
+                config,
+                &self.shared,
+                &Links::new(config),
+                transfers,
+            )
+            .await;
         });
         script(&mut Runner {
             bench: self,
@@ -1201,4 +1226,49 @@ fn each_bus_task_polls_only_its_own_bus() {
         assert!(h.online && h.polls == h.good);
     }
     assert!(shared.thrusters[4].try_get().is_none());
+}
+
+#[test]
+fn every_thruster_is_asked_what_it_runs_once_it_answers_and_again_when_it_answers_again_holding_arming_until_then() {
+    use crate::shared::UpdateHold;
+    // T2 is missing at first. The scripted thrusters speak only the IDS: their answer to `Version` is their status
+    // frame, which says they take no update (and hold none).
+    let (bench, table) = Bench::muxed(3, Family::SeaBotix);
+    bench.thruster(1).mode = Mode::Silent;
+    let transfers = Transfers::new();
+    bench.run_carrying(&table, &PollConfig::DEFAULT, Some(&transfers), |sim| {
+        // Before the first poll has an answer: every thruster of the bus may have come up on trial.
+        sim.executor.run_for(&sim.clock, BIT, BIT);
+        assert_eq!(bench.shared.holds.get(), Some(UpdateHold::Unasked(0)));
+        // One cycle: the missing one is not waited for, the others have said.
+        sim.elapse(Duration::from_millis(40));
+        assert_eq!(bench.shared.holds.get(), None);
+        // It turns up: held until it has said what it runs, which the next exchange asks.
+        bench.thruster(1).mode = Mode::Good;
+        let mut held = Vec::new();
+        for _ in 0..2500 {
+            sim.elapse(MS);
+            held.push(bench.shared.holds.get());
+            if held.len() > 1 && held.last() == Some(&None) && held.contains(&Some(UpdateHold::Unasked(1))) {
+                break;
+            }
+        }
+        let asked_for = held
+            .iter()
+            .filter(|hold| **hold == Some(UpdateHold::Unasked(1)))
+            .count();
+        assert!((1..=21).contains(&asked_for), "held {asked_for} ms, {held:?}");
+        assert_eq!(held.last(), Some(&None));
+        // Reset (gone and back): asked again.
+        bench.thruster(2).mode = Mode::Silent;
+        sim.elapse(Duration::from_millis(40));
+        bench.thruster(2).mode = Mode::Good;
+        let mut seen = Vec::new();
+        for _ in 0..3000 {
+            sim.elapse(MS);
+            seen.push(bench.shared.holds.get());
+        }
+        assert!(seen.contains(&Some(UpdateHold::Unasked(2))), "asked again");
+        assert_eq!(seen.last(), Some(&None));
+    });
 }

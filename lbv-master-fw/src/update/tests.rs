@@ -22,6 +22,7 @@ const DISARMED: Context = Context {
     armed: false,
     operator: 255,
     restarting: false,
+    unsigned: false,
 };
 const ARMED: Context = Context {
     armed: true,
@@ -457,11 +458,121 @@ fn a_file_longer_than_its_header_says_is_refused() {
         s.texts()
             .contains(&"thruster0.lbvu: longer than its header says".to_owned())
     );
-    assert!(
-        !s.server.is_received(UpdateTarget::Thruster(0)),
-        "not the file the ground station holds"
+    // The write is refused, the image received whole is kept as it was received.
+    assert!(s.server.is_received(UpdateTarget::Thruster(0)));
+    assert_eq!(
+        s.server.received(UpdateTarget::Thruster(0)),
+        (1912, ftp::crc32(0, &file[..1912]))
     );
+    assert_eq!(s.images()[0].complete, Some(true));
+}
+
+#[test]
+fn one_write_past_the_end_of_an_image_whole_is_refused_and_the_image_kept() {
+    let file = update_file(1, 1000);
+    // Right after the last byte (the client's file is longer), or further on (a block of another file).
+    for (offset, data) in [(1080, &[0xEE; 20][..]), (1300, &[0xEE; 20]), (1000, &[0xEE; 239])] {
+        let mut s = Server::new();
+        assert!(ack(&s.put(0, 1, THRUSTER0, &file, 239)));
+        let whole = s.server.received(UpdateTarget::Thruster(0));
+        assert_eq!(whole, (1080, ftp::crc32(0, &file)));
+        s.said.clear();
+        assert_eq!(nak(&s.op(0, 1, WRITE, offset, data)), Some(Nak::Fail as u8), "{offset}");
+        assert_eq!(s.texts(), ["thruster0.lbvu: longer than its header says"], "{offset}");
+        assert!(s.server.is_received(UpdateTarget::Thruster(0)), "{offset}: kept");
+        assert_eq!(s.server.received(UpdateTarget::Thruster(0)), whole, "{offset}");
+        assert_eq!(
+            (s.images().len(), s.images()[0].complete, &s.images()[0].bytes),
+            (1, Some(true), &file),
+            "{offset}: the sink kept what it got"
+        );
+        // The session is over; the image can be applied.
+        assert_eq!(nak(&s.op(0, 1, WRITE, 1080, &[1])), Some(Nak::InvalidSession as u8));
+        assert_eq!(acked(&s.apply(DISARMED, GCS, Some(0))), Some(AckResult::Accepted));
+    }
+}
+
+#[test]
+fn a_block_sent_again_with_other_bytes_is_refused() {
+    let file = update_file(1, 2000);
+    let mut changed = file.clone();
+    changed[300] ^= 0x01;
+    // Under way: the write is refused and the upload stops (the sink drops it).
+    let mut s = Server::new();
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    for n in 0..3 {
+        assert!(ack(&s.op(
+            0,
+            1,
+            WRITE,
+            n * 239,
+            &file[n as usize * 239..(n as usize + 1) * 239]
+        )));
+    }
+    // The same block again: a duplicate, ACKed.
+    assert!(ack(&s.op(0, 1, WRITE, 239, &file[239..478])));
+    // Its ACK lost, sent again with a byte changed: refused; so is the last block changed.
+    assert_eq!(nak(&s.op(0, 1, WRITE, 239, &changed[239..478])), Some(Nak::Fail as u8));
+    assert_eq!(s.texts(), ["thruster0.lbvu: bytes sent again differ"]);
+    assert_eq!(s.images()[0].complete, Some(false), "dropped");
     assert_eq!(s.server.received(UpdateTarget::Thruster(0)), (0, 0));
+    assert_eq!(s.server.counters().duplicates, 1);
+    // Sent again reaching past what was taken: its old bytes are checked, its new ones taken.
+    let mut s = Server::new();
+    assert!(ack(&s.op(0, 2, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 2, WRITE, 0, &file[..239])));
+    assert!(ack(&s.op(0, 2, WRITE, 239, &file[239..400])));
+    assert_eq!(nak(&s.op(0, 2, WRITE, 239, &changed[239..478])), Some(Nak::Fail as u8));
+    let mut s = Server::new();
+    assert!(ack(&s.op(0, 2, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 2, WRITE, 0, &file[..239])));
+    assert!(ack(&s.op(0, 2, WRITE, 239, &file[239..400])));
+    assert!(ack(&s.op(0, 2, WRITE, 239, &file[239..478])));
+    assert_eq!(
+        s.server.received(UpdateTarget::Thruster(0)),
+        (478, ftp::crc32(0, &file[..478]))
+    );
+    // Whole: the write is refused and the image kept.
+    let mut s = Server::new();
+    let mut last = file.clone();
+    *last.last_mut().unwrap() ^= 0x80;
+    assert!(ack(&s.put(0, 3, THRUSTER0, &file, 239)));
+    let end = (file.len() / 239 * 239) as u32;
+    assert_eq!(
+        nak(&s.op(0, 3, WRITE, end, &last[end as usize..])),
+        Some(Nak::Fail as u8)
+    );
+    assert!(s.server.is_received(UpdateTarget::Thruster(0)));
+    assert_eq!(s.server.received(UpdateTarget::Thruster(0)).1, ftp::crc32(0, &file));
+    assert_eq!(s.texts().last().unwrap(), "thruster0.lbvu: bytes sent again differ");
+}
+
+#[test]
+fn a_block_sent_again_from_where_no_mark_is_kept_cannot_be_checked_and_is_taken_as_before() {
+    let file = update_file(1, 8000);
+    let mut changed = file.clone();
+    changed[100] ^= 0x01;
+    let mut s = Server::new();
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    // Another block size: from 100, no write ended there.
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    assert!(ack(&s.op(0, 1, WRITE, 100, &changed[100..300])));
+    // Older than the last MARKS writes: the first block, after 16 more.
+    for n in 0..MARKS {
+        let from = 300 + n * 200;
+        assert!(ack(&s.op(0, 1, WRITE, from as u32, &file[from..from + 200])), "{n}");
+    }
+    assert!(ack(&s.op(0, 1, WRITE, 0, &changed[..239])));
+    // The bytes taken are the first ones sent: what the sink has, and the CRC the listing gives.
+    let received = s.server.received(UpdateTarget::Thruster(0));
+    let n = received.0 as usize;
+    assert_eq!(received.1, ftp::crc32(0, &file[..n]));
+    assert_eq!(s.images()[0].bytes, file[..n]);
+    // A block from a mark kept is still checked.
+    let start = n - 200;
+    let mut late = file[start..n].to_vec();
+    late[3] ^= 0x10;
+    assert_eq!(nak(&s.op(0, 1, WRITE, start as u32, &late)), Some(Nak::Fail as u8));
 }
 
 #[test]
@@ -510,13 +621,30 @@ fn one_session_at_a_time() {
 fn terminate_and_reset_close_the_session() {
     let mut s = Server::new();
     let file = update_file(1, 2000);
-    // Terminating a session that is not open: nothing to do, ACKed (as ArduPilot does).
+    // Terminating a session when none is open: nothing to do, ACKed (as ArduPilot does).
     assert!(ack(&s.op(0, 4, TERMINATE, 0, &[])));
     assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
     assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
-    // Another session's terminate, or another system's reset, leave it open.
-    assert!(ack(&s.op(0, 4, TERMINATE, 0, &[])));
-    assert!(ack(&s.send(0, DISARMED, OTHER, &payload(1, 0, RESET, 0, &[]))));
+    // A session that is not the sender's: another session of its own, or another client's (another system, another
+    // component of the operator's system) is refused, and left open.
+    let mut operator_elsewhere = GCS;
+    operator_elsewhere.component = 1;
+    for (from, opcode, session) in [
+        (GCS, TERMINATE, 4),
+        (OTHER, TERMINATE, 1),
+        (OTHER, RESET, 0),
+        (OTHER, RESET, 1),
+        (operator_elsewhere, TERMINATE, 1),
+        (operator_elsewhere, RESET, 1),
+    ] {
+        let reply = s.send(0, DISARMED, from, &payload(1, session, opcode, 0, &[]));
+        assert_eq!(
+            nak(&reply),
+            Some(Nak::InvalidSession as u8),
+            "{from:?} {opcode} {session}"
+        );
+    }
+    assert!(s.texts().is_empty());
     assert!(ack(&s.op(0, 1, WRITE, 239, &file[239..478])));
     // Its own terminate stops the upload: the sink drops it.
     assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
@@ -754,6 +882,159 @@ fn remove_forgets_and_a_refused_upload_keeps_the_image_held() {
         Some(Nak::InvalidSession as u8)
     );
     assert_eq!(s.images().last().unwrap().complete, Some(false));
+}
+
+#[test]
+fn a_remove_of_another_components_live_upload_is_refused() {
+    let mut s = Server::new();
+    let file = update_file(1, 2000);
+    let mut companion = GCS;
+    companion.component = 1;
+    let remove = |seq| payload(seq, 0, REMOVE, 0, THRUSTER0.as_bytes());
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    // Another component of the operator's system, while the upload is live: refused, the upload goes on.
+    assert_eq!(
+        nak(&s.send(2000, DISARMED, companion, &remove(40))),
+        Some(Nak::Fail as u8)
+    );
+    assert_eq!(s.texts(), ["thruster0.lbvu: another component is uploading it"]);
+    assert!(ack(&s.op(2500, 1, WRITE, 239, &file[239..478])));
+    // Another file than the one uploaded is its to remove.
+    assert!(ack(&s.send(
+        2500,
+        DISARMED,
+        companion,
+        &payload(41, 0, REMOVE, 0, b"/update/master.lbvu")
+    )));
+    // Idle for TAKEOVER_IDLE, the upload may be taken over, and removed.
+    assert!(ack(&s.send(5500, DISARMED, companion, &remove(42))));
+    assert_eq!(s.images()[0].complete, Some(false));
+    assert_eq!(
+        nak(&s.op(5500, 1, WRITE, 478, &file[478..717])),
+        Some(Nak::InvalidSession as u8)
+    );
+    // Once whole, the image is anyone's of the operator's to remove, the session still open.
+    assert!(ack(&s.put(6000, 2, THRUSTER0, &file, 239)));
+    assert!(ack(&s.send(6000, DISARMED, companion, &remove(43))));
+    assert!(!s.server.is_received(UpdateTarget::Thruster(0)));
+}
+
+#[test]
+fn nothing_changes_over_a_link_without_signing_unless_allowed() {
+    const UNSIGNED_LINK: Context = Context {
+        unsigned: true,
+        ..DISARMED
+    };
+    let mut s = Server::new();
+    let file = update_file(1, 1000);
+    // An upload under way when signing goes off stops at its next write.
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    let write = payload(30, 1, WRITE, 239, &file[239..478]);
+    assert_eq!(nak(&s.send(0, UNSIGNED_LINK, GCS, &write)), Some(Nak::Fail as u8));
+    assert_eq!(s.images()[0].complete, Some(false));
+    // No upload begins, nothing is removed.
+    for (n, opcode) in [CREATE, OPEN_WO, REMOVE].into_iter().enumerate() {
+        let request = payload(40 + n as u16, 2, opcode, 0, THRUSTER0.as_bytes());
+        assert_eq!(
+            nak(&s.send(0, UNSIGNED_LINK, GCS, &request)),
+            Some(Nak::Fail as u8),
+            "{opcode}"
+        );
+    }
+    assert_eq!(s.texts(), ["thruster0.lbvu: refused, the link is not signed"; 4]);
+    // Anyone may still read.
+    assert!(ack(&s.send(
+        0,
+        UNSIGNED_LINK,
+        OTHER,
+        &payload(50, 0, LIST, 0, b"/update")
+    )));
+    assert!(ack(&s.send(
+        0,
+        UNSIGNED_LINK,
+        GCS,
+        &payload(51, 0, CRC, 0, THRUSTER0.as_bytes())
+    )));
+    assert_eq!(s.images().len(), 1, "the sink began nothing more");
+}
+
+/// A vehicle publishing its state and `settings` into `shared`, as the vehicle task does.
+fn publish(shared: &Shared, settings: crate::params::Settings) {
+    let vehicle = crate::vehicle::Vehicle::new(crate::vehicle::VehicleConfig::DEFAULT, settings);
+    shared.vehicle.sender().send(vehicle.state(t(0)));
+    shared.settings.sender().send(settings);
+}
+
+#[test]
+fn the_link_is_unsigned_for_updates_unless_a_key_is_in_force_or_the_parameter_allows_it() {
+    use crate::params::{Param, Settings};
+    use crate::signing::SigningKey;
+    let shared = Shared::new();
+    assert!(Context::of(&shared).unsigned, "before the settings are known");
+    let defaults = Settings::defaults(crate::mixer::FrameKind::Lbv300_6);
+    publish(&shared, defaults);
+    assert!(Context::of(&shared).unsigned, "no key, LBV_UPD_UNSIGNED 0");
+    let mut allowed = defaults;
+    assert!(allowed.params.set(Param::UnsignedUpdates, 1));
+    publish(&shared, allowed);
+    assert!(!Context::of(&shared).unsigned);
+    let signed = Settings {
+        signing: Some(SigningKey {
+            secret: [3; 32],
+            timestamp: 1,
+        }),
+        ..defaults
+    };
+    publish(&shared, signed);
+    assert!(!Context::of(&shared).unsigned);
+}
+
+#[test]
+fn the_apply_command_over_a_link_without_signing_is_denied_with_why() {
+    use crate::params::{Param, Settings};
+    let shared = Shared::new();
+    let defaults = Settings::defaults(crate::mixer::FrameKind::Lbv300_6);
+    let mut allowed = defaults;
+    assert!(allowed.params.set(Param::UnsignedUpdates, 1));
+    publish(&shared, allowed);
+    let mut updates = Updates::new(&VEHICLE.thrusters, CheckOnly);
+    let file = update_file(1, 1000);
+    let ftp = |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
+        from: GCS,
+        what: UpdateCommand::Ftp(payload(seq, 1, opcode, offset, data)),
+    };
+    assert!(
+        updates
+            .serve(ftp(1, CREATE, 0, THRUSTER0.as_bytes()), &shared)
+            .is_some()
+    );
+    for (n, chunk) in file.chunks(239).enumerate() {
+        let reply = updates.serve(ftp(2 + n as u16, WRITE, (n * 239) as u32, chunk), &shared);
+        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply[3] == ACK));
+    }
+    let drain = || core::iter::from_fn(|| shared.outbox.try_receive().ok()).collect::<Vec<_>>();
+    drain();
+    // LBV_UPD_UNSIGNED back to 0: the image held is not applied.
+    publish(&shared, defaults);
+    let apply = UpdateRequest {
+        from: GCS,
+        what: UpdateCommand::Apply(Some(0)),
+    };
+    assert_eq!(updates.serve(apply, &shared), None);
+    let said = drain();
+    assert_eq!(
+        (acked(&said), text_of(&said)),
+        (
+            Some(AckResult::Denied),
+            vec!["update: refused, the link is not signed".to_owned()]
+        )
+    );
+    // Allowed again: applied.
+    publish(&shared, allowed);
+    assert_eq!(updates.serve(apply, &shared), None);
+    assert_eq!(acked(&drain()), Some(AckResult::Accepted));
 }
 
 /// A sink that takes every image and keeps nothing: an apply starts for a thruster and fails for the master; a
@@ -1170,4 +1451,110 @@ fn a_version_query_goes_to_the_sink_for_the_operator_and_a_thruster_slot_only() 
         [1, 2],
         "only the operator's queries of thruster slots reach the sink"
     );
+}
+
+/// A sink whose apply is under way already, for `by`; it counts the times it was asked to publish its holds, and
+/// publishes an apply of thruster 0.
+struct UnderWay {
+    by: Sender,
+    published: core::cell::Cell<u32>,
+}
+
+impl UpdateSink for UnderWay {
+    fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
+        Ok(())
+    }
+    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
+        Ok(())
+    }
+    fn finish(&mut self, _: bool) -> Result<(), Refused> {
+        Ok(())
+    }
+    fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
+        Ok(Applied::Applying(self.by))
+    }
+    fn publish(&self, holds: &UpdateHolds) {
+        self.published.set(self.published.get() + 1);
+        holds.set_thrusters(Some(crate::shared::UpdateHold::Applying(0)));
+    }
+}
+
+#[test]
+fn a_second_apply_while_one_runs_is_answered_as_the_one_under_way_never_failed() {
+    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut sink = UnderWay {
+        by: GCS,
+        published: core::cell::Cell::new(0),
+    };
+    // An image held whole for each target, as the first apply found it.
+    for (path, kind) in [(THRUSTER0, 1), ("/update/master.lbvu", 3)] {
+        let file = update_file(kind, 152);
+        for (seq, opcode, data) in [
+            (1, CREATE, path.as_bytes()),
+            (2, WRITE, &file[..]),
+            (3, TERMINATE, &[][..]),
+        ] {
+            let request = payload(seq, 1, opcode, 0, data);
+            assert!(
+                server
+                    .request(t(0), DISARMED, GCS, &request, &mut sink, &mut |_| {})
+                    .is_some()
+            );
+        }
+        let target = if kind == 3 { MASTER_SLOT } else { 0 };
+        let name = path.trim_start_matches("/update/");
+        // The same requester (its answer lost, say) twice: IN_PROGRESS, the final answer to follow.
+        for _ in 0..2 {
+            let mut said = Vec::new();
+            server.apply(DISARMED, GCS, Some(target), &mut sink, &mut |o| said.push(o));
+            assert_eq!(
+                (acked(&said), text_of(&said)),
+                (Some(AckResult::InProgress), vec![format!("{name}: applying")])
+            );
+        }
+        // Another component of the operator's system: not its apply.
+        let companion = Sender {
+            system: GCS.system,
+            component: 1,
+        };
+        let mut said = Vec::new();
+        server.apply(DISARMED, companion, Some(target), &mut sink, &mut |o| said.push(o));
+        assert!(matches!(
+            said.as_slice(),
+            [Outgoing::CommandAck { result: AckResult::TemporarilyRejected, to, .. }, Outgoing::Text(_, text)]
+                if *to == companion && text.as_str() == format!("{name}: applying")
+        ));
+        // Armed, as ever: not now.
+        let mut said = Vec::new();
+        server.apply(ARMED, GCS, Some(target), &mut sink, &mut |o| said.push(o));
+        assert_eq!(acked(&said), Some(AckResult::TemporarilyRejected));
+        assert_eq!(text_of(&said), [format!("{name}: disarm to update")]);
+    }
+}
+
+#[test]
+fn the_update_server_has_the_sink_publish_its_holds_as_soon_as_an_apply_command_is_served() {
+    let shared = Shared::new();
+    let mut updates = Updates::new(
+        &VEHICLE.thrusters,
+        UnderWay {
+            by: GCS,
+            published: core::cell::Cell::new(0),
+        },
+    );
+    let request = UpdateRequest {
+        from: GCS,
+        what: UpdateCommand::Apply(Some(0)),
+    };
+    assert_eq!(updates.serve(request, &shared), None);
+    // Before any other task runs: an arm command read next finds the vehicle held.
+    assert_eq!(updates.sink.published.get(), 1);
+    assert_eq!(shared.holds.get(), Some(crate::shared::UpdateHold::Applying(0)));
+    // Not for the other requests.
+    let query = UpdateRequest {
+        from: GCS,
+        what: UpdateCommand::QueryVersion(Some(0)),
+    };
+    updates.serve(query, &shared);
+    assert_eq!(updates.sink.published.get(), 1);
 }

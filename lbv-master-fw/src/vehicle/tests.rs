@@ -316,6 +316,50 @@ fn arming_needs_the_operators_heartbeat() {
 }
 
 #[test]
+fn arming_is_refused_while_the_field_update_holds_the_vehicle_saying_why() {
+    use crate::shared::UpdateHold::*;
+    for (hold, why) in [
+        (MasterStarting, "Arm rejected: master starting"),
+        (MasterApplying, "Arm rejected: master update being applied"),
+        (MasterRestarting, "Arm rejected: master restarting into its update"),
+        (MasterOnTrial, "Arm rejected: master image on trial"),
+        (Applying(0), "Arm rejected: T1 update being applied"),
+        (OnTrial(2), "Arm rejected: T3 image on trial"),
+        (Marked(5), "Arm rejected: T6 holds an update marked"),
+        (Unasked(7), "Arm rejected: T8 image not asked yet"),
+    ] {
+        let mut bench = Bench::new(VehicleConfig::default());
+        bench.command(0, Command::Heartbeat);
+        bench.vehicle.hold_for_update(Some(hold));
+        assert_eq!(bench.vehicle.arm_check(t(10)), Err(ArmRefusal::Update(hold)));
+        assert!(
+            !bench.vehicle.state(t(10)).armable,
+            "{hold:?}: the pre-arm check says so too"
+        );
+        // The same arm twice: refused twice, the same way, and nothing drives.
+        for ms in [10, 20] {
+            assert_eq!(
+                bench.command(ms, Command::Arm(true)),
+                [ack(ARM, AckResult::TemporarilyRejected), text(Severity::Warning, why)],
+                "{hold:?}"
+            );
+        }
+        bench.command(30, manual(1000, 0, 500, 0));
+        assert!(!bench.armed(30) && bench.steps(30) == [0; MAX_THRUSTERS]);
+        // Once nothing holds it, the same arm is taken.
+        bench.vehicle.hold_for_update(None);
+        assert_eq!(
+            bench.command(40, Command::Arm(true)),
+            [ack(ARM, AckResult::Accepted), text(Severity::Info, "Armed")]
+        );
+    }
+    // Without the operator's heartbeat that is said first: the ground station hears what to fix first.
+    let mut bench = Bench::new(VehicleConfig::default());
+    bench.vehicle.hold_for_update(Some(OnTrial(0)));
+    assert_eq!(bench.vehicle.arm_check(t(0)), Err(ArmRefusal::NoHeartbeat));
+}
+
+#[test]
 fn ground_station_failsafe_disarms_at_exactly_the_timeout() {
     let mut bench = Bench::new(VehicleConfig::default());
     bench.arm(0);
@@ -919,6 +963,7 @@ fn parameter_list_and_read() {
         value(Param::PowerCap, 100.0),
         value(Param::Frame, 6.0),
         value(Param::MotorTestMax, 30.0),
+        value(Param::UnsignedUpdates, 0.0),
     ];
     assert_eq!(bench.command(0, Command::ParamRequestList), all);
     for (n, expected) in all.iter().enumerate() {
@@ -950,7 +995,7 @@ fn parameter_list_and_read() {
         ("LBV_GAINS", -1),
         ("lbv_gain", -1),
         ("", -1),
-        ("LBV_GAIN", 9),
+        ("LBV_GAIN", 10),
         ("LBV_GAIN", 300),
     ] {
         assert!(
@@ -1117,6 +1162,53 @@ fn unknown_commands_are_unsupported() {
     );
     assert!(!bench.vehicle.state(t(0)).console_alive, "only heartbeats are life");
     assert_eq!(bench.said.len(), 1);
+}
+
+#[test]
+fn the_vehicle_task_refuses_an_arm_while_shared_holds_say_an_update_holds_it() {
+    let _clock = lbv_sim::clock::take();
+    let shared = Shared::new();
+    let config = VehicleConfig::default();
+    let drain = || core::iter::from_fn(|| shared.outbox.try_receive().ok()).collect::<Vec<_>>();
+    let request = |command| Request { from: GCS, command };
+    let script = async {
+        elapse(Duration::from_millis(25)).await;
+        // A thruster holds an update marked for its bootloader (its next reset swaps it in): no arm, so no order
+        // that drives reaches it.
+        shared.holds.set_thrusters(Some(crate::shared::UpdateHold::Marked(2)));
+        shared.commands.send(request(Command::Heartbeat)).await;
+        shared.commands.send(request(Command::Arm(true))).await;
+        shared.commands.send(request(manual(1000, 0, 500, 0))).await;
+        elapse(Duration::from_millis(30)).await;
+        assert_eq!(
+            drain(),
+            [
+                ack(ARM, AckResult::TemporarilyRejected),
+                text(Severity::Warning, "Arm rejected: T3 holds an update marked")
+            ]
+        );
+        let state = shared.vehicle.try_get().unwrap();
+        assert!(!state.armed && !state.armable);
+        assert_eq!(shared.orders.try_get(), Some(STOP));
+        // The master's own hold comes first; once both are gone, the arm is taken.
+        shared.holds.set_master(Some(crate::shared::UpdateHold::MasterOnTrial));
+        shared.commands.send(request(Command::Arm(true))).await;
+        elapse(Duration::from_millis(2)).await;
+        assert_eq!(
+            drain()[1],
+            text(Severity::Warning, "Arm rejected: master image on trial")
+        );
+        shared.holds.set_master(None);
+        shared.holds.set_thrusters(None);
+        shared.commands.send(request(Command::Arm(true))).await;
+        elapse(Duration::from_millis(2)).await;
+        assert_eq!(drain(), [ack(ARM, AckResult::Accepted), text(Severity::Info, "Armed")]);
+        assert!(shared.vehicle.try_get().unwrap().armed);
+    };
+    match block_on(select(vehicle_task(config, config.defaults(), &shared), script)) {
+        Either::First(never) => match never {},
+        Either::Second(()) => {}
+    }
 }
 
 #[test]

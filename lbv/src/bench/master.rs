@@ -34,7 +34,7 @@ use lbv_master_fw::update::VehicleSink;
 use lbv_master_fw::{MasterConfig, Polling, Ports};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
-use lbv_sim::{Cpu, Executor, Queue, SerialRx, SerialTx, TaskId};
+use lbv_sim::{Cpu, Executor, LineRx, LineTx, Queue, SerialLine, SerialRx, SerialTx, TaskId};
 use tmc_proto::Family;
 use update_image::{INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
 
@@ -59,6 +59,85 @@ pub struct Wiring {
     pub console_in: Queue<u8>,
     /// Bytes the master sent to the ground station, not yet collected.
     pub console_out: Queue<u8>,
+    /// The console link at its baud rate instead of the two queues, when the bench has one
+    /// ([`crate::bench::BenchConfig::console_baud`]).
+    pub console_line: Option<ConsoleLine>,
+}
+
+/// The console link at its baud rate, between the master's UART (LPUART1: 512-byte transmit and 256-byte receive
+/// ring buffers, as its binding has them) and the ground station's (a PC's, which keeps up).
+#[derive(Debug, Clone)]
+pub struct ConsoleLine {
+    /// Ground station to master: what finds the master's 256-byte receive buffer full is lost.
+    pub to_master: SerialLine,
+    /// Master to ground station.
+    pub from_master: SerialLine,
+}
+
+impl ConsoleLine {
+    /// The master's transmit buffer, as its binding has it (`stm32.rs`).
+    pub const MASTER_TX_BUFFER: usize = 512;
+    /// The master's receive buffer, as its binding has it (`stm32.rs`).
+    pub const MASTER_RX_BUFFER: usize = 256;
+
+    /// A link at `baud` both ways.
+    pub fn new(baud: u32) -> Self {
+        Self {
+            to_master: SerialLine::new(baud, usize::MAX, Self::MASTER_RX_BUFFER),
+            from_master: SerialLine::new(baud, Self::MASTER_TX_BUFFER, usize::MAX),
+        }
+    }
+}
+
+/// The master's console receive port: the bench's instant queue, or the line at its baud rate.
+#[derive(Debug)]
+pub enum ConsoleRx {
+    /// Every byte at once.
+    Instant(SerialRx),
+    /// At the line's rate, into the UART's buffer.
+    Line(LineRx),
+}
+
+impl embedded_io_async::ErrorType for ConsoleRx {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io_async::Read for ConsoleRx {
+    async fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        match self {
+            Self::Instant(rx) => rx.read(buf).await,
+            Self::Line(rx) => rx.read(buf).await,
+        }
+    }
+}
+
+/// The master's console transmit port: the bench's instant queue, or the line at its baud rate.
+#[derive(Debug)]
+pub enum ConsoleTx {
+    /// Every byte at once.
+    Instant(SerialTx),
+    /// At the line's rate, through the UART's buffer.
+    Line(LineTx),
+}
+
+impl embedded_io_async::ErrorType for ConsoleTx {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io_async::Write for ConsoleTx {
+    async fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        match self {
+            Self::Instant(tx) => tx.write(buf).await,
+            Self::Line(tx) => tx.write(buf).await,
+        }
+    }
+
+    async fn flush(&mut self) -> Result<(), Self::Error> {
+        match self {
+            Self::Instant(tx) => tx.flush().await,
+            Self::Line(tx) => tx.flush().await,
+        }
+    }
 }
 
 /// Between the master's acceptance test and the scenario acting as the person at the bench: the steps reported,
@@ -190,6 +269,9 @@ impl MasterBoard {
         self.shared = Rc::new(Shared::new());
         self.console_stats = Rc::new(ConsoleStats::new());
         wiring.can.clear();
+        if let Some(line) = &wiring.console_line {
+            line.to_master.reset_receiver();
+        }
         self.cpu.reset();
         self.flash.power_on();
         self.start(wiring, executor);
@@ -226,8 +308,14 @@ impl MasterBoard {
         let ports = Ports {
             buses: wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus)),
             can: CanNode(wiring.can.clone()),
-            console_rx: SerialRx::new(wiring.console_in.clone()),
-            console_tx: SerialTx(wiring.console_out.clone()),
+            console_rx: match &wiring.console_line {
+                Some(line) => ConsoleRx::Line(line.to_master.rx()),
+                None => ConsoleRx::Instant(SerialRx::new(wiring.console_in.clone())),
+            },
+            console_tx: match &wiring.console_line {
+                Some(line) => ConsoleTx::Line(line.from_master.tx()),
+                None => ConsoleTx::Instant(SerialTx(wiring.console_out.clone())),
+            },
             settings: flash_store(&self.flash),
             reboot: self.reboot.clone(),
             work: (),

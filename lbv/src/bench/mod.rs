@@ -33,7 +33,7 @@ use lbv_station::GroundStation;
 use tmc_proto::Family;
 
 use battery::{BatteryBoard, Rail};
-use master::{MasterBoard, Wiring};
+use master::{ConsoleLine, MasterBoard, Wiring};
 use thruster::ThrusterBoard;
 use trace::{Event, Recorder, Sample, ThrusterSample, Trace};
 
@@ -75,6 +75,9 @@ pub struct BenchConfig {
     /// The two-board bench instead of the vehicle: the thrusters wired to the dev kit's bus directly (no
     /// TCA9548A) and the master running its acceptance test instead of polling.
     pub acceptance: bool,
+    /// The console link at this baud rate, into the master's UART buffers as its binding has them
+    /// ([`master::ConsoleLine`]); `None`: every byte at once, in unbounded queues.
+    pub console_baud: Option<u32>,
 }
 
 impl BenchConfig {
@@ -84,6 +87,7 @@ impl BenchConfig {
             families: vec![Family::SeaBotix; 6],
             seed,
             acceptance: false,
+            console_baud: None,
         }
     }
 
@@ -228,6 +232,7 @@ impl Bench {
             can: can.attach(),
             console_in: Queue::new(),
             console_out: Queue::new(),
+            console_line: config.console_baud.map(ConsoleLine::new),
         };
         let master = MasterBoard::boot(master_config, config.acceptance, &wiring, &mut executor);
         for thruster in &mut thrusters {
@@ -459,6 +464,10 @@ impl Bench {
             } else {
                 None
             },
+            self.wiring
+                .console_line
+                .as_ref()
+                .and_then(|line| line.from_master.next_arrival()),
         ]
         .into_iter()
         .flatten()
@@ -492,7 +501,18 @@ impl Bench {
     fn exchange(&mut self, now: Instant) -> bool {
         let frame = now >= self.battery.next_frame();
         let ground = self.console_sink.is_none() && self.ground.next_due().is_some_and(|due| now >= due);
-        if !frame && !ground && now < self.next_sample && self.outgoing.is_empty() && self.wiring.console_out.is_empty()
+        let arrived = self
+            .wiring
+            .console_line
+            .as_ref()
+            .and_then(|line| line.from_master.next_arrival())
+            .is_some_and(|at| at <= now);
+        if !frame
+            && !ground
+            && !arrived
+            && now < self.next_sample
+            && self.outgoing.is_empty()
+            && self.wiring.console_out.is_empty()
         {
             return false;
         }
@@ -512,10 +532,16 @@ impl Bench {
         }
         if !outgoing.is_empty() && self.ground.connected {
             self.console_bytes.0 += outgoing.len() as u64;
-            self.wiring.console_in.send(outgoing);
+            match &self.wiring.console_line {
+                Some(line) => line.to_master.send(outgoing),
+                None => self.wiring.console_in.send(outgoing),
+            }
             handed = true;
         }
-        let received = self.wiring.console_out.take();
+        let received = match &self.wiring.console_line {
+            Some(line) => line.from_master.take_arrived(),
+            None => self.wiring.console_out.take(),
+        };
         self.console_bytes.1 += received.len() as u64;
         if let Some(sink) = self.console_sink.as_mut() {
             if !received.is_empty() {

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use g431_hw::flash::{NmiAction, eccr, eccr_address, nmi_action};
 use g431_hw::memory::FLASH_ORIGIN;
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
-use lbv_master_fw::params::Settings;
+use lbv_master_fw::params::{PARAM_COUNT, Settings};
 use lbv_master_fw::settings::DATA_PAGES;
 use lbv_master_fw::shared::{
     MAV_CMD_COMPONENT_ARM_DISARM as ARM_DISARM, MAV_CMD_DO_MOTOR_TEST as MOTOR_TEST,
@@ -516,7 +516,7 @@ pub fn signing_reboot(run: &mut Run) {
 
 /// The operator sets `key` over the console (SETUP_SIGNING, unsigned as the first time must be) and signs with it
 /// from then on; checked to be in force.
-fn set_key(run: &mut Run, key: [u8; 32]) {
+pub(super) fn set_key(run: &mut Run, key: [u8; 32]) {
     let setup = run.bench.ground.setup_signing(key, SIGNING_EPOCH);
     run.bench.send(setup);
     run.bench.ground.signing = Some(Signing::new(key));
@@ -575,7 +575,7 @@ pub fn settings_persist(run: &mut Run) {
     let read = read_params(run);
     run.check(
         "the parameters are still set after the reboot",
-        holds(&read, &expected) && read.len() == 9,
+        holds(&read, &expected) && read.len() == PARAM_COUNT,
         format!("{read:?}"),
     );
 
@@ -603,8 +603,8 @@ pub fn settings_power_cut(run: &mut Run) {
     let set = expected.iter().all(|(name, value)| set_param(run, name, *value));
     run.check("the parameters are set", set, format!("{expected:?}"));
 
-    // A write of one record is 96 bytes (with 16 more when it moves to a new page): cuts on a double word's boundary
-    // and inside one.
+    // A write of one record is 104 bytes (with 16 more when it moves to a new page): cuts on a double word's
+    // boundary and inside one.
     let mut outcomes = Vec::new();
     let mut kept_earlier = true;
     for (n, cut_after) in [0, 5, 8, 43, 88, 95].into_iter().enumerate() {
@@ -723,7 +723,7 @@ fn cut_during(
     let lost = after.get(name) != Some(&value);
     let as_before = |n: &str| after.contains_key(n) && after.get(n) == before.get(n);
     let ok = cut
-        && after.len() == 9
+        && after.len() == PARAM_COUNT
         && after.keys().filter(|n| *n != name).all(|n| as_before(n))
         && (!lost || as_before(name));
     if !lost {
@@ -753,7 +753,7 @@ pub fn settings_while_driving(run: &mut Run) {
     let flash_before = run.bench.master.flash.stats();
     let stalls_before = run.bench.master.cpu.stalls();
     let mut answered = 0;
-    // 168 records fill the eight pages; every 21 records after that erase one. The writes take their time beside
+    // 152 records fill the eight pages; every 19 records after that erase one. The writes take their time beside
     // the code (bank 2), and changes that come meanwhile go into the next record together: fewer than 260.
     let n = 260u32;
     for write in 0..n {

@@ -189,12 +189,22 @@ pub fn lbv300(seed: u64) -> BenchConfig {
     BenchConfig::lbv300(seed)
 }
 
+/// The LBV300-6 with its console link at the binding's 115200 baud, into the LPUART's buffers
+/// ([`crate::bench::master::ConsoleLine`]), rather than the bench's instant one.
+pub fn lbv300_uart(seed: u64) -> BenchConfig {
+    BenchConfig {
+        console_baud: Some(115_200),
+        ..BenchConfig::lbv300(seed)
+    }
+}
+
 /// The LBV300-6 with six Legacy thrusters.
 pub fn legacy6(seed: u64) -> BenchConfig {
     BenchConfig {
         families: vec![Family::Legacy; 6],
         seed,
         acceptance: false,
+        console_baud: None,
     }
 }
 
@@ -204,6 +214,7 @@ pub fn mixed(seed: u64) -> BenchConfig {
         families: [Family::SeaBotix, Family::Legacy].repeat(3),
         seed,
         acceptance: false,
+        console_baud: None,
     }
 }
 
@@ -213,6 +224,7 @@ pub fn dev_kits(seed: u64) -> BenchConfig {
         families: vec![Family::SeaBotix, Family::Legacy],
         seed,
         acceptance: true,
+        console_baud: None,
     }
 }
 

@@ -4,13 +4,14 @@
 //!
 //! - [`harness`]: the run, its checks and report, and the checks every run gets;
 //! - [`fault`]: the one [`Fault`] type the scenarios, the soak and the acceptance operator inject and clear;
-//! - the scenario groups: [`vehicle`], [`console`], [`thruster_faults`], [`bus`], [`update`], [`soak`],
+//! - the scenario groups: [`vehicle`], [`console`], [`flood`], [`thruster_faults`], [`bus`], [`update`], [`soak`],
 //!   [`acceptance`].
 
 pub mod acceptance;
 pub mod bus;
 pub mod console;
 pub mod fault;
+pub mod flood;
 pub mod harness;
 pub mod soak;
 pub mod thruster_faults;
@@ -30,7 +31,8 @@ use console::{
     ground_station_1hz, second_sysid, settings_persist, settings_power_cut, settings_while_driving, signing,
     signing_reboot, stray_byte,
 };
-use harness::{dev_kits, lbv300, legacy6, mixed};
+use flood::console_flood;
+use harness::{dev_kits, lbv300, lbv300_uart, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{
     ground_fault, ground_glitch, hall, hall_glitches, info_power, overcurrent, overtemp, rocking_rotor, stall, water,
@@ -298,6 +300,14 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 12.0,
         vehicle: lbv300,
         run: signing_reboot,
+    },
+    Scenario {
+        name: "console-flood",
+        about: "another system, then a companion, flood FTP listings, parameter lists and messages at 115200 baud for \
+                20 s while the operator flies: every byte read, no failsafe, orders at the usual rate",
+        seconds: 24.0,
+        vehicle: lbv300_uart,
+        run: console_flood,
     },
     Scenario {
         name: "settings-persist",

@@ -214,12 +214,28 @@ fn noisy_upload(run: &mut Run, slot: usize, file: Vec<u8>, seconds: f64) -> (Upl
     )
 }
 
+/// Over a link without signing (and `LBV_UPD_UNSIGNED` at its default, 0) an upload is refused at its start,
+/// and the master says why.
+fn unsigned_refused(run: &mut Run, file_name: &str, file: Vec<u8>) {
+    let start = run.bench.now();
+    let (state, _) = put(run, &format!("/update/{file_name}"), file, 5.0);
+    let texts = texts_since(run, start, file_name);
+    run.check(
+        "over a link without signing, an upload is refused, and why is told",
+        state == UploadState::Refused(1) && texts == [format!("{file_name}: refused, the link is not signed")],
+        format!("{state:?}, texts {texts:?}"),
+    );
+}
+
 /// Every thruster of the vehicle updated in turn from the ground station, the others polled meanwhile; then what is
-/// refused, and a transfer cut by a thruster's power cut that resumes.
+/// refused, and a transfer cut by a thruster's power cut that resumes. The link is signed first, as
+/// docs/field-update.md asks: without signing the uploads are refused.
 pub fn field_update(run: &mut Run) {
     let key = dev_key();
     run.run_for(1.0);
     let families: Vec<Family> = run.bench.thrusters.iter().map(|t| t.config.family).collect();
+    unsigned_refused(run, "thruster0.lbvu", update_file(families[0], NEW, &key));
+    super::console::set_key(run, *b"lbv-bench-field-update-key-01234");
     let (mut put_times, mut apply_times) = (Vec::new(), Vec::new());
     for (slot, family) in families.iter().enumerate() {
         let file_name = format!("thruster{slot}.lbvu");
@@ -435,6 +451,7 @@ pub fn field_update(run: &mut Run) {
     );
 
     master_resets_while_applied(run, families[2], &key);
+    holds_and_answers(run, families[0], &key);
 }
 
 /// The master reset while it applies an image to T3 (slot 2). In the thruster's Finish: the thruster finishes it and
@@ -459,6 +476,18 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
     };
     let (acks, _) = apply_with(run, 2, 60.0, applying, cut, 2.0);
     let held = (running(run, 2), run.bench.thrusters[2].boot_state());
+    // The new master finds T3 holding the mark (its next reset swaps the image in): it refuses to arm, so no order
+    // that drives reaches it.
+    let asked_at = run.bench.now();
+    run.run_for(0.5);
+    let (marked_arm, marked_said) = arm(run, asked_at, 0.3);
+    run.check(
+        "a master reset in the thruster's Finish: the new master finds the thruster marked and refuses to arm",
+        held.1 == Some(State::Swap)
+            && marked_arm == [TEMPORARILY_REJECTED]
+            && marked_said == ["Arm rejected: T3 holds an update marked"],
+        format!("holds {held:?}, arm {marked_arm:?} {marked_said:?}"),
+    );
     let again = run.bench.now();
     let (state, put_s) = put(run, "/update/thruster2.lbvu", file, 120.0);
     let verified = wait_verified(run, again, 2);
@@ -527,11 +556,14 @@ fn master_runs(run: &Run) -> Option<Version> {
 /// The master updated from the ground station over its own console link: the image put into its DFU partition
 /// while it polls the thrusters, applied (its signature checked, the restart, the bootloader's swap, the new image
 /// on trial until it hears the operator), the settings kept; what is refused; and power cuts mid-upload, mid-swap
-/// and before the new image confirms.
+/// and before the new image confirms. Over a link without signing, allowed by `LBV_UPD_UNSIGNED` (refused before).
 pub fn master_update(run: &mut Run) {
     let key = dev_key();
     run.run_for(1.0);
-    let expected = std::collections::BTreeMap::from([("LBV_GAIN", 80.0), ("FS_GCS_TIMEOUT", 10.0)]);
+    // Without signing, nobody may update; LBV_UPD_UNSIGNED allows it (set with the others, and kept as they are).
+    unsigned_refused(run, "master.lbvu", master_file(NEW, &key));
+    let expected =
+        std::collections::BTreeMap::from([("LBV_GAIN", 80.0), ("FS_GCS_TIMEOUT", 10.0), ("LBV_UPD_UNSIGNED", 1.0)]);
     let set = expected
         .iter()
         .all(|(name, value)| super::console::set_param(run, name, *value));
@@ -698,6 +730,7 @@ pub fn master_update(run: &mut Run) {
         super::console::holds(&read, &expected),
         format!("{read:?}"),
     );
+    master_apply_holds_arming(run, &key);
 }
 
 /// Ask thruster `slot` which image it runs and wait up to `limit` s for the final COMMAND_ACK; the results of the
@@ -759,4 +792,188 @@ fn apply_with(
         results(&run.bench),
         round((run.bench.now() - start).as_micros() as f64 / 1e6, 2),
     )
+}
+
+/// MAV_RESULT_TEMPORARILY_REJECTED.
+const TEMPORARILY_REJECTED: u8 = 1;
+/// MAV_CMD_COMPONENT_ARM_DISARM.
+const ARM_DISARM: u16 = 400;
+
+/// Send the operator's arm command and run `seconds`: the results of the arm's COMMAND_ACKs, and its texts
+/// ("Armed", "Arm rejected: ...") since `since`.
+fn arm(run: &mut Run, since: Instant, seconds: f64) -> (Vec<u8>, Vec<String>) {
+    let acks_before = run.bench.ground.seen.acks.len();
+    let frame = run.bench.ground.arm(true);
+    run.bench.send(frame);
+    run.run_for(seconds);
+    let acks = run.bench.ground.seen.acks[acks_before..]
+        .iter()
+        .filter(|(command, _)| *command == ARM_DISARM)
+        .map(|(_, result)| *result)
+        .collect();
+    (acks, arm_texts(run, since))
+}
+
+/// The arm texts since `since`.
+fn arm_texts(run: &Run, since: Instant) -> Vec<String> {
+    run.bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .filter(|(at, text)| *at >= since && (text == "Armed" || text.starts_with("Arm rejected")))
+        .map(|(_, text)| text.clone())
+        .collect()
+}
+
+/// Remove `path` (MAVLink FTP RemoveFile) and run a moment for the answer.
+fn remove_file(run: &mut Run, path: &str) {
+    const REMOVE_FILE: u8 = 8;
+    let frame = run.bench.ground.ftp_request(0x4000, 0, REMOVE_FILE, 0, path.as_bytes());
+    run.bench.send(frame);
+    run.run_for(0.3);
+    run.bench.ground.seen.ftp.clear();
+}
+
+/// No reset in the water, and answers that tell the truth (issue 30, items 3 and 7), on T1 (slot 0): the version query
+/// is answered while an image written whole waits for its apply, and after its file is removed; an apply sent again
+/// while it runs is answered as the one under way, and an arm meanwhile is refused; a master reset while the new
+/// image is on trial leaves a thruster on trial that the new master finds, and refuses to arm for, until it
+/// confirms.
+fn holds_and_answers(run: &mut Run, family: Family, key: &[u8; 32]) {
+    let (v6, v7) = (Version::new(0, 6, 0), Version::new(0, 7, 0));
+    let file = update_file(family, v6, key);
+    let start = run.bench.now();
+    put_verified(run, 0, file.clone());
+    let (written, _) = query_version(run, 0, 5.0);
+    remove_file(run, "/update/thruster0.lbvu");
+    let (removed, _) = query_version(run, 0, 5.0);
+    let texts = texts_since(run, start, "thruster0.lbvu");
+    run.check(
+        "the version query is answered while an image written whole waits, and after its file is removed",
+        written == [IN_PROGRESS, ACCEPTED]
+            && removed == [IN_PROGRESS, ACCEPTED]
+            && texts.iter().filter(|t| t.starts_with("thruster0.lbvu: runs ")).count() == 2
+            && !texts.iter().any(|t| t.contains("wait:")),
+        format!("written {written:?}, removed {removed:?}, texts {texts:?}"),
+    );
+
+    // Sent again (its pages kept), applied; while it runs the same apply is sent again and the operator arms.
+    let start = run.bench.now();
+    put_verified(run, 0, file);
+    let armed = std::cell::Cell::new((Vec::new(), Vec::new()));
+    let applying = move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "thruster0.lbvu: applying");
+    let again = |run: &mut Run| {
+        let frame = run.bench.ground.command(MAV_CMD_LBV_APPLY_UPDATE, [0.0; 7]);
+        run.bench.send(frame);
+        armed.set(arm(run, start, 0.3));
+    };
+    let (acks, took) = apply_with(run, 0, 60.0, applying, again, 60.0);
+    let (arm_acks, arm_said) = armed.take();
+    let texts = texts_since(run, start, "thruster0.lbvu");
+    run.check(
+        "an apply sent again while it runs is answered as the one under way, and arming meanwhile is refused",
+        acks == [IN_PROGRESS, IN_PROGRESS, ACCEPTED]
+            && texts.iter().filter(|t| *t == "thruster0.lbvu: applying").count() == 2
+            && !texts.iter().any(|t| t.contains("send it again"))
+            && arm_acks == [TEMPORARILY_REJECTED]
+            && arm_said == ["Arm rejected: T1 update being applied"]
+            && arm_texts(run, start) == arm_said
+            && running(run, 0) == Some(v6),
+        format!(
+            "apply acks {acks:?} in {took} s, arm {arm_acks:?} {arm_said:?}, runs {:?}, texts {texts:?}",
+            running(run, 0)
+        ),
+    );
+
+    // The master reset while the new image is on trial: the new master asks what T1 runs, finds it on trial, and
+    // refuses to arm until it has confirmed.
+    let start = run.bench.now();
+    put_verified(run, 0, update_file(family, v7, key));
+    let on_trial =
+        move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "thruster0.lbvu: runs 0.7.0, on trial");
+    let reset = |run: &mut Run| {
+        run.bench.note("master reset (T1 on trial)");
+        run.bench.reboot_master();
+    };
+    let (acks, _) = apply_with(run, 0, 60.0, on_trial, reset, 0.0);
+    let reset_at = run.bench.now();
+    run.run_for(0.5);
+    let on_trial_after_reset = run.bench.thrusters[0].boot_state() == Some(State::Swap);
+    let (refused, refused_said) = arm(run, reset_at, 0.3);
+    let confirmed = run.run_until(30.0, |bench| bench.thrusters[0].boot_state() == Some(State::Boot));
+    run.run_for(1.0);
+    let since = run.bench.now();
+    let (taken, taken_said) = arm(run, since, 0.3);
+    let disarm = run.bench.ground.arm(false);
+    run.bench.send(disarm);
+    run.run_for(0.3);
+    run.check(
+        "a thruster found on trial by a master that restarted holds arming, with its reason, until it confirms",
+        acks == [IN_PROGRESS]
+            && on_trial_after_reset
+            && refused == [TEMPORARILY_REJECTED]
+            && refused_said == ["Arm rejected: T1 image on trial"]
+            && confirmed.is_some()
+            && taken == [ACCEPTED]
+            && taken_said == ["Armed"]
+            && running(run, 0) == Some(v7),
+        format!(
+            "acks {acks:?}, on trial at the restart {on_trial_after_reset}, arm {refused:?} {refused_said:?}, \
+             confirmed after {confirmed:?} s, then arm {taken:?} {taken_said:?}"
+        ),
+    );
+}
+
+/// The master's own apply, sent twice, with the operator arming in the middle of it (in its signature check): one
+/// apply, answered as the one under way the second time; the arm refused with its reason, so the master never
+/// restarts armed; the final ACCEPTED, after the restart, to the component that applied it.
+fn master_apply_holds_arming(run: &mut Run, key: &[u8; 32]) {
+    let v5 = Version::new(0, 5, 0);
+    let (state, _) = put(run, "/update/master.lbvu", master_file(v5, key), 120.0);
+    let start = run.bench.now();
+    let boots = run.bench.master.boots;
+    let component_acks = run.bench.ground.seen.acks_to_component.len();
+    let armed = std::cell::Cell::new((Vec::new(), Vec::new()));
+    let applying = move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "master.lbvu: applying");
+    let again_and_arm = |run: &mut Run| {
+        let frame = run
+            .bench
+            .ground
+            .command(MAV_CMD_LBV_APPLY_UPDATE, [255.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        run.bench.send(frame);
+        armed.set(arm(run, start, 0.05));
+    };
+    let (acks, took) = apply_with(run, 255, 90.0, applying, again_and_arm, 60.0);
+    let (arm_acks, arm_said) = armed.take();
+    let texts = texts_since(run, start, "master.lbvu");
+    let final_to: Vec<u8> = run.bench.ground.seen.acks_to_component[component_acks..]
+        .iter()
+        .filter(|(_, command, result)| *command == MAV_CMD_LBV_APPLY_UPDATE && *result == ACCEPTED)
+        .map(|(component, ..)| *component)
+        .collect();
+    run.check(
+        "an arm in the master's own apply is refused and the master never restarts armed; a second apply starts \
+         nothing; the final answer goes to the component that applied it",
+        state == UploadState::Done
+            && acks == [IN_PROGRESS, IN_PROGRESS, ACCEPTED]
+            && texts.iter().filter(|t| *t == "master.lbvu: applying").count() == 2
+            && texts
+                .iter()
+                .filter(|t| *t == "master.lbvu: signature good, restarting")
+                .count()
+                == 1
+            && arm_acks == [TEMPORARILY_REJECTED]
+            && arm_said == ["Arm rejected: master update being applied"]
+            && arm_texts(run, start) == arm_said
+            && run.bench.master.boots == boots + 1
+            && master_runs(run) == Some(v5)
+            && final_to == [190],
+        format!(
+            "put {state:?}, apply acks {acks:?} in {took} s, arm {arm_acks:?} {arm_said:?}, boots {}, runs {:?}, \
+             final ACCEPTED to component {final_to:?}, texts {texts:?}",
+            run.bench.master.boots - boots,
+            master_runs(run)
+        ),
+    );
 }

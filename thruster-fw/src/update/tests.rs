@@ -307,11 +307,17 @@ fn no_step_back_unless_signed_for_it_and_never_below_the_running_counter() {
     let running = at(3, 3);
     let cases = [
         (at(2, 3), Err(Refusal::Older)),
-        (at(2, 3).with_rollback(true), Ok(ReplyBody::Finish { payload_len: 4096 })),
+        (
+            at(2, 3).with_rollback(true),
+            Ok(ReplyBody::Finish { payload_len: 4096 }),
+        ),
         (at(4, 2), Err(Refusal::CounterBelow)),
         (at(2, 2).with_rollback(true), Err(Refusal::CounterBelow)),
         (at(3, 3), Ok(ReplyBody::Finish { payload_len: 4096 })),
-        (ImageInfo { format: 1, ..at(4, 0) }.with_security_counter(0), Err(Refusal::NoKey)),
+        (
+            ImageInfo { format: 1, ..at(4, 0) }.with_security_counter(0),
+            Err(Refusal::NoKey),
+        ),
     ];
     for (image, expected) in cases {
         let mut rig = holding(image, running);
@@ -335,13 +341,17 @@ fn the_version_says_what_is_marked_and_what_the_bootloader_refused() {
     };
     assert_eq!(flags(&mut rig), (false, 0, update_image::UPDATE_KEY_IS_DEV));
     rig.at_rest(FINISH).unwrap();
-    assert_eq!(flags(&mut rig).0, true, "marked once finished");
+    assert!(flags(&mut rig).0, "marked once finished");
     // The bootloader refused it (as it writes its verdict beside the ticket): the next start tells it.
     let mut page = rig.updater.ticket.clone();
-    page.write(update_image::VERDICT_OFFSET, &Verdict::Signature.to_word()).unwrap();
+    page.write(update_image::VERDICT_OFFSET, &Verdict::Signature.to_word())
+        .unwrap();
     let mut restarted = Rig::new();
     restarted.updater.ticket = page;
-    assert_eq!(flags(&mut restarted), (false, Verdict::Signature.code(), update_image::UPDATE_KEY_IS_DEV));
+    assert_eq!(
+        flags(&mut restarted),
+        (false, Verdict::Signature.code(), update_image::UPDATE_KEY_IS_DEV)
+    );
 }
 
 #[test]

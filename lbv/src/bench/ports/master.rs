@@ -13,7 +13,7 @@ use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::settings::{Reboot, Store};
-use lbv_master_fw::shared::Sender;
+use lbv_master_fw::shared::{Sender, UpdateHolds};
 use lbv_master_fw::update::ftp::Nak;
 use lbv_master_fw::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget};
 use lbv_sim::Queue;
@@ -187,5 +187,9 @@ impl<S: UpdateSink> UpdateSink for Recorded<S> {
 
     fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
         self.sink.query_version(slot, from)
+    }
+
+    fn publish(&self, holds: &UpdateHolds) {
+        self.sink.publish(holds);
     }
 }

@@ -254,7 +254,11 @@ fn an_image_its_bootloader_refuses_is_not_swapped_in_and_the_thruster_says_why()
     assert_eq!(running_version(thruster), Some(FACTORY_VERSION));
     assert!(active_holds(thruster, &factory_image(Family::SeaBotix)));
     assert_eq!(thruster.boot_state(), Some(State::Boot), "the mark cleared");
-    assert_eq!(thruster.updater().verdict(), Some(Verdict::Signature), "what Version reports");
+    assert_eq!(
+        thruster.updater().verdict(),
+        Some(Verdict::Signature),
+        "what Version reports"
+    );
     bench.run_for(Duration::from_secs(1));
     assert!(answering(&bench.thrusters[0]), "at once: nothing was swapped");
 }
