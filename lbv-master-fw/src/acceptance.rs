@@ -8,7 +8,7 @@
 //! |---|---|---|
 //! | `discovery` | reads a status at 0x29 (SeaBotix) and 0x2A (Legacy) | at least one answers with a valid status (the expected family, when one is set); every one that answers is tested in turn |
 //! | `speed-forward`, `speed-reverse` | orders every step 1..=102 (then -1..=-102), one after the other | each step's status *follows* it within `settle`, and no fault is reported |
-//! | `bad-checksum` | holds a stop, then the drive step, sending for `settle` each time a stop and the opposite drive step with their checksums off by one | every status still shows the order held |
+//! | `bad-checksum` | holds a stop, then the drive step, sending for [`BAD_ORDERS_FOR`] each time a stop and the opposite drive step with their checksums off by one | every status still shows the order held |
 //! | `out-of-range` | the same with SPEED bytes 0x00, 0x18, 0xE7, 0xFF and good checksums | every status still shows the order held |
 //! | `failsafe` | holds a valid order, then leaves the bus silent for `silence` (1.5 s) and only reads after it | the first read shows the drive off, the speed reaches 0 within `coast`, stays there while only reads come, and the same order sent again drives |
 //! | `held-rotor` | prompts the operator to hold the rotor, orders the drive step | STALL within `fault_within` and the drive off; after the release a zero order clears it and the drive step drives again |
@@ -255,6 +255,10 @@ fn order_bytes(family: Family, step: i8) -> [u8; ORDER_LEN] {
     Order::new(Speed::new_saturating(i32::from(step))).encode(family)
 }
 
+/// How long the bad-order steps send refused orders: less than the 1 s after which a thruster stops on refused
+/// orders alone (docs/thruster.md, "The link failsafe"), so every status must still show the order held.
+pub const BAD_ORDERS_FOR: Duration = Duration::from_millis(500);
+
 /// The out-of-range SPEED bytes sent, each with a matching checksum: both ends of both gaps.
 pub const OUT_OF_RANGE_SPEEDS: [u8; 4] = [0x00, 0x18, 0xE7, 0xFF];
 
@@ -471,7 +475,7 @@ where
         self.stop(family).await;
     }
 
-    /// Send each of `bad` in turn (with a read after each) for `settle` while the thruster holds a stop, then
+    /// Send each of `bad` in turn (with a read after each) for [`BAD_ORDERS_FOR`] while the thruster holds a stop, then
     /// again while it holds the drive step, each time once it has held the order for `settle`: every status must still show the order held (the drive off, then
     /// following the drive step). Taking a bad order shows in one phase or the other whatever the family reports.
     async fn bad_orders(&mut self, family: Family, step: Step, bad: &[[u8; ORDER_LEN]]) {
@@ -500,7 +504,7 @@ where
             self.poll(family, Some(&order), config.settle, true, holds).await;
             let start = Instant::now();
             for order in bad.iter().cycle() {
-                if start.elapsed() >= config.settle {
+                if start.elapsed() >= BAD_ORDERS_FOR {
                     break;
                 }
                 sent = sent.saturating_add(1);

@@ -13,6 +13,7 @@ pub mod battery;
 pub mod config;
 pub mod console;
 pub mod courier;
+pub mod follow;
 pub mod framing;
 pub mod mixer;
 pub mod own;

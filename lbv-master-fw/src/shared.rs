@@ -418,6 +418,11 @@ pub struct LinkHealth {
     /// Times the thruster said a sustained overcurrent had stopped it (SeaBotix FAULT bit 6 rising: its power
     /// stage's hardware break kept tripping, and its outputs are off until a zero order).
     pub overcurrents: u32,
+    /// Times its status showed it not following its order ([`crate::follow`]): the echo stayed off the order
+    /// without closing in.
+    pub not_followed: u32,
+    /// It does not follow its order now, and has not matched it since it was found not to.
+    pub not_following: bool,
     /// The thruster did not acknowledge (missing or unpowered).
     pub nack: u32,
     /// A transfer timed out (SCL held low past the bus's timeout, [`crate::recovery::BusConfig::timeout`]).

@@ -29,6 +29,7 @@ use embedded_hal_async::i2c::I2c;
 use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm};
 
 use crate::courier::{self, ExchangeError, Transfers};
+use crate::follow::{FollowChange, FollowCheck};
 use crate::poll::{PollError, Polled, poll_thruster};
 use crate::recovery::BusRecovery;
 use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
@@ -378,6 +379,8 @@ pub struct ThrusterLink {
     link_failsafe: bool,
     /// The last valid status said a sustained overcurrent held the thruster's bridge off.
     overcurrent: bool,
+    /// Whether its status shows it following its orders.
+    follow: FollowCheck,
     /// While offline: when the next retry is due.
     retry_at: Instant,
     /// While offline: the interval after the next failed retry.
@@ -402,6 +405,8 @@ impl ThrusterLink {
                 implied_form: 0,
                 link_failsafes: 0,
                 overcurrents: 0,
+                not_followed: 0,
+                not_following: false,
                 nack: 0,
                 timeout: 0,
                 bad_checksum: 0,
@@ -416,6 +421,7 @@ impl ThrusterLink {
             form: None,
             link_failsafe: false,
             overcurrent: false,
+            follow: FollowCheck::new(),
             retry_at: Instant::from_ticks(0),
             next_backoff: config.retry_min,
             retry_min: config.retry_min,
@@ -491,6 +497,23 @@ impl ThrusterLink {
     /// thruster's bridge until a zero order), which is counted.
     pub fn on_overcurrent(&mut self, set: bool) -> bool {
         rise(&mut self.overcurrent, set, &mut self.health.overcurrents)
+    }
+
+    /// Judge whether the valid status read at `now` follows `order`, the order sent in the same poll
+    /// ([`FollowCheck::observe`]); a change is returned, and a loss counted.
+    pub fn on_follow(
+        &mut self,
+        now: Instant,
+        order: Order,
+        status: &Status,
+        stopped_for_a_reason: bool,
+    ) -> Option<FollowChange> {
+        let change = self.follow.observe(now, order, status, stopped_for_a_reason);
+        if change == Some(FollowChange::Lost) {
+            self.health.not_followed = self.health.not_followed.saturating_add(1);
+        }
+        self.health.not_following = self.follow.not_following();
+        change
     }
 
     /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
@@ -868,6 +891,19 @@ impl BusState<'_> {
                     Severity::Critical,
                     text(format_args!("T{number} stopped: overcurrent, off until a zero order")),
                 );
+            }
+            if let Outcome::Answered(status) = outcome
+                && let Some(change) = link.on_follow(cycle, *order, &status, failsafe || overcurrent)
+            {
+                let number = index.saturating_add(1);
+                let (severity, text) = match change {
+                    FollowChange::Lost => (
+                        Severity::Warning,
+                        text(format_args!("T{number} does not follow its order")),
+                    ),
+                    FollowChange::Regained => (Severity::Info, text(format_args!("T{number} follows its order again"))),
+                };
+                shared.say(severity, text);
             }
             if let Outcome::Answered(status) = outcome
                 && let Some(change) = faults.update(status.faults())

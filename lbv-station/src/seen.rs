@@ -5,7 +5,7 @@ use alloc::string::String;
 use alloc::vec::Vec;
 
 use embassy_time::Instant;
-use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavSeverity};
+use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavSeverity, MavSysStatusSensor};
 
 /// The ground station's view of the vehicle, from the master's telemetry.
 #[derive(Debug, Clone, Default)]
@@ -38,6 +38,8 @@ pub struct Seen {
     pub refused_other_system: u16,
     /// SYS_STATUS errors_count4: frames refused by the signing checks.
     pub refused_by_signing: u16,
+    /// SYS_STATUS says the motor outputs healthy (every thruster online, reporting, following its orders).
+    pub motors_healthy: bool,
     /// The last PARAM_VALUE of each parameter: (value, index, count).
     pub params: BTreeMap<String, (f32, u16, u16)>,
     /// Signed frames whose signature the mavlink crate verified with this station's key.
@@ -72,6 +74,7 @@ impl Seen {
             battery_mv: 0,
             refused_other_system: 0,
             refused_by_signing: 0,
+            motors_healthy: false,
             params: BTreeMap::new(),
             verified: 0,
             unverified: 0,
@@ -122,6 +125,9 @@ impl Seen {
                 self.battery_mv = status.voltage_battery;
                 self.refused_other_system = status.errors_count3;
                 self.refused_by_signing = status.errors_count4;
+                self.motors_healthy = status
+                    .onboard_control_sensors_health
+                    .contains(MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS);
             }
             _ => {}
         }

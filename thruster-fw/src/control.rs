@@ -23,6 +23,9 @@ pub struct LinkUpdate {
     pub zero_orders: u32,
     /// When the master last addressed this controller (a valid order or a read).
     pub at: Instant,
+    /// The first order refused (checksum, length, type, range) since the last valid one, if any was: the link
+    /// failsafe stops the motor when no valid order follows it within its timeout, whatever reads come.
+    pub refused_since: Option<Instant>,
 }
 
 /// What the fault side measured and decided, published after every sample.
@@ -106,7 +109,7 @@ impl Control {
     /// One control step: take the link's news, apply the failsafe and the fault verdict, run the speed loop.
     pub fn tick(&mut self, now: Instant, link: Option<LinkUpdate>, sensed: Sensed, rpm: i32) -> Duty {
         if let Some(update) = link {
-            self.failsafe.on_life(update.at);
+            self.failsafe.on_life(update.at, update.refused_since);
             if update.orders != self.orders_seen {
                 self.orders_seen = update.orders;
                 self.order = update.order;
@@ -117,7 +120,7 @@ impl Control {
         if self.failsafe.check(now) {
             if self.failsafe.trips() != trips {
                 warn!(
-                    "link lost: no transfer for the failsafe timeout, stopping ({} trips so far)",
+                    "link failsafe: no transfer, or refused orders only, for its timeout: stopping ({} trips so far)",
                     self.failsafe.trips()
                 );
             }
@@ -219,6 +222,7 @@ mod tests {
             orders,
             zero_orders: 0,
             at,
+            refused_since: None,
         })
     }
 
@@ -301,6 +305,7 @@ mod tests {
                 orders: 1,
                 zero_orders: 0,
                 at: ms(0),
+                refused_since: None,
             });
             // A first-order motor with a propeller: steady speed ~ 5000 rpm x duty, 50 ms time constant.
             let (mut rpm, mut duty) = (0.0f64, Duty::ZERO);
@@ -341,6 +346,7 @@ mod tests {
                 orders: 1,
                 zero_orders: 0,
                 at: ms(0),
+                refused_since: None,
             });
             // A locked rotor's current: the limit never bites.
             let sensed = Sensed {
@@ -366,6 +372,7 @@ mod tests {
             orders: 1,
             zero_orders: 0,
             at: ms(0),
+            refused_since: None,
         });
         let (mut rpm, mut duty, mut power) = (0.0f64, Duty::ZERO, 0.0);
         for t in 0..3000 {

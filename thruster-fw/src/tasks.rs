@@ -291,6 +291,10 @@ impl Default for Shared {
 /// to the update task, and the read after one gets its reply ([`crate::update`]) instead of the status.
 pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: MotorKind, shared: &Shared) -> ! {
     let mut link = MasterLink::new(family);
+    // What the link failsafe counts from: the master's last valid order or read, and the first order refused since
+    // the last valid one.
+    let mut last_life = Instant::now();
+    let mut refused_since: Option<Instant> = None;
     let idle = idle_status(family, motor).encode();
     loop {
         shared.health.report(TaskId::I2c as u8);
@@ -321,8 +325,13 @@ pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: Motor
             // Not carried to the master: they wait for the next read.
             shared.note_unread(carried.get());
         }
+        let now = Instant::now();
         let alive = match served {
-            Ok(ServeEvent::Order(_) | ServeEvent::StatusSent) => true,
+            Ok(ServeEvent::Order(_)) => {
+                refused_since = None;
+                true
+            }
+            Ok(ServeEvent::StatusSent) => true,
             Ok(ServeEvent::Command(frame)) => {
                 shared.replies.command(frame);
                 true
@@ -335,26 +344,30 @@ pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: Motor
             }
             Ok(ServeEvent::Rejected(error)) => {
                 warn!("order discarded: {} ({} so far)", error, link.errors().total());
+                // Not life, but told to the failsafe: refused orders alone for its timeout stop the motor.
+                refused_since.get_or_insert(now);
                 false
             }
             Ok(ServeEvent::CommandRejected(_)) => {
                 warn!("extension command discarded ({} so far)", link.command_errors().total());
-                false
+                continue;
             }
             Err(_) => {
                 warn!("I2C transfer failed: re-initialising the slave");
                 target.reset();
-                false
+                continue;
             }
         };
         if alive {
-            shared.link.sender().send(LinkUpdate {
-                order: link.order(),
-                orders: link.orders(),
-                zero_orders: link.zero_orders(),
-                at: Instant::now(),
-            });
+            last_life = now;
         }
+        shared.link.sender().send(LinkUpdate {
+            order: link.order(),
+            orders: link.orders(),
+            zero_orders: link.zero_orders(),
+            at: last_life,
+            refused_since,
+        });
     }
 }
 

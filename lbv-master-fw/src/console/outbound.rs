@@ -150,7 +150,7 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 /// SYS_STATUS.
 ///
 /// - Sensors: MOTOR_OUTPUTS (present and enabled when thrusters are configured, healthy when every configured
-///   thruster is online with its status readable, `reporting`), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
+///   thruster is online with its status readable and follows its orders, `driving`), PROPULSION (healthy when no configured thruster reports a fault), BATTERY (present and
 ///   enabled always, healthy with a fresh reading and no BMS alarm nor DCDC fault), RC_RECEIVER (the pilot's
 ///   control link, the ground station's heartbeats and MANUAL_CONTROL: present and enabled always, unhealthy
 ///   while a failsafe is in force, [`VehicleState::failsafe`]), PREARM_CHECK (present and enabled always, healthy
@@ -173,7 +173,7 @@ pub fn sys_status(
     link: ConsoleLinkQuality,
 ) -> SYS_STATUS_DATA {
     let configured = reports.iter().take(thrusters);
-    let all_online = configured.clone().all(|r| r.as_ref().is_some_and(reporting));
+    let all_driving = configured.clone().all(|r| r.as_ref().is_some_and(driving));
     let faults = configured
         .clone()
         .flatten()
@@ -193,7 +193,7 @@ pub fn sys_status(
     // No geofence exists, so none is breached: reported healthy as ArduPilot does. Ground stations that take the
     // bit's absence for a breach (MAVProxy says "fence breach" at connect) stay quiet.
     let mut health = present | MavSysStatusSensor::MAV_SYS_STATUS_GEOFENCE;
-    health.set(MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS, all_online);
+    health.set(MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS, all_driving);
     health.set(
         MavSysStatusSensor::MAV_SYS_STATUS_SENSOR_PROPULSION,
         faults.difference(Faults::WATER).is_empty(),
@@ -446,6 +446,12 @@ fn reported_current(report: &ThrusterReport) -> Option<f32> {
 /// whose status has not been read for a while reads as unknown, not as its last values).
 fn reporting(report: &ThrusterReport) -> bool {
     report.health.online && !report.health.status_lost
+}
+
+/// Online, reporting, and following its orders ([`crate::follow`]): what MOTOR_OUTPUTS' health asks of every
+/// configured thruster.
+fn driving(report: &ThrusterReport) -> bool {
+    reporting(report) && !report.health.not_following
 }
 
 /// The current report of configured thruster `n` ([`reporting`]).
@@ -1027,6 +1033,14 @@ mod tests {
             r.health.status_lost = true;
         }
         let s = sys_status(6, &unread, Some(&battery()), Some(READY), link);
+        assert!(!s.onboard_control_sensors_health.contains(motors));
+
+        // One thruster that answers but does not follow its order: the motors are not healthy.
+        let mut astray = reports;
+        if let Some(r) = astray[4].as_mut() {
+            r.health.not_following = true;
+        }
+        let s = sys_status(6, &astray, Some(&battery()), Some(READY), link);
         assert!(!s.onboard_control_sensors_health.contains(motors));
 
         // One thruster offline with errors, a stale battery.

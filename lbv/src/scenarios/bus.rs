@@ -7,7 +7,7 @@ use lbv_master_fw::mixer::ManualInput;
 use serde_json::json;
 
 use super::fault::Fault;
-use super::harness::{AHEAD, Run, others_keep_working, round};
+use super::harness::{AHEAD, NEUTRAL, Run, others_keep_working, round};
 
 /// Thruster `index`'s link as its controller holds it: valid orders received and the last one.
 fn held(run: &Run, index: usize) -> Option<(u32, tmc_proto::Order)> {
@@ -54,7 +54,8 @@ pub fn bad_frames(run: &mut Run) {
     };
     run.inject(corrupt);
     run.bench.ground.sticks = Some(ManualInput { x: -600, ..AHEAD });
-    run.run_for(1.0);
+    // Half a second: less than the refused orders' failsafe (see `corrupted_stop`).
+    run.run_for(0.5);
     let after = held(run, 2);
     run.check(
         "corrupted orders change nothing",
@@ -79,7 +80,7 @@ pub fn bad_frames(run: &mut Run) {
     let out_of_range = Fault::OutOfRangeOrders { thruster: 2 };
     run.inject(out_of_range);
     run.bench.ground.sticks = Some(AHEAD);
-    run.run_for(1.0);
+    run.run_for(0.5);
     let after = held(run, 2);
     run.check(
         "out-of-range orders change nothing",
@@ -307,5 +308,83 @@ pub fn link_failsafe(run: &mut Run) {
         "and the thrusters follow the orders again",
         (0..4).all(|i| run.rpm(i) > 800.0),
         format!("rpm {:?}", (0..4).map(|i| round(run.rpm(i), 0)).collect::<Vec<_>>()),
+    );
+}
+
+/// Driving ahead, the pilot lets go of the sticks, and for 5 s every order to T1 (SeaBotix) and T2 (Legacy) arrives
+/// with its checksum off by one while their status reads stay clean: a write path that corrupts. Each thruster
+/// refuses every order and so never sees the STOP; its failsafe stops it 1 s after the first refused order, and the
+/// master, whose echo check sees the two keep running against a STOP, says so before.
+pub fn corrupted_stop(run: &mut Run) {
+    // Full ahead: a Legacy brushless thruster echoes only its current, which must be clear of a stopped one's.
+    run.arm_and_go(ManualInput { x: 1000, ..AHEAD });
+    run.run_for(2.0);
+    let driving = [0, 1].map(|i| run.duty(i));
+    let drawn = [0, 1].map(|i| run.bench.ground.seen.current_ca[i]);
+    run.check(
+        "T1 and T2 drive full ahead",
+        driving.iter().all(|duty| *duty > 0),
+        format!("duty {driving:?}, current {drawn:?} cA"),
+    );
+    let faults = [0, 1].map(|thruster| Fault::CorruptOrders { thruster, mask: 0x01 });
+    faults.iter().for_each(|fault| run.inject(*fault));
+    run.bench.ground.sticks = Some(NEUTRAL);
+    let released = run.bench.seconds();
+    let mut stopped = [None; 3];
+    let mut told = None;
+    let mut motors_unhealthy = false;
+    while run.bench.seconds() < released + 5.0 {
+        run.run_for(0.002);
+        let since = run.bench.seconds() - released;
+        for (index, at) in stopped.iter_mut().enumerate() {
+            if at.is_none() && run.duty(index) == 0 {
+                *at = Some(round(since, 3));
+            }
+        }
+        if told.is_none() && run.said("T1 does not follow its order") && run.said("T2 does not follow its order") {
+            told = Some(round(since, 3));
+        }
+        motors_unhealthy |= told.is_some() && !run.bench.ground.seen.motors_healthy;
+    }
+    // The sticks reach the orders within a vehicle step and the next poll (20 ms); the failsafe counts from there.
+    run.check(
+        "T1 and T2 stop within 1 s + one poll of the first corrupted order; T3, whose orders are whole, through its ramp",
+        matches!(stopped, [Some(t1), Some(t2), Some(t3)] if t1 <= 1.045 && t2 <= 1.045 && t1 >= 1.0 && t2 >= 1.0 && t3 < 0.6),
+        format!("stopped after {stopped:?} s"),
+    );
+    run.check(
+        "the master says they do not follow their orders before their failsafes act",
+        told.is_some_and(|t| t < 1.0),
+        format!("told after {told:?} s"),
+    );
+    run.check(
+        "and T1 (SeaBotix) that its failsafe stopped it",
+        run.said("T1 stopped: 1 s without a valid order"),
+        "FAULT bit 5",
+    );
+    let counted: Vec<u32> = (0..6).map(|i| run.health(i).not_followed).collect();
+    run.check(
+        "counted once each, and no other thruster is said not to follow",
+        counted == [1, 1, 0, 0, 0, 0] && !(3..=6).any(|n| run.said(&format!("T{n} does not follow"))),
+        format!("not followed {counted:?}"),
+    );
+    run.check(
+        "SYS_STATUS says MOTOR_OUTPUTS unhealthy once told",
+        motors_unhealthy,
+        "",
+    );
+    faults.iter().for_each(|fault| run.clear(*fault));
+    run.bench.ground.sticks = Some(AHEAD);
+    run.run_for(1.5);
+    run.check(
+        "once the orders arrive whole, T1 and T2 drive again and follow them",
+        (0..2).all(|i| run.rpm(i) > 800.0 && !run.health(i).not_following)
+            && run.said("T1 follows its order again")
+            && run.bench.ground.seen.motors_healthy,
+        format!(
+            "rpm {:?}, motors healthy {}",
+            (0..2).map(|i| round(run.rpm(i), 0)).collect::<Vec<_>>(),
+            run.bench.ground.seen.motors_healthy
+        ),
     );
 }

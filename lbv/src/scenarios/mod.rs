@@ -26,7 +26,10 @@ mod tests;
 pub use harness::{Options, Report, Scenario, run_guarded};
 
 use acceptance::acceptance;
-use bus::{bad_frames, link_failsafe, missing_thruster, reset_mid_transfer, six_byte_status, status_noise, stuck_sda};
+use bus::{
+    bad_frames, corrupted_stop, link_failsafe, missing_thruster, reset_mid_transfer, six_byte_status, status_noise,
+    stuck_sda,
+};
 use console::{
     ground_station_1hz, second_sysid, settings_persist, settings_power_cut, settings_while_driving, signing,
     signing_reboot, stray_byte,
@@ -194,6 +197,14 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 8.0,
         vehicle: mixed,
         run: bad_frames,
+    },
+    Scenario {
+        name: "corrupted-stop",
+        about: "STOP ordered while every order to T1 and T2 arrives corrupted, their reads clean: they stop on their \
+                failsafe 1 s after the first, and the master says they do not follow",
+        seconds: 8.0,
+        vehicle: mixed,
+        run: corrupted_stop,
     },
     Scenario {
         name: "status-noise",

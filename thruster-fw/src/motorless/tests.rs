@@ -228,6 +228,7 @@ impl Rig {
             orders: self.orders.get(),
             zero_orders: self.zero_orders.get(),
             at: Instant::now(),
+            refused_since: None,
         });
     }
 

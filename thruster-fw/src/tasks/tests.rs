@@ -386,15 +386,103 @@ fn the_failsafe_stops_the_motor_after_exactly_one_second_of_silence() {
     assert!(bench.duty().value() > 0);
 }
 
+/// Driving at 80, the master orders STOP, and every order arrives with its checksum off by one while its reads
+/// are clean: the refused orders stop the motor 1 s after the first of them, in both families.
 #[test]
-fn reads_alone_keep_the_link_alive() {
-    let mut bench = Bench::new(Family::Legacy);
-    bench.order(30);
-    for _ in 0..30 {
-        bench.turn(Duration::from_millis(100));
-        bench.send(READ);
+fn orders_that_are_all_refused_for_one_second_stop_the_motor_whatever_reads_come() {
+    for family in Family::ALL {
+        let mut bench = Bench::new(family);
+        bench.order(80);
+        bench.turn(Duration::from_millis(500));
+        assert!(bench.duty().value() > 0);
+        let mut stop = Order::STOP.encode(family).to_vec();
+        if let Some(csum) = stop.last_mut() {
+            *csum = csum.wrapping_add(1);
+        }
+        let first_refused = now_ms();
+        let mut stopped_after = None;
+        // 50 Hz: a corrupted order, then a clean read, as the master's poll does.
+        for _ in 0..100 {
+            bench.send(stop.clone());
+            bench.turn(Duration::from_millis(1));
+            bench.send(READ);
+            bench.turn(Duration::from_millis(19));
+            if stopped_after.is_none() && bench.duty() == Duty::ZERO {
+                stopped_after = Some(now_ms() - first_refused);
+            }
+        }
+        let stopped_after = stopped_after.expect("the motor stopped");
+        assert!(
+            (1000..=1020).contains(&stopped_after),
+            "{family:?}: stopped {stopped_after} ms after the first refused order"
+        );
+        assert_eq!(bench.duty(), Duty::ZERO, "{family:?}: still stopped with reads coming");
+        if family == Family::SeaBotix {
+            assert!(tmc_proto::SeaBotixStatus::link_failsafe_in(
+                bench.replies.borrow().last().unwrap()
+            ));
+        }
+        // One valid order ends it (once its ramp passes the 1250 rpm the bench turns the rotor at, it drives).
+        bench.order(80);
+        bench.turn(Duration::from_millis(300));
+        assert!(bench.duty().value() > 0, "{family:?}: a valid order drives again");
     }
-    assert!(bench.duty().value() > 0, "still driving after 3 s of reads");
+}
+
+#[test]
+fn one_refused_order_among_valid_ones_changes_nothing() {
+    let mut bench = Bench::new(Family::SeaBotix);
+    bench.order(60);
+    let mut bad = Order::new(Speed::new(60).unwrap()).encode(Family::SeaBotix).to_vec();
+    if let Some(csum) = bad.last_mut() {
+        *csum ^= 0x10;
+    }
+    // Every fifth order corrupted, 3 s: the valid ones between restart the failsafe's count.
+    for n in 0..150 {
+        if n % 5 == 0 {
+            bench.send(bad.clone());
+        } else {
+            bench.order(60);
+        }
+        bench.turn(Duration::from_millis(20));
+    }
+    assert!(bench.duty().value() > 0);
+    bench.send(READ);
+    bench.elapse(Duration::from_millis(1));
+    assert!(!tmc_proto::SeaBotixStatus::link_failsafe_in(
+        bench.replies.borrow().last().unwrap()
+    ));
+}
+
+/// A master that sends an order only when it changes (IDS 8.3) and reads the status at 50 Hz in between: a
+/// constant order holds for a minute, with no failsafe.
+#[test]
+fn a_change_only_master_holds_a_constant_order_for_a_minute() {
+    for family in Family::ALL {
+        let mut bench = Bench::new(family);
+        bench.order(30);
+        for n in 0..3_000 {
+            bench.turn(Duration::from_millis(20));
+            bench.send(READ);
+            if n % 500 == 499 {
+                assert!(
+                    bench.duty().value() > 0,
+                    "{family:?}: driving after {} ms",
+                    (n + 1) * 20
+                );
+            }
+        }
+        assert!(
+            bench.duty().value() > 0,
+            "{family:?}: still driving after 60 s of reads"
+        );
+        if family == Family::SeaBotix {
+            bench.elapse(Duration::from_millis(1));
+            assert!(!tmc_proto::SeaBotixStatus::link_failsafe_in(
+                bench.replies.borrow().last().unwrap()
+            ));
+        }
+    }
 }
 
 #[test]

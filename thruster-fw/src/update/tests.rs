@@ -208,6 +208,7 @@ fn motion_comes_from_the_last_order_and_the_duty() {
         orders,
         zero_orders,
         at: Instant::from_ticks(0),
+        refused_since: None,
     };
     shared.link.sender().send(link(30, 2, 1));
     assert_eq!(
