@@ -12,8 +12,9 @@
 //!
 //! The IDS leaves the filtering open; the project's reading (spec-notes, "How the project reads the rest of the
 //! fault rules"): water and ground need their condition on [`Thresholds::latch_samples`] consecutive samples to
-//! set (and water as many above its band to clear), a hall error needs [`Thresholds::hall_error_samples`]
-//! consecutive abnormal readings. Overtemp has its own 10 C band and needs no count.
+//! set (and water as many above its band to clear), and so does overtemp (at or above 110 C to set, at or below
+//! 100 C to clear, with its 10 C band between); a hall error needs [`Thresholds::hall_error_samples`] consecutive
+//! abnormal readings. One noisy conversion never cuts thrust.
 //!
 //! The IDS does not say how a stall clears; the project follows the AM32 / BLHeli_32 rule (spec-notes): a
 //! zero-speed order clears it. "Latched until power cycle" holds across every other reset (watchdog, reset pin,
@@ -39,8 +40,8 @@ pub struct Thresholds {
     /// A SeaBotix water warning clears only at or above this, in ohms: the threshold plus a band, so a sensor
     /// sitting at 1 Mohm with ADC noise does not toggle the warning (spec-notes: "a band on the clear").
     pub water_clear_ohms: u32,
-    /// Water and ground fault need their condition on this many consecutive samples to set, and water as many
-    /// at or above `water_clear_ohms` to clear; 0 acts as 1 (spec-notes: "consecutive samples, never one").
+    /// Water, ground fault and overtemp need their condition on this many consecutive samples to set, and water
+    /// and overtemp as many past their band to clear; 0 acts as 1 (one noisy conversion never cuts thrust).
     pub latch_samples: u8,
     /// A hall error needs this many consecutive abnormal readings; 0 acts as 1 (spec-notes: "one bad hall
     /// reading is not yet a hall error").
@@ -80,7 +81,8 @@ impl Thresholds {
     /// - `latch_samples` 3: at the 1 kHz sampling ([`crate::tasks::SAMPLE_PERIOD`]) water and ground faults are
     ///   reacted to in 3 ms instead of 1 ms; the IDS gives no reaction time, and the water sensor's own 100 nF
     ///   already filters over ~0.1 s (docs/hardware.md, the water sensor). Three covers a single spike and the
-    ///   wrong first conversion after an idle ADC (STM32G4 errata ES0431) with a sample to spare.
+    ///   wrong first conversion after an idle ADC (STM32G4 errata ES0431) with a sample to spare. Overtemp takes
+    ///   the same count: 2 ms later than on one sample, against a motor's thermal time constant of minutes.
     /// - `hall_error_samples` 3: a hall glitch shorter than a sample period gives at most two abnormal readings
     ///   (the illegal edge into the glitch, seen on one sample, and the one out of it, seen on the next when the
     ///   glitch spans a sample), so three in a row is a sensor that stays wrong: an unplugged or shorted sensor is
@@ -338,6 +340,9 @@ pub struct FaultMonitor {
     dry: Run,
     grounded: Run,
     bad_halls: Run,
+    /// Consecutive samples at or above the overtemp threshold, and at or below its clear.
+    hot: Run,
+    cool: Run,
 }
 
 impl FaultMonitor {
@@ -351,13 +356,15 @@ impl FaultMonitor {
             dry: Run(0),
             grounded: Run(0),
             bad_halls: Run(0),
+            hot: Run(0),
+            cool: Run(0),
         }
     }
 
     /// Apply one sample (plus the stall detector's verdict) and return the faults to report.
     ///
     /// The returned faults already reflect this sample, so the motor stops on the sample that completes a
-    /// fault's count (the first sample for overtemp and stall).
+    /// fault's count (the first sample for stall).
     pub fn update(&mut self, sample: Sample, stalled: bool) -> Faults {
         let t = &self.thresholds;
         let wet = self.wet.sample(sample.water_ohms < t.water_ohms, t.latch_samples);
@@ -377,9 +384,11 @@ impl FaultMonitor {
             self.faults.insert(Faults::GROUND);
         }
         // Hysteresis: between the two thresholds the overtemp keeps its state.
-        if sample.temperature_decicelsius >= t.overtemp_set_decicelsius {
+        let temperature = sample.temperature_decicelsius;
+        if self.hot.sample(temperature >= t.overtemp_set_decicelsius, t.latch_samples) {
             self.faults.insert(Faults::OVERTEMP);
-        } else if sample.temperature_decicelsius <= t.overtemp_clear_decicelsius {
+        }
+        if self.cool.sample(temperature <= t.overtemp_clear_decicelsius, t.latch_samples) {
             self.faults.remove(Faults::OVERTEMP);
         }
         // Latched until a zero-speed order (`on_order`).

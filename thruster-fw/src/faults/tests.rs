@@ -411,6 +411,34 @@ fn overtemp_hysteresis_in_both_families() {
 }
 
 #[test]
+fn one_hot_sample_does_not_stop_the_motor_but_three_in_a_row_do() {
+    for family in Family::ALL {
+        let mut m = filtered(family);
+        // A noisy conversion now and then (110.5 C, once or twice in a row) among 60 C readings.
+        for _ in 0..10 {
+            assert_eq!(m.update(temperature(1105), false), Faults::NONE, "{family:?}");
+            assert_eq!(m.update(temperature(1105), false), Faults::NONE, "{family:?}");
+            assert_eq!(m.update(temperature(600), false), Faults::NONE, "{family:?}");
+        }
+        assert!(m.drive_allowed());
+        m.update(temperature(1105), false);
+        m.update(temperature(1105), false);
+        assert_eq!(m.update(temperature(1105), false), Faults::OVERTEMP, "{family:?}: the third in a row");
+        assert!(!m.drive_allowed());
+        // Clearing takes as many at or below 100 C: one low reading does not restart a hot motor.
+        for _ in 0..10 {
+            assert_eq!(m.update(temperature(990), false), Faults::OVERTEMP);
+            assert_eq!(m.update(temperature(990), false), Faults::OVERTEMP);
+            assert_eq!(m.update(temperature(1050), false), Faults::OVERTEMP);
+        }
+        m.update(temperature(990), false);
+        m.update(temperature(990), false);
+        assert_eq!(m.update(temperature(990), false), Faults::NONE, "{family:?}");
+        assert!(m.drive_allowed());
+    }
+}
+
+#[test]
 fn stall_latches_until_a_zero_order() {
     for family in Family::ALL {
         let mut m = monitor(family);
