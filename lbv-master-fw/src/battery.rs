@@ -11,6 +11,11 @@
 //!   count as appearing.
 //! - "BAT data stale" when no good BAT frame came for [`BatteryMonitor::STALE_AFTER`] (also when none came at
 //!   all within that time of the monitor starting), and "BAT data resumed" on the next good frame.
+//! - One frame that stops while the others still come goes stale on its own ("BAT status (0x629) stale"), and
+//!   "... resumed" when it comes again; its values are unknown at the console meanwhile
+//!   ([`BatterySummary::fresh_status`]). A frame never seen (a vehicle without a BMS board sends no 0x628) is
+//!   never said stale. A frame that comes at or past its deadline before a tick has told the stale period says
+//!   both: never "resumed" without "stale" before it.
 //!
 //! Texts are at most 50 bytes (STATUSTEXT): `BAT <name>=<0|1> <meaning>`, e.g. `BAT HSM_PG=1 HSM power good
 //! (output stable)`. The meanings are bat-proto's words, shortened ("hot swap manager" to "HSM", the FLT pin
@@ -81,6 +86,67 @@ pub enum News {
     },
 }
 
+/// The BAT frames whose freshness is told one by one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum FrameKind {
+    /// 0x620: voltage, charge, current, temperature.
+    Info,
+    /// 0x629: the DCDC status word.
+    Status,
+    /// 0x628: the BMS alarms.
+    Alarms,
+}
+
+impl FrameKind {
+    const ALL: [FrameKind; 3] = [FrameKind::Info, FrameKind::Status, FrameKind::Alarms];
+
+    const fn bit(self) -> u8 {
+        match self {
+            FrameKind::Info => 1,
+            FrameKind::Status => 2,
+            FrameKind::Alarms => 4,
+        }
+    }
+
+    /// What is said when frames of this kind go stale, or come again.
+    const fn words(self, stale: bool) -> &'static str {
+        match (self, stale) {
+            (FrameKind::Info, true) => "BAT info (0x620) stale",
+            (FrameKind::Info, false) => "BAT info (0x620) resumed",
+            (FrameKind::Status, true) => "BAT status (0x629) stale",
+            (FrameKind::Status, false) => "BAT status (0x629) resumed",
+            (FrameKind::Alarms, true) => "BMS alarms (0x628) stale",
+            (FrameKind::Alarms, false) => "BMS alarms (0x628) resumed",
+        }
+    }
+}
+
+/// What is said when the whole data goes stale, or comes again: `frame` None; else that frame's words.
+const fn freshness_words(frame: Option<FrameKind>, stale: bool) -> &'static str {
+    match (frame, stale) {
+        (None, true) => "BAT data stale",
+        (None, false) => "BAT data resumed",
+        (Some(kind), stale) => kind.words(stale),
+    }
+}
+
+/// A set of [`FrameKind`]s.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct Frames(u8);
+
+impl Frames {
+    /// Whether `kind` is in the set.
+    pub const fn contains(self, kind: FrameKind) -> bool {
+        self.0 & kind.bit() != 0
+    }
+
+    fn insert(&mut self, kind: FrameKind) {
+        self.0 |= kind.bit();
+    }
+}
+
 /// What a frame or the passing of time means for the console.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -89,27 +155,51 @@ pub enum Report {
     Nothing,
     /// A good frame with news.
     News(News),
-    /// The data went stale (said once per stale period).
+    /// No good BAT frame for [`BatteryMonitor::STALE_AFTER`]: the data went stale (said once per stale period).
     Stale,
-    /// A good frame after a stale period, with that frame's own news if any.
-    Resumed(Option<News>),
+    /// These frames went stale while other BAT frames still come (each said once per its stale period).
+    FramesStale(Frames),
+    /// A good frame after a stale period: of the whole data (`frame` None) or of its own kind, with the frame's
+    /// own news if any. `untold`: the stale period had not been said (the frame came at or past the deadline
+    /// before a tick), so it is said first.
+    Resumed {
+        /// Whose stale period ends: the data's (None) or this frame kind's.
+        frame: Option<FrameKind>,
+        /// The stale period is said first.
+        untold: bool,
+        /// The frame's own news.
+        news: Option<News>,
+    },
 }
 
-/// Most texts one report gives: "resumed" and the 12 bits of a start-up report.
-pub const MAX_REPORT_TEXTS: usize = 13;
+/// Most texts one report gives: "stale" and "resumed" together, and the 12 bits of a start-up report.
+pub const MAX_REPORT_TEXTS: usize = 14;
 
 impl Report {
     /// The STATUSTEXTs for the console, in order, each formatted as it is taken: a task sends them one by one
     /// without a buffer, and formats each once.
     pub fn texts(self) -> impl Iterator<Item = (Severity, Text)> {
+        let stale = |frame| Some((Severity::Warning, freshness_words(frame, true)));
         let (first, news) = match self {
-            Self::Nothing => (None, None),
-            Self::News(news) => (None, Some(news)),
-            Self::Stale => (Some((Severity::Warning, "BAT data stale")), None),
-            Self::Resumed(news) => (Some((Severity::Info, "BAT data resumed")), news),
+            Self::Nothing => ([None; 3], None),
+            Self::News(news) => ([None; 3], Some(news)),
+            Self::Stale => ([stale(None), None, None], None),
+            Self::FramesStale(frames) => (
+                FrameKind::ALL.map(|kind| frames.contains(kind).then_some((Severity::Warning, kind.words(true)))),
+                None,
+            ),
+            Self::Resumed { frame, untold, news } => (
+                [
+                    if untold { stale(frame) } else { None },
+                    Some((Severity::Info, freshness_words(frame, false))),
+                    None,
+                ],
+                news,
+            ),
         };
         first
             .into_iter()
+            .flatten()
             .map(|(severity, words)| (severity, format(format_args!("{words}"))))
             .chain(news.into_iter().flat_map(News::texts))
     }
@@ -199,6 +289,30 @@ fn short_meaning(bit: StatusBit, set: bool) -> &'static str {
 /// IDs of the BAT board's source (iCub class 6, source 2): 0x620..=0x62F.
 const BAT_SOURCE: core::ops::RangeInclusive<u16> = 0x620..=0x62F;
 
+/// One frame kind's freshness.
+#[derive(Debug, Clone, Copy, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+struct Freshness {
+    /// When the last good frame of the kind came.
+    last: Option<Instant>,
+    /// When its stale period counts from: its last frame, or the data's resumption when that came later (a
+    /// frame kind that does not come back with the others is told stale a period after the others resumed).
+    counts_from: Option<Instant>,
+    /// Its stale period has been said (or covered by "BAT data stale").
+    told: bool,
+}
+
+impl Freshness {
+    /// When it goes stale, if it is still to be told: never for a kind never seen.
+    fn deadline(&self) -> Option<Instant> {
+        if self.told || self.last.is_none() {
+            return None;
+        }
+        self.counts_from
+            .map(|from| from.saturating_add(BatteryMonitor::FRAME_STALE_AFTER))
+    }
+}
+
 /// The monitor's state machine (pure, explicit time).
 #[derive(Debug, Clone, Default)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -208,10 +322,9 @@ pub struct BatteryMonitor {
     alarms: Option<BmsAlarms>,
     /// When the last good BAT frame came.
     last_frame: Option<Instant>,
-    /// When the last good frame of each ID came: info (0x620), status (0x629), BMS alarms (0x628).
-    last_info: Option<Instant>,
-    last_status: Option<Instant>,
-    last_alarms: Option<Instant>,
+    /// Each frame kind's freshness, in [`FrameKind::ALL`]'s order: info (0x620), status (0x629), BMS alarms
+    /// (0x628).
+    kinds: [Freshness; 3],
     /// When the monitor was first used: staleness counts from here until a frame comes.
     started: Option<Instant>,
     /// "Stale" has been reported and no good frame came since.
@@ -224,6 +337,11 @@ pub struct BatteryMonitor {
 impl BatteryMonitor {
     /// No good BAT frame for this long: the data is stale. The BAT sends each ID every 200 ms (spec-notes).
     pub const STALE_AFTER: Duration = Duration::from_secs(1);
+
+    /// No frame of one kind for this long while the others come: that kind is stale on its own. One BAT cycle
+    /// (200 ms, each ID's period) longer than [`Self::STALE_AFTER`], so that a bus that stops whole, whose ID last
+    /// sent goes quiet 100 ms after the other, is told once, as the data.
+    pub const FRAME_STALE_AFTER: Duration = Duration::from_millis(1200);
 
     /// Nothing known yet.
     pub fn new() -> Self {
@@ -242,50 +360,91 @@ impl BatteryMonitor {
             self.errors = self.errors.wrapping_add(1);
             return Report::Nothing;
         };
-        // A gap that went unnoticed (no tick in between) is a stale period too.
-        let resumed = self.stale_reported || (self.last_frame.is_some() && self.stale_at().is_some_and(|at| now >= at));
+        // A gap that went unnoticed (no tick at or after its deadline) is a stale period too, said now.
+        let untold =
+            !self.stale_reported && self.last_frame.is_some() && self.data_deadline().is_some_and(|at| now >= at);
+        let resumed = self.stale_reported || untold;
         self.stale_reported = false;
         self.last_frame = Some(now);
         self.frames = self.frames.wrapping_add(1);
+        let kind = match decoded {
+            Frame::Info(_) => FrameKind::Info,
+            Frame::Status(_) => FrameKind::Status,
+            Frame::Bms(_) => FrameKind::Alarms,
+        };
+        let own = self.kinds.get(kind_index(kind)).copied().unwrap_or_default();
+        let own_untold = own.deadline().is_some_and(|at| now >= at);
+        let own_resumed = own.told || own_untold;
+        if resumed {
+            // Every kind seen before counts its stale period afresh from now; this one has just come.
+            for freshness in &mut self.kinds {
+                freshness.told = false;
+                freshness.counts_from = Some(now);
+            }
+        }
+        if let Some(freshness) = self.kinds.get_mut(kind_index(kind)) {
+            *freshness = Freshness {
+                last: Some(now),
+                counts_from: Some(now),
+                told: false,
+            };
+        }
         let news = match decoded {
             Frame::Info(info) => {
                 self.info = Some(info);
-                self.last_info = Some(now);
                 None
             }
-            Frame::Status(current) => {
-                self.last_status = Some(now);
-                match self.status.replace(current) {
-                    None => Some(News::StartUp(current)),
-                    Some(previous) if previous != current => Some(News::Changed { previous, current }),
-                    Some(_) => None,
-                }
-            }
+            Frame::Status(current) => match self.status.replace(current) {
+                None => Some(News::StartUp(current)),
+                Some(previous) if previous != current => Some(News::Changed { previous, current }),
+                Some(_) => None,
+            },
             Frame::Bms(current) => {
-                self.last_alarms = Some(now);
                 let previous = self.alarms.replace(current).unwrap_or(BmsAlarms::NONE);
                 let raised = BmsAlarms::from_bits_truncate(current.bits() & !previous.bits());
                 let cleared = BmsAlarms::from_bits_truncate(previous.bits() & !current.bits());
                 (!raised.is_empty() || !cleared.is_empty()).then_some(News::Alarms { raised, cleared })
             }
         };
-        match (resumed, news) {
-            (true, news) => Report::Resumed(news),
-            (false, Some(news)) => Report::News(news),
-            (false, None) => Report::Nothing,
+        match (resumed, own_resumed, news) {
+            (true, _, news) => Report::Resumed {
+                frame: None,
+                untold,
+                news,
+            },
+            (false, true, news) => Report::Resumed {
+                frame: Some(kind),
+                untold: own_untold,
+                news,
+            },
+            (false, false, Some(news)) => Report::News(news),
+            (false, false, None) => Report::Nothing,
         }
     }
 
     /// The passing of time at `now`: reports [`Report::Stale`] once when no good frame came for
-    /// [`Self::STALE_AFTER`] (counted from the first use of the monitor when none came at all).
+    /// [`Self::STALE_AFTER`] (counted from the first use of the monitor when none came at all), which covers every
+    /// frame kind; else [`Report::FramesStale`] once for the kinds seen before that have not come for as long.
     pub fn on_tick(&mut self, now: Instant) -> Report {
         self.start(now);
-        match self.stale_at() {
-            Some(at) if now >= at => {
-                self.stale_reported = true;
-                Report::Stale
+        if self.data_deadline().is_some_and(|at| now >= at) {
+            self.stale_reported = true;
+            for freshness in &mut self.kinds {
+                freshness.told = true;
             }
-            _ => Report::Nothing,
+            return Report::Stale;
+        }
+        let mut gone = Frames::default();
+        for (kind, freshness) in FrameKind::ALL.into_iter().zip(self.kinds.iter_mut()) {
+            if freshness.deadline().is_some_and(|at| now >= at) {
+                freshness.told = true;
+                gone.insert(kind);
+            }
+        }
+        if gone == Frames::default() {
+            Report::Nothing
+        } else {
+            Report::FramesStale(gone)
         }
     }
 
@@ -294,8 +453,17 @@ impl BatteryMonitor {
         self.errors = self.errors.wrapping_add(1);
     }
 
-    /// When [`Self::on_tick`] will next report stale, if it is still to come.
+    /// When [`Self::on_tick`] will next report the data or a frame kind stale, if that is still to come.
     pub fn stale_at(&self) -> Option<Instant> {
+        self.kinds
+            .iter()
+            .filter_map(Freshness::deadline)
+            .chain(self.data_deadline())
+            .min()
+    }
+
+    /// When the whole data goes stale, if that is still to be told.
+    fn data_deadline(&self) -> Option<Instant> {
         if self.stale_reported {
             return None;
         }
@@ -305,22 +473,29 @@ impl BatteryMonitor {
     }
 
     /// The summary at `now`: stale when no good BAT frame for [`Self::STALE_AFTER`], or none yet, and each value
-    /// stale when its own frame has not come for that long (the BAT sends each ID on its own: one can stop while
-    /// the others flow).
+    /// stale with the data or when its own frame has not come for [`Self::FRAME_STALE_AFTER`] (the BAT sends each
+    /// ID on its own: one can stop while the others flow).
     pub fn summary(&self, now: Instant) -> BatterySummary {
-        let stale =
-            |last: Option<Instant>| last.is_none_or(|last| now.saturating_duration_since(last) >= Self::STALE_AFTER);
+        let silent =
+            |last: Option<Instant>, limit| last.is_none_or(|last| now.saturating_duration_since(last) >= limit);
+        let stale = silent(self.last_frame, Self::STALE_AFTER);
+        let kind_stale = |kind| stale || silent(self.last(kind), Self::FRAME_STALE_AFTER);
         BatterySummary {
             info: self.info,
             status: self.status,
             alarms: self.alarms,
-            stale: stale(self.last_frame),
-            info_stale: stale(self.last_info),
-            status_stale: stale(self.last_status),
-            alarms_stale: stale(self.last_alarms),
+            stale,
+            info_stale: kind_stale(FrameKind::Info),
+            status_stale: kind_stale(FrameKind::Status),
+            alarms_stale: kind_stale(FrameKind::Alarms),
             frames: self.frames,
             errors: self.errors,
         }
+    }
+
+    /// When the last good frame of `kind` came.
+    fn last(&self, kind: FrameKind) -> Option<Instant> {
+        self.kinds.get(kind_index(kind)).and_then(|freshness| freshness.last)
     }
 
     /// Frames of other sources seen on the bus.
@@ -332,6 +507,15 @@ impl BatteryMonitor {
         if self.started.is_none() {
             self.started = Some(now);
         }
+    }
+}
+
+/// Where `kind` is in [`FrameKind::ALL`] and the monitor's freshness array.
+const fn kind_index(kind: FrameKind) -> usize {
+    match kind {
+        FrameKind::Info => 0,
+        FrameKind::Status => 1,
+        FrameKind::Alarms => 2,
     }
 }
 
@@ -608,7 +792,14 @@ pub(crate) mod tests {
         assert_eq!(summary.status, Some(DcdcStatus::from_word(172)));
         // Resumption with an info frame: no other news.
         let report = monitor.on_frame(t(5100), &info(419, 79));
-        assert_eq!(report, Report::Resumed(None));
+        assert_eq!(
+            report,
+            Report::Resumed {
+                frame: None,
+                untold: false,
+                news: None
+            }
+        );
         assert_eq!(texts(&report), [(Severity::Info, "BAT data resumed".to_string())]);
         assert!(!monitor.summary(t(5100)).stale);
         assert_eq!(monitor.stale_at(), Some(t(6100)));
@@ -633,9 +824,13 @@ pub(crate) mod tests {
 
     #[test]
     fn each_text_of_a_report_is_formatted_once() {
-        // The longest report: resumed, then the start-up report of every bit, 13 texts. Taking them one by one
+        // The longest report: stale and resumed, then the start-up report of every bit, 14 texts. Taking them one by one
         // formats one each, so the task's work grows with the texts, not with their square.
-        let report = Report::Resumed(Some(News::StartUp(DcdcStatus::from_word(0x0FFF))));
+        let report = Report::Resumed {
+            frame: None,
+            untold: true,
+            news: Some(News::StartUp(DcdcStatus::from_word(0x0FFF))),
+        };
         formatted();
         let mut taken = report.texts();
         for n in 1..=MAX_REPORT_TEXTS {
@@ -668,11 +863,122 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn a_gap_without_ticks_still_counts_as_resumption() {
+    fn a_frame_at_its_deadline_before_any_tick_says_stale_then_resumed() {
         let mut monitor = BatteryMonitor::new();
         monitor.on_frame(t(0), &info(420, 80));
         assert_eq!(monitor.on_frame(t(999), &info(420, 80)), Report::Nothing);
-        assert_eq!(monitor.on_frame(t(1999), &info(420, 80)), Report::Resumed(None));
+        let report = monitor.on_frame(t(1999), &info(420, 80));
+        assert_eq!(
+            report,
+            Report::Resumed {
+                frame: None,
+                untold: true,
+                news: None
+            }
+        );
+        assert_eq!(
+            texts(&report),
+            [
+                (Severity::Warning, "BAT data stale".to_string()),
+                (Severity::Info, "BAT data resumed".to_string())
+            ]
+        );
+        // One kind likewise, while the others come.
+        monitor.on_frame(t(2000), &status(172));
+        for ms in (2100..=3200).step_by(100) {
+            assert_eq!(monitor.on_frame(t(ms), &info(420, 80)), Report::Nothing, "{ms}");
+        }
+        let report = monitor.on_frame(t(3200), &status(172));
+        assert_eq!(
+            texts(&report),
+            [
+                (Severity::Warning, "BAT status (0x629) stale".to_string()),
+                (Severity::Info, "BAT status (0x629) resumed".to_string())
+            ]
+        );
+    }
+
+    #[test]
+    fn one_frame_that_stops_goes_stale_on_its_own_and_its_values_go_unknown() {
+        let mut monitor = BatteryMonitor::new();
+        // A vehicle without a BMS board: 0x628 never comes and is never said stale.
+        monitor.on_frame(t(0), &status(172 | 0x0002));
+        monitor.on_frame(t(100), &info(420, 80));
+        let mut said = Vec::new();
+        // 0x629 stops after its first frame; 0x620 goes on every 200 ms for 5 s.
+        let mut ms = 100;
+        while ms < 5_000 {
+            ms += 10;
+            if ms % 200 == 100 {
+                said.extend(texts(&monitor.on_frame(t(ms), &info(420, 80))));
+            }
+            if monitor.stale_at().is_some_and(|at| at <= t(ms)) {
+                said.extend(texts(&monitor.on_tick(t(ms))));
+            }
+            if ms == 1_190 {
+                let summary = monitor.summary(t(ms));
+                assert!(
+                    !summary.status_stale && summary.fresh_status().is_some(),
+                    "fresh 1190 ms after"
+                );
+            }
+        }
+        assert_eq!(
+            said,
+            [(Severity::Warning, "BAT status (0x629) stale".to_string())],
+            "once"
+        );
+        let summary = monitor.summary(t(ms));
+        assert!(!summary.stale && !summary.info_stale && summary.status_stale);
+        assert_eq!(
+            summary.fresh_status(),
+            None,
+            "the HSM_F of 5 s ago is not reported as now"
+        );
+        assert_eq!(
+            summary.status,
+            Some(DcdcStatus::from_word(172 | 0x0002)),
+            "kept for its next comparison"
+        );
+        // It comes again: said once, and no bit report (nothing changed).
+        let report = monitor.on_frame(t(5_050), &status(172 | 0x0002));
+        assert_eq!(
+            texts(&report),
+            [(Severity::Info, "BAT status (0x629) resumed".to_string())]
+        );
+        assert!(monitor.summary(t(5_050)).fresh_status().is_some());
+    }
+
+    #[test]
+    fn a_bus_that_stops_whole_is_told_once_as_the_data() {
+        let mut monitor = BatteryMonitor::new();
+        // The BAT's rhythm: 0x620 and 0x629 alternating every 100 ms; then the connector comes loose at 1 s.
+        for ms in (0..1_000).step_by(100) {
+            let frame = if ms % 200 == 0 { info(420, 80) } else { status(172) };
+            monitor.on_frame(t(ms), &frame);
+        }
+        let mut said = Vec::new();
+        for ms in 1_000..4_000 {
+            if monitor.stale_at().is_some_and(|at| at <= t(ms)) {
+                said.extend(texts(&monitor.on_tick(t(ms))));
+            }
+        }
+        assert_eq!(said, [(Severity::Warning, "BAT data stale".to_string())]);
+        // Back, but 0x629 does not return: the data resumes, and 0x629 is told on its own 1.2 s later.
+        let report = monitor.on_frame(t(4_000), &info(420, 80));
+        assert_eq!(texts(&report), [(Severity::Info, "BAT data resumed".to_string())]);
+        for ms in (4_200..=5_200).step_by(200) {
+            monitor.on_frame(t(ms), &info(420, 80));
+        }
+        assert_eq!(
+            monitor.stale_at(),
+            Some(t(5_200)),
+            "the data's next deadline 6.2 s, 0x629's 5.2 s"
+        );
+        assert_eq!(
+            texts(&monitor.on_tick(t(5_200))),
+            [(Severity::Warning, "BAT status (0x629) stale".to_string())]
+        );
     }
 
     #[test]
@@ -685,7 +991,14 @@ pub(crate) mod tests {
         assert_eq!(monitor.on_tick(t(1050)), Report::Stale);
         // The first frame after that: resumed, and the start-up report.
         let report = monitor.on_frame(t(1200), &status(172));
-        assert_eq!(report, Report::Resumed(Some(News::StartUp(DcdcStatus::from_word(172)))));
+        assert_eq!(
+            report,
+            Report::Resumed {
+                frame: None,
+                untold: false,
+                news: Some(News::StartUp(DcdcStatus::from_word(172)))
+            }
+        );
         assert_eq!(texts(&report).len(), 13);
     }
 
@@ -895,16 +1208,17 @@ pub(crate) mod tests {
             assert!(!summary.stale);
             assert_eq!(summary.status, Some(DcdcStatus::from_word(172)));
 
-            // Frames every 200 ms for 3 s: the summary is published once a second, plus for each report.
+            // Both frames every 200 ms for 3 s: the summary is published once a second, plus for each report.
             let id = shared.battery.get_msg_id();
             for _ in 0..15 {
                 push(Ok(info(420, 80)));
+                push(Ok(status(172)));
                 elapse(Duration::from_millis(200)).await;
             }
             let published = shared.battery.get_msg_id() - id;
             assert!((3..=4).contains(&published), "{published} publications in 3 s");
             assert!(drain(&shared).is_empty());
-            assert_eq!(shared.battery.try_get().unwrap().frames, 17);
+            assert_eq!(shared.battery.try_get().unwrap().frames, 32);
 
             // Bits 10-11 switch: two lines.
             push(Ok(status(172 | 0x0C00)));
@@ -943,7 +1257,7 @@ pub(crate) mod tests {
             );
             let summary = shared.battery.try_get().unwrap();
             assert!(!summary.stale);
-            assert_eq!((summary.frames, summary.errors), (20, 1));
+            assert_eq!((summary.frames, summary.errors), (35, 1));
             assert_eq!(summary.alarms, Some(BmsAlarms::LOW_CHARGE));
         };
         match block_on(select(can_task(&mut port, &shared), script)) {

@@ -475,6 +475,18 @@ pub struct BatterySummary {
     pub errors: u32,
 }
 
+impl BatterySummary {
+    /// The DCDC status while its frame is fresh; unknown once it is stale, whatever the other frames do.
+    pub fn fresh_status(&self) -> Option<DcdcStatus> {
+        self.status.filter(|_| !self.status_stale)
+    }
+
+    /// The BMS alarms while their frame is fresh; unknown once it is stale.
+    pub fn fresh_alarms(&self) -> Option<BmsAlarms> {
+        self.alarms.filter(|_| !self.alarms_stale)
+    }
+}
+
 /// The vehicle's state for telemetry: published by the vehicle task.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]

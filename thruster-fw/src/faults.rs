@@ -385,10 +385,16 @@ impl FaultMonitor {
         }
         // Hysteresis: between the two thresholds the overtemp keeps its state.
         let temperature = sample.temperature_decicelsius;
-        if self.hot.sample(temperature >= t.overtemp_set_decicelsius, t.latch_samples) {
+        if self
+            .hot
+            .sample(temperature >= t.overtemp_set_decicelsius, t.latch_samples)
+        {
             self.faults.insert(Faults::OVERTEMP);
         }
-        if self.cool.sample(temperature <= t.overtemp_clear_decicelsius, t.latch_samples) {
+        if self
+            .cool
+            .sample(temperature <= t.overtemp_clear_decicelsius, t.latch_samples)
+        {
             self.faults.remove(Faults::OVERTEMP);
         }
         // Latched until a zero-speed order (`on_order`).

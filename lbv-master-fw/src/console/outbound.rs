@@ -126,9 +126,9 @@ fn fresh(battery: Option<&BatterySummary>) -> Option<&BatterySummary> {
     battery.filter(|b| !b.info_stale && b.info.is_some())
 }
 
-/// Whether the battery reports an alarm or a DCDC fault.
+/// Whether the battery reports an alarm or a DCDC fault, each from its own frame while that frame is fresh.
 fn battery_faulty(battery: &BatterySummary) -> bool {
-    battery.alarms.is_some_and(|a| !a.is_empty()) || battery.status.is_some_and(|s| s.has_fault())
+    battery.fresh_alarms().is_some_and(|a| !a.is_empty()) || battery.fresh_status().is_some_and(|s| s.has_fault())
 }
 
 /// Thruster link errors of every kind, summed.
@@ -292,14 +292,17 @@ fn battery_faults(alarms: BmsAlarms) -> MavBatteryFault {
 /// Without a fresh reading every value is "unknown". current_consumed and energy_consumed are -1 (not
 /// estimated), time_remaining 0 (not estimated), mode UNKNOWN.
 ///
-/// charge_state: UNDEFINED without a fresh reading; UNHEALTHY with a BMS alarm or a DCDC fault (fault_bitmask
+/// charge_state: UNDEFINED without a fresh reading; UNHEALTHY with a BMS alarm or a DCDC fault, each from a frame
+/// of its own that is fresh (a stale status or alarm frame counts as unknown, not as the old value; fault_bitmask
 /// names the alarms MAVLink has a bit for: low voltage as DEEP_DISCHARGE, over-current, over- and
 /// under-temperature); LOW with only the BMS low-charge alarm; CHARGING when the current is negative; else OK.
 pub fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
     let fresh = fresh(battery);
     let info = fresh.and_then(|b| b.info);
-    let alarms = fresh.and_then(|b| b.alarms).unwrap_or(BmsAlarms::NONE);
-    let dcdc_fault = fresh.and_then(|b| b.status).is_some_and(|s| s.has_fault());
+    let alarms = fresh.and_then(BatterySummary::fresh_alarms).unwrap_or(BmsAlarms::NONE);
+    let dcdc_fault = fresh
+        .and_then(BatterySummary::fresh_status)
+        .is_some_and(|s| s.has_fault());
     let current = info.and_then(|i| i.current_deciamps).map_or(-1, centiamps);
     let serious_alarm = alarms.bits() & !BmsAlarms::LOW_CHARGE.bits() != 0;
     let charge_state = match info {
@@ -1111,6 +1114,24 @@ mod tests {
         assert_eq!(
             h.fault_bitmask,
             MavBatteryFault::MAV_BATTERY_FAULT_OVER_TEMPERATURE | MavBatteryFault::MAV_BATTERY_FAULT_DEEP_DISCHARGE
+        );
+        // A status word that held HSM_F when its frame stopped coming 5 s ago says nothing of now.
+        let faulted = BatterySummary {
+            status: Some(DcdcStatus::from_word(0x0002)),
+            ..battery()
+        };
+        assert_eq!(
+            battery_status(Some(&faulted)).charge_state,
+            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNHEALTHY
+        );
+        let gone = BatterySummary {
+            status_stale: true,
+            ..faulted
+        };
+        // The reference pack is charging (-3.5 A): what it would read without the fault.
+        assert_eq!(
+            battery_status(Some(&gone)).charge_state,
+            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_CHARGING
         );
         let low = BatterySummary {
             alarms: Some(BmsAlarms::LOW_CHARGE),

@@ -423,7 +423,11 @@ fn one_hot_sample_does_not_stop_the_motor_but_three_in_a_row_do() {
         assert!(m.drive_allowed());
         m.update(temperature(1105), false);
         m.update(temperature(1105), false);
-        assert_eq!(m.update(temperature(1105), false), Faults::OVERTEMP, "{family:?}: the third in a row");
+        assert_eq!(
+            m.update(temperature(1105), false),
+            Faults::OVERTEMP,
+            "{family:?}: the third in a row"
+        );
         assert!(!m.drive_allowed());
         // Clearing takes as many at or below 100 C: one low reading does not restart a hot motor.
         for _ in 0..10 {
