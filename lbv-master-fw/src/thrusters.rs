@@ -340,6 +340,9 @@ impl Outcome {
     }
 }
 
+/// A thruster's link failsafe: 1 s without a valid order stops its motor (docs/thruster.md, "The link failsafe").
+pub const THRUSTER_FAILSAFE: Duration = Duration::from_secs(1);
+
 /// Where a thruster's link stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -377,6 +380,8 @@ pub struct ThrusterLink {
     form: Option<StatusForm>,
     /// The last valid status said the link failsafe had stopped the thruster.
     link_failsafe: bool,
+    /// The start of the last poll cycle whose order was delivered.
+    last_delivered: Option<Instant>,
     /// The last valid status said a sustained overcurrent held the thruster's bridge off.
     overcurrent: bool,
     /// Whether its status shows it following its orders.
@@ -420,6 +425,7 @@ impl ThrusterLink {
             status: None,
             form: None,
             link_failsafe: false,
+            last_delivered: None,
             overcurrent: false,
             follow: FollowCheck::new(),
             retry_at: Instant::from_ticks(0),
@@ -514,6 +520,25 @@ impl ThrusterLink {
         }
         self.health.not_following = self.follow.not_following();
         change
+    }
+
+    /// Note whether the order of the poll cycle starting at `now` was delivered to a thruster of `family`; true
+    /// when a delivery to a Legacy thruster ends a gap of more than `failsafe` since the last one: it then went
+    /// that long without a valid order and its own link failsafe stopped it, which its status has no bit to say
+    /// (a SeaBotix thruster's says it: [`ThrusterLink::on_link_failsafe`]). Counted in `link_failsafes`.
+    pub fn on_delivery(&mut self, now: Instant, delivered: bool, family: Family, failsafe: Duration) -> bool {
+        if !delivered {
+            return false;
+        }
+        let gap = self
+            .last_delivered
+            .replace(now)
+            .and_then(|last| now.checked_duration_since(last));
+        let stopped = family == Family::Legacy && gap.is_some_and(|gap| gap > failsafe);
+        if stopped {
+            self.health.link_failsafes = self.health.link_failsafes.saturating_add(1);
+        }
+        stopped
     }
 
     /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
@@ -782,6 +807,8 @@ struct BusState<'a> {
     links: &'a Links,
     /// The mux control byte last written, None when unknown.
     mux: Option<u8>,
+    /// The poll period: how late a delivery may come after a gap of the thruster's failsafe.
+    period: Duration,
 }
 
 impl BusState<'_> {
@@ -878,7 +905,12 @@ impl BusState<'_> {
                 let (severity, text) = link_text(index, change, restarting);
                 shared.say(severity, text);
             }
-            if matches!(outcome, Outcome::Answered(_)) && link.on_link_failsafe(failsafe) {
+            // The status tells a SeaBotix thruster's failsafe stop (FAULT bit 5); the Legacy status has no bit for
+            // it, so the master tells it from how long it could not deliver an order.
+            let delivered = !matches!(outcome, Outcome::NoOrder(_));
+            let late = THRUSTER_FAILSAFE.checked_add(self.period).unwrap_or(Duration::MAX);
+            let silenced = link.on_delivery(cycle, delivered, slot.family, late);
+            if silenced || (matches!(outcome, Outcome::Answered(_)) && link.on_link_failsafe(failsafe)) {
                 let number = index.saturating_add(1);
                 shared.say(
                     Severity::Warning,
@@ -993,7 +1025,11 @@ pub async fn bus_task<B>(
 where
     B: I2c + BusRecovery,
 {
-    let mut state = BusState { links, mux: None };
+    let mut state = BusState {
+        links,
+        mux: None,
+        period: config.period,
+    };
     let back_to_back = config.period == Duration::from_ticks(0);
     let mut next = Instant::now();
     loop {

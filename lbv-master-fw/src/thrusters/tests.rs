@@ -7,7 +7,7 @@ use crate::sim::thruster_bus;
 use crate::tests::scripted::{Mode, SimThruster, speed};
 use core::cell::{RefCell, RefMut};
 use embedded_hal::i2c::NoAcknowledgeSource;
-use lbv_sim::i2c::{Bus, Data, Route, Timing};
+use lbv_sim::i2c::{Bus, Data, DeviceId, Route, Timing};
 use lbv_sim::{Clock, Executor, clock};
 use std::rc::Rc;
 use tmc_proto::{MotorKind, SeaBotixStatus, Speed};
@@ -443,6 +443,8 @@ const STUCK_CLOCKS: u32 = 5;
 struct Bench {
     bus: Bus,
     thrusters: Vec<Rc<RefCell<SimThruster>>>,
+    /// The bus's handle of each thruster, in `thrusters`' order.
+    ids: Vec<DeviceId>,
     shared: Shared,
     texts: RefCell<Vec<(Severity, String)>>,
 }
@@ -482,17 +484,18 @@ impl Bench {
             bus.fit_mux(MUX_ADDRESS);
         }
         bus.record(true);
-        let thrusters = thrusters
+        let (thrusters, ids) = thrusters
             .iter()
             .map(|(family, channel)| {
                 let thruster = Rc::new(RefCell::new(SimThruster::new(*family)));
-                bus.attach(thruster.clone(), channel.map_or(Route::Direct, Route::Mux));
-                thruster
+                let id = bus.attach(thruster.clone(), channel.map_or(Route::Direct, Route::Mux));
+                (thruster, id)
             })
-            .collect();
+            .unzip();
         Self {
             bus,
             thrusters,
+            ids,
             shared: Shared::new(),
             texts: RefCell::new(Vec::new()),
         }
@@ -1037,6 +1040,47 @@ fn legacy_and_seabotix_mixed_on_one_bus_follow_their_orders() {
     }
     assert_50_hz(&bench, 2, 1, None);
     assert_eq!(bench.health(1).good, 50);
+}
+
+#[test]
+fn a_legacy_thruster_whose_orders_stopped_for_over_a_second_is_told_stopped_when_it_answers_again() {
+    let bench = Bench::new(&[(Family::SeaBotix, Some(0)), (Family::Legacy, Some(1))]);
+    let table = [
+        ThrusterSlot::behind_mux(0, 0, Family::SeaBotix),
+        ThrusterSlot::behind_mux(0, 1, Family::Legacy),
+    ];
+    bench.run(&table, &PollConfig::DEFAULT, |sim| {
+        sim.elapse(MS * 100);
+        bench.take_texts();
+        // Both unpowered 0.5 s: less than the thrusters' failsafe, nothing said of it.
+        for id in &bench.ids {
+            bench.bus.set_powered(*id, false);
+        }
+        sim.elapse(MS * 500);
+        for id in &bench.ids {
+            bench.bus.set_powered(*id, true);
+        }
+        sim.elapse(MS * 3000);
+        let stopped = |texts: &[(Severity, String)]| texts.iter().filter(|(_, t)| t.contains("stopped")).count();
+        assert_eq!(stopped(&bench.take_texts()), 0);
+        // 1.5 s: the Legacy thruster, whose status has no bit for it, is told stopped by the master once it
+        // answers again; the SeaBotix one's status would say it (the simulated thruster has no failsafe).
+        for id in &bench.ids {
+            bench.bus.set_powered(*id, false);
+        }
+        sim.elapse(MS * 1500);
+        for id in &bench.ids {
+            bench.bus.set_powered(*id, true);
+        }
+        sim.elapse(MS * 3000);
+        let texts = bench.take_texts();
+        assert!(
+            texts.contains(&(Severity::Warning, "T2 stopped: 1 s without a valid order".to_owned())),
+            "{texts:?}"
+        );
+        assert!(!texts.iter().any(|(_, t)| t.starts_with("T1 stopped")), "{texts:?}");
+        assert_eq!((bench.health(0).link_failsafes, bench.health(1).link_failsafes), (0, 1));
+    });
 }
 
 #[test]

@@ -281,8 +281,10 @@ pub fn six_byte_status(run: &mut Run) {
 }
 
 /// The bus stuck for 1.5 s (a slave holding SDA through every recovery): no order reaches the thrusters, and each
-/// stops on its own link failsafe after 1 s. Once the bus is free, each says so in its first status (SeaBotix FAULT
-/// bit 5), the master tells the console once per thruster and counts it, and the thrusters follow the orders again.
+/// stops on its own link failsafe after 1 s. Once the bus is free, a SeaBotix thruster says so in its first status
+/// (FAULT bit 5), and of a Legacy one, whose status has no bit for it, the master knows it from the 1.5 s it could
+/// not deliver an order; it tells the console once per thruster and counts it, and the thrusters follow the orders
+/// again.
 pub fn link_failsafe(run: &mut Run) {
     run.arm_and_go(AHEAD);
     run.run_for(1.0);

@@ -222,9 +222,10 @@ pub const SCENARIOS: &[Scenario] = &[
     },
     Scenario {
         name: "link-failsafe",
-        about: "the bus stuck 1.5 s: every thruster stops on its own failsafe, says so in FAULT bit 5, the console hears",
+        about: "the bus stuck 1.5 s: every thruster stops on its own failsafe; the console hears of each, SeaBotix from \
+                FAULT bit 5, Legacy from the master's count of the undelivered orders",
         seconds: 5.0,
-        vehicle: lbv300,
+        vehicle: mixed,
         run: link_failsafe,
     },
     Scenario {
