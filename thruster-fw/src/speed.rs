@@ -238,10 +238,19 @@ impl SpeedController {
 /// the power is estimated at the nominal [`SUPPLY_MV`]: |duty| x motor current x 24 V, the bridge's supply
 /// current times its nominal voltage. A pack above or below 24 V makes the real power that much higher or lower.
 ///
-/// The limit is a duty ceiling that integrates the power error: it moves by [`POWER_LIMIT_GAIN_PER_S`] x full
-/// scale per second for an error of the whole rated power (~20 ms time constant on the reference motor, whose
-/// power rises ~5 x rated per unit of duty at fixed speed), within 0..=full scale. INFO 100, 0 and above 100
-/// mean no limit (masters send 100, spec-notes: they behave as before); the ceiling is then full scale.
+/// The limit is a duty ceiling that integrates the power error relative to the cap: it moves by
+/// [`POWER_LIMIT_GAIN_PER_S`] x full scale per second for an error of the whole cap. Relative to the cap, because the
+/// power rises about with the square of the duty (P ~ 2P/d per unit of duty at fixed speed): the loop's time
+/// constant is then about d / (2 x gain), 3.5 ms at the 14 % duty of INFO 10 from rest and 15 ms at 60 %, alike at
+/// every INFO, where a gain on the rated power's error was 5 times slower at INFO 10 than at 50. A higher gain
+/// brakes a fast rotor too hard when the cap falls: the current, measured without its sign, then reads the braking
+/// current as power drawn, and the duty stays far below the cap until the rotor has slowed (on the bench, gain 50
+/// held INFO 10 after INFO 100 at full ahead only after 154 ms; 20 holds it in 13 ms).
+/// And while a cap is in force the ceiling never stands more than [`POWER_LIMIT_HEADROOM`] above the duty last
+/// applied, limiting or not, so it has nothing to unwind when the power first exceeds the cap (from rest, or on a
+/// lower INFO): it was that unwinding from full scale that let INFO 10 draw 52 W for 0.7 s. The headroom lets the
+/// duty rise 10 x full scale per second, five times the speed ramp's pace, so it slows no start.
+/// INFO 100, 0 and above 100 mean no limit (masters send 100, spec-notes: they behave as before).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct PowerLimit {
@@ -255,8 +264,11 @@ pub struct PowerLimit {
 pub const RATED_POWER_MW: u32 = 96_000;
 /// The nominal supply the power is estimated at, mV: the reference thruster's 24 V.
 pub const SUPPLY_MV: u32 = 24_000;
-/// The power limit's integrating gain, full scale per second per rated power of error.
-pub const POWER_LIMIT_GAIN_PER_S: i64 = 10;
+/// The power limit's integrating gain, full scale per second per cap of error.
+pub const POWER_LIMIT_GAIN_PER_S: i64 = 20;
+/// How far the power limit's ceiling may stand above the duty last applied, in [`Duty`] units: 1 % of full scale,
+/// 10 x full scale per second at the 1 kHz control step.
+pub const POWER_LIMIT_HEADROOM: i64 = 100;
 
 impl Default for PowerLimit {
     fn default() -> Self {
@@ -289,16 +301,18 @@ impl PowerLimit {
             .map_or(0, |dt| i64::try_from(dt.min(MAX_DT).as_micros()).unwrap_or(0));
         self.last = Some(now);
         let full = FULL * MICROS_PER_S;
-        match power_cap_percent {
+        let tracked = (i64::from(duty.magnitude()) + POWER_LIMIT_HEADROOM) * MICROS_PER_S;
+        self.ceiling_micro = match power_cap_percent {
             Some(percent @ 1..=99) => {
+                // At least 960 mW: the division below never sees zero.
                 let cap = i64::from(RATED_POWER_MW) * i64::from(percent) / 100;
                 let error = cap - Self::power_mw(duty, current_deciamps);
                 // |error| <= ~1e7 mW, dt <= 1e5 us: the product stays inside i64. In millionths of a duty unit.
-                let step = error * POWER_LIMIT_GAIN_PER_S * FULL * dt_us / i64::from(RATED_POWER_MW);
-                self.ceiling_micro = self.ceiling_micro.saturating_add(step).clamp(0, full);
+                let step = error * POWER_LIMIT_GAIN_PER_S * FULL * dt_us / cap.max(1);
+                self.ceiling_micro.saturating_add(step).min(tracked).clamp(0, full)
             }
-            _ => self.ceiling_micro = full,
-        }
+            _ => full,
+        };
         u16::try_from(self.ceiling_micro / MICROS_PER_S).unwrap_or(u16::MAX)
     }
 }
@@ -522,14 +536,20 @@ mod tests {
             limit.update(Instant::from_millis(t), Some(10), full, u16::MAX);
         }
         assert_eq!(limit.update(Instant::from_millis(1000), Some(10), full, u16::MAX), 0);
-        // Drawing nothing: it rises back to full scale, never above; INFO 100 is full scale at once.
+        // Drawing nothing at zero duty: it stands the headroom above that duty, not at full scale, so it has
+        // nothing to unwind when the motor starts. Drawing nothing at full duty: full scale, never above.
         for t in 1001..3000 {
             limit.update(Instant::from_millis(t), Some(10), Duty::ZERO, 0);
         }
         assert_eq!(
             limit.update(Instant::from_millis(3000), Some(10), Duty::ZERO, 0),
-            10_000
+            u16::try_from(POWER_LIMIT_HEADROOM).unwrap()
         );
+        for t in 3001..3200 {
+            limit.update(Instant::from_millis(t), Some(10), full, 0);
+        }
+        assert_eq!(limit.update(Instant::from_millis(3200), Some(10), full, 0), 10_000);
+        // INFO 100 is full scale at once.
         let mut limit = PowerLimit::new();
         limit.update(Instant::from_millis(0), Some(1), full, u16::MAX);
         assert!(limit.update(Instant::from_millis(100), Some(1), full, u16::MAX) < 10_000);

@@ -81,6 +81,14 @@ fn full_order(bytes: &mut [u8], info_byte: u8) {
     }
 }
 
+fn full_order_info_10(bytes: &mut [u8]) {
+    full_order(bytes, 10);
+}
+
+fn full_order_info_25(bytes: &mut [u8]) {
+    full_order(bytes, 25);
+}
+
 fn full_order_info_50(bytes: &mut [u8]) {
     full_order(bytes, 50);
 }
@@ -243,10 +251,15 @@ impl Fault {
                 bench,
                 thruster,
                 Tamper {
-                    rewrite: Some(if info == 50 {
-                        full_order_info_50
-                    } else {
-                        full_order_info_100
+                    // A rewrite is a plain function: one per INFO the scenarios use.
+                    rewrite: Some(match info {
+                        10 => full_order_info_10,
+                        25 => full_order_info_25,
+                        50 => full_order_info_50,
+                        _ => {
+                            debug_assert_eq!(info, tmc_proto::Order::INFO_NO_CAP, "no rewrite for INFO {info}");
+                            full_order_info_100
+                        }
                     }),
                     ..Tamper::NONE
                 },

@@ -67,6 +67,12 @@ fn tolerance(metric: &str) -> Within {
         "reaction_ms" => Within::Absolute(0.1),
         "stall_detected_after_ms" | "console_to_wire_latency_ms" => Within::Absolute(0.25),
         "battery_v_at_end" => Within::Absolute(0.02),
+        // The bytes back include the telemetry the master sends while the file goes in: a put that ends a little
+        // later on one engine carries a frame or two more of it (a HEARTBEAT is 21 bytes, ESC telemetry 54).
+        "master_update_put_bytes" => Within::Relative {
+            fraction: 0.01,
+            floor: 300.0,
+        },
         // The acceptance test's sweeps wait for 204 speed steps, each to settle within a step of its order at a
         // poll; a settling that ends on the edge of a poll moves by a poll (the fixed-step engine alone moves
         // its slowest step from 319 ms to 46 ms when the pack is 1 mV lower).

@@ -38,8 +38,8 @@ use flood::console_flood;
 use harness::{dev_kits, lbv300, lbv300_uart, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{
-    ground_fault, ground_glitch, hall, hall_glitches, info_power, overcurrent, overtemp, rocking_rotor, stall, water,
-    water_threshold,
+    ground_fault, ground_glitch, hall, hall_glitches, info_power, info_power_response, overcurrent, overtemp,
+    rocking_rotor, stall, water, water_threshold,
 };
 use update::{field_update, master_update};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
@@ -190,6 +190,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 8.0,
         vehicle: lbv300,
         run: info_power,
+    },
+    Scenario {
+        name: "info-power-response",
+        about: "full ahead from rest at INFO 10, 25, 50, and INFO 100 to 10 at full ahead: the power held within 50 ms",
+        seconds: 20.0,
+        vehicle: lbv300,
+        run: info_power_response,
     },
     Scenario {
         name: "bad-frames",

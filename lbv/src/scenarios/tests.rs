@@ -63,6 +63,7 @@ scenario_tests! {
     overcurrent_seabotix: "overcurrent-seabotix",
     overcurrent_legacy: "overcurrent-legacy",
     info_power: "info-power",
+    info_power_response: "info-power-response",
     bad_frames: "bad-frames",
     corrupted_stop: "corrupted-stop",
     status_noise: "status-noise",
