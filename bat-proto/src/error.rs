@@ -17,8 +17,6 @@ pub enum DecodeError {
         /// Number of data bytes received.
         actual: usize,
     },
-    /// The charge byte of the info frame is above 100 %; the value received is kept.
-    ChargeOutOfRange(u8),
 }
 
 impl fmt::Display for DecodeError {
@@ -30,7 +28,6 @@ impl fmt::Display for DecodeError {
                 "BAT frame {id:#05x} has {actual} data bytes, expected {}",
                 crate::FRAME_LEN
             ),
-            Self::ChargeOutOfRange(value) => write!(f, "battery charge {value} % is above 100 %"),
         }
     }
 }

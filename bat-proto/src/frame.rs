@@ -37,8 +37,8 @@ impl Frame {
     /// Decodes a received frame.
     ///
     /// Checks in order: an unknown ID gives [`DecodeError::UnknownId`]; a data length other than 8 gives
-    /// [`DecodeError::Length`] (classic CAN: the BAT always sends DLC 8); then the frame's own checks (a charge
-    /// above 100 % gives [`DecodeError::ChargeOutOfRange`]).
+    /// [`DecodeError::Length`] (classic CAN: the BAT always sends DLC 8). A field out of range is the frame's to
+    /// report ([`BatteryInfo::decode`]).
     pub fn decode(id: u16, data: &[u8]) -> Result<Frame, DecodeError> {
         match id {
             INFO_ID => BatteryInfo::decode(data).map(Self::Info),

@@ -11,13 +11,13 @@ fn voltage_0x01a4_is_42_0_volts_little_endian() {
     let info = BatteryInfo::decode(&[0xA4, 0x01, 0, 0, 0, 0, 0, 0]).unwrap();
     assert_eq!(info.voltage_decivolts, 0x01A4);
     assert_eq!(info.voltage_decivolts, 420); // 42.0 V
-    assert_eq!(info.charge_percent, 0);
+    assert_eq!(info.charge_percent, Some(0));
     assert_eq!(info.current_deciamps, None);
     assert_eq!(info.temperature_decicelsius, None);
 
     let encoded = BatteryInfo {
         voltage_decivolts: 420,
-        charge_percent: 0,
+        charge_percent: Some(0),
         current_deciamps: None,
         temperature_decicelsius: None,
     }
@@ -28,12 +28,12 @@ fn voltage_0x01a4_is_42_0_volts_little_endian() {
 #[test]
 fn charge_is_byte_4() {
     let info = BatteryInfo::decode(&[0xA4, 0x01, 0, 0, 87, 0, 0, 0]).unwrap();
-    assert_eq!(info.charge_percent, 87);
+    assert_eq!(info.charge_percent, Some(87));
     assert_eq!(info.voltage_decivolts, 420);
 
     let bytes = BatteryInfo {
         voltage_decivolts: 0,
-        charge_percent: 100,
+        charge_percent: Some(100),
         current_deciamps: None,
         temperature_decicelsius: None,
     }
@@ -42,23 +42,47 @@ fn charge_is_byte_4() {
 }
 
 #[test]
-fn charge_bounds() {
+fn charge_bounds_and_each_field_on_its_own() {
     assert_eq!(
         BatteryInfo::decode(&[0, 0, 0, 0, 100, 0, 0, 0]).unwrap().charge_percent,
-        100
+        Some(100)
     );
+    // A charge above 100 % is unknown; the voltage, current and temperature of the same frame stand.
+    for charge in [101, 0xFF] {
+        let info = BatteryInfo::decode(&[0xA4, 0x01, 0x7D, 0, charge, 0, 0xD7, 0]).unwrap();
+        assert_eq!(info.charge_percent, None);
+        assert_eq!(
+            (
+                info.voltage_decivolts,
+                info.current_deciamps,
+                info.temperature_decicelsius
+            ),
+            (420, Some(125), Some(215))
+        );
+        assert_eq!(
+            BatteryInfo::charge_out_of_range(&[0, 0, 0, 0, charge, 0, 0, 0]),
+            Some(charge)
+        );
+    }
+    assert_eq!(BatteryInfo::charge_out_of_range(&[0, 0, 0, 0, 100, 0, 0, 0]), None);
     assert_eq!(
-        BatteryInfo::decode(&[0, 0, 0, 0, 101, 0, 0, 0]),
-        Err(DecodeError::ChargeOutOfRange(101))
+        BatteryInfo::charge_out_of_range(&[0, 0, 0, 0, 200, 0, 0]),
+        None,
+        "another length"
     );
-    assert_eq!(
-        BatteryInfo::decode(&[0, 0, 0, 0, 0xFF, 0, 0, 0]),
-        Err(DecodeError::ChargeOutOfRange(255))
-    );
-    assert_eq!(
+    assert!(matches!(
         Frame::decode(INFO_ID, &[0, 0, 0, 0, 101, 0, 0, 0]),
-        Err(DecodeError::ChargeOutOfRange(101))
-    );
+        Ok(Frame::Info(BatteryInfo {
+            charge_percent: None,
+            ..
+        }))
+    ));
+    // Unknown encodes as 0xFF, which reads back unknown.
+    let unknown = BatteryInfo {
+        charge_percent: None,
+        ..BatteryInfo::default()
+    };
+    assert_eq!(BatteryInfo::decode(&unknown.encode()).unwrap(), unknown);
 }
 
 #[test]
@@ -70,7 +94,7 @@ fn current_and_temperature_present() {
         info,
         BatteryInfo {
             voltage_decivolts: 420,
-            charge_percent: 55,
+            charge_percent: Some(55),
             current_deciamps: Some(125),
             temperature_decicelsius: Some(253),
         }
@@ -108,7 +132,7 @@ fn zero_current_and_temperature_read_as_not_reported() {
     // Some(0) writes 0 and so reads back as None (documented).
     let zero = BatteryInfo {
         voltage_decivolts: 420,
-        charge_percent: 50,
+        charge_percent: Some(50),
         current_deciamps: Some(0),
         temperature_decicelsius: Some(0),
     };
@@ -420,7 +444,7 @@ fn bms_bit_7_and_other_bytes_masked() {
 fn frame_ids_and_encoding() {
     let info = BatteryInfo {
         voltage_decivolts: 420,
-        charge_percent: 80,
+        charge_percent: Some(80),
         current_deciamps: Some(-15),
         temperature_decicelsius: Some(281),
     };
@@ -482,7 +506,6 @@ fn wrong_lengths_rejected() {
             })
         );
     }
-    // Length is checked before the charge range.
     assert_eq!(
         BatteryInfo::decode(&[0, 0, 0, 0, 200, 0, 0]),
         Err(DecodeError::Length { id: INFO_ID, actual: 7 })
@@ -497,10 +520,6 @@ fn error_display() {
         DecodeError::Length { id: 0x629, actual: 3 }.to_string(),
         "BAT frame 0x629 has 3 data bytes, expected 8"
     );
-    assert_eq!(
-        DecodeError::ChargeOutOfRange(101).to_string(),
-        "battery charge 101 % is above 100 %"
-    );
     let err: &dyn core::error::Error = &DecodeError::UnknownId(1);
     assert!(err.source().is_none());
 }
@@ -512,12 +531,14 @@ fn reported() -> impl Strategy<Value = Option<i16>> {
 }
 
 fn battery_info() -> impl Strategy<Value = BatteryInfo> {
-    (any::<u16>(), 0u8..=100, reported(), reported()).prop_map(|(voltage, charge, current, temperature)| BatteryInfo {
-        voltage_decivolts: voltage,
-        charge_percent: charge,
-        current_deciamps: current,
-        temperature_decicelsius: temperature,
-    })
+    (any::<u16>(), prop::option::of(0u8..=100), reported(), reported()).prop_map(
+        |(voltage, charge, current, temperature)| BatteryInfo {
+            voltage_decivolts: voltage,
+            charge_percent: charge,
+            current_deciamps: current,
+            temperature_decicelsius: temperature,
+        },
+    )
 }
 
 fn status() -> impl Strategy<Value = DcdcStatus> {
@@ -583,15 +604,9 @@ proptest! {
                 prop_assert_eq!(actual, data.len());
                 prop_assert_ne!(actual, FRAME_LEN);
             }
-            Err(DecodeError::ChargeOutOfRange(charge)) => {
-                prop_assert_eq!(id, INFO_ID);
-                prop_assert_eq!(data.len(), FRAME_LEN);
-                prop_assert_eq!(Some(&charge), data.get(4));
-                prop_assert!(charge > 100);
-            }
         }
-        // Every 8-byte frame of a known ID decodes, except an info frame with charge above 100.
-        if known && data.len() == FRAME_LEN && !(id == INFO_ID && data[4] > 100) {
+        // Every 8-byte frame of a known ID decodes, each field on its own.
+        if known && data.len() == FRAME_LEN {
             prop_assert!(result.is_ok());
         }
     }

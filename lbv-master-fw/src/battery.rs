@@ -23,10 +23,11 @@
 //! fault bit that is set, for power good lost, for a BMS alarm that appears and for stale data; Info otherwise.
 //!
 //! Frames: the three BAT IDs (0x620 info, 0x628 BMS, 0x629 status) are decoded with bat-proto. A BAT-source ID
-//! (0x620..=0x62F, iCub's class 6, source 2) that bat-proto does not know, a BAT frame with a length other than
-//! 8 and a frame that fails its own checks (charge above 100 %) are counted in `errors` and change nothing else:
-//! they do not even keep the data fresh. Frames of other sources are normal on a shared bus and only counted
-//! as ignored.
+//! (0x620..=0x62F, iCub's class 6, source 2) that bat-proto does not know and a BAT frame with a length other than
+//! 8 are counted in `errors` and change nothing else: they do not even keep the data fresh. A field out of range
+//! (a charge above 100 %) is counted too, and reads as unknown, while the frame's other fields are taken. Once the
+//! pack has reported a non-zero current (or temperature), a 0 in that field is zero rather than "not used".
+//! Frames of other sources are normal on a shared bus and only counted as ignored.
 
 use bat_proto::{BatteryInfo, BitReport, BmsAlarms, DcdcStatus, Frame, StatusBit};
 use embassy_time::{Duration, Instant, Timer, with_deadline};
@@ -329,6 +330,9 @@ pub struct BatteryMonitor {
     started: Option<Instant>,
     /// "Stale" has been reported and no good frame came since.
     stale_reported: bool,
+    /// The pack has reported a non-zero current, or temperature: its firmware fills those bytes of 0x620.
+    reports_current: bool,
+    reports_temperature: bool,
     frames: u32,
     errors: u32,
     ignored: u32,
@@ -360,6 +364,10 @@ impl BatteryMonitor {
             self.errors = self.errors.wrapping_add(1);
             return Report::Nothing;
         };
+        // A field out of range is counted; the frame's other fields are taken.
+        if frame.id == bat_proto::INFO_ID && frame.payload().and_then(BatteryInfo::charge_out_of_range).is_some() {
+            self.errors = self.errors.wrapping_add(1);
+        }
         // A gap that went unnoticed (no tick at or after its deadline) is a stale period too, said now.
         let untold =
             !self.stale_reported && self.last_frame.is_some() && self.data_deadline().is_some_and(|at| now >= at);
@@ -390,7 +398,17 @@ impl BatteryMonitor {
             };
         }
         let news = match decoded {
-            Frame::Info(info) => {
+            Frame::Info(mut info) => {
+                // A pack that has reported a current or a temperature fills that field: a 0 from it is zero, not
+                // "not used" (bat-proto's `BatteryInfo`).
+                self.reports_current |= info.current_deciamps.is_some();
+                self.reports_temperature |= info.temperature_decicelsius.is_some();
+                if self.reports_current {
+                    info.current_deciamps.get_or_insert(0);
+                }
+                if self.reports_temperature {
+                    info.temperature_decicelsius.get_or_insert(0);
+                }
                 self.info = Some(info);
                 None
             }
@@ -619,7 +637,7 @@ pub(crate) mod tests {
     fn info(decivolts: u16, charge: u8) -> CanFrame {
         bat(Frame::Info(BatteryInfo {
             voltage_decivolts: decivolts,
-            charge_percent: charge,
+            charge_percent: Some(charge),
             ..BatteryInfo::default()
         }))
     }
@@ -1071,8 +1089,6 @@ pub(crate) mod tests {
                 ..bms(BmsAlarms::LOW_VOLTAGE)
             },
             CanFrame { len: 0, ..info(1, 1) },
-            // Charge above 100 %.
-            can(INFO_ID, [0xA4, 0x01, 0, 0, 101, 0, 0, 0]),
             // A BAT-source ID that the protocol does not define.
             can(0x62A, [0xFF; 8]),
             can(0x621, [0; 8]),
@@ -1094,6 +1110,30 @@ pub(crate) mod tests {
         monitor.on_receive_error();
         assert_eq!(monitor.summary(t(1000)).errors, bad.len() as u32 + 1);
         assert_eq!(monitor.ignored(), 0);
+    }
+
+    #[test]
+    fn each_info_field_is_read_on_its_own_and_a_reported_zero_is_zero() {
+        let mut monitor = BatteryMonitor::new();
+        // Older firmware: zeros in the current and temperature bytes are "not used".
+        monitor.on_frame(t(0), &can(INFO_ID, [0xA4, 0x01, 0, 0, 80, 0, 0, 0]));
+        let info = monitor.summary(t(0)).info.unwrap();
+        assert_eq!((info.current_deciamps, info.temperature_decicelsius), (None, None));
+        // A charge above 100 %: counted, unknown, and the voltage of the same frame taken.
+        monitor.on_frame(t(100), &can(INFO_ID, [0x9A, 0x01, 0, 0, 101, 0, 0, 0]));
+        let summary = monitor.summary(t(100));
+        assert_eq!(summary.errors, 1);
+        let info = summary.info.unwrap();
+        assert_eq!((info.voltage_decivolts, info.charge_percent), (410, None));
+        // Newer firmware reports -3.5 A and 21.5 C; then 0.0 A and 0.0 C are zeros, not "not used".
+        monitor.on_frame(t(200), &can(INFO_ID, [0x9A, 0x01, 0xDD, 0xFF, 79, 0, 0xD7, 0]));
+        monitor.on_frame(t(300), &can(INFO_ID, [0x9A, 0x01, 0, 0, 79, 0, 0, 0]));
+        let info = monitor.summary(t(300)).info.unwrap();
+        assert_eq!(
+            (info.current_deciamps, info.temperature_decicelsius),
+            (Some(0), Some(0))
+        );
+        assert_eq!(info.charge_percent, Some(79));
     }
 
     #[test]
@@ -1136,7 +1176,7 @@ pub(crate) mod tests {
             BatterySummary {
                 info: Some(BatteryInfo {
                     voltage_decivolts: 420,
-                    charge_percent: 80,
+                    charge_percent: Some(80),
                     current_deciamps: Some(-10),
                     temperature_decicelsius: Some(250),
                 }),

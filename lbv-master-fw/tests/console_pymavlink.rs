@@ -321,7 +321,7 @@ fn pymavlink_decodes_what_the_console_sends() {
     shared.battery.sender().send(BatterySummary {
         info: Some(bat_proto::BatteryInfo {
             voltage_decivolts: 252,
-            charge_percent: 87,
+            charge_percent: Some(87),
             current_deciamps: Some(123),
             temperature_decicelsius: Some(-15),
         }),

@@ -166,7 +166,7 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
     shared.battery.sender().send(BatterySummary {
         info: Some(bat_proto::BatteryInfo {
             voltage_decivolts: 168,
-            charge_percent: 64,
+            charge_percent: Some(64),
             current_deciamps: Some(52),
             temperature_decicelsius: None,
         }),

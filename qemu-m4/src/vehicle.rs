@@ -61,7 +61,7 @@ async fn send_bat_frames() -> ! {
     let frames = [
         Frame::Info(BatteryInfo {
             voltage_decivolts: PACK_DECIVOLTS,
-            charge_percent: 80,
+            charge_percent: Some(80),
             current_deciamps: None,
             temperature_decicelsius: None,
         }),

@@ -235,7 +235,9 @@ pub fn sys_status(
         load: 0,
         voltage_battery: info.map_or(u16::MAX, |i| millivolts(i.voltage_decivolts)),
         current_battery: info.and_then(|i| i.current_deciamps).map_or(-1, centiamps),
-        battery_remaining: info.map_or(-1, |i| i.charge_percent.min(100) as i8),
+        battery_remaining: info
+            .and_then(|i| i.charge_percent)
+            .map_or(-1, |charge| charge.min(100) as i8),
         drop_rate_comm: link.drop_rate,
         errors_comm: link.errors,
         errors_count1: saturate(errors),
@@ -329,7 +331,9 @@ pub fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
         current_battery: current,
         current_consumed: -1,
         energy_consumed: -1,
-        battery_remaining: info.map_or(-1, |i| i.charge_percent.min(100) as i8),
+        battery_remaining: info
+            .and_then(|i| i.charge_percent)
+            .map_or(-1, |charge| charge.min(100) as i8),
         time_remaining: 0,
         charge_state,
         voltages_ext: [0; 4],
@@ -721,7 +725,7 @@ mod tests {
         BatterySummary {
             info: Some(BatteryInfo {
                 voltage_decivolts: 252,
-                charge_percent: 80,
+                charge_percent: Some(80),
                 current_deciamps: Some(-35),
                 temperature_decicelsius: Some(215),
             }),

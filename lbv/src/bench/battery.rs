@@ -94,7 +94,7 @@ impl BatteryBoard {
             let frame = if self.info_next {
                 Frame::Info(BatteryInfo {
                     voltage_decivolts: (self.voltage * 10.0).round().clamp(0.0, f64::from(u16::MAX)) as u16,
-                    charge_percent: (self.charge * 100.0).round() as u8,
+                    charge_percent: Some((self.charge * 100.0).round() as u8),
                     current_deciamps: Some((self.current * 10.0).round() as i16).filter(|d| *d != 0),
                     temperature_decicelsius: Some(215),
                 })

@@ -636,7 +636,10 @@ impl Decoder {
             out.extend_from_slice(b",\"current_a\":");
             push_optional_tenths(out, info.current_deciamps);
             out.extend_from_slice(b",\"charge_pct\":");
-            push_u64(out, u64::from(info.charge_percent));
+            match info.charge_percent {
+                Some(charge) => push_u64(out, u64::from(charge)),
+                None => out.extend_from_slice(b"null"),
+            }
             out.extend_from_slice(b",\"temperature_c\":");
             push_optional_tenths(out, info.temperature_decicelsius);
         } else {
@@ -648,9 +651,11 @@ impl Decoder {
                 push_tenths(out, i32::from(current));
                 out.extend_from_slice(b" A");
             }
-            out.push(b' ');
-            push_u64(out, u64::from(info.charge_percent));
-            out.extend_from_slice(b" %");
+            if let Some(charge) = info.charge_percent {
+                out.push(b' ');
+                push_u64(out, u64::from(charge));
+                out.extend_from_slice(b" %");
+            }
             if let Some(temperature) = info.temperature_decicelsius {
                 out.push(b' ');
                 push_tenths(out, i32::from(temperature));
