@@ -7,8 +7,8 @@ use crate::{BMS_ID, DecodeError, FRAME_LEN, frame_bytes};
 /// The 7 defined alarm bits of byte 0.
 const VALID_MASK: u8 = 0x7F;
 
-/// Alarms of the BMS board, byte 0 bits 0-6 of the frame on [`BMS_ID`] (0x628), as listed in spec-notes
-/// section 2: low voltage, high voltage, overcurrent discharge, overcurrent charge, low state of charge,
+/// Alarms of the BMS board, byte 0 bits 0-6 of the frame on [`BMS_ID`] (0x628), as listed in docs/decisions.md
+/// D22: low voltage, high voltage, overcurrent discharge, overcurrent charge, low state of charge,
 /// low temperature, high temperature.
 ///
 /// A set of flags: each constant other than [`BmsAlarms::NONE`] is one bit, and values combine with `|` or
@@ -78,7 +78,7 @@ impl BmsAlarms {
         Self::ALL.into_iter().filter(move |alarm| self.contains(*alarm))
     }
 
-    /// Words for a single alarm (e.g. `"low voltage"`), as in spec-notes section 2. For a value that is not a
+    /// Words for a single alarm (e.g. `"low voltage"`), as in docs/decisions.md D22. For a value that is not a
     /// single alarm: `"no alarm"` when empty, `"several alarms"` when more than one is set (use
     /// [`BmsAlarms::iter`] to name each).
     pub const fn name(self) -> &'static str {

@@ -4,7 +4,7 @@ use crate::{DecodeError, FRAME_LEN, INFO_ID, frame_bytes};
 
 /// Battery pack info, sent on [`INFO_ID`] (0x620).
 ///
-/// Layout (seed table, spec-notes section 2):
+/// Layout (seed table; docs/decisions.md D23, D27):
 ///
 /// | bytes | field |
 /// |---|---|

@@ -1,7 +1,7 @@
 //! CAN frames of the BAT battery board (iCub / R1 / ergoCub BAT protocol).
 //!
 //! The BAT board sends three classic CAN frames, all with standard 11-bit IDs and DLC 8. The IDs follow iCub's
-//! scheme `class 6 << 8 | source 2 << 4 | type` (spec-notes section 2):
+//! scheme `class 6 << 8 | source 2 << 4 | type` (docs/decisions.md D21):
 //!
 //! | ID | type | content |
 //! |---|---|---|
@@ -30,7 +30,7 @@
 //! ```
 //!
 //! The seed document is the BAT board protocol page; where it is ambiguous or wrong this crate follows the
-//! project's spec-notes (section 2), and the item docs say where.
+//! project's readings in docs/decisions.md (D21-D29), and the item docs say where.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
@@ -56,7 +56,7 @@ pub const INFO_ID: u16 = 0x620;
 pub const BMS_ID: u16 = 0x628;
 /// ID of the BAT DCDC status frame (status words A and B).
 pub const STATUS_ID: u16 = 0x629;
-/// Data length of every BAT frame: the board always sends DLC 8 (seed tables, spec-notes section 2).
+/// Data length of every BAT frame: the board always sends DLC 8 (seed tables, docs/decisions.md D21).
 pub const FRAME_LEN: usize = 8;
 
 /// Checks that `data` is exactly [`FRAME_LEN`] bytes and returns them as an array, so that the decoders can

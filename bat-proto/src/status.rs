@@ -4,10 +4,10 @@ use core::fmt;
 
 use crate::{DecodeError, FRAME_LEN, STATUS_ID, frame_bytes};
 
-/// One of the 12 status bits of the combined word `(B << 8) | A` (spec-notes section 2, bits 0..=11).
+/// One of the 12 status bits of the combined word `(B << 8) | A` (docs/interface.md, bits 0..=11).
 ///
 /// Bits 0-7 come from DCDC_status_A (byte 0), bits 8-11 from DCDC_status_B (byte 1). The seed says "only the
-/// first 10 bits are valid" but lists 12; the firmware uses 12, so all 12 are named here (spec-notes erratum).
+/// first 10 bits are valid" but lists 12; the firmware uses 12, so all 12 are named here (docs/decisions.md D24).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
@@ -83,7 +83,7 @@ impl StatusBit {
         }
     }
 
-    /// What the bit means when set (`set == true`) or clear, in the words of the spec-notes table.
+    /// What the bit means when set (`set == true`) or clear, condensed from the table in docs/interface.md.
     pub const fn meaning(self, set: bool) -> &'static str {
         match (self, set) {
             (Self::HsmBroken, true) => "hot swap manager MOSFETs probably damaged",
@@ -127,7 +127,7 @@ const VALID_MASK: u16 = 0x0FFF;
 /// The DCDC status of the BAT board, sent on [`STATUS_ID`] (0x629).
 ///
 /// Byte 0 is DCDC_status_A (bits 0-7 of the combined word), byte 1 is DCDC_status_B (bits 8-11); the seed's
-/// table labels byte 1 "DCDC status A", which is an erratum (spec-notes section 2). The combined word is
+/// table labels byte 1 "DCDC status A", which is an erratum (docs/decisions.md D25). The combined word is
 /// `(B << 8) | A`, as shown on the BAT display. Bits 12-15 are unused and always masked off, so a value of this
 /// type holds only the 12 defined bits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]

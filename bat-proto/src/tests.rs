@@ -1,4 +1,4 @@
-//! Vectors from the seed and spec-notes section 2, plus property tests.
+//! Vectors from the seed, docs/interface.md and docs/decisions.md, plus property tests.
 
 use proptest::prelude::*;
 
@@ -209,7 +209,7 @@ fn status_byte_order_is_a_then_b() {
     assert_eq!(status.word(), 0x0201);
 }
 
-/// (bit, name, set meaning, clear meaning, is_fault), copied from the spec-notes table.
+/// (bit, name, set meaning, clear meaning, is_fault), condensed from the status word's table in docs/interface.md.
 const TABLE: [(u8, &str, &str, &str, bool); 12] = [
     (
         0,

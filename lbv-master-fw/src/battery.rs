@@ -1,4 +1,4 @@
-//! The battery monitor: the BAT board's CAN frames (spec-notes section 2) to a summary for telemetry and texts
+//! The battery monitor: the BAT board's CAN frames (docs/interface.md) to a summary for telemetry and texts
 //! for the console.
 //!
 //! What the console hears:
@@ -339,7 +339,7 @@ pub struct BatteryMonitor {
 }
 
 impl BatteryMonitor {
-    /// No good BAT frame for this long: the data is stale. The BAT sends each ID every 200 ms (spec-notes).
+    /// No good BAT frame for this long: the data is stale. The BAT sends each ID every 200 ms (docs/decisions.md D26).
     pub const STALE_AFTER: Duration = Duration::from_secs(1);
 
     /// No frame of one kind for this long while the others come: that kind is stale on its own. One BAT cycle

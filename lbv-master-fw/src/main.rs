@@ -1,4 +1,4 @@
-//! lbv-master-fw: the STM32G431 image of the LBV master node.
+//! lbv-master-fw: the STM32G474 image of the LBV master node (NUCLEO-G474RE).
 //!
 //! The binding (`stm32.rs`, `board.rs`) exists only for the firmware target; on the host this binary is a stub and the
 //! node's logic is tested through the library.
@@ -11,8 +11,6 @@ mod stm32;
 
 #[cfg(not(target_os = "none"))]
 fn main() {
-    eprintln!(
-        "lbv-master-fw runs on the STM32G431: cargo run --release -p lbv-master-fw --target thumbv7em-none-eabihf"
-    );
+    eprintln!("lbv-master-fw runs on the NUCLEO-G474RE's STM32G474: `cargo master` flashes it (docs/flashing.md)");
     std::process::exit(2);
 }

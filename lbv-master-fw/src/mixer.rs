@@ -4,7 +4,7 @@
 //! positive speed is the thrust direction given in the tables ("pushes"); the thrusters are mounted (or their
 //! motor wires swapped) so that the controller's forward turns push that way.
 //!
-//! LBV300-6 (spec-notes: 4 horizontal, 1 vertical, 1 lateral). The four horizontal thrusters sit at the corners,
+//! LBV300-6 (SeaBotix's vehicle: 4 horizontal, 1 vertical, 1 lateral; the LBV200-4 has 4). The four horizontal thrusters sit at the corners,
 //! turned 45 degrees, in the usual vectored "X" (the numbering of ArduSub's vectored frame: front right, front
 //! left, rear right, rear left). Together they surge, sway and yaw; the lateral thruster adds sway.
 //!

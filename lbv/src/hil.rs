@@ -23,7 +23,7 @@ use tmc_proto::Family;
 use crate::lines::{Line, Lines};
 
 const HELP: &str = "\
-The bench test between two NUCLEO-G431RB dev kits (docs/devkit-bench.md):
+The bench test between the master's NUCLEO-G474RE and a thruster's NUCLEO-G431RB (docs/devkit-bench.md):
 builds the motor-less thruster image and the master's acceptance image, flashes the thruster board
 and starts it, flashes and runs the master board with probe-rs, and follows the master's log until
 the test's verdict.

@@ -35,7 +35,7 @@ enum Command {
     /// Decode what people capture on the bench: I2C annotations from sigrok, candump logs
     #[command(subcommand)]
     Decode(decode::Command),
-    /// The bench test between two NUCLEO-G431RB dev kits: build, flash, follow the master's log to the verdict
+    /// The bench test of the two dev kits (master and thruster): build, flash, follow the master's log to the verdict
     Hil(hil::Args),
     /// Field update: signing keys, signed update files made from firmware ELFs, what a file is
     #[command(subcommand)]

@@ -266,7 +266,7 @@ impl Sensors for AnalogInputs {
     async fn sample(&mut self) -> RawSample {
         // Four blocking conversions (`adc::THRUSTER_SEQUENCE`, in this order) take about 34 us in all, 3.4 % of
         // the 1 ms tick (held to 5 % by the core's tests): not worth a DMA round trip at 1 kHz.
-        // STM32G4 errata ES0431 (as spec-notes reports it): the first conversion after the ADC idled for about
+        // STM32G4 errata ES0431: the first conversion after the ADC idled for about
         // 1 ms or more may be wrong, and these come 1 ms apart. One conversion of the low-impedance current input
         // is thrown away first; the faults' consecutive samples (`Thresholds::latch_samples`) cover it anyway.
         let _ = self

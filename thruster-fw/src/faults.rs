@@ -1,5 +1,5 @@
 //! The thruster's fault table: detection, latching and whether the motor may run (IDS 8.4.1 and 8.4.2 remarks,
-//! spec-notes section 1 "Faults: what the thruster does").
+//! docs/interface.md "Faults", docs/decisions.md D11-D17).
 //!
 //! | fault | set when | Legacy | SeaBotix |
 //! |---|---|---|---|
@@ -10,13 +10,13 @@
 //! | hall sensor error | hall state invalid or illegal transition | stops; clears when the halls read normal | same |
 //! | overcurrent (the project's) | break trips sustained ([`crate::overcurrent::TripRule`]) | stops, outputs off; latched until a zero-speed order; no status bit | same; FAULT bit 6 |
 //!
-//! The IDS leaves the filtering open; the project's reading (spec-notes, "How the project reads the rest of the
-//! fault rules"): water and ground need their condition on [`Thresholds::latch_samples`] consecutive samples to
-//! set (and water as many above its band to clear), and so does overtemp (at or above 110 C to set, at or below
-//! 100 C to clear, with its 10 C band between); a hall error needs [`Thresholds::hall_error_samples`] consecutive
-//! abnormal readings. One noisy conversion never cuts thrust.
+//! The IDS leaves the filtering open; the project's reading (docs/decisions.md D15, D17): water and ground need their
+//! condition on [`Thresholds::latch_samples`] consecutive samples to set (and water as many above its band to clear),
+//! and so does overtemp (at or above 110 C to set, at or below 100 C to clear, with its 10 C band between); a hall
+//! error needs [`Thresholds::hall_error_samples`] consecutive abnormal readings. One noisy conversion never cuts
+//! thrust.
 //!
-//! The IDS does not say how a stall clears; the project follows the AM32 / BLHeli_32 rule (spec-notes): a
+//! The IDS does not say how a stall clears; the project follows the AM32 / BLHeli_32 rule (docs/decisions.md D11): a
 //! zero-speed order clears it. "Latched until power cycle" holds across every other reset (watchdog, reset pin,
 //! software): the fault task keeps the latches in a [`LatchStore`] (on the STM32, a backup register), and
 //! [`carried_latch`] drops them only after a power-on or brown-out. The controller keeps answering on I2C whatever
@@ -31,20 +31,19 @@ mod latch;
 
 pub use latch::{LatchStore, ResetKind, VolatileLatch, carried_latch, latch_from_word, latch_word};
 
-/// Fault thresholds (spec-notes section 1, IDS 8.4 remarks).
+/// Fault thresholds (docs/interface.md "Faults", IDS 8.4 remarks; docs/decisions.md D15, D17).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Thresholds {
     /// Water detect when the water sensor resistance is below this, in ohms (IDS 8.4.2 remark 2: 1 Mohm).
     pub water_ohms: u32,
     /// A SeaBotix water warning clears only at or above this, in ohms: the threshold plus a band, so a sensor
-    /// sitting at 1 Mohm with ADC noise does not toggle the warning (spec-notes: "a band on the clear").
+    /// sitting at 1 Mohm with ADC noise does not toggle the warning (docs/decisions.md D15).
     pub water_clear_ohms: u32,
     /// Water, ground fault and overtemp need their condition on this many consecutive samples to set, and water
     /// and overtemp as many past their band to clear; 0 acts as 1 (one noisy conversion never cuts thrust).
     pub latch_samples: u8,
-    /// A hall error needs this many consecutive abnormal readings; 0 acts as 1 (spec-notes: "one bad hall
-    /// reading is not yet a hall error").
+    /// A hall error needs this many consecutive abnormal readings; 0 acts as 1 (docs/decisions.md D17).
     pub hall_error_samples: u8,
     /// Ground fault when the water sensor resistance is below this, in ohms (IDS 8.4 remarks: 100 kohm).
     pub ground_ohms: u32,
@@ -213,8 +212,7 @@ impl StallDetector {
     }
 }
 
-/// Net progress of the rotor in the driven direction, for the stall window's pulses (spec-notes: "a hall pulse is
-/// net progress of one hall state in the driven direction").
+/// Net progress of the rotor in the driven direction, for the stall window's pulses (docs/decisions.md D12).
 ///
 /// A pulse is a hall state reached beyond the furthest one reached so far in the driven direction: an edge back,
 /// and the edge forward again over the same boundary, count nothing, so a blocked rotor rocking across a hall
@@ -258,7 +256,7 @@ impl Progress {
     }
 }
 
-/// Stall detection for a brushed motor, which has no halls (spec-notes: "stall on a brushed motor"): the duty
+/// Stall detection for a brushed motor, which has no halls (docs/decisions.md D13): the duty
 /// magnitude strictly above 8 % and the motor current at or above its stall level, continuously for 400 ms (the
 /// window of the IDS's brushless rule). The level at duty d is min(d x locked-rotor / 2, ceiling)
 /// ([`Thresholds::locked_rotor_deciamps`], [`Thresholds::stall_current_ceiling_deciamps`]). As for
@@ -407,7 +405,7 @@ impl FaultMonitor {
         self.faults
     }
 
-    /// A valid order arrived: a zero-speed order clears the stall latch (spec-notes: the AM32/BLHeli rule).
+    /// A valid order arrived: a zero-speed order clears the stall latch (the AM32/BLHeli rule, docs/decisions.md D11).
     /// Other orders, and other faults, are untouched.
     pub fn on_order(&mut self, speed: Speed) {
         if speed.is_zero() {

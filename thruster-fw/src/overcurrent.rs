@@ -15,7 +15,7 @@
 //! trips on 3 ticks of 4 after 2 x `ticks` ms, and trips on at most every other tick never do: a propeller
 //! accelerating at the limit, or a noisy line, keeps driving. Once sustained, the trip is latched, and the
 //! binding holds the outputs off for good (BDTR with AOE and MOE cleared), until a zero-speed order clears it, as
-//! a stall is (spec-notes; `faults::FaultMonitor::on_order`).
+//! a stall is (docs/decisions.md D11; `faults::FaultMonitor::on_order`).
 
 /// The trip rule and its state for one bridge.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -1,6 +1,6 @@
 //! Conversions of the analog sensor readings (12-bit ADC, raw 0..=4095, full scale = VDDA) to physical units.
 //!
-//! The fault monitor works in ohms and tenths of a degree (spec-notes section 1, "Faults"); the status message
+//! The fault monitor works in ohms and tenths of a degree (docs/interface.md, "Faults"); the status message
 //! reports the motor current in 0.1 A (IDS 8.4.1 MAX POWER, 8.4.2 CURRENT). Every conversion accepts any `u16`,
 //! including readings above the ADC's range, and never panics.
 

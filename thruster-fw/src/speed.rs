@@ -231,7 +231,7 @@ impl SpeedController {
     }
 }
 
-/// The INFO byte as a power limit (spec-notes: "INFO is a power limit, not a duty limit"): the power drawn from
+/// The INFO byte as a power limit, not a duty limit (docs/decisions.md D7): the power drawn from
 /// the supply is held to INFO % of [`RATED_POWER_MW`], so the speed rises to the order as the current falls.
 ///
 /// The core measures no supply voltage (its ADC inputs are the water sensor, the NTC and the motor current), so
@@ -250,7 +250,7 @@ impl SpeedController {
 /// applied, limiting or not, so it has nothing to unwind when the power first exceeds the cap (from rest, or on a
 /// lower INFO): it was that unwinding from full scale that let INFO 10 draw 52 W for 0.7 s. The headroom lets the
 /// duty rise 10 x full scale per second, five times the speed ramp's pace, so it slows no start.
-/// INFO 100, 0 and above 100 mean no limit (masters send 100, spec-notes: they behave as before).
+/// INFO 100, 0 and above 100 mean no limit (masters send 100 and behave as before: docs/decisions.md D6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct PowerLimit {

@@ -262,8 +262,7 @@ impl Shared {
     }
 
     /// Fault bits (the status's fault field) set now. They go into every status read until one read has carried
-    /// them, so a fault that sets and clears between two reads is still seen (spec-notes: "a fault bit is seen
-    /// before it clears").
+    /// them, so a fault that sets and clears between two reads is still seen (docs/decisions.md D14).
     pub fn note_unread(&self, bits: u8) {
         self.unread.lock(|unread| unread.set(unread.get() | bits));
     }

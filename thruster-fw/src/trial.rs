@@ -4,7 +4,7 @@
 //! every task reported (counted since start; a task that stops for good is a watchdog reset), and [`TRIAL_ORDERS`]
 //! orders from the master taken and answered. It confirms while the master orders zero, since writing the
 //! bootloader's state erases a flash page, which stalls the CPU (commutation included) for as long as the erase
-//! takes (spec-notes: "tens of milliseconds").
+//! takes (22 ms typical, DS12589 Table 41, flash memory characteristics).
 
 use embassy_time::{Duration, Ticker, Timer};
 

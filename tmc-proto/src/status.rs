@@ -93,9 +93,9 @@ impl SeaBotixStatus {
     pub const LEN: usize = 7;
 
     /// FAULT bit 5, one of the IDS's "future growth" bits (8.4.2), which this project gives to its link failsafe
-    /// (spec-notes: 1 s without a valid order stops the motor): set from the failsafe stopping the motor until a
-    /// new order restarts it, and carried by at least one read. A master that follows IDS 8.1 ignores it;
-    /// [`SeaBotixStatus::decode`] masks it like the other reserved bits (read it with
+    /// (docs/decisions.md D9, D19: 1 s of silence, or of refused orders only, stops the motor): set from the
+    /// failsafe stopping the motor until a new order restarts it, and carried by at least one read. A master that
+    /// follows IDS 8.1 ignores it; [`SeaBotixStatus::decode`] masks it like the other reserved bits (read it with
     /// [`SeaBotixStatus::link_failsafe_in`]).
     pub const FAULT_LINK_FAILSAFE: u8 = 1 << 5;
 

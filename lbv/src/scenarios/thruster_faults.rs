@@ -419,9 +419,9 @@ fn peak_and_time_over(powers: &[f64], cap_w: f64) -> (f64, usize, f64) {
     (peak, settled.saturating_sub(first), low)
 }
 
-/// INFO's power limit holds at once (spec-notes: within 50 ms of the power first exceeding it): T1 at rest is ordered
-/// full ahead with INFO 10, 25 and 50 in turn, and then, running full ahead at INFO 100, switched to INFO 10. The
-/// peak of the power averaged over 10 ms, and how long that average stays more than 10 % over the cap.
+/// INFO's power limit holds at once (docs/decisions.md D7: within 50 ms of the power first exceeding it): T1 at
+/// rest is ordered full ahead with INFO 10, 25 and 50 in turn, and then, running full ahead at INFO 100, switched to
+/// INFO 10. The peak of the power averaged over 10 ms, and how long that average stays more than 10 % over the cap.
 pub fn info_power_response(run: &mut Run) {
     run.arm_and_go(NEUTRAL);
     run.run_for(1.0);
