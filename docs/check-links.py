@@ -6,8 +6,12 @@ every inline link or image `[text](path)` / `[text](path#anchor)` and every refe
 must name an existing file or directory, relative to the linking file (or to the repository root when it starts
 with '/'). An #anchor into a .md file (or a bare #anchor, into the file itself) must match a heading's
 GitHub-style slug: lowercase, spaces to '-', punctuation dropped except '-' and '_', a repeated heading getting
--1, -2, ... Links with a scheme (http:, https:, mailto:, ...) are not checked. Code blocks and code spans are
-skipped.
+-1, -2, ... Links with a scheme (http:, https:, mailto:, ...) are not checked. Code blocks are skipped.
+
+A code span that names a path in the repository (`lbv-master-fw/src/own.rs`, `docs/`: segments joined by '/',
+the first one a top-level file or directory of the repository) must name one that exists, so that prose cannot
+keep pointing at a file that moved or went. Spans with a space, a glob or a placeholder (`*`, `<`, `{`) are not
+paths and are not checked, nor are build outputs (under `target/`).
 
 Usage: docs/check-links.py [ROOT]   (ROOT defaults to the repository this script is in)
 Prints each broken link as `file:line: broken link TARGET` and exits 1 if there is any, else prints a summary
@@ -29,6 +33,15 @@ HTML_ANCHOR = re.compile(r"<a\s+(?:name|id)=\"([^\"]+)\"|\sid=\"([^\"]+)\"")
 FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})")
 CODE_SPAN = re.compile(r"(`+)(.+?)\1")
 SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]*:")
+PATH_SPAN = re.compile(r"^[A-Za-z0-9_.-]+(?:/[A-Za-z0-9_.-]+)*/?$")
+
+
+def named_paths(line):
+    """The repository-looking paths named in `line`'s code spans: at least one '/', nothing but path characters."""
+    for match in CODE_SPAN.finditer(line):
+        span = match.group(2).strip()
+        if "/" in span and PATH_SPAN.match(span) and not span.startswith(("./", "../")):
+            yield span
 
 
 def markdown_files(root):
@@ -112,13 +125,21 @@ def broken(root, source, target):
 
 def main():
     root = os.path.abspath(sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), ".."))
+    top = set(os.listdir(root))
     files = links = bad = 0
     for source in markdown_files(root):
         files += 1
         with open(source, encoding="utf-8") as file:
             text = file.read()
         name = os.path.relpath(source, root)
-        for number, _, prose in prose_lines(text):
+        for number, line, prose in prose_lines(text):
+            for path in named_paths(line):
+                first = path.split("/", 1)[0]
+                if first in top and first not in SKIP_DIRS:
+                    links += 1
+                    if not os.path.exists(os.path.join(root, path.rstrip("/"))):
+                        bad += 1
+                        print(f"{name}:{number}: names a path that does not exist: {path}")
             targets = [m.group(1) for m in INLINE.finditer(prose)]
             reference = REFERENCE.match(prose)
             if reference:
@@ -129,9 +150,9 @@ def main():
                     bad += 1
                     print(f"{name}:{number}: broken link {target}")
     if bad:
-        print(f"{bad} of {links} links broken in {files} Markdown files", file=sys.stderr)
+        print(f"{bad} of {links} links and named paths broken in {files} Markdown files", file=sys.stderr)
         return 1
-    print(f"{links} links in {files} Markdown files: all resolve")
+    print(f"{links} links and named paths in {files} Markdown files: all resolve")
     return 0
 
 
