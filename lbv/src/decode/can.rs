@@ -8,8 +8,9 @@
 //! What each well-formed line becomes:
 //! - a classic data frame with a standard ID that bat-proto knows (0x620 info, 0x629 status, 0x628 BMS alarms)
 //!   is decoded and printed;
-//! - such a frame that bat-proto rejects (a length other than 8, a charge above 100 %) is printed in place as a
-//!   decode error with its line number, and counted: it is a good log line carrying a bad frame;
+//! - such a frame that bat-proto rejects (a length other than 8) is printed in place as a decode error with its
+//!   line number, and counted: it is a good log line carrying a bad frame (a charge above 100 % is one bad field:
+//!   `charge_pct` is `null` and the frame's other fields are printed);
 //! - every other frame (other IDs, remote requests such as `620#R`, CAN FD `620##0...`, extended IDs, error
 //!   frames, CAN XL) is not a BAT data frame: it is left out of the output and only counted in the summary, so a
 //!   busy shared bus does not drown the battery's frames.
@@ -39,7 +40,7 @@
 //!
 //! `--json`: one object per line. `time` is the log's time in seconds, as a number with the log's digits (less
 //! the leading zeros candump pads it with, which JSON forbids); `id` is the CAN ID as a number (1568 = 0x620).
-//! Info: `voltage_v`, `current_a`, `charge_pct`, `temperature_c` (`null` when not reported). Status: `status` (the combined 16-bit word), `status_bits`
+//! Info: `voltage_v`, `current_a`, `charge_pct`, `temperature_c` (`null` when not reported, or out of range). Status: `status` (the combined 16-bit word), `status_bits`
 //! (the bat-proto names of the bits set, in bit order), `changed` (names of the bits that switched; `[]` on the
 //! first status frame, which has nothing to compare with). BMS: `alarms` (byte 0, bits 0-6), `alarm_bits` (the
 //! alarms set, in bat-proto's words), `changed` (alarms raised or cleared). A frame that did not decode:
