@@ -43,7 +43,7 @@ pub const EXIT_TIMEOUT: u8 = 3;
 pub const EXIT_NO_VERDICT: u8 = 4;
 
 /// The firmware target.
-const TARGET: &str = "thumbv7em-none-eabihf";
+pub const TARGET: &str = "thumbv7em-none-eabihf";
 /// The thruster's chip (NUCLEO-G431RB), as probe-rs names it.
 pub const THRUSTER_CHIP: &str = "STM32G431RBTx";
 /// The master's chip (NUCLEO-G474RE), as probe-rs names it.
@@ -163,7 +163,7 @@ impl TryFrom<Args> for Options {
 }
 
 /// A probe argument: a serial number, or VID:PID:SERIAL; nothing that a shell or probe-rs would read otherwise.
-fn probe_arg(text: &str) -> Result<String, String> {
+pub fn probe_arg(text: &str) -> Result<String, String> {
     let fine = !text.is_empty() && text.chars().all(|c| c.is_ascii_alphanumeric() || c == ':');
     if fine {
         Ok(text.to_string())
@@ -195,7 +195,8 @@ pub struct Command {
 }
 
 impl Command {
-    fn new(what: &'static str, program: &str, args: &[&str]) -> Self {
+    /// A command run where `lbv` runs.
+    pub fn new(what: &'static str, program: &str, args: &[&str]) -> Self {
         Self {
             what,
             dir: None,
@@ -222,7 +223,8 @@ impl Command {
         line
     }
 
-    fn process(&self) -> std::process::Command {
+    /// The command, ready to run.
+    pub fn process(&self) -> std::process::Command {
         let mut command = std::process::Command::new(&self.program);
         command.args(&self.args);
         if let Some(dir) = &self.dir {
@@ -658,13 +660,13 @@ fn lines_of(source: impl Read + Send + 'static, to: SyncSender<Vec<LogLine>>) {
 }
 
 /// The workspace this tool was built in.
-fn workspace() -> PathBuf {
+pub fn workspace() -> PathBuf {
     let lbv = Path::new(env!("CARGO_MANIFEST_DIR"));
     lbv.parent().unwrap_or(lbv).to_path_buf()
 }
 
 /// Cargo's target directory: `CARGO_TARGET_DIR` (relative to the workspace), else the workspace's `target`.
-fn target_dir(workspace: &Path) -> PathBuf {
+pub fn target_dir(workspace: &Path) -> PathBuf {
     std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| workspace.join("target"), |dir| workspace.join(dir))
 }
 

@@ -3,6 +3,7 @@
 //! `lbv image`. A library, so that the fuzz targets in `lbv/fuzz` reach the same parsers the command runs.
 
 pub mod decode;
+pub mod flash;
 pub mod hil;
 pub mod image;
 pub mod lines;

@@ -12,7 +12,7 @@ use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
-use lbv::{decode, exit, hil, image};
+use lbv::{decode, exit, flash, hil, image};
 
 use bench::Engine;
 use bench::plot::Format;
@@ -35,6 +35,8 @@ enum Command {
     /// Decode what people capture on the bench: I2C annotations from sigrok, candump logs
     #[command(subcommand)]
     Decode(decode::Command),
+    /// Write a board from nothing: its bootloader, then its image, run with its log streamed
+    Flash(flash::Args),
     /// The bench test of the two dev kits (master and thruster): build, flash, follow the master's log to the verdict
     Hil(hil::Args),
     /// Field update: signing keys, signed update files made from firmware ELFs, what a file is
@@ -194,6 +196,7 @@ fn main() -> ExitCode {
             bench_main(&args)
         }
         Command::Decode(command) => decode::main(command),
+        Command::Flash(args) => flash::main(args),
         Command::Hil(args) => hil::main(args),
         Command::Image(command) => image::main(command),
     }
