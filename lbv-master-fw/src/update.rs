@@ -645,6 +645,10 @@ impl UpdateServer {
             Opcode::ListDirectory => request
                 .path()
                 .and_then(|path| self.list(path, request.offset, &mut data)),
+            Opcode::OpenFileRO => match request.path().and_then(|path| self.lookup(path)) {
+                Ok(Some(Some(_))) => Err(Nak::FileProtected),
+                Ok(_) | Err(_) => Err(Nak::FileNotFound),
+            },
             Opcode::CalcFileCrc32 => self.target(&request).map(|target| {
                 data.put(&self.received(target).1.to_le_bytes());
             }),

@@ -38,6 +38,10 @@ pub enum Opcode {
     ResetSessions,
     /// 3: list a directory from entry `offset` on.
     ListDirectory,
+    /// 4: open a file for reading. No file here is readable: an update slot is NAKed [`Nak::FileProtected`],
+    /// anything else [`Nak::FileNotFound`], so a ground station that asks for a file the vehicle does not have
+    /// (QGroundControl's `@PARAM/param.pck`) falls back at once rather than after its retries.
+    OpenFileRO,
     /// 6: open a file for writing, truncated.
     CreateFile,
     /// 7: write `data` at `offset`.
@@ -60,6 +64,7 @@ impl Opcode {
             1 => Self::TerminateSession,
             2 => Self::ResetSessions,
             3 => Self::ListDirectory,
+            4 => Self::OpenFileRO,
             6 => Self::CreateFile,
             7 => Self::WriteFile,
             8 => Self::RemoveFile,
@@ -86,7 +91,7 @@ pub enum Nak {
     EndOfFile = 6,
     /// 7: an opcode this server does not implement.
     UnknownCommand = 7,
-    /// 9: only the operator's ground station may write.
+    /// 9: only the operator's ground station may write; an update slot cannot be read.
     FileProtected = 9,
     /// 10: no such file or directory.
     FileNotFound = 10,

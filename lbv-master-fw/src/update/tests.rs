@@ -772,12 +772,41 @@ fn the_context_says_when_the_master_restarts_into_its_update() {
     assert!(Context::of(&shared).restarting);
 }
 
+/// QGroundControl asks every ArduPilot vehicle for `@PARAM/param.pck` before PARAM_REQUEST_LIST, and waits out its
+/// retries on any answer but FileNotFound: a file that is not here is FileNotFound, an update slot cannot be read.
+#[test]
+fn a_file_opened_for_reading_is_not_found_or_protected() {
+    let mut s = Server::new();
+    for path in [
+        &b"@PARAM/param.pck"[..],
+        b"/APM/LOGS/00000001.BIN",
+        b"/update/nothing",
+        b"",
+        b"/update",
+    ] {
+        let reply = s.op(0, 0, OPEN_RO, 0, path).unwrap();
+        assert_eq!(
+            (reply.opcode, reply.req_opcode, reply.data),
+            (NAK, OPEN_RO, vec![Nak::FileNotFound as u8]),
+            "{path:?}"
+        );
+    }
+    for path in [&b"/update/master.lbvu"[..], b"/update/thruster1.lbvu"] {
+        let reply = s.op(0, 0, OPEN_RO, 0, path).unwrap();
+        assert_eq!(
+            (reply.opcode, reply.data),
+            (NAK, vec![Nak::FileProtected as u8]),
+            "{path:?}"
+        );
+    }
+}
+
 #[test]
 fn opcodes_it_does_not_serve_and_bad_payloads() {
     let mut s = Server::new();
-    // OpenFileRO, ReadFile, CreateDirectory, RemoveDirectory, TruncateFile, Rename, BurstReadFile,
-    // ListDirectoryWithTime (MAVProxy's first try), and bytes that are no opcode.
-    for opcode in [OPEN_RO, 5, 9, 10, 12, 13, 15, 16, 17, 99, 127, 130, 255] {
+    // ReadFile, CreateDirectory, RemoveDirectory, TruncateFile, Rename, BurstReadFile, ListDirectoryWithTime
+    // (MAVProxy's first try), and bytes that are no opcode.
+    for opcode in [5, 9, 10, 12, 13, 15, 16, 17, 99, 127, 130, 255] {
         let reply = s.op(0, 0, opcode, 0, b"@PARAM/param.pck").unwrap();
         assert_eq!(
             (reply.opcode, reply.req_opcode, reply.data),
@@ -826,7 +855,7 @@ fn opcodes_it_does_not_serve_and_bad_payloads() {
     }
     assert_eq!(nak(&s.op(0, 0, CREATE, 0, b"/update")), Some(Nak::FileNotFound as u8));
     assert!(s.texts().is_empty());
-    assert_eq!(s.server.counters().naks, 13 + 6 + 2 + 8 + 1);
+    assert_eq!(s.server.counters().naks, 12 + 6 + 2 + 8 + 1);
 }
 
 #[test]
