@@ -694,13 +694,14 @@ impl Courier {
                 let since = *transfer.silent_since.get_or_insert(now);
                 let limit = match transfer.step {
                     Step::Restart(rebooted) => now >= rebooted + RESTART_LIMIT,
-                    // A reset on trial brings the bootloader's revert first.
-                    Step::Trial { .. } => now >= since + RESTART_LIMIT,
+                    // A reset on trial brings the bootloader's revert first; one told to restart may have before
+                    // its reply was read whole (a reset tears the transfer it lands in), and is swapping.
+                    Step::Trial { .. } | Step::Reboot => now >= since + RESTART_LIMIT,
                     _ => now >= since + SILENCE_LIMIT,
                 };
                 if limit {
                     let ending = match transfer.step {
-                        Step::Restart(_) | Step::Trial { .. } => Ending::NotBack,
+                        Step::Restart(_) | Step::Trial { .. } | Step::Reboot => Ending::NotBack,
                         _ => Ending::Silent,
                     };
                     self.end(ending, out);

@@ -415,6 +415,52 @@ fn rebooting() -> Courier {
     courier
 }
 
+/// The thruster restarts on its Reboot before the master has read the reply whole (the reset tears the read): the
+/// courier, still at Reboot, waits out the swap as for a restart, rather than ending after 3 s of silence.
+#[test]
+fn a_reboot_whose_reply_the_restart_tore_waits_for_the_swap() {
+    let image = payload(SMALL);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
+    courier.apply(0, GCS).unwrap();
+    let finish = courier.next(t(0), |_| true).unwrap();
+    let result = answer(&mut dfu, &finish, [0, 1, 0, 0]);
+    courier.on_result(t(0), &finish, result, &mut |_| {});
+    let mut said = Vec::new();
+    for ms in (0..10_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            continue;
+        };
+        let result = match ms {
+            // The reply to Reboot torn, then silence for 5 s while the bootloader swaps (more than the 3 s a
+            // thruster may otherwise stay silent), then the new image on trial, then confirmed.
+            ..5_000 => Err(ExchangeError::Bus),
+            5_000..6_000 => match exchange.frame.command.kind() {
+                CommandKind::Reboot => refused(&exchange, Refusal::OnTrial),
+                _ => running(&exchange, [0, 2, 0, 0], true),
+            },
+            _ => running(&exchange, [0, 2, 0, 0], false),
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert!(
+        !texts(&said).iter().any(|t| t.contains("stopped answering")),
+        "{:?}",
+        texts(&said)
+    );
+    assert_eq!(
+        said.last(),
+        Some(&Outgoing::CommandAck {
+            command: MAV_CMD_LBV_APPLY_UPDATE,
+            result: AckResult::Accepted,
+            to: GCS
+        }),
+        "{:?}",
+        texts(&said)
+    );
+}
+
 #[test]
 fn the_apply_is_accepted_only_once_the_new_image_has_confirmed_itself() {
     let mut courier = rebooting();
