@@ -5,7 +5,8 @@
 //! checked on the host: TIM1's commutation patterns and safe state ([`tim1`]), I2C timing ([`i2c`]), FDCAN bit
 //! timing and its clock tolerance ([`fdcan`]), ADC sample times against source impedance ([`adc`]), the
 //! independent watchdog against the slowest task and the bootloader's trial boot ([`iwdg`]), the flash's ECC flags
-//! ([`flash`]), and the clock tree they all derive from ([`clock`]). The boards and the pins each image uses are data too ([`pins`], [`images`]), checked for
+//! ([`flash`]), the backup registers and reset flags a start reads ([`backup`]), and the clock tree they all derive
+//! from ([`clock`]). The boards and the pins each image uses are data too ([`pins`], [`images`]), checked for
 //! collisions at build time.
 //!
 //! Sources are cited where a value is used. Where a primary document could not be read, the comment says which
@@ -14,6 +15,7 @@
 #![forbid(unsafe_code)]
 
 pub mod adc;
+pub mod backup;
 pub mod clock;
 pub mod fdcan;
 pub mod flash;

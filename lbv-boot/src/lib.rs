@@ -34,6 +34,19 @@
 //! double words cannot be erased, so a development board would be held forever to the highest counter it ever ran,
 //! and the record's two pages last for hundreds of raises between erases.
 //!
+//! # An image that confirms and then crashes
+//!
+//! A confirmed image can still fail where its trial did not look: a master that faults ten seconds after its start
+//! confirms at three, then resets by watchdog every ten seconds, and its own upload never finishes. The binding
+//! counts the watchdog resets that come early in a run ([`CrashCount`], in a backup register; the image clears it
+//! once it has run [`EARLY_WINDOW_SECS`](update_image::EARLY_WINDOW_SECS)), and passes the count to [`prepare`].
+//! At the [`EARLY_CRASHES`](update_image::EARLY_CRASHES)th, with the image confirmed, the bootloader puts the
+//! image the last swap moved out back into ACTIVE, if DFU still holds exactly the image whose digest
+//! it noted before that swap ([`Previous`]) and its security counter is not below the stored one: an update that
+//! raised the counter is never undone this way, which is what the counter is for. The restore is embassy-boot's
+//! own revert, run on a state written as a finished swap, so a power cut in it resumes as a revert does. The
+//! image that then runs finds embassy-boot's state at `Revert` and the count's `restored` flag set, and tells it.
+//!
 //! The watchdog runs through all of it: the binding starts it before [`prepare`], whose `feed` is called between
 //! every flash operation and every chunk hashed.
 #![cfg_attr(not(test), no_std)]
@@ -47,12 +60,13 @@ use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
 use g431_hw::memory::{FLASH_ORIGIN, PAGE, Partitions, Span, WRITE_UNIT};
 use update_image::{
-    INFO_LEN, INFO_OFFSET, ImageInfo, KEY_LEN, KEY_OFFSET, MIN_PAYLOAD, Refusal, Slots, TICKET_LEN, TICKET_OFFSET,
-    Ticket, VERDICT_OFFSET, Verifier, check_upgrade, checked_word, read_checked_word,
+    DIGEST_LEN, INFO_LEN, INFO_OFFSET, ImageInfo, KEY_LEN, KEY_OFFSET, MIN_PAYLOAD, PREVIOUS_LEN, PREVIOUS_OFFSET,
+    Previous, Refusal, Slots, TICKET_LEN, TICKET_OFFSET, Ticket, VERDICT_OFFSET, Verifier, check_upgrade, checked_word,
+    read_checked_word,
 };
 
 pub use embassy_boot::{BootError, State};
-pub use update_image::Verdict;
+pub use update_image::{CrashCount, Verdict};
 
 #[cfg(test)]
 mod tests;
@@ -73,6 +87,13 @@ const BUFFER: usize = PAGE as usize;
 
 /// The erased value of a flash byte.
 const ERASED: u8 = 0xFF;
+
+/// embassy-boot's magic for a state marked for the swap (embassy-boot 0.7 `SWAP_MAGIC`, crate-private there; a
+/// test reads it back through embassy-boot's own `get_state`).
+const SWAP_MAGIC: u8 = 0xF0;
+
+/// What embassy-boot writes over a progress word once its step is done (the complement of the erased value).
+const STEP_DONE: u8 = !ERASED;
 
 /// The partition at `span` of the flash, addressed from the flash's start as embassy-stm32's flash driver (and the
 /// `__bootloader_*` symbols of the image's memory.x, printed from the same partitions) address it.
@@ -111,6 +132,12 @@ pub enum Outcome {
     Refused {
         /// Why.
         verdict: Verdict,
+        /// The attempt that succeeded.
+        attempt: u32,
+    },
+    /// The confirmed image crashed early [`EARLY_CRASHES`](update_image::EARLY_CRASHES) times in a row, and the
+    /// image the last swap moved out is back in ACTIVE.
+    Restored {
         /// The attempt that succeeded.
         attempt: u32,
     },
@@ -157,7 +184,9 @@ impl<F: NorFlash, W: FnMut()> NorFlash for Fed<F, W> {
 }
 
 /// Check an update marked for the swap, then run embassy-boot's preparation (swap, resume or revert) on `flash`,
-/// laid out as `layout`, up to [`ATTEMPTS`] times; `feed` keeps the watchdog from biting meanwhile.
+/// laid out as `layout`, up to [`ATTEMPTS`] times; `feed` keeps the watchdog from biting meanwhile. `crashes` is the
+/// count of early crashes at this start (the binding's [`CrashCount::at_start`]): when it is due, a confirmed image
+/// is undone ([module docs](crate)).
 ///
 /// When every attempt fails, the bootloader starts ACTIVE all the same, and that is the safe choice for a thruster
 /// or a master: stopping here leaves it silent with no way back but a debug probe, in the water. An error that stays
@@ -166,29 +195,46 @@ impl<F: NorFlash, W: FnMut()> NorFlash for Fed<F, W> {
 /// neither image sets, and which stops the swap at the first page it protects. A power cut does not end here
 /// either: the next start resumes the swap. Should ACTIVE not run, the watchdog the binding starts resets the chip,
 /// and the next start tries again.
-pub fn prepare<F: NorFlash>(flash: F, layout: &Partitions, feed: impl FnMut()) -> Outcome {
+pub fn prepare<F: NorFlash>(flash: F, layout: &Partitions, crashes: CrashCount, feed: impl FnMut()) -> Outcome {
     let flash = Mutex::new(RefCell::new(Fed { flash, feed }));
     let mut buffer = AlignedBuffer([0; BUFFER]);
     let mut attempt = 1;
     loop {
-        match prepare_once(&flash, layout, &mut buffer.0) {
-            Ok(Ok(state)) => return Outcome::Prepared { state, attempt },
-            Ok(Err(verdict)) => return Outcome::Refused { verdict, attempt },
+        match prepare_once(&flash, layout, crashes, &mut buffer.0) {
+            Ok(Prepared::State(state)) => return Outcome::Prepared { state, attempt },
+            Ok(Prepared::Refused(verdict)) => return Outcome::Refused { verdict, attempt },
+            Ok(Prepared::Restored) => return Outcome::Restored { attempt },
             Err(error) if attempt >= ATTEMPTS => return Outcome::Failed(error),
             Err(_) => attempt += 1,
         }
     }
 }
 
-/// One attempt of [`prepare`]: the state embassy-boot read, or the verdict on an update refused.
+/// What one attempt of [`prepare`] did.
+enum Prepared {
+    /// embassy-boot prepared ACTIVE, having read this state.
+    State(State),
+    /// The update marked was refused.
+    Refused(Verdict),
+    /// The previous image is back.
+    Restored,
+}
+
+/// One attempt of [`prepare`].
 fn prepare_once<F: NorFlash, W: FnMut()>(
     flash: &SharedFlash<Fed<F, W>>,
     layout: &Partitions,
+    crashes: CrashCount,
     buffer: &mut [u8; BUFFER],
-) -> Result<Result<State, Verdict>, BootError> {
+) -> Result<Prepared, BootError> {
     let mut loader = BootLoader::new(partitions(flash, layout));
     let state = loader.read_state(buffer)?;
     let mut active = partition(flash, layout.active);
+    if state == State::Boot && crashes.undo_due() && restorable(flash, layout, buffer)? {
+        write_swapped(&mut partition(flash, layout.state), layout.active_pages())?;
+        loader.prepare_boot(buffer)?;
+        return Ok(Prepared::Restored);
+    }
     if state != State::Swap {
         raise_counter(flash, layout, &mut active)?;
     } else if !swap_begun(&mut partition(flash, layout.state))? {
@@ -203,14 +249,81 @@ fn prepare_once<F: NorFlash, W: FnMut()>(
             || flash.lock(|flash| (flash.borrow_mut().feed)()),
         );
         match verdict {
-            Ok(payload_len) => erase_past(&mut dfu, payload_len, layout.active.length)?,
+            Ok(payload_len) => {
+                note_previous(flash, layout, buffer)?;
+                erase_past(&mut dfu, payload_len, layout.active.length)?;
+            }
             Err(verdict) => {
                 refuse(flash, layout, verdict)?;
-                return Ok(Err(verdict));
+                return Ok(Prepared::Refused(verdict));
             }
         }
     }
-    Ok(Ok(loader.prepare_boot(buffer)?))
+    Ok(Prepared::State(loader.prepare_boot(buffer)?))
+}
+
+/// The digest kept of `len` bytes of `span` from `from` ([`Previous`]): the first half of their SHA-512.
+fn digest<F: NorFlash, W: FnMut()>(
+    flash: &SharedFlash<Fed<F, W>>,
+    span: Span,
+    from: u32,
+    len: u32,
+    buffer: &mut [u8; BUFFER],
+) -> Result<[u8; DIGEST_LEN], BootError> {
+    let mut feed = || flash.lock(|flash| (flash.borrow_mut().feed)());
+    let whole = hash(&mut partition(flash, span), from, len, buffer, &mut feed)?;
+    Ok(*whole.first_chunk::<DIGEST_LEN>().unwrap_or(&[0; DIGEST_LEN]))
+}
+
+/// Before a swap: note the digest of ACTIVE as it stands, the image the swap moves into DFU ([`Previous`]), unless
+/// a start before this one noted it already (the entry is not erased). An entry a power cut tore stays torn, and
+/// only costs the undo of this image.
+fn note_previous<F: NorFlash, W: FnMut()>(
+    flash: &SharedFlash<Fed<F, W>>,
+    layout: &Partitions,
+    buffer: &mut [u8; BUFFER],
+) -> Result<(), BootError> {
+    let mut ticket_page = partition(flash, layout.ticket());
+    let entry = read_array::<PREVIOUS_LEN, _>(&mut ticket_page, PREVIOUS_OFFSET)?;
+    if entry.iter().any(|byte| *byte != ERASED) {
+        return Ok(());
+    }
+    let digest = digest(flash, layout.active, 0, layout.active.length, buffer)?;
+    ticket_page.write(PREVIOUS_OFFSET, &Previous { digest }.to_bytes())?;
+    Ok(())
+}
+
+/// Whether the image the last swap moved out can come back: DFU, one page up, still holds exactly the image noted
+/// before that swap, and its security counter is not below the stored one.
+fn restorable<F: NorFlash, W: FnMut()>(
+    flash: &SharedFlash<Fed<F, W>>,
+    layout: &Partitions,
+    buffer: &mut [u8; BUFFER],
+) -> Result<bool, BootError> {
+    let entry = read_array::<PREVIOUS_LEN, _>(&mut partition(flash, layout.ticket()), PREVIOUS_OFFSET)?;
+    let Some(previous) = Previous::parse(&entry) else {
+        return Ok(false);
+    };
+    let info = read_array::<INFO_LEN, _>(&mut partition(flash, layout.dfu), PAGE + INFO_OFFSET as u32)?;
+    let counter = ImageInfo::parse(&info).map_or(0, |info| info.security_counter);
+    let stored = stored_counter(&mut partition(flash, layout.counter()))?.unwrap_or(0);
+    if counter < stored {
+        return Ok(false);
+    }
+    Ok(digest(flash, layout.dfu, PAGE, layout.active.length, buffer)? == previous.digest)
+}
+
+/// Write embassy-boot's state as it stands after a whole swap not yet confirmed: every progress word of the swap's
+/// `2 * pages` steps done, then the swap's magic. embassy-boot's `prepare_boot` then reverts, as it reverts an image
+/// that never confirmed. The magic goes last: a power cut before it leaves a state that reads as booted, which the
+/// next start writes afresh (after the state's erase).
+fn write_swapped<F: NorFlash>(state: &mut Partition<'_, F>, pages: u32) -> Result<(), BootError> {
+    state.erase(0, state.capacity() as u32)?;
+    for step in 0..2 * pages {
+        state.write((2 + step) * WRITE_UNIT, &[STEP_DONE; WRITE_UNIT as usize])?;
+    }
+    state.write(0, &[SWAP_MAGIC; WRITE_UNIT as usize])?;
+    Ok(())
 }
 
 /// Whether embassy-boot has begun the swap marked in its state: its progress-validity word or its first progress
@@ -274,20 +387,31 @@ pub fn judge<F: NorFlash>(
     if tail_bytes.iter().any(|byte| *byte != ERASED) {
         return Err(Verdict::PastPayload);
     }
+    let digest = hash(dfu, 0, len, buffer, &mut feed).map_err(flash)?;
+    Verifier::check_digest(&digest, &ticket.signature, &key)
+        .map(|()| len)
+        .map_err(|_| Verdict::Signature)
+}
+
+/// SHA-512 over `len` bytes of `part` from `from`, a page at a time, `feed` called after each.
+fn hash<F: NorFlash>(
+    part: &mut Partition<'_, F>,
+    from: u32,
+    len: u32,
+    buffer: &mut [u8; BUFFER],
+    feed: &mut impl FnMut(),
+) -> Result<[u8; 64], BootError> {
     let mut verifier = Verifier::new();
     let mut offset = 0;
     while offset < len {
         let chunk = (len - offset).min(PAGE);
-        let bytes = buffer.get_mut(..chunk as usize).ok_or(Verdict::Length)?;
-        dfu.read(offset, bytes).map_err(flash)?;
+        let bytes = buffer.get_mut(..chunk as usize).unwrap_or_default();
+        part.read(from + offset, bytes)?;
         verifier.update(bytes);
         offset += chunk;
         feed();
     }
-    verifier
-        .finish(&ticket.signature, &key)
-        .map(|()| len)
-        .map_err(|_| Verdict::Signature)
+    Ok(verifier.digest())
 }
 
 /// Erase DFU's pages past the payload's last, up to ACTIVE's length: what the swap copies into ACTIVE beside the

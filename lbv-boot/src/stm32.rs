@@ -3,18 +3,19 @@
 //! between every flash operation, and the jump to ACTIVE.
 //!
 //! It never calls `embassy_stm32::init`: the image it starts finds the chip as the reset left it (the clocks on
-//! HSI16, RCC_CSR's reset flags still set for it to read), but for the watchdog started here and the flash
-//! interface, locked again after every operation.
+//! HSI16, RCC_CSR's reset flags still set for it to read), but for the watchdog started here, the flash
+//! interface, locked again after every operation, and the backup domain, opened to count early crashes.
 
 use cortex_m::peripheral::SCB;
 use embassy_boot_stm32::BootLoader;
 use embassy_stm32::flash::Flash;
 use embassy_stm32::pac;
 use embassy_stm32::peripherals::IWDG;
+use g431_hw::backup::{APB1ENR1_BACKUP, CRASH_REGISTER, PWR_CR1_DBP, watchdog_reset};
 use g431_hw::flash::{self, NmiAction};
 use g431_hw::iwdg::{BOOT_TRIAL, DBGMCU_APB1FZR1};
 use g431_hw::memory::{Partitions, Span};
-use lbv_boot::{Outcome, State};
+use lbv_boot::{CrashCount, Outcome, State};
 
 /// The board's partitions.
 #[cfg(feature = "thruster")]
@@ -34,8 +35,17 @@ fn main() -> ! {
     // The watchdog first: a swap or a check that hangs resets the chip, and the next start resumes it.
     start_trial_watchdog(chip.watchdog);
     let feed = || pac::IWDG.kr().write(|w| w.set_key(pac::iwdg::vals::Key::RESET));
-    let state = match lbv_boot::prepare(Flash::new_blocking(chip.flash), &LAYOUT, feed) {
+    let crashes = count_crashes();
+    let state = match lbv_boot::prepare(Flash::new_blocking(chip.flash), &LAYOUT, crashes, feed) {
         Outcome::Prepared { state, .. } => state,
+        // The previous image back, for it to tell; the count starts again.
+        Outcome::Restored { .. } => {
+            keep_count(CrashCount {
+                crashes: 0,
+                restored: true,
+            });
+            State::Revert
+        }
         // The image that ran, its update refused (the verdict is in the record for it to tell).
         Outcome::Refused { .. } => State::Boot,
         // ACTIVE as it is: `prepare` says why that is the safe choice.
@@ -50,6 +60,24 @@ fn main() -> ! {
     unsafe {
         BootLoader { state }.load(LAYOUT.active.origin)
     }
+}
+
+/// This start's count of early crashes (`update_image::CrashCount`): the backup register's, one more when a
+/// watchdog reset the chip (RCC_CSR, which the image reads and clears after this), none after any other reset;
+/// written back at once, so that it holds whatever the swap does. The backup domain is opened for it as the
+/// thruster opens it for its latches (`g431_hw::backup`).
+fn count_crashes() -> CrashCount {
+    pac::RCC.apb1enr1().modify(|w| w.0 |= APB1ENR1_BACKUP);
+    pac::PWR.cr1().modify(|w| w.0 |= PWR_CR1_DBP);
+    let stored = CrashCount::from_word(pac::TAMP.bkpr(CRASH_REGISTER).read().bkp());
+    let count = stored.at_start(watchdog_reset(pac::RCC.csr().read().0));
+    keep_count(count);
+    count
+}
+
+/// Keep `count` in its backup register for the image and the next start.
+fn keep_count(count: CrashCount) {
+    pac::TAMP.bkpr(CRASH_REGISTER).write(|w| w.set_bkp(count.to_word()));
 }
 
 /// Drive the power stage's six gate inputs to their off level (`g431_hw::images::THRUSTER_GATES_OFF`) before the

@@ -16,6 +16,7 @@ use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use update_image::{Header, INFO_FORMAT, Target, Version, image_record};
 
 use super::*;
+use update_image::{PREVIOUS_LEN, PREVIOUS_OFFSET};
 
 const PAGE_BYTES: usize = PAGE as usize;
 const ACTIVE_BYTES: usize = LAYOUT.active.length as usize;
@@ -149,7 +150,16 @@ fn spent(flash: &Stm32g4Flash) -> usize {
 
 /// A reset: the bootloader on the flash as the last power-down left it.
 fn reset(flash: &Stm32g4Flash) -> Outcome {
-    prepare(flash.clone(), &LAYOUT, || {})
+    reset_after_crashes(flash, 0)
+}
+
+/// A reset after `crashes` early crashes in a row (the binding's count at this start).
+fn reset_after_crashes(flash: &Stm32g4Flash, crashes: u8) -> Outcome {
+    let count = CrashCount {
+        crashes,
+        restored: false,
+    };
+    prepare(flash.clone(), &LAYOUT, count, || {})
 }
 
 /// Resets, power restored before each, until the bootloader prepares (at most a few: a cut stops at most one).
@@ -172,7 +182,7 @@ fn cut_again(flash: &Stm32g4Flash, cut: usize) -> Option<State> {
     flash.power_on();
     match outcome {
         Outcome::Prepared { state, .. } => Some(state),
-        Outcome::Refused { .. } | Outcome::Failed(_) => None,
+        Outcome::Refused { .. } | Outcome::Restored { .. } | Outcome::Failed(_) => None,
     }
 }
 
@@ -638,7 +648,9 @@ fn the_watchdog_is_fed_through_the_check_and_the_swap() {
     // The flash time between two feeds: never more than a page's erase and its programming.
     let timing = FlashTiming::G431;
     let feeds = RefCell::new(Vec::new());
-    let outcome = prepare(flash.clone(), &LAYOUT, || feeds.borrow_mut().push(flash.stats()));
+    let outcome = prepare(flash.clone(), &LAYOUT, CrashCount::default(), || {
+        feeds.borrow_mut().push(flash.stats())
+    });
     assert_eq!(outcome, prepared(State::Swap));
     let feeds = feeds.into_inner();
     assert!(feeds.len() > 3 * ACTIVE_PAGES, "{} feeds", feeds.len());
@@ -655,19 +667,29 @@ fn the_watchdog_is_fed_through_the_check_and_the_swap() {
     assert!(u64::from(g431_hw::iwdg::BOOT_TRIAL_MIN_US) > 30 * longest.as_micros());
 }
 
-/// The trials in which the bootloader read a torn double word (on the chip: an NMI, `stm32.rs`), by where it was.
+/// The trials in which the bootloader read a torn double word (on the chip: an NMI, `stm32.rs`), by where it was:
+/// the state, the record's [`Previous`] entry, or elsewhere.
 #[derive(Debug, Default)]
 struct TornReads {
     state: usize,
-    outside_state: usize,
+    previous: usize,
+    elsewhere: usize,
 }
 
 impl TornReads {
     fn add(&mut self, flash: &Stm32g4Flash) {
         let state = offset(LAYOUT.state)..offset(LAYOUT.state) + LAYOUT.state.length as usize;
+        let previous = offset(LAYOUT.ticket()) + PREVIOUS_OFFSET as usize;
+        let previous = previous..previous + PREVIOUS_LEN;
         let offsets = flash.ecc_error_offsets();
-        self.state += usize::from(offsets.iter().any(|at| state.contains(&(*at as usize))));
-        self.outside_state += usize::from(offsets.iter().any(|at| !state.contains(&(*at as usize))));
+        let any = |range: &core::ops::Range<usize>| offsets.iter().any(|at| range.contains(&(*at as usize)));
+        self.state += usize::from(any(&state));
+        self.previous += usize::from(any(&previous));
+        self.elsewhere += usize::from(
+            offsets
+                .iter()
+                .any(|at| !state.contains(&(*at as usize)) && !previous.contains(&(*at as usize))),
+        );
     }
 }
 
@@ -699,8 +721,13 @@ fn a_power_cut_anywhere_in_the_swap_ends_in_the_whole_new_image_then_the_whole_o
         assert_eq!(reset(&flash), prepared(State::Swap));
         spent(&flash) - before
     };
-    assert_eq!(total, 2 * ACTIVE_PAGES * COPY_BYTES, "a swap is 50 page copies");
-    let points = cut_points(total, 997, 0);
+    assert_eq!(
+        total,
+        PREVIOUS_LEN + 2 * ACTIVE_PAGES * COPY_BYTES,
+        "the previous image noted, then 50 page copies"
+    );
+    let mut points = cut_points(total, 997, PREVIOUS_LEN);
+    points.extend([1, 8, 9, 33, PREVIOUS_LEN - 1]);
     let mut torn = TornReads::default();
     for (trial, &cut) in points.iter().enumerate() {
         let flash = copy(&base);
@@ -737,9 +764,10 @@ fn a_power_cut_anywhere_in_the_swap_ends_in_the_whole_new_image_then_the_whole_o
             assert_image!(active(&flash), old, "cut at {cut}, never confirmed");
         }
     }
-    // A cut in a page's copy is redone from the page's erase, so only a progress word is ever read torn.
-    assert_eq!(torn.outside_state, 0);
-    assert!(torn.state > 0, "{torn:?}");
+    // A cut in a page's copy is redone from the page's erase, so only a progress word, or the note of the previous
+    // image, is ever read torn.
+    assert_eq!(torn.elsewhere, 0);
+    assert!(torn.state > 0 && torn.previous > 0, "{torn:?}");
 }
 
 #[test]
@@ -795,7 +823,7 @@ fn a_power_cut_anywhere_in_a_revert_ends_in_the_whole_old_image() {
         );
         assert_image!(active(&flash), old, "active");
     }
-    assert_eq!(torn.outside_state, 0);
+    assert_eq!(torn.elsewhere + torn.previous, 0);
     assert!(torn.state > 0, "{torn:?}");
 }
 
@@ -874,9 +902,10 @@ fn the_swap_takes_under_three_seconds_on_the_g431() {
     let (erases, double_words) = (after.erases - before.erases, (after.programmed - before.programmed) / 8);
     let timing = FlashTiming::G431;
     let swap_us = erases * timing.erase_page.as_micros() + double_words * timing.program_unit.as_micros();
-    // 50 page copies: 50 erases (1.25 s) and 50 x 257 double words, each page's and its progress word (1.29 s).
-    assert_eq!((erases, double_words), (50, 50 * 257));
-    assert_eq!(swap_us, 2_535_000);
+    // 50 page copies: 50 erases (1.25 s) and 50 x 257 double words, each page's and its progress word (1.29 s);
+    // before them the note of the image moved out, five double words.
+    assert_eq!((erases, double_words), (50, 50 * 257 + 5));
+    assert_eq!(swap_us, 2_535_000 + 5 * timing.program_unit.as_micros());
     // The revert costs the same copies and the state's rewrite.
     let before = flash.stats();
     assert_eq!(reset(&flash), prepared(State::Swap));
@@ -923,4 +952,119 @@ fn a_torn_magic_word_reads_as_no_update_and_stays_torn_until_the_state_is_marked
     assert_eq!(reset(&flash), prepared(State::Swap));
     assert_image!(active(&flash), new, "after the update was marked again");
     assert_eq!(flash.stats().ecc_errors, before);
+}
+
+/// `old` confirmed, then `new` swapped in and confirmed: the flash as a crash loop of `new` finds it.
+fn confirmed_over(old: &[u8], new: &[u8]) -> Stm32g4Flash {
+    let flash = ready(old, new);
+    assert_eq!(reset(&flash), prepared(State::Swap));
+    mark_booted(&flash);
+    assert_eq!(reset(&flash), prepared(State::Boot));
+    flash
+}
+
+#[test]
+fn a_confirmed_image_that_crashes_early_three_times_in_a_row_is_undone() {
+    let (old, new) = (image(50), image(51));
+    let flash = confirmed_over(&old, &new);
+    for crashes in 1..update_image::EARLY_CRASHES {
+        assert_eq!(reset_after_crashes(&flash, crashes), prepared(State::Boot));
+        assert_image!(active(&flash), new, "after {crashes} crashes");
+    }
+    assert_eq!(
+        reset_after_crashes(&flash, update_image::EARLY_CRASHES),
+        Outcome::Restored { attempt: 1 }
+    );
+    assert_image!(active(&flash), old, "the previous image back");
+    assert_eq!(state(&flash), State::Revert, "which the image that runs finds");
+    // The image put back is not on trial, and nothing swings back: DFU no longer holds the image noted.
+    for crashes in [0, update_image::EARLY_CRASHES, 10] {
+        assert_eq!(reset_after_crashes(&flash, crashes), prepared(State::Revert));
+        assert_image!(active(&flash), old, "after {crashes} more crashes");
+    }
+}
+
+#[test]
+fn only_the_exact_previous_image_comes_back_and_never_below_the_counter() {
+    let old = image(52);
+    // A new upload begun over the previous image: DFU no longer holds it.
+    let flash = confirmed_over(&old, &image(53));
+    write_dfu(&flash, &image(54)[..4 * PAGE_BYTES]);
+    assert_eq!(reset_after_crashes(&flash, 3), prepared(State::Boot));
+    assert_image!(active(&flash), image(53), "kept: nothing whole to go back to");
+
+    // One byte of the previous image changed in DFU.
+    let flash = confirmed_over(&old, &image(55));
+    let at = offset(LAYOUT.dfu) + PAGE_BYTES + 7 * PAGE_BYTES + 100;
+    let mut contents = flash.contents();
+    contents[at] ^= 0x01;
+    let mut dfu = Stm32g4Flash::new((LAYOUT.chip.flash.length / PAGE) as usize);
+    dfu.write(0, &contents).unwrap();
+    assert_eq!(reset_after_crashes(&dfu, 3), prepared(State::Boot));
+    assert_image!(active(&dfu), image(55), "kept");
+
+    // An update that raised the security counter is not undone by crashes.
+    let raised = made(56, Made { counter: 2, ..MADE });
+    let flash = confirmed_over(&old, &raised);
+    assert_eq!(counter(&flash), Some(2));
+    assert_eq!(reset_after_crashes(&flash, 3), prepared(State::Boot));
+    assert_image!(active(&flash), raised, "kept");
+
+    // On trial, embassy-boot's own revert undoes it at any reset.
+    let flash = ready(&old, &image(57));
+    assert_eq!(reset(&flash), prepared(State::Swap));
+    assert_eq!(reset_after_crashes(&flash, 3), prepared(State::Swap));
+    assert_image!(active(&flash), old, "reverted");
+
+    // A board flashed by a probe has no previous image.
+    let flash = flashed(&old);
+    assert_eq!(reset_after_crashes(&flash, 3), prepared(State::Boot));
+    assert_image!(active(&flash), old, "as flashed");
+}
+
+#[test]
+fn the_undo_is_written_as_a_swap_embassy_boot_reverts() {
+    let flash = confirmed_over(&image(58), &image(59));
+    let shared = Mutex::new(RefCell::new(flash.clone()));
+    write_swapped(&mut partition(&shared, LAYOUT.state), LAYOUT.active_pages()).unwrap();
+    assert_eq!(state(&flash), State::Swap, "embassy-boot reads the magic as its own");
+    // ...and finds every step of the swap done: it reverts.
+    assert_eq!(reset(&flash), prepared(State::Swap));
+    assert_image!(active(&flash), image(58), "reverted");
+}
+
+#[test]
+fn a_power_cut_anywhere_in_the_undo_ends_in_one_whole_image() {
+    let (old, new) = (image(60), image(61));
+    let base = confirmed_over(&old, &new);
+    let total = {
+        let flash = copy(&base);
+        let before = spent(&flash);
+        assert_eq!(reset_after_crashes(&flash, 3), Outcome::Restored { attempt: 1 });
+        spent(&flash) - before
+    };
+    let write_swapped = PAGE_BYTES + (2 * ACTIVE_PAGES + 1) * 8;
+    assert_eq!(total, write_swapped + 2 * ACTIVE_PAGES * COPY_BYTES + MAGIC_BYTES);
+    let mut points = cut_points(total, 1201, write_swapped);
+    points.extend([1, PAGE_BYTES + 3, write_swapped - 5, write_swapped - 1]);
+    let mut torn = TornReads::default();
+    for (trial, &cut) in points.iter().enumerate() {
+        let flash = copy(&base);
+        flash.cut_power_after(cut);
+        let _ = reset_after_crashes(&flash, 3);
+        flash.power_on();
+        // A power cut clears the count (the backup domain goes with VDD on these boards): the next starts count
+        // from none, and half the trials crash three times again.
+        let crashes = if trial % 2 == 0 { 0 } else { 3 };
+        let _ = reset_after_crashes(&flash, crashes);
+        let _ = reset_until_prepared(&flash);
+        torn.add(&flash);
+        let running = active(&flash);
+        if cut < write_swapped && crashes == 0 {
+            assert_image!(running, new, "cut at {cut} before the undo began: the image that ran");
+        } else {
+            assert_image!(running, old, "cut at {cut}: the previous image, whole");
+        }
+    }
+    assert_eq!(torn.elsewhere + torn.previous, 0, "{torn:?}");
 }

@@ -22,6 +22,40 @@ use lbv_master_fw::CONFIG;
 use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::recovery::{BusRecovery, clear_bus};
 
+/// The bootloader's count of early crashes (`update_image::CrashCount`), in its backup register
+/// (`g431_hw::backup::CRASH_REGISTER`). Taken once, at the start, where the reset flags are read and cleared.
+pub struct CrashRegister(());
+
+impl CrashRegister {
+    /// Open the backup domain for writing (PWR_CR1.DBP, with the PWR and RTC/TAMP APB clocks on; the bootloader
+    /// opened it too, but the image does not count on that), say why the chip last reset and clear the flags
+    /// (RCC_CSR.RMVF), so that the bootloader's next start reads only the next reset's.
+    pub fn open() -> Self {
+        pac::RCC.apb1enr1().modify(|w| w.0 |= g431_hw::backup::APB1ENR1_BACKUP);
+        pac::PWR.cr1().modify(|w| w.0 |= g431_hw::backup::PWR_CR1_DBP);
+        let csr = pac::RCC.csr().read().0;
+        if g431_hw::backup::watchdog_reset(csr) {
+            defmt::warn!("reset by the watchdog (RCC_CSR {:#010x})", csr);
+        } else {
+            defmt::info!("reset (RCC_CSR {:#010x})", csr);
+        }
+        pac::RCC.csr().modify(|w| w.set_rmvf(true));
+        CrashRegister(())
+    }
+}
+
+impl lbv_master_fw::own::CrashRegister for CrashRegister {
+    fn load(&mut self) -> u32 {
+        pac::TAMP.bkpr(g431_hw::backup::CRASH_REGISTER).read().bkp()
+    }
+
+    fn store(&mut self, word: u32) {
+        pac::TAMP
+            .bkpr(g431_hw::backup::CRASH_REGISTER)
+            .write(|w| w.set_bkp(word));
+    }
+}
+
 /// The independent watchdog, started with the master's timeout (`g431_hw::iwdg::MASTER`) over the one the
 /// bootloader started it with: RM0440's IWDG procedure (start, unlock, prescaler, reload, wait for the update,
 /// reload the counter). Fed by [`Watchdog::feed`]; taking the peripheral keeps anyone else from it.

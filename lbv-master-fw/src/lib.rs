@@ -82,6 +82,9 @@ pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly, 
 /// What the master does with its thruster buses.
 #[allow(async_fn_in_trait)]
 pub trait BusWork {
+    /// Whether it polls the thrusters in the table, and so publishes their reports to `shared.thrusters`.
+    const POLLS: bool;
+
     /// Use the buses; returning leaves them idle.
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared);
 }
@@ -96,6 +99,8 @@ pub struct Polling<'a> {
 }
 
 impl BusWork for Polling<'_> {
+    const POLLS: bool = true;
+
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
         let [first, second, third] = buses;
         let links = Links::new(&config.poll);
@@ -114,6 +119,8 @@ impl BusWork for Polling<'_> {
 }
 
 impl<O: acceptance::Operator> BusWork for acceptance::Script<O> {
+    const POLLS: bool = false;
+
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
         acceptance::Script::run(self, buses, &config.acceptance, shared).await
     }
@@ -223,7 +230,7 @@ where
             vehicle_task(config.vehicle, stored, shared),
         ),
         settings_task(&mut settings, shared, &mut reboot),
-        own.run(shared),
+        own.run(if J::POLLS { config.thrusters.count() } else { 0 }, shared),
     )
     .await;
     never

@@ -1,8 +1,10 @@
 //! The master's own update: an image sent to `/update/master.lbvu` is written to the master's DFU partition (bank 2
 //! of its G474, beside the code) as it arrives; the apply command checks it and marks it for the bootloader's swap,
-//! and the master restarts into it. The new image runs on trial and confirms itself once it has heard the operator's
-//! ground station for [`TRIAL_HEARD`]; otherwise it restarts after [`TRIAL_LIMIT`] and the bootloader swaps the
-//! previous image back (so does any reset before it confirms: a power cut, the watchdog).
+//! and the master restarts into it. The new image runs on trial and confirms itself once it has shown that the paths
+//! of the next update work: it has heard the operator's ground station for [`TRIAL_HEARD`] (the console's receive
+//! task, which serves FTP too) and polled every thruster (the buses, which carry the thrusters' updates); otherwise
+//! it restarts after [`TRIAL_LIMIT`] and the bootloader swaps the previous image back (so does any reset before it
+//! confirms: a power cut, the watchdog).
 //!
 //! What is checked, and when:
 //! - as the upload begins: the running image is not on trial (DFU holds the image a revert needs), the payload fits
@@ -35,6 +37,10 @@
 //! leaves whole or not there (embassy-boot); the swap resumes where it stopped; a new image that has not confirmed
 //! is swapped back at the next start. The settings' pages are none of these, and keep what they hold.
 //!
+//! An image that confirms and then crashes early, three times in a row, is undone by the bootloader (lbv-boot), which
+//! counts the crashes in a backup register ([`CrashRegister`]): this task clears the count once the image has run
+//! [`EARLY_WINDOW`], and tells the operator once, when it hears them, that the previous image is back.
+//!
 //! The console's update sink ([`crate::update::VehicleSink`]) hands the bytes to an [`OwnImage`], and
 //! [`own_image_task`] writes them, a page at a time, between its trial checks.
 
@@ -52,8 +58,9 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_storage_async::nor_flash::{NorFlash, ReadNorFlash};
 use g431_hw::memory::{FLASH_ORIGIN, IMAGE_INFO_OFFSET, MASTER_PARTITIONS, PAGE, Span};
 use update_image::{
-    APPLIER_OFFSET, Header, INFO_LEN, ImageInfo, Refusal, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Target,
-    Ticket, VERDICT_OFFSET, Version, check_upgrade, checked_word, read_checked_word,
+    APPLIER_OFFSET, CrashCount, EARLY_CRASHES, EARLY_WINDOW_SECS, Header, INFO_LEN, ImageInfo, Refusal, SLOTS, Slots,
+    TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Target, Ticket, VERDICT_OFFSET, Version, check_upgrade, checked_word,
+    read_checked_word,
 };
 
 use crate::shared::{
@@ -62,6 +69,28 @@ use crate::shared::{
 };
 use crate::update::ftp::DATA_LEN;
 use crate::update::{HEADER_LEN, ImageHeader};
+
+/// How long the image runs before a crash is no longer an early one: the count of early crashes is cleared then.
+pub const EARLY_WINDOW: Duration = Duration::from_secs(EARLY_WINDOW_SECS);
+
+/// Where the bootloader counts early crashes ([`CrashCount`]): on the chip a backup register (`g431_hw::backup`).
+pub trait CrashRegister {
+    /// The word it holds.
+    fn load(&mut self) -> u32;
+    /// Keep `word`.
+    fn store(&mut self, word: u32);
+}
+
+/// A register that forgets at every start, as a board without a bootloader has: the tests, the cores on QEMU.
+impl CrashRegister for u32 {
+    fn load(&mut self) -> u32 {
+        *self
+    }
+
+    fn store(&mut self, word: u32) {
+        *self = word;
+    }
+}
 
 /// The operator's heartbeat must be live this long, without a gap, before an image on trial confirms itself.
 pub const TRIAL_HEARD: Duration = Duration::from_secs(3);
@@ -73,6 +102,9 @@ pub const TRIAL_CHECK: Duration = Duration::from_millis(100);
 
 /// A flash page, the unit DFU is written in.
 pub const PAGE_BYTES: usize = PAGE as usize;
+
+/// The erased value of a flash byte.
+const ERASED: u8 = 0xFF;
 /// A page and one FTP write: the sink takes a write while the page before it is still to be programmed.
 const BUFFER: usize = PAGE_BYTES + DATA_LEN;
 /// DFU is hashed this many bytes at a time, the other tasks let run between two.
@@ -412,31 +444,45 @@ impl<F: NorFlash> OwnFlash<F> {
 /// (the cores on an emulated Cortex-M4, the tests), where master images are refused.
 #[allow(async_fn_in_trait)]
 pub trait OwnUpdate {
-    /// Do it, for as long as the master runs.
-    async fn run(self, shared: &Shared);
+    /// Do it, for as long as the master runs, with the first `polled` thrusters of the table polled by the buses'
+    /// work (none when it does not poll them).
+    async fn run(self, polled: u8, shared: &Shared);
 }
 
 impl OwnUpdate for () {
     /// Nothing to hold arming for ([`crate::run`] holds it until the own update has started).
-    async fn run(self, shared: &Shared) {
+    async fn run(self, _polled: u8, shared: &Shared) {
         shared.holds.set_master(None);
         core::future::pending().await
     }
 }
 
-/// The master's own update on `flash`, with the images the console's sink hands to `image`.
+/// The master's own update on `flash`, with the images the console's sink hands to `image`, and the bootloader's
+/// count of early crashes in `crashes`.
 #[derive(Debug)]
-pub struct Updating<'a, F: NorFlash> {
+pub struct Updating<'a, F: NorFlash, C: CrashRegister> {
     /// The chip's flash.
     pub flash: OwnFlash<F>,
     /// The sink's side.
     pub image: &'a OwnImage,
+    /// The bootloader's count of early crashes.
+    pub crashes: C,
 }
 
-impl<F: NorFlash> OwnUpdate for Updating<'_, F> {
-    async fn run(self, shared: &Shared) {
-        own_image_task(&self.flash, self.image, shared).await
+impl<F: NorFlash, C: CrashRegister> OwnUpdate for Updating<'_, F, C> {
+    async fn run(self, polled: u8, shared: &Shared) {
+        own_image_task(&self.flash, self.image, self.crashes, polled, shared).await
     }
+}
+
+/// Whether each of the first `polled` thrusters of the table has been polled since the start: the buses' work, the
+/// path that carries the thrusters' updates, runs.
+fn thrusters_polled(shared: &Shared, polled: u8) -> bool {
+    shared
+        .thrusters
+        .iter()
+        .take(usize::from(polled))
+        .all(|thruster| thruster.try_get().is_some_and(|report| report.health.polls > 0))
 }
 
 /// "master.lbvu: `args`", as the update server names the file the ground station wrote (in two texts when one
@@ -489,8 +535,17 @@ enum NotMarked {
 
 /// The master's own update and its trial, on `flash` (the whole chip's, [`OwnFlash`]): writes what `own` receives
 /// into DFU, checks and marks it when applied, confirms an image on trial once the operator is heard, and tells the
-/// operator once when the bootloader refused the image marked before the last restart.
-pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, shared: &Shared) -> ! {
+/// operator once when the bootloader refused the image marked before the last restart, or undid one that crashed;
+/// clears the count of early crashes once the image has run [`EARLY_WINDOW`].
+pub async fn own_image_task<F: NorFlash, C: CrashRegister>(
+    flash: &OwnFlash<F>,
+    own: &OwnImage,
+    mut crashes: C,
+    polled: u8,
+    shared: &Shared,
+) -> ! {
+    let mut restored = CrashCount::from_word(crashes.load()).restored;
+    let mut early = true;
     let mut info = [0xFF; INFO_LEN];
     let _ = flash
         .partition(MASTER_PARTITIONS.active)
@@ -531,7 +586,7 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
             let now = Instant::now();
             let heard = shared.vehicle.try_get().is_some_and(|v| v.console_alive);
             heard_since = if heard { heard_since.or(Some(now)) } else { None };
-            if heard_since.is_some_and(|since| now >= since + TRIAL_HEARD) {
+            if heard_since.is_some_and(|since| now >= since + TRIAL_HEARD) && thrusters_polled(shared, polled) {
                 if state.mark_booted().await.is_ok() {
                     on_trial = false;
                     own.found(Some(false));
@@ -565,8 +620,26 @@ pub async fn own_image_task<F: NorFlash>(flash: &OwnFlash<F>, own: &OwnImage, sh
                 on_trial = false;
             }
         }
+        if early && Instant::now() >= started + EARLY_WINDOW {
+            early = false;
+            crashes.store(CrashCount { crashes: 0, restored }.to_word());
+        }
         // Told once the operator is heard: a text at the start, before any ground station listens, would be lost
         // and yet noted as told.
+        if restored && operator_heard(shared).is_some() {
+            say(
+                shared,
+                Severity::Warning,
+                format_args!(
+                    "{EARLY_CRASHES} early crashes: {} restored",
+                    Shown(running.map(|info| info.version))
+                ),
+            )
+            .await;
+            restored = false;
+            let count = CrashCount::from_word(crashes.load());
+            crashes.store(CrashCount { restored, ..count }.to_word());
+        }
         if let Some((verdict, free)) = untold
             && let Some(operator) = operator_heard(shared)
         {
@@ -737,8 +810,35 @@ fn check_info(
 
 /// Erase DFU's page at `offset` and program `data` there.
 async fn program<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> Result<(), ()> {
+    if holds(dfu, offset, data).await {
+        return Ok(());
+    }
     dfu.erase(offset, offset + PAGE).await.map_err(drop)?;
     dfu.write(offset, data).await.map_err(drop)
+}
+
+/// Whether DFU's page at `offset` holds `data` and erased flash after it: written by an upload of the same file
+/// that stopped (a lost link, a reset), and kept rather than erased and written again, as a thruster keeps the
+/// pages of an interrupted transfer.
+async fn holds<D: NorFlash>(dfu: &mut D, offset: u32, data: &[u8]) -> bool {
+    const CHUNK: usize = 64;
+    let mut chunk = [0; CHUNK];
+    let mut at = 0;
+    while at < PAGE_BYTES {
+        if dfu.read(offset + at as u32, &mut chunk).await.is_err() {
+            return false;
+        }
+        let expected = data.get(at..).unwrap_or_default();
+        let differs = chunk
+            .iter()
+            .enumerate()
+            .any(|(i, byte)| *byte != expected.get(i).copied().unwrap_or(ERASED));
+        if differs {
+            return false;
+        }
+        at += CHUNK;
+    }
+    true
 }
 
 /// DFU's first `payload_len` bytes hashed with SHA-512 and the header's signature checked over the digest with the

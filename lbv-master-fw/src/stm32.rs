@@ -69,7 +69,7 @@ type WholeFlash = Partition<'static, CriticalSectionRawMutex, Flash<'static, Asy
 /// Where the settings are kept.
 type Settings = Store<WholeFlash>;
 /// The master's own update, on the same flash, at `g431_hw::memory::MASTER_PARTITIONS`' offsets.
-type Own = Updating<'static, WholeFlash>;
+type Own = Updating<'static, WholeFlash, board::CrashRegister>;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
@@ -192,6 +192,7 @@ async fn main(spawner: Spawner) {
     let own = Updating {
         flash: OwnFlash::new(whole()),
         image: own_image,
+        crashes: board::CrashRegister::open(),
     };
 
     // The build's configuration with the chip's 96-bit unique device id for AUTOPILOT_VERSION (RM0440 section

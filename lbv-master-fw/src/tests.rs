@@ -232,6 +232,7 @@ fn an_arm_waiting_when_the_master_starts_on_trial_is_refused_until_its_image_has
         own: Updating {
             flash: OwnFlash::new(flash.clone()),
             image: &image,
+            crashes: 0,
         },
     };
     // The operator's heartbeat and arm are in the UART before the master runs: the vehicle task takes them before

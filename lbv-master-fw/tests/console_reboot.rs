@@ -51,6 +51,8 @@ fn signing_now() -> u64 {
 struct Idle;
 
 impl BusWork for Idle {
+    const POLLS: bool = false;
+
     async fn run<B: I2c + BusRecovery>(self, _: &mut [B; BUSES], _: &MasterConfig, _: &Shared) {}
 }
 

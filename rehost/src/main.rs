@@ -450,12 +450,15 @@ fn boot() -> Value {
         "min_payload": MIN_PAYLOAD,
         "ticket_offset": TICKET_OFFSET,
         "verdict_offset": VERDICT_OFFSET,
+        "previous_offset": update_image::PREVIOUS_OFFSET,
         "told_offset": TOLD_OFFSET,
         "slots": SLOTS,
         "verdicts": verdicts,
         "targets": targets,
         "trial": { "pr": iwdg::BOOT_TRIAL.pr, "rlr": iwdg::BOOT_TRIAL.rlr },
         "thruster_gates_off": gates,
+        "crash_register": g431_hw::backup::CRASH_REGISTER,
+        "early_crashes": update_image::EARLY_CRASHES,
     })
 }
 

@@ -10,6 +10,7 @@ On the G474 the swap crosses the banks: ACTIVE in bank 1, DFU in bank 2.
 The partitions and the formats come from `rehost expected` (g431_hw::memory, update-image); the made-up images are
 signed with a key the tests hold (`rehost sign`)."""
 
+import hashlib
 import random
 import struct
 from dataclasses import dataclass
@@ -57,6 +58,7 @@ class Board:
     key_offset: int
     min_payload: int
     verdict_offset: int
+    previous_offset: int
     verdicts: dict
 
     @property
@@ -91,6 +93,7 @@ def board_of(expected, name):
         key_offset=boot["key_offset"],
         min_payload=boot["min_payload"],
         verdict_offset=boot["verdict_offset"],
+        previous_offset=boot["previous_offset"],
         verdicts={name: bytes.fromhex(verdict["word"]) for name, verdict in boot["verdicts"].items()},
     )
 
@@ -338,7 +341,8 @@ def test_a_good_image_marked_with_its_ticket_is_swapped_in_and_the_old_one_kept_
     assert swap.active == padded(board, swap.new), "the payload, and erased flash where DFU held stray bytes"
     assert swap.dfu == swap.old
     # DFU's pages past the payload's last erased (the stray ones among them), then every page both ways: one erase
-    # and 256 double words a page, and a progress word after each page.
+    # and 256 double words a page, and a progress word after each page; before them, the note of the image moved
+    # out: the first 32 bytes of SHA-512 over ACTIVE, then a checked word, in the ticket's page.
     steps = 2 * board.pages
     past = board.pages - -(-len(swap.new) // board.page)
     erases = [op for op in swap.operations if op[2] == "erase"]
@@ -347,7 +351,9 @@ def test_a_good_image_marked_with_its_ticket_is_swapped_in_and_the_old_one_kept_
         board.dfu + board.active_bytes - (past - n) * board.page for n in range(past)
     ]
     assert len(erases) == past + steps
-    assert len(programs) == steps * 257
+    assert len(programs) == steps * 257 + 5
+    previous = swap.ticket[board.previous_offset : board.previous_offset + 40]
+    assert previous == hashlib.sha512(swap.old).digest()[:32] + checked_word(0x5052_4556), previous.hex()
     assert swap.state[:8] == SWAP_MAGIC, "on trial until the image marks itself booted"
     assert swap.state[16 : 16 + steps * 8] == bytes(steps * 8), "every step's progress word written"
     assert swap.ticket[board.verdict_offset : board.verdict_offset + 64] == b"\xff" * 64, "no verdict"
@@ -475,3 +481,37 @@ def test_a_small_master_image_is_swapped_in_before_the_trial_watchdog_bites(expe
     chip.run_until(lambda: chip.core.pc == board.reset_handler or chip.resets, seconds=15, what="the jump or a reset")
     assert chip.resets == [], f"{chip.flash_interface.erases} pages erased, then the watchdog reset the chip"
     assert flash(chip, board.active, board.active_bytes) == padded(board, new)
+
+
+def crash_word(crashes, restored=False):
+    """update-image's CrashCount in its backup register: the tag 0x4352, then the count byte's complement, then the
+    byte (bit 7: the previous image was put back)."""
+    byte = crashes | (0x80 if restored else 0)
+    return 0x4352_0000 | ((~byte & 0xFF) << 8) | byte
+
+
+def test_a_confirmed_image_that_the_watchdog_resets_early_three_times_is_undone(board, expected, key):
+    """The new image swapped in, then confirmed (embassy-boot's BOOT magic written over the state, as `mark_booted`
+    leaves it), never feeds the watchdog: every watchdog reset is an early crash, counted in TAMP's backup register,
+    and at the third the bootloader swaps the image it replaced back in."""
+    old = application(board, 12, board.active_bytes, board.stack, key)
+    new = application(board, 13, SMALL, board.stack - 0x1000, key, version=(1, 1, 0))
+    signed = sign(SEED, new)
+    chip = chip_with(board, old, dfu=padded(board, new), state=SWAP_MAGIC, ticket=signed["ticket"])
+    run_to_the_application(board, chip, seconds=15)
+    assert flash(chip, board.active, board.active_bytes) == padded(board, new)
+    confirmed = BOOT_MAGIC + b"\xff" * (board.state_bytes - 8)
+    chip.flash[board.state - FLASH_BASE : board.state - FLASH_BASE + board.state_bytes] = confirmed
+    chip.core.uc.mem_write(board.state, confirmed)
+    register = 0x100 + 4 * expected["boot"]["crash_register"]
+    words = []
+    for _ in range(expected["boot"]["early_crashes"]):
+        chip.resets.clear()
+        chip.run_until(lambda: chip.resets, seconds=2.5, what="the watchdog's reset")
+        chip.resets.clear()
+        run_to_the_application(board, chip, seconds=15)
+        words.append(chip.tamp.regs.get(register))
+    assert words == [crash_word(1), crash_word(2), crash_word(0, restored=True)], [hex(w or 0) for w in words]
+    assert flash(chip, board.active, board.active_bytes) == old, "the image it replaced, back"
+    assert flash(chip, board.state, 8) == bytes([0xC0] * 8), "embassy-boot's REVERT magic, for the image to find"
+    assert chip.core.uc.reg_read(arm.UC_ARM_REG_MSP) == board.stack, "the old image's stack pointer"

@@ -342,9 +342,9 @@ impl Watchdog for Iwdg {
     }
 }
 
-/// The backup register that keeps the power-cycle latches across resets (TAMP_BKP0R, in the backup domain: kept
-/// over every reset but a loss of VDD and VBAT, which are one supply on the NUCLEO).
-const LATCH_REGISTER: usize = 0;
+/// The backup register that keeps the power-cycle latches across resets (`g431_hw::backup`: kept over every reset
+/// but a loss of VDD and VBAT, which are one supply on the NUCLEO).
+const LATCH_REGISTER: usize = g431_hw::backup::LATCH_REGISTER;
 
 /// The fault latches in a backup register.
 pub struct BackupLatch {

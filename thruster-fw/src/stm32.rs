@@ -278,6 +278,25 @@ async fn main(spawner: Spawner) {
         dfu: board::dfu(flash),
         updater: ImageSwap::new(flash),
     })));
+    spawner.spawn(unwrap!(early_window()));
+}
+
+/// The bootloader's count of early crashes (`update_image::CrashCount`, `g431_hw::backup::CRASH_REGISTER`; the
+/// backup domain is open, `BackupLatch::open`): say at the start that the bootloader put this image back after the
+/// one it replaced crashed early, and clear the count once the image has run the early window through. The master
+/// sees the version the thruster runs in its `Version` reply.
+#[embassy_executor::task]
+async fn early_window() {
+    use update_image::{CrashCount, EARLY_CRASHES, EARLY_WINDOW_SECS};
+    let register = pac::TAMP.bkpr(g431_hw::backup::CRASH_REGISTER);
+    if CrashCount::from_word(register.read().bkp()).restored {
+        warn!(
+            "the image after this one crashed {=u8} times early: the bootloader put this one back",
+            EARLY_CRASHES
+        );
+    }
+    embassy_time::Timer::after_secs(EARLY_WINDOW_SECS).await;
+    register.write(|w| w.set_bkp(CrashCount::default().to_word()));
 }
 
 /// 170 MHz from the NUCLEO's 24 MHz crystal (`g431_hw::clock::PLL`); I2C from HSI16 (its timing is computed for

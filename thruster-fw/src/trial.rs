@@ -1,8 +1,10 @@
 //! A new image on trial. The bootloader (lbv-boot, embassy-boot) swaps a new image in and starts it on trial:
 //! until the image confirms itself, any reset (the watchdog's, a brown-out, a power cut) swaps the previous image
 //! back. The image confirms only once it has shown that it works here: [`TRIAL_ROUNDS`] watchdog rounds in which
-//! every task reported (counted since start; a task that stops for good is a watchdog reset), and [`TRIAL_ORDERS`]
-//! orders from the master taken and answered. It confirms while the master orders zero, since writing the
+//! every task reported (counted since start; a task that stops for good is a watchdog reset), [`TRIAL_ORDERS`]
+//! orders from the master taken and answered, and a reply to the field-update extension read by the master (which
+//! asks an image on trial its `Version` every few seconds): the path the next update takes works, so an image that
+//! confirms can always be replaced over the bus. It confirms while the master orders zero, since writing the
 //! bootloader's state erases a flash page, which stalls the CPU (commutation included) for as long as the erase
 //! takes (22 ms typical, DS12589 Table 41, flash memory characteristics).
 
@@ -55,12 +57,16 @@ pub const TRIAL_CHECK: Duration = Duration::from_millis(100);
 pub const CONFIRM_RETRY: Duration = Duration::from_secs(1);
 
 /// Whether an image on trial has shown enough to confirm: `rounds` complete watchdog rounds, the master's orders,
-/// and the motor at rest by order and by duty.
-pub fn may_confirm(rounds: u32, link: Option<LinkUpdate>, duty: Duty) -> bool {
+/// an extension reply `answered`, and the motor at rest by order and by duty.
+pub fn may_confirm(rounds: u32, link: Option<LinkUpdate>, answered: bool, duty: Duty) -> bool {
     let Some(link) = link else {
         return false;
     };
-    rounds >= TRIAL_ROUNDS && link.orders >= TRIAL_ORDERS && link.order.speed.is_zero() && duty == Duty::ZERO
+    rounds >= TRIAL_ROUNDS
+        && link.orders >= TRIAL_ORDERS
+        && answered
+        && link.order.speed.is_zero()
+        && duty == Duty::ZERO
 }
 
 /// The trial: if the image is on trial, confirm it once [`may_confirm`] holds. An image that never gets there
@@ -74,7 +80,7 @@ pub async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
             loop {
                 ticker.next().await;
                 let (link, duty) = (shared.link.try_get(), shared.duty.try_get().unwrap_or(Duty::ZERO));
-                if !may_confirm(shared.health.rounds(), link, duty) {
+                if !may_confirm(shared.health.rounds(), link, shared.replies.answered(), duty) {
                     continue;
                 }
                 match boot.confirm().await {

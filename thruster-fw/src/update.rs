@@ -220,6 +220,8 @@ pub struct Replies {
     /// Trial -> update: the running image is on trial, or (until the trial task has read the bootloader's state,
     /// and when it cannot) it may be: no update begins over the image a revert may need.
     on_trial: AtomicBool,
+    /// The master has read a done reply since the start: the extension, the path of the next update, works.
+    answered: AtomicBool,
 }
 
 // The methods the tasks call are kept out of line (`inline(never)`): inlined into the tasks' poll functions they
@@ -232,6 +234,7 @@ impl Replies {
             pending: BlockingMutex::new(Cell::new(None)),
             read: Signal::new(),
             on_trial: AtomicBool::new(true),
+            answered: AtomicBool::new(false),
         }
     }
 
@@ -274,7 +277,13 @@ impl Replies {
                 pending.set(None);
             }
         });
+        self.answered.store(true, Ordering::Relaxed);
         self.read.signal(());
+    }
+
+    /// Whether the master has read a reply to an extension command since the start.
+    pub fn answered(&self) -> bool {
+        self.answered.load(Ordering::Relaxed)
     }
 
     /// The update task's reply; dropped if a newer command has replaced the one it answers.

@@ -14,12 +14,22 @@
 //! | 128    | 64     | the bootloader  | the [`Verdict`] on that ticket: [`SLOTS`] [`checked_word`]s       |
 //! | 192    | 64     | the application | the verdict was told: [`SLOTS`] [`checked_word`]s                 |
 //! | 256    | 8      | the application | who applied the image: a [`checked_word`] ([`APPLIER_OFFSET`])    |
+//! | 320    | 40     | the bootloader  | the image the swap moved out: [`Previous`]                        |
 //!
 //! A checked word is a u32 and its complement: a double word torn by a power cut (some of its bits programmed,
 //! the rest still erased) never reads as one, so a torn verdict is no verdict, and a torn counter entry (lbv-boot
 //! keeps its security counter as a journal of them) leaves the value before it. A torn word cannot be written
 //! again (flash programs only erased double words), so the verdict and the told mark each have a few slots: the
 //! first whole word counts, and a writer that finds none writes the first erased slot ([`Slots`]).
+//!
+//! # Undoing an image that crashes after it confirmed
+//!
+//! A swap leaves the image it moved out in DFU, one page up, until the next upload overwrites it. Before it swaps,
+//! the bootloader notes that image's digest ([`Previous`]); should the new image, once confirmed, crash
+//! [`EARLY_CRASHES`] times in a row within [`EARLY_WINDOW_SECS`] of its start, the bootloader swaps the previous one
+//! back if DFU still holds exactly it. The crashes are counted in a backup register ([`CrashCount`]), which the
+//! bootloader raises at every start after a watchdog reset, and the application clears once it has run the
+//! window through.
 
 use core::fmt;
 
@@ -41,6 +51,114 @@ pub const TOLD_OFFSET: u32 = 192;
 /// as a [`checked_word`]), written with the ticket: the image that runs after the restart answers the apply there.
 /// The bootloader does not read it.
 pub const APPLIER_OFFSET: u32 = 256;
+
+/// Where the bootloader notes the image a swap moved out ([`Previous`]): [`PREVIOUS_LEN`] bytes.
+pub const PREVIOUS_OFFSET: u32 = 320;
+
+/// The length of the [`Previous`] entry: its digest, then the checked word that says it is whole.
+pub const PREVIOUS_LEN: usize = DIGEST_LEN + 8;
+
+/// The digest kept of an image: the first half of SHA-512 (SHA-512/256 would be as good; this is the hash the
+/// bootloader already computes).
+pub const DIGEST_LEN: usize = 32;
+
+/// The image a swap moved out of ACTIVE into DFU, as the bootloader noted it before the swap began: the digest of
+/// ACTIVE's whole partition, then a [`checked_word`] of [`Previous::MAGIC`] written last, so that an entry a power
+/// cut tore never reads as one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Previous {
+    /// The first [`DIGEST_LEN`] bytes of SHA-512 over ACTIVE's partition as it was before the swap.
+    pub digest: [u8; DIGEST_LEN],
+}
+
+impl Previous {
+    /// The value of the checked word that closes a whole entry.
+    pub const MAGIC: u32 = 0x5052_4556;
+
+    /// The entry's bytes.
+    pub fn to_bytes(&self) -> [u8; PREVIOUS_LEN] {
+        let mut bytes = [0xFF; PREVIOUS_LEN];
+        let (digest, word) = bytes.split_at_mut(DIGEST_LEN);
+        digest.copy_from_slice(&self.digest);
+        word.copy_from_slice(&checked_word(Previous::MAGIC));
+        bytes
+    }
+
+    /// The entry in `bytes`, if they hold a whole one.
+    pub fn parse(bytes: &[u8; PREVIOUS_LEN]) -> Option<Previous> {
+        let (digest, word) = bytes.split_first_chunk::<DIGEST_LEN>()?;
+        let word = word.first_chunk::<8>()?;
+        (read_checked_word(*word) == Some(Previous::MAGIC)).then_some(Previous { digest: *digest })
+    }
+}
+
+/// How many watchdog resets in a row, each within [`EARLY_WINDOW_SECS`] of the start before it, make the bootloader
+/// swap the previous image back in. One crash may be the water's doing (a brown-out that hangs a peripheral); three
+/// in a row within a minute of each start is the image, and at a minute each the vehicle is back on its old image
+/// within about three minutes, long before an operator could reach it with a probe.
+pub const EARLY_CRASHES: u8 = 3;
+
+/// How long an image must run after its start before a crash no longer counts as an early one: it clears the
+/// count once it has run this long. A minute covers the start-up, the first thruster polls and the first
+/// exchanges with a ground station, where an image's new paths are first exercised.
+pub const EARLY_WINDOW_SECS: u64 = 60;
+
+/// The bootloader's count of consecutive early crashes, kept in a backup register (`g431_hw::backup`) as a tagged
+/// word, and whether it has just swapped the previous image back in (for the image that then runs to tell).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CrashCount {
+    /// Watchdog resets in a row, each early in its run.
+    pub crashes: u8,
+    /// The bootloader swapped the previous image back in, and the image that runs has not told it yet.
+    pub restored: bool,
+}
+
+impl CrashCount {
+    /// The tag in the word's upper half.
+    const TAG: u32 = 0x4352;
+
+    /// Its register word: the tag, the count and flag byte's complement, the byte (bit 7 the flag).
+    pub const fn to_word(self) -> u32 {
+        let crashes = if self.crashes > 0x7F { 0x7F } else { self.crashes };
+        let byte = crashes as u32 | if self.restored { 0x80 } else { 0 };
+        (CrashCount::TAG << 16) | ((!byte & 0xFF) << 8) | byte
+    }
+
+    /// The count a register word holds; none (zero) for a word never written, such as a power-on's zero.
+    pub const fn from_word(word: u32) -> CrashCount {
+        let byte = word & 0xFF;
+        if word >> 16 == CrashCount::TAG && (word >> 8) & 0xFF == !byte & 0xFF {
+            CrashCount {
+                crashes: (byte & 0x7F) as u8,
+                restored: byte & 0x80 != 0,
+            }
+        } else {
+            CrashCount {
+                crashes: 0,
+                restored: false,
+            }
+        }
+    }
+
+    /// The count at a start: one more after a watchdog reset, none after any other (a power cycle, the reset pin,
+    /// a restart the image asked for). The restored flag stays until the image tells it.
+    pub const fn at_start(self, watchdog_reset: bool) -> CrashCount {
+        CrashCount {
+            crashes: if watchdog_reset {
+                self.crashes.saturating_add(1)
+            } else {
+                0
+            },
+            restored: self.restored,
+        }
+    }
+
+    /// Whether the running image has crashed early often enough to be undone.
+    pub const fn undo_due(self) -> bool {
+        self.crashes >= EARLY_CRASHES
+    }
+}
 
 /// The double words of the verdict's and of the told mark's slots.
 pub const SLOTS: usize = 8;
@@ -277,6 +395,59 @@ mod tests {
         assert_eq!(Verdict::from_word([0xFF; 8]), None);
         assert_eq!(Verdict::from_word(checked_word(300)), None);
         assert_eq!(Verdict::Signature.to_string(), "signature");
+    }
+
+    #[test]
+    fn the_previous_entry_reads_only_whole() {
+        let previous = Previous {
+            digest: [0x5A; DIGEST_LEN],
+        };
+        let bytes = previous.to_bytes();
+        assert_eq!(Previous::parse(&bytes), Some(previous));
+        assert_eq!(Previous::parse(&[0xFF; PREVIOUS_LEN]), None, "erased");
+        // Cut before or during its closing word: no entry.
+        let mut torn = bytes;
+        torn[DIGEST_LEN..].fill(0xFF);
+        assert_eq!(Previous::parse(&torn), None);
+        torn[DIGEST_LEN..DIGEST_LEN + 4].copy_from_slice(&bytes[DIGEST_LEN..DIGEST_LEN + 4]);
+        assert_eq!(Previous::parse(&torn), None);
+        assert!(APPLIER_OFFSET as usize + 8 <= PREVIOUS_OFFSET as usize);
+        assert_eq!(PREVIOUS_OFFSET % 8, 0, "written in whole double words");
+        assert_eq!(PREVIOUS_LEN % 8, 0);
+    }
+
+    #[test]
+    fn early_crashes_count_up_and_anything_else_clears_them() {
+        let none = CrashCount::default();
+        // A power-on leaves the register zero: no count.
+        assert_eq!(CrashCount::from_word(0), none);
+        assert_eq!(CrashCount::from_word(u32::MAX), none);
+        let mut count = none;
+        for crash in 1..=EARLY_CRASHES {
+            assert!(!count.undo_due());
+            count = CrashCount::from_word(count.to_word()).at_start(true);
+            assert_eq!(count.crashes, crash);
+        }
+        assert!(count.undo_due());
+        // A restart the image asked for, the reset pin or a power cycle start the count again.
+        assert_eq!(count.at_start(false).crashes, 0);
+        let restored = CrashCount {
+            crashes: 0,
+            restored: true,
+        };
+        assert_eq!(CrashCount::from_word(restored.to_word()), restored);
+        assert!(restored.at_start(false).restored, "kept until told");
+        // A word with its check byte off reads as none.
+        assert_eq!(CrashCount::from_word(count.to_word() ^ 0x100), none);
+        let many = CrashCount {
+            crashes: u8::MAX,
+            restored: false,
+        };
+        assert_eq!(
+            CrashCount::from_word(many.to_word()).crashes,
+            0x7F,
+            "held at its largest"
+        );
     }
 
     #[test]

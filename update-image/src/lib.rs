@@ -52,7 +52,8 @@ mod verify;
 mod version;
 
 pub use bootloader::{
-    APPLIER_OFFSET, MIN_PAYLOAD, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Ticket, VERDICT_OFFSET, Verdict,
+    APPLIER_OFFSET, CrashCount, DIGEST_LEN, EARLY_CRASHES, EARLY_WINDOW_SECS, MIN_PAYLOAD, PREVIOUS_LEN,
+    PREVIOUS_OFFSET, Previous, SLOTS, Slots, TICKET_LEN, TICKET_OFFSET, TOLD_OFFSET, Ticket, VERDICT_OFFSET, Verdict,
     checked_word, read_checked_word,
 };
 pub use check::{Refusal, check, check_file, check_upgrade};

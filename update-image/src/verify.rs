@@ -68,10 +68,15 @@ impl Verifier {
     /// (5.1.7) asks and salty does not check, so that a payload's signature has one encoding only. The caller sees
     /// to it that the bytes hashed are the header's `payload_len` (or uses [`finish_header`](Verifier::finish_header)).
     pub fn finish(self, signature: &[u8; 64], public_key: &[u8; 32]) -> Result<(), VerifyError> {
+        Verifier::check_digest(&self.digest(), signature, public_key)
+    }
+
+    /// [`finish`](Verifier::finish) for a payload whose [`digest`](Verifier::digest) was taken already.
+    pub fn check_digest(digest: &[u8; 64], signature: &[u8; 64], public_key: &[u8; 32]) -> Result<(), VerifyError> {
         if !s_below_order(signature) {
             return Err(VerifyError::Signature);
         }
-        check(&self.digest(), signature, public_key)
+        check(digest, signature, public_key)
     }
 
     /// [`finish`](Verifier::finish) with the header's signature, once exactly its payload length has been hashed.

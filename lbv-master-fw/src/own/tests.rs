@@ -4,7 +4,7 @@
 //! running image's, it is too large or the running image is on trial; the bootloader's refusal told once; and the
 //! trial confirmed once the operator is heard, or given up (back to the previous image) when not.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::ops::Range;
 use std::rc::Rc;
 use std::vec::Vec;
@@ -18,7 +18,7 @@ use update_image::{
 };
 
 use super::*;
-use crate::shared::VehicleState;
+use crate::shared::{LinkHealth, ThrusterReport, VehicleState};
 use crate::sim::master_flash;
 use crate::update::parse_header;
 
@@ -144,6 +144,19 @@ fn dfu(flash: &Stm32g4Flash, len: usize) -> Vec<u8> {
     flash.contents()[start..start + len].to_vec()
 }
 
+/// A backup register, kept by the test.
+struct Kept<'a>(&'a Cell<u32>);
+
+impl CrashRegister for Kept<'_> {
+    fn load(&mut self) -> u32 {
+        self.0.get()
+    }
+
+    fn store(&mut self, word: u32) {
+        self.0.set(word);
+    }
+}
+
 /// The console's side and what the master said.
 struct Bench<'a> {
     clock: Clock,
@@ -154,10 +167,21 @@ struct Bench<'a> {
 
 impl<'a> Bench<'a> {
     fn new<F: NorFlash>(own: &'a OwnImage, shared: &'a Shared, updating: &'a OwnFlash<F>) -> Self {
+        Self::with(own, shared, updating, 0, 0)
+    }
+
+    /// The task with `polled` thrusters to poll and a crash register holding `crashes`.
+    fn with<F: NorFlash, C: CrashRegister + 'a>(
+        own: &'a OwnImage,
+        shared: &'a Shared,
+        updating: &'a OwnFlash<F>,
+        polled: u8,
+        crashes: C,
+    ) -> Self {
         let clock = clock::take();
         let mut executor = Executor::new();
         executor.spawn(async move {
-            own_image_task(updating, own, shared).await;
+            own_image_task(updating, own, crashes, polled, shared).await;
         });
         let mut bench = Self {
             clock,
@@ -252,6 +276,32 @@ fn a_signed_image_goes_into_dfu_and_is_marked_for_the_swap_then_the_master_resta
     assert_eq!(texts(&said), ["master.lbvu: signature good, restarting"]);
     assert!(matches!(said.last(), Some(Outgoing::Reboot)), "{said:?}");
     assert_eq!(state_of(&flash), State::Swap, "marked for the bootloader's swap");
+}
+
+#[test]
+fn the_same_file_sent_again_keeps_the_pages_dfu_holds_and_writes_the_rest() {
+    let flash = flashed();
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    let file = signed(Target::Master, 5 * PAGE_BYTES + 100);
+    bench.upload(&file).unwrap();
+    let erases = flash.stats().erases;
+    // Sent again, as after a lost link or a reset: every page is in DFU already, and none is erased.
+    bench.upload(&file).unwrap();
+    assert_eq!(flash.stats().erases, erases, "every page kept");
+    // Another version of it, whose code is the same but for its image info: only the first page differs, and only
+    // it is written.
+    let other = signed_as(
+        ImageInfo::new(Target::Master, Version::new(0, 3, 0)),
+        5 * PAGE_BYTES + 100,
+    );
+    bench.upload(&other).unwrap();
+    assert_eq!(flash.stats().erases, erases + 1, "the first page written");
+    assert_eq!(dfu(&flash, other.len() - HEADER_LEN), other[HEADER_LEN..]);
+    own.apply(OPERATOR).unwrap();
+    bench.run(Duration::from_millis(100));
+    assert_eq!(state_of(&flash), State::Swap, "marked");
 }
 
 #[test]
@@ -351,6 +401,67 @@ fn an_image_on_trial_confirms_once_the_operator_is_heard_for_three_seconds() {
     ));
     // Now it takes an update again.
     bench.upload(&file).unwrap();
+}
+
+#[test]
+fn an_image_on_trial_confirms_only_once_every_thruster_has_been_polled() {
+    let flash = flashed();
+    on_trial(&flash);
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::with(&own, &shared, &updating, 2, 0);
+    bench.hear_operator(true);
+    bench.run(Duration::from_secs(4));
+    assert_eq!(state_of(&flash), State::Swap, "heard, but no thruster polled");
+    let polled = |index: usize| {
+        let health = LinkHealth {
+            polls: 1,
+            ..LinkHealth::default()
+        };
+        shared.thrusters[index]
+            .sender()
+            .send(ThrusterReport { health, status: None });
+    };
+    polled(0);
+    bench.run(Duration::from_millis(300));
+    assert_eq!(state_of(&flash), State::Swap, "one of two polled");
+    polled(1);
+    bench.run(Duration::from_millis(300));
+    assert_eq!(state_of(&flash), State::Boot, "confirmed");
+}
+
+#[test]
+fn the_previous_image_put_back_after_early_crashes_says_so_once_and_the_count_clears_after_the_window() {
+    let flash = flashed();
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    let updating = OwnFlash::new(flash.clone());
+    let register = Cell::new(
+        CrashCount {
+            crashes: 0,
+            restored: true,
+        }
+        .to_word(),
+    );
+    let mut bench = Bench::with(&own, &shared, &updating, 0, Kept(&register));
+    bench.run(Duration::from_secs(2));
+    assert!(texts(&bench.said()).is_empty(), "nobody heard yet");
+    bench.hear_operator(true);
+    bench.run(Duration::from_millis(300));
+    assert_eq!(texts(&bench.said()), ["master.lbvu: 3 early crashes: 0.1.0 restored"]);
+    assert_eq!(CrashCount::from_word(register.get()), CrashCount::default(), "told");
+    // A watchdog reset counted at this start: the count stands through the early window, and clears after it.
+    register.set(
+        CrashCount {
+            crashes: 2,
+            restored: false,
+        }
+        .to_word(),
+    );
+    bench.run(EARLY_WINDOW - Duration::from_millis(2500));
+    assert_eq!(CrashCount::from_word(register.get()).crashes, 2);
+    bench.run(Duration::from_millis(300));
+    assert_eq!(CrashCount::from_word(register.get()), CrashCount::default());
+    assert!(texts(&bench.said()).is_empty(), "told once");
 }
 
 #[test]

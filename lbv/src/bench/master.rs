@@ -21,7 +21,7 @@ use std::rc::Rc;
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
 use g431_hw::memory::MASTER_PARTITIONS;
-use lbv_boot::Outcome;
+use lbv_boot::{CrashCount, Outcome};
 use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::battery::CanFrame;
@@ -201,8 +201,26 @@ pub struct MasterBoard {
     pub cut_in_bootloader: Option<usize>,
     /// Where its update images go: every one recorded, across reboots.
     pub updates: UpdateRecorder,
+    /// The backup register the bootloader counts early crashes in (`g431_hw::backup::CRASH_REGISTER`): kept over
+    /// resets, cleared by a power cycle.
+    pub crash_register: Rc<Cell<u32>>,
+    /// The next boot follows a watchdog reset (a crash: [`MasterBoard::crash`]).
+    watchdog_reset: bool,
     reboot: RebootRequest,
     task: Option<TaskId>,
+}
+
+/// A backup register on the bench: a word kept over resets.
+struct BackupRegister(Rc<Cell<u32>>);
+
+impl lbv_master_fw::own::CrashRegister for BackupRegister {
+    fn load(&mut self) -> u32 {
+        self.0.get()
+    }
+
+    fn store(&mut self, word: u32) {
+        self.0.set(word);
+    }
 }
 
 /// The unique device id the bench's master reports in AUTOPILOT_VERSION, where a G431 reports its own: a fixed
@@ -235,6 +253,8 @@ impl MasterBoard {
             boot_outcome: None,
             cut_in_bootloader: None,
             updates: UpdateRecorder::default(),
+            crash_register: Rc::default(),
+            watchdog_reset: false,
             reboot: RebootRequest::default(),
             task: None,
         };
@@ -273,8 +293,17 @@ impl MasterBoard {
             line.to_master.reset_receiver();
         }
         self.cpu.reset();
+        if !self.flash.powered() {
+            self.crash_register.set(0);
+        }
         self.flash.power_on();
         self.start(wiring, executor);
+    }
+
+    /// The image crashes: it stops, and the watchdog resets the chip.
+    pub fn crash(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
+        self.watchdog_reset = true;
+        self.reboot(wiring, executor);
     }
 
     fn start(&mut self, wiring: &Wiring, executor: &mut Executor<'static>) {
@@ -287,7 +316,21 @@ impl MasterBoard {
         if let Some(bytes) = self.cut_in_bootloader.take() {
             self.flash.cut_power_after(bytes);
         }
-        self.boot_outcome = Some(lbv_boot::prepare(self.flash.clone(), &MASTER_PARTITIONS, || {}));
+        // The bootloader's count of early crashes, as its binding keeps it (`lbv-boot/src/stm32.rs`).
+        let crashes =
+            CrashCount::from_word(self.crash_register.get()).at_start(core::mem::take(&mut self.watchdog_reset));
+        self.crash_register.set(crashes.to_word());
+        let outcome = lbv_boot::prepare(self.flash.clone(), &MASTER_PARTITIONS, crashes, || {});
+        if let Outcome::Restored { .. } = outcome {
+            self.crash_register.set(
+                CrashCount {
+                    crashes: 0,
+                    restored: true,
+                }
+                .to_word(),
+            );
+        }
+        self.boot_outcome = Some(outcome);
         self.flash.stall_cpu(&self.cpu, FlashTiming::G474_DUAL_BANK);
         if !self.flash.powered() {
             return;
@@ -325,6 +368,7 @@ impl MasterBoard {
         let recorder = self.updates.clone();
         let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
         let flash = self.flash.clone();
+        let crash_register = self.crash_register.clone();
         executor.spawn_on(&self.cpu, async move {
             // The node's statics: what its console hands on, its bus tasks carry and its own update writes.
             let transfers = Transfers::new();
@@ -336,6 +380,7 @@ impl MasterBoard {
             let own = Updating {
                 flash: OwnFlash::new(flash),
                 image: &image,
+                crashes: BackupRegister(crash_register),
             };
             match script {
                 Some(script) => lbv_master_fw::run(with(ports, script, update, own), &config, &shared, &stats).await,

@@ -323,6 +323,11 @@ impl Bench {
         self.master.reboot(&self.wiring, &mut self.executor);
     }
 
+    /// The master's image crashes: the watchdog resets it.
+    pub fn crash_master(&mut self) {
+        self.master.crash(&self.wiring, &mut self.executor);
+    }
+
     /// Let `duration` of virtual time pass. The fixed-step engine takes whole steps (rounding `duration` up); on
     /// the event engine the clock ends exactly `duration` on, with what falls due then left for the next run.
     pub fn run_for(&mut self, duration: Duration) {

@@ -263,7 +263,14 @@ impl ThrusterBoard {
         if let Some(bytes) = self.cut_in_bootloader.take() {
             self.flash.cut_power_after(bytes);
         }
-        self.boot_outcome = Some(lbv_boot::prepare(self.flash.clone(), &THRUSTER_PARTITIONS, || {}));
+        // A bench thruster boots from power-off only (a power cycle clears the count of early crashes).
+        let crashes = lbv_boot::CrashCount::default();
+        self.boot_outcome = Some(lbv_boot::prepare(
+            self.flash.clone(),
+            &THRUSTER_PARTITIONS,
+            crashes,
+            || {},
+        ));
         if !self.flash.powered() {
             // The power went in the bootloader's work: the board stays off until the next boot.
             return;

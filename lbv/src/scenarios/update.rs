@@ -731,6 +731,46 @@ pub fn master_update(run: &mut Run) {
         format!("{read:?}"),
     );
     master_apply_holds_arming(run, &key);
+    master_crashes_early(run);
+}
+
+/// The confirmed master image crashes (its watchdog resets it) `times` times, each `after` s into its run.
+fn crash_master(run: &mut Run, times: usize, after: f64) {
+    for _ in 0..times {
+        run.run_for(after);
+        run.bench.note("the master's image crashes: watchdog reset");
+        run.bench.crash_master();
+    }
+}
+
+/// The image confirmed by the last step (0.5.0) crashes early: twice, then it runs past the early window, which
+/// clears the count, so one more crash undoes nothing; then three in a row, and the bootloader puts the image it
+/// replaced (0.3.0) back, which the master tells the operator.
+fn master_crashes_early(run: &mut Run) {
+    let (replaced, confirmed) = (Version::new(0, 3, 0), Version::new(0, 5, 0));
+    let start = run.bench.now();
+    crash_master(run, 2, 5.0);
+    run.run_for(update_image::EARLY_WINDOW_SECS as f64 + 1.0);
+    crash_master(run, 1, 5.0);
+    run.run_for(5.0);
+    let kept = master_runs(run);
+    crash_master(run, 2, 5.0);
+    // The undo takes the bootloader seconds of bank-1 flash work (two copies of every page), then the master
+    // starts and hears the operator.
+    run.run_for(15.0);
+    let texts = texts_since(run, start, "master.lbvu");
+    let restored = "master.lbvu: 3 early crashes: 0.3.0 restored";
+    run.check(
+        "a confirmed master image that crashes three times in a row early in its run is undone; crashes spread          past the early window are not",
+        kept == Some(confirmed)
+            && master_runs(run) == Some(replaced)
+            && matches!(run.bench.master.boot_outcome, Some(lbv_boot::Outcome::Restored { .. }))
+            && texts.iter().filter(|t| t.as_str() == restored).count() == 1,
+        format!(
+            "after the spread crashes {kept:?}, after three in a row {:?}, texts {texts:?}",
+            master_runs(run)
+        ),
+    );
 }
 
 /// Ask thruster `slot` which image it runs and wait up to `limit` s for the final COMMAND_ACK; the results of the
@@ -898,7 +938,16 @@ fn holds_and_answers(run: &mut Run, family: Family, key: &[u8; 32]) {
     };
     let (acks, _) = apply_with(run, 0, 60.0, on_trial, reset, 0.0);
     let reset_at = run.bench.now();
-    run.run_for(0.5);
+    // Until the new master hears the operator (the ground station's next heartbeat), which arming needs first.
+    let heard = |bench: &crate::bench::Bench| {
+        bench
+            .master
+            .shared
+            .vehicle
+            .try_get()
+            .is_some_and(|vehicle| vehicle.console_alive)
+    };
+    run.run_until(2.0, heard);
     let on_trial_after_reset = run.bench.thrusters[0].boot_state() == Some(State::Swap);
     let (refused, refused_said) = arm(run, reset_at, 0.3);
     let confirmed = run.run_until(30.0, |bench| bench.thrusters[0].boot_state() == Some(State::Boot));

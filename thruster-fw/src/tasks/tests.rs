@@ -1217,12 +1217,30 @@ fn poll(bench: &mut Bench, step: i8, duration: Duration) {
     }
 }
 
+/// The master asks the thruster its `Version` over the field-update extension, as it asks an image on trial every
+/// few seconds; the next reads of the poll get its reply.
+fn ask_version(bench: &Bench) {
+    use tmc_proto::ext::{Command, CommandFrame};
+    let frame = CommandFrame {
+        seq: 1,
+        command: Command::Version,
+    };
+    bench.send(frame.encode().as_bytes().to_vec());
+}
+
 #[test]
 fn a_new_image_confirms_itself_once_it_has_run_and_answered_the_master_at_rest() {
     let mut bench = Bench::on_trial();
     // Orders from the start: the trial's 25 orders come in half a second, its 30 watchdog rounds take 3 s.
     poll(&mut bench, 0, Duration::from_millis(2900));
     assert_eq!(bench.boot_state(), State::Swap, "confirmed before its watchdog rounds");
+    poll(&mut bench, 0, Duration::from_millis(200));
+    assert_eq!(
+        bench.boot_state(),
+        State::Swap,
+        "confirmed before the master has read an extension reply: the path of the next update"
+    );
+    ask_version(&bench);
     poll(&mut bench, 0, Duration::from_millis(200));
     assert_eq!(
         bench.boot_state(),
@@ -1241,7 +1259,9 @@ fn a_new_image_stays_on_trial_without_a_master_or_while_it_drives() {
     bench.elapse(Duration::from_secs(5));
     assert_eq!(bench.boot_state(), State::Swap, "no master has spoken to it");
 
-    // Ordered to turn: the state page's erase would stall commutation, so it waits for a zero order.
+    // Ordered to turn, its version asked: the state page's erase would stall commutation, so it waits for a zero
+    // order.
+    ask_version(&bench);
     let end = Instant::now() + Duration::from_secs(5);
     while Instant::now() < end {
         bench.order(40);
