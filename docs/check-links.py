@@ -8,7 +8,7 @@ with '/'). An #anchor into a .md file (or a bare #anchor, into the file itself) 
 GitHub-style slug: lowercase, spaces to '-', punctuation dropped except '-' and '_', a repeated heading getting
 -1, -2, ... Links with a scheme (http:, https:, mailto:, ...) are not checked. Code blocks are skipped.
 
-A code span that names a path in the repository (`lbv-master-fw/src/own.rs`, `docs/`: segments joined by '/',
+A code span that names a path in the repository (`lbv-master-fw/src/update/own.rs`, `docs/`: segments joined by '/',
 the first one a top-level file or directory of the repository) must name one that exists, so that prose cannot
 keep pointing at a file that moved or went. Spans with a space, a glob or a placeholder (`*`, `<`, `{`) are not
 paths and are not checked, nor are build outputs (under `target/`).

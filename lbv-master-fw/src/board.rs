@@ -44,7 +44,7 @@ impl CrashRegister {
     }
 }
 
-impl lbv_master_fw::own::CrashRegister for CrashRegister {
+impl lbv_master_fw::update::own::CrashRegister for CrashRegister {
     fn load(&mut self) -> u32 {
         pac::TAMP.bkpr(g431_hw::backup::CRASH_REGISTER).read().bkp()
     }

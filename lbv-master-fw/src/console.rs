@@ -2,7 +2,7 @@
 //! pymavlink scripts.
 //!
 //! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too) through a [`Receiver`], which checks their
-//!   signatures when a key is set ([`crate::signing`]), decodes the few messages the master understands
+//!   signatures when a key is set ([`crate::console::signing`]), decodes the few messages the master understands
 //!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it; MAVLink
 //!   FTP and the apply command go to the update server it runs instead ([`crate::update`]). It never stops reading
 //!   for the update or for anyone on the link, and limits per requester what makes the vehicle send more than it
@@ -32,12 +32,12 @@ use embassy_time::{Duration, Instant, Ticker, Timer};
 use embedded_io_async::{Read, Write};
 use mavlink_core::MessageData;
 
-use crate::framing::{Event, Frame, FrameParser};
+use crate::console::framing::{Event, Frame, FrameParser};
+use crate::console::signing::{Refusal, SigningKey, SigningState};
 use crate::shared::{
     Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction,
     UpdateCommand, UpdateRequest,
 };
-use crate::signing::{Refusal, SigningKey, SigningState};
 use crate::thrusters::ThrusterTable;
 use crate::update::UpdateSink;
 #[cfg(not(feature = "acceptance"))]
@@ -46,9 +46,11 @@ use crate::update::Updates;
 use crate::update::ftp::Opcode;
 use limit::Limiter;
 
+pub mod framing;
 pub mod inbound;
 pub mod limit;
 pub mod outbound;
+pub mod signing;
 
 include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 

@@ -12,17 +12,13 @@ pub mod acceptance;
 pub mod battery;
 pub mod config;
 pub mod console;
-pub mod courier;
 pub mod follow;
-pub mod framing;
 pub mod mixer;
-pub mod own;
 pub mod params;
 pub mod poll;
 pub mod recovery;
 pub mod settings;
 pub mod shared;
-pub mod signing;
 pub mod thrusters;
 pub mod update;
 pub mod vehicle;
@@ -36,13 +32,13 @@ pub use poll::{PollError, poll_thruster};
 
 use battery::{CanReceiver, can_task};
 use console::{ConsoleStats, console_rx_task, console_tx_task};
-use courier::Transfers;
-use own::OwnUpdate;
 use recovery::BusRecovery;
 use settings::{Reboot, SettingsStore, settings_task};
 use shared::{BUSES, Severity, Shared, text};
 use thrusters::{Links, bus_task};
 use update::UpdateSink;
+use update::courier::Transfers;
+use update::own::OwnUpdate;
 use vehicle::vehicle_task;
 
 /// What an image that takes update files signed with the development key (update-image's `UPDATE_KEY_IS_DEV`)
@@ -75,7 +71,7 @@ pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly, 
     /// Where the update images received over MAVLink FTP go ([`update`]): the vehicle's [`update::VehicleSink`],
     /// or [`update::CheckOnly`] in an image that sends none on (the acceptance image, the tests).
     pub update: U,
-    /// The master's own update ([`own`]): [`own::Updating`] on its flash, or `()` without a bootloader.
+    /// The master's own update ([`update::own`]): [`update::own::Updating`] on its flash, or `()` without a bootloader.
     pub own: O,
 }
 
@@ -104,7 +100,7 @@ impl BusWork for Polling<'_> {
     async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared) {
         let [first, second, third] = buses;
         let links = Links::new(&config.poll);
-        // Before the vehicle can arm, every thruster is asked what it runs: it may have come up on trial ([`courier`]).
+        // Before the vehicle can arm, every thruster is asked what it runs: it may have come up on trial ([`update::courier`]).
         if let Some(transfers) = self.transfers {
             transfers.with(|courier| courier.expect(config.thrusters.as_slice().len()));
             transfers.publish(shared);
@@ -157,7 +153,7 @@ async fn poll_bus<B: I2c + BusRecovery>(
 /// the console tasks through `console`), which live as long as the node: a reboot starts again from fresh ones.
 ///
 /// Before any task runs, the settings are published and, with a signing key, a new signing reservation is stored
-/// past the one loaded (the start's floor, [`signing`]): the first frame read (one already waiting in the UART) is
+/// past the one loaded (the start's floor, [`console::signing`]): the first frame read (one already waiting in the UART) is
 /// checked with the key, and the first telemetry goes out signed, above every timestamp used before the start.
 pub async fn run<B, C, R, W, S, X, J, U, O>(
     ports: Ports<B, C, R, W, S, X, J, U, O>,
@@ -196,7 +192,7 @@ where
         );
     }
     if let Some(key) = stored.signing {
-        let reservation = signing::reservation_after(key.timestamp);
+        let reservation = console::signing::reservation_after(key.timestamp);
         match settings.save_signing_time(reservation).await {
             Ok(()) => shared.signing_stored.sender().send(reservation),
             // The console signs and accepts nothing until the settings task stores one.
@@ -207,7 +203,7 @@ where
         shared.say(Severity::Warning, text(format_args!("{DEV_KEY_TEXT}")));
     }
     shared.settings.sender().send(stored);
-    // Until the own update has read whether the running image is on trial, no arm is taken ([`own`]).
+    // Until the own update has read whether the running image is on trial, no arm is taken ([`update::own`]).
     shared.holds.set_master(Some(shared::UpdateHold::MasterStarting));
     console.follow(shared);
     let buses = async {

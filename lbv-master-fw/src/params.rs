@@ -30,8 +30,8 @@ use core::fmt;
 
 use embassy_time::Duration;
 
+use crate::console::signing::SigningKey;
 use crate::mixer::FrameKind;
-use crate::signing::SigningKey;
 
 /// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
 pub type ParamId = [u8; 16];

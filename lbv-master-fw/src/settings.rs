@@ -10,7 +10,7 @@
 //! A record holds a format byte, the parameter count, each parameter (an `i32` in its own unit, by index), the
 //! signing key (secret and set-up timestamp; all zero: signing off) and the signing link's reservation (a
 //! timestamp ahead of every one used, stored at each start and about once a minute while the link advances, so a
-//! restart does not reopen the door to old signed frames: [`crate::signing`]). A stored
+//! restart does not reopen the door to old signed frames: [`crate::console::signing`]). A stored
 //! value that is not valid for its parameter reads as the default. One record of everything (rather than one item
 //! per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code is
 //! no larger.
@@ -30,9 +30,9 @@ use sequential_storage::queue::{QueueConfig, QueueStorage};
 
 use g431_hw::memory::{self, Span};
 
+use crate::console::signing::SigningKey;
 use crate::params::{PARAM_COUNT, Param, Settings};
 use crate::shared::{Severity, Shared, text};
-use crate::signing::SigningKey;
 
 /// The master's flash kept for the settings ([`memory::MASTER_STORAGE`]), as offsets from the start of flash: the
 /// top 16 KiB of the STM32G474RE, eight 2 KiB pages of bank 2. `memory.x` keeps the images and DFU below.

@@ -119,7 +119,7 @@ pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
 /// commands left to the vendor. MAVLink has no command that applies a file received over FTP; MAV_CMD_DO_UPGRADE
 /// (247, work in progress) names the component to upgrade by MAVLink component id, not a thruster slot.
 pub const MAV_CMD_LBV_APPLY_UPDATE: u16 = 31010;
-/// Ask a thruster which image it runs, over the field update's extension ([`crate::courier`]): MAV_CMD_USER_2.
+/// Ask a thruster which image it runs, over the field update's extension ([`crate::update::courier`]): MAV_CMD_USER_2.
 pub const MAV_CMD_LBV_QUERY_VERSION: u16 = 31011;
 
 /// FILE_TRANSFER_PROTOCOL's payload: MAVLink FTP's header and data ([`crate::update::ftp`]).
@@ -616,14 +616,14 @@ pub struct Shared {
     pub outbox: Channel<Mutex, Outgoing, 16>,
     /// Vehicle -> settings store, console: the parameters and the signing key in force.
     pub settings: Watch<Mutex, Settings, 1>,
-    /// Console -> settings store: the signing link's next reservation, to store ([`crate::signing`]).
+    /// Console -> settings store: the signing link's next reservation, to store ([`crate::console::signing`]).
     pub signing_time: Watch<Mutex, u64, 1>,
     /// Settings store -> console: the signing reservation in flash, once written.
     pub signing_stored: Watch<Mutex, u64, 1>,
     /// Console -> settings store: the reboot's acknowledgement has been sent; restart.
     pub reboot: Signal<Mutex, ()>,
     /// The master's own update -> update server: the master's image is marked for the swap and it restarts into
-    /// it; no update file changes until then ([`crate::own`]). Only a restart clears it.
+    /// it; no update file changes until then ([`crate::update::own`]). Only a restart clears it.
     pub restarting: AtomicBool,
     /// The master's own update, the courier's users -> vehicle: what keeps the vehicle from arming.
     pub holds: UpdateHolds,

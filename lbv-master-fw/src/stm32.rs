@@ -20,9 +20,9 @@ use embassy_sync::mutex::Mutex;
 use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::own::{OwnFlash, OwnImage, Updating};
 use lbv_master_fw::settings::{DATA_PAGES, Reboot, Store};
 use lbv_master_fw::shared::Shared;
+use lbv_master_fw::update::own::{OwnFlash, OwnImage, Updating};
 use lbv_master_fw::{CONFIG, MasterConfig, Ports};
 use static_cell::StaticCell;
 
@@ -88,8 +88,8 @@ type Sink = lbv_master_fw::update::CheckOnly;
 /// would be `.data`, its initial values kept in flash.
 #[cfg(not(feature = "acceptance"))]
 fn work_and_sink(own: &'static OwnImage) -> (Work, Sink) {
-    static TRANSFERS: StaticCell<lbv_master_fw::courier::Transfers> = StaticCell::new();
-    let transfers: &'static _ = TRANSFERS.init_with(lbv_master_fw::courier::Transfers::new);
+    static TRANSFERS: StaticCell<lbv_master_fw::update::courier::Transfers> = StaticCell::new();
+    let transfers: &'static _ = TRANSFERS.init_with(lbv_master_fw::update::courier::Transfers::new);
     (
         lbv_master_fw::Polling {
             transfers: Some(transfers),

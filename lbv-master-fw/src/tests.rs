@@ -204,7 +204,7 @@ fn an_arm_waiting_when_the_master_starts_on_trial_is_refused_until_its_image_has
     use g431_hw::memory::{FLASH_ORIGIN, MASTER_PARTITIONS};
     use lbv_station::GroundStation;
 
-    use crate::own::{OwnFlash, OwnImage, Updating};
+    use crate::update::own::{OwnFlash, OwnImage, Updating};
 
     // The master's flash as the bootloader leaves it after a swap: the running image on trial.
     let flash = master_flash();
@@ -284,8 +284,8 @@ fn an_arm_waiting_when_the_master_starts_on_trial_is_refused_until_its_image_has
 
 #[test]
 fn polling_holds_arming_until_every_thruster_of_the_table_has_said_what_it_runs_or_is_found_missing() {
-    use crate::courier::Transfers;
     use crate::shared::UpdateHold;
+    use crate::update::courier::Transfers;
     use crate::{BusWork, CONFIG};
 
     // No thruster on the buses: each is found missing by its first poll, and not waited for after it.

@@ -28,11 +28,11 @@ use embedded_hal::i2c::ErrorKind;
 use embedded_hal_async::i2c::I2c;
 use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm};
 
-use crate::courier::{self, ExchangeError, Transfers};
 use crate::follow::{FollowChange, FollowCheck};
 use crate::poll::{PollError, Polled, poll_thruster};
 use crate::recovery::BusRecovery;
 use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
+use crate::update::courier::{self, ExchangeError, Transfers};
 
 #[cfg(test)]
 mod tests;
@@ -1008,7 +1008,7 @@ impl BusState<'_> {
 /// and fault changes go to the console as texts.
 ///
 /// Its thrusters' link health is kept in `links`, which the other bus tasks may share. With `transfers`, each cycle
-/// also carries one exchange of an update image on its way to a thruster of the bus ([`crate::courier`]).
+/// also carries one exchange of an update image on its way to a thruster of the bus ([`crate::update::courier`]).
 #[allow(
     clippy::too_many_arguments,
     reason = "the bus, its place, and what it shares with the other tasks"

@@ -7,8 +7,8 @@
 //! MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 255 the master) then applies an image received whole.
 //!
 //! The master keeps no image itself: each write goes on to an [`UpdateSink`] as it comes ([`VehicleSink`]): for a
-//! thruster, the thruster's DFU partition over its bus ([`crate::courier`]); for the master, its own DFU
-//! partition ([`crate::own`]). A sink takes bytes in order, so the server does too (FTP clients write in
+//! thruster, the thruster's DFU partition over its bus ([`crate::update::courier`]); for the master, its own DFU
+//! partition ([`crate::update::own`]). A sink takes bytes in order, so the server does too (FTP clients write in
 //! order):
 //!
 //! - a write at the next byte expected is taken;
@@ -46,7 +46,7 @@
 //!   uploading it").
 //! - Only the operator's ground station (`SYSID_MYGCS`) may write, remove or apply ([`Nak::FileProtected`],
 //!   COMMAND_ACK DENIED); anyone may list and read CRCs. With a signing key set, unsigned FTP frames are refused
-//!   before they get here, as every unsigned frame is ([`crate::signing`]).
+//!   before they get here, as every unsigned frame is ([`crate::console::signing`]).
 //! - Without a signing key anyone on the link can claim `SYSID_MYGCS`: nothing is written, removed or applied
 //!   ([`Nak::Fail`], COMMAND_ACK DENIED, and "refused, the link is not signed") unless `LBV_UPD_UNSIGNED` is 1
 //!   ([`crate::params::Param::UnsignedUpdates`], [`Context::unsigned`]).
@@ -61,7 +61,12 @@
 //!
 //! Slots count from 0 here, as the paths do: `thruster0.lbvu` is T1 of the console's texts.
 
+pub mod courier;
 pub mod ftp;
+pub mod header;
+pub mod own;
+
+pub use header::{HEADER_LEN, ImageHeader, parse_header};
 
 use core::fmt::{self, Write as _};
 use core::sync::atomic::Ordering;
@@ -69,14 +74,15 @@ use core::sync::atomic::Ordering;
 use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
-use crate::courier::Transfers;
-use crate::own::{NotTaken, OwnImage};
 use crate::shared::{
     AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction,
     UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
+use crate::update::courier::Transfers;
+use crate::update::own::{NotTaken, OwnImage};
 use ftp::{ACK, Nak, Opcode, Request};
+use update_image::HeaderError;
 
 /// Whether the image has the update server. The acceptance image leaves it out: it runs only on the two-dev-kit
 /// bench with its test script, and its flash budget has no room left beside the script (its console answers FTP
@@ -88,8 +94,6 @@ pub const ENABLED: bool = !cfg!(feature = "acceptance");
 pub const TAKEOVER_IDLE: Duration = Duration::from_secs(3);
 /// Progress reports come at most this often.
 pub const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
-/// The update file's header (the `update-image` crate's format).
-pub const HEADER_LEN: usize = 80;
 /// The longest thruster payload: its ACTIVE partition, which the payload is an image of.
 pub const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
 /// The longest master payload: its ACTIVE partition, which the payload is an image of.
@@ -127,63 +131,6 @@ impl UpdateTarget {
             Self::Master => MASTER_SLOT,
         }
     }
-}
-
-/// What an update file's header says (the fields the server routes by; `update-image` checks the rest).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct ImageHeader {
-    /// The target byte: 1 SeaBotix thruster, 2 Legacy thruster, 3 master.
-    pub target: u8,
-    /// The payload's length after the header.
-    pub payload_len: u32,
-    /// The header as received.
-    pub bytes: [u8; HEADER_LEN],
-}
-
-impl ImageHeader {
-    /// The whole file's length: header and payload.
-    pub fn file_len(&self) -> u32 {
-        self.payload_len.saturating_add(HEADER_LEN as u32)
-    }
-}
-
-/// Why a header is refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum HeaderError {
-    /// Not `LBVU`: not an update file.
-    Magic,
-    /// A format other than 1.
-    Format(u8),
-    /// A target byte that names no target.
-    Target(u8),
-    /// The reserved field is not zero.
-    Reserved,
-}
-
-/// The header of an update file: magic `LBVU`, format 1, target 1..=3, reserved 0, payload length u32 LE (then
-/// the version and the signature, not read here). A stand-in for `update_image::Header::parse`, which it will
-/// give way to.
-pub fn parse_header(bytes: &[u8; HEADER_LEN]) -> Result<ImageHeader, HeaderError> {
-    let [m0, m1, m2, m3, format, target, r0, r1, l0, l1, l2, l3, ..] = *bytes;
-    if [m0, m1, m2, m3] != *b"LBVU" {
-        return Err(HeaderError::Magic);
-    }
-    if format != 1 {
-        return Err(HeaderError::Format(format));
-    }
-    if !(1..=3).contains(&target) {
-        return Err(HeaderError::Target(target));
-    }
-    if [r0, r1] != [0, 0] {
-        return Err(HeaderError::Reserved);
-    }
-    Ok(ImageHeader {
-        target,
-        payload_len: u32::from_le_bytes([l0, l1, l2, l3]),
-        bytes: *bytes,
-    })
 }
 
 /// The target byte of images for `family`'s thrusters.
@@ -293,8 +240,8 @@ impl UpdateSink for CheckOnly {
     }
 }
 
-/// The vehicle's sink: thruster images go on to their thrusters over the bus as they come ([`crate::courier`],
-/// through the [`Transfers`] the bus tasks serve), the master's own into its DFU partition ([`crate::own`], through
+/// The vehicle's sink: thruster images go on to their thrusters over the bus as they come ([`crate::update::courier`],
+/// through the [`Transfers`] the bus tasks serve), the master's own into its DFU partition ([`crate::update::own`], through
 /// the [`OwnImage`] its own task serves).
 #[derive(Debug, Clone, Copy)]
 pub struct VehicleSink<'a> {
@@ -875,7 +822,7 @@ impl UpdateServer {
             UpdateTarget::Master => (3, MASTER_MAX_PAYLOAD),
         };
         match parse_header(bytes) {
-            Err(HeaderError::Magic) => Err("not an update file"),
+            Err(HeaderError::Magic(_)) => Err("not an update file"),
             Err(_) => Err("bad update file header"),
             Ok(header) if header.target != kind => {
                 say(

@@ -67,6 +67,7 @@ use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Ticker, with_deadline};
 use tmc_proto::{Order, Speed};
 
+use crate::console::signing::SigningKey;
 use crate::mixer::{FrameKind, ManualInput, mix, round_div};
 use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
@@ -74,7 +75,6 @@ use crate::shared::{
     MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender, Severity, Shared, UpdateHold, VehicleState,
     text,
 };
-use crate::signing::SigningKey;
 
 /// Longest motor test.
 pub const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);

@@ -14,11 +14,11 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use console_support::{Line, clock, run_console, run_rx_requests, run_tx};
 use embassy_time::{Duration, Instant};
+use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::lbv::MavMessage;
+use lbv_master_fw::console::signing::SigningKey;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, inbound};
-use lbv_master_fw::framing::{Event, FrameParser};
 use lbv_master_fw::shared::{Command, Shared};
-use lbv_master_fw::signing::SigningKey;
 use lbv_master_fw::vehicle::VehicleConfig;
 use lbv_station::GCS_HEARTBEAT;
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, SigningConfig, SigningData};

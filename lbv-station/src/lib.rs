@@ -19,12 +19,12 @@ mod upload;
 use alloc::vec::Vec;
 
 use embassy_time::{Duration, Instant};
+use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{
     COMMAND_LONG_DATA, FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MavAutopilot, MavMessage,
     MavModeFlag, MavParamType, MavState, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
     SETUP_SIGNING_DATA,
 };
-use lbv_master_fw::framing::{Event, FrameParser};
 use lbv_master_fw::mixer::ManualInput;
 use lbv_master_fw::shared::{MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN};
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MavlinkVersion, Message, MessageData};

@@ -3,7 +3,7 @@
 use alloc::vec::Vec;
 
 use embassy_time::Instant;
-use lbv_master_fw::framing::Frame;
+use lbv_master_fw::console::framing::Frame;
 use mavlink_core::consts::v2::IFLAG_SIGNED;
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, MessageData};
 

@@ -16,11 +16,13 @@ use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::{Duration, Instant, Timer};
 use static_cell::StaticCell;
+use thruster_fw::Config;
 use thruster_fw::commutation::{BridgeDrive, COAST};
 use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
 use thruster_fw::motorless::{HoldInput, ModelBridge, ModelHalls, ModelSensors, MotorModel, Motorless, WaterInput};
-use thruster_fw::tasks::{self, Bridge as _, Config, HallSensors, RawSample, Sensors, Shared};
+use thruster_fw::shared::Shared;
+use thruster_fw::tasks::{self, Bridge as _, HallSensors, RawSample, Sensors};
 use thruster_fw::{Duty, Ports};
 use tmc_proto::{Family, MotorKind};
 

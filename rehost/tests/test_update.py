@@ -181,7 +181,7 @@ def apply_master(chip, ground):
 
 
 def test_a_master_image_put_over_ftp_is_checked_on_the_chip_and_marked_for_the_swap(expected, figures):
-    """The master image's own update (lbv-master-fw/src/own.rs) on the modelled G474: an update file put over MAVLink
+    """The master image's own update (lbv-master-fw/src/update/own.rs) on the modelled G474: an update file put over MAVLink
     FTP on the VCP goes into DFU (bank 2, by embassy-stm32's async flash driver and the FLASH interrupt); applied,
     a signature one bit off is refused and marks nothing, and the good one is checked with salty, its ticket written
     for the bootloader, embassy-boot's state marked for the swap, and the master restarts. (While a page goes to

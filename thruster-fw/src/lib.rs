@@ -12,6 +12,7 @@
 mod fmt;
 
 pub mod commutation;
+pub mod config;
 pub mod control;
 pub mod drive;
 pub mod failsafe;
@@ -22,6 +23,7 @@ pub mod i2c_slave;
 pub mod motorless;
 pub mod overcurrent;
 pub mod sensors;
+pub mod shared;
 pub mod speed;
 pub mod tasks;
 pub mod trial;
@@ -35,9 +37,10 @@ extern crate self as thruster_fw;
 #[path = "../../lbv/src/bench/ports/thruster.rs"]
 mod sim;
 
+pub use config::Config;
 pub use drive::{Direction, Duty};
 pub use i2c_slave::{Answer, CommandErrors, I2cTarget, MasterLink, OrderErrors, Request, ServeEvent, serve};
-pub use tasks::{Config, Ports, run, run_commutation};
+pub use tasks::{Ports, run, run_commutation};
 
 use tmc_proto::{Family, MotorKind};
 

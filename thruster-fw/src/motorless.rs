@@ -21,10 +21,11 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_time::{Duration, Instant, Timer};
 
 use crate::commutation::{BridgeDrive, COAST};
+use crate::config::Config;
 use crate::drive::Duty;
 use crate::hall::{HallState, hall_state_at};
 use crate::sensors::CurrentSense;
-use crate::tasks::{Bridge, Config, HallSensors, RawSample, Sensors};
+use crate::tasks::{Bridge, HallSensors, RawSample, Sensors};
 
 /// Full-scale speed of the order encoding, rpm (IDS 8.3.2).
 const FULL_SCALE_RPM: f32 = tmc_proto::Speed::FULL_SCALE_RPM as f32;

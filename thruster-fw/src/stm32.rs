@@ -14,7 +14,7 @@ use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
 use g431_hw::memory::{Span, THRUSTER_PARTITIONS};
 use thruster_fw::faults::ResetKind;
-use thruster_fw::tasks::Shared;
+use thruster_fw::shared::Shared;
 use thruster_fw::{CONFIG, FAMILY, Ports};
 
 use crate::board::{self, BackupLatch, BootRecord, ImageSwap, Iwdg, SlavePort};

@@ -6,27 +6,21 @@ use core::cell::Cell;
 use embassy_futures::join::{join, join5};
 use embassy_futures::select::select3;
 
-use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::signal::Signal;
-use embassy_sync::watch::Watch;
 use embassy_time::{Duration, Instant, Ticker, Timer, with_timeout};
 use embedded_storage::nor_flash::NorFlash;
-use tmc_proto::{Family, MotorKind, SeaBotixStatus, StatusFrame};
+use tmc_proto::{Family, MotorKind, SeaBotixStatus};
 
 use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
+use crate::config::{COMMUTATION_HEARTBEAT, Config, LISTEN_HEARTBEAT};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
-use crate::failsafe::LinkFailsafe;
-use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector, Thresholds};
+use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector};
 use crate::hall::{HallState, HallTracker};
-use crate::health::Health;
 use crate::i2c_slave::{Answer, I2cTarget, MasterLink, ServeEvent, serve};
 use crate::overcurrent::TripRule;
-use crate::sensors::{CurrentSense, Ntc, WaterSensor};
-use crate::speed::SpeedConfig;
+use crate::shared::{Shared, TaskId};
 use crate::trial::{BootState, trial_task};
-use crate::update::{Replies, Updater, update_task};
+use crate::update::{Updater, update_task};
 
 /// The three hall sensor inputs.
 #[allow(async_fn_in_trait)]
@@ -74,217 +68,10 @@ pub trait Watchdog {
     fn feed(&mut self);
 }
 
-/// Everything fixed at build time for one controller.
-#[derive(Debug, Clone)]
-pub struct Config {
-    /// Controller family, which sets the address, the message types and the fault semantics.
-    pub family: Family,
-    /// Brushless (hall commutation, closed speed loop) or brushed (H-bridge, open loop).
-    pub motor: MotorKind,
-    /// Motor pole pairs, for rpm from hall edges.
-    pub pole_pairs: u8,
-    /// Link failsafe timeout.
-    pub link_timeout: Duration,
-    /// Speed loop tuning.
-    pub speed: SpeedConfig,
-    /// Fault thresholds.
-    pub thresholds: Thresholds,
-    /// Water-sensor divider.
-    pub water: WaterSensor,
-    /// The sensor of the temperature the status reports (IDS 8.4.2 TEMPERATURE).
-    pub ntc: Ntc,
-    /// Motor current sense.
-    pub current: CurrentSense,
-    /// The I2C slave port.
-    pub bus: SlaveBus,
-    /// The independent watchdog.
-    pub watchdog: WatchdogTiming,
-}
-
-/// The thruster interface's bus as the slave sees it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct SlaveBus {
-    /// SCL frequency, Hz (IDS 6.4.1: 100 kbit/s).
-    pub frequency_hz: u32,
-    /// A transfer stalled this long (SMBus's SCL-low timeout) is abandoned and the port re-initialised, so the
-    /// controller never holds the bus (IDS 6.6.2). embassy-stm32's default is 1 s.
-    pub timeout: Duration,
-}
-
-/// The independent watchdog's timing: fed every `feed` while every task reports progress; a chip left unfed for
-/// `timeout` resets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct WatchdogTiming {
-    /// How often the health task checks the tasks and feeds the watchdog.
-    pub feed: Duration,
-    /// How long the watchdog waits unfed before it resets the chip.
-    pub timeout: Duration,
-}
-
-impl WatchdogTiming {
-    /// The timeout in microseconds, as the IWDG driver takes it (saturated).
-    pub const fn timeout_us(&self) -> u32 {
-        saturating_u32(self.timeout.as_micros())
-    }
-
-    /// The schedule the IWDG set-up is checked against: the slowest task to report goes at most this long between
-    /// reports: the I2C task one listen heartbeat plus one transfer's timeout, the commutation task (woken only by
-    /// hall edges and changes to drive) one commutation heartbeat; the others report every millisecond.
-    pub const fn schedule(&self, bus: &SlaveBus) -> g431_hw::iwdg::Schedule {
-        let i2c = LISTEN_HEARTBEAT.as_micros().saturating_add(bus.timeout.as_micros());
-        let commutation = COMMUTATION_HEARTBEAT.as_micros();
-        g431_hw::iwdg::Schedule {
-            feed_period_us: saturating_u32(self.feed.as_micros()),
-            slowest_report_us: saturating_u32(if i2c > commutation { i2c } else { commutation }),
-            timeout_us: self.timeout_us(),
-        }
-    }
-}
-
-const fn saturating_u32(value: u64) -> u32 {
-    if value > u32::MAX as u64 {
-        u32::MAX
-    } else {
-        value as u32
-    }
-}
-
-impl Config {
-    /// The reference hardware: a 4-pole-pair hall-sensored motor on an X-NUCLEO-IHM08M1, the water-sensor
-    /// electrodes over a 1 Mohm pull-down (the 1 Mohm water threshold sits at mid-scale, where the divider resolves
-    /// best), the winding's NTC for a brushless motor and the power stage's for a brushed one, the spec's
-    /// thresholds and a 1 s failsafe.
-    pub const fn reference(family: Family, motor: MotorKind) -> Config {
-        Config {
-            family,
-            motor,
-            pole_pairs: 4,
-            link_timeout: LinkFailsafe::DEFAULT_TIMEOUT,
-            speed: match motor {
-                MotorKind::Brushless => SpeedConfig::BRUSHLESS_DEFAULT,
-                MotorKind::Brushed => SpeedConfig::BRUSHED_DEFAULT,
-            },
-            thresholds: Thresholds::SPEC,
-            water: WaterSensor {
-                pull_down_ohms: 1_000_000,
-            },
-            ntc: match motor {
-                MotorKind::Brushless => Ntc::MOTOR,
-                MotorKind::Brushed => Ntc::IHM08M1,
-            },
-            // IHM08M1: 10 mohm shunt, gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 ohm * 5.18) = 15.6 mA per count.
-            current: CurrentSense {
-                offset_raw: 2048,
-                milliamps_per_count: 16,
-            },
-            bus: SlaveBus {
-                frequency_hz: 100_000,
-                timeout: Duration::from_millis(25),
-            },
-            // Fed every 100 ms: longer than the slowest task's gap between reports (the I2C task's listen
-            // heartbeat plus one transfer's timeout, 75 ms), so a healthy controller never misses a feed; the
-            // 250 ms timeout outlasts two feeds even at the fastest LSI (`g431_hw::iwdg::Schedule`).
-            watchdog: WatchdogTiming {
-                feed: Duration::from_millis(100),
-                timeout: Duration::from_millis(250),
-            },
-        }
-    }
-}
-
-/// The tasks that report to the watchdog.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u8)]
-pub enum TaskId {
-    /// The I2C slave.
-    I2c = 0,
-    /// Commutation.
-    Commutation = 1,
-    /// Fault sampling.
-    Faults = 2,
-    /// Speed control.
-    Control = 3,
-}
-
-/// How many tasks report to the watchdog.
-pub const TASKS: u8 = 4;
-
 /// Fault inputs are sampled at 1 kHz (IDS faults must be seen within one sample).
 pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 /// The speed loop runs at 1 kHz.
 pub const CONTROL_PERIOD: Duration = Duration::from_millis(1);
-/// How long the I2C task waits for its address before it reports itself alive anyway.
-pub const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
-/// How long the commutation task waits for a hall edge or a change to drive before it reports itself alive anyway
-/// (a motor at rest, or turning too slowly for an edge, with its duty unchanged).
-pub const COMMUTATION_HEARTBEAT: Duration = Duration::from_millis(20);
-
-type Mutex = CriticalSectionRawMutex;
-
-/// The channels between one controller's tasks. Every field holds the latest value: a task reads what it needs
-/// when it needs it, and nobody waits on a slower task.
-pub struct Shared {
-    /// I2C -> control, faults: the master's last order and when it last spoke.
-    pub link: Watch<Mutex, LinkUpdate, 1>,
-    /// Commutation -> control, faults: the hall tracker after the latest edge.
-    pub hall: Watch<Mutex, HallTracker, 1>,
-    /// Faults -> control, commutation: the fault verdict and measurements.
-    pub sensed: Watch<Mutex, Sensed, 1>,
-    /// Control -> commutation, faults: the duty to apply.
-    pub duty: Watch<Mutex, Duty, 1>,
-    /// Control -> I2C: the status frame for the next read.
-    pub status: Watch<Mutex, StatusFrame, 1>,
-    /// Wakes the commutation task when the duty or the fault verdict changed.
-    pub wake: Signal<Mutex, ()>,
-    /// I2C <-> update: the field-update extension's latest command and its reply for the next read; trial ->
-    /// update: whether the image is on trial.
-    pub replies: Replies,
-    /// Fault bits set at any sample since the last status read carried them (see [`Shared::note_unread`]).
-    unread: BlockingMutex<Mutex, Cell<u8>>,
-    /// Task heartbeats for the watchdog.
-    pub health: Health,
-}
-
-impl Shared {
-    /// Empty channels.
-    pub const fn new() -> Self {
-        Self {
-            link: Watch::new(),
-            hall: Watch::new(),
-            sensed: Watch::new(),
-            duty: Watch::new(),
-            status: Watch::new(),
-            wake: Signal::new(),
-            replies: Replies::new(),
-            unread: BlockingMutex::new(Cell::new(0)),
-            health: Health::new(TASKS),
-        }
-    }
-
-    /// Fault bits (the status's fault field) set now. They go into every status read until one read has carried
-    /// them, so a fault that sets and clears between two reads is still seen (docs/decisions.md D14).
-    pub fn note_unread(&self, bits: u8) {
-        self.unread.lock(|unread| unread.set(unread.get() | bits));
-    }
-
-    /// Take the bits noted since the last take, for the read being served.
-    fn take_unread(&self) -> u8 {
-        self.unread.lock(|unread| unread.replace(0))
-    }
-}
-
-impl core::fmt::Debug for Shared {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Shared").finish_non_exhaustive()
-    }
-}
-
-impl Default for Shared {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
 /// The I2C slave: takes orders, answers reads with the frame the control task keeps ready, re-initialises the
 /// peripheral after any error (including a transfer stalled past the peripheral's timeout). Extension commands go
 /// to the update task, and the read after one gets its reply ([`crate::update`]) instead of the status.

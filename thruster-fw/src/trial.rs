@@ -12,7 +12,7 @@ use embassy_time::{Duration, Ticker, Timer};
 
 use crate::control::LinkUpdate;
 use crate::drive::Duty;
-use crate::tasks::Shared;
+use crate::shared::Shared;
 
 /// The bootloader's record of the image that runs (embassy-boot's state partition).
 #[allow(async_fn_in_trait)]

@@ -2,7 +2,7 @@
 //! master writes a signed image into the DFU partition over the thrusters' bus.
 //!
 //! The I2C task hands each valid extension command to [`update_task`] (through [`Shared`]) and answers the next
-//! read with the reply kept in [`Replies`]: "busy" until this task has carried the command out. The task owns the
+//! read with the reply kept in [`Replies`](crate::shared::Replies): "busy" until this task has carried the command out. The task owns the
 //! DFU flash (blocking NOR flash: on the G431 an erase or a write holds the CPU whatever the API, and blocking
 //! calls keep the receiver small) and the [`Updater`] port, and carries out one command at a time: erase a DFU
 //! page, write a chunk (inside the payload, aligned to the flash's 8-byte write unit, a short last chunk padded
@@ -20,21 +20,15 @@
 //! again before its next command. Nothing here erases or writes outside the DFU partition's payload, and nothing
 //! panics on a command: every refusal is a reply with its own code ([`Refusal`]) and changes nothing.
 
-use core::cell::Cell;
-use core::sync::atomic::{AtomicBool, Ordering};
-
 use embassy_boot::{AlignedBuffer, BlockingFirmwareState, State};
 use embassy_futures::yield_now;
-use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
-use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::signal::Signal;
 use embassy_time::{Duration, with_timeout};
 use embedded_storage::nor_flash::{ErrorType, NorFlash, NorFlashErrorKind, ReadNorFlash};
 use g431_hw::memory::{IMAGE_INFO_OFFSET, THRUSTER_PARTITIONS};
 use tmc_proto::Family;
 use tmc_proto::ext::{
-    Command, CommandFrame, CommandKind, Crc32, FrameBytes, INFO_LEN, MAX_CHUNK, PAGE_LEN, PROTOCOL_VERSION, Refusal,
-    Reply, ReplyBody, WRITE_UNIT,
+    Command, CommandFrame, Crc32, INFO_LEN, MAX_CHUNK, PAGE_LEN, PROTOCOL_VERSION, Refusal, Reply, ReplyBody,
+    WRITE_UNIT,
 };
 use update_image::{
     INFO_FORMAT, ImageInfo, Refusal as ImageRefusal, SLOTS, Slots, TICKET_OFFSET, Target, Ticket, VERDICT_OFFSET,
@@ -42,7 +36,7 @@ use update_image::{
 };
 
 use crate::drive::Duty;
-use crate::tasks::Shared;
+use crate::shared::Shared;
 
 /// The longest payload: the ACTIVE partition the bootloader swaps it into.
 pub const MAX_PAYLOAD: u32 = THRUSTER_PARTITIONS.active.length;
@@ -189,141 +183,6 @@ pub fn info_family(info: &[u8; INFO_LEN]) -> Result<Option<Family>, Refusal> {
     ImageInfo::parse(info)
         .map(|info| info.target.family())
         .map_err(|_| Refusal::NoImageInfo)
-}
-
-type Mutex = CriticalSectionRawMutex;
-
-/// The reply a read gets instead of the status: the one to the latest extension command, "busy" until the update
-/// task has carried it out, gone once read done.
-#[derive(Debug, Clone, Copy)]
-pub struct Pending {
-    command: CommandKind,
-    seq: u8,
-    done: bool,
-    frame: FrameBytes,
-}
-
-impl Pending {
-    /// The reply's bytes.
-    pub fn frame(&self) -> &FrameBytes {
-        &self.frame
-    }
-}
-
-/// The I2C task's and the update task's channels: the latest command, the reply to it, and whether it was read.
-pub struct Replies {
-    /// I2C -> update: the latest command (a newer one replaces one not taken yet).
-    commands: Signal<Mutex, CommandFrame>,
-    pending: BlockingMutex<Mutex, Cell<Option<Pending>>>,
-    /// A done reply was read.
-    read: Signal<Mutex, ()>,
-    /// Trial -> update: the running image is on trial, or (until the trial task has read the bootloader's state,
-    /// and when it cannot) it may be: no update begins over the image a revert may need.
-    on_trial: AtomicBool,
-    /// The master has read a done reply since the start: the extension, the path of the next update, works.
-    answered: AtomicBool,
-}
-
-// The methods the tasks call are kept out of line (`inline(never)`): inlined into the tasks' poll functions they
-// cost more flash, as built.
-impl Replies {
-    /// Nothing pending.
-    pub const fn new() -> Self {
-        Self {
-            commands: Signal::new(),
-            pending: BlockingMutex::new(Cell::new(None)),
-            read: Signal::new(),
-            on_trial: AtomicBool::new(true),
-            answered: AtomicBool::new(false),
-        }
-    }
-
-    /// A command arrived: the next read gets "busy" for it until it is done, and the update task gets it.
-    #[inline(never)]
-    pub fn command(&self, frame: CommandFrame) {
-        let command = frame.command.kind();
-        let busy = Reply::Busy {
-            seq: frame.seq,
-            command,
-        };
-        self.pending.lock(|pending| {
-            pending.set(Some(Pending {
-                command,
-                seq: frame.seq,
-                done: false,
-                frame: busy.encode(),
-            }))
-        });
-        self.commands.signal(frame);
-    }
-
-    /// The reply a read now gets, if any.
-    #[inline(never)]
-    pub fn for_read(&self) -> Option<Pending> {
-        self.pending.lock(Cell::get)
-    }
-
-    /// `sent` was read: a done reply is gone (the next read gets the status); a busy one stays.
-    #[inline(never)]
-    pub fn sent(&self, sent: &Pending) {
-        if !sent.done {
-            return;
-        }
-        self.pending.lock(|pending| {
-            if pending
-                .get()
-                .is_some_and(|now| now.done && now.command == sent.command && now.seq == sent.seq)
-            {
-                pending.set(None);
-            }
-        });
-        self.answered.store(true, Ordering::Relaxed);
-        self.read.signal(());
-    }
-
-    /// Whether the master has read a reply to an extension command since the start.
-    pub fn answered(&self) -> bool {
-        self.answered.load(Ordering::Relaxed)
-    }
-
-    /// The update task's reply; dropped if a newer command has replaced the one it answers.
-    #[inline(never)]
-    fn complete(&self, reply: Reply) {
-        self.pending.lock(|pending| {
-            if let Some(now) = pending.get()
-                && !now.done
-                && now.command == reply.command()
-                && now.seq == reply.seq()
-            {
-                pending.set(Some(Pending {
-                    done: true,
-                    frame: reply.encode(),
-                    ..now
-                }));
-            }
-        });
-    }
-
-    /// Whether the running image is on trial (the trial task says so once it has read the bootloader's state).
-    pub fn on_trial(&self) -> bool {
-        self.on_trial.load(Ordering::Relaxed)
-    }
-
-    pub(crate) fn set_on_trial(&self, on_trial: bool) {
-        self.on_trial.store(on_trial, Ordering::Relaxed);
-    }
-}
-
-impl Default for Replies {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl core::fmt::Debug for Replies {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("Replies").finish_non_exhaustive()
-    }
 }
 
 /// How the motor stands when a command is carried out.

@@ -21,7 +21,7 @@ use lbv_master_fw::console::lbv::{
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, Received, Receiver};
 use lbv_master_fw::params::{Param, Settings};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Shared};
-use lbv_master_fw::signing::{SIGNATURE_LEN, SigningState, TIMESTAMP_MAX, reservation_after};
+use lbv_master_fw::console::signing::{SIGNATURE_LEN, SigningState, TIMESTAMP_MAX, reservation_after};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
 // The host's time driver (virtual time; the harness passes its own instants).
 use lbv_sim as _;

@@ -7,7 +7,7 @@
 
 use arbitrary::Arbitrary;
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::courier::{Courier, ExchangeError, MAX_WRITE};
+use lbv_master_fw::update::courier::{Courier, ExchangeError, MAX_WRITE};
 use lbv_master_fw::shared::Sender;
 // The host's time driver (the harness passes its own instants).
 use lbv_sim as _;

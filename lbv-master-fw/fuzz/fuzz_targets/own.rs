@@ -6,7 +6,7 @@
 #![no_main]
 
 use arbitrary::Arbitrary;
-use lbv_master_fw::own::{NotTaken, OwnImage, PAGE_BYTES};
+use lbv_master_fw::update::own::{NotTaken, OwnImage, PAGE_BYTES};
 use lbv_master_fw::shared::Sender;
 use lbv_master_fw::update::{HEADER_LEN, ImageHeader};
 // The host's time driver, which every host build of the core links.

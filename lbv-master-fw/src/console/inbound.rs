@@ -12,7 +12,7 @@ use super::lbv::{
     MANUAL_CONTROL_DATA, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA,
     SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
-use crate::framing::{Frame, Version};
+use crate::console::framing::{Frame, Version};
 use crate::mixer::ManualInput;
 use crate::shared::{
     Command, FtpPayload, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_LBV_APPLY_UPDATE,

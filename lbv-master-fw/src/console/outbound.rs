@@ -626,7 +626,7 @@ impl Framer {
         }
     }
 
-    /// Frame one message (MAVLink 2, unsigned: [`crate::signing::SigningState::sign`] signs it) and return its
+    /// Frame one message (MAVLink 2, unsigned: [`crate::console::signing::SigningState::sign`] signs it) and return its
     /// bytes.
     pub fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
         let len = match self.frame.get_mut(HEADER_LEN..HEADER_LEN + MAX_PAYLOAD) {

@@ -201,11 +201,11 @@ fn headers_are_read_as_update_image_lays_them_out() {
         bytes[n] = byte;
         parse_header(&bytes)
     };
-    assert_eq!(with(0, b'X'), Err(HeaderError::Magic));
+    assert_eq!(with(0, b'X'), Err(HeaderError::Magic(*b"XBVU")));
     assert_eq!(with(4, 2), Err(HeaderError::Format(2)));
     assert_eq!(with(5, 0), Err(HeaderError::Target(0)));
     assert_eq!(with(5, 4), Err(HeaderError::Target(4)));
-    assert_eq!(with(7, 1), Err(HeaderError::Reserved));
+    assert_eq!(with(7, 1), Err(HeaderError::Reserved(0x100)));
 }
 
 #[test]
@@ -998,8 +998,8 @@ fn publish(shared: &Shared, settings: crate::params::Settings) {
 
 #[test]
 fn the_link_is_unsigned_for_updates_unless_a_key_is_in_force_or_the_parameter_allows_it() {
+    use crate::console::signing::SigningKey;
     use crate::params::{Param, Settings};
-    use crate::signing::SigningKey;
     let shared = Shared::new();
     assert!(Context::of(&shared).unsigned, "before the settings are known");
     let defaults = Settings::defaults(crate::mixer::FrameKind::Lbv300_6);

@@ -13,11 +13,11 @@ use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::MavMessage;
+use lbv_master_fw::console::signing::reservation_after;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::params::Settings;
 use lbv_master_fw::settings::{InRam, Reboot, settings_task};
 use lbv_master_fw::shared::{Command, Request, Shared};
-use lbv_master_fw::signing::reservation_after;
 use lbv_master_fw::vehicle::{VehicleConfig, vehicle_task};
 use mavlink_core::{MAVLinkV1MessageRaw, MAVLinkV2MessageRaw, MavHeader, MavlinkReader, MessageData};
 

@@ -26,11 +26,11 @@ use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
 use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::courier::Transfers;
-use lbv_master_fw::own::{OwnFlash, OwnImage, Updating};
 use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::update::VehicleSink;
+use lbv_master_fw::update::courier::Transfers;
+use lbv_master_fw::update::own::{OwnFlash, OwnImage, Updating};
 use lbv_master_fw::{MasterConfig, Polling, Ports};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
@@ -213,7 +213,7 @@ pub struct MasterBoard {
 /// A backup register on the bench: a word kept over resets.
 struct BackupRegister(Rc<Cell<u32>>);
 
-impl lbv_master_fw::own::CrashRegister for BackupRegister {
+impl lbv_master_fw::update::own::CrashRegister for BackupRegister {
     fn load(&mut self) -> u32 {
         self.0.get()
     }

@@ -17,8 +17,8 @@ use std::rc::Rc;
 use std::time::Instant as WallInstant;
 
 use embassy_time::{Duration, Instant};
+use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::inbound;
-use lbv_master_fw::framing::{Event, FrameParser};
 use lbv_master_fw::update::UpdateTarget;
 
 use super::Bench;

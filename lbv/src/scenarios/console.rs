@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use g431_hw::flash::{NmiAction, eccr, eccr_address, nmi_action};
 use g431_hw::memory::FLASH_ORIGIN;
+use lbv_master_fw::console::signing::TIMESTAMP_MAX;
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
 use lbv_master_fw::params::{PARAM_COUNT, Settings};
 use lbv_master_fw::settings::DATA_PAGES;
@@ -13,7 +14,6 @@ use lbv_master_fw::shared::{
     MAV_CMD_COMPONENT_ARM_DISARM as ARM_DISARM, MAV_CMD_DO_MOTOR_TEST as MOTOR_TEST,
     MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN as REBOOT,
 };
-use lbv_master_fw::signing::TIMESTAMP_MAX;
 use lbv_station::{GCS_HEARTBEAT, GroundStation, OPERATOR, SIGNING_EPOCH, Signing};
 use serde_json::json;
 

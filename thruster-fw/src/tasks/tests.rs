@@ -2,13 +2,16 @@
 //! halls, bridge and ADC inputs set by the test.
 
 use super::*;
-use crate::faults::VolatileLatch;
+use crate::config::WatchdogTiming;
+use crate::faults::{Thresholds, VolatileLatch};
 use crate::hall::FORWARD_SEQUENCE;
 use crate::sim::{BootRecord, BootUpdater, DFU_PAGES, SlavePort};
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
 use embassy_boot::{FirmwareState, State};
 use embassy_futures::block_on;
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex as Mutex;
+use embassy_sync::signal::Signal;
 use embedded_hal_async::i2c::I2c;
 use lbv_sim::Cpu;
 use lbv_sim::flash::Flash;

@@ -3,11 +3,13 @@
 
 use super::*;
 use crate::control::LinkUpdate;
+use crate::shared::Replies;
 use crate::sim::{BootUpdater, DFU_PAGES, info_record};
 use embassy_futures::block_on;
 use embassy_time::Instant;
 use lbv_sim::flash::Flash;
 use tmc_proto::ext::Chunk;
+use tmc_proto::ext::CommandKind;
 use tmc_proto::{Order, Speed};
 use update_image::{ImageInfo, Target, Verdict, Version};
 

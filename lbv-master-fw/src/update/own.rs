@@ -68,7 +68,7 @@ use crate::shared::{
     verdict_texts,
 };
 use crate::update::ftp::DATA_LEN;
-use crate::update::{HEADER_LEN, ImageHeader};
+use crate::update::header::{HEADER_LEN, ImageHeader};
 
 /// How long the image runs before a crash is no longer an early one: the count of early crashes is cleared then.
 pub const EARLY_WINDOW: Duration = Duration::from_secs(EARLY_WINDOW_SECS);

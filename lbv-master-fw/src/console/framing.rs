@@ -9,7 +9,7 @@
 //! A frame whose message id the dialect does not know cannot be CRC-checked; its length is trusted only when the
 //! byte after it starts another frame or the input ends there, otherwise it is treated as noise.
 //!
-//! Signatures are not checked here: a signed frame comes out whole, for [`crate::signing`] to check.
+//! Signatures are not checked here: a signed frame comes out whole, for [`crate::console::signing`] to check.
 
 use mavlink_core::calculate_crc;
 

@@ -40,7 +40,7 @@ fn signed_as(info: ImageInfo, len: usize) -> Vec<u8> {
         .collect();
     let record = image_record(info, &DEV_PUBLIC_KEY);
     payload[INFO_OFFSET..INFO_OFFSET + record.len()].copy_from_slice(&record);
-    let seed = key_from_hex(include_str!("../../../keys/dev.key")).unwrap();
+    let seed = key_from_hex(include_str!("../../../../keys/dev.key")).unwrap();
     update_image::sign(&payload, &seed).unwrap()
 }
 

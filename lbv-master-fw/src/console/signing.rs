@@ -31,7 +31,7 @@
 use mavlink_core::calculate_crc;
 use sha2::{Digest, Sha256};
 
-use crate::framing::{Frame, Version};
+use crate::console::framing::{Frame, Version};
 
 /// Bytes of a frame's signature block: link id, 48-bit timestamp, 48-bit signature.
 pub const SIGNATURE_LEN: usize = 13;
