@@ -78,23 +78,15 @@ step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
 step "clippy ($TARGET)"
-# One chip per invocation: the thruster's images are built for the STM32G431, the master's for the STM32G474.
-cargo clippy --release --target "$TARGET" -p thruster-fw --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p lbv-master-fw --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p lbv-boot --features thruster --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p lbv-boot --features master --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p thruster-fw --features legacy --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p thruster-fw --features brushed --locked -- -D warnings
-# The first power-up build: duty limited to 10 %.
-cargo clippy --release --target "$TARGET" -p thruster-fw --features bringup --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p lbv-master-fw --features devkit,legacy --locked -- -D warnings
-# The bench test between two dev kits: the master's acceptance image and the motor-less thruster image.
-for family in "" ",legacy"; do
-  cargo clippy --release --target "$TARGET" -p lbv-master-fw --features "acceptance$family" --locked -- -D warnings
-  cargo clippy --release --target "$TARGET" -p thruster-fw --features "motorless$family" --locked -- -D warnings
-done
+# Every image test.sh builds, from the one list of builds (g431_hw::images::BUILDS: name, crate, features, "-" for
+# none, then its budgets), one chip per invocation; then the cores on QEMU, and the update image's checks and
+# streaming verification as the firmware builds them (no_std).
+builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
+while read -r _ package features _; do
+  if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
+  cargo clippy --release --target "$TARGET" -p "$package" "${flags[@]}" --locked -- -D warnings
+done <<<"$builds"
 cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
-# The update image's checks and streaming verification, as the firmware builds them (no_std).
 cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
 
 finish "installing the Debian and Python packages" "$packages" target/packages.log
@@ -115,10 +107,10 @@ if rustup toolchain list | grep -q '^nightly'; then
 fi
 
 step "firmware images (release, $TARGET)"
-# The images and their budgets are data, g431_hw::images::BUILDS: one line each of name, crate, features ("-" for
-# none), flash and static RAM budgets and the size of the flash region it is linked into, in bytes. Each image is
-# kept under target/images/ (a crate's feature builds overwrite one another's ELF).
-builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
+# The images and their budgets are data, g431_hw::images::BUILDS (read above): one line each of name, crate,
+# features ("-" for none), flash and static RAM budgets, the size of the flash region it is linked into and the
+# stack budget, in bytes. Each image is kept under target/images/ (a crate's feature builds overwrite one another's
+# ELF).
 release="target/$TARGET/release"
 mkdir -p target/images
 while read -r name package features _; do
@@ -133,7 +125,7 @@ step "image sizes"
 # .data + .bss + .uninit.
 cargo run --quiet --locked -p g431-hw --bin images -- partitions
 failed=0
-while read -r name _ _ flash_budget ram_budget linked; do
+while read -r name _ _ flash_budget ram_budget linked _; do
   arm-none-eabi-size -A "target/images/$name" |
     awk -v name="$name" -v fb="$flash_budget" -v rb="$ram_budget" -v linked="$linked" '
     $1 ~ /^\.(vector_table|image_info|text|rodata|data)$/ { flash += $2 }

@@ -388,6 +388,10 @@ fn expected() -> Value {
             "lbv-master-fw-devkit": master(&images::MASTER),
             "lbv-master-fw-acceptance": master(&images::MASTER),
         },
+        "stack_budgets": images::BUILDS
+            .iter()
+            .map(|build| (build.name.to_string(), json!(build.stack_budget)))
+            .collect::<serde_json::Map<String, Value>>(),
         "orders": orders(),
         "statuses": statuses(),
         "forward_direction": format!("{:?}", Direction::Forward),

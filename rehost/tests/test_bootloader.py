@@ -278,6 +278,7 @@ class Swap:
     operations: list
     refreshes: list
     jumped: int  # the cycle the application starts at
+    stack: int  # the bootloader's stack high-water mark at the jump
     reverted_active: bytes
     reverted_dfu: bytes
     reverted_stack: int
@@ -322,6 +323,7 @@ def swap(request, expected, key):
         refreshes=list(chip.iwdg.refreshes),
         watchdog_started_at=chip.iwdg.started_at,
         jumped=chip.core.cycles,
+        stack=chip.stack_high_water(),
     )
     assert chip.core.uc.reg_read(arm.UC_ARM_REG_MSP) == board.stack - 0x1000, "the new image's stack pointer"
     # It never marks itself booted: the trial watchdog resets, and the bootloader swaps the old image back.
@@ -336,7 +338,9 @@ def swap(request, expected, key):
     )
 
 
-def test_a_good_image_marked_with_its_ticket_is_swapped_in_and_the_old_one_kept_in_dfu_one_page_up(swap, figures):
+def test_a_good_image_marked_with_its_ticket_is_swapped_in_and_the_old_one_kept_in_dfu_one_page_up(
+    swap, expected, figures
+):
     board = swap.board
     assert swap.active == padded(board, swap.new), "the payload, and erased flash where DFU held stray bytes"
     assert swap.dfu == swap.old
@@ -367,6 +371,10 @@ def test_a_good_image_marked_with_its_ticket_is_swapped_in_and_the_old_one_kept_
         f"{swap.checked['instructions'] / 1e6:.1f} M instructions from reset to the first flash operation "
         f"({swap.checked['instructions'] / swap.chip.core.hz * 1e3:.0f} ms at 170 MHz)"
     )
+    # Its stack through the check and the swap, held to its budget (g431_hw::images::BUILDS).
+    used, budget = swap.stack, expected["stack_budgets"][board.image]
+    figures[f"{board.image} stack high-water"] = f"{used:,} B of its {budget:,} B budget"
+    assert used <= budget
     # The old image back: the watchdog reset the new one on trial, and the bootloader swapped back.
     assert swap.reverted_active == swap.old
     assert swap.reverted_dfu == padded(board, swap.new)

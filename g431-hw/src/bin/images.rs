@@ -1,6 +1,7 @@
 //! The image descriptions (`g431_hw::images`) for the tools around the firmware:
 //!   images builds          one line per image ./test.sh builds: name, crate, features ("-" for none), flash and
-//!                          static RAM budgets in bytes, and the flash it is linked into (its FLASH region) in bytes
+//!                          static RAM budgets in bytes, the flash it is linked into (its FLASH region) in bytes, and
+//!                          its stack budget in bytes
 //!   images partitions      the flash map of every layout, region by region, for the size report
 //!   images docs [--write]  the docs' generated tables; with --write, rewritten in place in docs/hardware.md
 use std::process::ExitCode;
@@ -19,8 +20,8 @@ fn main() -> ExitCode {
                 let features = if build.features.is_empty() { "-" } else { build.features };
                 let linked = build.layout.region("FLASH").map_or(0, |region| region.span.length);
                 println!(
-                    "{} {} {} {} {} {linked}",
-                    build.name, build.package, features, build.flash_budget, build.ram_budget
+                    "{} {} {} {} {} {linked} {}",
+                    build.name, build.package, features, build.flash_budget, build.ram_budget, build.stack_budget
                 );
             }
             ExitCode::SUCCESS
