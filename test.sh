@@ -4,7 +4,8 @@
 # firmware images in release and their size report against the flash / RAM budgets, the images themselves run under
 # register-level models of the STM32G4 (rehost/), and the cores on an emulated Cortex-M4 (QEMU).
 # Usage: ./test.sh           the whole suite (CI runs exactly this through .ci/run)
-#        ./test.sh --quick   rustfmt, clippy for the host and the host tests only: the inner loop
+#        ./test.sh --quick   rustfmt, clippy for the host and the host tests only: the inner loop, without root (the
+#                            Python tools in target/python; no network once they are there)
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -35,26 +36,33 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
 # flip-link links the firmware images (.cargo/config.toml): a stack overflow faults instead of corrupting RAM.
 command -v flip-link >/dev/null || cargo install flip-link --locked
-# Debian and Python packages download and install while the first Rust steps compile; the host tests, the first
-# step that needs them, wait for them.
+# The Python tools (requirements.txt, pinned) live in a virtual environment under target/: no root, and no clash
+# with a system Python that keeps pip out (PEP 668). It sees the system's packages, so a machine that has the pinned
+# versions installs nothing, and once it is set up pip needs no network. Every python3 below is its.
+export PATH="$PWD/target/python/bin:$PATH"
+python_tools() {
+  [ -x target/python/bin/python3 ] || python3 -m venv --system-site-packages target/python
+  target/python/bin/python3 -m pip install --quiet --disable-pip-version-check -r requirements.txt
+}
+# Debian packages (the full run only: they need root) and the Python tools download and install while the first
+# Rust steps compile; the host tests, the first step that needs them, wait for them.
 system_packages() {
   # Debian: binutils for the size report, sigrok-cli as the independent I2C decoder the capture tests use,
-  # qemu-system-arm for the cores on an emulated Cortex-M4 (without its recommended GUI and firmware packages).
+  # qemu-system-arm for the cores on an emulated Cortex-M4 (without its recommended GUI and firmware packages), and
+  # Python's venv where Debian keeps it apart.
   local packages=()
   command -v arm-none-eabi-size >/dev/null || packages+=(binutils-arm-none-eabi)
   command -v sigrok-cli >/dev/null || packages+=(sigrok-cli)
   command -v qemu-system-arm >/dev/null || packages+=(qemu-system-arm)
+  python3 -c 'import ensurepip' 2>/dev/null || packages+=(python3-venv)
   if [ ${#packages[@]} -gt 0 ]; then
     as_root apt-get update -qq
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${packages[@]}" >/dev/null
   fi
-  # Python: pymavlink and cantools, the independent MAVLink and CAN implementations the tests check against,
-  # MAVProxy, the ground station that flies the bench in a test, and rehost's Unicorn engine and test runner.
-  python3 -c 'import pymavlink, cantools, MAVProxy' 2>/dev/null || python3 -m pip install --quiet pymavlink cantools mavproxy
-  python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || python3 -m pip install --quiet -r rehost/requirements.txt
+  python_tools
 }
 mkdir -p target
-system_packages >target/packages.log 2>&1 &
+if $quick; then python_tools; else system_packages; fi >target/packages.log 2>&1 &
 packages=$!
 cargo --version
 
@@ -67,7 +75,7 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo clippy -p tmc-proto -p bat-proto -p update-image --all-targets --features defmt --locked -- -D warnings
 
 if $quick; then
-  finish "installing the Debian and Python packages" "$packages" target/packages.log
+  finish "setting up the Python tools" "$packages" target/packages.log
   step "host tests"
   cargo test --workspace --locked
   step "quick checks passed (the whole suite: ./test.sh)"

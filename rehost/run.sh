@@ -4,7 +4,12 @@
 # pytest, e.g. `rehost/run.sh -k thruster -x`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || python3 -m pip install --quiet -r rehost/requirements.txt
+# The Python tools of requirements.txt, in the virtual environment ./test.sh sets up.
+export PATH="$PWD/target/python/bin:$PATH"
+python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || {
+  echo "rehost needs the Python tools of requirements.txt: ./test.sh --quick sets them up in target/python" >&2
+  exit 1
+}
 # The test profile and the workspace's features: `cargo test --workspace` has already built everything this needs.
 cargo build --quiet --locked --profile test --workspace --bin rehost
 exec python3 -m pytest -q -p no:cacheprovider rehost/tests "$@"

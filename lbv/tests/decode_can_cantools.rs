@@ -1,7 +1,7 @@
 //! `lbv decode can --json` and cantools with `lbv/dbc/bat.dbc` agree on a generated candump log
 //! (`tests/decode_can_cantools.py` is the cantools side).
 //!
-//! Needs python3 with cantools (`pip install cantools`); without it these tests fail, they do not skip.
+//! Needs python3 with cantools (requirements.txt; `./test.sh --quick` sets it up in target/python); without it these tests fail, they do not skip.
 //!
 //! Documented differences, checked as such: bat-proto reads 0 in the current and temperature as "not reported"
 //! (`null`) where cantools gives 0.0; bat-proto reads a charge above 100 % as unknown (`null`, the frame's other
@@ -20,14 +20,16 @@ const FRAMES: usize = 4000;
 fn python(args: &[&str]) -> Output {
     let output = match Command::new("python3").args(args).output() {
         Ok(output) => output,
-        Err(error) => panic!("cannot run python3 ({error}): install Python 3 and `pip install cantools`"),
+        Err(error) => {
+            panic!("cannot run python3 ({error}): install Python 3 and run `./test.sh --quick` (requirements.txt)")
+        }
     };
     let stderr = String::from_utf8_lossy(&output.stderr);
     if output.status.code() == Some(3)
         || stderr.contains("No module named 'cantools'")
         || stderr.contains("No module named cantools")
     {
-        panic!("this test needs cantools: pip install cantools\n{stderr}");
+        panic!("this test needs cantools: `./test.sh --quick` sets up requirements.txt in target/python\n{stderr}");
     }
     assert!(
         output.status.success(),

@@ -5,7 +5,7 @@
 //! finds the parameter still set, and runs a motor test; pymavlink watches what the vehicle sends. Runs in real
 //! time (about 35 s).
 //!
-//! Needs python3 with MAVProxy and pymavlink (`pip install mavproxy pymavlink`; test.sh installs them); without
+//! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without
 //! them this test fails, it does not skip.
 
 mod support;

@@ -10,7 +10,7 @@
 //! bench writes what its master's update sink received (`--update-dir`), which must be the file, byte for byte.
 //! Runs in real time (about 10 s).
 //!
-//! Needs python3 with MAVProxy and pymavlink (`pip install mavproxy pymavlink`); without them this test fails,
+//! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without them this test fails,
 //! it does not skip.
 
 mod support;

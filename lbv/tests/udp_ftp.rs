@@ -8,7 +8,7 @@
 //! received (`--update-dir`), which must be the file, byte for byte. Runs in real time (about 35 s: the master's
 //! swap alone takes 11 s).
 //!
-//! Needs python3 with pymavlink (`pip install pymavlink`); without it this test fails, it does not skip.
+//! Needs python3 with pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without it this test fails, it does not skip.
 
 mod support;
 

@@ -2,7 +2,7 @@
 //! AUTOPILOT_VERSION (both ways of asking), a typed integer parameter, the pre-arm check, arm, sticks ahead, thruster
 //! telemetry moves, disarm. Runs in real time (about 6 s).
 //!
-//! Needs python3 with pymavlink (`pip install pymavlink`); without it this test fails, it does not skip.
+//! Needs python3 with pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without it this test fails, it does not skip.
 
 mod support;
 
