@@ -33,11 +33,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 fn build_info(out_dir: &Path) -> Result<(), Box<dyn std::error::Error>> {
     let part =
         |name: &str| -> Result<u32, Box<dyn std::error::Error>> { Ok(std::env::var(name)?.parse::<u8>()?.into()) };
-    // FIRMWARE_VERSION_TYPE: OFFICIAL (255) for a release version, DEV (0) for a pre-release ("0.2.0-rc1").
-    let kind = if std::env::var("CARGO_PKG_VERSION_PRE").unwrap_or_default().is_empty() {
-        255
-    } else {
+    // FIRMWARE_VERSION_TYPE: DEV (0) for a pre-release ("0.2.0-rc1"), BETA (128) for a release below 1.0 (semver's
+    // "anything may change"), OFFICIAL (255) from 1.0 on. QGroundControl checks an OFFICIAL image of an ArduPilot
+    // vehicle against ArduSub's latest stable release and tells the pilot it is out of date: this image is not
+    // ArduSub, and not yet 1.0.
+    let kind = if !std::env::var("CARGO_PKG_VERSION_PRE").unwrap_or_default().is_empty() {
         0
+    } else if std::env::var("CARGO_PKG_VERSION_MAJOR")? == "0" {
+        128
+    } else {
+        255
     };
     let version = part("CARGO_PKG_VERSION_MAJOR")? << 24
         | part("CARGO_PKG_VERSION_MINOR")? << 16

@@ -728,6 +728,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                     count,
                 } => out.push(&outbound::param_value(&id, value, param_type, index, count)),
                 Outgoing::Text(severity, text) => out.push(&outbound::statustext(severity, &text)),
+                Outgoing::MissionCount { to, mission_type } => out.push(&outbound::mission_count(to, mission_type)),
                 Outgoing::Message(message) => out.send(message, config, shared, &mut last),
                 Outgoing::Interval(message, interval) => schedule.set(message, interval),
                 Outgoing::Ftp { to, reply } => out.ftp_reply(to, &reply),

@@ -252,6 +252,13 @@ pub enum Command {
     },
     /// PARAM_REQUEST_LIST.
     ParamRequestList,
+    /// MISSION_REQUEST_LIST: a ground station's download of the vehicle's plan of `mission_type` (MAV_MISSION_TYPE:
+    /// 0 a mission, 1 a fence, 2 rally points), which QGroundControl starts at every connect whatever the
+    /// capabilities say. The master keeps none: it answers MISSION_COUNT 0 of the same type.
+    MissionRequestList {
+        /// MISSION_REQUEST_LIST.mission_type, echoed.
+        mission_type: u8,
+    },
     /// PARAM_REQUEST_READ by name (index -1) or index.
     ParamRequestRead {
         /// The name, when asked by name.
@@ -371,6 +378,13 @@ pub enum Outgoing {
     },
     /// STATUSTEXT.
     Text(Severity, Text),
+    /// MISSION_COUNT: the plan of `mission_type` holds nothing.
+    MissionCount {
+        /// Who asked.
+        to: Sender,
+        /// The type asked for.
+        mission_type: u8,
+    },
     /// One of the periodic messages (or AUTOPILOT_VERSION), now: the answer to a MAV_CMD_REQUEST_MESSAGE.
     Message(Message),
     /// Send a periodic message at this interval from now on.

@@ -208,6 +208,7 @@ impl Vehicle {
                     self.param_value(param, out);
                 }
             }
+            Command::MissionRequestList { mission_type } => out(Outgoing::MissionCount { to: from, mission_type }),
             Command::ParamRequestRead { id, index } => {
                 let param = match u16::try_from(index) {
                     Ok(index) => Param::from_index(index),
@@ -580,6 +581,7 @@ fn command_long(command: &Command) -> Option<u16> {
         Command::Heartbeat
         | Command::Manual(_)
         | Command::ParamRequestList
+        | Command::MissionRequestList { .. }
         | Command::ParamRequestRead { .. }
         | Command::ParamSet { .. }
         | Command::SetupSigning { .. } => None,

@@ -14,8 +14,8 @@ use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::{
-    AUTOPILOT_VERSION_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MavMessage, MavModeFlag, MavParamType,
-    MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
+    AUTOPILOT_VERSION_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MISSION_REQUEST_LIST_DATA, MavMessage, MavModeFlag,
+    MavParamType, MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
 };
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::Shared;
@@ -168,10 +168,16 @@ fn check_autopilot_version(v: &AUTOPILOT_VERSION_DATA) {
     let minor = part(env!("CARGO_PKG_VERSION_MINOR"));
     let patch = part(env!("CARGO_PKG_VERSION_PATCH"));
     assert_eq!(v.flight_sw_version >> 8, major << 16 | minor << 8 | patch);
-    assert!(
-        [0, 255].contains(&(v.flight_sw_version & 0xFF)),
-        "FIRMWARE_VERSION_TYPE DEV or OFFICIAL"
-    );
+    // FIRMWARE_VERSION_TYPE: DEV for a pre-release, BETA below 1.0 (QGroundControl compares an OFFICIAL one with
+    // ArduSub's releases), OFFICIAL from 1.0 on.
+    let kind = if !env!("CARGO_PKG_VERSION_PRE").is_empty() {
+        0
+    } else if major == 0 {
+        128
+    } else {
+        255
+    };
+    assert_eq!(v.flight_sw_version & 0xFF, kind, "FIRMWARE_VERSION_TYPE");
     let hash = v.flight_custom_version;
     assert!(
         hash == [0; 8] || hash.iter().all(u8::is_ascii_hexdigit),
@@ -232,6 +238,12 @@ fn qgroundcontrol_initial_connect_then_arm() {
         },
         /// ParameterManager::refreshAllParameters: PARAM_REQUEST_LIST, then every PARAM_VALUE.
         Parameters {
+            sent: usize,
+        },
+        /// The mission download QGroundControl starts whatever the capabilities say (MissionManager's
+        /// loadFromVehicle): MISSION_REQUEST_LIST, answered at once with MISSION_COUNT 0 of the type asked, so no
+        /// retry and no "Mission transfer failed".
+        Mission {
             sent: usize,
         },
         /// Wait for SYS_STATUS's pre-arm check to turn healthy (the capabilities announced no fence or rally, so
@@ -342,13 +354,40 @@ fn qgroundcontrol_initial_connect_then_arm() {
                         }
                         let sysid = values.iter().find(|p| p.param_id.to_str().unwrap() == "SYSID_MYGCS");
                         assert_eq!(sysid.map(|p| p.param_value), Some(255.0));
-                        Step::WaitArmable {
-                            from: gcs.received.len(),
+                        gcs.send(&MISSION_REQUEST_LIST_DATA {
+                            target_system: 1,
+                            target_component: 1,
+                            mission_type: 0,
+                        });
+                        Step::Mission {
+                            sent: gcs.received.len(),
                         }
                     }
                     _ => step,
                 }
             }
+            Step::Mission { sent } => match find(gcs, sent, |m| matches!(m, MavMessage::MISSION_COUNT(_))) {
+                Some(at) => {
+                    let MavMessage::MISSION_COUNT(count) = &gcs.received[at].2 else {
+                        unreachable!()
+                    };
+                    let answered = (
+                        count.target_system,
+                        count.target_component,
+                        count.count,
+                        count.mission_type,
+                    );
+                    assert_eq!(answered, (GCS.0, GCS.1, 0, 0), "an empty mission, to QGroundControl");
+                    assert!(
+                        gcs.received[at].0 - gcs.received[sent.saturating_sub(1)].0 < Duration::from_millis(100),
+                        "answered at once: QGroundControl waits for nothing"
+                    );
+                    Step::WaitArmable {
+                        from: gcs.received.len(),
+                    }
+                }
+                None => step,
+            },
             Step::WaitArmable { from } => {
                 if gcs.since(from).filter_map(prearm_healthy).any(|healthy| healthy) {
                     gcs.command(ARM_DISARM, [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
@@ -380,8 +419,7 @@ fn qgroundcontrol_initial_connect_then_arm() {
         step == Step::Done
     });
     assert_eq!(versions, 2);
-    // Nothing the vehicle sent was answered with a request it does not serve: no mission, fence or rally
-    // protocol frames went either way (the dialect has none).
+    // Every frame came from the vehicle's own system and component.
     assert!(
         station
             .received

@@ -176,6 +176,11 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
         ("arm_other_system", None),
         ("param_list", Some(Command::ParamRequestList)),
         (
+            "mission_list_fence",
+            Some(Command::MissionRequestList { mission_type: 1 }),
+        ),
+        ("mission_list_other", None),
+        (
             "param_read_name",
             Some(Command::ParamRequestRead {
                 id: param_id("THR_MAX"),
@@ -375,6 +380,16 @@ fn pymavlink_decodes_what_the_console_sends() {
                 .outbox
                 .try_send(Outgoing::Message(Message::AutopilotVersion))
                 .unwrap();
+            shared
+                .outbox
+                .try_send(Outgoing::MissionCount {
+                    to: Sender {
+                        system: 255,
+                        component: 190,
+                    },
+                    mission_type: 2,
+                })
+                .unwrap();
             // An FTP reply of the update server: a listing entry to a MAVFTP client.
             let mut reply = [0u8; 40];
             reply[..12].copy_from_slice(&[8, 0, 3, 128, 21, 3, 0, 0, 0, 0, 0, 0]);
@@ -416,6 +431,20 @@ fn pymavlink_decodes_what_the_console_sends() {
         assert_eq!((m["_sys"].as_u64(), m["_comp"].as_u64()), (Some(1), Some(1)));
         assert_eq!(m["_seq"].as_u64(), Some(n as u64 % 256));
     }
+
+    let counts = of_type(&decoded, "MISSION_COUNT");
+    assert_eq!(counts.len(), 1, "{decoded:#?}");
+    let count = counts[0];
+    assert_eq!(
+        (
+            &count["target_system"],
+            &count["target_component"],
+            &count["count"],
+            &count["mission_type"]
+        ),
+        (&Value::from(255), &Value::from(190), &Value::from(0), &Value::from(2)),
+        "an empty rally point list, to who asked"
+    );
 
     let heartbeats = of_type(&decoded, "HEARTBEAT");
     assert_eq!(heartbeats.len(), 2);

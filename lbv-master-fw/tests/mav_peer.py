@@ -62,6 +62,8 @@ def emit():
         "unknown_command": g.command_long_encode(1, 1, 31012, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
         "arm_other_system": g.command_long_encode(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
         "param_list": g.param_request_list_encode(1, 1).pack(g),
+        "mission_list_fence": g.mission_request_list_encode(1, 1, mav2.MAV_MISSION_TYPE_FENCE).pack(g),
+        "mission_list_other": g.mission_request_list_encode(2, 1, mav2.MAV_MISSION_TYPE_MISSION).pack(g),
         "param_read_name": g.param_request_read_encode(1, 1, b"THR_MAX", -1).pack(g),
         "param_read_index": g.param_request_read_encode(1, 0, b"", 3).pack(g),
         "param_set": g.param_set_encode(1, 1, b"THR_MAX", 0.75, mav2.MAV_PARAM_TYPE_REAL32).pack(g),

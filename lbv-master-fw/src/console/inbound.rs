@@ -9,8 +9,8 @@ use super::ConsoleConfig;
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, ESC_INFO_DATA,
     ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA,
-    MANUAL_CONTROL_DATA, MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA,
-    SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    MANUAL_CONTROL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA, MavType, PARAM_REQUEST_LIST_DATA,
+    PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::console::framing::{Frame, Version};
 use crate::mixer::ManualInput;
@@ -33,13 +33,15 @@ const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 19] = [
+const MESSAGES: [(u32, u8); 21] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
     (PARAM_REQUEST_LIST_DATA::ID, PARAM_REQUEST_LIST_DATA::EXTRA_CRC),
     (PARAM_VALUE_DATA::ID, PARAM_VALUE_DATA::EXTRA_CRC),
     (PARAM_SET_DATA::ID, PARAM_SET_DATA::EXTRA_CRC),
+    (MISSION_REQUEST_LIST_DATA::ID, MISSION_REQUEST_LIST_DATA::EXTRA_CRC),
+    (MISSION_COUNT_DATA::ID, MISSION_COUNT_DATA::EXTRA_CRC),
     (MANUAL_CONTROL_DATA::ID, MANUAL_CONTROL_DATA::EXTRA_CRC),
     (COMMAND_INT_DATA::ID, COMMAND_INT_DATA::EXTRA_CRC),
     (COMMAND_LONG_DATA::ID, COMMAND_LONG_DATA::EXTRA_CRC),
@@ -85,6 +87,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 /// - SETUP_SIGNING to our system and component (or 0): [`Command::SetupSigning`].
 /// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
 ///   command; PARAM_SET carries its param_type, which the vehicle checks against the parameter's.
+/// - MISSION_REQUEST_LIST to our system and component (or 0): [`Command::MissionRequestList`] of its mission type
+///   (a mission, a fence, rally points: the master keeps none of them).
 pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Command>, ParserError> {
     let version = match frame.version {
         Version::V1 => mavlink_core::MavlinkVersion::V1,
@@ -130,6 +134,12 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Comman
                 id: *m.param_id,
                 value: m.param_value,
                 param_type: m.param_type as u8,
+            })
+        }
+        MISSION_REQUEST_LIST_DATA::ID => {
+            let m = MISSION_REQUEST_LIST_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then_some(Command::MissionRequestList {
+                mission_type: m.mission_type,
             })
         }
         SETUP_SIGNING_DATA::ID => {

@@ -9,10 +9,10 @@ use tmc_proto::{MaxPower, MotorKind, Status};
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA, ESC_STATUS_DATA,
     ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags,
-    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MavAutopilot, MavBatteryChargeState, MavBatteryFault,
-    MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag, MavParamType, MavProtocolCapability, MavResult,
-    MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType, PARAM_VALUE_DATA, STATUSTEXT_DATA,
-    SYS_STATUS_DATA,
+    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MISSION_COUNT_DATA, MavAutopilot, MavBatteryChargeState,
+    MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag, MavParamType,
+    MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType,
+    PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::params::{ParamId, ParamType};
 use crate::shared::{
@@ -581,6 +581,18 @@ pub fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_D
         result_param2: 0,
         target_system: to.system,
         target_component: to.component,
+    }
+}
+
+/// MISSION_COUNT 0 of `mission_type`, addressed to who asked: the master keeps no mission, fence or rally points
+/// (opaque_id 0: no plan to identify).
+pub fn mission_count(to: Sender, mission_type: u8) -> MISSION_COUNT_DATA {
+    MISSION_COUNT_DATA {
+        target_system: to.system,
+        target_component: to.component,
+        count: 0,
+        mission_type,
+        opaque_id: 0,
     }
 }
 
