@@ -833,6 +833,7 @@ impl<W: Write> Output<'_, W> {
                 &config.uid,
                 update_image::UPDATE_KEY_IS_DEV,
             )),
+            Message::AvailableModes => self.push(&outbound::available_modes()),
             Message::EscTelemetry1To4 => self.push(&outbound::esc_telemetry_1_to_4(thrusters, &reports)),
             Message::EscTelemetry5To8 if thrusters > 4 => {
                 self.push(&outbound::esc_telemetry_5_to_8(thrusters, &reports))

@@ -110,6 +110,12 @@ pub struct Request {
 // a plain number).
 pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
+/// MAV_CMD_DO_SET_MODE: param1 the base mode (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED for a custom mode), param2 the
+/// custom mode, ArduSub's mode number (QGroundControl's mode menu).
+pub const MAV_CMD_DO_SET_MODE: u16 = 176;
+/// ArduSub's MANUAL flight mode (its custom mode 19): the one mode the vehicle has, reported as HEARTBEAT's
+/// custom_mode. ArduSub's other modes need what the master has not: a depth sensor, a compass, a position.
+pub const ARDUSUB_MODE_MANUAL: u32 = 19;
 pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
 pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
 pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
@@ -215,6 +221,12 @@ pub enum Command {
     },
     /// COMMAND_LONG MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (246) with param1 = 1: restart the master.
     Reboot,
+    /// MAV_CMD_DO_SET_MODE (176): the custom mode asked for (`None` when param1 does not set
+    /// MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, or param2 is not a whole number).
+    SetMode {
+        /// ArduSub's mode number.
+        custom_mode: Option<u32>,
+    },
     /// SETUP_SIGNING: the MAVLink 2 signing key (all zeros: signing off) and the timestamp to start from.
     SetupSigning {
         /// The 32-byte secret (SETUP_SIGNING.secret_key).
@@ -290,6 +302,9 @@ pub enum Message {
     BatteryStatus,
     /// AUTOPILOT_VERSION (148): only on request.
     AutopilotVersion,
+    /// AVAILABLE_MODES (435), one per mode the vehicle has (MANUAL alone): only on request. QGroundControl asks for
+    /// it and then lists those modes in its menu rather than ArduSub's.
+    AvailableModes,
     /// ESC_INFO (290), every block of four thrusters.
     EscInfo,
     /// ESC_STATUS (291), every block of four thrusters.
@@ -303,7 +318,7 @@ pub enum Message {
 impl Message {
     /// Whether it is sent periodically at an interval a ground station may change.
     pub const fn paced(self) -> bool {
-        !matches!(self, Self::Heartbeat | Self::AutopilotVersion)
+        !matches!(self, Self::Heartbeat | Self::AutopilotVersion | Self::AvailableModes)
     }
 }
 

@@ -71,10 +71,14 @@ use crate::console::signing::SigningKey;
 use crate::mixer::{FrameKind, ManualInput, mix, round_div};
 use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
-    AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
-    MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender, Severity, Shared, UpdateHold, VehicleState,
-    text,
+    ARDUSUB_MODE_MANUAL, AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_DO_SET_MODE,
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender,
+    Severity, Shared, UpdateHold, VehicleState, text,
 };
+
+/// Why a mode other than MANUAL is denied: ArduSub's other modes hold a depth, a heading or a position, and the
+/// master has no sensor for any of them.
+pub const MANUAL_ONLY: &str = "Mode: MANUAL only, no depth or heading sensor";
 
 /// Longest motor test.
 pub const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);
@@ -285,6 +289,16 @@ impl Vehicle {
                 }
             }
             Command::Unsupported { command } => ack(out, command, AckResult::Unsupported, from),
+            // The one mode there is, taken as it stands; any other denied with why (QGroundControl's mode menu
+            // shows the text).
+            Command::SetMode { custom_mode } => {
+                if custom_mode == Some(ARDUSUB_MODE_MANUAL) {
+                    ack(out, MAV_CMD_DO_SET_MODE, AckResult::Accepted, from);
+                } else {
+                    ack(out, MAV_CMD_DO_SET_MODE, AckResult::Denied, from);
+                    say(out, Severity::Warning, format_args!("{MANUAL_ONLY}"));
+                }
+            }
             // Only an image without the update server sends it here (the console hands it to the update task).
             Command::Update { action, .. } => ack(out, action.command(), AckResult::Unsupported, from),
             Command::ParamSet { id, value, param_type } => match Param::from_id(&id) {
@@ -575,6 +589,7 @@ fn command_long(command: &Command) -> Option<u16> {
         Command::Arm(_) => Some(MAV_CMD_COMPONENT_ARM_DISARM),
         Command::MotorTest { .. } => Some(MAV_CMD_DO_MOTOR_TEST),
         Command::Reboot => Some(MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN),
+        Command::SetMode { .. } => Some(MAV_CMD_DO_SET_MODE),
         Command::Unsupported { command } | Command::RequestMessage { command, .. } => Some(*command),
         Command::MessageInterval { .. } => Some(MAV_CMD_SET_MESSAGE_INTERVAL),
         Command::Update { action, .. } => Some(action.command()),

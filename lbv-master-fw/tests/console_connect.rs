@@ -14,8 +14,9 @@ use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::{
-    AUTOPILOT_VERSION_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MISSION_REQUEST_LIST_DATA, MavMessage, MavModeFlag,
-    MavParamType, MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
+    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MISSION_REQUEST_LIST_DATA,
+    MavMessage, MavModeFlag, MavParamType, MavProtocolCapability, MavResult, MavSysStatusSensor,
+    PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
 };
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::Shared;
@@ -425,6 +426,70 @@ fn qgroundcontrol_initial_connect_then_arm() {
             .received
             .iter()
             .all(|(_, h, _)| (h.system_id, h.component_id) == (1, 1))
+    );
+}
+
+/// MAV_CMD_DO_SET_MODE.
+const SET_MODE: u16 = 176;
+
+#[test]
+fn the_mode_menu_shows_the_one_mode_there_is_and_takes_only_it() {
+    let mut phase = 0;
+    let station = connect(Duration::from_secs(3), |gcs| {
+        if phase == 0 {
+            gcs.heartbeat();
+            // QGroundControl's StandardModes: every mode (param2 0), then its menu's choices, MANUAL and ALT_HOLD.
+            gcs.command(REQUEST_MESSAGE, [435.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.command(SET_MODE, [1.0, 19.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.command(SET_MODE, [1.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            phase = 1;
+        }
+        Instant::now() >= Instant::from_secs(2)
+    });
+    let modes: Vec<_> = station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::AVAILABLE_MODES(m) => Some(m.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(modes.len(), 1, "{modes:?}");
+    let manual = &modes[0];
+    assert_eq!(
+        (
+            manual.number_modes,
+            manual.mode_index,
+            manual.standard_mode,
+            manual.custom_mode
+        ),
+        (1, 1, 0, 19),
+        "ArduSub's MANUAL, the mode HEARTBEAT reports"
+    );
+    assert_eq!(manual.mode_name.to_str().unwrap(), "MANUAL");
+    assert_eq!(
+        <AVAILABLE_MODES_DATA as mavlink_core::MessageData>::EXTRA_CRC,
+        134,
+        "the CRC_EXTRA the MAVLink generator gives the official definition"
+    );
+    let results: Vec<MavResult> = station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::COMMAND_ACK(a) if a.command == SET_MODE => Some(a.result),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(results, [MavResult::MAV_RESULT_ACCEPTED, MavResult::MAV_RESULT_DENIED]);
+    let said: Vec<String> = station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::STATUSTEXT(t) => Some(t.text.to_str().unwrap().to_string()),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        said.iter()
+            .any(|t| t == "Mode: MANUAL only, no depth or heading sensor"),
+        "{said:?}"
     );
 }
 

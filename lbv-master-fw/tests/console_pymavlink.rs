@@ -175,6 +175,9 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
         ("unknown_command", Some(Command::Unsupported { command: 31012 })),
         ("arm_other_system", None),
         ("param_list", Some(Command::ParamRequestList)),
+        ("set_mode_manual", Some(Command::SetMode { custom_mode: Some(19) })),
+        ("set_mode_alt_hold", Some(Command::SetMode { custom_mode: Some(2) })),
+        ("set_mode_base_only", Some(Command::SetMode { custom_mode: None })),
         (
             "mission_list_fence",
             Some(Command::MissionRequestList { mission_type: 1 }),

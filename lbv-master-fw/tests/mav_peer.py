@@ -62,6 +62,10 @@ def emit():
         "unknown_command": g.command_long_encode(1, 1, 31012, 0, 0, 0, 0, 0, 0, 0, 0).pack(g),
         "arm_other_system": g.command_long_encode(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(g),
         "param_list": g.param_request_list_encode(1, 1).pack(g),
+        # QGroundControl's mode menu: MAV_MODE_FLAG_CUSTOM_MODE_ENABLED and ArduSub's mode number.
+        "set_mode_manual": g.command_long_encode(1, 1, 176, 0, 1, 19, 0, 0, 0, 0, 0).pack(g),
+        "set_mode_alt_hold": g.command_long_encode(1, 1, 176, 0, 1, 2, 0, 0, 0, 0, 0).pack(g),
+        "set_mode_base_only": g.command_long_encode(1, 1, 176, 0, 128, 0, 0, 0, 0, 0, 0).pack(g),
         "mission_list_fence": g.mission_request_list_encode(1, 1, mav2.MAV_MISSION_TYPE_FENCE).pack(g),
         "mission_list_other": g.mission_request_list_encode(2, 1, mav2.MAV_MISSION_TYPE_MISSION).pack(g),
         "param_read_name": g.param_request_read_encode(1, 1, b"THR_MAX", -1).pack(g),

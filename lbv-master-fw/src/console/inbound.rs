@@ -7,17 +7,19 @@ use mavlink_core::error::ParserError;
 
 use super::ConsoleConfig;
 use super::lbv::{
-    AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, ESC_INFO_DATA,
-    ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA,
-    MANUAL_CONTROL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA, MavType, PARAM_REQUEST_LIST_DATA,
-    PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA,
+    COMMAND_LONG_DATA, ESC_INFO_DATA, ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA,
+    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA,
+    MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA,
+    STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::console::framing::{Frame, Version};
 use crate::mixer::ManualInput;
 use crate::shared::{
-    Command, FtpPayload, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_LBV_APPLY_UPDATE,
-    MAV_CMD_LBV_QUERY_VERSION, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
-    MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, Message, UpdateAction,
+    Command, FtpPayload, Interval, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_DO_SET_MODE,
+    MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION, MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN,
+    MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, MAV_CMD_REQUEST_MESSAGE, MAV_CMD_SET_MESSAGE_INTERVAL, Message,
+    UpdateAction,
 };
 
 /// Shortest message interval taken, ms: every paced message at 10 Hz together takes some 5 kB/s, under half of
@@ -33,7 +35,7 @@ const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 21] = [
+const MESSAGES: [(u32, u8); 22] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
@@ -50,6 +52,7 @@ const MESSAGES: [(u32, u8); 21] = [
     (BATTERY_STATUS_DATA::ID, BATTERY_STATUS_DATA::EXTRA_CRC),
     (AUTOPILOT_VERSION_DATA::ID, AUTOPILOT_VERSION_DATA::EXTRA_CRC),
     (STATUSTEXT_DATA::ID, STATUSTEXT_DATA::EXTRA_CRC),
+    (AVAILABLE_MODES_DATA::ID, AVAILABLE_MODES_DATA::EXTRA_CRC),
     (SETUP_SIGNING_DATA::ID, SETUP_SIGNING_DATA::EXTRA_CRC),
     (ESC_INFO_DATA::ID, ESC_INFO_DATA::EXTRA_CRC),
     (ESC_STATUS_DATA::ID, ESC_STATUS_DATA::EXTRA_CRC),
@@ -80,7 +83,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 ///   clamped to [`MIN_INTERVAL_MS`]..=[`MAX_INTERVAL_MS`]); 209 gives [`Command::MotorTest`] for throttle type MOTOR_TEST_THROTTLE_PERCENT (param1
 ///   motor number, param3 percent clamped to -100..=100, param4 seconds clamped to 0..=10, NaN reads as 0), and
 ///   [`Command::Unsupported`] for the other throttle types; 246 with param1 exactly 1 (reboot the autopilot)
-///   gives [`Command::Reboot`], other actions (shutdown, bootloader, none) [`Command::Unsupported`]; any other
+///   gives [`Command::Reboot`], other actions (shutdown, bootloader, none) [`Command::Unsupported`]; 176 gives
+///   [`Command::SetMode`] of the custom mode param2 names when param1 enables custom modes; any other
 ///   command gives [`Command::Unsupported`]. The vehicle task answers every one with a COMMAND_ACK.
 ///   31010 (MAV_CMD_LBV_APPLY_UPDATE) and 31011 (MAV_CMD_LBV_QUERY_VERSION) give [`Command::Update`] of the
 ///   target param1 names (a whole number 0..=255, else `None`).
@@ -198,6 +202,7 @@ pub fn message(id: f32, config: &ConsoleConfig) -> Option<Message> {
         SYS_STATUS_DATA::ID => Message::SysStatus,
         BATTERY_STATUS_DATA::ID => Message::BatteryStatus,
         AUTOPILOT_VERSION_DATA::ID => Message::AutopilotVersion,
+        AVAILABLE_MODES_DATA::ID => Message::AvailableModes,
         ESC_INFO_DATA::ID if super::ESC_DETAIL => Message::EscInfo,
         ESC_STATUS_DATA::ID if super::ESC_DETAIL => Message::EscStatus,
         ESC_TELEMETRY_1_TO_4_DATA::ID => Message::EscTelemetry1To4,
@@ -241,6 +246,11 @@ fn command(command: u16, [param1, param2, param3, param4]: [f32; 4], config: &Co
             interval: interval(param2),
         },
         MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN if param1 == REBOOT_AUTOPILOT => Command::Reboot,
+        // MAV_MODE_FLAG_CUSTOM_MODE_ENABLED (1) in the base mode says param2 is the custom mode; only a whole number
+        // names one (the casts saturate and read NaN as 0).
+        MAV_CMD_DO_SET_MODE => Command::SetMode {
+            custom_mode: Some(param2 as u32).filter(|mode| (param1 as u32) & 1 == 1 && *mode as f32 == param2),
+        },
         MAV_CMD_LBV_APPLY_UPDATE | MAV_CMD_LBV_QUERY_VERSION => Command::Update {
             action: if command == MAV_CMD_LBV_APPLY_UPDATE {
                 UpdateAction::Apply
@@ -451,6 +461,7 @@ mod tests {
         let request = |id: f32| decode_long(&long(512, [id, 0.0, 0.0, 0.0]));
         let asked = |message| Some(Command::RequestMessage { command: 512, message });
         assert_eq!(request(148.0), asked(Some(Message::AutopilotVersion)));
+        assert_eq!(request(435.0), asked(Some(Message::AvailableModes)));
         assert_eq!(request(0.0), asked(Some(Message::Heartbeat)));
         assert_eq!(request(1.0), asked(Some(Message::SysStatus)));
         assert_eq!(request(147.0), asked(Some(Message::BatteryStatus)));

@@ -7,8 +7,8 @@ use mavlink_core::MessageData;
 use tmc_proto::{MaxPower, MotorKind, Status};
 
 use super::lbv::{
-    AUTOPILOT_VERSION_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA, ESC_STATUS_DATA,
-    ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags,
+    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA,
+    ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags,
     FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MISSION_COUNT_DATA, MavAutopilot, MavBatteryChargeState,
     MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag, MavParamType,
     MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType,
@@ -16,7 +16,8 @@ use super::lbv::{
 };
 use crate::params::{ParamId, ParamType};
 use crate::shared::{
-    AckResult, BatterySummary, FtpReply, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport, VehicleState,
+    ARDUSUB_MODE_MANUAL, AckResult, BatterySummary, FtpReply, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport,
+    VehicleState,
 };
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
@@ -78,8 +79,6 @@ pub fn autopilot_version(uid: &[u8; 12], dev_key: bool) -> AUTOPILOT_VERSION_DAT
     }
 }
 
-/// ArduSub's MANUAL flight mode, reported as HEARTBEAT.custom_mode.
-pub const ARDUSUB_MODE_MANUAL: u32 = 19;
 /// HEARTBEAT.mavlink_version: MAVLink protocol version 3 of the XML definitions.
 const MAVLINK_VERSION: u8 = 3;
 
@@ -581,6 +580,23 @@ pub fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_D
         result_param2: 0,
         target_system: to.system,
         target_component: to.component,
+    }
+}
+
+/// AVAILABLE_MODES of the one mode the vehicle has: ArduSub's MANUAL (custom mode 19), MAV_STANDARD_MODE_NON_STANDARD
+/// (0: none of MAVLink's standard modes fits it), no properties (it may be chosen, and is not advanced).
+pub fn available_modes() -> AVAILABLE_MODES_DATA {
+    let mut mode_name = [0; 35];
+    if let Some(name) = mode_name.get_mut(..6) {
+        name.copy_from_slice(b"MANUAL");
+    }
+    AVAILABLE_MODES_DATA {
+        number_modes: 1,
+        mode_index: 1,
+        standard_mode: 0,
+        custom_mode: ARDUSUB_MODE_MANUAL,
+        properties: 0,
+        mode_name: mode_name.into(),
     }
 }
 

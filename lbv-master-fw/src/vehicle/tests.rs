@@ -275,6 +275,30 @@ fn starts_disarmed_with_no_ground_station() {
 }
 
 #[test]
+fn the_one_mode_is_taken_and_every_other_denied_with_why() {
+    let mut bench = Bench::new(VehicleConfig::default());
+    let set = MAV_CMD_DO_SET_MODE;
+    assert_eq!(
+        bench.command(
+            10,
+            Command::SetMode {
+                custom_mode: Some(ARDUSUB_MODE_MANUAL)
+            }
+        ),
+        [ack(set, AckResult::Accepted)]
+    );
+    // ArduSub's STABILIZE (0), ALT_HOLD (2), POSHOLD (16), and a request that names no custom mode.
+    for custom_mode in [Some(0), Some(2), Some(16), None] {
+        assert_eq!(
+            bench.command(20, Command::SetMode { custom_mode }),
+            [ack(set, AckResult::Denied), text(Severity::Warning, MANUAL_ONLY)],
+            "{custom_mode:?}"
+        );
+    }
+    assert!(MANUAL_ONLY.len() <= 50, "one STATUSTEXT");
+}
+
+#[test]
 fn arming_needs_the_operators_heartbeat() {
     let mut bench = Bench::new(VehicleConfig::default());
     assert_eq!(
