@@ -21,7 +21,9 @@
 //!   the test is stopped and the arm answered TEMPORARILY_REJECTED (arm again once the thruster has stopped).
 //!   The rule is [`Vehicle::arm_check`], which also gives SYS_STATUS's pre-arm check bit
 //!   ([`VehicleState::armable`]), so a ground station that waits for it can always arm.
-//!   Disarm is always accepted and stops a motor test too. Arming starts from neutral sticks.
+//!   Disarm is always accepted and stops a motor test too. Arming starts from neutral sticks, and is refused while
+//!   the operator's live heave stick sits more than [`HEAVE_ARM_BAND`] from its centre: the vehicle would drive at
+//!   once, and a ground station that sends its centre as 0 would send it diving.
 //! - No reset while diving: arm is also answered TEMPORARILY_REJECTED, with "Arm rejected: " and why, while the
 //!   field update holds the vehicle ([`UpdateHold`], from `Shared::holds`): an apply runs (the master's own or a
 //!   thruster's), an image is on trial (the master's, or a thruster's by its last `Version`), a thruster holds an
@@ -147,7 +149,15 @@ pub enum ArmRefusal {
     NoHeartbeat,
     /// The field update holds the vehicle: a reset is coming, or may come.
     Update(UpdateHold),
+    /// The operator's heave stick is away from its centre (500): arming would drive at once. This is also how a
+    /// ground station that sends the centre as 0 shows (QGroundControl's "centre-zero throttle" or "negative
+    /// thrust" for ArduSub), which this vehicle reads as full descent.
+    Heave(i16),
 }
+
+/// How far the heave stick may sit from its centre (500 of 0..=1000) for an arm: a joystick at rest reads within a
+/// few counts of it; a ground station that sends its centre as 0 is 500 away.
+pub const HEAVE_ARM_BAND: i16 = 100;
 
 /// Arming, failsafes, operator, motor test, settings -> orders. Pure state machine with explicit time.
 #[derive(Debug, Clone)]
@@ -170,6 +180,8 @@ pub struct Vehicle {
     param_type_mismatches: u32,
     /// What of the field update keeps the vehicle from arming, as last told ([`Vehicle::hold_for_update`]).
     update_hold: Option<UpdateHold>,
+    /// The operator's last MANUAL_CONTROL, armed or not, and when it came: where the sticks stand for an arm.
+    sticks: Option<(Instant, ManualInput)>,
 }
 
 impl Vehicle {
@@ -188,6 +200,7 @@ impl Vehicle {
             pilot_lost: false,
             param_type_mismatches: 0,
             update_hold: None,
+            sticks: None,
         }
     }
 
@@ -244,6 +257,7 @@ impl Vehicle {
                 }
             }
             Command::Manual(input) => {
+                self.sticks = Some((now, input));
                 let held = self.gcs_lost && self.settings.params.gcs_failsafe() == GcsFailsafe::Neutral;
                 if self.armed && !held {
                     self.input = input;
@@ -364,9 +378,20 @@ impl Vehicle {
             Err(ArmRefusal::NoHeartbeat)
         } else if let Some(hold) = self.update_hold {
             Err(ArmRefusal::Update(hold))
+        } else if let Some(z) = self.heave_off_centre(now) {
+            Err(ArmRefusal::Heave(z))
         } else {
             Ok(())
         }
+    }
+
+    /// The heave stick's position when the operator's last MANUAL_CONTROL, within `FS_PILOT_TIMEOUT`, puts it more
+    /// than [`HEAVE_ARM_BAND`] from its centre; `None` when it is centred, or when no stick input is live (a ground
+    /// station without a joystick arms with the sticks neutral).
+    fn heave_off_centre(&self, now: Instant) -> Option<i16> {
+        let (at, input) = self.sticks?;
+        let live = now.saturating_duration_since(at) < self.settings.params.pilot_timeout();
+        (live && (input.z - NEUTRAL.z).abs() > HEAVE_ARM_BAND).then_some(input.z)
     }
 
     fn heartbeat_live(&self, now: Instant) -> bool {
@@ -467,6 +492,15 @@ impl Vehicle {
             Err(ArmRefusal::Update(hold)) => {
                 ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
                 say(out, Severity::Warning, format_args!("Arm rejected: {hold}"));
+                return;
+            }
+            Err(ArmRefusal::Heave(z)) => {
+                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
+                say(
+                    out,
+                    Severity::Warning,
+                    format_args!("Arm rejected: heave stick at {z}, not 500"),
+                );
                 return;
             }
             Ok(()) => {}

@@ -299,6 +299,41 @@ fn the_one_mode_is_taken_and_every_other_denied_with_why() {
 }
 
 #[test]
+fn arming_waits_for_the_heave_stick_at_its_centre() {
+    let mut bench = Bench::new(VehicleConfig::default());
+    bench.command(0, Command::Heartbeat);
+    // A ground station set to send its centre as 0 (QGroundControl's centre-zero throttle): full descent here.
+    bench.command(10, manual(0, 0, 0, 0));
+    assert_eq!(
+        bench.command(20, Command::Arm(true)),
+        [
+            ack(ARM, AckResult::TemporarilyRejected),
+            text(Severity::Warning, "Arm rejected: heave stick at 0, not 500")
+        ]
+    );
+    assert_eq!(bench.vehicle.arm_check(t(20)), Err(ArmRefusal::Heave(0)));
+    assert!(!bench.vehicle.state(t(20)).armable, "the pre-arm check says so too");
+    // Within the band around the centre, a joystick at rest.
+    for z in [500 - HEAVE_ARM_BAND - 1, 500 + HEAVE_ARM_BAND + 1] {
+        bench.command(30, manual(0, 0, z, 0));
+        assert_eq!(bench.vehicle.arm_check(t(30)), Err(ArmRefusal::Heave(z)));
+    }
+    for z in [500 - HEAVE_ARM_BAND, 500 + HEAVE_ARM_BAND] {
+        bench.command(40, manual(0, 0, z, 0));
+        assert_eq!(bench.vehicle.arm_check(t(40)), Ok(()), "{z}");
+    }
+    // A stick input no longer live (the joystick switched off) does not hold arming.
+    bench.command(50, manual(0, 0, 0, 0));
+    let timeout = bench.params().pilot_timeout().as_millis();
+    bench.command(50 + timeout, Command::Heartbeat);
+    assert_eq!(bench.vehicle.arm_check(t(50 + timeout)), Ok(()));
+    assert_eq!(
+        bench.command(50 + timeout, Command::Arm(true)),
+        [ack(ARM, AckResult::Accepted), text(Severity::Info, "Armed")]
+    );
+}
+
+#[test]
 fn arming_needs_the_operators_heartbeat() {
     let mut bench = Bench::new(VehicleConfig::default());
     assert_eq!(
