@@ -255,6 +255,14 @@ pub const CURRENT: Source = Source {
     ..NTC
 };
 
+/// The IHM08M1's VBUS divider on PA1 (ADC12_IN2, a fast channel): 169 kohm over 9.31 kohm, 8.8 kohm seen from the
+/// pin (thruster-fw's `VbusSense::IHM08M1`); whatever capacitor the board puts across it only helps.
+pub const VBUS: Source = Source {
+    ohms: 8_824,
+    hold_capacitor_pf: 0,
+    channel: Channel::Fast,
+};
+
 /// The thruster's sample times (the shortest each source allows, [`Adc::sample_time`]): the water sensor relies on
 /// its 100 nF and the longest time; the NTC and the current need 247.5 cycles by DS12589's table (10 kohm: the slow
 /// channels' limit at 247.5, the fast ones' 12 kohm), where the formula alone gave 24.5.
@@ -263,20 +271,23 @@ pub const WATER_SAMPLE: SampleTime = G431.sample_time(WATER, ADC_HZ);
 pub const NTC_SAMPLE: SampleTime = G431.sample_time(NTC, ADC_HZ);
 /// See [`WATER_SAMPLE`].
 pub const CURRENT_SAMPLE: SampleTime = G431.sample_time(CURRENT, ADC_HZ);
+/// See [`WATER_SAMPLE`].
+pub const VBUS_SAMPLE: SampleTime = G431.sample_time(VBUS, ADC_HZ);
 
 const _: () = assert!(
     G431.settles(WATER, WATER_SAMPLE, ADC_HZ)
         && G431.settles(NTC, NTC_SAMPLE, ADC_HZ)
         && G431.settles(CURRENT, CURRENT_SAMPLE, ADC_HZ)
+        && G431.settles(VBUS, VBUS_SAMPLE, ADC_HZ)
 );
 
 /// The conversions of one thruster sample, in the order the binding makes them: one of the current input thrown
 /// away (STM32G4 errata ES0431: the first conversion after the ADC idled about 1 ms may be wrong), then the water
-/// sensor, the NTC and the current. They block the thread executor: [`THRUSTER_SEQUENCE_NS`] is held against the
-/// 1 ms tick by thruster-fw's tests.
-pub const THRUSTER_SEQUENCE: [SampleTime; 4] = [CURRENT_SAMPLE, WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE];
+/// sensor, the NTC, the current and the supply. They block the thread executor: [`THRUSTER_SEQUENCE_NS`] is held
+/// against the 1 ms tick by thruster-fw's tests.
+pub const THRUSTER_SEQUENCE: [SampleTime; 5] = [CURRENT_SAMPLE, WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE, VBUS_SAMPLE];
 
-/// How long [`THRUSTER_SEQUENCE`] takes at [`ADC_HZ`], in ns: about 33.7 us.
+/// How long [`THRUSTER_SEQUENCE`] takes at [`ADC_HZ`], in ns: about 39.8 us.
 pub const THRUSTER_SEQUENCE_NS: f64 = sequence_ns(&THRUSTER_SEQUENCE, ADC_HZ);
 
 #[cfg(test)]
@@ -389,21 +400,28 @@ mod tests {
         // On a fast channel 92.5 cycles allow 4.7 kohm: still 247.5 (12 kohm).
         assert_eq!(G431.sample_time(CURRENT, ADC_HZ), SampleTime::Cycles247_5);
         assert!(!G431.settles(CURRENT, SampleTime::Cycles92_5, ADC_HZ));
+        // VBUS's 8.8 kohm on a fast channel: 247.5 as well.
+        assert!(!G431.settles(VBUS, SampleTime::Cycles92_5, ADC_HZ));
         assert_eq!(
-            (WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE),
-            (SampleTime::LONGEST, SampleTime::Cycles247_5, SampleTime::Cycles247_5)
+            (WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE, VBUS_SAMPLE),
+            (
+                SampleTime::LONGEST,
+                SampleTime::Cycles247_5,
+                SampleTime::Cycles247_5,
+                SampleTime::Cycles247_5
+            )
         );
     }
 
     #[test]
-    fn a_thruster_sample_takes_34_us() {
+    fn a_thruster_sample_takes_40_us() {
         // RM0440 21.4.16: t_CONV = t_SMPL + 12.5 cycles at 12 bits. 640.5 + 12.5 cycles at 42.5 MHz: 15.36 us.
         assert!((conversion_ns(SampleTime::LONGEST, ADC_HZ) - 15_364.7).abs() < 0.1);
         assert!((conversion_ns(SampleTime::Cycles247_5, ADC_HZ) - 6_117.6).abs() < 0.1);
-        // The discarded conversion, water, NTC, current: 1433 cycles, 33.7 us.
-        assert!((THRUSTER_SEQUENCE_NS - 1433.0 / 42.5e6 * 1e9).abs() < 0.1);
+        // The discarded conversion, water, NTC, current, VBUS: 1693 cycles, 39.8 us.
+        assert!((THRUSTER_SEQUENCE_NS - 1693.0 / 42.5e6 * 1e9).abs() < 0.1);
         assert!(
-            (33_700.0..33_750.0).contains(&THRUSTER_SEQUENCE_NS),
+            (39_800.0..39_850.0).contains(&THRUSTER_SEQUENCE_NS),
             "{THRUSTER_SEQUENCE_NS}"
         );
         assert_eq!(sequence_ns(&[], ADC_HZ), 0.0);

@@ -72,6 +72,7 @@ macro_rules! power_stage_rows {
                 h2: PB3 = of("hall H2", "H2", HALL),
                 h3: PB10 = of("hall H3", "H3", HALL),
                 current: PA0 = of("motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
+                vbus: PA1 = of("supply voltage", "VBUS", Analog { adc1_in: 2 }),
                 $($extra)*
             }
             peripherals {

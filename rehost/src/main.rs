@@ -280,6 +280,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         "ntc_25c": config.ntc.raw_at(250),
         "ntc_hot": config.ntc.raw_at(config.thresholds.overtemp_set_decicelsius + 50),
         "current_zero": config.current.offset_raw,
+        "vbus_24v": config.vbus.raw_at(24_000),
     });
     json!({
         "kind": "thruster",
@@ -292,6 +293,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         "forward": six_step,
         "sample_times": {
             "water": adc::WATER_SAMPLE.bits(), "ntc": adc::NTC_SAMPLE.bits(), "current": adc::CURRENT_SAMPLE.bits(),
+            "vbus": adc::VBUS_SAMPLE.bits(),
         },
         "watchdog_timeout_us": watchdog.timeout_us(clock::LSI_HZ),
         "analog": analog,

@@ -91,8 +91,8 @@ def test_each_conversion_uses_the_sample_time_g431_hw_computes(name, expected, b
     wanted = {}
     for pin in spec["pins"]:
         if pin["mode"] == "analog":
-            kind = "water" if pin["function"] == "water sensor" else (
-                "current" if pin["function"] == "motor current" else "ntc")
+            kind = {"water sensor": "water", "motor current": "current", "supply voltage": "vbus"}.get(
+                pin["function"], "ntc")
             wanted[pin["adc1_in"]] = spec["sample_times"][kind]
     seen = {}
     for _, channel, bits in chip.adc1.conversions:

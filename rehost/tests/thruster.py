@@ -4,14 +4,14 @@ hall sensors of a turning rotor."""
 from conftest import Stm32g4, image
 
 # Analog inputs by the function g431_hw::images gives them.
-WATER, NTC, CURRENT = "water sensor", ("motor NTC", "power-stage NTC"), "motor current"
+WATER, NTC, CURRENT, VBUS = "water sensor", ("motor NTC", "power-stage NTC"), "motor current", "supply voltage"
 
 
 def channels(spec):
     return {pin["function"]: pin["adc1_in"] for pin in spec["pins"] if pin["mode"] == "analog"}
 
 
-def set_analog(chip, spec, water="dry", ntc="ntc_25c", current="current_zero"):
+def set_analog(chip, spec, water="dry", ntc="ntc_25c", current="current_zero", vbus="vbus_24v"):
     points = spec["analog"]
     for function, channel in channels(spec).items():
         if function == WATER:
@@ -20,6 +20,8 @@ def set_analog(chip, spec, water="dry", ntc="ntc_25c", current="current_zero"):
             chip.adc1.inputs[channel] = points[ntc]
         elif function == CURRENT:
             chip.adc1.inputs[channel] = points[current]
+        elif function == VBUS:
+            chip.adc1.inputs[channel] = points[vbus]
 
 
 def start(name, expected, **analog):

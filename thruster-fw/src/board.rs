@@ -259,12 +259,13 @@ pub struct AnalogInputs {
     /// The motor's NTC (brushless) or the power stage's (brushed): the temperature the status reports.
     pub ntc: AnyAdcChannel<'static, ADC1>,
     pub current: AnyAdcChannel<'static, ADC1>,
+    pub vbus: AnyAdcChannel<'static, ADC1>,
 }
 
 #[cfg(not(feature = "motorless"))]
 impl Sensors for AnalogInputs {
     async fn sample(&mut self) -> RawSample {
-        // Four blocking conversions (`adc::THRUSTER_SEQUENCE`, in this order) take about 34 us in all, 3.4 % of
+        // Five blocking conversions (`adc::THRUSTER_SEQUENCE`, in this order) take about 40 us in all, 4 % of
         // the 1 ms tick (held to 5 % by the core's tests): not worth a DMA round trip at 1 kHz.
         // STM32G4 errata ES0431: the first conversion after the ADC idled for about
         // 1 ms or more may be wrong, and these come 1 ms apart. One conversion of the low-impedance current input
@@ -278,6 +279,7 @@ impl Sensors for AnalogInputs {
             current: self
                 .adc
                 .blocking_read(&mut self.current, sample_time(adc::CURRENT_SAMPLE)),
+            vbus: self.adc.blocking_read(&mut self.vbus, sample_time(adc::VBUS_SAMPLE)),
             // TIM1's status register, not the ADC: the fault task's 1 kHz sample is the trip rule's tick
             // (`thruster_fw::overcurrent`). SR's flags are rc_w0, so this never disturbs the commutation's writes.
             break_tripped: take_break(),

@@ -6,7 +6,7 @@ use tmc_proto::{Family, MotorKind};
 
 use crate::failsafe::LinkFailsafe;
 use crate::faults::Thresholds;
-use crate::sensors::{CurrentSense, Ntc, WaterSensor};
+use crate::sensors::{CurrentSense, Ntc, VbusSense, WaterSensor};
 use crate::speed::SpeedConfig;
 
 /// How long the I2C task waits for its address before it reports itself alive anyway.
@@ -36,6 +36,8 @@ pub struct Config {
     pub ntc: Ntc,
     /// Motor current sense.
     pub current: CurrentSense,
+    /// The supply's divider.
+    pub vbus: VbusSense,
     /// The I2C slave port.
     pub bus: SlaveBus,
     /// The independent watchdog.
@@ -118,6 +120,7 @@ impl Config {
                 offset_raw: 2048,
                 milliamps_per_count: 16,
             },
+            vbus: VbusSense::IHM08M1,
             bus: SlaveBus {
                 frequency_hz: 100_000,
                 timeout: Duration::from_millis(25),

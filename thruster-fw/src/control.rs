@@ -8,7 +8,7 @@ use tmc_proto::{
 
 use crate::drive::Duty;
 use crate::failsafe::LinkFailsafe;
-use crate::speed::{PowerLimit, SpeedConfig, SpeedController, step_of_brushed_duty};
+use crate::speed::{CurrentLimit, PowerLimit, SpeedConfig, SpeedController, step_of_brushed_duty};
 
 /// What the I2C side last heard from the master, published after every valid order and every status read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -66,6 +66,9 @@ pub struct Control {
     motor: MotorKind,
     speed: SpeedController,
     power: PowerLimit,
+    current_limit: CurrentLimit,
+    /// `Sensed::break_trips` at the last step.
+    break_trips_seen: u32,
     failsafe: LinkFailsafe,
     order: Order,
     orders_seen: u32,
@@ -82,6 +85,8 @@ impl Control {
             motor: speed.motor,
             speed: SpeedController::new(speed),
             power: PowerLimit::new(),
+            current_limit: CurrentLimit::new(),
+            break_trips_seen: 0,
             failsafe: LinkFailsafe::new(link_timeout, now),
             order: Order::STOP,
             orders_seen: 0,
@@ -128,10 +133,20 @@ impl Control {
             // Only a new order restarts the motor, not a read carrying the old one.
             self.order = Order::STOP;
         }
-        // INFO limits the power drawn, measured with the duty of the last step (the one the current flowed at).
-        let ceiling = self
+        // INFO limits the power drawn, and the current limit the current, both measured with the duty of the last
+        // step (the one the current flowed at).
+        let power_ceiling = self
             .power
             .update(now, self.order.power_cap_percent(), self.duty, sensed.current_deciamps);
+        let tripped = sensed.break_trips != self.break_trips_seen;
+        self.break_trips_seen = sensed.break_trips;
+        let current_ceiling = self.current_limit.update(
+            self.speed.config().current_limit_deciamps,
+            self.duty,
+            sensed.current_deciamps,
+            tripped,
+        );
+        let ceiling = power_ceiling.min(current_ceiling);
         self.duty = if sensed.drive_allowed && !self.failsafe.expired(now) {
             self.speed.update_within(now, self.order.speed, ceiling, rpm)
         } else {

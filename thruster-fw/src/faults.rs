@@ -60,12 +60,9 @@ pub struct Thresholds {
     /// state of net progress in the driven direction ([`Progress`]). At most [`StallDetector::MAX_PULSES`] take
     /// effect; 0 disables stall detection.
     pub stall_min_pulses: u8,
-    /// Brushed stall ([`CurrentStall`]): the motor's locked-rotor current at full duty, in 0.1 A. A locked rotor
-    /// draws this times the duty; the stall level is half of that at the applied duty.
-    pub locked_rotor_deciamps: u16,
-    /// Brushed stall: the level never exceeds this, in 0.1 A, so a power stage that limits the current below the
-    /// locked-rotor current still sees a locked rotor as stalled.
-    pub stall_current_ceiling_deciamps: u16,
+    /// Brushed stall ([`CurrentStall`]): the motor's resistance between its terminals (armature and brushes), in
+    /// mohm, for its back-EMF: the applied voltage less I x R.
+    pub armature_milliohms: u16,
     /// A sustained overcurrent: the leaky count of samples with a break trip at which the bridge stops
     /// ([`crate::overcurrent::TripRule`]); 0 acts as 1.
     pub overcurrent_ticks: u16,
@@ -90,12 +87,9 @@ impl Thresholds {
     ///   motor's 4 pole pairs (`Config::reference`) a hall state is 1/24 of a turn, and 3 states in every 400 ms
     ///   window need an edge at least every 133 ms: a rotor turning slower than 18.75 rpm, or rocking in place,
     ///   is stalled.
-    /// - `locked_rotor_deciamps` 20 A: the reference BTD150-class motor (24 V across its 1.2 ohm winding, the
-    ///   motor the bench models in `lbv/src/bench/plant.rs`). Half of it at the applied duty is far above what
-    ///   the propeller draws turning (4 A at full speed, 0.4 A at 25 %).
-    /// - `stall_current_ceiling_deciamps` 6 A: above the 4 A of full speed, below the power stage's 8 A
-    ///   cycle-by-cycle limit (the IHM08M1's overcurrent comparator as the bench models it), which would
-    ///   otherwise hold a locked rotor under a level it could never reach.
+    /// - `armature_milliohms` 1.2 ohm: the reference BTD150-class motor's winding (24 V across it is its 20 A
+    ///   locked-rotor current; the motor the bench models in `lbv/src/bench/plant.rs`). Copper at 110 C has about
+    ///   a third more; the rule's margin of half the applied voltage covers that both ways.
     /// - `overcurrent_ticks` 500: a break trip on every 1 ms sample stops the bridge after 0.5 s (20 000 PWM
     ///   periods, each cut by the hardware within a microsecond). Longer than the stall window, so a locked rotor
     ///   held at the current limit is reported as the stall it is: on the bench (its 8 A limit) a blocked
@@ -113,8 +107,7 @@ impl Thresholds {
         stall_duty: 800,
         stall_window: Duration::from_millis(400),
         stall_min_pulses: 3,
-        locked_rotor_deciamps: 200,
-        stall_current_ceiling_deciamps: 60,
+        armature_milliohms: 1_200,
         overcurrent_ticks: 500,
     };
 }
@@ -256,20 +249,41 @@ impl Progress {
     }
 }
 
-/// Stall detection for a brushed motor, which has no halls (docs/decisions.md D13): the duty
-/// magnitude strictly above 8 % and the motor current at or above its stall level, continuously for 400 ms (the
-/// window of the IDS's brushless rule). The level at duty d is min(d x locked-rotor / 2, ceiling)
-/// ([`Thresholds::locked_rotor_deciamps`], [`Thresholds::stall_current_ceiling_deciamps`]). As for
+/// Stall detection for a brushed motor, which has no halls (docs/decisions.md D13): the duty magnitude strictly
+/// above 8 % and the motor not turning by its back-EMF, continuously for 400 ms (the window of the IDS's brushless
+/// rule). The back-EMF is the applied voltage (|duty| x VBUS) less I x R ([`Thresholds::armature_milliohms`]); the
+/// motor is not turning while it carries less than half the applied voltage, whichever way: the current is then
+/// above half the locked-rotor current at that voltage. A heavy rotor's start or a reversal draws as much current
+/// while it speeds up, but its back-EMF grows with the speed (and a reversal's opposes the drive) where a locked
+/// rotor's stays at zero.
+///
+/// The applied voltage is known only while the power stage passes the whole duty: a sample in which the break
+/// tripped (cycle-by-cycle limiting cut the pulses short) restarts the window. A brushed thruster therefore limits
+/// its own current below the stage's comparator ([`crate::speed::CurrentLimit`]), and a locked rotor held at the
+/// comparator all the same is stopped by the sustained overcurrent rule ([`crate::overcurrent::TripRule`]). As for
 /// [`StallDetector`], the condition first seen at t = 0 and held at every update reports a stall from t = 400 ms.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct CurrentStall {
     stall_duty: u16,
     window: Duration,
-    locked_rotor_deciamps: u16,
-    ceiling_deciamps: u16,
+    armature_milliohms: u16,
     /// First `update` of the current run of the condition.
     since: Option<Instant>,
+}
+
+/// What the fault task measured of a brushed motor in one sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct BrushedSample {
+    /// The duty applied.
+    pub duty: Duty,
+    /// The motor current, in 0.1 A.
+    pub current_deciamps: u16,
+    /// The supply, in mV.
+    pub vbus_mv: u32,
+    /// The power stage's break tripped since the last sample.
+    pub break_tripped: bool,
 }
 
 impl CurrentStall {
@@ -278,24 +292,25 @@ impl CurrentStall {
         CurrentStall {
             stall_duty: thresholds.stall_duty,
             window: thresholds.stall_window,
-            locked_rotor_deciamps: thresholds.locked_rotor_deciamps,
-            ceiling_deciamps: thresholds.stall_current_ceiling_deciamps,
+            armature_milliohms: thresholds.armature_milliohms,
             since: None,
         }
     }
 
-    /// The stall level at `duty`, in 0.1 A.
-    pub fn level_deciamps(&self, duty: Duty) -> u16 {
-        // Both factors are below 2^16: the product fits in u32, and the quotient is at most 65 535 / 2.
-        let half_locked = u32::from(self.locked_rotor_deciamps) * u32::from(duty.magnitude()) / (2 * FULL_DUTY);
-        u16::try_from(half_locked)
-            .unwrap_or(u16::MAX)
-            .min(self.ceiling_deciamps)
+    /// The back-EMF of `sample` in mV, in the driven direction (negative when the motor turns against the
+    /// drive), and the applied voltage it was taken from.
+    pub fn back_emf_mv(&self, sample: &BrushedSample) -> (i64, i64) {
+        // |duty| <= 10 000 and VBUS < 2^32 mV; current < 2^16 x 0.1 A and R < 2^16 mohm: all far inside i64.
+        let applied = i64::from(sample.duty.magnitude()) * i64::from(sample.vbus_mv) / i64::from(FULL_DUTY);
+        let drop = i64::from(sample.current_deciamps) * i64::from(self.armature_milliohms) / 10;
+        (applied - drop, applied)
     }
 
-    /// Whether the motor is stalled at `now` with `duty` applied and `current_deciamps` measured.
-    pub fn update(&mut self, now: Instant, duty: Duty, current_deciamps: u16) -> bool {
-        if duty.magnitude() <= self.stall_duty || current_deciamps < self.level_deciamps(duty) {
+    /// Whether the motor is stalled at `now`.
+    pub fn update(&mut self, now: Instant, sample: BrushedSample) -> bool {
+        let (emf, applied) = self.back_emf_mv(&sample);
+        let still = 2 * emf.abs() < applied;
+        if sample.duty.magnitude() <= self.stall_duty || sample.break_tripped || !still {
             self.since = None;
             return false;
         }
@@ -309,7 +324,7 @@ impl CurrentStall {
     }
 }
 
-/// Full scale of a [`Duty`], as the stall level's arithmetic takes it.
+/// Full scale of a [`Duty`], as the back-EMF's arithmetic takes it.
 const FULL_DUTY: u32 = Duty::FULL as u32;
 
 /// Consecutive samples of one condition, saturating.

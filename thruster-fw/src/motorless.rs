@@ -278,6 +278,7 @@ pub struct ModelSensors<'a, W, H> {
     hold: H,
     current: CurrentSense,
     temperature_raw: u16,
+    vbus_raw: u16,
 }
 
 impl<'a, W: WaterInput, H: HoldInput> ModelSensors<'a, W, H> {
@@ -289,6 +290,7 @@ impl<'a, W: WaterInput, H: HoldInput> ModelSensors<'a, W, H> {
             hold,
             current: config.current,
             temperature_raw: config.ntc.raw_at(250),
+            vbus_raw: config.vbus.raw_at(crate::speed::SUPPLY_MV),
         }
     }
 }
@@ -306,6 +308,7 @@ impl<W: WaterInput, H: HoldInput> Sensors for ModelSensors<'_, W, H> {
             water: self.water.water().await,
             temperature: self.temperature_raw,
             current: self.current.offset_raw.saturating_add(counts),
+            vbus: self.vbus_raw,
             break_tripped: false,
         }
     }

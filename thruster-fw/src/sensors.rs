@@ -181,6 +181,55 @@ impl CurrentSense {
     }
 }
 
+/// The supply (VBUS) through a resistor divider: V = raw / 4095 x VDDA x (upper + lower) / lower.
+///
+/// A brushed thruster needs it to know the voltage it applies (duty x VBUS) for its stall rule
+/// (docs/decisions.md D13).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct VbusSense {
+    /// From VBUS to the ADC node, in ohms.
+    pub upper_ohms: u32,
+    /// From the ADC node to ground, in ohms.
+    pub lower_ohms: u32,
+}
+
+/// VDDA, which the ADC's full scale is, in mV (the NUCLEO's 3V3).
+pub const VDDA_MV: u32 = 3_300;
+
+impl VbusSense {
+    /// The IHM08M1's divider on PA1: 169 kohm over 9.31 kohm, 63.2 V at full scale (docs/hardware.md).
+    pub const IHM08M1: VbusSense = VbusSense {
+        upper_ohms: 169_000,
+        lower_ohms: 9_310,
+    };
+
+    /// VBUS in mV, rounded to the nearest; a zero lower resistor reads 0.
+    pub const fn millivolts(&self, raw: u16) -> u32 {
+        let den = ADC_MAX as u64 * self.lower_ohms as u64;
+        if den == 0 {
+            return 0;
+        }
+        // raw < 2^16, VDDA < 2^12, the sum < 2^33: the product fits in u64.
+        let num = raw as u64 * VDDA_MV as u64 * (self.upper_ohms as u64 + self.lower_ohms as u64);
+        let mv = (num + den / 2) / den;
+        if mv > u32::MAX as u64 { u32::MAX } else { mv as u32 }
+    }
+
+    /// The reading at `millivolts` (for simulation and tests), rounded to the nearest count and saturating at
+    /// full scale: the inverse of [`VbusSense::millivolts`].
+    pub const fn raw_at(&self, millivolts: u32) -> u16 {
+        let den = VDDA_MV as u64 * (self.upper_ohms as u64 + self.lower_ohms as u64);
+        if den == 0 {
+            return 0;
+        }
+        let (den, lower) = (den as u128, self.lower_ohms as u128);
+        // < 2^32 x 2^12 x 2^32: fits in u128.
+        let raw = (millivolts as u128 * ADC_MAX as u128 * lower + den / 2) / den;
+        if raw > ADC_MAX as u128 { ADC_MAX } else { raw as u16 }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -431,5 +480,45 @@ mod tests {
             milliamps_per_count: 0,
         };
         assert_eq!(none.deciamps(u16::MAX), 0);
+    }
+
+    #[test]
+    fn vbus_of_the_ihm08m1() {
+        let vbus = VbusSense::IHM08M1;
+        // Full scale: 3.3 V x 178.31 / 9.31 = 63.20 V, 15.43 mV a count; 24 V reads 1555 counts.
+        assert_eq!(vbus.millivolts(ADC_MAX), 63_203);
+        assert_eq!(vbus.raw_at(24_000), 1555);
+        assert_eq!(vbus.millivolts(1555), 24_000);
+        assert_eq!(vbus.millivolts(0), 0);
+        assert_eq!(vbus.raw_at(100_000), ADC_MAX);
+        for raw in [0, 1, 777, 1555, 4094, ADC_MAX] {
+            assert_eq!(vbus.raw_at(vbus.millivolts(raw)), raw);
+        }
+    }
+
+    #[test]
+    fn vbus_edges_do_not_panic() {
+        for sense in [
+            VbusSense::IHM08M1,
+            VbusSense {
+                upper_ohms: 0,
+                lower_ohms: 0,
+            },
+            VbusSense {
+                upper_ohms: u32::MAX,
+                lower_ohms: 1,
+            },
+            VbusSense {
+                upper_ohms: u32::MAX,
+                lower_ohms: u32::MAX,
+            },
+        ] {
+            for raw in [0, 1, ADC_MAX, u16::MAX] {
+                let _ = sense.millivolts(raw);
+            }
+            for mv in [0, 1, u32::MAX] {
+                assert!(sense.raw_at(mv) <= ADC_MAX);
+            }
+        }
     }
 }

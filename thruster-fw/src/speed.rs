@@ -45,6 +45,9 @@ pub struct SpeedConfig {
     /// The largest duty magnitude the loop puts out (1/10 000), whatever the order: the power stage's limit
     /// ([`MAX_DUTY`]). Brushed motors scale the SPEED step to it, so step 102 is this duty.
     pub max_duty: u16,
+    /// The motor current the duty is held to, in 0.1 A ([`CurrentLimit`]); 0: none, the power stage's
+    /// comparator alone limits it.
+    pub current_limit_deciamps: u16,
 }
 
 /// The largest duty the reference power stage takes: 95 % on the X-NUCLEO-IHM08M1, whose high-side drivers
@@ -68,10 +71,14 @@ impl SpeedConfig {
         kp_q16: 2 * 65_536,
         ki_q16_per_s: 10 * 65_536,
         max_duty: MAX_DUTY,
+        current_limit_deciamps: 0,
     };
 
     /// Brushed thruster: open loop, 0 to 100 % duty in 0.5 s (the ramp's rate; the duty stops at `max_duty`).
-    /// The feed-forward and gains are not used.
+    /// The feed-forward and gains are not used. The current is held to 7 A: above the reference motor's 4 A at
+    /// full speed, below the power stage's comparator (the bench's 8 A, the IHM08M1's far higher), so the stage
+    /// never cuts the pulses of a turning or locked motor and the voltage applied stays known (docs/decisions.md
+    /// D13).
     pub const BRUSHED_DEFAULT: SpeedConfig = SpeedConfig {
         motor: MotorKind::Brushed,
         ramp_per_s: 20_000,
@@ -79,6 +86,7 @@ impl SpeedConfig {
         kp_q16: 0,
         ki_q16_per_s: 0,
         max_duty: MAX_DUTY,
+        current_limit_deciamps: 70,
     };
 }
 
@@ -234,9 +242,9 @@ impl SpeedController {
 /// The INFO byte as a power limit, not a duty limit (docs/decisions.md D7): the power drawn from
 /// the supply is held to INFO % of [`RATED_POWER_MW`], so the speed rises to the order as the current falls.
 ///
-/// The core measures no supply voltage (its ADC inputs are the water sensor, the NTC and the motor current), so
-/// the power is estimated at the nominal [`SUPPLY_MV`]: |duty| x motor current x 24 V, the bridge's supply
-/// current times its nominal voltage. A pack above or below 24 V makes the real power that much higher or lower.
+/// The power is estimated at the nominal [`SUPPLY_MV`] (VBUS is measured, for the brushed stall rule, but this
+/// limit does not use it yet): |duty| x motor current x 24 V, the bridge's supply current times its nominal
+/// voltage. A pack above or below 24 V makes the real power that much higher or lower.
 ///
 /// The limit is a duty ceiling that integrates the power error relative to the cap: it moves by
 /// [`POWER_LIMIT_GAIN_PER_S`] x full scale per second for an error of the whole cap. Relative to the cap, because the
@@ -314,6 +322,64 @@ impl PowerLimit {
             _ => full,
         };
         u16::try_from(self.ceiling_micro / MICROS_PER_S).unwrap_or(u16::MAX)
+    }
+}
+
+/// A motor current limit kept by the duty, for a brushed motor (docs/decisions.md D13): the power stage's
+/// comparator would hold the current too, but by cutting pulses short, which leaves the voltage applied unknown
+/// to the stall rule ([`crate::faults::CurrentStall`]).
+///
+/// A duty ceiling, stepped with each current sample: when the current exceeds the limit, the ceiling drops to the
+/// duty applied scaled by limit / current (a locked rotor's current is proportional to the duty; a turning motor's
+/// falls faster than that, so the step never undershoots the limit by less), and to half of that when the break
+/// tripped (the comparator held the current at its own threshold, so the reading understates what the duty
+/// drives). Otherwise it rises by [`CURRENT_LIMIT_RISE`] a step, and never stands more than that above the duty
+/// applied, so it has nothing to unwind when the current next exceeds the limit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct CurrentLimit {
+    /// The duty ceiling, in [`Duty`] units.
+    ceiling: u16,
+}
+
+/// How far the current limit's ceiling rises a step (1 ms), in [`Duty`] units: 1 % of full scale, five times
+/// the brushed ramp's pace.
+pub const CURRENT_LIMIT_RISE: u16 = 100;
+
+impl Default for CurrentLimit {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl CurrentLimit {
+    /// Not limiting yet: the ceiling at full scale.
+    pub const fn new() -> Self {
+        CurrentLimit {
+            ceiling: Duty::FULL as u16,
+        }
+    }
+
+    /// One step: the limit in 0.1 A (0: none), the duty applied since the last step, the current it drew and
+    /// whether the break tripped meanwhile. Returns the duty ceiling (1/10 000).
+    pub fn update(&mut self, limit_deciamps: u16, duty: Duty, current_deciamps: u16, break_tripped: bool) -> u16 {
+        let full = Duty::FULL as u16;
+        let applied = duty.magnitude();
+        self.ceiling = if limit_deciamps == 0 {
+            full
+        } else if break_tripped || current_deciamps > limit_deciamps {
+            // applied <= 10 000 and limit < 2^16: the product fits in u32; the quotient is at most applied.
+            let scaled =
+                u32::from(applied) * u32::from(limit_deciamps) / u32::from(current_deciamps.max(limit_deciamps));
+            let scaled = if break_tripped { scaled / 2 } else { scaled };
+            u16::try_from(scaled).unwrap_or(full).min(self.ceiling)
+        } else {
+            self.ceiling
+                .saturating_add(CURRENT_LIMIT_RISE)
+                .min(applied.saturating_add(CURRENT_LIMIT_RISE))
+                .min(full)
+        };
+        self.ceiling
     }
 }
 
@@ -779,6 +845,7 @@ mod tests {
             kp_q16: u32::MAX,
             ki_q16_per_s: u32::MAX,
             max_duty: u16::MAX,
+            current_limit_deciamps: u16::MAX,
         };
         let brushed = SpeedConfig {
             motor: MotorKind::Brushed,
@@ -814,6 +881,52 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn the_current_limit_holds_a_locked_rotor() {
+        // A locked rotor on 24 V through 1.2 ohm: 20 A at full duty, the current proportional to the duty.
+        let locked = |duty: u16| u16::try_from(u32::from(duty) * 200 / 10_000).unwrap_or(u16::MAX);
+        let mut limit = CurrentLimit::new();
+        let mut applied = 0u16;
+        for _ in 0..1000 {
+            // The speed loop asks for full duty; the bridge applies the ceiling.
+            let ceiling = limit.update(70, Duty::new_saturating(i32::from(applied)), locked(applied), false);
+            applied = ceiling.min(9_500);
+            assert!(locked(applied) <= 72, "{applied}");
+        }
+        // Settled at the limit: 35 % draws 7 A.
+        assert!((3_400..=3_600).contains(&applied), "{applied}");
+    }
+
+    #[test]
+    fn the_current_limit_rises_only_from_the_duty_applied() {
+        let mut limit = CurrentLimit::new();
+        // Below the limit it tracks the duty: one rise above it.
+        assert_eq!(limit.update(70, Duty::new_saturating(2_000), 10, false), 2_100);
+        assert_eq!(limit.update(70, Duty::new_saturating(2_050), 10, false), 2_150);
+        // Over it: scaled by limit / current.
+        assert_eq!(limit.update(70, Duty::new_saturating(2_000), 140, false), 1_000);
+        // A break trip halves that again, whatever the reading.
+        assert_eq!(limit.update(70, Duty::new_saturating(1_000), 80, true), 437);
+        assert_eq!(limit.update(70, Duty::new_saturating(400), 0, true), 200);
+        // Then back up a step at a time.
+        assert_eq!(limit.update(70, Duty::new_saturating(200), 30, false), 300);
+        // No limit: full scale at once.
+        assert_eq!(limit.update(0, Duty::new_saturating(200), 300, true), Duty::FULL as u16);
+    }
+
+    #[test]
+    fn the_current_limit_takes_any_input() {
+        let mut limit = CurrentLimit::new();
+        for (cap, duty, current, tripped) in [
+            (u16::MAX, i32::MIN, u16::MAX, true),
+            (1, i32::MAX, u16::MAX, false),
+            (u16::MAX, 0, 0, false),
+            (1, -10_000, 1, true),
+        ] {
+            assert!(limit.update(cap, Duty::new_saturating(duty), current, tripped) <= Duty::FULL as u16);
         }
     }
 }

@@ -228,6 +228,7 @@ async fn main(spawner: Spawner) {
             #[cfg(feature = "brushed")]
             ntc: chip.ntc.degrade_adc(),
             current: chip.current.degrade_adc(),
+            vbus: chip.vbus.degrade_adc(),
         };
         (halls, bridge, analog)
     };

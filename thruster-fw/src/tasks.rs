@@ -14,7 +14,7 @@ use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
 use crate::config::{COMMUTATION_HEARTBEAT, Config, LISTEN_HEARTBEAT};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
-use crate::faults::{CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector};
+use crate::faults::{BrushedSample, CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector};
 use crate::hall::{HallState, HallTracker};
 use crate::i2c_slave::{Answer, I2cTarget, MasterLink, ServeEvent, serve};
 use crate::overcurrent::TripRule;
@@ -50,6 +50,8 @@ pub struct RawSample {
     pub temperature: u16,
     /// Motor current amplifier.
     pub current: u16,
+    /// The supply's divider (VBUS).
+    pub vbus: u16,
     /// The power stage's hardware break tripped (its overcurrent comparator) since the last sample; taking the
     /// sample clears it.
     pub break_tripped: bool,
@@ -235,9 +237,14 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
     let mut seen_zero_orders = 0;
     let mut allowed = false;
     let mut ticker = Ticker::every(SAMPLE_PERIOD);
+    let mut first = true;
     loop {
         let raw = sensors.sample().await;
         let now = Instant::now();
+        if core::mem::take(&mut first) {
+            // The first power-up checks the divider against the bench supply (docs/hardware.md).
+            info!("VBUS {} mV ({} counts)", config.vbus.millivolts(raw.vbus), raw.vbus);
+        }
         let was_overcurrent = breaks.latched();
 
         if let Some(link) = shared.link.try_get()
@@ -277,7 +284,15 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
                     stalled = stall.update(now, duty);
                 }
             }
-            MotorKind::Brushed => stalled = current_stall.update(now, duty, current_deciamps),
+            MotorKind::Brushed => {
+                let sample = BrushedSample {
+                    duty,
+                    current_deciamps,
+                    vbus_mv: config.vbus.millivolts(raw.vbus),
+                    break_tripped: raw.break_tripped,
+                };
+                stalled = current_stall.update(now, sample);
+            }
         }
 
         let sample = Sample {

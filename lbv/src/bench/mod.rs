@@ -34,6 +34,7 @@ use tmc_proto::Family;
 
 use battery::{BatteryBoard, Rail};
 use master::{ConsoleLine, MasterBoard, Wiring};
+pub use thruster::Motor;
 use thruster::ThrusterBoard;
 use trace::{Event, Recorder, Sample, ThrusterSample, Trace};
 
@@ -78,6 +79,8 @@ pub struct BenchConfig {
     /// The console link at this baud rate, into the master's UART buffers as its binding has them
     /// ([`master::ConsoleLine`]); `None`: every byte at once, in unbounded queues.
     pub console_baud: Option<u32>,
+    /// The motor behind every thruster.
+    pub motor: Motor,
 }
 
 impl BenchConfig {
@@ -88,6 +91,7 @@ impl BenchConfig {
             seed,
             acceptance: false,
             console_baud: None,
+            motor: Motor::REFERENCE,
         }
     }
 
@@ -224,7 +228,7 @@ impl Bench {
             let device = bus.attach_target(slot.family.address(), route);
             let angle = random.unit() * core::f64::consts::TAU;
             let lazy = (engine == Engine::Events).then(|| (rail.clone(), thrusters.len()));
-            thrusters.push(ThrusterBoard::new(slot.family, bus, device, angle, lazy));
+            thrusters.push(ThrusterBoard::new(slot.family, config.motor, bus, device, angle, lazy));
         }
         let mut can = CanBus::default();
         let wiring = Wiring {

@@ -1,5 +1,5 @@
-//! The physical plant behind one thruster controller: a hall-sensored BLDC motor turning a propeller in water, its
-//! winding temperature and its water-sensor electrodes.
+//! The physical plant behind one thruster controller: a hall-sensored BLDC motor (or a brushed DC motor) turning a
+//! propeller in water, its winding temperature and its water-sensor electrodes.
 //!
 //! # Model
 //!
@@ -10,6 +10,12 @@
 //! f_A the shape of the firmware's commutation tests (+1 on [30, 150) degrees, -1 on [210, 330), linear between,
 //! zero crossings at 0 and 180); B lags A by 120 degrees, C by 240. The halls are
 //! [`hall_state_at`](thruster_fw::hall::hall_state_at) of theta_e, so every hall edge falls on a commutation point.
+//!
+//! **Brushed.** With [`MotorParams::brushed`] the motor is a DC motor between phases A and B (the controller's
+//! H-bridge; C is not connected): its commutator keeps the back-EMF on the plateaus whatever the angle, A at +1 and
+//! B at -1, so the pair's equations below hold at every angle: `i = (V - 2 ke omega) / 2R`, `T = 2 ke i`, with
+//! `2R` the resistance between its terminals and `2 ke` its torque constant. It has no halls: the lines read 111
+//! (the inputs' pull-ups), and the brush drop, armature reaction and commutation ripple are not modelled.
 //!
 //! **Bridge.** Complementary PWM averaged over the PWM period (the PWM frequency is far above every time constant
 //! here): a [`PhaseDrive::Pwm`] phase sits at |duty| x V_supply on average, a [`PhaseDrive::Low`] phase at 0 V, a
@@ -110,6 +116,8 @@ pub struct MotorParams {
     pub thermal_resistance_k_per_w: f64,
     /// Winding heat capacity, J/K.
     pub thermal_capacity_j_per_k: f64,
+    /// A brushed DC motor between phases A and B instead of a BLDC motor (see the module documentation).
+    pub brushed: bool,
 }
 
 impl MotorParams {
@@ -128,6 +136,15 @@ impl MotorParams {
         friction: 2.0e-5,
         thermal_resistance_k_per_w: 3.0,
         thermal_capacity_j_per_k: 10.0,
+        brushed: false,
+    };
+
+    /// A brushed thruster of the same class: the same 1.2 ohm between its terminals and the same torque constant
+    /// (thruster-fw's `Thresholds::armature_milliohms`), so the same speeds and currents as the BLDC motor on its
+    /// plateaus, and a 20 A locked-rotor current at 24 V.
+    pub const BRUSHED_THRUSTER: MotorParams = MotorParams {
+        brushed: true,
+        ..MotorParams::THRUSTER
     };
 
     /// The parameters as used: every value finite and within a range where the integration stays finite.
@@ -418,11 +435,12 @@ impl Plant {
 
     /// Seconds until the halls next change if the drive is held: the rotor reaching the next sector boundary in
     /// the direction it turns (or, at rest, is pushed), at its present speed and acceleration. None when they will
-    /// not change by themselves: a hall fault holds them, the rotor is held, at rest with no torque, or slowing to
-    /// turn back before the boundary (then the boundary behind it comes next, which a later look finds). Needs the
-    /// currents and torque evaluated at the present state (any [`Plant::step`] leaves them so for a zero step).
+    /// not change by themselves: a hall fault holds them, the motor has none (brushed), the rotor is held, at rest
+    /// with no torque, or slowing to turn back before the boundary (then the boundary behind it comes next, which a
+    /// later look finds). Needs the currents and torque evaluated at the present state (any [`Plant::step`] leaves
+    /// them so for a zero step).
     pub fn time_to_edge(&self) -> Option<f64> {
-        if self.hall_fault.is_some() || self.blocked {
+        if self.hall_fault.is_some() || self.blocked || self.params.brushed {
             return None;
         }
         let p = self.checked;
@@ -457,9 +475,14 @@ impl Plant {
         t.is_finite().then_some(t)
     }
 
-    /// The hall lines: `hall_fault` if set, else the state at the rotor's electrical angle.
+    /// The hall lines: `hall_fault` if set, else the state at the rotor's electrical angle (a brushed motor has
+    /// none: its lines read their pull-ups).
     pub fn hall_state(&self) -> HallState {
-        self.hall_fault.unwrap_or_else(|| self.rotor_hall_state())
+        match self.hall_fault {
+            Some(state) => state,
+            None if self.params.brushed => HallState::from_bits(0b111),
+            None => self.rotor_hall_state(),
+        }
     }
 
     /// Signed mechanical speed, rpm (positive forward).
@@ -594,7 +617,11 @@ impl Plant {
             return Electrical::default();
         }
         let theta = self.electrical_deg();
-        let shapes = [emf_shape(theta), emf_shape(theta - 120.0), emf_shape(theta - 240.0)];
+        let shapes = if self.params.brushed {
+            [1.0, -1.0, 0.0]
+        } else {
+            [emf_shape(theta), emf_shape(theta - 120.0), emf_shape(theta - 240.0)]
+        };
         let speed_emf = p.ke * self.omega;
         // Terminal voltage of each connected phase minus its back-EMF; None for a floating phase.
         let driven = drive.map(|d| match d {

@@ -72,6 +72,8 @@ pub struct ThrusterIo {
     pub watchdog_bites: Cell<u32>,
     /// The fraction of the commanded duty the break input lets through (1.0 when not limiting).
     current_limit: Cell<f64>,
+    /// The supply at the last fixed step, V (the event engine reads the rail instead).
+    supply_v: Cell<f64>,
     /// Steps during which the break input limited the current.
     pub limited_steps: Cell<u64>,
     /// TIM1's break flag (SR.BIF): set by every trip, cleared by the fault task's sample that reads it.
@@ -103,6 +105,34 @@ struct Lazy {
     /// Its drive changed, its halls changed or it reached its moment since `next` was worked out: the bench works
     /// it out again once the instant's tasks are done.
     dirty: Cell<bool>,
+}
+
+/// The motor behind a bench thruster: its kind, and its rotor's inertia (propeller and entrained water included) as
+/// a multiple of the reference thruster's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Motor {
+    pub kind: MotorKind,
+    pub inertia_x: u8,
+}
+
+impl Motor {
+    /// The reference thruster: brushless, its own rotor.
+    pub const REFERENCE: Motor = Motor {
+        kind: MotorKind::Brushless,
+        inertia_x: 1,
+    };
+
+    /// The plant's parameters.
+    pub fn params(self) -> MotorParams {
+        let base = match self.kind {
+            MotorKind::Brushless => MotorParams::THRUSTER,
+            MotorKind::Brushed => MotorParams::BRUSHED_THRUSTER,
+        };
+        MotorParams {
+            inertia_kg_m2: base.inertia_kg_m2 * f64::from(self.inertia_x.max(1)),
+            ..base
+        }
+    }
 }
 
 /// The length of the image a bench thruster leaves the factory with, about the application's.
@@ -201,11 +231,19 @@ impl Deref for ThrusterBoard {
 }
 
 impl ThrusterBoard {
-    /// A thruster of `family` at `device` on `bus`, its motor at `angle` (mechanical radians); not powered yet. Its
+    /// A thruster of `family` driving `motor` at `device` on `bus`, its rotor at `angle` (mechanical radians); not
+    /// powered yet. Its
     /// flash holds a factory image of this family, version [`FACTORY_VERSION`], in ACTIVE, and nothing else. On
     /// the event engine `rail` is the pack's terminals and `index` its place there; without, the fixed-step engine
     /// steps the plant.
-    pub fn new(family: Family, bus: &Bus, device: DeviceId, angle: f64, rail: Option<(Rc<Rail>, usize)>) -> Self {
+    pub fn new(
+        family: Family,
+        motor: Motor,
+        bus: &Bus,
+        device: DeviceId,
+        angle: f64,
+        rail: Option<(Rc<Rail>, usize)>,
+    ) -> Self {
         let flash = factory_flash(&factory_image(family));
         let updater = BootUpdater::new(
             family,
@@ -213,14 +251,15 @@ impl ThrusterBoard {
             partition(&flash, THRUSTER_PARTITIONS.state),
         );
         Self {
-            config: Config::reference(family, MotorKind::Brushless),
+            config: Config::reference(family, motor.kind),
             io: Rc::new(ThrusterIo {
-                plant: RefCell::new(Plant::new(MotorParams::THRUSTER).with_angle(angle)),
+                plant: RefCell::new(Plant::new(motor.params()).with_angle(angle)),
                 drive: Cell::new((COAST, Duty::ZERO)),
                 hall_edge: Signal::new(),
                 last_feed: Cell::new(Instant::from_ticks(0)),
                 watchdog_bites: Cell::new(0),
                 current_limit: Cell::new(1.0),
+                supply_v: Cell::new(0.0),
                 limited_steps: Cell::new(0),
                 break_flag: Cell::new(false),
                 held_off: Cell::new(false),
@@ -500,6 +539,7 @@ impl ThrusterIo {
     }
 
     fn step(&self, dt: f64, supply_v: f64) {
+        self.supply_v.set(supply_v);
         let (drive, passed) = self.applied();
         let mut plant = self.plant.borrow_mut();
         if plant.step(dt, drive, passed, supply_v) {
@@ -560,6 +600,14 @@ impl ThrusterIo {
                 plant.reading_after(h, drive, passed, lazy.rail.voltage())
             }
             None => (plant.winding_c(), plant.phase_current_a()),
+        }
+    }
+
+    /// The supply at the bridge, V: what VBUS's divider sees.
+    fn supply(&self) -> f64 {
+        match &self.lazy {
+            Some(lazy) => lazy.rail.voltage(),
+            None => self.supply_v.get(),
         }
     }
 
@@ -683,6 +731,7 @@ impl Sensors for Adc {
             water: config.water.raw_at(self.io.plant.borrow().water_ohms),
             temperature: config.ntc.raw_at(decicelsius),
             current: round(f64::from(config.current.offset_raw) + counts).clamp(0, 4095) as u16,
+            vbus: config.vbus.raw_at(round(self.io.supply() * 1000.0).max(0) as u32),
             break_tripped: self.io.take_break(),
         }
     }

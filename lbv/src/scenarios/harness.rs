@@ -4,11 +4,11 @@
 use embassy_time::{Duration, Instant};
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value, json};
-use tmc_proto::{Family, Faults};
+use tmc_proto::{Family, Faults, MotorKind};
 
 use super::fault::Fault;
 use crate::bench::trace::Trace;
-use crate::bench::{Bench, BenchConfig, Engine, STEP};
+use crate::bench::{Bench, BenchConfig, Engine, Motor, STEP};
 use lbv_master_fw::mixer::ManualInput;
 use lbv_master_fw::shared::LinkHealth;
 
@@ -184,6 +184,10 @@ pub const AHEAD: ManualInput = ManualInput {
     r: 0,
 };
 
+/// The sticks pushed fully ahead, and fully astern.
+pub const FULL_AHEAD: ManualInput = ManualInput { x: 1000, ..AHEAD };
+pub const FULL_ASTERN: ManualInput = ManualInput { x: -1000, ..AHEAD };
+
 /// The vehicle as built: an LBV300-6 with six SeaBotix thrusters.
 pub fn lbv300(seed: u64) -> BenchConfig {
     BenchConfig::lbv300(seed)
@@ -205,6 +209,29 @@ pub fn legacy6(seed: u64) -> BenchConfig {
         seed,
         acceptance: false,
         console_baud: None,
+        motor: Motor::REFERENCE,
+    }
+}
+
+/// The LBV300-6 with six Legacy brushed thrusters (revision 4).
+pub fn brushed6(seed: u64) -> BenchConfig {
+    BenchConfig {
+        motor: Motor {
+            kind: MotorKind::Brushed,
+            inertia_x: 1,
+        },
+        ..legacy6(seed)
+    }
+}
+
+/// [`brushed6`] with rotors four times as heavy (a larger propeller, more entrained water).
+pub fn heavy_brushed6(seed: u64) -> BenchConfig {
+    BenchConfig {
+        motor: Motor {
+            kind: MotorKind::Brushed,
+            inertia_x: 4,
+        },
+        ..legacy6(seed)
     }
 }
 
@@ -215,6 +242,7 @@ pub fn mixed(seed: u64) -> BenchConfig {
         seed,
         acceptance: false,
         console_baud: None,
+        motor: Motor::REFERENCE,
     }
 }
 
@@ -225,6 +253,7 @@ pub fn dev_kits(seed: u64) -> BenchConfig {
         seed,
         acceptance: true,
         console_baud: None,
+        motor: Motor::REFERENCE,
     }
 }
 

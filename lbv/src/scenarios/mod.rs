@@ -35,11 +35,11 @@ use console::{
     signing_reboot, stray_byte,
 };
 use flood::console_flood;
-use harness::{dev_kits, lbv300, lbv300_uart, legacy6, mixed};
+use harness::{brushed6, dev_kits, heavy_brushed6, lbv300, lbv300_uart, legacy6, mixed};
 use soak::soak;
 use thruster_faults::{
-    ground_fault, ground_glitch, hall, hall_glitches, info_power, info_power_response, overcurrent, overtemp,
-    rocking_rotor, stall, water, water_threshold,
+    ground_fault, ground_glitch, hall, hall_glitches, heavy_start, info_power, info_power_response, overcurrent,
+    overtemp, rocking_rotor, stall, stall_brushed, water, water_threshold,
 };
 use update::{field_update, master_update};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
@@ -105,6 +105,21 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 6.0,
         vehicle: legacy6,
         run: stall,
+    },
+    Scenario {
+        name: "stall-brushed",
+        about: "a rope in a Legacy brushed thruster's propeller: no back-EMF, stall in 400 ms, cleared by a zero order",
+        seconds: 6.0,
+        vehicle: brushed6,
+        run: stall_brushed,
+    },
+    Scenario {
+        name: "heavy-start-brushed",
+        about: "brushed rotors four times as heavy: a full-order start and a full reversal draw the current limit \
+                but are no stall",
+        seconds: 6.5,
+        vehicle: heavy_brushed6,
+        run: heavy_start,
     },
     Scenario {
         name: "stall-seabotix",

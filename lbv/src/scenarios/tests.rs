@@ -51,6 +51,8 @@ scenario_tests! {
     overtemp_legacy: "overtemp-legacy",
     overtemp_seabotix: "overtemp-seabotix",
     stall_legacy: "stall-legacy",
+    stall_brushed: "stall-brushed",
+    heavy_start_brushed: "heavy-start-brushed",
     stall_seabotix: "stall-seabotix",
     hall_legacy: "hall-legacy",
     hall_seabotix: "hall-seabotix",

@@ -7,13 +7,15 @@ use tmc_proto::{Family, Faults};
 
 use super::fault::{Fault, GROUND_FAULT_OHMS, WATER_OHMS};
 use super::harness::{
-    AHEAD, NEUTRAL, Run, coasted_within_a_sample, drives_again, family, inject_and_time, others_keep_working, reported,
-    round, stopped_after_consecutive_samples,
+    AHEAD, FULL_AHEAD, FULL_ASTERN, NEUTRAL, Run, coasted_within_a_sample, drives_again, family, inject_and_time,
+    others_keep_working, reported, round, stopped_after_consecutive_samples,
 };
 use crate::bench::plant::DRY_WATER_OHMS;
+use lbv_master_fw::mixer::ManualInput;
 use thruster_fw::commutation::COAST;
 use thruster_fw::faults::Thresholds;
 use thruster_fw::hall::HallState;
+use thruster_fw::speed::SpeedConfig;
 
 pub fn water(run: &mut Run) {
     let legacy = family(run) == Family::Legacy;
@@ -106,11 +108,27 @@ pub fn overtemp(run: &mut Run) {
 }
 
 pub fn stall(run: &mut Run) {
+    stall_from(run, 0.0);
+}
+
+/// [`stall`] with the rope tied half a fault sample off their grid: a brushed stall's window starts at the first
+/// sample that reads the locked rotor's current, and at a sample's own instant the engines differ on whether it
+/// does (the event engine reads the plant as the rope left it, the fixed-step one its last step before).
+pub fn stall_brushed(run: &mut Run) {
+    stall_from(run, 0.0005);
+}
+
+/// The rope goes in `offset` seconds after 1.5 s of driving ahead.
+fn stall_from(run: &mut Run, offset: f64) {
     let rope = Fault::BlockedPropeller { thruster: 0 };
-    let took = inject_and_time(run, rope);
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5 + offset);
+    run.inject(rope);
+    let took = run.run_until(1.0, |bench| bench.thrusters[0].drive().1.value() == 0);
     let ms = took.map(|s| round(s * 1e3, 1));
     run.metric("stall_detected_after_ms", json!(ms));
-    // The window counts pulses over the last 400 ms: the last pulses before the block are in it at first.
+    // Brushless, the window counts pulses over the last 400 ms: the last pulses before the block are in it at
+    // first. Brushed, it starts at the first sample of the locked rotor.
     run.check(
         "stall stops it within the 400 ms window",
         took.is_some_and(|s| (0.39..=0.41).contains(&s)),
@@ -528,4 +546,66 @@ pub fn overcurrent(run: &mut Run) {
     run.bench.ground.sticks = Some(AHEAD);
     run.run_for(1.5);
     drives_again(run, "a zero order clears it and the next order drives");
+}
+
+/// A heavy brushed rotor's full-order start and full reversal. It draws the thruster's current limit while it
+/// speeds up, as a locked rotor would, but its back-EMF grows with the speed: neither is a stall
+/// (docs/decisions.md D13).
+pub fn heavy_start(run: &mut Run) {
+    // The pilot's gain at 100 %: full sticks are full orders.
+    let gain = run.bench.ground.param_set("LBV_GAIN", 100.0);
+    run.bench.send(gain);
+    let limit_a = f64::from(SpeedConfig::BRUSHED_DEFAULT.current_limit_deciamps) / 10.0;
+    let (start_stalled, start_peak, start_limited) = watch_for_stall(run, FULL_AHEAD, 2.0, limit_a);
+    let ahead = run.rpm(0);
+    run.metric("start_peak_current_a", json!(round(start_peak, 2)));
+    run.metric("start_at_the_limit_ms", json!(round(start_limited * 1e3, 0)));
+    run.check(
+        "a full-order start is no stall",
+        !start_stalled && ahead.abs() > 4000.0,
+        format!("T1 at {ahead:.0} rpm after 2 s"),
+    );
+    run.check(
+        "the start draws the thruster's current limit, the stage's comparator does not cut",
+        start_limited > 0.1 && start_peak < limit_a + 0.5 && run.bench.thrusters[0].limited_steps.get() == 0,
+        format!(
+            "peak {start_peak:.2} A, {:.0} ms at the limit, {} steps cut by the comparator",
+            start_limited * 1e3,
+            run.bench.thrusters[0].limited_steps.get()
+        ),
+    );
+    let (reverse_stalled, reverse_peak, reverse_limited) = watch_for_stall(run, FULL_ASTERN, 3.0, limit_a);
+    let astern = run.rpm(0);
+    run.metric("reversal_peak_current_a", json!(round(reverse_peak, 2)));
+    run.metric("reversal_at_the_limit_ms", json!(round(reverse_limited * 1e3, 0)));
+    run.check(
+        "a full reversal is no stall",
+        !reverse_stalled && astern.abs() > 4000.0 && astern.signum() != ahead.signum(),
+        format!("T1 from {ahead:.0} to {astern:.0} rpm in 3 s"),
+    );
+}
+
+/// Put the sticks at `sticks` and run for `seconds`: whether any thruster stalled meanwhile, thruster 1's peak
+/// current, and how long it drew at least 90 % of `limit_a`.
+fn watch_for_stall(run: &mut Run, sticks: ManualInput, seconds: f64, limit_a: f64) -> (bool, f64, f64) {
+    if run.bench.ground.sticks.is_none() {
+        run.arm_and_go(sticks);
+    }
+    run.bench.ground.sticks = Some(sticks);
+    let (mut stalled, mut peak, mut limited) = (false, 0.0f64, 0.0);
+    let mut last = run.bench.now();
+    run.run_until(seconds, |bench| {
+        let now = bench.now();
+        let current = bench.thrusters[0].plant.borrow().phase_current_a();
+        if current >= 0.9 * limit_a {
+            limited += (now - last).as_micros() as f64 / 1e6;
+        }
+        last = now;
+        peak = peak.max(current);
+        stalled |= bench.thrusters.iter().any(|thruster| {
+            (thruster.shared().sensed.try_get()).is_some_and(|sensed| sensed.faults.contains(Faults::STALL))
+        });
+        false
+    });
+    (stalled, peak, limited)
 }

@@ -148,8 +148,7 @@ fn spec_thresholds() {
     assert_eq!(t.water_clear_ohms, 1_100_000);
     assert_eq!(t.latch_samples, 3);
     assert_eq!(t.hall_error_samples, 3);
-    assert_eq!(t.locked_rotor_deciamps, 200);
-    assert_eq!(t.stall_current_ceiling_deciamps, 60);
+    assert_eq!(t.armature_milliohms, 1_200);
 }
 
 #[test]
@@ -272,37 +271,94 @@ fn progress_counts_only_new_ground_in_the_driven_direction() {
     assert_eq!(p.advance(i32::MIN, forward), 1);
 }
 
+/// A brushed sample at 24 V, the break quiet.
+fn brushed(duty_value: i32, current_deciamps: u16) -> BrushedSample {
+    BrushedSample {
+        duty: duty(duty_value),
+        current_deciamps,
+        vbus_mv: 24_000,
+        break_tripped: false,
+    }
+}
+
 #[test]
-fn brushed_stall_level_and_window() {
+fn a_locked_brushed_rotor_stalls_after_the_window() {
     let mut s = CurrentStall::new(&Thresholds::SPEC);
-    // Half the 20 A locked-rotor current at the duty, at most 6 A.
-    assert_eq!(s.level_deciamps(duty(1000)), 10);
-    assert_eq!(s.level_deciamps(duty(-5000)), 50);
-    assert_eq!(s.level_deciamps(duty(9500)), 60);
-    // 25 A at full order: stalled from 400 ms on.
-    assert!(!s.update(ms(0), duty(9500), 250));
-    assert!(!s.update(ms(399), duty(9500), 250));
-    assert!(s.update(ms(400), duty(9500), 250));
-    // A turning motor's current, at any duty, never stalls.
+    // 95 % of 24 V is 22.8 V: a locked rotor draws 19 A through 1.2 ohm, no back-EMF.
+    assert_eq!(s.back_emf_mv(&brushed(9500, 190)), (0, 22_800));
+    assert!(!s.update(ms(0), brushed(9500, 190)));
+    assert!(!s.update(ms(399), brushed(9500, 190)));
+    assert!(s.update(ms(400), brushed(9500, 190)));
+    // Held by the thruster's own current limit at 7 A, the duty down to 35 %: still no back-EMF.
+    let mut s = CurrentStall::new(&Thresholds::SPEC);
+    assert!(!s.update(ms(0), brushed(3500, 70)));
+    assert!(s.update(ms(400), brushed(-3500, 70)));
+    // A locked rotor at 10 % duty draws 2 A.
+    let mut s = CurrentStall::new(&Thresholds::SPEC);
+    assert!(!s.update(ms(0), brushed(1000, 20)));
+    assert!(s.update(ms(400), brushed(1000, 20)));
+}
+
+#[test]
+fn a_turning_brushed_motor_never_stalls() {
     let mut s = CurrentStall::new(&Thresholds::SPEC);
     for t in 0..2000 {
-        assert!(!s.update(ms(t), duty(9500), 40));
+        // Full speed: 4 A, 18 V of back-EMF.
+        assert!(!s.update(ms(t), brushed(9500, 40)));
     }
-    // A locked rotor at 10 % duty draws 2 A: above its 1 A level.
+    // Half the applied voltage is the edge: 8.4 V applied, 4.2 V of back-EMF (3.5 A) turns, 4.08 V (3.6 A) not.
+    assert_eq!(s.back_emf_mv(&brushed(3500, 35)), (4_200, 8_400));
+    assert!(!s.update(ms(3000), brushed(3500, 35)));
+    assert!(!s.update(ms(3400), brushed(3500, 35)));
+    assert!(!s.update(ms(3401), brushed(3500, 36)));
+    assert!(s.update(ms(3801), brushed(3500, 36)));
+    // A reversal: full reverse into a rotor still turning ahead draws 30 A, its back-EMF against the drive.
     let mut s = CurrentStall::new(&Thresholds::SPEC);
-    assert!(!s.update(ms(0), duty(1000), 20));
-    assert!(s.update(ms(400), duty(1000), 20));
-    // 8 % is not above 8 %; a dip of the current restarts the window.
+    assert_eq!(s.back_emf_mv(&brushed(-9500, 300)), (-13_200, 22_800));
+    for t in 0..2000 {
+        assert!(!s.update(ms(t), brushed(-9500, 300)));
+    }
+}
+
+#[test]
+fn a_brushed_stall_needs_the_duty_a_known_voltage_and_no_break() {
+    // 8 % is not above 8 %.
     let mut s = CurrentStall::new(&Thresholds::SPEC);
-    assert!(!s.update(ms(0), duty(800), 200));
-    assert!(!s.update(ms(500), duty(800), 200));
-    assert!(!s.update(ms(501), duty(9500), 200));
-    assert!(!s.update(ms(700), duty(9500), 59));
-    assert!(!s.update(ms(701), duty(9500), 60));
-    assert!(!s.update(ms(1100), duty(9500), 60));
-    assert!(s.update(ms(1101), duty(9500), 60));
+    for t in 0..1000 {
+        assert!(!s.update(ms(t), brushed(800, 16)));
+    }
+    // A break trip (the stage cut the pulses: the voltage applied is not known) restarts the window.
+    let mut s = CurrentStall::new(&Thresholds::SPEC);
+    assert!(!s.update(ms(0), brushed(9500, 190)));
+    let tripped = BrushedSample {
+        break_tripped: true,
+        ..brushed(9500, 80)
+    };
+    assert!(!s.update(ms(300), tripped));
+    assert!(!s.update(ms(301), brushed(9500, 190)));
+    assert!(!s.update(ms(700), brushed(9500, 190)));
+    assert!(s.update(ms(701), brushed(9500, 190)));
     s.reset();
-    assert!(!s.update(ms(1102), duty(9500), 60));
+    assert!(!s.update(ms(702), brushed(9500, 190)));
+    // No supply read (VBUS 0): nothing is applied, nothing stalls.
+    let mut s = CurrentStall::new(&Thresholds::SPEC);
+    let unpowered = BrushedSample {
+        vbus_mv: 0,
+        ..brushed(9500, 0)
+    };
+    for t in 0..1000 {
+        assert!(!s.update(ms(t), unpowered));
+    }
+    // Extremes neither panic nor stall on nonsense.
+    let mut s = CurrentStall::new(&Thresholds::SPEC);
+    let extreme = BrushedSample {
+        duty: duty(i32::MIN),
+        current_deciamps: u16::MAX,
+        vbus_mv: u32::MAX,
+        break_tripped: false,
+    };
+    let _ = s.back_emf_mv(&extreme);
+    let _ = s.update(ms(0), extreme);
 }
 
 #[test]

@@ -133,12 +133,13 @@ impl Watchdog for CountingWatchdog {
     }
 }
 
-/// A healthy controller's inputs: dry, 25 C, no current.
+/// A healthy controller's inputs: dry, 25 C, no current, 24 V.
 fn dry(config: &Config) -> RawSample {
     RawSample {
         water: 0,
         temperature: config.ntc.raw_at(250),
         current: config.current.offset_raw,
+        vbus: config.vbus.raw_at(24_000),
         break_tripped: false,
     }
 }
@@ -869,7 +870,7 @@ fn current_raw(config: &Config, deciamps: u32) -> u16 {
 }
 
 #[test]
-fn a_brushed_motor_at_25_a_stalls_400_ms_into_it_until_a_zero_order() {
+fn a_locked_brushed_rotor_stalls_400_ms_into_it_until_a_zero_order() {
     for family in Family::ALL {
         let mut bench = Bench::brushed(family);
         bench.order(102);
@@ -881,18 +882,20 @@ fn a_brushed_motor_at_25_a_stalls_400_ms_into_it_until_a_zero_order() {
         bench.elapse(Duration::from_millis(900));
         bench.order(102);
         assert!(bench.duty().magnitude() > 9000, "{family:?}: turning at full duty");
-        // The rotor locks: 25 A.
-        bench.inputs.set(RawSample {
-            current: current_raw(&bench.config, 250),
-            ..bench.inputs.get()
-        });
+        // The rotor locks: 20 A at full duty through the 1.2 ohm winding, at 24 V, proportional to the duty. The
+        // current limit brings the duty down to hold 7 A; nothing turns.
         let start = Instant::now();
         while bench.bridge.get().0 != COAST && Instant::now() - start < Duration::from_secs(1) {
+            let locked = u32::from(bench.duty().magnitude()) * 200 / 10_000;
+            bench.inputs.set(RawSample {
+                current: current_raw(&bench.config, locked),
+                ..bench.inputs.get()
+            });
             bench.elapse(Duration::from_micros(100));
         }
         let took = Instant::now() - start;
         assert!(
-            (Duration::from_millis(400)..=Duration::from_millis(402)).contains(&took),
+            (Duration::from_millis(400)..=Duration::from_millis(403)).contains(&took),
             "{family:?}: stalled after {took:?}"
         );
         bench.send(READ);
@@ -908,6 +911,22 @@ fn a_brushed_motor_at_25_a_stalls_400_ms_into_it_until_a_zero_order() {
         bench.order(102);
         bench.elapse(Duration::from_millis(50));
         assert!(bench.duty().value() > 0);
+    }
+}
+
+#[test]
+fn a_brushed_motor_over_its_current_limit_is_held_to_it() {
+    let mut bench = Bench::brushed(Family::Legacy);
+    bench.order(102);
+    for _ in 0..2000 {
+        // A locked rotor: 20 A at full duty.
+        let locked = u32::from(bench.duty().magnitude()) * 200 / 10_000;
+        bench.inputs.set(RawSample {
+            current: current_raw(&bench.config, locked),
+            ..bench.inputs.get()
+        });
+        bench.elapse(Duration::from_micros(100));
+        assert!(locked <= 72, "{locked}");
     }
 }
 
@@ -1198,10 +1217,10 @@ fn a_short_that_stays_trips_again_after_each_zero_order() {
 #[test]
 fn the_adc_conversions_of_a_sample_fit_the_tick() {
     // The binding reads its inputs with blocking conversions (`g431_hw::adc::THRUSTER_SEQUENCE`: one thrown away,
-    // then water, NTC, current) once per sample tick, holding the thread executor meanwhile: at DS12589's sample
-    // times they take about 34 us of the 1 ms tick, kept under 5 % of both the sample and the control tick.
+    // then water, NTC, current, VBUS) once per sample tick, holding the thread executor meanwhile: at DS12589's
+    // sample times they take about 40 us of the 1 ms tick, kept under 5 % of both the sample and the control tick.
     let sequence_us = g431_hw::adc::THRUSTER_SEQUENCE_NS / 1000.0;
-    assert!((33.0..34.0).contains(&sequence_us), "{sequence_us} us");
+    assert!((39.0..40.0).contains(&sequence_us), "{sequence_us} us");
     for tick in [SAMPLE_PERIOD, CONTROL_PERIOD] {
         assert!(
             sequence_us < 0.05 * tick.as_micros() as f64,

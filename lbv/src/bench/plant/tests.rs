@@ -541,6 +541,7 @@ fn extreme_inputs_stay_finite() {
             friction: value,
             thermal_resistance_k_per_w: value,
             thermal_capacity_j_per_k: value,
+            brushed: value.is_sign_negative(),
         };
         let mut plant = Plant::new(params).with_angle(value);
         plant.ambient_c = value;
@@ -622,4 +623,44 @@ fn emf_shape_matches_the_firmware_model() {
             }
         }
     }
+}
+
+#[test]
+fn a_brushed_motor_is_a_dc_motor_at_every_angle() {
+    let forward = thruster_fw::tasks::h_bridge(Duty::new_saturating(10_000));
+    let reverse = thruster_fw::tasks::h_bridge(Duty::new_saturating(-10_000));
+    for angle in [0.0, 0.4, 1.3, 2.9] {
+        // Locked: 24 V across 1.2 ohm, whatever the angle, either way.
+        let mut plant = Plant::new(MotorParams::BRUSHED_THRUSTER).with_angle(angle);
+        plant.blocked = true;
+        plant.step(1e-3, forward, Duty::new_saturating(10_000), 24.0);
+        assert!(
+            (plant.phase_current_a() - 20.0).abs() < 1e-9,
+            "{}",
+            plant.phase_current_a()
+        );
+        assert!(plant.torque_nm() > 0.0);
+        plant.step(1e-3, reverse, Duty::new_saturating(-10_000), 24.0);
+        assert!((plant.phase_current_a() - 20.0).abs() < 1e-9);
+        assert!(plant.torque_nm() < 0.0);
+        assert_eq!(plant.hall_state(), HallState::from_bits(0b111));
+        assert_eq!(plant.time_to_edge(), None);
+    }
+    // Free, at full duty: the BLDC motor's full speed and current on its plateaus (~5000 rpm, 4 A), and no hall
+    // edge on the way.
+    let mut plant = Plant::new(MotorParams::BRUSHED_THRUSTER).with_angle(1.0);
+    let mut edges = 0;
+    for _ in 0..40_000 {
+        edges += usize::from(plant.step(50e-6, forward, Duty::new_saturating(10_000), 24.0));
+    }
+    assert_eq!(edges, 0);
+    assert!((4_900.0..5_100.0).contains(&plant.rpm()), "{}", plant.rpm());
+    assert!(
+        (3.8..4.2).contains(&plant.phase_current_a()),
+        "{}",
+        plant.phase_current_a()
+    );
+    // The back-EMF across the terminals is 2 ke omega: 24 V less I x 1.2 ohm.
+    let emf = 2.0 * MotorParams::THRUSTER.ke_v_s_per_rad * plant.rpm() * TAU / 60.0;
+    assert!((emf - (24.0 - plant.phase_current_a() * 1.2)).abs() < 1e-6, "{emf}");
 }
