@@ -73,6 +73,9 @@ macro_rules! power_stage_rows {
                 h3: PB10 = of("hall H3", "H3", HALL),
                 current: PA0 = of("motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
                 vbus: PA1 = of("supply voltage", "VBUS", Analog { adc1_in: 2 }),
+                // The overcurrent comparator's reference through R77 and the board's RC (PB4's reset state is JTAG's
+                // NJTRST with a pull-up): driven high, the trip level sits at its top (docs/hardware.md, "The break").
+                current_ref: PB4 = of("overcurrent threshold", "CURRENT_REF", Mode::Output { high: true }),
                 $($extra)*
             }
             peripherals {
@@ -580,6 +583,7 @@ fn write_mode(mode: Mode, out: &mut impl fmt::Write) -> fmt::Result {
         Mode::AlternateOpenDrain { signal, af } => write!(out, "{signal} (AF{af}), open drain"),
         Input(p) => write!(out, "input{}", pull(p)),
         Analog { adc1_in } => write!(out, "ADC1 IN{adc1_in}"),
+        Mode::Output { high } => write!(out, "output, held {}", if high { "high" } else { "low" }),
     }
 }
 
@@ -878,7 +882,7 @@ mod tests {
                     }
                     // ST's data names ADC1's inputs INx, without an alternate function.
                     Mode::Analog { adc1_in } => (format!("ADC1_IN{adc1_in}"), None),
-                    Mode::Input(_) => continue,
+                    Mode::Input(_) | Mode::Output { .. } => continue,
                 };
                 let name = format!("P{}{}", used.pin.port.letter(), used.pin.number);
                 let known = METADATA

@@ -175,6 +175,8 @@ pub enum Mode {
     /// An analog input, ADC1's channel `adc1_in` (DS12589 Table 12's ADC12_INx / ADC1_INx): the digital input is
     /// disconnected.
     Analog { adc1_in: u8 },
+    /// A push-pull output the image sets to a level at start and holds there (GPIOx_ODR, RM0440 9.4.6).
+    Output { high: bool },
 }
 
 /// An I2C line: open-drain in its alternate function.

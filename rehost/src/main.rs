@@ -139,6 +139,11 @@ fn pins(image: &g431_hw::pins::Image) -> Vec<Value> {
                 Mode::AlternateOpenDrain { af, .. } => ("alternate", af, Pull::None, true, None),
                 Mode::Input(pull) => ("input", 0, pull, false, None),
                 Mode::Analog { adc1_in } => ("analog", 0, Pull::None, false, Some(adc1_in)),
+                Mode::Output { .. } => ("output", 0, Pull::None, false, None),
+            };
+            let level = match used.mode {
+                Mode::Output { high } => Some(u8::from(high)),
+                _ => None,
             };
             let pull = match pull {
                 Pull::None => "none",
@@ -147,7 +152,7 @@ fn pins(image: &g431_hw::pins::Image) -> Vec<Value> {
             };
             json!({
                 "port": used.pin.port.letter().to_string(), "pin": used.pin.number, "function": used.function,
-                "mode": mode, "af": af, "pull": pull, "open_drain": open_drain, "adc1_in": channel,
+                "mode": mode, "af": af, "pull": pull, "open_drain": open_drain, "adc1_in": channel, "level": level,
             })
         })
         .collect()

@@ -43,7 +43,10 @@ def test_pins_are_set_up_as_described_and_no_other_is_touched(name, expected, bo
         want = {"mode": pin["mode"], "pull": pin["pull"], "open_drain": pin["open_drain"]}
         if pin["mode"] == "alternate":
             want["af"] = pin["af"]
-        got = {key: state[key] for key in want}
+        if pin["mode"] == "output":
+            want["level"] = pin["level"]
+        got = {**state, "level": chip.gpio[pin["port"]].level(pin["pin"])}
+        got = {key: got[key] for key in want}
         if got != want:
             wrong.append(f"P{pin['port']}{pin['pin']} ({pin['function']}): {got}, not {want}")
     for letter, port in chip.gpio.items():

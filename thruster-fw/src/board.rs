@@ -36,7 +36,7 @@ use {
     core::future::poll_fn,
     core::task::Poll,
     embassy_stm32::exti::ExtiInput,
-    embassy_stm32::gpio::Flex,
+    embassy_stm32::gpio::{Flex, Output},
     embassy_stm32::pac::timer::regs::{BdtrAdv, CcerAdv, CcmrOutputGp16, EgrAdv, SrAdv},
     embassy_stm32::peripherals::TIM1,
     embassy_stm32::timer::complementary_pwm::ComplementaryPwm,
@@ -200,6 +200,8 @@ impl HallSensors for Halls {
 pub struct PowerStage {
     pub _pwm: ComplementaryPwm<'static, TIM1>,
     pub _break_input: Flex<'static>,
+    /// The overcurrent comparator's reference (CURRENT_REF), held high.
+    pub _current_ref: Output<'static>,
     /// TIM1's auto-reload value: the PWM period in counts.
     pub arr: u16,
 }

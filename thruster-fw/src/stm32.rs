@@ -24,7 +24,7 @@ use crate::board::{self, BackupLatch, BootRecord, ImageSwap, Iwdg, SlavePort};
 use {
     crate::board::{AnalogInputs, BRIDGE, Halls, PowerStage},
     embassy_stm32::exti::ExtiInput,
-    embassy_stm32::gpio::{AfType, Flex, OutputType},
+    embassy_stm32::gpio::{AfType, Flex, Level, Output, OutputType, Speed},
     embassy_stm32::pac::syscfg::regs::Cfgr2,
     embassy_stm32::pac::timer::regs::{Af1Adv, BdtrAdv, Cr2Adv},
     embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin},
@@ -189,6 +189,9 @@ async fn main(spawner: Spawner) {
         let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*chip.bkin);
         let mut break_input = Flex::new(chip.bkin);
         break_input.set_as_af_unchecked(break_af, AfType::input(Pull::Up));
+        // The comparator's reference, held high before the outputs are armed: the trip level at its top
+        // (`g431_hw::images`, docs/hardware.md "The break").
+        let current_ref = Output::new(chip.current_ref, Level::High, Speed::Low);
         // The period is written here, not taken from embassy: its centre-aligned set-up counts ARR = 4249 (an
         // edge-aligned period less one), while a centre-aligned period is 2 x ARR timer clocks (RM0440 TIM1
         // centre-aligned mode), so 20 kHz from 170 MHz is ARR = 4250 with PSC = 0. The outputs are not armed yet.
@@ -208,6 +211,7 @@ async fn main(spawner: Spawner) {
         let mut bridge = PowerStage {
             _pwm: pwm,
             _break_input: break_input,
+            _current_ref: current_ref,
             arr,
         };
         arm_power_stage(&mut bridge);
