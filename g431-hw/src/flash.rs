@@ -12,6 +12,9 @@
 //! So [`nmi_action`] passes an ECC double error in the pages an image names: it clears ECCD (written 1; ECCCIE
 //! kept) and the read completes. Anything else — an ECC error in the code, in the system memory, or an NMI of
 //! another cause — is not one to run on.
+//!
+//! And the G474's bank mode ([`master_layout_ok`]): the master's partitions and settings are placed for its two
+//! banks of 2 KiB pages, which the user option bytes can turn into one bank of 4 KiB pages.
 
 use crate::memory::{FLASH_ORIGIN, G474_BANK2, G474RE, Span};
 
@@ -34,6 +37,25 @@ pub mod eccr {
 
 // The address field reaches every byte of a bank.
 const _: () = assert!(eccr::ADDR_ECC >= G474_BANK2 - FLASH_ORIGIN - 1);
+
+/// FLASH_OPTR's fields read here, the user option bytes as loaded at reset (RM0440 3.7.8, "Flash option register
+/// (FLASH_OPTR)"; the position as in ST's SVD for the G474, the stm32g4 crate 0.16's `flash::optr`).
+pub mod optr {
+    /// DBANK, bit 22, category 3 devices (the G474) only: 1 is dual-bank mode, two banks of 256 KiB in 2 KiB pages;
+    /// 0 is one bank of 4 KiB pages.
+    pub const DBANK: u32 = 1 << 22;
+    /// The option bytes as they leave the factory (RM0440 3.4.1; the SVD's reset value): DBANK set.
+    pub const FACTORY: u32 = 0xFFEF_F8AA;
+}
+
+/// Whether the G474's flash, FLASH_OPTR reading `optr`, is in the layout the master's partitions and settings are
+/// placed for ([`G474RE`], `memory::MASTER_PARTITIONS`, `memory::MASTER_STORAGE`): dual-bank mode. In single-bank
+/// mode an erase's page number, which the driver counts in bank 2's 2 KiB pages, names a 4 KiB page of the one
+/// bank: other pages than the ones meant, the images' code among them. embassy-stm32 checks DBANK only in its
+/// blocking driver, which the bootloader uses; the application's async driver does not.
+pub const fn master_layout_ok(optr: u32) -> bool {
+    optr & optr::DBANK != 0
+}
 
 /// An ECC error as FLASH_ECCR reports it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -215,6 +237,24 @@ mod tests {
             panic!("passed")
         };
         assert_eq!(clear & (ECCC | ADDR_ECC | SYSF_ECC | BK_ECC), 0);
+    }
+
+    #[test]
+    fn the_master_s_layout_is_dual_bank_mode_whatever_the_other_option_bytes_say() {
+        assert!(master_layout_ok(optr::FACTORY), "as the chips leave the factory");
+        assert!(!master_layout_ok(optr::FACTORY & !optr::DBANK), "one bank");
+        assert_eq!(optr::DBANK, 1 << 22);
+        // Only DBANK counts: every other bit set or clear, as a vehicle's option bytes set them or not (nSWBOOT0,
+        // nBOOT0, IWDG_SW, BFB2, RDP...).
+        assert!(master_layout_ok(optr::DBANK) && master_layout_ok(u32::MAX));
+        assert!(!master_layout_ok(0) && !master_layout_ok(!optr::DBANK));
+        for bit in (0..32).filter(|bit| 1 << bit != optr::DBANK) {
+            assert!(master_layout_ok(optr::FACTORY ^ (1 << bit)), "bit {bit}");
+            assert!(
+                !master_layout_ok((optr::FACTORY & !optr::DBANK) ^ (1 << bit)),
+                "bit {bit}"
+            );
+        }
     }
 
     #[test]

@@ -48,6 +48,15 @@ pub const DEV_KEY_TEXT: &str = "Takes update files signed with the development k
 // Whole in one STATUSTEXT.
 const _: () = assert!(DEV_KEY_TEXT.len() <= shared::TEXT_LEN);
 
+/// Why the settings store and the master's own update write nothing: the chip's flash is not in the layout their
+/// pages are placed for (`g431_hw::flash::master_layout_ok`, which the binding reads at start).
+pub const NOT_DUAL_BANK: &str = "flash not dual-bank";
+/// What a master whose flash is not in dual-bank mode says at every start, as an error (docs/flashing.md, "Option
+/// bytes"): its settings last until the next restart, and master images are refused.
+pub const NOT_DUAL_BANK_TEXT: &str = "Settings and updates refused: flash not dual-bank";
+// Whole in one STATUSTEXT.
+const _: () = assert!(NOT_DUAL_BANK_TEXT.len() <= shared::TEXT_LEN);
+
 /// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
 /// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for,
 /// where update images go, and how it updates itself.
@@ -201,6 +210,9 @@ where
     }
     if update_image::UPDATE_KEY_IS_DEV {
         shared.say(Severity::Warning, text(format_args!("{DEV_KEY_TEXT}")));
+    }
+    if settings.writes_refused() {
+        shared.say(Severity::Error, text(format_args!("{NOT_DUAL_BANK_TEXT}")));
     }
     shared.settings.sender().send(stored);
     // Until the own update has read whether the running image is on trial, no arm is taken ([`update::own`]).

@@ -67,6 +67,13 @@ pub trait SettingsStore {
     fn read_errors(&self) -> u32 {
         0
     }
+
+    /// Whether every write is refused ([`StoreError::Layout`]): the chip's flash is not in the layout the pages are
+    /// placed for. [`crate::run`] says so at start, for the master's own update too, which the binding refuses on
+    /// the same reading.
+    fn writes_refused(&self) -> bool {
+        false
+    }
 }
 
 /// Restarts the master: a system reset on the STM32; the bench drops the master's tasks and boots it again with
@@ -115,6 +122,9 @@ pub enum StoreError {
     Flash,
     /// The store found itself corrupt and could not repair it.
     Corrupt,
+    /// The chip's flash is not in the layout the pages are placed for ([`Store::set_layout_ok`]): nothing is
+    /// written.
+    Layout,
 }
 
 impl<E> From<sequential_storage::Error<E>> for StoreError {
@@ -186,6 +196,8 @@ pub struct Store<F: NorFlash> {
     held: Option<[u8; RECORD]>,
     /// Records that could not be read at start-up.
     read_errors: u32,
+    /// The flash is in the layout the pages are placed for ([`Store::set_layout_ok`]).
+    layout_ok: bool,
 }
 
 impl<F: NorFlash> core::fmt::Debug for Store<F> {
@@ -205,6 +217,7 @@ impl<F: NorFlash> Store<F> {
             buffer: Buffer([0; RECORD.next_multiple_of(8)]),
             held: None,
             read_errors: 0,
+            layout_ok: true,
         })
     }
 
@@ -216,7 +229,15 @@ impl<F: NorFlash> Store<F> {
             buffer: Buffer([0; RECORD.next_multiple_of(8)]),
             held: None,
             read_errors: 0,
+            layout_ok: true,
         }
+    }
+
+    /// Whether the chip's flash is in the layout [`STORAGE`] is placed in, as the binding reads it at start
+    /// (`g431_hw::flash::master_layout_ok`: the G474's dual-bank mode). When it is not, the store reads and
+    /// refuses every write ([`StoreError::Layout`]): an erase there would land on other pages.
+    pub fn set_layout_ok(&mut self, ok: bool) {
+        self.layout_ok = ok;
     }
 
     /// The flash back (the tests power-cycle it).
@@ -239,6 +260,9 @@ impl<F: NorFlash> Store<F> {
         };
         if self.held.as_ref() == Some(staged) {
             return Ok(());
+        }
+        if !self.layout_ok {
+            return Err(StoreError::Layout);
         }
         self.queue.push(staged, true).await?;
         self.held = Some(*staged);
@@ -295,6 +319,10 @@ impl<F: NorFlash> SettingsStore for Store<F> {
     fn read_errors(&self) -> u32 {
         self.read_errors
     }
+
+    fn writes_refused(&self) -> bool {
+        !self.layout_ok
+    }
 }
 
 /// The signing link's timestamp in a record (its last 8 bytes).
@@ -310,7 +338,8 @@ pub const SIGNING_RETRY: Duration = Duration::from_secs(5);
 /// console once a reservation is in flash (`shared.signing_stored`); when the reboot's acknowledgement is out
 /// (`shared.reboot`), finish writing and restart through `reboot`. A write that fails is reported on the console
 /// (Warning); a settings change is retried with the next change, a reservation every [`SIGNING_RETRY`] until it
-/// is stored (until then the console signs and accepts nothing beyond the last one).
+/// is stored (until then the console signs and accepts nothing beyond the last one), unless the flash's layout
+/// refused it ([`StoreError::Layout`], which stands until a restart).
 ///
 /// The settings' pages are in the G474's bank 2 and the code in bank 1, so a write or an erase runs beside the code
 /// (RM0440 3.3.8): the thruster buses go on meanwhile.
@@ -355,7 +384,8 @@ pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &
             },
             Either3::Second(reservation) => {
                 let result = store.save_signing_time(reservation).await;
-                unsaved = result.is_err().then_some(reservation);
+                // A refusal of the flash's layout stands until a restart: told once, not tried again.
+                unsaved = (result.is_err() && result != Err(StoreError::Layout)).then_some(reservation);
                 if result.is_ok() {
                     stored.send(reservation);
                 }
@@ -377,6 +407,7 @@ pub async fn settings_task<S: SettingsStore, R: Reboot>(store: &mut S, shared: &
             let why = match error {
                 StoreError::Flash => "flash error",
                 StoreError::Corrupt => "store corrupt",
+                StoreError::Layout => crate::NOT_DUAL_BANK,
             };
             shared.say(Severity::Warning, text(format_args!("Settings not saved: {why}")));
         }
@@ -802,6 +833,74 @@ mod tests {
             shared.outbox.try_receive(),
             Ok(crate::shared::Outgoing::Text(Severity::Warning, text)) if text.starts_with("Settings not saved")
         ));
+    }
+
+    #[test]
+    fn on_a_flash_not_in_its_layout_the_store_reads_and_writes_nothing() {
+        let mut flash = flash();
+        let stored = with(|s| {
+            s.params.set(Param::Gain, 80);
+        });
+        save(&mut flash, &stored).unwrap();
+        let before = flash.stats_snapshot();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        assert!(!store.writes_refused());
+        store.set_layout_ok(false);
+        assert!(store.writes_refused());
+        assert_eq!(block_on(store.load(defaults())), stored, "what the flash holds is read");
+        // What it holds already is no write; a change and a reservation are refused.
+        assert_eq!(block_on(store.save(&stored)), Ok(()));
+        let changed = with(|s| {
+            s.params.set(Param::Gain, 20);
+        });
+        assert_eq!(block_on(store.save(&changed)), Err(StoreError::Layout));
+        assert_eq!(block_on(store.save_signing_time(5_000_000)), Err(StoreError::Layout));
+        store.into_flash();
+        let after = before.compare_to(flash.stats_snapshot());
+        assert_eq!((after.writes, after.erases), (0, 0), "nothing written");
+        assert_eq!(load(&mut flash), (stored, 0));
+    }
+
+    #[test]
+    fn the_task_tells_each_change_the_layout_refuses_and_does_not_try_a_reservation_again() {
+        let _clock = lbv_sim::clock::take();
+        let shared = Shared::new();
+        let mut flash = flash();
+        let mut reboot = Restart(Default::default());
+        let before = flash.stats_snapshot();
+        let mut store = Store::new(&mut flash, RANGE).unwrap();
+        store.set_layout_ok(false);
+        let loaded = block_on(store.load(defaults()));
+        let texts = |shared: &Shared| {
+            core::iter::from_fn(|| shared.outbox.try_receive().ok())
+                .map(|out| match out {
+                    crate::shared::Outgoing::Text(Severity::Warning, text) => text.to_string(),
+                    other => panic!("{other:?}"),
+                })
+                .collect::<Vec<_>>()
+        };
+        let script = async {
+            // The start's publication of what was loaded writes nothing, and says nothing.
+            shared.settings.sender().send(loaded);
+            crate::battery::tests::elapse(Duration::from_millis(10)).await;
+            assert_eq!(texts(&shared), [] as [&str; 0]);
+            shared.settings.sender().send(with(|s| {
+                s.params.set(Param::Gain, 10);
+            }));
+            shared.signing_time.sender().send(9_000_000);
+            crate::battery::tests::elapse(Duration::from_millis(10)).await;
+            assert_eq!(texts(&shared), ["Settings not saved: flash not dual-bank"; 2]);
+            crate::battery::tests::elapse(SIGNING_RETRY * 3).await;
+            assert_eq!(texts(&shared), [] as [&str; 0], "not tried again");
+            assert_eq!(shared.signing_stored.try_get(), None, "not stored, not confirmed");
+        };
+        match block_on(select(settings_task(&mut store, &shared, &mut reboot), script)) {
+            Either::First(never) => match never {},
+            Either::Second(()) => {}
+        }
+        store.into_flash();
+        let after = before.compare_to(flash.stats_snapshot());
+        assert_eq!((after.writes, after.erases), (0, 0), "nothing written");
     }
 
     #[test]

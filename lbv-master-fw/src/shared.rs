@@ -358,7 +358,7 @@ pub enum AckResult {
 pub enum Severity {
     /// MAV_SEVERITY_CRITICAL (2): a thruster fault that stops it, a failsafe.
     Critical,
-    /// MAV_SEVERITY_ERROR (3).
+    /// MAV_SEVERITY_ERROR (3): a failed acceptance step, a flash whose layout refuses settings and updates.
     Error,
     /// MAV_SEVERITY_WARNING (4): a thruster went offline, stale battery data, a warning fault.
     Warning,

@@ -187,8 +187,20 @@ async fn main(spawner: Spawner) {
     static OWN_IMAGE: StaticCell<OwnImage> = StaticCell::new();
     let flash: &'static ChipFlash = FLASH.init(Mutex::new(Flash::new(chip.flash, Irqs)));
     let whole = || Partition::new(flash, 0, g431_hw::memory::G474RE.flash.length);
-    let settings = Store::master(whole());
+    // The partitions and the settings' pages are placed for dual-bank mode (FLASH_OPTR.DBANK, RM0440 3.7.8), which
+    // the async driver does not check: on one bank the store and the own update refuse every write.
+    let optr = pac::FLASH.optr().read().0;
+    let layout_ok = g431_hw::flash::master_layout_ok(optr);
+    if !layout_ok {
+        defmt::error!(
+            "flash not dual-bank (FLASH_OPTR {:#010x}): settings and updates refused",
+            optr
+        );
+    }
+    let mut settings = Store::master(whole());
+    settings.set_layout_ok(layout_ok);
     let own_image: &'static OwnImage = OWN_IMAGE.init_with(OwnImage::new);
+    own_image.set_layout_ok(layout_ok);
     let own = Updating {
         flash: OwnFlash::new(whole()),
         image: own_image,

@@ -313,3 +313,100 @@ fn polling_holds_arming_until_every_thruster_of_the_table_has_said_what_it_runs_
     executor.run_for(&clock, Duration::from_millis(100), Duration::from_micros(100));
     assert_eq!(shared.holds.get(), None);
 }
+
+#[test]
+fn a_master_whose_flash_is_not_dual_bank_says_so_once_and_writes_neither_settings_nor_updates() {
+    use lbv_sim::flash::FlashStats;
+    use lbv_station::{GroundStation, Upload, UploadState};
+    use update_image::{ImageInfo, Target, Version};
+
+    use crate::update::VehicleSink;
+    use crate::update::courier::Transfers;
+    use crate::update::own::{OwnFlash, OwnImage, Updating};
+
+    // The binding read DBANK = 0: the settings store and the own update are told so before the tasks start.
+    let flash = master_flash();
+    let config = VEHICLE;
+    let timing = Timing::new(config.bus.frequency_hz, config.bus.timeout);
+    let buses = [Bus::new(timing), Bus::new(timing), Bus::new(timing)];
+    let (console_in, console_out) = (Queue::new(), Queue::new());
+    let (shared, stats, image, transfers) = (Shared::new(), ConsoleStats::new(), OwnImage::new(), Transfers::new());
+    image.set_layout_ok(false);
+    let mut settings = flash_store(&flash);
+    settings.set_layout_ok(false);
+    let clock = clock::take();
+    let mut executor = Executor::new();
+    let ports = Ports {
+        buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
+        can: CanNode::default(),
+        console_rx: SerialRx::new(console_in.clone()),
+        console_tx: SerialTx(console_out.clone()),
+        settings,
+        reboot: RebootRequest::default(),
+        work: Polling::default(),
+        update: VehicleSink::new(&transfers, &image),
+        own: Updating {
+            flash: OwnFlash::new(flash.clone()),
+            image: &image,
+            crashes: 0,
+        },
+    };
+    executor.spawn(async {
+        run(ports, &config, &shared, &stats).await;
+    });
+    let mut ground = GroundStation::default();
+    let mut step = |ground: &mut GroundStation, upload: Option<&mut Upload>| {
+        if clock.now().as_millis().is_multiple_of(1000) {
+            console_in.send(ground.heartbeat());
+        }
+        if let Some(frame) = upload.and_then(|upload| upload.poll(clock.now(), ground)) {
+            console_in.send(frame);
+        }
+        executor.run_for(&clock, Duration::from_millis(1), Duration::from_millis(1));
+        ground.receive(clock.now(), &console_out.take());
+    };
+    for _ in 0..500 {
+        step(&mut ground, None);
+    }
+    // A parameter takes effect until the next start, and is not saved: here the one that lets an update through
+    // over this unsigned link.
+    console_in.send(ground.param_set("LBV_UPD_UNSIGNED", 1.0));
+    for _ in 0..500 {
+        step(&mut ground, None);
+    }
+    let seed = update_image::key_from_hex(include_str!("../../keys/dev.key")).expect("a key");
+    let mut payload = vec![0x5A; 4096];
+    let record = update_image::image_record(
+        ImageInfo::new(Target::Master, Version::new(0, 2, 0)),
+        &update_image::DEV_PUBLIC_KEY,
+    );
+    payload[update_image::INFO_OFFSET..update_image::INFO_OFFSET + record.len()].copy_from_slice(&record);
+    let mut upload = Upload::new(
+        "/update/master.lbvu",
+        update_image::sign(&payload, &seed).expect("signed"),
+    );
+    for _ in 0..2000 {
+        step(&mut ground, Some(&mut upload));
+    }
+    assert!(
+        matches!(upload.state(), UploadState::Refused(_)),
+        "{:?}",
+        upload.state()
+    );
+
+    let texts: Vec<&str> = ground.seen.texts.iter().map(|(_, text)| text.as_str()).collect();
+    let count = |wanted: &str| texts.iter().filter(|text| **text == wanted).count();
+    assert_eq!(
+        count(crate::NOT_DUAL_BANK_TEXT),
+        1,
+        "said once, at the start: {texts:?}"
+    );
+    assert_eq!(count("Settings not saved: flash not dual-bank"), 1, "{texts:?}");
+    assert_eq!(count("master.lbvu: refused: flash not dual-bank"), 1, "{texts:?}");
+    assert_eq!(
+        shared.settings.try_get().map(|s| s.params.unsigned_updates()),
+        Some(true),
+        "in force"
+    );
+    assert_eq!(flash.stats(), FlashStats::default(), "nothing erased or programmed");
+}

@@ -1,13 +1,17 @@
 """The master image polls its thrusters through the TCA9548A, reads the battery's CAN frames, talks MAVLink on
-its virtual COM port, and keeps a parameter in flash over a reset."""
+its virtual COM port, and keeps a parameter in flash over a reset (and, on a flash set to one bank, says so and
+keeps none)."""
 
 import cantools
 import pytest
 
 from conftest import ROOT, rehost
+from g431.system import OPTR
 from master import Ground, mavlink, start
 
 BAT_DBC = cantools.database.load_file(str(ROOT / "lbv" / "dbc" / "bat.dbc"))
+# FLASH_OPTR's DBANK (RM0440 3.7.8): the G474's flash in two banks of 2 KiB pages.
+DBANK = 1 << 22
 # The first byte of the bus extension's frames (tmc-proto's `ext::EXT_MT`), which no IDS order opens with.
 EXT_MT = 0x80
 
@@ -81,6 +85,23 @@ def test_a_battery_status_word_is_reported_bit_by_bit(expected):
     texts = [m.text for m in ground.of("STATUSTEXT") if m.text.startswith("BAT ")]
     for text in ("BAT V12motor=1 12 V motor regulator on", "BAT V12motor_F=0 normal", "BAT V12board_F=0 normal"):
         assert text in texts, texts
+
+
+def test_on_one_flash_bank_the_master_says_so_and_writes_nothing(expected):
+    # The option bytes set to one bank (RM0440 3.7.8, FLASH_OPTR.DBANK, bit 22 clear), loaded at the power-on.
+    chip, _, _ = start("lbv-master-fw", expected)
+    chip.flash_interface.resets[OPTR] &= ~DBANK
+    chip.power_on()
+    chip.run_until(chip.idle, seconds=0.2, what="idle on one bank")
+    ground = Ground(chip)
+    ground.wait("STATUSTEXT", 1.0, lambda m: m.text == "Settings and updates refused: flash not dual-bank")
+    work = (chip.flash_interface.programs, chip.flash_interface.erases)
+    ground.send(mavlink.MAVLink_param_set_message(1, 1, b"LBV_GAIN", 40.0, mavlink.MAV_PARAM_TYPE_REAL32))
+    ack = ground.wait("PARAM_VALUE", 1.0, lambda m: m.param_id == "LBV_GAIN")
+    assert ack.param_value == pytest.approx(40.0), "in force until the next start"
+    ground.wait("STATUSTEXT", 1.0, lambda m: m.text == "Settings not saved: flash not dual-bank")
+    chip.run_for(0.2)
+    assert (chip.flash_interface.programs, chip.flash_interface.erases) == work, "nothing written"
 
 
 def test_a_parameter_set_is_kept_in_flash_over_a_power_cycle(expected):

@@ -8,7 +8,8 @@
 //!
 //! What is checked, and when:
 //! - as the upload begins: the running image is not on trial (DFU holds the image a revert needs), the payload fits
-//!   ACTIVE, and the flash has the bootloader's partitions;
+//!   ACTIVE, and the flash has the bootloader's partitions, in the layout they are placed for (the G474's dual-bank
+//!   mode: on one bank this task writes nothing, [`OwnImage::set_layout_ok`]);
 //! - once its first page is in: its image info (update-image's `check`: a master image, the header's version, an
 //!   info of format 2; and `check_upgrade`: not older than the running image unless signed as a rollback, its
 //!   security counter not below the running image's);
@@ -130,6 +131,8 @@ pub enum NotTaken {
     Restarting,
     /// An apply is under way already, for this sender: no second one starts.
     Applying(Sender),
+    /// The chip's flash is not in the layout the partitions are placed for ([`OwnImage::set_layout_ok`]).
+    Layout,
 }
 
 /// What the task found in the flash at start.
@@ -141,6 +144,8 @@ enum Flash {
     Ready { on_trial: bool },
     /// An image is marked for the swap: latched until the restart.
     Marked,
+    /// Not in the layout the partitions are placed for: nothing is written until a restart.
+    WrongLayout,
 }
 
 /// An image on its way into DFU.
@@ -226,6 +231,7 @@ impl OwnImage {
             stage.apply = None;
             let refusal = match stage.flash {
                 Flash::Marked => NotTaken::Restarting,
+                Flash::WrongLayout => NotTaken::Layout,
                 Flash::Unknown => NotTaken::NoBootloader,
                 Flash::Ready { on_trial: true } => NotTaken::OnTrial,
                 Flash::Ready { .. } if header.payload_len > MAX_PAYLOAD => NotTaken::TooLarge,
@@ -319,12 +325,26 @@ impl OwnImage {
     pub fn found(&self, on_trial: Option<bool>) {
         self.with(|stage| {
             stage.flash = match (stage.flash, on_trial) {
-                // Only the restart undoes the mark.
-                (Flash::Marked, _) => Flash::Marked,
+                // Only the restart undoes the mark, or changes the layout.
+                (Flash::Marked | Flash::WrongLayout, _) => stage.flash,
                 (_, Some(on_trial)) => Flash::Ready { on_trial },
                 (_, None) => Flash::Unknown,
             }
         });
+    }
+
+    /// The binding's side, before the tasks start: whether the chip's flash is in the layout the partitions are
+    /// placed for, as it reads it (`g431_hw::flash::master_layout_ok`: the G474's dual-bank mode). When it is not,
+    /// every upload is refused ([`NotTaken::Layout`]) and the task writes nothing: an erase would land on other
+    /// pages.
+    pub fn set_layout_ok(&self, ok: bool) {
+        if !ok {
+            self.with(|stage| stage.flash = Flash::WrongLayout);
+        }
+    }
+
+    fn layout_ok(&self) -> bool {
+        self.with(|stage| stage.flash != Flash::WrongLayout)
     }
 
     /// The task's side: an image is marked for the swap, and the master restarts into it. From now on nothing is
@@ -557,13 +577,15 @@ pub async fn own_image_task<F: NorFlash, C: CrashRegister>(
     let applier = applier_of(&mut ticket_page).await;
     let mut word = AlignedBuffer([0; 8]);
     let mut state = FirmwareState::new(flash.partition(MASTER_PARTITIONS.state), &mut word.0);
+    let layout_ok = own.layout_ok();
     let mut on_trial = match state.get_state().await {
-        Ok(found) => {
+        // On the wrong layout a trial neither confirms (a write) nor reverts (a restart into the bootloader).
+        Ok(found) if layout_ok => {
             let on_trial = found == State::Swap;
             own.found(Some(on_trial));
             on_trial
         }
-        Err(_) => false,
+        _ => false,
     };
     shared.holds.set_master(own.hold());
     if on_trial {
@@ -646,8 +668,8 @@ pub async fn own_image_task<F: NorFlash, C: CrashRegister>(
             let told = verdict_texts(format_args!("master.lbvu"), "refused by the bootloader", verdict);
             tell(shared, Severity::Warning, told).await;
             acknowledge(shared, AckResult::Failed, applier.unwrap_or(operator)).await;
-            // A write that fails leaves it to be told again at the next start.
-            if let Some(free) = free {
+            // A write that fails, or is not made, leaves it to be told again at the next start.
+            if let Some(free) = free.filter(|_| layout_ok) {
                 let _ = ticket_page.write(TOLD_OFFSET + free, &checked_word(verdict)).await;
             }
             untold = None;
@@ -659,6 +681,7 @@ pub async fn own_image_task<F: NorFlash, C: CrashRegister>(
                 NotTaken::OnTrial => format_args!("on trial: wait for it to confirm"),
                 NotTaken::TooLarge => format_args!("larger than ACTIVE ({kib} KiB)"),
                 NotTaken::Restarting => format_args!("marked for the swap: restarting"),
+                NotTaken::Layout => format_args!("refused: {}", crate::NOT_DUAL_BANK),
                 NotTaken::Refused | NotTaken::Nothing | NotTaken::Applying(_) => format_args!("refused"),
             };
             say(shared, Severity::Warning, why).await;

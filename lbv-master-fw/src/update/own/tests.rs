@@ -1,8 +1,9 @@
 //! The master's own update on lbv-sim's G474 flash, on virtual time: an image written page by page into DFU and
 //! marked for the swap when its signature is good, its ticket handed to the bootloader, and nothing written after
 //! the mark; refused, with its reason, when its signature is bad, its info is not a master's or is older than the
-//! running image's, it is too large or the running image is on trial; the bootloader's refusal told once; and the
-//! trial confirmed once the operator is heard, or given up (back to the previous image) when not.
+//! running image's, it is too large or the running image is on trial, and with nothing written at all on a flash
+//! not in dual-bank mode; the bootloader's refusal told once; and the trial confirmed once the operator is heard,
+//! or given up (back to the previous image) when not.
 
 use std::cell::{Cell, RefCell};
 use std::ops::Range;
@@ -712,6 +713,35 @@ fn the_bootloaders_refusal_is_told_to_the_operator_once() {
     bench.hear_operator(true);
     bench.run(Duration::from_secs(1));
     assert!(bench.said().is_empty());
+}
+
+#[test]
+fn on_a_flash_not_in_dual_bank_mode_an_upload_is_refused_and_nothing_is_written() {
+    // On trial, and a verdict of the bootloader's to tell: as far as reading goes, the flash is as it should be.
+    let flash = flashed();
+    on_trial(&flash);
+    refused_by_the_bootloader(&flash, Verdict::Signature.code().into());
+    let before = flash.stats();
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    own.set_layout_ok(false);
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    assert!(bench.said().is_empty(), "no trial: it could neither confirm nor revert");
+    assert_eq!(own.hold(), None, "nothing to hold arming for");
+    let file = signed(Target::Master, 4096);
+    assert_eq!(bench.upload(&file), Err(NotTaken::Layout));
+    bench.run(Duration::from_millis(10));
+    assert_eq!(texts(&bench.said()), ["master.lbvu: refused: flash not dual-bank"]);
+    assert_eq!(own.apply(OPERATOR), Err(NotTaken::Nothing));
+    // Heard past the trial's limit: the verdict is told (and not noted as told), nothing confirmed, no restart.
+    bench.hear_operator(true);
+    bench.run(TRIAL_LIMIT + Duration::from_secs(1));
+    let said = bench.said();
+    assert_eq!(texts(&said), ["master.lbvu: refused by the bootloader: signature"]);
+    assert!(!said.iter().any(|out| matches!(out, Outgoing::Reboot)));
+    assert_eq!(state_of(&flash), State::Swap);
+    assert_eq!(flash.stats(), before, "nothing erased or programmed");
+    assert_eq!(bench.upload(&file), Err(NotTaken::Layout), "nor later");
 }
 
 #[test]
