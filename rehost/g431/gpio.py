@@ -5,6 +5,7 @@ A port's registers take no access while its clock is off (RCC_AHB2ENR's GPIOxEN,
 here a write is then lost and a read gives 0, so an image that forgets the clock leaves its pins as they were."""
 
 from .peripheral import Peripheral, bit, field
+from .timers import TIM1_AF, TIM1_PINS
 
 MODER, OTYPER, OSPEEDR, PUPDR, IDR, ODR, BSRR, LCKR, AFRL, AFRH, BRR = (
     0x00, 0x04, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x1C, 0x20, 0x24, 0x28)
@@ -52,10 +53,22 @@ class Gpio(Peripheral):
                 changed.add(pin)
         return changed
 
-    def level(self, pin):
+    def output(self, pin):
+        """What the chip drives on the pin: 0, 1, "pwm" (a timer switching it), or None (not driven)."""
         mode = field(self.regs.get(MODER, 0), 2 * pin, 2)
         if mode == OUTPUT:
             return bit(self.regs.get(ODR, 0), pin)
+        if mode == ALTERNATE:
+            af = field(self.regs.get(AFRL if pin < 8 else AFRH, 0), 4 * (pin % 8), 4)
+            channel = TIM1_PINS.get((self.letter, pin))
+            if channel is not None and af == TIM1_AF:
+                return self.chip.tim1.pin_output(*channel)
+        return None
+
+    def level(self, pin):
+        driven = self.output(pin)
+        if driven is not None:
+            return 0 if driven == "pwm" else driven
         if pin in self.external:
             return self.external[pin]
         return 1 if field(self.regs.get(PUPDR, 0), 2 * pin, 2) == 1 else 0

@@ -8,7 +8,12 @@ AF1, AF2 = 0x60, 0x64
 
 UIF, CC1IF, CC2IF, COMIF, BIF, B2IF, SBIF = 1 << 0, 1 << 1, 1 << 2, 1 << 5, 1 << 7, 1 << 8, 1 << 13
 UG, COMG = 1 << 0, 1 << 5
-MOE, AOE, BKE, BKP = 1 << 15, 1 << 14, 1 << 12, 1 << 13
+MOE, AOE, BKE, BKP, OSSR, OSSI = 1 << 15, 1 << 14, 1 << 12, 1 << 13, 1 << 11, 1 << 10
+
+# TIM1's channel outputs on the G431's pins in AF6 (DS12589 Table 13): (port, pin) -> (channel 0-2, complementary).
+TIM1_PINS = {("A", 8): (0, False), ("A", 7): (0, True), ("A", 9): (1, False), ("B", 0): (1, True),
+             ("A", 10): (2, False), ("B", 1): (2, True)}
+TIM1_AF = 6
 
 # RM0440 Table 97: TIM1's break and TIM15 share one vector.
 TIM1_BRK_TIM15_IRQ = 24
@@ -223,6 +228,48 @@ class Tim1(Peripheral):
         dier, sr = self.regs.get(DIER, 0), self.regs.get(SR, 0)
         level = bool(dier & (1 << 7) and sr & (BIF | B2IF | SBIF))
         self.chip.irq(self, TIM1_BRK_TIM15_IRQ, level)
+
+    def _reference(self, channel):
+        """OCxREF of channel 0-2 from its output compare mode (RM0440 28.6.7, OCxM's four bits): 0 or 1 when it
+        holds still, "pwm" when it switches within the period. The counter is not modelled, so a PWM mode is
+        "pwm" unless its compare value keeps it at one level all period (CCR 0, or above ARR)."""
+        ccmr = self.active[CCMR1 if channel < 2 else CCMR2]
+        shift = 0 if channel != 1 else 8
+        mode = field(ccmr, 4 + shift, 3) | bit(ccmr, 16 + shift) << 3
+        ccr = self.regs.get((CCR1, CCR2, CCR3)[channel], 0)
+        if mode == 0b0100:
+            return 0
+        if mode == 0b0101:
+            return 1
+        if mode in (0b0110, 0b0111):
+            if ccr == 0 or ccr > self.regs.get(ARR, 0):
+                level = 0 if ccr == 0 else 1
+                return level if mode == 0b0110 else 1 - level
+            return "pwm"
+        return 0 if mode == 0 else "pwm"  # frozen holds the reset level; the other modes toggle
+
+    def pin_output(self, channel, complementary):
+        """What TIM1 puts on OCx (or OCxN) of channel 0-2: 0, 1, "pwm", or None when it does not drive the pin
+        (Hi-Z), by RM0440 28.6.11's table of MOE, OSSI, OSSR, CCxE, CCxNE, the polarities CCxP / CCxNP and the idle
+        levels OISx / OISxN (CR2). Read as: with MOE clear and OSSI set, a channel with either output enabled sits
+        at its idle levels (the dead time before them is not modelled); with neither enabled it is Hi-Z."""
+        ccer, bdtr, cr2 = self.active[CCER], self.regs.get(BDTR, 0), self.regs.get(CR2, 0)
+        enabled = (bit(ccer, 4 * channel), bit(ccer, 4 * channel + 2))
+        polarity = bit(ccer, 4 * channel + (3 if complementary else 1))
+        mine = enabled[1] if complementary else enabled[0]
+        if not bdtr & MOE:
+            if not bdtr & OSSI or not any(enabled):
+                return None
+            return bit(cr2, 8 + 2 * channel + (1 if complementary else 0))
+        if not mine:
+            # Off-state with OSSR: enabled at its inactive level; else not driven.
+            return polarity if bdtr & OSSR else None
+        reference = self._reference(channel)
+        if reference == "pwm":
+            return "pwm"
+        if complementary and enabled[0]:
+            reference = 1 - reference  # the complementary output of a pair is OCxREF inverted (then dead time)
+        return reference ^ polarity
 
     def outputs(self):
         """What each phase's two switches do: per channel 1-3, (high enabled, low enabled, mode)."""

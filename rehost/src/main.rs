@@ -275,7 +275,14 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         ]);
         let quarter = Duty::new_saturating(i32::from(g431_hw::tim1::FULL_DUTY) / 4);
         for state in FORWARD_SEQUENCE {
-            six_step.push(json!({ "hall": state.bits(), "drive": commutation(drive_for(state, quarter)) }));
+            let drive = drive_for(state, quarter);
+            // What each phase's switches must do, for the tests that read the gate pins rather than the registers.
+            let phases = drive.map(|phase| match phase {
+                PhaseDrive::Pwm => "pwm",
+                PhaseDrive::Low => "low",
+                PhaseDrive::Float => "float",
+            });
+            six_step.push(json!({ "hall": state.bits(), "drive": commutation(drive), "phases": phases }));
         }
     }
     // Readings that put the sensors at a working point, and past the IDS's fault thresholds (IDS 8.4.2).

@@ -6,7 +6,7 @@ import pytest
 from unicorn import arm_const as arm
 
 from g431.core import IRQ0, NMI
-from thruster import exchange, set_analog, start
+from thruster import all_off, exchange, set_analog, start, switches
 
 # The most instructions from a fault to the outputs being off: the handlers' first act is one BDTR store, so a
 # few dozen at most (exception entry, the vector, the store).
@@ -20,6 +20,7 @@ def driving(expected, name="thruster-fw"):
     chip.run_for(0.05)
     assert chip.tim1.moe() and chip.tim1.active != {0x18: spec["coast"]["ccmr1"], 0x1C: spec["coast"]["ccmr2"],
                                                     0x20: spec["coast"]["ccer"]}
+    assert not all_off(chip, spec), switches(chip, spec)
     return chip, spec
 
 
@@ -40,12 +41,14 @@ def test_a_sustained_overcurrent_break_stops_the_bridge_until_a_zero_order(expec
         chip.tim1.set_break_input(False)
         chip.run_for(0.004)
     assert chip.tim1.moe(), "isolated trips must not stop the bridge"
+    assert not all_off(chip, spec), switches(chip, spec)
     status, _, _ = exchange(chip, spec, expected["orders"]["SeaBotix"]["25"])
     assert status[2] & 0x40 == 0
     # A short that stays: MOE drops at once in hardware; after 0.5 s (`Thresholds::overcurrent_ticks`) the
     # firmware clears AOE too, and FAULT bit 6 says why.
     chip.tim1.set_break_input(True)
     assert not chip.tim1.moe()
+    assert all_off(chip, spec), f"the break left a switch on: {switches(chip, spec)}"
     chip.run_for(0.6)
     bdtr = chip.tim1.regs[0x44]
     assert not bdtr & (1 << 14), f"AOE still set after a sustained trip: {bdtr:#x}"
@@ -54,10 +57,12 @@ def test_a_sustained_overcurrent_break_stops_the_bridge_until_a_zero_order(expec
     chip.tim1.set_break_input(False)
     chip.run_for(0.05)
     assert not chip.tim1.moe(), "a non-zero order must not restart a stopped bridge"
+    assert all_off(chip, spec), switches(chip, spec)
     exchange(chip, spec, expected["orders"]["SeaBotix"]["0"])
     exchange(chip, spec, expected["orders"]["SeaBotix"]["25"])
     chip.run_for(0.05)
     assert chip.tim1.moe(), "a zero order clears the stop"
+    assert not all_off(chip, spec), switches(chip, spec)
 
 
 def symbol_ending(chip, suffix):
@@ -78,7 +83,7 @@ def call(chip, function, *args):
 
 @pytest.mark.parametrize("fault", ["panic", "hard fault", "nmi", "stray interrupt"])
 def test_each_fault_turns_the_outputs_off_at_once(fault, expected, figures):
-    chip, _ = driving(expected)
+    chip, spec = driving(expected)
     chip.run_until(lambda: not chip.core.active and not chip.core.sleeping, 0.01, "thread mode")
     if fault == "panic":
         # An index out of range in a task: core::panicking::panic_bounds_check(index, len, location).
@@ -94,8 +99,10 @@ def test_each_fault_turns_the_outputs_off_at_once(fault, expected, figures):
     took = stops_within(chip)
     assert took <= STOP_WITHIN, f"{fault}: {took} instructions to turn the outputs off"
     figures[f"thruster: {fault} to outputs off"] = f"{took} instructions"
+    assert all_off(chip, spec), f"{fault}: {switches(chip, spec)}"
     chip.run_for(0.01)
     assert not chip.tim1.moe()
+    assert all_off(chip, spec), f"{fault}: {switches(chip, spec)}"
     if fault == "panic":
         # The log says where (here the test's made-up location): the bounds check's message has arguments, which
         # the image does not format.

@@ -4,7 +4,7 @@ import pytest
 
 from conftest import rehost
 from g431.timers import CCER, CCMR1, CCMR2
-from thruster import exchange, set_halls, start
+from thruster import SWITCHES, all_off, exchange, set_halls, start, switches
 
 FAMILIES = {"thruster-fw": "seabotix", "thruster-fw-legacy": "legacy"}
 
@@ -60,9 +60,13 @@ def test_hall_edges_walk_the_six_step_sequence_and_a_zero_order_stops_it(expecte
         set_halls(chip, step["hall"])
         chip.run_for(0.004)
         active = chip.tim1.active
-        seen.append(((active[CCMR1], active[CCMR2], active[CCER]), step))
-    wrong = [f"hall {step['hall']:03b}: {got}, not {step['drive']}" for got, step in seen
+        seen.append(((active[CCMR1], active[CCMR2], active[CCER]), switches(chip, spec), step))
+    wrong = [f"hall {step['hall']:03b}: {got}, not {step['drive']}" for got, _, step in seen
              if got != (step["drive"]["ccmr1"], step["drive"]["ccmr2"], step["drive"]["ccer"])]
+    assert not wrong, "\n".join(wrong)
+    # And what the gate pins do, from the timer's output logic rather than the registers g431-hw computes.
+    wrong = [f"hall {step['hall']:03b}: {gates}, not {step['phases']}" for _, gates, step in seen
+             if gates != {phase: SWITCHES[drive] for phase, drive in zip("ABC", step["phases"])}]
     assert not wrong, "\n".join(wrong)
     assert chip.tim1.moe()
     exchange(chip, spec, expected["orders"]["SeaBotix"]["0"])
@@ -71,3 +75,4 @@ def test_hall_edges_walk_the_six_step_sequence_and_a_zero_order_stops_it(expecte
     coast = spec["coast"]
     active = chip.tim1.active
     assert (active[CCMR1], active[CCMR2], active[CCER]) == (coast["ccmr1"], coast["ccmr2"], coast["ccer"])
+    assert all_off(chip, spec), switches(chip, spec)

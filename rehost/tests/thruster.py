@@ -50,6 +50,36 @@ def exchange(chip, spec, order):
 
 
 
+# What each of the IHM08M1's switches does for a phase's drive: (high, low).
+SWITCHES = {"pwm": ("pwm", "pwm"), "low": ("off", "on"), "float": ("off", "off")}
+
+
+def switches(chip, spec):
+    """Each phase's two switches as the gate driver sees its inputs, {"A": (high, low), ...}: "on", "off" or "pwm".
+    The L6398's HIN is active high with an internal pull-down, its LIN active low with a pull-up (its datasheet,
+    table 8), so an input the chip leaves undriven holds its switch off."""
+    seen = {}
+    for pin in spec["pins"]:
+        words = pin["function"].split()
+        if len(words) != 3 or words[0] != "phase" or words[2] not in ("high", "low"):
+            continue
+        driven = chip.gpio[pin["port"]].output(pin["pin"])
+        high = words[2] == "high"
+        if driven is None:
+            state = "off"
+        elif driven == "pwm":
+            state = "pwm"
+        else:
+            state = "on" if driven == (1 if high else 0) else "off"
+        pair = seen.setdefault(words[1], ["off", "off"])
+        pair[0 if high else 1] = state
+    return {phase: tuple(pair) for phase, pair in seen.items()}
+
+
+def all_off(chip, spec):
+    return switches(chip, spec) == {phase: ("off", "off") for phase in "ABC"}
+
+
 def set_halls(chip, bits):
     """Drives the three hall lines to a state (bit 0 is H1)."""
     for n, (port, pin) in enumerate((("A", 15), ("B", 3), ("B", 10))):
