@@ -117,6 +117,34 @@ pub const LSI_MIN_HZ: u32 = 29_500;
 /// Fastest LSI, see [`LSI_HZ`].
 pub const LSI_MAX_HZ: u32 = 34_000;
 
+/// embassy-stm32's configuration of this clock tree ([`PLL`] from the crystal, SYSCLK from its R output, range 1
+/// boost mode), which both bindings start from and add their kernel-clock muxes to. A macro, expanded in the
+/// binding, which has embassy-stm32 for its chip; this crate does not depend on it.
+#[macro_export]
+macro_rules! embassy_clocks {
+    () => {{
+        use embassy_stm32::rcc::{Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
+        const PLL: $crate::clock::Pll = $crate::clock::PLL;
+        const _: () = assert!(PLL.is_valid($crate::clock::HSE_HZ));
+        let mut config = embassy_stm32::Config::default();
+        config.rcc.hse = Some(Hse {
+            freq: embassy_stm32::time::Hertz($crate::clock::HSE_HZ),
+            mode: HseMode::Oscillator,
+        });
+        config.rcc.pll = Some(Pll {
+            source: PllSource::HSE,
+            prediv: PllPreDiv::from_bits((PLL.m - 1) as u8),
+            mul: PllMul::from_bits(PLL.n as u8),
+            divp: None,
+            divq: None,
+            divr: Some(PllRDiv::from_bits((PLL.r / 2 - 1) as u8)),
+        });
+        config.rcc.sys = Sysclk::PLL1_R;
+        config.rcc.boost = true;
+        config
+    }};
+}
+
 /// The register values of this clock tree after start-up (RM0440 7.4): what `embassy_stm32::init` must leave.
 pub mod registers {
     use super::{PLL, Pll, SYSCLK_HZ};

@@ -247,11 +247,5 @@ where
 #[cfg(test)]
 mod tests;
 
-// The host tests' ports on lbv-sim's parts: the bench's own, one file (`lbv/src/bench/ports.rs` says why), which
-// names this crate as the bench does.
-#[cfg(test)]
-extern crate self as lbv_master_fw;
-#[cfg(test)]
-#[path = "../../lbv/src/bench/ports/master.rs"]
-#[allow(dead_code, reason = "the bench reads the reboot count; these tests do not")]
-mod sim;
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;

@@ -11,13 +11,12 @@ use embassy_stm32::can::config::NominalBitTiming;
 use embassy_stm32::can::{self, CanConfigurator};
 use embassy_stm32::flash::{Async, Flash};
 use embassy_stm32::i2c::{self, I2c};
-use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::rcc;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::{bind_interrupts, dma, pac, peripherals};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
-use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::settings::{DATA_PAGES, Reboot, Store};
@@ -241,23 +240,7 @@ async fn main(spawner: Spawner) {
 /// timing needs (`g431_hw::fdcan`: HSI16's 1 % is more than 1 Mbit/s tolerates); the I2C buses on HSI16, the clock
 /// their timing is computed for.
 fn clocks() -> embassy_stm32::Config {
-    const PLL: clock::Pll = clock::PLL;
-    const _: () = assert!(PLL.is_valid(clock::HSE_HZ));
-    let mut config = embassy_stm32::Config::default();
-    config.rcc.hse = Some(Hse {
-        freq: Hertz(clock::HSE_HZ),
-        mode: HseMode::Oscillator,
-    });
-    config.rcc.pll = Some(Pll {
-        source: PllSource::HSE,
-        prediv: PllPreDiv::from_bits((PLL.m - 1) as u8),
-        mul: PllMul::from_bits(PLL.n as u8),
-        divp: None,
-        divq: None,
-        divr: Some(PllRDiv::from_bits((PLL.r / 2 - 1) as u8)),
-    });
-    config.rcc.sys = Sysclk::PLL1_R;
-    config.rcc.boost = true;
+    let mut config = g431_hw::embassy_clocks!();
     config.rcc.mux.fdcansel = rcc::mux::Fdcansel::HSE;
     config.rcc.mux.i2c1sel = rcc::mux::I2csel::HSI;
     config.rcc.mux.i2c2sel = rcc::mux::I2csel::HSI;

@@ -13,7 +13,7 @@
 //!
 //! All state is owned: a board is a set of handles on these parts and a few tasks; dropping them (a power cycle)
 //! frees everything. This crate knows none of the firmware crates: their port traits are implemented by thin
-//! adapters in the crate that wires a board (the bench's `lbv::bench::ports`).
+//! adapters in each firmware crate's `sim` module (Cargo feature `sim`).
 //!
 //! The clock, the executor and the critical section are the host's (Cargo feature `std`, on by default). Without
 //! it the parts need only `core` and `alloc`, and run on the time driver and executor of whoever uses them:

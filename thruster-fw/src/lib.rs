@@ -29,13 +29,8 @@ pub mod tasks;
 pub mod trial;
 pub mod update;
 
-// The host tests' slave port on lbv-sim's bus: the bench's own, one file (`lbv/src/bench/ports.rs` says why),
-// which names this crate as the bench does.
-#[cfg(test)]
-extern crate self as thruster_fw;
-#[cfg(test)]
-#[path = "../../lbv/src/bench/ports/thruster.rs"]
-mod sim;
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;
 
 pub use config::Config;
 pub use drive::{Direction, Duty};

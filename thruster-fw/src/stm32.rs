@@ -7,7 +7,7 @@ use embassy_stm32::adc::{Adc, AdcChannel, AdcConfig};
 use embassy_stm32::exti;
 use embassy_stm32::gpio::Pull;
 use embassy_stm32::i2c::{self, I2c, SlaveAddrConfig};
-use embassy_stm32::rcc::{self, Hse, HseMode, Pll, PllMul, PllPreDiv, PllRDiv, PllSource, Sysclk};
+use embassy_stm32::rcc;
 use embassy_stm32::time::Hertz;
 use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
 use g431_hw::clock;
@@ -227,9 +227,7 @@ async fn main(spawner: Spawner) {
         let analog = AnalogInputs {
             adc,
             water: chip.water.degrade_adc(),
-            #[cfg(not(feature = "brushed"))]
-            ntc: chip.ntc.degrade_adc(),
-            #[cfg(feature = "brushed")]
+            // The motor's NTC (PB11) or, brushed, the power stage's (PC2): the image's description picks the pin.
             ntc: chip.ntc.degrade_adc(),
             current: chip.current.degrade_adc(),
             vbus: chip.vbus.degrade_adc(),
@@ -307,23 +305,7 @@ async fn early_window() {
 /// 170 MHz from the NUCLEO's 24 MHz crystal (`g431_hw::clock::PLL`); I2C from HSI16 (its timing is computed for
 /// that clock); FDCAN, unused here, stays on HSE; the ADC on SYSCLK, divided to 42.5 MHz by `Adc::new`.
 fn clocks() -> embassy_stm32::Config {
-    const PLL: clock::Pll = clock::PLL;
-    const _: () = assert!(PLL.is_valid(clock::HSE_HZ));
-    let mut config = embassy_stm32::Config::default();
-    config.rcc.hse = Some(Hse {
-        freq: Hertz(clock::HSE_HZ),
-        mode: HseMode::Oscillator,
-    });
-    config.rcc.pll = Some(Pll {
-        source: PllSource::HSE,
-        prediv: PllPreDiv::from_bits((PLL.m - 1) as u8),
-        mul: PllMul::from_bits(PLL.n as u8),
-        divp: None,
-        divq: None,
-        divr: Some(PllRDiv::from_bits((PLL.r / 2 - 1) as u8)),
-    });
-    config.rcc.sys = Sysclk::PLL1_R;
-    config.rcc.boost = true;
+    let mut config = g431_hw::embassy_clocks!();
     config.rcc.mux.adc12sel = rcc::mux::Adcsel::SYS;
     config.rcc.mux.i2c3sel = rcc::mux::I2csel::HSI;
     config

@@ -38,8 +38,8 @@ use lbv_sim::{Cpu, Executor, LineRx, LineTx, Queue, SerialLine, SerialRx, Serial
 use tmc_proto::Family;
 use update_image::{INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
 
-use super::ports::master::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, master_flash, thruster_bus};
 use super::thruster::{made_up_image, partition};
+use lbv_master_fw::sim::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, master_flash, thruster_bus};
 
 /// The version of the image a bench master leaves the factory with.
 pub const MASTER_FACTORY_VERSION: Version = Version::new(0, 1, 0);

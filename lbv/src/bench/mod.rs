@@ -15,7 +15,6 @@ pub mod battery;
 pub mod master;
 pub mod plant;
 pub mod plot;
-pub mod ports;
 pub mod thruster;
 pub mod trace;
 pub mod udp;

@@ -37,7 +37,7 @@ use update_image::{DEV_PUBLIC_KEY, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Ver
 use super::STEP;
 use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
-use super::ports::thruster::{BootRecord, BootUpdater, SlavePort};
+use thruster_fw::sim::{BootRecord, BootUpdater, SlavePort};
 
 #[cfg(test)]
 mod tests;

@@ -1,21 +1,25 @@
-//! The master's ports on lbv-sim's simulated parts, for the bench and lbv-master-fw's host tests (which include
-//! this file): a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery CAN
+//! The master's ports on lbv-sim's simulated parts, for the bench (`lbv`, with Cargo feature `sim`) and this
+//! crate's host tests, host only: a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery CAN
 //! receiver on a simulated CAN node, the settings store on a simulated G474 flash, a reboot that whoever runs
 //! the board carries out, and an update sink that records every image it is given.
+
+extern crate std;
+
+use std::vec::Vec;
 
 use std::cell::{Cell, RefCell};
 use std::convert::Infallible;
 use std::rc::Rc;
 
+use crate::battery::{CanFrame, CanReceiver};
+use crate::recovery::BusConfig;
+use crate::recovery::PinRecovery;
+use crate::settings::{Reboot, Store};
+use crate::shared::{Sender, UpdateHolds};
+use crate::update::ftp::Nak;
+use crate::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget};
 use embassy_time::Delay;
 use g431_hw::memory;
-use lbv_master_fw::battery::{CanFrame, CanReceiver};
-use lbv_master_fw::recovery::BusConfig;
-use lbv_master_fw::recovery::PinRecovery;
-use lbv_master_fw::settings::{Reboot, Store};
-use lbv_master_fw::shared::{Sender, UpdateHolds};
-use lbv_master_fw::update::ftp::Nak;
-use lbv_master_fw::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget};
 use lbv_sim::Queue;
 use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::{Bus, Master, Scl, Sda};

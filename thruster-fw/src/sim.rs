@@ -1,16 +1,19 @@
 //! The thruster controller's slave port on lbv-sim's simulated bus, and its bootloader state and field update on
-//! lbv-sim's flash, for the bench and thruster-fw's host tests (which include this file).
+//! lbv-sim's flash: the ports the bench (`lbv`, with Cargo feature `sim`) and this crate's host tests run the core
+//! on. Host only.
+
+extern crate std;
 
 use std::cell::Cell;
 use std::rc::Rc;
 
+use crate::trial::BootState;
+use crate::update::{MarkError, Updater, mark_for_swap, verdict_in};
+use crate::{I2cTarget, Request};
 use embassy_boot::{FirmwareState, FirmwareUpdaterError, State};
 use g431_hw::memory::{PAGE, THRUSTER_PARTITIONS};
 use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Target, TargetError};
-use thruster_fw::trial::BootState;
-use thruster_fw::update::{MarkError, Updater, mark_for_swap, verdict_in};
-use thruster_fw::{I2cTarget, Request};
 use tmc_proto::Family;
 use tmc_proto::ext::INFO_LEN;
 use update_image::{ImageInfo, Ticket, Verdict, Version};
@@ -69,7 +72,7 @@ impl BootState for BootRecord {
 pub const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / PAGE) as usize;
 
 /// The bootloader's and the chip's side of a field update, as the binding's is on the G431: the ticket written and
-/// the payload marked in the state partition ([`thruster_fw::update::mark_for_swap`]), the bootloader's verdict
+/// the payload marked in the state partition ([`crate::update::mark_for_swap`]), the bootloader's verdict
 /// read beside the ticket; a reboot is counted, and the bench, which watches the count, resets the thruster (its
 /// bootloader then checks the image and swaps it in). The partitions may be whole flashes or views of one chip's
 /// flash ([`Flash::partition`]).
