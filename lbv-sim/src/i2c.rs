@@ -4,9 +4,17 @@
 //!   bits per data byte, STOP) at the bus's bit rate, plus any clock stretching.
 //! - Devices: a [`Device`] answers at once from the simulation (a scripted thruster, a sensor); a [`Target`] is
 //!   the slave port of firmware running on the same clock, which takes each transfer as it would from its I2C
-//!   peripheral (SCL is stretched until it answers; one that does not answer within the master's timeout times the
-//!   master out, as embassy-stm32 does).
+//!   peripheral: it is addressed once the address byte is in and acknowledged, SCL is stretched until it answers
+//!   (one that does not answer within the master's timeout times the master out, as embassy-stm32 does), and its
+//!   answer returns only once the data bytes have moved. Simplified: an answer to a transfer the master has given
+//!   up on returns at once as if the bytes had moved (the firmware cannot tell; on the chip its peripheral would
+//!   meet whatever the master does next).
 //! - Addresses nobody acknowledges (absent, unpowered, behind an unselected multiplexer channel) NACK.
+//! - Power ([`Bus::set_powered`]): an unpowered slave's pins let SCL and SDA go, to the pull-ups (UM10204 3.1.1).
+//!   A firmware port that loses power in the middle of a transfer tears it: in its address byte, the address is
+//!   not acknowledged; while it stretches SCL or while the bytes move, the master clocks on against released lines,
+//!   so the rest of a read is 0xFF and a write's next byte is not acknowledged. A [`Device`] is not torn: its power
+//!   counts from the next START.
 //! - Faults: a device's bytes can be corrupted both ways ([`Tamper`]); a transfer to firmware can be torn by a
 //!   glitch ([`Bus::disturb`]); a slave can hold SDA low for a number of SCL clocks, now ([`Bus::hold_sda`]) or
 //!   from its next transfer ([`Bus::hold_sda_at_next_transfer`]), which fails every transfer until the master
@@ -24,7 +32,7 @@ use core::mem;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Instant, Timer, with_timeout};
+use embassy_time::{Duration, Instant, Timer, with_deadline, with_timeout};
 use embedded_hal::digital::{self, InputPin, OutputPin};
 use embedded_hal_async::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 
@@ -153,6 +161,9 @@ pub struct Stats {
     pub bus_errors: u64,
     /// Transfers that two devices answered at once (their bytes would collide on SDA).
     pub collisions: u64,
+    /// Transfers a firmware port's power cut tore after it had acknowledged its address: a read's bits from the cut
+    /// on read 1, a write's next byte is not acknowledged.
+    pub torn: u64,
     /// SCL clock pulses made on the pins.
     pub pin_clocks: u64,
     /// STOP conditions made on the pins: one per recovery.
@@ -207,6 +218,20 @@ enum Answer {
     Read(Vec<u8>),
     /// The transfer was torn: both ends saw a bus error.
     Torn,
+    /// The port lost power: its pins let SCL and SDA go.
+    Unpowered,
+}
+
+/// Where a firmware port's transfer stands.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+enum Stage {
+    /// None under way: an answer now answers nothing.
+    #[default]
+    Idle,
+    /// Addressed, SCL stretched until the firmware answers.
+    Stretching,
+    /// Answered: the bytes are moving.
+    Moving,
 }
 
 /// The wires between the bus and one firmware slave port.
@@ -214,20 +239,67 @@ enum Answer {
 struct TargetLine {
     handoff: Signal<NoopRawMutex, Handoff>,
     answer: Signal<NoopRawMutex, Answer>,
+    /// The master's word that the bytes have moved, or that the transfer ended without them.
+    moved: Signal<NoopRawMutex, Result<(), TargetError>>,
+    stage: Cell<Stage>,
     resets: Cell<u32>,
     /// The next transfer is torn by a glitch.
     disturbed: Cell<bool>,
 }
 
 impl TargetLine {
-    /// Answer the transfer under way, unless a glitch tears it.
-    fn answer(&self, answer: Answer) -> Result<(), TargetError> {
+    /// Answer the transfer under way, unless a glitch tears it; true if its bytes are to move, false if the master
+    /// had already given up on it.
+    fn answer(&self, answer: Answer) -> Result<bool, TargetError> {
+        if self.stage.get() != Stage::Stretching {
+            return Ok(false);
+        }
+        self.stage.set(Stage::Moving);
         if self.disturbed.replace(false) {
             self.answer.signal(Answer::Torn);
             Err(TargetError)
         } else {
             self.answer.signal(answer);
+            Ok(true)
+        }
+    }
+
+    /// Answer, and wait until the bytes have moved.
+    async fn answer_and_move(&self, answer: Answer) -> Result<(), TargetError> {
+        if self.answer(answer)? {
+            self.moved.wait().await
+        } else {
             Ok(())
+        }
+    }
+
+    /// The transfer is over: tell the firmware waiting for its bytes how it ended.
+    fn end(&self, result: Result<(), TargetError>) {
+        if self.stage.replace(Stage::Idle) == Stage::Moving {
+            self.moved.signal(result);
+        }
+    }
+}
+
+/// A transfer to a firmware port from its address on: dropped before it ends (the master's task stopped), it
+/// still ends, so the firmware does not wait for bytes that never come.
+struct Addressed<'a> {
+    line: &'a TargetLine,
+    wire: &'a RefCell<Wire>,
+}
+
+impl Addressed<'_> {
+    /// The transfer ended as the master saw it.
+    fn end(self, ok: bool) {
+        self.line.end(if ok { Ok(()) } else { Err(TargetError) });
+    }
+}
+
+impl Drop for Addressed<'_> {
+    fn drop(&mut self) {
+        self.line.end(Err(TargetError));
+        if let Ok(mut wire) = self.wire.try_borrow_mut() {
+            wire.moving = None;
         }
     }
 }
@@ -273,6 +345,10 @@ struct Wire {
     sda_low: bool,
     /// The device the master's transfer under way addressed.
     busy_with: Option<usize>,
+    /// When that device lost power, if it did during the transfer.
+    cut: Option<Instant>,
+    /// The firmware port whose data bytes are moving now, which way, and since when.
+    moving: Option<(usize, Request, Instant)>,
     stats: Stats,
     log: Option<Vec<Transfer>>,
     /// The CPU the master runs on, when it can stall.
@@ -333,6 +409,8 @@ impl Bus {
             scl_low: false,
             sda_low: false,
             busy_with: None,
+            cut: None,
+            moving: None,
             stats: Stats::default(),
             log: None,
             master_cpu: None,
@@ -394,6 +472,7 @@ impl Bus {
         match &wire.slots.get(id.0)?.endpoint {
             Endpoint::Target { line, .. } => {
                 line.handoff.reset();
+                line.moved.reset();
                 Some(Target {
                     line: Rc::clone(line),
                     pending: None,
@@ -419,10 +498,21 @@ impl Bus {
         }
     }
 
-    /// Power a device on or off: unpowered, it acknowledges nothing.
+    /// Power a device on or off: unpowered, it acknowledges nothing. A firmware port that loses power in the
+    /// middle of a transfer tears it (see the module's documentation).
     pub fn set_powered(&self, id: DeviceId, powered: bool) {
-        if let Some(slot) = self.0.borrow_mut().slots.get_mut(id.0) {
-            slot.powered = powered;
+        let mut wire = self.0.borrow_mut();
+        let in_transfer = wire.busy_with == Some(id.0) && wire.cut.is_none();
+        let Some(slot) = wire.slots.get_mut(id.0) else {
+            return;
+        };
+        let cut = slot.powered && !powered && in_transfer;
+        slot.powered = powered;
+        if cut {
+            if let Endpoint::Target { line, .. } = &slot.endpoint {
+                line.answer.signal(Answer::Unpowered);
+            }
+            wire.cut = Some(Instant::now());
         }
     }
 
@@ -468,6 +558,15 @@ impl Bus {
         self.0.borrow().busy_with == Some(id.0)
     }
 
+    /// Which way the data bytes of a transfer to the firmware port at `id` are moving now, if they are, and since
+    /// when: it has acknowledged its address and answered (a power cut that lands now lands in the bytes).
+    pub fn bytes_moving(&self, id: DeviceId) -> Option<(Request, Instant)> {
+        self.0
+            .borrow()
+            .moving
+            .and_then(|(slot, request, since)| (slot == id.0).then_some((request, since)))
+    }
+
     /// What the bus counted so far.
     pub fn stats(&self) -> Stats {
         self.0.borrow().stats
@@ -507,6 +606,19 @@ enum Plan {
     Target(Rc<TargetLine>, Tamper),
 }
 
+/// Where a power cut at `cut` meets data that began to move at `from`, `bit` a bit time: the byte it lands in and
+/// how many of that byte's 8 data bits had moved. A cut in a byte's ninth bit (its ACK) leaves that byte whole
+/// and lands at the start of the next. None if the cut came before the data.
+fn cut_into(from: Instant, cut: Instant, bit: Duration) -> Option<(usize, u32)> {
+    let bits = cut.checked_duration_since(from)?.as_ticks() / bit.as_ticks().max(1);
+    let (byte, into) = (bits / 9, bits % 9);
+    let byte = usize::try_from(byte).unwrap_or(usize::MAX);
+    Some(match into {
+        8 => (byte.saturating_add(1), 0),
+        into => (byte, u32::try_from(into).unwrap_or(0)),
+    })
+}
+
 impl Master {
     /// The stalls of the master's CPU so far, added up.
     fn stalled_total(&self) -> Option<Duration> {
@@ -528,6 +640,7 @@ impl Master {
     fn plan(&self, address: u8, operation: &Operation<'_>) -> Plan {
         let mut wire = self.0.0.borrow_mut();
         wire.stats.transfers += 1;
+        wire.cut = None;
         if wire.sda_hold.is_some() {
             return Plan::Stuck;
         }
@@ -630,7 +743,7 @@ impl Master {
                     (Ok(()), Some(data))
                 }
             }
-            Plan::Target(line, tamper) => self.target_transfer(&line, tamper, operation, data_bits).await,
+            Plan::Target(line, tamper) => self.target_transfer(&line, tamper, operation).await,
         };
         // The master's CPU stalled meanwhile and held the transfer (SCL low, waiting on its interrupt) past the
         // timeout: the master's driver reports it timed out, whatever moved on the wires.
@@ -659,43 +772,144 @@ impl Master {
         result
     }
 
-    /// Hand the transfer to firmware and wait, SCL stretched, for its answer.
+    /// Add `bits` bit times to the bus's count; the caller waits them out.
+    fn count(&self, bits: u64) {
+        self.0.0.borrow_mut().stats.bits += bits;
+    }
+
+    /// `bits` bit times after `from`.
+    fn after_bits(&self, from: Instant, bits: u64) -> Instant {
+        let bit = self.0.timing().bit;
+        from + Duration::from_ticks(bit.as_ticks().saturating_mul(bits))
+    }
+
+    /// When the slave of the transfer under way lost power, if it did.
+    fn cut(&self) -> Option<Instant> {
+        self.0.0.borrow().cut
+    }
+
+    /// The address byte, then hand the transfer to firmware and wait, SCL stretched, for its answer; then move the
+    /// bytes, and tell the firmware they moved. A power cut on the way tears the transfer where it lands.
     async fn target_transfer(
         &self,
         line: &TargetLine,
         tamper: Tamper,
         operation: &Operation<'_>,
-        data_bits: u64,
     ) -> (Result<(), ErrorKind>, Option<Vec<u8>>) {
-        // An answer left over from a transfer the master gave up on is not this one's.
+        let data_nack = Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Data));
+        // The peripheral matches its address once the byte is in, and acknowledges it unless it lost power first.
+        self.charge(ADDRESS_BITS, Duration::from_ticks(0)).await;
+        if self.cut().is_some() {
+            self.charge(STOP_BITS, Duration::from_ticks(0)).await;
+            return (Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)), None);
+        }
+        // An answer or a cut left over from a transfer the master gave up on is not this one's.
         line.answer.reset();
-        line.handoff.signal(match operation {
+        line.moved.reset();
+        line.stage.set(Stage::Stretching);
+        let addressed = Addressed { line, wire: &self.0.0 };
+        let (request, length) = match operation {
             Operation::Write(bytes) => {
                 let mut bytes = bytes.to_vec();
                 tamper.write(&mut bytes);
-                Handoff::Write(bytes)
+                let length = bytes.len();
+                line.handoff.signal(Handoff::Write(bytes));
+                (Request::Write, length)
             }
-            Operation::Read(_) => Handoff::Read,
-        });
-        let timeout = self.0.timing().timeout;
-        match with_timeout(timeout, line.answer.wait()).await {
-            Err(_) => {
-                // The slave never let SCL go: embassy-stm32 reports its timeout as `Other`.
-                self.charge(ADDRESS_BITS, Duration::from_ticks(0)).await;
-                (Err(ErrorKind::Other), None)
+            Operation::Read(buffer) => {
+                line.handoff.signal(Handoff::Read);
+                (Request::Read, buffer.len())
             }
-            Ok(answer) => {
-                self.charge(ADDRESS_BITS + data_bits, Duration::from_ticks(0)).await;
-                match (answer, operation) {
-                    (Answer::Written, Operation::Write(_)) => (Ok(()), None),
-                    (Answer::Read(mut data), Operation::Read(_)) => {
-                        tamper.read(&mut data);
-                        (Ok(()), Some(data))
+        };
+        let data_bits = 9u64.saturating_mul(length as u64);
+        let answer = match with_timeout(self.0.timing().timeout, line.answer.wait()).await {
+            // The slave never let SCL go: embassy-stm32 reports its timeout as `Other`.
+            Err(_) => return (Err(ErrorKind::Other), None),
+            Ok(answer) => answer,
+        };
+        let from = Instant::now();
+        let moved = match (answer, request) {
+            // It lost power while it stretched SCL: the lines are released and the master clocks on. A read gets the
+            // pull-ups' 0xFF; a write's first data byte is not acknowledged.
+            (Answer::Unpowered, Request::Read) => {
+                self.0.0.borrow_mut().stats.torn += 1;
+                self.charge(data_bits, Duration::from_ticks(0)).await;
+                (Ok(()), Some(vec![0xFF; length]))
+            }
+            (Answer::Unpowered, Request::Write) if length > 0 => {
+                self.0.0.borrow_mut().stats.torn += 1;
+                self.charge(9 + STOP_BITS, Duration::from_ticks(0)).await;
+                (data_nack, None)
+            }
+            (Answer::Unpowered, Request::Write) => (Ok(()), None),
+            (Answer::Written, Request::Write) => {
+                let torn = self.move_bytes(line, request, from, length).await;
+                match torn {
+                    Some((byte, _)) => {
+                        // The master stops at the byte not acknowledged, and ends with a STOP.
+                        let bits = 9u64.saturating_mul((byte as u64).saturating_add(1)) + STOP_BITS;
+                        self.count(bits);
+                        Timer::at(self.after_bits(from, bits)).await;
+                        (data_nack, None)
                     }
-                    _ => (Err(ErrorKind::Bus), None),
+                    None => {
+                        self.count(data_bits);
+                        (Ok(()), None)
+                    }
                 }
             }
+            (Answer::Read(mut data), Request::Read) => {
+                let torn = self.move_bytes(line, request, from, length).await;
+                self.count(data_bits);
+                tamper.read(&mut data);
+                data.resize(length, 0xFF);
+                if let Some((byte, into)) = torn {
+                    // The bits the slave drove before the cut came through; the pull-ups give the rest.
+                    let released = 0xFFu8.checked_shr(into).unwrap_or(0);
+                    for (n, value) in data.iter_mut().enumerate().skip(byte) {
+                        *value |= if n == byte { released } else { 0xFF };
+                    }
+                }
+                (Ok(()), Some(data))
+            }
+            // A glitch, or an answer of the wrong kind.
+            _ => {
+                self.charge(data_bits, Duration::from_ticks(0)).await;
+                (Err(ErrorKind::Bus), None)
+            }
+        };
+        addressed.end(moved.0.is_ok());
+        moved
+    }
+
+    /// Let the `length` bytes of a transfer move from `from`, unless the port loses power first; returns where the
+    /// cut landed (the byte, and how many of its bits had moved), None if the bytes all moved. A torn write's
+    /// master stops at the byte not acknowledged: the caller waits that out.
+    async fn move_bytes(
+        &self,
+        line: &TargetLine,
+        request: Request,
+        from: Instant,
+        length: usize,
+    ) -> Option<(usize, u32)> {
+        let slot = self.0.0.borrow().busy_with;
+        self.0.0.borrow_mut().moving = slot.map(|slot| (slot, request, from));
+        let end = self.after_bits(from, 9u64.saturating_mul(length as u64));
+        // Only a power cut signals the line while the bytes move.
+        let _ = with_deadline(end, line.answer.wait()).await;
+        let torn = self
+            .cut()
+            .and_then(|cut| cut_into(from, cut, self.0.timing().bit))
+            .filter(|(byte, _)| *byte < length);
+        self.0.0.borrow_mut().moving = None;
+        if torn.is_some() {
+            self.0.0.borrow_mut().stats.torn += 1;
         }
+        // The master clocks a read to its end whatever drives SDA.
+        if torn.is_none() || request == Request::Read {
+            Timer::at(end).await;
+        }
+        torn
     }
 }
 
@@ -808,11 +1022,11 @@ impl Target {
         })
     }
 
-    /// Take the master's write into `buffer`; returns how many bytes were stored. Like the STM32, what does not fit
-    /// is acknowledged and dropped.
+    /// Take the master's write into `buffer` once its bytes have moved; returns how many bytes were stored. Like
+    /// the STM32, what does not fit is acknowledged and dropped.
     pub async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, TargetError> {
         let bytes = self.pending.take().ok_or(TargetError)?;
-        self.line.answer(Answer::Written)?;
+        self.line.answer_and_move(Answer::Written).await?;
         let stored = bytes.len().min(buffer.len());
         for (slot, byte) in buffer.iter_mut().zip(&bytes) {
             *slot = *byte;
@@ -820,9 +1034,9 @@ impl Target {
         Ok(stored)
     }
 
-    /// Send `data` to the reading master.
+    /// Send `data` to the reading master; returns once the bytes have moved.
     pub async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), TargetError> {
-        self.line.answer(Answer::Read(data.to_vec()))
+        self.line.answer_and_move(Answer::Read(data.to_vec())).await
     }
 
     /// Re-initialise the port: anything half-received is forgotten.

@@ -245,7 +245,7 @@ pub enum Step {
     HeldRotor,
     /// The water-sensor test resistor is reported as WATER.
     Water,
-    /// The bus recovers after the thruster board is reset mid-transfer.
+    /// The thruster answers again after its board is reset mid-transfer, and nothing holds the bus.
     Reset,
 }
 

@@ -370,3 +370,174 @@ fn a_transfer_held_past_the_timeout_by_the_masters_stall_times_out() {
     let stats = bus.stats();
     assert_eq!((stats.timeouts, stats.stalled), (1, 1));
 }
+
+/// What a firmware port on the bus did: each answer's result and when it returned, and the writes it stored.
+#[derive(Default)]
+struct Served {
+    answers: RefCell<Vec<(Result<(), TargetError>, Instant)>>,
+    stored: RefCell<Vec<Vec<u8>>>,
+}
+
+/// A firmware port at 0x29 that answers each transfer `delay` after it is addressed, reads with `reply`.
+async fn firmware(mut target: Target, delay: Duration, reply: &[u8], served: &Served) {
+    loop {
+        let Ok(request) = target.listen().await else {
+            continue;
+        };
+        Timer::after(delay).await;
+        let result = match request {
+            Request::Write => {
+                let mut buffer = [0; 8];
+                let result = target.respond_to_write(&mut buffer).await;
+                if let Ok(n) = result {
+                    served.stored.borrow_mut().push(buffer[..n].to_vec());
+                }
+                result.map(|_| ())
+            }
+            Request::Read => target.respond_to_read(reply).await,
+        };
+        served.answers.borrow_mut().push((result, Instant::now()));
+    }
+}
+
+/// The master's transfer to a port at 0x29 that answers `delay` after it is addressed: the port loses power (its
+/// task dropped, as at a reset) `cut` after the START, if given. Returns the master's result, the bytes read (a read
+/// when `write` is None), when the transfer ended, what the port did, and the bus's count of torn transfers.
+fn cut_at(
+    write: Option<&[u8]>,
+    delay: Duration,
+    cut: Option<Duration>,
+) -> (Result<(), ErrorKind>, [u8; 7], Instant, Served, u64) {
+    let bus = Bus::new(TIMING);
+    let id = bus.attach_target(0x29, Route::Direct);
+    let target = bus.target(id).unwrap();
+    let mut master = bus.master();
+    let clock = clock::take();
+    let served = Served::default();
+    let ended = Cell::new(None);
+    let mut read = [0; 7];
+    let mut executor = Executor::new();
+    let port = executor.spawn(firmware(target, delay, &[1, 2, 3, 4, 5, 6, 7], &served));
+    executor.spawn(async {
+        let result = match write {
+            Some(bytes) => master.write(0x29, bytes).await,
+            None => master.read(0x29, &mut read).await,
+        };
+        ended.set(Some((result, Instant::now())));
+    });
+    if let Some(cut) = cut {
+        executor.run_for(&clock, cut, BIT);
+        executor.remove(port);
+        bus.set_powered(id, false);
+    }
+    executor.run_for(&clock, Duration::from_millis(40), BIT);
+    drop(executor);
+    let (result, end) = ended.get().expect("the transfer ended");
+    (result, read, end, served, bus.stats().torn)
+}
+
+/// `bits` bit times after the clock's start.
+fn at_bits(bits: u64) -> Instant {
+    Instant::from_ticks(0) + BIT * bits as u32
+}
+
+#[test]
+fn a_firmware_ports_answer_returns_once_its_bytes_have_moved() {
+    let (result, read, end, served, torn) = cut_at(None, Duration::from_ticks(0), None);
+    assert_eq!((result, read, torn), (Ok(()), [1, 2, 3, 4, 5, 6, 7], 0));
+    // START, address and ACK, 7 bytes; then the STOP.
+    assert_eq!(*served.answers.borrow(), [(Ok(()), at_bits(10 + 63))]);
+    assert_eq!(end, at_bits(10 + 63 + 1));
+
+    let (result, _, end, served, _) = cut_at(Some(&[9, 8, 7, 6]), Duration::from_micros(200), None);
+    assert_eq!(result, Ok(()));
+    assert_eq!(*served.answers.borrow(), [(Ok(()), at_bits(10 + 20 + 36))]);
+    assert_eq!(*served.stored.borrow(), [vec![9, 8, 7, 6]]);
+    assert_eq!(end, at_bits(10 + 20 + 36 + 1));
+}
+
+#[test]
+fn a_read_torn_mid_way_reads_0xff_from_the_cut_on() {
+    // The bytes move from bit 10: the cut lands 3 bits into the third byte, whose first 3 bits (of 3 = 0b0000_0011)
+    // came through.
+    let (result, read, end, served, torn) = cut_at(None, Duration::from_ticks(0), Some(BIT * (10 + 18 + 3)));
+    assert_eq!(
+        result,
+        Ok(()),
+        "the master cannot tell released lines from a slave sending 1s"
+    );
+    assert_eq!(read, [1, 2, 0b0001_1111, 0xFF, 0xFF, 0xFF, 0xFF]);
+    assert_eq!(end, at_bits(10 + 63 + 1), "the master clocks the read to its end");
+    assert!(served.answers.borrow().is_empty(), "the firmware never saw it end");
+    assert_eq!(torn, 1);
+
+    // A cut in a byte's ACK bit leaves that byte whole.
+    let (_, read, _, _, _) = cut_at(None, Duration::from_ticks(0), Some(BIT * (10 + 9 + 8)));
+    assert_eq!(read, [1, 2, 0xFF, 0xFF, 0xFF, 0xFF, 0xFF]);
+    // One in the last byte's ACK bit tears nothing.
+    let (_, read, _, _, torn) = cut_at(None, Duration::from_ticks(0), Some(BIT * (10 + 54 + 8)));
+    assert_eq!((read, torn), ([1, 2, 3, 4, 5, 6, 7], 0));
+}
+
+#[test]
+fn a_write_torn_mid_way_has_its_next_byte_not_acknowledged() {
+    let data_nack = Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Data));
+    // 2 bits into the second byte: the first was acknowledged, the second is not, and the master stops there.
+    let (result, _, end, served, torn) = cut_at(Some(&[9, 8, 7, 6]), Duration::from_ticks(0), Some(BIT * (10 + 11)));
+    assert_eq!((result, torn), (data_nack, 1));
+    assert_eq!(end, at_bits(10 + 18 + 1));
+    assert!(served.stored.borrow().is_empty(), "the firmware never stored it");
+    // In the first byte's ACK bit: the first acknowledged, the second not.
+    let (result, _, end, _, _) = cut_at(Some(&[9, 8, 7, 6]), Duration::from_ticks(0), Some(BIT * (10 + 8)));
+    assert_eq!((result, end), (data_nack, at_bits(10 + 18 + 1)));
+    // In the address byte: the address is not acknowledged.
+    let (result, _, end, _, torn) = cut_at(Some(&[9, 8, 7, 6]), Duration::from_ticks(0), Some(BIT * 5));
+    assert_eq!(result, Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)));
+    assert_eq!((end, torn), (at_bits(10 + 1), 0));
+}
+
+#[test]
+fn a_port_cut_while_it_stretches_scl_lets_the_lines_go() {
+    let stretch = Duration::from_millis(1);
+    let cut = Some(BIT * 10 + Duration::from_micros(500));
+    let (result, read, end, _, torn) = cut_at(None, stretch, cut);
+    assert_eq!((result, read, torn), (Ok(()), [0xFF; 7], 1), "SDA pulled up");
+    assert_eq!(end, at_bits(10 + 50 + 63 + 1));
+    let (result, _, end, _, torn) = cut_at(Some(&[9, 8, 7, 6]), stretch, cut);
+    assert_eq!(result, Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Data)));
+    assert_eq!((end, torn), (at_bits(10 + 50 + 9 + 1), 1));
+}
+
+#[test]
+fn a_port_that_answers_after_the_master_gave_up_waits_for_nothing() {
+    // The port answers 30 ms after it is addressed, past the 25 ms timeout: at once, as if the bytes had moved.
+    let (result, _, _, served, _) = cut_at(None, Duration::from_millis(30), None);
+    assert_eq!(result, Err(ErrorKind::Other));
+    assert_eq!(
+        *served.answers.borrow(),
+        [(Ok(()), Instant::from_ticks(0) + BIT * 10 + Duration::from_millis(30))]
+    );
+}
+
+#[test]
+fn a_port_whose_master_stops_mid_transfer_is_not_left_waiting() {
+    let bus = Bus::new(TIMING);
+    let id = bus.attach_target(0x29, Route::Direct);
+    let target = bus.target(id).unwrap();
+    let mut master = bus.master();
+    let clock = clock::take();
+    let served = Served::default();
+    let mut executor = Executor::new();
+    executor.spawn(firmware(target, Duration::from_ticks(0), &[1, 2], &served));
+    let reader = executor.spawn(async move {
+        let mut read = [0; 2];
+        let _ = master.read(0x29, &mut read).await;
+    });
+    executor.run_for(&clock, BIT * 15, BIT);
+    assert_eq!(bus.bytes_moving(id), Some((Request::Read, at_bits(10))));
+    // The master resets while the bytes move.
+    executor.remove(reader);
+    executor.run_for(&clock, BIT, BIT);
+    assert_eq!(*served.answers.borrow(), [(Err(TargetError), at_bits(15))]);
+    assert_eq!(bus.bytes_moving(id), None);
+}

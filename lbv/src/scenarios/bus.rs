@@ -1,13 +1,16 @@
 //! Faults on the thruster bus: corrupted frames both ways, a missing thruster, a stuck SDA, a thruster reset in the
 //! middle of a transfer.
 
-use embassy_time::Duration;
+use embassy_time::{Duration, Instant};
 use lbv_master_fw::mixer::ManualInput;
+use lbv_master_fw::shared::LinkHealth;
+use lbv_sim::i2c::{Data, Request, Transfer};
 
 use serde_json::json;
 
 use super::fault::Fault;
 use super::harness::{AHEAD, NEUTRAL, Run, others_keep_working, round};
+use crate::bench::Bench;
 
 /// Thruster `index`'s link as its controller holds it: valid orders received and the last one.
 fn held(run: &Run, index: usize) -> Option<(u32, tmc_proto::Order)> {
@@ -154,26 +157,227 @@ pub fn stuck_sda(run: &mut Run) {
     }
 }
 
+/// What one power cut in the middle of a transfer to T3 did: how far into the transfer's bytes it landed, the
+/// master's count of T3's link before the cut and once the torn transfer's poll was counted, the transfer as the
+/// master saw it, the bus's count of torn transfers, and the time of the cut.
+struct Tear {
+    into: Duration,
+    before: LinkHealth,
+    after: LinkHealth,
+    transfer: Option<Transfer>,
+    torn: u64,
+    at: Instant,
+}
+
+impl Tear {
+    /// Where the cut landed, for a check's detail: "100 us into its bytes, in byte 2 of 4".
+    fn landed(&self, run: &Run) -> String {
+        let byte_time = run
+            .bench
+            .thruster_bus()
+            .timing()
+            .bit
+            .as_ticks()
+            .saturating_mul(9)
+            .max(1);
+        let byte = self.into.as_ticks() / byte_time + 1;
+        let of = match self.transfer.as_ref().map(|transfer| &transfer.data) {
+            Some(Data::Write(bytes) | Data::Read(bytes)) => format!(" of {}", bytes.len()),
+            None => String::new(),
+        };
+        format!("{} us into its bytes, in byte {byte}{of}", self.into.as_micros())
+    }
+
+    /// Whether the cut landed after the transfer's first byte had moved.
+    fn after_the_first_byte(&self, run: &Run) -> bool {
+        self.into.as_ticks() >= run.bench.thruster_bus().timing().bit.as_ticks().saturating_mul(9)
+    }
+}
+
+/// Cut T3's power 0.1 ms after the bytes of a transfer to it are seen moving `way` (in its second byte: the
+/// fixed-step engine sees them a step late), let the master count the transfer's poll, and power T3 again 30 ms
+/// after the cut.
+fn tear(run: &mut Run, way: Request) -> Option<Tear> {
+    let device = run.bench.thrusters[2].device;
+    let moving = |bench: &Bench| {
+        bench
+            .thruster_bus()
+            .bytes_moving(device)
+            .filter(|(request, _)| *request == way)
+    };
+    run.run_until(0.5, |bench| moving(bench).is_some())?;
+    run.bench.run_for(Duration::from_micros(100));
+    let (_, since) = moving(&run.bench)?;
+    let (before, torn) = (run.health(2), run.bench.thruster_bus().stats().torn);
+    let at = run.bench.now();
+    let bus = run.bench.thruster_bus().clone();
+    bus.record(true);
+    let cut = Fault::PowerCut { thruster: 2 };
+    run.inject(cut);
+    run.run_until(0.01, |bench| !bench.thruster_bus().in_transfer_with(device));
+    // The master's poll ends with the transfer; its count is published then.
+    run.bench.run_for(Duration::from_millis(1));
+    let transfer = bus.take_log().into_iter().next();
+    bus.record(false);
+    let after = run.health(2);
+    let torn = bus.stats().torn - torn;
+    run.bench.run_for(
+        Duration::from_millis(30)
+            .checked_sub(run.bench.now() - at)
+            .unwrap_or_default(),
+    );
+    run.clear(cut);
+    Some(Tear {
+        into: at - since,
+        before,
+        after,
+        transfer,
+        torn,
+        at,
+    })
+}
+
+/// The bytes of a transfer, in hex.
+fn hex(bytes: &[u8]) -> String {
+    bytes
+        .iter()
+        .map(|byte| format!("{byte:02x}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Whether the master said something containing `needle` at `at` or later.
+fn said_since(run: &Run, at: Instant, needle: &str) -> bool {
+    run.bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .any(|(when, text)| *when >= at && text.contains(needle))
+}
+
+/// T3 loses power twice, each time between two bytes of a transfer to it. An unpowered slave lets SCL and SDA go
+/// (they are pulled up), so the master clocks on: no SCL held, no timeout, nothing for a bus recovery to free.
+/// First in an order: its next byte is not acknowledged, the master's driver reports a NACK, and the master takes
+/// T3 offline at once ("no answer"). Then in a status read: the rest of the read is 0xFF, which the driver returns
+/// as read, and the frame fails its checksum; that poll's order went through, so T3 goes offline at its next poll,
+/// which nobody acknowledges. Each time T3 boots, the master's retry finds it, and it rejoins.
 pub fn reset_mid_transfer(run: &mut Run) {
     run.arm_and_go(AHEAD);
     run.run_for(1.0);
-    // Cut T3 while a transfer to it is under way.
-    let device = run.bench.thrusters[2].device;
-    let caught = run.run_until(0.1, |bench| bench.thruster_bus().in_transfer_with(device));
+    let family = run.bench.thrusters[2].config.family;
+
+    let write = tear(run, Request::Write);
     run.check(
-        "the cut lands mid-transfer",
-        caught.is_some(),
-        format!("after {caught:?} s"),
+        "T3's power is cut in the middle of an order to it, after its first byte",
+        write.as_ref().is_some_and(|tear| tear.after_the_first_byte(run)),
+        write
+            .as_ref()
+            .map_or("no order to T3 caught".to_string(), |tear| tear.landed(run)),
     );
-    let cut = Fault::PowerCut { thruster: 2 };
-    run.inject(cut);
-    run.bench.run_for(Duration::from_millis(30));
-    run.clear(cut);
+    if let Some(tear) = &write {
+        let (before, after) = (tear.before, tear.after);
+        let order = match tear
+            .transfer
+            .as_ref()
+            .map(|transfer| (transfer.ok, transfer.address, &transfer.data))
+        {
+            Some((false, address, Data::Write(bytes))) if address == family.address() => Some(hex(bytes)),
+            _ => None,
+        };
+        run.check(
+            "the bus tears the order: the byte the cut lands in is not acknowledged",
+            tear.torn == 1 && order.is_some(),
+            match &order {
+                Some(order) => format!("order {order} failed, {} transfer torn", tear.torn),
+                None => format!("{:?}, {} torn", tear.transfer, tear.torn),
+            },
+        );
+        run.check(
+            "the master's driver reports a NACK: counted, the order not delivered, no timeout, no bus error",
+            after.nack == before.nack + 1
+                && after.delivered == before.delivered
+                && (after.timeout, after.bus_error) == (before.timeout, before.bus_error),
+            format!(
+                "nack {} -> {}, delivered {} -> {}, timeout {}, bus error {}",
+                before.nack, after.nack, before.delivered, after.delivered, after.timeout, after.bus_error
+            ),
+        );
+        run.check(
+            "the master takes T3 offline at once: \"T3 offline: no answer\"",
+            !after.online && said_since(run, tear.at, "T3 offline: no answer"),
+            format!("online {}", after.online),
+        );
+        run.run_for(0.5);
+        let h = run.health(2);
+        run.check(
+            "T3 rejoins after its reboot: \"T3 online\"",
+            h.online && said_since(run, tear.at, "T3 online"),
+            format!("online {}, delivered {}", h.online, h.delivered),
+        );
+    }
+
+    run.run_for(0.5);
+    let read = tear(run, Request::Read);
+    run.check(
+        "T3's power is cut in the middle of a status read from it, after its first byte",
+        read.as_ref().is_some_and(|tear| tear.after_the_first_byte(run)),
+        read.as_ref()
+            .map_or("no status read from T3 caught".to_string(), |tear| tear.landed(run)),
+    );
+    if let Some(tear) = &read {
+        let (before, after) = (tear.before, tear.after);
+        let bytes = match tear.transfer.as_ref().map(|transfer| (transfer.ok, &transfer.data)) {
+            Some((true, Data::Read(bytes))) => Some(bytes.clone()),
+            _ => None,
+        };
+        // The cut lands in the second byte: the first came through, the third on are the pull-ups' 0xFF.
+        let pulled_up = bytes.as_ref().is_some_and(|bytes| {
+            bytes.first() == Some(&family.status_type()) && bytes.iter().skip(2).all(|byte| *byte == 0xFF)
+        });
+        run.check(
+            "the bus tears the read: the rest of it is 0xFF (SDA pulled up), which the master's driver returns as read",
+            tear.torn == 1 && pulled_up,
+            match &bytes {
+                Some(bytes) => format!("read {}, {} transfer torn", hex(bytes), tear.torn),
+                None => format!("{:?}, {} torn", tear.transfer, tear.torn),
+            },
+        );
+        run.check(
+            "the master finds a bad checksum: counted, that poll's order delivered, T3 still online",
+            after.bad_checksum == before.bad_checksum + 1
+                && after.delivered == before.delivered + 1
+                && after.nack == before.nack
+                && after.online,
+            format!(
+                "bad checksum {} -> {}, delivered {} -> {}, nack {}, online {}",
+                before.bad_checksum, after.bad_checksum, before.delivered, after.delivered, after.nack, after.online
+            ),
+        );
+        run.run_for(0.5);
+        let h = run.health(2);
+        run.check(
+            "its next poll is not acknowledged: \"T3 offline: no answer\"; after its reboot \"T3 online\"",
+            h.nack > after.nack
+                && said_since(run, tear.at, "T3 offline: no answer")
+                && said_since(run, tear.at, "T3 online")
+                && h.online,
+            format!("nack {} -> {}, online {}", after.nack, h.nack, h.online),
+        );
+    }
+
     run.run_for(2.0);
     let h = run.health(2);
-    run.check("the master rides it out", h.online, format!("{h:?}"));
     run.check(
-        "the thruster rejoins and follows its order",
+        "no timeout, no bus error, no bus recovery: released lines hold nothing",
+        (h.timeout, h.bus_error, h.recoveries) == (0, 0, 0),
+        format!(
+            "timeout {}, bus error {}, recoveries {}",
+            h.timeout, h.bus_error, h.recoveries
+        ),
+    );
+    run.check(
+        "the thruster follows its order again",
         run.rpm(2) > 800.0,
         format!("rpm {:.0}", run.rpm(2)),
     );

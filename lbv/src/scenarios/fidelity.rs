@@ -28,9 +28,17 @@ enum Within {
     Relative { fraction: f64, floor: f64 },
 }
 
-/// The tolerance of each metric, and the reason for it. A metric not named here (a new scenario's) must agree to
-/// 1 %.
-fn tolerance(metric: &str) -> Within {
+/// The tolerance of each metric of `scenario`, and the reason for it. A metric not named here (a new scenario's)
+/// must agree to 1 %.
+fn tolerance(scenario: &str, metric: &str) -> Within {
+    // The acceptance test's transfers follow its length (`acceptance_seconds`), and its two resets add the NACKs of
+    // an unpowered thruster, some 270 here and 200 there (see `bus_transfers` below).
+    if (scenario, metric) == ("acceptance", "bus_transfers") {
+        return Within::Relative {
+            fraction: 0.1,
+            floor: 2.0,
+        };
+    }
     match metric {
         // The engines' own figures: how fast they ran and how many steps or instants, polls they took.
         "real_time_factor" | "steps" | "task_polls" => Within::Skip,
@@ -75,9 +83,12 @@ fn tolerance(metric: &str) -> Within {
         },
         // The acceptance test's sweeps wait for 204 speed steps, each to settle within a step of its order at a
         // poll; a settling that ends on the edge of a poll moves by a poll (the fixed-step engine alone moves
-        // its slowest step from 319 ms to 46 ms when the pack is 1 mV lower).
+        // its slowest step from 319 ms to 46 ms when the pack is 1 mV lower). Its stops wait for the drive off,
+        // which a SeaBotix thruster's status shows for a few milliseconds as its current passes zero on the way
+        // down: a poll that meets that moment ends the stop (and the next step finds the motor still turning),
+        // one that misses it waits some 0.2 s for the ramp's end, and the step after it as long again to spin up.
         "acceptance_seconds" => Within::Relative {
-            fraction: 0.02,
+            fraction: 0.04,
             floor: 0.0,
         },
         _ => Within::Relative {
@@ -113,21 +124,22 @@ impl Speaker {
     }
 }
 
-/// How far apart the two engines may put the same fault, note or console text. The ground station and the battery
-/// board send on the same 100 ms grid the master's own checks tick on; what the fixed-step engine delivers 50 us
-/// late then lands after such a tick instead of on it, and is noticed one tick later: a 20 ms poll, or a 100 ms
-/// battery frame. The acceptance test's prompts follow its sweeps' settling (see `acceptance_seconds`), a few
-/// hundred milliseconds apart: one sweep's wait moves by 0.2-0.3 s with the poll phase (the Legacy forward sweep
-/// took 0.34 s here and 0.15 s there before the thruster's fault filters, 0.13 s and 0.35 s after), and four
-/// sweeps add up, so the prompts are held to 2 % of the test's ~39 s, as `acceptance_seconds` is. The field update's
-/// uploads are stop-and-wait: each of a file's 224 blocks waits for its reply, and its page for some 34 exchanges on
-/// the bus, each of whose transfers the fixed-step engine ends up to 50 us later; a block's round trip moves by up
-/// to a millisecond, and the scenario's dozen uploads add up to a few tenths of a second. Its noisy bus ends an
-/// upload whose ground station sends a lost request again after 1 s: whether the noise's end meets one request or
-/// the next moves what follows by up to that second.
+/// How far apart the two engines may put the same fault, note or console text. The ground station and the battery board
+/// send on the same 100 ms grid the master's own checks tick on; what the fixed-step engine delivers 50 us late then
+/// lands after such a tick instead of on it, and is noticed one tick later: a 20 ms poll, or a 100 ms battery frame.
+/// The acceptance test's prompts follow its sweeps' settling and its stops (see `acceptance_seconds`), a few hundred
+/// milliseconds apart: one sweep's or stop's wait moves by 0.2-0.3 s with the poll phase (the Legacy forward sweep took
+/// 0.34 s here and 0.15 s there before the thruster's fault filters, 0.13 s and 0.35 s after; since a thruster takes an
+/// order only once its bytes have moved, several SeaBotix stops end at a passing zero of the current there and not
+/// here), and they add up, so the prompts are held to 4 % of the test's ~39 s, as `acceptance_seconds` is. The field
+/// update's uploads are stop-and-wait: each of a file's 224 blocks waits for its reply, and its page for some 34
+/// exchanges on the bus, each of whose transfers the fixed-step engine ends up to 50 us later; a block's round trip
+/// moves by up to a millisecond, and the scenario's dozen uploads add up to a few tenths of a second. Its noisy bus
+/// ends an upload whose ground station sends a lost request again after 1 s: whether the noise's end meets one request
+/// or the next moves what follows by up to that second.
 fn event_slack(scenario: &str) -> f64 {
     match scenario {
-        "acceptance" => 0.8,
+        "acceptance" => 1.6,
         "field-update" => 1.1,
         _ => 0.105,
     }
@@ -302,7 +314,7 @@ fn differences(scenario: &Scenario, events: &(Report, Trace), exact: &(Report, T
         ));
     }
     for (metric, exact_value) in &b.metrics {
-        let within = tolerance(metric);
+        let within = tolerance(name, metric);
         let events_value = a.metrics.get(metric);
         let agrees = match events_value {
             Some(value) => agree(value, exact_value, within),

@@ -266,7 +266,9 @@ pub const SCENARIOS: &[Scenario] = &[
     },
     Scenario {
         name: "reset-mid-transfer",
-        about: "a thruster loses power mid-transfer: the master times out, recovers, and the thruster rejoins",
+        about: "a thruster loses power between two bytes of an order, then of a status read; its lines let go: the \
+                order's next byte is not acknowledged, the read's rest is 0xFF (a bad checksum); no timeout; it \
+                rejoins after each reboot",
         seconds: 6.0,
         vehicle: mixed,
         run: reset_mid_transfer,

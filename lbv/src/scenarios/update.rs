@@ -470,8 +470,10 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
     let start = run.bench.now();
     put_verified(run, 2, file.clone());
     let applying = move |bench: &crate::bench::Bench| said_since(bench, start, |t| t == "thruster2.lbvu: applying");
+    // The reset lands once T3 has marked the image: its Finish command (with its signature, some 7 ms of bytes)
+    // reaches it only once it has moved.
     let cut = |run: &mut Run| {
-        run.run_for(0.02);
+        run.run_until(0.1, |bench| bench.thrusters[2].boot_state() == Some(State::Swap));
         reset_master(run, "T3's Finish");
     };
     let (acks, _) = apply_with(run, 2, 60.0, applying, cut, 2.0);

@@ -361,8 +361,8 @@ fn an_order_drives_the_bridge_forward_and_the_status_says_so() {
 fn the_failsafe_stops_the_motor_after_exactly_one_second_of_silence() {
     let mut bench = Bench::new(Family::SeaBotix);
     bench.order(51);
-    // The order is taken within the first 100 us step.
-    bench.elapse(Duration::from_micros(100));
+    // The order is taken once its bytes have moved (START, the address and 4 bytes: 460 us).
+    bench.elapse(Duration::from_micros(500));
     assert_eq!(bench.shared.link.try_get().map(|link| link.orders), Some(1));
     let ordered_at = now_ms();
     bench.turn(Duration::from_millis(990));
