@@ -5,11 +5,16 @@ from .peripheral import Peripheral, field
 
 ISR, IER, CR, CFGR, CFGR2, SMPR1, SMPR2, SQR1, DR = 0x00, 0x04, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x30, 0x40
 ADRDY, EOC, EOS = 1 << 0, 1 << 2, 1 << 3
-ADEN, ADDIS, ADSTART, ADVREGEN, DEEPPWD, ADCAL = 1 << 0, 1 << 1, 1 << 2, 1 << 28, 1 << 29, 1 << 31
+ADEN, ADDIS, ADSTART, JADSTART, ADSTP, JADSTP = 1 << 0, 1 << 1, 1 << 2, 1 << 3, 1 << 4, 1 << 5
+ADVREGEN, DEEPPWD, ADCAL = 1 << 28, 1 << 29, 1 << 31
+JQDIS = 1 << 31  # CFGR
+# CR's bits software sets and only the ADC clears: a 0 written leaves them (RM0440 21.7.3, "rs").
+SET_ONLY = ADCAL | JADSTP | ADSTP | JADSTART | ADSTART | ADDIS | ADEN
 
 
 class Adc(Peripheral):
-    resets = {CR: DEEPPWD}
+    resets = {CR: DEEPPWD, CFGR: JQDIS}  # 21.7.3, 21.7.4
+    read_only = {DR: 0xFFFF_FFFF}
 
     def __init__(self, chip, name, base):
         super().__init__(chip, name, base)
@@ -32,8 +37,13 @@ class Adc(Peripheral):
             self.regs[ISR] = self.regs.get(ISR, 0) & ~value  # rc_w1
             return
         if offset != CR:
-            self.regs[offset] = value
+            self.store(offset, value)
             return
+        value |= self.regs.get(CR, 0) & SET_ONLY
+        if value & ADSTP:
+            value &= ~(ADSTP | ADSTART)  # stopped at once
+        if value & JADSTP:
+            value &= ~(JADSTP | JADSTART)
         if value & ADCAL:
             value &= ~ADCAL  # calibration done at once
         if value & ADEN:

@@ -7,7 +7,7 @@ from .peripheral import Peripheral, bit, field
 
 CREL, ENDN, CCCR, NBTP, PSR, IR, IE, ILS, ILE, RXGFC = 0x00, 0x04, 0x18, 0x1C, 0x44, 0x50, 0x54, 0x58, 0x5C, 0x80
 RXF0S, RXF0A, TXFQS, TXBAR, TXBTO = 0x90, 0x94, 0xC4, 0xCC, 0xD4
-INIT, CCE = 1 << 0, 1 << 1
+INIT, CCE, CSA, CSR = 1 << 0, 1 << 1, 1 << 3, 1 << 4
 RF0N = 1 << 0
 IT0_IRQ, IT1_IRQ = 21, 22  # RM0440 Table 97
 
@@ -24,6 +24,9 @@ class Fdcan(Peripheral):
     # CREL: release 3.2.1 (2014-12-18); ENDN: the endianness test value; CCCR: INIT after reset; NBTP's reset;
     # PSR: LEC and DLEC = 7 (no change); TXFQS: three free Tx buffers.
     resets = {CREL: 0x3214_1218, ENDN: 0x8765_4321, CCCR: INIT, NBTP: 0x0600_0A03, PSR: 0x0000_0707, TXFQS: 3}
+    # The hardware's registers and fields (44.4): release, endianness, PSR's state, the FIFO and buffer status.
+    read_only = {CREL: 0xFFFF_FFFF, ENDN: 0xFFFF_FFFF, PSR: 0x007F_00F8, RXF0S: 0xFFFF_FFFF, TXFQS: 0xFFFF_FFFF,
+                 TXBTO: 0xFFFF_FFFF}
 
     def __init__(self, chip, name, base):
         super().__init__(chip, name, base)
@@ -39,6 +42,7 @@ class Fdcan(Peripheral):
         if offset == CCCR:
             if not value & INIT:
                 value &= ~CCE  # CCE is cleared when INIT is (44.4.7)
+            value = (value & ~CSA) | (CSA if value & CSR else 0)  # a clock stop is acknowledged at once (44.4)
             self.regs[CCCR] = value
         elif offset == IR:
             self.regs[IR] = self.regs.get(IR, 0) & ~value  # rc_w1
@@ -54,7 +58,7 @@ class Fdcan(Peripheral):
         elif offset in (NBTP,) and not (self.regs.get(CCCR, 0) & CCE):
             return  # protected unless CCE and INIT are set (44.4.9)
         else:
-            self.regs[offset] = value
+            self.store(offset, value)
         self._update_irq()
 
     def operational(self):

@@ -10,10 +10,11 @@ from .timers import TIM1_AF, TIM1_PINS
 MODER, OTYPER, OSPEEDR, PUPDR, IDR, ODR, BSRR, LCKR, AFRL, AFRH, BRR = (
     0x00, 0x04, 0x08, 0x0C, 0x10, 0x14, 0x18, 0x1C, 0x20, 0x24, 0x28)
 
-# Reset values (RM0440 9.4.1, 9.4.3, 9.4.4): PA13/PA14 (SWD) and PB3/PB4 are in their debug alternate functions.
+# Reset values (RM0440 9.4.1, 9.4.3, 9.4.4): PA13/PA14 (SWD) and PB3/PB4 are in their debug alternate functions,
+# PA13 (SWDIO) and PB3 (SWO) at very high speed.
 RESETS = {
     "A": {MODER: 0xABFF_FFFF, OSPEEDR: 0x0C00_0000, PUPDR: 0x6400_0000},
-    "B": {MODER: 0xFFFF_FEBF, PUPDR: 0x0000_0100},
+    "B": {MODER: 0xFFFF_FEBF, OSPEEDR: 0x0000_00C0, PUPDR: 0x0000_0100},
 }
 # Fields per pin, for telling which pins the image changed.
 PIN_FIELDS = ((MODER, 2), (OTYPER, 1), (OSPEEDR, 2), (PUPDR, 2))
@@ -109,14 +110,15 @@ class Gpio(Peripheral):
             self.regs[offset] = value
 
 
-# EXTI (15.5.1-15.5.6): IMR1, EMR1, RTSR1, FTSR1, SWIER1, PR1; lines 0-15 are the GPIO lines.
+# EXTI (15.5.1-15.5.7): IMR1, EMR1, RTSR1, FTSR1, SWIER1, PR1 and IMR2; lines 0-15 are the GPIO lines.
 IMR1, EMR1, RTSR1, FTSR1, SWIER1, PR1 = 0x00, 0x04, 0x08, 0x0C, 0x10, 0x14
 # RM0440 Table 97: EXTI0-4 have their own vectors, 5-9 and 10-15 share one each.
 EXTI_IRQ = {0: 6, 1: 7, 2: 8, 3: 9, 4: 10, **{n: 23 for n in range(5, 10)}, **{n: 40 for n in range(10, 16)}}
 
 
 class Exti(Peripheral):
-    resets = {IMR1: 0xFF82_0000, 0x20: 0x0000_0087}
+    # IMR2's reserved bits read 1 (15.5.7).
+    resets = {IMR1: 0xFF82_0000, 0x20: 0xFFFF_FF87}
 
     def edge(self, port, pin, level):
         exticr = self.chip.syscfg.regs.get(0x08 + 4 * (pin // 4), 0)

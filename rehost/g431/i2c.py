@@ -11,7 +11,7 @@ CR1, CR2, OAR1, OAR2, TIMINGR, TIMEOUTR, ISR, ICR, PECR, RXDR, TXDR = (
 PE, TXIE, RXIE, ADDRIE, NACKIE, STOPIE, TCIE, ERRIE = (1 << n for n in range(8))
 TXDMAEN, RXDMAEN, SBC, NOSTRETCH = 1 << 14, 1 << 15, 1 << 16, 1 << 17
 # CR2
-RD_WRN, START, STOP, NACK, RELOAD, AUTOEND = 1 << 10, 1 << 13, 1 << 14, 1 << 15, 1 << 24, 1 << 25
+RD_WRN, START, STOP, NACK, RELOAD, AUTOEND, PECBYTE = 1 << 10, 1 << 13, 1 << 14, 1 << 15, 1 << 24, 1 << 25, 1 << 26
 # ISR
 TXE, TXIS, RXNE, ADDR, NACKF, STOPF, TC, TCR, BERR, ARLO, OVR = (1 << n for n in range(11))
 TIMEOUT, BUSY, DIR = 1 << 12, 1 << 15, 1 << 16
@@ -40,6 +40,7 @@ class Transaction:
 
 class I2c(Peripheral):
     resets = {ISR: TXE}
+    read_only = {PECR: 0xFF, RXDR: 0xFF}
 
     def __init__(self, chip, name, base, number):
         super().__init__(chip, name, base)
@@ -84,11 +85,13 @@ class I2c(Peripheral):
             if not value & PE:
                 # PE = 0 resets the state machine and clears the flags but the RXDR/TXDR content (37.4.6).
                 self.regs[ISR] = TXE
+                self.regs[CR2] = self.regs.get(CR2, 0) & ~(NACK | PECBYTE)
                 self._wait = None
                 self._job = None
         elif offset == CR2:
             old = self.regs.get(CR2, 0)
-            self.regs[CR2] = value & ~(START | STOP)
+            # NACK and PECBYTE are set by software only: a 0 written leaves them (37.7.2).
+            self.regs[CR2] = (value | (old & (NACK | PECBYTE))) & ~(START | STOP)
             if value & START and self.regs.get(CR1, 0) & PE:
                 self._master_start(value)
             elif value & STOP and self._job is not None:
@@ -96,7 +99,7 @@ class I2c(Peripheral):
             elif field(value, 16, 8) != field(old, 16, 8):
                 self.regs[ISR] = self.regs.get(ISR, 0) & ~(TCR | TC)
         else:
-            self.regs[offset] = value
+            self.store(offset, value)
         self._poke()
         self._update_irq()
 
@@ -127,6 +130,9 @@ class I2c(Peripheral):
 
     def _set(self, flags):
         self.regs[ISR] = self.regs.get(ISR, 0) | flags
+        if flags & (ADDR | STOPF):
+            # An address matched or a STOP clears NACK and PECBYTE (37.7.2).
+            self.regs[CR2] = self.regs.get(CR2, 0) & ~(NACK | PECBYTE)
         self._update_irq()
 
     def _clear(self, flags):

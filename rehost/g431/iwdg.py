@@ -10,6 +10,8 @@ LSI_HZ = 32_000  # RM0440 7.2.5, DS12589 Table 48: 29.5-34 kHz
 
 class Iwdg(Peripheral):
     resets = {RLR: 0xFFF, WINR: 0xFFF}
+    # SR's update flags (42.4.4): a register update takes at once here, so they read 0.
+    read_only = {SR: 0xFFFF_FFFF}
 
     def __init__(self, chip, name, base):
         super().__init__(chip, name, base)
@@ -66,7 +68,7 @@ class Iwdg(Peripheral):
             return
         if offset in (PR, RLR, WINR) and not self.unlocked:
             return  # write-protected until KR = 0x5555
-        self.regs[offset] = value
+        self.store(offset, value)
 
     def _arm(self):
         self._generation += 1

@@ -9,6 +9,8 @@ class Peripheral:
 
     narrow_merge = True
     resets = {}
+    # The bits of a register no write reaches: its read-only fields (RM0440's "r"), by offset.
+    read_only = {}
 
     def __init__(self, chip, name, base):
         self.chip = chip
@@ -22,7 +24,12 @@ class Peripheral:
 
     def write(self, offset, value):
         self.writes.add(offset)
-        self.regs[offset] = value
+        self.store(offset, value)
+
+    def store(self, offset, value):
+        """A write of `value` as the register takes it: its read-only bits keep what they hold."""
+        kept = self.read_only.get(offset, 0)
+        self.regs[offset] = (self.regs.get(offset, 0) & kept) | (value & ~kept)
 
     def reg(self, offset):
         """A register's value, read without side effects (for tests)."""

@@ -14,13 +14,18 @@ HSI_HZ = 16_000_000
 
 # RCC_CSR reset flags (7.4.28).
 CSR_LSION, CSR_LSIRDY, CSR_RMVF = 1 << 0, 1 << 1, 1 << 23
+BDCR_LSERDY, BDCR_LSECSSD = 1 << 1, 1 << 6
 PINRSTF, BORRSTF, SFTRSTF, IWDGRSTF = 1 << 26, 1 << 27, 1 << 28, 1 << 29
 RESET_FLAGS = 0xFF << 24
 
 
 class Rcc(Peripheral):
-    # CR: HSION and HSIRDY after reset; CFGR: HSI16 selected (SW = SWS = 01); PLLCFGR: PLLN = 16.
-    resets = {CR: 0x0000_0500, CFGR: 0x0000_0005, PLLCFGR: 0x0000_1000}
+    # CR: HSION and HSIRDY after reset; ICSCR: HSITRIM = 64 (HSICAL, the factory's, reads 0 here); CFGR: HSI16
+    # selected (SW = SWS = 01); PLLCFGR: PLLN = 16; AHB1ENR: FLASHEN; APB1ENR1: RTCAPBEN (7.4).
+    resets = {CR: 0x0000_0500, ICSCR: 0x4000_0000, CFGR: 0x0000_0005, PLLCFGR: 0x0000_1000, AHB1ENR: 0x0000_0100,
+              APB1ENR1: 0x0000_0400}
+    # ICSCR.HSICAL, the factory's; every flag of CIFR (7.4).
+    read_only = {ICSCR: 0x00FF_0000, CIFR: 0xFFFF_FFFF}
 
     def __init__(self, chip, name, base):
         super().__init__(chip, name, base)
@@ -53,19 +58,25 @@ class Rcc(Peripheral):
             self.regs[CFGR] = (value & ~0xC) | (sws << 2)
         elif offset == CSR:
             old = self.regs.get(CSR, 0)
-            new = (old & RESET_FLAGS) | (value & ~RESET_FLAGS)
+            new = (old & RESET_FLAGS) | (value & ~RESET_FLAGS & ~CSR_LSIRDY)
             if value & CSR_RMVF:
                 new &= ~RESET_FLAGS
             if value & CSR_LSION:
                 new |= CSR_LSIRDY
             self.regs[CSR] = new & ~CSR_RMVF
         elif offset == CRRCR:
-            self.regs[CRRCR] = (value & ~2) | (bit(value, 0) << 1)  # HSI48RDY follows HSI48ON
+            # HSI48RDY follows HSI48ON; HSI48CAL is the factory's (7.4).
+            self.regs[CRRCR] = (self.regs.get(CRRCR, 0) & 0xFF80) | (value & ~0xFF82) | (bit(value, 0) << 1)
         elif offset == BDCR:
-            # LSERDY follows LSEON (bit 0 -> 1); the backup domain is kept over resets other than power-on.
-            self.regs[BDCR] = value | (bit(value, 0) << 1)
+            # LSERDY follows LSEON (bit 0 -> 1), LSECSSD is the hardware's; the backup domain is kept over resets
+            # other than power-on.
+            kept = self.regs.get(BDCR, 0) & BDCR_LSECSSD
+            self.regs[BDCR] = (value & ~(BDCR_LSERDY | BDCR_LSECSSD)) | kept | (bit(value, 0) << 1)
+        elif offset == CICR:
+            # Each bit written 1 clears the CIFR flag in its place; nothing is kept (7.4).
+            self.regs[CIFR] = self.regs.get(CIFR, 0) & ~value
         else:
-            self.regs[offset] = value
+            self.store(offset, value)
 
     def _source_ready(self, sw):
         cr = self.regs.get(CR, 0)
@@ -93,16 +104,18 @@ class Rcc(Peripheral):
         return HSE_HZ if sws == 2 else HSI_HZ
 
 
-# PWR (6.4): CR1 0x00, SR2 0x14 (VOSF, REGLPF), CR5 0x80 (R1MODE).
+# PWR (6.4): CR1 0x00, SR1 0x10, SR2 0x14 (VOSF, REGLPF), CR5 0x80 (R1MODE).
 class Pwr(Peripheral):
     resets = {0x00: 0x0000_0200, 0x80: 0x0000_0100}
+    read_only = {0x10: 0xFFFF_FFFF, 0x14: 0xFFFF_FFFF}  # the status registers (6.4)
 
 
 # FLASH (3.7): ACR 0x00, KEYR 0x08, SR 0x10, CR 0x14, ECCR 0x18, OPTR 0x20.
 ACR, KEYR, SR, FCR, ECCR, OPTR = 0x00, 0x08, 0x10, 0x14, 0x18, 0x20
 KEY1, KEY2 = 0x4567_0123, 0xCDEF_89AB
 SR_EOP, SR_PROGERR, SR_PGSERR, SR_BSY = 1 << 0, 1 << 3, 1 << 7, 1 << 16
-CR_PG, CR_PER, CR_BKER, CR_STRT, CR_EOPIE, CR_LOCK = 1 << 0, 1 << 1, 1 << 11, 1 << 16, 1 << 24, 1 << 31
+CR_PG, CR_PER, CR_BKER, CR_STRT, CR_EOPIE = 1 << 0, 1 << 1, 1 << 11, 1 << 16, 1 << 24
+CR_OPTLOCK, CR_LOCK = 1 << 30, 1 << 31
 FLASH_IRQ = 4  # RM0440 Table 97
 PAGE = 2048
 
@@ -126,8 +139,12 @@ class Flash(Peripheral):
     `operations` lists every erase and program as (first cycle, last cycle, "erase" or "program", address).
     """
 
+    # ECCR: the failing address, its bank and whether it is system flash (3.7.7).
+    read_only = {ECCR: 0x0067_FFFF}
+
     def __init__(self, chip, name, base):
-        self.resets = {ACR: 0x0000_0600, FCR: CR_LOCK, OPTR: chip.part.optr}
+        # CR: LOCK and OPTLOCK after reset (3.7.6).
+        self.resets = {ACR: 0x0000_0600, FCR: CR_LOCK | CR_OPTLOCK, OPTR: chip.part.optr}
         super().__init__(chip, name, base)
         self.keys = []
         self.pending = {}  # address of a double word -> first word
@@ -175,7 +192,7 @@ class Flash(Peripheral):
         elif offset == ACR:
             self.regs[ACR] = value
         else:
-            self.regs[offset] = value
+            self.store(offset, value)
 
     def store(self, address, value):
         """A CPU store of a word into flash; returns the word the flash holds afterwards."""
@@ -231,6 +248,8 @@ class Syscfg(Peripheral):
 # DBGMCU (47.16.4-47.16.7): IDCODE 0x00 (revision 0x2001 and the part's DEV_ID, RM0440 47.16.1), CR 0x04,
 # APB1FZR1 0x08, APB1FZR2 0x0C, APB2FZR 0x10.
 class Dbgmcu(Peripheral):
+    read_only = {0x00: 0xFFFF_FFFF}
+
     def __init__(self, chip, name, base):
         self.resets = {0x00: 0x2001_6000 | chip.part.dev_id}
         super().__init__(chip, name, base)

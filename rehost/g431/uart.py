@@ -6,6 +6,8 @@ from .peripheral import Peripheral
 CR1, CR2, CR3, BRR, RQR, ISR, ICR, RDR, TDR, PRESC = 0x00, 0x04, 0x08, 0x0C, 0x18, 0x1C, 0x20, 0x24, 0x28, 0x2C
 UE, RE, TE, RXNEIE, TCIE, TXEIE = 1 << 0, 1 << 2, 1 << 3, 1 << 5, 1 << 6, 1 << 7
 ORE, IDLE, RXNE, TC, TXE, TEACK, REACK = 1 << 3, 1 << 4, 1 << 5, 1 << 6, 1 << 7, 1 << 21, 1 << 22
+# ICR's clear bits, each clearing the ISR flag in its place: PE, FE, NE, ORE, IDLE, TC, CTSIF, CMF, WUF (38.7).
+ICR_FLAGS = 0x0012_025F
 IRQ = 91  # RM0440 Table 97
 KERNEL_HZ = 170_000_000  # PCLK1, LPUART1's kernel clock after reset (CCIPR.LPUART1SEL = 00)
 
@@ -13,6 +15,7 @@ KERNEL_HZ = 170_000_000  # PCLK1, LPUART1's kernel clock after reset (CCIPR.LPUA
 class Lpuart(Peripheral):
     narrow_merge = False
     resets = {ISR: TXE | TC}
+    read_only = {ISR: 0xFFFF_FFFF, RDR: 0xFFFF_FFFF}
 
     def __init__(self, chip, name, base):
         super().__init__(chip, name, base)
@@ -50,7 +53,7 @@ class Lpuart(Peripheral):
             else:
                 self._next = value & 0xFF
         elif offset == ICR:
-            self.regs[ISR] = isr & ~(value & (ORE | IDLE | TC | 0x7))
+            self.regs[ISR] = isr & ~(value & ICR_FLAGS)
         elif offset == CR1:
             self.regs[CR1] = value
             ack = (TEACK if value & TE else 0) | (REACK if value & RE else 0)
@@ -59,7 +62,7 @@ class Lpuart(Peripheral):
             if value & (1 << 3):  # RXFRQ
                 self.regs[ISR] = isr & ~RXNE
         else:
-            self.regs[offset] = value
+            self.store(offset, value)
         self._update_irq()
 
     def read(self, offset):
