@@ -8,10 +8,10 @@
 //!   for the update or for anyone on the link, and limits per requester what makes the vehicle send more than it
 //!   costs ([`limit`]).
 //! - [`console_tx_task`] sends the telemetry an ArduSub or QGroundControl ground station displays (HEARTBEAT,
-//!   SYS_STATUS, BATTERY_STATUS, ESC_INFO at 1 Hz, ESC_TELEMETRY and ESC_STATUS at 4 Hz, at the intervals a
-//!   ground station sets) and every message the other tasks queue in [`Shared::outbox`] (COMMAND_ACK,
-//!   PARAM_VALUE, STATUSTEXT, a requested message such as AUTOPILOT_VERSION, an FTP reply) as soon as it is
-//!   queued, signed when a key is set.
+//!   SYS_STATUS, BATTERY_STATUS, ESC_INFO and the "PilotGain" NAMED_VALUE_FLOAT at 1 Hz, ESC_TELEMETRY and
+//!   ESC_STATUS at 4 Hz, at the intervals a ground station sets) and every message the other tasks queue in
+//!   [`Shared::outbox`] (COMMAND_ACK, PARAM_VALUE, STATUSTEXT, a requested message such as AUTOPILOT_VERSION, an
+//!   FTP reply) as soon as it is queued, signed when a key is set.
 //!
 //! The dialect ([`lbv`]) is generated at build time from `mavlink/lbv.xml`, which holds only the messages used,
 //! copied from the official definitions; messages are encoded and decoded one type at a time, so the image
@@ -34,6 +34,7 @@ use mavlink_core::MessageData;
 
 use crate::console::framing::{Event, Frame, FrameParser};
 use crate::console::signing::{Refusal, SigningKey, SigningState};
+use crate::params::{PARAM_COUNT, Param};
 use crate::shared::{
     Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction,
     UpdateCommand, UpdateRequest,
@@ -614,7 +615,7 @@ fn reads(request: &UpdateRequest) -> Option<u32> {
 pub const ESC_DETAIL: bool = !cfg!(feature = "acceptance");
 
 /// The paced messages, in the order a batch carries them.
-const PACED: [Message; 7] = [
+const PACED: [Message; 8] = [
     Message::Heartbeat,
     Message::SysStatus,
     Message::BatteryStatus,
@@ -622,6 +623,7 @@ const PACED: [Message; 7] = [
     Message::EscTelemetry5To8,
     Message::EscInfo,
     Message::EscStatus,
+    Message::NamedValueFloat,
 ];
 
 /// A paced message's default period in [`TX_TICK`]s.
@@ -682,11 +684,12 @@ impl Schedule {
     }
 }
 
-/// Send telemetry to `tx`: HEARTBEAT (always 1 Hz), SYS_STATUS, BATTERY_STATUS and ESC_INFO at 1 Hz,
+/// Send telemetry to `tx`: HEARTBEAT (always 1 Hz), SYS_STATUS, BATTERY_STATUS, ESC_INFO and "PilotGain" at 1 Hz,
 /// ESC_TELEMETRY_1_TO_4 (and ESC_TELEMETRY_5_TO_8 when more than 4 thrusters are configured) and ESC_STATUS at
 /// 4 Hz, the first set at once; [`Outgoing::Interval`] changes a paced message's interval (the next one goes at
 /// once). ESC_INFO and ESC_STATUS go as one message per block of four configured thrusters. Every
-/// [`Shared::outbox`] message goes as soon as it is queued, a requested one ([`Outgoing::Message`]) built then.
+/// [`Shared::outbox`] message goes as soon as it is queued, a requested one ([`Outgoing::Message`]) built then,
+/// the parameter list ([`Outgoing::ParamList`]) one PARAM_VALUE at a time as the port takes them.
 /// MAVLink 2 frames from `config`'s system and component, signed while a key is in force (`shared.settings`; a
 /// batch waits for the signing reservation to have room, never going out unsigned); the sequence number counts
 /// every frame. Write errors, and frames that could not be signed, are counted in `stats` as write errors and the
@@ -727,6 +730,25 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                     index,
                     count,
                 } => out.push(&outbound::param_value(&id, value, param_type, index, count)),
+                Outgoing::ParamList => {
+                    for param in Param::ALL {
+                        out.key = signing_room(shared, stats).await;
+                        // The value alone, not the settings, is held over the write.
+                        let value = match shared.settings.try_get() {
+                            Some(settings) => param.to_float(settings.params.get(param)),
+                            None => break,
+                        };
+                        let count = PARAM_COUNT as u16;
+                        out.push(&outbound::param_value(
+                            &param.id(),
+                            value,
+                            param.param_type(),
+                            param.index(),
+                            count,
+                        ));
+                        out.flush().await;
+                    }
+                }
                 Outgoing::Text(severity, text) => out.push(&outbound::statustext(severity, &text)),
                 Outgoing::MissionCount { to, mission_type } => out.push(&outbound::mission_count(to, mission_type)),
                 Outgoing::Message(message) => out.send(message, config, shared, &mut last),
@@ -745,7 +767,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
 }
 
 /// Most frames one batch signs: every paced message, ESC_INFO and ESC_STATUS twice (see [`BATCH`]).
-const BATCH_FRAMES: u64 = 9;
+const BATCH_FRAMES: u64 = 10;
 /// Longest wait for a signing reservation to be stored before a batch goes (its frames beyond the reservation
 /// are dropped then): a write takes milliseconds, a page erase about 20 ms.
 const ROOM_WAIT: Duration = Duration::from_millis(50);
@@ -780,9 +802,9 @@ pub(crate) fn link_quality(before: &ConsoleCounters, now: &ConsoleCounters, refu
 }
 
 /// Room for the largest batch of frames written at once: every paced message with full payloads (HEARTBEAT 21,
-/// SYS_STATUS 55, BATTERY_STATUS 66, two ESC_TELEMETRY 56 each, two ESC_INFO 58 each, two ESC_STATUS 69 each:
-/// 508 bytes) and their 9 signatures (117): 625 bytes.
-const BATCH: usize = 640;
+/// SYS_STATUS 55, BATTERY_STATUS 66, two ESC_TELEMETRY 56 each, two ESC_INFO 58 each, two ESC_STATUS 69 each,
+/// NAMED_VALUE_FLOAT 30: 538 bytes) and their 10 signatures (130): 668 bytes.
+const BATCH: usize = 672;
 
 /// The writing half: frames messages into a batch and writes the batch in one go (one await point for all
 /// message types keeps the task small).
@@ -839,6 +861,13 @@ impl<W: Write> Output<'_, W> {
                 self.push(&outbound::esc_telemetry_5_to_8(thrusters, &reports))
             }
             Message::EscTelemetry5To8 => {}
+            Message::NamedValueFloat => {
+                if let Some(settings) = shared.settings.try_get() {
+                    let gain = settings.params.gain_percent();
+                    // time_boot_ms wraps after 49 days, as the field does.
+                    self.push(&outbound::pilot_gain(gain, time_usec.wrapping_div(1000) as u32));
+                }
+            }
             Message::EscInfo | Message::EscStatus if !ESC_DETAIL => {}
             Message::EscInfo => {
                 for first in blocks {

@@ -15,6 +15,13 @@
 //! | `LBV_FRAME` | thruster layout (only while disarmed) | 4, 6 | the build's |
 //! | `LBV_MTEST_MAX` | motor test throttle limit, % | 1-100 | 30 |
 //! | `LBV_UPD_UNSIGNED` | field update over a link without signing (only while disarmed) | 0 refused, 1 allowed | 0 |
+//! | `BTN0_FUNCTION`..`BTN15_FUNCTION` | what joystick button n does ([`ButtonFunction`]) | 0 none, 3, 4, 42, 43 | see below |
+//!
+//! The button functions are ArduSub's (its `BTNn_FUNCTION`, numbered as AP_JSButton numbers them), so that
+//! QGroundControl's joystick setup offers them for an ArduSub vehicle; the vehicle has four: 3 arm, 4 disarm, 42
+//! gain up, 43 gain down. Any other number is refused as out of range. The defaults are ArduSub's for those four on
+//! a standard gamepad (button 4 disarm, 6 arm, 11 gain up, 12 gain down); ArduSub's others (modes, camera, lights,
+//! shift) have nothing to act on here, and their buttons are 0.
 //!
 //! `LBV_UPD_UNSIGNED` has no ArduPilot counterpart (ArduPilot takes MAVLink FTP from anyone): without signing,
 //! anyone on the link can claim `SYSID_MYGCS`, so the update server refuses uploads, removals and the apply
@@ -108,10 +115,64 @@ pub enum Param {
     MotorTestMax,
     /// `LBV_UPD_UNSIGNED`: 1 lets the field update go over a link without signing (0, the default, refuses it).
     UnsignedUpdates,
+    /// `BTN0_FUNCTION`..`BTN15_FUNCTION`: what joystick button n of MANUAL_CONTROL does, ArduSub's number of a
+    /// [`ButtonFunction`] (0: nothing).
+    Button0,
+    Button1,
+    Button2,
+    Button3,
+    Button4,
+    Button5,
+    Button6,
+    Button7,
+    Button8,
+    Button9,
+    Button10,
+    Button11,
+    Button12,
+    Button13,
+    Button14,
+    Button15,
 }
 
 /// How many parameters there are.
-pub const PARAM_COUNT: usize = 10;
+pub const PARAM_COUNT: usize = 26;
+
+/// Joystick buttons with a function parameter: MANUAL_CONTROL's `buttons`, as ArduSub has them.
+pub const BUTTONS: usize = 16;
+
+/// What a joystick button does, by ArduSub's number (AP_JSButton's `button_function_t`), on the press only: a
+/// button held acts once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ButtonFunction {
+    /// 3: arm, as the arm command does (the same checks, the same texts).
+    Arm,
+    /// 4: disarm, and stop a motor test: every thruster stops. ArduSub has no other motor stop.
+    Disarm,
+    /// 42: `LBV_GAIN` up by [`GAIN_STEP`], to 100 at most.
+    GainUp,
+    /// 43: `LBV_GAIN` down by [`GAIN_STEP`], to [`GAIN_STEP`] at least.
+    GainDown,
+}
+
+impl ButtonFunction {
+    /// The function of ArduSub's number, `None` for 0 (nothing) and for one this vehicle has not.
+    pub const fn from_ardusub(number: i32) -> Option<Self> {
+        match number {
+            3 => Some(Self::Arm),
+            4 => Some(Self::Disarm),
+            42 => Some(Self::GainUp),
+            43 => Some(Self::GainDown),
+            _ => None,
+        }
+    }
+}
+
+/// What one gain button press moves `LBV_GAIN` by, in points of %: ArduSub steps its gain between JS_GAIN_MIN and
+/// JS_GAIN_MAX (25 % and 100 %, four settings); a vehicle without stabilisation wants finer steps, ten from 10 % to
+/// 100 %, the default 50 % among them.
+pub const GAIN_STEP: u8 = 10;
 
 impl Param {
     /// Every parameter, in index order.
@@ -126,6 +187,22 @@ impl Param {
         Self::Frame,
         Self::MotorTestMax,
         Self::UnsignedUpdates,
+        Self::Button0,
+        Self::Button1,
+        Self::Button2,
+        Self::Button3,
+        Self::Button4,
+        Self::Button5,
+        Self::Button6,
+        Self::Button7,
+        Self::Button8,
+        Self::Button9,
+        Self::Button10,
+        Self::Button11,
+        Self::Button12,
+        Self::Button13,
+        Self::Button14,
+        Self::Button15,
     ];
 
     /// The MAVLink name (at most 16 characters).
@@ -141,10 +218,33 @@ impl Param {
             Self::Frame => "LBV_FRAME",
             Self::MotorTestMax => "LBV_MTEST_MAX",
             Self::UnsignedUpdates => "LBV_UPD_UNSIGNED",
+            Self::Button0 => "BTN0_FUNCTION",
+            Self::Button1 => "BTN1_FUNCTION",
+            Self::Button2 => "BTN2_FUNCTION",
+            Self::Button3 => "BTN3_FUNCTION",
+            Self::Button4 => "BTN4_FUNCTION",
+            Self::Button5 => "BTN5_FUNCTION",
+            Self::Button6 => "BTN6_FUNCTION",
+            Self::Button7 => "BTN7_FUNCTION",
+            Self::Button8 => "BTN8_FUNCTION",
+            Self::Button9 => "BTN9_FUNCTION",
+            Self::Button10 => "BTN10_FUNCTION",
+            Self::Button11 => "BTN11_FUNCTION",
+            Self::Button12 => "BTN12_FUNCTION",
+            Self::Button13 => "BTN13_FUNCTION",
+            Self::Button14 => "BTN14_FUNCTION",
+            Self::Button15 => "BTN15_FUNCTION",
         }
     }
 
-    /// Smallest and largest value, in the parameter's own unit (`LBV_FRAME` takes only the two ends).
+    /// The function parameter of joystick button `n` (0..[`BUTTONS`]).
+    pub fn button(n: usize) -> Option<Param> {
+        let index = u16::try_from(n).ok().filter(|_| n < BUTTONS)?;
+        Self::from_index(Self::Button0.index() + index)
+    }
+
+    /// Smallest and largest value, in the parameter's own unit (`LBV_FRAME` takes only the two ends, a button
+    /// function only the numbers of [`ButtonFunction`] and 0).
     pub const fn range(self) -> (i32, i32) {
         match self {
             Self::GcsFailsafe => (1, 3),
@@ -155,6 +255,8 @@ impl Param {
             Self::Gain | Self::PowerCap | Self::MotorTestMax => (1, 100),
             Self::Frame => (4, 6),
             Self::UnsignedUpdates => (0, 1),
+            // The buttons' functions: 0 to ArduSub's gain down.
+            _ => (0, 43),
         }
     }
 
@@ -184,23 +286,24 @@ impl Param {
             Self::Frame => 6,
             Self::MotorTestMax => 30,
             Self::UnsignedUpdates => 0,
+            // ArduSub's defaults for the functions the vehicle has: a gamepad's back (4) disarms, its start (6)
+            // arms, the d-pad's up and down (11, 12) step the gain.
+            Self::Button4 => 4,
+            Self::Button6 => 3,
+            Self::Button11 => 42,
+            Self::Button12 => 43,
+            _ => 0,
         }
     }
 
     /// Its MAVLink type: the timeouts are seconds with a tenth (REAL32); the others are integers, of ArduPilot's
-    /// width for the ArduSub names (SYSID_MYGCS is AP_Int16, the failsafe enables AP_Int8) and the smallest that
-    /// holds the range for ours.
+    /// width for the ArduSub names (SYSID_MYGCS is AP_Int16, the failsafe enables and the button functions AP_Int8)
+    /// and the smallest that holds the range for ours.
     pub const fn param_type(self) -> ParamType {
         match self {
             Self::GcsTimeout | Self::PilotTimeout => ParamType::Real32,
             Self::OperatorId => ParamType::Int16,
-            Self::GcsFailsafe
-            | Self::PilotFailsafe
-            | Self::Gain
-            | Self::PowerCap
-            | Self::Frame
-            | Self::MotorTestMax
-            | Self::UnsignedUpdates => ParamType::Int8,
+            _ => ParamType::Int8,
         }
     }
 
@@ -223,6 +326,11 @@ impl Param {
     /// The index in PARAM_VALUE.
     pub const fn index(self) -> u16 {
         self as u16
+    }
+
+    /// Whether it is a joystick button's function (`BTNn_FUNCTION`).
+    pub const fn is_button(self) -> bool {
+        self.index() >= Self::Button0.index()
     }
 
     /// The parameter at an index.
@@ -251,6 +359,7 @@ impl Param {
         let (min, max) = self.range();
         match self {
             Self::Frame => value == min || value == max,
+            _ if self.is_button() => value == 0 || ButtonFunction::from_ardusub(value).is_some(),
             _ => min <= value && value <= max,
         }
     }
@@ -387,6 +496,11 @@ impl Params {
         self.get(Param::UnsignedUpdates) == 1
     }
 
+    /// What joystick button `n` does (`BTNn_FUNCTION`); `None`: nothing, or no such button.
+    pub fn button(&self, n: usize) -> Option<ButtonFunction> {
+        ButtonFunction::from_ardusub(self.get(Param::button(n)?))
+    }
+
     /// `LBV_FRAME`.
     pub fn frame(&self) -> FrameKind {
         u8::try_from(self.get(Param::Frame))
@@ -482,6 +596,35 @@ mod tests {
     }
 
     #[test]
+    fn button_functions_are_ardusubs_numbers_of_the_four_the_vehicle_has() {
+        let mut params = Params::defaults(FrameKind::Lbv300_6);
+        for n in 0..BUTTONS {
+            let param = Param::button(n).unwrap();
+            assert_eq!(param.name(), format!("BTN{n}_FUNCTION"));
+            assert!(param.is_button() && !param.only_disarmed());
+        }
+        assert_eq!(Param::button(BUTTONS), None);
+        assert!(!Param::UnsignedUpdates.is_button());
+        // ArduSub's gamepad layout, with only what the vehicle has.
+        let defaults: Vec<_> = (0..BUTTONS).map(|n| params.button(n)).collect();
+        let mut expected = vec![None; BUTTONS];
+        expected[4] = Some(ButtonFunction::Disarm);
+        expected[6] = Some(ButtonFunction::Arm);
+        expected[11] = Some(ButtonFunction::GainUp);
+        expected[12] = Some(ButtonFunction::GainDown);
+        assert_eq!(defaults, expected);
+        assert_eq!(params.button(BUTTONS), None);
+        // ArduSub's other functions (1 shift, 2 arm toggle, 5 manual mode, 21 mount centre, ...) are refused.
+        let taken: Vec<i32> = (-1..=120).filter(|v| Param::Button0.accepts(*v)).collect();
+        assert_eq!(taken, [0, 3, 4, 42, 43]);
+        assert!(params.set(Param::Button0, 42));
+        assert_eq!(params.button(0), Some(ButtonFunction::GainUp));
+        assert!(!params.set(Param::Button0, 2));
+        assert!(params.set(Param::Button4, 0));
+        assert_eq!(params.button(4), None);
+    }
+
+    #[test]
     fn one_lost_frame_of_a_1_hz_stream_trips_neither_failsafe_by_default() {
         let defaults = Params::defaults(FrameKind::Lbv300_6);
         // Two seconds between frames, and late by up to half a second.
@@ -531,7 +674,7 @@ mod tests {
         assert_eq!(Param::GcsTimeout.from_float(f32::from_bits(2)), Some(0));
         let types = Param::ALL.map(Param::param_type);
         assert_eq!(
-            types,
+            types[..10],
             [
                 ParamType::Int8,
                 ParamType::Real32,
@@ -544,6 +687,11 @@ mod tests {
                 ParamType::Int8,
                 ParamType::Int8
             ]
+        );
+        assert_eq!(
+            types[10..],
+            [ParamType::Int8; BUTTONS],
+            "the buttons, AP_Int8 as in ArduSub"
         );
         for param in Param::ALL {
             let (min, max) = param.range();

@@ -593,11 +593,11 @@ mod tests {
         assert_eq!(load(&mut flash).0.params.power_cap_percent(), 70);
     }
 
-    #[test]
-    fn a_record_of_an_image_with_fewer_parameters_keeps_its_settings() {
-        // What the image before LBV_UPD_UNSIGNED wrote: nine parameters, then the signing key and the link's time.
-        let mut old = vec![FORMAT, 9];
-        for param in Param::ALL.into_iter().take(9) {
+    /// A record as an older image wrote it, with its first `count` parameters (SYSID_MYGCS 200, the rest at their
+    /// defaults), then the signing key and the link's time.
+    fn old_record(count: usize) -> Vec<u8> {
+        let mut old = vec![FORMAT, count as u8];
+        for param in Param::ALL.into_iter().take(count) {
             let value = if param == Param::OperatorId {
                 200
             } else {
@@ -608,27 +608,45 @@ mod tests {
         old.extend([7; 32]);
         old.extend(5u64.to_le_bytes());
         old.extend(6_000_000u64.to_le_bytes());
-        assert_eq!(old.len(), RECORD - 4);
-        let mut flash = flash();
-        {
-            let mut store = Store::new(&mut flash, RANGE).unwrap();
-            push(&mut store, &old);
+        old
+    }
+
+    #[test]
+    fn a_record_of_an_image_with_fewer_parameters_keeps_its_settings() {
+        // What the image before the buttons wrote (ten parameters), and the one before LBV_UPD_UNSIGNED (nine).
+        for count in [10, 9] {
+            let old = old_record(count);
+            assert_eq!(old.len(), RECORD - 4 * (PARAM_COUNT - count));
+            let mut flash = flash();
+            {
+                let mut store = Store::new(&mut flash, RANGE).unwrap();
+                push(&mut store, &old);
+            }
+            let (settings, errors) = load(&mut flash);
+            assert_eq!(errors, 0);
+            assert_eq!(settings.params.operator(), 200);
+            assert!(!settings.params.unsigned_updates(), "the new ones at their defaults");
+            for param in Param::ALL.into_iter().skip(count) {
+                assert_eq!(settings.params.get(param), defaults().params.get(param), "{param:?}");
+            }
+            assert_eq!(settings.params.button(6), Some(crate::params::ButtonFunction::Arm));
+            assert_eq!(
+                settings.signing,
+                Some(SigningKey {
+                    secret: [7; 32],
+                    timestamp: 6_000_000
+                }),
+                "the key kept, from the link's reservation on"
+            );
+            // Once changed, it is stored whole in this image's layout.
+            let mut changed = settings;
+            changed.params.set(Param::Button0, 42);
+            save(&mut flash, &changed).unwrap();
+            assert_eq!(load(&mut flash).0, changed);
         }
-        let (settings, errors) = load(&mut flash);
-        assert_eq!(errors, 0);
-        assert_eq!(settings.params.operator(), 200);
-        assert!(!settings.params.unsigned_updates(), "the new one at its default");
-        assert_eq!(
-            settings.signing,
-            Some(SigningKey {
-                secret: [7; 32],
-                timestamp: 6_000_000
-            }),
-            "the key kept, from the link's reservation on"
-        );
         // A count that does not fit the length, or more parameters than this image has, is no record of it.
-        let mut short = old.clone();
-        short[1] = 8;
+        let mut short = old_record(10);
+        short[1] = 9;
         let mut more = encode(&defaults(), 0).to_vec();
         more[1] = PARAM_COUNT as u8 + 1;
         for bad in [short, more] {
@@ -643,7 +661,7 @@ mod tests {
         let mut store = Store::new(&mut flash, RANGE).unwrap();
         block_on(store.load(defaults()));
         let mut last = defaults();
-        // Enough writes to go round the eight pages several times (19 records to a page).
+        // Enough writes to go round the eight pages several times (12 records to a page).
         for n in 0..1000 {
             last = with(|s| {
                 s.params.set(Param::Gain, 1 + n % 100);
@@ -722,23 +740,23 @@ mod tests {
 
     #[test]
     fn a_power_cut_during_a_write_loses_at_most_that_write() {
-        // One record: an 8-byte header and 90 bytes of data in 13 double words.
-        assert_eq!(power_cut_during_a_write(0), 104);
+        // One record: an 8-byte header and 154 bytes of data in 21 double words.
+        assert_eq!(power_cut_during_a_write(0), 168);
     }
 
     #[test]
     fn a_power_cut_while_the_store_moves_to_a_new_page_loses_at_most_that_write() {
-        // 19 records to a page: after 18 (and one more), the interrupted write closes its page and opens the
-        // next (two page markers more); after 151, the log has gone round the eight pages and must erase the
+        // 12 records to a page: after 11 (and one more), the interrupted write closes its page and opens the
+        // next (two page markers more); after 95, the log has gone round the eight pages and must erase the
         // oldest first.
         assert_eq!(
-            power_cut_during_a_write(18),
-            104 + 16,
+            power_cut_during_a_write(11),
+            168 + 16,
             "the write that moves to a new page"
         );
         assert_eq!(
-            power_cut_during_a_write(151),
-            2048 + 104 + 16,
+            power_cut_during_a_write(95),
+            2048 + 168 + 16,
             "the write that erases a page first"
         );
     }

@@ -204,8 +204,8 @@ impl UpdateAction {
 pub enum Command {
     /// A HEARTBEAT from the ground station: the console is alive.
     Heartbeat,
-    /// MANUAL_CONTROL.
-    Manual(ManualInput),
+    /// MANUAL_CONTROL: the sticks, and the buttons held (`buttons`, bit n for button n).
+    Manual(ManualInput, u16),
     /// MAV_CMD_COMPONENT_ARM_DISARM (400): arm (param1 = 1) or disarm (0).
     Arm(bool),
     /// COMMAND_LONG MAV_CMD_DO_MOTOR_TEST (209), as QGroundControl's motor test page sends it: thruster
@@ -313,6 +313,9 @@ pub enum Message {
     EscTelemetry1To4,
     /// ESC_TELEMETRY_5_TO_8 (11031), only with more than four thrusters.
     EscTelemetry5To8,
+    /// NAMED_VALUE_FLOAT (251) "PilotGain": `LBV_GAIN` as a fraction, as ArduSub sends its pilot gain (which
+    /// QGroundControl's ArduSub instrument panel shows).
+    NamedValueFloat,
 }
 
 impl Message {
@@ -379,6 +382,10 @@ pub enum Outgoing {
         /// The command's sender, whom the answer is addressed to.
         to: Sender,
     },
+    /// Every PARAM_VALUE in index order, with the values in force (`Shared::settings`) as they go: the answer to
+    /// PARAM_REQUEST_LIST. The console sends them one at a time as the line takes them, so the list need not fit in
+    /// the outbox.
+    ParamList,
     /// PARAM_VALUE.
     ParamValue {
         /// The name.

@@ -32,6 +32,12 @@
 //!   water must not take; the update server refuses an apply while armed ([`crate::update`]).
 //! - MANUAL_CONTROL is applied only while armed (ignored while disarmed) and forgotten on disarm: the orders
 //!   are the mixer's output for the last input ([`crate::mixer`]), with `LBV_GAIN`.
+//! - Joystick buttons (MANUAL_CONTROL's `buttons`, armed or not): a button acts when it is pressed, once: held, it
+//!   does nothing more until released and pressed again (a MANUAL_CONTROL lost meanwhile changes nothing). What
+//!   it does is its `BTNn_FUNCTION` ([`ButtonFunction`]): arm (the arm command's rule and texts, without a
+//!   COMMAND_ACK), disarm (as the command: a motor test stops too), `LBV_GAIN` up or down by [`GAIN_STEP`] within
+//!   [`GAIN_STEP`]..=100 (a text says where it stands, and a change is kept and sent as PARAM_VALUE and
+//!   "PilotGain", so that the ground station's copy follows). A disarm pressed with an arm wins.
 //! - Motor test (MAV_CMD_DO_MOTOR_TEST, 209): thruster 1..=`thrusters` (else DENIED), only while disarmed with a
 //!   live heartbeat (else TEMPORARILY_REJECTED). The percentage is clamped to +-`LBV_MTEST_MAX`; the test runs for
 //!   its duration (at most 10 s) and stops at exactly its end. One thruster at a time: a new test replaces the
@@ -42,14 +48,15 @@
 //!   (armed, or the motor test) carry INFO = `LBV_POWER_CAP`. Slots beyond `thrusters` are always STOP.
 //! - Thruster reports do not change the orders: a thruster that is offline or has stopped on a fault still
 //!   gets its order (the thruster decides), and the others keep working. Faults are reported elsewhere.
-//! - Parameters ([`crate::params`]): PARAM_REQUEST_LIST answers every PARAM_VALUE in index order;
+//! - Parameters ([`crate::params`]): PARAM_REQUEST_LIST answers every PARAM_VALUE in index order
+//!   ([`Outgoing::ParamList`]);
 //!   PARAM_REQUEST_READ the one asked (by index, or by name when the index is -1; unknown -> no answer);
 //!   PARAM_SET of a known name applies a valid value and answers PARAM_VALUE; an invalid one (out of range, not
 //!   a number, a fraction for an integer parameter, `LBV_FRAME` or `SYSID_MYGCS` while armed) is rejected with a
 //!   Warning text and a PARAM_VALUE of the unchanged value, as ArduPilot does. A PARAM_SET whose param_type is
 //!   neither the parameter's ([`Param::param_type`]) nor REAL32 ([`Param::takes_type`]: what MAVProxy sends) is
 //!   answered the same way and counted ([`VehicleState::param_type_mismatches`]): its value may be encoded
-//!   otherwise. An unknown name gets no answer.
+//!   otherwise. An unknown name gets no answer. A change of `LBV_GAIN` also sends "PilotGain" at once.
 //! - MAV_CMD_REQUEST_MESSAGE / MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES (anyone may ask: it reads): ACCEPTED, then
 //!   [`Outgoing::Message`]; a message the master does not send (HOME_POSITION: there is no home) DENIED, which
 //!   MAV_RESULT defines as "supported but has invalid parameters" (the command is supported, its message id is
@@ -71,10 +78,10 @@ use tmc_proto::{Order, Speed};
 
 use crate::console::signing::SigningKey;
 use crate::mixer::{FrameKind, ManualInput, mix, round_div};
-use crate::params::{GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
+use crate::params::{BUTTONS, ButtonFunction, GAIN_STEP, GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
 use crate::shared::{
     ARDUSUB_MODE_MANUAL, AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_DO_SET_MODE,
-    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Outgoing, Request, Sender,
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Message, Outgoing, Request, Sender,
     Severity, Shared, UpdateHold, VehicleState, text,
 };
 
@@ -155,6 +162,18 @@ pub enum ArmRefusal {
     Heave(i16),
 }
 
+impl fmt::Display for ArmRefusal {
+    /// Why, as "Arm rejected: " goes on.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::MotorTest => f.write_str("motor test was running"),
+            Self::NoHeartbeat => f.write_str("no ground station heartbeat"),
+            Self::Update(hold) => write!(f, "{hold}"),
+            Self::Heave(z) => write!(f, "heave stick at {z}, not 500"),
+        }
+    }
+}
+
 /// How far the heave stick may sit from its centre (500 of 0..=1000) for an arm: a joystick at rest reads within a
 /// few counts of it; a ground station that sends its centre as 0 is 500 away.
 pub const HEAVE_ARM_BAND: i16 = 100;
@@ -182,6 +201,8 @@ pub struct Vehicle {
     update_hold: Option<UpdateHold>,
     /// The operator's last MANUAL_CONTROL, armed or not, and when it came: where the sticks stand for an arm.
     sticks: Option<(Instant, ManualInput)>,
+    /// The joystick buttons held in the operator's last MANUAL_CONTROL: a button acts when it is pressed.
+    buttons: u16,
 }
 
 impl Vehicle {
@@ -201,6 +222,7 @@ impl Vehicle {
             param_type_mismatches: 0,
             update_hold: None,
             sticks: None,
+            buttons: 0,
         }
     }
 
@@ -220,11 +242,7 @@ impl Vehicle {
         let Request { from, command } = request;
         let operator = from.system == self.settings.params.operator();
         match command {
-            Command::ParamRequestList => {
-                for param in Param::ALL {
-                    self.param_value(param, out);
-                }
-            }
+            Command::ParamRequestList => out(Outgoing::ParamList),
             Command::MissionRequestList { mission_type } => out(Outgoing::MissionCount { to: from, mission_type }),
             Command::ParamRequestRead { id, index } => {
                 let param = match u16::try_from(index) {
@@ -256,7 +274,7 @@ impl Vehicle {
                     ack(out, command, AckResult::Denied, from);
                 }
             }
-            Command::Manual(input) => {
+            Command::Manual(input, buttons) => {
                 self.sticks = Some((now, input));
                 let held = self.gcs_lost && self.settings.params.gcs_failsafe() == GcsFailsafe::Neutral;
                 if self.armed && !held {
@@ -264,6 +282,7 @@ impl Vehicle {
                     self.pilot_input = Some(now);
                     self.pilot_lost = false;
                 }
+                self.buttons(now, buttons, out);
             }
             Command::MessageInterval { message, interval } => match (message, interval) {
                 (Some(message), Some(interval)) if message.paced() => {
@@ -272,14 +291,10 @@ impl Vehicle {
                 }
                 _ => ack(out, MAV_CMD_SET_MESSAGE_INTERVAL, AckResult::Denied, from),
             },
-            Command::Arm(true) => self.arm(now, from, out),
+            Command::Arm(true) => self.arm(now, Some(from), out),
             Command::Arm(false) => {
                 ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted, from);
-                self.stop_motor_test(out);
-                if self.armed {
-                    self.disarm();
-                    say(out, Severity::Info, format_args!("Disarmed"));
-                }
+                self.stop(out);
             }
             Command::MotorTest {
                 motor,
@@ -468,44 +483,24 @@ impl Vehicle {
         }
     }
 
-    fn arm(&mut self, now: Instant, from: Sender, out: &mut impl FnMut(Outgoing)) {
-        match self.arm_check(now) {
-            Err(ArmRefusal::MotorTest) => {
-                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
-                self.stop_motor_test(out);
-                say(
-                    out,
-                    Severity::Warning,
-                    format_args!("Arm rejected: motor test was running"),
-                );
-                return;
-            }
-            Err(ArmRefusal::NoHeartbeat) => {
-                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
-                say(
-                    out,
-                    Severity::Warning,
-                    format_args!("Arm rejected: no ground station heartbeat"),
-                );
-                return;
-            }
-            Err(ArmRefusal::Update(hold)) => {
-                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
-                say(out, Severity::Warning, format_args!("Arm rejected: {hold}"));
-                return;
-            }
-            Err(ArmRefusal::Heave(z)) => {
-                ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::TemporarilyRejected, from);
-                say(
-                    out,
-                    Severity::Warning,
-                    format_args!("Arm rejected: heave stick at {z}, not 500"),
-                );
-                return;
-            }
-            Ok(()) => {}
+    /// Arm for the operator's arm command (`from`, answered with a COMMAND_ACK) or an arm button (`None`): one
+    /// rule ([`Vehicle::arm_check`]) and the same texts for both.
+    fn arm(&mut self, now: Instant, from: Option<Sender>, out: &mut impl FnMut(Outgoing)) {
+        let check = self.arm_check(now);
+        if let Some(from) = from {
+            let result = match check {
+                Ok(()) => AckResult::Accepted,
+                Err(_) => AckResult::TemporarilyRejected,
+            };
+            ack(out, MAV_CMD_COMPONENT_ARM_DISARM, result, from);
         }
-        ack(out, MAV_CMD_COMPONENT_ARM_DISARM, AckResult::Accepted, from);
+        if let Err(refusal) = check {
+            if refusal == ArmRefusal::MotorTest {
+                self.stop_motor_test(out);
+            }
+            say(out, Severity::Warning, format_args!("Arm rejected: {refusal}"));
+            return;
+        }
         if !self.armed {
             self.armed = true;
             self.input = NEUTRAL;
@@ -521,6 +516,53 @@ impl Vehicle {
         self.input = NEUTRAL;
         self.pilot_input = None;
         self.pilot_lost = false;
+    }
+
+    /// The operator's disarm, by command or button: a motor test stops too.
+    fn stop(&mut self, out: &mut impl FnMut(Outgoing)) {
+        self.stop_motor_test(out);
+        if self.armed {
+            self.disarm();
+            say(out, Severity::Info, format_args!("Disarmed"));
+        }
+    }
+
+    /// The operator's joystick buttons held now: each one pressed since the last MANUAL_CONTROL does its function
+    /// once, the gain steps in button order, then a disarm, or else an arm (a disarm pressed with an arm wins).
+    fn buttons(&mut self, now: Instant, held: u16, out: &mut impl FnMut(Outgoing)) {
+        let pressed = held & !self.buttons;
+        self.buttons = held;
+        let (mut arm, mut disarm) = (false, false);
+        for n in (0..BUTTONS).filter(|n| pressed & 1 << n != 0) {
+            match self.settings.params.button(n) {
+                Some(ButtonFunction::Arm) => arm = true,
+                Some(ButtonFunction::Disarm) => disarm = true,
+                Some(ButtonFunction::GainUp) => self.step_gain(true, out),
+                Some(ButtonFunction::GainDown) => self.step_gain(false, out),
+                None => {}
+            }
+        }
+        if disarm {
+            self.stop(out);
+        } else if arm {
+            self.arm(now, None, out);
+        }
+    }
+
+    /// `LBV_GAIN` one [`GAIN_STEP`] up or down, within `GAIN_STEP..=100` (never against the press: a gain set
+    /// below the step stays where it is on a down), kept like a PARAM_SET and told.
+    fn step_gain(&mut self, up: bool, out: &mut impl FnMut(Outgoing)) {
+        let gain = self.settings.params.gain_percent();
+        let stepped = if up {
+            gain.saturating_add(GAIN_STEP).min(100).max(gain)
+        } else {
+            gain.saturating_sub(GAIN_STEP).max(GAIN_STEP).min(gain)
+        };
+        if stepped != gain && self.settings.params.set(Param::Gain, i32::from(stepped)) {
+            self.param_value(Param::Gain, out);
+            out(Outgoing::Message(Message::NamedValueFloat));
+        }
+        say(out, Severity::Info, format_args!("Pilot gain {stepped} %"));
     }
 
     fn stop_motor_test(&mut self, out: &mut impl FnMut(Outgoing)) {
@@ -581,25 +623,25 @@ impl Vehicle {
     fn param_set(&mut self, param: Param, value: f32, out: &mut impl FnMut(Outgoing)) {
         let (min, max) = param.range();
         let (min, max) = (param.shown(min), param.shown(max));
+        let name = param.name();
+        let mut set = false;
         match param.from_float(value) {
             Some(_) if param.only_disarmed() && self.armed => {
-                say(out, Severity::Warning, format_args!("{}: disarm first", param.name()));
+                say(out, Severity::Warning, format_args!("{name}: disarm first"));
             }
-            Some(value) if self.settings.params.set(param, value) => {}
-            _ if param == Param::Frame => {
-                say(
-                    out,
-                    Severity::Warning,
-                    format_args!("{}: must be {min} or {max}", param.name()),
-                );
-            }
-            _ => say(
+            Some(value) if self.settings.params.set(param, value) => set = true,
+            _ if param == Param::Frame => say(out, Severity::Warning, format_args!("{name}: must be {min} or {max}")),
+            _ if param.is_button() => say(
                 out,
                 Severity::Warning,
-                format_args!("{}: range {min}..{max}", param.name()),
+                format_args!("{name}: must be 0, 3, 4, 42 or 43"),
             ),
+            _ => say(out, Severity::Warning, format_args!("{name}: range {min}..{max}")),
         }
         self.param_value(param, out);
+        if set && param == Param::Gain {
+            out(Outgoing::Message(Message::NamedValueFloat));
+        }
     }
 
     fn setup_signing(&mut self, secret: [u8; 32], timestamp: u64, out: &mut impl FnMut(Outgoing)) {
@@ -628,7 +670,7 @@ fn command_long(command: &Command) -> Option<u16> {
         Command::MessageInterval { .. } => Some(MAV_CMD_SET_MESSAGE_INTERVAL),
         Command::Update { action, .. } => Some(action.command()),
         Command::Heartbeat
-        | Command::Manual(_)
+        | Command::Manual(..)
         | Command::ParamRequestList
         | Command::MissionRequestList { .. }
         | Command::ParamRequestRead { .. }
@@ -648,8 +690,10 @@ fn say(out: &mut impl FnMut(Outgoing), severity: Severity, args: fmt::Arguments<
 /// The vehicle task's period: 50 Hz.
 pub const TICK: Duration = Duration::from_millis(20);
 
-/// Most answers one request and one evaluation can give (a parameter list plus a few texts).
-const MAX_REPLIES: usize = PARAM_COUNT + 6;
+/// Most answers one request and one evaluation can give: a failsafe's texts, then a request's (an arm refused
+/// while a motor test runs: its COMMAND_ACK and two texts; a gain button: a PARAM_VALUE, "PilotGain" and a text),
+/// with room for a few buttons pressed at once. A reply beyond them is dropped.
+const MAX_REPLIES: usize = 16;
 
 /// Receive requests (`shared.commands`) and evaluate at 50 Hz; publish the orders (`shared.orders`), the state
 /// (`shared.vehicle`) and, when they change, the settings (`shared.settings`) after every request and every

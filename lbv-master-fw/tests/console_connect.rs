@@ -339,7 +339,9 @@ fn qgroundcontrol_initial_connect_then_arm() {
                     .collect();
                 match values.first() {
                     Some(first) if values.len() == usize::from(first.param_count) => {
-                        assert_eq!(first.param_count, 10);
+                        // Ten of the vehicle's, and the sixteen joystick buttons' functions (BTNn_FUNCTION), which
+                        // QGroundControl's ArduSub joystick setup shows.
+                        assert_eq!(first.param_count, 26);
                         for (n, p) in values.iter().enumerate() {
                             assert_eq!(usize::from(p.param_index), n);
                             let name = p.param_id.to_str().unwrap();
@@ -353,8 +355,15 @@ fn qgroundcontrol_initial_connect_then_arm() {
                                 assert_eq!(p.param_value.fract(), 0.0, "C_CAST: the float is the integer");
                             }
                         }
-                        let sysid = values.iter().find(|p| p.param_id.to_str().unwrap() == "SYSID_MYGCS");
-                        assert_eq!(sysid.map(|p| p.param_value), Some(255.0));
+                        let value = |name: &str| {
+                            values
+                                .iter()
+                                .find(|p| p.param_id.to_str().unwrap() == name)
+                                .map(|p| p.param_value)
+                        };
+                        assert_eq!(value("SYSID_MYGCS"), Some(255.0));
+                        assert_eq!(value("BTN6_FUNCTION"), Some(3.0), "ArduSub's arm");
+                        assert_eq!(value("BTN15_FUNCTION"), Some(0.0));
                         gcs.send(&MISSION_REQUEST_LIST_DATA {
                             target_system: 1,
                             target_component: 1,

@@ -24,7 +24,7 @@ use lbv_master_fw::console::lbv::{
 };
 use lbv_master_fw::console::limit::BURST;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, HELD, console_rx_task};
-use lbv_master_fw::params::{Param, Settings};
+use lbv_master_fw::params::{PARAM_COUNT, Param, Settings};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Sender, Severity, Shared, text};
 use lbv_master_fw::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget, ftp};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
@@ -213,7 +213,7 @@ fn a_listing_flood_from_another_system_with_the_outbox_full_never_stops_the_read
     let got: Vec<Command> = commands.iter().map(|(_, request)| request.command).collect();
     assert_eq!(got.len(), 2, "the operator's frames were read: {got:?}");
     assert_eq!(got[0], Command::Heartbeat);
-    assert!(matches!(got[1], Command::Manual(input) if input.x == 300));
+    assert!(matches!(got[1], Command::Manual(input, _) if input.x == 300));
     // 16 replies fill the outbox, the other 24 are dropped.
     let counters = stats.snapshot();
     assert_eq!((counters.replies_dropped, counters.rate_limited), (24, 0));
@@ -258,7 +258,7 @@ fn reading_goes_on_while_the_update_sink_has_no_room_and_held_writes_follow_in_o
     assert_eq!(at.len(), 2, "{at:?}");
     assert!(at[0].0 <= 26 && at[0].1 == Command::Heartbeat, "{at:?}");
     assert!(
-        at[1].0 <= 27 && matches!(at[1].1, Command::Manual(input) if input.x == -400),
+        at[1].0 <= 27 && matches!(at[1].1, Command::Manual(input, _) if input.x == -400),
         "{at:?}"
     );
     // The writes held were taken in order once the sink had room; the one more was dropped unanswered (a client
@@ -370,10 +370,13 @@ fn requests_that_make_the_vehicle_send_more_than_they_cost_are_limited_per_reque
             })
             .count() as u32
     };
-    // The allowance of each, then ten frames a second: 40 + 10 PARAM_VALUEs for system 77 (five lists), and the
-    // operator's ten; 20 + 9 HEARTBEATs for the companion, each with its COMMAND_ACK.
+    // The allowance of each (40 frames), then ten frames a second: for system 77 a list of 26 PARAM_VALUEs at once
+    // and one more when 12 frames more have come back, at 1.2 s (the next would be at 3.8 s), and the operator's
+    // list; 20 + 9 HEARTBEATs for the companion, each with its COMMAND_ACK.
+    let list = PARAM_COUNT as u32;
+    assert!(list < BURST && 2 * list > BURST);
     let values = of("PARAM_VALUE");
-    assert_eq!(values, BURST + 10 + 10, "PARAM_VALUEs");
+    assert_eq!(values, 2 * list + list, "PARAM_VALUEs");
     let acks = of("COMMAND_ACK");
     assert!((28..=30).contains(&acks), "{acks} COMMAND_ACKs");
     // Every one of the operator's listings answered.

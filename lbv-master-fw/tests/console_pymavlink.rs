@@ -13,8 +13,9 @@ use std::process::{Command as Process, Stdio};
 use console_support::{clock, run_rx, run_tx};
 use embassy_time::Duration;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, Received, Receiver};
+use lbv_master_fw::mixer::FrameKind;
 use lbv_master_fw::mixer::ManualInput;
-use lbv_master_fw::params::ParamType;
+use lbv_master_fw::params::{ParamType, Settings};
 use lbv_master_fw::shared::{
     AckResult, BatterySummary, Command, Interval, LinkHealth, Message, Outgoing, Sender, Severity, Shared, Text,
     ThrusterReport, UpdateCommand, UpdateRequest, VehicleState,
@@ -153,12 +154,15 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
         ("heartbeat_vehicle", None),
         (
             "manual",
-            Some(Command::Manual(ManualInput {
-                x: 100,
-                y: -200,
-                z: 700,
-                r: -300,
-            })),
+            Some(Command::Manual(
+                ManualInput {
+                    x: 100,
+                    y: -200,
+                    z: 700,
+                    r: -300,
+                },
+                5,
+            )),
         ),
         ("manual_other", None),
         ("arm", Some(Command::Arm(true))),
@@ -250,12 +254,15 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
         ("arm_v1", Some(Command::Arm(true))),
         (
             "manual_v1",
-            Some(Command::Manual(ManualInput {
-                x: -1000,
-                y: 1000,
-                z: 0,
-                r: 1000,
-            })),
+            Some(Command::Manual(
+                ManualInput {
+                    x: -1000,
+                    y: 1000,
+                    z: 0,
+                    r: 1000,
+                },
+                0,
+            )),
         ),
     ];
     assert_eq!(
@@ -278,10 +285,12 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
         stream.extend([0x00, 0xFD, 0x13, 0x37]);
         stream.extend(&frames["system_time"]);
     }
-    stream.extend(&frames["param_list"]);
+    // A last frame after the last unknown message (a heartbeat: a second parameter list at once would be over the
+    // requester's allowance).
+    stream.extend(&frames["heartbeat_gcs"]);
     let (commands, counters) = run_rx(&stream, 7, &ConsoleConfig::DEFAULT);
     let mut want: Vec<Command> = expected.iter().filter_map(|(_, c)| *c).collect();
-    want.push(Command::ParamRequestList);
+    want.push(Command::Heartbeat);
     assert_eq!(commands, want);
     assert_eq!(counters.frames_in as usize, expected.len() + 1);
     assert_eq!(counters.unknown_messages as usize, expected.len());
@@ -339,6 +348,7 @@ fn pymavlink_decodes_what_the_console_sends() {
         errors: 1,
         ..BatterySummary::default()
     });
+    shared.settings.sender().send(Settings::defaults(FrameKind::Lbv300_6));
     let mut text = Text::new();
     text.push_str("LBV master ready").unwrap();
     let config = ConsoleConfig {
@@ -522,6 +532,17 @@ fn pymavlink_decodes_what_the_console_sends() {
     assert_eq!(texts.len(), 1);
     assert_eq!(texts[0]["severity"], 2, "MAV_SEVERITY_CRITICAL");
     assert_eq!(texts[0]["text"], "LBV master ready");
+
+    // ArduSub's pilot gain, as QGroundControl's ArduSub plugin reads it: LBV_GAIN 50 % as 0.5.
+    let gains = of_type(&decoded, "NAMED_VALUE_FLOAT");
+    assert_eq!(gains.len(), 2, "1 Hz over 1.1 s");
+    for (gain, ms) in gains.iter().zip([0, 1000]) {
+        assert_eq!(
+            (&gain["name"], &gain["value"]),
+            (&Value::from("PilotGain"), &Value::from(0.5))
+        );
+        assert_eq!(gain["time_boot_ms"], ms);
+    }
 
     let params = of_type(&decoded, "PARAM_VALUE");
     assert_eq!(params.len(), 2);

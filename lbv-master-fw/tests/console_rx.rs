@@ -78,12 +78,15 @@ fn inputs() -> Vec<(Vec<u8>, Option<Command>)> {
         (v2(s, c, 0, &heartbeat(MavType::MAV_TYPE_GCS)), Some(Command::Heartbeat)),
         (
             v2(s, c, 1, &manual(1, 100, -200, 700, -300)),
-            Some(Command::Manual(ManualInput {
-                x: 100,
-                y: -200,
-                z: 700,
-                r: -300,
-            })),
+            Some(Command::Manual(
+                ManualInput {
+                    x: 100,
+                    y: -200,
+                    z: 700,
+                    r: -300,
+                },
+                0,
+            )),
         ),
         (
             v2(s, c, 2, &command((1, 1), 400, [1.0, 0.0, 0.0, 0.0])),

@@ -8,9 +8,11 @@ use console_support::{clock, ids, parse_all, run_tx};
 use embassy_time::Duration;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
-use lbv_master_fw::params::ParamType;
+use lbv_master_fw::mixer::FrameKind;
+use lbv_master_fw::params::{PARAM_COUNT, Param, ParamType, Settings};
 use lbv_master_fw::shared::{
-    AckResult, BatterySummary, LinkHealth, Outgoing, Sender, Severity, Shared, Text, ThrusterReport, VehicleState,
+    AckResult, BatterySummary, LinkHealth, Message, Outgoing, Sender, Severity, Shared, Text, ThrusterReport,
+    VehicleState,
 };
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
 
@@ -425,4 +427,83 @@ fn a_reboot_waits_for_its_acknowledgement_to_leave_the_port() {
     }
     // The port was flushed with the acknowledgement in it.
     assert_eq!(port.flushed_at.borrow().last(), Some(&written.len()));
+}
+
+#[test]
+fn pilot_gain_goes_at_1_hz_as_the_fraction_ardusub_sends_and_at_once_when_asked() {
+    let _clock = clock();
+    let shared = Shared::new();
+    let stats = ConsoleStats::new();
+    let mut settings = Settings::defaults(FrameKind::Lbv300_6);
+    shared.settings.sender().send(settings);
+    let mut changed = false;
+    // 0 .. 2.05 s; at 1.5 s the vehicle changes LBV_GAIN to 70 % and asks for PilotGain at once.
+    let bytes = run_tx(
+        &ConsoleConfig::DEFAULT,
+        &shared,
+        &stats,
+        Duration::from_millis(2050),
+        |elapsed| {
+            if elapsed >= Duration::from_millis(1500) && !changed {
+                changed = true;
+                settings.params.set(Param::Gain, 70);
+                shared.settings.sender().send(settings);
+                shared
+                    .outbox
+                    .try_send(Outgoing::Message(Message::NamedValueFloat))
+                    .unwrap();
+            }
+        },
+    );
+    let gains: Vec<(u32, f32)> = parse_all(&bytes)
+        .into_iter()
+        .filter_map(|(_, m)| match m {
+            MavMessage::NAMED_VALUE_FLOAT(v) => {
+                assert_eq!(&v.name[..], b"PilotGain\0");
+                Some((v.time_boot_ms, v.value))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(gains, [(0, 0.5), (1000, 0.5), (1500, 0.7), (2000, 0.7)]);
+}
+
+#[test]
+fn the_parameter_list_goes_one_value_at_a_time_with_the_values_in_force() {
+    let _clock = clock();
+    let shared = Shared::new();
+    let stats = ConsoleStats::new();
+    let mut settings = Settings::defaults(FrameKind::Lbv300_6);
+    settings.params.set(Param::Button0, 42);
+    shared.settings.sender().send(settings);
+    let mut asked = false;
+    let bytes = run_tx(
+        &ConsoleConfig::DEFAULT,
+        &shared,
+        &stats,
+        Duration::from_millis(200),
+        |elapsed| {
+            if elapsed >= Duration::from_millis(100) && !asked {
+                asked = true;
+                shared.outbox.try_send(Outgoing::ParamList).unwrap();
+            }
+        },
+    );
+    let values: Vec<_> = parse_all(&bytes)
+        .into_iter()
+        .filter_map(|(_, m)| match m {
+            MavMessage::PARAM_VALUE(p) => Some(p),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(values.len(), PARAM_COUNT);
+    for (p, param) in values.iter().zip(Param::ALL) {
+        assert_eq!(p.param_id.to_str().unwrap(), param.name());
+        assert_eq!(
+            (usize::from(p.param_index), usize::from(p.param_count)),
+            (param.index().into(), PARAM_COUNT)
+        );
+        assert_eq!(p.param_value, param.to_float(settings.params.get(param)), "{param:?}");
+    }
+    assert_eq!(values[Param::Button0.index() as usize].param_value, 42.0);
 }

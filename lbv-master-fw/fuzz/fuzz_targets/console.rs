@@ -40,6 +40,7 @@ enum Message {
         y: i16,
         z: i16,
         r: i16,
+        buttons: u16,
     },
     Command {
         target: (u8, u8),
@@ -177,7 +178,14 @@ fn build(frame: &Frame, operator: u8, signer: &mut SigningState) -> Vec<u8> {
                 mavlink_version: 3,
             },
         ),
-        Message::Manual { target, x, y, z, r } => serialize(
+        Message::Manual {
+            target,
+            x,
+            y,
+            z,
+            r,
+            buttons,
+        } => serialize(
             header,
             v1,
             &MANUAL_CONTROL_DATA {
@@ -186,6 +194,7 @@ fn build(frame: &Frame, operator: u8, signer: &mut SigningState) -> Vec<u8> {
                 y: *y,
                 z: *z,
                 r: *r,
+                buttons: *buttons,
                 ..MANUAL_CONTROL_DATA::DEFAULT
             },
         ),
@@ -404,7 +413,9 @@ impl Rig {
             .on_request(Instant::from_millis(self.now), request, &mut |o: Outgoing| said.push(o));
         let armed = self.vehicle.state(Instant::from_millis(self.now)).armed;
         if armed && !was_armed {
-            assert_eq!(request.command, Command::Arm(true), "armed by {request:?}");
+            // The arm command, or a button pressed (one whose BTNn_FUNCTION is arm).
+            let pressed = matches!(request.command, Command::Manual(_, buttons) if buttons != 0);
+            assert!(request.command == Command::Arm(true) || pressed, "armed by {request:?}");
             assert_eq!(request.from.system, operator, "armed by another system: {request:?}");
         }
         self.check();

@@ -10,8 +10,8 @@ use super::lbv::{
     AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA,
     COMMAND_LONG_DATA, ESC_INFO_DATA, ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA,
     FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA,
-    MavType, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA,
-    STATUSTEXT_DATA, SYS_STATUS_DATA,
+    MavType, NAMED_VALUE_FLOAT_DATA, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
+    PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::console::framing::{Frame, Version};
 use crate::mixer::ManualInput;
@@ -35,7 +35,7 @@ const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 22] = [
+const MESSAGES: [(u32, u8); 23] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
@@ -51,6 +51,7 @@ const MESSAGES: [(u32, u8); 22] = [
     (FILE_TRANSFER_PROTOCOL_DATA::ID, FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC),
     (BATTERY_STATUS_DATA::ID, BATTERY_STATUS_DATA::EXTRA_CRC),
     (AUTOPILOT_VERSION_DATA::ID, AUTOPILOT_VERSION_DATA::EXTRA_CRC),
+    (NAMED_VALUE_FLOAT_DATA::ID, NAMED_VALUE_FLOAT_DATA::EXTRA_CRC),
     (STATUSTEXT_DATA::ID, STATUSTEXT_DATA::EXTRA_CRC),
     (AVAILABLE_MODES_DATA::ID, AVAILABLE_MODES_DATA::EXTRA_CRC),
     (SETUP_SIGNING_DATA::ID, SETUP_SIGNING_DATA::EXTRA_CRC),
@@ -74,7 +75,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 /// - HEARTBEAT with type MAV_TYPE_GCS: [`Command::Heartbeat`]. Other components' heartbeats (a companion
 ///   computer, another vehicle, our own echo) do not prove that the pilot is there.
 /// - MANUAL_CONTROL to our system (or 0): [`Command::Manual`]; x, y, r clamped to -1000..=1000, z to 0..=1000
-///   (ArduSub's 500-neutral heave); an axis sent as INT16_MAX ("invalid") reads as neutral.
+///   (ArduSub's 500-neutral heave); an axis sent as INT16_MAX ("invalid") reads as neutral; `buttons` as sent
+///   (buttons 0-15; `buttons2`, 16-31, have no functions, as in ArduSub).
 /// - COMMAND_LONG or COMMAND_INT (the same commands: none of them takes a position) to our system and component
 ///   (or 0): 400 gives [`Command::Arm`] (arm when param1 is exactly 1, disarm when exactly 0, any other value
 ///   [`Command::Unsupported`] as ArduPilot answers it: a half-received 0.5 or a NaN must not disarm a diving
@@ -109,7 +111,7 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Comman
         }
         MANUAL_CONTROL_DATA::ID => {
             let m = MANUAL_CONTROL_DATA::deser(version, payload)?;
-            (m.target == 0 || m.target == config.system_id).then(|| Command::Manual(manual_input(&m)))
+            (m.target == 0 || m.target == config.system_id).then(|| Command::Manual(manual_input(&m), m.buttons))
         }
         COMMAND_LONG_DATA::ID => {
             let m = COMMAND_LONG_DATA::deser(version, payload)?;
@@ -207,6 +209,7 @@ pub fn message(id: f32, config: &ConsoleConfig) -> Option<Message> {
         ESC_STATUS_DATA::ID if super::ESC_DETAIL => Message::EscStatus,
         ESC_TELEMETRY_1_TO_4_DATA::ID => Message::EscTelemetry1To4,
         ESC_TELEMETRY_5_TO_8_DATA::ID if config.thruster_count() > 4 => Message::EscTelemetry5To8,
+        NAMED_VALUE_FLOAT_DATA::ID => Message::NamedValueFloat,
         _ => return None,
     })
 }
@@ -562,18 +565,23 @@ mod tests {
             y: -2000,
             z: i16::MAX,
             r: i16::MAX,
+            buttons: 0b1000_0000_0101_0000,
+            buttons2: 0xffff,
             ..MANUAL_CONTROL_DATA::DEFAULT
         };
         let payload = encode(&m);
         let got = decode(&frame(MANUAL_CONTROL_DATA::ID, &payload), &ConsoleConfig::DEFAULT).unwrap();
         assert_eq!(
             got,
-            Some(Command::Manual(ManualInput {
-                x: 1000,
-                y: -1000,
-                z: 500,
-                r: 0
-            }))
+            Some(Command::Manual(
+                ManualInput {
+                    x: 1000,
+                    y: -1000,
+                    z: 500,
+                    r: 0
+                },
+                0b1000_0000_0101_0000
+            ))
         );
         let other = encode(&MANUAL_CONTROL_DATA { target: 7, ..m });
         assert_eq!(

@@ -12,7 +12,7 @@ use super::lbv::{
     FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MISSION_COUNT_DATA, MavAutopilot, MavBatteryChargeState,
     MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag, MavParamType,
     MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType,
-    PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::params::{ParamId, ParamType};
 use crate::shared::{
@@ -624,6 +624,20 @@ pub fn param_value(id: &ParamId, value: f32, param_type: ParamType, index: u16, 
         },
         param_count: count,
         param_index: index,
+    }
+}
+
+/// NAMED_VALUE_FLOAT "PilotGain": the pilot gain `percent` as the fraction ArduSub sends (its `gain`, 0.1..1.0;
+/// QGroundControl shows it times 100), at `time_boot_ms`.
+pub fn pilot_gain(percent: u8, time_boot_ms: u32) -> NAMED_VALUE_FLOAT_DATA {
+    let mut name = [0; 10];
+    if let Some(slot) = name.get_mut(..9) {
+        slot.copy_from_slice(b"PilotGain");
+    }
+    NAMED_VALUE_FLOAT_DATA {
+        time_boot_ms,
+        name: name.into(),
+        value: f32::from(percent) / 100.0,
     }
 }
 

@@ -128,7 +128,12 @@ const STOP: [Order; MAX_THRUSTERS] = [Order::STOP; MAX_THRUSTERS];
 const GCS_LOST_DISARMED: &str = "Failsafe: ground station lost, disarmed";
 
 fn manual(x: i16, y: i16, z: i16, r: i16) -> Command {
-    Command::Manual(ManualInput { x, y, z, r })
+    Command::Manual(ManualInput { x, y, z, r }, 0)
+}
+
+/// MANUAL_CONTROL with the sticks at rest and `buttons` held.
+fn buttons(buttons: u16) -> Command {
+    Command::Manual(NEUTRAL, buttons)
 }
 
 fn motor_test(motor: u8, percent: i8, ms: u64) -> Command {
@@ -1012,7 +1017,7 @@ fn ground_station_loss_stops_a_motor_test() {
 #[test]
 fn parameter_list_and_read() {
     let mut bench = Bench::new(VehicleConfig::default());
-    let all = [
+    let mut all = vec![
         value(Param::GcsFailsafe, 2.0),
         value(Param::GcsTimeout, 5.0),
         value(Param::PilotFailsafe, 1.0),
@@ -1024,7 +1029,16 @@ fn parameter_list_and_read() {
         value(Param::MotorTestMax, 30.0),
         value(Param::UnsignedUpdates, 0.0),
     ];
-    assert_eq!(bench.command(0, Command::ParamRequestList), all);
+    // The buttons: ArduSub's gamepad defaults for disarm (4), arm (3), gain up (42) and down (43).
+    for n in 0..crate::params::BUTTONS {
+        let function = [(4, 4.0), (6, 3.0), (11, 42.0), (12, 43.0)]
+            .into_iter()
+            .find_map(|(button, function)| (button == n).then_some(function));
+        all.push(value(Param::button(n).unwrap(), function.unwrap_or(0.0)));
+    }
+    assert_eq!(all.len(), PARAM_COUNT);
+    // The console sends the list, one value at a time.
+    assert_eq!(bench.command(0, Command::ParamRequestList), [Outgoing::ParamList]);
     for (n, expected) in all.iter().enumerate() {
         let param = Param::ALL[n];
         assert_eq!(
@@ -1054,7 +1068,7 @@ fn parameter_list_and_read() {
         ("LBV_GAINS", -1),
         ("lbv_gain", -1),
         ("", -1),
-        ("LBV_GAIN", 10),
+        ("LBV_GAIN", PARAM_COUNT as i16),
         ("LBV_GAIN", 300),
     ] {
         assert!(
@@ -1117,7 +1131,12 @@ fn parameter_set_of_another_type_is_answered_unchanged_and_counted() {
 #[test]
 fn parameter_set_in_and_out_of_range() {
     let mut bench = Bench::new(VehicleConfig::default());
-    assert_eq!(bench.command(0, set("LBV_GAIN", 80.0)), [value(Param::Gain, 80.0)]);
+    let pilot_gain = Outgoing::Message(Message::NamedValueFloat);
+    assert_eq!(
+        bench.command(0, set("LBV_GAIN", 80.0)),
+        [value(Param::Gain, 80.0), pilot_gain],
+        "a change of the gain sends PilotGain at once"
+    );
     assert_eq!(bench.params().gain_percent(), 80);
     // A timeout (seconds with a tenth) is rounded to the tenth.
     assert_eq!(
@@ -1189,6 +1208,18 @@ fn parameter_set_in_and_out_of_range() {
         bench.command(0, set("LBV_MTEST_MAX", 100.0)),
         [value(Param::MotorTestMax, 100.0)]
     );
+    // A button function the vehicle has not (ArduSub's 5, manual mode) is refused as out of range is.
+    assert_eq!(
+        bench.command(0, set("BTN1_FUNCTION", 5.0)),
+        [
+            text(Severity::Warning, "BTN1_FUNCTION: must be 0, 3, 4, 42 or 43"),
+            value(Param::Button1, 0.0)
+        ]
+    );
+    assert_eq!(
+        bench.command(0, set("BTN1_FUNCTION", 42.0)),
+        [value(Param::Button1, 42.0)]
+    );
     assert!(
         bench.command(0, set("LBV_NOTHING", 1.0)).is_empty(),
         "unknown name: no answer"
@@ -1210,6 +1241,167 @@ fn parameter_set_in_and_out_of_range() {
     assert!(bench.orders(1999).1.is_empty());
     assert_eq!(bench.orders(2000).1.len(), 1);
     assert!(!bench.armed(2000));
+}
+
+const ARM_BUTTON: u16 = 1 << 6;
+const DISARM_BUTTON: u16 = 1 << 4;
+const GAIN_UP: u16 = 1 << 11;
+const GAIN_DOWN: u16 = 1 << 12;
+
+/// What a gain button's press says when it moves the gain to `percent`.
+fn gain_moved(percent: u8) -> Vec<Outgoing> {
+    vec![
+        value(Param::Gain, f32::from(percent)),
+        Outgoing::Message(Message::NamedValueFloat),
+        gain_said(percent),
+    ]
+}
+
+fn gain_said(percent: u8) -> Outgoing {
+    text(Severity::Info, &format!("Pilot gain {percent} %"))
+}
+
+#[test]
+fn arm_and_disarm_buttons_act_once_per_press() {
+    let mut bench = Bench::new(VehicleConfig::default());
+    bench.command(0, Command::Heartbeat);
+    // The arm button (a gamepad's start): armed, with the command's text and no COMMAND_ACK.
+    assert_eq!(bench.command(10, buttons(ARM_BUTTON)), [text(Severity::Info, "Armed")]);
+    assert!(bench.armed(10));
+    // Held: nothing more, however long, and through a disarm by command.
+    assert!(bench.command(30, buttons(ARM_BUTTON)).is_empty());
+    bench.command(40, Command::Arm(false));
+    assert!(bench.command(50, buttons(ARM_BUTTON)).is_empty());
+    assert!(!bench.armed(50), "a held arm button does not arm again");
+    // Released and pressed again: armed again.
+    assert!(bench.command(60, buttons(0)).is_empty());
+    assert_eq!(bench.command(70, buttons(ARM_BUTTON)), [text(Severity::Info, "Armed")]);
+    // The sticks of the same frames steer.
+    bench.command(80, Command::Manual(ManualInput { x: 1000, ..NEUTRAL }, ARM_BUTTON));
+    assert_eq!(bench.steps(80)[..4], [51; 4]);
+    // The disarm button (back): every thruster stops; held, it says nothing more.
+    assert_eq!(
+        bench.command(90, buttons(DISARM_BUTTON)),
+        [text(Severity::Info, "Disarmed")]
+    );
+    assert!(!bench.armed(90) && bench.steps(90) == [0; MAX_THRUSTERS]);
+    assert!(bench.command(100, buttons(DISARM_BUTTON)).is_empty());
+    // Pressed with an arm, the disarm wins.
+    bench.command(110, buttons(0));
+    assert!(bench.command(120, buttons(ARM_BUTTON | DISARM_BUTTON)).is_empty());
+    assert!(!bench.armed(120));
+    bench.command(130, buttons(0));
+    bench.command(140, buttons(ARM_BUTTON));
+    assert_eq!(
+        bench.command(150, buttons(ARM_BUTTON | DISARM_BUTTON)),
+        [text(Severity::Info, "Disarmed")]
+    );
+    // The disarm button stops a motor test, as the disarm command does.
+    bench.command(160, buttons(0));
+    bench.command(170, motor_test(1, 20, 1000));
+    assert_eq!(
+        bench.command(180, buttons(DISARM_BUTTON)),
+        [text(Severity::Info, "Motor test 1 stopped")]
+    );
+    assert_eq!(bench.steps(180), [0; MAX_THRUSTERS]);
+    // Another system's buttons are refused as its sticks are.
+    bench.command(190, buttons(0));
+    assert!(bench.command_from(200, OTHER, buttons(ARM_BUTTON)).is_empty());
+    assert!(!bench.armed(200));
+    assert_eq!(bench.vehicle.state(t(200)).refused, 1);
+}
+
+#[test]
+fn an_arm_button_is_refused_as_the_arm_command_is_saying_why() {
+    let mut bench = Bench::new(VehicleConfig::default());
+    let press = |bench: &mut Bench, ms: u64, sticks: ManualInput| {
+        bench.command(ms, Command::Manual(sticks, 0));
+        bench.command(ms, Command::Manual(sticks, ARM_BUTTON))
+    };
+    let rejected = |why: &str| vec![text(Severity::Warning, &format!("Arm rejected: {why}"))];
+    assert_eq!(press(&mut bench, 0, NEUTRAL), rejected("no ground station heartbeat"));
+    bench.command(10, Command::Heartbeat);
+    // The heave stick of the same frame, at a centre-zero ground station's 0.
+    assert_eq!(
+        press(&mut bench, 20, ManualInput { z: 0, ..NEUTRAL }),
+        rejected("heave stick at 0, not 500")
+    );
+    bench.vehicle.hold_for_update(Some(UpdateHold::OnTrial(0)));
+    assert_eq!(press(&mut bench, 30, NEUTRAL), rejected("T1 image on trial"));
+    bench.vehicle.hold_for_update(None);
+    bench.command(40, motor_test(2, 20, 1000));
+    let mut said = vec![text(Severity::Info, "Motor test 2 stopped")];
+    said.extend(rejected("motor test was running"));
+    assert_eq!(press(&mut bench, 50, NEUTRAL), said);
+    assert!(!bench.armed(50));
+    assert_eq!(press(&mut bench, 60, NEUTRAL), [text(Severity::Info, "Armed")]);
+    // Armed already: nothing to say, as for the command.
+    assert!(press(&mut bench, 70, NEUTRAL).is_empty());
+}
+
+#[test]
+fn gain_buttons_step_lbv_gain_within_its_limits_once_per_press() {
+    let mut bench = Bench::new(VehicleConfig::default());
+    bench.arm(0);
+    bench.command(0, manual(1000, 0, 500, 0));
+    assert_eq!(bench.steps(0)[..4], [51; 4], "50 %");
+    // Up from 50 % in steps of 10 to 100 %, a press at a time; a held button does not repeat.
+    let mut ms = 10;
+    for percent in [60, 70, 80, 90, 100] {
+        assert_eq!(bench.command(ms, buttons(GAIN_UP)), gain_moved(percent));
+        assert!(bench.command(ms + 1, buttons(GAIN_UP)).is_empty());
+        bench.command(ms + 2, buttons(0));
+        ms += 10;
+    }
+    assert_eq!(bench.params().gain_percent(), 100);
+    // Full surge is now full speed.
+    bench.command(ms, manual(1000, 0, 500, 0));
+    assert_eq!(bench.steps(ms)[..4], [102; 4]);
+    // At the top: the press says where the gain stands, and changes nothing.
+    assert_eq!(bench.command(ms, Command::Manual(NEUTRAL, GAIN_UP)), [gain_said(100)]);
+    bench.command(ms + 1, buttons(0));
+    // Down to 10 %, and no further.
+    for percent in (1..=9).rev().map(|n| n * 10) {
+        ms += 10;
+        assert_eq!(bench.command(ms, buttons(GAIN_DOWN)), gain_moved(percent));
+        bench.command(ms + 1, buttons(0));
+    }
+    assert_eq!(bench.command(ms + 10, buttons(GAIN_DOWN)), [gain_said(10)]);
+    bench.command(ms + 11, buttons(0));
+    // A gain set below the step by parameter is not raised by a down, and goes up from where it is.
+    bench.command(ms + 20, set("LBV_GAIN", 5.0));
+    assert_eq!(bench.command(ms + 30, buttons(GAIN_DOWN)), [gain_said(5)]);
+    assert_eq!(bench.command(ms + 40, buttons(GAIN_UP)), gain_moved(15));
+    // Up and down at once: both act, in button order.
+    bench.command(ms + 50, buttons(0));
+    let mut both = gain_moved(25);
+    both.extend(gain_moved(15));
+    assert_eq!(bench.command(ms + 60, buttons(GAIN_UP | GAIN_DOWN)), both);
+    // Disarmed too: the gain is set on the surface.
+    bench.command(ms + 70, Command::Arm(false));
+    bench.command(ms + 80, buttons(0));
+    assert_eq!(bench.command(ms + 90, buttons(GAIN_UP)), gain_moved(25));
+}
+
+#[test]
+fn buttons_do_what_their_parameters_say() {
+    // Arm on button 0 (a gamepad's A), nothing on 6, disarm on 15 as well as 4.
+    let mut bench = Bench::with(VehicleConfig::default(), |p| {
+        p.set(Param::Button0, 3);
+        p.set(Param::Button6, 0);
+        p.set(Param::Button15, 4);
+    });
+    bench.command(0, Command::Heartbeat);
+    assert!(bench.command(10, buttons(ARM_BUTTON)).is_empty());
+    assert_eq!(bench.command(20, buttons(1)), [text(Severity::Info, "Armed")]);
+    assert_eq!(bench.command(30, buttons(1 << 15)), [text(Severity::Info, "Disarmed")]);
+    // Changed over MAVLink, as QGroundControl's joystick setup does (INT8, the parameter's type).
+    assert_eq!(
+        bench.command(40, set("BTN15_FUNCTION", 42.0)),
+        [value(Param::Button15, 42.0)]
+    );
+    bench.command(50, buttons(0));
+    assert_eq!(bench.command(60, buttons(1 << 15)), gain_moved(60));
 }
 
 #[test]
@@ -1328,7 +1520,7 @@ fn vehicle_task_publishes_orders_state_settings_and_answers() {
 
         shared.commands.send(request(Command::ParamRequestList)).await;
         elapse(Duration::from_millis(2)).await;
-        assert_eq!(drain().len(), PARAM_COUNT);
+        assert_eq!(drain(), [Outgoing::ParamList]);
         shared.commands.send(request(set("LBV_GAIN", 60.0))).await;
         elapse(Duration::from_millis(2)).await;
         assert_eq!(shared.settings.try_get().map(|s| s.params.gain_percent()), Some(60));
