@@ -29,6 +29,8 @@ finish() {
   cat "$3"
   [ "$status" -eq 0 ] || { echo "$1 failed" >&2; exit 1; }
 }
+# A step that fails ends the run: the ones still going on beside it end with it.
+trap 'jobs -p | xargs -r kill 2>/dev/null || true' EXIT
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 step "toolchain"
@@ -98,21 +100,6 @@ cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
 cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
 
 finish "installing the Debian and Python packages" "$packages" target/packages.log
-step "host tests (every bench scenario is one, on both engines)"
-cargo test --workspace --locked
-
-# An hour of random faults and traffic on the bench (the soak): every order held, no watchdog bite, no panic. It
-# runs on one core, so it goes on beside the next steps; `cargo test` has built the bench.
-target/debug/lbv bench --scenario soak --duration 3600 --quiet >target/soak.log 2>&1 &
-soak=$!
-
-if rustup toolchain list | grep -q '^nightly'; then
-  step "fuzz targets build (nightly)"
-  # One target directory for them all: libFuzzer and the crates they share are built once.
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
-    cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
-  done
-fi
 
 step "firmware images (release, $TARGET)"
 # The images and their budgets are data, g431_hw::images::BUILDS (read above): one line each of name, crate,
@@ -152,17 +139,39 @@ for image in thruster-fw lbv-master-fw; do
 done
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 
-step "an hour of random faults and traffic on the bench (the soak, run beside the steps above)"
-finish soak "$soak" target/soak.log
-
-step "the images that ship, run under register-level models of the STM32G4 (Unicorn): boot, registers, buses, faults"
-# rehost's tests run on one core: the QEMU runs go on beside them, their output shown after.
+# The images run under rehost's models and the cores on QEMU while the host tests compile and run: each of the
+# two runs on one core. Their tools are built first, so that they do not wait for the host tests' build (one cargo
+# at a time holds the target directory); their output is shown after.
+cargo build --quiet --locked --profile test --workspace --bin rehost --bin lbv
+rehost/run.sh >target/rehost.log 2>&1 &
+rehost=$!
 qemu-m4/run.sh >target/qemu-m4.log 2>&1 &
 qemu=$!
-rehost/run.sh
+
+step "host tests (every bench scenario is one, on both engines; rehost and QEMU run beside them)"
+cargo test --workspace --locked
+
+# An hour of random faults and traffic on the bench (the soak): every order held, no watchdog bite, no panic. It
+# runs on one core, so it goes on beside the next steps; `cargo test` has built the bench.
+target/debug/lbv bench --scenario soak --duration 3600 --quiet >target/soak.log 2>&1 &
+soak=$!
+
+if rustup toolchain list | grep -q '^nightly'; then
+  step "fuzz targets build (nightly)"
+  # One target directory for them all: libFuzzer and the crates they share are built once.
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
+    cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
+  done
+fi
+
+step "the images that ship, run under register-level models of the STM32G4 (Unicorn): boot, registers, buses, faults"
+finish rehost "$rehost" target/rehost.log
 
 step "the cores on an emulated Cortex-M4 (QEMU mps2-an386): acceptance loops, vehicle, stack and CPU figures"
 finish qemu-m4 "$qemu" target/qemu-m4.log
+
+step "an hour of random faults and traffic on the bench (the soak, run beside the steps above)"
+finish soak "$soak" target/soak.log
 
 step "a firmware build refuses the development key unless asked, in every profile"
 # Last, since it rebuilds the key's crate: the build script stops before anything is compiled against the key. The
