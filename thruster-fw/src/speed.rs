@@ -330,11 +330,16 @@ impl PowerLimit {
 /// to the stall rule ([`crate::faults::CurrentStall`]).
 ///
 /// A duty ceiling, stepped with each current sample: when the current exceeds the limit, the ceiling drops to the
-/// duty applied scaled by limit / current (a locked rotor's current is proportional to the duty; a turning motor's
-/// falls faster than that, so the step never undershoots the limit by less), and to half of that when the break
+/// duty applied scaled by limit / current (a locked rotor's current is proportional to the duty, so this lands on
+/// the limit; a turning motor's falls faster than the duty, so it lands below), and to half of that when the break
 /// tripped (the comparator held the current at its own threshold, so the reading understates what the duty
 /// drives). Otherwise it rises by [`CURRENT_LIMIT_RISE`] a step, and never stands more than that above the duty
 /// applied, so it has nothing to unwind when the current next exceeds the limit.
+///
+/// The current is measured without its sign, so a motor braking regeneratively (turning faster than the duty
+/// drives it, as in the first part of a reversal) reads as drawing it: lowering the duty then raises the braking
+/// current, and the ceiling falls until the bridge coasts, rising again as the rotor slows: the rotor slows on its
+/// propeller's drag rather than braked at the limit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct CurrentLimit {
