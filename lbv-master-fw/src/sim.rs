@@ -1,7 +1,7 @@
-//! The master's ports on lbv-sim's simulated parts, for the bench (`lbv`, with Cargo feature `sim`) and this
-//! crate's host tests, host only: a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery CAN
-//! receiver on a simulated CAN node, the settings store on a simulated G474 flash, a reboot that whoever runs
-//! the board carries out, and an update sink that records every image it is given.
+//! The master's ports on lbv-sim's simulated parts, for the bench (`lbv`, with Cargo feature `sim`) and this crate's
+//! host tests, host only: a thruster bus recovered by the core's own `clear_bus` on the simulated lines, the battery
+//! CAN receiver on a simulated CAN node, the settings store on a simulated G474 flash, a reboot that whoever runs the
+//! board carries out, and an update sink that records every image it is given.
 
 extern crate std;
 
