@@ -97,6 +97,7 @@ class Stm32g4:
         self.dma1 = add(dma.Dma, "DMA1", 0x4002_0000)
         self.tim1 = add(timers.Tim1, "TIM1", 0x4001_2C00)
         self.tim15 = add(timers.Tim15, "TIM15", 0x4001_4000)
+        core.on_lockup = lambda: self.syscfg.lockup_breaks() and self.tim1.system_break()
         self.i2c = {
             1: add(i2c.I2c, "I2C1", 0x4000_5400, number=1),
             2: add(i2c.I2c, "I2C2", 0x4000_5800, number=2),

@@ -136,6 +136,7 @@ class Core:
         self.uc.ctl_set_cpu_model(arm.UC_CPU_ARM_CORTEX_M4)
         self.cycles = 0
         self.instructions = 0
+        self.on_lockup = None  # what the chip does with the LOCKUP output
         self._events = []  # (cycle, sequence, callback)
         self._sequence = 0
         self._block_sizes = {}
@@ -470,9 +471,12 @@ class Core:
         return True
 
     def enter_fault(self, why, pc):
-        """A fault the image may handle: HardFault, unless one is already active (a lockup, B1.5.15)."""
+        """A fault the image may handle: HardFault, unless one is already active (a lockup, B1.5.15: the core stops
+        and raises its LOCKUP output, which the chip may route on: `on_lockup`)."""
         self.last_fault = why
         if HARD_FAULT in self.active or NMI in self.active:
+            if self.on_lockup is not None:
+                self.on_lockup()
             self.raise_fault(f"lockup: {why}")
             return
         self.pc = pc

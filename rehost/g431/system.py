@@ -241,8 +241,13 @@ class Flash(Peripheral):
         return self.regs.get(ACR, 0) & 0xF
 
 
+# SYSCFG_CFGR2 (RM0440 9.2.5): CLL connects the core's LOCKUP output to TIM1's system break; set-only until reset.
+CFGR2, CFGR2_CLL = 0x1C, 1 << 0
+
+
 class Syscfg(Peripheral):
-    pass
+    def lockup_breaks(self):
+        return bool(self.regs.get(CFGR2, 0) & CFGR2_CLL)
 
 
 # DBGMCU (47.16.4-47.16.7): IDCODE 0x00 (revision 0x2001 and the part's DEV_ID, RM0440 47.16.1), CR 0x04,

@@ -139,6 +139,7 @@ class Tim1(Peripheral):
         self.active = {CCMR1: 0, CCMR2: 0, CCER: 0}
         self.break_input_low = False
         self.breaks = 0
+        self.system_breaks = 0
         self.com_events = 0
         self.com_log = []  # (cycle, CCMR1, CCMR2, CCER) after each COM event
         self.off_writes = []  # the instruction count at each BDTR write that turned the outputs off for good
@@ -149,6 +150,7 @@ class Tim1(Peripheral):
         self.com_events = 0
         self.com_log = []
         self.off_writes = []
+        self.system_breaks = 0
 
     def moe(self):
         return bool(self.regs.get(BDTR, 0) & MOE)
@@ -160,8 +162,11 @@ class Tim1(Peripheral):
         self.writes.add(offset)
         if offset == SR:
             self.regs[SR] = self.regs.get(SR, 0) & value  # rc_w0
-            if self._break_active():
-                self.regs[SR] |= BIF  # BIF cannot be cleared while the break input is active (RM0440 28.6.5)
+            # A flag cannot be cleared while its break source is active (RM0440 28.6.5).
+            if self._input_break_active():
+                self.regs[SR] |= BIF
+            if self.system_breaks:
+                self.regs[SR] |= SBIF
             self._update_irq()
             return
         if offset == EGR:
@@ -171,8 +176,8 @@ class Tim1(Peripheral):
                 self._update_event()
             return
         if offset == BDTR:
-            if self._break_active() and value & BKE:
-                value &= ~MOE  # the break holds MOE clear while its input is active
+            if self.system_breaks or (self._input_break_active() and value & BKE):
+                value &= ~MOE  # a break holds MOE clear while its source is active
             if not value & (MOE | AOE):
                 self.off_writes.append(self.chip.core.instructions)  # outputs off, and they stay off
             self.regs[BDTR] = value
@@ -191,15 +196,26 @@ class Tim1(Peripheral):
         self.com_log.append((self.chip.core.cycles, self.active[CCMR1], self.active[CCMR2], self.active[CCER]))
         self.regs[SR] = self.regs.get(SR, 0) | COMIF
 
-    def _break_active(self):
+    def _input_break_active(self):
         bdtr = self.regs.get(BDTR, 0)
         active_high = bool(bdtr & BKP)
         return bool(bdtr & BKE) and (self.break_input_low != active_high)
 
+    def _break_active(self):
+        return self.system_breaks > 0 or self._input_break_active()
+
+    def system_break(self):
+        """A system break source (the core's LOCKUP through SYSCFG_CFGR2.CLL): MOE clears and SBIF sets at once, and
+        the source stays active, so AOE brings nothing back (RM0440 28.3.19)."""
+        self.system_breaks += 1
+        self.regs[BDTR] = self.regs.get(BDTR, 0) & ~MOE
+        self.regs[SR] = self.regs.get(SR, 0) | SBIF
+        self._update_irq()
+
     def set_break_input(self, low):
         """The overcurrent comparator pulls BKIN low (or lets it go)."""
         self.break_input_low = low
-        if self._break_active():
+        if self._input_break_active():
             self.breaks += 1
             self.regs[BDTR] = self.regs.get(BDTR, 0) & ~MOE
             self.regs[SR] = self.regs.get(SR, 0) | BIF

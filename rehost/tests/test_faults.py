@@ -109,6 +109,21 @@ def test_each_fault_turns_the_outputs_off_at_once(fault, expected, figures):
         assert any("panicked at " in text for _, text in chip.log.lines), chip.log_text()
 
 
+def test_a_lockup_turns_the_outputs_off_through_the_system_break(expected):
+    """A fault while a fault handler is active locks the core up (ARMv7-M B1.5.15): no handler runs again. The
+    image routes the core's LOCKUP output to TIM1's system break (SYSCFG_CFGR2.CLL), which alone can stop the
+    bridge then."""
+    chip, spec = driving(expected)
+    chip.run_until(lambda: not chip.core.active and not chip.core.sleeping, 0.01, "thread mode")
+    chip.core.enter_fault("a bus fault injected by the test", chip.core.pc)
+    # A second one before the HardFault handler has run an instruction: its outputs-off store never happens.
+    chip.core.enter_fault("a fault in the fault handler", chip.core.pc)
+    assert chip.core.fault and chip.core.fault.startswith("lockup"), chip.core.fault
+    assert not chip.tim1.off_writes, "the handler ran"
+    assert chip.tim1.regs[0x10] & (1 << 13), "SBIF"
+    assert all_off(chip, spec), f"a lockup left a switch on: {switches(chip, spec)}"
+
+
 def test_a_hung_task_lets_the_watchdog_reset_and_the_latch_survives_it_but_not_a_power_cycle(expected):
     chip, spec = start("thruster-fw", expected, water="wet")
     status, _, _ = exchange(chip, spec, expected["orders"]["SeaBotix"]["0"])
