@@ -8,7 +8,7 @@ import struct
 from elftools.elf.elffile import ELFFile
 
 from . import adc, dma, fdcan, i2c, iwdg, timers, uart
-from .core import FLASH_BASE, FLASH_SIZE_ADDRESS, G431RB, G474RE, SRAM_BASE, UID_ADDRESS, Core, Stop
+from .core import FLASH_BASE, FLASH_SIZE_ADDRESS, G431RB, G474RE, REGION, SRAM_BASE, UID_ADDRESS, Core, Stop
 from .defmt import Log, Rtt, Table
 from .gpio import Exti, Gpio
 from .nvic import Nvic
@@ -137,7 +137,7 @@ class Stm32g4:
             self.nvic.line(irq, bool(holders))
 
     def peripheral_at(self, address):
-        found = self.core._regions.get(address & ~0x3FF)
+        found = self.core._regions.get(address & ~(REGION - 1))
         if found is None:
             raise KeyError(f"no peripheral at {address:#010x}")
         return found

@@ -57,6 +57,10 @@ WFI = 0xBF30
 SEV = 0xBF40
 
 
+# The granularity of the peripheral map: the smallest block placed on its own (ADC1 and the ADC12 common registers
+# share a 1 KiB page, RM0440 Table 4 and 21.6).
+REGION = 0x100
+
 # The granularity at which code rewritten in memory is forgotten: a flash page (RM0440 3.3.1).
 CODE_PAGE_BITS = 11
 
@@ -150,7 +154,7 @@ class Core:
         self._spin = 0
         self.changing_read = False  # a peripheral read whose value changes with time or has a side effect
         self.spun = 0  # instructions skipped over in spin loops
-        self._regions = {}  # base (aligned to 0x400) -> peripheral
+        self._regions = {}  # base (aligned to REGION) -> peripheral
         self.nvic = None  # set by the board: pending, enabled, priorities
         self.event = False  # the event register WFE waits on (B1.5.18)
         self.sleeping = False
@@ -171,7 +175,7 @@ class Core:
 
     # Memory and peripherals ------------------------------------------------------------------------------------
     def attach(self, base, peripheral, size=0x400):
-        for offset in range(0, size, 0x400):
+        for offset in range(0, size, REGION):
             self._regions[base + offset] = (base, peripheral)
 
     def _mmio_read(self, uc, offset, size, base):
@@ -181,7 +185,7 @@ class Core:
         self._access(base + offset, size, value)
 
     def _access(self, address, size, value):
-        key = address & ~0x3FF
+        key = address & ~(REGION - 1)
         found = self._regions.get(key)
         if found is None:
             self.fail(f"access to {address:#010x}, where no peripheral is modelled")

@@ -103,6 +103,25 @@ class Rcc(Peripheral):
             return self.pll_input_hz() * n // (m * r)
         return HSE_HZ if sws == 2 else HSI_HZ
 
+    def hclk_hz(self):
+        """SYSCLK through the AHB prescaler, CFGR.HPRE (7.4.3): 0xxx /1, then /2, 4, 8, 16, 64, 128, 256, 512."""
+        hpre = field(self.regs.get(CFGR, 5), 4, 4)
+        return self.sysclk_hz() // ((2, 4, 8, 16, 64, 128, 256, 512)[hpre - 8] if hpre & 8 else 1)
+
+    def pll_p_hz(self):
+        """The PLL's P output (7.4.4): the VCO over PLLPDIV, or over 7 or 17 (PLLP) when PLLPDIV is 0; 0 unless
+        PLLPEN is set and the PLL locked."""
+        pllcfgr = self.regs.get(PLLCFGR, 0)
+        if not bit(pllcfgr, 16) or not bit(self.regs.get(CR, 0), 25):
+            return 0
+        m, n = field(pllcfgr, 4, 4) + 1, field(pllcfgr, 8, 7)
+        pdiv = field(pllcfgr, 27, 5) or (17 if bit(pllcfgr, 17) else 7)
+        return self.pll_input_hz() * n // (m * pdiv)
+
+    def adc12_kernel_hz(self):
+        """The ADC12 kernel clock, CCIPR.ADC12SEL (7.4.26): 00 none, 01 PLL P, 10 SYSCLK, 11 reserved."""
+        return {1: self.pll_p_hz(), 2: self.sysclk_hz()}.get(field(self.regs.get(CCIPR, 0), 28, 2), 0)
+
 
 # PWR (6.4): CR1 0x00, SR1 0x10, SR2 0x14 (VOSF, REGLPF), CR5 0x80 (R1MODE).
 class Pwr(Peripheral):

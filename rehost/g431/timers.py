@@ -128,8 +128,16 @@ class Tim1(Peripheral):
     With CR2.CCPC set, CCxE/CCxNE and OCxM are preloaded and reach the outputs at a COM event (EGR.COMG), RM0440
     28.3.20 "6-step PWM generation"; `active` holds what the outputs use. The break input (BKIN, active per
     BDTR.BKP) clears MOE and sets BIF (28.3.19); with AOE set, MOE is set again at the next update event once the
-    break input is inactive. The counter itself is not modelled: update events come every half PWM period in
-    centre-aligned mode (CMS != 0, RCR = 0), and are computed only while a break or AOE needs them.
+    break input is inactive. For AOE, update events come every half PWM period in centre-aligned mode (CMS != 0,
+    RCR = 0), and are computed only while a break or AOE needs them.
+
+    The counter (RM0440 28.3.2 time-base unit, 28.3.3 counter modes, 28.3.4 repetition counter) is kept as
+    arithmetic on the core's clock, one tick per PSC + 1 cycles: up 0..ARR, down ARR..0, or centre-aligned (CMS !=
+    0) up 0..ARR-1 then down ARR..1, an under- or overflow every ARR ticks, an update event every RCR + 1 of them.
+    PSC, RCR, ARR with ARPE and CCRx with OCxPE are preloaded: software writes the preload register, the counter
+    uses the shadow taken at the next update event (or at UG). What it drives, TRGO (CR2.MMS) and TRGO2 (CR2.MMS2,
+    RM0440 28.6.2) and the compare events, reaches those that `watch` it (ADC1's triggers), and is computed only
+    while one does: edges as core events at the instants the signal changes. Nothing is produced while CEN = 0.
     """
 
     resets = {ARR: 0xFFFF}
@@ -143,6 +151,7 @@ class Tim1(Peripheral):
         self.com_events = 0
         self.com_log = []  # (cycle, CCMR1, CCMR2, CCER) after each COM event
         self.off_writes = []  # the instruction count at each BDTR write that turned the outputs off for good
+        self._counter_reset()
 
     def reset(self):
         super().reset()
@@ -151,6 +160,20 @@ class Tim1(Peripheral):
         self.com_log = []
         self.off_writes = []
         self.system_breaks = 0
+        self._counter_reset()
+
+    def _counter_reset(self):
+        self._shadow = {PSC: 0, ARR: 0xFFFF, RCR: 0, CCR1: 0, CCR2: 0, CCR3: 0, CCR4: 0}
+        self._pending = {}  # preloaded writes waiting for the next update event
+        self._pending_since = 0
+        # While CEN is set: (origin, cycles per tick, ARR, mode, k0): at `origin` the counter was at the start of
+        # segment 0 (0 counting up; ARR counting down in down mode), each segment is one count between under- and
+        # overflows, and segment k's start is an update event when (k - k0) is a multiple of RCR + 1.
+        self._run = None
+        self._count, self._down = 0, False  # the counter while stopped
+        self._watchers = {}  # key -> (trigger, callback(rising))
+        self._levels = {}  # key -> the level last given to that watcher
+        self._plan_generation = 0
 
     def moe(self):
         return bool(self.regs.get(BDTR, 0) & MOE)
@@ -174,6 +197,14 @@ class Tim1(Peripheral):
                 self._commutate()
             if value & UG:
                 self._update_event()
+                self._software_update()
+            self._plan()
+            return
+        if offset in (CR1, CNT, PSC, ARR, RCR, CCR1, CCR2, CCR3, CCR4):
+            self._time_base_write(offset, value)
+            if offset == CR1:
+                self._await_update()
+            self._plan()
             return
         if offset == BDTR:
             if self.system_breaks or (self._input_break_active() and value & BKE):
@@ -184,10 +215,16 @@ class Tim1(Peripheral):
             self._await_update()
             return
         self.regs[offset] = value
-        if offset == CR1:
-            self._await_update()
         if offset in (CCMR1, CCMR2, CCER) and not self._preloaded():
             self.active[offset] = value
+        if offset in (CR2, CCMR1, CCMR2, CCER):
+            self._plan()
+
+    def read(self, offset):
+        if offset == CNT:
+            self.chip.core.changing_read = True  # counts with time
+            return self.counter()
+        return super().read(offset)
 
     def _commutate(self):
         self.com_events += 1
@@ -294,3 +331,250 @@ class Tim1(Peripheral):
                  field(self.active[CCMR1], 12, 3) | bit(self.active[CCMR1], 24) << 3,
                  field(self.active[CCMR2], 4, 3) | bit(self.active[CCMR2], 16) << 3)
         return [(bit(ccer, 4 * n), bit(ccer, 4 * n + 2), modes[n]) for n in range(3)]
+
+    # The counter -------------------------------------------------------------------------------------------------
+    def _mode(self):
+        cr1 = self.regs.get(CR1, 0)
+        if field(cr1, 5, 2):
+            return "centre"  # CMS (RM0440 28.6.1)
+        return "down" if bit(cr1, 4) else "up"  # DIR
+
+    @staticmethod
+    def _length(arr, mode):
+        """Ticks from one under- or overflow to the next (28.3.3)."""
+        return arr if mode == "centre" else arr + 1
+
+    def _where(self, cycle):
+        """(segment k, tick j in it, counting down, CNT) at `cycle` of a running counter."""
+        origin, per_tick, arr, mode, _ = self._run
+        k, j = divmod((cycle - origin) // per_tick, self._length(arr, mode))
+        down = k % 2 == 1 if mode == "centre" else mode == "down"
+        return k, j, down, arr - j if down else j
+
+    def counter(self):
+        if self._run is None:
+            return self._count
+        self._sync()
+        return self._where(self.chip.core.cycles)[3]
+
+    def _rebase(self, cycle, count, down, k0=0):
+        """The counter at `count` (counting down or up) at `cycle`, with the shadows' PSC and ARR. A null ARR
+        blocks the counter (28.3.2): it stops counting."""
+        arr, per_tick, mode = self._shadow[ARR], self._shadow[PSC] + 1, self._mode()
+        if arr == 0:
+            self._run = None
+            self._count, self._down = 0, down
+            return
+        count = min(count, arr)
+        if mode == "centre":
+            phase = 2 * arr - count if down and count else count
+        else:
+            phase = arr - count if mode == "down" else count
+        self._run = (cycle - phase * per_tick, per_tick, arr, mode, k0)
+
+    def _boundary(self, k):
+        origin, per_tick, arr, mode, _ = self._run
+        return origin + k * self._length(arr, mode) * per_tick
+
+    def _is_update(self, k):
+        return k >= 1 and (k - self._run[4]) % (self._shadow[RCR] + 1) == 0
+
+    def _next_update(self, after):
+        """The segment whose start is the first update event after cycle `after`."""
+        origin, per_tick, arr, mode, k0 = self._run
+        k = (after - origin) // (self._length(arr, mode) * per_tick) + 1
+        return k + (k0 - k) % (self._shadow[RCR] + 1)
+
+    def _sync(self):
+        """Preloaded values reach the shadows at the first update event after they were written (28.3.2)."""
+        now = self.chip.core.cycles
+        while self._pending and self._run is not None:
+            k = self._next_update(self._pending_since)
+            at = self._boundary(k)
+            if at > now:
+                return
+            self._shadow.update(self._pending)
+            self._pending = {}
+            # The new PSC and ARR count from this update event: an underflow (0, up) or an overflow (ARR, down).
+            overflow = self._run[3] == "centre" and k % 2 == 1
+            self._rebase(at, self._shadow[ARR] if overflow else 0, overflow, k0=1 if overflow else 0)
+
+    def _preloaded_register(self, offset):
+        cr1, ccmr1, ccmr2 = self.regs.get(CR1, 0), self.regs.get(CCMR1, 0), self.regs.get(CCMR2, 0)
+        return {PSC: True, RCR: True, ARR: bit(cr1, 7), CCR1: bit(ccmr1, 3), CCR2: bit(ccmr1, 11),
+                CCR3: bit(ccmr2, 3), CCR4: bit(ccmr2, 11)}[offset]
+
+    def _time_base_write(self, offset, value):
+        self._sync()
+        now = self.chip.core.cycles
+        if offset == CR1:
+            old = self.regs.get(CR1, 0)
+            running = self._run is not None
+            if running and value & 1 and field(value ^ old, 5, 2):
+                # "It is not allowed to switch from edge-aligned mode to center-aligned mode as long as the counter
+                # is enabled (CEN=1)" (28.6.1, CMS).
+                self.chip.core.fail(f"{self.name}: CR1.CMS changed with the counter running")
+            if running and value & 1 and not field(value ^ old, 4, 1):
+                self.regs[CR1] = value  # the counter goes on as it was
+                return
+            if running:
+                _, _, self._down, self._count = self._where(now)
+            self.regs[CR1] = value
+            self._run = None
+            if value & 1:
+                self._rebase(now, self._count, self._down if self._mode() == "centre" else self._mode() == "down")
+            return
+        if offset == CNT:
+            self.regs[CNT] = value & 0xFFFF
+            if self._run is not None:
+                self._rebase(now, value & 0xFFFF, self._where(now)[2])
+            else:
+                self._count = value & 0xFFFF
+            return
+        self.regs[offset] = value
+        if self._preloaded_register(offset):
+            if not self._pending:
+                self._pending_since = now
+            self._pending[offset] = value
+            return
+        self._shadow[offset] = value
+        if offset == ARR and self._run is not None:
+            _, _, down, count = self._where(now)
+            self._rebase(now, count, down)
+
+    def _software_update(self):
+        """EGR.UG: the shadows take the preload registers, the counter restarts (0, or ARR counting down), the
+        repetition counter reloads (28.3.2, 28.6.6); TRGO's "reset" and "update" see it."""
+        for offset in self._shadow:
+            self._shadow[offset] = self.regs.get(offset, self._shadow[offset] if offset == ARR else 0)
+        self._pending = {}
+        down = self._mode() == "down"
+        if self._run is not None:
+            self._rebase(self.chip.core.cycles, self._shadow[ARR] if down else 0, down)
+        else:
+            self._count = self._shadow[ARR] if down else 0
+        for key, (trigger, _) in list(self._watchers.items()):
+            if self._signal(trigger) in (("reset",), ("update",)):
+                self._pulse(key)
+
+    # What the counter drives: TRGO, TRGO2 and the compare events -------------------------------------------------
+    def watch(self, key, trigger, callback):
+        """`callback(rising)` at each edge of `trigger`: "TRGO", "TRGO2" or "CC1".."CC4" (the compare events)."""
+        self._watchers[key] = (trigger, callback)
+        self._levels.pop(key, None)
+        self._plan()
+
+    def unwatch(self, key):
+        if self._watchers.pop(key, None) is not None:
+            self._levels.pop(key, None)
+            self._plan()
+
+    def _signal(self, trigger):
+        """What a trigger output carries: ("reset",), ("enable",), ("update",) or ("match", n) pulses, or the level
+        ("ref", n) of OCnREF (n = 0-3); None for what is not modelled. MMS (CR2 bits 25, 6:4) and MMS2 (bits
+        23:20) share their first eight codes (28.6.2)."""
+        cr2 = self.regs.get(CR2, 0)
+        if trigger.startswith("CC"):
+            return ("match", int(trigger[2]) - 1)
+        code = field(cr2, 4, 3) | bit(cr2, 25) << 3 if trigger == "TRGO" else field(cr2, 20, 4)
+        return {0: ("reset",), 1: ("enable",), 2: ("update",), 3: ("match", 0), 4: ("ref", 0), 5: ("ref", 1),
+                6: ("ref", 2), 7: ("ref", 3)}.get(code)
+
+    def _output_mode(self, channel):
+        ccmr = self.active[CCMR1 if channel < 2 else CCMR2]
+        shift = 8 * (channel % 2)
+        return field(ccmr, 4 + shift, 3) | bit(ccmr, 16 + shift) << 3
+
+    def _reference_at(self, channel, down, count):
+        """OCnREF with the counter at `count` (28.3.12 PWM mode: PWM mode 1 is active while CNT < CCRx counting
+        up, while CNT <= CCRx counting down; PWM mode 2 the inverse; 28.3.10 forced levels). None: frozen, the
+        level stays; "unmodelled" for the other modes."""
+        mode = self._output_mode(channel)
+        ccr = self._shadow[(CCR1, CCR2, CCR3, CCR4)[channel]]
+        if mode in (0b0100, 0b0101):
+            return mode & 1
+        if mode in (0b0110, 0b0111):
+            active = count <= ccr if down else count < ccr
+            return int(active) ^ (mode & 1)
+        if mode == 0:
+            return None
+        return "unmodelled"
+
+    def _plan(self, inclusive=False):
+        """Gives each watcher the edge its signal makes now, and schedules those to come within the counter's
+        current segment and the segment's end. `inclusive`: at a segment's first cycle, its pulses are due."""
+        self._plan_generation += 1
+        if not self._watchers:
+            return
+        self._sync()
+        core = self.chip.core
+        now, generation = core.cycles, self._plan_generation
+        where = self._where(now) if self._run is not None else None
+        for key, (trigger, _) in list(self._watchers.items()):
+            signal = self._signal(trigger)
+            if signal is None:
+                core.fail(f"{self.name}: {trigger} with CR2 {self.regs.get(CR2, 0):#010x} is not modelled")
+                continue
+            if signal[0] == "enable":
+                self._levels.setdefault(key, int(self._run is not None))
+                self._give(key, int(self._run is not None))
+            if where is None or signal[0] not in ("ref", "match"):
+                continue
+            k, j, down, count = where
+            origin, per_tick, arr, mode, _ = self._run
+            start = self._boundary(k)
+            length = self._length(arr, mode)
+            if signal[0] == "ref":
+                level = self._reference_at(signal[1], down, count)
+                if level == "unmodelled":
+                    core.fail(f"{self.name}: OC{signal[1] + 1}M {self._output_mode(signal[1]):04b} as a trigger "
+                              f"output is not modelled")
+                    continue
+                if level is None:
+                    continue
+                if key not in self._levels:
+                    self._levels[key] = level  # the level when watching began: no edge
+                self._give(key, level)
+                # The one change a PWM reference makes in a segment: where CNT passes CCRx.
+                ccr = self._shadow[(CCR1, CCR2, CCR3, CCR4)[signal[1]]]
+                change = arr - ccr if down else ccr
+                if j < change < length:
+                    new = self._reference_at(signal[1], down, arr - change if down else change)
+                    if new != level:
+                        at = start + change * per_tick
+                        core.at(at, lambda key=key, new=new: generation == self._plan_generation
+                                and self._give(key, new))
+            else:
+                ccr = self._shadow[(CCR1, CCR2, CCR3, CCR4)[signal[1]]]
+                match = arr - ccr if down else ccr
+                cms = field(self.regs.get(CR1, 0), 5, 2)
+                # Centre-aligned, CMS says which count direction sets the compare flags (28.6.1).
+                wanted = mode != "centre" or cms == 3 or (cms == 1) == down
+                if wanted and 0 <= match < length and (j < match or (inclusive and j == match)):
+                    at = start + match * per_tick
+                    core.at(at, lambda key=key: generation == self._plan_generation and self._pulse(key))
+        if self._run is not None:
+            k = where[0] + 1
+            update = self._is_update(k)
+            core.at(self._boundary(k), lambda: generation == self._plan_generation and self._segment(update))
+
+    def _segment(self, update):
+        """An under- or overflow: an update event every RCR + 1 of them."""
+        self._sync()
+        if update:
+            for key, (trigger, _) in list(self._watchers.items()):
+                if self._signal(trigger) == ("update",):
+                    self._pulse(key)
+        self._plan(inclusive=True)
+
+    def _give(self, key, level):
+        if key in self._watchers and self._levels.get(key) != level:
+            self._levels[key] = level
+            self._watchers[key][1](bool(level))
+
+    def _pulse(self, key):
+        """A pulse of one timer clock: its rising edge now, its falling edge a cycle later."""
+        if key in self._watchers:
+            self._watchers[key][1](True)
+            falling = lambda: key in self._watchers and self._watchers[key][1](False)  # noqa: E731
+            self.chip.core.at(self.chip.core.cycles + 1, falling)

@@ -4,6 +4,7 @@ boot one under the models."""
 import json
 import os
 import pathlib
+import struct
 import subprocess
 import sys
 
@@ -13,6 +14,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "rehost"))
 
 from g431.chip import Stm32g4, Image  # noqa: E402
+from g431.core import FLASH_BASE, SRAM_BASE  # noqa: E402
 
 IMAGES = pathlib.Path(os.environ.get("REHOST_IMAGES", ROOT / "target" / "images"))
 REHOST = os.environ.get("REHOST_BIN", str(ROOT / "target" / "debug" / "rehost"))
@@ -51,6 +53,22 @@ def sign(seed, payload):
 @pytest.fixture(scope="session")
 def expected():
     return rehost("expected")
+
+
+class Blank(Image):
+    """No image: a vector table and an idle loop (WFE, then a branch back to it) in erased flash, enough for a chip to
+    be built and reset, and to sleep while a test drives its peripherals."""
+
+    IDLE = struct.pack("<HH", 0xBF20, 0xE7FD)  # wfe; b.n back to the wfe (ARMv7-M A7.7.158, A7.7.12)
+
+    def __init__(self, part):
+        self.path = f"(no image, {part.name})"
+        self.part = part
+        self.segments = [(FLASH_BASE, struct.pack("<II", SRAM_BASE + part.sram_size, FLASH_BASE + 0x9) + self.IDLE)]
+        self.symbols = {}
+        self.text = (FLASH_BASE + 8, self.IDLE)
+        self.vector_table = FLASH_BASE
+        self.defmt = None
 
 
 def boot(name, **options):

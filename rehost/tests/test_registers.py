@@ -98,8 +98,8 @@ def test_each_conversion_uses_the_sample_time_g431_hw_computes(name, expected, b
                 pin["function"], "ntc")
             wanted[pin["adc1_in"]] = spec["sample_times"][kind]
     seen = {}
-    for _, channel, bits in chip.adc1.conversions:
-        seen.setdefault(channel, set()).add(bits)
+    for conversion in chip.adc1.conversions:
+        seen.setdefault(conversion.channel, set()).add(conversion.smp)
     assert set(seen) == set(wanted), f"channels converted {sorted(seen)}, listed {sorted(wanted)}"
     # Besides its own, a channel may see the current input's short sample time: the ES0431 throw-away conversion
     # before each tick's samples, whose result is dropped (the motor-less image has only the water pin for it).

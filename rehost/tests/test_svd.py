@@ -4,30 +4,15 @@ reset value after power-on, and takes a write as the SVD gives its fields' acces
 rc_w1 flags clear on a 1 and rc_w0 flags on a 0, set-only bits ignore a 0, and a write-only register keeps nothing a
 read returns. No image is needed: the chip is built around an erased flash, and nothing runs."""
 
-import struct
-
 import pytest
 
 import svd
-from conftest import ROOT
+from conftest import ROOT, Blank
 from g431 import adc, dma, fdcan, gpio, i2c, iwdg, system, timers, uart
-from g431.chip import Image, Stm32g4
-from g431.core import FLASH_BASE, G431RB, G474RE, SRAM_BASE
+from g431.chip import Stm32g4
+from g431.core import G431RB, G474RE
 
 PARTS = {G431RB.name: G431RB, G474RE.name: G474RE}
-
-
-class Blank(Image):
-    """No image: a vector table in erased flash, enough for a chip to be built and reset."""
-
-    def __init__(self, part):
-        self.path = f"(no image, {part.name})"
-        self.part = part
-        self.segments = [(FLASH_BASE, struct.pack("<II", SRAM_BASE + part.sram_size, FLASH_BASE + 0x9))]
-        self.symbols = {}
-        self.text = (FLASH_BASE, b"")
-        self.vector_table = FLASH_BASE
-        self.defmt = None
 
 
 def _channels(*offsets):
@@ -50,15 +35,15 @@ IMPLEMENTED = {
                 gpio.AFRH, gpio.BRR],
     dma.Dmamux: [4 * n for n in range(dma.CHANNELS)],
     dma.Dma: [dma.ISR, dma.IFCR] + _channels(0x08, 0x0C, 0x10, 0x14),  # CCRx, CNDTRx, CPARx, CMARx
-    # TIM1's counter is not modelled (timers.Tim1).
     timers.Tim1: [timers.CR1, timers.CR2, timers.SMCR, timers.DIER, timers.SR, timers.EGR, timers.CCMR1, timers.CCMR2,
-                  timers.CCER, timers.PSC, timers.ARR, timers.RCR, timers.CCR1, timers.CCR2, timers.CCR3, timers.CCR4,
-                  timers.BDTR, timers.AF1, timers.AF2],
+                  timers.CCER, timers.CNT, timers.PSC, timers.ARR, timers.RCR, timers.CCR1, timers.CCR2, timers.CCR3,
+                  timers.CCR4, timers.BDTR, timers.AF1, timers.AF2],
     timers.Tim15: [timers.CR1, timers.DIER, timers.SR, timers.EGR, timers.CNT, timers.PSC, timers.ARR, timers.CCR1,
                    timers.CCR2],
     i2c.I2c: [i2c.CR1, i2c.CR2, i2c.OAR1, i2c.OAR2, i2c.TIMINGR, i2c.TIMEOUTR, i2c.ISR, i2c.ICR, i2c.PECR, i2c.RXDR,
               i2c.TXDR],
-    adc.Adc: [adc.ISR, adc.IER, adc.CR, adc.CFGR, adc.CFGR2, adc.SMPR1, adc.SMPR2, adc.SQR1, adc.DR],
+    adc.Adc: [adc.ISR, adc.IER, adc.CR, adc.CFGR, adc.CFGR2, adc.SMPR1, adc.SMPR2, adc.SQR1, adc.SQR2, adc.SQR3,
+              adc.SQR4, adc.DR, adc.JSQR, *adc.JDR],
     iwdg.Iwdg: [iwdg.KR, iwdg.PR, iwdg.RLR, iwdg.SR, iwdg.WINR],
     fdcan.Fdcan: [fdcan.CREL, fdcan.ENDN, fdcan.CCCR, fdcan.NBTP, fdcan.PSR, fdcan.IR, fdcan.IE, fdcan.ILS, fdcan.ILE,
                   fdcan.RXGFC, fdcan.RXF0S, fdcan.RXF0A, fdcan.TXFQS, fdcan.TXBAR, fdcan.TXBTO],
