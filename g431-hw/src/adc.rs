@@ -23,7 +23,7 @@
 //!
 //! A conversion takes the sample time plus 12.5 cycles of successive approximation at 12 bits (RM0440 21.4.16,
 //! "t_CONV = t_SMPL + t_SAR"): [`conversion_ns`]. The thruster's inputs and the order it reads them in each 1 ms
-//! tick are [`THRUSTER_SEQUENCE`].
+//! tick are [`THRUSTER_SEQUENCE`]; its phase currents, converted at TIM1's trigger, [`CURRENT_SEQUENCE`].
 
 use crate::clock::ADC_HZ;
 
@@ -248,11 +248,16 @@ pub const NTC: Source = Source {
     channel: Channel::Slow,
 };
 
-/// The IHM08M1's current-sense amplifier output on PA0 (ADC12_IN1, a fast channel): an op-amp (TSV994) behind the
-/// board's filter; its output resistance is not in the documents read here, so it is budgeted like the NTCs.
+/// The IHM08M1's three current-sense amplifier outputs, CURR_FDBK_A/B/C on PA0, PC1 and PC0 (ADC12_IN1, a fast
+/// channel; IN7 and IN6, slow ones: the slow limits apply). Each is a TSV994 stage driving the pin through the
+/// board's 0 ohm links (R47, R48, R50); what else sits in series is not in the documents read here, so 1 kohm is
+/// budgeted. The sample time this gives is short enough for the three conversions to fit well inside the quiet
+/// middle of a PWM half-period (`tim1::Bridge::sample_window_ticks`); a board with more resistance there shows
+/// it at the first power-up's step 6 (docs/hardware.md).
 pub const CURRENT: Source = Source {
-    channel: Channel::Fast,
-    ..NTC
+    ohms: 1_000,
+    hold_capacitor_pf: 0,
+    channel: Channel::Slow,
 };
 
 /// The IHM08M1's VBUS divider on PA1 (ADC12_IN2, a fast channel): 169 kohm over 9.31 kohm, 8.8 kohm seen from the
@@ -264,8 +269,8 @@ pub const VBUS: Source = Source {
 };
 
 /// The thruster's sample times (the shortest each source allows, [`Adc::sample_time`]): the water sensor relies on
-/// its 100 nF and the longest time; the NTC and the current need 247.5 cycles by DS12589's table (10 kohm: the slow
-/// channels' limit at 247.5, the fast ones' 12 kohm), where the formula alone gave 24.5.
+/// its 100 nF and the longest time; the NTC needs 247.5 cycles by DS12589's table (10 kohm: the slow channels'
+/// limit at 247.5), where the formula alone gave 24.5; the currents 24.5 (1.2 kohm on a slow channel).
 pub const WATER_SAMPLE: SampleTime = G431.sample_time(WATER, ADC_HZ);
 /// See [`WATER_SAMPLE`].
 pub const NTC_SAMPLE: SampleTime = G431.sample_time(NTC, ADC_HZ);
@@ -281,14 +286,59 @@ const _: () = assert!(
         && G431.settles(VBUS, VBUS_SAMPLE, ADC_HZ)
 );
 
-/// The conversions of one thruster sample, in the order the binding makes them: one of the current input thrown
-/// away (STM32G4 errata ES0431: the first conversion after the ADC idled about 1 ms may be wrong), then the water
-/// sensor, the NTC, the current and the supply. They block the thread executor: [`THRUSTER_SEQUENCE_NS`] is held
-/// against the 1 ms tick by thruster-fw's tests.
-pub const THRUSTER_SEQUENCE: [SampleTime; 5] = [CURRENT_SAMPLE, WATER_SAMPLE, NTC_SAMPLE, CURRENT_SAMPLE, VBUS_SAMPLE];
+/// The regular conversions of one thruster sample, started by software in this order: the water sensor, the NTC
+/// and the supply. They block the thread executor: [`THRUSTER_SEQUENCE_NS`] is held against the 1 ms tick by
+/// thruster-fw's tests. (STM32G4 errata ES0431: the first conversion after the ADC idled about 1 ms may be wrong;
+/// the injected conversions of the currents keep it from idling, one sequence per PWM period.)
+pub const THRUSTER_SEQUENCE: [SampleTime; 3] = [WATER_SAMPLE, NTC_SAMPLE, VBUS_SAMPLE];
 
-/// How long [`THRUSTER_SEQUENCE`] takes at [`ADC_HZ`], in ns: about 39.8 us.
+/// How long [`THRUSTER_SEQUENCE`] takes at [`ADC_HZ`], in ns, an injected sequence aside: about 31.8 us.
 pub const THRUSTER_SEQUENCE_NS: f64 = sequence_ns(&THRUSTER_SEQUENCE, ADC_HZ);
+
+/// The injected sequence TIM1 triggers once per PWM period: the three phase currents.
+pub const CURRENT_SEQUENCE: [SampleTime; 3] = [CURRENT_SAMPLE; 3];
+
+/// How long [`CURRENT_SEQUENCE`] takes at [`ADC_HZ`], in ns: about 2.6 us.
+pub const CURRENT_SEQUENCE_NS: f64 = sequence_ns(&CURRENT_SEQUENCE, ADC_HZ);
+
+/// ADC_SMPR1 and ADC_SMPR2 with each of `inputs` (an ADCx_INn number and its sample time) in its field: SMPR1
+/// holds channels 0..=9 and SMPR2 10..=18, three bits each (RM0440 ADC_SMPR1, ADC_SMPR2); others are left out.
+/// Written once, whole: RM0440 allows SMPRx writes only while no conversion runs (ADSTART = JADSTART = 0), and
+/// the injected conversions never stop.
+pub const fn smpr(inputs: &[(u8, SampleTime)]) -> [u32; 2] {
+    let mut registers = [0u32; 2];
+    let mut rest = inputs;
+    while let [(channel, sample), tail @ ..] = rest {
+        let channel = *channel as u32;
+        if channel < 10 {
+            registers[0] |= (sample.bits() as u32) << (3 * channel);
+        } else if channel < 19 {
+            registers[1] |= (sample.bits() as u32) << (3 * (channel - 10));
+        }
+        rest = tail;
+    }
+    registers
+}
+
+/// ADC_JSQR.JEXTSEL for TIM1_TRGO2 on ADC1 and ADC2 (RM0440 21.4.18, the table of external triggers for injected
+/// channels: JEXT8; stm32-data lists ADC1's ADC_JEXT_TRG8 as TIM1_TRGO2 too).
+pub const JEXTSEL_TIM1_TRGO2: u32 = 8;
+
+/// ADC_JSQR.JEXTEN: a hardware trigger, on its rising edge.
+pub const JEXTEN_RISING: u32 = 0b01;
+
+/// ADC_JSQR for an injected sequence of `channels` (ADCx_INn numbers, in order) started by TIM1_TRGO2's rising
+/// edge: JL = length - 1, JEXTSEL, JEXTEN, JSQ1..JSQ3 (RM0440 ADC_JSQR). Channel numbers above 31 are masked to
+/// their 5-bit field.
+pub const fn jsqr(channels: [u8; 3]) -> u32 {
+    let [first, second, third] = channels;
+    (channels.len() as u32 - 1)
+        | (JEXTSEL_TIM1_TRGO2 << 2)
+        | (JEXTEN_RISING << 7)
+        | ((first as u32 & 0x1F) << 9)
+        | ((second as u32 & 0x1F) << 15)
+        | ((third as u32 & 0x1F) << 21)
+}
 
 #[cfg(test)]
 mod tests {
@@ -397,9 +447,9 @@ mod tests {
         assert!(G431.settles(NTC, sample, ADC_HZ));
         assert!(!G431.settles(NTC, SampleTime::Cycles92_5, ADC_HZ));
         assert!(!G431.settles(NTC, SampleTime::Cycles24_5, ADC_HZ), "the old choice");
-        // On a fast channel 92.5 cycles allow 4.7 kohm: still 247.5 (12 kohm).
-        assert_eq!(G431.sample_time(CURRENT, ADC_HZ), SampleTime::Cycles247_5);
-        assert!(!G431.settles(CURRENT, SampleTime::Cycles92_5, ADC_HZ));
+        // The currents' 1 kohm on a slow channel: 24.5 cycles (1.2 kohm), not 12.5 (470 ohm).
+        assert_eq!(G431.sample_time(CURRENT, ADC_HZ), SampleTime::Cycles24_5);
+        assert!(!G431.settles(CURRENT, SampleTime::Cycles12_5, ADC_HZ));
         // VBUS's 8.8 kohm on a fast channel: 247.5 as well.
         assert!(!G431.settles(VBUS, SampleTime::Cycles92_5, ADC_HZ));
         assert_eq!(
@@ -407,24 +457,62 @@ mod tests {
             (
                 SampleTime::LONGEST,
                 SampleTime::Cycles247_5,
-                SampleTime::Cycles247_5,
+                SampleTime::Cycles24_5,
                 SampleTime::Cycles247_5
             )
         );
     }
 
     #[test]
-    fn a_thruster_sample_takes_40_us() {
+    fn a_thruster_sample_takes_28_us_and_the_currents_2_6_us() {
         // RM0440 21.4.16: t_CONV = t_SMPL + 12.5 cycles at 12 bits. 640.5 + 12.5 cycles at 42.5 MHz: 15.36 us.
         assert!((conversion_ns(SampleTime::LONGEST, ADC_HZ) - 15_364.7).abs() < 0.1);
         assert!((conversion_ns(SampleTime::Cycles247_5, ADC_HZ) - 6_117.6).abs() < 0.1);
-        // The discarded conversion, water, NTC, current, VBUS: 1693 cycles, 39.8 us.
-        assert!((THRUSTER_SEQUENCE_NS - 1693.0 / 42.5e6 * 1e9).abs() < 0.1);
-        assert!(
-            (39_800.0..39_850.0).contains(&THRUSTER_SEQUENCE_NS),
-            "{THRUSTER_SEQUENCE_NS}"
-        );
+        // Water, NTC, VBUS: 1173 cycles, 27.6 us.
+        assert!((THRUSTER_SEQUENCE_NS - 1173.0 / 42.5e6 * 1e9).abs() < 0.1);
+        // The three currents: 3 x 37 cycles, 2.6 us.
+        assert!((CURRENT_SEQUENCE_NS - 111.0 / 42.5e6 * 1e9).abs() < 0.1);
         assert_eq!(sequence_ns(&[], ADC_HZ), 0.0);
+    }
+
+    #[test]
+    fn smpr_agrees_with_the_pac() {
+        use stm32_metapac::adc::regs::{Smpr, Smpr2};
+        let inputs = [
+            (1, SampleTime::Cycles24_5),
+            (2, SampleTime::Cycles247_5),
+            (9, SampleTime::LONGEST),
+            (11, SampleTime::LONGEST),
+            (18, SampleTime::Cycles6_5),
+            (19, SampleTime::LONGEST),
+        ];
+        let (mut smpr1, mut smpr2) = (Smpr(0), Smpr2(0));
+        for (channel, sample) in inputs.into_iter().take(5) {
+            let field = PacSampleTime::from_bits(sample.bits());
+            if channel < 10 {
+                smpr1.set_smp(usize::from(channel), field);
+            } else {
+                smpr2.set_smp(usize::from(channel - 10), field);
+            }
+        }
+        assert_eq!(smpr(&inputs), [smpr1.0, smpr2.0]);
+        assert_eq!(smpr(&[]), [0, 0]);
+    }
+
+    #[test]
+    fn jsqr_agrees_with_the_pac() {
+        use stm32_metapac::adc::regs::Jsqr;
+        use stm32_metapac::adc::vals::Exten;
+        let mut want = Jsqr(0);
+        want.set_jl(2);
+        want.set_jextsel(8);
+        want.set_jexten(Exten::RISING_EDGE);
+        for (n, channel) in [1, 7, 6].into_iter().enumerate() {
+            want.set_jsq(n, channel);
+        }
+        assert_eq!(jsqr([1, 7, 6]), want.0);
+        // Out-of-range channel numbers stay in their fields.
+        assert_eq!(jsqr([0xFF, 0, 0]) & !(0x1F << 9), jsqr([0, 0, 0]));
     }
 
     #[test]

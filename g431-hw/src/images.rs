@@ -71,7 +71,11 @@ macro_rules! power_stage_rows {
                 h1: PA15 = of("hall H1", "H1", HALL),
                 h2: PB3 = of("hall H2", "H2", HALL),
                 h3: PB10 = of("hall H3", "H3", HALL),
-                current: PA0 = of("motor current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
+                // The three low-side shunts' amplifiers, converted together at TIM1's trigger (docs/hardware.md,
+                // "Current sensing").
+                current_a: PA0 = of("phase A current", "CURR_FDBK_A", Analog { adc1_in: 1 }),
+                current_b: PC1 = of("phase B current", "CURR_FDBK_B", Analog { adc1_in: 7 }),
+                current_c: PC0 = of("phase C current", "CURR_FDBK_C", Analog { adc1_in: 6 }),
                 vbus: PA1 = of("supply voltage", "VBUS", Analog { adc1_in: 2 }),
                 // The overcurrent comparator's reference through R77 and the board's RC (PB4's reset state is JTAG's
                 // NJTRST with a pull-up): driven high, the trip level sits at its top (docs/hardware.md, "The break").

@@ -183,6 +183,15 @@ const OCPE: u32 = 1 << 3;
 /// CR2: capture/compare preloaded control (CCxE, CCxNE, OCxM change at a COM event).
 const CCPC: u32 = 1 << 0;
 
+/// CR2.MMS2 = 0111: TRGO2 is OC4REF (RM0440 TIMx_CR2 MMS2\[3:0\]), the ADC's injected trigger for the phase
+/// currents ([`Bridge::current_trigger`]).
+const MMS2_OC4REF: u32 = 0b0111 << 20;
+
+/// CCMR2's channel 4 (bits 8..=15, OC4M\[3\] at bit 24): PWM mode 1 with its compare preloaded (taken at the
+/// update event), so OC4REF is active while the counter is below CCR4. Channel 4 has no pin here (CC4E = 0):
+/// OC4REF exists inside the timer all the same (RM0440 TIMx_CCMR2, "Output compare mode").
+const CCMR2_CH4_TRIGGER: u32 = (OCPE | (OCM_PWM1 << 4)) << 8;
+
 /// BDTR bits.
 const OSSI: u32 = 1 << 10;
 const OSSR: u32 = 1 << 11;
@@ -235,7 +244,7 @@ pub const DBGMCU_APB2FZR: u32 = 1 << 11;
 pub struct Commutation {
     /// CCMR1 (output mode): channels 1 and 2.
     pub ccmr1: u32,
-    /// CCMR2 (output mode): channel 3 (channel 4 unused).
+    /// CCMR2 (output mode): channel 3, and channel 4 as the current trigger.
     pub ccmr2: u32,
     /// CCER.
     pub ccer: u32,
@@ -349,7 +358,7 @@ impl Bridge {
         let [a, b, c] = modes;
         Commutation {
             ccmr1: ccmr_channel(a, false) | ccmr_channel(b, true),
-            ccmr2: ccmr_channel(c, false),
+            ccmr2: ccmr_channel(c, false) | CCMR2_CH4_TRIGGER,
             ccer: ccer_channel(a, &self.driver)
                 | (ccer_channel(b, &self.driver) << 4)
                 | (ccer_channel(c, &self.driver) << 8),
@@ -361,13 +370,37 @@ impl Bridge {
         self.commutation([PhaseMode::Off; 3])
     }
 
-    /// CR2: CCPC = 1 (commutation through COM events, COMG only: CCUS = 0), and the idle levels with MOE = 0
-    /// equal to each output's inactive level: OISx = CCxP, OISxN = CCxNP.
+    /// CR2: CCPC = 1 (commutation through COM events, COMG only: CCUS = 0), the idle levels with MOE = 0 equal
+    /// to each output's inactive level (OISx = CCxP, OISxN = CCxNP), and TRGO2 = OC4REF for the ADC.
     pub const fn cr2(&self) -> u32 {
         let ois = self.driver.ccp() as u32;
         let oisn = self.driver.ccnp() as u32;
         let pair = ois | (oisn << 1);
-        CCPC | (pair << 8) | (pair << 10) | (pair << 12)
+        CCPC | (pair << 8) | (pair << 10) | (pair << 12) | MMS2_OC4REF
+    }
+
+    /// CCR4 for a switching phase's CCRx `compare` with ARR `arr`: where the ADC converts the phase currents.
+    ///
+    /// TRGO2 = OC4REF in PWM mode 1 rises when the counter, coming down, reaches CCR4 (RM0440 28.3.12: active
+    /// while CNT < CCRx counting up, while CNT <= CCRx counting down; the up-count runs 0..ARR - 1, the down-count
+    /// ARR..1). CCR4 = 1 puts the edge one tick before the bottom of the period, the middle of the high switch's
+    /// on-time; CCR4 = ARR - 1 one tick after the top, the middle of its off-time (with CCR4 = ARR, OC4REF would
+    /// never fall: no edge). Whichever half is the longer keeps the conversions furthest from the switching edges:
+    /// the bottom from 50 % duty up, else the top. The shunt of the phase held low carries the motor current
+    /// through both halves, and the nearest edge is [`Bridge::sample_window_ticks`] away or more.
+    pub const fn current_trigger(&self, compare: u16, arr: u16) -> u16 {
+        if 2 * compare as u32 >= arr as u32 {
+            1
+        } else {
+            arr.saturating_sub(1)
+        }
+    }
+
+    /// Ticks from the current trigger to the nearest switching edge at the worst duty (just under 50 %): about a
+    /// quarter of the period. The ADC's injected sequence must end well inside it
+    /// (`g431_hw::adc::CURRENT_SEQUENCE_NS`).
+    pub const fn sample_window_ticks(&self, tim_hz: u32) -> u32 {
+        self.arr(tim_hz) / 2 - 1
     }
 
     /// DTG for the bridge's dead time at a `tim_hz` timer clock; 0 when it does not fit (caught by

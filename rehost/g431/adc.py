@@ -263,7 +263,7 @@ class Adc(Peripheral):
             self._trigger(group)
 
     def _trigger(self, group):
-        now = self.chip.core.cycles
+        now = self.chip.core.now()
         if group == "injected":
             if self._injected is not None:
                 self.ignored_triggers.append((now, group))  # "a new trigger during a conversion is ignored"
@@ -351,7 +351,7 @@ class Adc(Peripheral):
         self._update_irq()
 
     def _resume_regular(self):
-        now = self.chip.core.cycles
+        now = self.chip.core.now()
         if self._regular is not None and self._regular.start is None:
             self._begin(self._regular, now)
         elif self._regular is None and self._regular_waiting:

@@ -142,6 +142,7 @@ class Core:
         self.instructions = 0
         self.on_lockup = None  # what the chip does with the LOCKUP output
         self._events = []  # (cycle, sequence, callback)
+        self._due = None
         self._sequence = 0
         self._block_sizes = {}
         self._code_pages = {}  # 2 KiB page -> the blocks translated from it (keys of _block_sizes)
@@ -224,9 +225,10 @@ class Core:
 
     # Time ------------------------------------------------------------------------------------------------------
     def at(self, cycle, callback):
-        """Calls `callback()` once the core's clock reaches `cycle`."""
+        """Calls `callback()` once the core's clock reaches `cycle`, at once if it has passed it already; either
+        way `now()` reads `cycle` meanwhile, so what a model times from it keeps its place."""
         self._sequence += 1
-        heapq.heappush(self._events, (max(cycle, self.cycles), self._sequence, callback))
+        heapq.heappush(self._events, (cycle, self._sequence, callback))
         if cycle < self._stop_at:
             self._stop_at = cycle
 
@@ -243,8 +245,18 @@ class Core:
 
     def _fire_due(self):
         while self._events and self._events[0][0] <= self.cycles:
-            _, _, callback = heapq.heappop(self._events)
-            callback()
+            due, _, callback = heapq.heappop(self._events)
+            self._due = due
+            try:
+                callback()
+            finally:
+                self._due = None
+
+    def now(self):
+        """The cycle an event's callback was due at, while it runs (the core reaches events at the end of a block
+        of instructions, a few dozen cycles late at most); else the core's cycle count. Hardware that runs by itself
+        (a timer's edges, the ADC's conversions) times what it does from this."""
+        return self.cycles if self._due is None else self._due
 
     # Execution -------------------------------------------------------------------------------------------------
     def reset(self, vector_table=FLASH_BASE):

@@ -485,6 +485,23 @@ class Tim1(Peripheral):
         shift = 8 * (channel % 2)
         return field(ccmr, 4 + shift, 3) | bit(ccmr, 16 + shift) << 3
 
+    def reference_at(self, channel, cycle):
+        """OCxREF of channel 0-3 at `cycle` of the running counter, with today's compare values; None while it is
+        stopped (for a test's model of what the timer drives)."""
+        if self._run is None:
+            return None
+        self._sync()
+        _, _, down, count = self._where(cycle)
+        return self._reference_at(channel, down, count)
+
+    def counting_at(self, cycle):
+        """(CNT, counting down) at `cycle` of the running counter; None while it is stopped."""
+        if self._run is None:
+            return None
+        self._sync()
+        _, _, down, count = self._where(cycle)
+        return count, down
+
     def _reference_at(self, channel, down, count):
         """OCnREF with the counter at `count` (28.3.12 PWM mode: PWM mode 1 is active while CNT < CCRx counting
         up, while CNT <= CCRx counting down; PWM mode 2 the inverse; 28.3.10 forced levels). None: frozen, the
@@ -508,7 +525,7 @@ class Tim1(Peripheral):
             return
         self._sync()
         core = self.chip.core
-        now, generation = core.cycles, self._plan_generation
+        now, generation = core.now(), self._plan_generation
         where = self._where(now) if self._run is not None else None
         for key, (trigger, _) in list(self._watchers.items()):
             signal = self._signal(trigger)
@@ -577,4 +594,4 @@ class Tim1(Peripheral):
         if key in self._watchers:
             self._watchers[key][1](True)
             falling = lambda: key in self._watchers and self._watchers[key][1](False)  # noqa: E731
-            self.chip.core.at(self.chip.core.cycles + 1, falling)
+            self.chip.core.at(self.chip.core.now() + 1, falling)

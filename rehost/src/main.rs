@@ -232,6 +232,49 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
     let mut six_step = Vec::new();
     if power_stage {
         let arr = BRIDGE.arr(clock::TIM1_HZ);
+        // ADC1: every analog input's sample time, and the phase currents as the injected sequence TIM1 triggers.
+        let analog: Vec<(&str, u8)> = image
+            .uses
+            .iter()
+            .filter_map(|used| match used.mode {
+                Mode::Analog { adc1_in } => Some((used.function, adc1_in)),
+                _ => None,
+            })
+            .collect();
+        let sample = |function: &str| match function {
+            "water sensor" => adc::WATER_SAMPLE,
+            "supply voltage" => adc::VBUS_SAMPLE,
+            f if f.ends_with("current") => adc::CURRENT_SAMPLE,
+            _ => adc::NTC_SAMPLE,
+        };
+        let inputs: Vec<_> = analog
+            .iter()
+            .map(|&(function, channel)| (channel, sample(function)))
+            .collect();
+        let [smpr1, smpr2] = adc::smpr(&inputs);
+        let phase = |name: &str| {
+            analog
+                .iter()
+                .find(|(function, _)| *function == name)
+                .map_or(0, |&(_, channel)| channel)
+        };
+        let currents = [
+            phase("phase A current"),
+            phase("phase B current"),
+            phase("phase C current"),
+        ];
+        const ADC1: u32 = 0x5000_0000;
+        registers.extend([
+            register("ADC1_SMPR1", ADC1 + 0x14, 0x07FF_FFFF, smpr1, "g431_hw::adc::smpr"),
+            register("ADC1_SMPR2", ADC1 + 0x18, 0x07FF_FFFF, smpr2, "g431_hw::adc::smpr"),
+            register(
+                "ADC1_JSQR",
+                ADC1 + 0x4C,
+                u32::MAX,
+                adc::jsqr(currents),
+                "g431_hw::adc::jsqr",
+            ),
+        ]);
         registers.extend([
             register("TIM1_ARR", TIM1 + 0x2C, 0xFFFF, arr, "g431_hw::tim1::IHM08M1.arr"),
             register("TIM1_PSC", TIM1 + 0x28, 0xFFFF, 0, "centre-aligned 20 kHz from 170 MHz"),
@@ -292,6 +335,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
         "ntc_25c": config.ntc.raw_at(250),
         "ntc_hot": config.ntc.raw_at(config.thresholds.overtemp_set_decicelsius + 50),
         "current_zero": config.current.offset_raw,
+        "current_milliamps_per_count": config.current.milliamps_per_count,
         "vbus_24v": config.vbus.raw_at(24_000),
     });
     json!({

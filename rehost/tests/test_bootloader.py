@@ -192,7 +192,7 @@ def gate_levels(expected):
     return {
         (pin["port"], pin["pin"]): 0 if pin["function"].endswith(" high") else 1
         for pin in expected["images"]["thruster-fw"]["pins"]
-        if pin["function"].startswith("phase ")
+        if pin["function"].startswith("phase ") and pin["function"].endswith((" high", " low"))
     }
 
 

@@ -4,7 +4,7 @@ import pytest
 
 from conftest import rehost
 from g431.timers import CCER, CCMR1, CCMR2
-from thruster import SWITCHES, all_off, exchange, set_halls, start, switches
+from thruster import CURRENTS, SWITCHES, all_off, channels, exchange, set_halls, set_shunts, start, switches
 
 FAMILIES = {"thruster-fw": "seabotix", "thruster-fw-legacy": "legacy"}
 
@@ -76,3 +76,57 @@ def test_hall_edges_walk_the_six_step_sequence_and_a_zero_order_stops_it(expecte
     active = chip.tim1.active
     assert (active[CCMR1], active[CCMR2], active[CCER]) == (coast["ccmr1"], coast["ccmr2"], coast["ccer"])
     assert all_off(chip, spec), switches(chip, spec)
+
+
+def sequence_starts(chip, since):
+    """The cycles at which ADC1's injected sequences began since `since`."""
+    return [c.start for c in chip.adc1.conversions if c.group == "injected" and c.rank == 0 and c.start >= since]
+
+
+def assert_no_edge_near(chip, starts):
+    """The switching phase (PWM mode 1 in the active CCMR) keeps one level a quarter period either side of each of
+    `starts`: no switching edge near the conversions. Looked at in steps of 8 timer ticks, with the compare values
+    of now (so only for recent starts)."""
+    switching = [n for n in range(3) if chip.tim1._output_mode(n) == 0b0110]
+    assert len(switching) == 1, chip.tim1.outputs()
+    window = chip.tim1.regs[0x2C] // 2 - 8
+    for start in starts:
+        level = chip.tim1.reference_at(switching[0], start)
+        near = [tick for tick in range(-window, window + 1, 8)
+                if chip.tim1.reference_at(switching[0], start + tick) != level]
+        assert not near, f"an edge {near[0]} ticks from the conversions at cycle {start}"
+
+
+def test_the_phase_currents_are_converted_at_tim1s_trigger_away_from_the_edges(expected):
+    """ADC1 converts the three shunts when TIM1's trigger fires, once per PWM period, at an instant where the
+    switching phase's nearest edge is a quarter period away or more; the status reports the current the shunt of
+    the phase held low carries. A rotor held in one sector, so the speed loop's duty climbs through 50 % (where the
+    instant moves from just after the top of the period to just before the bottom) within the run."""
+    chip, spec = start("thruster-fw", expected)
+    set_halls(chip, spec["forward"][0]["hall"])
+    set_shunts(chip, spec, amps=3.0)
+    exchange(chip, spec, expected["orders"]["SeaBotix"]["63"])
+    begin = chip.core.cycles
+    arr = chip.tim1.regs[0x2C]
+    instants = set()
+    for _ in range(30):
+        since = chip.core.cycles
+        chip.run_for(0.01)
+        recent = sequence_starts(chip, since)[-5:]
+        assert_no_edge_near(chip, recent)
+        instants |= {chip.tim1.counting_at(start) for start in recent}
+    assert instants == {(arr - 1, True), (1, True)}, instants
+    status, _, _ = exchange(chip, spec, expected["orders"]["SeaBotix"]["63"])
+    decoded = rehost("status", "seabotix", status.hex())
+    assert decoded["fields"]["current_deciamps"] == 30, decoded
+
+    injected = [c for c in chip.adc1.conversions if c.group == "injected" and c.start >= begin]
+    channel_of = channels(spec)
+    assert {(c.rank, c.channel) for c in injected} == {(n, channel_of[f]) for n, f in enumerate(CURRENTS)}
+    period = round(chip.core.hz / 20_000)
+    starts = sequence_starts(chip, begin)
+    gaps = [b - a for a, b in zip(starts, starts[1:])]
+    # One PWM period apart (within a cycle of the model's rounding), but once, as the duty passes 50 %: the
+    # instant moves from just after the top (ARR - 1, counting down) to just before the bottom (1).
+    moves = [gap for gap in gaps if abs(gap - period) > 1]
+    assert moves == [period + arr - 2], f"sequences {sorted(set(gaps))} cycles apart, period {period}"

@@ -4,7 +4,8 @@ hall sensors of a turning rotor."""
 from conftest import Stm32g4, image
 
 # Analog inputs by the function g431_hw::images gives them.
-WATER, NTC, CURRENT, VBUS = "water sensor", ("motor NTC", "power-stage NTC"), "motor current", "supply voltage"
+WATER, NTC, VBUS = "water sensor", ("motor NTC", "power-stage NTC"), "supply voltage"
+CURRENTS = ("phase A current", "phase B current", "phase C current")
 
 
 def channels(spec):
@@ -18,7 +19,7 @@ def set_analog(chip, spec, water="dry", ntc="ntc_25c", current="current_zero", v
             chip.adc1.inputs[channel] = points[water]
         elif function in NTC:
             chip.adc1.inputs[channel] = points[ntc]
-        elif function == CURRENT:
+        elif function in CURRENTS:
             chip.adc1.inputs[channel] = points[current]
         elif function == VBUS:
             chip.adc1.inputs[channel] = points[vbus]
@@ -84,3 +85,24 @@ def set_halls(chip, bits):
     """Drives the three hall lines to a state (bit 0 is H1)."""
     for n, (port, pin) in enumerate((("A", 15), ("B", 3), ("B", 10))):
         chip.gpio[port].drive(pin, bits >> n & 1)
+
+
+def set_shunts(chip, spec, amps):
+    """The IHM08M1's three shunt stages with `amps` flowing into the motor through the switching phase and out
+    through the phase held low (docs/hardware.md, "Current sensing"): each stage reads its phase's current while
+    the phase's low switch conducts and the offset otherwise, the switches taken from TIM1's outputs and, for a
+    switching pair, its counter at the sampling instant (the dead time not modelled)."""
+    offset = spec["analog"]["current_zero"]
+    counts = amps * 1000 / spec["analog"]["current_milliamps_per_count"]
+    channel_of = channels(spec)
+    for phase, function in enumerate(CURRENTS):
+        def reading(seconds, phase=phase):
+            drive = switches(chip, spec)["ABC"[phase]]
+            if drive == ("off", "on"):
+                return offset + counts  # held low: the motor's current returns through this shunt
+            if drive == ("pwm", "pwm"):
+                high = chip.tim1.reference_at(phase, round(seconds * chip.core.hz))
+                return offset if high else offset - counts  # recirculating through the low switch
+            return offset
+        chip.adc1.inputs[channel_of[function]] = reading
+

@@ -10,7 +10,9 @@ use core::cell::RefCell;
 use embassy_boot::{AlignedBuffer, BlockingFirmwareState, FirmwareUpdaterError, State};
 use embassy_embedded_hal::SetConfig;
 use embassy_embedded_hal::flash::partition::BlockingPartition;
-use embassy_stm32::adc::{Adc, AnyAdcChannel, SampleTime};
+#[cfg(feature = "motorless")]
+use embassy_stm32::adc::SampleTime;
+use embassy_stm32::adc::{Adc, AnyAdcChannel};
 use embassy_stm32::flash::{Blocking, Flash, WRITE_SIZE};
 use embassy_stm32::i2c::{self, I2c, SlaveCommandKind};
 use embassy_stm32::mode::Async;
@@ -221,6 +223,9 @@ impl Bridge for PowerStage {
         for channel in 0..3 {
             tim.ccr(channel).write(|w| w.set_ccr(compare));
         }
+        // The currents' trigger, in the middle of the longer half of the period at this duty.
+        tim.ccr(3)
+            .write(|w| w.set_ccr(BRIDGE.current_trigger(compare, self.arr)));
         tim.ccmr_output(0).write_value(CcmrOutputGp16(step.ccmr1));
         tim.ccmr_output(1).write_value(CcmrOutputGp16(step.ccmr2));
         tim.ccer().write_value(CcerAdv(step.ccer));
@@ -249,39 +254,90 @@ fn take_break() -> bool {
 
 /// embassy-stm32's sample time of ours: `g431_hw::adc`'s, from the sources' impedance and DS12589's R_AIN table
 /// (it checks that each input settles; the water sensor relies on its 100 nF).
+#[cfg(feature = "motorless")]
 const fn sample_time(sample: adc::SampleTime) -> SampleTime {
     SampleTime::from_bits(sample.bits())
 }
 
-/// ADC1 and the fault / telemetry inputs.
+/// ADC1 and the fault / telemetry inputs: the three phase currents converted by TIM1's trigger once per PWM
+/// period (docs/hardware.md, "Current sensing"), the rest converted by software once per sample.
 #[cfg(not(feature = "motorless"))]
 pub struct AnalogInputs {
-    pub adc: Adc<'static, ADC1>,
-    pub water: AnyAdcChannel<'static, ADC1>,
-    /// The motor's NTC (brushless) or the power stage's (brushed): the temperature the status reports.
-    pub ntc: AnyAdcChannel<'static, ADC1>,
-    pub current: AnyAdcChannel<'static, ADC1>,
-    pub vbus: AnyAdcChannel<'static, ADC1>,
+    /// Holds ADC1 clocked, calibrated and enabled (embassy-stm32's `Adc::new`); the conversions go through its
+    /// registers, set up in [`AnalogInputs::new`].
+    _adc: Adc<'static, ADC1>,
+    water: AnyAdcChannel<'static, ADC1>,
+    ntc: AnyAdcChannel<'static, ADC1>,
+    vbus: AnyAdcChannel<'static, ADC1>,
+    _currents: [AnyAdcChannel<'static, ADC1>; 3],
+}
+
+#[cfg(not(feature = "motorless"))]
+impl AnalogInputs {
+    /// Every input's sample time, and the phase currents (A, B, C) as an injected sequence on TIM1_TRGO2 (OC4REF,
+    /// placed by `g431_hw::tim1::Bridge::current_trigger` in each period). The pins are in analog mode from reset
+    /// (RM0440 GPIOx_MODER), where the image's description wants them.
+    ///
+    /// The sample times are written once for all channels, before any conversion starts: SMPRx may be written only
+    /// while no conversion runs (RM0440 ADC_SMPR1), and the injected conversions never stop. embassy-stm32's
+    /// `blocking_read` rewrites SMPRx whole for each read, so it is not used.
+    pub fn new(
+        adc: Adc<'static, ADC1>,
+        water: AnyAdcChannel<'static, ADC1>,
+        ntc: AnyAdcChannel<'static, ADC1>,
+        vbus: AnyAdcChannel<'static, ADC1>,
+        currents: [AnyAdcChannel<'static, ADC1>; 3],
+    ) -> Self {
+        let [a, b, c] = currents.each_ref().map(AnyAdcChannel::get_hw_channel);
+        let [smpr1, smpr2] = adc::smpr(&[
+            (water.get_hw_channel(), adc::WATER_SAMPLE),
+            (ntc.get_hw_channel(), adc::NTC_SAMPLE),
+            (vbus.get_hw_channel(), adc::VBUS_SAMPLE),
+            (a, adc::CURRENT_SAMPLE),
+            (b, adc::CURRENT_SAMPLE),
+            (c, adc::CURRENT_SAMPLE),
+        ]);
+        let regs = pac::ADC1;
+        regs.smpr().write_value(pac::adc::regs::Smpr(smpr1));
+        regs.smpr2().write_value(pac::adc::regs::Smpr2(smpr2));
+        regs.jsqr().write_value(pac::adc::regs::Jsqr(adc::jsqr([a, b, c])));
+        regs.cr().modify(|w| w.set_jadstart(true));
+        AnalogInputs {
+            _adc: adc,
+            water,
+            ntc,
+            vbus,
+            _currents: currents,
+        }
+    }
+
+    /// One regular conversion of `channel`, started by software and waited for (RM0440, ADC "Single conversion mode
+    /// (CONT = 0)", as embassy's `Adc::new` leaves CFGR): SQR1 may be written while ADSTART = 0, which it is between
+    /// these. An injected sequence that falls inside pre-empts it and it starts again after; reading DR clears EOC.
+    fn convert(channel: &AnyAdcChannel<'static, ADC1>) -> u16 {
+        let regs = pac::ADC1;
+        regs.sqr1().write(|w| {
+            w.set_l(0);
+            w.set_sq(0, channel.get_hw_channel());
+        });
+        regs.cr().modify(|w| w.set_adstart(true));
+        while !regs.isr().read().eoc() {}
+        regs.dr().read().rdata()
+    }
 }
 
 #[cfg(not(feature = "motorless"))]
 impl Sensors for AnalogInputs {
     async fn sample(&mut self) -> RawSample {
-        // Five blocking conversions (`adc::THRUSTER_SEQUENCE`, in this order) take about 40 us in all, 4 % of
-        // the 1 ms tick (held to 5 % by the core's tests): not worth a DMA round trip at 1 kHz.
-        // STM32G4 errata ES0431: the first conversion after the ADC idled for about
-        // 1 ms or more may be wrong, and these come 1 ms apart. One conversion of the low-impedance current input
-        // is thrown away first; the faults' consecutive samples (`Thresholds::latch_samples`) cover it anyway.
-        let _ = self
-            .adc
-            .blocking_read(&mut self.current, sample_time(adc::CURRENT_SAMPLE));
+        // Three blocking conversions (`adc::THRUSTER_SEQUENCE`, in this order) take under 32 us, about 3 % of the
+        // 1 ms tick (held to 5 % by the core's tests): not worth a DMA round trip at 1 kHz.
+        let regs = pac::ADC1;
         RawSample {
-            water: self.adc.blocking_read(&mut self.water, sample_time(adc::WATER_SAMPLE)),
-            temperature: self.adc.blocking_read(&mut self.ntc, sample_time(adc::NTC_SAMPLE)),
-            current: self
-                .adc
-                .blocking_read(&mut self.current, sample_time(adc::CURRENT_SAMPLE)),
-            vbus: self.adc.blocking_read(&mut self.vbus, sample_time(adc::VBUS_SAMPLE)),
+            water: Self::convert(&self.water),
+            temperature: Self::convert(&self.ntc),
+            vbus: Self::convert(&self.vbus),
+            // The last injected sequence's results, at most one PWM period old.
+            currents: [0, 1, 2].map(|rank| regs.jdr(rank).read().jdata()),
             // TIM1's status register, not the ADC: the fault task's 1 kHz sample is the trip rule's tick
             // (`thruster_fw::overcurrent`). SR's flags are rc_w0, so this never disturbs the commutation's writes.
             break_tripped: take_break(),

@@ -115,9 +115,10 @@ impl Config {
                 MotorKind::Brushless => Ntc::MOTOR,
                 MotorKind::Brushed => Ntc::IHM08M1,
             },
-            // IHM08M1: 10 mohm shunt, gain 5.18, 1.65 V offset: 3.3 V / 4096 / (0.01 ohm * 5.18) = 15.6 mA per count.
+            // IHM08M1, three shunts (docs/hardware.md, "Current sensing"): 10 mohm, gain 5.18, offset 1.71 V:
+            // 3.3 V / 4096 / (0.01 ohm * 5.18) = 15.6 mA per count, 1.71 V / 3.3 V * 4096 = 2122.
             current: CurrentSense {
-                offset_raw: 2048,
+                offset_raw: 2122,
                 milliamps_per_count: 16,
             },
             vbus: VbusSense::IHM08M1,

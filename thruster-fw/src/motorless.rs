@@ -307,7 +307,11 @@ impl<W: WaterInput, H: HoldInput> Sensors for ModelSensors<'_, W, H> {
         RawSample {
             water: self.water.water().await,
             temperature: self.temperature_raw,
-            current: self.current.offset_raw.saturating_add(counts),
+            currents: [
+                self.current.offset_raw.saturating_add(counts),
+                self.current.offset_raw,
+                self.current.offset_raw,
+            ],
             vbus: self.vbus_raw,
             break_tripped: false,
         }

@@ -179,6 +179,17 @@ impl CurrentSense {
             deciamps as u16
         }
     }
+
+    /// The motor current in 0.1 A from the three low-side shunts read at one instant. All of it returns to ground
+    /// through the low switch of the phase held low, whose shunt reads it above the offset through the whole PWM
+    /// period; the switching phase's shunt reads nothing while its high switch conducts and the recirculating
+    /// current, below the offset, while its low switch does; the floating phase's reads nothing. So the largest
+    /// reading is the motor's, whichever step the bridge is in and wherever in the period the sample fell.
+    pub const fn motor_deciamps(&self, shunts: [u16; 3]) -> u16 {
+        let [a, b, c] = shunts;
+        let largest = if a > b { a } else { b };
+        self.deciamps(if largest > c { largest } else { c })
+    }
 }
 
 /// The supply (VBUS) through a resistor divider: V = raw / 4095 x VDDA x (upper + lower) / lower.
@@ -480,6 +491,26 @@ mod tests {
             milliamps_per_count: 0,
         };
         assert_eq!(none.deciamps(u16::MAX), 0);
+    }
+
+    #[test]
+    fn the_motor_current_is_the_shunt_of_the_phase_held_low() {
+        let sense = CurrentSense {
+            offset_raw: 2048,
+            milliamps_per_count: 40,
+        };
+        // 2 A out of the motor through phase B's low switch; phase A's low switch recirculating it (below the
+        // offset) or its high switch conducting (nothing on its shunt); phase C floating.
+        let low = 2048 + 50;
+        for a in [2048 - 50, 2048] {
+            for order in [[a, low, 2048], [low, a, 2048], [2048, a, low]] {
+                assert_eq!(sense.motor_deciamps(order), 20, "{order:?}");
+            }
+        }
+        // Coasting: every shunt at the offset, or a little noise below it.
+        assert_eq!(sense.motor_deciamps([2048, 2047, 2040]), 0);
+        assert_eq!(sense.motor_deciamps([0, 0, 0]), 0);
+        assert_eq!(sense.motor_deciamps([u16::MAX, 0, 0]), sense.deciamps(u16::MAX));
     }
 
     #[test]

@@ -224,14 +224,18 @@ async fn main(spawner: Spawner) {
 
         let adc = Adc::new(chip.adc, AdcConfig::default());
         check_adc_clock();
-        let analog = AnalogInputs {
+        let analog = AnalogInputs::new(
             adc,
-            water: chip.water.degrade_adc(),
+            chip.water.degrade_adc(),
             // The motor's NTC (PB11) or, brushed, the power stage's (PC2): the image's description picks the pin.
-            ntc: chip.ntc.degrade_adc(),
-            current: chip.current.degrade_adc(),
-            vbus: chip.vbus.degrade_adc(),
-        };
+            chip.ntc.degrade_adc(),
+            chip.vbus.degrade_adc(),
+            [
+                chip.current_a.degrade_adc(),
+                chip.current_b.degrade_adc(),
+                chip.current_c.degrade_adc(),
+            ],
+        );
         (halls, bridge, analog)
     };
     // No power stage fitted: TIM1 and its pins are never touched, the halls and the current come from the model,

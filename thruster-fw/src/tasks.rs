@@ -48,8 +48,9 @@ pub struct RawSample {
     pub water: u16,
     /// The NTC node of the temperature the status reports: the motor's (brushless), the controller's (brushed).
     pub temperature: u16,
-    /// Motor current amplifier.
-    pub current: u16,
+    /// The three phase shunts' amplifiers (phases A, B, C), converted together at the last trigger of the power
+    /// stage's PWM: the motor current is the largest ([`crate::sensors::CurrentSense::motor_deciamps`]).
+    pub currents: [u16; 3],
     /// The supply's divider (VBUS).
     pub vbus: u16,
     /// The power stage's hardware break tripped (its overcurrent comparator) since the last sample; taking the
@@ -242,8 +243,11 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
         let raw = sensors.sample().await;
         let now = Instant::now();
         if core::mem::take(&mut first) {
-            // The first power-up checks the divider against the bench supply (docs/hardware.md).
+            // The first power-up checks the divider against the bench supply, and the current stages' offsets with
+            // the outputs off (docs/hardware.md, steps 3 and 6).
             info!("VBUS {} mV ({} counts)", config.vbus.millivolts(raw.vbus), raw.vbus);
+            let [a, b, c] = raw.currents;
+            info!("current stages at rest: {} {} {} counts", a, b, c);
         }
         let was_overcurrent = breaks.latched();
 
@@ -266,7 +270,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
         }
 
         let duty = shared.duty.try_get().unwrap_or(Duty::ZERO);
-        let current_deciamps = config.current.deciamps(raw.current);
+        let current_deciamps = config.current.motor_deciamps(raw.currents);
         let mut halls_normal = true;
         let mut stalled = false;
         match config.motor {

@@ -5,7 +5,7 @@ use super::*;
 use stm32_metapac::dbgmcu::regs::Apb2fzr;
 use stm32_metapac::syscfg::regs::Cfgr2;
 use stm32_metapac::timer::regs::{Af1Adv, BdtrAdv, CcerAdv, CcmrOutputGp16, Cr2Adv, EgrAdv, SrAdv};
-use stm32_metapac::timer::vals::{Bkp, FilterValue, Ocm, Ossi, Ossr};
+use stm32_metapac::timer::vals::{Bkp, FilterValue, Mms2, Ocm, Ossi, Ossr};
 
 const TIM_HZ: u32 = 170_000_000;
 
@@ -339,6 +339,9 @@ fn bit_positions_agree_with_the_pac() {
             ccer.set_ccne(index, mode != PhaseMode::Off);
             ccer.set_ccnp(index, true);
         }
+        // Channel 4, the ADC's trigger: PWM mode 1, preloaded, no output.
+        ccmr[1].set_ocpe(1, true);
+        ccmr[1].set_ocm(1, Ocm::PWM_MODE1);
         assert_eq!(
             (ours.ccmr1, ours.ccmr2, ours.ccer),
             (ccmr[0].0, ccmr[1].0, ccer.0),
@@ -352,6 +355,7 @@ fn bit_positions_agree_with_the_pac() {
         cr2.set_ois(n, false);
         cr2.set_oisn(n, true);
     }
+    cr2.set_mms2(Mms2::COMPARE_OC4);
     assert_eq!(bridge.cr2(), cr2.0);
 
     let mut bdtr = BdtrAdv(0);
@@ -416,4 +420,57 @@ fn clearing_the_break_flags_leaves_every_other_flag_of_sr() {
     assert!(break_tripped(SR_BIF | 1));
     assert!(!break_tripped(SR_SBIF), "a system break is not an overcurrent");
     assert!(!break_tripped(0x0000_0001 | 1 << 8), "nor the update flag or break 2");
+}
+
+/// One centre-aligned period of the counter from the top, with its direction: ARR (the first down-count value),
+/// down to 0 (the first up-count value), up to ARR - 1 (RM0440 28.3.3, "Center-aligned mode").
+fn period(arr: u16) -> Vec<(u16, bool)> {
+    let down = (1..=arr).rev().map(|count| (count, true));
+    let up = (0..arr).map(|count| (count, false));
+    down.chain(up).collect()
+}
+
+/// OCxREF in PWM mode 1: active while CNT < CCRx counting up, while CNT <= CCRx counting down (RM0440 28.3.12).
+fn pwm1(ccr: u16, (count, down): (u16, bool)) -> bool {
+    if down { count <= ccr } else { count < ccr }
+}
+
+#[test]
+fn the_current_trigger_sits_in_the_middle_of_the_longer_half_of_the_period() {
+    let bridge = IHM08M1;
+    let arr = bridge.arr(TIM_HZ) as u16;
+    let ticks = period(arr);
+    let n = ticks.len();
+    for duty in (0..=FULL_DUTY).step_by(50) {
+        let compare = bridge.compare(duty, arr);
+        let ccr4 = bridge.current_trigger(compare, arr);
+        // OC4REF's rising edges over the period (cyclically): exactly one, and it is the trigger.
+        let rises: Vec<usize> = (0..n)
+            .filter(|&i| pwm1(ccr4, ticks[i]) && !pwm1(ccr4, ticks[(i + n - 1) % n]))
+            .collect();
+        assert_eq!(rises.len(), 1, "duty {duty}: {rises:?}");
+        let at = rises[0];
+        // The high switch (OC1REF) is on at the trigger from 50 % duty up, off below; its nearest edge, before
+        // or after, is at least the window away.
+        let high = |i: usize| pwm1(compare, ticks[i % n]);
+        assert_eq!(high(at), 2 * u32::from(compare) >= u32::from(arr), "duty {duty}");
+        let edges: Vec<usize> = (0..n).filter(|&i| high(i) != high(i + n - 1)).collect();
+        let nearest = edges
+            .iter()
+            .map(|&edge| (edge + n - at) % n)
+            .map(|ahead| ahead.min(n - ahead))
+            .min()
+            .unwrap_or(n);
+        assert!(
+            nearest as u32 >= bridge.sample_window_ticks(TIM_HZ),
+            "duty {duty}: {nearest} ticks to an edge"
+        );
+    }
+}
+
+#[test]
+fn the_phase_currents_are_converted_well_inside_the_window() {
+    let window_ns = ticks_to_ns(IHM08M1.sample_window_ticks(TIM_HZ), TIM_HZ);
+    assert_eq!(window_ns, 12_494);
+    assert!(crate::adc::CURRENT_SEQUENCE_NS < f64::from(window_ns) / 2.0);
 }

@@ -15,6 +15,7 @@ pub mod battery;
 pub mod master;
 pub mod plant;
 pub mod plot;
+pub mod shunts;
 pub mod thruster;
 pub mod trace;
 pub mod udp;

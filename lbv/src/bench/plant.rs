@@ -385,11 +385,11 @@ impl Plant {
         self.halls_changed()
     }
 
-    /// The event engine's reading of the winding temperature and the phase current `h_s` seconds on, without moving
+    /// The event engine's reading of the winding temperature and the phase currents `h_s` seconds on, without moving
     /// the plant there: the temperature as [`Plant::advance`] would leave it (the copper loss of the present state
-    /// held, solved exactly: the same as advancing), the current as the present state draws it with `drive` at
+    /// held, solved exactly: the same as advancing), the currents as the present state draws them with `drive` at
     /// `duty` on `supply_v`.
-    pub fn reading_after(&mut self, h_s: f64, drive: BridgeDrive, duty: Duty, supply_v: f64) -> (f64, f64) {
+    pub fn reading_after(&mut self, h_s: f64, drive: BridgeDrive, duty: Duty, supply_v: f64) -> (f64, [f64; 3]) {
         let el = match self.evaluated.0 {
             Some((d, u, el)) if d == drive && u == duty => el,
             _ => {
@@ -398,7 +398,7 @@ impl Plant {
                 el
             }
         };
-        let current = el.currents.iter().fold(0.0, |max: f64, i| max.max(i.abs()));
+        let current = el.currents;
         let h = if h_s.is_finite() && h_s > 0.0 {
             h_s.min(MAX_STEP_S)
         } else {
@@ -494,6 +494,12 @@ impl Plant {
     /// current): what the current sense sees. 0 while coasting.
     pub fn phase_current_a(&self) -> f64 {
         self.currents.iter().fold(0.0, |max: f64, i| max.max(i.abs()))
+    }
+
+    /// The phase currents, A, positive into the motor, that `drive` at `duty` on `supply_v` draws at the present
+    /// state, without moving the plant: period averages (the model has no PWM ripple).
+    pub fn currents_with(&self, drive: BridgeDrive, duty: Duty, supply_v: f64) -> [f64; 3] {
+        self.solve(drive, duty, supply_v).currents
     }
 
     /// Current drawn from the supply, signed: |duty| x the current of the Pwm phase(s), negative while the motor

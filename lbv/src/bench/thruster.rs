@@ -37,6 +37,7 @@ use update_image::{DEV_PUBLIC_KEY, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Ver
 use super::STEP;
 use super::battery::Rail;
 use super::plant::{MotorParams, Plant};
+use super::shunts;
 use thruster_fw::sim::{BootRecord, BootUpdater, SlavePort};
 
 #[cfg(test)]
@@ -588,18 +589,23 @@ impl ThrusterIo {
         lazy.synced.set(now);
     }
 
-    /// The winding temperature and phase current the ADC sees at `now`. On the event engine the plant is not moved
+    /// The winding temperature and phase currents the ADC sees at `now`. On the event engine the plant is not moved
     /// for it (the ADC samples every millisecond; the plant needs advancing only at its edges and drive changes):
-    /// the temperature is the one advancing would give, the current the present state's.
-    fn sense(&self, now: Instant) -> (f64, f64) {
+    /// the temperature is the one advancing would give, the currents the present state's.
+    fn sense(&self, now: Instant) -> (f64, [f64; 3]) {
         let mut plant = self.plant.borrow_mut();
+        let (drive, passed) = self.applied();
         match &self.lazy {
             Some(lazy) => {
-                let (drive, passed) = self.applied();
                 let h = seconds(now - lazy.synced.get());
                 plant.reading_after(h, drive, passed, lazy.rail.voltage())
             }
-            None => (plant.winding_c(), plant.phase_current_a()),
+            // The currents of the drive applied now: the last step's may be of the step before a commutation, and
+            // the shunts read by phase.
+            None => (
+                plant.winding_c(),
+                plant.currents_with(drive, passed, self.supply_v.get()),
+            ),
         }
     }
 
@@ -665,7 +671,7 @@ impl ThrusterIo {
 
 /// `x` rounded half away from zero, as `f64::round`, without the library call (x86-64's baseline has no rounding
 /// instruction): the fraction `x - trunc(x)` is exact. Saturates like `as i32`.
-fn round(x: f64) -> i32 {
+pub(super) fn round(x: f64) -> i32 {
     let whole = x as i32;
     let fraction = x - f64::from(whole);
     if fraction >= 0.5 {
@@ -723,14 +729,14 @@ struct Adc {
 
 impl Sensors for Adc {
     async fn sample(&mut self) -> RawSample {
-        let (winding_c, current_a) = self.io.sense(Instant::now());
+        let (winding_c, currents_a) = self.io.sense(Instant::now());
+        let (drive, duty) = self.io.applied();
         let config = &self.config;
         let decicelsius = round(winding_c * 10.0).clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16;
-        let counts = current_a * 1000.0 / f64::from(config.current.milliamps_per_count);
         RawSample {
             water: config.water.raw_at(self.io.plant.borrow().water_ohms),
             temperature: config.ntc.raw_at(decicelsius),
-            current: round(f64::from(config.current.offset_raw) + counts).clamp(0, 4095) as u16,
+            currents: shunts::at_trigger(&config.current, drive, duty, currents_a),
             vbus: config.vbus.raw_at(round(self.io.supply() * 1000.0).max(0) as u32),
             break_tripped: self.io.take_break(),
         }

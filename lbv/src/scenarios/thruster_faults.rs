@@ -367,6 +367,23 @@ fn mean_power_and_rpm(run: &mut Run, seconds: f64) -> (f64, f64) {
     (power / f64::from(steps), rpm / f64::from(steps))
 }
 
+/// The largest difference, A, between T1's current as its fault task last sensed it and its plant's phase current,
+/// looked at every 10 ms for `seconds`.
+fn worst_current_error(run: &mut Run, seconds: f64) -> f64 {
+    let mut worst = 0.0f64;
+    for _ in 0..(seconds / 0.01) as u32 {
+        run.run_for(0.01);
+        let thruster = &run.bench.thrusters[0];
+        let sensed = thruster
+            .shared()
+            .sensed
+            .try_get()
+            .map_or(f64::NAN, |sensed| f64::from(sensed.current_deciamps) / 10.0);
+        worst = worst.max((sensed - thruster.plant.borrow().phase_current_a()).abs());
+    }
+    worst
+}
+
 /// T1's orders rewritten on the wire to full ahead with INFO 100, then with INFO 50: INFO limits the power drawn
 /// to 50 % of the 96 W rating (thruster-fw `speed::PowerLimit`), not the duty to 50 %, which would give a
 /// propeller about 15 % of its power.
@@ -392,6 +409,15 @@ pub fn info_power(run: &mut Run) {
         "INFO 50 turns faster than half the duty would",
         capped_rpm > 3000.0 && capped_rpm < full_rpm,
         format!("{capped_rpm:.0} rpm at INFO 50, {full_rpm:.0} rpm at INFO 100"),
+    );
+    // The status's current is the shunts' (lbv's `bench::shunts`, read at the binding's trigger): within the
+    // reading's rounding to 0.1 A and a count (16 mA) of the plant's phase current.
+    let error_a = worst_current_error(run, 0.5);
+    run.metric("current_error_a", json!(round(error_a, 3)));
+    run.check(
+        "the status's current follows the phase current",
+        error_a <= 0.07,
+        format!("at most {error_a:.3} A off over 0.5 s"),
     );
     others_keep_working(run);
     run.inject(full);
