@@ -3,7 +3,7 @@
 use core::num::{NonZeroU8, NonZeroU16};
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use defmt::{info, unwrap};
+use defmt::{info, unwrap, warn};
 use defmt_rtt as _;
 use embassy_embedded_hal::flash::partition::Partition;
 use embassy_executor::Spawner;
@@ -108,6 +108,10 @@ fn work_and_sink(_own: &'static OwnImage) -> (Work, Sink) {
 async fn main(spawner: Spawner) {
     // The chip as the image's description (`g431_hw::images`) gives it: nothing else of it is in reach.
     let chip = embassy_stm32::init(clocks());
+    // The switch to 170 MHz in RM0440's order, after `init`'s (docs/hardware.md "The switch to 170 MHz").
+    if !g431_hw::boost_to_170_mhz!() {
+        warn!("TIM15's prescaler was not embassy's for 85 MHz: the time driver's tick is off");
+    }
     let mut chip = g431_hw::chip!(master_image, chip);
     info!("lbv-master-fw: {} thrusters", CONFIG.thrusters.count());
 

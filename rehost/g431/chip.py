@@ -136,6 +136,10 @@ class Stm32g4:
         if bool(holders) != before:
             self.nvic.line(irq, bool(holders))
 
+    def clocked(self):
+        """The models that count a clock RCC_CFGR divides, told before and after each write to it."""
+        return [self.tim15]
+
     def peripheral_at(self, address):
         found = self.core._regions.get(address & ~(REGION - 1))
         if found is None:

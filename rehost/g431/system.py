@@ -12,6 +12,27 @@ CCIPR, BDCR, CSR, CRRCR, CCIPR2 = 0x88, 0x90, 0x94, 0x98, 0x9C
 HSE_HZ = 24_000_000  # the NUCLEO-G431RB's crystal (UM2505 6.7.1, X3)
 HSI_HZ = 16_000_000
 
+# RM0440 6.1.5 (range 1 boost mode) and 7.2.7 (the system clock switch): before SYSCLK switches to a clock above
+# 80 MHz the AHB prescaler divides by 2, and it goes back to /1 no sooner than 1 us after the switch.
+FAST_SYSCLK_HZ = 80_000_000
+SETTLE_S = 1e-6
+# Range 1 normal mode (R1MODE = 1) takes HCLK up to 150 MHz, boost mode up to 170 MHz (6.1.5; DS12589 general
+# operating conditions, f_HCLK).
+NORMAL_MODE_MAX_HZ = 150_000_000
+PWR_CR5, R1MODE = 0x80, 1 << 8  # PWR_CR5.R1MODE = 0: range 1 boost mode (6.4.19)
+
+
+def hpre_divisor(cfgr):
+    """RCC_CFGR.HPRE (bits 7:4, 7.4.3): 0xxx is /1, then 1000-1111 are /2, /4, /8, /16, /64, /128, /256, /512."""
+    hpre = field(cfgr, 4, 4)
+    return 1 if hpre < 8 else (2, 4, 8, 16, 64, 128, 256, 512)[hpre - 8]
+
+
+def ppre_divisor(cfgr, bus):
+    """RCC_CFGR.PPRE1 (bits 10:8) or PPRE2 (13:11), 7.4.3: 0xx is /1, then 100-111 are /2, /4, /8, /16."""
+    ppre = field(cfgr, 8 if bus == 1 else 11, 3)
+    return 1 if ppre < 4 else 2 << (ppre - 4)
+
 # RCC_CSR reset flags (7.4.28).
 CSR_LSION, CSR_LSIRDY, CSR_RMVF = 1 << 0, 1 << 1, 1 << 23
 BDCR_LSERDY, BDCR_LSECSSD = 1 << 1, 1 << 6
@@ -30,6 +51,9 @@ class Rcc(Peripheral):
     def __init__(self, chip, name, base):
         super().__init__(chip, name, base)
         self.hse_starts = True  # a test sets False: the crystal never oscillates
+        # Every CFGR write, in order: (cycle, SWS, SYSCLK in Hz, HPRE, PPRE1, PPRE2 as divisors, R1MODE).
+        self.cfgr_log = []
+        self._fast_switch = None  # the cycle SYSCLK last switched above 80 MHz at AHB /2
 
     def reset(self, flags=PINRSTF, power_on=False):
         # The reset flags accumulate until RMVF clears them; the backup domain control (BDCR) survives all but a
@@ -39,6 +63,8 @@ class Rcc(Peripheral):
         super().reset()
         self.regs[CSR] = csr | flags
         self.regs[BDCR] = bdcr
+        self.cfgr_log = []
+        self._fast_switch = None
 
     def write(self, offset, value):
         self.writes.add(offset)
@@ -54,8 +80,15 @@ class Rcc(Peripheral):
             self.regs[CR] = (value & ~((1 << 10) | (1 << 17) | (1 << 25))) | ready
         elif offset == CFGR:
             sw = value & 3
-            sws = sw if self._source_ready(sw) else field(self.regs.get(CFGR, 5), 2, 2)
+            old = self.regs.get(CFGR, 5)
+            sws = sw if self._source_ready(sw) else field(old, 2, 2)
+            clocked = self.chip.clocked()
+            for peripheral in clocked:
+                peripheral.clock_changing()
             self.regs[CFGR] = (value & ~0xC) | (sws << 2)
+            self._check_switch(old, self.regs[CFGR])
+            for peripheral in clocked:
+                peripheral.clock_changed()
         elif offset == CSR:
             old = self.regs.get(CSR, 0)
             new = (old & RESET_FLAGS) | (value & ~RESET_FLAGS & ~CSR_LSIRDY)
@@ -95,18 +128,54 @@ class Rcc(Peripheral):
         vin = self.pll_input_hz() / m
         return 2_660_000 <= vin <= 16_000_000 and 96e6 <= vin * n <= 344e6
 
-    def sysclk_hz(self):
-        sws = field(self.regs.get(CFGR, 5), 2, 2)
+    def _source_hz(self, sws):
         if sws == 3:
             pllcfgr = self.regs[PLLCFGR]
             m, n, r = field(pllcfgr, 4, 4) + 1, field(pllcfgr, 8, 7), 2 * (field(pllcfgr, 25, 2) + 1)
             return self.pll_input_hz() * n // (m * r)
         return HSE_HZ if sws == 2 else HSI_HZ
 
+    def sysclk_hz(self):
+        return self._source_hz(field(self.regs.get(CFGR, 5), 2, 2))
+
+    # The clock tree below SYSCLK (7.2, "Clock tree"): HCLK = SYSCLK / HPRE, PCLKx = HCLK / PPREx, and each bus's
+    # timers at PCLKx when PPREx is /1, else at 2 x PCLKx (7.2, "Timer clock").
     def hclk_hz(self):
-        """SYSCLK through the AHB prescaler, CFGR.HPRE (7.4.3): 0xxx /1, then /2, 4, 8, 16, 64, 128, 256, 512."""
-        hpre = field(self.regs.get(CFGR, 5), 4, 4)
-        return self.sysclk_hz() // ((2, 4, 8, 16, 64, 128, 256, 512)[hpre - 8] if hpre & 8 else 1)
+        return self.sysclk_hz() // hpre_divisor(self.regs.get(CFGR, 5))
+
+    def pclk_hz(self, bus):
+        return self.hclk_hz() // ppre_divisor(self.regs.get(CFGR, 5), bus)
+
+    def timer_hz(self, bus):
+        divisor = ppre_divisor(self.regs.get(CFGR, 5), bus)
+        return self.hclk_hz() // divisor * (1 if divisor == 1 else 2)
+
+    def _check_switch(self, old, new):
+        """RM0440's order for a switch above 80 MHz: SYSCLK switched with HPRE at /2 (6.1.5 step 1, 7.2.7), and
+        HPRE back to /1 no sooner than 1 us later (6.1.5 step 5). Checked while range 1 boost mode is entered or
+        held (PWR_CR5.R1MODE = 0), the only mode the 170 MHz images run in; in normal mode, HCLK above 150 MHz
+        fails."""
+        core = self.chip.core
+        boost = not self.chip.pwr.regs.get(PWR_CR5, R1MODE) & R1MODE
+        sws, hz, hpre = field(new, 2, 2), self.sysclk_hz(), hpre_divisor(new)
+        self.cfgr_log.append((core.cycles, sws, hz, hpre, ppre_divisor(new, 1), ppre_divisor(new, 2), not boost))
+        if not boost and self.hclk_hz() > NORMAL_MODE_MAX_HZ:
+            core.fail(f"HCLK {self.hclk_hz() / 1e6:g} MHz in range 1 normal mode (PWR_CR5.R1MODE = 1): RM0440 6.1.5 "
+                      "takes it to 150 MHz; above that, boost mode")
+            return
+        if not boost or hz <= FAST_SYSCLK_HZ:
+            return
+        if sws != field(old, 2, 2):
+            if hpre == 1:
+                core.fail(f"SYSCLK switched to {hz / 1e6:g} MHz with the AHB prescaler at /1 in range 1 boost mode: "
+                          "RM0440 6.1.5 divides HCLK by 2 before the switch")
+                return
+            self._fast_switch = core.cycles
+        elif hpre_divisor(old) > 1 and hpre == 1 and self._fast_switch is not None:
+            waited = (core.cycles - self._fast_switch) / core.hz
+            if waited < SETTLE_S:
+                core.fail(f"AHB prescaler /2 -> /1 {waited * 1e9:.0f} ns after SYSCLK switched to {hz / 1e6:g} MHz: "
+                          "RM0440 6.1.5 waits at least 1 us first")
 
     def pll_p_hz(self):
         """The PLL's P output (7.4.4): the VCO over PLLPDIV, or over 7 or 17 (PLLP) when PLLPDIV is 0; 0 unless

@@ -20,8 +20,10 @@ TIM1_BRK_TIM15_IRQ = 24
 
 
 class Tim15(Peripheral):
-    """An up-counting timer whose counter follows the core clock: CNT = ticks since start mod (ARR + 1), with the
-    update event at each wrap and the compare flags CCxIF when CNT passes CCRx (RM0440 30.4.3, 30.4.9)."""
+    """An up-counting timer: CNT = ticks since start mod (ARR + 1), a tick every PSC + 1 clocks of APB2's timer
+    clock (`Rcc.timer_hz(2)`), with the update event at each wrap and the compare flags CCxIF when CNT passes CCRx
+    (RM0440 30.4.3, 30.4.9). When RCC_CFGR changes that clock the count is kept and counting goes on at the new
+    rate; the part of a tick the prescaler held then is dropped."""
 
     resets = {ARR: 0xFFFF}
 
@@ -31,6 +33,7 @@ class Tim15(Peripheral):
         self._count0 = 0
         self._psc = 0  # the prescaler in effect (PSC is preloaded: it takes effect at the update event)
         self._generation = 0
+        self._held = 0  # the count when RCC_CFGR last changed the timer clock
 
     def reset(self):
         super().reset()
@@ -40,8 +43,19 @@ class Tim15(Peripheral):
     def _running(self):
         return bit(self.regs.get(CR1, 0), 0)
 
+    def _hz(self):
+        return self.chip.rcc.timer_hz(2)  # TIM15 is on APB2 (RM0440 Table 4)
+
     def _ticks(self):
-        return (self.chip.core.cycles - self._origin) // (self._psc + 1)
+        clocks = (self.chip.core.cycles - self._origin) * self._hz() // self.chip.core.hz
+        return clocks // (self._psc + 1)
+
+    def clock_changing(self):
+        """RCC_CFGR is about to change the timer clock: the count so far, at the old rate."""
+        self._held = self.counter()
+
+    def clock_changed(self):
+        self._restart(self._held)
 
     def counter(self):
         if not self._running():
@@ -97,7 +111,7 @@ class Tim15(Peripheral):
         targets = [0, self.regs.get(CCR1, 0) % top, self.regs.get(CCR2, 0) % top]
         ahead = min((t - count - 1) % top + 1 for t in targets)
         due_tick = self._ticks() + ahead
-        due = self._origin + due_tick * (self._psc + 1)
+        due = self._origin - (-due_tick * (self._psc + 1) * self.chip.core.hz // self._hz())  # the first cycle there
         value = (self._count0 + due_tick) % top
         self.chip.core.at(due, lambda: self._event(generation, due, value))
 
@@ -262,7 +276,9 @@ class Tim1(Peripheral):
             self._await_update()
 
     def _half_period(self):
-        return (self.regs.get(ARR, 0) + 1) * (self.regs.get(PSC, 0) + 1)
+        # In core cycles, TIM1 counting at APB2's timer clock (RM0440 7.2, "Timer clock").
+        clocks = (self.regs.get(ARR, 0) + 1) * (self.regs.get(PSC, 0) + 1)
+        return clocks * self.chip.core.hz // self.chip.rcc.timer_hz(2)
 
     def _await_update(self):
         """With AOE set and MOE clear, the next update event sets MOE (RM0440 28.3.19); it comes within half a

@@ -9,7 +9,6 @@ ORE, IDLE, RXNE, TC, TXE, TEACK, REACK = 1 << 3, 1 << 4, 1 << 5, 1 << 6, 1 << 7,
 # ICR's clear bits, each clearing the ISR flag in its place: PE, FE, NE, ORE, IDLE, TC, CTSIF, CMF, WUF (38.7).
 ICR_FLAGS = 0x0012_025F
 IRQ = 91  # RM0440 Table 97
-KERNEL_HZ = 170_000_000  # PCLK1, LPUART1's kernel clock after reset (CCIPR.LPUART1SEL = 00)
 
 
 class Lpuart(Peripheral):
@@ -32,14 +31,17 @@ class Lpuart(Peripheral):
         self._sending = False
         self._receiving = False
 
+    def kernel_hz(self):
+        return self.chip.rcc.pclk_hz(1)  # PCLK1, LPUART1's kernel clock after reset (CCIPR.LPUART1SEL = 00)
+
     def frame_cycles(self):
         # LPUART: baud = 256 x f_ck / BRR (38.5.7); a frame is 10 bits (8N1).
         brr = self.regs.get(BRR, 0) or 1
-        return 10 * brr * self.chip.core.hz // (256 * KERNEL_HZ)
+        return 10 * brr * self.chip.core.hz // (256 * self.kernel_hz())
 
     def baud(self):
         brr = self.regs.get(BRR, 0) or 1
-        return 256 * KERNEL_HZ // brr
+        return 256 * self.kernel_hz() // brr
 
     def write(self, offset, value):
         self.writes.add(offset)

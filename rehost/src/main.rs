@@ -110,6 +110,13 @@ fn clock_registers(ccipr: &[(u32, u32)]) -> Vec<Value> {
             "g431_hw::clock::registers::SW_PLL",
         ),
         register(
+            "RCC_CFGR.HPRE/PPRE1/PPRE2",
+            RCC + 0x08,
+            rcc::CFGR_PRESCALERS,
+            rcc::CFGR_BOOSTED,
+            "g431_hw::clock::registers::CFGR_BOOSTED",
+        ),
+        register(
             "FLASH_ACR.LATENCY",
             0x4002_2000,
             0xF,
@@ -186,11 +193,8 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
     const IWDG: u32 = 0x4000_3000;
     const DBGMCU: u32 = 0xE004_2000;
     let config = &thruster_fw::CONFIG;
-    let watchdog = config
-        .watchdog
-        .schedule(&config.bus)
-        .check()
-        .unwrap_or(iwdg::Iwdg { pr: 0, rlr: 0 });
+    let schedule = config.watchdog.schedule(&config.bus);
+    let watchdog = schedule.check().unwrap_or(iwdg::Iwdg { pr: 0, rlr: 0 });
     let mut registers = clock_registers(&[(rcc::I2C3SEL, rcc::I2C_HSI16), (rcc::ADC12SEL, rcc::ADC_SYSCLK)]);
     registers.extend([
         register(
@@ -352,6 +356,7 @@ fn thruster(image: &g431_hw::pins::Image, family: Family, power_stage: bool) -> 
             "vbus": adc::VBUS_SAMPLE.bits(),
         },
         "watchdog_timeout_us": watchdog.timeout_us(clock::LSI_HZ),
+        "watchdog_feed_us": schedule.feed_period_us,
         "analog": analog,
         "pole_pairs": config.pole_pairs,
     })
@@ -396,6 +401,7 @@ fn master(image: &g431_hw::pins::Image) -> Value {
         "registers": registers,
         "console_baud": config.console_baud,
         "can_bitrate": config.can_bitrate,
+        "watchdog_feed_us": iwdg::MASTER_SCHEDULE.feed_period_us,
     })
 }
 

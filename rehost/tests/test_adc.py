@@ -22,7 +22,10 @@ def chip(request):
     # HSI16 / 4 * 85 / 2 = 170 MHz, PLLR enabled (bit 24); PLLP enabled too, unused here.
     rcc.write(system.PLLCFGR, 2 | 3 << 4 | 85 << 8 | 1 << 16 | 1 << 24)
     rcc.write(system.CR, rcc.reg(system.CR) | 1 << 24)
-    rcc.write(system.CFGR, 3)
+    # Range 1 boost mode, then SYSCLK to the PLL at AHB /2 (RM0440 6.1.5); HCLK stays at 85 MHz, which the ADC's
+    # kernel clock (SYSCLK) does not see.
+    chip.pwr.write(system.PWR_CR5, 0)
+    rcc.write(system.CFGR, 3 | 0b1000 << 4)
     rcc.write(system.CCIPR, 2 << 28)  # ADC12SEL = SYSCLK
     chip.adc_common.write(adc.CCR, 2 << 18)  # CKMODE 0, PRESC /4
     chip.adc1.write(adc.CR, adc.ADVREGEN)

@@ -147,6 +147,10 @@ static SHARED: Shared = Shared::new();
 async fn main(spawner: Spawner) {
     // The chip as the image's description (`g431_hw::images`) gives it: nothing else of it is in reach.
     let chip = embassy_stm32::init(clocks());
+    // The switch to 170 MHz in RM0440's order, after `init`'s (docs/hardware.md "The switch to 170 MHz").
+    if !g431_hw::boost_to_170_mhz!() {
+        warn!("TIM15's prescaler was not embassy's for 85 MHz: the time driver's tick is off");
+    }
     #[cfg(not(any(feature = "brushed", feature = "motorless")))]
     let chip = g431_hw::chip!(thruster_image, chip);
     #[cfg(all(feature = "brushed", not(feature = "motorless")))]
