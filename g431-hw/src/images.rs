@@ -77,8 +77,8 @@ macro_rules! power_stage_rows {
                 current_b: PC1 = of("phase B current", "CURR_FDBK_B", Analog { adc1_in: 7 }),
                 current_c: PC0 = of("phase C current", "CURR_FDBK_C", Analog { adc1_in: 6 }),
                 vbus: PA1 = of("supply voltage", "VBUS", Analog { adc1_in: 2 }),
-                // The overcurrent comparator's reference through R77 and the board's RC (PB4's reset state is JTAG's
-                // NJTRST with a pull-up): driven high, the trip level sits at its top (docs/hardware.md, "The break").
+                // A comparator's reference through R77 and the board's RC (PB4's reset state is JTAG's NJTRST with a
+                // pull-up): driven high, a known level (docs/hardware.md, "The break").
                 current_ref: PB4 = of("overcurrent threshold", "CURRENT_REF", Mode::Output { high: true }),
                 $($extra)*
             }

@@ -34,7 +34,8 @@ def stops_within(chip, seconds=0.001):
 
 def test_a_sustained_overcurrent_break_stops_the_bridge_until_a_zero_order(expected):
     chip, spec = driving(expected)
-    # Cycle-by-cycle limiting: short trips, the outputs come back at the next update event.
+    # Cycle-by-cycle limiting: 20 short trips 4 ms apart (fewer than the 40 of a window that make an overcurrent),
+    # the outputs back at the next update event each time.
     for _ in range(20):
         chip.tim1.set_break_input(True)
         chip.run_for(0.0001)
@@ -44,7 +45,7 @@ def test_a_sustained_overcurrent_break_stops_the_bridge_until_a_zero_order(expec
     assert not all_off(chip, spec), switches(chip, spec)
     status, _, _ = exchange(chip, spec, expected["orders"]["SeaBotix"]["25"])
     assert status[2] & 0x40 == 0
-    # A short that stays: MOE drops at once in hardware; after 0.5 s (`Thresholds::overcurrent_ticks`) the
+    # A short that stays: MOE drops at once in hardware; after 5 samples (`Thresholds::SPEC.overcurrent`) the
     # firmware clears AOE too, and FAULT bit 6 says why.
     chip.tim1.set_break_input(True)
     assert not chip.tim1.moe()

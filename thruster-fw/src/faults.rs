@@ -26,6 +26,7 @@ use embassy_time::{Duration, Instant};
 use tmc_proto::{Family, Faults, Speed};
 
 use crate::drive::{Direction, Duty};
+use crate::overcurrent::TripLimits;
 
 mod latch;
 
@@ -63,9 +64,9 @@ pub struct Thresholds {
     /// Brushed stall ([`CurrentStall`]): the motor's resistance between its terminals (armature and brushes), in
     /// mohm, for its back-EMF: the applied voltage less I x R.
     pub armature_milliohms: u16,
-    /// A sustained overcurrent: the leaky count of samples with a break trip at which the bridge stops
-    /// ([`crate::overcurrent::TripRule`]); 0 acts as 1.
-    pub overcurrent_ticks: u16,
+    /// A sustained overcurrent: the run of samples with a break trip, and the fraction of a window of them, at
+    /// which the bridge stops ([`crate::overcurrent::TripRule`]).
+    pub overcurrent: TripLimits,
 }
 
 impl Thresholds {
@@ -90,12 +91,11 @@ impl Thresholds {
     /// - `armature_milliohms` 1.2 ohm: the reference BTD150-class motor's winding (24 V across it is its 20 A
     ///   locked-rotor current; the motor the bench models in `lbv/src/bench/plant.rs`). Copper at 110 C has about
     ///   a third more; the rule's margin of half the applied voltage covers that both ways.
-    /// - `overcurrent_ticks` 500: a break trip on every 1 ms sample stops the bridge after 0.5 s (20 000 PWM
-    ///   periods, each cut by the hardware within a microsecond). Longer than the stall window, so a locked rotor
-    ///   held at the current limit is reported as the stall it is: on the bench (its 8 A limit) a blocked
-    ///   propeller brings the count to at most 375 before the stall stops it (the soak, 120 s), 275 in the stall
-    ///   scenarios; on the IHM08M1, whose comparator sits near twice its rated current, the reference motor's
-    ///   20 A locked-rotor current does not trip it at all. A short trips every period and gets there.
+    /// - `overcurrent`: a break trip on 5 consecutive 1 ms samples (200 PWM periods, each cut by the hardware
+    ///   within a microsecond), or on more than 40 of the last 200 (20 %): a shorted MOSFET trips on a third of
+    ///   them and stops within the window, a continuous short within 5 ms, isolated trips never (docs/decisions.md
+    ///   D30). The IHM08M1's comparator sits near twice its 15 A rating, above the reference motor's 20 A
+    ///   locked-rotor current: a blocked rotor does not trip it and is reported as the stall it is.
     pub const SPEC: Thresholds = Thresholds {
         water_ohms: 1_000_000,
         water_clear_ohms: 1_100_000,
@@ -108,7 +108,11 @@ impl Thresholds {
         stall_window: Duration::from_millis(400),
         stall_min_pulses: 3,
         armature_milliohms: 1_200,
-        overcurrent_ticks: 500,
+        overcurrent: TripLimits {
+            run_ticks: 5,
+            window_ticks: 200,
+            window_trips: 40,
+        },
     };
 }
 

@@ -193,7 +193,7 @@ async fn main(spawner: Spawner) {
         let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*chip.bkin);
         let mut break_input = Flex::new(chip.bkin);
         break_input.set_as_af_unchecked(break_af, AfType::input(Pull::Up));
-        // The comparator's reference, held high before the outputs are armed: the trip level at its top
+        // CURRENT_REF, held high before the outputs are armed: a known level, not the reset state's pull-up
         // (`g431_hw::images`, docs/hardware.md "The break").
         let current_ref = Output::new(chip.current_ref, Level::High, Speed::Low);
         // The period is written here, not taken from embassy: its centre-aligned set-up counts ARR = 4249 (an

@@ -233,7 +233,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
     let mut stall = StallDetector::new(&config.thresholds);
     let mut current_stall = CurrentStall::new(&config.thresholds);
     let mut progress = Progress::new();
-    let mut breaks = TripRule::new(config.thresholds.overcurrent_ticks);
+    let mut breaks = TripRule::new(config.thresholds.overcurrent);
     let mut seen_illegal = None;
     let mut seen_zero_orders = 0;
     let mut allowed = false;

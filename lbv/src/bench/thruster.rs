@@ -44,12 +44,15 @@ use thruster_fw::sim::{BootRecord, BootUpdater, SlavePort};
 mod tests;
 
 /// The power stage's overcurrent comparator trips TIM1's break input above this phase current, cutting the rest of
-/// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting).
-const CURRENT_LIMIT_A: f64 = 8.0;
-/// The event engine advances a plant on the fixed-step engine's grid while the current limiter acts, and from
-/// this phase current up: the limiter's discrete dynamics are those of the 50 us steps, and a current rising
-/// towards the limit between two looks (at most a millisecond apart) is caught before it passes it.
-const LIMITER_WATCH_A: f64 = 0.75 * CURRENT_LIMIT_A;
+/// the PWM period: on average the current is held at the limit (cycle-by-cycle current limiting). The IHM08M1's
+/// BKIN comparators trip at a fixed level, about twice the board's 15 A rating (docs/hardware.md, "The break"):
+/// above any motor's locked-rotor current here, so only a short reaches it.
+const CURRENT_LIMIT_A: f64 = 30.0;
+/// The event engine advances a plant on the fixed-step engine's grid while a current limiter acts, and from this
+/// phase current up: the comparator's discrete dynamics are those of the 50 us steps, a current rising towards it
+/// between two looks (at most a millisecond apart) is caught before it passes it, and the brushed thruster's own
+/// 7 A limit (`speed::CurrentLimit`, through the duty) holds its current just above this for long stretches.
+const LIMITER_WATCH_A: f64 = 6.0;
 /// How far ahead the event engine trusts a turning plant's predicted edge, as a fraction of the plant's mechanical
 /// time constant: the prediction takes the acceleration as constant, which is off by about a third of this
 /// fraction of the time to the edge (1 % of it); a look after this works it out again. A plant slowing to turn
@@ -84,6 +87,12 @@ pub struct ThrusterIo {
     /// A phase shorted (water in it, a failed MOSFET): the comparator trips as soon as the bridge switches, every
     /// period, so the motor gets no drive, and the break flag is set whenever the bridge drives.
     pub shorted: Cell<bool>,
+    /// A shorted MOSFET: it shoots through only in the two sectors of six where its partner switches, so the
+    /// comparator trips on one fault-task sample in three while the bridge drives (each cut pulse costs the motor
+    /// little of its drive, which is left as it is).
+    pub intermittent: Cell<bool>,
+    /// Fault-task samples taken, for the intermittent short's one in three.
+    samples: Cell<u32>,
     /// On the event engine: how the plant is advanced between events (None: the fixed-step engine steps it).
     lazy: Option<Lazy>,
 }
@@ -265,6 +274,8 @@ impl ThrusterBoard {
                 break_flag: Cell::new(false),
                 held_off: Cell::new(false),
                 shorted: Cell::new(false),
+                intermittent: Cell::new(false),
+                samples: Cell::new(0),
                 lazy: rail.map(|(rail, index)| Lazy {
                     rail,
                     index,
@@ -512,8 +523,16 @@ impl ThrusterIo {
 
     /// Whether the break tripped since the last look, clearing the flag (as the fault task's sample clears BIF).
     fn take_break(&self) -> bool {
-        let shorted = self.shorted.get() && !self.held_off.get() && self.drive.get().1 != Duty::ZERO;
-        self.break_flag.replace(false) || shorted
+        let driving = !self.held_off.get() && self.drive.get().1 != Duty::ZERO;
+        let samples = self.samples.get().wrapping_add(1);
+        self.samples.set(samples);
+        let intermittent = self.intermittent.get() && driving && samples.is_multiple_of(3);
+        self.break_flag.replace(false) || (self.shorted.get() && driving) || intermittent
+    }
+
+    /// One comparator trip, as a switching spike gives: the next fault-task sample sees it.
+    pub fn spike(&self) {
+        self.break_flag.set(true);
     }
 
     /// The duty the bridge passes: the commanded one, scaled by the break input while it limits the current.

@@ -30,6 +30,12 @@ pub enum Fault {
     /// in every PWM period the bridge switches, and the motor gets no drive. Not in the soak's deck: its reaction
     /// is the `overcurrent-*` scenarios'.
     PhaseShort { thruster: usize },
+    /// A shorted MOSFET: it shoots through in the two sectors of six where its partner switches, so the
+    /// comparator trips on one fault-task sample in three while the bridge drives. Not in the soak's deck: its
+    /// reaction is the `overcurrent-intermittent` scenario's.
+    IntermittentShort { thruster: usize },
+    /// One comparator trip (a switching spike), seen by the next fault-task sample. Clearing it does nothing.
+    BreakSpike { thruster: usize },
     /// A noisy line: `mask` flipped in every status byte the thruster sends.
     NoisyStatus { thruster: usize, mask: u8 },
     /// The thruster lays its status out in the implied-type form, as some SeaBotix controllers do: MT taken as the
@@ -136,6 +142,8 @@ impl Fault {
             Fault::BlockedPropeller { .. } => "blocked-propeller",
             Fault::HallsUnplugged { .. } => "halls-unplugged",
             Fault::PhaseShort { .. } => "phase-short",
+            Fault::IntermittentShort { .. } => "intermittent-short",
+            Fault::BreakSpike { .. } => "break-spike",
             Fault::NoisyStatus { .. } => "noisy-status",
             Fault::ImpliedTypeStatus { .. } => "implied-type-status",
             Fault::CorruptOrders { .. } => "corrupt-orders",
@@ -160,6 +168,8 @@ impl Fault {
             Fault::BlockedPropeller { thruster } => format!("T{}: propeller blocked", thruster + 1),
             Fault::HallsUnplugged { thruster } => format!("T{}: halls unplugged", thruster + 1),
             Fault::PhaseShort { thruster } => format!("T{}: a phase shorted", thruster + 1),
+            Fault::IntermittentShort { thruster } => format!("T{}: a MOSFET shorted", thruster + 1),
+            Fault::BreakSpike { thruster } => format!("T{}: one comparator trip", thruster + 1),
             Fault::NoisyStatus { thruster, mask } => format!("T{}: status bytes corrupted ({mask:#04x})", thruster + 1),
             Fault::ImpliedTypeStatus { thruster } => format!("T{}: status in the 6-byte form", thruster + 1),
             Fault::CorruptOrders { thruster, mask } => format!("T{}: orders corrupted ({mask:#04x})", thruster + 1),
@@ -213,6 +223,16 @@ impl Fault {
                 if let Some(board) = bench.thrusters.get(thruster) {
                     board.shorted.set(on);
                     board.disturbed();
+                }
+            }
+            Fault::IntermittentShort { thruster } => {
+                if let Some(board) = bench.thrusters.get(thruster) {
+                    board.intermittent.set(on);
+                }
+            }
+            Fault::BreakSpike { thruster } => {
+                if let Some(board) = bench.thrusters.get(thruster).filter(|_| on) {
+                    board.spike();
                 }
             }
             Fault::NoisyStatus { thruster, mask } => tamper(

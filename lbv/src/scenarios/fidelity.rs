@@ -72,7 +72,7 @@ fn tolerance(scenario: &str, metric: &str) -> Within {
         },
         // A timer fires at its time here, at the next 50 us step there, and `run_until` sees the reaction one
         // step late there.
-        "reaction_ms" => Within::Absolute(0.1),
+        "reaction_ms" | "overcurrent_stop_after_ms" => Within::Absolute(0.1),
         "stall_detected_after_ms" | "console_to_wire_latency_ms" => Within::Absolute(0.25),
         "battery_v_at_end" => Within::Absolute(0.02),
         // The bytes back include the telemetry the master sends while the file goes in: a put that ends a little

@@ -39,7 +39,7 @@ use harness::{brushed6, dev_kits, heavy_brushed6, lbv300, lbv300_uart, legacy6, 
 use soak::soak;
 use thruster_faults::{
     ground_fault, ground_glitch, hall, hall_glitches, heavy_start, info_power, info_power_response, overcurrent,
-    overtemp, rocking_rotor, stall, stall_brushed, water, water_threshold,
+    overcurrent_intermittent, overtemp, rocking_rotor, stall, stall_brushed, water, water_threshold,
 };
 use update::{field_update, master_update};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
@@ -186,7 +186,7 @@ pub const SCENARIOS: &[Scenario] = &[
     },
     Scenario {
         name: "overcurrent-seabotix",
-        about: "a phase shorted: the break trips every period, 0.5 s of it stops the bridge, FAULT bit 6 told, a zero \
+        about: "a phase shorted: the break trips every period, 5 ms of it stops the bridge, FAULT bit 6 told, a zero \
                 order clears it",
         seconds: 6.0,
         vehicle: lbv300,
@@ -198,6 +198,14 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 6.0,
         vehicle: legacy6,
         run: overcurrent,
+    },
+    Scenario {
+        name: "overcurrent-intermittent",
+        about: "one comparator trip stops nothing; a shorted MOSFET tripping on a third of the samples stops the bridge \
+                within the 200 ms window, FAULT bit 6 told",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: overcurrent_intermittent,
     },
     Scenario {
         name: "info-power",

@@ -513,7 +513,7 @@ pub fn info_power_response(run: &mut Run) {
 }
 
 /// A phase shorted while driving ahead: the break trips every PWM period, the thruster counts it and stops with its
-/// outputs off after [`Thresholds::overcurrent_ticks`] samples of it. A SeaBotix thruster says so in FAULT bit 6,
+/// outputs off after the rule's run of samples of it (`Thresholds::SPEC`). A SeaBotix thruster says so in FAULT bit 6,
 /// which the master tells once and counts; a Legacy one has no bit for it: the master sees a thruster that stopped
 /// with no fault and no current. Either stays stopped under the orders that keep coming once the short is gone,
 /// until a zero order.
@@ -523,7 +523,7 @@ pub fn overcurrent(run: &mut Run) {
     let took = inject_and_time(run, short);
     let ms = took.map(|s| round(s * 1e3, 1));
     run.metric("overcurrent_stop_after_ms", json!(ms));
-    let sustained = f64::from(Thresholds::SPEC.overcurrent_ticks) / 1e3;
+    let sustained = f64::from(Thresholds::SPEC.overcurrent.run_ticks) / 1e3;
     run.check(
         "a trip on every sample stops it after the rule's count of them",
         took.is_some_and(|s| (sustained - 0.002..=sustained + 0.002).contains(&s)),
@@ -533,7 +533,7 @@ pub fn overcurrent(run: &mut Run) {
     run.check(
         "its outputs are held off and the trips counted",
         sensed.is_some_and(|sensed| {
-            sensed.overcurrent && sensed.break_trips >= u32::from(Thresholds::SPEC.overcurrent_ticks)
+            sensed.overcurrent && sensed.break_trips >= u32::from(Thresholds::SPEC.overcurrent.run_ticks)
         }),
         format!("{sensed:?}"),
     );
@@ -567,6 +567,71 @@ pub fn overcurrent(run: &mut Run) {
         drove.is_none(),
         format!("drove again after {drove:?} s"),
     );
+    run.bench.ground.sticks = Some(NEUTRAL);
+    run.run_for(0.5);
+    run.bench.ground.sticks = Some(AHEAD);
+    run.run_for(1.5);
+    drives_again(run, "a zero order clears it and the next order drives");
+}
+
+/// A single comparator trip (a switching spike) while driving ahead: counted, nothing stops. Then a shorted MOSFET,
+/// which trips on a third of the samples: never the rule's run of trips, but more than its fraction of the window,
+/// so the outputs go off within the window, and FAULT bit 6 reaches the master.
+pub fn overcurrent_intermittent(run: &mut Run) {
+    let limits = Thresholds::SPEC.overcurrent;
+    let trips = |run: &Run| {
+        let sensed = run.bench.thrusters[0].shared().sensed.try_get();
+        sensed.map(|sensed| (sensed.break_trips, sensed.overcurrent))
+    };
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    let before = trips(run);
+    let spike = Fault::BreakSpike { thruster: 0 };
+    run.inject(spike);
+    let stopped = run.run_until(0.5, |bench| bench.thrusters[0].drive().1.value() == 0);
+    let after = trips(run);
+    run.check(
+        "a single trip is counted and stops nothing",
+        stopped.is_none()
+            && matches!((before, after), (Some((b, false)), Some((a, false))) if a > b)
+            && !run.said("T1 stopped: overcurrent"),
+        format!("trips and overcurrent {before:?} then {after:?}, stopped after {stopped:?} s"),
+    );
+    run.clear(spike);
+    drives_again(run, "and it keeps driving");
+
+    let short = Fault::IntermittentShort { thruster: 0 };
+    let before = trips(run).map_or(0, |(trips, _)| trips);
+    run.inject(short);
+    let took = run.run_until(1.0, |bench| bench.thrusters[0].drive().1.value() == 0);
+    let ms = took.map(|s| round(s * 1e3, 1));
+    run.metric("intermittent_stop_after_ms", json!(ms));
+    let window = f64::from(limits.window_ticks) / 1e3;
+    run.check(
+        "a trip on a third of the samples stops it within the window",
+        took.is_some_and(|s| s <= window + 0.002),
+        format!("{ms:?} ms"),
+    );
+    let after = trips(run);
+    run.check(
+        "its outputs are held off, past the window's count of trips",
+        after.is_some_and(|(trips, overcurrent)| {
+            overcurrent && trips.saturating_sub(before) > u32::from(limits.window_trips)
+        }),
+        format!("trips and overcurrent {after:?}, {before} trips before"),
+    );
+    run.run_for(0.3);
+    let (told, counted) = (
+        run.said("T1 stopped: overcurrent, off until a zero order"),
+        run.health(0).overcurrents,
+    );
+    run.check(
+        "FAULT bit 6 reaches the console once, counted",
+        told && counted == 1,
+        format!("told {told}, counted {counted}"),
+    );
+    others_keep_working(run);
+    run.clear(short);
     run.bench.ground.sticks = Some(NEUTRAL);
     run.run_for(0.5);
     run.bench.ground.sticks = Some(AHEAD);
