@@ -187,6 +187,7 @@ class Stm32g4:
     # Resets ----------------------------------------------------------------------------------------------------
     def power_on(self):
         """Power applied: every register at its reset value, the backup domain cleared, RAM holding noise."""
+        self.core.halt(False)  # no debugger's halt survives the power
         self._reset_peripherals(power_on=True, flags=BORRSTF | PINRSTF)
         noise = bytes(self.random.getrandbits(8) for _ in range(self.part.sram_size))
         self.core.uc.mem_write(SRAM_BASE, noise)
@@ -219,6 +220,7 @@ class Stm32g4:
             self._reset_peripherals(power_on=False, flags=flags)
             self._paint_stack()
             self._start()
+            self.debug_changed()
             return True
         return False
 
@@ -236,6 +238,27 @@ class Stm32g4:
         self._reset_request = None
 
     # Running ---------------------------------------------------------------------------------------------------
+    def halt(self):
+        """A debugger halts the core: no instruction runs and no exception is taken while time goes on; the blocks
+        whose DBGMCU freeze bit is set stop with it (RM0440 47.16; TIM1 28.3 and IWDG 42.3, "Debug mode")."""
+        self.core.halt(True)
+        self.debug_changed()
+
+    def resume(self):
+        self.core.halt(False)
+        self.debug_changed()
+
+    def debug_changed(self):
+        """The halt or DBGMCU's freeze bits changed: each modelled block stops or counts on. A freeze bit set for a
+        block with no freeze modelled stops the run at a halt."""
+        halted = self.core.halted
+        freezes, others = self.dbgmcu.freezes()
+        self.tim1.debug_freeze(halted and freezes["TIM1"])
+        self.iwdg.debug_freeze(halted and freezes["IWDG"])
+        if halted and any(others):
+            self.core.fail("DBGMCU freeze bits APB1FZR1 {:#x}, APB1FZR2 {:#x}, APB2FZR {:#x} set at a halt: no model "
+                           "stops those blocks".format(*others))
+
     def run_for(self, seconds, **kwargs):
         self.core.run(until_cycle=self.core.cycles + int(seconds * self.core.hz), **kwargs)
 

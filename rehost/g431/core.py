@@ -71,9 +71,10 @@ SPIN_REGISTERS = [getattr(arm, f"UC_ARM_REG_R{n}") for n in range(13)] + [arm.UC
 class Part:
     """What tells the two chips apart here: their memories, DBGMCU's device id (RM0440 47.16.1) and the user option
     bytes' production value (RM0440 3.4.1: 0xFFEF_F8AA, DBANK = 1), which on the G474 selects its dual-bank mode: two
-    banks of 2 KiB pages, bank 2 at 0x0804_0000 (RM0440 3.3.1, Table 7)."""
+    banks of 2 KiB pages, bank 2 at 0x0804_0000 (RM0440 3.3.1, Table 7); and the channels of each DMA (RM0440
+    12.3.2: six in category 2 devices, the G431, eight in categories 3 and 4, the G474)."""
 
-    def __init__(self, name, flash_kib, sram_kib, dev_id, dual_bank):
+    def __init__(self, name, flash_kib, sram_kib, dev_id, dual_bank, dma_channels):
         self.name = name
         self.flash_size = flash_kib * 1024
         self.sram_size = sram_kib * 1024
@@ -81,10 +82,11 @@ class Part:
         self.optr = 0xFFEF_F8AA
         # In dual-bank mode, where bank 2 starts; None with one bank.
         self.bank2 = FLASH_BASE + self.flash_size // 2 if dual_bank else None
+        self.dma_channels = dma_channels
 
 
-G431RB = Part("STM32G431RB", flash_kib=128, sram_kib=32, dev_id=0x468, dual_bank=False)
-G474RE = Part("STM32G474RE", flash_kib=512, sram_kib=128, dev_id=0x469, dual_bank=True)
+G431RB = Part("STM32G431RB", flash_kib=128, sram_kib=32, dev_id=0x468, dual_bank=False, dma_channels=6)
+G474RE = Part("STM32G474RE", flash_kib=512, sram_kib=128, dev_id=0x469, dual_bank=True, dma_channels=8)
 
 
 class Stop(Exception):
@@ -159,6 +161,9 @@ class Core:
         self.nvic = None  # set by the board: pending, enabled, priorities
         self.event = False  # the event register WFE waits on (B1.5.18)
         self.sleeping = False
+        self.halted = False  # stopped by a debugger (`halt`): no instruction runs, time passes
+        # Double-word addresses -> callback(), called once when code is fetched from there (a block covering it runs).
+        self.fetch_watch = {}
         self.active = []  # exception numbers being handled, innermost last
         self.fault = None  # why the core faulted, if it did
         self.flash_store = None  # (address, size, value): the flash interface takes CPU stores into flash
@@ -296,6 +301,16 @@ class Core:
             if self.fault is not None:
                 raise Stop(self.fault)
             self._fire_due()
+            if self.halted:
+                # Halted (ARMv7-M C1.4, halting debug): nothing runs and no exception is taken, but the clock goes on
+                # and the peripherals with it.
+                if self._events and (until_cycle is None or self._events[0][0] <= until_cycle):
+                    self.cycles = max(self.cycles, self._events[0][0])
+                elif until_cycle is not None:
+                    self.cycles = until_cycle
+                else:
+                    raise Stop(f"halted at {self.pc:#010x} with nothing scheduled")
+                continue
             if self._take_exception():
                 continue
             horizon = self._events[0][0] if self._events else self.cycles + self.hz
@@ -353,6 +368,9 @@ class Core:
             for page in range(address >> CODE_PAGE_BITS, ((address + max(size, 1) - 1) >> CODE_PAGE_BITS) + 1):
                 self._code_pages.setdefault(page, set()).add((address, size))
         count, pure = known
+        if self.fetch_watch:
+            for double in [d for d in self.fetch_watch if address <= d + 7 and d < address + max(size, 1)]:
+                self.fetch_watch.pop(double)()
         self.cycles += count
         self.instructions += count
         # A block that jumps to itself with the same registers, stores nothing and reads only registers that cannot
@@ -395,6 +413,12 @@ class Core:
         Never stop from inside a memory callback: Unicorn would resume at the instruction that made the access and
         run it a second time."""
         self._attention = True
+
+    def halt(self, halted=True):
+        """A debugger halts the core (DHCSR.C_HALT, ARMv7-M C1.6.2) or lets it run again."""
+        self.halted = halted
+        self._spin = 0
+        self._repeats = 0
 
     def stall(self, cycles):
         """The core waits (a flash erase from the bank it runs from): time passes, no instruction runs."""

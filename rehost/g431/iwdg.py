@@ -1,5 +1,6 @@
 """The independent watchdog (RM0440 42): counts down from RLR at LSI / (4 x 2^PR) once started, and resets the
-chip when it reaches zero; KR = 0xAAAA reloads it."""
+chip when it reaches zero; KR = 0xAAAA reloads it. While the core is halted with DBGMCU_APB1FZR1.DBG_IWDG_STOP set
+the counter stops (RM0440 42.3, "Debug mode"; 47.16), and goes on from there at the resume."""
 
 from .peripheral import Peripheral
 
@@ -22,6 +23,7 @@ class Iwdg(Peripheral):
         self._generation = 0
         self._deadline = None
         self._divider = 4
+        self._frozen_left = None  # cycles left to zero when DBG_IWDG_STOP stopped the counter (a debug halt)
         self.started_at = None  # the cycle of KR = 0xCCCC
         # Every reload (KR = 0xCCCC or 0xAAAA) while it runs: (cycle, the counter's value just before it), so a test
         # sees how close to zero it came.
@@ -34,6 +36,7 @@ class Iwdg(Peripheral):
         self.reloads = 0
         self._generation += 1
         self._deadline = None
+        self._frozen_left = None
         self.started_at = None
         self.refreshes = []
 
@@ -47,7 +50,7 @@ class Iwdg(Peripheral):
         chip; None while it is stopped."""
         if not self.running or self._deadline is None:
             return None
-        left = max(self._deadline - self.chip.core.cycles, 0)
+        left = self._left()
         return left * self.lsi_hz // (self._divider * self.chip.core.hz)
 
     def write(self, offset, value):
@@ -70,12 +73,34 @@ class Iwdg(Peripheral):
             return  # write-protected until KR = 0x5555
         self.store(offset, value)
 
-    def _arm(self):
+    def _left(self):
+        if self._frozen_left is not None:
+            return self._frozen_left
+        return max(self._deadline - self.chip.core.cycles, 0)
+
+    def _arm(self, cycles=None):
         self._generation += 1
         generation = self._generation
         self._divider = 4 << (self.regs.get(PR, 0) & 7)
-        self._deadline = self.chip.core.cycles + self.timeout_cycles()
+        cycles = self.timeout_cycles() if cycles is None else cycles
+        self._deadline = self.chip.core.cycles + cycles
+        if self._frozen_left is not None:
+            self._frozen_left = cycles  # reloaded while stopped: it counts from RLR at the resume
+            return
         self.chip.core.at(self._deadline, lambda: self._expire(generation))
+
+    def debug_freeze(self, frozen):
+        """The core halted with DBG_IWDG_STOP set (`frozen`), or not: the counter stops, and counts on from where
+        it stopped once the core runs again."""
+        if frozen == (self._frozen_left is not None):
+            return
+        if frozen:
+            self._frozen_left = self._left() if self._deadline is not None else 0
+            self._generation += 1  # the scheduled expiry is void
+            return
+        left, self._frozen_left = self._frozen_left, None
+        if self.running and self._deadline is not None:
+            self._arm(left)
 
     def _expire(self, generation):
         if generation == self._generation and self.running:

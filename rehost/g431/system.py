@@ -1,7 +1,9 @@
 """Clocks, power, flash, and the small system blocks: RCC (RM0440 7.4), PWR (6.4), FLASH (3.7), SYSCFG (9.1),
 DBGMCU (47.16) and TAMP's backup registers (38.6)."""
 
-from .core import FLASH_BASE
+from unicorn import UC_HOOK_MEM_READ
+
+from .core import FLASH_BASE, NMI
 from .peripheral import Peripheral, bit, field
 
 # RCC register offsets (RM0440 7.4.1-7.4.29).
@@ -204,6 +206,9 @@ KEY1, KEY2 = 0x4567_0123, 0xCDEF_89AB
 SR_EOP, SR_PROGERR, SR_PGSERR, SR_BSY = 1 << 0, 1 << 3, 1 << 7, 1 << 16
 CR_PG, CR_PER, CR_BKER, CR_STRT, CR_EOPIE = 1 << 0, 1 << 1, 1 << 11, 1 << 16, 1 << 24
 CR_OPTLOCK, CR_LOCK = 1 << 30, 1 << 31
+# FLASH_ECCR (3.7.7): ADDR_ECC (bits 18:0), BK_ECC (21), SYSF_ECC (22), ECCCIE (24), ECCC (30) and ECCD (31), the two
+# flags cleared by writing 1.
+ECC_ADDRESS, ECC_BANK2, ECCC, ECCD = 0x7_FFFF, 1 << 21, 1 << 30, 1 << 31
 FLASH_IRQ = 4  # RM0440 Table 97
 PAGE = 2048
 
@@ -225,6 +230,11 @@ class Flash(Peripheral):
     set is what every procedure of 3.3.7 forbids: the run stops there.
 
     `operations` lists every erase and program as (first cycle, last cycle, "erase" or "program", address).
+
+    ECC (3.3.4, "Error code correction"): a test makes a double word read back with two bit errors
+    (`inject_ecc_double`). Its next read, a fetch or a load, sets ECCR.ECCD with the address (ADDR_ECC, and BK_ECC in
+    bank 2 of a dual-bank part) unless ECCC or ECCD already holds one, and raises the NMI; with SYSCFG_CFGR2.ECCL set
+    it is also a system break source of TIM1 until ECCD is cleared. The read itself returns what the flash holds.
     """
 
     # ECCR: the failing address, its bank and whether it is system flash (3.7.7).
@@ -239,11 +249,14 @@ class Flash(Peripheral):
         self.erases = 0
         self.programs = 0
         self.operations = []
+        self.ecc_errors = []  # (cycle, address) of every ECC double error read
+        self._ecc_hooks = {}  # double word -> the Unicorn read hook watching it
 
     def reset(self, flags=None):
         super().reset()
         self.keys = []
         self.pending = {}
+        # An injected error stays in the cells over a reset: its watches are kept.
 
     def _busy(self, what):
         if self.regs.get(SR, 0) & SR_BSY:
@@ -279,8 +292,50 @@ class Flash(Peripheral):
                 self._done(address, ERASE_US, "erase")
         elif offset == ACR:
             self.regs[ACR] = value
+        elif offset == ECCR:
+            old = self.regs.get(ECCR, 0)
+            kept = self.read_only[ECCR] | ECCC | ECCD  # (Flash.store is the CPU's stores into flash)
+            self.regs[ECCR] = (old & kept & ~(value & (ECCC | ECCD))) | (value & ~kept)  # ECCC, ECCD: rc_w1
+            if old & ECCD and not self.regs[ECCR] & ECCD:
+                self.chip.tim1.release_system_break("ecc")
         else:
             self.store(offset, value)
+
+    def inject_ecc_double(self, address):
+        """The double word at `address` reads with two bit errors (a test's hook): its next read, as an instruction
+        fetch or a data load, is an ECC double error (3.3.4)."""
+        double = address & ~7
+        core = self.chip.core
+        core.fetch_watch[double] = lambda: self._ecc_double(double)
+
+        def load(uc, access, where, size, value, data):
+            self._ecc_double(double)
+
+        self._ecc_hooks[double] = core.uc.hook_add(UC_HOOK_MEM_READ, load, begin=double, end=double + 7)
+
+    def _ecc_double(self, double):
+        core = self.chip.core
+        core.fetch_watch.pop(double, None)
+        hook = self._ecc_hooks.pop(double, None)
+        if hook is None:
+            return
+        core.at(core.cycles, lambda: core.uc.hook_del(hook))  # not from inside the hook itself
+        self.ecc_errors.append((core.cycles, double))
+        eccr = self.regs.get(ECCR, 0)
+        if not eccr & (ECCC | ECCD):
+            # The failing address is kept until the flags are cleared (3.7.7): by bank in dual-bank mode.
+            bank2 = self.chip.part.bank2
+            if bank2 is not None and double >= bank2:
+                where = ECC_BANK2 | (double - bank2)
+            else:
+                where = double - FLASH_BASE
+            eccr = (eccr & ~(ECC_ADDRESS | ECC_BANK2)) | where
+        self.regs[ECCR] = eccr | ECCD
+        # "When ECCD is set, an NMI is generated" (3.7.7, ECCD); and ECCL makes it a system break (9.2.5).
+        self.chip.nvic.set_pending(NMI)
+        if self.chip.syscfg.ecc_breaks():
+            self.chip.tim1.system_break("ecc")
+        core.request_stop()
 
     def store(self, address, value):
         """A CPU store of a word into flash; returns the word the flash holds afterwards."""
@@ -329,23 +384,47 @@ class Flash(Peripheral):
         return self.regs.get(ACR, 0) & 0xF
 
 
-# SYSCFG_CFGR2 (RM0440 9.2.5): CLL connects the core's LOCKUP output to TIM1's system break; set-only until reset.
-CFGR2, CFGR2_CLL = 0x1C, 1 << 0
+# SYSCFG_CFGR2 (RM0440 9.2.5): CLL connects the core's LOCKUP output to TIM1's system break, ECCL a flash ECC double
+# error; with SPL and PVDL, each is set by software and cleared only by a system reset.
+CFGR2, CFGR2_CLL, CFGR2_ECCL, CFGR2_LOCKS = 0x1C, 1 << 0, 1 << 3, 0xF
 
 
 class Syscfg(Peripheral):
+    def write(self, offset, value):
+        if offset == CFGR2:
+            value |= self.regs.get(CFGR2, 0) & CFGR2_LOCKS  # the lock bits hold until a reset
+        super().write(offset, value)
+
     def lockup_breaks(self):
         return bool(self.regs.get(CFGR2, 0) & CFGR2_CLL)
 
+    def ecc_breaks(self):
+        return bool(self.regs.get(CFGR2, 0) & CFGR2_ECCL)
+
 
 # DBGMCU (47.16.4-47.16.7): IDCODE 0x00 (revision 0x2001 and the part's DEV_ID, RM0440 47.16.1), CR 0x04,
-# APB1FZR1 0x08, APB1FZR2 0x0C, APB2FZR 0x10.
+# APB1FZR1 0x08, APB1FZR2 0x0C, APB2FZR 0x10. While the core is halted, a block whose DBG_x_STOP bit is set stops.
+APB1FZR1, APB1FZR2, APB2FZR = 0x08, 0x0C, 0x10
+DBG_IWDG_STOP = 1 << 12  # DBGMCU_APB1FZR1
+DBG_TIM1_STOP = 1 << 11  # DBGMCU_APB2FZR
+
+
 class Dbgmcu(Peripheral):
     read_only = {0x00: 0xFFFF_FFFF}
 
     def __init__(self, chip, name, base):
         self.resets = {0x00: 0x2001_6000 | chip.part.dev_id}
         super().__init__(chip, name, base)
+
+    def write(self, offset, value):
+        super().write(offset, value)
+        self.chip.debug_changed()  # a debugger may write the freeze bits while the core is halted
+
+    def freezes(self):
+        """The blocks a halt stops now, {"TIM1": bool, "IWDG": bool}, and the other freeze bits that are set."""
+        apb1, apb2 = self.regs.get(APB1FZR1, 0), self.regs.get(APB2FZR, 0)
+        others = (apb1 & ~DBG_IWDG_STOP, self.regs.get(APB1FZR2, 0), apb2 & ~DBG_TIM1_STOP)
+        return {"TIM1": bool(apb2 & DBG_TIM1_STOP), "IWDG": bool(apb1 & DBG_IWDG_STOP)}, others
 
 
 # TAMP (38.6): the backup registers BKPxR from 0x100, kept over every reset but a power-on (backup domain).

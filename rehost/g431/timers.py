@@ -152,6 +152,11 @@ class Tim1(Peripheral):
     uses the shadow taken at the next update event (or at UG). What it drives, TRGO (CR2.MMS) and TRGO2 (CR2.MMS2,
     RM0440 28.6.2) and the compare events, reaches those that `watch` it (ADC1's triggers), and is computed only
     while one does: edges as core events at the instants the signal changes. Nothing is produced while CEN = 0.
+
+    Debug mode (RM0440 28.3, "Debug mode"; DBGMCU_APB2FZR.DBG_TIM1_STOP, 47.16): while the core is halted with
+    DBG_TIM1_STOP set (`debug_freeze`), the counter stops and the outputs are disabled as if MOE were reset (to the
+    idle levels with OSSI = 1, else not driven); MOE itself keeps its value, and at the resume the counter goes on
+    from where it stopped and the outputs drive again.
     """
 
     resets = {ARR: 0xFFFF}
@@ -161,7 +166,8 @@ class Tim1(Peripheral):
         self.active = {CCMR1: 0, CCMR2: 0, CCER: 0}
         self.break_input_low = False
         self.breaks = 0
-        self.system_breaks = 0
+        self.system_breaks = 0  # how many system break events there have been
+        self._system_sources = set()  # the system break sources active now ("lockup", "ecc")
         self.com_events = 0
         self.com_log = []  # (cycle, CCMR1, CCMR2, CCER) after each COM event
         self.off_writes = []  # the instruction count at each BDTR write that turned the outputs off for good
@@ -174,6 +180,7 @@ class Tim1(Peripheral):
         self.com_log = []
         self.off_writes = []
         self.system_breaks = 0
+        self._system_sources = set()
         self._counter_reset()
 
     def _counter_reset(self):
@@ -188,6 +195,8 @@ class Tim1(Peripheral):
         self._watchers = {}  # key -> (trigger, callback(rising))
         self._levels = {}  # key -> the level last given to that watcher
         self._plan_generation = 0
+        self._frozen = None  # the cycle DBG_TIM1_STOP stopped the counter at, while the core is halted
+        self._update_after_thaw = False
 
     def moe(self):
         return bool(self.regs.get(BDTR, 0) & MOE)
@@ -202,7 +211,7 @@ class Tim1(Peripheral):
             # A flag cannot be cleared while its break source is active (RM0440 28.6.5).
             if self._input_break_active():
                 self.regs[SR] |= BIF
-            if self.system_breaks:
+            if self._system_sources:
                 self.regs[SR] |= SBIF
             self._update_irq()
             return
@@ -221,7 +230,7 @@ class Tim1(Peripheral):
             self._plan()
             return
         if offset == BDTR:
-            if self.system_breaks or (self._input_break_active() and value & BKE):
+            if self._system_sources or (self._input_break_active() and value & BKE):
                 value &= ~MOE  # a break holds MOE clear while its source is active
             if not value & (MOE | AOE):
                 self.off_writes.append(self.chip.core.instructions)  # outputs off, and they stay off
@@ -253,15 +262,54 @@ class Tim1(Peripheral):
         return bool(bdtr & BKE) and (self.break_input_low != active_high)
 
     def _break_active(self):
-        return self.system_breaks > 0 or self._input_break_active()
+        return bool(self._system_sources) or self._input_break_active()
 
-    def system_break(self):
-        """A system break source (the core's LOCKUP through SYSCFG_CFGR2.CLL): MOE clears and SBIF sets at once, and
-        the source stays active, so AOE brings nothing back (RM0440 28.3.19)."""
+    def system_break(self, source="lockup"):
+        """A system break source goes active (RM0440 28.3.19, the system break sources: the core's LOCKUP through
+        SYSCFG_CFGR2.CLL, a flash ECC double error through ECCL, 9.2.5): MOE clears and SBIF sets at once. While any
+        source is active SBIF cannot be cleared and AOE brings nothing back; LOCKUP stays active until a reset."""
         self.system_breaks += 1
+        self._system_sources.add(source)
         self.regs[BDTR] = self.regs.get(BDTR, 0) & ~MOE
         self.regs[SR] = self.regs.get(SR, 0) | SBIF
         self._update_irq()
+
+    def release_system_break(self, source):
+        """A system break source goes inactive (an ECC double error's once FLASH_ECCR.ECCD is cleared)."""
+        if source in self._system_sources:
+            self._system_sources.discard(source)
+            self._await_update()
+
+    def debug_freeze(self, frozen):
+        """The core halted with DBGMCU_APB2FZR.DBG_TIM1_STOP set (`frozen`), or not: "the TIMx counter either
+        continues to work normally or stops ... when the counter is stopped (DBG_TIMx_STOP = 1), the outputs are
+        disabled (as if the MOE bit was reset)" (RM0440 28.3, "Debug mode"). The count, the repetition counter's
+        phase and any preload waiting for an update event are kept across the halt."""
+        if frozen == (self._frozen is not None):
+            return
+        now = self.chip.core.cycles
+        if frozen:
+            self._sync()
+            self._frozen = now
+            self._plan()  # cancels what was scheduled: nothing moves while frozen
+            return
+        delta, self._frozen = now - self._frozen, None
+        if self._run is not None:
+            origin, *rest = self._run
+            self._run = (origin + delta, *rest)
+        if self._pending:
+            self._pending_since += delta
+        self._plan()
+        if self._update_after_thaw:
+            self._update_after_thaw = False
+            self._await_update()
+
+    def frozen(self):
+        return self._frozen is not None
+
+    def _clock(self):
+        """The core cycle the counter is at: held while frozen."""
+        return self.chip.core.cycles if self._frozen is None else self._frozen
 
     def set_break_input(self, low):
         """The overcurrent comparator pulls BKIN low (or lets it go)."""
@@ -288,6 +336,9 @@ class Tim1(Peripheral):
             self.chip.core.at(self.chip.core.cycles + self._half_period(), self._update_event)
 
     def _update_event(self):
+        if self._frozen is not None:
+            self._update_after_thaw = True  # no update event while the counter is stopped
+            return
         bdtr = self.regs.get(BDTR, 0)
         if bdtr & AOE and not self._break_active():
             self.regs[BDTR] = bdtr | MOE
@@ -326,7 +377,8 @@ class Tim1(Peripheral):
         enabled = (bit(ccer, 4 * channel), bit(ccer, 4 * channel + 2))
         polarity = bit(ccer, 4 * channel + (3 if complementary else 1))
         mine = enabled[1] if complementary else enabled[0]
-        if not bdtr & MOE:
+        # A debug halt's freeze disables the outputs as if MOE were reset (28.3, "Debug mode").
+        if not bdtr & MOE or self._frozen is not None:
             if not bdtr & OSSI or not any(enabled):
                 return None
             return bit(cr2, 8 + 2 * channel + (1 if complementary else 0))
@@ -371,7 +423,7 @@ class Tim1(Peripheral):
         if self._run is None:
             return self._count
         self._sync()
-        return self._where(self.chip.core.cycles)[3]
+        return self._where(self._clock())[3]
 
     def _rebase(self, cycle, count, down, k0=0):
         """The counter at `count` (counting down or up) at `cycle`, with the shadows' PSC and ARR. A null ARR
@@ -403,7 +455,7 @@ class Tim1(Peripheral):
 
     def _sync(self):
         """Preloaded values reach the shadows at the first update event after they were written (28.3.2)."""
-        now = self.chip.core.cycles
+        now = self._clock()
         while self._pending and self._run is not None:
             k = self._next_update(self._pending_since)
             at = self._boundary(k)
@@ -422,7 +474,7 @@ class Tim1(Peripheral):
 
     def _time_base_write(self, offset, value):
         self._sync()
-        now = self.chip.core.cycles
+        now = self._clock()
         if offset == CR1:
             old = self.regs.get(CR1, 0)
             running = self._run is not None
@@ -466,7 +518,7 @@ class Tim1(Peripheral):
         self._pending = {}
         down = self._mode() == "down"
         if self._run is not None:
-            self._rebase(self.chip.core.cycles, self._shadow[ARR] if down else 0, down)
+            self._rebase(self._clock(), self._shadow[ARR] if down else 0, down)
         else:
             self._count = self._shadow[ARR] if down else 0
         for key, (trigger, _) in list(self._watchers.items()):
@@ -537,7 +589,7 @@ class Tim1(Peripheral):
         """Gives each watcher the edge its signal makes now, and schedules those to come within the counter's
         current segment and the segment's end. `inclusive`: at a segment's first cycle, its pulses are due."""
         self._plan_generation += 1
-        if not self._watchers:
+        if not self._watchers or self._frozen is not None:
             return
         self._sync()
         core = self.chip.core

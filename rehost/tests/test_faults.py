@@ -150,3 +150,93 @@ def test_a_hung_task_lets_the_watchdog_reset_and_the_latch_survives_it_but_not_a
     chip.run_for(0.01)
     status, _, _ = exchange(chip, spec, expected["orders"]["SeaBotix"]["0"])
     assert status[2] & 0x18 == 0, status.hex()
+
+
+# DBGMCU (RM0440 47.16): DBGMCU_APB2FZR's DBG_TIM1_STOP, DBGMCU_APB1FZR1's DBG_IWDG_STOP.
+APB1FZR1, APB2FZR = 0xE004_2008, 0xE004_2010
+DBG_TIM1_STOP, DBG_IWDG_STOP = 1 << 11, 1 << 12
+TIM1_SR, SBIF = 0x4001_2C10, 1 << 13
+FLASH_ECCR, ECCD, SYSCFG_CFGR2, ECCL = 0x4002_2018, 1 << 31, 0x4001_001C, 1 << 3
+
+
+def test_a_debug_halt_stops_tim1_and_turns_every_switch_off_until_the_core_runs_again(expected):
+    """RM0440 28.3 "Debug mode": with DBG_TIM1_STOP set, a halted core stops TIM1's counter and disables its
+    outputs as if MOE were reset: OSSI = 1 takes them to their idle levels, every switch off."""
+    chip, spec = driving(expected)
+    assert chip.peek(APB2FZR) & DBG_TIM1_STOP, "the image leaves TIM1 running under a debugger"
+    chip.halt()
+    assert all_off(chip, spec), f"halted: {switches(chip, spec)}"
+    count, instructions = chip.tim1.counter(), chip.core.instructions
+    chip.run_for(0.02)
+    assert chip.core.instructions == instructions, "the core ran while halted"
+    assert chip.tim1.counter() == count, "TIM1 counted while halted"
+    assert chip.tim1.moe(), "a halt disables the outputs as if MOE were reset: the bit itself stays"
+    assert all_off(chip, spec), f"halted: {switches(chip, spec)}"
+    chip.resume()
+    chip.run_for(0.005)
+    assert chip.core.instructions > instructions
+    assert chip.tim1.counter() != count or chip.tim1.counting_at(chip.core.cycles + 1000) != (count, False)
+    assert not all_off(chip, spec), f"resumed: {switches(chip, spec)}"
+    assert "pwm" in {state for pair in switches(chip, spec).values() for state in pair}, switches(chip, spec)
+
+
+def test_without_dbg_tim1_stop_a_halt_leaves_the_bridge_switching(expected):
+    """The image's choice matters: the freeze bit cleared (as a debugger might write it), a halted core leaves TIM1
+    counting and its outputs driving the last step (RM0440 28.3 "Debug mode": "continues to work normally")."""
+    chip, spec = driving(expected)
+    chip.core.bus_write(APB2FZR, 4, chip.peek(APB2FZR) & ~DBG_TIM1_STOP)
+    chip.halt()
+    before = switches(chip, spec)
+    assert not all_off(chip, spec), before
+    seen = set()
+    for _ in range(10):
+        chip.run_for(0.000_013)  # not a multiple of the PWM period
+        seen.add(chip.tim1.counter())
+        assert switches(chip, spec) == before
+    assert len(seen) > 1, f"TIM1's counter stood still while halted without DBG_TIM1_STOP: {seen}"
+    assert "pwm" in {state for pair in before.values() for state in pair}, before
+
+
+@pytest.mark.parametrize("freeze", [True, False], ids=["image's DBG_IWDG_STOP", "DBG_IWDG_STOP cleared"])
+def test_the_watchdog_stops_during_a_long_halt_with_the_images_setting(freeze, expected):
+    """RM0440 42.3 "Debug mode": with DBG_IWDG_STOP set the watchdog's counter stops while the core is halted, so a
+    halt far longer than its timeout resets nothing; cleared, the watchdog bites during the halt."""
+    chip, spec = driving(expected)
+    assert chip.peek(APB1FZR1) & DBG_IWDG_STOP, "the image lets the watchdog run under a debugger"
+    if not freeze:
+        chip.core.bus_write(APB1FZR1, 4, chip.peek(APB1FZR1) & ~DBG_IWDG_STOP)
+    timeout = spec["watchdog_timeout_us"] / 1e6
+    chip.halt()
+    left = chip.iwdg.counter()
+    chip.run_for(timeout * 3)
+    if not freeze:
+        assert chip.resets and chip.resets[-1][1] == "watchdog", chip.resets
+        return
+    assert not chip.resets, chip.resets
+    assert chip.iwdg.counter() == left
+    chip.resume()
+    resumed = chip.core.cycles
+    chip.run_for(timeout * 2)
+    assert not chip.resets, chip.resets
+    assert chip.iwdg.refreshes[-1][0] > resumed, "the image does not feed the watchdog after the halt"
+
+
+def test_a_flash_ecc_double_error_turns_the_outputs_off_through_the_system_break(expected):
+    """RM0440 3.3.4: a read with two bit errors sets FLASH_ECCR.ECCD and raises the NMI; with SYSCFG_CFGR2.ECCL set
+    (9.2.5) it is also a system break source of TIM1 (28.3.19): MOE clears and SBIF sets in hardware, before any
+    handler runs. An error in the image's code: the NMI handler stops the bridge and waits for the watchdog."""
+    chip, spec = driving(expected)
+    assert chip.peek(SYSCFG_CFGR2) & ECCL, "the image does not route ECC double errors to TIM1's break"
+    chip.run_until(lambda: not chip.core.active and not chip.core.sleeping, 0.01, "thread mode")
+    address = chip.core.pc & ~7
+    chip.flash_interface.inject_ecc_double(address)
+    chip.run_until(lambda: chip.flash_interface.ecc_errors, 0.001, "the double word fetched")
+    assert chip.peek(TIM1_SR) & SBIF, "SBIF"
+    assert not chip.tim1.moe()
+    assert all_off(chip, spec), f"an ECC double error left a switch on: {switches(chip, spec)}"
+    assert chip.peek(FLASH_ECCR) == ECCD | (address - 0x0800_0000), hex(chip.peek(FLASH_ECCR))
+    chip.run_for(0.01)
+    assert 2 in chip.core.active, "the NMI handler is not running"  # it stops the bridge and waits (NMI = 2)
+    assert chip.peek(TIM1_SR) & SBIF and not chip.tim1.moe()
+    assert all_off(chip, spec), switches(chip, spec)
+    assert not chip.resets

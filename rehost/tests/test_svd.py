@@ -15,12 +15,14 @@ from g431.core import G431RB, G474RE
 PARTS = {G431RB.name: G431RB, G474RE.name: G474RE}
 
 
-def _channels(*offsets):
-    return [base + offset for base in range(0, 0x14 * dma.CHANNELS, 0x14) for offset in offsets]
+def _channels(model, *offsets):
+    """The registers of each of the part's DMA channels (RM0440 12.3.2: six on the G431, eight on the G474)."""
+    return [dma.ccr(n) - dma.ccr(1) + offset for n in range(1, model.chip.part.dma_channels + 1) for offset in offsets]
 
 
-# The registers each model implements: its reset values and the registers its code names. A model's other registers
-# only hold what is written (RTC's, CRC's and the ADC12 common registers all do): they are counted, not checked.
+# The registers each model implements: its reset values and the registers its code names (a function of the model
+# where they depend on the part). A model's other registers only hold what is written (RTC's, CRC's and the ADC12
+# common registers all do): they are counted, not checked.
 IMPLEMENTED = {
     system.Rcc: [system.CR, system.ICSCR, system.CFGR, system.PLLCFGR, system.CIER, system.CIFR, system.CICR,
                  system.AHB1ENR, system.AHB2ENR, system.APB1ENR1, system.APB1ENR2, system.APB2ENR, system.CCIPR,
@@ -33,8 +35,8 @@ IMPLEMENTED = {
     gpio.Exti: [gpio.IMR1, gpio.EMR1, gpio.RTSR1, gpio.FTSR1, gpio.SWIER1, gpio.PR1, 0x20],  # and IMR2
     gpio.Gpio: [gpio.MODER, gpio.OTYPER, gpio.OSPEEDR, gpio.PUPDR, gpio.IDR, gpio.ODR, gpio.BSRR, gpio.LCKR, gpio.AFRL,
                 gpio.AFRH, gpio.BRR],
-    dma.Dmamux: [4 * n for n in range(dma.CHANNELS)],
-    dma.Dma: [dma.ISR, dma.IFCR] + _channels(0x08, 0x0C, 0x10, 0x14),  # CCRx, CNDTRx, CPARx, CMARx
+    dma.Dmamux: lambda model: [4 * n for n in range(model.chip.part.dma_channels)],
+    dma.Dma: lambda model: [dma.ISR, dma.IFCR] + _channels(model, 0x08, 0x0C, 0x10, 0x14),  # CCRx-CMARx
     timers.Tim1: [timers.CR1, timers.CR2, timers.SMCR, timers.DIER, timers.SR, timers.EGR, timers.CCMR1, timers.CCMR2,
                   timers.CCER, timers.CNT, timers.PSC, timers.ARR, timers.RCR, timers.CCR1, timers.CCR2, timers.CCR3,
                   timers.CCR4, timers.BDTR, timers.AF1, timers.AF2],
@@ -72,7 +74,13 @@ RESET_EXCEPTIONS = {
 # FDCAN_IR (44.4).
 RC_W1 = {
     ("FLASH", system.SR): 0xC3FB,
+    ("FLASH", system.ECCR): system.ECCC | system.ECCD,  # RM0440 3.7.7: ECCC and ECCD
     ("FDCAN1", fdcan.IR): 0x00FF_FFFF,
+}
+# Likewise the flags RM0440 clears on a 0 where the SVD gives them read-write: TIM1_SR's IDXF, DIRF, IERRF and TERRF
+# (bits 20-23, the encoder's index, direction, index error and transition error flags, 28.6.5).
+RC_W0 = {
+    ("TIM1", timers.SR): 0x00F0_0000,
 }
 # Registers that clear the flags of another, bit for bit: (clear register, flag register).
 CLEARS = {
@@ -105,7 +113,8 @@ def model_registers(chip, device):
     for model in chip.peripherals:
         if model.name not in NOT_IN_SVD:
             name, registers = device.peripheral(model.base)
-            found.append((model, name, registers, IMPLEMENTED.get(type(model), [])))
+            implemented = IMPLEMENTED.get(type(model), [])
+            found.append((model, name, registers, implemented(model) if callable(implemented) else implemented))
     return found
 
 
@@ -149,7 +158,7 @@ def _access(register, name, offset):
     """The register's bits by access: read-only, clear on 1, clear on 0, set on 1 (the SVD, then RM0440)."""
     ro = register.read_only
     w1c = register.one_to_clear | RC_W1.get((name, offset), 0)
-    return ro & ~w1c, w1c, register.zero_to_clear, register.one_to_set
+    return ro & ~w1c, w1c, register.zero_to_clear | RC_W0.get((name, offset), 0), register.one_to_set
 
 
 def _neutral(value, w1c, w0c, w1s):
@@ -169,7 +178,7 @@ def test_field_access_is_the_svds(part, devices, figures):
             register = registers[offset][0]
             label = f"{model.name}_{register.name.upper()} ({offset:#05x})"
             ro, w1c, w0c, w1s = _access(register, name, offset)
-            seen.update(key for key in (*RC_W1, *AT_ONCE) if key in ((name, offset), (family(name), offset)))
+            seen.update(key for key in (*RC_W1, *RC_W0, *AT_ONCE) if key in ((name, offset), (family(name), offset)))
             if ro:
                 # Every read-only bit written inverted, the rest as read: none moves.
                 peripheral = fresh(chip, model)
@@ -226,5 +235,5 @@ def test_field_access_is_the_svds(part, devices, figures):
                 wrong.append(f"{model.name} {clear:#04x}: writing {mask:#x} left {flags:#04x} at "
                              f"{peripheral.reg(flags):#x}, not {before & ~mask:#x}")
     figures[f"svd {part}: access checks"] = checks
-    assert seen == {*RC_W1, *AT_ONCE, *CLEARS}, "a table entry that matches no register"
+    assert seen == {*RC_W1, *RC_W0, *AT_ONCE, *CLEARS}, "a table entry that matches no register"
     assert not wrong, "\n".join(wrong)
