@@ -1,14 +1,18 @@
 //! What the operator sets and the master keeps across power cycles: the MAVLink parameters (names, ranges,
 //! defaults and values) and the signing key; together the [`Settings`].
 //!
-//! The failsafe parameters carry ArduSub's names, so a pilot finds them where ArduSub keeps them:
+//! The failsafe parameters carry ArduSub's names, so a pilot finds them where ArduSub keeps them, and each value
+//! means what it means in ArduSub: QGroundControl labels them from its ArduSub parameter descriptions (those of
+//! ArduSub 3.4 for this firmware's 0.x version), and a label must tell the truth. Where ours could not do what
+//! ArduSub's number says, the number is refused and the behaviour has an `LBV_` name:
 //!
 //! | name | meaning | values | default |
 //! |---|---|---|---|
-//! | `FS_GCS_ENABLE` | the operator's HEARTBEATs stop while armed | 1 warn, 2 disarm, 3 neutral | 2 |
+//! | `FS_GCS_ENABLE` | the operator's HEARTBEATs stop while armed | 1 warn, 2 disarm | 2 |
 //! | `FS_GCS_TIMEOUT` | how long without one, s | 2.0-120.0 | 5.0 |
-//! | `FS_PILOT_INPUT` | the operator's MANUAL_CONTROL stops while armed | 0 off, 1 neutral, 2 disarm | 1 |
-//! | `FS_PILOT_TIMEOUT` | how long without one, s | 0.5-10.0 | 3.0 |
+//! | `LBV_GCS_NEUTRAL` | with `FS_GCS_ENABLE` 1: also hold the sticks neutral until the heartbeats return | 0, 1 | 0 |
+//! | `FS_PILOT_INPUT` | the operator's MANUAL_CONTROL stops while armed | 0 off, 1 neutral and warn, 2 disarm | 1 |
+//! | `FS_PILOT_TIMEOUT` | how long without one, s | 0.1-3.0 | 3.0 |
 //! | `SYSID_MYGCS` | the one ground station obeyed (only while disarmed) | 1-255 | 255 |
 //! | `LBV_GAIN` | pilot gain, % of full speed | 1-100 | 50 |
 //! | `LBV_POWER_CAP` | power cap sent in each order's INFO byte, % | 1-100 | 100 |
@@ -22,6 +26,16 @@
 //! gain up, 43 gain down. Any other number is refused as out of range. The defaults are ArduSub's for those four on
 //! a standard gamepad (button 4 disarm, 6 arm, 11 gain up, 12 gain down); ArduSub's others (modes, camera, lights,
 //! shift) have nothing to act on here, and their buttons are 0.
+//!
+//! - `FS_PILOT_INPUT`: ArduSub's 1, labelled "Warn Only", sends its text *and* centres the sticks (ArduSub's
+//!   `failsafe_pilot_input_check` calls `set_neutral_controls` for 1 and 2 alike, then disarms for 2): ours does
+//!   the same, under the same numbers.
+//! - `FS_PILOT_TIMEOUT`: ArduSub's range, 0.1-3.0 s. Earlier images took up to 10 s; a longer stored timeout reads
+//!   as 3 s (the failsafe acts sooner, never later).
+//! - `FS_GCS_ENABLE`: ArduSub's 1 (warn only) and 2 (disarm) are ours; its 0 (off), 3 (depth hold) and 4 (surface)
+//!   are refused: the vehicle has no depth sensor, and the failsafe stays on. What earlier images called 3 (hold
+//!   the sticks neutral, stay armed) is 1 with `LBV_GCS_NEUTRAL` 1; a stored 3 is read that way
+//!   ([`crate::settings`]).
 //!
 //! `LBV_UPD_UNSIGNED` has no ArduPilot counterpart (ArduPilot takes MAVLink FTP from anyone): without signing,
 //! anyone on the link can claim `SYSID_MYGCS`, so the update server refuses uploads, removals and the apply
@@ -43,7 +57,7 @@ use crate::mixer::FrameKind;
 /// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
 pub type ParamId = [u8; 16];
 
-/// What the ground-station heartbeat failsafe does (`FS_GCS_ENABLE`; 1 and 2 as in ArduSub, whose 3 holds depth).
+/// What the ground-station heartbeat failsafe does (`FS_GCS_ENABLE` 1 and 2, as in ArduSub; `LBV_GCS_NEUTRAL`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum GcsFailsafe {
@@ -51,7 +65,8 @@ pub enum GcsFailsafe {
     Warn,
     /// Disarm: every thruster stops.
     Disarm,
-    /// Hold the sticks at neutral, stay armed; the pilot's input counts again once the heartbeats return.
+    /// Tell the pilot and hold the sticks at neutral, stay armed; the pilot's input counts again once the
+    /// heartbeats return.
     Neutral,
 }
 
@@ -95,11 +110,12 @@ impl ParamType {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum Param {
-    /// `FS_GCS_ENABLE`: [`GcsFailsafe`] 1 warn, 2 disarm, 3 neutral.
+    /// `FS_GCS_ENABLE`: 1 warn (or neutral, with `LBV_GCS_NEUTRAL`), 2 disarm, as ArduSub numbers them.
     GcsFailsafe,
     /// `FS_GCS_TIMEOUT`: ground-station heartbeat timeout, 0.1 s.
     GcsTimeout,
-    /// `FS_PILOT_INPUT`: [`PilotFailsafe`] 0 off, 1 neutral, 2 disarm.
+    /// `FS_PILOT_INPUT`: [`PilotFailsafe`] 0 off, 1 neutral (ArduSub's "warn only", which centres the sticks too),
+    /// 2 disarm.
     PilotFailsafe,
     /// `FS_PILOT_TIMEOUT`: pilot input timeout, 0.1 s.
     PilotTimeout,
@@ -133,10 +149,13 @@ pub enum Param {
     Button13,
     Button14,
     Button15,
+    /// `LBV_GCS_NEUTRAL`: 1 holds the sticks neutral while the ground station is lost and `FS_GCS_ENABLE` is 1
+    /// (warn). Last, as each parameter added since the first image is: stored records keep their indexes.
+    GcsNeutral,
 }
 
 /// How many parameters there are.
-pub const PARAM_COUNT: usize = 26;
+pub const PARAM_COUNT: usize = 27;
 
 /// Joystick buttons with a function parameter: MANUAL_CONTROL's `buttons`, as ArduSub has them.
 pub const BUTTONS: usize = 16;
@@ -203,6 +222,7 @@ impl Param {
         Self::Button13,
         Self::Button14,
         Self::Button15,
+        Self::GcsNeutral,
     ];
 
     /// The MAVLink name (at most 16 characters).
@@ -234,6 +254,7 @@ impl Param {
             Self::Button13 => "BTN13_FUNCTION",
             Self::Button14 => "BTN14_FUNCTION",
             Self::Button15 => "BTN15_FUNCTION",
+            Self::GcsNeutral => "LBV_GCS_NEUTRAL",
         }
     }
 
@@ -247,14 +268,14 @@ impl Param {
     /// function only the numbers of [`ButtonFunction`] and 0).
     pub const fn range(self) -> (i32, i32) {
         match self {
-            Self::GcsFailsafe => (1, 3),
+            Self::GcsFailsafe => (1, 2),
             Self::GcsTimeout => (20, 1200),
             Self::PilotFailsafe => (0, 2),
-            Self::PilotTimeout => (5, 100),
+            Self::PilotTimeout => (1, 30),
             Self::OperatorId => (1, 255),
             Self::Gain | Self::PowerCap | Self::MotorTestMax => (1, 100),
             Self::Frame => (4, 6),
-            Self::UnsignedUpdates => (0, 1),
+            Self::UnsignedUpdates | Self::GcsNeutral => (0, 1),
             // The buttons' functions: 0 to ArduSub's gain down.
             _ => (0, 43),
         }
@@ -285,7 +306,7 @@ impl Param {
             Self::PowerCap => 100,
             Self::Frame => 6,
             Self::MotorTestMax => 30,
-            Self::UnsignedUpdates => 0,
+            Self::UnsignedUpdates | Self::GcsNeutral => 0,
             // ArduSub's defaults for the functions the vehicle has: a gamepad's back (4) disarms, its start (6)
             // arms, the d-pad's up and down (11, 12) step the gain.
             Self::Button4 => 4,
@@ -330,7 +351,7 @@ impl Param {
 
     /// Whether it is a joystick button's function (`BTNn_FUNCTION`).
     pub const fn is_button(self) -> bool {
-        self.index() >= Self::Button0.index()
+        Self::Button0.index() <= self.index() && self.index() <= Self::Button15.index()
     }
 
     /// The parameter at an index.
@@ -443,11 +464,11 @@ impl Params {
         }
     }
 
-    /// `FS_GCS_ENABLE`.
+    /// `FS_GCS_ENABLE` and `LBV_GCS_NEUTRAL`.
     pub fn gcs_failsafe(&self) -> GcsFailsafe {
-        match self.get(Param::GcsFailsafe) {
-            1 => GcsFailsafe::Warn,
-            3 => GcsFailsafe::Neutral,
+        match (self.get(Param::GcsFailsafe), self.get(Param::GcsNeutral)) {
+            (1, 1) => GcsFailsafe::Neutral,
+            (1, _) => GcsFailsafe::Warn,
             _ => GcsFailsafe::Disarm,
         }
     }
@@ -625,6 +646,44 @@ mod tests {
     }
 
     #[test]
+    fn the_failsafe_parameters_take_only_what_ardusub_means_by_them() {
+        let mut params = Params::defaults(FrameKind::Lbv300_6);
+        // FS_GCS_ENABLE: ArduSub's 1 warn only and 2 disarm; not its 0 off, 3 depth hold or 4 surface.
+        let taken: Vec<i32> = (-1..=5).filter(|v| Param::GcsFailsafe.accepts(*v)).collect();
+        assert_eq!(taken, [1, 2]);
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Disarm, "ArduSub's default");
+        assert!(params.set(Param::GcsFailsafe, 1));
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Warn);
+        // Earlier images' 3 (neutral) is 1 with LBV_GCS_NEUTRAL.
+        assert_eq!(Param::from_id(&id("LBV_GCS_NEUTRAL")), Some(Param::GcsNeutral));
+        assert_eq!(Param::GcsNeutral.default_value(), 0);
+        assert!(!Param::GcsNeutral.is_button() && !Param::GcsNeutral.only_disarmed());
+        assert!(params.set(Param::GcsNeutral, 1));
+        assert!(!params.set(Param::GcsNeutral, 2));
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Neutral);
+        assert!(params.set(Param::GcsFailsafe, 2));
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Disarm, "disarm wins");
+        // FS_PILOT_INPUT: ArduSub's numbers, 1 ("Warn Only") centring the sticks as ArduSub's does.
+        let taken: Vec<i32> = (-1..=3).filter(|v| Param::PilotFailsafe.accepts(*v)).collect();
+        assert_eq!(taken, [0, 1, 2]);
+        for (value, action) in [
+            (0, PilotFailsafe::Off),
+            (1, PilotFailsafe::Neutral),
+            (2, PilotFailsafe::Disarm),
+        ] {
+            assert!(params.set(Param::PilotFailsafe, value));
+            assert_eq!(params.pilot_failsafe(), action);
+        }
+        // FS_PILOT_TIMEOUT: ArduSub's 0.1-3.0 s, default 3.0 s.
+        assert_eq!(Param::PilotTimeout.range(), (1, 30));
+        assert_eq!(Param::PilotTimeout.from_float(0.1), Some(1));
+        assert!(params.set(Param::PilotTimeout, 1));
+        assert_eq!(params.pilot_timeout(), Duration::from_millis(100));
+        assert!(!params.set(Param::PilotTimeout, 31));
+        assert_eq!(Param::PilotTimeout.default_value(), 30);
+    }
+
+    #[test]
     fn one_lost_frame_of_a_1_hz_stream_trips_neither_failsafe_by_default() {
         let defaults = Params::defaults(FrameKind::Lbv300_6);
         // Two seconds between frames, and late by up to half a second.
@@ -689,10 +748,11 @@ mod tests {
             ]
         );
         assert_eq!(
-            types[10..],
+            types[10..10 + BUTTONS],
             [ParamType::Int8; BUTTONS],
             "the buttons, AP_Int8 as in ArduSub"
         );
+        assert_eq!(types[10 + BUTTONS..], [ParamType::Int8], "LBV_GCS_NEUTRAL");
         for param in Param::ALL {
             let (min, max) = param.range();
             let fits = match param.param_type() {

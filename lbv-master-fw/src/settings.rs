@@ -10,10 +10,11 @@
 //! A record holds a format byte, the parameter count, each parameter (an `i32` in its own unit, by index), the
 //! signing key (secret and set-up timestamp; all zero: signing off) and the signing link's reservation (a
 //! timestamp ahead of every one used, stored at each start and about once a minute while the link advances, so a
-//! restart does not reopen the door to old signed frames: [`crate::console::signing`]). A stored
-//! value that is not valid for its parameter reads as the default. One record of everything (rather than one item
-//! per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code is
-//! no larger.
+//! restart does not reopen the door to old signed frames: [`crate::console::signing`]). A stored value that is not
+//! valid for its parameter reads as the default, except two that images from before `LBV_GCS_NEUTRAL` (records of
+//! fewer than 27 parameters) stored with another meaning (`migrate`). One record of everything (rather than one
+//! item per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code
+//! is no larger.
 //!
 //! Two ports: where the settings are kept ([`SettingsStore`]: [`Store`] over any embedded-storage-async
 //! `NorFlash` — embassy-stm32's flash driver on the chip, lbv-sim's flash on the bench, sequential-storage's
@@ -31,7 +32,7 @@ use sequential_storage::queue::{QueueConfig, QueueStorage};
 use g431_hw::memory::{self, Span};
 
 use crate::console::signing::SigningKey;
-use crate::params::{PARAM_COUNT, Param, Settings};
+use crate::params::{PARAM_COUNT, Param, Params, Settings};
 use crate::shared::{Severity, Shared, text};
 
 /// The master's flash kept for the settings ([`memory::MASTER_STORAGE`]), as offsets from the start of flash: the
@@ -174,9 +175,12 @@ fn decode(bytes: &[u8], defaults: Settings) -> Option<(Settings, u64)> {
         Some(taken)
     };
     let mut settings = defaults;
+    let before_gcs_neutral = count <= usize::from(Param::GcsNeutral.index());
     for param in Param::ALL.into_iter().take(count) {
-        let value = take(4)?.first_chunk::<4>().copied()?;
-        settings.params.set(param, i32::from_le_bytes(value));
+        let value = i32::from_le_bytes(take(4)?.first_chunk::<4>().copied()?);
+        if !settings.params.set(param, value) && before_gcs_neutral {
+            migrate(&mut settings.params, param, value);
+        }
     }
     let secret = take(32)?.first_chunk::<32>().copied()?;
     let key_time = u64::from_le_bytes(take(8)?.first_chunk::<8>().copied()?);
@@ -186,6 +190,23 @@ fn decode(bytes: &[u8], defaults: Settings) -> Option<(Settings, u64)> {
         timestamp: key_time,
     });
     Some((settings, signing_time))
+}
+
+/// A value an image from before `LBV_GCS_NEUTRAL` stored and this one refuses, read so that the vehicle does as it
+/// did: `FS_GCS_ENABLE` 3 (neutral, not ArduSub's depth hold) is 1 with `LBV_GCS_NEUTRAL` 1; an `FS_PILOT_TIMEOUT`
+/// above ArduSub's 3.0 s (those images took up to 10 s) is 3.0 s, the nearest it can be, the failsafe acting
+/// sooner rather than later. Anything else stays default.
+fn migrate(params: &mut Params, param: Param, value: i32) {
+    match (param, value) {
+        (Param::GcsFailsafe, 3) => {
+            params.set(Param::GcsFailsafe, 1);
+            params.set(Param::GcsNeutral, 1);
+        }
+        (Param::PilotTimeout, _) => {
+            params.set(param, value.min(param.range().1));
+        }
+        _ => {}
+    }
 }
 
 /// The settings store on a NOR flash.
@@ -613,8 +634,9 @@ mod tests {
 
     #[test]
     fn a_record_of_an_image_with_fewer_parameters_keeps_its_settings() {
-        // What the image before the buttons wrote (ten parameters), and the one before LBV_UPD_UNSIGNED (nine).
-        for count in [10, 9] {
+        // What the image before LBV_GCS_NEUTRAL wrote (26 parameters), the one before the buttons (ten), and the one
+        // before LBV_UPD_UNSIGNED (nine).
+        for count in [26, 10, 9] {
             let old = old_record(count);
             assert_eq!(old.len(), RECORD - 4 * (PARAM_COUNT - count));
             let mut flash = flash();
@@ -652,6 +674,73 @@ mod tests {
         for bad in [short, more] {
             assert_eq!(decode(&bad, defaults()), None);
         }
+    }
+
+    /// `old_record` with parameter `param` at `value`.
+    fn old_record_with(count: usize, changes: &[(Param, i32)]) -> Vec<u8> {
+        let mut old = old_record(count);
+        for (param, value) in changes {
+            let at = 2 + 4 * usize::from(param.index());
+            old[at..at + 4].copy_from_slice(&value.to_le_bytes());
+        }
+        old
+    }
+
+    #[test]
+    fn an_earlier_images_neutral_and_long_pilot_timeout_are_read_as_this_one_says_them() {
+        use crate::params::GcsFailsafe;
+        let read = |record: Vec<u8>| {
+            let mut flash = flash();
+            {
+                let mut store = Store::new(&mut flash, RANGE).unwrap();
+                push(&mut store, &record);
+            }
+            let (settings, errors) = load(&mut flash);
+            assert_eq!(errors, 0);
+            settings.params
+        };
+        // FS_GCS_ENABLE 3 was "hold the sticks neutral": now 1 with LBV_GCS_NEUTRAL 1, which does the same.
+        let params = read(old_record_with(
+            26,
+            &[(Param::GcsFailsafe, 3), (Param::PilotTimeout, 100)],
+        ));
+        assert_eq!((params.get(Param::GcsFailsafe), params.get(Param::GcsNeutral)), (1, 1));
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Neutral);
+        // 10 s, above ArduSub's 3 s: the nearest it can be.
+        assert_eq!(params.pilot_timeout(), Duration::from_secs(3));
+        assert_eq!(params.operator(), 200, "the rest kept");
+        // What ArduSub means too is kept as it was.
+        for (gcs, action) in [(1, GcsFailsafe::Warn), (2, GcsFailsafe::Disarm)] {
+            let params = read(old_record_with(
+                26,
+                &[(Param::GcsFailsafe, gcs), (Param::PilotTimeout, 5)],
+            ));
+            assert_eq!(params.gcs_failsafe(), action);
+            assert_eq!(params.get(Param::GcsNeutral), 0);
+            assert_eq!(params.pilot_timeout(), Duration::from_millis(500));
+        }
+        // From the image of the ten parameters too.
+        let params = read(old_record_with(10, &[(Param::GcsFailsafe, 3)]));
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Neutral);
+        // A record of this image cannot hold a 3; one that did would be no record of it: the default.
+        let params = read(old_record_with(
+            PARAM_COUNT,
+            &[(Param::GcsFailsafe, 3), (Param::PilotTimeout, 100)],
+        ));
+        assert_eq!(params.gcs_failsafe(), GcsFailsafe::Disarm);
+        assert_eq!(params.pilot_timeout(), Duration::from_secs(3));
+        // Once changed, stored whole in this image's terms.
+        let mut flash = flash();
+        {
+            let mut store = Store::new(&mut flash, RANGE).unwrap();
+            push(&mut store, &old_record_with(26, &[(Param::GcsFailsafe, 3)]));
+        }
+        let (mut settings, _) = load(&mut flash);
+        settings.params.set(Param::Gain, 60);
+        save(&mut flash, &settings).unwrap();
+        let (after, _) = load(&mut flash);
+        assert_eq!(after, settings);
+        assert_eq!(after.params.gcs_failsafe(), GcsFailsafe::Neutral);
     }
 
     #[test]

@@ -8,9 +8,9 @@
 //!   SETUP_SIGNING are ignored (MAVLink has no answer for them); all are counted in [`VehicleState::refused`].
 //!   Anyone may read the parameters.
 //! - Ground-station failsafe (`FS_GCS_ENABLE`, `FS_GCS_TIMEOUT`): only the operator's HEARTBEATs (type GCS) count.
-//!   Armed and none for `FS_GCS_TIMEOUT` (at exactly that age) -> warn, disarm, or hold neutral sticks, once per
-//!   silence with one text; a running motor test is stopped. When the heartbeats return, a text says so and the
-//!   sticks count again. Arming and motor tests need a live heartbeat.
+//!   Armed and none for `FS_GCS_TIMEOUT` (at exactly that age) -> warn, disarm, or hold neutral sticks (warn with
+//!   `LBV_GCS_NEUTRAL`), once per silence with one text; a running motor test is stopped. When the heartbeats
+//!   return, a text says so and the sticks count again. Arming and motor tests need a live heartbeat.
 //! - Pilot-input failsafe (`FS_PILOT_INPUT`, `FS_PILOT_TIMEOUT`): once the operator's MANUAL_CONTROL has started
 //!   after arming, armed and none for `FS_PILOT_TIMEOUT` -> neutral sticks (or disarm), once, with one text; the
 //!   next MANUAL_CONTROL takes over again. A ground station that never sends MANUAL_CONTROL (MAVProxy, a script

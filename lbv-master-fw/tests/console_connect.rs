@@ -339,9 +339,9 @@ fn qgroundcontrol_initial_connect_then_arm() {
                     .collect();
                 match values.first() {
                     Some(first) if values.len() == usize::from(first.param_count) => {
-                        // Ten of the vehicle's, and the sixteen joystick buttons' functions (BTNn_FUNCTION), which
-                        // QGroundControl's ArduSub joystick setup shows.
-                        assert_eq!(first.param_count, 26);
+                        // Ten of the vehicle's, the sixteen joystick buttons' functions (BTNn_FUNCTION), which
+                        // QGroundControl's ArduSub joystick setup shows, and LBV_GCS_NEUTRAL.
+                        assert_eq!(first.param_count, 27);
                         for (n, p) in values.iter().enumerate() {
                             assert_eq!(usize::from(p.param_index), n);
                             let name = p.param_id.to_str().unwrap();

@@ -370,8 +370,8 @@ fn requests_that_make_the_vehicle_send_more_than_they_cost_are_limited_per_reque
             })
             .count() as u32
     };
-    // The allowance of each (40 frames), then ten frames a second: for system 77 a list of 26 PARAM_VALUEs at once
-    // and one more when 12 frames more have come back, at 1.2 s (the next would be at 3.8 s), and the operator's
+    // The allowance of each (40 frames), then ten frames a second: for system 77 a list of 27 PARAM_VALUEs at once
+    // and one more when 14 frames more have come back, at 1.4 s (the next would be at 4.1 s), and the operator's
     // list; 20 + 9 HEARTBEATs for the companion, each with its COMMAND_ACK.
     let list = PARAM_COUNT as u32;
     assert!(list < BURST && 2 * list > BURST);

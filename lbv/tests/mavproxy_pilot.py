@@ -9,7 +9,7 @@ its prompt would. MAVProxy forwards what the vehicle sends to OBSERVER_PORT, whe
 message for the detailed checks (it never sends). The steps:
 
     connect        MAVProxy sees the vehicle (HEARTBEAT of a submarine)
-    params         MAVProxy's own parameter download gets all 26, each with its type (the timeouts REAL32,
+    params         MAVProxy's own parameter download gets all 27, each with its type (the timeouts REAL32,
                    SYSID_MYGCS INT16, the others INT8)
     version        `version`: MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION is accepted and answered (MAVLink 2,
                    COMMAND_INT and C_CAST parameters, no mission or FTP, the bench's unique id)
@@ -45,7 +45,7 @@ except ImportError as error:
     sys.exit(3)
 
 VEHICLE = 1
-PARAMS = 26
+PARAMS = 27
 HOLD_S = 8.0
 # The parameters' MAVLink types as the vehicle declares them.
 REAL32_PARAMS = ("FS_GCS_TIMEOUT", "FS_PILOT_TIMEOUT")

@@ -13,8 +13,8 @@
 //! What a request costs is [`cost`].
 //!
 //! The numbers: [`BURST`] (40 frames) holds what a ground station asks at once when it connects (the parameter
-//! list, now 26 frames, AUTOPILOT_VERSION and a few messages, or an SDK's ten REQUEST_MESSAGEs), and a listing of
-//! the update directory (eight requests); one frame every 100 ms is a whole parameter list every 2.6 s, some
+//! list, now 27 frames, AUTOPILOT_VERSION and a few messages, or an SDK's ten REQUEST_MESSAGEs), and a listing of
+//! the update directory (eight requests); one frame every 100 ms is a whole parameter list every 2.7 s, some
 //! 370 bytes a second (500 signed), 3-4 % of the console's 115200 baud. [`REQUESTERS`] (4) requesters
 //! are kept apart (the operator's ground station, a companion computer, a second station and one more); any
 //! others share one more allowance, so that a flood from ever new system ids gets five allowances at most: some
@@ -154,17 +154,17 @@ mod tests {
     fn a_full_allowance_takes_a_burst_then_refills_at_ten_frames_a_second() {
         let mut limiter = Limiter::new();
         let list = cost(&Command::ParamRequestList);
-        assert_eq!(list, 26);
-        // A parameter list at once, with 14 frames to spare (AUTOPILOT_VERSION and a few messages), not a second.
+        assert_eq!(list, 27);
+        // A parameter list at once, with 13 frames to spare (AUTOPILOT_VERSION and a few messages), not a second.
         assert_eq!(through(&mut limiter, GCS, list, at(1000), 10), 1);
-        assert_eq!(through(&mut limiter, GCS, 14, at(1000), 10), 1);
-        // One more each 2.6 s.
-        assert_eq!(through(&mut limiter, GCS, list, at(3599), 10), 0);
-        assert_eq!(through(&mut limiter, GCS, list, at(3600), 10), 1);
-        assert_eq!(through(&mut limiter, GCS, 1, at(3700), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 13, at(1000), 10), 1);
+        // One more each 2.7 s.
+        assert_eq!(through(&mut limiter, GCS, list, at(3699), 10), 0);
+        assert_eq!(through(&mut limiter, GCS, list, at(3700), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 1, at(3800), 10), 1);
         // Idle for four seconds: full again.
-        assert_eq!(through(&mut limiter, GCS, list, at(7700), 10), 1);
-        assert_eq!(through(&mut limiter, GCS, 14, at(7700), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, list, at(7800), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 13, at(7800), 10), 1);
         // Sustained: 10 frames a second, whatever is asked.
         let mut sent = 0;
         for ms in (10_000..20_000).step_by(10) {

@@ -500,8 +500,9 @@ fn ground_station_failsafe_warn_only() {
 
 #[test]
 fn ground_station_failsafe_neutral_holds_the_sticks_until_it_is_back() {
+    // FS_GCS_ENABLE 1 (ArduSub's warn only) with LBV_GCS_NEUTRAL: earlier images' FS_GCS_ENABLE 3.
     let mut bench = Bench::with(VehicleConfig::default(), |p| {
-        p.set(Param::GcsFailsafe, 3);
+        assert!(p.set(Param::GcsFailsafe, 1) && p.set(Param::GcsNeutral, 1));
     });
     bench.arm(0);
     bench.command(100, manual(1000, 0, 500, 0));
@@ -1036,6 +1037,7 @@ fn parameter_list_and_read() {
             .find_map(|(button, function)| (button == n).then_some(function));
         all.push(value(Param::button(n).unwrap(), function.unwrap_or(0.0)));
     }
+    all.push(value(Param::GcsNeutral, 0.0));
     assert_eq!(all.len(), PARAM_COUNT);
     // The console sends the list, one value at a time.
     assert_eq!(bench.command(0, Command::ParamRequestList), [Outgoing::ParamList]);
@@ -1178,18 +1180,29 @@ fn parameter_set_in_and_out_of_range() {
     );
     assert_eq!(bench.params().gcs_timeout(), Duration::from_millis(3300));
     assert_eq!(
-        bench.command(0, set("FS_PILOT_TIMEOUT", 0.4)),
+        bench.command(0, set("FS_PILOT_TIMEOUT", 3.5)),
         [
-            text(Severity::Warning, "FS_PILOT_TIMEOUT: range 0.5..10"),
+            text(Severity::Warning, "FS_PILOT_TIMEOUT: range 0.1..3"),
             value(Param::PilotTimeout, 3.0)
         ]
     );
     assert_eq!(
-        bench.command(0, set("FS_GCS_ENABLE", 0.0)),
-        [
-            text(Severity::Warning, "FS_GCS_ENABLE: range 1..3"),
-            value(Param::GcsFailsafe, 2.0)
-        ]
+        bench.command(0, set("FS_PILOT_TIMEOUT", 0.1)),
+        [value(Param::PilotTimeout, 0.1)]
+    );
+    // ArduSub's 0 (off), 3 (depth hold) and 4 (surface) are not this vehicle's.
+    for refused in [0.0, 3.0, 4.0] {
+        assert_eq!(
+            bench.command(0, set("FS_GCS_ENABLE", refused)),
+            [
+                text(Severity::Warning, "FS_GCS_ENABLE: range 1..2"),
+                value(Param::GcsFailsafe, 2.0)
+            ]
+        );
+    }
+    assert_eq!(
+        bench.command(0, set("LBV_GCS_NEUTRAL", 1.0)),
+        [value(Param::GcsNeutral, 1.0)]
     );
     assert_eq!(
         bench.command(0, set("LBV_FRAME", 5.0)),

@@ -108,7 +108,7 @@ pub(super) fn read_params(run: &mut Run) -> BTreeMap<String, f32> {
     let frame = run.bench.ground.param_list();
     run.bench.send(frame);
     run.run_for(0.3);
-    // A list asked again within 1.2 s of the last is over the station's allowance (40 frames, a list is 26) and
+    // A list asked again within 1.2 s of the last is over the station's allowance (40 frames, a list is 27) and
     // dropped unanswered: ask again once it has refilled, as a ground station does.
     for _ in 0..2 {
         if run.bench.ground.seen.params.len() >= PARAM_COUNT {
