@@ -76,7 +76,7 @@ impl SpeedConfig {
 
     /// Brushed thruster: open loop, 0 to 100 % duty in 0.5 s (the ramp's rate; the duty stops at `max_duty`).
     /// The feed-forward and gains are not used. The current is held to 7 A: above the reference motor's 4 A at
-    /// full speed, below the power stage's comparator (the bench's 8 A, the IHM08M1's far higher), so the stage
+    /// full speed, below the power stage's comparator (the IHM08M1's near 30 A, as the bench has it), so the stage
     /// never cuts the pulses of a turning or locked motor and the voltage applied stays known (docs/decisions.md
     /// D13).
     pub const BRUSHED_DEFAULT: SpeedConfig = SpeedConfig {
