@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Decodes a candump log with cantools and lbv/dbc/bat.dbc, for tests/decode_can_cantools.rs.
+"""Decodes a candump log with cantools and lbv/dbc/bat.dbc, for tests/integration/decode_can_cantools.rs.
 
     decode_can_cantools.py DBC LOG
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Field update over MAVLink FTP with pymavlink's own client (pymavlink.mavftp), for tests/udp_ftp.rs.
+"""Field update over MAVLink FTP with pymavlink's own client (pymavlink.mavftp), for tests/integration/udp_ftp.rs.
 
     ftp_upload.py GCS_PORT BENCH_PORT WORK_DIR [TIMEOUT_S]
 
@@ -9,7 +9,7 @@ the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operato
     list       ListDirectory `/` and `/update`: the directory, then one file per thruster slot and the master's
     unsigned   a put over the link without signing: refused ("thruster0.lbvu: refused, the link is not signed");
                then PARAM_SET LBV_UPD_UNSIGNED 1 (the vehicle answers PARAM_VALUE 1), which allows updates over it
-               (tests/mavproxy_ftp.rs signs the link instead, as docs/field-update.md recommends)
+               (tests/integration/mavproxy_ftp.rs signs the link instead, as docs/field-update.md recommends)
     put        WORK_DIR/thruster0.lbvu (the test's signed SeaBotix update file: 80-byte header, 4096-byte payload)
                to /update/thruster0.lbvu with MAVFTP's put; STATUSTEXT "thruster0.lbvu: received, ready to apply",
                then "thruster0.lbvu: 4096 B verified, 0 pages kept" once the thruster holds it

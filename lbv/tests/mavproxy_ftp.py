@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Field update with MAVProxy, a real ground station, typed at its prompt, for tests/mavproxy_ftp.rs.
+"""Field update with MAVProxy, a real ground station, typed at its prompt, for tests/integration/mavproxy_ftp.rs.
 
     mavproxy_ftp.py GCS_PORT OBSERVER_PORT WORK_DIR [TIMEOUT_S]
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A pilot flying the bench with MAVProxy, a real ground station, for tests/mavproxy.rs.
+"""A pilot flying the bench with MAVProxy, a real ground station, for tests/integration/mavproxy.rs.
 
     mavproxy_pilot.py GCS_PORT OBSERVER_PORT [TIMEOUT_S]
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A pilot's pymavlink script flying the bench over UDP (`lbv bench --udp`), for tests/udp_pymavlink.rs.
+"""A pilot's pymavlink script flying the bench over UDP (`lbv bench --udp`), for tests/integration/udp_pymavlink.rs.
 
     udp_pilot.py GCS_PORT BENCH_PORT [TIMEOUT_S]
 

@@ -10,7 +10,7 @@
 //!
 //! Needs python3 with pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without it this test fails, it does not skip.
 
-mod support;
+use crate::support;
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/ftp_upload.py");
 /// How long the bench runs, s; the script is done well before.

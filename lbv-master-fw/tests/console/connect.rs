@@ -3,11 +3,8 @@
 //! step, answering what the vehicle sends as QGroundControl would, then the message requests and intervals an SDK
 //! uses. Frames are built and read with the mavlink crate (our dialect's definitions, copied from the official
 //! XML).
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
-mod console_support;
-
-use console_support::{clock, parse_all, v2};
+use crate::support::{clock, parse_all, v2};
 use embassy_futures::block_on;
 use embassy_futures::join::join3;
 use embassy_futures::select::select;

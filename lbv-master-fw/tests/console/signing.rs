@@ -3,16 +3,13 @@
 //! signing (its `mav2-message-signing` feature, which needs std and so runs on the host only).
 //!
 //! Needs python3 with pymavlink (`pip install pymavlink`); without it these tests fail, they do not skip.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
-
-mod console_support;
 
 use std::collections::BTreeMap;
 use std::io::Write as _;
 use std::process::{Command as Process, Stdio};
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use console_support::{Line, clock, run_console, run_rx_requests, run_tx};
+use crate::support::{Line, clock, run_console, run_rx_requests, run_tx};
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::lbv::MavMessage;
@@ -171,7 +168,7 @@ fn mavlink_core_verifies_what_the_console_signs() {
         secret: KEY,
         timestamp: signing_now(),
     });
-    console_support::publish(&shared, settings);
+    crate::support::publish(&shared, settings);
     let bytes = run_tx(
         &ConsoleConfig::DEFAULT,
         &shared,
@@ -208,7 +205,7 @@ fn the_console_accepts_what_mavlink_core_signs() {
         timestamp: signing_now(),
     });
     let shared = Shared::new();
-    console_support::publish(&shared, settings);
+    crate::support::publish(&shared, settings);
     let signer = SigningData::from_config(SigningConfig::new(KEY, 3, true, false));
     let header = MavHeader {
         system_id: 255,
@@ -220,7 +217,7 @@ fn the_console_accepts_what_mavlink_core_signs() {
         mavlink_core::write_v2_msg_signed(&mut bytes, header, &MavMessage::HEARTBEAT(GCS_HEARTBEAT), Some(&signer))
             .unwrap();
     }
-    let unsigned_too = [bytes.clone(), console_support::v2(255, 190, 0, &GCS_HEARTBEAT)].concat();
+    let unsigned_too = [bytes.clone(), crate::support::v2(255, 190, 0, &GCS_HEARTBEAT)].concat();
     let (requests, counters) = run_rx_requests(&unsigned_too, 64, &ConsoleConfig::DEFAULT, &shared);
     assert_eq!(requests.len(), 3);
     assert!(
@@ -245,7 +242,7 @@ fn with_a_key_an_unsigned_ftp_request_or_apply_is_refused_like_any_unsigned_fram
         timestamp: signing_now(),
     });
     let shared = Shared::new();
-    console_support::publish(&shared, settings);
+    crate::support::publish(&shared, settings);
     let signer = SigningData::from_config(SigningConfig::new(KEY, 3, true, false));
     let header = MavHeader {
         system_id: 255,
@@ -272,7 +269,7 @@ fn with_a_key_an_unsigned_ftp_request_or_apply_is_refused_like_any_unsigned_fram
     let mut bytes = Vec::new();
     mavlink_core::write_v2_msg_signed(&mut bytes, header, &list, Some(&signer)).unwrap();
     mavlink_core::write_v2_msg(&mut bytes, header, &list).unwrap();
-    bytes.extend(console_support::v2(255, 190, 2, &apply));
+    bytes.extend(crate::support::v2(255, 190, 2, &apply));
     let (requests, counters) = run_rx_requests(&bytes, 64, &ConsoleConfig::DEFAULT, &shared);
     assert!(requests.is_empty());
     assert_eq!((counters.unsigned, counters.frames_in), (2, 1));

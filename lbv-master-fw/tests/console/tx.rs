@@ -1,10 +1,7 @@
 //! The console's transmit task on virtual time: telemetry periods, outbox messages at once, the armed flag, the
 //! thrusters' and battery's values; frames read back with the mavlink crate's own parser.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
-mod console_support;
-
-use console_support::{clock, ids, parse_all, run_tx};
+use crate::support::{clock, ids, parse_all, run_tx};
 use embassy_time::Duration;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
@@ -256,11 +253,11 @@ fn heartbeat_follows_the_armed_state_and_telemetry_the_reports() {
 
 #[test]
 fn drop_rate_comes_from_the_receive_counters() {
-    use console_support::run_rx;
+    use crate::support::run_rx;
     let _clock = clock();
     // Counters of a receive task that saw 3 good frames and 1 corrupt one.
     let config = ConsoleConfig::DEFAULT;
-    let frame = console_support::v2(
+    let frame = crate::support::v2(
         255,
         190,
         0,
@@ -277,8 +274,8 @@ fn drop_rate_comes_from_the_receive_counters() {
     // The same counts, made by the tx task's own stats: feed them through a receive task sharing the stats.
     let shared = Shared::new();
     let stats = ConsoleStats::new();
-    let mut rx = console_support::ScriptedRx::new(stream, 64);
-    let capture = console_support::Capture::default();
+    let mut rx = crate::support::ScriptedRx::new(stream, 64);
+    let capture = crate::support::Capture::default();
     let mut tx = capture.clone();
     embassy_futures::block_on(embassy_futures::select::select3(
         lbv_master_fw::console::console_rx_task(

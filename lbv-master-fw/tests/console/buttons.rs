@@ -2,11 +2,8 @@
 //! with the buttons held in `buttons`, a button held over several frames. Each press does its `BTNn_FUNCTION`
 //! once (the defaults: 6 arm, 4 disarm, 11 gain up, 12 gain down), a refused arm says why, and a gain step comes
 //! back as PARAM_VALUE, "PilotGain" and a text; the console, the vehicle and the settings task on virtual time.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
-mod console_support;
-
-use console_support::{Line, parse_all, run_console, v2};
+use crate::support::{Line, parse_all, run_console, v2};
 use embassy_time::Duration;
 use lbv_master_fw::console::lbv::{MANUAL_CONTROL_DATA, MavMessage, MavModeFlag};
 use lbv_master_fw::vehicle::VehicleConfig;

@@ -2,9 +2,11 @@
 //! runs in real time on loopback ports while the script flies it and prints a JSON summary.
 #![allow(dead_code, reason = "each test uses what it needs of these")]
 
+use std::collections::BTreeSet;
 use std::io::Read as _;
 use std::net::UdpSocket;
 use std::process::{Child, Command, Stdio};
+use std::sync::Mutex;
 
 /// The bench process, killed when the test ends however it ends.
 struct Bench(Child);
@@ -56,10 +58,25 @@ impl Drop for TempDir {
     }
 }
 
-/// `N` free loopback UDP ports (held together while they are chosen, so they differ).
+/// `N` free loopback UDP ports, none handed out before in this process: the tests run side by side, and a port one
+/// test was given and let go of may be free again when the next asks.
 pub fn free_ports<const N: usize>() -> [u16; N] {
-    let sockets = [(); N].map(|()| UdpSocket::bind("127.0.0.1:0").unwrap());
-    sockets.map(|socket| socket.local_addr().unwrap().port())
+    static GIVEN: Mutex<BTreeSet<u16>> = Mutex::new(BTreeSet::new());
+    let mut given = GIVEN.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+    // Held until all are chosen, so that they differ from one another.
+    let mut held = Vec::new();
+    let mut ports = [0; N];
+    for port in &mut ports {
+        *port = loop {
+            let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+            let candidate = socket.local_addr().unwrap().port();
+            held.push(socket);
+            if given.insert(candidate) {
+                break candidate;
+            }
+        };
+    }
+    ports
 }
 
 /// Run `lbv bench --udp` for `bench_seconds`, sending to 127.0.0.1:`gcs` and listening on 127.0.0.1:`listen`,

@@ -5,11 +5,8 @@
 //! - traffic from any component (PARAM_REQUEST_READ from system 2) kept the failsafe from acting while the
 //!   ground station was silent;
 //! - any system id could arm: COMMAND_LONG 400 from system 42 was ACCEPTED.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
-mod console_support;
-
-use console_support::{Line, parse_all, run_console, v2};
+use crate::support::{Line, parse_all, run_console, v2};
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::LINE_IDLE;
 use lbv_master_fw::console::lbv::{COMMAND_LONG_DATA, MavMessage, MavResult, PARAM_REQUEST_READ_DATA};

@@ -8,7 +8,7 @@
 //! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without
 //! them this test fails, it does not skip.
 
-mod support;
+use crate::support;
 
 const PILOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_pilot.py");
 /// How long the bench runs, s; the pilot is done well before.

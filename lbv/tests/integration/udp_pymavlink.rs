@@ -4,7 +4,7 @@
 //!
 //! Needs python3 with pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without it this test fails, it does not skip.
 
-mod support;
+use crate::support;
 
 const PILOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/udp_pilot.py");
 /// How long the bench runs, s; the pilot is done well before.

@@ -9,9 +9,6 @@
 //!   next reboot frames signed a year earlier were accepted;
 //! - the first telemetry after every reboot went out unsigned, and a frame waiting in the UART at reset was checked
 //!   with no key (an unsigned SETUP_SIGNING with a zero key would have turned signing off).
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
-
-mod console_support;
 
 use std::cell::Cell;
 use std::convert::Infallible;

@@ -7,14 +7,11 @@
 //! another system with the outbox full, or one write to a thruster whose page was on its way, stopped the reading
 //! (on the chip, the UART's 256-byte buffer overran and the operator's frames were lost); a PARAM_REQUEST_LIST
 //! from anyone was answered with every PARAM_VALUE, as often as it came.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
-
-mod console_support;
 
 use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
-use console_support::{Line, clock, parse_all, publish, run_console, v2};
+use crate::support::{Line, clock, parse_all, publish, run_console, v2};
 use embassy_futures::block_on;
 use embassy_futures::select::select;
 use embassy_futures::yield_now;

@@ -2,15 +2,12 @@
 //! a ground station sends, and decodes the frames the console sends.
 //!
 //! Needs python3 with pymavlink (`pip install pymavlink`); without it these tests fail, they do not skip.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
-
-mod console_support;
 
 use std::collections::BTreeMap;
 use std::io::Write as _;
 use std::process::{Command as Process, Stdio};
 
-use console_support::{clock, run_rx, run_tx};
+use crate::support::{clock, run_rx, run_tx};
 use embassy_time::Duration;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, Received, Receiver};
 use lbv_master_fw::mixer::FrameKind;

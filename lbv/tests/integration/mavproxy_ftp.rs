@@ -13,7 +13,7 @@
 //! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without them this test fails,
 //! it does not skip.
 
-mod support;
+use crate::support;
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_ftp.py");
 /// How long the bench runs, s; the script is done well before.

@@ -1,10 +1,7 @@
 //! The console's receive task: frames built by the mavlink crate reach the vehicle as the right commands; noise,
 //! truncated and corrupted frames are counted and skipped.
-#![allow(clippy::indexing_slicing, clippy::unwrap_used, clippy::panic)] // test helpers, not firmware
 
-mod console_support;
-
-use console_support::{run_rx, v1, v2};
+use crate::support::{run_rx, v1, v2};
 use embassy_time::Duration;
 use lbv_master_fw::console::ConsoleConfig;
 use lbv_master_fw::console::lbv::{
