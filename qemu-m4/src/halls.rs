@@ -15,7 +15,7 @@ use embassy_sync::waitqueue::AtomicWaker;
 use embassy_time::Duration;
 use thruster_fw::hall::HallState;
 use thruster_fw::motorless::Motorless;
-use thruster_fw::tasks::HallSensors;
+use thruster_fw::ports::HallSensors;
 
 use crate::board::{self, Irq, Priority, SYSCLK_HZ, TIMER1};
 use crate::meter::{self, Meter, THRUSTER_THREAD_BUSY};

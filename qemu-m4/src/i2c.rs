@@ -16,7 +16,7 @@ use lbv_master_fw::recovery::BusConfig;
 use lbv_master_fw::recovery::PinRecovery;
 use lbv_master_fw::thrusters::MUX_ADDRESS;
 use lbv_sim::i2c::{DeviceId, Route, Scl, Sda, Stats, Target, TargetError, Timing};
-use thruster_fw::{I2cTarget, Request};
+use thruster_fw::ports::{I2cTarget, Request};
 
 use crate::meter::{self, Meter, Progress, metered};
 use crate::thruster::Thruster;

@@ -16,19 +16,20 @@ use embassy_sync::signal::Signal;
 use embassy_sync::watch::Watch;
 use embassy_time::{Duration, Instant, Timer};
 use static_cell::StaticCell;
-use thruster_fw::Config;
 use thruster_fw::commutation::{BridgeDrive, COAST};
 use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
-use thruster_fw::motorless::{HoldInput, ModelBridge, ModelHalls, ModelSensors, MotorModel, Motorless, WaterInput};
+use thruster_fw::motorless::{ModelBridge, ModelHalls, ModelSensors, MotorModel, Motorless};
+use thruster_fw::ports::{self, Board, Bridge as _, HallSensors, HoldInput, Ports, RawSample, Sensors, WaterInput};
 use thruster_fw::shared::Shared;
-use thruster_fw::tasks::{self, Bridge as _, HallSensors, RawSample, Sensors};
-use thruster_fw::{Duty, Ports};
+use thruster_fw::trial::Confirmed;
+use thruster_fw::update::NoUpdate;
+use thruster_fw::{Config, Duty};
 use tmc_proto::{Family, MotorKind};
 
 use crate::executors::BENCH_METER;
 use crate::halls::EdgeHalls;
-use crate::i2c::{Bus, MAX_THRUSTERS};
+use crate::i2c::{Bus, MAX_THRUSTERS, TargetPort};
 use crate::meter::{self, Joined, Meter, Progress, THRUSTER_THREAD_BUSY, metered, metered_joined};
 use crate::report;
 use crate::stacks::Stack;
@@ -280,7 +281,7 @@ impl HallSensors for Halls {
 /// The bridge: what would be driven goes to the model.
 struct Bridge(&'static Motorless);
 
-impl tasks::Bridge for Bridge {
+impl ports::Bridge for Bridge {
     fn apply(&mut self, drive: BridgeDrive, duty: Duty) {
         meter::measure(&MOTOR_MODEL_METER, || ModelBridge(self.0).apply(drive, duty));
     }
@@ -293,7 +294,7 @@ impl tasks::Bridge for Bridge {
 /// The watchdog: counts feeds and the longest gap. A feed is the health task's progress.
 struct Watchdog(&'static Thruster);
 
-impl tasks::Watchdog for Watchdog {
+impl ports::Watchdog for Watchdog {
     fn feed(&mut self) {
         meter::progressed(Progress::THRUSTER_HEALTH);
         let log = &self.0.watchdog;
@@ -302,6 +303,19 @@ impl tasks::Watchdog for Watchdog {
         log.longest_gap_us.fetch_max(gap, Ordering::Relaxed);
         log.feeds.fetch_add(1, Ordering::Relaxed);
     }
+}
+
+/// The emulated controller's ports: the bus's target port, the model's sensors, no bootloader and no DFU partition.
+struct Emulated;
+
+impl Board for Emulated {
+    type I2c = TargetPort;
+    type Sensors = Inputs;
+    type Watchdog = Watchdog;
+    type Latch = VolatileLatch;
+    type Boot = Confirmed;
+    type Dfu = NoUpdate;
+    type Updater = NoUpdate;
 }
 
 // The controller as the STM32 binding runs it (`thruster-fw/src/stm32.rs`): `run` in thread mode, polled on the
@@ -314,7 +328,7 @@ async fn controller(t: &'static Thruster, bus: &'static Bus) -> ! {
         let Some(i2c) = bus.target(t) else {
             report::fail("a thruster is not on the bus it was started on");
         };
-        let ports = Ports {
+        let ports = Ports::<Emulated> {
             i2c,
             sensors: Inputs(ModelSensors::new(&t.motorless, &t.config, WaterPin(t), HoldButton(t))),
             watchdog: Watchdog(t),
@@ -322,9 +336,9 @@ async fn controller(t: &'static Thruster, bus: &'static Bus) -> ! {
             // them over any other reset).
             latch: VolatileLatch::default(),
             // Started as the probe starts it, with no bootloader: nothing on trial, and no DFU partition to update.
-            boot: thruster_fw::trial::Confirmed,
-            dfu: thruster_fw::update::NoUpdate,
-            updater: thruster_fw::update::NoUpdate,
+            boot: Confirmed,
+            dfu: NoUpdate,
+            updater: NoUpdate,
         };
         thruster_fw::run(ports, &t.config, shared)
     });

@@ -25,11 +25,10 @@ use embedded_storage::nor_flash::ReadNorFlash;
 use g431_hw::memory::{self, THRUSTER_PARTITIONS};
 use g431_hw::{adc, clock, iwdg};
 use static_cell::StaticCell;
-use thruster_fw::faults::{LatchStore, ResetKind, carried_latch, latch_word};
-use thruster_fw::tasks::Watchdog;
-use thruster_fw::trial::BootState;
-use thruster_fw::update::{MarkError, Updater, mark_for_swap, verdict_in};
-use thruster_fw::{CONFIG, FAMILY, I2cTarget, Request};
+use thruster_fw::faults::{ResetKind, carried_latch, latch_word};
+use thruster_fw::ports::{BootState, I2cTarget, LatchStore, MarkError, Request, Updater, Watchdog};
+use thruster_fw::update::{mark_for_swap, verdict_in};
+use thruster_fw::{CONFIG, FAMILY};
 use tmc_proto::Faults;
 use tmc_proto::ext::INFO_LEN;
 use update_image::{Ticket, Verdict};
@@ -46,12 +45,13 @@ use {
     thruster_fw::Duty,
     thruster_fw::commutation::{BridgeDrive, PhaseDrive},
     thruster_fw::hall::HallState,
-    thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors},
+    thruster_fw::ports::{Bridge, HallSensors, RawSample, Sensors},
 };
 #[cfg(feature = "motorless")]
 use {
     embassy_stm32::gpio::Input,
-    thruster_fw::motorless::{HoldInput, ModelSensors, MotorModel, Motorless, WaterInput},
+    thruster_fw::motorless::{ModelSensors, MotorModel, Motorless},
+    thruster_fw::ports::{HoldInput, WaterInput},
 };
 
 /// The motor-less controller's model motor (Cargo feature `motorless`), for the image's configuration.

@@ -18,9 +18,9 @@
 //!
 //! The IDS does not say how a stall clears; the project follows the AM32 / BLHeli_32 rule (docs/decisions.md D11): a
 //! zero-speed order clears it. "Latched until power cycle" holds across every other reset (watchdog, reset pin,
-//! software): the fault task keeps the latches in a [`LatchStore`] (on the STM32, a backup register), and
-//! [`carried_latch`] drops them only after a power-on or brown-out. The controller keeps answering on I2C whatever
-//! the faults (IDS 8.4 remark 1).
+//! software): the fault task keeps the latches in a [`LatchStore`](crate::ports::LatchStore) (on the STM32, a
+//! backup register), and [`carried_latch`] drops them only after a power-on or brown-out. The controller keeps
+//! answering on I2C whatever the faults (IDS 8.4 remark 1).
 
 use embassy_time::{Duration, Instant};
 use tmc_proto::{Family, Faults, Speed};
@@ -30,7 +30,7 @@ use crate::overcurrent::TripLimits;
 
 mod latch;
 
-pub use latch::{LatchStore, ResetKind, VolatileLatch, carried_latch, latch_from_word, latch_word};
+pub use latch::{ResetKind, VolatileLatch, carried_latch, latch_from_word, latch_word};
 
 /// Fault thresholds (docs/interface.md "Faults", IDS 8.4 remarks; docs/decisions.md D15, D17).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

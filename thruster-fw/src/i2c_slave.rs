@@ -5,33 +5,7 @@
 use tmc_proto::ext::{self, CommandFrame, EXT_MT, FrameBytes, FrameError};
 use tmc_proto::{DecodeError, Family, Order, StatusFrame};
 
-/// What the master asked for once it matched this controller's address.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Request {
-    /// The master writes (an order, or an extension command).
-    Write,
-    /// The master reads (the status, or the reply to an extension command).
-    Read,
-}
-
-/// The I2C slave peripheral as the core sees it, shaped like embassy-stm32's slave API.
-///
-/// The peripheral stretches SCL from the address match until `respond_*` is called, so the core keeps its
-/// status reply ready before a read arrives.
-#[allow(async_fn_in_trait)]
-pub trait I2cTarget {
-    /// A bus or peripheral error.
-    type Error;
-    /// Wait until the master addresses this controller.
-    async fn listen(&mut self) -> Result<Request, Self::Error>;
-    /// Receive the master's write into `buffer`; returns how many bytes were stored.
-    async fn respond_to_write(&mut self, buffer: &mut [u8]) -> Result<usize, Self::Error>;
-    /// Send `data` to the reading master.
-    async fn respond_to_read(&mut self, data: &[u8]) -> Result<(), Self::Error>;
-    /// Re-initialise the peripheral after an error, so that it releases SCL and SDA whatever state it was in.
-    fn reset(&mut self);
-}
+use crate::ports::{I2cTarget, Request};
 
 /// Writes are taken into a buffer one byte longer than the longest frame (an extension command), so an over-long
 /// write is seen and rejected instead of being cut down to a plausible frame.

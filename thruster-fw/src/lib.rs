@@ -5,7 +5,8 @@
 //! drive it through simulated ports. It never touches a register and never panics on bus input.
 //!
 //! [`run`] and [`run_commutation`] are the whole controller: the STM32 binding builds their ports from peripherals
-//! and calls them with [`CONFIG`]; the bench and the tests call them with simulated ports.
+//! and calls them with [`CONFIG`]; the bench and the tests call them with simulated ports. Every port trait, and the
+//! [`Board`](ports::Board) that names a binding's ports, is in [`ports`].
 #![cfg_attr(not(test), no_std)]
 
 #[macro_use]
@@ -22,6 +23,7 @@ pub mod health;
 pub mod i2c_slave;
 pub mod motorless;
 pub mod overcurrent;
+pub mod ports;
 pub mod sensors;
 pub mod shared;
 pub mod speed;
@@ -34,8 +36,8 @@ pub mod sim;
 
 pub use config::Config;
 pub use drive::{Direction, Duty};
-pub use i2c_slave::{Answer, CommandErrors, I2cTarget, MasterLink, OrderErrors, Request, ServeEvent, serve};
-pub use tasks::{Ports, run, run_commutation};
+pub use i2c_slave::{Answer, CommandErrors, MasterLink, OrderErrors, ServeEvent, serve};
+pub use tasks::{run, run_commutation};
 
 use tmc_proto::{Family, MotorKind};
 

@@ -24,8 +24,8 @@ use crate::commutation::{BridgeDrive, COAST};
 use crate::config::Config;
 use crate::drive::Duty;
 use crate::hall::{HallState, hall_state_at};
+use crate::ports::{Bridge, HallSensors, HoldInput, RawSample, Sensors, WaterInput};
 use crate::sensors::CurrentSense;
-use crate::tasks::{Bridge, HallSensors, RawSample, Sensors};
 
 /// Full-scale speed of the order encoding, rpm (IDS 8.3.2).
 const FULL_SCALE_RPM: f32 = tmc_proto::Speed::FULL_SCALE_RPM as f32;
@@ -255,19 +255,6 @@ impl Bridge for ModelBridge<'_> {
 
     /// No power stage, no break: the model's motor never trips it.
     fn hold_off(&mut self, _off: bool) {}
-}
-
-/// The water-sensor ADC pin, which stays real in the motor-less controller.
-#[allow(async_fn_in_trait)]
-pub trait WaterInput {
-    /// Convert the water-sensor node once (12-bit).
-    async fn water(&mut self) -> u16;
-}
-
-/// What holds the modelled rotor (the NUCLEO's user button).
-pub trait HoldInput {
-    /// Whether the rotor is held now.
-    fn held(&mut self) -> bool;
 }
 
 /// The analog inputs of the motor-less controller: the real water sensor, the model's current, 25 C.

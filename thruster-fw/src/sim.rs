@@ -7,9 +7,8 @@ extern crate std;
 use std::cell::Cell;
 use std::rc::Rc;
 
-use crate::trial::BootState;
-use crate::update::{MarkError, Updater, mark_for_swap, verdict_in};
-use crate::{I2cTarget, Request};
+use crate::ports::{BootState, I2cTarget, MarkError, Request, Updater};
+use crate::update::{mark_for_swap, verdict_in};
 use embassy_boot::{FirmwareState, FirmwareUpdaterError, State};
 use g431_hw::memory::{PAGE, THRUSTER_PARTITIONS};
 use lbv_sim::flash::Flash;

@@ -14,8 +14,9 @@ use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
 use g431_hw::memory::{Span, THRUSTER_PARTITIONS};
 use thruster_fw::faults::ResetKind;
+use thruster_fw::ports::{Board, Ports};
 use thruster_fw::shared::Shared;
-use thruster_fw::{CONFIG, FAMILY, Ports};
+use thruster_fw::{CONFIG, FAMILY};
 
 use crate::board::{self, BackupLatch, BootRecord, ImageSwap, Iwdg, SlavePort};
 
@@ -33,7 +34,7 @@ use {
     embassy_stm32::timer::{BkIn1, BreakInputPin},
     thruster_fw::Duty,
     thruster_fw::commutation::COAST,
-    thruster_fw::tasks::Bridge,
+    thruster_fw::ports::Bridge,
 };
 // The motor-less controller: the model's ports, the real water-sensor pin and the user button.
 #[cfg(feature = "motorless")]
@@ -280,7 +281,7 @@ async fn main(spawner: Spawner) {
     let (halls, bridge) = (ModelHalls::new(&board::MOTORLESS), ModelBridge(&board::MOTORLESS));
     high.spawn(unwrap!(commutation(halls, bridge)));
     let flash = board::open_flash(chip.flash);
-    spawner.spawn(unwrap!(controller(Ports {
+    spawner.spawn(unwrap!(controller(Ports::<G431> {
         i2c: SlavePort(slave),
         sensors: analog,
         watchdog,
@@ -388,8 +389,21 @@ async fn commutation(halls: board::HallInputs, bridge: board::Stage) -> ! {
     thruster_fw::run_commutation(halls, bridge, &CONFIG, &SHARED).await
 }
 
+/// The G431's ports for the controller's thread-mode tasks (`board.rs`).
+struct G431;
+
+impl Board for G431 {
+    type I2c = SlavePort;
+    type Sensors = board::Analog;
+    type Watchdog = Iwdg;
+    type Latch = BackupLatch;
+    type Boot = BootRecord;
+    type Dfu = board::Dfu;
+    type Updater = ImageSwap;
+}
+
 /// The controller's other tasks, on the thread-mode executor.
 #[embassy_executor::task]
-async fn controller(ports: Ports<SlavePort, board::Analog, Iwdg, BackupLatch, BootRecord, board::Dfu, ImageSwap>) -> ! {
+async fn controller(ports: Ports<G431>) -> ! {
     thruster_fw::run(ports, &CONFIG, &SHARED).await
 }

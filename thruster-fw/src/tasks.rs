@@ -1,75 +1,26 @@
-//! The controller's task bodies, the ports they drive, and [`run`], which joins them: each task owns its state
-//! machines and talks to the others only through [`Shared`]. The STM32 binding, the bench and the host tests all
-//! run the controller through [`run`] and [`run_commutation`].
+//! The controller's task bodies and [`run`], which joins them: each task owns its state machines and talks to the
+//! others only through [`Shared`]. The tasks drive the ports of [`crate::ports`]. The STM32 binding, the bench and
+//! the host tests all run the controller through [`run`] and [`run_commutation`].
 
 use core::cell::Cell;
 use embassy_futures::join::{join, join5};
 use embassy_futures::select::select3;
 
 use embassy_time::{Duration, Instant, Ticker, Timer, with_timeout};
-use embedded_storage::nor_flash::NorFlash;
 use tmc_proto::{Family, MotorKind, SeaBotixStatus};
 
 use crate::commutation::{BridgeDrive, COAST, PhaseDrive, drive_for};
 use crate::config::{COMMUTATION_HEARTBEAT, Config, LISTEN_HEARTBEAT};
 use crate::control::{Control, LinkUpdate, Sensed, idle_status};
 use crate::drive::{Direction, Duty};
-use crate::faults::{BrushedSample, CurrentStall, FaultMonitor, LatchStore, Progress, Sample, StallDetector};
-use crate::hall::{HallState, HallTracker};
-use crate::i2c_slave::{Answer, I2cTarget, MasterLink, ServeEvent, serve};
+use crate::faults::{BrushedSample, CurrentStall, FaultMonitor, Progress, Sample, StallDetector};
+use crate::hall::HallTracker;
+use crate::i2c_slave::{Answer, MasterLink, ServeEvent, serve};
 use crate::overcurrent::TripRule;
+use crate::ports::{Board, Bridge, HallSensors, I2cTarget, LatchStore, Ports, Sensors, Watchdog};
 use crate::shared::{Shared, TaskId};
-use crate::trial::{BootState, trial_task};
-use crate::update::{Updater, update_task};
-
-/// The three hall sensor inputs.
-#[allow(async_fn_in_trait)]
-pub trait HallSensors {
-    /// Wait until any hall input changes.
-    async fn wait_for_edge(&mut self);
-    /// The hall inputs now.
-    fn read(&mut self) -> HallState;
-}
-
-/// The three half-bridges.
-pub trait Bridge {
-    /// Drive the phases; `duty` sets the PWM of the phase marked [`PhaseDrive::Pwm`].
-    fn apply(&mut self, drive: BridgeDrive, duty: Duty);
-    /// A sustained overcurrent (`true`): every output off and kept off, the hardware break's automatic restart
-    /// disabled, whatever `apply` asks. `false`: the outputs may come back (at the next PWM period, once the
-    /// break input is inactive).
-    fn hold_off(&mut self, off: bool);
-}
-
-/// Raw ADC readings (12-bit) of the fault and telemetry inputs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RawSample {
-    /// Water-sensor node.
-    pub water: u16,
-    /// The NTC node of the temperature the status reports: the motor's (brushless), the controller's (brushed).
-    pub temperature: u16,
-    /// The three phase shunts' amplifiers (phases A, B, C), converted together at the last trigger of the power
-    /// stage's PWM: the motor current is the largest ([`crate::sensors::CurrentSense::motor_deciamps`]).
-    pub currents: [u16; 3],
-    /// The supply's divider (VBUS).
-    pub vbus: u16,
-    /// The power stage's hardware break tripped (its overcurrent comparator) since the last sample; taking the
-    /// sample clears it.
-    pub break_tripped: bool,
-}
-
-/// The ADC inputs.
-#[allow(async_fn_in_trait)]
-pub trait Sensors {
-    /// Convert every input once.
-    async fn sample(&mut self) -> RawSample;
-}
-
-/// The independent watchdog.
-pub trait Watchdog {
-    /// Restart the watchdog's countdown.
-    fn feed(&mut self);
-}
+use crate::trial::trial_task;
+use crate::update::update_task;
 
 /// Fault inputs are sampled at 1 kHz (IDS faults must be seen within one sample).
 pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
@@ -378,39 +329,11 @@ pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared
     }
 }
 
-/// What the controller's thread-mode tasks are wired to.
-#[derive(Debug)]
-pub struct Ports<T, S, W, L, B, D, U> {
-    /// The I2C slave port of the thruster interface.
-    pub i2c: T,
-    /// The ADC inputs.
-    pub sensors: S,
-    /// The independent watchdog.
-    pub watchdog: W,
-    /// Where the power-cycle fault latches outlast a reset.
-    pub latch: L,
-    /// The bootloader's record of this image, which a new image confirms (see [`crate::trial`]).
-    pub boot: B,
-    /// The DFU partition a field update writes the new image into (see [`crate::update`]).
-    pub dfu: D,
-    /// The bootloader's and the chip's side of a field update: the signature check, the swap's mark, the reset.
-    pub updater: U,
-}
-
 /// The controller's thread-mode tasks, joined: the I2C slave, faults, speed control, health, a new image's trial
 /// and the field update's receiver. Commutation runs apart ([`run_commutation`]), on an executor of its own above
 /// these. They talk only through `shared`, which lives as long as the controller: a reset starts again from a
 /// fresh one.
-pub async fn run<T, S, W, L, B, D, U>(ports: Ports<T, S, W, L, B, D, U>, config: &Config, shared: &Shared) -> !
-where
-    T: I2cTarget,
-    S: Sensors,
-    W: Watchdog,
-    L: LatchStore,
-    B: BootState,
-    D: NorFlash,
-    U: Updater,
-{
+pub async fn run<B: Board>(ports: Ports<B>, config: &Config, shared: &Shared) -> ! {
     let Ports {
         mut i2c,
         mut sensors,

@@ -12,20 +12,8 @@ use embassy_time::{Duration, Ticker, Timer};
 
 use crate::control::LinkUpdate;
 use crate::drive::Duty;
+use crate::ports::BootState;
 use crate::shared::Shared;
-
-/// The bootloader's record of the image that runs (embassy-boot's state partition).
-#[allow(async_fn_in_trait)]
-pub trait BootState {
-    /// Why the record could not be read or written.
-    type Error;
-
-    /// Whether the image is on trial: swapped in by the bootloader and not confirmed yet.
-    async fn on_trial(&mut self) -> Result<bool, Self::Error>;
-
-    /// Confirm the image: the bootloader keeps it at the next reset.
-    async fn confirm(&mut self) -> Result<(), Self::Error>;
-}
 
 /// An image the bootloader did not start on trial (or no bootloader at all): nothing to confirm.
 #[derive(Debug, Clone, Copy, Default)]

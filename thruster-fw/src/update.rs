@@ -36,6 +36,7 @@ use update_image::{
 };
 
 use crate::drive::Duty;
+use crate::ports::{MarkError, Updater};
 use crate::shared::Shared;
 
 /// The longest payload: the ACTIVE partition the bootloader swaps it into.
@@ -49,41 +50,6 @@ const INFO_END: u32 = update_image::MIN_PAYLOAD;
 
 /// How long a reboot waits for the master to read its reply before the reset.
 pub const REBOOT_GRACE: Duration = Duration::from_millis(100);
-
-/// Why the [`Updater`] did not mark the payload.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum MarkError {
-    /// The bootloader's state is not "booted" (the running image is on trial): embassy-boot refuses to mark.
-    OnTrial,
-    /// The flash failed, or did not keep what was written.
-    Flash,
-    /// This controller has no bootloader to hand an image to: it marks nothing.
-    Unavailable,
-}
-
-/// What an update needs of the bootloader and the chip: the running image's record, the mark that hands the DFU
-/// payload to the bootloader with its [`Ticket`], the bootloader's verdict on the last image marked, and the
-/// reset that starts it. The host tests and the bench implement it with embassy-boot's state on lbv-sim's flash,
-/// the binding on the G431's; both mark through [`mark_for_swap`].
-pub trait Updater {
-    /// The running image's information record, as its flash holds it (ACTIVE + [`INFO_OFFSET`]).
-    fn running_info(&mut self) -> [u8; INFO_LEN];
-
-    /// Whether an image marked here is checked before it runs (a bootloader that checks signatures is there): a
-    /// master asks before it sends a payload for nothing.
-    fn checks_signatures(&self) -> bool;
-
-    /// Write `ticket` (the payload's length and signature) for the bootloader and mark DFU's payload for the swap
-    /// at the next reset. Synchronous: the caller has just looked at the motor.
-    fn mark_updated(&mut self, ticket: &Ticket) -> Result<(), MarkError>;
-
-    /// Why the bootloader refused the last image marked, as it wrote it beside that image's ticket.
-    fn verdict(&mut self) -> Option<Verdict>;
-
-    /// Reset the chip, so that the bootloader swaps the marked payload in. On the chip it does not return.
-    fn reboot(&mut self);
-}
 
 /// Hand a payload to the bootloader: erase the record's ticket page and write `ticket` there (read back), then mark
 /// the state for the swap with embassy-boot's own `mark_updated`, and read the mark back (the G4's flash drivers

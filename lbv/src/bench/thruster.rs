@@ -28,9 +28,9 @@ use lbv_sim::{Executor, TaskId};
 use thruster_fw::commutation::{BridgeDrive, COAST};
 use thruster_fw::faults::VolatileLatch;
 use thruster_fw::hall::HallState;
+use thruster_fw::ports::{Board, Bridge, HallSensors, Ports, RawSample, Sensors, Watchdog};
 use thruster_fw::shared::Shared;
-use thruster_fw::tasks::{Bridge, HallSensors, RawSample, Sensors, Watchdog};
-use thruster_fw::{Config, Duty, Ports};
+use thruster_fw::{Config, Duty};
 use tmc_proto::{Family, MotorKind};
 use update_image::{DEV_PUBLIC_KEY, INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version, image_record};
 
@@ -343,7 +343,7 @@ impl ThrusterBoard {
         // Wait for the bootloader only when it has work to wait for: a boot with nothing to swap runs its tasks at
         // once, as it always has.
         let bootloader = in_bootloader.then(|| (self.bus.clone(), self.device));
-        let ports = Ports {
+        let ports = Ports::<BenchBoard> {
             i2c: SlavePort(port),
             sensors: Adc {
                 io: self.io.clone(),
@@ -768,4 +768,17 @@ impl Watchdog for Dog {
     fn feed(&mut self) {
         self.0.last_feed.set(Instant::now());
     }
+}
+
+/// The bench controller's ports: lbv-sim's bus and flash, the rest the plant's.
+struct BenchBoard;
+
+impl Board for BenchBoard {
+    type I2c = SlavePort;
+    type Sensors = Adc;
+    type Watchdog = Dog;
+    type Latch = VolatileLatch;
+    type Boot = BootRecord;
+    type Dfu = Stm32g4Flash;
+    type Updater = BootUpdater;
 }

@@ -4,13 +4,7 @@
 
 use tmc_proto::Faults;
 
-/// Where the power-cycle latches live between resets.
-pub trait LatchStore {
-    /// The latches carried over the last reset (none after a power cycle).
-    fn load(&mut self) -> Faults;
-    /// Keep `latched` for the next reset.
-    fn save(&mut self, latched: Faults);
-}
+use crate::ports::LatchStore;
 
 /// A store that forgets at reset, as RAM does at power-off: for the host bench and tests, where every reset is a
 /// power cycle.

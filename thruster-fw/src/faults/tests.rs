@@ -1,6 +1,7 @@
 //! The latches across resets, then the fault table with and without its filters, and the stall detectors.
 
 use super::*;
+use crate::ports::LatchStore;
 use tmc_proto::{LegacyRevision, LegacyStatus, MaxPower, MotorKind, SeaBotixStatus};
 
 #[test]

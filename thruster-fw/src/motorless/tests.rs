@@ -5,9 +5,12 @@ use crate::commutation::drive_for;
 use crate::control::LinkUpdate;
 use crate::faults::VolatileLatch;
 use crate::hall::{FORWARD_SEQUENCE, Transition, transition};
+use crate::ports::{Board, Ports, Watchdog};
 use crate::shared::Shared;
 use crate::sim::SlavePort;
-use crate::tasks::{Ports, Watchdog};
+use crate::trial::Confirmed;
+use crate::update::NoUpdate;
+use core::marker::PhantomData;
 use core::ops::Deref;
 use lbv_sim::i2c::{Bus, Route, Timing};
 use lbv_sim::{Clock, Executor, clock};
@@ -159,6 +162,20 @@ impl Watchdog for Unwatched {
     fn feed(&mut self) {}
 }
 
+/// The rig's ports: the sensors of the model in `'a`, the rest as the emulated Cortex-M4 has them (no
+/// bootloader, no update).
+struct RigBoard<'a>(PhantomData<&'a Motorless>);
+
+impl<'a> Board for RigBoard<'a> {
+    type I2c = SlavePort;
+    type Sensors = ModelSensors<'a, Dry, Button>;
+    type Watchdog = Unwatched;
+    type Latch = VolatileLatch;
+    type Boot = Confirmed;
+    type Dfu = NoUpdate;
+    type Updater = NoUpdate;
+}
+
 /// The controller as it ships ([`crate::run`], [`crate::run_commutation`]) on the model, with a bus nobody talks
 /// on: the test stands in for the I2C task and publishes the master's orders itself.
 struct Rig {
@@ -193,14 +210,14 @@ impl Rig {
         let controller = io.clone();
         executor.spawn(async move {
             let Some(port) = port else { return };
-            let ports = Ports {
+            let ports = Ports::<RigBoard<'_>> {
                 i2c: SlavePort(port),
                 sensors: ModelSensors::new(&controller.motorless, &CONFIG, Dry, Button(controller.clone())),
                 watchdog: Unwatched,
                 latch: VolatileLatch::default(),
-                boot: crate::trial::Confirmed,
-                dfu: crate::update::NoUpdate,
-                updater: crate::update::NoUpdate,
+                boot: Confirmed,
+                dfu: NoUpdate,
+                updater: NoUpdate,
             };
             crate::run(ports, &CONFIG, &controller.shared).await;
         });

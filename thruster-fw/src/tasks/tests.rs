@@ -4,7 +4,8 @@
 use super::*;
 use crate::config::WatchdogTiming;
 use crate::faults::{Thresholds, VolatileLatch};
-use crate::hall::FORWARD_SEQUENCE;
+use crate::hall::{FORWARD_SEQUENCE, HallState};
+use crate::ports::RawSample;
 use crate::sim::{BootRecord, BootUpdater, DFU_PAGES, SlavePort};
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
@@ -133,6 +134,20 @@ impl Watchdog for CountingWatchdog {
     }
 }
 
+/// The test controller's ports: a slave port on lbv-sim's bus, the bootloader's state and a DFU partition on its
+/// flash, the rest the test's own.
+struct TestBoard;
+
+impl Board for TestBoard {
+    type I2c = SlavePort;
+    type Sensors = TestSensors;
+    type Watchdog = CountingWatchdog;
+    type Latch = TestLatch;
+    type Boot = BootRecord;
+    type Dfu = Flash<8, 2048>;
+    type Updater = BootUpdater;
+}
+
 /// A healthy controller's inputs: dry, 25 C, no current, 24 V.
 fn dry(config: &Config) -> RawSample {
     RawSample {
@@ -241,7 +256,7 @@ impl Bench {
         let transfers: Queue<Vec<u8>> = Queue::new();
         let mut executor = Executor::new();
         let port = bus.target(device).expect("a firmware port");
-        let ports = Ports {
+        let ports = Ports::<TestBoard> {
             i2c: SlavePort(port),
             sensors: TestSensors(io.clone()),
             watchdog: CountingWatchdog(io.clone()),

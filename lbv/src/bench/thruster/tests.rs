@@ -3,8 +3,8 @@
 //! swap, the trial, a revert when the new image is cut off before it confirms, and a forged image the bootloader
 //! refuses. On virtual time, against the bench's master.
 
+use thruster_fw::ports::Updater;
 use thruster_fw::trial::{TRIAL_CHECK, TRIAL_ROUNDS};
-use thruster_fw::update::Updater;
 use update_image::{HEADER_LEN, Header, Ticket, Verdict, key_from_hex, sign};
 
 use super::*;
