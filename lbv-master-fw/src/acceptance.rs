@@ -32,7 +32,7 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
 use tmc_proto::{Decoded, Family, Faults, MAX_STATUS_LEN, MaxPower, ORDER_LEN, Order, Speed, Status, checksum};
 
-use crate::recovery::BusRecovery;
+use crate::ports::BusRecovery;
 use crate::shared::{BUSES, Shared};
 use crate::thrusters::PollFailure;
 
@@ -59,9 +59,9 @@ pub trait Operator {
     }
 }
 
-/// The acceptance image's work on the thruster buses (its [`BusWork`](crate::BusWork) is in the crate root, which
-/// hands it `config.acceptance`): `setup.start` after boot, the script on the dev kit's bus, with every prompt,
-/// step and verdict said on the console as well as told to the operator; the other buses stay idle.
+/// The acceptance image's work on the thruster buses (its [`BusWork`](crate::ports::BusWork) impl is in the crate
+/// root, which hands it `config.acceptance`): `setup.start` after boot, the script on the dev kit's bus, with every
+/// prompt, step and verdict said on the console as well as told to the operator; the other buses stay idle.
 #[derive(Debug)]
 pub struct Script<O>(pub O);
 

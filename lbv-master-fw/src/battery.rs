@@ -32,38 +32,8 @@
 use bat_proto::{BatteryInfo, BitReport, BmsAlarms, DcdcStatus, Frame, StatusBit};
 use embassy_time::{Duration, Instant, Timer, with_deadline};
 
+use crate::ports::{CanFrame, CanReceiver};
 use crate::shared::{BatterySummary, Outgoing, Severity, Shared, Text, text};
-
-/// A received classic CAN frame.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct CanFrame {
-    /// Standard 11-bit identifier.
-    pub id: u16,
-    /// Data length code, 0..=8 (a larger value is a bad frame).
-    pub len: u8,
-    /// Data bytes; only the first `len` count.
-    pub data: [u8; 8],
-}
-
-impl CanFrame {
-    /// The data bytes that count, or `None` if `len` is above 8.
-    pub fn payload(&self) -> Option<&[u8]> {
-        self.data.get(..usize::from(self.len))
-    }
-}
-
-/// The CAN receive port.
-///
-/// `receive` must be cancel-safe: when its future is dropped before completing, no frame is lost (embassy-stm32's
-/// FDCAN `read` is). The monitor drops it to wake up on time when the bus is silent.
-#[allow(async_fn_in_trait)]
-pub trait CanReceiver {
-    /// Why a receive failed (bus off, error passive, overrun...): counted, never fatal.
-    type Error;
-    /// The next frame.
-    async fn receive(&mut self) -> Result<CanFrame, Self::Error>;
-}
 
 /// What one good BAT frame means for the console.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -19,8 +19,8 @@ use embedded_hal::digital::{ErrorType as PinErrorType, InputPin, OutputPin};
 use embedded_hal_async::i2c::{ErrorType, Operation};
 use g431_hw::fdcan;
 use lbv_master_fw::CONFIG;
-use lbv_master_fw::battery::{CanFrame, CanReceiver};
-use lbv_master_fw::recovery::{BusRecovery, clear_bus};
+use lbv_master_fw::ports::{BusRecovery, CanFrame, CanReceiver};
+use lbv_master_fw::recovery::clear_bus;
 
 /// The bootloader's count of early crashes (`update_image::CrashCount`), in its backup register
 /// (`g431_hw::backup::CRASH_REGISTER`). Taken once, at the start, where the reset flags are read and cleared.
@@ -44,7 +44,7 @@ impl CrashRegister {
     }
 }
 
-impl lbv_master_fw::update::own::CrashRegister for CrashRegister {
+impl lbv_master_fw::ports::CrashRegister for CrashRegister {
     fn load(&mut self) -> u32 {
         pac::TAMP.bkpr(g431_hw::backup::CRASH_REGISTER).read().bkp()
     }

@@ -35,12 +35,12 @@ use mavlink_core::MessageData;
 use crate::console::framing::{Event, Frame, FrameParser};
 use crate::console::signing::{Refusal, SigningKey, SigningState};
 use crate::params::{PARAM_COUNT, Param};
+use crate::ports::UpdateSink;
 use crate::shared::{
     Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction,
     UpdateCommand, UpdateRequest,
 };
 use crate::thrusters::ThrusterTable;
-use crate::update::UpdateSink;
 #[cfg(not(feature = "acceptance"))]
 use crate::update::Updates;
 #[cfg(not(feature = "acceptance"))]

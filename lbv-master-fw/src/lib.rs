@@ -5,7 +5,8 @@
 //! never panics on bus input.
 //!
 //! [`run`] is the whole node: the STM32 binding builds its [`Ports`] from peripherals and calls it with [`CONFIG`];
-//! the bench and the tests call it with simulated ports (lbv-sim's buses, links and flash).
+//! the bench and the tests call it with simulated ports (lbv-sim's buses, links and flash). Every trait a port
+//! implements, and the [`Board`] that names their types, is in [`ports`].
 #![cfg_attr(not(test), no_std)]
 
 pub mod acceptance;
@@ -16,6 +17,7 @@ pub mod follow;
 pub mod mixer;
 pub mod params;
 pub mod poll;
+pub mod ports;
 pub mod recovery;
 pub mod settings;
 pub mod shared;
@@ -25,20 +27,17 @@ pub mod vehicle;
 
 use embassy_futures::join::{join3, join5};
 use embedded_hal_async::i2c::I2c;
-use embedded_io_async::{Read, Write};
 
 pub use config::{CONFIG, MasterConfig};
 pub use poll::{PollError, poll_thruster};
 
-use battery::{CanReceiver, can_task};
+use battery::can_task;
 use console::{ConsoleStats, console_rx_task, console_tx_task};
-use recovery::BusRecovery;
-use settings::{Reboot, SettingsStore, settings_task};
+use ports::{Board, BusRecovery, BusWork, OwnUpdate, Ports, SettingsStore};
+use settings::settings_task;
 use shared::{BUSES, Severity, Shared, text};
 use thrusters::{Links, bus_task};
-use update::UpdateSink;
 use update::courier::Transfers;
-use update::own::OwnUpdate;
 use vehicle::vehicle_task;
 
 /// What an image that takes update files signed with the development key (update-image's `UPDATE_KEY_IS_DEV`)
@@ -56,43 +55,6 @@ pub const NOT_DUAL_BANK: &str = "flash not dual-bank";
 pub const NOT_DUAL_BANK_TEXT: &str = "Settings and updates refused: flash not dual-bank";
 // Whole in one STATUSTEXT.
 const _: () = assert!(NOT_DUAL_BANK_TEXT.len() <= shared::TEXT_LEN);
-
-/// What the master is wired to: the three thruster buses (I2C1..3, indexed as in the thruster table), the battery
-/// CAN bus, the console's serial link, where the settings are kept, how it restarts, what the buses are for,
-/// where update images go, and how it updates itself.
-#[derive(Debug)]
-pub struct Ports<B, C, R, W, S, X, J = Polling<'static>, U = update::CheckOnly, O = ()> {
-    /// The thruster buses, each with its recovery.
-    pub buses: [B; BUSES],
-    /// The battery board's frames.
-    pub can: C,
-    /// The console link's receive side.
-    pub console_rx: R,
-    /// The console link's transmit side.
-    pub console_tx: W,
-    /// Where the settings are kept: [`settings::Store`] on the flash pages kept for them (or, on a board without
-    /// them, [`settings::InRam`]).
-    pub settings: S,
-    /// How the master restarts (MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN).
-    pub reboot: X,
-    /// The buses' work: [`Polling`] the thrusters (the vehicle), or the acceptance [`acceptance::Script`].
-    pub work: J,
-    /// Where the update images received over MAVLink FTP go ([`update`]): the vehicle's [`update::VehicleSink`],
-    /// or [`update::CheckOnly`] in an image that sends none on (the acceptance image, the tests).
-    pub update: U,
-    /// The master's own update ([`update::own`]): [`update::own::Updating`] on its flash, or `()` without a bootloader.
-    pub own: O,
-}
-
-/// What the master does with its thruster buses.
-#[allow(async_fn_in_trait)]
-pub trait BusWork {
-    /// Whether it polls the thrusters in the table, and so publishes their reports to `shared.thrusters`.
-    const POLLS: bool;
-
-    /// Use the buses; returning leaves them idle.
-    async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], config: &MasterConfig, shared: &Shared);
-}
 
 /// The vehicle's work: every bus that has thrusters in the table is polled by its own task ([`bus_task`]), which
 /// also carries the update images in `transfers` to its thrusters, between polls.
@@ -164,23 +126,7 @@ async fn poll_bus<B: I2c + BusRecovery>(
 /// Before any task runs, the settings are published and, with a signing key, a new signing reservation is stored
 /// past the one loaded (the start's floor, [`console::signing`]): the first frame read (one already waiting in the UART) is
 /// checked with the key, and the first telemetry goes out signed, above every timestamp used before the start.
-pub async fn run<B, C, R, W, S, X, J, U, O>(
-    ports: Ports<B, C, R, W, S, X, J, U, O>,
-    config: &MasterConfig,
-    shared: &Shared,
-    console: &ConsoleStats,
-) -> !
-where
-    B: I2c + BusRecovery,
-    C: CanReceiver,
-    R: Read,
-    W: Write,
-    S: SettingsStore,
-    X: Reboot,
-    J: BusWork,
-    U: UpdateSink,
-    O: OwnUpdate,
-{
+pub async fn run<P: Board>(ports: Ports<P>, config: &MasterConfig, shared: &Shared, console: &ConsoleStats) -> ! {
     let Ports {
         mut buses,
         mut can,
@@ -238,7 +184,7 @@ where
             vehicle_task(config.vehicle, stored, shared),
         ),
         settings_task(&mut settings, shared, &mut reboot),
-        own.run(if J::POLLS { config.thrusters.count() } else { 0 }, shared),
+        own.run(if P::Work::POLLS { config.thrusters.count() } else { 0 }, shared),
     )
     .await;
     never

@@ -11,6 +11,8 @@ use embedded_hal::digital::{InputPin, OutputPin};
 use embedded_hal_async::delay::DelayNs;
 use embedded_hal_async::i2c::{ErrorType, I2c, Operation};
 
+use crate::ports::BusRecovery;
+
 /// A thruster bus: its clock, and how long a transfer may stall before the master gives up on it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -34,13 +36,6 @@ impl BusConfig {
         let hz = if self.frequency_hz == 0 { 1 } else { self.frequency_hz };
         500_000_000 / hz
     }
-}
-
-/// A thruster bus the master can clear when a transfer times out or fails on the bus.
-#[allow(async_fn_in_trait)]
-pub trait BusRecovery {
-    /// Clear the bus; true when SDA is free afterwards.
-    async fn recover(&mut self) -> bool;
 }
 
 /// Most SCL clocks a recovery sends: a byte and its ACK.

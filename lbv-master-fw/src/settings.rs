@@ -16,10 +16,10 @@
 //! item per setting, as sequential-storage's map keeps them) makes every change all or nothing, and the log's code
 //! is no larger.
 //!
-//! Two ports: where the settings are kept ([`SettingsStore`]: [`Store`] over any embedded-storage-async
-//! `NorFlash` — embassy-stm32's flash driver on the chip, lbv-sim's flash on the bench, sequential-storage's
-//! fault-injecting mock in the tests — or, with no flash for them, [`InRam`]), and how the master restarts
-//! ([`Reboot`]).
+//! Two ports ([`crate::ports`]): where the settings are kept ([`SettingsStore`]: [`Store`] over any
+//! embedded-storage-async `NorFlash` — embassy-stm32's flash driver on the chip, lbv-sim's flash on the bench,
+//! sequential-storage's fault-injecting mock in the tests — or, with no flash for them, [`InRam`]), and how the
+//! master restarts ([`Reboot`]).
 
 use core::ops::Range;
 
@@ -33,6 +33,7 @@ use g431_hw::memory::{self, Span};
 
 use crate::console::signing::SigningKey;
 use crate::params::{PARAM_COUNT, Param, Params, Settings};
+use crate::ports::{Reboot, SettingsStore, StoreError};
 use crate::shared::{Severity, Shared, text};
 
 /// The master's flash kept for the settings ([`memory::MASTER_STORAGE`]), as offsets from the start of flash: the
@@ -50,40 +51,6 @@ pub const DATA_PAGES: [Span; 4] = [
     memory::MASTER_PARTITIONS.record,
     memory::MASTER_PARTITIONS.dfu,
 ];
-
-/// Where the settings are kept.
-#[allow(async_fn_in_trait)]
-pub trait SettingsStore {
-    /// The newest stored settings over `defaults` (what is missing or invalid stays default); called once, at
-    /// start-up, before anything is saved.
-    async fn load(&mut self, defaults: Settings) -> Settings;
-
-    /// Store `settings`.
-    async fn save(&mut self, settings: &Settings) -> Result<(), StoreError>;
-
-    /// Store the signing link's reservation.
-    async fn save_signing_time(&mut self, timestamp: u64) -> Result<(), StoreError>;
-
-    /// Records that could not be read by [`SettingsStore::load`].
-    fn read_errors(&self) -> u32 {
-        0
-    }
-
-    /// Whether every write is refused ([`StoreError::Layout`]): the chip's flash is not in the layout the pages are
-    /// placed for. [`crate::run`] says so at start, for the master's own update too, which the binding refuses on
-    /// the same reading.
-    fn writes_refused(&self) -> bool {
-        false
-    }
-}
-
-/// Restarts the master: a system reset on the STM32; the bench drops the master's tasks and boots it again with
-/// its flash kept.
-#[allow(async_fn_in_trait)]
-pub trait Reboot {
-    /// Restart now. It does not return: the STM32 resets; elsewhere the task waits here until it is dropped.
-    async fn reboot(&mut self) -> !;
-}
 
 /// Settings kept in RAM only, for a board with no flash set aside for them (the cores on an emulated Cortex-M4):
 /// every start is from the defaults, and a save is accepted and forgotten.
@@ -114,19 +81,6 @@ const RECORD: usize = 2 + 4 * PARAM_COUNT + 32 + 8 + 8;
 #[repr(align(8))]
 #[derive(Debug)]
 struct Buffer([u8; RECORD.next_multiple_of(8)]);
-
-/// Why a write did not reach the flash.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum StoreError {
-    /// The flash reported an error (or the power was cut, in the tests).
-    Flash,
-    /// The store found itself corrupt and could not repair it.
-    Corrupt,
-    /// The chip's flash is not in the layout the pages are placed for ([`Store::set_layout_ok`]): nothing is
-    /// written.
-    Layout,
-}
 
 impl<E> From<sequential_storage::Error<E>> for StoreError {
     fn from(error: sequential_storage::Error<E>) -> Self {

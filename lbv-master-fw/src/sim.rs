@@ -11,13 +11,13 @@ use std::cell::{Cell, RefCell};
 use std::convert::Infallible;
 use std::rc::Rc;
 
-use crate::battery::{CanFrame, CanReceiver};
+use crate::ports::{Applied, CanFrame, CanReceiver, Reboot, Refused, UpdateSink, UpdateTarget};
 use crate::recovery::BusConfig;
 use crate::recovery::PinRecovery;
-use crate::settings::{Reboot, Store};
+use crate::settings::Store;
 use crate::shared::{Sender, UpdateHolds};
+use crate::update::ImageHeader;
 use crate::update::ftp::Nak;
-use crate::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget};
 use embassy_time::Delay;
 use g431_hw::memory;
 use lbv_sim::Queue;

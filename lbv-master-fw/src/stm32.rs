@@ -19,10 +19,11 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::mutex::Mutex;
 use g431_hw::flash::{self, NmiAction};
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::settings::{DATA_PAGES, Reboot, Store};
+use lbv_master_fw::ports::{Board, Ports, Reboot};
+use lbv_master_fw::settings::{DATA_PAGES, Store};
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::update::own::{OwnFlash, OwnImage, Updating};
-use lbv_master_fw::{CONFIG, MasterConfig, Ports};
+use lbv_master_fw::{CONFIG, MasterConfig};
 use static_cell::StaticCell;
 
 use crate::board::{self, BatteryCan, Pin, ThrusterBus, set_i2c_timing};
@@ -65,10 +66,6 @@ const _: () = assert!(update_image::IMAGE_RECORD_LEN == g431_hw::memory::IMAGE_I
 type ChipFlash = Mutex<CriticalSectionRawMutex, Flash<'static, Async>>;
 /// The whole flash, addressed from its start, shared by the settings and the master's own update.
 type WholeFlash = Partition<'static, CriticalSectionRawMutex, Flash<'static, Async>>;
-/// Where the settings are kept.
-type Settings = Store<WholeFlash>;
-/// The master's own update, on the same flash, at `g431_hw::memory::MASTER_PARTITIONS`' offsets.
-type Own = Updating<'static, WholeFlash, board::CrashRegister>;
 
 /// What the thruster buses are for: polling the thrusters, or in the acceptance image the dev kits' test.
 #[cfg(not(feature = "acceptance"))]
@@ -277,24 +274,28 @@ async fn feed(mut watchdog: board::Watchdog) -> ! {
 }
 
 /// The master's ports on the NUCLEO.
-type MasterPorts = Ports<
-    ThrusterBus,
-    BatteryCan,
-    BufferedUartRx<'static>,
-    BufferedUartTx<'static>,
-    Settings,
-    SystemReset,
-    Work,
-    Sink,
-    Own,
->;
+struct Nucleo;
+
+impl Board for Nucleo {
+    type Bus = ThrusterBus;
+    type Can = BatteryCan;
+    type ConsoleRx = BufferedUartRx<'static>;
+    type ConsoleTx = BufferedUartTx<'static>;
+    /// The settings, in their pages of the whole flash.
+    type Settings = Store<WholeFlash>;
+    type Reboot = SystemReset;
+    type Work = Work;
+    type Update = Sink;
+    /// The master's own update, on the same flash, at `g431_hw::memory::MASTER_PARTITIONS`' offsets.
+    type Own = Updating<'static, WholeFlash, board::CrashRegister>;
+}
 
 /// The whole node, on the thread-mode executor. Its channels are set up at start in a `StaticCell` (zeroed RAM): a
 /// static with an initial value would take 2.5 KiB of flash, and inside the task's future they would be built on
 /// the stack with the rest of it when the task is spawned (embassy-executor's `write_in_place` materialises the
 /// whole future there), which overflowed the 15 KiB stack at boot.
 #[embassy_executor::task]
-async fn master(ports: MasterPorts, config: &'static MasterConfig) -> ! {
+async fn master(ports: Ports<Nucleo>, config: &'static MasterConfig) -> ! {
     static SHARED: StaticCell<Shared> = StaticCell::new();
     let shared = SHARED.init_with(Shared::new);
     lbv_master_fw::run(ports, config, shared, &CONSOLE_STATS).await

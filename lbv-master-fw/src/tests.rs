@@ -5,11 +5,13 @@
 pub(crate) mod scripted;
 
 use core::cell::RefCell;
+use core::marker::PhantomData;
 use std::collections::VecDeque;
 use std::process::{Command as Process, Stdio};
 use std::rc::Rc;
 
 use embassy_time::{Duration, Instant};
+use lbv_sim::flash::Stm32g4Flash;
 use lbv_sim::i2c::{Bus, Route, Timing};
 use lbv_sim::{Executor, Queue, SerialRx, SerialTx, clock};
 use serde_json::Value;
@@ -17,11 +19,30 @@ use tmc_proto::Family;
 
 use crate::config::VEHICLE;
 use crate::console::ConsoleStats;
+use crate::ports::Ports;
+use crate::ports::{Board, OwnUpdate, UpdateSink};
+use crate::settings::Store;
 use crate::shared::{MAX_THRUSTERS, Shared};
-use crate::sim::{CanNode, RebootRequest, flash_store, master_flash, thruster_bus};
+use crate::sim::{CanNode, RebootRequest, ThrusterBus, flash_store, master_flash, thruster_bus};
 use crate::tests::scripted::SimThruster;
 use crate::thrusters::MUX_ADDRESS;
-use crate::{Polling, Ports, run};
+use crate::{Polling, run};
+
+/// The master on lbv-sim's parts, polling its buses, with `U` for the update images and `O` for its own update.
+#[derive(Debug)]
+struct Simulated<U, O>(PhantomData<(U, O)>);
+
+impl<U: UpdateSink, O: OwnUpdate> Board for Simulated<U, O> {
+    type Bus = ThrusterBus;
+    type Can = CanNode;
+    type ConsoleRx = SerialRx;
+    type ConsoleTx = SerialTx;
+    type Settings = Store<Stm32g4Flash>;
+    type Reboot = RebootRequest;
+    type Work = Polling<'static>;
+    type Update = U;
+    type Own = O;
+}
 
 /// Run the project's pymavlink peer (`tests/mav_peer.py`).
 fn mav_peer(command: &str, input: &str) -> Value {
@@ -90,7 +111,7 @@ fn a_pymavlink_pilot_arms_drives_and_disarms_the_vehicle() {
     let stats = ConsoleStats::new();
     let clock = clock::take();
     let mut executor = Executor::new();
-    let ports = Ports {
+    let ports = Ports::<Simulated<_, _>> {
         buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
         // No battery board on the CAN bus.
         can: CanNode::default(),
@@ -220,7 +241,7 @@ fn an_arm_waiting_when_the_master_starts_on_trial_is_refused_until_its_image_has
     let (shared, stats, image) = (Shared::new(), ConsoleStats::new(), OwnImage::new());
     let clock = clock::take();
     let mut executor = Executor::new();
-    let ports = Ports {
+    let ports = Ports::<Simulated<_, _>> {
         buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
         can: CanNode::default(),
         console_rx: SerialRx::new(console_in.clone()),
@@ -284,9 +305,10 @@ fn an_arm_waiting_when_the_master_starts_on_trial_is_refused_until_its_image_has
 
 #[test]
 fn polling_holds_arming_until_every_thruster_of_the_table_has_said_what_it_runs_or_is_found_missing() {
+    use crate::CONFIG;
+    use crate::ports::BusWork;
     use crate::shared::UpdateHold;
     use crate::update::courier::Transfers;
-    use crate::{BusWork, CONFIG};
 
     // No thruster on the buses: each is found missing by its first poll, and not waited for after it.
     let config = CONFIG;
@@ -336,7 +358,7 @@ fn a_master_whose_flash_is_not_dual_bank_says_so_once_and_writes_neither_setting
     settings.set_layout_ok(false);
     let clock = clock::take();
     let mut executor = Executor::new();
-    let ports = Ports {
+    let ports = Ports::<Simulated<_, _>> {
         buses: buses.each_ref().map(|bus| thruster_bus(bus, &config.bus)),
         can: CanNode::default(),
         console_rx: SerialRx::new(console_in.clone()),

@@ -30,7 +30,7 @@ use tmc_proto::{DecodeError, Decoded, Family, Faults, Order, Status, StatusForm}
 
 use crate::follow::{FollowChange, FollowCheck};
 use crate::poll::{PollError, Polled, poll_thruster};
-use crate::recovery::BusRecovery;
+use crate::ports::BusRecovery;
 use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
 use crate::update::courier::{self, ExchangeError, Transfers};
 

@@ -74,6 +74,7 @@ use core::sync::atomic::Ordering;
 use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
+use crate::ports::{Applied, MASTER_SLOT, Refused, UpdateSink, UpdateTarget};
 use crate::shared::{
     AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction,
     UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
@@ -98,8 +99,6 @@ pub const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
 pub const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
 /// The longest master payload: its ACTIVE partition, which the payload is an image of.
 pub const MASTER_MAX_PAYLOAD: u32 = g431_hw::memory::MASTER_PARTITIONS.active.length;
-/// The slot number of the master in the apply command's param1.
-pub const MASTER_SLOT: u8 = 255;
 /// Why no update file changes while the master's own image is marked for the swap ([`Context::restarting`]).
 const RESTARTING: &str = "master restarting into its update";
 /// Why an upload, or a write to an image whole, is refused: bytes past the end its header gives.
@@ -112,26 +111,6 @@ pub const UNSIGNED: &str = "refused, the link is not signed";
 /// them is checked. MAVProxy and pymavlink keep five writes in flight and send again those whose ACK was lost: 16
 /// covers them with room, for 128 bytes of RAM.
 pub const MARKS: usize = 16;
-
-/// What an update file is for: a slot of the thruster table, or the master.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum UpdateTarget {
-    /// The thruster in this slot of the table, from 0.
-    Thruster(u8),
-    /// The master itself.
-    Master,
-}
-
-impl UpdateTarget {
-    /// Its slot number: the thruster's, or [`MASTER_SLOT`].
-    pub const fn slot(self) -> u8 {
-        match self {
-            Self::Thruster(slot) => slot,
-            Self::Master => MASTER_SLOT,
-        }
-    }
-}
 
 /// The target byte of images for `family`'s thrusters.
 const fn thruster_kind(family: Family) -> u8 {
@@ -147,73 +126,6 @@ fn kind_name(kind: u8) -> &'static str {
         1 => "SeaBotix",
         2 => "Legacy",
         _ => "master",
-    }
-}
-
-/// What [`UpdateSink::apply`] did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Applied {
-    /// The target is taking the image: the final result follows as a second COMMAND_ACK.
-    Started,
-    /// Not yet: the image is still on its way to the target.
-    Pending,
-    /// Nothing: the path to the target is not there yet (the image was checked, and that is all).
-    NotWired,
-    /// Nothing new: an apply of the target is under way already, for this sender, whose final answer it gets.
-    Applying(Sender),
-}
-
-/// Where an upload's bytes go, in order. [`VehicleSink`] sends thruster images on to the thruster's DFU
-/// partition over its bus and the master's into its own; [`CheckOnly`] keeps nothing, and the bench also records everything.
-///
-/// The calls do not wait: a sink that forwards over a bus keeps what it is given (at most one FTP write's worth,
-/// [`ftp::DATA_LEN`] bytes, per call), and the console reads on only once the sink is [`UpdateSink::ready`]. An
-/// error NAKs the request and stops the upload. (Synchronous calls keep the server a plain state machine: as
-/// async code it took three times the flash.)
-#[allow(async_fn_in_trait)]
-pub trait UpdateSink {
-    /// Wait until the sink can take the calls of the next requests.
-    async fn ready(&mut self) {}
-    /// An image for `target` begins; its header has passed the server's checks.
-    fn begin(&mut self, target: UpdateTarget, header: &ImageHeader) -> Result<(), Refused>;
-    /// The file's bytes from `offset` on (past the header, always the next byte after the last write).
-    fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), Refused>;
-    /// The image that began is done: `complete` when every byte its header announces arrived, otherwise it was
-    /// stopped and what arrived is to be dropped.
-    fn finish(&mut self, complete: bool) -> Result<(), Refused>;
-    /// Apply the image received whole for `target`, as `from` asks.
-    fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak>;
-    /// Ask thruster `slot` which image it runs, for `from`, who gets the answer (a text and the final
-    /// COMMAND_ACK). A sink that reaches no thruster refuses.
-    fn query_version(&mut self, slot: u8, from: Sender) -> Result<(), Refused> {
-        let _ = (slot, from);
-        Err(Refused::Because("no thruster bus here"))
-    }
-    /// Tell the vehicle, in `holds`, what of the updates keeps it from arming now: called as soon as an apply has
-    /// been taken, so that an arm command read after it is refused. A sink that applies nothing holds nothing.
-    fn publish(&self, holds: &UpdateHolds) {
-        let _ = holds;
-    }
-}
-
-/// Why a sink did not take an upload's call: the upload stops.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Refused {
-    /// The sink tells the operator why itself, with what it knows (the courier as its transfer ends, the master's
-    /// own task once it has looked at its flash): the server adds nothing.
-    Told,
-    /// Why, for the server to tell.
-    Because(&'static str),
-}
-
-impl Refused {
-    /// What the server says of it: nothing when the sink tells it.
-    fn why(self) -> &'static str {
-        match self {
-            Refused::Told => "",
-            Refused::Because(why) => why,
-        }
     }
 }
 

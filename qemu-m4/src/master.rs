@@ -3,17 +3,19 @@
 //! the ground station (`station.rs`).
 
 use core::convert::Infallible;
+use core::marker::PhantomData;
 
 use embassy_executor::{SendSpawner, Spawner};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
-use lbv_master_fw::battery::{CanFrame, CanReceiver};
+use lbv_master_fw::MasterConfig;
 use lbv_master_fw::console::ConsoleStats;
-use lbv_master_fw::settings::{InRam, Reboot};
+use lbv_master_fw::ports::{Board, BusWork, CanFrame, CanReceiver, Ports, Reboot};
+use lbv_master_fw::settings::InRam;
 use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::{BusWork, MasterConfig, Ports};
+use lbv_master_fw::update::CheckOnly;
 use static_cell::StaticCell;
 
 use crate::i2c::{Bus, MAX_THRUSTERS, MasterPort};
@@ -38,9 +40,25 @@ pub static CAN: Channel<Cs, CanFrame, 8> = Channel::new();
 /// joined), every poll and by which of them made progress.
 pub static MASTER_METER: Joined = Joined::new("master tasks (run)", Progress::MASTER, None);
 
-/// The master's ports, with `work` on the thruster buses. The emulated chip has no flash set aside for the settings:
-/// they stay in RAM.
-pub type MasterPorts<J> = Ports<MasterPort, CanPort, ConsoleRx, ConsoleTx, InRam, NoReboot, J>;
+/// The master's ports, with `work` on the thruster buses.
+pub type MasterPorts<J> = Ports<EmulatedChip<J>>;
+
+/// The master's ports on the emulated chip, with `J` on the thruster buses. The chip has no flash set aside for the
+/// settings: they stay in RAM; it has no bootloader, and its update sink sends nothing on.
+#[derive(Debug)]
+pub struct EmulatedChip<J>(PhantomData<J>);
+
+impl<J: BusWork> Board for EmulatedChip<J> {
+    type Bus = MasterPort;
+    type Can = CanPort;
+    type ConsoleRx = ConsoleRx;
+    type ConsoleTx = ConsoleTx;
+    type Settings = InRam;
+    type Reboot = NoReboot;
+    type Work = J;
+    type Update = CheckOnly;
+    type Own = ();
+}
 
 /// The thruster buses of `config`'s table, each thruster a motor-less thruster core started on the chip; the one
 /// whose halls come through the hall-edge interrupt is the first when `halls` says so.
@@ -69,7 +87,7 @@ pub fn buses(config: &MasterConfig, thread: Spawner, high: SendSpawner, halls: H
 }
 
 /// The master's ports on `buses`, the battery bus, the console link, with `work` on the buses.
-pub fn ports<J>(buses: [&'static Bus; BUSES], work: J) -> MasterPorts<J> {
+pub fn ports<J: BusWork>(buses: [&'static Bus; BUSES], work: J) -> MasterPorts<J> {
     Ports {
         buses: buses.map(Bus::master),
         can: CanPort,
@@ -78,7 +96,7 @@ pub fn ports<J>(buses: [&'static Bus; BUSES], work: J) -> MasterPorts<J> {
         settings: InRam,
         reboot: NoReboot,
         work,
-        update: lbv_master_fw::update::CheckOnly,
+        update: CheckOnly,
         own: (),
     }
 }

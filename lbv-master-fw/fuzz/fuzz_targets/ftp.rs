@@ -10,9 +10,10 @@
 use arbitrary::Arbitrary;
 use embassy_time::Instant;
 use lbv_master_fw::config::VEHICLE;
+use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Outgoing, Sender};
 use lbv_master_fw::update::ftp::{ACK, NAK, Nak};
-use lbv_master_fw::update::{Applied, Context, HEADER_LEN, ImageHeader, Refused, UpdateServer, UpdateSink, UpdateTarget};
+use lbv_master_fw::update::{Context, HEADER_LEN, ImageHeader, UpdateServer};
 // The host's time driver (the harness passes its own instants).
 use lbv_sim as _;
 use libfuzzer_sys::fuzz_target;

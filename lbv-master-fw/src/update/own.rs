@@ -64,6 +64,7 @@ use update_image::{
     read_checked_word,
 };
 
+use crate::ports::{CrashRegister, OwnUpdate};
 use crate::shared::{
     AckResult, MAV_CMD_LBV_APPLY_UPDATE, Outgoing, Sender, Severity, Shared, Text, UpdateHold, text, texts,
     verdict_texts,
@@ -73,14 +74,6 @@ use crate::update::header::{HEADER_LEN, ImageHeader};
 
 /// How long the image runs before a crash is no longer an early one: the count of early crashes is cleared then.
 pub const EARLY_WINDOW: Duration = Duration::from_secs(EARLY_WINDOW_SECS);
-
-/// Where the bootloader counts early crashes ([`CrashCount`]): on the chip a backup register (`g431_hw::backup`).
-pub trait CrashRegister {
-    /// The word it holds.
-    fn load(&mut self) -> u32;
-    /// Keep `word`.
-    fn store(&mut self, word: u32);
-}
 
 /// A register that forgets at every start, as a board without a bootloader has: the tests, the cores on QEMU.
 impl CrashRegister for u32 {
@@ -458,15 +451,6 @@ impl<F: NorFlash> OwnFlash<F> {
     fn partition(&self, span: Span) -> Partition<'_, NoopRawMutex, F> {
         Partition::new(&self.flash, span.origin - FLASH_ORIGIN, span.length)
     }
-}
-
-/// What the master does for its own update: [`Updating`] on its flash, or `()` on a board with no bootloader
-/// (the cores on an emulated Cortex-M4, the tests), where master images are refused.
-#[allow(async_fn_in_trait)]
-pub trait OwnUpdate {
-    /// Do it, for as long as the master runs, with the first `polled` thrusters of the table polled by the buses'
-    /// work (none when it does not poll them).
-    async fn run(self, polled: u8, shared: &Shared);
 }
 
 impl OwnUpdate for () {

@@ -22,8 +22,9 @@ use lbv_master_fw::console::lbv::{
 use lbv_master_fw::console::limit::BURST;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, HELD, console_rx_task};
 use lbv_master_fw::params::{PARAM_COUNT, Param, Settings};
+use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Sender, Severity, Shared, text};
-use lbv_master_fw::update::{Applied, ImageHeader, Refused, UpdateSink, UpdateTarget, ftp};
+use lbv_master_fw::update::{ImageHeader, ftp};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
 use lbv_station::GCS_HEARTBEAT;
 

@@ -17,19 +17,20 @@ use std::time::{SystemTime, UNIX_EPOCH};
 
 use embassy_time::{Delay, Duration};
 use embedded_hal_async::i2c::I2c;
-use lbv_master_fw::battery::{CanFrame, CanReceiver};
 use lbv_master_fw::config::{MasterConfig, VEHICLE};
 use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::lbv::{COMMAND_LONG_DATA, MANUAL_CONTROL_DATA, MavMessage, SETUP_SIGNING_DATA};
 use lbv_master_fw::console::signing::{SIGNATURE_LEN, SigningKey, TIMESTAMP_MAX};
 use lbv_master_fw::console::{ConsoleCounters, ConsoleStats, inbound};
-use lbv_master_fw::recovery::{BusRecovery, PinRecovery};
-use lbv_master_fw::settings::{Reboot, Store};
+use lbv_master_fw::ports::{BusRecovery, BusWork, CanFrame, CanReceiver, Ports, Reboot};
+use lbv_master_fw::recovery::PinRecovery;
+use lbv_master_fw::run;
+use lbv_master_fw::settings::Store;
 use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
-use lbv_master_fw::{BusWork, Ports, run};
+use lbv_master_fw::update::CheckOnly;
 use lbv_sim::flash::Stm32g4Flash;
-use lbv_sim::i2c::Bus;
+use lbv_sim::i2c::{Bus, Master, Scl, Sda};
 use lbv_sim::{Executor, Queue, SerialRx, SerialTx};
 use lbv_station::GCS_HEARTBEAT;
 use mavlink_core::{MAVLinkV2MessageRaw, MavHeader, SigningConfig, SigningData};
@@ -73,6 +74,21 @@ impl Reboot for Restart {
         self.0.set(self.0.get() + 1);
         core::future::pending().await
     }
+}
+
+/// The master's ports in these tests: lbv-sim's buses and flash, idle buses, no battery board, no update.
+struct Wiring;
+
+impl lbv_master_fw::ports::Board for Wiring {
+    type Bus = PinRecovery<Master, Scl, Sda, Delay>;
+    type Can = NoCan;
+    type ConsoleRx = SerialRx;
+    type ConsoleTx = SerialTx;
+    type Settings = Store<Stm32g4Flash>;
+    type Reboot = Restart;
+    type Work = Idle;
+    type Update = CheckOnly;
+    type Own = ();
 }
 
 /// What one boot of the master saw and did.
@@ -120,7 +136,7 @@ impl Board {
         let shared = Shared::new();
         let stats = ConsoleStats::new();
         let restart = Restart::default();
-        let ports = Ports {
+        let ports = Ports::<Wiring> {
             buses: buses.each_ref().map(|bus| PinRecovery {
                 i2c: bus.master(),
                 scl: bus.scl(),
@@ -134,7 +150,7 @@ impl Board {
             settings: Store::master(self.flash.clone()),
             reboot: restart.clone(),
             work: Idle,
-            update: lbv_master_fw::update::CheckOnly,
+            update: CheckOnly,
             own: (),
         };
         let mut executor = Executor::new();

@@ -6,7 +6,7 @@ use core::cell::Cell;
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus, Frame};
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::battery::CanFrame;
+use lbv_master_fw::ports::CanFrame;
 
 /// The BAT firmware's frame period.
 const FRAME_PERIOD: Duration = Duration::from_millis(100);

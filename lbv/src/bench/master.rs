@@ -16,6 +16,7 @@
 //! stall.
 
 use core::cell::{Cell, RefCell};
+use core::marker::PhantomData;
 use std::rc::Rc;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
@@ -24,14 +25,15 @@ use g431_hw::memory::MASTER_PARTITIONS;
 use lbv_boot::{CrashCount, Outcome};
 use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
-use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::console::ConsoleStats;
+use lbv_master_fw::ports::{Board, BusWork, CanFrame, CrashRegister, OwnUpdate, Ports, UpdateSink};
+use lbv_master_fw::settings::Store;
 use lbv_master_fw::shared::BUSES;
 use lbv_master_fw::shared::Shared;
 use lbv_master_fw::update::VehicleSink;
 use lbv_master_fw::update::courier::Transfers;
 use lbv_master_fw::update::own::{OwnFlash, OwnImage, Updating};
-use lbv_master_fw::{MasterConfig, Polling, Ports};
+use lbv_master_fw::{MasterConfig, Polling};
 use lbv_sim::flash::{FlashTiming, Stm32g4Flash};
 use lbv_sim::i2c::Bus;
 use lbv_sim::{Cpu, Executor, LineRx, LineTx, Queue, SerialLine, SerialRx, SerialTx, TaskId};
@@ -39,7 +41,9 @@ use tmc_proto::Family;
 use update_image::{INFO_LEN, INFO_OFFSET, ImageInfo, Target, Version};
 
 use super::thruster::{made_up_image, partition};
-use lbv_master_fw::sim::{CanNode, RebootRequest, Recorded, UpdateRecorder, flash_store, master_flash, thruster_bus};
+use lbv_master_fw::sim::{
+    CanNode, RebootRequest, Recorded, ThrusterBus, UpdateRecorder, flash_store, master_flash, thruster_bus,
+};
 
 /// The version of the image a bench master leaves the factory with.
 pub const MASTER_FACTORY_VERSION: Version = Version::new(0, 1, 0);
@@ -213,7 +217,7 @@ pub struct MasterBoard {
 /// A backup register on the bench: a word kept over resets.
 struct BackupRegister(Rc<Cell<u32>>);
 
-impl lbv_master_fw::update::own::CrashRegister for BackupRegister {
+impl CrashRegister for BackupRegister {
     fn load(&mut self) -> u32 {
         self.0.get()
     }
@@ -348,7 +352,7 @@ impl MasterBoard {
     /// The node on its ports: the acceptance `script` on its thruster buses, or without one the vehicle's polling,
     /// which carries the update images the console receives to the thrusters (each recorded too).
     fn spawn(&self, wiring: &Wiring, executor: &mut Executor<'static>, script: Option<Script<DeskOperator>>) -> TaskId {
-        let ports = Ports {
+        let parts = Parts {
             buses: wiring.buses.each_ref().map(|bus| thruster_bus(bus, &self.config.bus)),
             can: CanNode(wiring.can.clone()),
             console_rx: match &wiring.console_line {
@@ -361,9 +365,6 @@ impl MasterBoard {
             },
             settings: flash_store(&self.flash),
             reboot: self.reboot.clone(),
-            work: (),
-            update: (),
-            own: (),
         };
         let recorder = self.updates.clone();
         let (config, shared, stats) = (self.config, self.shared.clone(), self.console_stats.clone());
@@ -383,32 +384,59 @@ impl MasterBoard {
                 crashes: BackupRegister(crash_register),
             };
             match script {
-                Some(script) => lbv_master_fw::run(with(ports, script, update, own), &config, &shared, &stats).await,
+                Some(script) => lbv_master_fw::run(with(parts, script, update, own), &config, &shared, &stats).await,
                 None => {
                     let polling = Polling {
                         transfers: Some(&transfers),
                     };
-                    lbv_master_fw::run(with(ports, polling, update, own), &config, &shared, &stats).await
+                    lbv_master_fw::run(with(parts, polling, update, own), &config, &shared, &stats).await
                 }
             }
         })
     }
 }
 
-/// `ports` with `work` on the thruster buses, `update` for the images and `own` for the master's own.
-fn with<B, C, R, W, S, X, J, U, O>(
-    ports: Ports<B, C, R, W, S, X, (), (), ()>,
+/// The bench master's board: lbv-sim's parts, with `J` on the thruster buses, `U` for the update images and `O` for
+/// the master's own update.
+#[derive(Debug)]
+struct BenchMaster<J, U, O>(PhantomData<(J, U, O)>);
+
+impl<J: BusWork, U: UpdateSink, O: OwnUpdate> Board for BenchMaster<J, U, O> {
+    type Bus = ThrusterBus;
+    type Can = CanNode;
+    type ConsoleRx = ConsoleRx;
+    type ConsoleTx = ConsoleTx;
+    type Settings = Store<Stm32g4Flash>;
+    type Reboot = RebootRequest;
+    type Work = J;
+    type Update = U;
+    type Own = O;
+}
+
+/// The ports that are the bench's parts, made before the node's task: the rest borrow what the task owns ([`with`]).
+struct Parts {
+    buses: [ThrusterBus; BUSES],
+    can: CanNode,
+    console_rx: ConsoleRx,
+    console_tx: ConsoleTx,
+    settings: Store<Stm32g4Flash>,
+    reboot: RebootRequest,
+}
+
+/// `parts` with `work` on the thruster buses, `update` for the images and `own` for the master's own.
+fn with<J: BusWork, U: UpdateSink, O: OwnUpdate>(
+    parts: Parts,
     work: J,
     update: U,
     own: O,
-) -> Ports<B, C, R, W, S, X, J, U, O> {
+) -> Ports<BenchMaster<J, U, O>> {
     Ports {
-        buses: ports.buses,
-        can: ports.can,
-        console_rx: ports.console_rx,
-        console_tx: ports.console_tx,
-        settings: ports.settings,
-        reboot: ports.reboot,
+        buses: parts.buses,
+        can: parts.can,
+        console_rx: parts.console_rx,
+        console_tx: parts.console_tx,
+        settings: parts.settings,
+        reboot: parts.reboot,
         work,
         update,
         own,

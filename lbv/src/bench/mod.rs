@@ -24,8 +24,8 @@ use std::rc::Rc;
 
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::MasterConfig;
-use lbv_master_fw::battery::CanFrame;
 use lbv_master_fw::config::{THRUSTER_BUS, lbv300_6};
+use lbv_master_fw::ports::CanFrame;
 use lbv_master_fw::thrusters::{MUX_ADDRESS, ThrusterSlot, ThrusterTable};
 use lbv_sim::i2c::{Bus, Route, Timing};
 use lbv_sim::{CanBus, Clock, Executor, Queue};

@@ -19,7 +19,7 @@ use std::time::Instant as WallInstant;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::inbound;
-use lbv_master_fw::update::UpdateTarget;
+use lbv_master_fw::ports::UpdateTarget;
 
 use super::Bench;
 
