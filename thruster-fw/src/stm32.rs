@@ -5,7 +5,6 @@ use defmt_rtt as _;
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_stm32::adc::{Adc, AdcChannel, AdcConfig};
 use embassy_stm32::exti;
-use embassy_stm32::gpio::Pull;
 use embassy_stm32::i2c::{self, I2c, SlaveAddrConfig};
 use embassy_stm32::rcc;
 use embassy_stm32::time::Hertz;
@@ -19,30 +18,6 @@ use thruster_fw::shared::Shared;
 use thruster_fw::{CONFIG, FAMILY};
 
 use crate::board::{self, BackupLatch, BootRecord, ImageSwap, Iwdg, SlavePort};
-
-// The power stage, the halls and the analog inputs of a controller with a motor.
-#[cfg(not(feature = "motorless"))]
-use {
-    crate::board::{AnalogInputs, BRIDGE, Halls, PowerStage},
-    embassy_stm32::exti::ExtiInput,
-    embassy_stm32::gpio::{AfType, Flex, Level, Output, OutputType, Speed},
-    embassy_stm32::pac::syscfg::regs::Cfgr2,
-    embassy_stm32::pac::timer::regs::{Af1Adv, BdtrAdv, Cr2Adv},
-    embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin},
-    embassy_stm32::timer::low_level::CountingMode,
-    embassy_stm32::timer::simple_pwm::PwmPin,
-    embassy_stm32::timer::{BkIn1, BreakInputPin},
-    thruster_fw::Duty,
-    thruster_fw::commutation::COAST,
-    thruster_fw::ports::Bridge,
-};
-// The motor-less controller: the model's ports, the real water-sensor pin and the user button.
-#[cfg(feature = "motorless")]
-use {
-    crate::board::{UserButton, WaterPin},
-    embassy_stm32::gpio::Input,
-    thruster_fw::motorless::{ModelBridge, ModelHalls, ModelSensors},
-};
 
 bind_interrupts!(struct Irqs {
     I2C3_EV => i2c::EventInterruptHandler<peripherals::I2C3>;
@@ -172,8 +147,16 @@ async fn main(spawner: Spawner) {
         );
     }
 
+    // The power stage (`board/power_stage.rs`).
     #[cfg(not(feature = "motorless"))]
     let (halls, bridge, analog) = {
+        use crate::board::{AnalogInputs, BRIDGE, Halls, PowerStage};
+        use embassy_stm32::exti::ExtiInput;
+        use embassy_stm32::gpio::{OutputType, Pull};
+        use embassy_stm32::timer::complementary_pwm::{ComplementaryPwm, ComplementaryPwmPin};
+        use embassy_stm32::timer::low_level::CountingMode;
+        use embassy_stm32::timer::simple_pwm::PwmPin;
+
         // The bridge first, every switch off, before anything can ask it to drive.
         let pwm = ComplementaryPwm::new(
             chip.bridge,
@@ -188,38 +171,7 @@ async fn main(spawner: Spawner) {
             Hertz(BRIDGE.pwm_hz),
             CountingMode::CenterAlignedBothInterrupts,
         );
-        // PA6 in its TIM1_BKIN alternate function, driven by the IHM08M1's overcurrent comparators. They are open
-        // drain by the second binding review's reading of the board (UM1996 not read here): the pull-up holds the line
-        // high (no break) between their pulls low, and costs nothing should the output be push-pull.
-        let break_af = BreakInputPin::<peripherals::TIM1, BkIn1>::af_num(&*chip.bkin);
-        let mut break_input = Flex::new(chip.bkin);
-        break_input.set_as_af_unchecked(break_af, AfType::input(Pull::Up));
-        // CURRENT_REF, held high before the outputs are armed: a known level, not the reset state's pull-up
-        // (`g431_hw::images`, docs/hardware.md "The break").
-        let current_ref = Output::new(chip.current_ref, Level::High, Speed::Low);
-        // The period is written here, not taken from embassy: its centre-aligned set-up counts ARR = 4249 (an
-        // edge-aligned period less one), while a centre-aligned period is 2 x ARR timer clocks (RM0440 TIM1
-        // centre-aligned mode), so 20 kHz from 170 MHz is ARR = 4250 with PSC = 0. The outputs are not armed yet.
-        const ARR: u16 = {
-            let arr = BRIDGE.arr(clock::TIM1_HZ);
-            assert!(arr <= u16::MAX as u32, "the PWM period does not fit TIM1's 16 bits");
-            arr as u16
-        };
-        pac::TIM1.arr().write(|w| w.set_arr(ARR));
-        let (arr, psc) = (pac::TIM1.arr().read().arr(), pac::TIM1.psc().read());
-        if arr != ARR || psc != 0 {
-            warn!(
-                "TIM1 counts ARR {=u16} with PSC {=u16}, not {=u16} with 0",
-                arr, psc, ARR
-            );
-        }
-        let mut bridge = PowerStage {
-            _pwm: pwm,
-            _break_input: break_input,
-            _current_ref: current_ref,
-            arr,
-        };
-        arm_power_stage(&mut bridge);
+        let bridge = PowerStage::new(pwm, chip.bkin, chip.current_ref);
 
         let halls = Halls::new(
             ExtiInput::new(chip.h1, chip.h1_exti, Pull::Up, Irqs),
@@ -243,20 +195,15 @@ async fn main(spawner: Spawner) {
         );
         (halls, bridge, analog)
     };
-    // No power stage fitted: TIM1 and its pins are never touched, the halls and the current come from the model,
-    // the water sensor is the real pin (a resistor across it provokes the fault), and B1 holds the model's rotor.
+    // No power stage fitted (`board/motorless.rs`): TIM1 and its pins are never touched, the halls and the current
+    // come from the model, the water sensor is the real pin (a resistor across it provokes the fault), and B1 holds
+    // the model's rotor.
     #[cfg(feature = "motorless")]
-    let analog = {
+    let (halls, bridge, analog) = {
         info!("motor-less: no power stage, the motor is a model; B1 holds its rotor");
         let adc = Adc::new(chip.adc, AdcConfig::default());
         check_adc_clock();
-        let water = WaterPin {
-            adc,
-            pin: chip.water.degrade_adc(),
-        };
-        // NUCLEO-64 (MB1367): B1 connects PC13 to 3V3 when pressed.
-        let button = UserButton(Input::new(chip.hold, Pull::Down));
-        ModelSensors::new(&board::MOTORLESS, &CONFIG, water, button)
+        board::wire(adc, chip.water.degrade_adc(), chip.hold)
     };
 
     let mut i2c_config = i2c::Config::default();
@@ -277,8 +224,6 @@ async fn main(spawner: Spawner) {
     let watchdog = Iwdg::start(chip.watchdog);
 
     let high = COMMUTATION_EXECUTOR.start(chip.commutation);
-    #[cfg(feature = "motorless")]
-    let (halls, bridge) = (ModelHalls::new(&board::MOTORLESS), ModelBridge(&board::MOTORLESS));
     high.spawn(unwrap!(commutation(halls, bridge)));
     let flash = board::open_flash(chip.flash);
     spawner.spawn(unwrap!(controller(Ports::<G431> {
@@ -330,27 +275,6 @@ fn check_adc_clock() {
             presc, expected
         );
     }
-}
-
-/// TIM1 from `g431_hw::tim1`: every phase off and driven (OSSR / OSSI), the L6398's inverted low inputs, the
-/// idle levels, dead time, filtered active-low break (tripped too by a core lockup or a flash ECC error) and
-/// commutation through COM events. The outputs come on at the next update event (automatic output enable), with
-/// every switch off until the commutation task drives.
-#[cfg(not(feature = "motorless"))]
-fn arm_power_stage(bridge: &mut PowerStage) {
-    use embassy_stm32::pac::timer::vals::Ckd;
-    let tim = pac::TIM1;
-    // t_DTS = t_CK_INT: the dead time and the break filter are counted in timer clocks.
-    tim.cr1().modify(|w| w.set_ckd(Ckd::DIV1));
-    tim.bdtr().write_value(BdtrAdv(BRIDGE.bdtr(clock::TIM1_HZ)));
-    tim.cr2().write_value(Cr2Adv(BRIDGE.cr2()));
-    tim.af1().write_value(Af1Adv(g431_hw::tim1::AF1));
-    pac::SYSCFG.cfgr2().write_value(Cfgr2(g431_hw::tim1::SYSCFG_CFGR2));
-    // A debugger's halt stops TIM1 and turns every switch off (RM0440 TIM1 "Debug mode").
-    pac::DBGMCU
-        .apb2fzr()
-        .write_value(pac::dbgmcu::regs::Apb2fzr(g431_hw::tim1::DBGMCU_APB2FZR));
-    bridge.apply(COAST, Duty::ZERO);
 }
 
 /// Say why the chip last reset (a watchdog reset means a task stopped making progress), clear the flags, and
