@@ -159,14 +159,14 @@ class Stm32g4:
     def flash_program(self, address, first, second):
         offset = address - FLASH_BASE
         struct.pack_into("<II", self.flash, offset, first, second)
-        self.core.uc.mem_write(address, struct.pack("<II", first, second))
+        self.core.write_flash(address, struct.pack("<II", first, second))
         self.core.code_written(address, 8)
 
     def flash_erase(self, address):
         offset = address - FLASH_BASE
         page = 2048
         self.flash[offset : offset + page] = b"\xff" * page
-        self.core.uc.mem_write(address, b"\xff" * page)
+        self.core.write_flash(address, b"\xff" * page)
         self.core.code_written(address, page)
 
     def _cpu_flash_store(self, address, size, value):
@@ -189,10 +189,12 @@ class Stm32g4:
         """Power applied: every register at its reset value, the backup domain cleared, RAM holding noise."""
         self.core.halt(False)  # no debugger's halt survives the power
         self._reset_peripherals(power_on=True, flags=BORRSTF | PINRSTF)
-        noise = bytes(self.random.getrandbits(8) for _ in range(self.part.sram_size))
+        # A byte a draw, the top eight bits of a 32-bit word, as `getrandbits(8)` takes them: drawn in one call.
+        size = self.part.sram_size
+        noise = self.random.getrandbits(32 * size).to_bytes(4 * size, "little")[3::4]
         self.core.uc.mem_write(SRAM_BASE, noise)
         self._paint_stack()
-        self.core.uc.mem_write(FLASH_BASE, bytes(self.flash))
+        self.core.write_flash(FLASH_BASE, bytes(self.flash))
         self.core.code_written(FLASH_BASE, len(self.flash))
         self._start()
 

@@ -10,6 +10,7 @@ Peripherals are objects with `read(offset)` / `write(offset, value)` on 32-bit r
 Table 4 base addresses (`Core.attach`), and schedule their own events on the core's clock (`Core.at`).
 """
 
+import ctypes
 import heapq
 import struct
 
@@ -30,6 +31,9 @@ from unicorn import (
     UcError,
 )
 from unicorn import arm_const as arm
+# The binding's C library and its callback signatures, for the hot paths (`Registers`, the block hook and the MMIO
+# callbacks): unicorn is pinned (requirements.txt, 2.1.4), and its Python layers around a call cost more than the call.
+from unicorn.unicorn_py3.unicorn import HOOK_CODE_CFUNC, MMIO_READ_CFUNC, MMIO_WRITE_CFUNC, uc_hook_h, uclib
 
 FLASH_BASE = 0x0800_0000
 SRAM_BASE = 0x2000_0000
@@ -133,6 +137,42 @@ def thumb_instructions(code: bytes) -> int:
     return max(sum(1 for _ in halfwords(code)), 1)
 
 
+class Registers:
+    """The core's registers, every one used here 32 bits wide, read and written through Unicorn's C API: the
+    binding's `reg_read` and `reg_write` spend some 3 us in Python on each, 36 us on a `reg_read_batch` of the spin
+    registers, and the spin check and the exception model use many."""
+
+    def __init__(self, uc):
+        self._uch = uc._uch
+        self._value = ctypes.c_uint32()
+        self._ref = ctypes.byref(self._value)
+        count = len(SPIN_REGISTERS)
+        self._spin_ids = (ctypes.c_int * count)(*SPIN_REGISTERS)
+        self._spin_values = (ctypes.c_uint32 * count)()
+        base = ctypes.addressof(self._spin_values)
+        self._spin_refs = (ctypes.c_void_p * count)(*(base + 4 * i for i in range(count)))
+        self._spin_count = count
+
+    def read(self, register):
+        status = uclib.uc_reg_read(self._uch, register, self._ref)
+        if status:
+            raise UcError(status, register)
+        return self._value.value
+
+    def write(self, register, value):
+        self._value.value = value & 0xFFFF_FFFF
+        status = uclib.uc_reg_write(self._uch, register, self._ref)
+        if status:
+            raise UcError(status, register)
+
+    def spin_state(self):
+        """`SPIN_REGISTERS`' values, as bytes to compare."""
+        status = uclib.uc_reg_read_batch(self._uch, self._spin_ids, self._spin_refs, self._spin_count)
+        if status:
+            raise UcError(status)
+        return bytes(self._spin_values)
+
+
 class Core:
     hz = 170_000_000
 
@@ -140,6 +180,7 @@ class Core:
         self.part = part
         self.uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
         self.uc.ctl_set_cpu_model(arm.UC_CPU_ARM_CORTEX_M4)
+        self.registers = Registers(self.uc)
         self.cycles = 0
         self.instructions = 0
         self.on_lockup = None  # what the chip does with the LOCKUP output
@@ -169,26 +210,56 @@ class Core:
         self.flash_store = None  # (address, size, value): the flash interface takes CPU stores into flash
         self.service = lambda: False  # the chip's work between runs (resets, draining the log); True: look again
 
-        self.uc.mem_map(FLASH_BASE, part.flash_size, UC_PROT_READ | UC_PROT_EXEC)
-        self.uc.mem_map(SRAM_BASE, part.sram_size, UC_PROT_ALL)
+        # The flash array is a buffer here that Unicorn maps: what the flash interface programs and erases is copied
+        # in (`write_flash`), where a `mem_write` into memory mapped read-only takes some 15 us (Unicorn maps it
+        # writable and back).
+        self._flash = ctypes.create_string_buffer(part.flash_size)
+        self.uc.mem_map_ptr(FLASH_BASE, part.flash_size, UC_PROT_READ | UC_PROT_EXEC, ctypes.addressof(self._flash))
+        # RAM too, for the run loop's look at the log's control block after every stop (`ram`, read in place).
+        self._ram = ctypes.create_string_buffer(part.sram_size)
+        self.ram = memoryview(self._ram).cast("B")
+        self.uc.mem_map_ptr(SRAM_BASE, part.sram_size, UC_PROT_ALL, ctypes.addressof(self._ram))
         self.uc.mem_map(SYSTEM_BASE, SYSTEM_SIZE, UC_PROT_READ)
-        self.uc.hook_add(UC_HOOK_BLOCK, self._on_block)
+        # The block hook runs for every block, the peripherals' callbacks for every access: added through the C API,
+        # without the binding's two Python wrappers around each call (a third of the block hook's cost). Unicorn
+        # keeps only their addresses: `_callbacks` keeps them alive. An MMIO range's user data is its base.
+        self._hook_error = None  # what a callback raised, for `_execute` to raise
+        self._callbacks = (HOOK_CODE_CFUNC(self._on_block), MMIO_READ_CFUNC(self._mmio_read),
+                           MMIO_WRITE_CFUNC(self._mmio_write))
+        block, read, write = self._callbacks
+        status = uclib.uc_hook_add(self.uc._uch, ctypes.byref(uc_hook_h()), UC_HOOK_BLOCK, block, None, 1, 0)
+        for base, size in ((0x4000_0000, 0x24000), (0x4800_0000, 0x2000), (0x5000_0000, 0x2000), (0xE000_0000, 0x10_0000)):
+            status = status or uclib.uc_mmio_map(self.uc._uch, base, size, read, base, write, base)
+        if status:
+            raise UcError(status)
         self.uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
         self.uc.hook_add(UC_HOOK_INSN_INVALID, self._on_invalid)
         self.uc.hook_add(UC_HOOK_MEM_INVALID, self._on_bad_access)
-        for base, size in ((0x4000_0000, 0x24000), (0x4800_0000, 0x2000), (0x5000_0000, 0x2000), (0xE000_0000, 0x10_0000)):
-            self.uc.mmio_map(base, size, self._mmio_read, base, self._mmio_write, base)
 
     # Memory and peripherals ------------------------------------------------------------------------------------
     def attach(self, base, peripheral, size=0x400):
         for offset in range(0, size, REGION):
             self._regions[base + offset] = (base, peripheral)
 
-    def _mmio_read(self, uc, offset, size, base):
-        return self._access(base + offset, size, None)
+    def _mmio_read(self, _uc, offset, size, base):
+        try:
+            return self._access(base + offset, size, None)
+        except BaseException as error:
+            self._callback_failed(error)
+            return 0
 
-    def _mmio_write(self, uc, offset, size, value, base):
-        self._access(base + offset, size, value)
+    def _mmio_write(self, _uc, offset, size, value, base):
+        try:
+            self._access(base + offset, size, value)
+        except BaseException as error:
+            self._callback_failed(error)
+
+    def _callback_failed(self, error):
+        """A callback from Unicorn raised: an exception must not escape into C, so the first is kept, the run stops
+        and `_execute` raises it."""
+        if self._hook_error is None:
+            self._hook_error = error
+        self.uc.emu_stop()
 
     def _access(self, address, size, value):
         key = address & ~(REGION - 1)
@@ -198,6 +269,12 @@ class Core:
             return 0
         base, peripheral = found
         register = (address - base) & ~3
+        if size == 4 and not address & 3:
+            # A whole register, most accesses: no shift, no merge.
+            if value is None:
+                return peripheral.read(register) & 0xFFFF_FFFF
+            peripheral.write(register, value & 0xFFFF_FFFF)
+            return 0
         shift = (address & 3) * 8
         mask = ((1 << (size * 8)) - 1) << shift
         if value is None:
@@ -221,6 +298,13 @@ class Core:
             self._access(address, size, value)
         else:
             self.uc.mem_write(address, (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little"))
+
+    def write_flash(self, address, data):
+        """New contents of the flash array, as `mem_write` would put them: translated code is left as it was (see
+        `code_written`)."""
+        if not FLASH_BASE <= address <= address + len(data) <= FLASH_BASE + self.part.flash_size:
+            raise ValueError(f"{len(data)} bytes at {address:#010x}: not in the flash")
+        ctypes.memmove(ctypes.addressof(self._flash) + address - FLASH_BASE, data, len(data))
 
     def read32(self, address):
         return struct.unpack("<I", self.uc.mem_read(address, 4))[0]
@@ -277,13 +361,13 @@ class Core:
         self._last_registers = None
         msp = self.read32(vector_table)
         pc = self.read32(vector_table + 4)
-        self.uc.reg_write(arm.UC_ARM_REG_MSP, msp)
-        self.uc.reg_write(arm.UC_ARM_REG_SP, msp)
-        self.uc.reg_write(arm.UC_ARM_REG_LR, 0xFFFF_FFFF)
-        self.uc.reg_write(arm.UC_ARM_REG_CONTROL, 0)
-        self.uc.reg_write(arm.UC_ARM_REG_PRIMASK, 0)
-        self.uc.reg_write(arm.UC_ARM_REG_BASEPRI, 0)
-        self.uc.reg_write(arm.UC_ARM_REG_XPSR, 1 << 24)
+        self.registers.write(arm.UC_ARM_REG_MSP, msp)
+        self.registers.write(arm.UC_ARM_REG_SP, msp)
+        self.registers.write(arm.UC_ARM_REG_LR, 0xFFFF_FFFF)
+        self.registers.write(arm.UC_ARM_REG_CONTROL, 0)
+        self.registers.write(arm.UC_ARM_REG_PRIMASK, 0)
+        self.registers.write(arm.UC_ARM_REG_BASEPRI, 0)
+        self.registers.write(arm.UC_ARM_REG_XPSR, 1 << 24)
         self.pc = pc & ~1
 
     def run(self, until_cycle=None, until=None, max_instructions=None):
@@ -344,13 +428,16 @@ class Core:
 
     def _execute(self):
         self._stop_reason = None
+        self._hook_error = None
         try:
             self.uc.emu_start(self.pc | 1, 0xFFFF_FFFF)
         except UcError as error:
             if self._stop_reason is None and self.fault is None:
-                self.raise_fault(f"the core stopped at {self.uc.reg_read(arm.UC_ARM_REG_PC):#010x}: {error}")
+                self.raise_fault(f"the core stopped at {self.registers.read(arm.UC_ARM_REG_PC):#010x}: {error}")
                 return
-        self.pc = self.uc.reg_read(arm.UC_ARM_REG_PC)
+        if self._hook_error is not None:
+            raise self._hook_error
+        self.pc = self.registers.read(arm.UC_ARM_REG_PC)
         reason = self._stop_reason
         if reason is not None:
             reason()
@@ -359,42 +446,48 @@ class Core:
         self._stop_reason = reason
         self.uc.emu_stop()
 
-    def _on_block(self, uc, address, size, _data):
-        known = self._block_sizes.get((address, size))
-        if known is None:
-            code = bytes(uc.mem_read(address, size)) if size else b""
-            known = (thumb_instructions(code) if size else 1, bool(size) and stores_nothing(code))
-            self._block_sizes[(address, size)] = known
-            for page in range(address >> CODE_PAGE_BITS, ((address + max(size, 1) - 1) >> CODE_PAGE_BITS) + 1):
-                self._code_pages.setdefault(page, set()).add((address, size))
-        count, pure = known
-        if self.fetch_watch:
-            for double in [d for d in self.fetch_watch if address <= d + 7 and d < address + max(size, 1)]:
-                self.fetch_watch.pop(double)()
-        self.cycles += count
-        self.instructions += count
-        # A block that jumps to itself with the same registers, stores nothing and reads only registers that cannot
-        # change before the next event (`changing_read`) spins until that event: the run loop lets the clock jump
-        # there. (A delay loop counts a register down: not a spin.)
-        if pure and address == self._last_block and not self.changing_read:
-            registers = uc.reg_read_batch(SPIN_REGISTERS)
-            if registers == self._last_registers:
-                self._repeats += 1
-                if self._repeats >= 3:
-                    self._spin = count
-                    self._stop()
-                    return
-            else:
+    def _on_block(self, _uc, address, size, _data):
+        try:
+            known = self._block_sizes.get((address, size))
+            if known is None:
+                code = bytes(self.uc.mem_read(address, size)) if size else b""
+                known = (thumb_instructions(code) if size else 1, bool(size) and stores_nothing(code))
+                self._block_sizes[(address, size)] = known
+                for page in range(address >> CODE_PAGE_BITS, ((address + max(size, 1) - 1) >> CODE_PAGE_BITS) + 1):
+                    self._code_pages.setdefault(page, set()).add((address, size))
+            count, pure = known
+            if self.fetch_watch:
+                for double in [d for d in self.fetch_watch if address <= d + 7 and d < address + max(size, 1)]:
+                    self.fetch_watch.pop(double)()
+            self.cycles += count
+            self.instructions += count
+            # A block that jumps to itself with the same registers, stores nothing and reads only registers that
+            # cannot change before the next event (`changing_read`) spins until that event: the run loop lets the
+            # clock jump there. (A delay loop counts a register down: not a spin.)
+            if pure and address == self._last_block and not self.changing_read:
+                registers = self.registers.spin_state()
+                if registers == self._last_registers:
+                    self._repeats += 1
+                    if self._repeats >= 3:
+                        self._spin = count
+                        self._stop()
+                        return
+                else:
+                    self._repeats = 0
+                self._last_registers = registers
+            elif self._last_registers is not None:  # (else there is nothing to forget: no repeat counted)
                 self._repeats = 0
-            self._last_registers = registers
-        else:
-            self._repeats = 0
-            self._last_registers = None
-        self._last_block = address
-        self.changing_read = False
-        if self._attention or self.cycles >= self._stop_at or (self.nvic is not None and self.nvic.wants_attention()):
-            self._attention = False
-            self._stop()
+                self._last_registers = None
+            self._last_block = address
+            self.changing_read = False
+            # (`nvic.ready` first: most blocks run with nothing pending, and it spares them the call.)
+            nvic = self.nvic
+            if (self._attention or self.cycles >= self._stop_at
+                    or (nvic is not None and nvic.ready and nvic.wants_attention())):
+                self._attention = False
+                self._stop()
+        except BaseException as error:
+            self._callback_failed(error)
 
     def code_written(self, address, length):
         """Memory was rewritten (flash programmed or erased): code translated from it before is forgotten, Unicorn's
@@ -438,7 +531,7 @@ class Core:
 
     def _on_invalid(self, uc, _data=None):
         # Returning False ends emu_start with an error that `_execute` expects; the reason says what to do.
-        pc = uc.reg_read(arm.UC_ARM_REG_PC)
+        pc = self.registers.read(arm.UC_ARM_REG_PC)
         here = struct.unpack("<H", uc.mem_read(pc, 2))[0]
         before = struct.unpack("<H", uc.mem_read(pc - 2, 2))[0]
         if here >> 8 != 0xDE and before == WFE:
@@ -457,7 +550,7 @@ class Core:
             self.sleeping = True
 
     def _on_interrupt(self, uc, intno, _data):
-        pc = uc.reg_read(arm.UC_ARM_REG_PC)
+        pc = self.registers.read(arm.UC_ARM_REG_PC)
         if intno == 8 and pc & 0xF000_0000 == 0xF000_0000:
             # A handler returned: Unicorn leaves the EXC_RETURN value in PC (B1.5.8).
             self._stop(lambda: self._exception_return(pc | 1))
@@ -467,7 +560,7 @@ class Core:
             self._stop(lambda: self.enter_fault(f"CPU exception {intno} at {pc:#010x}", pc))
 
     def _on_bad_access(self, uc, access, address, size, value, _data):
-        pc = uc.reg_read(arm.UC_ARM_REG_PC)
+        pc = self.registers.read(arm.UC_ARM_REG_PC)
         if access == UC_MEM_WRITE_PROT and FLASH_BASE <= address < FLASH_BASE + self.part.flash_size and self.flash_store:
             # A store into flash goes to the flash interface's programming sequence (RM0440 3.3.7).
             self.flash_store(address, size, value & 0xFFFF_FFFF)
@@ -490,9 +583,9 @@ class Core:
         priority = 256
         for number in self.active:
             priority = min(priority, self.nvic.priority(number))
-        if self.uc.reg_read(arm.UC_ARM_REG_PRIMASK) & 1:
+        if self.registers.read(arm.UC_ARM_REG_PRIMASK) & 1:
             priority = min(priority, 0)
-        basepri = self.uc.reg_read(arm.UC_ARM_REG_BASEPRI) & 0xFF
+        basepri = self.registers.read(arm.UC_ARM_REG_BASEPRI) & 0xFF
         if basepri:
             priority = min(priority, basepri)
         return priority
@@ -527,32 +620,32 @@ class Core:
         self.nvic.set_pending(number)
 
     def _enter(self, number):
-        uc = self.uc
+        uc, registers = self.uc, self.registers
         self.sleeping = False
         self.event = True  # exception entry is a WFE wake-up event (B1.5.18)
-        control = uc.reg_read(arm.UC_ARM_REG_CONTROL)
+        control = registers.read(arm.UC_ARM_REG_CONTROL)
         fp = bool(control & CONTROL_FPCA)
-        sp = uc.reg_read(arm.UC_ARM_REG_SP)
+        sp = registers.read(arm.UC_ARM_REG_SP)
         words = 26 if fp else 8
         frame = (sp - words * 4) & ~7
         aligned = (sp - words * 4) & 4
-        xpsr = uc.reg_read(arm.UC_ARM_REG_XPSR) & ~(1 << 9)
+        xpsr = registers.read(arm.UC_ARM_REG_XPSR) & ~(1 << 9)
         if aligned:
             xpsr |= 1 << 9
-        regs = [uc.reg_read(r) for r in (arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3,
-                                         arm.UC_ARM_REG_R12, arm.UC_ARM_REG_LR)]
+        regs = [registers.read(r) for r in (arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2,
+                                            arm.UC_ARM_REG_R3, arm.UC_ARM_REG_R12, arm.UC_ARM_REG_LR)]
         data = struct.pack("<8I", *regs, self.pc | 0, xpsr | (1 << 24))
         saved_fp = None
         if fp:
-            saved_fp = [uc.reg_read(arm.UC_ARM_REG_S0 + i) for i in range(16)]
-            fpscr = uc.reg_read(arm.UC_ARM_REG_FPSCR)
+            saved_fp = [registers.read(arm.UC_ARM_REG_S0 + i) for i in range(16)]
+            fpscr = registers.read(arm.UC_ARM_REG_FPSCR)
             data += struct.pack("<16I", *saved_fp) + struct.pack("<II", fpscr, 0)
         if frame < SRAM_BASE:
             self.raise_fault(f"stack overflow: an exception frame at {frame:#010x}, below RAM")
             return
         uc.mem_write(frame, data)
-        uc.reg_write(arm.UC_ARM_REG_SP, frame)
-        uc.reg_write(arm.UC_ARM_REG_MSP, frame)
+        registers.write(arm.UC_ARM_REG_SP, frame)
+        registers.write(arm.UC_ARM_REG_MSP, frame)
         in_handler = bool(self.active[:-1]) if self.active and self.active[-1] == number else bool(self.active)
         if number not in self.active:
             self.active.append(number)
@@ -560,14 +653,14 @@ class Core:
             exc_return = EXC_RETURN_HANDLER_FP if fp else EXC_RETURN_HANDLER
         else:
             exc_return = EXC_RETURN_THREAD_FP if fp else EXC_RETURN_THREAD
-        uc.reg_write(arm.UC_ARM_REG_LR, exc_return)
-        uc.reg_write(arm.UC_ARM_REG_CONTROL, control & ~CONTROL_FPCA)
-        uc.reg_write(arm.UC_ARM_REG_IPSR, number)
+        registers.write(arm.UC_ARM_REG_LR, exc_return)
+        registers.write(arm.UC_ARM_REG_CONTROL, control & ~CONTROL_FPCA)
+        registers.write(arm.UC_ARM_REG_IPSR, number)
         vector = self.read32(self.vtor + 4 * number)
         self.pc = vector & ~1
 
     def _exception_return(self, exc_return):
-        uc = self.uc
+        uc, registers = self.uc, self.registers
         if not self.active:
             self.raise_fault(f"exception return {exc_return:#010x} with no exception active")
             return
@@ -575,22 +668,22 @@ class Core:
         self.nvic.deactivate(number)
         self.event = True
         fp = not exc_return & 0x10
-        frame = uc.reg_read(arm.UC_ARM_REG_SP)
+        frame = registers.read(arm.UC_ARM_REG_SP)
         words = 26 if fp else 8
         values = struct.unpack(f"<{words}I", uc.mem_read(frame, words * 4))
         for register, value in zip((arm.UC_ARM_REG_R0, arm.UC_ARM_REG_R1, arm.UC_ARM_REG_R2, arm.UC_ARM_REG_R3,
                                     arm.UC_ARM_REG_R12, arm.UC_ARM_REG_LR), values):
-            uc.reg_write(register, value)
+            registers.write(register, value)
         pc, xpsr = values[6], values[7]
         if fp:
             for i in range(16):
-                uc.reg_write(arm.UC_ARM_REG_S0 + i, values[8 + i])
-            uc.reg_write(arm.UC_ARM_REG_FPSCR, values[24])
+                registers.write(arm.UC_ARM_REG_S0 + i, values[8 + i])
+            registers.write(arm.UC_ARM_REG_FPSCR, values[24])
         sp = frame + words * 4 + (4 if xpsr & (1 << 9) else 0)
-        uc.reg_write(arm.UC_ARM_REG_SP, sp)
-        uc.reg_write(arm.UC_ARM_REG_MSP, sp)
-        control = uc.reg_read(arm.UC_ARM_REG_CONTROL)
-        uc.reg_write(arm.UC_ARM_REG_CONTROL, control | CONTROL_FPCA if fp else control & ~CONTROL_FPCA)
-        uc.reg_write(arm.UC_ARM_REG_XPSR, xpsr & ~(1 << 9))
-        uc.reg_write(arm.UC_ARM_REG_IPSR, self.active[-1] if self.active else 0)
+        registers.write(arm.UC_ARM_REG_SP, sp)
+        registers.write(arm.UC_ARM_REG_MSP, sp)
+        control = registers.read(arm.UC_ARM_REG_CONTROL)
+        registers.write(arm.UC_ARM_REG_CONTROL, control | CONTROL_FPCA if fp else control & ~CONTROL_FPCA)
+        registers.write(arm.UC_ARM_REG_XPSR, xpsr & ~(1 << 9))
+        registers.write(arm.UC_ARM_REG_IPSR, self.active[-1] if self.active else 0)
         self.pc = pc & ~1

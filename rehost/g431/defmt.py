@@ -139,11 +139,12 @@ class Rtt:
     def drain(self):
         uc = self.core.uc
         # Control block: 16-byte id, up and down buffer counts, then up buffer 0: name, buffer, size, write, read.
-        # Until the start-up code has copied .data, RAM holds noise: read only a block that says what it is.
-        if bytes(uc.mem_read(self.address, 10)) != b"SEGGER RTT":
+        # Until the start-up code has copied .data, RAM holds noise: read only a block that says what it is. (Read
+        # in place, `Core.ram`: the run loop drains after every stop.)
+        ram, offset = self.core.ram, self.address - 0x2000_0000
+        if ram[offset : offset + 10] != b"SEGGER RTT":
             return
-        header = bytes(uc.mem_read(self.address + 24, 20))
-        _, buffer, size, write, read = struct.unpack("<5I", header)
+        _, buffer, size, write, read = struct.unpack_from("<5I", ram, offset + 24)
         if size == 0 or write == read or write >= size or read >= size:
             return
         if not 0x2000_0000 <= buffer <= 0x2000_0000 + self.core.part.sram_size - size:

@@ -55,6 +55,8 @@ class Nvic(Peripheral):
         return self.priorities.get(number, 0)
 
     def highest_pending(self):
+        if not self.pending:
+            return None  # (most calls: the run loop asks after every stop)
         candidates = [n for n in self.pending if n < IRQ0 or n in self.enabled]
         if not candidates:
             return None
