@@ -72,6 +72,64 @@ step "rustfmt, and every link in the Markdown docs"
 cargo fmt --all -- --check
 python3 docs/check-links.py
 
+# The firmware (its clippy, its images, then the development key's refusal, which rebuilds the key's crate) goes on
+# beside the host steps below, in a target directory of its own: it shares no compiled crate with them, and one cargo
+# at a time holds a target directory. An image's fat LTO keeps one core busy while it links, and the host steps fill
+# the other. The builds are data, g431_hw::images::BUILDS: one line each of name, crate, features ("-" for none),
+# flash and static RAM budgets, the size of the flash region it is linked into and the stack budget, in bytes.
+export LBV_FIRMWARE_TARGET_DIR=target/firmware
+firmware_lints() {
+  export CARGO_TARGET_DIR=$LBV_FIRMWARE_TARGET_DIR
+  step "clippy ($TARGET)"
+  # Every image, one chip per invocation; then the cores on QEMU, and the update image's checks and streaming
+  # verification as the firmware builds them (no_std).
+  while read -r _ package features _; do
+    if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
+    cargo clippy --release --target "$TARGET" -p "$package" "${flags[@]}" --locked -- -D warnings
+  done <<<"$builds"
+  cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
+  cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
+}
+firmware_images() {
+  export CARGO_TARGET_DIR=$LBV_FIRMWARE_TARGET_DIR
+  step "firmware images (release, $TARGET)"
+  # Each image is kept under target/images/ (a crate's feature builds overwrite one another's ELF); then the cores'
+  # image for QEMU.
+  mkdir -p target/images
+  while read -r name package features _; do
+    if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
+    cargo build --release --target "$TARGET" -p "$package" "${flags[@]}" --locked
+    cp "$LBV_FIRMWARE_TARGET_DIR/$TARGET/release/$package" "target/images/$name"
+  done <<<"$builds"
+  cargo build --release --target "$TARGET" -p qemu-m4 --locked
+}
+dev_key_refused() {
+  export CARGO_TARGET_DIR=$LBV_FIRMWARE_TARGET_DIR
+  step "a firmware build refuses the development key unless asked, in every profile"
+  # The key's crate as every firmware build compiles it; last, since it rebuilds that crate. Its build script stops
+  # before anything is compiled against the key: in the release profile, and in a check in the dev profile.
+  for build in "build --release" "check"; do
+    if LBV_ALLOW_DEV_KEY= cargo $build --target "$TARGET" -p update-image --features key --locked \
+      >target/dev-key.log 2>&1; then
+      echo "cargo $build made a firmware with the development key and no LBV_ALLOW_DEV_KEY=1" >&2
+      return 1
+    fi
+    grep -q "signed with the development key" target/dev-key.log || { cat target/dev-key.log; return 1; }
+  done
+  echo "refused: $(grep -o 'a firmware build would accept[^(]*' target/dev-key.log | head -1)"
+}
+firmware() {
+  firmware_lints
+  firmware_images
+  dev_key_refused
+}
+if ! $quick; then
+  builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
+  partitions=$(cargo run --quiet --locked -p g431-hw --bin images -- partitions)
+  firmware >target/firmware.log 2>&1 &
+  firmware=$!
+fi
+
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 cargo clippy -p tmc-proto -p bat-proto -p update-image --all-targets --features defmt --locked -- -D warnings
@@ -87,38 +145,45 @@ fi
 step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
-step "clippy ($TARGET)"
-# Every image test.sh builds, from the one list of builds (g431_hw::images::BUILDS: name, crate, features, "-" for
-# none, then its budgets), one chip per invocation; then the cores on QEMU, and the update image's checks and
-# streaming verification as the firmware builds them (no_std).
-builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
-while read -r _ package features _; do
-  if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
-  cargo clippy --release --target "$TARGET" -p "$package" "${flags[@]}" --locked -- -D warnings
-done <<<"$builds"
-cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
-cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
-
+# The bench, rehost's and QEMU's tools, built before the host tests (the QEMU image comes with the firmware's):
+# the steps beside the host tests then need no cargo, which would wait for theirs (one at a time holds a target
+# directory; LBV_TOOLS_BUILT tells rehost/run.sh and qemu-m4/run.sh).
+cargo build --quiet --locked --profile test --workspace --bin rehost --bin lbv
+export LBV_TOOLS_BUILT=1
 finish "installing the Debian and Python packages" "$packages" target/packages.log
 
-step "firmware images (release, $TARGET)"
-# The images and their budgets are data, g431_hw::images::BUILDS (read above): one line each of name, crate,
-# features ("-" for none), flash and static RAM budgets, the size of the flash region it is linked into and the
-# stack budget, in bytes. Each image is kept under target/images/ (a crate's feature builds overwrite one another's
-# ELF).
-release="target/$TARGET/release"
-mkdir -p target/images
-while read -r name package features _; do
-  if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
-  cargo build --release --target "$TARGET" -p "$package" "${flags[@]}" --locked
-  cp "$release/$package" "target/images/$name"
-done <<<"$builds"
+# The host tests, and beside them whatever else is ready: an hour of random faults and traffic on the bench (the
+# soak: every order held, no watchdog bite, no panic) and the fuzz targets' build, both niced to fill what the
+# host tests leave idle, then the firmware's images under rehost's models and the cores on QEMU. Each goes to its
+# log, shown below.
+cargo test --workspace --locked >target/host-tests.log 2>&1 &
+host_tests=$!
+nice target/debug/lbv bench --scenario soak --duration 3600 --quiet >target/soak.log 2>&1 &
+soak=$!
+fuzz_check() {
+  # One target directory for them all: the crates they share are checked once. A check links nothing, so
+  # libFuzzer's C++ sources need not be compiled: libfuzzer-sys takes the library's path instead, and no link ever
+  # asks for it.
+  rustup toolchain list | grep -q '^nightly' || { echo "no nightly toolchain: skipped"; return 0; }
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
+    CUSTOM_LIBFUZZER_PATH="$PWD/target/fuzz/not-built/libfuzzer.a" \
+      cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
+  done
+}
+(renice -n 10 "$BASHPID" >/dev/null && fuzz_check) >target/fuzz.log 2>&1 &
+fuzz=$!
+
+finish "the firmware" "$firmware" target/firmware.log
+rehost/run.sh >target/rehost.log 2>&1 &
+rehost=$!
+qemu-m4/run.sh >target/qemu-m4.log 2>&1 &
+qemu=$!
 
 step "image sizes"
 # The flash map of each layout, then each image against its budget and the flash it is linked into. Flash holds
 # code, constants (the image information record among them) and the initial values of .data; static RAM is
 # .data + .bss + .uninit.
-cargo run --quiet --locked -p g431-hw --bin images -- partitions
+echo "$partitions"
 failed=0
 while read -r name _ _ flash_budget ram_budget linked _; do
   arm-none-eabi-size -A "target/images/$name" |
@@ -139,32 +204,11 @@ for image in thruster-fw lbv-master-fw; do
 done
 [ "$failed" -eq 0 ] || { echo "an image is over its budget" >&2; exit 1; }
 
-# The images run under rehost's models and the cores on QEMU while the host tests compile and run: each of the
-# two runs on one core. Their tools are built first, so that they do not wait for the host tests' build (one cargo
-# at a time holds the target directory); their output is shown after.
-cargo build --quiet --locked --profile test --workspace --bin rehost --bin lbv
-rehost/run.sh >target/rehost.log 2>&1 &
-rehost=$!
-qemu-m4/run.sh >target/qemu-m4.log 2>&1 &
-qemu=$!
+step "host tests (every bench scenario is one, on both engines)"
+finish "the host tests" "$host_tests" target/host-tests.log
 
-step "host tests (every bench scenario is one, on both engines; rehost and QEMU run beside them)"
-cargo test --workspace --locked
-
-# An hour of random faults and traffic on the bench (the soak): every order held, no watchdog bite, no panic. It
-# runs on one core, so it goes on beside the next steps; `cargo test` has built the bench.
-target/debug/lbv bench --scenario soak --duration 3600 --quiet >target/soak.log 2>&1 &
-soak=$!
-
-if rustup toolchain list | grep -q '^nightly'; then
-  step "fuzz targets build (nightly)"
-  # One target directory for them all: the crates they share are checked once. A check links nothing, so libFuzzer's
-  # C++ sources need not be compiled: libfuzzer-sys takes the library's path instead, and no link ever asks for it.
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
-    CUSTOM_LIBFUZZER_PATH="$PWD/target/fuzz/not-built/libfuzzer.a" \
-      cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
-  done
-fi
+step "fuzz targets build (nightly)"
+finish "the fuzz targets' build" "$fuzz" target/fuzz.log
 
 step "the images that ship, run under register-level models of the STM32G4 (Unicorn): boot, registers, buses, faults"
 finish rehost "$rehost" target/rehost.log
@@ -174,17 +218,5 @@ finish qemu-m4 "$qemu" target/qemu-m4.log
 
 step "an hour of random faults and traffic on the bench (the soak, run beside the steps above)"
 finish soak "$soak" target/soak.log
-
-step "a firmware build refuses the development key unless asked, in every profile"
-# Last, since it rebuilds the key's crate: the build script stops before anything is compiled against the key. The
-# release profile, and a check in the dev profile (the build script runs for either).
-for build in "build --release" "check"; do
-  if LBV_ALLOW_DEV_KEY= cargo $build --target "$TARGET" -p thruster-fw --locked >target/dev-key.log 2>&1; then
-    echo "cargo $build made a firmware with the development key and no LBV_ALLOW_DEV_KEY=1" >&2
-    exit 1
-  fi
-  grep -q "signed with the development key" target/dev-key.log || { cat target/dev-key.log; exit 1; }
-done
-echo "refused: $(grep -o 'a firmware build would accept[^(]*' target/dev-key.log | head -1)"
 
 step "all checks passed"

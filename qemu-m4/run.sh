@@ -10,17 +10,22 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 TARGET=thumbv7em-none-eabihf
-ELF="target/$TARGET/release/qemu-m4"
+# The firmware's target directory: test.sh gives the firmware one of its own.
+FIRMWARE_DIR="${LBV_FIRMWARE_TARGET_DIR:-target}"
+ELF="$FIRMWARE_DIR/$TARGET/release/qemu-m4"
 LOGS=target/qemu-m4
 # Emulated time per run is bounded by the scripts (about 20 s); this only catches a hang.
 WALL_LIMIT=120
 
 command -v qemu-system-arm >/dev/null || { echo "qemu-m4: qemu-system-arm is missing (Debian: qemu-system-arm)" >&2; exit 2; }
 
-cargo build --release --target "$TARGET" -p qemu-m4 --locked
-# The judge, `lbv hil --replay`, with the test profile and the workspace's features: ./test.sh's `cargo test` has
-# built it so, and the release profile's fat LTO would take minutes for a log reader.
-cargo build --profile test --locked -q --workspace --bin lbv
+# The image, and the judge, `lbv hil --replay`, with the test profile and the workspace's features (the release
+# profile's fat LTO would take minutes for a log reader). test.sh has built both (LBV_TOOLS_BUILT): a build here
+# would wait for the cargo its other steps run.
+if [ -z "${LBV_TOOLS_BUILT:-}" ]; then
+  CARGO_TARGET_DIR="$FIRMWARE_DIR" cargo build --release --target "$TARGET" -p qemu-m4 --locked
+  cargo build --profile test --locked -q --workspace --bin lbv
+fi
 mkdir -p "$LOGS"
 
 # -icount shift=3: 8 ns of virtual time per instruction, and every timer runs on that time, so the image counts

@@ -11,5 +11,6 @@ python3 -c 'import unicorn, elftools, pytest' 2>/dev/null || {
   exit 1
 }
 # The test profile and the workspace's features: `cargo test --workspace` has already built everything this needs.
-cargo build --quiet --locked --profile test --workspace --bin rehost
+# test.sh has built it (LBV_TOOLS_BUILT): a build here would wait for the host tests' own.
+[ -n "${LBV_TOOLS_BUILT:-}" ] || cargo build --quiet --locked --profile test --workspace --bin rehost
 exec python3 -m pytest -q -p no:cacheprovider rehost/tests "$@"
