@@ -143,7 +143,8 @@ if $quick; then
 fi
 
 step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
-RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
+# With the private items: the firmware crates' docs are for those who work on them, and link to what is theirs.
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --document-private-items --locked --quiet
 
 # The bench, rehost's and QEMU's tools, built before the host tests (the QEMU image comes with the firmware's):
 # the steps beside the host tests then need no cargo, which would wait for theirs (one at a time holds a target

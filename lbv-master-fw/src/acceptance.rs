@@ -67,7 +67,12 @@ pub struct Script<O>(pub O);
 
 impl<O: Operator> Script<O> {
     /// Run the script on `buses[setup.bus]`.
-    pub async fn run<B: I2c + BusRecovery>(self, buses: &mut [B; BUSES], setup: &AcceptanceSetup, shared: &Shared) {
+    pub(crate) async fn run<B: I2c + BusRecovery>(
+        self,
+        buses: &mut [B; BUSES],
+        setup: &AcceptanceSetup,
+        shared: &Shared,
+    ) {
         Timer::after(setup.start).await;
         let Some(bus) = buses.get_mut(usize::from(setup.bus)) else {
             return;
@@ -119,33 +124,33 @@ pub struct AcceptanceConfig {
     /// The family the build expects to find (the dev kit's `legacy` feature); None: whichever answers.
     pub expect: Option<Family>,
     /// Time between polls within a step.
-    pub period: Duration,
+    pub(crate) period: Duration,
     /// How long a status may take to follow a new order.
-    pub settle: Duration,
+    pub(crate) settle: Duration,
     /// How far (in speed steps) a reported speed may be from the order.
-    pub tolerance: u8,
+    pub(crate) tolerance: u8,
     /// The step used wherever the thruster must visibly drive (failsafe, faults, bad orders).
-    pub drive_step: i8,
+    pub(crate) drive_step: i8,
     /// The least current (0.1 A) a Legacy brushless thruster must report at `drive_step` and beyond.
-    pub min_current_deciamps: u8,
+    pub(crate) min_current_deciamps: u8,
     /// How long the bus stays silent in the failsafe step (the thruster's failsafe trips at 1 s).
-    pub silence: Duration,
+    pub(crate) silence: Duration,
     /// How long a stopped thruster may take to report speed 0 (a propeller in water coasts for seconds).
-    pub coast: Duration,
+    pub(crate) coast: Duration,
     /// How long a stopped thruster must stay stopped while only reads reach it.
-    pub stay_stopped: Duration,
+    pub(crate) stay_stopped: Duration,
     /// How long a provoked fault may take to be reported, and to clear.
-    pub fault_within: Duration,
+    pub(crate) fault_within: Duration,
     /// How long the reset step keeps the bus busy waiting for the reset and the recovery.
-    pub reset_window: Duration,
+    pub(crate) reset_window: Duration,
     /// Good polls in a row that count as recovered after a failure.
-    pub recovered_polls: u16,
+    pub(crate) recovered_polls: u16,
 }
 
 impl AcceptanceConfig {
     /// The script's defaults: polls every 10 ms, 1 s to follow an order within 1 step, drive step 60, 1.5 s of
     /// silence, 10 s to coast to rest, faults within 2 s, 15 s for the operator to reset the board.
-    pub const DEFAULT: AcceptanceConfig = AcceptanceConfig {
+    pub(crate) const DEFAULT: AcceptanceConfig = AcceptanceConfig {
         expect: None,
         period: Duration::from_millis(10),
         settle: Duration::from_secs(1),
@@ -174,10 +179,10 @@ pub struct AcceptanceSetup {
     /// The script's timings and limits.
     pub script: AcceptanceConfig,
     /// The bus the dev kits are wired on (its index, as in the thruster table).
-    pub bus: u8,
+    pub(crate) bus: u8,
     /// The script starts this long after boot, so that a thruster board powered up at the same time is running
     /// and the host has attached to the log.
-    pub start: Duration,
+    pub(crate) start: Duration,
 }
 
 impl AcceptanceSetup {
@@ -196,7 +201,7 @@ impl AcceptanceSetup {
 
 /// The speed a status reports, in steps: SeaBotix SPEED; Legacy brushed MAX POWER (the power set into the
 /// motor). None for Legacy brushless, which reports only its current.
-pub fn reported_speed(status: &Status) -> Option<i8> {
+pub(crate) fn reported_speed(status: &Status) -> Option<i8> {
     match status {
         Status::SeaBotix(status) => Some(status.speed.step()),
         Status::Legacy(status) => match status.max_power {
@@ -208,7 +213,7 @@ pub fn reported_speed(status: &Status) -> Option<i8> {
 
 /// The motor current a status reports, in 0.1 A: SeaBotix CURRENT; Legacy brushless MAX POWER. None for Legacy
 /// brushed.
-pub fn reported_current(status: &Status) -> Option<u8> {
+pub(crate) fn reported_current(status: &Status) -> Option<u8> {
     match status {
         Status::SeaBotix(status) => Some(status.current_deciamps),
         Status::Legacy(status) => match status.max_power {
@@ -219,7 +224,7 @@ pub fn reported_current(status: &Status) -> Option<u8> {
 }
 
 /// Whether a status follows the order `step` (see the module's documentation); faults are judged separately.
-pub fn follows(status: &Status, step: i8, config: &AcceptanceConfig) -> bool {
+pub(crate) fn follows(status: &Status, step: i8, config: &AcceptanceConfig) -> bool {
     if let Some(speed) = reported_speed(status) {
         return (i16::from(speed) - i16::from(step)).unsigned_abs() <= u16::from(config.tolerance);
     }
@@ -238,7 +243,7 @@ pub fn follows(status: &Status, step: i8, config: &AcceptanceConfig) -> bool {
 }
 
 /// Whether the status shows the drive off: no current (Legacy brushed: no power set into the motor).
-pub fn drive_off(status: &Status) -> bool {
+pub(crate) fn drive_off(status: &Status) -> bool {
     match reported_current(status) {
         Some(current) => current == 0,
         None => reported_speed(status) == Some(0),
@@ -246,7 +251,7 @@ pub fn drive_off(status: &Status) -> bool {
 }
 
 /// Whether the status shows the thruster at rest: the drive off and any reported speed 0.
-pub fn at_rest(status: &Status) -> bool {
+pub(crate) fn at_rest(status: &Status) -> bool {
     drive_off(status) && reported_speed(status).is_none_or(|speed| speed == 0)
 }
 
@@ -257,10 +262,10 @@ fn order_bytes(family: Family, step: i8) -> [u8; ORDER_LEN] {
 
 /// How long the bad-order steps send refused orders: less than the 1 s after which a thruster stops on refused
 /// orders alone (docs/thruster.md, "The link failsafe"), so every status must still show the order held.
-pub const BAD_ORDERS_FOR: Duration = Duration::from_millis(500);
+pub(crate) const BAD_ORDERS_FOR: Duration = Duration::from_millis(500);
 
 /// The out-of-range SPEED bytes sent, each with a matching checksum: both ends of both gaps.
-pub const OUT_OF_RANGE_SPEEDS: [u8; 4] = [0x00, 0x18, 0xE7, 0xFF];
+pub(crate) const OUT_OF_RANGE_SPEEDS: [u8; 4] = [0x00, 0x18, 0xE7, 0xFF];
 
 /// Bus failures seen, by kind, and the recoveries run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -750,7 +755,7 @@ where
 /// Run the whole script against whatever answers on `bus`, telling the operator each step's result as it ends, and
 /// return the verdict. Discovery finds the thrusters; every one found is tested in turn (SeaBotix first). Leaves
 /// every thruster ordered to stop.
-pub async fn acceptance_test<B, O>(bus: &mut B, operator: &mut O, config: &AcceptanceConfig) -> Verdict
+pub(crate) async fn acceptance_test<B, O>(bus: &mut B, operator: &mut O, config: &AcceptanceConfig) -> Verdict
 where
     B: I2c + BusRecovery,
     O: Operator,

@@ -38,7 +38,7 @@ use crate::shared::{BatterySummary, Outgoing, Severity, Shared, Text, text};
 /// What one good BAT frame means for the console.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum News {
+pub(crate) enum News {
     /// The first status since power-up: report every bit.
     StartUp(DcdcStatus),
     /// The status changed: report the bits that switched.
@@ -60,7 +60,7 @@ pub enum News {
 /// The BAT frames whose freshness is told one by one.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum FrameKind {
+pub(crate) enum FrameKind {
     /// 0x620: voltage, charge, current, temperature.
     Info,
     /// 0x629: the DCDC status word.
@@ -105,11 +105,11 @@ const fn freshness_words(frame: Option<FrameKind>, stale: bool) -> &'static str 
 /// A set of [`FrameKind`]s.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Frames(u8);
+pub(crate) struct Frames(u8);
 
 impl Frames {
     /// Whether `kind` is in the set.
-    pub const fn contains(self, kind: FrameKind) -> bool {
+    pub(crate) const fn contains(self, kind: FrameKind) -> bool {
         self.0 & kind.bit() != 0
     }
 
@@ -121,7 +121,7 @@ impl Frames {
 /// What a frame or the passing of time means for the console.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Report {
+pub(crate) enum Report {
     /// Nothing to say.
     Nothing,
     /// A good frame with news.
@@ -144,12 +144,13 @@ pub enum Report {
 }
 
 /// Most texts one report gives: "stale" and "resumed" together, and the 12 bits of a start-up report.
-pub const MAX_REPORT_TEXTS: usize = 14;
+#[cfg(test)]
+pub(crate) const MAX_REPORT_TEXTS: usize = 14;
 
 impl Report {
     /// The STATUSTEXTs for the console, in order, each formatted as it is taken: a task sends them one by one
     /// without a buffer, and formats each once.
-    pub fn texts(self) -> impl Iterator<Item = (Severity, Text)> {
+    pub(crate) fn texts(self) -> impl Iterator<Item = (Severity, Text)> {
         let stale = |frame| Some((Severity::Warning, freshness_words(frame, true)));
         let (first, news) = match self {
             Self::Nothing => ([None; 3], None),
@@ -223,7 +224,7 @@ fn bit_is_warning(report: BitReport) -> bool {
 }
 
 /// `BAT <name>=<0|1> <meaning>`, at most 50 bytes for every bit and state.
-pub fn bit_text(report: BitReport) -> Text {
+pub(crate) fn bit_text(report: BitReport) -> Text {
     format(format_args!(
         "BAT {}={} {}",
         report.bit.name(),
@@ -287,7 +288,7 @@ impl Freshness {
 /// The monitor's state machine (pure, explicit time).
 #[derive(Debug, Clone, Default)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct BatteryMonitor {
+pub(crate) struct BatteryMonitor {
     info: Option<BatteryInfo>,
     status: Option<DcdcStatus>,
     alarms: Option<BmsAlarms>,
@@ -310,20 +311,20 @@ pub struct BatteryMonitor {
 
 impl BatteryMonitor {
     /// No good BAT frame for this long: the data is stale. The BAT sends each ID every 200 ms (docs/decisions.md D26).
-    pub const STALE_AFTER: Duration = Duration::from_secs(1);
+    pub(crate) const STALE_AFTER: Duration = Duration::from_secs(1);
 
     /// No frame of one kind for this long while the others come: that kind is stale on its own. One BAT cycle
     /// (200 ms, each ID's period) longer than [`Self::STALE_AFTER`], so that a bus that stops whole, whose ID last
     /// sent goes quiet 100 ms after the other, is told once, as the data.
-    pub const FRAME_STALE_AFTER: Duration = Duration::from_millis(1200);
+    pub(crate) const FRAME_STALE_AFTER: Duration = Duration::from_millis(1200);
 
     /// Nothing known yet.
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
     /// One frame at `now`. Returns what to report.
-    pub fn on_frame(&mut self, now: Instant, frame: &CanFrame) -> Report {
+    pub(crate) fn on_frame(&mut self, now: Instant, frame: &CanFrame) -> Report {
         self.start(now);
         if !BAT_SOURCE.contains(&frame.id) {
             self.ignored = self.ignored.wrapping_add(1);
@@ -413,7 +414,7 @@ impl BatteryMonitor {
     /// The passing of time at `now`: reports [`Report::Stale`] once when no good frame came for
     /// [`Self::STALE_AFTER`] (counted from the first use of the monitor when none came at all), which covers every
     /// frame kind; else [`Report::FramesStale`] once for the kinds seen before that have not come for as long.
-    pub fn on_tick(&mut self, now: Instant) -> Report {
+    pub(crate) fn on_tick(&mut self, now: Instant) -> Report {
         self.start(now);
         if self.data_deadline().is_some_and(|at| now >= at) {
             self.stale_reported = true;
@@ -437,12 +438,12 @@ impl BatteryMonitor {
     }
 
     /// A failed receive: counted in `errors`.
-    pub fn on_receive_error(&mut self) {
+    pub(crate) fn on_receive_error(&mut self) {
         self.errors = self.errors.wrapping_add(1);
     }
 
     /// When [`Self::on_tick`] will next report the data or a frame kind stale, if that is still to come.
-    pub fn stale_at(&self) -> Option<Instant> {
+    pub(crate) fn stale_at(&self) -> Option<Instant> {
         self.kinds
             .iter()
             .filter_map(Freshness::deadline)
@@ -463,7 +464,7 @@ impl BatteryMonitor {
     /// The summary at `now`: stale when no good BAT frame for [`Self::STALE_AFTER`], or none yet, and each value
     /// stale with the data or when its own frame has not come for [`Self::FRAME_STALE_AFTER`] (the BAT sends each
     /// ID on its own: one can stop while the others flow).
-    pub fn summary(&self, now: Instant) -> BatterySummary {
+    pub(crate) fn summary(&self, now: Instant) -> BatterySummary {
         let silent =
             |last: Option<Instant>, limit| last.is_none_or(|last| now.saturating_duration_since(last) >= limit);
         let stale = silent(self.last_frame, Self::STALE_AFTER);
@@ -487,7 +488,8 @@ impl BatteryMonitor {
     }
 
     /// Frames of other sources seen on the bus.
-    pub fn ignored(&self) -> u32 {
+    #[cfg(test)]
+    pub(crate) fn ignored(&self) -> u32 {
         self.ignored
     }
 
@@ -508,18 +510,18 @@ const fn kind_index(kind: FrameKind) -> usize {
 }
 
 /// How often the summary is published when nothing else happens.
-pub const PUBLISH_PERIOD: Duration = Duration::from_secs(1);
+pub(crate) const PUBLISH_PERIOD: Duration = Duration::from_secs(1);
 
 /// How long one report's texts may wait for room in the outbox before the rest are dropped: the console
 /// drains it, and a silent console must not stop the monitor.
-pub const TEXT_DEADLINE: Duration = Duration::from_millis(100);
+pub(crate) const TEXT_DEADLINE: Duration = Duration::from_millis(100);
 
 /// After a receive error, wait this long before the next receive, so a bus that keeps failing at once cannot
 /// starve the other tasks.
-pub const ERROR_BACKOFF: Duration = Duration::from_millis(10);
+pub(crate) const ERROR_BACKOFF: Duration = Duration::from_millis(10);
 
 /// Receive frames forever; publish the summary at 1 Hz and on each report; queue the reports' texts.
-pub async fn can_task<C: CanReceiver>(can: &mut C, shared: &Shared) -> ! {
+pub(crate) async fn can_task<C: CanReceiver>(can: &mut C, shared: &Shared) -> ! {
     let publisher = shared.battery.sender();
     let mut monitor = BatteryMonitor::new();
     let mut next_publish = Instant::now();

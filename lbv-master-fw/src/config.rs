@@ -24,7 +24,7 @@ pub struct MasterConfig {
     /// The thruster buses.
     pub bus: BusConfig,
     /// How often thrusters are polled and offline ones retried.
-    pub poll: PollConfig,
+    pub(crate) poll: PollConfig,
     /// The battery CAN bus's bit rate.
     pub can_bitrate: u32,
     /// The console's serial link, baud.
@@ -55,12 +55,12 @@ pub const fn lbv300_6(families: [Family; 6]) -> ThrusterTable {
 }
 
 /// The two-board bench: one thruster of `family` wired to I2C2 directly.
-pub const fn devkit(family: Family) -> ThrusterTable {
+pub(crate) const fn devkit(family: Family) -> ThrusterTable {
     ThrusterTable::new(&[ThrusterSlot::direct(THRUSTER_BUS, family)])
 }
 
 /// The vehicle: an LBV300-6 with six SeaBotix thrusters.
-pub const LBV300_6: ThrusterTable = lbv300_6([Family::SeaBotix; 6]);
+pub(crate) const LBV300_6: ThrusterTable = lbv300_6([Family::SeaBotix; 6]);
 
 impl MasterConfig {
     /// A master polling `thrusters`: the production bus, links, polling and task settings.

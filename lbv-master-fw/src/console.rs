@@ -3,7 +3,7 @@
 //!
 //! - [`console_rx_task`] reads frames (MAVLink 2, and MAVLink 1 too) through a [`Receiver`], which checks their
 //!   signatures when a key is set ([`crate::console::signing`]), decodes the few messages the master understands
-//!   ([`inbound::decode`]) and hands them to the vehicle task as [`Request`]s: the command and who sent it; MAVLink
+//!   (`inbound::decode`) and hands them to the vehicle task as [`Request`]s: the command and who sent it; MAVLink
 //!   FTP and the apply command go to the update server it runs instead ([`crate::update`]). It never stops reading
 //!   for the update or for anyone on the link, and limits per requester what makes the vehicle send more than it
 //!   costs ([`limit`]).
@@ -57,11 +57,8 @@ include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 
 use outbound::{ConsoleLinkQuality, Framer, Reports};
 
-/// The default ESC telemetry period (4 Hz); HEARTBEAT, SYS_STATUS, BATTERY_STATUS and ESC_INFO go every fourth
-/// (1 Hz).
-pub const TELEMETRY_PERIOD: Duration = Duration::from_millis(250);
 /// The transmit task's clock: every message interval is a whole number of these (rounded, at least one).
-pub const TX_TICK: Duration = Duration::from_millis(50);
+pub(crate) const TX_TICK: Duration = Duration::from_millis(50);
 /// Pause after a read error or end of input, so a failing port cannot monopolise the executor.
 const READ_RETRY: Duration = Duration::from_millis(10);
 /// The line is quiet for this long with a frame begun: the frame will not complete, so its start was false and
@@ -96,7 +93,7 @@ impl ConsoleConfig {
     };
 
     /// The configured thrusters, capped at [`MAX_THRUSTERS`].
-    pub fn thruster_count(&self) -> usize {
+    pub(crate) fn thruster_count(&self) -> usize {
         usize::from(self.thrusters).min(MAX_THRUSTERS)
     }
 }
@@ -152,7 +149,7 @@ pub struct ConsoleCounters {
     /// Bytes dropped while looking for a frame start.
     pub skipped_bytes: u32,
     /// Errors reported by the serial port (overrun, framing, noise).
-    pub read_errors: u32,
+    pub(crate) read_errors: u32,
     /// With a signing key set: frames refused because they were not signed (or MAVLink 1).
     pub unsigned: u32,
     /// With a signing key set: frames refused because their signature was wrong.
@@ -161,7 +158,7 @@ pub struct ConsoleCounters {
     pub replayed: u32,
     /// With a signing key set: correctly signed frames beyond the stored reservation, refused until the next one
     /// is stored (the first frame of a ground station whose clock ran on while the master was off).
-    pub ahead: u32,
+    pub(crate) ahead: u32,
     /// With a signing key set: correctly signed frames with a timestamp so near 2^48 - 1 that the link's would
     /// run out.
     pub out_of_range: u32,
@@ -242,7 +239,7 @@ impl ConsoleStats {
     }
 
     /// Use the link's signing state, following `key` (the one in force) first.
-    pub fn signing<T>(&self, key: Option<SigningKey>, f: impl FnOnce(&mut SigningState) -> T) -> T {
+    pub(crate) fn signing<T>(&self, key: Option<SigningKey>, f: impl FnOnce(&mut SigningState) -> T) -> T {
         self.signing.lock(|state| {
             let mut state = state.borrow_mut();
             state.sync(key);
@@ -612,7 +609,7 @@ fn reads(request: &UpdateRequest) -> Option<u32> {
 /// Whether the image sends ESC_INFO and ESC_STATUS. The acceptance image leaves them out: its script drives the
 /// bus itself and publishes no thruster reports (they would only ever say "no thruster"), and their codecs do
 /// not fit its flash budget beside the script.
-pub const ESC_DETAIL: bool = !cfg!(feature = "acceptance");
+pub(crate) const ESC_DETAIL: bool = !cfg!(feature = "acceptance");
 
 /// The paced messages, in the order a batch carries them.
 const PACED: [Message; 8] = [

@@ -18,19 +18,19 @@ use tmc_proto::{Faults, MaxPower, Order, Status};
 /// How long an echo may stay off its order without closing in: longer than the thruster's ramp takes to move
 /// ten steps (0.5 s for all 102) and than one poll's lag, shorter than its own 1 s failsafe, so a master whose
 /// orders stopped arriving says so before the thruster's failsafe acts.
-pub const NOT_FOLLOWING_AFTER: Duration = Duration::from_millis(500);
+pub(crate) const NOT_FOLLOWING_AFTER: Duration = Duration::from_millis(500);
 
 /// Steps an echo may differ from its order and still match it: a brushless speed measured from hall edges and
 /// rounded to 44 rpm steps, a speed loop settling, an order too small to turn the motor.
-pub const TOLERANCE: i16 = 4;
+pub(crate) const TOLERANCE: i16 = 4;
 
 /// Current (0.1 A) a Legacy brushless thruster ordered to stop may still read: its sensor's offset and noise.
-pub const STOPPED_CURRENT_DECIAMPS: i16 = 5;
+pub(crate) const STOPPED_CURRENT_DECIAMPS: i16 = 5;
 
 /// A thruster started or stopped following its orders.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum FollowChange {
+pub(crate) enum FollowChange {
     /// Its echo stayed off the order without closing in for [`NOT_FOLLOWING_AFTER`].
     Lost,
     /// Its echo matches its order again.
@@ -87,7 +87,7 @@ fn off(order: Order, echo: Echo) -> Option<i16> {
 /// One thruster's follow check, fed with every valid status and the order sent with it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct FollowCheck {
+pub(crate) struct FollowCheck {
     /// While the echo is off: the order it is off, the nearest it has come, and since when it has come no nearer.
     off: Option<(Order, i16, Instant)>,
     not_following: bool,
@@ -101,7 +101,7 @@ impl Default for FollowCheck {
 
 impl FollowCheck {
     /// A thruster not yet judged: following.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Self {
             off: None,
             not_following: false,
@@ -109,13 +109,13 @@ impl FollowCheck {
     }
 
     /// Whether the thruster has been found not to follow its order and has not matched it since.
-    pub const fn not_following(&self) -> bool {
+    pub(crate) const fn not_following(&self) -> bool {
         self.not_following
     }
 
     /// Judge the valid status read at `now` in the poll that sent `order`; `stopped_for_a_reason` is set when the
     /// status says the thruster's own failsafe or overcurrent rule holds it stopped (told on their own).
-    pub fn observe(
+    pub(crate) fn observe(
         &mut self,
         now: Instant,
         order: Order,

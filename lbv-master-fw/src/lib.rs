@@ -8,15 +8,18 @@
 //! the bench and the tests call it with simulated ports (lbv-sim's buses, links and flash). Every trait a port
 //! implements, and the [`Board`] that names their types, is in [`ports`].
 #![cfg_attr(not(test), no_std)]
+// What only this crate uses is `pub(crate)`, and its docs still link to it: they are read with the private items
+// documented (`cargo doc --document-private-items`, as test.sh builds them), where those links resolve.
+#![allow(rustdoc::private_intra_doc_links)]
 
 pub mod acceptance;
-pub mod battery;
+pub(crate) mod battery;
 pub mod config;
 pub mod console;
-pub mod follow;
+pub(crate) mod follow;
 pub mod mixer;
 pub mod params;
-pub mod poll;
+pub(crate) mod poll;
 pub mod ports;
 pub mod recovery;
 pub mod settings;
@@ -29,7 +32,6 @@ use embassy_futures::join::{join3, join5};
 use embedded_hal_async::i2c::I2c;
 
 pub use config::{CONFIG, MasterConfig};
-pub use poll::{PollError, poll_thruster};
 
 use battery::can_task;
 use console::{ConsoleStats, console_rx_task, console_tx_task};
@@ -43,16 +45,16 @@ use vehicle::vehicle_task;
 /// What an image that takes update files signed with the development key (update-image's `UPDATE_KEY_IS_DEV`)
 /// says at every start, as a warning: the key's secret is published, so anyone can sign an image it takes
 /// (AUTOPILOT_VERSION says it too, [`console::outbound::DEV_KEY_MARK`]).
-pub const DEV_KEY_TEXT: &str = "Takes update files signed with the development key";
+pub(crate) const DEV_KEY_TEXT: &str = "Takes update files signed with the development key";
 // Whole in one STATUSTEXT.
 const _: () = assert!(DEV_KEY_TEXT.len() <= shared::TEXT_LEN);
 
 /// Why the settings store and the master's own update write nothing: the chip's flash is not in the layout their
 /// pages are placed for (`g431_hw::flash::master_layout_ok`, which the binding reads at start).
-pub const NOT_DUAL_BANK: &str = "flash not dual-bank";
+pub(crate) const NOT_DUAL_BANK: &str = "flash not dual-bank";
 /// What a master whose flash is not in dual-bank mode says at every start, as an error (docs/flashing.md, "Option
 /// bytes"): its settings last until the next restart, and master images are refused.
-pub const NOT_DUAL_BANK_TEXT: &str = "Settings and updates refused: flash not dual-bank";
+pub(crate) const NOT_DUAL_BANK_TEXT: &str = "Settings and updates refused: flash not dual-bank";
 // Whole in one STATUSTEXT.
 const _: () = assert!(NOT_DUAL_BANK_TEXT.len() <= shared::TEXT_LEN);
 

@@ -83,7 +83,7 @@ const FULL: i32 = 1000;
 
 impl FrameKind {
     /// How many thrusters the frame has.
-    pub const fn thrusters(self) -> usize {
+    pub(crate) const fn thrusters(self) -> usize {
         match self {
             Self::Lbv200_4 => 4,
             Self::Lbv300_6 => 6,
@@ -91,7 +91,7 @@ impl FrameKind {
     }
 
     /// The frame with that many thrusters (the `LBV_FRAME` parameter: 4 or 6).
-    pub const fn from_thrusters(count: u8) -> Option<Self> {
+    pub(crate) const fn from_thrusters(count: u8) -> Option<Self> {
         match count {
             4 => Some(Self::Lbv200_4),
             6 => Some(Self::Lbv300_6),
@@ -100,7 +100,8 @@ impl FrameKind {
     }
 
     /// The vehicle's name, e.g. `"LBV300-6"`.
-    pub const fn name(self) -> &'static str {
+    #[cfg(test)]
+    pub(crate) const fn name(self) -> &'static str {
         match self {
             Self::Lbv200_4 => "LBV200-4",
             Self::Lbv300_6 => "LBV300-6",
@@ -120,7 +121,7 @@ impl FrameKind {
 /// thrusters are ZERO).
 ///
 /// `gain_percent` is clamped to 1..=100; the sticks to their MANUAL_CONTROL ranges.
-pub fn mix<const N: usize>(frame: FrameKind, input: ManualInput, gain_percent: u8) -> [Speed; N] {
+pub(crate) fn mix<const N: usize>(frame: FrameKind, input: ManualInput, gain_percent: u8) -> [Speed; N] {
     let axes = [
         stick(input.x),
         stick(input.y),

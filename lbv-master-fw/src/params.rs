@@ -55,12 +55,12 @@ use crate::console::signing::SigningKey;
 use crate::mixer::FrameKind;
 
 /// A parameter's name as MAVLink carries it: up to 16 ASCII bytes, NUL-padded.
-pub type ParamId = [u8; 16];
+pub(crate) type ParamId = [u8; 16];
 
 /// What the ground-station heartbeat failsafe does (`FS_GCS_ENABLE` 1 and 2, as in ArduSub; `LBV_GCS_NEUTRAL`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum GcsFailsafe {
+pub(crate) enum GcsFailsafe {
     /// Tell the pilot, keep going.
     Warn,
     /// Disarm: every thruster stops.
@@ -73,7 +73,7 @@ pub enum GcsFailsafe {
 /// What the pilot-input failsafe does (`FS_PILOT_INPUT`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum PilotFailsafe {
+pub(crate) enum PilotFailsafe {
     /// Nothing.
     Off,
     /// Neutral sticks until the next MANUAL_CONTROL.
@@ -97,7 +97,7 @@ pub enum ParamType {
 
 impl ParamType {
     /// The MAV_PARAM_TYPE value.
-    pub const fn mav(self) -> u8 {
+    pub(crate) const fn mav(self) -> u8 {
         match self {
             Self::Int8 => 2,
             Self::Int16 => 4,
@@ -158,13 +158,13 @@ pub enum Param {
 pub const PARAM_COUNT: usize = 27;
 
 /// Joystick buttons with a function parameter: MANUAL_CONTROL's `buttons`, as ArduSub has them.
-pub const BUTTONS: usize = 16;
+pub(crate) const BUTTONS: usize = 16;
 
 /// What a joystick button does, by ArduSub's number (AP_JSButton's `button_function_t`), on the press only: a
 /// button held acts once.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum ButtonFunction {
+pub(crate) enum ButtonFunction {
     /// 3: arm, as the arm command does (the same checks, the same texts).
     Arm,
     /// 4: disarm, and stop a motor test: every thruster stops. ArduSub has no other motor stop.
@@ -177,7 +177,7 @@ pub enum ButtonFunction {
 
 impl ButtonFunction {
     /// The function of ArduSub's number, `None` for 0 (nothing) and for one this vehicle has not.
-    pub const fn from_ardusub(number: i32) -> Option<Self> {
+    pub(crate) const fn from_ardusub(number: i32) -> Option<Self> {
         match number {
             3 => Some(Self::Arm),
             4 => Some(Self::Disarm),
@@ -191,7 +191,7 @@ impl ButtonFunction {
 /// What one gain button press moves `LBV_GAIN` by, in points of %: ArduSub steps its gain between JS_GAIN_MIN and
 /// JS_GAIN_MAX (25 % and 100 %, four settings); a vehicle without stabilisation wants finer steps, ten from 10 % to
 /// 100 %, the default 50 % among them.
-pub const GAIN_STEP: u8 = 10;
+pub(crate) const GAIN_STEP: u8 = 10;
 
 impl Param {
     /// Every parameter, in index order.
@@ -259,14 +259,14 @@ impl Param {
     }
 
     /// The function parameter of joystick button `n` (0..[`BUTTONS`]).
-    pub fn button(n: usize) -> Option<Param> {
+    pub(crate) fn button(n: usize) -> Option<Param> {
         let index = u16::try_from(n).ok().filter(|_| n < BUTTONS)?;
         Self::from_index(Self::Button0.index() + index)
     }
 
     /// Smallest and largest value, in the parameter's own unit (`LBV_FRAME` takes only the two ends, a button
     /// function only the numbers of [`ButtonFunction`] and 0).
-    pub const fn range(self) -> (i32, i32) {
+    pub(crate) const fn range(self) -> (i32, i32) {
         match self {
             Self::GcsFailsafe => (1, 2),
             Self::GcsTimeout => (20, 1200),
@@ -282,7 +282,7 @@ impl Param {
     }
 
     /// Own units per displayed unit: the timeouts are kept in tenths of the seconds a ground station shows.
-    pub const fn scale(self) -> i32 {
+    pub(crate) const fn scale(self) -> i32 {
         match self {
             Self::GcsTimeout | Self::PilotTimeout => 10,
             _ => 1,
@@ -295,7 +295,7 @@ impl Param {
     /// trips either failsafe, with a second to spare for a late frame. The pilot-input failsafe (3 s) acts before
     /// the heartbeat failsafe (5 s, ArduPilot's FS_GCS_TIMEOUT): when the link goes, the thrusters go neutral
     /// first, then the vehicle disarms.
-    pub const fn default_value(self) -> i32 {
+    pub(crate) const fn default_value(self) -> i32 {
         match self {
             Self::GcsFailsafe => 2,
             Self::GcsTimeout => 50,
@@ -320,7 +320,7 @@ impl Param {
     /// Its MAVLink type: the timeouts are seconds with a tenth (REAL32); the others are integers, of ArduPilot's
     /// width for the ArduSub names (SYSID_MYGCS is AP_Int16, the failsafe enables and the button functions AP_Int8)
     /// and the smallest that holds the range for ours.
-    pub const fn param_type(self) -> ParamType {
+    pub(crate) const fn param_type(self) -> ParamType {
         match self {
             Self::GcsTimeout | Self::PilotTimeout => ParamType::Real32,
             Self::OperatorId => ParamType::Int16,
@@ -334,13 +334,13 @@ impl Param {
     /// for PX4 vehicles and otherwise sends REAL32; pymavlink's param_set_send defaults to it; ArduPilot itself
     /// ignores the type). Any other type (an INT32 or UINT8 for an INT8, an integer for a REAL32) is not this
     /// parameter's encoding and is refused.
-    pub const fn takes_type(self, param_type: u8) -> bool {
+    pub(crate) const fn takes_type(self, param_type: u8) -> bool {
         param_type == self.param_type().mav() || param_type == ParamType::Real32.mav()
     }
 
     /// Changing it while armed would hand the vehicle to another station or remix the thrusters mid-dive; who may
     /// update is decided on the surface too.
-    pub const fn only_disarmed(self) -> bool {
+    pub(crate) const fn only_disarmed(self) -> bool {
         matches!(self, Self::OperatorId | Self::Frame | Self::UnsignedUpdates)
     }
 
@@ -350,17 +350,17 @@ impl Param {
     }
 
     /// Whether it is a joystick button's function (`BTNn_FUNCTION`).
-    pub const fn is_button(self) -> bool {
+    pub(crate) const fn is_button(self) -> bool {
         Self::Button0.index() <= self.index() && self.index() <= Self::Button15.index()
     }
 
     /// The parameter at an index.
-    pub fn from_index(index: u16) -> Option<Param> {
+    pub(crate) fn from_index(index: u16) -> Option<Param> {
         Self::ALL.into_iter().find(|param| param.index() == index)
     }
 
     /// The parameter of a NUL-padded MAVLink name (exact, case-sensitive, as ArduPilot matches).
-    pub fn from_id(id: &ParamId) -> Option<Param> {
+    pub(crate) fn from_id(id: &ParamId) -> Option<Param> {
         let len = id.iter().position(|byte| *byte == 0).unwrap_or(id.len());
         let name = id.get(..len)?;
         Self::ALL.into_iter().find(|param| param.name().as_bytes() == name)
@@ -410,7 +410,7 @@ impl Param {
 
     /// A value in the parameter's own unit, written in the displayed unit ("120", "0.5") with integer arithmetic:
     /// formatting an `f32` would add some 10 KiB to the image.
-    pub fn shown(self, value: i32) -> impl fmt::Display {
+    pub(crate) fn shown(self, value: i32) -> impl fmt::Display {
         Shown(self.scale(), value)
     }
 }
@@ -437,7 +437,7 @@ pub struct Params([i32; PARAM_COUNT]);
 
 impl Params {
     /// The defaults, with the build's frame.
-    pub fn defaults(frame: FrameKind) -> Self {
+    pub(crate) fn defaults(frame: FrameKind) -> Self {
         let mut values = Param::ALL.map(Param::default_value);
         if let Some(slot) = values.get_mut(usize::from(Param::Frame.index())) {
             *slot = frame.thrusters() as i32;
@@ -465,7 +465,7 @@ impl Params {
     }
 
     /// `FS_GCS_ENABLE` and `LBV_GCS_NEUTRAL`.
-    pub fn gcs_failsafe(&self) -> GcsFailsafe {
+    pub(crate) fn gcs_failsafe(&self) -> GcsFailsafe {
         match (self.get(Param::GcsFailsafe), self.get(Param::GcsNeutral)) {
             (1, 1) => GcsFailsafe::Neutral,
             (1, _) => GcsFailsafe::Warn,
@@ -479,7 +479,7 @@ impl Params {
     }
 
     /// `FS_PILOT_INPUT`.
-    pub fn pilot_failsafe(&self) -> PilotFailsafe {
+    pub(crate) fn pilot_failsafe(&self) -> PilotFailsafe {
         match self.get(Param::PilotFailsafe) {
             0 => PilotFailsafe::Off,
             2 => PilotFailsafe::Disarm,
@@ -488,7 +488,7 @@ impl Params {
     }
 
     /// `FS_PILOT_TIMEOUT`.
-    pub fn pilot_timeout(&self) -> Duration {
+    pub(crate) fn pilot_timeout(&self) -> Duration {
         deciseconds(self.get(Param::PilotTimeout))
     }
 
@@ -503,12 +503,12 @@ impl Params {
     }
 
     /// `LBV_POWER_CAP`, %.
-    pub fn power_cap_percent(&self) -> u8 {
+    pub(crate) fn power_cap_percent(&self) -> u8 {
         self.percent(Param::PowerCap)
     }
 
     /// `LBV_MTEST_MAX`, %.
-    pub fn motor_test_max_percent(&self) -> u8 {
+    pub(crate) fn motor_test_max_percent(&self) -> u8 {
         self.percent(Param::MotorTestMax)
     }
 
@@ -518,12 +518,12 @@ impl Params {
     }
 
     /// What joystick button `n` does (`BTNn_FUNCTION`); `None`: nothing, or no such button.
-    pub fn button(&self, n: usize) -> Option<ButtonFunction> {
+    pub(crate) fn button(&self, n: usize) -> Option<ButtonFunction> {
         ButtonFunction::from_ardusub(self.get(Param::button(n)?))
     }
 
     /// `LBV_FRAME`.
-    pub fn frame(&self) -> FrameKind {
+    pub(crate) fn frame(&self) -> FrameKind {
         u8::try_from(self.get(Param::Frame))
             .ok()
             .and_then(FrameKind::from_thrusters)

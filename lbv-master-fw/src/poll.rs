@@ -6,7 +6,7 @@ use tmc_proto::{DecodeError, Decoded, Family, MAX_STATUS_LEN, Order, SeaBotixSta
 /// Why a poll failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum PollError<E> {
+pub(crate) enum PollError<E> {
     /// Writing the order failed on the bus (a missing thruster NACKs its address): the order was not delivered.
     Order(E),
     /// The order was delivered, but reading the status failed on the bus.
@@ -18,7 +18,7 @@ pub enum PollError<E> {
 
 impl<E> PollError<E> {
     /// Whether the order reached the thruster (its write was acknowledged) before the poll failed.
-    pub const fn delivered(&self) -> bool {
+    pub(crate) const fn delivered(&self) -> bool {
         matches!(self, PollError::Status(_) | PollError::Decode(_))
     }
 }
@@ -26,17 +26,17 @@ impl<E> PollError<E> {
 /// A status read back, and the form it came in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Polled {
+pub(crate) struct Polled {
     /// The status, with a warning for an odd field.
-    pub decoded: Decoded<Status>,
+    pub(crate) decoded: Decoded<Status>,
     /// Full (MT repeated) or implied-type (the 6-byte SeaBotix form some controllers send).
-    pub form: StatusForm,
+    pub(crate) form: StatusForm,
     /// The status says the thruster's link failsafe stopped it: this project's SeaBotix FAULT bit 5
     /// ([`SeaBotixStatus::FAULT_LINK_FAILSAFE`]), which only this project's thruster sends, in the full form.
-    pub link_failsafe: bool,
+    pub(crate) link_failsafe: bool,
     /// The status says a sustained overcurrent holds the thruster's bridge off until a zero order: this project's
     /// SeaBotix FAULT bit 6 ([`SeaBotixStatus::FAULT_OVERCURRENT`]), in the full form only, as bit 5.
-    pub overcurrent: bool,
+    pub(crate) overcurrent: bool,
 }
 
 /// Send `order` to the thruster of `family` and read back its status.
@@ -47,7 +47,7 @@ pub struct Polled {
 /// damaged full frame in 256 checks as the other form, so line noise on a thruster known to send full frames must
 /// not pass for one ([`Status::decode_either`]). A valid frame with an out-of-range field is a status (its faults
 /// count) with a warning, not a failure.
-pub async fn poll_thruster<I: I2c>(
+pub(crate) async fn poll_thruster<I: I2c>(
     i2c: &mut I,
     family: Family,
     order: Order,

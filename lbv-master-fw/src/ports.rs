@@ -95,7 +95,7 @@ pub struct CanFrame {
 
 impl CanFrame {
     /// The data bytes that count, or `None` if `len` is above 8.
-    pub fn payload(&self) -> Option<&[u8]> {
+    pub(crate) fn payload(&self) -> Option<&[u8]> {
         self.data.get(..usize::from(self.len))
     }
 }
@@ -204,7 +204,7 @@ pub trait UpdateSink {
 }
 
 /// The slot number of the master in the apply command's param1.
-pub const MASTER_SLOT: u8 = 255;
+pub(crate) const MASTER_SLOT: u8 = 255;
 
 /// What an update file is for: a slot of the thruster table, or the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -218,7 +218,8 @@ pub enum UpdateTarget {
 
 impl UpdateTarget {
     /// Its slot number: the thruster's, or [`MASTER_SLOT`].
-    pub const fn slot(self) -> u8 {
+    #[cfg(test)]
+    pub(crate) const fn slot(self) -> u8 {
         match self {
             Self::Thruster(slot) => slot,
             Self::Master => MASTER_SLOT,

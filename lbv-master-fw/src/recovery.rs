@@ -26,20 +26,20 @@ pub struct BusConfig {
 impl BusConfig {
     /// IDS 6.4.1: the motherboard is a 100 kbit/s I2C master. SMBus's SCL-low timeout, 25 ms, bounds a stalled
     /// transfer.
-    pub const THRUSTERS: BusConfig = BusConfig {
+    pub(crate) const THRUSTERS: BusConfig = BusConfig {
         frequency_hz: 100_000,
         timeout: Duration::from_millis(25),
     };
 
     /// Half an SCL period, ns: the bus recovery clocks SCL at the bus's own speed.
-    pub const fn half_period_ns(&self) -> u32 {
+    pub(crate) const fn half_period_ns(&self) -> u32 {
         let hz = if self.frequency_hz == 0 { 1 } else { self.frequency_hz };
         500_000_000 / hz
     }
 }
 
 /// Most SCL clocks a recovery sends: a byte and its ACK.
-pub const MAX_CLOCKS: u8 = 9;
+pub(crate) const MAX_CLOCKS: u8 = 9;
 
 /// UM10204 3.1.16 on two open-drain pins: release both lines; while SDA reads low, clock SCL (low, then high, half
 /// a bus period each), at most [`MAX_CLOCKS`] times; then a STOP (SDA low, SCL high, SDA high). Returns whether

@@ -38,7 +38,7 @@ use crate::shared::{Severity, Shared, text};
 
 /// The master's flash kept for the settings ([`memory::MASTER_STORAGE`]), as offsets from the start of flash: the
 /// top 16 KiB of the STM32G474RE, eight 2 KiB pages of bank 2. `memory.x` keeps the images and DFU below.
-pub const STORAGE: Range<u32> =
+pub(crate) const STORAGE: Range<u32> =
     memory::MASTER_STORAGE.origin - memory::FLASH_ORIGIN..memory::MASTER_STORAGE.end() - memory::FLASH_ORIGIN;
 
 /// The pages the master keeps data in, for the binding's NMI handler ([`g431_hw::flash::nmi_action`]): the
@@ -185,7 +185,8 @@ impl<F: NorFlash> core::fmt::Debug for Store<F> {
 
 impl<F: NorFlash> Store<F> {
     /// The store in `range` of `flash`; `None` unless the range is whole erase pages.
-    pub fn new(flash: F, range: Range<u32>) -> Option<Self> {
+    #[cfg(test)]
+    pub(crate) fn new(flash: F, range: Range<u32>) -> Option<Self> {
         let config = QueueConfig::try_new(range).ok()?;
         Some(Self {
             queue: QueueStorage::new(flash, config, Cache::new_uncached()),
@@ -216,7 +217,8 @@ impl<F: NorFlash> Store<F> {
     }
 
     /// The flash back (the tests power-cycle it).
-    pub fn into_flash(self) -> F {
+    #[cfg(test)]
+    pub(crate) fn into_flash(self) -> F {
         self.queue.destroy().0
     }
 
@@ -306,7 +308,7 @@ fn signing_time_of(record: &[u8; RECORD]) -> u64 {
 }
 
 /// How long after a failed write of the signing reservation it is tried again.
-pub const SIGNING_RETRY: Duration = Duration::from_secs(5);
+pub(crate) const SIGNING_RETRY: Duration = Duration::from_secs(5);
 
 /// Keep the settings in `store` (which has [`SettingsStore::load`]ed them): write each change the vehicle publishes
 /// (`shared.settings`) and each signing reservation the console asks for (`shared.signing_time`), telling the

@@ -19,13 +19,13 @@ use crate::mixer::ManualInput;
 use crate::params::{ParamId, ParamType, Settings};
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
-pub const MAX_THRUSTERS: usize = 8;
+pub(crate) const MAX_THRUSTERS: usize = 8;
 
 /// Thruster buses a master has: I2C1..3.
 pub const BUSES: usize = 3;
 
 /// The longest STATUSTEXT text, in bytes (MAVLink STATUSTEXT.text).
-pub const TEXT_LEN: usize = 50;
+pub(crate) const TEXT_LEN: usize = 50;
 /// A STATUSTEXT's text: at most [`TEXT_LEN`] bytes.
 pub type Text = heapless::String<TEXT_LEN>;
 
@@ -52,7 +52,7 @@ impl<const N: usize> core::fmt::Write for Truncating<N> {
 /// "`who`: `what`" for a person, in one text or, when one STATUSTEXT cannot hold it, in two, so that a reason is
 /// not cut short. The first ends at a ": ", else at a ", ", else at a space: the last one that leaves the rest room
 /// in the second ("`who`: " and the rest); failing that, at the last space that fits, the rest cut at its end.
-pub fn texts(who: core::fmt::Arguments<'_>, what: core::fmt::Arguments<'_>) -> (Text, Option<Text>) {
+pub(crate) fn texts(who: core::fmt::Arguments<'_>, what: core::fmt::Arguments<'_>) -> (Text, Option<Text>) {
     let mut whole = Truncating(heapless::String::<{ 3 * TEXT_LEN }>::new());
     let _ = core::fmt::Write::write_fmt(&mut whole, format_args!("{who}: "));
     let start = whole.0.len();
@@ -80,7 +80,7 @@ pub fn texts(who: core::fmt::Arguments<'_>, what: core::fmt::Arguments<'_>) -> (
 /// The texts that tell that a bootloader refused `who`'s image, `code` its verdict (update-image's `Verdict`):
 /// "`who`: `what`: signature" ([`texts`]: "`who`: `what`:" and "`who`: security counter below the vehicle's"
 /// when that is too long for one), or "`who`: `what` (code 12)" for a code this build does not know.
-pub fn verdict_texts(who: core::fmt::Arguments<'_>, what: &str, code: u32) -> (Text, Option<Text>) {
+pub(crate) fn verdict_texts(who: core::fmt::Arguments<'_>, what: &str, code: u32) -> (Text, Option<Text>) {
     match u8::try_from(code).ok().and_then(update_image::Verdict::from_code) {
         Some(verdict) => texts(who, format_args!("{what}: {verdict}")),
         None => texts(who, format_args!("{what} (code {code})")),
@@ -112,15 +112,15 @@ pub const MAV_CMD_COMPONENT_ARM_DISARM: u16 = 400;
 pub const MAV_CMD_DO_MOTOR_TEST: u16 = 209;
 /// MAV_CMD_DO_SET_MODE: param1 the base mode (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED for a custom mode), param2 the
 /// custom mode, ArduSub's mode number (QGroundControl's mode menu).
-pub const MAV_CMD_DO_SET_MODE: u16 = 176;
+pub(crate) const MAV_CMD_DO_SET_MODE: u16 = 176;
 /// ArduSub's MANUAL flight mode (its custom mode 19): the one mode the vehicle has, reported as HEARTBEAT's
 /// custom_mode. ArduSub's other modes need what the master has not: a depth sensor, a compass, a position.
-pub const ARDUSUB_MODE_MANUAL: u32 = 19;
+pub(crate) const ARDUSUB_MODE_MANUAL: u32 = 19;
 pub const MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: u16 = 246;
-pub const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
-pub const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
+pub(crate) const MAV_CMD_SET_MESSAGE_INTERVAL: u16 = 511;
+pub(crate) const MAV_CMD_REQUEST_MESSAGE: u16 = 512;
 /// The older way to ask for AUTOPILOT_VERSION.
-pub const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
+pub(crate) const MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: u16 = 520;
 /// Apply the update image received for a target ([`crate::update`]): MAV_CMD_USER_1, the first of common.xml's
 /// commands left to the vendor. MAVLink has no command that applies a file received over FTP; MAV_CMD_DO_UPGRADE
 /// (247, work in progress) names the component to upgrade by MAVLink component id, not a thruster slot.
@@ -129,9 +129,9 @@ pub const MAV_CMD_LBV_APPLY_UPDATE: u16 = 31010;
 pub const MAV_CMD_LBV_QUERY_VERSION: u16 = 31011;
 
 /// FILE_TRANSFER_PROTOCOL's payload: MAVLink FTP's header and data ([`crate::update::ftp`]).
-pub const FTP_PAYLOAD: usize = 251;
+pub(crate) const FTP_PAYLOAD: usize = 251;
 /// A MAVLink FTP payload.
-pub type FtpPayload = [u8; FTP_PAYLOAD];
+pub(crate) type FtpPayload = [u8; FTP_PAYLOAD];
 
 /// A request for the update server: who sent it and what it asks. Apart from [`Request`]: an FTP payload is five
 /// times the size of every other command, and only the update server takes it.
@@ -159,23 +159,23 @@ pub enum UpdateCommand {
 /// The start of an FTP reply's payload: its 12-byte header and up to [`FTP_REPLY_DATA`] bytes of data (the rest
 /// of the 251 are zeros). The server's replies need no more (an ACK, a NAK's code, a CRC, one directory entry),
 /// and so fit in [`Outgoing`] beside the other messages for the console.
-pub type FtpReply = [u8; 12 + FTP_REPLY_DATA];
+pub(crate) type FtpReply = [u8; 12 + FTP_REPLY_DATA];
 /// Data bytes an [`FtpReply`] carries.
-pub const FTP_REPLY_DATA: usize = 28;
+pub(crate) const FTP_REPLY_DATA: usize = 28;
 
 /// The update server's counters (wrapping).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct UpdateCounters {
+pub(crate) struct UpdateCounters {
     /// FTP requests answered with a NAK.
-    pub naks: u32,
+    pub(crate) naks: u32,
     /// Writes past the next byte expected (an earlier write was lost), dropped unanswered for the client to send
     /// again.
-    pub gaps: u32,
+    pub(crate) gaps: u32,
     /// Writes of bytes already received (their ACK was lost), ACKed again.
-    pub duplicates: u32,
+    pub(crate) duplicates: u32,
     /// Writes, removals and apply commands refused because they came from another system than the operator's.
-    pub refused: u32,
+    pub(crate) refused: u32,
 }
 
 /// What an update command asks of its target.
@@ -190,7 +190,7 @@ pub enum UpdateAction {
 
 impl UpdateAction {
     /// Its MAV_CMD, which its COMMAND_ACKs answer.
-    pub const fn command(self) -> u16 {
+    pub(crate) const fn command(self) -> u16 {
         match self {
             UpdateAction::Apply => MAV_CMD_LBV_APPLY_UPDATE,
             UpdateAction::QueryVersion => MAV_CMD_LBV_QUERY_VERSION,
@@ -320,7 +320,7 @@ pub enum Message {
 
 impl Message {
     /// Whether it is sent periodically at an interval a ground station may change.
-    pub const fn paced(self) -> bool {
+    pub(crate) const fn paced(self) -> bool {
         !matches!(self, Self::Heartbeat | Self::AutopilotVersion | Self::AvailableModes)
     }
 }
@@ -513,12 +513,12 @@ pub struct BatterySummary {
 
 impl BatterySummary {
     /// The DCDC status while its frame is fresh; unknown once it is stale, whatever the other frames do.
-    pub fn fresh_status(&self) -> Option<DcdcStatus> {
+    pub(crate) fn fresh_status(&self) -> Option<DcdcStatus> {
         self.status.filter(|_| !self.status_stale)
     }
 
     /// The BMS alarms while their frame is fresh; unknown once it is stale.
-    pub fn fresh_alarms(&self) -> Option<BmsAlarms> {
+    pub(crate) fn fresh_alarms(&self) -> Option<BmsAlarms> {
         self.alarms.filter(|_| !self.alarms_stale)
     }
 }
@@ -551,7 +551,7 @@ type Mutex = CriticalSectionRawMutex;
 /// names them as the console does, from T1.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum UpdateHold {
+pub(crate) enum UpdateHold {
     /// The master has not read yet whether its own image is on trial (its first moments).
     MasterStarting,
     /// The master's own image is being applied: its signature checked, then the mark and the restart.
@@ -597,12 +597,12 @@ pub struct UpdateHolds(BlockingMutex<Mutex, Cell<[Option<UpdateHold>; 2]>>);
 
 impl UpdateHolds {
     /// Nothing held.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Self(BlockingMutex::new(Cell::new([None, None])))
     }
 
     /// The master's own update's hold.
-    pub fn set_master(&self, hold: Option<UpdateHold>) {
+    pub(crate) fn set_master(&self, hold: Option<UpdateHold>) {
         self.0.lock(|holds| {
             let [_, thrusters] = holds.get();
             holds.set([hold, thrusters]);
@@ -610,7 +610,7 @@ impl UpdateHolds {
     }
 
     /// The thrusters' hold.
-    pub fn set_thrusters(&self, hold: Option<UpdateHold>) {
+    pub(crate) fn set_thrusters(&self, hold: Option<UpdateHold>) {
         self.0.lock(|holds| {
             let [master, _] = holds.get();
             holds.set([master, hold]);
@@ -618,7 +618,7 @@ impl UpdateHolds {
     }
 
     /// What holds the vehicle from arming now: the master's first.
-    pub fn get(&self) -> Option<UpdateHold> {
+    pub(crate) fn get(&self) -> Option<UpdateHold> {
         let [master, thrusters] = self.0.lock(Cell::get);
         master.or(thrusters)
     }
@@ -660,9 +660,9 @@ pub struct Shared {
     pub reboot: Signal<Mutex, ()>,
     /// The master's own update -> update server: the master's image is marked for the swap and it restarts into
     /// it; no update file changes until then ([`crate::update::own`]). Only a restart clears it.
-    pub restarting: AtomicBool,
+    pub(crate) restarting: AtomicBool,
     /// The master's own update, the courier's users -> vehicle: what keeps the vehicle from arming.
-    pub holds: UpdateHolds,
+    pub(crate) holds: UpdateHolds,
 }
 
 impl Shared {

@@ -90,7 +90,7 @@ pub struct ReceivedImage {
     /// `None` while it comes; then whether it came whole (`false`: stopped).
     pub complete: Option<bool>,
     /// Times it was applied.
-    pub applied: u32,
+    pub(crate) applied: u32,
 }
 
 /// An update sink that records every image it is given, in order, and applies nothing ([`Applied::NotWired`]): the

@@ -41,16 +41,18 @@ mod tests;
 pub const MUX_ADDRESS: u8 = 0x70;
 
 /// TCA9548A channels.
-pub const MUX_CHANNELS: u8 = 8;
+pub(crate) const MUX_CHANNELS: u8 = 8;
 
 /// Bit times of one I2C transfer of `bytes` data bytes: START, the address byte and its ACK, 9 bits per data
 /// byte (8 + ACK), STOP. An order (4 bytes) is 47; a SeaBotix status read (7 bytes) 74; a Legacy one 47.
-pub const fn transfer_bits(bytes: u32) -> u32 {
+#[cfg(test)]
+pub(crate) const fn transfer_bits(bytes: u32) -> u32 {
     1 + 9 + 9 * bytes + 1
 }
 
 /// Bit times of one poll of a `family` thruster: the order write and the status read.
-pub const fn poll_bits(family: Family) -> u32 {
+#[cfg(test)]
+pub(crate) const fn poll_bits(family: Family) -> u32 {
     transfer_bits(tmc_proto::ORDER_LEN as u32) + transfer_bits(family.status_len() as u32)
 }
 
@@ -81,7 +83,7 @@ impl ThrusterSlot {
     }
 
     /// A thruster on TCA9548A channel `channel` of `bus`.
-    pub const fn behind_mux(bus: u8, channel: u8, family: Family) -> Self {
+    pub(crate) const fn behind_mux(bus: u8, channel: u8, family: Family) -> Self {
         Self {
             bus,
             mux_channel: Some(channel),
@@ -93,7 +95,7 @@ impl ThrusterSlot {
 /// What is wrong with a thruster table; thrusters are named by their index in the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum TableError {
+pub(crate) enum TableError {
     /// More thrusters than `Shared` has room for ([`MAX_THRUSTERS`]).
     TooMany,
     /// A bus index beyond I2C3.
@@ -106,7 +108,7 @@ pub enum TableError {
 }
 
 /// Check a thruster table; meant for build time: `const _: () = assert!(check_table(&TABLE).is_ok());`.
-pub const fn check_table(table: &[ThrusterSlot]) -> Result<(), TableError> {
+pub(crate) const fn check_table(table: &[ThrusterSlot]) -> Result<(), TableError> {
     if table.len() > MAX_THRUSTERS {
         return Err(TableError::TooMany);
     }
@@ -194,7 +196,7 @@ impl ThrusterTable {
     }
 
     /// Check the table ([`check_table`]); meant for build time: `const _: () = assert!(TABLE.check().is_ok());`.
-    pub const fn check(&self) -> Result<(), TableError> {
+    pub(crate) const fn check(&self) -> Result<(), TableError> {
         if self.len as usize > MAX_THRUSTERS {
             return Err(TableError::TooMany);
         }
@@ -202,7 +204,7 @@ impl ThrusterTable {
     }
 
     /// Whether any thruster hangs on bus `bus`.
-    pub fn uses_bus(&self, bus: u8) -> bool {
+    pub(crate) fn uses_bus(&self, bus: u8) -> bool {
         self.as_slice().iter().any(|slot| slot.bus == bus)
     }
 }
@@ -210,20 +212,20 @@ impl ThrusterTable {
 /// How often thrusters are polled and how offline ones are retried.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct PollConfig {
+pub(crate) struct PollConfig {
     /// Per-thruster poll period; `Duration::from_ticks(0)` polls back to back, limited only by the bus.
-    pub period: Duration,
+    pub(crate) period: Duration,
     /// First retry of an offline thruster comes this long after it went offline.
-    pub retry_min: Duration,
+    pub(crate) retry_min: Duration,
     /// The retry interval doubles after each failed retry, up to this.
-    pub retry_max: Duration,
+    pub(crate) retry_max: Duration,
     /// Consecutive failures other than a NACK before a thruster is taken offline (a NACK does it at once).
-    pub offline_after: u16,
+    pub(crate) offline_after: u16,
 }
 
 impl PollConfig {
     /// 20 ms (50 Hz per thruster); retries 100 ms doubling up to 2 s; offline after 3 failures in a row.
-    pub const DEFAULT: PollConfig = PollConfig {
+    pub(crate) const DEFAULT: PollConfig = PollConfig {
         period: Duration::from_millis(20),
         retry_min: Duration::from_millis(100),
         retry_max: Duration::from_secs(2),
@@ -240,7 +242,7 @@ impl Default for PollConfig {
 /// Why one poll failed, as the link health counts it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum PollFailure {
+pub(crate) enum PollFailure {
     /// The thruster did not acknowledge: it is missing or unpowered.
     Nack,
     /// The transfer timed out. embedded-hal has no timeout kind: embassy-stm32 reports its timeout as
@@ -263,7 +265,7 @@ pub enum PollFailure {
 
 impl PollFailure {
     /// Class of a bus error, by its embedded-hal kind.
-    pub fn of_bus_error<E: embedded_hal::i2c::Error>(error: &E) -> PollFailure {
+    pub(crate) fn of_bus_error<E: embedded_hal::i2c::Error>(error: &E) -> PollFailure {
         match error.kind() {
             ErrorKind::NoAcknowledge(_) => PollFailure::Nack,
             ErrorKind::Other => PollFailure::Timeout,
@@ -272,7 +274,7 @@ impl PollFailure {
     }
 
     /// Class of a status that failed to decode.
-    pub const fn of_decode_error(error: DecodeError) -> PollFailure {
+    pub(crate) const fn of_decode_error(error: DecodeError) -> PollFailure {
         match error {
             DecodeError::Length { .. } => PollFailure::BadLength,
             DecodeError::MessageType { .. } => PollFailure::BadType,
@@ -282,7 +284,7 @@ impl PollFailure {
     }
 
     /// Class of a failed [`poll_thruster`].
-    pub fn of_poll_error<E: embedded_hal::i2c::Error>(error: &PollError<E>) -> PollFailure {
+    pub(crate) fn of_poll_error<E: embedded_hal::i2c::Error>(error: &PollError<E>) -> PollFailure {
         match error {
             PollError::Order(error) | PollError::Status(error) => PollFailure::of_bus_error(error),
             PollError::Decode(error) => PollFailure::of_decode_error(*error),
@@ -290,12 +292,12 @@ impl PollFailure {
     }
 
     /// Whether the bus may be left stuck, so a recovery should follow.
-    pub const fn needs_recovery(self) -> bool {
+    pub(crate) const fn needs_recovery(self) -> bool {
         matches!(self, PollFailure::Timeout | PollFailure::Bus | PollFailure::Mux)
     }
 
     /// Short words for console texts.
-    pub const fn reason(self) -> &'static str {
+    pub(crate) const fn reason(self) -> &'static str {
         match self {
             PollFailure::Nack => "no answer",
             PollFailure::Timeout => "timeout",
@@ -312,7 +314,7 @@ impl PollFailure {
 /// What one poll came to, as the link counts it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Outcome {
+pub(crate) enum Outcome {
     /// The order was delivered and the status read.
     Answered(Status),
     /// The order was delivered (its write acknowledged), but the status could not be read.
@@ -323,7 +325,7 @@ pub enum Outcome {
 
 impl Outcome {
     /// The outcome of a [`poll_thruster`].
-    pub fn of_poll<E: embedded_hal::i2c::Error>(result: &Result<Polled, PollError<E>>) -> Outcome {
+    pub(crate) fn of_poll<E: embedded_hal::i2c::Error>(result: &Result<Polled, PollError<E>>) -> Outcome {
         match result {
             Ok(polled) => Outcome::Answered(polled.decoded.status),
             Err(error) if error.delivered() => Outcome::NoStatus(PollFailure::of_poll_error(error)),
@@ -332,7 +334,7 @@ impl Outcome {
     }
 
     /// Why the poll failed, if it did.
-    pub const fn failure(&self) -> Option<PollFailure> {
+    pub(crate) const fn failure(&self) -> Option<PollFailure> {
         match self {
             Outcome::Answered(_) => None,
             Outcome::NoStatus(failure) | Outcome::NoOrder(failure) => Some(*failure),
@@ -341,12 +343,12 @@ impl Outcome {
 }
 
 /// A thruster's link failsafe: 1 s without a valid order stops its motor (docs/thruster.md, "The link failsafe").
-pub const THRUSTER_FAILSAFE: Duration = Duration::from_secs(1);
+pub(crate) const THRUSTER_FAILSAFE: Duration = Duration::from_secs(1);
 
 /// Where a thruster's link stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum LinkState {
+pub(crate) enum LinkState {
     /// Not polled yet, or only failures short of the offline threshold so far.
     Unknown,
     /// Answered; any failures since are short of the offline threshold.
@@ -358,7 +360,7 @@ pub enum LinkState {
 /// A change of a thruster's link worth telling the console.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum LinkChange {
+pub(crate) enum LinkChange {
     /// The first delivered order after start-up or after being offline.
     Online,
     /// Taken offline, for this last failure.
@@ -372,7 +374,7 @@ pub enum LinkChange {
 /// One thruster's link: health counters, the last valid status and the retry schedule while offline.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct ThrusterLink {
+pub(crate) struct ThrusterLink {
     health: LinkHealth,
     state: LinkState,
     status: Option<Status>,
@@ -397,7 +399,7 @@ pub struct ThrusterLink {
 
 impl ThrusterLink {
     /// A thruster not polled yet.
-    pub const fn new(config: &PollConfig) -> Self {
+    pub(crate) const fn new(config: &PollConfig) -> Self {
         Self {
             health: LinkHealth {
                 online: false,
@@ -437,27 +439,30 @@ impl ThrusterLink {
     }
 
     /// Health and counters.
-    pub const fn health(&self) -> LinkHealth {
+    #[cfg(test)]
+    pub(crate) const fn health(&self) -> LinkHealth {
         self.health
     }
 
     /// Where the link stands.
-    pub const fn state(&self) -> LinkState {
+    #[cfg(test)]
+    pub(crate) const fn state(&self) -> LinkState {
         self.state
     }
 
     /// The last valid status, kept across failures.
-    pub const fn status(&self) -> Option<Status> {
+    #[cfg(test)]
+    pub(crate) const fn status(&self) -> Option<Status> {
         self.status
     }
 
     /// The form the last valid status came in ([`poll_thruster`] takes only that form once it is known full).
-    pub const fn form(&self) -> Option<StatusForm> {
+    pub(crate) const fn form(&self) -> Option<StatusForm> {
         self.form
     }
 
     /// What the bus task publishes.
-    pub const fn report(&self) -> ThrusterReport {
+    pub(crate) const fn report(&self) -> ThrusterReport {
         ThrusterReport {
             health: self.health,
             status: self.status,
@@ -465,7 +470,7 @@ impl ThrusterLink {
     }
 
     /// When an offline thruster is next retried; None while it is polled every period.
-    pub const fn retry_at(&self) -> Option<Instant> {
+    pub(crate) const fn retry_at(&self) -> Option<Instant> {
         match self.state {
             LinkState::Offline => Some(self.retry_at),
             LinkState::Unknown | LinkState::Online => None,
@@ -474,12 +479,12 @@ impl ThrusterLink {
 
     /// Whether to poll the thruster in the cycle starting at `now`: always, unless it is offline and its retry
     /// is not due yet.
-    pub fn due(&self, now: Instant) -> bool {
+    pub(crate) fn due(&self, now: Instant) -> bool {
         self.retry_at().is_none_or(|at| now >= at)
     }
 
     /// Count a poll's result; `now` is the start of the poll cycle, which retries are scheduled from.
-    pub fn on_result<E: embedded_hal::i2c::Error>(
+    pub(crate) fn on_result<E: embedded_hal::i2c::Error>(
         &mut self,
         now: Instant,
         result: &Result<Polled, PollError<E>>,
@@ -495,19 +500,19 @@ impl ThrusterLink {
 
     /// Take the link failsafe bit of a valid status; true when it has just risen (the thruster went 1 s without a
     /// valid order and stopped), which is counted.
-    pub fn on_link_failsafe(&mut self, set: bool) -> bool {
+    pub(crate) fn on_link_failsafe(&mut self, set: bool) -> bool {
         rise(&mut self.link_failsafe, set, &mut self.health.link_failsafes)
     }
 
     /// Take the overcurrent bit of a valid status; true when it has just risen (a sustained overcurrent stopped the
     /// thruster's bridge until a zero order), which is counted.
-    pub fn on_overcurrent(&mut self, set: bool) -> bool {
+    pub(crate) fn on_overcurrent(&mut self, set: bool) -> bool {
         rise(&mut self.overcurrent, set, &mut self.health.overcurrents)
     }
 
     /// Judge whether the valid status read at `now` follows `order`, the order sent in the same poll
     /// ([`FollowCheck::observe`]); a change is returned, and a loss counted.
-    pub fn on_follow(
+    pub(crate) fn on_follow(
         &mut self,
         now: Instant,
         order: Order,
@@ -526,7 +531,7 @@ impl ThrusterLink {
     /// when a delivery to a Legacy thruster ends a gap of more than `failsafe` since the last one: it then went
     /// that long without a valid order and its own link failsafe stopped it, which its status has no bit to say
     /// (a SeaBotix thruster's says it: [`ThrusterLink::on_link_failsafe`]). Counted in `link_failsafes`.
-    pub fn on_delivery(&mut self, now: Instant, delivered: bool, family: Family, failsafe: Duration) -> bool {
+    pub(crate) fn on_delivery(&mut self, now: Instant, delivered: bool, family: Family, failsafe: Duration) -> bool {
         if !delivered {
             return false;
         }
@@ -542,7 +547,7 @@ impl ThrusterLink {
     }
 
     /// Count a poll's outcome, already classified; `now` is the start of the poll cycle.
-    pub fn on_outcome(&mut self, now: Instant, outcome: Outcome) -> Option<LinkChange> {
+    pub(crate) fn on_outcome(&mut self, now: Instant, outcome: Outcome) -> Option<LinkChange> {
         let health = &mut self.health;
         health.polls = health.polls.saturating_add(1);
         if let Some(failure) = outcome.failure() {
@@ -620,12 +625,12 @@ impl ThrusterLink {
 
     /// Count a status that decoded with an out-of-range field: the poll still counts as good (its faults are
     /// read), the field's oddity goes to `bad_range`.
-    pub fn on_odd_field(&mut self) {
+    pub(crate) fn on_odd_field(&mut self) {
         self.health.bad_range = self.health.bad_range.saturating_add(1);
     }
 
     /// Count a bus recovery run after this thruster's failure.
-    pub fn on_recovery(&mut self) {
+    pub(crate) fn on_recovery(&mut self) {
         self.health.recoveries = self.health.recoveries.saturating_add(1);
     }
 
@@ -647,35 +652,30 @@ fn rise(flag: &mut bool, set: bool, count: &mut u32) -> bool {
 /// A change of a thruster's fault bits.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct FaultChange {
+pub(crate) struct FaultChange {
     /// Faults newly set.
-    pub raised: Faults,
+    pub(crate) raised: Faults,
     /// Faults newly cleared.
-    pub cleared: Faults,
+    pub(crate) cleared: Faults,
     /// All faults now set.
-    pub now: Faults,
+    pub(crate) now: Faults,
 }
 
 /// The fault bits last reported by one thruster, to report only their changes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct FaultWatch {
+pub(crate) struct FaultWatch {
     faults: Faults,
 }
 
 impl FaultWatch {
     /// No fault seen yet.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Self { faults: Faults::NONE }
     }
 
-    /// The faults last reported.
-    pub const fn faults(&self) -> Faults {
-        self.faults
-    }
-
     /// Take the faults of a valid status; returns what changed, if anything.
-    pub fn update(&mut self, faults: Faults) -> Option<FaultChange> {
+    pub(crate) fn update(&mut self, faults: Faults) -> Option<FaultChange> {
         let before = core::mem::replace(&mut self.faults, faults);
         (before != faults).then_some(FaultChange {
             raised: faults.difference(before),
@@ -687,7 +687,7 @@ impl FaultWatch {
 
 /// Severity of one fault flag: Critical when the controller stops for it, Warning for water on a SeaBotix
 /// controller, which only warns and keeps driving (IDS 8.4 remarks).
-pub fn fault_severity(family: Family, fault: Faults) -> Severity {
+pub(crate) fn fault_severity(family: Family, fault: Faults) -> Severity {
     if family == Family::SeaBotix && fault == Faults::WATER {
         Severity::Warning
     } else {
@@ -697,7 +697,7 @@ pub fn fault_severity(family: Family, fault: Faults) -> Severity {
 
 /// The console text for a link change of thruster `index` (0-based; texts count from 1). One that goes offline
 /// while `restarting` into its update (its bootloader swapping the image in) is told as that, not as a fault.
-pub fn link_text(index: usize, change: LinkChange, restarting: bool) -> (Severity, Text) {
+pub(crate) fn link_text(index: usize, change: LinkChange, restarting: bool) -> (Severity, Text) {
     let number = index.saturating_add(1);
     match change {
         LinkChange::Online => (Severity::Info, text(format_args!("T{number} online"))),
@@ -719,7 +719,7 @@ pub fn link_text(index: usize, change: LinkChange, restarting: bool) -> (Severit
 
 /// The console texts for a fault change of thruster `index` (0-based): one per cleared fault, or "faults
 /// cleared" when none is left, then one per raised fault.
-pub fn fault_texts(index: usize, family: Family, change: FaultChange) -> impl Iterator<Item = (Severity, Text)> {
+pub(crate) fn fault_texts(index: usize, family: Family, change: FaultChange) -> impl Iterator<Item = (Severity, Text)> {
     let number = index.saturating_add(1);
     let all_clear = change.now.is_empty() && !change.cleared.is_empty();
     let cleared_all = all_clear.then(|| (Severity::Notice, text(format_args!("T{number} faults cleared"))));
@@ -791,11 +791,11 @@ async fn poll_slot<B: I2c>(
 /// instead of one for each of its three buses (912 B of RAM each, counted twice: the node's future is built on the
 /// stack before it moves into its task).
 #[derive(Debug)]
-pub struct Links([Cell<(ThrusterLink, FaultWatch)>; MAX_THRUSTERS]);
+pub(crate) struct Links([Cell<(ThrusterLink, FaultWatch)>; MAX_THRUSTERS]);
 
 impl Links {
     /// Every thruster's link as `config` starts it.
-    pub fn new(config: &PollConfig) -> Self {
+    pub(crate) fn new(config: &PollConfig) -> Self {
         Self(core::array::from_fn(|_| {
             Cell::new((ThrusterLink::new(config), FaultWatch::new()))
         }))
@@ -1013,7 +1013,7 @@ impl BusState<'_> {
     clippy::too_many_arguments,
     reason = "the bus, its place, and what it shares with the other tasks"
 )]
-pub async fn bus_task<B>(
+pub(crate) async fn bus_task<B>(
     bus: &mut B,
     bus_index: u8,
     table: &[ThrusterSlot],

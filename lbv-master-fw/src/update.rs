@@ -66,7 +66,8 @@ pub mod ftp;
 pub mod header;
 pub mod own;
 
-pub use header::{HEADER_LEN, ImageHeader, parse_header};
+pub(crate) use header::parse_header;
+pub use header::{HEADER_LEN, ImageHeader};
 
 use core::fmt::{self, Write as _};
 use core::sync::atomic::Ordering;
@@ -88,17 +89,17 @@ use update_image::HeaderError;
 /// Whether the image has the update server. The acceptance image leaves it out: it runs only on the two-dev-kit
 /// bench with its test script, and its flash budget has no room left beside the script (its console answers FTP
 /// frames with nothing and the apply command with UNSUPPORTED).
-pub const ENABLED: bool = !cfg!(feature = "acceptance");
+pub(crate) const ENABLED: bool = !cfg!(feature = "acceptance");
 
 /// A session idle this long may be taken over by a new open, its upload stopped (ArduPilot's
 /// FTP_SESSION_TIMEOUT).
 pub const TAKEOVER_IDLE: Duration = Duration::from_secs(3);
 /// Progress reports come at most this often.
-pub const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
+pub(crate) const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
 /// The longest thruster payload: its ACTIVE partition, which the payload is an image of.
-pub const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
+pub(crate) const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
 /// The longest master payload: its ACTIVE partition, which the payload is an image of.
-pub const MASTER_MAX_PAYLOAD: u32 = g431_hw::memory::MASTER_PARTITIONS.active.length;
+pub(crate) const MASTER_MAX_PAYLOAD: u32 = g431_hw::memory::MASTER_PARTITIONS.active.length;
 /// Why no update file changes while the master's own image is marked for the swap ([`Context::restarting`]).
 const RESTARTING: &str = "master restarting into its update";
 /// Why an upload, or a write to an image whole, is refused: bytes past the end its header gives.
@@ -106,11 +107,11 @@ const LONGER: &str = "longer than its header says";
 /// Why a write of bytes already taken is refused: they are not the bytes taken ([`Marks::check`]).
 const DIFFER: &str = "bytes sent again differ";
 /// Why no update file changes over a link without signing ([`Context::unsigned`]).
-pub const UNSIGNED: &str = "refused, the link is not signed";
+pub(crate) const UNSIGNED: &str = "refused, the link is not signed";
 /// Writes whose end the upload's CRC is kept for (by [`UpdateServer`]'s WriteFile): a write sent again from one of
 /// them is checked. MAVProxy and pymavlink keep five writes in flight and send again those whose ACK was lost: 16
 /// covers them with room, for 128 bytes of RAM.
-pub const MARKS: usize = 16;
+pub(crate) const MARKS: usize = 16;
 
 /// The target byte of images for `family`'s thrusters.
 const fn thruster_kind(family: Family) -> u8 {
@@ -416,13 +417,14 @@ impl UpdateServer {
     }
 
     /// The counters so far.
-    pub fn counters(&self) -> UpdateCounters {
+    #[cfg(test)]
+    pub(crate) fn counters(&self) -> UpdateCounters {
         self.counters
     }
 
     /// Bytes received for `target` and their CRC: the upload's or the image's, when it is `target`'s (0, 0
     /// otherwise).
-    pub fn received(&self, target: UpdateTarget) -> (u32, u32) {
+    pub(crate) fn received(&self, target: UpdateTarget) -> (u32, u32) {
         [self.upload, self.held]
             .into_iter()
             .flatten()
@@ -431,7 +433,7 @@ impl UpdateServer {
     }
 
     /// Whether an image for `target` is held, received whole.
-    pub fn is_received(&self, target: UpdateTarget) -> bool {
+    pub(crate) fn is_received(&self, target: UpdateTarget) -> bool {
         self.held.is_some_and(|i| i.target == target)
     }
 
@@ -1004,9 +1006,9 @@ impl fmt::Write for Buf {
 #[derive(Debug)]
 pub struct Updates<S> {
     /// The server.
-    pub server: UpdateServer,
+    pub(crate) server: UpdateServer,
     /// Its sink.
-    pub sink: S,
+    pub(crate) sink: S,
 }
 
 impl<S: UpdateSink> Updates<S> {

@@ -87,10 +87,10 @@ use crate::shared::{
 
 /// Why a mode other than MANUAL is denied: ArduSub's other modes hold a depth, a heading or a position, and the
 /// master has no sensor for any of them.
-pub const MANUAL_ONLY: &str = "Mode: MANUAL only, no depth or heading sensor";
+pub(crate) const MANUAL_ONLY: &str = "Mode: MANUAL only, no depth or heading sensor";
 
 /// Longest motor test.
-pub const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);
+pub(crate) const MOTOR_TEST_MAX_DURATION: Duration = Duration::from_secs(10);
 
 /// Sticks at rest: no motion (z = 500 is neutral heave).
 pub const NEUTRAL: ManualInput = ManualInput {
@@ -105,10 +105,10 @@ pub const NEUTRAL: ManualInput = ManualInput {
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct VehicleConfig {
     /// Thruster layout (the default `LBV_FRAME`).
-    pub frame: FrameKind,
+    pub(crate) frame: FrameKind,
     /// Thrusters wired to this master, numbered 1..=thrusters (at most [`MAX_THRUSTERS`]); orders beyond are
     /// STOP and motor tests beyond are DENIED.
-    pub thrusters: u8,
+    pub(crate) thrusters: u8,
 }
 
 impl VehicleConfig {
@@ -116,7 +116,7 @@ impl VehicleConfig {
     pub const DEFAULT: VehicleConfig = VehicleConfig::new(FrameKind::Lbv300_6);
 
     /// A frame with all its thrusters wired.
-    pub const fn new(frame: FrameKind) -> Self {
+    pub(crate) const fn new(frame: FrameKind) -> Self {
         Self {
             frame,
             thrusters: frame.thrusters() as u8,
@@ -149,7 +149,7 @@ struct MotorTest {
 /// Why an arm command would be refused now.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum ArmRefusal {
+pub(crate) enum ArmRefusal {
     /// A motor test runs (arming stops it).
     MotorTest,
     /// The operator's heartbeat has not been heard within `FS_GCS_TIMEOUT`.
@@ -176,7 +176,7 @@ impl fmt::Display for ArmRefusal {
 
 /// How far the heave stick may sit from its centre (500 of 0..=1000) for an arm: a joystick at rest reads within a
 /// few counts of it; a ground station that sends its centre as 0 is 500 away.
-pub const HEAVE_ARM_BAND: i16 = 100;
+pub(crate) const HEAVE_ARM_BAND: i16 = 100;
 
 /// Arming, failsafes, operator, motor test, settings -> orders. Pure state machine with explicit time.
 #[derive(Debug, Clone)]
@@ -227,7 +227,7 @@ impl Vehicle {
     }
 
     /// What of the field update keeps the vehicle from arming now (`Shared::holds`); an armed vehicle stays armed.
-    pub fn hold_for_update(&mut self, hold: Option<UpdateHold>) {
+    pub(crate) fn hold_for_update(&mut self, hold: Option<UpdateHold>) {
         self.update_hold = hold;
     }
 
@@ -386,7 +386,7 @@ impl Vehicle {
     /// Whether the operator's arm command would be accepted at `now`: the one rule for arming and for the
     /// pre-arm check that SYS_STATUS reports. (Evaluated after [`Vehicle::orders`] at the same `now`, so the
     /// failsafes and the end of a motor test have already acted.)
-    pub fn arm_check(&self, now: Instant) -> Result<(), ArmRefusal> {
+    pub(crate) fn arm_check(&self, now: Instant) -> Result<(), ArmRefusal> {
         if self.motor_test.is_some() {
             Err(ArmRefusal::MotorTest)
         } else if !self.heartbeat_live(now) {
@@ -688,7 +688,7 @@ fn say(out: &mut impl FnMut(Outgoing), severity: Severity, args: fmt::Arguments<
 }
 
 /// The vehicle task's period: 50 Hz.
-pub const TICK: Duration = Duration::from_millis(20);
+pub(crate) const TICK: Duration = Duration::from_millis(20);
 
 /// Most answers one request and one evaluation can give: a failsafe's texts, then a request's (an arm refused
 /// while a motor test runs: its COMMAND_ACK and two texts; a gain button: a PARAM_VALUE, "PilotGain" and a text),

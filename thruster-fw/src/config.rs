@@ -10,10 +10,10 @@ use crate::sensors::{CurrentSense, Ntc, VbusSense, WaterSensor};
 use crate::speed::SpeedConfig;
 
 /// How long the I2C task waits for its address before it reports itself alive anyway.
-pub const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
+pub(crate) const LISTEN_HEARTBEAT: Duration = Duration::from_millis(50);
 /// How long the commutation task waits for a hall edge or a change to drive before it reports itself alive anyway
 /// (a motor at rest, or turning too slowly for an edge, with its duty unchanged).
-pub const COMMUTATION_HEARTBEAT: Duration = Duration::from_millis(20);
+pub(crate) const COMMUTATION_HEARTBEAT: Duration = Duration::from_millis(20);
 
 /// Everything fixed at build time for one controller.
 #[derive(Debug, Clone)]
@@ -21,13 +21,13 @@ pub struct Config {
     /// Controller family, which sets the address, the message types and the fault semantics.
     pub family: Family,
     /// Brushless (hall commutation, closed speed loop) or brushed (H-bridge, open loop).
-    pub motor: MotorKind,
+    pub(crate) motor: MotorKind,
     /// Motor pole pairs, for rpm from hall edges.
     pub pole_pairs: u8,
     /// Link failsafe timeout.
-    pub link_timeout: Duration,
+    pub(crate) link_timeout: Duration,
     /// Speed loop tuning.
-    pub speed: SpeedConfig,
+    pub(crate) speed: SpeedConfig,
     /// Fault thresholds.
     pub thresholds: Thresholds,
     /// Water-sensor divider.
@@ -59,14 +59,14 @@ pub struct SlaveBus {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct WatchdogTiming {
     /// How often the health task checks the tasks and feeds the watchdog.
-    pub feed: Duration,
+    pub(crate) feed: Duration,
     /// How long the watchdog waits unfed before it resets the chip.
     pub timeout: Duration,
 }
 
 impl WatchdogTiming {
     /// The timeout in microseconds, as the IWDG driver takes it (saturated).
-    pub const fn timeout_us(&self) -> u32 {
+    pub(crate) const fn timeout_us(&self) -> u32 {
         saturating_u32(self.timeout.as_micros())
     }
 

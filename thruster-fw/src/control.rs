@@ -20,12 +20,12 @@ pub struct LinkUpdate {
     pub orders: u32,
     /// Valid zero-speed orders received since power-up (wrapping): each one clears a stall, even when a newer
     /// non-zero order followed it before anyone looked.
-    pub zero_orders: u32,
+    pub(crate) zero_orders: u32,
     /// When the master last addressed this controller (a valid order or a read).
-    pub at: Instant,
+    pub(crate) at: Instant,
     /// The first order refused (checksum, length, type, range) since the last valid one, if any was: the link
     /// failsafe stops the motor when no valid order follows it within its timeout, whatever reads come.
-    pub refused_since: Option<Instant>,
+    pub(crate) refused_since: Option<Instant>,
 }
 
 /// What the fault side measured and decided, published after every sample.
@@ -35,11 +35,11 @@ pub struct Sensed {
     /// The faults to report.
     pub faults: Faults,
     /// Whether the motor may be driven.
-    pub drive_allowed: bool,
+    pub(crate) drive_allowed: bool,
     /// Motor current in 0.1 A.
     pub current_deciamps: u16,
     /// Motor (brushless) or controller (brushed) temperature in 0.1 deg C.
-    pub temperature_decicelsius: i16,
+    pub(crate) temperature_decicelsius: i16,
     /// A sustained overcurrent holds the bridge off, its outputs disabled, until a zero order
     /// ([`crate::overcurrent::TripRule`]).
     pub overcurrent: bool,
@@ -49,7 +49,7 @@ pub struct Sensed {
 
 impl Sensed {
     /// Before the first sample nothing is known, so nothing may be driven.
-    pub const UNKNOWN: Sensed = Sensed {
+    pub(crate) const UNKNOWN: Sensed = Sensed {
         faults: Faults::NONE,
         drive_allowed: false,
         current_deciamps: 0,
@@ -61,7 +61,7 @@ impl Sensed {
 
 /// The order-to-duty path of one controller.
 #[derive(Debug, Clone)]
-pub struct Control {
+pub(crate) struct Control {
     family: Family,
     motor: MotorKind,
     speed: SpeedController,
@@ -79,7 +79,7 @@ pub struct Control {
 
 impl Control {
     /// A stopped controller whose link failsafe counts from `now`.
-    pub fn new(family: Family, speed: SpeedConfig, link_timeout: Duration, now: Instant) -> Self {
+    pub(crate) fn new(family: Family, speed: SpeedConfig, link_timeout: Duration, now: Instant) -> Self {
         Self {
             family,
             motor: speed.motor,
@@ -96,23 +96,25 @@ impl Control {
     }
 
     /// The order being followed: the last valid one, or stop after the failsafe tripped.
-    pub fn order(&self) -> Order {
+    #[cfg(test)]
+    pub(crate) fn order(&self) -> Order {
         self.order
     }
 
     /// How often the link failsafe has stopped the motor.
-    pub fn failsafe_trips(&self) -> u32 {
+    #[cfg(test)]
+    pub(crate) fn failsafe_trips(&self) -> u32 {
         self.failsafe.trips()
     }
 
     /// Whether the link failsafe holds the motor stopped: from its trip until the next valid order (a read
     /// alone does not end it). SeaBotix builds report it in FAULT bit 5 (`SeaBotixStatus::FAULT_LINK_FAILSAFE`).
-    pub fn failsafe_holding(&self) -> bool {
+    pub(crate) fn failsafe_holding(&self) -> bool {
         self.holding
     }
 
     /// One control step: take the link's news, apply the failsafe and the fault verdict, run the speed loop.
-    pub fn tick(&mut self, now: Instant, link: Option<LinkUpdate>, sensed: Sensed, rpm: i32) -> Duty {
+    pub(crate) fn tick(&mut self, now: Instant, link: Option<LinkUpdate>, sensed: Sensed, rpm: i32) -> Duty {
         if let Some(update) = link {
             self.failsafe.on_life(update.at, update.refused_since);
             if update.orders != self.orders_seen {
@@ -157,7 +159,7 @@ impl Control {
     }
 
     /// The status to answer the next read with.
-    pub fn status(&self, sensed: Sensed, rpm: i32) -> Status {
+    pub(crate) fn status(&self, sensed: Sensed, rpm: i32) -> Status {
         // Brushed controllers report the PWM value in the SPEED encoding (IDS 8.4.2), brushless the measured speed.
         let speed = match self.motor {
             MotorKind::Brushless => Speed::from_rpm(rpm),
@@ -169,7 +171,7 @@ impl Control {
 }
 
 /// The status of a stopped controller that has measured nothing yet.
-pub fn idle_status(family: Family, motor: MotorKind) -> Status {
+pub(crate) fn idle_status(family: Family, motor: MotorKind) -> Status {
     status_of(family, motor, Sensed::UNKNOWN, Speed::ZERO)
 }
 

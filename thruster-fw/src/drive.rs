@@ -56,7 +56,8 @@ impl Duty {
     }
 
     /// The compare value for a PWM timer whose full period is `period` counts.
-    pub const fn compare(self, period: u16) -> u16 {
+    #[cfg(test)]
+    pub(crate) const fn compare(self, period: u16) -> u16 {
         // magnitude <= 10 000, so the product fits in u32 and the quotient in u16.
         (self.magnitude() as u32 * period as u32 / Self::FULL as u32) as u16
     }

@@ -12,7 +12,7 @@ use embassy_time::{Duration, Instant};
 /// runs from that earlier instant, so the failsafe can never be pushed into the future by a bad time stamp.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct LinkFailsafe {
+pub(crate) struct LinkFailsafe {
     timeout: Duration,
     last_life: Instant,
     /// The first order refused since the last valid one.
@@ -24,10 +24,10 @@ pub struct LinkFailsafe {
 
 impl LinkFailsafe {
     /// One second without an order or a status read, or of refused orders only, stops the motor.
-    pub const DEFAULT_TIMEOUT: Duration = Duration::from_secs(1);
+    pub(crate) const DEFAULT_TIMEOUT: Duration = Duration::from_secs(1);
 
     /// A failsafe that starts alive: the timeout runs from power-up (`now`).
-    pub fn new(timeout: Duration, now: Instant) -> Self {
+    pub(crate) fn new(timeout: Duration, now: Instant) -> Self {
         LinkFailsafe {
             timeout,
             last_life: now,
@@ -39,7 +39,7 @@ impl LinkFailsafe {
 
     /// The master last addressed this controller (a valid order or a status read) at `at`; `refused_since` is the
     /// first order refused since the last valid one, if any was.
-    pub fn on_life(&mut self, at: Instant, refused_since: Option<Instant>) {
+    pub(crate) fn on_life(&mut self, at: Instant, refused_since: Option<Instant>) {
         self.last_life = at;
         self.refused_since = refused_since;
     }
@@ -52,14 +52,14 @@ impl LinkFailsafe {
 
     /// True once `timeout` has passed since the last life, or since the first order refused after the last valid
     /// one (exactly: now - then >= timeout). Instants before those count as alive.
-    pub fn expired(&self, now: Instant) -> bool {
+    pub(crate) fn expired(&self, now: Instant) -> bool {
         now.checked_duration_since(self.counting_from())
             .is_some_and(|passed| passed >= self.timeout)
     }
 
     /// Like [`LinkFailsafe::expired`], and counts a trip on each alive -> expired transition it observes.
     /// Returns whether the link is expired.
-    pub fn check(&mut self, now: Instant) -> bool {
+    pub(crate) fn check(&mut self, now: Instant) -> bool {
         let expired = self.expired(now);
         let from = self.counting_from();
         if expired && self.tripped_from != Some(from) {
@@ -71,7 +71,7 @@ impl LinkFailsafe {
 
     /// Times the failsafe has tripped (alive -> expired transitions observed through `check`), for telemetry.
     /// Saturates at `u32::MAX`.
-    pub fn trips(&self) -> u32 {
+    pub(crate) fn trips(&self) -> u32 {
         self.trips
     }
 }

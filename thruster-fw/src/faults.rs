@@ -40,30 +40,30 @@ pub struct Thresholds {
     pub water_ohms: u32,
     /// A SeaBotix water warning clears only at or above this, in ohms: the threshold plus a band, so a sensor
     /// sitting at 1 Mohm with ADC noise does not toggle the warning (docs/decisions.md D15).
-    pub water_clear_ohms: u32,
+    pub(crate) water_clear_ohms: u32,
     /// Water, ground fault and overtemp need their condition on this many consecutive samples to set, and water
     /// and overtemp as many past their band to clear; 0 acts as 1 (one noisy conversion never cuts thrust).
     pub latch_samples: u8,
     /// A hall error needs this many consecutive abnormal readings; 0 acts as 1 (docs/decisions.md D17).
     pub hall_error_samples: u8,
     /// Ground fault when the water sensor resistance is below this, in ohms (IDS 8.4 remarks: 100 kohm).
-    pub ground_ohms: u32,
+    pub(crate) ground_ohms: u32,
     /// Overtemp sets at or above this temperature, in 0.1 C (IDS 8.4 remarks: 110 C).
     pub overtemp_set_decicelsius: i16,
     /// A set overtemp clears at or below this temperature, in 0.1 C (IDS 8.4 remarks: 100 C).
     pub overtemp_clear_decicelsius: i16,
     /// Stall needs the duty magnitude strictly above this, in [`Duty`] units of 1/10 000 (IDS: above 8 %).
-    pub stall_duty: u16,
+    pub(crate) stall_duty: u16,
     /// Stall window: the duty must stay above `stall_duty` this long, and the pulses are counted over it
     /// (IDS: 400 ms).
-    pub stall_window: Duration,
+    pub(crate) stall_window: Duration,
     /// Stall when fewer than this many hall pulses arrive within the window (IDS: 3), a pulse being one hall
     /// state of net progress in the driven direction ([`Progress`]). At most [`StallDetector::MAX_PULSES`] take
     /// effect; 0 disables stall detection.
-    pub stall_min_pulses: u8,
+    pub(crate) stall_min_pulses: u8,
     /// Brushed stall ([`CurrentStall`]): the motor's resistance between its terminals (armature and brushes), in
     /// mohm, for its back-EMF: the applied voltage less I x R.
-    pub armature_milliohms: u16,
+    pub(crate) armature_milliohms: u16,
     /// A sustained overcurrent: the run of samples with a break trip, and the fraction of a window of them, at
     /// which the bridge stops ([`crate::overcurrent::TripRule`]).
     pub overcurrent: TripLimits,
@@ -119,13 +119,13 @@ impl Thresholds {
 /// One fault-monitor input sample (taken at 1 kHz or faster by the caller).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Sample {
+pub(crate) struct Sample {
     /// Resistance between the water-sensor electrodes, in ohms (see `sensors::WaterSensor`).
-    pub water_ohms: u32,
+    pub(crate) water_ohms: u32,
     /// The temperature the status reports, the motor's or the controller's, in 0.1 C (see `sensors::Ntc`).
-    pub temperature_decicelsius: i16,
+    pub(crate) temperature_decicelsius: i16,
     /// The hall state is valid (not 000/111) and no illegal transition happened since the previous sample.
-    pub halls_normal: bool,
+    pub(crate) halls_normal: bool,
 }
 
 /// Stall detection (IDS 8.4.1 remark 4, 8.4.2 remark 5): duty above 8 % and fewer than 3 hall pulses within
@@ -143,7 +143,7 @@ pub struct Sample {
 /// 2 pulses after it is reported stalled from t = 400 ms on, not at 399 ms.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct StallDetector {
+pub(crate) struct StallDetector {
     stall_duty: u16,
     window: Duration,
     /// The threshold's pulse count, clamped to `MAX_PULSES`.
@@ -156,10 +156,10 @@ pub struct StallDetector {
 
 impl StallDetector {
     /// The largest pulse count the detector remembers; a larger `stall_min_pulses` acts as this.
-    pub const MAX_PULSES: u8 = 8;
+    pub(crate) const MAX_PULSES: u8 = 8;
 
     /// A detector that has seen no pulse and no duty.
-    pub fn new(thresholds: &Thresholds) -> Self {
+    pub(crate) fn new(thresholds: &Thresholds) -> Self {
         StallDetector {
             stall_duty: thresholds.stall_duty,
             window: thresholds.stall_window,
@@ -170,7 +170,7 @@ impl StallDetector {
     }
 
     /// A legal hall edge (pulse) at `now`.
-    pub fn on_pulse(&mut self, now: Instant) {
+    pub(crate) fn on_pulse(&mut self, now: Instant) {
         // Each slot takes the one before it, the first takes `now`, the oldest drops out. (`rotate_right` did the
         // same through core's general rotation, which linked a 1.5 KiB memmove into the image for these 8 slots.)
         let mut newer = Some(now);
@@ -182,7 +182,7 @@ impl StallDetector {
     /// Whether the motor is stalled at `now` with `duty` applied: the duty has stayed above the threshold for the
     /// whole window (continuously since at least now - 400 ms) and fewer than 3 pulses arrived in that window
     /// (now - 400 ms, now]. See the type's documentation for the exact rule. Reverse duty counts by magnitude.
-    pub fn update(&mut self, now: Instant, duty: Duty) -> bool {
+    pub(crate) fn update(&mut self, now: Instant, duty: Duty) -> bool {
         if duty.magnitude() <= self.stall_duty {
             self.above_since = None;
             return false;
@@ -203,7 +203,7 @@ impl StallDetector {
     }
 
     /// Forget the pulses and the duty history, as after [`StallDetector::new`].
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.above_since = None;
         self.pulses = [None; Self::MAX_PULSES as usize];
     }
@@ -217,20 +217,20 @@ impl StallDetector {
 /// rotor is.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Progress {
+pub(crate) struct Progress {
     /// The direction driven and the furthest hall position reached in it.
     mark: Option<(Direction, i32)>,
 }
 
 impl Progress {
     /// No mark: the next call starts from where the rotor is.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Progress { mark: None }
     }
 
     /// The new pulses at hall `position` (the net count of [`crate::hall::HallTracker::position`]) with the
     /// motor driven in `driven` (`None`: not driven).
-    pub fn advance(&mut self, position: i32, driven: Option<Direction>) -> u32 {
+    pub(crate) fn advance(&mut self, position: i32, driven: Option<Direction>) -> u32 {
         let Some(direction) = driven else {
             self.mark = None;
             return 0;
@@ -268,7 +268,7 @@ impl Progress {
 /// [`StallDetector`], the condition first seen at t = 0 and held at every update reports a stall from t = 400 ms.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct CurrentStall {
+pub(crate) struct CurrentStall {
     stall_duty: u16,
     window: Duration,
     armature_milliohms: u16,
@@ -279,20 +279,20 @@ pub struct CurrentStall {
 /// What the fault task measured of a brushed motor in one sample.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct BrushedSample {
+pub(crate) struct BrushedSample {
     /// The duty applied.
-    pub duty: Duty,
+    pub(crate) duty: Duty,
     /// The motor current, in 0.1 A.
-    pub current_deciamps: u16,
+    pub(crate) current_deciamps: u16,
     /// The supply, in mV.
-    pub vbus_mv: u32,
+    pub(crate) vbus_mv: u32,
     /// The power stage's break tripped since the last sample.
-    pub break_tripped: bool,
+    pub(crate) break_tripped: bool,
 }
 
 impl CurrentStall {
     /// A detector that has seen nothing.
-    pub const fn new(thresholds: &Thresholds) -> Self {
+    pub(crate) const fn new(thresholds: &Thresholds) -> Self {
         CurrentStall {
             stall_duty: thresholds.stall_duty,
             window: thresholds.stall_window,
@@ -303,7 +303,7 @@ impl CurrentStall {
 
     /// The back-EMF of `sample` in mV, in the driven direction (negative when the motor turns against the
     /// drive), and the applied voltage it was taken from.
-    pub fn back_emf_mv(&self, sample: &BrushedSample) -> (i64, i64) {
+    pub(crate) fn back_emf_mv(&self, sample: &BrushedSample) -> (i64, i64) {
         // |duty| <= 10 000 and VBUS < 2^32 mV; current < 2^16 x 0.1 A and R < 2^16 mohm: all far inside i64.
         let applied = i64::from(sample.duty.magnitude()) * i64::from(sample.vbus_mv) / i64::from(FULL_DUTY);
         let drop = i64::from(sample.current_deciamps) * i64::from(self.armature_milliohms) / 10;
@@ -311,7 +311,7 @@ impl CurrentStall {
     }
 
     /// Whether the motor is stalled at `now`.
-    pub fn update(&mut self, now: Instant, sample: BrushedSample) -> bool {
+    pub(crate) fn update(&mut self, now: Instant, sample: BrushedSample) -> bool {
         let (emf, applied) = self.back_emf_mv(&sample);
         let still = 2 * emf.abs() < applied;
         if sample.duty.magnitude() <= self.stall_duty || sample.break_tripped || !still {
@@ -323,7 +323,7 @@ impl CurrentStall {
     }
 
     /// Forget the history, as after [`CurrentStall::new`].
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.since = None;
     }
 }
@@ -347,7 +347,7 @@ impl Run {
 /// The fault state machine for one controller family: the table in this module's documentation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct FaultMonitor {
+pub(crate) struct FaultMonitor {
     family: Family,
     thresholds: Thresholds,
     faults: Faults,
@@ -364,7 +364,7 @@ pub struct FaultMonitor {
 
 impl FaultMonitor {
     /// A monitor with no fault, as at power-up.
-    pub fn new(family: Family, thresholds: Thresholds) -> Self {
+    pub(crate) fn new(family: Family, thresholds: Thresholds) -> Self {
         FaultMonitor {
             family,
             thresholds,
@@ -382,7 +382,7 @@ impl FaultMonitor {
     ///
     /// The returned faults already reflect this sample, so the motor stops on the sample that completes a
     /// fault's count (the first sample for stall).
-    pub fn update(&mut self, sample: Sample, stalled: bool) -> Faults {
+    pub(crate) fn update(&mut self, sample: Sample, stalled: bool) -> Faults {
         let t = &self.thresholds;
         let wet = self.wet.sample(sample.water_ohms < t.water_ohms, t.latch_samples);
         let dry = self
@@ -426,20 +426,21 @@ impl FaultMonitor {
 
     /// A valid order arrived: a zero-speed order clears the stall latch (the AM32/BLHeli rule, docs/decisions.md D11).
     /// Other orders, and other faults, are untouched.
-    pub fn on_order(&mut self, speed: Speed) {
+    pub(crate) fn on_order(&mut self, speed: Speed) {
         if speed.is_zero() {
             self.faults.remove(Faults::STALL);
         }
     }
 
     /// The faults to report now.
-    pub fn faults(&self) -> Faults {
+    #[cfg(test)]
+    pub(crate) fn faults(&self) -> Faults {
         self.faults
     }
 
     /// The faults a family keeps until power cycle: ground fault, and for Legacy water too (IDS 8.4.1 remarks 2
     /// and 6, 8.4.2 remark 3).
-    pub const fn power_cycle_latches(family: Family) -> Faults {
+    pub(crate) const fn power_cycle_latches(family: Family) -> Faults {
         match family {
             Family::Legacy => Faults::GROUND.union(Faults::WATER),
             Family::SeaBotix => Faults::GROUND,
@@ -447,18 +448,18 @@ impl FaultMonitor {
     }
 
     /// The power-cycle latches set now: what must survive a reset.
-    pub fn latched(&self) -> Faults {
+    pub(crate) fn latched(&self) -> Faults {
         self.faults & Self::power_cycle_latches(self.family)
     }
 
     /// Take back the latches carried over a reset; only those this family keeps until power cycle are taken.
-    pub fn restore(&mut self, latched: Faults) {
+    pub(crate) fn restore(&mut self, latched: Faults) {
         self.faults.insert(latched & Self::power_cycle_latches(self.family));
     }
 
     /// Whether the motor may be driven: false while any fault that stops the motor for this family is present.
     /// Every fault stops it except the SeaBotix water warning.
-    pub fn drive_allowed(&self) -> bool {
+    pub(crate) fn drive_allowed(&self) -> bool {
         let stopping = match self.family {
             Family::Legacy => Faults::ALL,
             Family::SeaBotix => Faults::ALL.difference(Faults::WATER),

@@ -131,7 +131,7 @@ const AVERAGED_INTERVALS: usize = 6;
 /// A plain value (Copy), so a task can publish snapshots of it for others to read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct HallTracker {
+pub(crate) struct HallTracker {
     /// Rotor pole pairs, at least 1.
     pole_pairs: u8,
     /// The last state recorded.
@@ -157,10 +157,10 @@ pub struct HallTracker {
 impl HallTracker {
     /// Mechanical speed reads 0 when no legal edge came for this long (at 4 pole pairs, 100 ms between edges is
     /// 25 rpm). An edge that comes this long or longer after the previous one starts a new average.
-    pub const STANDSTILL: Duration = Duration::from_millis(100);
+    pub(crate) const STANDSTILL: Duration = Duration::from_millis(100);
 
     /// A tracker for a motor with `pole_pairs` pole pairs (0 is taken as 1), its halls reading `initial` at `now`.
-    pub fn new(pole_pairs: u8, initial: HallState, now: Instant) -> Self {
+    pub(crate) fn new(pole_pairs: u8, initial: HallState, now: Instant) -> Self {
         HallTracker {
             pole_pairs: pole_pairs.max(1),
             state: initial,
@@ -179,7 +179,7 @@ impl HallTracker {
     ///
     /// Illegal transitions and invalid states are returned and counted, and reset the speed history. Every call
     /// that returns Illegal counts once: reading an invalid state again, or leaving it, is Illegal too.
-    pub fn on_edge(&mut self, state: HallState, now: Instant) -> Transition {
+    pub(crate) fn on_edge(&mut self, state: HallState, now: Instant) -> Transition {
         let t = transition(self.state, state);
         self.state = state;
         match t {
@@ -196,7 +196,7 @@ impl HallTracker {
     }
 
     /// The last state recorded.
-    pub fn state(&self) -> HallState {
+    pub(crate) fn state(&self) -> HallState {
         self.state
     }
 
@@ -206,7 +206,7 @@ impl HallTracker {
     /// cancels sensor placement error); needs at least 2 legal edges in the same direction; 0 once STANDSTILL has
     /// passed since the last legal edge, or after an illegal transition until 2 new legal edges.
     /// rpm = 60e6 us / (interval_us * 6 * pole_pairs).
-    pub fn rpm(&self, now: Instant) -> i32 {
+    pub(crate) fn rpm(&self, now: Instant) -> i32 {
         let Some(direction) = self.run else {
             return 0;
         };
@@ -233,18 +233,19 @@ impl HallTracker {
     }
 
     /// Legal edges (Forward or Reverse transitions) since `new`, wrapping.
-    pub fn pulses(&self) -> u32 {
+    #[cfg(test)]
+    pub(crate) fn pulses(&self) -> u32 {
         self.pulses
     }
 
     /// Net hall states moved since `new`: forward edges minus reverse edges, wrapping. Illegal transitions do not
     /// move it. The stall window counts progress in this ([`crate::faults::Progress`]).
-    pub fn position(&self) -> i32 {
+    pub(crate) fn position(&self) -> i32 {
         self.position
     }
 
     /// Illegal transitions seen since `new`, saturating.
-    pub fn illegal_transitions(&self) -> u32 {
+    pub(crate) fn illegal_transitions(&self) -> u32 {
         self.illegal
     }
 

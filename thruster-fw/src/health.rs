@@ -18,13 +18,13 @@ pub struct Health {
 
 impl Health {
     /// Most tasks one `Health` can watch: one bit each in a `u32`.
-    pub const MAX_TASKS: u8 = 32;
+    pub(crate) const MAX_TASKS: u8 = 32;
 
     /// `tasks` tasks (1..=32) must each report between two checks.
     ///
     /// `tasks` is clamped to 1..=32: 0 becomes 1 (a watchdog fed with nobody reporting would never bite) and
     /// more than 32 becomes 32.
-    pub const fn new(tasks: u8) -> Self {
+    pub(crate) const fn new(tasks: u8) -> Self {
         let expected = if tasks >= Self::MAX_TASKS {
             u32::MAX
         } else if tasks == 0 {
@@ -41,7 +41,7 @@ impl Health {
     }
 
     /// Task `task` (0-based id < tasks) made progress. Out-of-range ids are ignored.
-    pub fn report(&self, task: u8) {
+    pub(crate) fn report(&self, task: u8) {
         let bit = match 1u32.checked_shl(u32::from(task)) {
             Some(bit) => bit & self.expected,
             None => 0,
@@ -53,7 +53,7 @@ impl Health {
 
     /// True when every task reported since the last successful check; then starts a new round. A false result
     /// leaves the reports in place (so a task that is merely late can still complete the round).
-    pub fn check_and_clear(&self) -> bool {
+    pub(crate) fn check_and_clear(&self) -> bool {
         // Clear only if the round is complete, in one atomic step, so a report racing with the check is never
         // lost half-way.
         let complete = self
@@ -75,7 +75,7 @@ impl Health {
 
     /// Which tasks have not reported in this round (bit mask, bit n = task n), for a log line when the watchdog
     /// is about to bite.
-    pub fn missing(&self) -> u32 {
+    pub(crate) fn missing(&self) -> u32 {
         self.expected & !self.reported.load(Ordering::Relaxed)
     }
 }

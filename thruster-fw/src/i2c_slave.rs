@@ -14,15 +14,15 @@ const WRITE_BUFFER_LEN: usize = ext::MAX_FRAME_LEN + 1;
 /// Orders discarded since power-up, by reason (IDS 6.6.1: a bad message is discarded whole).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct OrderErrors {
+pub(crate) struct OrderErrors {
     /// Writes that were not 4 bytes long.
-    pub length: u32,
+    pub(crate) length: u32,
     /// Writes whose first byte was not this family's order type.
-    pub message_type: u32,
+    pub(crate) message_type: u32,
     /// Writes whose checksum did not match.
-    pub checksum: u32,
+    pub(crate) checksum: u32,
     /// Orders whose SPEED byte was outside 0x19..=0xE6.
-    pub speed_range: u32,
+    pub(crate) speed_range: u32,
 }
 
 impl OrderErrors {
@@ -37,7 +37,7 @@ impl OrderErrors {
     }
 
     /// All discarded orders.
-    pub fn total(&self) -> u32 {
+    pub(crate) fn total(&self) -> u32 {
         self.length
             .saturating_add(self.message_type)
             .saturating_add(self.checksum)
@@ -49,17 +49,17 @@ impl OrderErrors {
 /// as a bad order.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct CommandErrors {
+pub(crate) struct CommandErrors {
     /// Frames shorter or longer than any command, or not their command's length.
-    pub length: u32,
+    pub(crate) length: u32,
     /// Frames whose GUARD byte was wrong.
-    pub guard: u32,
+    pub(crate) guard: u32,
     /// Frames whose CRC did not match.
-    pub crc: u32,
+    pub(crate) crc: u32,
     /// Frames of a command this controller does not know.
-    pub command: u32,
+    pub(crate) command: u32,
     /// Writes whose chunk length was out of range.
-    pub field: u32,
+    pub(crate) field: u32,
 }
 
 impl CommandErrors {
@@ -76,7 +76,7 @@ impl CommandErrors {
     }
 
     /// All discarded commands.
-    pub fn total(&self) -> u32 {
+    pub(crate) fn total(&self) -> u32 {
         self.length
             .saturating_add(self.guard)
             .saturating_add(self.crc)
@@ -132,17 +132,18 @@ impl MasterLink {
     }
 
     /// Orders discarded so far.
-    pub fn errors(&self) -> OrderErrors {
+    pub(crate) fn errors(&self) -> OrderErrors {
         self.errors
     }
 
     /// Valid extension commands received (wrapping).
-    pub fn commands(&self) -> u32 {
+    #[cfg(test)]
+    pub(crate) fn commands(&self) -> u32 {
         self.commands
     }
 
     /// Extension commands discarded so far.
-    pub fn command_errors(&self) -> CommandErrors {
+    pub(crate) fn command_errors(&self) -> CommandErrors {
         self.command_errors
     }
 
@@ -150,7 +151,7 @@ impl MasterLink {
     /// changes nothing else. The order stands either way.
     // Out of line: inlined into the I2C task's poll it costs more flash, as built.
     #[inline(never)]
-    pub fn accept_command(&mut self, bytes: &[u8]) -> Result<CommandFrame, FrameError> {
+    pub(crate) fn accept_command(&mut self, bytes: &[u8]) -> Result<CommandFrame, FrameError> {
         CommandFrame::decode(bytes)
             .inspect(|_| self.commands = self.commands.wrapping_add(1))
             .inspect_err(|error| self.command_errors.count(*error))
@@ -179,7 +180,7 @@ impl MasterLink {
 /// What one transfer did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum ServeEvent {
+pub(crate) enum ServeEvent {
     /// A valid order was taken.
     Order(Order),
     /// A write was discarded.
@@ -196,7 +197,7 @@ pub enum ServeEvent {
 
 /// What a read is answered with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Answer {
+pub(crate) enum Answer {
     /// The status (IDS 8.4).
     Status(StatusFrame),
     /// The reply to the last extension command.
@@ -221,7 +222,7 @@ impl Answer {
 /// Serve one transfer the master started with `request`: take the order or the extension command, or send what
 /// `answer` gives (the status frame, or the reply to an extension command), which must be ready at once (SCL is
 /// stretched until it is sent).
-pub async fn serve<T: I2cTarget, A: Into<Answer>>(
+pub(crate) async fn serve<T: I2cTarget, A: Into<Answer>>(
     target: &mut T,
     link: &mut MasterLink,
     request: Request,

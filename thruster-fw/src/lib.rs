@@ -8,6 +8,9 @@
 //! and calls them with [`CONFIG`]; the bench and the tests call them with simulated ports. Every port trait, and the
 //! [`Board`](ports::Board) that names a binding's ports, is in [`ports`].
 #![cfg_attr(not(test), no_std)]
+// What only this crate uses is `pub(crate)`, and its docs still link to it: they are read with the private items
+// documented (`cargo doc --document-private-items`, as test.sh builds them), where those links resolve.
+#![allow(rustdoc::private_intra_doc_links)]
 
 #[macro_use]
 mod fmt;
@@ -16,7 +19,7 @@ pub mod commutation;
 pub mod config;
 pub mod control;
 pub mod drive;
-pub mod failsafe;
+pub(crate) mod failsafe;
 pub mod faults;
 pub mod hall;
 pub mod health;
@@ -36,7 +39,7 @@ pub mod sim;
 
 pub use config::Config;
 pub use drive::{Direction, Duty};
-pub use i2c_slave::{Answer, CommandErrors, MasterLink, OrderErrors, ServeEvent, serve};
+pub use i2c_slave::MasterLink;
 pub use tasks::{run, run_commutation};
 
 use tmc_proto::{Family, MotorKind};
@@ -49,7 +52,7 @@ pub const FAMILY: Family = if cfg!(feature = "legacy") {
 };
 
 /// The motor this image drives: brushless with hall commutation, or brushed with Cargo feature `brushed`.
-pub const MOTOR: MotorKind = if cfg!(feature = "brushed") {
+pub(crate) const MOTOR: MotorKind = if cfg!(feature = "brushed") {
     MotorKind::Brushed
 } else {
     MotorKind::Brushless

@@ -58,7 +58,7 @@ pub struct MotorModel {
 
 impl MotorModel {
     /// The speed's time constant: a small thruster motor spins up in about 0.2 s.
-    pub const TIME_CONSTANT: Duration = Duration::from_millis(50);
+    pub(crate) const TIME_CONSTANT: Duration = Duration::from_millis(50);
 
     /// A stopped motor for the controller `config`, at angle 45 degrees (inside sector 0), at time 0. The speed at
     /// full duty is set so that the speed loop's feed-forward duty holds exactly 4500 rpm.
@@ -81,7 +81,7 @@ impl MotorModel {
 
     /// Bring the speed and angle up to `now` (the duty and hold held since the last update). Time going backwards
     /// changes nothing.
-    pub fn advance(&mut self, now: Instant) {
+    pub(crate) fn advance(&mut self, now: Instant) {
         let Some(elapsed) = now.checked_duration_since(self.at) else {
             return;
         };
@@ -102,13 +102,13 @@ impl MotorModel {
     }
 
     /// The bridge is driven with `drive` at `duty` from `now`; coasting applies nothing.
-    pub fn drive(&mut self, now: Instant, drive: BridgeDrive, duty: Duty) {
+    pub(crate) fn drive(&mut self, now: Instant, drive: BridgeDrive, duty: Duty) {
         self.advance(now);
         self.duty = if drive == COAST { Duty::ZERO } else { duty };
     }
 
     /// The rotor is held (or let go) from `now`.
-    pub fn hold(&mut self, now: Instant, held: bool) {
+    pub(crate) fn hold(&mut self, now: Instant, held: bool) {
         self.advance(now);
         self.held = held;
         if held {
@@ -123,12 +123,13 @@ impl MotorModel {
     }
 
     /// Signed mechanical speed, rpm.
-    pub fn rpm(&self) -> f32 {
+    #[cfg(test)]
+    pub(crate) fn rpm(&self) -> f32 {
         self.rpm
     }
 
     /// The motor current, mA: the propeller's load, plus a held rotor's current.
-    pub fn current_milliamps(&self) -> u32 {
+    pub(crate) fn current_milliamps(&self) -> u32 {
         let speed = self.rpm / FULL_SCALE_RPM;
         let mut milliamps = LOAD_MA_AT_FULL_SCALE * speed * speed;
         if self.held {

@@ -42,7 +42,7 @@ const WORDS: usize = TripRule::WINDOW_MAX as usize / 32;
 /// The trip rule and its state for one bridge.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct TripRule {
+pub(crate) struct TripRule {
     /// The rule's numbers, the window's length clamped to 1..=[`TripRule::WINDOW_MAX`].
     limits: TripLimits,
     /// The last `window_ticks` ticks, one bit each (1: a trip), the oldest at `head`.
@@ -63,10 +63,10 @@ pub struct TripRule {
 
 impl TripRule {
     /// The longest window the rule keeps: 256 ticks (0.256 s at 1 kHz) in 32 bytes.
-    pub const WINDOW_MAX: u16 = 256;
+    pub(crate) const WINDOW_MAX: u16 = 256;
 
     /// A rule that has seen nothing.
-    pub const fn new(limits: TripLimits) -> Self {
+    pub(crate) const fn new(limits: TripLimits) -> Self {
         let window_ticks = if limits.window_ticks == 0 {
             1
         } else if limits.window_ticks > Self::WINDOW_MAX {
@@ -87,7 +87,7 @@ impl TripRule {
     }
 
     /// One sample: whether the break tripped since the last. Returns whether the trip is sustained now (latched).
-    pub fn tick(&mut self, tripped: bool) -> bool {
+    pub(crate) fn tick(&mut self, tripped: bool) -> bool {
         let bit = 1u32 << (self.head % 32);
         if let Some(word) = self.window.get_mut(usize::from(self.head / 32)) {
             // The bit at `head` is the tick `window_ticks` ago, leaving the window as this one enters it.
@@ -120,7 +120,7 @@ impl TripRule {
     }
 
     /// A valid zero-speed order: clears a sustained trip, the run and the window (the next order drives again).
-    pub fn on_zero_order(&mut self) {
+    pub(crate) fn on_zero_order(&mut self) {
         self.latched = false;
         self.window = [0; WORDS];
         self.head = 0;
@@ -129,22 +129,24 @@ impl TripRule {
     }
 
     /// Whether a sustained trip holds the bridge off.
-    pub const fn latched(&self) -> bool {
+    pub(crate) const fn latched(&self) -> bool {
         self.latched
     }
 
     /// Ticks with a trip since start-up: every trip is counted, sustained or not.
-    pub const fn trips(&self) -> u32 {
+    pub(crate) const fn trips(&self) -> u32 {
         self.trips
     }
 
     /// Sustained trips since start-up.
-    pub const fn stops(&self) -> u32 {
+    #[cfg(test)]
+    pub(crate) const fn stops(&self) -> u32 {
         self.stops
     }
 
     /// Ticks with a trip among the window's.
-    pub const fn trips_in_window(&self) -> u16 {
+    #[cfg(test)]
+    pub(crate) const fn trips_in_window(&self) -> u16 {
         self.in_window
     }
 }

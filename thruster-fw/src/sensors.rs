@@ -5,7 +5,7 @@
 //! including readings above the ADC's range, and never panics.
 
 /// Largest reading of the 12-bit ADC: the input is at VDDA.
-pub const ADC_MAX: u16 = 4095;
+pub(crate) const ADC_MAX: u16 = 4095;
 
 /// Water sensor: the two electrodes inside the thruster housing connect VDDA to the ADC node; a pull-down resistor
 /// goes from the node to ground. Dry electrodes read ~0; water between them raises the node voltage.
@@ -59,7 +59,7 @@ const T25_K: f32 = 298.15;
 /// Where an NTC sits in its divider.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum NtcPlacement {
+pub(crate) enum NtcPlacement {
     /// NTC from the ADC node to ground, the fixed resistor to VDDA: the reading falls as it warms.
     ToGround,
     /// NTC from VDDA to the ADC node, the fixed resistor to ground: the reading rises as it warms.
@@ -76,18 +76,18 @@ pub enum NtcPlacement {
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Ntc {
     /// Resistance at 25 degrees Celsius, in ohms.
-    pub r25_ohms: u32,
+    pub(crate) r25_ohms: u32,
     /// The Beta constant, in kelvin.
-    pub beta: u16,
+    pub(crate) beta: u16,
     /// The divider's fixed resistor, in ohms.
-    pub fixed_ohms: u32,
+    pub(crate) fixed_ohms: u32,
     /// Which side of the divider the NTC is on.
-    pub placement: NtcPlacement,
+    pub(crate) placement: NtcPlacement,
 }
 
 impl Ntc {
     /// The reference motor's winding sensor: 10 kohm B3435 to ground, 10 kohm to VDDA.
-    pub const MOTOR: Ntc = Ntc {
+    pub(crate) const MOTOR: Ntc = Ntc {
         r25_ohms: 10_000,
         beta: 3435,
         fixed_ohms: 10_000,
@@ -98,7 +98,7 @@ impl Ntc {
     /// 10 kohm NTC to VDDA over 4.7 kohm to ground. Its schematic could not be read here; this divider reads
     /// 1.055 V at 25 C, the V0 that ST's motor-control SDK uses for its power boards' temperature sensors, and
     /// B3435 is assumed. Check both against the board before trusting its overtemp threshold.
-    pub const IHM08M1: Ntc = Ntc {
+    pub(crate) const IHM08M1: Ntc = Ntc {
         r25_ohms: 10_000,
         beta: 3435,
         fixed_ohms: 4_700,
@@ -118,7 +118,7 @@ impl Ntc {
     /// The ends fail towards the overtemp fault's safe side where they can: a shorted thermistor (raw 0 to ground,
     /// 4095 to VDDA) and readings beyond the model's range read very hot, `i16::MAX`; an open or disconnected one
     /// reads very cold, `i16::MIN`. Zero parameters give meaningless values but never panic.
-    pub fn decicelsius(&self, raw: u16) -> i16 {
+    pub(crate) fn decicelsius(&self, raw: u16) -> i16 {
         let raw = self.as_to_ground(raw);
         if raw == 0 {
             return i16::MAX;
@@ -200,23 +200,23 @@ impl CurrentSense {
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct VbusSense {
     /// From VBUS to the ADC node, in ohms.
-    pub upper_ohms: u32,
+    pub(crate) upper_ohms: u32,
     /// From the ADC node to ground, in ohms.
-    pub lower_ohms: u32,
+    pub(crate) lower_ohms: u32,
 }
 
 /// VDDA, which the ADC's full scale is, in mV (the NUCLEO's 3V3).
-pub const VDDA_MV: u32 = 3_300;
+pub(crate) const VDDA_MV: u32 = 3_300;
 
 impl VbusSense {
     /// The IHM08M1's divider on PA1: 169 kohm over 9.31 kohm, 63.2 V at full scale (docs/hardware.md).
-    pub const IHM08M1: VbusSense = VbusSense {
+    pub(crate) const IHM08M1: VbusSense = VbusSense {
         upper_ohms: 169_000,
         lower_ohms: 9_310,
     };
 
     /// VBUS in mV, rounded to the nearest; a zero lower resistor reads 0.
-    pub const fn millivolts(&self, raw: u16) -> u32 {
+    pub(crate) const fn millivolts(&self, raw: u16) -> u32 {
         let den = ADC_MAX as u64 * self.lower_ohms as u64;
         if den == 0 {
             return 0;

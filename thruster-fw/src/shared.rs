@@ -1,4 +1,4 @@
-//! The channels between one controller's tasks ([`Shared`]), and which of them report to the watchdog ([`TaskId`]).
+//! The channels between one controller's tasks ([`Shared`]), and which of them report to the watchdog (`TaskId`).
 
 use core::cell::Cell;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -18,7 +18,7 @@ use crate::health::Health;
 /// The tasks that report to the watchdog.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
-pub enum TaskId {
+pub(crate) enum TaskId {
     /// The I2C slave.
     I2c = 0,
     /// Commutation.
@@ -30,7 +30,7 @@ pub enum TaskId {
 }
 
 /// How many tasks report to the watchdog.
-pub const TASKS: u8 = 4;
+pub(crate) const TASKS: u8 = 4;
 
 type Mutex = CriticalSectionRawMutex;
 
@@ -40,15 +40,15 @@ pub struct Shared {
     /// I2C -> control, faults: the master's last order and when it last spoke.
     pub link: Watch<Mutex, LinkUpdate, 1>,
     /// Commutation -> control, faults: the hall tracker after the latest edge.
-    pub hall: Watch<Mutex, HallTracker, 1>,
+    pub(crate) hall: Watch<Mutex, HallTracker, 1>,
     /// Faults -> control, commutation: the fault verdict and measurements.
     pub sensed: Watch<Mutex, Sensed, 1>,
     /// Control -> commutation, faults: the duty to apply.
     pub duty: Watch<Mutex, Duty, 1>,
     /// Control -> I2C: the status frame for the next read.
-    pub status: Watch<Mutex, StatusFrame, 1>,
+    pub(crate) status: Watch<Mutex, StatusFrame, 1>,
     /// Wakes the commutation task when the duty or the fault verdict changed.
-    pub wake: Signal<Mutex, ()>,
+    pub(crate) wake: Signal<Mutex, ()>,
     /// I2C <-> update: the field-update extension's latest command and its reply for the next read; trial ->
     /// update: whether the image is on trial.
     pub replies: Replies,
@@ -76,7 +76,7 @@ impl Shared {
 
     /// Fault bits (the status's fault field) set now. They go into every status read until one read has carried
     /// them, so a fault that sets and clears between two reads is still seen (docs/decisions.md D14).
-    pub fn note_unread(&self, bits: u8) {
+    pub(crate) fn note_unread(&self, bits: u8) {
         self.unread.lock(|unread| unread.set(unread.get() | bits));
     }
 
@@ -101,7 +101,7 @@ impl Default for Shared {
 /// The reply a read gets instead of the status: the one to the latest extension command, "busy" until the update
 /// task has carried it out, gone once read done.
 #[derive(Debug, Clone, Copy)]
-pub struct Pending {
+pub(crate) struct Pending {
     command: CommandKind,
     seq: u8,
     done: bool,
@@ -110,7 +110,7 @@ pub struct Pending {
 
 impl Pending {
     /// The reply's bytes.
-    pub fn frame(&self) -> &FrameBytes {
+    pub(crate) fn frame(&self) -> &FrameBytes {
         &self.frame
     }
 }
@@ -133,7 +133,7 @@ pub struct Replies {
 // cost more flash, as built.
 impl Replies {
     /// Nothing pending.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Self {
             commands: Signal::new(),
             pending: BlockingMutex::new(Cell::new(None)),
@@ -145,7 +145,7 @@ impl Replies {
 
     /// A command arrived: the next read gets "busy" for it until it is done, and the update task gets it.
     #[inline(never)]
-    pub fn command(&self, frame: CommandFrame) {
+    pub(crate) fn command(&self, frame: CommandFrame) {
         let command = frame.command.kind();
         let busy = Reply::Busy {
             seq: frame.seq,
@@ -164,13 +164,13 @@ impl Replies {
 
     /// The reply a read now gets, if any.
     #[inline(never)]
-    pub fn for_read(&self) -> Option<Pending> {
+    pub(crate) fn for_read(&self) -> Option<Pending> {
         self.pending.lock(Cell::get)
     }
 
     /// `sent` was read: a done reply is gone (the next read gets the status); a busy one stays.
     #[inline(never)]
-    pub fn sent(&self, sent: &Pending) {
+    pub(crate) fn sent(&self, sent: &Pending) {
         if !sent.done {
             return;
         }
@@ -187,7 +187,7 @@ impl Replies {
     }
 
     /// Whether the master has read a reply to an extension command since the start.
-    pub fn answered(&self) -> bool {
+    pub(crate) fn answered(&self) -> bool {
         self.answered.load(Ordering::Relaxed)
     }
 

@@ -68,7 +68,7 @@ impl BootState for BootRecord {
     dead_code,
     reason = "thruster-fw's tests give the controller a DFU flash of its own; the bench a partition of its chip's"
 )]
-pub const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / PAGE) as usize;
+pub(crate) const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / PAGE) as usize;
 
 /// The bootloader's and the chip's side of a field update, as the binding's is on the G431: the ticket written and
 /// the payload marked in the state partition ([`crate::update::mark_for_swap`]), the bootloader's verdict
@@ -78,9 +78,9 @@ pub const DFU_PAGES: usize = (THRUSTER_PARTITIONS.dfu.length / PAGE) as usize;
 #[derive(Debug, Clone)]
 pub struct BootUpdater {
     /// The bootloader record's first page: the ticket, the verdict.
-    pub ticket: Flash<8, 2048>,
+    pub(crate) ticket: Flash<8, 2048>,
     /// The bootloader's state partition (the trial's [`BootRecord`] shares it).
-    pub state: Flash<8, 2048>,
+    pub(crate) state: Flash<8, 2048>,
     /// The running image's information record.
     pub info: [u8; INFO_LEN],
     /// Reboots asked for (clones share the count).
@@ -100,7 +100,7 @@ impl BootUpdater {
 }
 
 /// The information record of a thruster image of `family` at `version`, as the image embeds it.
-pub fn info_record(family: Family, version: Version) -> [u8; INFO_LEN] {
+pub(crate) fn info_record(family: Family, version: Version) -> [u8; INFO_LEN] {
     ImageInfo::new(update_image::Target::thruster(family), version).to_bytes()
 }
 

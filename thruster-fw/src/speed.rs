@@ -29,22 +29,22 @@ const FULL_SCALE_RPM: i64 = Speed::FULL_SCALE_RPM as i64;
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct SpeedConfig {
     /// Which motor is driven: brushless runs closed loop in rpm, brushed open loop in duty.
-    pub motor: MotorKind,
+    pub(crate) motor: MotorKind,
     /// Target slew limit, rpm per second (brushless) — the ramp. Brushed: duty per second in Duty units.
     /// 0 freezes the target where it is.
-    pub ramp_per_s: u32,
+    pub(crate) ramp_per_s: u32,
     /// Feed-forward: the duty (1/10 000) that holds 4500 rpm at no load; the loop adds PI on top.
     /// Unused for brushed motors.
-    pub full_scale_duty: u16,
+    pub(crate) full_scale_duty: u16,
     /// Proportional gain: duty units (1/10 000) per rpm of error, fixed point with 16 fractional bits
     /// (65 536 = 1 duty unit per rpm). Unused for brushed motors.
-    pub kp_q16: u32,
+    pub(crate) kp_q16: u32,
     /// Integral gain: duty units per rpm of error per second, fixed point with 16 fractional bits.
     /// Unused for brushed motors.
-    pub ki_q16_per_s: u32,
+    pub(crate) ki_q16_per_s: u32,
     /// The largest duty magnitude the loop puts out (1/10 000), whatever the order: the power stage's limit
     /// ([`MAX_DUTY`]). Brushed motors scale the SPEED step to it, so step 102 is this duty.
-    pub max_duty: u16,
+    pub(crate) max_duty: u16,
     /// The motor current the duty is held to, in 0.1 A ([`CurrentLimit`]); 0: none, the power stage's
     /// comparator alone limits it.
     pub current_limit_deciamps: u16,
@@ -64,7 +64,7 @@ impl SpeedConfig {
     /// 2 duty units per rpm proportional and a 200 ms integral time. On a simulated 50 ms motor this settles
     /// within 2 % in about 0.5 s after the ramp, with a few percent overshoot at most while the feed-forward is
     /// at or below what the motor needs. To be tuned on the bench with the real motor and propeller.
-    pub const BRUSHLESS_DEFAULT: SpeedConfig = SpeedConfig {
+    pub(crate) const BRUSHLESS_DEFAULT: SpeedConfig = SpeedConfig {
         motor: MotorKind::Brushless,
         ramp_per_s: 9_000,
         full_scale_duty: 8_000,
@@ -95,7 +95,7 @@ impl SpeedConfig {
 /// Holds the ramped target and the integrator; [`SpeedController::reset`] forgets both.
 #[derive(Debug, Clone, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct SpeedController {
+pub(crate) struct SpeedController {
     config: SpeedConfig,
     /// Ramped target in millionths of an rpm (brushless) or of a duty unit (brushed).
     ramp_micro: i64,
@@ -107,7 +107,7 @@ pub struct SpeedController {
 
 impl SpeedController {
     /// A stopped controller.
-    pub fn new(config: SpeedConfig) -> Self {
+    pub(crate) fn new(config: SpeedConfig) -> Self {
         SpeedController {
             config,
             ramp_micro: 0,
@@ -116,32 +116,37 @@ impl SpeedController {
         }
     }
 
-    /// One control step at `now` (called at 1 kHz): the ordered speed, the INFO power cap
-    /// (`Order::power_cap_percent()`: `Some(1..=100)` caps the duty magnitude at that percent; `None` no cap) and
-    /// the measured signed rpm (ignored for brushed). Returns the duty to apply.
-    ///
-    /// `Some(0)` and `Some(101..)` mean no cap, as the INFO byte does.
-    ///
-    /// Brushless: the target rpm slews towards `target.rpm()` at `ramp_per_s`; duty = feed-forward + PI on
-    /// (ramped target - measured), clamped to ±100 % and to the cap. The integrator does not grow while the
-    /// output is clamped (anti-windup), and while the cap holds the output the ramp holds too, so lifting the cap
-    /// raises the speed at the ramp rate. The output never opposes the ramped target's direction: a slowing
-    /// propeller is braked by the water, not by reverse torque. A zero ramped target gives exactly [`Duty::ZERO`] and resets the
-    /// integrator, so a stopped motor is never driven.
-    ///
-    /// Brushed: open loop, duty proportional to the step (step 102 = 100 %), slewed at `ramp_per_s`, capped.
-    /// A lower cap takes effect at once; a higher one is reached through the ramp.
-    ///
-    /// The first call after `new()`/`reset()` uses dt = 0 (no jump from an unknown past); dt is clamped to
-    /// 100 ms, and time going backwards counts as dt = 0.
-    pub fn update(&mut self, now: Instant, target: Speed, power_cap_percent: Option<u8>, measured_rpm: i32) -> Duty {
+    /// [`SpeedController::update_within`] with the duty held to a percentage (`Some(1..=100)`; `None`, `Some(0)`
+    /// and `Some(101..)` mean no cap): the tests' shorthand.
+    #[cfg(test)]
+    pub(crate) fn update(
+        &mut self,
+        now: Instant,
+        target: Speed,
+        power_cap_percent: Option<u8>,
+        measured_rpm: i32,
+    ) -> Duty {
         let ceiling = u16::try_from(duty_limit(power_cap_percent)).unwrap_or(u16::MAX);
         self.update_within(now, target, ceiling, measured_rpm)
     }
 
-    /// [`SpeedController::update`] with the duty magnitude held to `ceiling` (1/10 000) instead of a percentage:
-    /// what the INFO power limit ([`PowerLimit`]) gives.
-    pub fn update_within(&mut self, now: Instant, target: Speed, ceiling: u16, measured_rpm: i32) -> Duty {
+    /// One control step at `now` (called at 1 kHz): the ordered speed, the duty magnitude's ceiling (1/10 000:
+    /// what the INFO power limit, [`PowerLimit`], gives) and the measured signed rpm (ignored for brushed).
+    /// Returns the duty to apply.
+    ///
+    /// Brushless: the target rpm slews towards `target.rpm()` at `ramp_per_s`; duty = feed-forward + PI on
+    /// (ramped target - measured), clamped to ±100 % and to the ceiling. The integrator does not grow while the
+    /// output is clamped (anti-windup), and while the ceiling holds the output the ramp holds too, so lifting it
+    /// raises the speed at the ramp rate. The output never opposes the ramped target's direction: a slowing
+    /// propeller is braked by the water, not by reverse torque. A zero ramped target gives exactly [`Duty::ZERO`]
+    /// and resets the integrator, so a stopped motor is never driven.
+    ///
+    /// Brushed: open loop, duty proportional to the step (step 102 = 100 %), slewed at `ramp_per_s`, held to the
+    /// ceiling. A lower ceiling takes effect at once; a higher one is reached through the ramp.
+    ///
+    /// The first call after `new()`/`reset()` uses dt = 0 (no jump from an unknown past); dt is clamped to
+    /// 100 ms, and time going backwards counts as dt = 0.
+    pub(crate) fn update_within(&mut self, now: Instant, target: Speed, ceiling: u16, measured_rpm: i32) -> Duty {
         let dt_us = self.step_time(now);
         let limit = i64::from(ceiling).min(FULL).min(i64::from(self.config.max_duty));
         match self.config.motor {
@@ -151,12 +156,12 @@ impl SpeedController {
     }
 
     /// The configuration.
-    pub fn config(&self) -> &SpeedConfig {
+    pub(crate) fn config(&self) -> &SpeedConfig {
         &self.config
     }
 
     /// Forget the ramp and the integrator (on a stop, a fault or the failsafe): the next update starts from zero.
-    pub fn reset(&mut self) {
+    pub(crate) fn reset(&mut self) {
         self.ramp_micro = 0;
         self.integral_q16 = 0;
         self.last = None;
@@ -164,7 +169,7 @@ impl SpeedController {
 
     /// The current ramped target in rpm (brushless) or duty units (brushed), for telemetry and tests.
     /// Truncated towards zero.
-    pub fn ramped_target(&self) -> i32 {
+    pub(crate) fn ramped_target(&self) -> i32 {
         saturate_i32(self.ramp_micro / MICROS_PER_S)
     }
 
@@ -261,7 +266,7 @@ impl SpeedController {
 /// INFO 100, 0 and above 100 mean no limit (masters send 100 and behave as before: docs/decisions.md D6).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct PowerLimit {
+pub(crate) struct PowerLimit {
     /// The duty ceiling in millionths of a duty unit.
     ceiling_micro: i64,
     last: Option<Instant>,
@@ -273,10 +278,10 @@ pub const RATED_POWER_MW: u32 = 96_000;
 /// The nominal supply the power is estimated at, mV: the reference thruster's 24 V.
 pub const SUPPLY_MV: u32 = 24_000;
 /// The power limit's integrating gain, full scale per second per cap of error.
-pub const POWER_LIMIT_GAIN_PER_S: i64 = 20;
+pub(crate) const POWER_LIMIT_GAIN_PER_S: i64 = 20;
 /// How far the power limit's ceiling may stand above the duty last applied, in [`Duty`] units: 1 % of full scale,
 /// 10 x full scale per second at the 1 kHz control step.
-pub const POWER_LIMIT_HEADROOM: i64 = 100;
+pub(crate) const POWER_LIMIT_HEADROOM: i64 = 100;
 
 impl Default for PowerLimit {
     fn default() -> Self {
@@ -286,7 +291,7 @@ impl Default for PowerLimit {
 
 impl PowerLimit {
     /// No limit in effect yet: the ceiling at full scale.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         PowerLimit {
             ceiling_micro: FULL * MICROS_PER_S,
             last: None,
@@ -294,7 +299,7 @@ impl PowerLimit {
     }
 
     /// The supply power estimated from the duty applied and the motor current, mW.
-    pub fn power_mw(duty: Duty, current_deciamps: u16) -> i64 {
+    pub(crate) fn power_mw(duty: Duty, current_deciamps: u16) -> i64 {
         // |duty| <= 10 000, current < 2^16, so the product stays far inside i64.
         // duty / 10 000 x deciamps / 10 x mV.
         i64::from(duty.magnitude()) * i64::from(current_deciamps) * i64::from(SUPPLY_MV) / (FULL * 10)
@@ -302,7 +307,13 @@ impl PowerLimit {
 
     /// One step at `now`: INFO's `power_cap_percent`, the duty applied since the last step and the motor current
     /// it drew. Returns the duty ceiling (1/10 000).
-    pub fn update(&mut self, now: Instant, power_cap_percent: Option<u8>, duty: Duty, current_deciamps: u16) -> u16 {
+    pub(crate) fn update(
+        &mut self,
+        now: Instant,
+        power_cap_percent: Option<u8>,
+        duty: Duty,
+        current_deciamps: u16,
+    ) -> u16 {
         let dt_us = self
             .last
             .and_then(|last| now.checked_duration_since(last))
@@ -342,14 +353,14 @@ impl PowerLimit {
 /// propeller's drag rather than braked at the limit.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct CurrentLimit {
+pub(crate) struct CurrentLimit {
     /// The duty ceiling, in [`Duty`] units.
     ceiling: u16,
 }
 
 /// How far the current limit's ceiling rises a step (1 ms), in [`Duty`] units: 1 % of full scale, five times
 /// the brushed ramp's pace.
-pub const CURRENT_LIMIT_RISE: u16 = 100;
+pub(crate) const CURRENT_LIMIT_RISE: u16 = 100;
 
 impl Default for CurrentLimit {
     fn default() -> Self {
@@ -359,7 +370,7 @@ impl Default for CurrentLimit {
 
 impl CurrentLimit {
     /// Not limiting yet: the ceiling at full scale.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         CurrentLimit {
             ceiling: Duty::FULL as u16,
         }
@@ -367,7 +378,13 @@ impl CurrentLimit {
 
     /// One step: the limit in 0.1 A (0: none), the duty applied since the last step, the current it drew and
     /// whether the break tripped meanwhile. Returns the duty ceiling (1/10 000).
-    pub fn update(&mut self, limit_deciamps: u16, duty: Duty, current_deciamps: u16, break_tripped: bool) -> u16 {
+    pub(crate) fn update(
+        &mut self,
+        limit_deciamps: u16,
+        duty: Duty,
+        current_deciamps: u16,
+        break_tripped: bool,
+    ) -> u16 {
         let full = Duty::FULL as u16;
         let applied = duty.magnitude();
         self.ceiling = if limit_deciamps == 0 {
@@ -389,6 +406,7 @@ impl CurrentLimit {
 }
 
 /// Duty magnitude allowed by the INFO power cap: `Some(1..=100)` percent of full scale, anything else full scale.
+#[cfg(test)]
 fn duty_limit(power_cap_percent: Option<u8>) -> i64 {
     match power_cap_percent {
         Some(percent @ 1..=100) => i64::from(percent) * (FULL / 100),
@@ -398,7 +416,7 @@ fn duty_limit(power_cap_percent: Option<u8>) -> i64 {
 
 /// Open-loop brushed duty of a step: step * max_duty / 102, rounded half away from zero (step 102 = max_duty).
 /// [`step_of_brushed_duty`] reads it back exactly for every step while max_duty > 102.
-pub fn brushed_duty(target: Speed, max_duty: u16) -> i64 {
+pub(crate) fn brushed_duty(target: Speed, max_duty: u16) -> i64 {
     divide_rounded(
         i64::from(target.step()) * i64::from(max_duty),
         i64::from(Speed::MAX_STEP),
@@ -407,7 +425,7 @@ pub fn brushed_duty(target: Speed, max_duty: u16) -> i64 {
 
 /// The SPEED step a brushed duty corresponds to: duty * 102 / max_duty, rounded half away from zero, saturated to
 /// the step range (the status's readback of [`brushed_duty`]).
-pub fn step_of_brushed_duty(duty: Duty, max_duty: u16) -> Speed {
+pub(crate) fn step_of_brushed_duty(duty: Duty, max_duty: u16) -> Speed {
     let step = divide_rounded(
         i64::from(duty.value()) * i64::from(Speed::MAX_STEP),
         i64::from(max_duty.max(1)),

@@ -23,13 +23,13 @@ use crate::trial::trial_task;
 use crate::update::update_task;
 
 /// Fault inputs are sampled at 1 kHz (IDS faults must be seen within one sample).
-pub const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
+pub(crate) const SAMPLE_PERIOD: Duration = Duration::from_millis(1);
 /// The speed loop runs at 1 kHz.
-pub const CONTROL_PERIOD: Duration = Duration::from_millis(1);
+pub(crate) const CONTROL_PERIOD: Duration = Duration::from_millis(1);
 /// The I2C slave: takes orders, answers reads with the frame the control task keeps ready, re-initialises the
 /// peripheral after any error (including a transfer stalled past the peripheral's timeout). Extension commands go
 /// to the update task, and the read after one gets its reply ([`crate::update`]) instead of the status.
-pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: MotorKind, shared: &Shared) -> ! {
+pub(crate) async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: MotorKind, shared: &Shared) -> ! {
     let mut link = MasterLink::new(family);
     // What the link failsafe counts from: the master's last valid order or read, and the first order refused since
     // the last valid one.
@@ -116,7 +116,7 @@ pub async fn i2c_task<T: I2cTarget>(target: &mut T, family: Family, motor: Motor
 /// driving must stop: zero duty, a fault, or an invalid hall state. Nothing else wakes it but its heartbeat to the
 /// watchdog ([`COMMUTATION_HEARTBEAT`]): the bridge is a function of the halls, the duty and the verdict, and the
 /// tasks that change those two wake it when they do.
-pub async fn commutation_task<H: HallSensors, B: Bridge>(
+pub(crate) async fn commutation_task<H: HallSensors, B: Bridge>(
     halls: &mut H,
     bridge: &mut B,
     motor: MotorKind,
@@ -172,7 +172,7 @@ pub const fn h_bridge(duty: Duty) -> BridgeDrive {
 /// and the overcurrent trip rule, publish the verdict, and wake the commutation task at once when the verdict
 /// changes. The power-cycle latches come from `latch` at start and go back to it whenever they change, so they
 /// outlast any reset but a power cycle.
-pub async fn fault_task<S: Sensors, L: LatchStore>(
+pub(crate) async fn fault_task<S: Sensors, L: LatchStore>(
     sensors: &mut S,
     latch: &mut L,
     config: &Config,
@@ -289,7 +289,7 @@ pub async fn fault_task<S: Sensors, L: LatchStore>(
 
 /// Speed control at 1 kHz: orders and the link failsafe in, duty out to the commutation task (woken when the duty
 /// changes), and the status frame kept ready for the I2C task.
-pub async fn control_task(config: &Config, shared: &Shared) -> ! {
+pub(crate) async fn control_task(config: &Config, shared: &Shared) -> ! {
     let mut control = Control::new(config.family, config.speed, config.link_timeout, Instant::now());
     let mut ticker = Ticker::every(CONTROL_PERIOD);
     let mut sent = None;
@@ -314,7 +314,7 @@ pub async fn control_task(config: &Config, shared: &Shared) -> ! {
 }
 
 /// Feed the watchdog every `period`, but only while every task keeps reporting progress.
-pub async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared: &Shared) -> ! {
+pub(crate) async fn health_task<W: Watchdog>(watchdog: &mut W, period: Duration, shared: &Shared) -> ! {
     let mut ticker = Ticker::every(period);
     loop {
         ticker.next().await;

@@ -36,17 +36,17 @@ impl BootState for Confirmed {
 pub const TRIAL_ROUNDS: u32 = 30;
 
 /// Valid orders from the master the image must take before it confirms: half a second of the master's 50 Hz poll.
-pub const TRIAL_ORDERS: u32 = 25;
+pub(crate) const TRIAL_ORDERS: u32 = 25;
 
 /// How often the trial looks at its conditions.
 pub const TRIAL_CHECK: Duration = Duration::from_millis(100);
 
 /// How long a failed confirmation waits before the next attempt.
-pub const CONFIRM_RETRY: Duration = Duration::from_secs(1);
+pub(crate) const CONFIRM_RETRY: Duration = Duration::from_secs(1);
 
 /// Whether an image on trial has shown enough to confirm: `rounds` complete watchdog rounds, the master's orders,
 /// an extension reply `answered`, and the motor at rest by order and by duty.
-pub fn may_confirm(rounds: u32, link: Option<LinkUpdate>, answered: bool, duty: Duty) -> bool {
+pub(crate) fn may_confirm(rounds: u32, link: Option<LinkUpdate>, answered: bool, duty: Duty) -> bool {
     let Some(link) = link else {
         return false;
     };
@@ -59,7 +59,7 @@ pub fn may_confirm(rounds: u32, link: Option<LinkUpdate>, answered: bool, duty: 
 
 /// The trial: if the image is on trial, confirm it once [`may_confirm`] holds. An image that never gets there
 /// (a task that stops, a master it cannot answer) stays on trial, and the next reset reverts it.
-pub async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
+pub(crate) async fn trial_task<B: BootState>(boot: &mut B, shared: &Shared) -> ! {
     match boot.on_trial().await {
         Ok(true) => {
             shared.replies.set_on_trial(true);

@@ -1,7 +1,7 @@
 //! The field update's receiver: the thruster's side of tmc-proto's extension ([`tmc_proto::ext`]), with which the
 //! master writes a signed image into the DFU partition over the thrusters' bus.
 //!
-//! The I2C task hands each valid extension command to [`update_task`] (through [`Shared`]) and answers the next
+//! The I2C task hands each valid extension command to `update_task` (through [`Shared`]) and answers the next
 //! read with the reply kept in [`Replies`](crate::shared::Replies): "busy" until this task has carried the command out. The task owns the
 //! DFU flash (blocking NOR flash: on the G431 an erase or a write holds the CPU whatever the API, and blocking
 //! calls keep the receiver small) and the [`Updater`] port, and carries out one command at a time: erase a DFU
@@ -40,16 +40,16 @@ use crate::ports::{MarkError, Updater};
 use crate::shared::Shared;
 
 /// The longest payload: the ACTIVE partition the bootloader swaps it into.
-pub const MAX_PAYLOAD: u32 = THRUSTER_PARTITIONS.active.length;
+pub(crate) const MAX_PAYLOAD: u32 = THRUSTER_PARTITIONS.active.length;
 
 /// Where a payload's information record starts (update-image's `ImageInfo`, just past the vector table).
-pub const INFO_OFFSET: u32 = IMAGE_INFO_OFFSET;
+pub(crate) const INFO_OFFSET: u32 = IMAGE_INFO_OFFSET;
 
 /// A payload must be long enough to hold its information record and the key after it.
 const INFO_END: u32 = update_image::MIN_PAYLOAD;
 
 /// How long a reboot waits for the master to read its reply before the reset.
-pub const REBOOT_GRACE: Duration = Duration::from_millis(100);
+pub(crate) const REBOOT_GRACE: Duration = Duration::from_millis(100);
 
 /// Hand a payload to the bootloader: erase the record's ticket page and write `ticket` there (read back), then mark
 /// the state for the swap with embassy-boot's own `mark_updated`, and read the mark back (the G4's flash drivers
@@ -145,7 +145,7 @@ impl NorFlash for NoUpdate {
 
 /// The thruster family an information record names (`Ok(None)`: the master's), or a refusal for bytes that are no
 /// record (update-image's `ImageInfo`).
-pub fn info_family(info: &[u8; INFO_LEN]) -> Result<Option<Family>, Refusal> {
+pub(crate) fn info_family(info: &[u8; INFO_LEN]) -> Result<Option<Family>, Refusal> {
     ImageInfo::parse(info)
         .map(|info| info.target.family())
         .map_err(|_| Refusal::NoImageInfo)
@@ -153,16 +153,16 @@ pub fn info_family(info: &[u8; INFO_LEN]) -> Result<Option<Family>, Refusal> {
 
 /// How the motor stands when a command is carried out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Motion {
+pub(crate) struct Motion {
     /// The last order is zero speed (or none came) and the duty is zero.
-    pub at_rest: bool,
+    pub(crate) at_rest: bool,
     /// Non-zero orders received so far (wrapping): a change since `Begin` drops the update.
-    pub turning_orders: u32,
+    pub(crate) turning_orders: u32,
 }
 
 impl Motion {
     /// The link's last order and the duty as `shared` holds them now.
-    pub fn of(shared: &Shared) -> Motion {
+    pub(crate) fn of(shared: &Shared) -> Motion {
         let link = shared.link.try_get();
         let duty = shared.duty.try_get().unwrap_or(Duty::ZERO);
         Motion {
@@ -190,23 +190,23 @@ enum Stage {
 
 /// What a command's reply is, and whether to reset once it has been read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Outcome {
+pub(crate) struct Outcome {
     /// The reply.
-    pub reply: Reply,
+    pub(crate) reply: Reply,
     /// Reset after it.
-    pub reboot: bool,
+    pub(crate) reboot: bool,
 }
 
 /// The receiver's state: whether an update is under way, and for which payload.
 #[derive(Debug, Clone)]
-pub struct Receiver {
+pub(crate) struct Receiver {
     family: Family,
     stage: Stage,
 }
 
 impl Receiver {
     /// A thruster of `family`, no update under way (as after any reset).
-    pub fn new(family: Family) -> Self {
+    pub(crate) fn new(family: Family) -> Self {
         Self {
             family,
             stage: Stage::Idle,
@@ -214,7 +214,8 @@ impl Receiver {
     }
 
     /// The payload length of the update under way, if any.
-    pub fn begun(&self) -> Option<u32> {
+    #[cfg(test)]
+    pub(crate) fn begun(&self) -> Option<u32> {
         match self.stage {
             Stage::Begun(session) => Some(session.payload_len),
             _ => None,
@@ -222,12 +223,12 @@ impl Receiver {
     }
 
     /// Whether an update is finished and marked for the bootloader.
-    pub fn finished(&self) -> bool {
+    pub(crate) fn finished(&self) -> bool {
         self.stage == Stage::Finished
     }
 
     /// Carry out one command with the motor as `motion` says.
-    pub async fn handle<D: NorFlash, U: Updater>(
+    pub(crate) async fn handle<D: NorFlash, U: Updater>(
         &mut self,
         frame: CommandFrame,
         motion: Motion,
@@ -470,7 +471,12 @@ async fn crc_of<D: NorFlash>(dfu: &mut D, offset: u32, len: u32) -> Result<u32, 
 
 /// The update task: carries out each extension command the I2C task hands over and leaves its reply for the next
 /// read; resets (through `updater`) once the master has read the reply to a `Reboot`, or after [`REBOOT_GRACE`].
-pub async fn update_task<D: NorFlash, U: Updater>(dfu: &mut D, updater: &mut U, family: Family, shared: &Shared) -> ! {
+pub(crate) async fn update_task<D: NorFlash, U: Updater>(
+    dfu: &mut D,
+    updater: &mut U,
+    family: Family,
+    shared: &Shared,
+) -> ! {
     let mut receiver = Receiver::new(family);
     let replies = &shared.replies;
     loop {

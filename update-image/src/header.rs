@@ -18,7 +18,7 @@ use crate::{FORMAT, HEADER_LEN, Target, Version};
 ///
 /// The signature is what embassy-boot's `verify_and_mark_updated` takes with `update_len` = the payload length.
 /// The header itself is not signed: its target and version are there to route the file before its payload
-/// arrives, and [`check`](crate::check) holds them to the payload's own (signed) [`ImageInfo`](crate::ImageInfo).
+/// arrives, and [`check`](crate::check()) holds them to the payload's own (signed) [`ImageInfo`](crate::ImageInfo).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Header {

@@ -22,7 +22,7 @@ use crate::{INFO_FORMAT, INFO_LEN, Target, Version};
 /// after it ([`KEY_OFFSET`](crate::KEY_OFFSET)).
 ///
 /// Being in the payload, it is covered by the signature; the update file's header repeats target and version
-/// unsigned, for routing, and [`check`](crate::check) holds the one to the other. The reserved bytes are zero so
+/// unsigned, for routing, and [`check`](crate::check()) holds the one to the other. The reserved bytes are zero so
 /// that a later format can give them a meaning a format-2 reader refuses rather than misreads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

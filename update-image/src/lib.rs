@@ -9,7 +9,7 @@
 //! the payload arrives.
 //!
 //! What makes the header trustworthy is the [`ImageInfo`] record every image embeds at [`INFO_OFFSET`]: it is part
-//! of the payload, hence signed, and [`check`] holds the header to it (same target, same version), then the
+//! of the payload, hence signed, and [`check()`] holds the header to it (same target, same version), then the
 //! target to the device's own, and the length to the partition. A receiver can do this as soon as the first
 //! `INFO_OFFSET + INFO_LEN` payload bytes are in, long before the signature can be checked.
 //!

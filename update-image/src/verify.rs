@@ -105,8 +105,8 @@ fn s_below_order(signature: &[u8; 64]) -> bool {
 }
 
 /// Whether `signature` (its S below L) is `public_key`'s over `message`. RFC 8032 5.1.7: with
-/// k = SHA-512(R || A || M) mod L, the signature holds when [S]B = R + [k]A, checked as salty's `verify` does, by
-/// encoding [S]B - [k]A and comparing it with R.
+/// k = SHA-512(R || A || M) mod L, the signature holds when `[S]B = R + [k]A`, checked as salty's `verify` does,
+/// by encoding `[S]B - [k]A` and comparing it with R.
 fn check(message: &[u8; 64], signature: &[u8; 64], public_key: &[u8; 32]) -> Result<(), VerifyError> {
     let key = salty::CompressedY(*public_key)
         .decompressed()

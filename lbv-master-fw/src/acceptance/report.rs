@@ -279,7 +279,7 @@ impl Step {
     }
 
     /// The step of that name in the report lines.
-    pub fn from_name(name: &str) -> Option<Step> {
+    pub(crate) fn from_name(name: &str) -> Option<Step> {
         Step::ALL.into_iter().find(|step| step.name() == name)
     }
 }
@@ -293,7 +293,7 @@ pub const fn family_token(family: Family) -> &'static str {
 }
 
 /// The family of that name in the report lines.
-pub fn family_from_token(token: &str) -> Option<Family> {
+pub(crate) fn family_from_token(token: &str) -> Option<Family> {
     Family::ALL.into_iter().find(|family| family_token(*family) == token)
 }
 
@@ -324,7 +324,7 @@ pub struct Figure<S = &'static str> {
 }
 
 /// Most figures a step reports.
-pub const MAX_FIGURES: usize = 8;
+pub(crate) const MAX_FIGURES: usize = 8;
 
 /// The outcome of one step; `S` is its figures' names' type ([`Figure`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -367,7 +367,8 @@ impl StepResult {
     }
 
     /// The value of the figure called `name`.
-    pub fn figure_value(&self, name: &str) -> Option<i32> {
+    #[cfg(test)]
+    pub(crate) fn figure_value(&self, name: &str) -> Option<i32> {
         self.figures
             .iter()
             .find(|figure| figure.name == name)
@@ -380,9 +381,9 @@ impl StepResult {
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Verdict {
     /// Steps that passed (at most 255: the count saturates).
-    pub passed: u8,
+    pub(crate) passed: u8,
     /// Steps that failed (saturating likewise).
-    pub failed: u8,
+    pub(crate) failed: u8,
 }
 
 impl Verdict {
@@ -402,7 +403,7 @@ impl Verdict {
 
 /// A step's result as a console text (STATUSTEXT holds 50 bytes: figures that do not fit are cut off):
 /// `<step> [<family>] PASS|FAIL <figure>=<value> ...`, Info when it passed, Error when it failed.
-pub fn step_text(result: &StepResult) -> (Severity, Text) {
+pub(crate) fn step_text(result: &StepResult) -> (Severity, Text) {
     struct Compact<'a>(&'a StepResult);
     impl fmt::Display for Compact<'_> {
         fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -423,7 +424,7 @@ pub fn step_text(result: &StepResult) -> (Severity, Text) {
 }
 
 /// The verdict as a console text: `acceptance PASS|FAIL passed=<n> failed=<m>`.
-pub fn verdict_text(verdict: &Verdict) -> (Severity, Text) {
+pub(crate) fn verdict_text(verdict: &Verdict) -> (Severity, Text) {
     let severity = if verdict.pass() {
         Severity::Notice
     } else {
@@ -439,7 +440,7 @@ pub fn verdict_text(verdict: &Verdict) -> (Severity, Text) {
 }
 
 /// A prompt as a console text: `DO: <instruction>`.
-pub fn prompt_text(prompt: Prompt) -> (Severity, Text) {
+pub(crate) fn prompt_text(prompt: Prompt) -> (Severity, Text) {
     (Severity::Warning, text(format_args!("DO: {}", prompt.instruction())))
 }
 
@@ -463,7 +464,7 @@ pub enum Prompt {
 
 impl Prompt {
     /// Every prompt.
-    pub const ALL: [Prompt; 5] = [
+    pub(crate) const ALL: [Prompt; 5] = [
         Prompt::FitWaterResistor,
         Prompt::RemoveWaterResistor,
         Prompt::HoldRotor,
@@ -472,7 +473,7 @@ impl Prompt {
     ];
 
     /// The prompt of that name in the report lines.
-    pub fn from_name(name: &str) -> Option<Prompt> {
+    pub(crate) fn from_name(name: &str) -> Option<Prompt> {
         Prompt::ALL.into_iter().find(|prompt| prompt.name() == name)
     }
 
@@ -488,7 +489,7 @@ impl Prompt {
     }
 
     /// What to do, in words for the person at the bench (short enough for a console text).
-    pub const fn instruction(self) -> &'static str {
+    pub(crate) const fn instruction(self) -> &'static str {
         match self {
             Prompt::FitWaterResistor => "fit 470k from PB12 to 3V3 on the thruster",
             Prompt::RemoveWaterResistor => "remove the resistor from PB12",

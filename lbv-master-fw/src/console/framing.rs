@@ -24,14 +24,14 @@ const SIGNATURE: usize = 13;
 /// The only MAVLink 2 incompatibility flag understood: the frame carries a signature.
 const IFLAG_SIGNED: u8 = 0x01;
 /// The longest frame: signed MAVLink 2 with a 255-byte payload.
-pub const MAX_FRAME: usize = V2_HEADER + 255 + CHECKSUM + SIGNATURE;
+pub(crate) const MAX_FRAME: usize = V2_HEADER + 255 + CHECKSUM + SIGNATURE;
 /// A whole frame, the byte after it (to accept an unknown message) and room for a read chunk.
 const CAPACITY: usize = MAX_FRAME + 1 + 63;
 
 /// MAVLink protocol version of a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Version {
+pub(crate) enum Version {
     /// MAVLink 1 (start byte 0xFE).
     V1,
     /// MAVLink 2 (start byte 0xFD).
@@ -42,13 +42,13 @@ pub enum Version {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Frame<'a> {
     /// By its start byte.
-    pub version: Version,
+    pub(crate) version: Version,
     /// The sender's sequence number.
-    pub sequence: u8,
+    pub(crate) sequence: u8,
     /// The sender's system id.
-    pub system_id: u8,
+    pub(crate) system_id: u8,
     /// The sender's component id.
-    pub component_id: u8,
+    pub(crate) component_id: u8,
     /// 24 bits in MAVLink 2, 8 in MAVLink 1.
     pub message_id: u32,
     /// The payload as sent (MAVLink 2 trims trailing zeros).
@@ -195,12 +195,12 @@ impl FrameParser {
     }
 
     /// Whether bytes are buffered (a frame begun but not complete).
-    pub fn pending(&self) -> bool {
+    pub(crate) fn pending(&self) -> bool {
         self.end > self.start
     }
 
     /// Bytes dropped while looking for a start byte since the last call.
-    pub fn take_skipped(&mut self) -> u32 {
+    pub(crate) fn take_skipped(&mut self) -> u32 {
         core::mem::take(&mut self.skipped)
     }
 

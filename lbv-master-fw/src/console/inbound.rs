@@ -24,9 +24,9 @@ use crate::shared::{
 
 /// Shortest message interval taken, ms: every paced message at 10 Hz together takes some 5 kB/s, under half of
 /// what 115200 baud carries, leaving room for the ground station's own frames and the parameter list.
-pub const MIN_INTERVAL_MS: u32 = 100;
+pub(crate) const MIN_INTERVAL_MS: u32 = 100;
 /// Longest message interval taken, ms.
-pub const MAX_INTERVAL_MS: u32 = 60_000;
+pub(crate) const MAX_INTERVAL_MS: u32 = 60_000;
 /// Its param1 asking the autopilot to reboot (REBOOT_SHUTDOWN_ACTION_REBOOT).
 const REBOOT_AUTOPILOT: f32 = 1.0;
 /// MOTOR_TEST_THROTTLE_PERCENT, the only motor test throttle type supported.
@@ -95,7 +95,7 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 ///   command; PARAM_SET carries its param_type, which the vehicle checks against the parameter's.
 /// - MISSION_REQUEST_LIST to our system and component (or 0): [`Command::MissionRequestList`] of its mission type
 ///   (a mission, a fence, rally points: the master keeps none of them).
-pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Command>, ParserError> {
+pub(crate) fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Command>, ParserError> {
     let version = match frame.version {
         Version::V1 => mavlink_core::MavlinkVersion::V1,
         Version::V2 => mavlink_core::MavlinkVersion::V2,
@@ -163,7 +163,7 @@ pub fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Comman
 /// The MAVLink FTP payload of a FILE_TRANSFER_PROTOCOL frame addressed to our system and component (or 0, on
 /// any network); `None` for any other frame. Read by hand: its fields are target_network, target_system,
 /// target_component and the payload, all bytes, and the generated decoder would cost a kilobyte of flash for it.
-pub fn ftp(frame: &Frame<'_>, config: &ConsoleConfig) -> Option<FtpPayload> {
+pub(crate) fn ftp(frame: &Frame<'_>, config: &ConsoleConfig) -> Option<FtpPayload> {
     if frame.message_id != FILE_TRANSFER_PROTOCOL_DATA::ID {
         return None;
     }
@@ -193,7 +193,7 @@ fn manual_input(m: &MANUAL_CONTROL_DATA) -> ManualInput {
 
 /// The message a MAV_CMD_REQUEST_MESSAGE or MAV_CMD_SET_MESSAGE_INTERVAL names in a float, if the master sends
 /// it: ESC_TELEMETRY_5_TO_8 only with more than four thrusters.
-pub fn message(id: f32, config: &ConsoleConfig) -> Option<Message> {
+pub(crate) fn message(id: f32, config: &ConsoleConfig) -> Option<Message> {
     // Only a whole number names a message (the cast saturates: NaN reads 0, so check it comes back the same).
     let whole = id as u32;
     if whole as f32 != id {
@@ -216,7 +216,7 @@ pub fn message(id: f32, config: &ConsoleConfig) -> Option<Message> {
 
 /// A MAV_CMD_SET_MESSAGE_INTERVAL interval in µs: 0 the default, -1 off, a positive value clamped to
 /// [`MIN_INTERVAL_MS`]..=[`MAX_INTERVAL_MS`] (rounded to the ms); `None` for anything else (NaN, below -1).
-pub fn interval(us: f32) -> Option<Interval> {
+pub(crate) fn interval(us: f32) -> Option<Interval> {
     if us == 0.0 {
         Some(Interval::Default)
     } else if us == -1.0 {

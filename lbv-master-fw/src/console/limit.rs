@@ -29,16 +29,16 @@ use crate::params::PARAM_COUNT;
 use crate::shared::{Command, Sender};
 
 /// What one frame sent costs a requester's allowance: it refills at ten frames a second.
-pub const FRAME_COST: Duration = Duration::from_millis(100);
+pub(crate) const FRAME_COST: Duration = Duration::from_millis(100);
 /// The frames a full allowance holds.
 pub const BURST: u32 = 40;
 /// Requesters kept apart; the others share one allowance.
-pub const REQUESTERS: usize = 4;
+pub(crate) const REQUESTERS: usize = 4;
 
 /// The frames the vehicle sends for `command`: the parameter list's values, a parameter's value, a MISSION_COUNT,
 /// a requested message and its COMMAND_ACK (a message it does not send: the COMMAND_ACK alone); 0 for commands answered with
 /// at most one frame smaller than the request (a COMMAND_ACK for a COMMAND_LONG), or not at all.
-pub const fn cost(command: &Command) -> u32 {
+pub(crate) const fn cost(command: &Command) -> u32 {
     match command {
         Command::ParamRequestList => PARAM_COUNT as u32,
         Command::ParamRequestRead { .. } | Command::MissionRequestList { .. } => 1,
@@ -61,7 +61,7 @@ struct Allowance {
 /// The requesters' allowances (see the module documentation).
 #[derive(Debug, Clone)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub struct Limiter {
+pub(crate) struct Limiter {
     requesters: [Allowance; REQUESTERS],
     /// The allowance the requesters not kept share: when it is full again.
     others: Instant,
@@ -75,7 +75,7 @@ impl Default for Limiter {
 
 impl Limiter {
     /// Nobody has asked anything yet.
-    pub const fn new() -> Self {
+    pub(crate) const fn new() -> Self {
         Self {
             requesters: [Allowance {
                 who: None,
@@ -87,7 +87,7 @@ impl Limiter {
 
     /// Whether `from` may have the vehicle send `frames` frames at `now` (taking them from its allowance if so);
     /// `operator` is `SYSID_MYGCS`. Nothing that costs nothing is refused.
-    pub fn allow(&mut self, from: Sender, frames: u32, operator: u8, now: Instant) -> bool {
+    pub(crate) fn allow(&mut self, from: Sender, frames: u32, operator: u8, now: Instant) -> bool {
         if frames == 0 {
             return true;
         }

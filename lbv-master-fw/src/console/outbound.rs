@@ -26,10 +26,10 @@ include!(concat!(env!("OUT_DIR"), "/build_info.rs"));
 
 /// AUTOPILOT_VERSION.vendor_id: 0x0483, STMicroelectronics' USB vendor id (the G431's maker; the console's ST-LINK
 /// virtual COM port enumerates under it). The board has no USB id of its own.
-pub const VENDOR_ID: u16 = 0x0483;
+pub(crate) const VENDOR_ID: u16 = 0x0483;
 /// AUTOPILOT_VERSION.product_id: 0x0469, the device id of the master's STM32G474 (DBGMCU_IDCODE.DEV_ID, RM0440
 /// section 47.6.1: 0x469 for the G47x/G48x, 0x468 for the G431/G441).
-pub const PRODUCT_ID: u16 = 0x0469;
+pub(crate) const PRODUCT_ID: u16 = 0x0469;
 
 /// What the master can do, as AUTOPILOT_VERSION announces it: MAVLink 2, COMMAND_INT (the same commands as
 /// COMMAND_LONG), and integer parameters carried as the float of their value (PARAM_ENCODE_C_CAST, what ArduPilot
@@ -37,21 +37,21 @@ pub const PRODUCT_ID: u16 = 0x0469;
 /// ask for them. No FTP bit either: the FTP server holds only the update files ([`crate::update`]), and the bit
 /// tells a ground station it may fetch its own files over FTP (ArduPilot's parameter and mission files); MAVProxy
 /// and pymavlink use FTP without looking at it.
-pub const CAPABILITIES: MavProtocolCapability = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
+pub(crate) const CAPABILITIES: MavProtocolCapability = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST);
 
 /// AUTOPILOT_VERSION.middleware_custom_version of an image that takes update files signed with the development key
 /// (`dev_key`, update-image's `UPDATE_KEY_IS_DEV`), whose secret is published: "DEVKEY" in ASCII, NUL-padded. Zeros
 /// otherwise. The field is free: the master has no middleware.
-pub const DEV_KEY_MARK: [u8; 8] = *b"DEVKEY\0\0";
+pub(crate) const DEV_KEY_MARK: [u8; 8] = *b"DEVKEY\0\0";
 
 /// AUTOPILOT_VERSION: the crate version ([`FLIGHT_SW_VERSION`]) and git revision ([`GIT_REVISION`]) the image was
 /// built from, [`CAPABILITIES`], [`VENDOR_ID`] / [`PRODUCT_ID`], and the chip's 96-bit unique id `uid`: whole in
 /// uid2 (its first 12 bytes, the rest 0), folded into uid (the X/Y word, and the wafer/lot words XORed above it).
 /// No middleware, OS or board version (0); middleware_custom_version is [`DEV_KEY_MARK`] when the image takes
 /// development-key files (`dev_key`).
-pub fn autopilot_version(uid: &[u8; 12], dev_key: bool) -> AUTOPILOT_VERSION_DATA {
+pub(crate) fn autopilot_version(uid: &[u8; 12], dev_key: bool) -> AUTOPILOT_VERSION_DATA {
     let word = |n: usize| {
         let mut bytes = [0u8; 4];
         if let Some(src) = uid.get(n * 4..n * 4 + 4) {
@@ -83,12 +83,12 @@ pub fn autopilot_version(uid: &[u8; 12], dev_key: bool) -> AUTOPILOT_VERSION_DAT
 const MAVLINK_VERSION: u8 = 3;
 
 /// The latest thruster reports, one per configured thruster (`None`: not configured or not yet heard).
-pub type Reports = [Option<ThrusterReport>; MAX_THRUSTERS];
+pub(crate) type Reports = [Option<ThrusterReport>; MAX_THRUSTERS];
 
 /// HEARTBEAT: a submarine with an ArduPilot autopilot (so QGroundControl shows its ArduSub views and pilots see
 /// the familiar mode), in ArduSub's MANUAL mode, armed or not as the vehicle task says (not armed when it has not
 /// said anything yet).
-pub fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
+pub(crate) fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
     let armed = vehicle.is_some_and(|v| v.armed);
     let mut base_mode =
         MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MavModeFlag::MAV_MODE_FLAG_MANUAL_INPUT_ENABLED;
@@ -109,15 +109,15 @@ pub fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
 
 /// Console link quality over the last telemetry period, for SYS_STATUS.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ConsoleLinkQuality {
+pub(crate) struct ConsoleLinkQuality {
     /// Corrupt frames as a share of all frames received, in 0.01 % (0..=10000).
-    pub drop_rate: u16,
+    pub(crate) drop_rate: u16,
     /// Corrupt frames since start (saturating: a flood must not wrap it back to a small number).
-    pub errors: u16,
+    pub(crate) errors: u16,
     /// Requests refused since start because they came from another system than the operator's (saturating).
-    pub refused_other_system: u16,
+    pub(crate) refused_other_system: u16,
     /// Frames refused since start by the signing checks (saturating).
-    pub refused_by_signing: u16,
+    pub(crate) refused_by_signing: u16,
 }
 
 /// The battery's fresh reading: `None` when there is none or it is stale.
@@ -164,7 +164,7 @@ fn link_errors(report: &ThrusterReport) -> u32 {
 ///   requests refused because they came from another system than the operator's; errors_count4: console frames
 ///   refused by the signing checks.
 /// - load: 0 (not measured). Every counter saturates at UINT16_MAX rather than wrap.
-pub fn sys_status(
+pub(crate) fn sys_status(
     thrusters: usize,
     reports: &Reports,
     battery: Option<&BatterySummary>,
@@ -250,7 +250,7 @@ pub fn sys_status(
 }
 
 /// A 32-bit counter in a 16-bit field: UINT16_MAX once it no longer fits.
-pub fn saturate(count: u32) -> u16 {
+pub(crate) fn saturate(count: u32) -> u16 {
     u16::try_from(count).unwrap_or(u16::MAX)
 }
 
@@ -297,7 +297,7 @@ fn battery_faults(alarms: BmsAlarms) -> MavBatteryFault {
 /// of its own that is fresh (a stale status or alarm frame counts as unknown, not as the old value; fault_bitmask
 /// names the alarms MAVLink has a bit for: low voltage as DEEP_DISCHARGE, over-current, over- and
 /// under-temperature); LOW with only the BMS low-charge alarm; CHARGING when the current is negative; else OK.
-pub fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
+pub(crate) fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
     let fresh = fresh(battery);
     let info = fresh.and_then(|b| b.info);
     let alarms = fresh.and_then(BatterySummary::fresh_alarms).unwrap_or(BmsAlarms::NONE);
@@ -343,15 +343,15 @@ pub fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
 
 /// One thruster's ESC_TELEMETRY entry.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct EscEntry {
+pub(crate) struct EscEntry {
     /// Temperature, °C.
-    pub temperature: u8,
+    pub(crate) temperature: u8,
     /// Motor current, cA.
-    pub current: u16,
+    pub(crate) current: u16,
     /// Speed magnitude, rpm.
-    pub rpm: u16,
+    pub(crate) rpm: u16,
     /// Good polls (wrapping).
-    pub count: u16,
+    pub(crate) count: u16,
 }
 
 /// A thruster's ESC_TELEMETRY entry: rpm from a brushless SeaBotix status (a brushed one reports PWM, not rpm,
@@ -360,7 +360,7 @@ pub struct EscEntry {
 /// measured (0). Offline or absent thrusters read all zeros. ardupilotmega.xml defines no "unknown" value for any
 /// of these fields; ArduPilot sends 0 for data an ESC does not report, and so does the master. ESC_INFO and
 /// ESC_STATUS say what is not known where their fields can ([`esc_info`], [`esc_status`]).
-pub fn esc_entry(report: Option<&ThrusterReport>) -> EscEntry {
+pub(crate) fn esc_entry(report: Option<&ThrusterReport>) -> EscEntry {
     let Some(report) = report.filter(|r| reporting(r)) else {
         return EscEntry::default();
     };
@@ -403,7 +403,7 @@ fn esc_block(thrusters: usize, reports: &Reports, first: usize) -> [EscEntry; 4]
 }
 
 /// ESC_TELEMETRY_1_TO_4 of thrusters 1..=4.
-pub fn esc_telemetry_1_to_4(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_1_TO_4_DATA {
+pub(crate) fn esc_telemetry_1_to_4(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_1_TO_4_DATA {
     let e = esc_block(thrusters, reports, 0);
     ESC_TELEMETRY_1_TO_4_DATA {
         temperature: e.map(|e| e.temperature),
@@ -416,7 +416,7 @@ pub fn esc_telemetry_1_to_4(thrusters: usize, reports: &Reports) -> ESC_TELEMETR
 }
 
 /// ESC_TELEMETRY_5_TO_8 of thrusters 5..=8.
-pub fn esc_telemetry_5_to_8(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_5_TO_8_DATA {
+pub(crate) fn esc_telemetry_5_to_8(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_5_TO_8_DATA {
     let e = esc_block(thrusters, reports, 4);
     ESC_TELEMETRY_5_TO_8_DATA {
         temperature: e.map(|e| e.temperature),
@@ -475,7 +475,7 @@ fn online_report(thrusters: usize, reports: &Reports, n: usize) -> Option<&Thrus
 /// so a thruster that reports none (brushed SeaBotix, Legacy 0x54/0x55, offline, not configured) reads 0, as
 /// ArduPilot fills rpm it does not have. voltage: not measured per thruster, NaN (MAVLink's "invalid" for a float
 /// field). current: the reported motor current in A, NaN where none is reported.
-pub fn esc_status(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_STATUS_DATA {
+pub(crate) fn esc_status(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_STATUS_DATA {
     let online = |i: usize| online_report(thrusters, reports, first + i);
     ESC_STATUS_DATA {
         index: first as u8,
@@ -506,7 +506,7 @@ fn esc_failures(faults: Faults) -> u16 {
 /// connection I2C, info bit n set when thruster `first + n` is online, counter the good polls of the block
 /// (wrapping), failure_flags from the last status's faults, error_count the link errors, temperature the SeaBotix
 /// temperature in cdegC and INT16_MAX (common.xml's "not supplied") for Legacy, offline or absent thrusters.
-pub fn esc_info(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_INFO_DATA {
+pub(crate) fn esc_info(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_INFO_DATA {
     let report = |i: usize| {
         let n = first + i;
         reports.get(n).filter(|_| n < thrusters).and_then(Option::as_ref)
@@ -534,7 +534,7 @@ pub fn esc_info(thrusters: usize, reports: &Reports, first: usize, time_usec: u6
 }
 
 /// MAV_SEVERITY of a [`Severity`].
-pub fn severity(severity: Severity) -> MavSeverity {
+pub(crate) fn severity(severity: Severity) -> MavSeverity {
     match severity {
         Severity::Critical => MavSeverity::MAV_SEVERITY_CRITICAL,
         Severity::Error => MavSeverity::MAV_SEVERITY_ERROR,
@@ -545,7 +545,7 @@ pub fn severity(severity: Severity) -> MavSeverity {
 }
 
 /// MAV_RESULT of an [`AckResult`].
-pub fn result(result: AckResult) -> MavResult {
+pub(crate) fn result(result: AckResult) -> MavResult {
     match result {
         AckResult::Accepted => MavResult::MAV_RESULT_ACCEPTED,
         AckResult::TemporarilyRejected => MavResult::MAV_RESULT_TEMPORARILY_REJECTED,
@@ -557,7 +557,7 @@ pub fn result(result: AckResult) -> MavResult {
 }
 
 /// STATUSTEXT: one chunk (id 0), the text NUL-padded to 50 bytes.
-pub fn statustext(level: Severity, text: &Text) -> STATUSTEXT_DATA {
+pub(crate) fn statustext(level: Severity, text: &Text) -> STATUSTEXT_DATA {
     let mut bytes = [0u8; 50];
     for (dst, src) in bytes.iter_mut().zip(text.as_bytes()) {
         *dst = *src;
@@ -572,7 +572,7 @@ pub fn statustext(level: Severity, text: &Text) -> STATUSTEXT_DATA {
 
 /// COMMAND_ACK, addressed to the command's sender. Progress and result_param2 are 0 (the master never answers
 /// IN_PROGRESS).
-pub fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_DATA {
+pub(crate) fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_DATA {
     COMMAND_ACK_DATA {
         command,
         result: result(answer),
@@ -585,7 +585,7 @@ pub fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_D
 
 /// AVAILABLE_MODES of the one mode the vehicle has: ArduSub's MANUAL (custom mode 19), MAV_STANDARD_MODE_NON_STANDARD
 /// (0: none of MAVLink's standard modes fits it), no properties (it may be chosen, and is not advanced).
-pub fn available_modes() -> AVAILABLE_MODES_DATA {
+pub(crate) fn available_modes() -> AVAILABLE_MODES_DATA {
     let mut mode_name = [0; 35];
     if let Some(name) = mode_name.get_mut(..6) {
         name.copy_from_slice(b"MANUAL");
@@ -602,7 +602,7 @@ pub fn available_modes() -> AVAILABLE_MODES_DATA {
 
 /// MISSION_COUNT 0 of `mission_type`, addressed to who asked: the master keeps no mission, fence or rally points
 /// (opaque_id 0: no plan to identify).
-pub fn mission_count(to: Sender, mission_type: u8) -> MISSION_COUNT_DATA {
+pub(crate) fn mission_count(to: Sender, mission_type: u8) -> MISSION_COUNT_DATA {
     MISSION_COUNT_DATA {
         target_system: to.system,
         target_component: to.component,
@@ -613,7 +613,7 @@ pub fn mission_count(to: Sender, mission_type: u8) -> MISSION_COUNT_DATA {
 }
 
 /// PARAM_VALUE, with the parameter's own type (an integer's value as the float, PARAM_ENCODE_C_CAST).
-pub fn param_value(id: &ParamId, value: f32, param_type: ParamType, index: u16, count: u16) -> PARAM_VALUE_DATA {
+pub(crate) fn param_value(id: &ParamId, value: f32, param_type: ParamType, index: u16, count: u16) -> PARAM_VALUE_DATA {
     PARAM_VALUE_DATA {
         param_id: (*id).into(),
         param_value: value,
@@ -629,7 +629,7 @@ pub fn param_value(id: &ParamId, value: f32, param_type: ParamType, index: u16, 
 
 /// NAMED_VALUE_FLOAT "PilotGain": the pilot gain `percent` as the fraction ArduSub sends (its `gain`, 0.1..1.0;
 /// QGroundControl shows it times 100), at `time_boot_ms`.
-pub fn pilot_gain(percent: u8, time_boot_ms: u32) -> NAMED_VALUE_FLOAT_DATA {
+pub(crate) fn pilot_gain(percent: u8, time_boot_ms: u32) -> NAMED_VALUE_FLOAT_DATA {
     let mut name = [0; 10];
     if let Some(slot) = name.get_mut(..9) {
         slot.copy_from_slice(b"PilotGain");
@@ -659,7 +659,7 @@ pub struct Framer {
 
 impl Framer {
     /// Frames from `system_id` / `component_id`, starting at sequence 0.
-    pub const fn new(system_id: u8, component_id: u8) -> Self {
+    pub(crate) const fn new(system_id: u8, component_id: u8) -> Self {
         Self {
             system_id,
             component_id,
@@ -670,7 +670,7 @@ impl Framer {
 
     /// Frame one message (MAVLink 2, unsigned: [`crate::console::signing::SigningState::sign`] signs it) and return its
     /// bytes.
-    pub fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
+    pub(crate) fn frame<D: MessageData>(&mut self, message: &D) -> &[u8] {
         let len = match self.frame.get_mut(HEADER_LEN..HEADER_LEN + MAX_PAYLOAD) {
             Some(payload) => message.ser(mavlink_core::MavlinkVersion::V2, payload),
             None => 0,
@@ -699,7 +699,7 @@ impl Framer {
     }
 
     /// The frame last built: its `len` bytes.
-    pub fn last(&self, len: usize) -> &[u8] {
+    pub(crate) fn last(&self, len: usize) -> &[u8] {
         self.frame.get(..len).unwrap_or_default()
     }
 

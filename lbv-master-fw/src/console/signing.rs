@@ -36,19 +36,19 @@ use crate::console::framing::{Frame, Version};
 /// Bytes of a frame's signature block: link id, 48-bit timestamp, 48-bit signature.
 pub const SIGNATURE_LEN: usize = 13;
 /// One minute in timestamp units (10 us).
-pub const ONE_MINUTE: u64 = 6_000_000;
+pub(crate) const ONE_MINUTE: u64 = 6_000_000;
 /// How far ahead of the link's timestamp a reservation is stored: a minute of progress between two writes, and
 /// [`RENEW_MARGIN`] to write the next one in.
-pub const RESERVATION: u64 = ONE_MINUTE + RENEW_MARGIN;
+pub(crate) const RESERVATION: u64 = ONE_MINUTE + RENEW_MARGIN;
 /// A new reservation is asked for when the link's timestamp comes this near the stored one (10 s; a write takes
 /// milliseconds).
-pub const RENEW_MARGIN: u64 = 1_000_000;
+pub(crate) const RENEW_MARGIN: u64 = 1_000_000;
 /// The largest 48-bit timestamp.
 pub const TIMESTAMP_MAX: u64 = (1 << 48) - 1;
 /// The newest incoming timestamp accepted: past it a reservation would not fit below [`TIMESTAMP_MAX`].
-pub const LAST_ACCEPTED: u64 = TIMESTAMP_MAX - RESERVATION;
+pub(crate) const LAST_ACCEPTED: u64 = TIMESTAMP_MAX - RESERVATION;
 /// The link id the master signs with: it has one link.
-pub const LINK_ID: u8 = 0;
+pub(crate) const LINK_ID: u8 = 0;
 /// Streams remembered; the first frame of a stream beyond them is refused (the MAVLink C library keeps 16; the
 /// console's one ground station needs a few at most).
 const STREAMS: usize = 8;
@@ -69,7 +69,7 @@ pub struct SigningKey {
 
 /// The 48-bit signature of a frame: the first 6 bytes of SHA-256 over the secret, the frame from its start byte to
 /// its checksum (`signed_part`), the link id and the 6 timestamp bytes.
-pub fn signature(secret: &[u8; 32], signed_part: &[u8], link_id: u8, timestamp: u64) -> [u8; 6] {
+pub(crate) fn signature(secret: &[u8; 32], signed_part: &[u8], link_id: u8, timestamp: u64) -> [u8; 6] {
     let mut sha = Sha256::new();
     sha.update(secret);
     sha.update(signed_part);
@@ -92,7 +92,7 @@ pub const fn reservation_after(timestamp: u64) -> u64 {
 /// Why a frame was refused while a key is set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Refusal {
+pub(crate) enum Refusal {
     /// Not signed (or MAVLink 1, which cannot be).
     Unsigned,
     /// The signature does not match.
@@ -183,12 +183,13 @@ impl SigningState {
     }
 
     /// The link's timestamp now: the newest signed or accepted.
-    pub fn timestamp(&self) -> u64 {
+    #[cfg(test)]
+    pub(crate) fn timestamp(&self) -> u64 {
         self.timestamp
     }
 
     /// How many more frames can be signed before a new reservation is stored (unbounded without a key).
-    pub fn room(&self) -> u64 {
+    pub(crate) fn room(&self) -> u64 {
         match self.key {
             Some(_) => self.stored.saturating_sub(self.timestamp).saturating_sub(1),
             None => u64::MAX,
@@ -196,7 +197,7 @@ impl SigningState {
     }
 
     /// Check an incoming frame; always `Ok` without a key.
-    pub fn check(&mut self, frame: &Frame<'_>) -> Result<(), Refusal> {
+    pub(crate) fn check(&mut self, frame: &Frame<'_>) -> Result<(), Refusal> {
         let Some(key) = self.key else { return Ok(()) };
         let block = match frame.version {
             Version::V2 if frame.signed => frame.bytes.len().checked_sub(SIGNATURE_LEN),
@@ -279,7 +280,7 @@ impl SigningState {
 
     /// A new reservation to store, when the link's timestamp (or a frame seen beyond the stored one) has come
     /// within [`RENEW_MARGIN`] of the last one asked for; once handed out, it is not asked for again.
-    pub fn due_for_storing(&mut self) -> Option<u64> {
+    pub(crate) fn due_for_storing(&mut self) -> Option<u64> {
         self.key?;
         let newest = self.timestamp.max(self.wanted);
         let next = reservation_after(newest);

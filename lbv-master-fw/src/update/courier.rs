@@ -71,10 +71,10 @@ const BUFFER: usize = PAGE + MAX_WRITE;
 /// The update file's header, before the payload: its signature is the last 64 bytes.
 const FILE_HEADER_LEN: usize = 80;
 /// A thruster that answers no exchange for this long is given up.
-pub const SILENCE_LIMIT: Duration = Duration::from_secs(3);
+pub(crate) const SILENCE_LIMIT: Duration = Duration::from_secs(3);
 /// After `Reboot`, the bootloader swaps the image in (two erases and a write per page of ACTIVE, some 2.5 s for
 /// 29 pages on the G431) before the thruster answers again: it has this long.
-pub const RESTART_LIMIT: Duration = Duration::from_secs(15);
+pub(crate) const RESTART_LIMIT: Duration = Duration::from_secs(15);
 /// The first `Version` after `Reboot` is sent this long after it.
 const RESTART_FIRST_ASK: Duration = Duration::from_millis(200);
 /// A new image on trial confirms itself after 3 s of every task healthy and 25 orders from the master
@@ -82,9 +82,9 @@ const RESTART_FIRST_ASK: Duration = Duration::from_millis(200);
 /// before it gives up, and an apply tells every so long that its new image is still on trial. The apply itself
 /// waits for as long as the thruster runs the new image on trial: its final answer is what the thruster did,
 /// confirmed or reverted, and a thruster kept from confirming (driven, or unwell) may still confirm later.
-pub const CONFIRM_LIMIT: Duration = Duration::from_secs(30);
+pub(crate) const CONFIRM_LIMIT: Duration = Duration::from_secs(30);
 /// While an image is on trial, `Version` is asked this often.
-pub const TRIAL_ASK: Duration = Duration::from_millis(500);
+pub(crate) const TRIAL_ASK: Duration = Duration::from_millis(500);
 /// A reply read busy is read again this often, up to [`BUSY_READS`] times in one exchange; then the command is
 /// sent again at the next cycle.
 const BUSY_PAUSE: Duration = Duration::from_millis(2);
@@ -237,12 +237,12 @@ pub struct Exchange {
     pub frame: CommandFrame,
     /// How long to wait before the reply is read: a page erase stalls the thruster's CPU, the signature check
     /// takes time.
-    pub wait: Duration,
+    pub(crate) wait: Duration,
 }
 
 impl Exchange {
     /// What its reply is read against: the few bytes of it a bus task keeps while the exchange is on the bus.
-    pub fn sent(&self) -> Sent {
+    pub(crate) fn sent(&self) -> Sent {
         Sent {
             slot: self.slot,
             seq: self.frame.seq,
@@ -256,13 +256,13 @@ impl Exchange {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Sent {
     /// The thruster's slot in the table.
-    pub slot: u8,
+    pub(crate) slot: u8,
     /// The command's sequence number.
-    pub seq: u8,
+    pub(crate) seq: u8,
     /// Which command.
-    pub command: CommandKind,
+    pub(crate) command: CommandKind,
     /// As [`Exchange::wait`].
-    pub wait: Duration,
+    pub(crate) wait: Duration,
 }
 
 impl From<&Exchange> for Sent {
@@ -465,7 +465,7 @@ impl Courier {
 
     /// The first `count` slots have thrusters, which have not said yet what they run: at the master's start, each
     /// is asked once it answers its polls (one that does not answer its first is not waited for, [`Courier::seen`]).
-    pub fn expect(&mut self, count: usize) {
+    pub(crate) fn expect(&mut self, count: usize) {
         for standing in self.standing.iter_mut().take(count) {
             *standing = Standing::Unasked;
         }
@@ -473,7 +473,7 @@ impl Courier {
 
     /// Thruster `slot` answers its polls again (`true`: it may have reset, into a swap or a revert; it is asked
     /// what it runs), or it stopped answering (one never asked is not waited for; what one said stays).
-    pub fn seen(&mut self, slot: u8, answering: bool) {
+    pub(crate) fn seen(&mut self, slot: u8, answering: bool) {
         if let Some(standing) = self.standing.get_mut(usize::from(slot)) {
             *standing = match (*standing, answering) {
                 (_, true) => Standing::Unasked,
@@ -485,7 +485,7 @@ impl Courier {
 
     /// What of the thrusters' updates keeps the vehicle from arming: an apply under way, then a thruster that
     /// holds a mark, runs an image on trial, or has not said yet what it runs.
-    pub fn hold(&self) -> Option<UpdateHold> {
+    pub(crate) fn hold(&self) -> Option<UpdateHold> {
         if let Some(transfer) = self.transfer.filter(Transfer::applying) {
             return Some(UpdateHold::Applying(transfer.slot));
         }
@@ -498,7 +498,7 @@ impl Courier {
     }
 
     /// Who applies the image of `slot` under way, if it is being applied.
-    pub fn applier(&self, slot: u8) -> Option<Sender> {
+    pub(crate) fn applier(&self, slot: u8) -> Option<Sender> {
         self.transfer.filter(|t| t.slot == slot).and_then(|t| t.applier)
     }
 
@@ -553,7 +553,7 @@ impl Courier {
 
     /// Whether thruster `slot` has been told to restart into its update and has not answered since: silent while
     /// its bootloader swaps the image in, as it should be.
-    pub fn restarting(&self, slot: u8) -> bool {
+    pub(crate) fn restarting(&self, slot: u8) -> bool {
         self.transfer
             .is_some_and(|t| t.slot == slot && matches!(t.step, Step::Reboot | Step::Restart(_)))
     }
@@ -1100,30 +1100,30 @@ impl Transfers {
     }
 
     /// Work on the courier.
-    pub fn with<T>(&self, f: impl FnOnce(&mut Courier) -> T) -> T {
+    pub(crate) fn with<T>(&self, f: impl FnOnce(&mut Courier) -> T) -> T {
         self.courier.lock(|courier| f(&mut courier.borrow_mut()))
     }
 
     /// The next exchange for a thruster `ours` says yes to, if there is one.
-    pub fn next(&self, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
+    pub(crate) fn next(&self, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
         self.with(|courier| courier.next(Instant::now(), ours))
     }
 
     /// Tell the vehicle what of the thrusters' updates keeps it from arming now ([`Courier::hold`]).
     // Out of line: the bus tasks call it at every change.
     #[inline(never)]
-    pub fn publish(&self, shared: &Shared) {
+    pub(crate) fn publish(&self, shared: &Shared) {
         shared.holds.set_thrusters(self.with(|courier| courier.hold()));
     }
 
     /// What `exchange` got: `out` takes the texts and acknowledgements; the sink hears that the courier moved on.
-    pub fn done(&self, exchange: Sent, result: Result<Reply, ExchangeError>, out: &mut impl FnMut(Outgoing)) {
+    pub(crate) fn done(&self, exchange: Sent, result: Result<Reply, ExchangeError>, out: &mut impl FnMut(Outgoing)) {
         self.with(|courier| courier.on_result(Instant::now(), exchange, result, out));
         self.moved.signal(());
     }
 
     /// Wait until the sink may hand on one more write's bytes.
-    pub async fn room(&self) {
+    pub(crate) async fn room(&self) {
         while !self.with(|courier| courier.has_room()) {
             self.moved.wait().await;
         }
@@ -1133,7 +1133,7 @@ impl Transfers {
 /// Send the command in `buffer` (an exchange's, encoded: its first `len` bytes) to the thruster at `address` and read
 /// its reply into the same buffer, reading again while it is busy. The caller's one buffer is all the bytes kept
 /// across the transfers: the bus task's future holds them once for each of the master's three buses.
-pub async fn exchange<B: I2c>(
+pub(crate) async fn exchange<B: I2c>(
     bus: &mut B,
     address: u8,
     buffer: &mut [u8; ext::MAX_FRAME_LEN],

@@ -6,8 +6,8 @@
 //! |--------|----------------|----------------------------------------------------------------|
 //! | 0      | seq u16        | a reply carries its request's + 1                              |
 //! | 2      | session u8     | chosen by the client; a reply carries its request's            |
-//! | 3      | opcode u8      | [`Opcode`]; a reply is [`ACK`] or [`NAK`]                      |
-//! | 4      | size u8        | bytes of `data` used, at most [`DATA_LEN`]                     |
+//! | 3      | opcode u8      | `Opcode`; a reply is [`ACK`] or [`NAK`]                        |
+//! | 4      | size u8        | bytes of `data` used, at most `DATA_LEN`                       |
 //! | 5      | req_opcode u8  | in a reply: the request's opcode                               |
 //! | 6      | burst_complete |                                                                |
 //! | 7      | padding        |                                                                |
@@ -17,9 +17,9 @@
 use crate::shared::{FTP_PAYLOAD, FTP_REPLY_DATA, FtpReply};
 
 /// Bytes before `data`.
-pub const HEADER_LEN: usize = 12;
+pub(crate) const HEADER_LEN: usize = 12;
 /// Room for data in one message.
-pub const DATA_LEN: usize = FTP_PAYLOAD - HEADER_LEN;
+pub(crate) const DATA_LEN: usize = FTP_PAYLOAD - HEADER_LEN;
 /// A reply's opcode: done.
 pub const ACK: u8 = 128;
 /// A reply's opcode: refused, `data[0]` says why.
@@ -29,7 +29,7 @@ pub const NAK: u8 = 129;
 /// for the ones it does not implement), and an [`ACK`] or [`NAK`] sent to it is not answered.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
-pub enum Opcode {
+pub(crate) enum Opcode {
     /// 0: nothing; ACKed.
     None,
     /// 1: close the session.
@@ -58,7 +58,7 @@ pub enum Opcode {
 
 impl Opcode {
     /// The opcode of a request byte.
-    pub const fn from_byte(byte: u8) -> Self {
+    pub(crate) const fn from_byte(byte: u8) -> Self {
         match byte {
             0 => Self::None,
             1 => Self::TerminateSession,
@@ -99,22 +99,22 @@ pub enum Nak {
 
 /// A request, borrowed from its payload.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Request<'a> {
+pub(crate) struct Request<'a> {
     /// The client's sequence number.
-    pub seq: u16,
+    pub(crate) seq: u16,
     /// The client's session.
-    pub session: u8,
+    pub(crate) session: u8,
     /// The opcode byte.
-    pub opcode: u8,
+    pub(crate) opcode: u8,
     /// `offset`.
-    pub offset: u32,
+    pub(crate) offset: u32,
     /// `data[..size]`; `None` when `size` is beyond [`DATA_LEN`].
-    pub data: Option<&'a [u8]>,
+    pub(crate) data: Option<&'a [u8]>,
 }
 
 impl<'a> Request<'a> {
     /// Read a payload; every payload reads as a request.
-    pub fn parse(payload: &'a [u8; FTP_PAYLOAD]) -> Self {
+    pub(crate) fn parse(payload: &'a [u8; FTP_PAYLOAD]) -> Self {
         let (header, data) = payload.split_at(HEADER_LEN);
         let byte = |n: usize| header.get(n).copied().unwrap_or(0);
         Self {
@@ -127,7 +127,7 @@ impl<'a> Request<'a> {
     }
 
     /// The path in `data`: its `size` bytes, one trailing NUL allowed (ArduPilot's `check_name_len`), none inside.
-    pub fn path(&self) -> Result<&'a [u8], Nak> {
+    pub(crate) fn path(&self) -> Result<&'a [u8], Nak> {
         let data = self.data.ok_or(Nak::InvalidDataSize)?;
         let len = data.iter().position(|byte| *byte == 0).unwrap_or(data.len());
         match data.get(..len) {
@@ -139,7 +139,7 @@ impl<'a> Request<'a> {
 
 /// The reply to `request`: `opcode` ([`ACK`] or [`NAK`]), the request's offset, and `data` (at most
 /// [`FTP_REPLY_DATA`] bytes; what is beyond is cut).
-pub fn reply(request: &Request<'_>, opcode: u8, data: &[u8]) -> FtpReply {
+pub(crate) fn reply(request: &Request<'_>, opcode: u8, data: &[u8]) -> FtpReply {
     let data = data.get(..FTP_REPLY_DATA).unwrap_or(data);
     let [s0, s1] = request.seq.wrapping_add(1).to_le_bytes();
     let [o0, o1, o2, o3] = request.offset.to_le_bytes();
@@ -167,14 +167,14 @@ pub fn reply(request: &Request<'_>, opcode: u8, data: &[u8]) -> FtpReply {
 }
 
 /// The NAK of `request` for `reason`.
-pub fn nak(request: &Request<'_>, reason: Nak) -> FtpReply {
+pub(crate) fn nak(request: &Request<'_>, reason: Nak) -> FtpReply {
     reply(request, NAK, &[reason as u8])
 }
 
 /// `crc` continued over `bytes`: ArduPilot's `crc_crc32` (the reflected CRC-32 polynomial 0xEDB88320, no
 /// inversions), from 0 for a whole file, which is what MAVFTP's CalcFileCRC32 answers and MAVProxy's `ftp
 /// crclocal` computes. Bitwise: a table would cost 1 KiB of flash for a few milliseconds per image.
-pub fn crc32(crc: u32, bytes: &[u8]) -> u32 {
+pub(crate) fn crc32(crc: u32, bytes: &[u8]) -> u32 {
     bytes.iter().fold(crc, |crc, byte| {
         (0..8).fold(crc ^ u32::from(*byte), |crc, _| {
             if crc & 1 == 1 {

@@ -27,7 +27,7 @@ impl ImageHeader {
 
 /// The header of an update file, as update-image reads it (magic `LBVU`, its format, a target, the reserved field
 /// zero), with the fields the server routes by and its bytes as received.
-pub fn parse_header(bytes: &[u8; HEADER_LEN]) -> Result<ImageHeader, HeaderError> {
+pub(crate) fn parse_header(bytes: &[u8; HEADER_LEN]) -> Result<ImageHeader, HeaderError> {
     let header = update_image::Header::parse(bytes)?;
     Ok(ImageHeader {
         target: header.target.to_byte(),

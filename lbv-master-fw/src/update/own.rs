@@ -73,7 +73,7 @@ use crate::update::ftp::DATA_LEN;
 use crate::update::header::{HEADER_LEN, ImageHeader};
 
 /// How long the image runs before a crash is no longer an early one: the count of early crashes is cleared then.
-pub const EARLY_WINDOW: Duration = Duration::from_secs(EARLY_WINDOW_SECS);
+pub(crate) const EARLY_WINDOW: Duration = Duration::from_secs(EARLY_WINDOW_SECS);
 
 /// A register that forgets at every start, as a board without a bootloader has: the tests, the cores on QEMU.
 impl CrashRegister for u32 {
@@ -87,12 +87,12 @@ impl CrashRegister for u32 {
 }
 
 /// The operator's heartbeat must be live this long, without a gap, before an image on trial confirms itself.
-pub const TRIAL_HEARD: Duration = Duration::from_secs(3);
+pub(crate) const TRIAL_HEARD: Duration = Duration::from_secs(3);
 /// An image on trial that has not confirmed this long after its start restarts, and the bootloader swaps the
 /// previous image back.
-pub const TRIAL_LIMIT: Duration = Duration::from_secs(60);
+pub(crate) const TRIAL_LIMIT: Duration = Duration::from_secs(60);
 /// How often the trial looks at the heartbeat.
-pub const TRIAL_CHECK: Duration = Duration::from_millis(100);
+pub(crate) const TRIAL_CHECK: Duration = Duration::from_millis(100);
 
 /// A flash page, the unit DFU is written in.
 pub const PAGE_BYTES: usize = PAGE as usize;
@@ -307,7 +307,7 @@ impl OwnImage {
     }
 
     /// Wait until the next FTP write fits.
-    pub async fn room(&self) {
+    pub(crate) async fn room(&self) {
         while self.with(|stage| stage.fill > PAGE_BYTES) {
             self.moved.wait().await;
         }
@@ -355,13 +355,14 @@ impl OwnImage {
     }
 
     /// Whether an image is marked for the swap ([`OwnImage::mark`]).
-    pub fn marked(&self) -> bool {
+    #[cfg(test)]
+    pub(crate) fn marked(&self) -> bool {
         self.with(|stage| stage.flash == Flash::Marked)
     }
 
     /// What of the master's own update keeps the vehicle from arming: marked and restarting, an apply under way, or
     /// the running image on trial.
-    pub fn hold(&self) -> Option<UpdateHold> {
+    pub(crate) fn hold(&self) -> Option<UpdateHold> {
         self.with(|stage| match stage.flash {
             Flash::Marked => Some(UpdateHold::MasterRestarting),
             _ if stage.apply.or(stage.checking).is_some() => Some(UpdateHold::MasterApplying),
@@ -541,7 +542,7 @@ enum NotMarked {
 /// into DFU, checks and marks it when applied, confirms an image on trial once the operator is heard, and tells the
 /// operator once when the bootloader refused the image marked before the last restart, or undid one that crashed;
 /// clears the count of early crashes once the image has run [`EARLY_WINDOW`].
-pub async fn own_image_task<F: NorFlash, C: CrashRegister>(
+pub(crate) async fn own_image_task<F: NorFlash, C: CrashRegister>(
     flash: &OwnFlash<F>,
     own: &OwnImage,
     mut crashes: C,
