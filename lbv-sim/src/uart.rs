@@ -138,6 +138,11 @@ impl SerialLine {
         self.0.borrow().flight.front().map(|(at, _)| *at)
     }
 
+    /// Bytes written and not yet out on the line now: the transmit buffer's fill.
+    pub fn unsent(&self) -> usize {
+        self.0.borrow().unsent(Instant::now())
+    }
+
     /// Bytes lost so far because the receive buffer was full.
     pub fn lost(&self) -> u64 {
         self.0.borrow().lost

@@ -305,6 +305,21 @@ impl Bench {
         self.outgoing.extend(bytes);
     }
 
+    /// Bytes handed to the master's console and not yet out on the line towards it; `None` when the console
+    /// carries every byte at once (no [`BenchConfig::console_baud`]).
+    pub fn console_backlog(&self) -> Option<usize> {
+        let line = self.wiring.console_line.as_ref()?;
+        Some(self.outgoing.len() + line.to_master.unsent())
+    }
+
+    /// Bytes the master's console UART lost to its full receive buffer (0 without a modelled line).
+    pub fn console_overruns(&self) -> u64 {
+        self.wiring
+            .console_line
+            .as_ref()
+            .map_or(0, |line| line.to_master.lost())
+    }
+
     /// The bus the thrusters hang on (I2C2, in the vehicle's table and on the dev kit).
     pub fn thruster_bus(&self) -> &Bus {
         &self.wiring.buses[usize::from(THRUSTER_BUS)]

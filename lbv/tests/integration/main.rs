@@ -14,5 +14,6 @@ mod mavproxy;
 mod mavproxy_ftp;
 mod module_cycles;
 mod support;
+mod udp_flood;
 mod udp_ftp;
 mod udp_pymavlink;

@@ -9,11 +9,18 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Mutex;
 
 /// The bench process, killed when the test ends however it ends.
-struct Bench(Child);
+pub struct Bench(Child);
 
 impl Bench {
+    /// Its resident memory now, KiB (`VmRSS` in /proc), `None` where there is no /proc.
+    pub fn rss_kib(&self) -> Option<u64> {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.0.id())).ok()?;
+        let line = status.lines().find(|line| line.starts_with("VmRSS:"))?;
+        line.split_whitespace().nth(1)?.parse().ok()
+    }
+
     /// Stop it and return what it printed.
-    fn stop(mut self) -> String {
+    pub fn stop(mut self) -> String {
         let _ = self.0.kill();
         let _ = self.0.wait();
         let mut out = String::new();
@@ -103,16 +110,7 @@ pub fn fly_with(
     needs: &str,
     bench_args: &[&str],
 ) -> (serde_json::Value, String) {
-    let bench = Command::new(env!("CARGO_BIN_EXE_lbv"))
-        .args(["bench", "--udp", "--duration", bench_seconds])
-        .args(["--udp-send", &format!("127.0.0.1:{gcs}")])
-        .args(["--udp-listen", &format!("127.0.0.1:{listen}")])
-        .args(bench_args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("start lbv bench --udp");
-    let bench = Bench(bench);
+    let bench = start_bench(bench_seconds, gcs, listen, bench_args);
 
     let pilot = match Command::new("python3")
         .arg(script)
@@ -137,6 +135,21 @@ pub fn fly_with(
     let summary: serde_json::Value = serde_json::from_str(stdout.trim()).expect("the pilot's JSON summary");
     assert_eq!(summary["passed"], true, "{summary}");
     (summary, bench_output)
+}
+
+/// Start `lbv bench --udp` for `bench_seconds`, sending to 127.0.0.1:`gcs` and listening on 127.0.0.1:`listen`,
+/// with `bench_args` added.
+pub fn start_bench(bench_seconds: &str, gcs: u16, listen: u16, bench_args: &[&str]) -> Bench {
+    let bench = Command::new(env!("CARGO_BIN_EXE_lbv"))
+        .args(["bench", "--udp", "--duration", bench_seconds])
+        .args(["--udp-send", &format!("127.0.0.1:{gcs}")])
+        .args(["--udp-listen", &format!("127.0.0.1:{listen}")])
+        .args(bench_args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start lbv bench --udp");
+    Bench(bench)
 }
 
 /// A SeaBotix thruster's update file at 0.2.0, signed with the development key (keys/dev.key), as `lbv image sign

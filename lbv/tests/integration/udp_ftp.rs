@@ -69,8 +69,14 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     );
     assert_eq!(summary["allowed"], 1.0, "{summary}");
     assert_eq!(summary["after"], files([4176, 0, 0, 0, 0, 0, 0]), "{summary}");
+    // At the console's 115200 baud a put takes over a second, and the master tells its progress once a second.
+    let without_progress = |texts: &serde_json::Value| {
+        let texts = texts.as_array().into_iter().flatten();
+        let progress = |text: &&serde_json::Value| text.as_str().is_some_and(|text| text.ends_with(" of 4176 bytes"));
+        serde_json::Value::from(texts.filter(|text| !progress(text)).cloned().collect::<Vec<_>>())
+    };
     assert_eq!(
-        summary["put"]["texts"],
+        without_progress(&summary["put"]["texts"]),
         serde_json::json!([
             "thruster0.lbvu: received, ready to apply",
             "thruster0.lbvu: 4096 B verified, 0 pages kept"
@@ -108,7 +114,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     // The master's own: IN_PROGRESS, then ACCEPTED from the new image once it has confirmed itself.
     assert_eq!(summary["master"]["results"], serde_json::json!([5, 0]), "{summary}");
     assert_eq!(
-        summary["master"]["texts"],
+        without_progress(&summary["master"]["texts"]),
         serde_json::json!([
             "master.lbvu: received, ready to apply",
             "master.lbvu: applying",
