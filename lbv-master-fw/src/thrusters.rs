@@ -950,7 +950,8 @@ impl BusState<'_> {
     }
 
     /// One exchange of the update on its way to a thruster of bus `bus_index`, if there is one; returns whether
-    /// there was. A failed exchange is the courier's to retry; the bus is recovered as after a failed poll.
+    /// there was, and whether it was answered. A failed exchange is the courier's to retry; the bus is recovered as
+    /// after a failed poll.
     async fn carry<B: I2c + BusRecovery>(
         &mut self,
         bus: &mut B,
@@ -958,20 +959,18 @@ impl BusState<'_> {
         table: &[ThrusterSlot],
         transfers: &Transfers,
         shared: &Shared,
-    ) -> bool {
+    ) -> Option<bool> {
         let on_bus = |slot: u8| table.get(usize::from(slot)).is_some_and(|s| s.bus == bus_index);
         // Only the encoded command (then its reply) and a few bytes of the exchange are kept across the transfers:
         // the rest goes out of scope here.
-        let Some((slot, sent, mut buffer, len)) = transfers.next(on_bus).and_then(|exchange| {
+        let (slot, sent, mut buffer, len) = transfers.next(on_bus).and_then(|exchange| {
             let slot = table.get(usize::from(exchange.slot))?;
             let frame = exchange.frame.encode();
             let mut buffer = [0; tmc_proto::ext::MAX_FRAME_LEN];
             let len = frame.as_bytes().len();
             buffer.get_mut(..len)?.copy_from_slice(frame.as_bytes());
             Some((slot, exchange.sent(), buffer, len))
-        }) else {
-            return false;
-        };
+        })?;
         let result = match select(bus, slot, &mut self.mux).await {
             Ok(()) => courier::exchange(bus, slot.family.address(), &mut buffer, len, &sent).await,
             Err(()) => Err(ExchangeError::Bus),
@@ -980,11 +979,12 @@ impl BusState<'_> {
             self.mux = None;
             let _ = bus.recover().await;
         }
+        let answered = result.is_ok();
         transfers.done(sent, result, &mut |message| {
             let _ = shared.outbox.try_send(message);
         });
         transfers.publish(shared);
-        true
+        Some(answered)
     }
 
     /// The earliest retry of an offline thruster of the bus.
@@ -998,6 +998,16 @@ impl BusState<'_> {
     }
 }
 
+/// The poll cycle of a bus that carries an update while the vehicle is disarmed: every thruster still gets an
+/// order and a status read more than 10 times a second (its failsafe acts after 1 s without an order), even when a
+/// cycle runs over by an exchange or a page erase, and the rest of the bus carries the update.
+pub(crate) const UPDATE_PERIOD: Duration = Duration::from_millis(60);
+
+/// Whether the vehicle is armed (or has not said yet): update traffic then keeps to one exchange a cycle.
+fn armed(shared: &Shared) -> bool {
+    shared.vehicle.try_get().is_none_or(|vehicle| vehicle.armed)
+}
+
 /// Poll every thruster of `table` whose `bus` is `bus_index`, forever. The thruster's index in `table` is its
 /// index in `shared.thrusters` and in the orders array.
 ///
@@ -1008,7 +1018,8 @@ impl BusState<'_> {
 /// and fault changes go to the console as texts.
 ///
 /// Its thrusters' link health is kept in `links`, which the other bus tasks may share. With `transfers`, each cycle
-/// also carries one exchange of an update image on its way to a thruster of the bus ([`crate::update::courier`]).
+/// also carries the exchanges of an update image on its way to a thruster of the bus ([`crate::update::courier`]):
+/// one while armed, and while disarmed as many as the rest of the cycle holds.
 #[allow(
     clippy::too_many_arguments,
     reason = "the bus, its place, and what it shares with the other tasks"
@@ -1032,15 +1043,32 @@ where
     };
     let back_to_back = config.period == Duration::from_ticks(0);
     let mut next = Instant::now();
+    let mut period = config.period;
     loop {
         let polled = {
             let cycle = if back_to_back { Instant::now() } else { next };
             let polled = state.cycle(bus, bus_index, table, cycle, shared, transfers).await;
-            let carried = match transfers {
-                Some(transfers) => state.carry(bus, bus_index, table, transfers, shared).await,
-                None => false,
+            let mut carried = 0;
+            if let Some(transfers) = transfers {
+                // Armed, or with cycles back to back, one exchange a cycle; disarmed, as many as the cycle holds
+                // (the last may run over it, and the next cycle starts late: the polls go on at some 30 Hz). One
+                // that fails is tried again at the next cycle, not at once.
+                let more = || !back_to_back && Instant::now() < cycle + period && !armed(shared);
+                while let Some(answered) = state.carry(bus, bus_index, table, transfers, shared).await {
+                    carried += 1;
+                    if !answered || !more() {
+                        break;
+                    }
+                }
+            }
+            // Disarmed with an update on its way, the polls slow down and leave the bus to it.
+            period = if carried > 0 && !back_to_back && !armed(shared) {
+                config.period.max(UPDATE_PERIOD)
+            } else {
+                config.period
             };
-            polled + usize::from(carried)
+            state.period = period;
+            polled + carried
         };
         if back_to_back {
             if polled > 0 {
@@ -1052,7 +1080,7 @@ where
                 core::future::pending::<()>().await;
             }
         } else {
-            next += config.period;
+            next += period;
             next = next.max(Instant::now());
             Timer::at(next).await;
         }

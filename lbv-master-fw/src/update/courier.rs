@@ -3,9 +3,10 @@
 //!
 //! The master has no room for a whole image, so the bytes go on as the ground station sends them. The update
 //! server's sink (`update::VehicleSink`) gathers them a flash page (2 KiB) at a time in [`Transfers`], and the bus
-//! task of the thruster's bus writes each page between its polls, one exchange (a command and its reply) per poll
-//! cycle, so every thruster of the bus, the one being updated too, keeps being polled. The console reads on once
-//! there is room for the next write's bytes: the upload goes at the pace of the bus.
+//! task of the thruster's bus writes each page between its polls, in exchanges (a command and its reply) that fill
+//! the rest of each poll cycle while the vehicle is disarmed (`thrusters::bus_task`), so every thruster of the bus,
+//! the one being updated too, keeps being polled. The console reads on once there is room for the next write's
+//! bytes: the upload goes at the pace of the bus.
 //!
 //! The [`Courier`] is the whole transfer as a state machine on explicit time, fed the exchanges' outcomes:
 //!

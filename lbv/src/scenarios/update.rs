@@ -236,13 +236,20 @@ pub fn field_update(run: &mut Run) {
     let families: Vec<Family> = run.bench.thrusters.iter().map(|t| t.config.family).collect();
     unsigned_refused(run, "thruster0.lbvu", update_file(families[0], NEW, &key));
     super::console::set_key(run, *b"lbv-bench-field-update-key-01234");
-    let (mut put_times, mut apply_times) = (Vec::new(), Vec::new());
+    let (mut put_times, mut apply_times, mut put_bus) = (Vec::new(), Vec::new(), Vec::new());
     for (slot, family) in families.iter().enumerate() {
         let file_name = format!("thruster{slot}.lbvu");
         let path = format!("/update/{file_name}");
-        let polls_before = polls_of_others(run, slot);
+        let polls_before = polls_of(run);
         let start = run.bench.now();
+        let bits_before = run.bench.thruster_bus().stats().bits;
         let (put_state, put_s) = put(run, &path, update_file(*family, NEW, &key), 60.0);
+        let bus = run.bench.thruster_bus();
+        let bit_s = bus.timing().bit.as_micros() as f64 / 1e6;
+        put_bus.push(round(
+            (bus.stats().bits - bits_before) as f64 * bit_s / put_s.max(1e-9),
+            3,
+        ));
         let verified = wait_verified(run, start, slot);
         let (acks, apply_s) = apply(run, slot as u8, 30.0);
         let texts = texts_since(run, start, &file_name);
@@ -261,12 +268,18 @@ pub fn field_update(run: &mut Run) {
                 "put {put_state:?} in {put_s} s, apply acks {acks:?} in {apply_s} s, texts {texts:?}, link {link:?}"
             ),
         );
-        let polls_after = polls_of_others(run, slot);
-        let rate = (polls_after - polls_before) as f64 / (run.bench.now() - start).as_micros() as f64 * 1e6;
+        let polls_after = polls_of(run);
+        let seconds = (run.bench.now() - start).as_micros() as f64 / 1e6;
+        let rates: Vec<f64> = (polls_before.iter().zip(&polls_after).enumerate())
+            .filter(|(other, _)| *other != slot)
+            .map(|(_, (before, after))| round((after - before) as f64 / seconds, 1))
+            .collect();
+        // Disarmed, the polls slow down to leave the bus to the update, each thruster still polled more than
+        // 10 times a second (its failsafe acts after 1 s without an order).
         run.check(
             &format!("the other thrusters are polled while T{} is updated", slot + 1),
-            rate > 40.0 * (families.len() - 1) as f64,
-            format!("{} polls/s of the other {}", round(rate, 1), families.len() - 1),
+            rates.iter().all(|rate| *rate > 10.0),
+            format!("polls/s of the others {rates:?}"),
         );
         put_times.push(put_s);
         apply_times.push(apply_s);
@@ -275,6 +288,8 @@ pub fn field_update(run: &mut Run) {
     // (checked, swapped in, confirmed).
     run.metric("update_put_s", json!(put_times));
     run.metric("update_apply_s", json!(apply_times));
+    // The thruster bus's utilisation over each put: the polls and the update's exchanges.
+    run.metric("update_put_bus_utilisation", json!(put_bus));
 
     // What a thruster runs, asked over its bus.
     let start = run.bench.now();
@@ -527,13 +542,14 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
     );
 }
 
-/// Valid statuses the master read from every thruster but `slot`.
-fn polls_of_others(run: &Run, slot: usize) -> u64 {
+/// Each thruster's answered polls so far.
+fn polls_of(run: &Run) -> Vec<u64> {
     (0..run.bench.thrusters.len())
-        .filter(|i| *i != slot)
-        .filter_map(|i| run.bench.master.shared.thrusters.get(i).and_then(|w| w.try_get()))
-        .map(|report| u64::from(report.health.good))
-        .sum()
+        .map(|i| {
+            let report = run.bench.master.shared.thrusters.get(i).and_then(|w| w.try_get());
+            report.map_or(0, |report| u64::from(report.health.good))
+        })
+        .collect()
 }
 
 /// The master's image in the scenario: its application's flash budget, the largest image its own update carries.
@@ -572,10 +588,10 @@ pub fn master_update(run: &mut Run) {
     run.check("the parameters are set", set, format!("{expected:?}"));
 
     let start = run.bench.now();
-    let polls_before = polls_of_others(run, usize::MAX);
+    let polls_before = polls_of(run).iter().sum::<u64>();
     let bytes_before = run.bench.console_bytes;
     let (put_state, put_s) = put(run, "/update/master.lbvu", master_file(NEW, &key), 120.0);
-    let polls = polls_of_others(run, usize::MAX) - polls_before;
+    let polls = polls_of(run).iter().sum::<u64>() - polls_before;
     // The bench's console link carries bytes at once; at the console's 115200 baud (10 bits a byte), what the put
     // moved each way, requests and their replies one after another as a stop-and-wait put sends them.
     let (to_master, from_master) = (
