@@ -21,6 +21,7 @@ use crate::params::Settings;
 use crate::shared::{BUSES, Sender, Shared, UpdateHolds};
 use crate::update::ftp::Nak;
 use crate::update::header::ImageHeader;
+use tmc_proto::Family;
 
 /// What a board gives the master's core: the type of each of its ports, one value of each in the
 /// [`Ports`] that [`crate::run`] takes. The STM32 binding declares one for the NUCLEO, qemu-m4 one
@@ -205,23 +206,35 @@ pub trait UpdateSink {
 
 /// The slot number of the master in the apply command's param1.
 pub(crate) const MASTER_SLOT: u8 = 255;
+/// The slot number of every SeaBotix thruster in the apply command's param1.
+pub(crate) const SEABOTIX_SLOT: u8 = 200;
+/// The slot number of every Legacy thruster in the apply command's param1.
+pub(crate) const LEGACY_SLOT: u8 = 201;
 
-/// What an update file is for: a slot of the thruster table, or the master.
+/// What an update file is for: a slot of the thruster table, every thruster of a family, or the master.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum UpdateTarget {
     /// The thruster in this slot of the table, from 0.
     Thruster(u8),
+    /// Every thruster of `family`: the slots that are bits of `slots`.
+    Family { family: Family, slots: u8 },
     /// The master itself.
     Master,
 }
 
 impl UpdateTarget {
-    /// Its slot number: the thruster's, or [`MASTER_SLOT`].
-    #[cfg(test)]
+    /// Its slot number: the thruster's, the family's, or [`MASTER_SLOT`].
     pub(crate) const fn slot(self) -> u8 {
         match self {
             Self::Thruster(slot) => slot,
+            Self::Family {
+                family: Family::SeaBotix,
+                ..
+            } => SEABOTIX_SLOT,
+            Self::Family {
+                family: Family::Legacy, ..
+            } => LEGACY_SLOT,
             Self::Master => MASTER_SLOT,
         }
     }

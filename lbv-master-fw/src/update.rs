@@ -1,10 +1,12 @@
 //! Field update from the ground station: update images taken over MAVLink FTP and applied by a command.
 //!
 //! The master serves a small MAVLink FTP file system ([`ftp`] has the wire format) with one file per target:
-//! `/update/thruster0.lbvu` ... one per slot of the thruster table, and `/update/master.lbvu`. MAVProxy's
-//! `ftp put FILE /update/thruster0.lbvu` and pymavlink's `MAVFTP` upload to it; `ftp list /update` lists the
-//! targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets them.
-//! MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 255 the master) then applies an image received whole.
+//! `/update/thruster0.lbvu` ... one per slot of the thruster table, `/update/thrusters-seabotix.lbvu` and
+//! `/update/thrusters-legacy.lbvu` for every thruster of a family the table has, and `/update/master.lbvu`.
+//! MAVProxy's `ftp put FILE /update/thruster0.lbvu` and pymavlink's `MAVFTP` upload to it; `ftp list /update`
+//! lists the targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets
+//! them. MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 200 every SeaBotix thruster, 201 every Legacy one, 255
+//! the master: [`UpdateTarget::slot`]) then applies an image received whole.
 //!
 //! The master keeps no image itself: each write goes on to an [`UpdateSink`] as it comes ([`VehicleSink`]): for a
 //! thruster, the thruster's DFU partition over its bus ([`crate::update::courier`]); for the master, its own DFU
@@ -81,7 +83,7 @@ use crate::shared::{
     UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
-use crate::update::courier::Transfers;
+use crate::update::courier::{File, Transfers};
 use crate::update::own::{NotTaken, OwnImage};
 use ftp::{ACK, Nak, Opcode, Request};
 use update_image::HeaderError;
@@ -190,6 +192,10 @@ impl UpdateSink for VehicleSink<'_> {
                 .transfers
                 .with(|courier| courier.begin(slot, header.target, header.payload_len, &header.bytes))
                 .map_err(|_| Refused::Because("wait: another update is being applied")),
+            UpdateTarget::Family { slots, .. } => self
+                .transfers
+                .with(|courier| courier.begin_to(slots, File::Family, header.target, header.payload_len, &header.bytes))
+                .map_err(|_| Refused::Because("wait: another update is being applied")),
             UpdateTarget::Master => self.own.begin(header).map_err(|_| Refused::Told),
         }
     }
@@ -200,7 +206,7 @@ impl UpdateSink for VehicleSink<'_> {
             .checked_sub(HEADER_LEN as u32)
             .ok_or(Refused::Because("no header"))?;
         match self.target {
-            Some(UpdateTarget::Thruster(_)) => self
+            Some(UpdateTarget::Thruster(_) | UpdateTarget::Family { .. }) => self
                 .transfers
                 .with(|courier| courier.write(offset, data))
                 .map_err(|_| Refused::Told),
@@ -211,7 +217,7 @@ impl UpdateSink for VehicleSink<'_> {
 
     fn finish(&mut self, complete: bool) -> Result<(), Refused> {
         match self.target {
-            Some(UpdateTarget::Thruster(_)) => self
+            Some(UpdateTarget::Thruster(_) | UpdateTarget::Family { .. }) => self
                 .transfers
                 .with(|courier| courier.finish(complete))
                 .map_err(|_| Refused::Told),
@@ -224,12 +230,20 @@ impl UpdateSink for VehicleSink<'_> {
     }
 
     fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak> {
+        let slots = match target {
+            UpdateTarget::Thruster(slot) => 1 << slot,
+            UpdateTarget::Family { slots, .. } => slots,
+            UpdateTarget::Master => 0,
+        };
         match target {
-            UpdateTarget::Thruster(slot) => self.transfers.with(|courier| {
-                if let Some(by) = courier.applier(slot) {
+            UpdateTarget::Thruster(_) | UpdateTarget::Family { .. } => self.transfers.with(|courier| {
+                if let Some(by) = (0..MAX_THRUSTERS as u8)
+                    .filter(|slot| slots & 1 << slot != 0)
+                    .find_map(|slot| courier.applier(slot))
+                {
                     return Ok(Applied::Applying(by));
                 }
-                match courier.apply(slot, from) {
+                match courier.apply_to(slots, from) {
                     Ok(true) => Ok(Applied::Started),
                     Ok(false) => Ok(Applied::Pending),
                     Err(_) => Err(Nak::Fail),
@@ -437,12 +451,22 @@ impl UpdateServer {
         self.held.is_some_and(|i| i.target == target)
     }
 
-    /// The targets: the thruster table's slots, then the master.
+    /// The targets: the thruster table's slots, each family the table has, then the master.
     fn targets(&self) -> impl Iterator<Item = UpdateTarget> + '_ {
         (0..MAX_THRUSTERS as u8)
             .filter(|slot| self.slots.get(usize::from(*slot)).is_some_and(Option::is_some))
             .map(UpdateTarget::Thruster)
+            .chain(Family::ALL.into_iter().filter_map(|family| self.family(family)))
             .chain([UpdateTarget::Master])
+    }
+
+    /// Every thruster of `family` in the table, if it has any.
+    fn family(&self, family: Family) -> Option<UpdateTarget> {
+        let slots = (0..)
+            .zip(self.slots)
+            .filter(|(_, slot)| *slot == Some(family))
+            .fold(0, |slots, (slot, _)| slots | 1 << slot);
+        (slots != 0).then_some(UpdateTarget::Family { family, slots })
     }
 
     /// The target a request's path names: `/update/thruster<slot>.lbvu` or `/update/master.lbvu` (the leading `/`
@@ -455,6 +479,8 @@ impl UpdateServer {
         let target = match path.strip_prefix(b"update") {
             Some(b"" | b"/") => return Ok(Some(None)),
             Some(b"/master.lbvu") => Some(UpdateTarget::Master),
+            Some(b"/thrusters-seabotix.lbvu") => self.family(Family::SeaBotix),
+            Some(b"/thrusters-legacy.lbvu") => self.family(Family::Legacy),
             Some(name) => match name.strip_prefix(b"/thruster") {
                 Some([digit, b'.', b'l', b'b', b'v', b'u']) => self
                     .targets()
@@ -548,7 +574,7 @@ impl UpdateServer {
             Some(None) => {
                 let mut listed = 0;
                 for target in self.targets().skip(first) {
-                    if !data.entry(format_args!("F{}\t{}\0", Name(target), self.received(target).0)) {
+                    if !data.entry(format_args!("F{}\t{}\0", target, self.received(target).0)) {
                         break;
                     }
                     listed += 1;
@@ -733,6 +759,7 @@ impl UpdateServer {
                     .map_or(0, thruster_kind),
                 THRUSTER_MAX_PAYLOAD,
             ),
+            UpdateTarget::Family { family, .. } => (thruster_kind(family), THRUSTER_MAX_PAYLOAD),
             UpdateTarget::Master => (3, MASTER_MAX_PAYLOAD),
         };
         match parse_header(bytes) {
@@ -744,7 +771,7 @@ impl UpdateServer {
                     Severity::Warning,
                     format_args!(
                         "{}: {} image, slot is {}",
-                        Name(target),
+                        target,
                         kind_name(header.target),
                         kind_name(kind)
                     ),
@@ -834,11 +861,7 @@ impl UpdateServer {
         sink: &mut impl UpdateSink,
         out: &mut impl FnMut(Outgoing),
     ) {
-        let target = match slot {
-            Some(MASTER_SLOT) => Some(UpdateTarget::Master),
-            Some(slot) => self.targets().find(|t| *t == UpdateTarget::Thruster(slot)),
-            None => None,
-        };
+        let target = slot.and_then(|slot| self.targets().find(|t| t.slot() == slot));
         let receiving = self.upload.is_some_and(|i| Some(i.target) == target && !i.whole);
         let (result, text) = match target {
             _ if from.system != context.operator => {
@@ -919,13 +942,18 @@ fn answer(
     }
 }
 
-/// A target's file name: "thruster2.lbvu", "master.lbvu".
-struct Name(UpdateTarget);
-
-impl fmt::Display for Name {
+/// A target's file name: "thruster2.lbvu", "thrusters-seabotix.lbvu", "master.lbvu".
+impl fmt::Display for UpdateTarget {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.0 {
+        match *self {
             UpdateTarget::Thruster(slot) => write!(f, "thruster{slot}.lbvu"),
+            UpdateTarget::Family {
+                family: Family::SeaBotix,
+                ..
+            } => f.write_str("thrusters-seabotix.lbvu"),
+            UpdateTarget::Family {
+                family: Family::Legacy, ..
+            } => f.write_str("thrusters-legacy.lbvu"),
             UpdateTarget::Master => f.write_str("master.lbvu"),
         }
     }
@@ -933,7 +961,7 @@ impl fmt::Display for Name {
 
 /// "thruster2.lbvu: `what`": the texts name the file, as the ground station's user wrote it.
 fn note(out: &mut impl FnMut(Outgoing), severity: Severity, target: UpdateTarget, what: &str) {
-    say(out, severity, format_args!("{}: {what}", Name(target)));
+    say(out, severity, format_args!("{}: {what}", target));
 }
 
 /// "thruster2.lbvu: `before` `n` of `total` bytes" (a warning when `before` says why it stopped).
@@ -947,7 +975,7 @@ fn note_of(out: &mut impl FnMut(Outgoing), target: UpdateTarget, before: &str, n
     say(
         out,
         severity,
-        format_args!("{}: {before}{space}{n} of {total} bytes", Name(target)),
+        format_args!("{}: {before}{space}{n} of {total} bytes", target),
     );
 }
 

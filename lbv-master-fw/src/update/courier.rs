@@ -8,6 +8,10 @@
 //! the one being updated too, keeps being polled. The console reads on once there is room for the next write's
 //! bytes: the upload goes at the pace of the bus.
 //!
+//! An image for every thruster of a family (`thrusters-seabotix.lbvu`) has a transfer for each, which take turns on
+//! the bus; the page stays in the buffer until each has it (or has ended), and one apply applies it to all, its
+//! final COMMAND_ACK once the last is done.
+//!
 //! The [`Courier`] is the whole transfer as a state machine on explicit time, fed the exchanges' outcomes:
 //!
 //! 1. `Version`: the thruster speaks the extension (an IDS-only controller answers with its status frame) and can
@@ -125,17 +129,16 @@ enum Step {
     Settle(Instant),
 }
 
-/// One image on its way to one thruster.
+/// The image on its way: what its update file's header gives, and the bytes the sink has handed on, which every
+/// transfer of it writes page by page in step ([`Courier::begin`]).
 #[derive(Debug, Clone, Copy)]
-struct Transfer {
-    slot: u8,
+struct Image {
     /// The update file's target byte.
     kind: u8,
     payload_len: u32,
     /// The image's version, as its header gives it.
     version: [u8; 4],
     signature: [u8; SIGNATURE_LEN],
-    step: Step,
     /// Payload bytes the sink took.
     received: u32,
     /// Their CRC.
@@ -143,69 +146,26 @@ struct Transfer {
     /// The sink has every byte.
     complete: bool,
     /// Where the buffer's first byte goes in the payload: the page being written.
-    page_offset: u32,
-    /// Pages the thruster held already.
-    skipped: u16,
-    seq: u8,
-    /// When the exchanges of this step began failing, none answered since.
-    silent_since: Option<Instant>,
-    /// Times the thruster was found reset.
-    restarts: u8,
-    /// Who applies it: the final COMMAND_ACK goes there.
+    offset: u32,
+    /// How the texts name its thrusters: it came in a slot's file, or in a family's.
+    file: File,
+    /// Who applies it: the final COMMAND_ACK goes there once every thruster it was applied to is done.
     applier: Option<Sender>,
-    /// Since when `Begin` has been refused because the running image is on trial.
-    settling_since: Option<Instant>,
-    /// The running image's information record, as the thruster's last `Version` gave it: what the image is held to.
-    running: [u8; ext::INFO_LEN],
-    /// The longest payload the thruster takes, as its last `Version` gave it.
-    max_payload: u32,
+    /// The slots whose transfer of it failed, as bits.
+    failed: u8,
 }
 
-impl Transfer {
-    /// A transfer of a `payload_len` image to `slot` (`kind` its target byte), at its first step.
-    fn new(slot: u8, kind: u8, payload_len: u32, version: [u8; 4], signature: [u8; SIGNATURE_LEN]) -> Self {
-        Self {
-            slot,
-            kind,
-            payload_len,
-            version,
-            signature,
-            step: Step::Hello,
-            received: 0,
-            crc: Crc32::new(),
-            complete: false,
-            page_offset: 0,
-            skipped: 0,
-            seq: 0,
-            silent_since: None,
-            restarts: 0,
-            applier: None,
-            settling_since: None,
-            running: [0; ext::INFO_LEN],
-            max_payload: 0,
-        }
-    }
-
-    /// Whether it is being applied: asked to, or marked and restarting into it (an update the thruster held).
-    fn applying(&self) -> bool {
-        self.applier.is_some()
-            || matches!(
-                self.step,
-                Step::Finish | Step::Reboot | Step::Restart(_) | Step::Trial { .. }
-            )
-    }
-
-    /// What the thruster's `Version` says of the image it runs.
-    fn heard(&mut self, info: [u8; ext::INFO_LEN], max_payload: u32) {
-        self.running = info;
-        self.max_payload = max_payload;
-    }
-
-    /// Whether the image whose first page (or whole payload, if shorter) is `first` may go on: its signed image
-    /// info against the header (update-image's `check`: length, target, version, an info of format 2) and against
-    /// the image the thruster runs (`check_upgrade`, its counter the floor: the master does not read the
-    /// bootloader's own).
-    fn check_image(&self, first: &[u8]) -> Result<(), update_image::Refusal> {
+impl Image {
+    /// Whether the image whose first page (or whole payload, if shorter) is `first` may go on to a thruster whose
+    /// last `Version` gave `running` and `max_payload`: its signed image info against the header (update-image's
+    /// `check`: length, target, version, an info of format 2) and against the image the thruster runs
+    /// (`check_upgrade`, its counter the floor: the master does not read the bootloader's own).
+    fn check(
+        &self,
+        first: &[u8],
+        running: &[u8; ext::INFO_LEN],
+        max_payload: u32,
+    ) -> Result<(), update_image::Refusal> {
         use update_image::Refusal as Why;
         let target = Target::from_byte(self.kind).ok_or(Why::Header(HeaderError::Target(self.kind)))?;
         let header = Header {
@@ -219,13 +179,80 @@ impl Transfer {
             Err(_) if self.payload_len < MIN_PAYLOAD => return Err(Why::TooShort { len: self.payload_len }),
             Err(error) => return Err(Why::Info(error)),
         };
-        update_image::check(&header, &info, target, self.max_payload)?;
-        let running = ImageInfo::parse(&self.running).ok();
+        update_image::check(&header, &info, target, max_payload)?;
+        let running = ImageInfo::parse(running).ok();
         check_upgrade(
             &info,
             running.as_ref(),
             running.map_or(0, |running| running.security_counter),
         )
+    }
+}
+
+/// The file an image came in, which the texts name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum File {
+    /// One slot's (`thruster2.lbvu`): the texts name the file.
+    Slot,
+    /// Every thruster of a family's (`thrusters-seabotix.lbvu`): the texts name each thruster (`T3`).
+    Family,
+}
+
+/// The image on its way to one thruster.
+#[derive(Debug, Clone, Copy)]
+struct Transfer {
+    slot: u8,
+    step: Step,
+    /// Where the page it writes (or will) goes in the payload.
+    page_offset: u32,
+    /// Pages the thruster held already.
+    skipped: u16,
+    seq: u8,
+    /// When the exchanges of this step began failing, none answered since.
+    silent_since: Option<Instant>,
+    /// Times the thruster was found reset.
+    restarts: u8,
+    /// The apply command has been given for it.
+    applied: bool,
+    /// Since when `Begin` has been refused because the running image is on trial.
+    settling_since: Option<Instant>,
+    /// The running image's information record, as the thruster's last `Version` gave it: what the image is held to.
+    running: [u8; ext::INFO_LEN],
+    /// The longest payload the thruster takes, as its last `Version` gave it.
+    max_payload: u32,
+}
+
+impl Transfer {
+    /// A transfer to `slot`, at its first step.
+    fn new(slot: u8) -> Self {
+        Self {
+            slot,
+            step: Step::Hello,
+            page_offset: 0,
+            skipped: 0,
+            seq: 0,
+            silent_since: None,
+            restarts: 0,
+            applied: false,
+            settling_since: None,
+            running: [0; ext::INFO_LEN],
+            max_payload: 0,
+        }
+    }
+
+    /// Whether it is being applied: asked to, or marked and restarting into it (an update the thruster held).
+    fn applying(&self) -> bool {
+        self.applied
+            || matches!(
+                self.step,
+                Step::Finish | Step::Reboot | Step::Restart(_) | Step::Trial { .. }
+            )
+    }
+
+    /// What the thruster's `Version` says of the image it runs.
+    fn heard(&mut self, info: [u8; ext::INFO_LEN], max_payload: u32) {
+        self.running = info;
+        self.max_payload = max_payload;
     }
 }
 
@@ -367,13 +394,17 @@ struct Query {
     silent_since: Option<Instant>,
 }
 
-/// The transfer under way and the bytes waiting for the thruster, the version query, and what each thruster's
-/// images are: the state [`crate::update::VehicleSink`] and the bus tasks share.
+/// The image under way and its bytes waiting for the thrusters, each thruster's transfer of it, the version query,
+/// and what each thruster's images are: the state [`crate::update::VehicleSink`] and the bus tasks share.
 #[derive(Debug)]
 pub struct Courier {
-    transfer: Option<Transfer>,
+    image: Option<Image>,
+    /// Each slot's transfer of the image.
+    transfers: [Option<Transfer>; MAX_THRUSTERS],
     buffer: [u8; BUFFER],
     fill: usize,
+    /// The slot whose transfer made the last exchange: the next goes to the one after it.
+    turn: usize,
     query: Option<Query>,
     /// The last query's sequence number.
     query_seq: u8,
@@ -393,9 +424,11 @@ impl Courier {
     /// Nothing under way.
     pub const fn new() -> Self {
         Self {
-            transfer: None,
+            image: None,
+            transfers: [None; MAX_THRUSTERS],
             buffer: [0; BUFFER],
             fill: 0,
+            turn: MAX_THRUSTERS - 1,
             query: None,
             query_seq: 0,
             standing: [Standing::Away; MAX_THRUSTERS],
@@ -405,12 +438,15 @@ impl Courier {
 
     /// Whether the sink may hand on one more write's bytes.
     pub fn has_room(&self) -> bool {
-        self.transfer.is_none() || self.fill + MAX_WRITE <= BUFFER
+        self.image.is_none() || self.fill + MAX_WRITE <= BUFFER
     }
 
-    /// An image for `slot` begins: `header` is its update file's header, which the update server has checked
-    /// (`kind` its target byte, `payload_len` its payload's length). One under way for another thruster is dropped,
-    /// unless it is being applied.
+    /// The transfers under way.
+    fn live(&self) -> impl Iterator<Item = &Transfer> {
+        self.transfers.iter().flatten()
+    }
+
+    /// An image for `slot` begins, in its own file: see [`Courier::begin_to`].
     pub fn begin(
         &mut self,
         slot: u8,
@@ -418,13 +454,45 @@ impl Courier {
         payload_len: u32,
         header: &[u8; FILE_HEADER_LEN],
     ) -> Result<(), NotTaken> {
-        if self.transfer.is_some_and(|t| t.applier.is_some()) {
+        self.begin_to(1 << slot, File::Slot, kind, payload_len, header)
+    }
+
+    /// An image for the thrusters whose slots are the bits of `slots` begins: `header` is its update file's header,
+    /// which the update server has checked (`kind` its target byte, `payload_len` its payload's length), `file` the
+    /// file it comes in. The image under way is dropped, unless it is being applied. Every thruster gets each page
+    /// in turn, and the buffer moves on once each has it (or has ended).
+    pub fn begin_to(
+        &mut self,
+        slots: u8,
+        file: File,
+        kind: u8,
+        payload_len: u32,
+        header: &[u8; FILE_HEADER_LEN],
+    ) -> Result<(), NotTaken> {
+        if self.image.is_some_and(|image| image.applier.is_some()) || self.live().any(Transfer::applying) {
             return Err(NotTaken);
         }
         let [.., v0, v1, v2, v3] = *header.first_chunk::<16>().ok_or(NotTaken)?;
         let signature = *header.last_chunk::<SIGNATURE_LEN>().ok_or(NotTaken)?;
-        self.transfer = Some(Transfer::new(slot, kind, payload_len, [v0, v1, v2, v3], signature));
+        self.image = Some(Image {
+            kind,
+            payload_len,
+            version: [v0, v1, v2, v3],
+            signature,
+            received: 0,
+            crc: Crc32::new(),
+            complete: false,
+            offset: 0,
+            file,
+            applier: None,
+            failed: 0,
+        });
+        for (slot, transfer) in (0..).zip(self.transfers.iter_mut()) {
+            *transfer = (slots & 1 << slot != 0).then(|| Transfer::new(slot));
+        }
         self.fill = 0;
+        // The lowest slot first.
+        self.turn = MAX_THRUSTERS - 1;
         Ok(())
     }
 
@@ -455,11 +523,11 @@ impl Courier {
         });
     }
 
-    /// Whether the transfer has no exchange to make: there is none, it waits for its apply, or for its next page.
+    /// Whether no transfer has an exchange to make: none has, or each waits for its apply, or for its next page.
     fn quiet(&self) -> bool {
-        self.transfer.is_none_or(|transfer| match transfer.step {
+        self.live().all(|transfer| match transfer.step {
             Step::Written => true,
-            Step::Idle => !transfer.complete && self.page().is_none(),
+            Step::Idle => self.page_for(transfer).is_none() && !self.image.is_some_and(|image| image.complete),
             _ => false,
         })
     }
@@ -487,7 +555,7 @@ impl Courier {
     /// What of the thrusters' updates keeps the vehicle from arming: an apply under way, then a thruster that
     /// holds a mark, runs an image on trial, or has not said yet what it runs.
     pub(crate) fn hold(&self) -> Option<UpdateHold> {
-        if let Some(transfer) = self.transfer.filter(Transfer::applying) {
+        if let Some(transfer) = self.live().find(|transfer| transfer.applying()) {
             return Some(UpdateHold::Applying(transfer.slot));
         }
         (0..).zip(self.standing).find_map(|(slot, standing)| match standing {
@@ -498,78 +566,120 @@ impl Courier {
         })
     }
 
-    /// Who applies the image of `slot` under way, if it is being applied.
+    /// Who applies the image on its way to `slot`, if it is being applied there.
     pub(crate) fn applier(&self, slot: u8) -> Option<Sender> {
-        self.transfer.filter(|t| t.slot == slot).and_then(|t| t.applier)
+        let applied = self.transfer(slot).is_some_and(|t| t.applied);
+        self.image.and_then(|image| image.applier).filter(|_| applied)
+    }
+
+    /// Slot `slot`'s transfer.
+    fn transfer(&self, slot: u8) -> Option<&Transfer> {
+        self.transfers.get(usize::from(slot)).and_then(Option::as_ref)
     }
 
     /// The payload's next bytes, at `offset` from the payload's start.
     pub fn write(&mut self, offset: u32, data: &[u8]) -> Result<(), NotTaken> {
         let fill = self.fill;
-        let transfer = self
-            .transfer
+        let going = self.live().next().is_some();
+        let image = self
+            .image
             .as_mut()
-            .filter(|t| !t.complete && t.received == offset)
+            .filter(|image| going && !image.complete && image.received == offset)
             .ok_or(NotTaken)?;
         let room = self.buffer.get_mut(fill..fill + data.len()).ok_or(NotTaken)?;
         room.copy_from_slice(data);
         self.fill += data.len();
-        transfer.received += data.len() as u32;
-        transfer.crc = transfer.crc.update(data);
+        image.received += data.len() as u32;
+        image.crc = image.crc.update(data);
         Ok(())
     }
 
     /// The upload is over: `complete` when every byte came (the last page goes on, then the whole payload is
-    /// checked), otherwise the transfer is dropped (what the thruster holds stays, for a resumed transfer).
+    /// checked), otherwise the image is dropped (what the thrusters hold stays, for a resumed transfer).
     pub fn finish(&mut self, complete: bool) -> Result<(), NotTaken> {
-        match self.transfer.as_mut() {
-            Some(transfer) if complete && transfer.received == transfer.payload_len => {
-                transfer.complete = true;
+        match self.image.as_mut() {
+            Some(image)
+                if complete && image.received == image.payload_len && self.transfers.iter().any(Option::is_some) =>
+            {
+                image.complete = true;
                 Ok(())
             }
-            Some(transfer) if transfer.applier.is_none() => {
-                self.transfer = None;
-                self.fill = 0;
+            Some(image) if image.applier.is_none() => {
+                self.drop_image();
                 if complete { Err(NotTaken) } else { Ok(()) }
             }
             _ => Err(NotTaken),
         }
     }
 
-    /// The apply command for `slot`, from `from`: `Ok(true)` when the thruster is to take it now (the final
-    /// COMMAND_ACK goes to `from`), `Ok(false)` when it is still on its way there, an error when it is not (it
-    /// failed, or never came).
+    /// Forget the image and its transfers.
+    fn drop_image(&mut self) {
+        self.image = None;
+        self.transfers = [None; MAX_THRUSTERS];
+        self.fill = 0;
+    }
+
+    /// The apply command for `slot`'s image, from `from`: see [`Courier::apply_to`].
     pub fn apply(&mut self, slot: u8, from: Sender) -> Result<bool, NotTaken> {
-        match self.transfer.as_mut().filter(|t| t.slot == slot) {
-            Some(transfer) if transfer.step == Step::Written => {
-                transfer.step = Step::Finish;
-                transfer.applier = Some(from);
-                transfer.silent_since = None;
-                Ok(true)
-            }
-            Some(transfer) if transfer.applier.is_none() && transfer.complete => Ok(false),
-            _ => Err(NotTaken),
+        self.apply_to(1 << slot, from)
+    }
+
+    /// The apply command for the thrusters whose slots are the bits of `slots`, from `from`: `Ok(true)` when
+    /// every one of them that still has the image on its way has it written, and takes it now (the final
+    /// COMMAND_ACK goes to `from` once each is done), `Ok(false)` when the image is whole but still on its way to
+    /// some, an error when none has it (it failed, or never came).
+    pub fn apply_to(&mut self, slots: u8, from: Sender) -> Result<bool, NotTaken> {
+        let image = self.image.filter(|image| image.applier.is_none()).ok_or(NotTaken)?;
+        let ours = |transfer: &&mut Transfer| slots & 1 << transfer.slot != 0;
+        let mut targets = self.transfers.iter_mut().flatten().filter(ours).peekable();
+        if targets.peek().is_none() {
+            return Err(NotTaken);
         }
+        if self
+            .transfers
+            .iter()
+            .flatten()
+            .filter(|t| slots & 1 << t.slot != 0)
+            .any(|t| t.step != Step::Written)
+        {
+            return if image.complete { Ok(false) } else { Err(NotTaken) };
+        }
+        for transfer in self.transfers.iter_mut().flatten().filter(|t| slots & 1 << t.slot != 0) {
+            transfer.step = Step::Finish;
+            transfer.applied = true;
+            transfer.silent_since = None;
+        }
+        if let Some(image) = self.image.as_mut() {
+            image.applier = Some(from);
+        }
+        Ok(true)
     }
 
     /// Whether thruster `slot` has been told to restart into its update and has not answered since: silent while
     /// its bootloader swaps the image in, as it should be.
     pub(crate) fn restarting(&self, slot: u8) -> bool {
-        self.transfer
-            .is_some_and(|t| t.slot == slot && matches!(t.step, Step::Reboot | Step::Restart(_)))
+        self.transfer(slot)
+            .is_some_and(|t| matches!(t.step, Step::Reboot | Step::Restart(_)))
     }
 
     /// The page at the buffer's start, once it is whole (or the payload's last).
     fn page(&self) -> Option<&[u8]> {
-        let transfer = self.transfer.as_ref()?;
+        let image = self.image.as_ref()?;
         let len = self.fill.min(PAGE);
-        let last = transfer.complete && transfer.page_offset + len as u32 == transfer.payload_len;
+        let last = image.complete && image.offset + len as u32 == image.payload_len;
         (len == PAGE || last && len > 0)
             .then(|| self.buffer.get(..len))
             .flatten()
     }
 
-    /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's).
+    /// The page `transfer` writes next, if it is in the buffer: the others wait for it.
+    fn page_for(&self, transfer: &Transfer) -> Option<&[u8]> {
+        self.page()
+            .filter(|_| self.image.is_some_and(|image| image.offset == transfer.page_offset))
+    }
+
+    /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's): a
+    /// query's, else the next transfer's after the last that made one, in turn.
     // Out of line: every bus task calls it, and its code would be copied into each.
     #[inline(never)]
     pub fn next(&mut self, now: Instant, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
@@ -583,20 +693,36 @@ impl Courier {
                 self.ask(slot, None);
             }
         }
-        // One at a time: a transfer waits for the query's end.
+        // One at a time: the transfers wait for the query's end.
         if let Some(query) = self.query {
-            return self.exchange(query.slot, query.seq, Command::Version, None, ours);
+            return ours(query.slot).then(|| exchange_of(query.slot, query.seq, Command::Version));
         }
-        let page = self.page().map(|page| (page.len() as u32, ext::crc32(page)));
-        let chunk = |at: u16| {
-            let start = usize::from(at);
-            let end = page.map_or(start, |(len, _)| (len as usize).min(start + MAX_CHUNK));
-            self.buffer.get(start..end).and_then(Chunk::new)
-        };
-        let transfer = self.transfer.as_ref()?;
+        let image = self.image?;
+        let count = self.transfers.len();
+        for index in (1..=count).map(|n| (self.turn + n) % count) {
+            let Some(transfer) = self.transfers.get(index).copied().flatten() else {
+                continue;
+            };
+            if !ours(transfer.slot) {
+                continue;
+            }
+            if let Some((step, command)) = self.step_of(now, &image, &transfer) {
+                if let Some(slot) = self.transfers.get_mut(index).and_then(Option::as_mut) {
+                    slot.step = step;
+                }
+                self.turn = index;
+                return Some(exchange_of(transfer.slot, transfer.seq, command));
+            }
+        }
+        None
+    }
+
+    /// Where `transfer` of `image` is at `now`, and the command it sends there, if it has one to send.
+    fn step_of(&self, now: Instant, image: &Image, transfer: &Transfer) -> Option<(Step, Command)> {
+        let page = self.page_for(transfer).map(|page| page.len() as u32);
         let step = match (transfer.step, page) {
             (Step::Idle, Some(_)) => Step::CheckPage,
-            (Step::Idle, None) if transfer.complete && transfer.page_offset == transfer.payload_len => Step::Verify,
+            (Step::Idle, None) if image.complete && transfer.page_offset == image.payload_len => Step::Verify,
             (Step::Restart(since), _) if now < since + RESTART_FIRST_ASK => return None,
             (Step::Trial { next, .. } | Step::Settle(next), _) if now < next => return None,
             (Step::Settle(_), _) => Step::Begin,
@@ -605,61 +731,37 @@ impl Courier {
         let command = match step {
             Step::Hello | Step::Restart(_) | Step::Trial { .. } => Command::Version,
             Step::Begin => Command::Begin {
-                payload_len: transfer.payload_len,
-                target: transfer.kind,
+                payload_len: image.payload_len,
+                target: image.kind,
             },
             // Turned into `Begin` above once it is time.
             Step::Idle | Step::Written | Step::Settle(_) => return None,
             Step::CheckPage => Command::Check {
                 offset: transfer.page_offset,
-                len: page?.0,
+                len: page?,
             },
             Step::Erase => Command::Erase {
                 page: u16::try_from(transfer.page_offset / ext::PAGE_LEN).ok()?,
             },
-            Step::Write(at) => Command::Write {
-                offset: transfer.page_offset + u32::from(at),
-                data: chunk(at)?,
-            },
+            Step::Write(at) => {
+                let start = usize::from(at);
+                let end = (page? as usize).min(start + MAX_CHUNK);
+                Command::Write {
+                    offset: transfer.page_offset + u32::from(at),
+                    data: self.buffer.get(start..end).and_then(Chunk::new)?,
+                }
+            }
             Step::Verify => Command::Check {
                 offset: 0,
-                len: transfer.payload_len,
+                len: image.payload_len,
             },
             Step::Finish => Command::Finish {
-                payload_len: transfer.payload_len,
-                signature: transfer.signature,
+                payload_len: image.payload_len,
+                signature: image.signature,
             },
             Step::Reboot => Command::Reboot,
         };
-        self.exchange(transfer.slot, transfer.seq, command, Some(step), ours)
-    }
-
-    /// The exchange of `command` to `slot`, if `ours` says it is the asking bus task's; the transfer moves to `step`
-    /// as it goes on the bus.
-    fn exchange(
-        &mut self,
-        slot: u8,
-        seq: u8,
-        command: Command,
-        step: Option<Step>,
-        ours: impl Fn(u8) -> bool,
-    ) -> Option<Exchange> {
-        if !ours(slot) {
-            return None;
-        }
-        let wait = match command {
-            Command::Erase { .. } => ext::ERASE_WAIT_MS,
-            Command::Finish { .. } => ext::FINISH_WAIT_MS,
-            _ => 0,
-        };
-        if let (Some(transfer), Some(step)) = (self.transfer.as_mut(), step) {
-            transfer.step = step;
-        }
-        Some(Exchange {
-            slot,
-            frame: CommandFrame { seq, command },
-            wait: Duration::from_millis(u64::from(wait)),
-        })
+        Some((step, command))
     }
 
     /// What `exchange` got, at `now`: the transfer moves on, or ends; `out` takes the texts and the apply
@@ -679,15 +781,27 @@ impl Courier {
         {
             return self.answered(now, query, result, out);
         }
-        let page = self.page().map(|page| (page.len(), ext::crc32(page)));
-        let Some(transfer) = self.transfer.as_mut().filter(|t| t.slot == exchange.slot) else {
+        let Some(image) = self.image else {
             return;
         };
-        let slot = transfer.slot;
+        let slot = exchange.slot;
+        let page = self
+            .transfer(slot)
+            .and_then(|transfer| self.page_for(transfer))
+            .map(|page| (page.len(), ext::crc32(page)));
+        let first_page = self.buffer.get(..page.map_or(0, |(len, _)| len)).unwrap_or_default();
+        let first_refused = self
+            .transfer(slot)
+            .filter(|transfer| transfer.page_offset == 0)
+            .and_then(|transfer| image.check(first_page, &transfer.running, transfer.max_payload).err());
+        let name = image.file;
+        let Some(transfer) = self.transfers.get_mut(usize::from(slot)).and_then(Option::as_mut) else {
+            return;
+        };
         let reply = match result {
             Ok(reply) if reply.seq() == exchange.seq && reply.command() == exchange.command => reply,
             Err(ExchangeError::Frame(FrameError::MessageType { .. })) if transfer.step == Step::Hello => {
-                return self.end(Ending::NoExtension, out);
+                return self.end(slot, Ending::NoExtension, out);
             }
             _ => {
                 // Sent again at the next cycle, unless the thruster has been silent too long. While it restarts
@@ -705,7 +819,7 @@ impl Courier {
                         Step::Restart(_) | Step::Trial { .. } | Step::Reboot => Ending::NotBack,
                         _ => Ending::Silent,
                     };
-                    self.end(ending, out);
+                    self.end(slot, ending, out);
                 }
                 return;
             }
@@ -721,7 +835,7 @@ impl Courier {
             } if !matches!(transfer.step, Step::Hello | Step::Begin | Step::Reboot) => {
                 transfer.restarts += 1;
                 if transfer.restarts > RESTARTS_LIMIT {
-                    return self.end(Ending::Restarts, out);
+                    return self.end(slot, Ending::Restarts, out);
                 }
                 transfer.step = Step::Begin;
                 return;
@@ -738,7 +852,7 @@ impl Courier {
             Reply::Refused {
                 refusal: Refusal::OnTrial,
                 ..
-            } if transfer.applier.is_some() => {
+            } if transfer.applied => {
                 transfer.step = Step::Restart(now);
                 return;
             }
@@ -755,12 +869,18 @@ impl Courier {
             Reply::Refused {
                 refusal: Refusal::Finished,
                 ..
-            } if transfer.step == Step::Begin && transfer.applier.is_none() => {
-                say(out, Severity::Info, slot, format_args!("starting the update it holds"));
+            } if transfer.step == Step::Begin && !transfer.applied => {
+                say(
+                    out,
+                    Severity::Info,
+                    name,
+                    slot,
+                    format_args!("starting the update it holds"),
+                );
                 transfer.step = Step::Reboot;
                 return;
             }
-            Reply::Refused { refusal, .. } => return self.end(Ending::Refused(refusal), out),
+            Reply::Refused { refusal, .. } => return self.end(slot, Ending::Refused(refusal), out),
             // Not returned by the exchange: read again.
             Reply::Busy { .. } => return,
         };
@@ -783,7 +903,7 @@ impl Courier {
                 },
             ) => {
                 if !checks_signatures {
-                    return self.end(Ending::Refused(Refusal::NoSignatureCheck), out);
+                    return self.end(slot, Ending::Refused(Refusal::NoSignatureCheck), out);
                 }
                 transfer.heard(info, max_payload);
                 Step::Begin
@@ -791,22 +911,15 @@ impl Courier {
             // Begun again after a reset while being applied: the payload is whole in DFU already.
             (Step::Begin, ReplyBody::Begin { .. }) => {
                 transfer.settling_since = None;
-                if transfer.applier.is_some() {
-                    Step::Finish
-                } else {
-                    Step::Idle
-                }
+                if transfer.applied { Step::Finish } else { Step::Idle }
             }
             // Nothing of the image has gone on yet: its info decides whether anything does.
-            (Step::CheckPage, ReplyBody::Check { .. })
-                if transfer.page_offset == 0
-                    && let Err(refusal) = transfer.check_image(self.buffer.get(..page_len).unwrap_or_default()) =>
-            {
-                return self.end(Ending::Image(refusal), out);
+            (Step::CheckPage, ReplyBody::Check { .. }) if let Some(refusal) = first_refused => {
+                return self.end(slot, Ending::Image(refusal), out);
             }
             (Step::CheckPage, ReplyBody::Check { crc, .. }) if page.is_some_and(|(_, page_crc)| page_crc == crc) => {
                 transfer.skipped += 1;
-                return self.page_done(page_len);
+                return self.page_done(slot, page_len);
             }
             (Step::CheckPage, ReplyBody::Check { .. }) => Step::Erase,
             (Step::Erase, ReplyBody::Erase { .. }) => Step::Write(0),
@@ -814,19 +927,20 @@ impl Courier {
                 let start = usize::from(at);
                 let sent = self.buffer.get(start..start + usize::from(len)).map(ext::crc32);
                 if sent != Some(crc) {
-                    return self.end(Ending::ReadBack, out);
+                    return self.end(slot, Ending::ReadBack, out);
                 }
                 let next = start + usize::from(len);
                 if next >= page_len {
-                    return self.page_done(page_len);
+                    return self.page_done(slot, page_len);
                 }
                 Step::Write(u16::try_from(next).unwrap_or(u16::MAX))
             }
-            (Step::Verify, ReplyBody::Check { crc, .. }) if crc == transfer.crc.finish() => {
-                let (n, skipped) = (transfer.payload_len, transfer.skipped);
+            (Step::Verify, ReplyBody::Check { crc, .. }) if crc == image.crc.finish() => {
+                let (n, skipped) = (image.payload_len, transfer.skipped);
                 say(
                     out,
                     Severity::Info,
+                    name,
                     slot,
                     format_args!(
                         "{n} B verified, {skipped} page{} kept",
@@ -835,14 +949,15 @@ impl Courier {
                 );
                 Step::Written
             }
-            (Step::Verify, ReplyBody::Check { .. }) => return self.end(Ending::Mismatch, out),
+            (Step::Verify, ReplyBody::Check { .. }) => return self.end(slot, Ending::Mismatch, out),
             (Step::Finish, ReplyBody::Finish { .. }) => Step::Reboot,
             (Step::Reboot, ReplyBody::Reboot) => {
                 // Its bootloader checks the signature before it swaps: nothing says yet that it is good.
-                if transfer.applier.is_some() {
+                if transfer.applied {
                     say(
                         out,
                         Severity::Info,
+                        name,
                         slot,
                         format_args!("marked, restarting into its update"),
                     );
@@ -850,7 +965,7 @@ impl Courier {
                 Step::Restart(now)
             }
             // Back from starting the update it held: now this one.
-            (Step::Restart(_), ReplyBody::Version { info, max_payload, .. }) if transfer.applier.is_none() => {
+            (Step::Restart(_), ReplyBody::Version { info, max_payload, .. }) if !transfer.applied => {
                 transfer.heard(info, max_payload);
                 Step::Begin
             }
@@ -865,25 +980,30 @@ impl Courier {
             ) => {
                 let running = version_in(&info);
                 match transfer.step {
-                    _ if running != transfer.version => {
+                    _ if running != image.version => {
                         let ending = match transfer.step {
                             Step::Restart(_) if verdict != 0 => Ending::Verdict(verdict),
                             Step::Restart(_) => Ending::OldVersion(running),
                             _ => Ending::Reverted(running),
                         };
-                        return self.end(ending, out);
+                        return self.end(slot, ending, out);
                     }
                     _ if !on_trial => {
-                        say(out, Severity::Info, slot, format_args!("{} confirmed", Ver(running)));
-                        self.acknowledge(AckResult::Accepted, out);
-                        self.transfer = None;
-                        return;
+                        say(
+                            out,
+                            Severity::Info,
+                            name,
+                            slot,
+                            format_args!("{} confirmed", Ver(running)),
+                        );
+                        return self.close(slot, None, out);
                     }
                     // Still on trial: said every so long, and watched until it confirms or is reverted.
                     Step::Trial { since, .. } if now >= since + CONFIRM_LIMIT => {
                         say(
                             out,
                             Severity::Warning,
+                            name,
                             slot,
                             format_args!("{} still on trial", Ver(running)),
                         );
@@ -900,6 +1020,7 @@ impl Courier {
                         say(
                             out,
                             Severity::Info,
+                            name,
                             slot,
                             format_args!("runs {}, on trial", Ver(running)),
                         );
@@ -915,14 +1036,31 @@ impl Courier {
         };
     }
 
-    /// The page at the buffer's start is on the thruster: the next one moves up.
-    fn page_done(&mut self, len: usize) {
-        if let Some(transfer) = self.transfer.as_mut() {
+    /// Thruster `slot` has the page at the buffer's start: it goes on to the next, and the buffer moves on once
+    /// every transfer has the page.
+    fn page_done(&mut self, slot: u8, len: usize) {
+        if let Some(transfer) = self.transfers.get_mut(usize::from(slot)).and_then(Option::as_mut) {
             transfer.page_offset += len as u32;
             transfer.step = Step::Idle;
         }
-        self.buffer.copy_within(len.min(self.fill)..self.fill, 0);
-        self.fill = self.fill.saturating_sub(len);
+        self.move_on();
+    }
+
+    /// Drop the page at the buffer's start once no transfer still has to write it.
+    fn move_on(&mut self) {
+        let Some(image) = self.image.as_mut() else {
+            return;
+        };
+        let len = self.fill.min(PAGE);
+        let waited_for = self.transfers.iter().flatten().any(|t| t.page_offset <= image.offset);
+        if waited_for || len == 0 || self.page().is_none() {
+            return;
+        }
+        if let Some(image) = self.image.as_mut() {
+            image.offset += len as u32;
+        }
+        self.buffer.copy_within(len..self.fill, 0);
+        self.fill -= len;
     }
 
     /// What a query's `Version` got, at `now`: what the thruster runs, told to who asked.
@@ -960,6 +1098,7 @@ impl Courier {
                     say(
                         out,
                         Severity::Info,
+                        File::Slot,
                         slot,
                         format_args!("runs {running}{trial}{updates}{marked}{dev_key}"),
                     );
@@ -990,7 +1129,7 @@ impl Courier {
         self.trial_ask = now + TRIAL_ASK;
         if let Some(to) = query.asker {
             if let Some(ending) = ending {
-                say(out, Severity::Warning, slot, format_args!("{ending}"));
+                say(out, Severity::Warning, File::Slot, slot, format_args!("{ending}"));
             }
             out(Outgoing::CommandAck {
                 command: UpdateAction::QueryVersion.command(),
@@ -1004,14 +1143,14 @@ impl Courier {
         }
     }
 
-    /// The transfer ends early: the operator is told why, the applier gets FAILED. A thruster that was being
-    /// applied an image is asked again what it runs.
-    fn end(&mut self, ending: Ending, out: &mut impl FnMut(Outgoing)) {
-        let Some(transfer) = self.transfer else {
+    /// Slot `slot`'s transfer ends early: the operator is told why. A thruster that was being applied the image is
+    /// asked again what it runs.
+    fn end(&mut self, slot: u8, ending: Ending, out: &mut impl FnMut(Outgoing)) {
+        let (Some(transfer), Some(image)) = (self.transfer(slot).copied(), self.image) else {
             return;
         };
         if transfer.applying()
-            && let Some(standing) = self.standing.get_mut(usize::from(transfer.slot))
+            && let Some(standing) = self.standing.get_mut(usize::from(slot))
         {
             *standing = Standing::Unasked;
         }
@@ -1019,30 +1158,63 @@ impl Courier {
             // "T1: ", not "thruster0.lbvu: ": it is the thruster's bootloader that refused, and it leaves room for
             // the verdict.
             Ending::Verdict(code) => {
-                let who = u16::from(transfer.slot) + 1;
+                let who = u16::from(slot) + 1;
                 let (first, second) = verdict_texts(format_args!("T{who}"), BOOTLOADER_REFUSED, code.into());
                 for text in [Some(first), second].into_iter().flatten() {
                     out(Outgoing::Text(Severity::Warning, text));
                 }
             }
-            _ => say(out, Severity::Warning, transfer.slot, format_args!("{ending}")),
+            _ => say(out, Severity::Warning, image.file, slot, format_args!("{ending}")),
         }
-        self.acknowledge(AckResult::Failed, out);
-        self.transfer = None;
-        self.fill = 0;
+        self.close(slot, Some(ending), out);
     }
 
-    /// The apply command's final COMMAND_ACK, if there was one.
-    fn acknowledge(&self, result: AckResult, out: &mut impl FnMut(Outgoing)) {
-        if let Some(transfer) = self.transfer
-            && let Some(to) = transfer.applier
+    /// Slot `slot`'s transfer is over, confirmed or ended (`ending`): the buffer moves on without it, and once no
+    /// thruster the image was applied to is left, the applier gets its final answer, FAILED if any of them failed.
+    fn close(&mut self, slot: u8, ending: Option<Ending>, out: &mut impl FnMut(Outgoing)) {
+        if let Some(transfer) = self.transfers.get_mut(usize::from(slot)) {
+            *transfer = None;
+        }
+        let Some(image) = self.image.as_mut() else {
+            return;
+        };
+        if ending.is_some() {
+            image.failed |= 1 << slot;
+        }
+        if let Some(to) = image.applier
+            && !self.transfers.iter().flatten().any(|t| t.applied)
         {
+            let result = if image.failed == 0 {
+                AckResult::Accepted
+            } else {
+                AckResult::Failed
+            };
             out(Outgoing::CommandAck {
                 command: UpdateAction::Apply.command(),
                 result,
                 to,
             });
+            image.applier = None;
         }
+        if self.transfers.iter().all(Option::is_none) {
+            self.drop_image();
+        } else {
+            self.move_on();
+        }
+    }
+}
+
+/// The exchange of `command` to `slot`, with sequence number `seq`.
+fn exchange_of(slot: u8, seq: u8, command: Command) -> Exchange {
+    let wait = match command {
+        Command::Erase { .. } => ext::ERASE_WAIT_MS,
+        Command::Finish { .. } => ext::FINISH_WAIT_MS,
+        _ => 0,
+    };
+    Exchange {
+        slot,
+        frame: CommandFrame { seq, command },
+        wait: Duration::from_millis(u64::from(wait)),
     }
 }
 
@@ -1063,10 +1235,14 @@ impl core::fmt::Display for Ver {
     }
 }
 
-/// "thruster2.lbvu: `args`", as the update server names the file the ground station wrote (in two texts when one
-/// cannot hold it: a refusal's sentence goes on in the second).
-fn say(out: &mut impl FnMut(Outgoing), severity: Severity, slot: u8, args: core::fmt::Arguments<'_>) {
-    let (first, second) = texts(format_args!("thruster{slot}.lbvu"), args);
+/// "thruster2.lbvu: `args`" for an image in a slot's file, as the update server names the file the ground station
+/// wrote, "T3: `args`" for one in a family's (in two texts when one cannot hold it: a refusal's sentence goes on in
+/// the second).
+fn say(out: &mut impl FnMut(Outgoing), severity: Severity, file: File, slot: u8, args: core::fmt::Arguments<'_>) {
+    let (first, second) = match file {
+        File::Slot => texts(format_args!("thruster{slot}.lbvu"), args),
+        File::Family => texts(format_args!("T{}", u16::from(slot) + 1), args),
+    };
     for text in [Some(first), second].into_iter().flatten() {
         out(Outgoing::Text(severity, text));
     }

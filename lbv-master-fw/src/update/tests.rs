@@ -228,9 +228,13 @@ fn the_listing_shows_the_directory_and_one_file_per_target() {
         assert_eq!(reply.offset, offset, "the offset is echoed");
         names.push(String::from_utf8(reply.data).unwrap());
     }
+    // The table has SeaBotix thrusters only: one family file.
     let expected: Vec<String> = (0..6)
         .map(|n| format!("Fthruster{n}.lbvu\t0\0"))
-        .chain(["Fmaster.lbvu\t0\0".to_owned()])
+        .chain([
+            "Fthrusters-seabotix.lbvu\t0\0".to_owned(),
+            "Fmaster.lbvu\t0\0".to_owned(),
+        ])
         .collect();
     assert_eq!(names, expected);
     // The same directory, written as clients may write it.
@@ -252,8 +256,12 @@ fn the_listing_shows_the_directory_and_one_file_per_target() {
     // The dev kit's table has one thruster.
     let mut kit = Server::with(&devkit(Family::Legacy));
     assert_eq!(kit.op(0, 0, LIST, 0, b"/update").unwrap().data, b"Fthruster0.lbvu\t0\0");
-    assert_eq!(kit.op(0, 0, LIST, 1, b"/update").unwrap().data, b"Fmaster.lbvu\t0\0");
-    assert_eq!(nak(&kit.op(0, 0, LIST, 2, b"/update")), Some(Nak::EndOfFile as u8));
+    assert_eq!(
+        kit.op(0, 0, LIST, 1, b"/update").unwrap().data,
+        b"Fthrusters-legacy.lbvu\t0\0"
+    );
+    assert_eq!(kit.op(0, 0, LIST, 2, b"/update").unwrap().data, b"Fmaster.lbvu\t0\0");
+    assert_eq!(nak(&kit.op(0, 0, LIST, 3, b"/update")), Some(Nak::EndOfFile as u8));
 }
 
 #[test]
@@ -1087,7 +1095,7 @@ impl UpdateSink for Nowhere {
     fn apply(&mut self, target: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
         match target {
             UpdateTarget::Master => Err(Nak::Fail),
-            UpdateTarget::Thruster(_) => Ok(Applied::Started),
+            UpdateTarget::Thruster(_) | UpdateTarget::Family { .. } => Ok(Applied::Started),
         }
     }
     fn query_version(&mut self, slot: u8, _: Sender) -> Result<(), Refused> {
@@ -1135,7 +1143,8 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
     assert!(matches!(said.as_slice(), [Outgoing::CommandAck { result: AckResult::Denied, to, .. }] if *to == other));
     assert_eq!(s.server.counters().refused, 1);
     // No such target.
-    for slot in [Some(6), Some(200), None] {
+    // 201: every Legacy thruster, and the table has none.
+    for slot in [Some(6), Some(201), Some(202), None] {
         let said = s.apply(DISARMED, GCS, slot);
         assert_eq!(
             (acked(&said), text_of(&said)),

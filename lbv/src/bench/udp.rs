@@ -26,7 +26,6 @@ use std::time::Instant as WallInstant;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::framing::{Event, FrameParser};
 use lbv_master_fw::console::inbound;
-use lbv_master_fw::ports::UpdateTarget;
 
 use super::Bench;
 
@@ -387,10 +386,7 @@ pub fn write_images(bench: &Bench, dir: &Path, written: usize) -> io::Result<usi
     let images = bench.master.updates.images();
     let finished = images.iter().take_while(|image| image.complete.is_some()).count();
     for image in images.iter().take(finished).skip(written) {
-        let name = match image.target {
-            UpdateTarget::Thruster(slot) => format!("thruster{slot}.lbvu"),
-            UpdateTarget::Master => "master.lbvu".to_owned(),
-        };
+        let name = image.target.to_string();
         let name = if image.complete == Some(true) {
             name
         } else {

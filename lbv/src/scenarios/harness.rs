@@ -246,6 +246,14 @@ pub fn mixed(seed: u64) -> BenchConfig {
     }
 }
 
+/// The mixed vehicle with its console link at the binding's 115200 baud, as [`lbv300_uart`].
+pub fn mixed_uart(seed: u64) -> BenchConfig {
+    BenchConfig {
+        console_baud: Some(115_200),
+        ..mixed(seed)
+    }
+}
+
 /// The two-board bench, with a thruster of each family wired directly to the master's bus.
 pub fn dev_kits(seed: u64) -> BenchConfig {
     BenchConfig {

@@ -35,13 +35,13 @@ use console::{
     signing_reboot, stray_byte,
 };
 use flood::console_flood;
-use harness::{brushed6, dev_kits, heavy_brushed6, lbv300, lbv300_uart, legacy6, mixed};
+use harness::{brushed6, dev_kits, heavy_brushed6, lbv300, lbv300_uart, legacy6, mixed, mixed_uart};
 use soak::soak;
 use thruster_faults::{
     ground_fault, ground_glitch, hall, hall_glitches, heavy_start, info_power, info_power_response, overcurrent,
     overcurrent_intermittent, overtemp, rocking_rotor, stall, stall_brushed, water, water_threshold,
 };
-use update::{field_update, master_update};
+use update::{field_update, fleet_update, master_update};
 use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
 
 /// `lbv bench`'s default seed, which the tests run every scenario with.
@@ -380,6 +380,13 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 120.0,
         vehicle: mixed,
         run: field_update,
+    },
+    Scenario {
+        name: "fleet-update",
+        about: "every thruster updated with one file per family, each applied once, over a 115200 baud console",
+        seconds: 120.0,
+        vehicle: mixed_uart,
+        run: fleet_update,
     },
     Scenario {
         name: "master-update",

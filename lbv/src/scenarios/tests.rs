@@ -89,6 +89,7 @@ scenario_tests! {
     settings_power_cut: "settings-power-cut",
     settings_while_driving: "settings-while-driving",
     field_update: "field-update",
+    fleet_update: "fleet-update",
     master_update: "master-update",
     acceptance: "acceptance",
     soak: "soak",

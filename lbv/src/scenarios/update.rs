@@ -542,6 +542,65 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
     );
 }
 
+/// The whole vehicle updated with one file per family: each put to its family's path and applied once, every
+/// thruster of the family taking it together; timed from the first put's first byte to the last confirmation.
+pub fn fleet_update(run: &mut Run) {
+    let key = dev_key();
+    run.run_for(1.0);
+    super::console::set_key(run, *b"lbv-bench-fleet-update-key-01234");
+    let families: Vec<Family> = run.bench.thrusters.iter().map(|t| t.config.family).collect();
+    let start = run.bench.now();
+    let polls_before = polls_of(run);
+    let bits_before = run.bench.thruster_bus().stats().bits;
+    let mut steps = Vec::new();
+    for (family, name, slot) in [
+        (Family::SeaBotix, "thrusters-seabotix.lbvu", 200),
+        (Family::Legacy, "thrusters-legacy.lbvu", 201),
+    ] {
+        let members: Vec<usize> = (0..families.len()).filter(|i| families[*i] == family).collect();
+        let begun = run.bench.now();
+        let (put_state, put_s) = put(run, &format!("/update/{name}"), update_file(family, NEW, &key), 120.0);
+        // Every thruster of the family has the whole payload verified before the apply.
+        let verified = |bench: &crate::bench::Bench| {
+            members.iter().all(|i| {
+                let who = format!("T{}: ", i + 1);
+                said_since(bench, begun, |text| {
+                    text.starts_with(&who) && text.contains("B verified")
+                })
+            })
+        };
+        let verified = run.run_until(30.0, verified).is_some();
+        let (acks, apply_s) = apply(run, slot, 60.0);
+        let runs_new = members.iter().all(|i| running(run, *i) == Some(NEW));
+        run.check(
+            &format!("every {family:?} thruster is updated with one file and one apply"),
+            put_state == UploadState::Done && verified && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
+            format!("put {put_state:?} in {put_s} s, verified {verified}, apply acks {acks:?} in {apply_s} s"),
+        );
+        steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s}));
+    }
+    let seconds = (run.bench.now() - start).as_micros() as f64 / 1e6;
+    let rates: Vec<f64> = polls_before
+        .iter()
+        .zip(polls_of(run))
+        .map(|(before, after)| round((after - before) as f64 / seconds, 1))
+        .collect();
+    run.check(
+        "every thruster is polled more than 10 times a second throughout",
+        rates.iter().all(|rate| *rate > 10.0),
+        format!("polls/s {rates:?}"),
+    );
+    let bus = run.bench.thruster_bus();
+    let bit_s = bus.timing().bit.as_micros() as f64 / 1e6;
+    let busy = (bus.stats().bits - bits_before) as f64 * bit_s / seconds;
+    // The payload each thruster took, over the time from the first byte put to the last confirmation.
+    let payload_kb_s = (PAYLOAD_LEN * families.len()) as f64 / seconds / 1e3;
+    run.metric("fleet_update_s", json!(round(seconds, 2)));
+    run.metric("fleet_update_steps", json!(steps));
+    run.metric("fleet_update_bus_utilisation", json!(round(busy, 3)));
+    run.metric("fleet_update_payload_kb_s", json!(round(payload_kb_s, 2)));
+}
+
 /// Each thruster's answered polls so far.
 fn polls_of(run: &Run) -> Vec<u64> {
     (0..run.bench.thrusters.len())

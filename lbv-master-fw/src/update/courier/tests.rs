@@ -135,7 +135,7 @@ fn carry_as(
     let (mut said, mut sent) = (Vec::new(), Vec::new());
     let mut offset = 0;
     for ms in (0..1_000_000).step_by(20) {
-        while offset < image.len() && courier.has_room() && courier.transfer.is_some() {
+        while offset < image.len() && courier.has_room() && courier.transfer(0).is_some() {
             let end = (offset + MAX_WRITE).min(image.len());
             courier.write(offset as u32, &image[offset..end]).unwrap();
             offset = end;
@@ -144,7 +144,7 @@ fn carry_as(
             }
         }
         let Some(exchange) = courier.next(t(ms), |_| true) else {
-            if courier.transfer.is_some_and(|t| matches!(t.step, Step::Restart(_))) {
+            if courier.transfer(0).is_some_and(|t| matches!(t.step, Step::Restart(_))) {
                 continue;
             }
             break;
@@ -221,7 +221,7 @@ fn an_image_is_written_page_by_page_verified_then_applied() {
         result: AckResult::Accepted,
         to: GCS
     }));
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
 }
 
 #[test]
@@ -291,7 +291,7 @@ fn an_ids_only_controller_or_one_without_signatures_is_refused_before_anything_i
             "thruster0.lbvu: check signatures: it takes no upda"
         ]
     );
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
 }
 
 #[test]
@@ -310,7 +310,7 @@ fn a_failed_exchange_is_sent_again_with_its_sequence_number_until_the_thruster_i
     let last = courier.next(t(ms), |_| true).unwrap();
     courier.on_result(t(ms), &last, Err(ExchangeError::Busy), &mut |o| said.push(o));
     assert_eq!(texts(&said), ["thruster0.lbvu: the thruster stopped answering"]);
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
 }
 
 #[test]
@@ -497,7 +497,7 @@ fn the_apply_is_accepted_only_once_the_new_image_has_confirmed_itself() {
     // Every cycle from 200 ms after the reboot until it answers; twice a second while it is on trial.
     let on_trial = asked.iter().filter(|ms| (3_000..6_000).contains(*ms)).count();
     assert_eq!((asked.first(), on_trial), (Some(&200), 6));
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
 }
 
 #[test]
@@ -618,7 +618,7 @@ fn an_upload_to_a_thruster_on_trial_waits_for_it_to_confirm_or_gives_up() {
             "thruster0.lbvu: has not confirmed itself yet"
         ]
     );
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
 }
 
 #[test]
@@ -730,7 +730,7 @@ fn a_version_query_asks_version_tells_what_runs_and_sends_nothing_else() {
     }
     assert_eq!(texts(&said), ["thruster0.lbvu: the thruster stopped answering"]);
     assert_eq!(acks(&said), [(QUERY, AckResult::Failed)]);
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
 }
 
 #[test]
@@ -803,7 +803,7 @@ fn a_thruster_whose_bootloader_refused_the_image_fails_the_apply_with_the_verdic
         }
         assert_eq!(texts(&said), said_as, "code {code}");
         assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Failed)]);
-        assert!(courier.transfer.is_none());
+        assert!(courier.transfer(0).is_none());
     }
     // Back on the old image with no verdict: as before, it still runs it.
     let mut courier = rebooting();
@@ -1045,7 +1045,7 @@ fn a_version_query_is_answered_while_an_image_written_whole_waits_for_its_apply(
     let mut courier = begun(&image);
     let mut dfu = vec![0u8; 8 * PAGE];
     carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
-    assert!(courier.transfer.is_some_and(|t| t.step == Step::Written));
+    assert!(courier.transfer(0).is_some_and(|t| t.step == Step::Written));
     // Of the thruster that holds it, and of another.
     for slot in [0, 3] {
         courier.query(slot, GCS).unwrap();
@@ -1095,7 +1095,7 @@ fn an_apply_holds_the_vehicle_from_the_command_to_the_confirmation_or_until_the_
         };
         holds.push(courier.hold());
         courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
-        if courier.transfer.is_some() {
+        if courier.transfer(0).is_some() {
             assert_eq!(courier.hold(), Some(UpdateHold::Applying(0)), "at {ms} ms");
         }
     }
@@ -1113,11 +1113,11 @@ fn an_apply_holds_the_vehicle_from_the_command_to_the_confirmation_or_until_the_
         if let Some(exchange) = courier.next(t(ms), |_| true) {
             courier.on_result(t(ms), &exchange, Err(ExchangeError::Bus), &mut |_| {});
         }
-        if courier.transfer.is_none() {
+        if courier.transfer(0).is_none() {
             break;
         }
     }
-    assert!(courier.transfer.is_none());
+    assert!(courier.transfer(0).is_none());
     assert_eq!(courier.hold(), Some(UpdateHold::Unasked(0)));
 }
 
@@ -1143,4 +1143,124 @@ fn the_ground_stations_query_takes_the_place_of_a_look_under_way_whose_late_answ
     assert_eq!(look.slot, 1);
     courier.on_result(t(40), &look, standing(&look, false, false), &mut |_| {});
     assert_eq!(courier.hold(), None);
+}
+
+/// Hand `image` to the courier as the sink does while the thrusters of `slots` (each holding its `dfu`, running
+/// 0.1.0 until it restarts into the update, `silent` ones answering nothing) answer every exchange, one per 20 ms,
+/// applying the image to all of them once each has it written; returns what was said and the slots exchanged with,
+/// in order.
+fn carry_family(courier: &mut Courier, image: &[u8], slots: &mut [(u8, Vec<u8>, bool)]) -> (Vec<Outgoing>, Vec<u8>) {
+    let (mut said, mut order) = (Vec::new(), Vec::new());
+    let mask = slots.iter().fold(0, |mask, (slot, ..)| mask | 1 << slot);
+    let (mut offset, mut applied) = (0, false);
+    for ms in (0..200_000).step_by(20) {
+        while offset < image.len() && courier.has_room() {
+            let end = (offset + MAX_WRITE).min(image.len());
+            if courier.write(offset as u32, &image[offset..end]).is_err() {
+                break;
+            }
+            offset = end;
+            if offset == image.len() {
+                courier.finish(true).unwrap();
+            }
+        }
+        if !applied && courier.apply_to(mask, GCS) == Ok(true) {
+            applied = true;
+        }
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            if courier.image.is_none() {
+                break;
+            }
+            continue;
+        };
+        order.push(exchange.slot);
+        let (_, dfu, silent) = slots.iter_mut().find(|(slot, ..)| *slot == exchange.slot).unwrap();
+        let result = if *silent {
+            Err(ExchangeError::Bus)
+        } else {
+            let running = if applied { [0, 2, 0, 0] } else { [0, 1, 0, 0] };
+            answer(dfu, &exchange, running)
+        };
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    (said, order)
+}
+
+#[test]
+fn a_family_file_goes_to_each_of_its_thrusters_page_by_page_in_turn_and_one_apply_applies_it_to_all() {
+    let image = payload(5000);
+    let mut courier = Courier::new();
+    courier
+        .begin_to(
+            0b1_0101,
+            File::Family,
+            1,
+            image.len() as u32,
+            &header(image.len() as u32),
+        )
+        .unwrap();
+    let mut slots: Vec<(u8, Vec<u8>, bool)> = [0, 2, 4].map(|slot| (slot, vec![0u8; 8 * PAGE], false)).into();
+    let (said, order) = carry_family(&mut courier, &image, &mut slots);
+    for (slot, dfu, _) in &slots {
+        assert_eq!(&dfu[..image.len()], image.as_slice(), "T{}", slot + 1);
+    }
+    // In turn: no thruster gets two exchanges in a row while the others have one to make.
+    let runs = order.windows(2).filter(|pair| pair[0] == pair[1]).count();
+    assert!(runs < order.len() / 10, "{runs} repeats in {order:?}");
+    let texts = texts(&said);
+    for who in ["T1", "T3", "T5"] {
+        assert!(
+            texts.contains(&format!("{who}: 5000 B verified, 0 pages kept")),
+            "{texts:?}"
+        );
+        assert!(texts.contains(&format!("{who}: 0.2.0 confirmed")), "{texts:?}");
+    }
+    // One final answer, once the last has confirmed.
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+    assert!(courier.image.is_none() && courier.hold().is_none());
+}
+
+#[test]
+fn a_thruster_of_the_family_that_stops_answering_is_left_behind_and_the_apply_fails_naming_it() {
+    let image = payload(5000);
+    let mut courier = Courier::new();
+    courier
+        .begin_to(0b101, File::Family, 1, image.len() as u32, &header(image.len() as u32))
+        .unwrap();
+    // T3 is silent: the buffer waits for it up to the silence limit, then moves on without it.
+    let mut slots = vec![(0, vec![0u8; 8 * PAGE], false), (2, vec![0u8; 8 * PAGE], true)];
+    let (said, _) = carry_family(&mut courier, &image, &mut slots);
+    assert_eq!(&slots[0].1[..image.len()], image.as_slice());
+    let texts = texts(&said);
+    assert!(
+        texts.contains(&"T3: the thruster stopped answering".to_owned()),
+        "{texts:?}"
+    );
+    assert!(texts.contains(&"T1: 0.2.0 confirmed".to_owned()), "{texts:?}");
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Failed)]);
+    assert!(courier.image.is_none());
+}
+
+#[test]
+fn a_family_image_is_dropped_once_every_thruster_has_ended_and_the_upload_is_refused() {
+    let image = payload(5000);
+    let mut courier = Courier::new();
+    courier
+        .begin_to(0b11, File::Family, 1, image.len() as u32, &header(image.len() as u32))
+        .unwrap();
+    let mut said = Vec::new();
+    for ms in (0..10_000).step_by(20) {
+        if let Some(exchange) = courier.next(t(ms), |_| true) {
+            courier.on_result(t(ms), &exchange, Err(ExchangeError::Bus), &mut |o| said.push(o));
+        }
+    }
+    assert_eq!(
+        texts(&said),
+        [
+            "T1: the thruster stopped answering",
+            "T2: the thruster stopped answering"
+        ]
+    );
+    assert!(courier.image.is_none());
+    assert_eq!(courier.write(0, &image[..MAX_WRITE]), Err(NotTaken));
 }
