@@ -105,9 +105,9 @@ def test_each_fault_turns_the_outputs_off_at_once(fault, expected, figures):
     assert not chip.tim1.moe()
     assert all_off(chip, spec), f"{fault}: {switches(chip, spec)}"
     if fault == "panic":
-        # The log says where (here the test's made-up location): the bounds check's message has arguments, which
-        # the image does not format.
-        assert any("panicked at " in text for _, text in chip.log.lines), chip.log_text()
+        # The log says it panicked; where is probe-rs's backtrace's (the handler reads nothing of the panic, so the
+        # image keeps no location or message for it).
+        assert ("error", "panicked") in chip.log.lines, chip.log_text()
 
 
 def test_a_lockup_turns_the_outputs_off_through_the_system_break(expected):

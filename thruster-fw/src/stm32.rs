@@ -12,6 +12,7 @@ use embassy_stm32::{bind_interrupts, dma, interrupt, pac, peripherals};
 use g431_hw::clock;
 use g431_hw::flash::{self, NmiAction};
 use g431_hw::memory::{Span, THRUSTER_PARTITIONS};
+use static_cell::StaticCell;
 use thruster_fw::faults::ResetKind;
 use thruster_fw::ports::{Board, Ports};
 use thruster_fw::shared::Shared;
@@ -38,18 +39,16 @@ unsafe fn UART4() {
     unsafe { COMMUTATION_EXECUTOR.on_interrupt() }
 }
 
-/// A panic stops the bridge before anything else: the watchdog would take up to its timeout to do it.
+/// A panic stops the bridge before anything else: the watchdog would take up to its timeout to do it. It reads
+/// nothing of the panic: a handler that looks at its location or message keeps every panic site's arguments in the
+/// image (each site's `Location` and source path, core::fmt for a bounds check's numbers: 7.6 KiB), where one that
+/// ignores them lets fat LTO drop them. Where it panicked is in probe-rs's backtrace at the fault the undefined
+/// instruction raises, read from the ELF's debug information (the frames under `core::panicking`).
 #[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
+fn panic(_info: &core::panic::PanicInfo) -> ! {
     board::stop_bridge();
     cortex_m::interrupt::disable();
-    // The message when it is a plain string (an overflow check's, say) and where: formatting a message with
-    // arguments would link all of core::fmt, about 2 KiB of the image, for a path the lints keep out of its code.
-    let (file, line) = info.location().map_or(("?", 0), |at| (at.file(), at.line()));
-    match info.message().as_str() {
-        Some(message) => defmt::error!("panicked at {=str}:{=u32}: {=str}", file, line, message),
-        None => defmt::error!("panicked at {=str}:{=u32}", file, line),
-    }
+    defmt::error!("panicked");
     // An undefined instruction: probe-rs reports the panic; without a probe the watchdog resets the chip.
     cortex_m::asm::udf()
 }
@@ -117,7 +116,9 @@ unsafe fn NonMaskableInt() {
 static IMAGE_INFO: [u8; update_image::IMAGE_RECORD_LEN] =
     update_image::image_info!(update_image::Target::thruster(FAMILY));
 
-static SHARED: Shared = Shared::new();
+/// The channels between the tasks, set up by `main` before it spawns them: in `.bss`, where a static with a `const`
+/// value is in `.data`, whose whole initial value (0.5 KiB, nearly all zeros) would take flash.
+static SHARED: StaticCell<Shared> = StaticCell::new();
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
@@ -133,6 +134,7 @@ async fn main(spawner: Spawner) {
     let chip = g431_hw::chip!(thruster_brushed_image, chip);
     #[cfg(feature = "motorless")]
     let chip = g431_hw::chip!(thruster_motorless_image, chip);
+    let shared: &'static Shared = SHARED.init(Shared::new());
     let reset = reset_cause();
     let latch = BackupLatch::open(reset);
     info!(
@@ -224,17 +226,20 @@ async fn main(spawner: Spawner) {
     let watchdog = Iwdg::start(chip.watchdog);
 
     let high = COMMUTATION_EXECUTOR.start(chip.commutation);
-    high.spawn(unwrap!(commutation(halls, bridge)));
+    high.spawn(unwrap!(commutation(halls, bridge, shared)));
     let flash = board::open_flash(chip.flash);
-    spawner.spawn(unwrap!(controller(Ports::<G431> {
-        i2c: SlavePort(slave),
-        sensors: analog,
-        watchdog,
-        latch,
-        boot: BootRecord::open(flash),
-        dfu: board::dfu(flash),
-        updater: ImageSwap::new(flash),
-    })));
+    spawner.spawn(unwrap!(controller(
+        Ports::<G431> {
+            i2c: SlavePort(slave),
+            sensors: analog,
+            watchdog,
+            latch,
+            boot: BootRecord::open(flash),
+            dfu: board::dfu(flash),
+            updater: ImageSwap::new(flash),
+        },
+        shared
+    )));
     spawner.spawn(unwrap!(early_window()));
 }
 
@@ -309,8 +314,8 @@ fn reset_cause() -> ResetKind {
 
 /// Commutation, on the high-priority interrupt executor.
 #[embassy_executor::task]
-async fn commutation(halls: board::HallInputs, bridge: board::Stage) -> ! {
-    thruster_fw::run_commutation(halls, bridge, &CONFIG, &SHARED).await
+async fn commutation(halls: board::HallInputs, bridge: board::Stage, shared: &'static Shared) -> ! {
+    thruster_fw::run_commutation(halls, bridge, &CONFIG, shared).await
 }
 
 /// The G431's ports for the controller's thread-mode tasks (`board.rs`).
@@ -328,6 +333,6 @@ impl Board for G431 {
 
 /// The controller's other tasks, on the thread-mode executor.
 #[embassy_executor::task]
-async fn controller(ports: Ports<G431>) -> ! {
-    thruster_fw::run(ports, &CONFIG, &SHARED).await
+async fn controller(ports: Ports<G431>, shared: &'static Shared) -> ! {
+    thruster_fw::run(ports, &CONFIG, shared).await
 }
