@@ -543,7 +543,9 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
 }
 
 /// The whole vehicle updated with one file per family: each put to its family's path and applied once, every
-/// thruster of the family taking it together; timed from the first put's first byte to the last confirmation.
+/// thruster of the family taking it together; timed from the first put's first byte to the last confirmation. The
+/// bus is noisy for 2 s during the first put (every byte the thrusters send has bits flipped, every command's guard
+/// too): it costs time, not the update.
 pub fn fleet_update(run: &mut Run) {
     let key = dev_key();
     run.run_for(1.0);
@@ -552,14 +554,44 @@ pub fn fleet_update(run: &mut Run) {
     let start = run.bench.now();
     let polls_before = polls_of(run);
     let bits_before = run.bench.thruster_bus().stats().bits;
-    let mut steps = Vec::new();
+    let (mut steps, mut spoiled) = (Vec::new(), 0);
     for (family, name, slot) in [
         (Family::SeaBotix, "thrusters-seabotix.lbvu", 200),
         (Family::Legacy, "thrusters-legacy.lbvu", 201),
     ] {
         let members: Vec<usize> = (0..families.len()).filter(|i| families[*i] == family).collect();
         let begun = run.bench.now();
-        let (put_state, put_s) = put(run, &format!("/update/{name}"), update_file(family, NEW, &key), 120.0);
+        let noise: Vec<Fault> = (0..families.len())
+            .flat_map(|thruster| {
+                [
+                    Fault::NoisyStatus { thruster, mask: 0x10 },
+                    Fault::CorruptOrders { thruster, mask: 0x55 },
+                ]
+            })
+            .filter(|_| steps.is_empty())
+            .collect();
+        let mut noise_from = None;
+        let (put_state, put_s) = put_until(
+            run,
+            &format!("/update/{name}"),
+            update_file(family, NEW, &key),
+            120.0,
+            |run, acked| {
+                let now = run.bench.seconds();
+                match noise_from {
+                    None if acked > PAYLOAD_LEN / 3 => {
+                        noise.iter().for_each(|fault| run.inject(*fault));
+                        noise_from = Some(now);
+                    }
+                    Some(from) if now >= from + NOISE_S => {
+                        noise.iter().for_each(|fault| run.clear(*fault));
+                        noise_from = Some(f64::INFINITY);
+                    }
+                    _ => {}
+                }
+                false
+            },
+        );
         // Every thruster of the family has the whole payload verified before the apply.
         let verified = |bench: &crate::bench::Bench| {
             members.iter().all(|i| {
@@ -570,6 +602,15 @@ pub fn fleet_update(run: &mut Run) {
             })
         };
         let verified = run.run_until(30.0, verified).is_some();
+        if !noise.is_empty() {
+            // The noise was on the bus: with their orders spoiled, the thrusters' failsafes acted.
+            spoiled = (0..families.len())
+                .filter(|i| {
+                    let stopped = format!("T{} stopped: 1 s without a valid order", i + 1);
+                    said_since(&run.bench, begun, |text| text == stopped)
+                })
+                .count();
+        }
         let (acks, apply_s) = apply(run, slot, 60.0);
         let runs_new = members.iter().all(|i| running(run, *i) == Some(NEW));
         run.check(
@@ -579,6 +620,11 @@ pub fn fleet_update(run: &mut Run) {
         );
         steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s}));
     }
+    run.check(
+        "2 s of a noisy bus during the first put cost time, not the update",
+        spoiled > 0 && steps.len() == 2,
+        format!("{spoiled} thrusters' failsafes acted on the spoiled orders"),
+    );
     let seconds = (run.bench.now() - start).as_micros() as f64 / 1e6;
     let rates: Vec<f64> = polls_before
         .iter()
@@ -600,6 +646,9 @@ pub fn fleet_update(run: &mut Run) {
     run.metric("fleet_update_bus_utilisation", json!(round(busy, 3)));
     run.metric("fleet_update_payload_kb_s", json!(round(payload_kb_s, 2)));
 }
+
+/// How long the bus is noisy during the fleet update's first put: less than the 3 s a silent thruster is given.
+const NOISE_S: f64 = 2.0;
 
 /// Each thruster's answered polls so far.
 fn polls_of(run: &Run) -> Vec<u64> {
