@@ -720,6 +720,9 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
             out.key = signing_room(shared, stats).await;
             match message {
                 Outgoing::CommandAck { command, result, to } => out.push(&outbound::command_ack(command, result, to)),
+                Outgoing::Progress { command, progress, to } => {
+                    out.push(&outbound::command_progress(command, progress, to));
+                }
                 Outgoing::ParamValue {
                     id,
                     value,

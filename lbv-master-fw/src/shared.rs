@@ -382,6 +382,15 @@ pub enum Outgoing {
         /// The command's sender, whom the answer is addressed to.
         to: Sender,
     },
+    /// COMMAND_ACK IN_PROGRESS with MAVLink 2's `progress`: how far a command that runs on is.
+    Progress {
+        /// The MAV_CMD under way.
+        command: u16,
+        /// 0-100.
+        progress: u8,
+        /// The command's sender.
+        to: Sender,
+    },
     /// Every PARAM_VALUE in index order, with the values in force (`Shared::settings`) as they go: the answer to
     /// PARAM_REQUEST_LIST. The console sends them one at a time as the line takes them, so the list need not fit in
     /// the outbox.

@@ -83,7 +83,7 @@ use crate::shared::{
     UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
-use crate::update::courier::{File, Transfers};
+use crate::update::courier::{File, Transfers, bit};
 use crate::update::own::{NotTaken, OwnImage};
 use ftp::{ACK, Nak, Opcode, Request};
 use update_image::HeaderError;
@@ -192,9 +192,12 @@ impl UpdateSink for VehicleSink<'_> {
                 .transfers
                 .with(|courier| courier.begin(slot, header.target, header.payload_len, &header.bytes))
                 .map_err(|_| Refused::Because("wait: another update is being applied")),
-            UpdateTarget::Family { slots, .. } => self
+            UpdateTarget::Family { family, slots } => self
                 .transfers
-                .with(|courier| courier.begin_to(slots, File::Family, header.target, header.payload_len, &header.bytes))
+                .with(|courier| {
+                    let file = File::Family(family);
+                    courier.begin_to(slots, file, header.target, header.payload_len, &header.bytes)
+                })
                 .map_err(|_| Refused::Because("wait: another update is being applied")),
             UpdateTarget::Master => self.own.begin(header).map_err(|_| Refused::Told),
         }
@@ -231,14 +234,14 @@ impl UpdateSink for VehicleSink<'_> {
 
     fn apply(&mut self, target: UpdateTarget, from: Sender) -> Result<Applied, Nak> {
         let slots = match target {
-            UpdateTarget::Thruster(slot) => 1 << slot,
+            UpdateTarget::Thruster(slot) => bit(slot),
             UpdateTarget::Family { slots, .. } => slots,
             UpdateTarget::Master => 0,
         };
         match target {
             UpdateTarget::Thruster(_) | UpdateTarget::Family { .. } => self.transfers.with(|courier| {
                 if let Some(by) = (0..MAX_THRUSTERS as u8)
-                    .filter(|slot| slots & 1 << slot != 0)
+                    .filter(|slot| slots & bit(*slot) != 0)
                     .find_map(|slot| courier.applier(slot))
                 {
                     return Ok(Applied::Applying(by));
@@ -465,7 +468,7 @@ impl UpdateServer {
         let slots = (0..)
             .zip(self.slots)
             .filter(|(_, slot)| *slot == Some(family))
-            .fold(0, |slots, (slot, _)| slots | 1 << slot);
+            .fold(0, |slots, (slot, _)| slots | bit(slot));
         (slots != 0).then_some(UpdateTarget::Family { family, slots })
     }
 
@@ -479,8 +482,7 @@ impl UpdateServer {
         let target = match path.strip_prefix(b"update") {
             Some(b"" | b"/") => return Ok(Some(None)),
             Some(b"/master.lbvu") => Some(UpdateTarget::Master),
-            Some(b"/thrusters-seabotix.lbvu") => self.family(Family::SeaBotix),
-            Some(b"/thrusters-legacy.lbvu") => self.family(Family::Legacy),
+            Some(name) if let Some(family) = family_named(name) => self.family(family),
             Some(name) => match name.strip_prefix(b"/thruster") {
                 Some([digit, b'.', b'l', b'b', b'v', b'u']) => self
                     .targets()
@@ -942,18 +944,28 @@ fn answer(
     }
 }
 
+/// The family whose file `name` (`/thrusters-seabotix.lbvu`) is.
+fn family_named(name: &[u8]) -> Option<Family> {
+    let name = name.strip_prefix(b"/")?;
+    Family::ALL
+        .into_iter()
+        .find(|family| name == family_file(*family).as_bytes())
+}
+
+/// The file that carries an image to every thruster of `family`.
+pub(crate) const fn family_file(family: Family) -> &'static str {
+    match family {
+        Family::SeaBotix => "thrusters-seabotix.lbvu",
+        Family::Legacy => "thrusters-legacy.lbvu",
+    }
+}
+
 /// A target's file name: "thruster2.lbvu", "thrusters-seabotix.lbvu", "master.lbvu".
 impl fmt::Display for UpdateTarget {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {
             UpdateTarget::Thruster(slot) => write!(f, "thruster{slot}.lbvu"),
-            UpdateTarget::Family {
-                family: Family::SeaBotix,
-                ..
-            } => f.write_str("thrusters-seabotix.lbvu"),
-            UpdateTarget::Family {
-                family: Family::Legacy, ..
-            } => f.write_str("thrusters-legacy.lbvu"),
+            UpdateTarget::Family { family, .. } => f.write_str(family_file(family)),
             UpdateTarget::Master => f.write_str("master.lbvu"),
         }
     }

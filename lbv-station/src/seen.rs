@@ -5,7 +5,7 @@ use alloc::string::String;
 use alloc::vec::Vec;
 
 use embassy_time::Instant;
-use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavSeverity, MavSysStatusSensor};
+use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavSysStatusSensor};
 
 /// The ground station's view of the vehicle, from the master's telemetry.
 #[derive(Debug, Clone, Default)]
@@ -22,6 +22,8 @@ pub struct Seen {
     pub acks_to: Vec<(u8, u16, u8)>,
     /// COMMAND_ACKs with the component they are addressed to: (target component, command, result).
     pub acks_to_component: Vec<(u8, u16, u8)>,
+    /// COMMAND_ACKs IN_PROGRESS: (command, progress).
+    pub progress: Vec<(u16, u8)>,
     /// STATUSTEXTs with their arrival time.
     pub texts: Vec<(Instant, String)>,
     /// Of those, the ones of severity CRITICAL.
@@ -66,6 +68,7 @@ impl Seen {
             acks: Vec::new(),
             acks_to: Vec::new(),
             acks_to_component: Vec::new(),
+            progress: Vec::new(),
             texts: Vec::new(),
             critical_texts: 0,
             rpm: [0; 8],
@@ -98,6 +101,9 @@ impl Seen {
                 self.acks_to.push((ack.target_system, ack.command, ack.result as u8));
                 self.acks_to_component
                     .push((ack.target_component, ack.command, ack.result as u8));
+                if ack.result == MavResult::MAV_RESULT_IN_PROGRESS {
+                    self.progress.push((ack.command, ack.progress));
+                }
             }
             MavMessage::FILE_TRANSFER_PROTOCOL(ftp) => self.ftp.push(ftp.payload),
             MavMessage::STATUSTEXT(text) => {

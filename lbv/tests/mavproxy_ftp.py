@@ -8,7 +8,7 @@ Starts MAVProxy headless on udpin:127.0.0.1:GCS_PORT (where `lbv bench --udp` se
 STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type them:
 
     connect   MAVProxy sees the vehicle
-    list      `ftp list /update`: one file per thruster slot and the master's, 0 bytes each
+    list      `ftp list /update`: one file per thruster slot, one per family and the master's, 0 bytes each
     unsigned  `ftp put WORK_DIR/thruster2.lbvu /update/thruster2.lbvu` over the link without signing (the vehicle's
               LBV_UPD_UNSIGNED at its default, 0): refused at its CreateFile, "thruster2.lbvu: refused, the link is
               not signed"
@@ -34,6 +34,10 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
               has confirmed it, and the texts on the way
     version   `long MAV_CMD_USER_2 2`: COMMAND_ACK IN_PROGRESS, then ACCEPTED, and "thruster2.lbvu: runs 0.2.0, dev key"
     remove    `ftp rm /update/thruster2.lbvu`: "thruster2.lbvu: removed"; `long MAV_CMD_USER_1 2`: DENIED
+    fleet     `ftp put WORK_DIR/fleet.lbvu /update/thrusters-seabotix.lbvu` (a SeaBotix 0.3.0) and, once every
+              SeaBotix thruster (T1, T3, T5) has it verified, `long MAV_CMD_USER_1 200`: COMMAND_ACK IN_PROGRESS,
+              then IN_PROGRESS with its progress as the three restart and confirm ("thrusters-seabotix.lbvu: 1 of 3
+              done, T3 60 %" at most once a second, as MAVProxy prints them), then ACCEPTED
 
 Prints a JSON summary;
 exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when pymavlink or MAVProxy is
@@ -54,6 +58,8 @@ APPLY_UPDATE = 31010
 # MAVProxy makes the key of it (SHA-256); the vehicle keeps it in its flash, and takes only frames signed with it.
 PASSPHRASE = "lbv-bench-mavproxy-ftp"
 QUERY_VERSION = 31011
+# The bench vehicle's SeaBotix thrusters (the mixed vehicle: SeaBotix and Legacy in turn), as the texts number them.
+SEABOTIX = (1, 3, 5)
 IN_PROGRESS = 5
 
 
@@ -222,6 +228,31 @@ class Session:
         self.wait(lambda: self.observer.texts(since), 2.0, "the version query's STATUSTEXT")
         self.summary["version"] = {"results": self.acks(since, QUERY_VERSION), "texts": self.observer.texts(since)}
 
+    def fleet(self):
+        since = time.monotonic()
+        self.mavproxy.type(f"ftp put {os.path.join(self.work, 'fleet.lbvu')} /update/thrusters-seabotix.lbvu")
+
+        def verified():
+            texts = self.observer.texts(since)
+            return all(f"T{n}: 4096 B verified, 0 pages kept" in texts for n in SEABOTIX)
+
+        self.wait(verified, 30.0, "the family's image on every thruster")
+        applied = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_1 200")
+        self.wait(lambda: self.ack(applied) is not None, 30.0, "the family apply's final COMMAND_ACK")
+        progress = [
+            m.progress
+            for _, m in self.observer.since(applied, "COMMAND_ACK")
+            if m.command == APPLY_UPDATE and m.result == IN_PROGRESS
+        ]
+        self.summary["fleet"] = {
+            "results": self.acks(applied),
+            "progress": progress,
+            "texts": self.observer.texts(since),
+            # As MAVProxy prints the vehicle's STATUSTEXTs.
+            "printed": [m.group(0) for m in self.lines(applied, r"thrusters-seabotix\.lbvu: \d of 3 done.*")],
+        }
+
     def remove(self):
         since = time.monotonic()
         self.mavproxy.type("ftp rm /update/thruster2.lbvu")
@@ -244,6 +275,7 @@ class Session:
         "apply",
         "version",
         "remove",
+        "fleet",
     ]
 
     def run(self):

@@ -1,13 +1,14 @@
-//! The courier that carries an update image to a thruster: any update file headers, any image bytes handed on in
-//! any sizes and at any offsets, finished or dropped, applied or not, version queries, and for every exchange it
+//! The courier that carries an update image to thrusters: any update file headers, for one slot or for any set of
+//! slots (a family's file), any image bytes handed on in any sizes and at any offsets, finished or dropped, applied
+//! (to one slot or to any set) or not, version queries, and for every exchange it
 //! asks for any reply bytes a thruster (or the bus's noise) gives, decoded as the bus task decodes them, or a
 //! failed transfer, as time passes. Nothing panics; the sink always gets room again once the bus task has had its exchanges; an
-//! exchange is only ever asked for the slot begun with or queried.
+//! exchange is only ever asked for a slot begun with or queried.
 #![no_main]
 
 use arbitrary::Arbitrary;
 use embassy_time::{Duration, Instant};
-use lbv_master_fw::update::courier::{Courier, ExchangeError, MAX_WRITE};
+use lbv_master_fw::update::courier::{Courier, ExchangeError, File, MAX_WRITE};
 use lbv_master_fw::shared::Sender;
 // The host's time driver (the harness passes its own instants).
 use lbv_sim as _;
@@ -17,9 +18,11 @@ use tmc_proto::ext::{self, Reply};
 #[derive(Arbitrary, Debug)]
 enum Step {
     Begin { slot: u8, kind: u8, payload_len: u32, header: Vec<u8> },
+    BeginFamily { slots: u8, kind: u8, payload_len: u32, header: Vec<u8> },
     Write { offset: u32, data: Vec<u8> },
     Finish(bool),
     Apply(u8),
+    ApplyTo(u8),
     Query(u8),
     /// The bus task's turn: the reply's bytes (or none: the transfer failed).
     Exchange { reply: Option<Vec<u8>>, busy: bool },
@@ -29,7 +32,8 @@ enum Step {
 fuzz_target!(|steps: Vec<Step>| {
     let mut courier = Courier::new();
     let mut now = Instant::from_ticks(0);
-    let mut slot_begun = None;
+    // The slots an exchange may be for: those begun with (as bits), and the one queried.
+    let (mut begun, mut queried) = (0u8, None);
     for step in steps {
         match step {
             Step::Begin { slot, kind, payload_len, header } => {
@@ -38,7 +42,17 @@ fuzz_target!(|steps: Vec<Step>| {
                     *to = from;
                 }
                 if courier.begin(slot, kind, payload_len, &bytes).is_ok() {
-                    slot_begun = Some(slot);
+                    begun = 1u8.checked_shl(u32::from(slot)).unwrap_or(0);
+                }
+            }
+            Step::BeginFamily { slots, kind, payload_len, header } => {
+                let mut bytes = [0u8; 80];
+                for (to, from) in bytes.iter_mut().zip(header) {
+                    *to = from;
+                }
+                let file = File::Family(tmc_proto::Family::SeaBotix);
+                if courier.begin_to(slots, file, kind, payload_len, &bytes).is_ok() {
+                    begun = slots;
                 }
             }
             Step::Write { offset, data } => {
@@ -51,14 +65,21 @@ fuzz_target!(|steps: Vec<Step>| {
             Step::Apply(slot) => {
                 let _ = courier.apply(slot, Sender { system: 255, component: 190 });
             }
+            Step::ApplyTo(slots) => {
+                let _ = courier.apply_to(slots, Sender { system: 255, component: 190 });
+            }
             Step::Query(slot) => {
                 if courier.query(slot, Sender { system: 255, component: 190 }).is_ok() {
-                    slot_begun = Some(slot);
+                    queried = Some(slot);
                 }
             }
             Step::Exchange { reply, busy } => {
                 let Some(exchange) = courier.next(now, |_| true) else { continue };
-                assert_eq!(Some(exchange.slot), slot_begun, "an exchange for a slot never begun");
+                let bit = 1u8.checked_shl(u32::from(exchange.slot)).unwrap_or(0);
+                assert!(
+                    begun & bit != 0 || queried == Some(exchange.slot),
+                    "an exchange for a slot never begun"
+                );
                 let result = match reply {
                     Some(bytes) => {
                         let len = ext::reply_len(exchange.frame.command.kind()).min(bytes.len());

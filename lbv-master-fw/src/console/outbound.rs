@@ -570,8 +570,16 @@ pub(crate) fn statustext(level: Severity, text: &Text) -> STATUSTEXT_DATA {
     }
 }
 
-/// COMMAND_ACK, addressed to the command's sender. Progress and result_param2 are 0 (the master never answers
-/// IN_PROGRESS).
+/// COMMAND_ACK IN_PROGRESS with `progress` (0-100), addressed to the command's sender.
+pub(crate) fn command_progress(command: u16, progress: u8, to: Sender) -> COMMAND_ACK_DATA {
+    COMMAND_ACK_DATA {
+        progress,
+        ..command_ack(command, AckResult::InProgress, to)
+    }
+}
+
+/// COMMAND_ACK, addressed to the command's sender. Progress and result_param2 are 0 (an IN_PROGRESS with its
+/// progress is [`command_progress`]).
 pub(crate) fn command_ack(command: u16, answer: AckResult, to: Sender) -> COMMAND_ACK_DATA {
     COMMAND_ACK_DATA {
         command,

@@ -57,6 +57,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
+use tmc_proto::Family;
 use tmc_proto::ext::{
     self, Chunk, Command, CommandFrame, CommandKind, Crc32, FrameError, MAX_CHUNK, Refusal, Reply, ReplyBody,
     SIGNATURE_LEN,
@@ -64,8 +65,9 @@ use tmc_proto::ext::{
 use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Target, Version, check_upgrade};
 
 use crate::shared::{
-    AckResult, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction, UpdateHold, texts, verdict_texts,
+    AckResult, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction, UpdateHold, text, texts, verdict_texts,
 };
+use crate::update::{PROGRESS_PERIOD, family_file};
 
 /// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
 const PAGE: usize = ext::PAGE_LEN as usize;
@@ -151,8 +153,12 @@ struct Image {
     file: File,
     /// Who applies it: the final COMMAND_ACK goes there once every thruster it was applied to is done.
     applier: Option<Sender>,
+    /// The slots it was applied to, as bits.
+    applied: u8,
     /// The slots whose transfer of it failed, as bits.
     failed: u8,
+    /// When the apply's progress was last told.
+    reported: Instant,
 }
 
 impl Image {
@@ -194,8 +200,9 @@ impl Image {
 pub enum File {
     /// One slot's (`thruster2.lbvu`): the texts name the file.
     Slot,
-    /// Every thruster of a family's (`thrusters-seabotix.lbvu`): the texts name each thruster (`T3`).
-    Family,
+    /// Every thruster of a family's (`thrusters-seabotix.lbvu`): the texts name each thruster (`T3`), and the
+    /// apply's progress the file.
+    Family(Family),
 }
 
 /// The image on its way to one thruster.
@@ -454,7 +461,7 @@ impl Courier {
         payload_len: u32,
         header: &[u8; FILE_HEADER_LEN],
     ) -> Result<(), NotTaken> {
-        self.begin_to(1 << slot, File::Slot, kind, payload_len, header)
+        self.begin_to(bit(slot), File::Slot, kind, payload_len, header)
     }
 
     /// An image for the thrusters whose slots are the bits of `slots` begins: `header` is its update file's header,
@@ -485,10 +492,12 @@ impl Courier {
             offset: 0,
             file,
             applier: None,
+            applied: 0,
             failed: 0,
+            reported: Instant::from_ticks(0),
         });
         for (slot, transfer) in (0..).zip(self.transfers.iter_mut()) {
-            *transfer = (slots & 1 << slot != 0).then(|| Transfer::new(slot));
+            *transfer = (slots & bit(slot) != 0).then(|| Transfer::new(slot));
         }
         self.fill = 0;
         // The lowest slot first.
@@ -621,7 +630,7 @@ impl Courier {
 
     /// The apply command for `slot`'s image, from `from`: see [`Courier::apply_to`].
     pub fn apply(&mut self, slot: u8, from: Sender) -> Result<bool, NotTaken> {
-        self.apply_to(1 << slot, from)
+        self.apply_to(bit(slot), from)
     }
 
     /// The apply command for the thrusters whose slots are the bits of `slots`, from `from`: `Ok(true)` when
@@ -630,27 +639,22 @@ impl Courier {
     /// some, an error when none has it (it failed, or never came).
     pub fn apply_to(&mut self, slots: u8, from: Sender) -> Result<bool, NotTaken> {
         let image = self.image.filter(|image| image.applier.is_none()).ok_or(NotTaken)?;
-        let ours = |transfer: &&mut Transfer| slots & 1 << transfer.slot != 0;
-        let mut targets = self.transfers.iter_mut().flatten().filter(ours).peekable();
-        if targets.peek().is_none() {
+        let ours = |transfer: &Transfer| slots & bit(transfer.slot) != 0;
+        let targets = self.live().filter(|t| ours(t)).fold(0, |mask, t| mask | bit(t.slot));
+        if targets == 0 {
             return Err(NotTaken);
         }
-        if self
-            .transfers
-            .iter()
-            .flatten()
-            .filter(|t| slots & 1 << t.slot != 0)
-            .any(|t| t.step != Step::Written)
-        {
+        if self.live().filter(|t| ours(t)).any(|t| t.step != Step::Written) {
             return if image.complete { Ok(false) } else { Err(NotTaken) };
         }
-        for transfer in self.transfers.iter_mut().flatten().filter(|t| slots & 1 << t.slot != 0) {
+        for transfer in self.transfers.iter_mut().flatten().filter(|t| ours(t)) {
             transfer.step = Step::Finish;
             transfer.applied = true;
             transfer.silent_since = None;
         }
         if let Some(image) = self.image.as_mut() {
             image.applier = Some(from);
+            image.applied = targets;
         }
         Ok(true)
     }
@@ -764,8 +768,8 @@ impl Courier {
         Some((step, command))
     }
 
-    /// What `exchange` got, at `now`: the transfer moves on, or ends; `out` takes the texts and the apply
-    /// command's final acknowledgement.
+    /// What `exchange` got, at `now`: the transfer moves on, or ends; `out` takes the texts, the apply's progress
+    /// and its final acknowledgement.
     #[inline(never)]
     pub fn on_result(
         &mut self,
@@ -774,7 +778,54 @@ impl Courier {
         result: Result<Reply, ExchangeError>,
         out: &mut impl FnMut(Outgoing),
     ) {
-        let exchange: Sent = exchange.into();
+        self.take(now, exchange.into(), result, out);
+        self.report(now, out);
+    }
+
+    /// At most once a [`PROGRESS_PERIOD`] while a family's image is applied: how far, as the
+    /// apply's COMMAND_ACK IN_PROGRESS with its progress (each thruster's share: marked 10 %, restarting 20 %, on
+    /// trial 60 %, done 100 %) and a text (`thrusters-seabotix.lbvu: 1 of 3 done, T3 60 %`).
+    fn report(&mut self, now: Instant, out: &mut impl FnMut(Outgoing)) {
+        let Some((File::Family(family), image)) = self.image.as_mut().map(|image| (image.file, image)) else {
+            return;
+        };
+        let Some(to) = image.applier.filter(|_| now >= image.reported + PROGRESS_PERIOD) else {
+            return;
+        };
+        image.reported = now;
+        let count = image.applied.count_ones();
+        let going = self.live().filter(|t| t.applied).count() as u32;
+        let done = count.saturating_sub(going);
+        let share = |transfer: &Transfer| -> u32 {
+            match transfer.step {
+                Step::Reboot => 10,
+                Step::Restart(_) => 20,
+                Step::Trial { .. } => 60,
+                _ => 0,
+            }
+        };
+        let shares: u32 = self.live().filter(|t| t.applied).map(share).sum();
+        let progress = ((100 * done + shares) / count.max(1)).min(99) as u8;
+        out(Outgoing::Progress {
+            command: UpdateAction::Apply.command(),
+            progress,
+            to,
+        });
+        if let Some(first) = self.live().find(|t| t.applied) {
+            let file = family_file(family);
+            let what = format_args!("{file}: {done} of {count} done, T{} {} %", first.slot + 1, share(first));
+            out(Outgoing::Text(Severity::Info, text(what)));
+        }
+    }
+
+    /// What `exchange` got, at `now`: the transfer moves on, or ends.
+    fn take(
+        &mut self,
+        now: Instant,
+        exchange: Sent,
+        result: Result<Reply, ExchangeError>,
+        out: &mut impl FnMut(Outgoing),
+    ) {
         if let Some(query) = self
             .query
             .filter(|query| query.slot == exchange.slot && exchange.command == CommandKind::Version)
@@ -1179,7 +1230,7 @@ impl Courier {
             return;
         };
         if ending.is_some() {
-            image.failed |= 1 << slot;
+            image.failed |= bit(slot);
         }
         if let Some(to) = image.applier
             && !self.transfers.iter().flatten().any(|t| t.applied)
@@ -1189,6 +1240,11 @@ impl Courier {
             } else {
                 AckResult::Failed
             };
+            // Each failure was told as it came; the end names them together.
+            if let (File::Family(family), true) = (image.file, image.failed != 0) {
+                let what = format_args!("{}: failed:{}", family_file(family), Thrusters(image.failed));
+                out(Outgoing::Text(Severity::Warning, text(what)));
+            }
             out(Outgoing::CommandAck {
                 command: UpdateAction::Apply.command(),
                 result,
@@ -1201,6 +1257,25 @@ impl Courier {
         } else {
             self.move_on();
         }
+    }
+}
+
+/// Slot `slot`'s bit in a mask of slots (none for a slot beyond the mask).
+pub(crate) const fn bit(slot: u8) -> u8 {
+    match 1u8.checked_shl(slot as u32) {
+        Some(bit) => bit,
+        None => 0,
+    }
+}
+
+/// The thrusters whose slots are the bits of a mask, for a person: " T3 T5".
+struct Thrusters(u8);
+
+impl core::fmt::Display for Thrusters {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        (0..MAX_THRUSTERS as u8)
+            .filter(|slot| self.0 & bit(*slot) != 0)
+            .try_for_each(|slot| write!(f, " T{}", u16::from(slot) + 1))
     }
 }
 
@@ -1241,7 +1316,7 @@ impl core::fmt::Display for Ver {
 fn say(out: &mut impl FnMut(Outgoing), severity: Severity, file: File, slot: u8, args: core::fmt::Arguments<'_>) {
     let (first, second) = match file {
         File::Slot => texts(format_args!("thruster{slot}.lbvu"), args),
-        File::Family => texts(format_args!("T{}", u16::from(slot) + 1), args),
+        File::Family(_) => texts(format_args!("T{}", u16::from(slot) + 1), args),
     };
     for text in [Some(first), second].into_iter().flatten() {
         out(Outgoing::Text(severity, text));

@@ -370,13 +370,16 @@ fn differences(scenario: &Scenario, events: &(Report, Trace), exact: &(Report, T
     // engines, but two of them may interleave either way when they speak within a tick of each other (after a
     // master reset: the battery's first report on its 100 ms grid and the first polls). An upload's progress, said
     // at most once a second, is a sample of it, not an event: how many texts an upload gets depends on where its
-    // start falls in the second, which the engines may put either side of a tick.
+    // start falls in the second, which the engines may put either side of a tick. So is a family apply's.
     let events = |trace: &Trace, speaker: Speaker| -> Vec<Event> {
         trace
             .events
             .iter()
             .filter(|event| Speaker::of(&event.text) == speaker)
-            .filter(|event| !without_figures(&event.text).ends_with(".lbvu: # of # bytes"))
+            .filter(|event| {
+                let text = without_figures(&event.text);
+                !text.ends_with(".lbvu: # of # bytes") && !text.contains(".lbvu: # of # done, T")
+            })
             .cloned()
             .collect()
     };

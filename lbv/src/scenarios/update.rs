@@ -611,12 +611,35 @@ pub fn fleet_update(run: &mut Run) {
                 })
                 .count();
         }
+        let progress_before = run.bench.ground.seen.progress.len();
+        let applied = run.bench.now();
         let (acks, apply_s) = apply(run, slot, 60.0);
         let runs_new = members.iter().all(|i| running(run, *i) == Some(NEW));
+        // IN_PROGRESS, then IN_PROGRESS with the progress as it goes, then ACCEPTED.
+        let answered = acks.first() == Some(&IN_PROGRESS)
+            && acks.last() == Some(&ACCEPTED)
+            && acks[1..acks.len() - 1].iter().all(|ack| *ack == IN_PROGRESS);
         run.check(
             &format!("every {family:?} thruster is updated with one file and one apply"),
-            put_state == UploadState::Done && verified && acks == [IN_PROGRESS, ACCEPTED] && runs_new,
+            put_state == UploadState::Done && verified && answered && runs_new,
             format!("put {put_state:?} in {put_s} s, verified {verified}, apply acks {acks:?} in {apply_s} s"),
+        );
+        let progress: Vec<u8> = run.bench.ground.seen.progress[progress_before..]
+            .iter()
+            .filter(|(command, _)| *command == MAV_CMD_LBV_APPLY_UPDATE)
+            .map(|(_, progress)| *progress)
+            .collect();
+        let told = texts_since(run, applied, name)
+            .into_iter()
+            .filter(|text| text.contains(" done, T"))
+            .count();
+        run.check(
+            &format!("the {family:?} apply tells its progress, at most once a second"),
+            progress.windows(2).all(|pair| pair[0] <= pair[1])
+                && progress.iter().any(|p| *p > 0)
+                && told >= 2
+                && told as f64 <= apply_s + 1.0,
+            format!("progress {progress:?}, {told} texts in {apply_s} s"),
         );
         steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s}));
     }

@@ -8,7 +8,8 @@
 //! lost), `ftp crc` against `ftp crclocal`, `long MAV_CMD_USER_1 2` to apply (the thruster checks the signature,
 //! its bootloader swaps the image in, it runs it), `long MAV_CMD_USER_2 2` to ask what it runs, `ftp rm`. The
 //! bench writes what its master's update sink received (`--update-dir`), which must be the file, byte for byte.
-//! Runs in real time (about 10 s).
+//! Last, one put to /update/thrusters-seabotix.lbvu and `long MAV_CMD_USER_1 200` update every SeaBotix thruster,
+//! the apply's progress in its COMMAND_ACKs and as MAVProxy prints the texts. Runs in real time (about 35 s).
 //!
 //! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without them this test fails,
 //! it does not skip.
@@ -35,6 +36,8 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     std::fs::write(format!("{local}/older.lbvu"), older).unwrap();
     let flipped = support::update_file(seabotix, update_image::Version::new(0, 3, 0), Some(3000));
     std::fs::write(format!("{local}/flipped.lbvu"), flipped).unwrap();
+    let fleet = support::update_file(seabotix, update_image::Version::new(0, 3, 0), None);
+    std::fs::write(format!("{local}/fleet.lbvu"), fleet).unwrap();
     let args = [
         gcs.to_string(),
         observer.to_string(),
@@ -54,14 +57,15 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         summary["steps"],
         serde_json::json!([
             "connect", "list", "unsigned", "signing", "older", "flipped", "lossy", "crc", "listed", "apply", "version",
-            "remove"
+            "remove", "fleet"
         ]),
         "{summary}"
     );
-    let files = |sizes: [u64; 7]| {
+    let files = |sizes: [u64; 9]| {
+        let families = ["thrusters-seabotix.lbvu", "thrusters-legacy.lbvu", "master.lbvu"];
         let names = (0..6)
             .map(|n| format!("thruster{n}.lbvu"))
-            .chain(["master.lbvu".to_owned()]);
+            .chain(families.map(str::to_owned));
         serde_json::Value::from(
             names
                 .zip(sizes)
@@ -69,7 +73,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
                 .collect::<Vec<_>>(),
         )
     };
-    assert_eq!(summary["list"], files([0; 7]), "{summary}");
+    assert_eq!(summary["list"], files([0; 9]), "{summary}");
     // Over the link without signing: refused at its CreateFile, saying why; then MAVProxy sets signing up.
     let unsigned = &summary["unsigned"];
     assert_eq!(
@@ -141,7 +145,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
             .is_some_and(|seen| seen.len() == 2 && seen.iter().all(|c| *c == crc["vehicle"])),
         "{summary}"
     );
-    assert_eq!(summary["listed"], files([0, 0, 4176, 0, 0, 0, 0]), "{summary}");
+    assert_eq!(summary["listed"], files([0, 0, 4176, 0, 0, 0, 0, 0, 0]), "{summary}");
     assert_eq!(
         summary["apply"]["results"],
         serde_json::json!([5, 0]),
@@ -171,6 +175,37 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
             || *removed == serde_json::json!(["thruster2.lbvu: removed", "thruster2.lbvu: nothing to apply"]),
         "{summary}"
     );
+    // One put and one apply for the bench vehicle's three SeaBotix thrusters: IN_PROGRESS, its progress as they
+    // restart and confirm, ACCEPTED.
+    let fleet = &summary["fleet"];
+    let results = fleet["results"].as_array().unwrap();
+    assert!(
+        results.first() == Some(&5.into())
+            && results.last() == Some(&0.into())
+            && results[1..results.len() - 1].iter().all(|r| *r == 5),
+        "{summary}"
+    );
+    let progress: Vec<u64> = fleet["progress"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|p| p.as_u64())
+        .collect();
+    assert!(
+        progress.windows(2).all(|pair| pair[0] <= pair[1]) && progress.iter().any(|p| *p > 0),
+        "{summary}"
+    );
+    assert!(
+        fleet["printed"].as_array().is_some_and(|printed| !printed.is_empty()),
+        "{summary}"
+    );
+    for n in [1, 3, 5] {
+        let confirmed = format!("T{n}: 0.3.0 confirmed");
+        assert!(
+            fleet["texts"].as_array().unwrap().contains(&confirmed.into()),
+            "{summary}"
+        );
+    }
     // Whatever was lost on the way, the sink got the file, byte for byte.
     let sent = std::fs::read(format!("{local}/thruster2.lbvu")).unwrap();
     let got = std::fs::read(format!("{received}/thruster2.lbvu")).unwrap();

@@ -3,6 +3,7 @@
 
 use super::*;
 use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
+use tmc_proto::Family;
 use tmc_proto::ext::CommandKind;
 use update_image::{DEV_PUBLIC_KEY, IMAGE_RECORD_LEN, image_record};
 
@@ -1193,7 +1194,7 @@ fn a_family_file_goes_to_each_of_its_thrusters_page_by_page_in_turn_and_one_appl
     courier
         .begin_to(
             0b1_0101,
-            File::Family,
+            File::Family(Family::SeaBotix),
             1,
             image.len() as u32,
             &header(image.len() as u32),
@@ -1215,8 +1216,28 @@ fn a_family_file_goes_to_each_of_its_thrusters_page_by_page_in_turn_and_one_appl
         );
         assert!(texts.contains(&format!("{who}: 0.2.0 confirmed")), "{texts:?}");
     }
-    // One final answer, once the last has confirmed.
+    // One final answer, once the last has confirmed; before it, the progress at most once a second.
     assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+    let progress: Vec<u8> = said
+        .iter()
+        .filter_map(|o| match o {
+            Outgoing::Progress { command, progress, to } => {
+                assert_eq!((*command, *to), (MAV_CMD_LBV_APPLY_UPDATE, GCS));
+                Some(*progress)
+            }
+            _ => None,
+        })
+        .collect();
+    assert!(
+        progress.windows(2).all(|pair| pair[0] <= pair[1]) && progress.last() < Some(&100),
+        "{progress:?}"
+    );
+    let told: Vec<&String> = texts.iter().filter(|text| text.contains(" done, T")).collect();
+    assert_eq!(told.len(), progress.len());
+    assert_eq!(
+        told.first().map(|t| t.as_str()),
+        Some("thrusters-seabotix.lbvu: 0 of 3 done, T1 10 %")
+    );
     assert!(courier.image.is_none() && courier.hold().is_none());
 }
 
@@ -1225,7 +1246,13 @@ fn a_thruster_of_the_family_that_stops_answering_is_left_behind_and_the_apply_fa
     let image = payload(5000);
     let mut courier = Courier::new();
     courier
-        .begin_to(0b101, File::Family, 1, image.len() as u32, &header(image.len() as u32))
+        .begin_to(
+            0b101,
+            File::Family(Family::SeaBotix),
+            1,
+            image.len() as u32,
+            &header(image.len() as u32),
+        )
         .unwrap();
     // T3 is silent: the buffer waits for it up to the silence limit, then moves on without it.
     let mut slots = vec![(0, vec![0u8; 8 * PAGE], false), (2, vec![0u8; 8 * PAGE], true)];
@@ -1237,6 +1264,7 @@ fn a_thruster_of_the_family_that_stops_answering_is_left_behind_and_the_apply_fa
         "{texts:?}"
     );
     assert!(texts.contains(&"T1: 0.2.0 confirmed".to_owned()), "{texts:?}");
+    assert_eq!(texts.last().unwrap(), "thrusters-seabotix.lbvu: failed: T3");
     assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Failed)]);
     assert!(courier.image.is_none());
 }
@@ -1246,7 +1274,13 @@ fn a_family_image_is_dropped_once_every_thruster_has_ended_and_the_upload_is_ref
     let image = payload(5000);
     let mut courier = Courier::new();
     courier
-        .begin_to(0b11, File::Family, 1, image.len() as u32, &header(image.len() as u32))
+        .begin_to(
+            0b11,
+            File::Family(Family::SeaBotix),
+            1,
+            image.len() as u32,
+            &header(image.len() as u32),
+        )
         .unwrap();
     let mut said = Vec::new();
     for ms in (0..10_000).step_by(20) {
