@@ -389,8 +389,9 @@ const fn thruster(name: &'static str, features: &'static str, image: &'static Im
 }
 
 /// The flash budget of the vehicle's master application ([`Build::flash_budget`]): the largest image the master's
-/// own update carries.
-pub const MASTER_FLASH_BUDGET: u32 = 148 * KIB;
+/// own update carries. ACTIVE holds 228 KiB; the budget keeps each step of growth deliberate (148 KiB until the
+/// courier carried one image to every thruster of a family and told the apply's progress, 3.2 KiB of code).
+pub const MASTER_FLASH_BUDGET: u32 = 156 * KIB;
 
 const fn master(name: &'static str, features: &'static str, flash_budget: u32) -> Build {
     Build {
