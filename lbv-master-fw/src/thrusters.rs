@@ -1048,12 +1048,14 @@ where
         let polled = {
             let cycle = if back_to_back { Instant::now() } else { next };
             let polled = state.cycle(bus, bus_index, table, cycle, shared, transfers).await;
-            let mut carried = 0;
+            let (mut carried, mut updating) = (0, false);
             if let Some(transfers) = transfers {
-                // Armed, or with cycles back to back, one exchange a cycle; disarmed, as many as the cycle holds
-                // (the last may run over it, and the next cycle starts late: the polls go on at some 30 Hz). One
-                // that fails is tried again at the next cycle, not at once.
-                let more = || !back_to_back && Instant::now() < cycle + period && !armed(shared);
+                // Disarmed with an update image on its way, as many exchanges as the cycle holds (the last may run
+                // over it, and the next cycle starts late); otherwise (armed, cycles back to back, or only the
+                // master's questions of what a thruster runs), one a cycle. One that fails is tried again at the
+                // next cycle, not at once.
+                updating = !back_to_back && !armed(shared) && transfers.with(|courier| courier.carrying());
+                let more = || updating && Instant::now() < cycle + period;
                 while let Some(answered) = state.carry(bus, bus_index, table, transfers, shared).await {
                     carried += 1;
                     if !answered || !more() {
@@ -1061,8 +1063,8 @@ where
                     }
                 }
             }
-            // Disarmed with an update on its way, the polls slow down and leave the bus to it.
-            period = if carried > 0 && !back_to_back && !armed(shared) {
+            // Then the polls slow down and leave the bus to the update.
+            period = if updating && carried > 0 {
                 config.period.max(UPDATE_PERIOD)
             } else {
                 config.period

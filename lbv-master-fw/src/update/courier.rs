@@ -443,6 +443,11 @@ impl Courier {
         }
     }
 
+    /// Whether an image is on its way to thrusters (and not only the master's questions of what they run).
+    pub(crate) fn carrying(&self) -> bool {
+        self.image.is_some()
+    }
+
     /// Whether the sink may hand on one more write's bytes.
     pub fn has_room(&self) -> bool {
         self.image.is_none() || self.fill + MAX_WRITE <= BUFFER
