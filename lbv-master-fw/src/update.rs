@@ -83,7 +83,7 @@ use crate::shared::{
     UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
-use crate::update::courier::{File, Transfers, bit};
+use crate::update::courier::{File, PROGRESS_PERIOD, Transfers, bit, family_file};
 use crate::update::own::{NotTaken, OwnImage};
 use ftp::{ACK, Nak, Opcode, Request};
 use update_image::HeaderError;
@@ -96,8 +96,6 @@ pub(crate) const ENABLED: bool = !cfg!(feature = "acceptance");
 /// A session idle this long may be taken over by a new open, its upload stopped (ArduPilot's
 /// FTP_SESSION_TIMEOUT).
 pub const TAKEOVER_IDLE: Duration = Duration::from_secs(3);
-/// Progress reports come at most this often.
-pub(crate) const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
 /// The longest thruster payload: its ACTIVE partition, which the payload is an image of.
 pub(crate) const THRUSTER_MAX_PAYLOAD: u32 = g431_hw::memory::THRUSTER_PARTITIONS.active.length;
 /// The longest master payload: its ACTIVE partition, which the payload is an image of.
@@ -950,14 +948,6 @@ fn family_named(name: &[u8]) -> Option<Family> {
     Family::ALL
         .into_iter()
         .find(|family| name == family_file(*family).as_bytes())
-}
-
-/// The file that carries an image to every thruster of `family`.
-pub(crate) const fn family_file(family: Family) -> &'static str {
-    match family {
-        Family::SeaBotix => "thrusters-seabotix.lbvu",
-        Family::Legacy => "thrusters-legacy.lbvu",
-    }
 }
 
 /// A target's file name: "thruster2.lbvu", "thrusters-seabotix.lbvu", "master.lbvu".

@@ -67,7 +67,16 @@ use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Tar
 use crate::shared::{
     AckResult, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction, UpdateHold, text, texts, verdict_texts,
 };
-use crate::update::{PROGRESS_PERIOD, family_file};
+
+/// Progress reports (the upload's, a family apply's) come at most this often.
+pub(crate) const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
+/// The file that carries an image to every thruster of `family`.
+pub(crate) const fn family_file(family: Family) -> &'static str {
+    match family {
+        Family::SeaBotix => "thrusters-seabotix.lbvu",
+        Family::Legacy => "thrusters-legacy.lbvu",
+    }
+}
 
 /// A flash page of the thruster's DFU partition: what the sink gathers before it goes on.
 const PAGE: usize = ext::PAGE_LEN as usize;

@@ -44,12 +44,13 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         "pymavlink",
         &["--update-dir", &received],
     );
-    // The directory, then one file per slot of the dive vehicle's table and the master's.
+    // The directory, then one file per slot of the dive vehicle's table, one per family and the master's.
     assert_eq!(summary["root"], serde_json::json!([["update", 0, true]]), "{summary}");
-    let files = |sizes: [u64; 7]| {
+    let files = |sizes: [u64; 9]| {
+        let families = ["thrusters-seabotix.lbvu", "thrusters-legacy.lbvu", "master.lbvu"];
         let names = (0..6)
             .map(|n| format!("thruster{n}.lbvu"))
-            .chain(["master.lbvu".to_owned()]);
+            .chain(families.map(str::to_owned));
         serde_json::Value::from(
             names
                 .zip(sizes)
@@ -57,7 +58,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
                 .collect::<Vec<_>>(),
         )
     };
-    assert_eq!(summary["before"], files([0; 7]), "{summary}");
+    assert_eq!(summary["before"], files([0; 9]), "{summary}");
     // Without signing: refused, saying why, until LBV_UPD_UNSIGNED allows it. pymavlink sends its first writes
     // before the CreateFile's answer, so it reports the NAK of its first write (InvalidSession, 4: no session was
     // opened) rather than the CreateFile's (Fail).
@@ -68,7 +69,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         "{summary}"
     );
     assert_eq!(summary["allowed"], 1.0, "{summary}");
-    assert_eq!(summary["after"], files([4176, 0, 0, 0, 0, 0, 0]), "{summary}");
+    assert_eq!(summary["after"], files([4176, 0, 0, 0, 0, 0, 0, 0, 0]), "{summary}");
     // At the console's 115200 baud a put takes over a second, and the master tells its progress once a second.
     let without_progress = |texts: &serde_json::Value| {
         let texts = texts.as_array().into_iter().flatten();
