@@ -1187,19 +1187,20 @@ fn carry_family(courier: &mut Courier, image: &[u8], slots: &mut [(u8, Vec<u8>, 
     (said, order)
 }
 
+/// A courier with a SeaBotix family's `image` begun for the slots that are bits of `slots`.
+fn family_courier(slots: u8, image: &[u8]) -> Courier {
+    let mut courier = Courier::new();
+    let len = image.len() as u32;
+    courier
+        .begin_to(slots, File::Family(Family::SeaBotix), 1, len, &header(len))
+        .unwrap();
+    courier
+}
+
 #[test]
 fn a_family_file_goes_to_each_of_its_thrusters_page_by_page_in_turn_and_one_apply_applies_it_to_all() {
     let image = payload(5000);
-    let mut courier = Courier::new();
-    courier
-        .begin_to(
-            0b1_0101,
-            File::Family(Family::SeaBotix),
-            1,
-            image.len() as u32,
-            &header(image.len() as u32),
-        )
-        .unwrap();
+    let mut courier = family_courier(0b1_0101, &image);
     let mut slots: Vec<(u8, Vec<u8>, bool)> = [0, 2, 4].map(|slot| (slot, vec![0u8; 8 * PAGE], false)).into();
     let (said, order) = carry_family(&mut courier, &image, &mut slots);
     for (slot, dfu, _) in &slots {
@@ -1244,16 +1245,7 @@ fn a_family_file_goes_to_each_of_its_thrusters_page_by_page_in_turn_and_one_appl
 #[test]
 fn a_thruster_of_the_family_that_stops_answering_is_left_behind_and_the_apply_fails_naming_it() {
     let image = payload(5000);
-    let mut courier = Courier::new();
-    courier
-        .begin_to(
-            0b101,
-            File::Family(Family::SeaBotix),
-            1,
-            image.len() as u32,
-            &header(image.len() as u32),
-        )
-        .unwrap();
+    let mut courier = family_courier(0b101, &image);
     // T3 is silent: the buffer waits for it up to the silence limit, then moves on without it.
     let mut slots = vec![(0, vec![0u8; 8 * PAGE], false), (2, vec![0u8; 8 * PAGE], true)];
     let (said, _) = carry_family(&mut courier, &image, &mut slots);
@@ -1272,16 +1264,7 @@ fn a_thruster_of_the_family_that_stops_answering_is_left_behind_and_the_apply_fa
 #[test]
 fn a_family_image_is_dropped_once_every_thruster_has_ended_and_the_upload_is_refused() {
     let image = payload(5000);
-    let mut courier = Courier::new();
-    courier
-        .begin_to(
-            0b11,
-            File::Family(Family::SeaBotix),
-            1,
-            image.len() as u32,
-            &header(image.len() as u32),
-        )
-        .unwrap();
+    let mut courier = family_courier(0b11, &image);
     let mut said = Vec::new();
     for ms in (0..10_000).step_by(20) {
         if let Some(exchange) = courier.next(t(ms), |_| true) {
