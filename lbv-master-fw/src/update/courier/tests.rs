@@ -1281,3 +1281,33 @@ fn a_family_image_is_dropped_once_every_thruster_has_ended_and_the_upload_is_ref
     assert!(courier.image.is_none());
     assert_eq!(courier.write(0, &image[..MAX_WRITE]), Err(NotTaken));
 }
+
+#[test]
+fn a_family_apply_sent_again_or_a_new_image_while_it_runs_starts_nothing() {
+    let image = payload(SMALL);
+    let mut courier = family_courier(0b11, &image);
+    let mut dfus = [vec![0u8; 8 * PAGE], vec![0u8; 8 * PAGE]];
+    for (offset, block) in (0..).step_by(MAX_WRITE).zip(image.chunks(MAX_WRITE)) {
+        courier.write(offset, block).unwrap();
+    }
+    courier.finish(true).unwrap();
+    for ms in (0..10_000).step_by(20) {
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            break;
+        };
+        let result = answer(&mut dfus[usize::from(exchange.slot)], &exchange, [0, 1, 0, 0]);
+        courier.on_result(t(ms), &exchange, result, &mut |_| {});
+    }
+    assert_eq!(courier.apply_to(0b11, GCS), Ok(true));
+    // The same apply again: the one under way, whose applier each thruster names (the server answers IN_PROGRESS).
+    assert_eq!(courier.apply_to(0b11, GCS), Err(NotTaken));
+    assert_eq!([courier.applier(0), courier.applier(1)], [Some(GCS), Some(GCS)]);
+    // A new image, for the family or one of its slots, waits for the apply's end.
+    let len = image.len() as u32;
+    assert_eq!(
+        courier.begin_to(0b11, File::Family(Family::SeaBotix), 1, len, &header(len)),
+        Err(NotTaken)
+    );
+    assert_eq!(courier.begin(1, 1, len, &header(len)), Err(NotTaken));
+    assert_eq!(courier.hold(), Some(UpdateHold::Applying(0)));
+}
