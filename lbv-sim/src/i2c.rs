@@ -10,11 +10,24 @@
 //!   up on returns at once as if the bytes had moved (the firmware cannot tell; on the chip its peripheral would
 //!   meet whatever the master does next).
 //! - Addresses nobody acknowledges (absent, unpowered, behind an unselected multiplexer channel) NACK.
+//! - Several slaves at one address (mux channels enabled together, each with a slave of the same family): SDA and
+//!   SCL are open-drain, wired-AND (UM10204 3.1.1), so every powered slave that hears the transfer takes part, and
+//!   the transfer counts as a collision ([`Stats::collisions`]). A write reaches each of them, each through its own
+//!   [`Tamper`]. An ACK, of the address or of a data byte, is there when at least one of them drives it (3.1.6): a
+//!   slave that does not acknowledge, or loses power on the way, is hidden behind the others, its copy torn or
+//!   missing while the master sees success; the master sees a NACK only at the first byte none of them
+//!   acknowledges. SCL stays low until the last of them lets it go (3.1.9): the bytes move once every firmware port
+//!   has answered and every stretching device is done, and one that does not answer within the timeout times the
+//!   whole transfer out. A read gets the AND of what they all drive (one with nothing more to send, or unpowered,
+//!   leaves 0xFF). Each firmware port is told whether its own bytes all moved. Simplified: the slaves are not
+//!   clocked bit by bit, so each port's read counts as sent whatever the others drove (a peripheral that sees
+//!   another's 0 where it sends a 1 and gives up is not modelled); a device answers at the START as it does alone;
+//!   a slave holding SDA low, or a glitch at one port, fails the transfer for all of them.
 //! - Power ([`Bus::set_powered`]): an unpowered slave's pins let SCL and SDA go, to the pull-ups (UM10204 3.1.1).
 //!   A firmware port that loses power in the middle of a transfer tears it: in its address byte, the address is
 //!   not acknowledged; while it stretches SCL or while the bytes move, the master clocks on against released lines,
-//!   so the rest of a read is 0xFF and a write's next byte is not acknowledged. A [`Device`] is not torn: its power
-//!   counts from the next START.
+//!   so the rest of a read is 0xFF and a write's next byte is not acknowledged (unless another slave that hears the
+//!   transfer drives them, as above). A [`Device`] is not torn: its power counts from the next START.
 //! - Faults: a device's bytes can be corrupted both ways ([`Tamper`]); a transfer to firmware can be torn by a
 //!   glitch ([`Bus::disturb`]); a slave can hold SDA low for a number of SCL clocks, now ([`Bus::hold_sda`]) or
 //!   from its next transfer ([`Bus::hold_sda_at_next_transfer`]), which fails every transfer until the master
@@ -29,10 +42,12 @@ use alloc::vec::Vec;
 use core::cell::{Cell, RefCell};
 use core::convert::Infallible;
 use core::mem;
+use core::pin::Pin;
+use core::task::Poll;
 
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
-use embassy_time::{Duration, Instant, Timer, with_deadline, with_timeout};
+use embassy_time::{Duration, Instant, Timer, with_deadline};
 use embedded_hal::digital::{self, InputPin, OutputPin};
 use embedded_hal_async::i2c::{ErrorKind, ErrorType, I2c, NoAcknowledgeSource, Operation};
 
@@ -159,10 +174,11 @@ pub struct Stats {
     pub stalled: u64,
     /// Transfers that failed on the bus: SDA held low (before or during the transfer), or a glitch.
     pub bus_errors: u64,
-    /// Transfers that two devices answered at once (their bytes would collide on SDA).
+    /// Transfers that several slaves heard at once: their ACKs, and a read's bytes, meet wired-AND on SDA.
     pub collisions: u64,
-    /// Transfers a firmware port's power cut tore after it had acknowledged its address: a read's bits from the cut
-    /// on read 1, a write's next byte is not acknowledged.
+    /// Firmware ports' copies of a transfer a power cut tore after they had acknowledged the address (one per port):
+    /// its bits from the cut on read 1, and its next byte of a write is not acknowledged (the master sees that only
+    /// when no other slave acknowledges it).
     pub torn: u64,
     /// SCL clock pulses made on the pins.
     pub pin_clocks: u64,
@@ -281,23 +297,27 @@ impl TargetLine {
     }
 }
 
-/// A transfer to a firmware port from its address on: dropped before it ends (the master's task stopped), it
-/// still ends, so the firmware does not wait for bytes that never come.
+/// A transfer to the firmware ports that acknowledged its address, from the address on: dropped before it ends (the
+/// master's task stopped), it still ends for each, so no firmware waits for bytes that never come.
 struct Addressed<'a> {
-    line: &'a TargetLine,
+    lines: Vec<&'a TargetLine>,
     wire: &'a RefCell<Wire>,
 }
 
 impl Addressed<'_> {
-    /// The transfer ended as the master saw it.
-    fn end(self, ok: bool) {
-        self.line.end(if ok { Ok(()) } else { Err(TargetError) });
+    /// The transfer ended: whether each port's bytes all moved, in the order of `lines`.
+    fn end(self, moved: impl IntoIterator<Item = bool>) {
+        for (line, moved) in self.lines.iter().zip(moved) {
+            line.end(if moved { Ok(()) } else { Err(TargetError) });
+        }
     }
 }
 
 impl Drop for Addressed<'_> {
     fn drop(&mut self) {
-        self.line.end(Err(TargetError));
+        for line in &self.lines {
+            line.end(Err(TargetError));
+        }
         if let Ok(mut wire) = self.wire.try_borrow_mut() {
             wire.moving = None;
         }
@@ -327,6 +347,21 @@ impl Slot {
     }
 }
 
+/// A slave that hears the master's transfer under way, and when it lost power, if it did during the transfer.
+#[derive(Debug, Clone, Copy)]
+struct Heard {
+    slot: usize,
+    cut: Option<Instant>,
+}
+
+/// The data bytes of a transfer moving between the master and firmware ports.
+#[derive(Debug)]
+struct Moving {
+    slots: Vec<usize>,
+    request: Request,
+    since: Instant,
+}
+
 /// A TCA9548A: its address and its control register (one bit per channel).
 #[derive(Debug, Clone, Copy)]
 struct Mux {
@@ -343,12 +378,10 @@ struct Wire {
     /// The master's pins: driving SCL low, driving SDA low.
     scl_low: bool,
     sda_low: bool,
-    /// The device the master's transfer under way addressed.
-    busy_with: Option<usize>,
-    /// When that device lost power, if it did during the transfer.
-    cut: Option<Instant>,
-    /// The firmware port whose data bytes are moving now, which way, and since when.
-    moving: Option<(usize, Request, Instant)>,
+    /// The slaves the master's transfer under way reached.
+    busy_with: Vec<Heard>,
+    /// The firmware ports whose data bytes are moving now, which way, and since when.
+    moving: Option<Moving>,
     stats: Stats,
     log: Option<Vec<Transfer>>,
     /// The CPU the master runs on, when it can stall.
@@ -363,6 +396,14 @@ impl Wire {
                 .mux
                 .is_some_and(|mux| channel < 8 && mux.control & (1 << channel) != 0),
         }
+    }
+
+    /// When the slave at `slot` lost power during the transfer under way, if it did.
+    fn cut_of(&self, slot: usize) -> Option<Instant> {
+        self.busy_with
+            .iter()
+            .find(|heard| heard.slot == slot)
+            .and_then(|heard| heard.cut)
     }
 
     fn sda_high(&self) -> bool {
@@ -408,8 +449,7 @@ impl Bus {
             sda_hold: None,
             scl_low: false,
             sda_low: false,
-            busy_with: None,
-            cut: None,
+            busy_with: Vec::new(),
             moving: None,
             stats: Stats::default(),
             log: None,
@@ -502,7 +542,10 @@ impl Bus {
     /// middle of a transfer tears it (see the module's documentation).
     pub fn set_powered(&self, id: DeviceId, powered: bool) {
         let mut wire = self.0.borrow_mut();
-        let in_transfer = wire.busy_with == Some(id.0) && wire.cut.is_none();
+        let in_transfer = wire
+            .busy_with
+            .iter()
+            .any(|heard| heard.slot == id.0 && heard.cut.is_none());
         let Some(slot) = wire.slots.get_mut(id.0) else {
             return;
         };
@@ -512,7 +555,10 @@ impl Bus {
             if let Endpoint::Target { line, .. } = &slot.endpoint {
                 line.answer.signal(Answer::Unpowered);
             }
-            wire.cut = Some(Instant::now());
+            let now = Instant::now();
+            for heard in wire.busy_with.iter_mut().filter(|heard| heard.slot == id.0) {
+                heard.cut = Some(now);
+            }
         }
     }
 
@@ -552,10 +598,10 @@ impl Bus {
         self.0.borrow_mut().log.as_mut().map(mem::take).unwrap_or_default()
     }
 
-    /// Whether the master's transfer under way is addressed to the device at `id` (a fault that lands now lands
-    /// mid-transfer).
+    /// Whether the master's transfer under way is addressed to the device at `id`, alone or with others at its
+    /// address (a fault that lands now lands mid-transfer).
     pub fn in_transfer_with(&self, id: DeviceId) -> bool {
-        self.0.borrow().busy_with == Some(id.0)
+        self.0.borrow().busy_with.iter().any(|heard| heard.slot == id.0)
     }
 
     /// Which way the data bytes of a transfer to the firmware port at `id` are moving now, if they are, and since
@@ -564,7 +610,8 @@ impl Bus {
         self.0
             .borrow()
             .moving
-            .and_then(|(slot, request, since)| (slot == id.0).then_some((request, since)))
+            .as_ref()
+            .and_then(|moving| moving.slots.contains(&id.0).then_some((moving.request, moving.since)))
     }
 
     /// What the bus counted so far.
@@ -598,12 +645,73 @@ enum Plan {
     Stuck,
     /// Nobody acknowledges.
     Nack,
-    /// A device (or a glitch) answered at once: the reply, and the bytes read (tampered).
+    /// Devices (or a glitch) answered at once, no firmware port beside them: their reply as the master meets it on
+    /// the wires, and the bytes read (tampered).
     Device(Reply, Vec<u8>),
     /// The TCA9548A answered.
     Mux(Vec<u8>),
-    /// Firmware must answer.
-    Target(Rc<TargetLine>, Tamper),
+    /// Firmware must answer: the ports that hear it, and the devices that acknowledged beside them, if any.
+    Targets(Vec<Hearer>, Option<DevicesBeside>),
+}
+
+/// A firmware port that hears a transfer: its place on the bus, its wires, and what corrupts its bytes.
+struct Hearer {
+    slot: usize,
+    line: Rc<TargetLine>,
+    tamper: Tamper,
+}
+
+/// The devices that acknowledged a transfer beside firmware ports: how long the slowest of them holds SCL after
+/// the address, and the AND of the bytes they drive (a read's).
+struct DevicesBeside {
+    stretch: Duration,
+    data: Vec<u8>,
+}
+
+impl DevicesBeside {
+    /// What devices that replied `reply` with `data` add to a transfer to firmware ports; None if they did not
+    /// acknowledge. A device holding SDA low is no part of it: it fails the transfer for everyone.
+    fn from_reply(reply: Reply, data: Vec<u8>) -> Option<Self> {
+        let stretch = match reply {
+            Reply::Ack => Duration::from_ticks(0),
+            Reply::Stretch(stretch) => stretch,
+            Reply::Nack | Reply::HoldSda(_) => return None,
+        };
+        Some(Self { stretch, data })
+    }
+}
+
+/// Two devices' replies to one transfer as the master meets them together on the wires: an ACK if either
+/// acknowledges, SCL held as long as the longer stretch, the AND of the bytes they drive, and SDA held low as long as
+/// the longer hold.
+fn wired_and(first: (Reply, Vec<u8>), second: (Reply, Vec<u8>)) -> (Reply, Vec<u8>) {
+    match (first, second) {
+        ((Reply::HoldSda(one), _), (Reply::HoldSda(other), _)) => (Reply::HoldSda(one.max(other)), Vec::new()),
+        ((Reply::HoldSda(clocks), _), _) | (_, (Reply::HoldSda(clocks), _)) => (Reply::HoldSda(clocks), Vec::new()),
+        ((Reply::Nack, _), acknowledged) | (acknowledged, (Reply::Nack, _)) => acknowledged,
+        ((Reply::Ack, one), (Reply::Ack, other)) => (Reply::Ack, and_bytes(&one, &other)),
+        ((one_reply, one), (other_reply, other)) => {
+            let stretch_of = |reply| match reply {
+                Reply::Stretch(stretch) => stretch,
+                _ => Duration::from_ticks(0),
+            };
+            let stretch = stretch_of(one_reply).max(stretch_of(other_reply));
+            (Reply::Stretch(stretch), and_bytes(&one, &other))
+        }
+    }
+}
+
+/// What the master reads where two slaves drive `one` and `other` at once: a 0 from either wins. Where one has
+/// stopped driving, the other's bytes come through.
+fn and_bytes(one: &[u8], other: &[u8]) -> Vec<u8> {
+    let length = one.len().max(other.len());
+    let released = core::iter::repeat(&0xFF);
+    one.iter()
+        .chain(released.clone())
+        .zip(other.iter().chain(released))
+        .take(length)
+        .map(|(one, other)| one & other)
+        .collect()
 }
 
 /// Where a power cut at `cut` meets data that began to move at `from`, `bit` a bit time: the byte it lands in and
@@ -617,6 +725,16 @@ fn cut_into(from: Instant, cut: Instant, bit: Duration) -> Option<(usize, u32)> 
         8 => (byte.saturating_add(1), 0),
         into => (byte, u32::try_from(into).unwrap_or(0)),
     })
+}
+
+/// What a firmware port made of its part in a transfer, once SCL was let go.
+enum Part {
+    /// It answered: its bytes move (a read's, as it sent them).
+    Moves(Option<Vec<u8>>),
+    /// It lost power while it stretched SCL: it drives nothing and acknowledges nothing.
+    Unpowered,
+    /// A glitch tore it, or it answered the wrong kind of transfer: the bus fails for everyone.
+    Broken,
 }
 
 impl Master {
@@ -640,7 +758,9 @@ impl Master {
     fn plan(&self, address: u8, operation: &Operation<'_>) -> Plan {
         let mut wire = self.0.0.borrow_mut();
         wire.stats.transfers += 1;
-        wire.cut = None;
+        for heard in &mut wire.busy_with {
+            heard.cut = None;
+        }
         if wire.sda_hold.is_some() {
             return Plan::Stuck;
         }
@@ -667,14 +787,21 @@ impl Master {
         if hearing.len() > 1 {
             wire.stats.collisions += 1;
         }
-        wire.busy_with = hearing.first().copied();
-        let glitch = hearing.first().and_then(|&i| wire.slots.get_mut(i)?.glitch.take());
+        wire.busy_with = hearing.iter().map(|&slot| Heard { slot, cut: None }).collect();
+        // A glitch at any slave that hears it holds SDA low for them all, until the longest hold is clocked out.
+        let glitch = hearing
+            .iter()
+            .filter_map(|&i| wire.slots.get_mut(i)?.glitch.take())
+            .max();
         if let Some(clocks) = glitch {
             return Plan::Device(Reply::HoldSda(clocks), Vec::new());
         }
-        let mut plan = Plan::Nack;
-        for (n, slot) in hearing.iter().filter_map(|&i| wire.slots.get(i)).enumerate() {
-            let first = n == 0;
+        let mut devices: Option<(Reply, Vec<u8>)> = None;
+        let mut targets = Vec::new();
+        for &i in &hearing {
+            let Some(slot) = wire.slots.get(i) else {
+                continue;
+            };
             match &slot.endpoint {
                 Endpoint::Device(device) => {
                     let mut device = device.borrow_mut();
@@ -691,15 +818,29 @@ impl Master {
                         }
                     };
                     slot.tamper.read(&mut data);
-                    if first {
-                        plan = Plan::Device(reply, data);
-                    }
+                    devices = Some(match devices.take() {
+                        None => (reply, data),
+                        Some(others) => wired_and(others, (reply, data)),
+                    });
                 }
-                Endpoint::Target { line, .. } if first => plan = Plan::Target(Rc::clone(line), slot.tamper),
-                Endpoint::Target { .. } => {}
+                Endpoint::Target { line, .. } => targets.push(Hearer {
+                    slot: i,
+                    line: Rc::clone(line),
+                    tamper: slot.tamper,
+                }),
             }
         }
-        plan
+        if targets.is_empty() {
+            return devices.map_or(Plan::Nack, |(reply, data)| Plan::Device(reply, data));
+        }
+        match devices {
+            // A device holding SDA low fails the transfer before any firmware sees it.
+            Some((Reply::HoldSda(clocks), _)) => Plan::Device(Reply::HoldSda(clocks), Vec::new()),
+            devices => Plan::Targets(
+                targets,
+                devices.and_then(|(reply, data)| DevicesBeside::from_reply(reply, data)),
+            ),
+        }
     }
 
     async fn transfer(&mut self, address: u8, operation: &mut Operation<'_>) -> Result<(), ErrorKind> {
@@ -743,7 +884,7 @@ impl Master {
                     (Ok(()), Some(data))
                 }
             }
-            Plan::Target(line, tamper) => self.target_transfer(&line, tamper, operation).await,
+            Plan::Targets(hearers, devices) => self.targets_transfer(&hearers, devices, operation).await,
         };
         // The master's CPU stalled meanwhile and held the transfer (SCL low, waiting on its interrupt) past the
         // timeout: the master's driver reports it timed out, whatever moved on the wires.
@@ -761,7 +902,7 @@ impl Master {
             }
         }
         let mut wire = self.0.0.borrow_mut();
-        wire.busy_with = None;
+        wire.busy_with.clear();
         match result {
             Err(ErrorKind::NoAcknowledge(_)) => wire.stats.nacks += 1,
             Err(ErrorKind::Other) => wire.stats.timeouts += 1,
@@ -783,133 +924,235 @@ impl Master {
         from + Duration::from_ticks(bit.as_ticks().saturating_mul(bits))
     }
 
-    /// When the slave of the transfer under way lost power, if it did.
-    fn cut(&self) -> Option<Instant> {
-        self.0.0.borrow().cut
+    /// When the slave at `slot` lost power during the transfer under way, if it did.
+    fn cut_of(&self, slot: usize) -> Option<Instant> {
+        self.0.0.borrow().cut_of(slot)
     }
 
-    /// The address byte, then hand the transfer to firmware and wait, SCL stretched, for its answer; then move the
-    /// bytes, and tell the firmware they moved. A power cut on the way tears the transfer where it lands.
-    async fn target_transfer(
+    /// The address byte, then hand the transfer to every firmware port that acknowledged it and wait, SCL
+    /// stretched, until the last of them (and of the devices beside them) has answered; then move the bytes, and
+    /// tell each port how its bytes fared. A power cut on the way tears a port's part where it lands; the master
+    /// sees it only where no other slave drives the ACK.
+    async fn targets_transfer(
         &self,
-        line: &TargetLine,
-        tamper: Tamper,
+        hearers: &[Hearer],
+        devices: Option<DevicesBeside>,
         operation: &Operation<'_>,
     ) -> (Result<(), ErrorKind>, Option<Vec<u8>>) {
         let data_nack = Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Data));
-        // The peripheral matches its address once the byte is in, and acknowledges it unless it lost power first.
+        // A peripheral matches its address once the byte is in, and acknowledges it unless it lost power first.
         self.charge(ADDRESS_BITS, Duration::from_ticks(0)).await;
-        if self.cut().is_some() {
+        let addressed: Vec<&Hearer> = hearers
+            .iter()
+            .filter(|hearer| self.cut_of(hearer.slot).is_none())
+            .collect();
+        if addressed.is_empty() && devices.is_none() {
             self.charge(STOP_BITS, Duration::from_ticks(0)).await;
             return (Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Address)), None);
         }
-        // An answer or a cut left over from a transfer the master gave up on is not this one's.
-        line.answer.reset();
-        line.moved.reset();
-        line.stage.set(Stage::Stretching);
-        let addressed = Addressed { line, wire: &self.0.0 };
+        for hearer in &addressed {
+            // An answer or a cut left over from a transfer the master gave up on is not this one's.
+            hearer.line.answer.reset();
+            hearer.line.moved.reset();
+            hearer.line.stage.set(Stage::Stretching);
+        }
+        let guard = Addressed {
+            lines: addressed.iter().map(|hearer| &*hearer.line).collect(),
+            wire: &self.0.0,
+        };
         let (request, length) = match operation {
-            Operation::Write(bytes) => {
-                let mut bytes = bytes.to_vec();
-                tamper.write(&mut bytes);
-                let length = bytes.len();
-                line.handoff.signal(Handoff::Write(bytes));
-                (Request::Write, length)
-            }
-            Operation::Read(buffer) => {
-                line.handoff.signal(Handoff::Read);
-                (Request::Read, buffer.len())
-            }
+            Operation::Write(bytes) => (Request::Write, bytes.len()),
+            Operation::Read(buffer) => (Request::Read, buffer.len()),
         };
+        for hearer in &addressed {
+            hearer.line.handoff.signal(match operation {
+                Operation::Write(bytes) => {
+                    let mut bytes = bytes.to_vec();
+                    hearer.tamper.write(&mut bytes);
+                    Handoff::Write(bytes)
+                }
+                Operation::Read(_) => Handoff::Read,
+            });
+        }
         let data_bits = 9u64.saturating_mul(length as u64);
-        let answer = match with_timeout(self.0.timing().timeout, line.answer.wait()).await {
-            // The slave never let SCL go: embassy-stm32 reports its timeout as `Other`.
-            Err(_) => return (Err(ErrorKind::Other), None),
-            Ok(answer) => answer,
-        };
+        // SCL stays low until the last slave lets it go; the master's patience runs from the address.
+        let addressed_at = Instant::now();
+        let timeout = self.0.timing().timeout;
+        let deadline = addressed_at + timeout;
+        let mut answers = Vec::with_capacity(addressed.len());
+        for hearer in &addressed {
+            match with_deadline(deadline, hearer.line.answer.wait()).await {
+                // A slave never let SCL go: embassy-stm32 reports its timeout as `Other`.
+                Err(_) => return (Err(ErrorKind::Other), None),
+                Ok(answer) => answers.push(answer),
+            }
+        }
+        if let Some(stretch) = devices
+            .as_ref()
+            .map(|devices| devices.stretch)
+            .filter(|stretch| stretch.as_ticks() > 0)
+        {
+            if stretch >= timeout {
+                Timer::at(deadline).await;
+                return (Err(ErrorKind::Other), None);
+            }
+            Timer::at(addressed_at + stretch).await;
+        }
         let from = Instant::now();
-        let moved = match (answer, request) {
-            // It lost power while it stretched SCL: the lines are released and the master clocks on. A read gets the
-            // pull-ups' 0xFF; a write's first data byte is not acknowledged.
-            (Answer::Unpowered, Request::Read) => {
-                self.0.0.borrow_mut().stats.torn += 1;
-                self.charge(data_bits, Duration::from_ticks(0)).await;
-                (Ok(()), Some(vec![0xFF; length]))
-            }
-            (Answer::Unpowered, Request::Write) if length > 0 => {
-                self.0.0.borrow_mut().stats.torn += 1;
-                self.charge(9 + STOP_BITS, Duration::from_ticks(0)).await;
-                (data_nack, None)
-            }
-            (Answer::Unpowered, Request::Write) => (Ok(()), None),
-            (Answer::Written, Request::Write) => {
-                let torn = self.move_bytes(line, request, from, length).await;
-                match torn {
-                    Some((byte, _)) => {
-                        // The master stops at the byte not acknowledged, and ends with a STOP.
-                        let bits = 9u64.saturating_mul((byte as u64).saturating_add(1)) + STOP_BITS;
-                        self.count(bits);
-                        Timer::at(self.after_bits(from, bits)).await;
-                        (data_nack, None)
-                    }
-                    None => {
-                        self.count(data_bits);
-                        (Ok(()), None)
-                    }
-                }
-            }
-            (Answer::Read(mut data), Request::Read) => {
-                let torn = self.move_bytes(line, request, from, length).await;
-                self.count(data_bits);
-                tamper.read(&mut data);
-                data.resize(length, 0xFF);
-                if let Some((byte, into)) = torn {
-                    // The bits the slave drove before the cut came through; the pull-ups give the rest.
-                    let released = 0xFFu8.checked_shr(into).unwrap_or(0);
-                    for (n, value) in data.iter_mut().enumerate().skip(byte) {
-                        *value |= if n == byte { released } else { 0xFF };
-                    }
-                }
-                (Ok(()), Some(data))
-            }
+        let parts: Vec<Part> = answers
+            .into_iter()
+            .map(|answer| match (answer, request) {
+                (Answer::Unpowered, _) => Part::Unpowered,
+                (Answer::Written, Request::Write) => Part::Moves(None),
+                (Answer::Read(data), Request::Read) => Part::Moves(Some(data)),
+                _ => Part::Broken,
+            })
+            .collect();
+        // One that lost power while it stretched SCL lets the lines go: the master clocks on against the others,
+        // or the pull-ups. Its read is torn, and its write too unless it has no data byte to miss.
+        let unpowered = parts.iter().filter(|part| matches!(part, Part::Unpowered)).count() as u64;
+        if request == Request::Read || length > 0 {
+            self.0.0.borrow_mut().stats.torn += unpowered;
+        }
+        if parts.iter().any(|part| matches!(part, Part::Broken)) {
             // A glitch, or an answer of the wrong kind.
-            _ => {
-                self.charge(data_bits, Duration::from_ticks(0)).await;
-                (Err(ErrorKind::Bus), None)
+            self.charge(data_bits, Duration::from_ticks(0)).await;
+            return (Err(ErrorKind::Bus), None);
+        }
+        let movers: Vec<(&Hearer, Option<Vec<u8>>)> = addressed
+            .iter()
+            .zip(parts)
+            .filter_map(|(hearer, part)| match part {
+                Part::Moves(data) => Some((*hearer, data)),
+                _ => None,
+            })
+            .collect();
+        let devices_ack = devices.is_some();
+        let devices_data = devices.map(|devices| devices.data);
+        if movers.is_empty() {
+            return match request {
+                Request::Read => {
+                    self.charge(data_bits, Duration::from_ticks(0)).await;
+                    (Ok(()), Some(devices_data.unwrap_or_else(|| vec![0xFF; length])))
+                }
+                Request::Write if devices_ack => {
+                    self.charge(data_bits, Duration::from_ticks(0)).await;
+                    (Ok(()), None)
+                }
+                // The first data byte is not acknowledged.
+                Request::Write if length > 0 => {
+                    self.charge(9 + STOP_BITS, Duration::from_ticks(0)).await;
+                    (data_nack, None)
+                }
+                Request::Write => (Ok(()), None),
+            };
+        }
+        let slots: Vec<(usize, &TargetLine)> = movers.iter().map(|(hearer, _)| (hearer.slot, &*hearer.line)).collect();
+        let tears = self.move_bytes(&slots, request, from, length, devices_ack).await;
+        let intact: Vec<usize> = slots
+            .iter()
+            .zip(&tears)
+            .filter(|(_, tear)| tear.is_none())
+            .map(|((slot, _), _)| *slot)
+            .collect();
+        let outcome = match request {
+            Request::Write => {
+                // Each byte is acknowledged while any slave still acknowledges; the master stops at the first one
+                // nobody does, and ends with a STOP.
+                let acknowledged = tears
+                    .iter()
+                    .map(|tear| tear.map_or(length, |(byte, _)| byte))
+                    .chain(devices_ack.then_some(length))
+                    .max()
+                    .unwrap_or(0);
+                if acknowledged < length {
+                    let bits = 9u64.saturating_mul((acknowledged as u64).saturating_add(1)) + STOP_BITS;
+                    self.count(bits);
+                    Timer::at(self.after_bits(from, bits)).await;
+                    (data_nack, None)
+                } else {
+                    self.count(data_bits);
+                    (Ok(()), None)
+                }
+            }
+            Request::Read => {
+                self.count(data_bits);
+                let mut read = devices_data.unwrap_or_else(|| vec![0xFF; length]);
+                for ((hearer, data), tear) in movers.into_iter().zip(tears) {
+                    let mut data = data.unwrap_or_default();
+                    hearer.tamper.read(&mut data);
+                    data.resize(length, 0xFF);
+                    if let Some((byte, into)) = tear {
+                        // The bits the slave drove before the cut came through; the pull-ups give the rest.
+                        let released = 0xFFu8.checked_shr(into).unwrap_or(0);
+                        for (n, value) in data.iter_mut().enumerate().skip(byte) {
+                            *value |= if n == byte { released } else { 0xFF };
+                        }
+                    }
+                    read = and_bytes(&read, &data);
+                }
+                (Ok(()), Some(read))
             }
         };
-        addressed.end(moved.0.is_ok());
-        moved
+        // A port's bytes all moved when the master's transfer went through and no cut tore its part.
+        let ok = outcome.0.is_ok();
+        guard.end(addressed.iter().map(|hearer| ok && intact.contains(&hearer.slot)));
+        outcome
     }
 
-    /// Let the `length` bytes of a transfer move from `from`, unless the port loses power first; returns where the
-    /// cut landed (the byte, and how many of its bits had moved), None if the bytes all moved. A torn write's
-    /// master stops at the byte not acknowledged: the caller waits that out.
+    /// Let the `length` bytes of a transfer move from `from` between the master and the firmware ports `movers`
+    /// (each its place on the bus and its wires), unless they lose power first; returns, for each, where its cut
+    /// landed (the byte, and how many of its bits had moved), None if its bytes all moved. A write's master stops
+    /// at the first byte nobody acknowledges (`devices_ack`: devices beside them acknowledge every byte): when every
+    /// port tore, the caller waits that out.
     async fn move_bytes(
         &self,
-        line: &TargetLine,
+        movers: &[(usize, &TargetLine)],
         request: Request,
         from: Instant,
         length: usize,
-    ) -> Option<(usize, u32)> {
-        let slot = self.0.0.borrow().busy_with;
-        self.0.0.borrow_mut().moving = slot.map(|slot| (slot, request, from));
+        devices_ack: bool,
+    ) -> Vec<Option<(usize, u32)>> {
+        self.0.0.borrow_mut().moving = Some(Moving {
+            slots: movers.iter().map(|(slot, _)| *slot).collect(),
+            request,
+            since: from,
+        });
         let end = self.after_bits(from, 9u64.saturating_mul(length as u64));
-        // Only a power cut signals the line while the bytes move.
-        let _ = with_deadline(end, line.answer.wait()).await;
-        let torn = self
-            .cut()
-            .and_then(|cut| cut_into(from, cut, self.0.timing().bit))
-            .filter(|(byte, _)| *byte < length);
-        self.0.0.borrow_mut().moving = None;
-        if torn.is_some() {
-            self.0.0.borrow_mut().stats.torn += 1;
+        // Only a power cut signals a line while the bytes move: wait for the end, or until every port is cut.
+        let mut cuts: Vec<_> = movers.iter().map(|(_, line)| line.answer.wait()).collect();
+        loop {
+            let any_cut = core::future::poll_fn(|cx| {
+                for cut in cuts.iter_mut() {
+                    if let Poll::Ready(answer) = Pin::new(cut).poll(cx) {
+                        return Poll::Ready(answer);
+                    }
+                }
+                Poll::Pending
+            });
+            let ended = with_deadline(end, any_cut).await.is_err();
+            if ended || movers.iter().all(|(slot, _)| self.cut_of(*slot).is_some()) {
+                break;
+            }
         }
-        // The master clocks a read to its end whatever drives SDA.
-        if torn.is_none() || request == Request::Read {
+        let bit = self.0.timing().bit;
+        let tears: Vec<Option<(usize, u32)>> = movers
+            .iter()
+            .map(|(slot, _)| {
+                // One cut before the bytes began (while another still stretched SCL) drove none of them.
+                self.cut_of(*slot)
+                    .map(|cut| cut_into(from, cut, bit).unwrap_or((0, 0)))
+                    .filter(|(byte, _)| *byte < length)
+            })
+            .collect();
+        self.0.0.borrow_mut().moving = None;
+        self.0.0.borrow_mut().stats.torn += tears.iter().filter(|tear| tear.is_some()).count() as u64;
+        // The master clocks a read to its end whatever drives SDA, and a write while anyone acknowledges.
+        let write_stops = request == Request::Write && !devices_ack && tears.iter().all(Option::is_some);
+        if !write_stops {
             Timer::at(end).await;
         }
-        torn
+        tears
     }
 }
 

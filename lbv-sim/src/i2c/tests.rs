@@ -541,3 +541,354 @@ fn a_port_whose_master_stops_mid_transfer_is_not_left_waiting() {
     assert_eq!(*served.answers.borrow(), [(Err(TargetError), at_bits(15))]);
     assert_eq!(bus.bytes_moving(id), None);
 }
+
+/// How one of two firmware ports at 0x29, on the mux's channels 0 and 1 both enabled, takes a transfer.
+#[derive(Clone, Copy)]
+struct Port {
+    /// It answers this long after it is addressed; None: its firmware never answers.
+    delay: Option<Duration>,
+    /// What it sends to a read.
+    reply: &'static [u8],
+    /// It loses power (its task dropped, as at a reset) this long after the START, if given.
+    cut: Option<Duration>,
+    /// Powered at the START.
+    powered: bool,
+    /// What corrupts its bytes.
+    tamper: Tamper,
+}
+
+impl Port {
+    /// Powered, answering at once, untampered.
+    const PROMPT: Port = Port {
+        delay: Some(Duration::from_ticks(0)),
+        reply: &[],
+        cut: None,
+        powered: true,
+        tamper: Tamper::NONE,
+    };
+}
+
+/// What a transfer heard by two ports did.
+struct Heard {
+    /// The master's result.
+    result: Result<(), ErrorKind>,
+    /// The bytes read, for a read.
+    read: [u8; 3],
+    /// When the transfer ended.
+    end: Instant,
+    /// What each port did.
+    served: [Served; 2],
+    /// What the bus counted, the mux's selection of both channels included.
+    stats: Stats,
+}
+
+/// The master's transfer to 0x29 heard by two ports, each as `ports` says: `write`, or a read when None. The mux
+/// is set before the clock starts, so the transfer's START is at 0.
+fn two_ports(write: Option<&[u8]>, ports: [Port; 2]) -> Heard {
+    let bus = Bus::new(TIMING);
+    bus.fit_mux(0x70);
+    let ids = [
+        bus.attach_target(0x29, Route::Mux(0)),
+        bus.attach_target(0x29, Route::Mux(1)),
+    ];
+    let mut master = bus.master();
+    run(async {
+        master.write(0x70, &[0b0000_0011]).await.unwrap();
+    });
+    let clock = clock::take();
+    let served = [Served::default(), Served::default()];
+    let ended = Cell::new(None);
+    let mut read = [0; 3];
+    let mut executor = Executor::new();
+    let mut tasks = [None, None];
+    for (((id, port), served), task) in ids.iter().zip(ports).zip(&served).zip(&mut tasks) {
+        bus.tamper(*id, port.tamper);
+        bus.set_powered(*id, port.powered);
+        let target = bus.target(*id).unwrap();
+        *task = port
+            .delay
+            .map(|delay| executor.spawn(firmware(target, delay, port.reply, served)));
+    }
+    executor.spawn(async {
+        let result = match write {
+            Some(bytes) => master.write(0x29, bytes).await,
+            None => master.read(0x29, &mut read).await,
+        };
+        ended.set(Some((result, Instant::now())));
+    });
+    let mut cuts: Vec<(Duration, usize)> = ports
+        .iter()
+        .enumerate()
+        .filter_map(|(n, port)| port.cut.map(|cut| (cut, n)))
+        .collect();
+    cuts.sort();
+    for (cut, n) in cuts {
+        executor.run_for(&clock, cut - (clock.now() - Instant::from_ticks(0)), BIT);
+        if let Some(task) = tasks[n] {
+            executor.remove(task);
+        }
+        bus.set_powered(ids[n], false);
+    }
+    executor.run_for(&clock, Duration::from_millis(40), BIT);
+    drop(executor);
+    let (result, end) = ended.get().expect("the transfer ended");
+    Heard {
+        result,
+        read,
+        end,
+        served,
+        stats: bus.stats(),
+    }
+}
+
+#[test]
+fn a_write_heard_on_two_channels_reaches_both_ports() {
+    let heard = two_ports(Some(&[9, 8, 7, 6]), [Port::PROMPT; 2]);
+    assert_eq!(heard.result, Ok(()));
+    for port in &heard.served {
+        assert_eq!(*port.stored.borrow(), [vec![9, 8, 7, 6]]);
+        assert_eq!(*port.answers.borrow(), [(Ok(()), at_bits(10 + 36))]);
+    }
+    assert_eq!(heard.end, at_bits(10 + 36 + 1), "as long as a write to one");
+    assert_eq!(heard.stats.collisions, 1);
+
+    // Each port gets the bytes through its own tamper.
+    let tampered = Port {
+        tamper: Tamper {
+            write_last_xor: 0x01,
+            ..Tamper::NONE
+        },
+        ..Port::PROMPT
+    };
+    let heard = two_ports(Some(&[9, 8, 7, 6]), [Port::PROMPT, tampered]);
+    assert_eq!(heard.result, Ok(()));
+    assert_eq!(*heard.served[0].stored.borrow(), [vec![9, 8, 7, 6]]);
+    assert_eq!(*heard.served[1].stored.borrow(), [vec![9, 8, 7, 7]]);
+}
+
+#[test]
+fn a_port_cut_mid_write_is_hidden_behind_the_others_ack() {
+    // 2 bits into the second byte: the cut port stops acknowledging, the other acknowledges every byte.
+    let cut = Port {
+        cut: Some(BIT * (10 + 11)),
+        ..Port::PROMPT
+    };
+    let heard = two_ports(Some(&[9, 8, 7, 6]), [Port::PROMPT, cut]);
+    assert_eq!(heard.result, Ok(()), "the master cannot tell");
+    assert_eq!(heard.end, at_bits(10 + 36 + 1));
+    assert_eq!(*heard.served[0].stored.borrow(), [vec![9, 8, 7, 6]]);
+    assert_eq!(*heard.served[0].answers.borrow(), [(Ok(()), at_bits(10 + 36))]);
+    assert!(
+        heard.served[1].stored.borrow().is_empty(),
+        "the cut port never stored it"
+    );
+    assert_eq!((heard.stats.torn, heard.stats.collisions), (1, 1));
+
+    // Unpowered from the start: only the other hears it.
+    let off = Port {
+        powered: false,
+        ..Port::PROMPT
+    };
+    let heard = two_ports(Some(&[9, 8, 7, 6]), [off, Port::PROMPT]);
+    assert_eq!(heard.result, Ok(()));
+    assert!(heard.served[0].stored.borrow().is_empty());
+    assert_eq!(*heard.served[1].stored.borrow(), [vec![9, 8, 7, 6]]);
+    assert_eq!((heard.stats.torn, heard.stats.collisions), (0, 0));
+
+    // Cut while the other still stretches SCL: it drives none of the bytes.
+    let slow = Port {
+        delay: Some(Duration::from_millis(1)),
+        ..Port::PROMPT
+    };
+    let early = Port {
+        cut: Some(BIT * 10 + Duration::from_micros(500)),
+        ..Port::PROMPT
+    };
+    let heard = two_ports(Some(&[9, 8, 7, 6]), [slow, early]);
+    assert_eq!(heard.result, Ok(()));
+    assert_eq!(*heard.served[0].stored.borrow(), [vec![9, 8, 7, 6]]);
+    assert!(heard.served[1].stored.borrow().is_empty());
+    assert_eq!(heard.end, at_bits(10 + 36 + 1) + Duration::from_millis(1));
+    assert_eq!(heard.stats.torn, 1);
+}
+
+#[test]
+fn a_write_every_port_tore_stops_at_the_last_byte_one_acknowledged() {
+    // One cut in the second byte, the other in the third: the third is the first nobody acknowledges, and the
+    // master stops there.
+    let ports = [
+        Port {
+            cut: Some(BIT * (10 + 11)),
+            ..Port::PROMPT
+        },
+        Port {
+            cut: Some(BIT * (10 + 18 + 2)),
+            ..Port::PROMPT
+        },
+    ];
+    let heard = two_ports(Some(&[9, 8, 7, 6]), ports);
+    assert_eq!(heard.result, Err(ErrorKind::NoAcknowledge(NoAcknowledgeSource::Data)));
+    assert_eq!(heard.end, at_bits(10 + 27 + 1));
+    assert!(heard.served.iter().all(|port| port.stored.borrow().is_empty()));
+    assert_eq!(heard.stats.torn, 2);
+}
+
+#[test]
+fn scl_is_held_until_the_slower_port_answers() {
+    let quick = Port {
+        delay: Some(Duration::from_micros(200)),
+        ..Port::PROMPT
+    };
+    let slow = Port {
+        delay: Some(Duration::from_millis(1)),
+        ..Port::PROMPT
+    };
+    for ports in [[quick, slow], [slow, quick]] {
+        let heard = two_ports(Some(&[9, 8, 7, 6]), ports);
+        assert_eq!(heard.result, Ok(()));
+        let moved = at_bits(10 + 36) + Duration::from_millis(1);
+        for port in &heard.served {
+            assert_eq!(
+                *port.answers.borrow(),
+                [(Ok(()), moved)],
+                "the bytes move once both answered"
+            );
+            assert_eq!(*port.stored.borrow(), [vec![9, 8, 7, 6]]);
+        }
+        assert_eq!(heard.end, moved + BIT);
+    }
+}
+
+#[test]
+fn a_port_that_never_answers_times_the_shared_transfer_out() {
+    let silent = Port {
+        delay: None,
+        ..Port::PROMPT
+    };
+    let heard = two_ports(Some(&[9, 8, 7, 6]), [Port::PROMPT, silent]);
+    assert_eq!(heard.result, Err(ErrorKind::Other));
+    let timeout = at_bits(10) + Duration::from_millis(25);
+    assert_eq!(heard.end, timeout);
+    assert_eq!(
+        *heard.served[0].answers.borrow(),
+        [(Err(TargetError), timeout)],
+        "the port that answered is told, not left waiting"
+    );
+    assert!(heard.served[0].stored.borrow().is_empty());
+    assert_eq!(heard.stats.timeouts, 1);
+}
+
+#[test]
+fn a_read_heard_by_two_ports_reads_the_and_of_their_bytes() {
+    let ports = [
+        Port {
+            reply: &[0b1100_1010, 0xF0, 0x33],
+            ..Port::PROMPT
+        },
+        Port {
+            reply: &[0b1010_0110, 0x0F],
+            ..Port::PROMPT
+        },
+    ];
+    let heard = two_ports(None, ports);
+    assert_eq!(heard.result, Ok(()));
+    assert_eq!(
+        heard.read,
+        [0b1000_0010, 0x00, 0x33],
+        "past its data a port leaves SDA high"
+    );
+    for port in &heard.served {
+        assert_eq!(*port.answers.borrow(), [(Ok(()), at_bits(10 + 27))]);
+    }
+    assert_eq!(heard.end, at_bits(10 + 27 + 1));
+    assert_eq!(heard.stats.collisions, 1);
+
+    // The second port is cut 3 bits into the first byte: its first 3 bits (101) still meet the other's, then it
+    // drives nothing.
+    let [first, second] = ports;
+    let cut = Port {
+        cut: Some(BIT * (10 + 3)),
+        ..second
+    };
+    let heard = two_ports(None, [first, cut]);
+    assert_eq!(heard.result, Ok(()));
+    assert_eq!(heard.read, [0b1000_1010, 0xF0, 0x33]);
+    assert_eq!(*heard.served[0].answers.borrow(), [(Ok(()), at_bits(10 + 27))]);
+    assert!(heard.served[1].answers.borrow().is_empty(), "its firmware is gone");
+    assert_eq!((heard.stats.torn, heard.stats.collisions), (1, 1));
+}
+
+#[test]
+fn two_devices_heard_at_once_meet_on_the_wires() {
+    let bus = Bus::new(TIMING);
+    bus.fit_mux(0x70);
+    let (a, b) = (Register::at(0x29), Register::at(0x29));
+    bus.attach(a.clone(), Route::Mux(0));
+    let id = bus.attach(b.clone(), Route::Mux(1));
+    // b sends 7, 4, 5 where a sends 1, 2, 3.
+    bus.tamper(
+        id,
+        Tamper {
+            read_xor: 0x06,
+            ..Tamper::NONE
+        },
+    );
+    let mut master = bus.master();
+    run(async {
+        master.write(0x70, &[0b0000_0011]).await.unwrap();
+    });
+    let mut read = [0; 3];
+    run(async {
+        master.read(0x29, &mut read).await.unwrap();
+    });
+    assert_eq!(read, [1, 0, 1]);
+    // One not acknowledging is hidden behind the other.
+    a.borrow_mut().reply = Reply::Nack;
+    run(async {
+        master.write(0x29, &[5]).await.unwrap();
+    });
+    assert_eq!((a.borrow().written.len(), b.borrow().written.len()), (1, 1));
+    // SCL is held as long as the longer stretch.
+    b.borrow_mut().reply = Reply::Stretch(Duration::from_millis(1));
+    let end = run(async {
+        master.write(0x29, &[6]).await.unwrap();
+    });
+    assert_eq!(end, at_bits(10 + 9 + 1) + Duration::from_millis(1));
+    assert_eq!(bus.stats().collisions, 3);
+}
+
+#[test]
+fn a_device_and_a_port_at_one_address_both_take_a_write() {
+    let bus = Bus::new(TIMING);
+    bus.fit_mux(0x70);
+    let register = Register::at(0x29);
+    register.borrow_mut().reply = Reply::Stretch(Duration::from_millis(1));
+    bus.attach(register.clone(), Route::Mux(0));
+    let id = bus.attach_target(0x29, Route::Mux(1));
+    let mut master = bus.master();
+    run(async {
+        master.write(0x70, &[0b0000_0011]).await.unwrap();
+    });
+    let clock = clock::take();
+    let served = Served::default();
+    let ended = Cell::new(None);
+    let mut executor = Executor::new();
+    executor.spawn(firmware(
+        bus.target(id).unwrap(),
+        Duration::from_micros(200),
+        &[],
+        &served,
+    ));
+    executor.spawn(async {
+        let result = master.write(0x29, &[9, 8]).await;
+        ended.set(Some((result, Instant::now())));
+    });
+    executor.run_for(&clock, Duration::from_millis(10), BIT);
+    drop(executor);
+    // The device's stretch is the longer: the bytes move once it is done.
+    let moved = at_bits(10 + 18) + Duration::from_millis(1);
+    assert_eq!(ended.get(), Some((Ok(()), moved + BIT)));
+    assert_eq!(*served.answers.borrow(), [(Ok(()), moved)]);
+    assert_eq!(*served.stored.borrow(), [vec![9, 8]]);
+    assert_eq!(register.borrow().written, [vec![9, 8]]);
+}
