@@ -205,6 +205,33 @@ pub const fn standard_mode(kernel_hz: u32) -> Result<Timing, Violation> {
     Err(Violation::NoTiming)
 }
 
+/// UM10204 (Rev. 7, table 9, standard mode): a device's open-drain output holds V_OL <= 0.4 V while it sinks 3 mA.
+const SINK_MAX_UA: u32 = 3_000;
+const V_OL_MAX_MV: u32 = 400;
+
+/// How many channels of a TCA9548A may be enabled together, each with its own SDA and SCL pull-ups of `pullup_ohm`
+/// to `vdd_mv`, as the switch's downstream channels need (TI SCPS207, the TCA9548A datasheet: any combination of
+/// channels may be enabled by its control register, and an enabled channel is joined to the upstream bus), the
+/// upstream bus having a pair of its own. Enabled together, the pull-ups are in parallel, and whoever drives a line
+/// low (the master writing, any thruster acknowledging) sinks the current of every one of them: no more than
+/// UM10204's 3 mA at 0.4 V. The rise time does not limit it: each channel brings its capacitance and its pull-up,
+/// so R·C, and the edge, stay those of one channel.
+pub const fn channels_together(vdd_mv: u32, pullup_ohm: u32) -> u32 {
+    /// The TCA9548A's channels.
+    const CHANNELS: u64 = 8;
+    if pullup_ohm == 0 || vdd_mv <= V_OL_MAX_MV {
+        return 0;
+    }
+    let per_pair_ua = (vdd_mv - V_OL_MAX_MV) as u64 * 1_000 / pullup_ohm as u64;
+    if per_pair_ua == 0 {
+        return CHANNELS as u32;
+    }
+    // One pair is the upstream bus's.
+    let pairs = SINK_MAX_UA as u64 / per_pair_ua;
+    let channels = pairs.saturating_sub(1);
+    (if channels < CHANNELS { channels } else { CHANNELS }) as u32
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,6 +254,17 @@ mod tests {
         reg.set_scldel(scldel as u8);
         assert!(sdadel > 15 || scldel > 15, "{kernel_hz}: embassy's fields fit");
         Timing::from_timingr(reg.0)
+    }
+
+    #[test]
+    fn three_mux_channels_at_once_keep_the_sink_current_within_standard_mode() {
+        // 3.3 V and 4.7 kOhm: 617 uA a pair, four pairs within 3 mA, one of them upstream.
+        assert_eq!(channels_together(3_300, 4_700), 3);
+        // Stiffer pull-ups leave fewer: 2.2 kOhm is 1.3 mA a pair.
+        assert_eq!(channels_together(3_300, 2_200), 1);
+        assert_eq!(channels_together(3_300, 10_000), 8);
+        // Nonsense in, no panic.
+        assert_eq!(channels_together(0, 0), 0);
     }
 
     #[test]

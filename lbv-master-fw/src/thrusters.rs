@@ -32,7 +32,7 @@ use crate::follow::{FollowChange, FollowCheck};
 use crate::poll::{PollError, Polled, poll_thruster};
 use crate::ports::BusRecovery;
 use crate::shared::{BUSES, LinkHealth, MAX_THRUSTERS, Severity, Shared, Text, ThrusterReport, text};
-use crate::update::courier::{self, ExchangeError, Transfers};
+use crate::update::courier::{self, ExchangeError, Sent, Transfers};
 
 #[cfg(test)]
 mod tests;
@@ -42,6 +42,13 @@ pub const MUX_ADDRESS: u8 = 0x70;
 
 /// TCA9548A channels.
 pub(crate) const MUX_CHANNELS: u8 = 8;
+
+/// The SDA and SCL pull-ups each TCA9548A channel carries, to the bus's 3.3 V (docs/hardware.md).
+const MUX_PULLUP_OHM: u32 = 4_700;
+const BUS_MV: u32 = 3_300;
+/// How many thrusters one update write may reach at once, their channels enabled together: three, by the current
+/// their pull-ups in parallel make a driver sink ([`g431_hw::i2c::channels_together`]).
+pub(crate) const CAST_CHANNELS: u32 = g431_hw::i2c::channels_together(BUS_MV, MUX_PULLUP_OHM);
 
 /// Bit times of one I2C transfer of `bytes` data bytes: START, the address byte and its ACK, 9 bits per data
 /// byte (8 + ACK), STOP. An order (4 bytes) is 47; a SeaBotix status read (7 bytes) 74; a Legacy one 47.
@@ -760,12 +767,19 @@ enum SlotError<E> {
 /// `selected` is the control byte last written to the mux, None when unknown; it is forgotten after any error so
 /// the next transfer writes it again.
 async fn select<B: I2c>(bus: &mut B, slot: &ThrusterSlot, selected: &mut Option<u8>) -> Result<(), ()> {
-    if let Some(mask) = mux_mask(slot)?
-        && *selected != Some(mask)
-    {
+    match mux_mask(slot)? {
+        Some(mask) => select_channels(bus, mask, selected).await,
+        None => Ok(()),
+    }
+}
+
+/// Enable the TCA9548A channels that are the bits of `channels`, unless they are what `selected` says is enabled
+/// (forgotten on an error, as [`select`]).
+async fn select_channels<B: I2c>(bus: &mut B, channels: u8, selected: &mut Option<u8>) -> Result<(), ()> {
+    if *selected != Some(channels) {
         *selected = None;
-        bus.write(MUX_ADDRESS, &[mask]).await.map_err(|_| ())?;
-        *selected = Some(mask);
+        bus.write(MUX_ADDRESS, &[channels]).await.map_err(|_| ())?;
+        *selected = Some(channels);
     }
     Ok(())
 }
@@ -952,6 +966,11 @@ impl BusState<'_> {
     /// One exchange of the update on its way to a thruster of bus `bus_index`, if there is one; returns whether
     /// there was, and whether it was answered. A failed exchange is the courier's to retry; the bus is recovered as
     /// after a failed poll.
+    ///
+    /// An exchange the courier gives to several thrusters behind the bus's TCA9548A ([`Exchange::with`]) is one
+    /// write with all their channels enabled (the TCA9548A's control register takes any set of channels; a write to
+    /// their family's address reaches each), then each reply read with its thruster's channel alone. The write's ACK is
+    /// wired-AND, so one thruster that missed it hides behind the others': its own reply, read alone, tells.
     async fn carry<B: I2c + BusRecovery>(
         &mut self,
         bus: &mut B,
@@ -961,28 +980,65 @@ impl BusState<'_> {
         shared: &Shared,
     ) -> Option<bool> {
         let on_bus = |slot: u8| table.get(usize::from(slot)).is_some_and(|s| s.bus == bus_index);
+        let behind_mux = |slot: u8| {
+            table
+                .get(usize::from(slot))
+                .is_some_and(|s| s.bus == bus_index && matches!(mux_mask(s), Ok(Some(_))))
+        };
         // Only the encoded command (then its reply) and a few bytes of the exchange are kept across the transfers:
         // the rest goes out of scope here.
-        let (slot, sent, mut buffer, len) = transfers.next(on_bus).and_then(|exchange| {
-            let slot = table.get(usize::from(exchange.slot))?;
-            let frame = exchange.frame.encode();
-            let mut buffer = [0; tmc_proto::ext::MAX_FRAME_LEN];
-            let len = frame.as_bytes().len();
-            buffer.get_mut(..len)?.copy_from_slice(frame.as_bytes());
-            Some((slot, exchange.sent(), buffer, len))
-        })?;
-        let result = match select(bus, slot, &mut self.mux).await {
-            Ok(()) => courier::exchange(bus, slot.family.address(), &mut buffer, len, &sent).await,
+        let (slot, sent, members, mut buffer, len) =
+            transfers.next(on_bus, behind_mux, CAST_CHANNELS).and_then(|exchange| {
+                let slot = table.get(usize::from(exchange.slot))?;
+                let frame = exchange.frame.encode();
+                let mut buffer = [0; tmc_proto::ext::MAX_FRAME_LEN];
+                let len = frame.as_bytes().len();
+                buffer.get_mut(..len)?.copy_from_slice(frame.as_bytes());
+                Some((slot, exchange.sent(), exchange.slots(), buffer, len))
+            })?;
+        let address = slot.family.address();
+        let mut out = |message| {
+            let _ = shared.outbox.try_send(message);
+        };
+        let channels = members
+            .clone()
+            .filter_map(|member| table.get(usize::from(member)).and_then(|s| mux_mask(s).ok().flatten()))
+            .fold(0u8, |channels, channel| channels | channel);
+        let shared_write = channels.count_ones() > 1;
+        let selected = if shared_write {
+            select_channels(bus, channels, &mut self.mux).await
+        } else {
+            select(bus, slot, &mut self.mux).await
+        };
+        let written = match selected {
+            Ok(()) => courier::send(bus, address, &buffer, len, &sent).await,
             Err(()) => Err(ExchangeError::Bus),
         };
-        if result == Err(ExchangeError::Bus) {
+        if written.is_err() {
             self.mux = None;
             let _ = bus.recover().await;
         }
-        let answered = result.is_ok();
-        transfers.done(sent, result, &mut |message| {
-            let _ = shared.outbox.try_send(message);
-        });
+        let mut answered = true;
+        for member in members {
+            let sent = Sent { slot: member, ..sent };
+            // A shared write's replies are read each with its thruster's channel alone.
+            let alone = match table.get(usize::from(member)) {
+                Some(member) if shared_write => select(bus, member, &mut self.mux).await,
+                Some(_) => Ok(()),
+                None => Err(()),
+            };
+            let result = match (written, alone) {
+                (Err(error), _) => Err(error),
+                (Ok(()), Ok(())) => courier::read_reply(bus, address, &mut buffer, &sent).await,
+                (Ok(()), Err(())) => Err(ExchangeError::Bus),
+            };
+            if written.is_ok() && result == Err(ExchangeError::Bus) {
+                self.mux = None;
+                let _ = bus.recover().await;
+            }
+            answered &= result.is_ok();
+            transfers.done(sent, result, &mut out);
+        }
         transfers.publish(shared);
         Some(answered)
     }

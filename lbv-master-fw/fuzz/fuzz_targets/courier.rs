@@ -24,8 +24,9 @@ enum Step {
     Apply(u8),
     ApplyTo(u8),
     Query(u8),
-    /// The bus task's turn: the reply's bytes (or none: the transfer failed).
-    Exchange { reply: Option<Vec<u8>>, busy: bool },
+    /// The bus task's turn: the thrusters `castable` says (as bits) may share a write; each reply's bytes, in the
+    /// order of the exchange's slots (or none: the transfer failed).
+    Exchange { castable: u8, most: u32, replies: Vec<Option<Vec<u8>>>, busy: bool },
     Wait(u16),
 }
 
@@ -73,25 +74,32 @@ fuzz_target!(|steps: Vec<Step>| {
                     queried = Some(slot);
                 }
             }
-            Step::Exchange { reply, busy } => {
-                let Some(exchange) = courier.next(now, |_| true) else { continue };
-                let bit = 1u8.checked_shl(u32::from(exchange.slot)).unwrap_or(0);
+            Step::Exchange { castable, most, replies, busy } => {
+                let bit = |slot: u8| 1u8.checked_shl(u32::from(slot)).unwrap_or(0);
+                let Some(exchange) = courier.next_cast(now, |_| true, |slot| castable & bit(slot) != 0, most) else {
+                    continue;
+                };
                 assert!(
-                    begun & bit != 0 || queried == Some(exchange.slot),
+                    begun & bit(exchange.slot) != 0 || queried == Some(exchange.slot) && exchange.with == 0,
                     "an exchange for a slot never begun"
                 );
-                let result = match reply {
-                    Some(bytes) => {
-                        let len = ext::reply_len(exchange.frame.command.kind()).min(bytes.len());
-                        match Reply::decode(&bytes[..len]) {
-                            Ok(reply) => Ok(reply),
-                            Err(error) => Err(ExchangeError::Frame(error)),
+                assert!(exchange.slots().count() <= most.max(1) as usize, "a write shared too widely");
+                let mut replies = replies.into_iter();
+                for slot in exchange.slots() {
+                    assert!(slot == exchange.slot || begun & castable & bit(slot) != 0, "a write shared wrongly");
+                    let result = match replies.next().flatten() {
+                        Some(bytes) => {
+                            let len = ext::reply_len(exchange.frame.command.kind()).min(bytes.len());
+                            match Reply::decode(&bytes[..len]) {
+                                Ok(reply) => Ok(reply),
+                                Err(error) => Err(ExchangeError::Frame(error)),
+                            }
                         }
-                    }
-                    None if busy => Err(ExchangeError::Busy),
-                    None => Err(ExchangeError::Bus),
-                };
-                courier.on_result(now, &exchange, result, &mut |_| {});
+                        None if busy => Err(ExchangeError::Busy),
+                        None => Err(ExchangeError::Bus),
+                    };
+                    courier.on_result(now, exchange.sent_to(slot), result, &mut |_| {});
+                }
             }
             Step::Wait(ms) => now += Duration::from_millis(u64::from(ms)),
         }

@@ -5,12 +5,13 @@
 //! server's sink (`update::VehicleSink`) gathers them a flash page (2 KiB) at a time in [`Transfers`], and the bus
 //! task of the thruster's bus writes each page between its polls, in exchanges (a command and its reply) that fill
 //! the rest of each poll cycle while the vehicle is disarmed (`thrusters::bus_task`), so every thruster of the bus,
-//! the one being updated too, keeps being polled. The console reads on once there is room for the next write's
-//! bytes: the upload goes at the pace of the bus.
+//! the one being updated too, keeps being polled. The buffer holds a second page, which the console fills while the
+//! first is written; it reads on once there is room for the next write's bytes: the upload goes at the pace of the
+//! bus.
 //!
 //! An image for every thruster of a family (`thrusters-seabotix.lbvu`) has a transfer for each, which take turns on
-//! the bus; the page stays in the buffer until each has it (or has ended), and one apply applies it to all, its
-//! final COMMAND_ACK once the last is done.
+//! the bus, or share a write when they are at the same step ([`Courier::next_cast`]); the page stays in the buffer
+//! until each has it (or has ended), and one apply applies it to all, its final COMMAND_ACK once the last is done.
 //!
 //! The [`Courier`] is the whole transfer as a state machine on explicit time, fed the exchanges' outcomes:
 //!
@@ -82,8 +83,9 @@ pub(crate) const fn family_file(family: Family) -> &'static str {
 const PAGE: usize = ext::PAGE_LEN as usize;
 /// The most bytes the sink is handed at once: one MAVLink FTP write's data.
 pub const MAX_WRITE: usize = 239;
-/// The sink's buffer: a page, and room for one write beyond it.
-const BUFFER: usize = PAGE + MAX_WRITE;
+/// The sink's buffer: the page being written, the next as the ground station sends it, and room for one write
+/// beyond them.
+const BUFFER: usize = 2 * PAGE + MAX_WRITE;
 /// The update file's header, before the payload: its signature is the last 64 bytes.
 const FILE_HEADER_LEN: usize = 80;
 /// A thruster that answers no exchange for this long is given up.
@@ -168,6 +170,17 @@ struct Image {
     failed: u8,
     /// When the apply's progress was last told.
     reported: Instant,
+}
+
+impl Step {
+    /// Whether the step's command may reach several thrusters in one write: it is the same for each at the same
+    /// page, and what it does once is what it does again (a chunk the flash holds is not written twice).
+    fn castable(self) -> bool {
+        matches!(
+            self,
+            Step::Begin | Step::CheckPage | Step::Erase | Step::Write(_) | Step::Verify
+        )
+    }
 }
 
 impl Image {
@@ -277,6 +290,9 @@ impl Transfer {
 pub struct Exchange {
     /// The thruster's slot in the table.
     pub slot: u8,
+    /// The other thrusters the same write reaches (their slots as bits), each of whose replies is read alone:
+    /// see [`Courier::next_cast`].
+    pub with: u8,
     /// The command and its sequence number.
     pub frame: CommandFrame,
     /// How long to wait before the reply is read: a page erase stalls the thruster's CPU, the signature check
@@ -287,12 +303,23 @@ pub struct Exchange {
 impl Exchange {
     /// What its reply is read against: the few bytes of it a bus task keeps while the exchange is on the bus.
     pub(crate) fn sent(&self) -> Sent {
+        self.sent_to(self.slot)
+    }
+
+    /// What the reply of `slot`, one of the thrusters the exchange's write reaches, is read against.
+    pub fn sent_to(&self, slot: u8) -> Sent {
         Sent {
-            slot: self.slot,
+            slot,
             seq: self.frame.seq,
             command: self.frame.command.kind(),
             wait: self.wait,
         }
+    }
+
+    /// Every thruster the write reaches, its own slot first.
+    pub fn slots(&self) -> impl Iterator<Item = u8> + Clone + use<> {
+        let with = self.with & !bit(self.slot);
+        core::iter::once(self.slot).chain((0..MAX_THRUSTERS as u8).filter(move |slot| with & bit(*slot) != 0))
     }
 }
 
@@ -696,11 +723,27 @@ impl Courier {
             .filter(|_| self.image.is_some_and(|image| image.offset == transfer.page_offset))
     }
 
+    /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's), each
+    /// thruster by its own write: see [`Courier::next_cast`].
+    pub fn next(&mut self, now: Instant, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
+        self.next_cast(now, ours, |_| false, 1)
+    }
+
     /// The next exchange, at `now`, if its thruster is one `ours` says yes to (one of the asking bus task's): a
-    /// query's, else the next transfer's after the last that made one, in turn.
+    /// query's, else the next transfer's after the last that made one, in turn. When the thrusters `castable` says
+    /// yes to can share a write (behind the bus's multiplexer, whose channels can be enabled together), the other
+    /// transfers at the same step of the same page, whose command is the same, take this exchange too, up to `most`
+    /// thrusters in all ([`Exchange::with`]): a page's erase, check and chunks go once to the family, and each
+    /// thruster's own reply, read alone, tells whether its copy arrived. Each takes the exchange's sequence number.
     // Out of line: every bus task calls it, and its code would be copied into each.
     #[inline(never)]
-    pub fn next(&mut self, now: Instant, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
+    pub fn next_cast(
+        &mut self,
+        now: Instant,
+        ours: impl Fn(u8) -> bool,
+        castable: impl Fn(u8) -> bool,
+        most: u32,
+    ) -> Option<Exchange> {
         if self.query.is_none() && self.quiet() {
             let due =
                 |standing| standing == Standing::Unasked || standing == Standing::OnTrial && now >= self.trial_ask;
@@ -725,11 +768,32 @@ impl Courier {
                 continue;
             }
             if let Some((step, command)) = self.step_of(now, &image, &transfer) {
-                if let Some(slot) = self.transfers.get_mut(index).and_then(Option::as_mut) {
-                    slot.step = step;
+                let shared = |other: &Transfer| {
+                    other.slot != transfer.slot
+                        && ours(other.slot)
+                        && castable(other.slot)
+                        && other.page_offset == transfer.page_offset
+                        && self.step_of(now, &image, other) == Some((step, command))
+                };
+                let with = if step.castable() && castable(transfer.slot) {
+                    self.live()
+                        .filter(|other| shared(other))
+                        .take(most.saturating_sub(1) as usize)
+                        .fold(0, |with, other| with | bit(other.slot))
+                } else {
+                    0
+                };
+                for member in self.transfers.iter_mut().flatten() {
+                    if member.slot == transfer.slot || with & bit(member.slot) != 0 {
+                        member.step = step;
+                        member.seq = transfer.seq;
+                    }
                 }
                 self.turn = index;
-                return Some(exchange_of(transfer.slot, transfer.seq, command));
+                return Some(Exchange {
+                    with,
+                    ..exchange_of(transfer.slot, transfer.seq, command)
+                });
             }
         }
         None
@@ -1302,6 +1366,7 @@ fn exchange_of(slot: u8, seq: u8, command: Command) -> Exchange {
     };
     Exchange {
         slot,
+        with: 0,
         frame: CommandFrame { seq, command },
         wait: Duration::from_millis(u64::from(wait)),
     }
@@ -1370,9 +1435,10 @@ impl Transfers {
         self.courier.lock(|courier| f(&mut courier.borrow_mut()))
     }
 
-    /// The next exchange for a thruster `ours` says yes to, if there is one.
-    pub(crate) fn next(&self, ours: impl Fn(u8) -> bool) -> Option<Exchange> {
-        self.with(|courier| courier.next(Instant::now(), ours))
+    /// The next exchange for a thruster `ours` says yes to, if there is one, shared by those `castable` says yes
+    /// to ([`Courier::next_cast`]).
+    pub(crate) fn next(&self, ours: impl Fn(u8) -> bool, castable: impl Fn(u8) -> bool, most: u32) -> Option<Exchange> {
+        self.with(|courier| courier.next_cast(Instant::now(), ours, castable, most))
     }
 
     /// Tell the vehicle what of the thrusters' updates keeps it from arming now ([`Courier::hold`]).
@@ -1396,21 +1462,32 @@ impl Transfers {
     }
 }
 
-/// Send the command in `buffer` (an exchange's, encoded: its first `len` bytes) to the thruster at `address` and read
-/// its reply into the same buffer, reading again while it is busy. The caller's one buffer is all the bytes kept
-/// across the transfers: the bus task's future holds them once for each of the master's three buses.
-pub(crate) async fn exchange<B: I2c>(
+/// Send the command in `buffer` (an exchange's, encoded: its first `len` bytes) to whoever answers `address` (one
+/// thruster, or several on the mux channels enabled together), then wait as long as the command needs before its
+/// reply is read ([`read_reply`]). The caller's one buffer, which then takes the reply, is all the bytes kept across
+/// the transfers: the bus task's future holds them once for each of the master's three buses.
+pub(crate) async fn send<B: I2c>(
     bus: &mut B,
     address: u8,
-    buffer: &mut [u8; ext::MAX_FRAME_LEN],
+    buffer: &[u8; ext::MAX_FRAME_LEN],
     len: usize,
     sent: &Sent,
-) -> Result<Reply, ExchangeError> {
+) -> Result<(), ExchangeError> {
     let command = buffer.get(..len).ok_or(ExchangeError::Bus)?;
     bus.write(address, command).await.map_err(|_| ExchangeError::Bus)?;
     if sent.wait > Duration::from_ticks(0) {
         Timer::after(sent.wait).await;
     }
+    Ok(())
+}
+
+/// Read the reply to `sent` from the thruster at `address` into `buffer`, again while it is busy.
+pub(crate) async fn read_reply<B: I2c>(
+    bus: &mut B,
+    address: u8,
+    buffer: &mut [u8; ext::MAX_FRAME_LEN],
+    sent: &Sent,
+) -> Result<Reply, ExchangeError> {
     let reply = buffer.get_mut(..ext::reply_len(sent.command)).unwrap_or_default();
     for _ in 0..BUSY_READS {
         bus.read(address, reply).await.map_err(|_| ExchangeError::Bus)?;

@@ -43,6 +43,9 @@ fn tolerance(scenario: &str, metric: &str) -> Within {
         match metric {
             m if m.starts_with("update_put") || m.starts_with("fleet_update") => return UPDATE_DRIFT,
             "bus_transfers" => return UPDATE_DRIFT,
+            // A thruster restarting into its update answers nothing until its port is up again, and each failed
+            // exchange with it recovers the bus: how many fall in that window moves with the exchanges' phase.
+            "bus_recoveries" => return UPDATE_DRIFT,
             // A rate of about one poll a second (the count restarts with each thruster's update) is rounded to
             // 0.1: one step of it is a tenth.
             "poll_rate_hz" => {

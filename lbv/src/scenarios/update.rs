@@ -571,6 +571,10 @@ pub fn fleet_update(run: &mut Run) {
             .filter(|_| steps.is_empty())
             .collect();
         let mut noise_from = None;
+        // During the first put, one thruster of the family loses power for a moment: the writes shared while it is
+        // off reach only the others, whose acknowledgement hides its absence; its own replies tell.
+        let blinking = members.get(1).copied().filter(|_| steps.is_empty());
+        let mut blink_from = None;
         let (put_state, put_s) = put_until(
             run,
             &format!("/update/{name}"),
@@ -588,6 +592,19 @@ pub fn fleet_update(run: &mut Run) {
                         noise_from = Some(f64::INFINITY);
                     }
                     _ => {}
+                }
+                if let Some(thruster) = blinking {
+                    match blink_from {
+                        None if acked > 2 * PAYLOAD_LEN / 3 => {
+                            run.inject(Fault::PowerCut { thruster });
+                            blink_from = Some(now);
+                        }
+                        Some(from) if now >= from + BLINK_S => {
+                            run.clear(Fault::PowerCut { thruster });
+                            blink_from = Some(f64::INFINITY);
+                        }
+                        _ => {}
+                    }
                 }
                 false
             },
@@ -641,6 +658,20 @@ pub fn fleet_update(run: &mut Run) {
                 && told as f64 <= apply_s + 1.0,
             format!("progress {progress:?}, {told} texts in {apply_s} s"),
         );
+        if let Some(thruster) = blinking {
+            run.check(
+                &format!(
+                    "T{} off for {BLINK_S} s during the put is caught up on its return",
+                    thruster + 1
+                ),
+                blink_from == Some(f64::INFINITY) && running(run, thruster) == Some(NEW),
+                format!(
+                    "power back: {}, runs {:?}",
+                    blink_from.is_some(),
+                    running(run, thruster)
+                ),
+            );
+        }
         steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s}));
     }
     run.check(
@@ -672,6 +703,8 @@ pub fn fleet_update(run: &mut Run) {
 
 /// How long the bus is noisy during the fleet update's first put: less than the 3 s a silent thruster is given.
 const NOISE_S: f64 = 2.0;
+/// How long a thruster is off during the fleet update's first put: it is back within the 3 s.
+const BLINK_S: f64 = 1.0;
 
 /// Each thruster's answered polls so far.
 fn polls_of(run: &Run) -> Vec<u64> {

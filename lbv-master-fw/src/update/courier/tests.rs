@@ -1151,7 +1151,21 @@ fn the_ground_stations_query_takes_the_place_of_a_look_under_way_whose_late_answ
 /// applying the image to all of them once each has it written; returns what was said and the slots exchanged with,
 /// in order.
 fn carry_family(courier: &mut Courier, image: &[u8], slots: &mut [(u8, Vec<u8>, bool)]) -> (Vec<Outgoing>, Vec<u8>) {
-    let (mut said, mut order) = (Vec::new(), Vec::new());
+    let (said, exchanges) = carry_family_with(courier, image, slots, 1, &mut |_, _| false);
+    (said, exchanges.iter().map(|exchange| exchange.slot).collect())
+}
+
+/// As [`carry_family`], each exchange shared by up to `most` thrusters at the same step (each thruster's reply then
+/// read alone; `misses` says which thruster missed which shared write: it answers what it held before); returns
+/// what was said and the exchanges.
+fn carry_family_with(
+    courier: &mut Courier,
+    image: &[u8],
+    slots: &mut [(u8, Vec<u8>, bool)],
+    most: u32,
+    misses: &mut dyn FnMut(u8, &Exchange) -> bool,
+) -> (Vec<Outgoing>, Vec<Exchange>) {
+    let (mut said, mut exchanges) = (Vec::new(), Vec::new());
     let mask = slots.iter().fold(0, |mask, (slot, ..)| mask | 1 << slot);
     let (mut offset, mut applied) = (0, false);
     for ms in (0..200_000).step_by(20) {
@@ -1168,23 +1182,31 @@ fn carry_family(courier: &mut Courier, image: &[u8], slots: &mut [(u8, Vec<u8>, 
         if !applied && courier.apply_to(mask, GCS) == Ok(true) {
             applied = true;
         }
-        let Some(exchange) = courier.next(t(ms), |_| true) else {
+        let Some(exchange) = courier.next_cast(t(ms), |_| true, |_| true, most) else {
             if courier.image.is_none() {
                 break;
             }
             continue;
         };
-        order.push(exchange.slot);
-        let (_, dfu, silent) = slots.iter_mut().find(|(slot, ..)| *slot == exchange.slot).unwrap();
-        let result = if *silent {
-            Err(ExchangeError::Bus)
-        } else {
-            let running = if applied { [0, 2, 0, 0] } else { [0, 1, 0, 0] };
-            answer(dfu, &exchange, running)
-        };
-        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+        exchanges.push(exchange);
+        for slot in exchange.slots() {
+            let (_, dfu, silent) = slots.iter_mut().find(|(s, ..)| *s == slot).unwrap();
+            let result = if *silent {
+                Err(ExchangeError::Bus)
+            } else if exchange.with != 0 && misses(slot, &exchange) {
+                // Its last reply was read: it answers with its status frame.
+                Err(ExchangeError::Frame(FrameError::MessageType {
+                    expected: 0x60,
+                    actual: 0x53,
+                }))
+            } else {
+                let running = if applied { [0, 2, 0, 0] } else { [0, 1, 0, 0] };
+                answer(dfu, &exchange, running)
+            };
+            courier.on_result(t(ms), exchange.sent_to(slot), result, &mut |o| said.push(o));
+        }
     }
-    (said, order)
+    (said, exchanges)
 }
 
 /// A courier with a SeaBotix family's `image` begun for the slots that are bits of `slots`.
@@ -1310,4 +1332,76 @@ fn a_family_apply_sent_again_or_a_new_image_while_it_runs_starts_nothing() {
     );
     assert_eq!(courier.begin(1, 1, len, &header(len)), Err(NotTaken));
     assert_eq!(courier.hold(), Some(UpdateHold::Applying(0)));
+}
+
+#[test]
+fn a_family_takes_each_page_check_erase_and_chunk_in_one_write_and_each_thruster_answers_for_itself() {
+    let image = payload(5000);
+    let mut courier = family_courier(0b1_0101, &image);
+    let mut slots: Vec<(u8, Vec<u8>, bool)> = [0, 2, 4].map(|slot| (slot, vec![0u8; 8 * PAGE], false)).into();
+    let (said, exchanges) = carry_family_with(&mut courier, &image, &mut slots, 3, &mut |_, _| false);
+    for (slot, dfu, _) in &slots {
+        assert_eq!(&dfu[..image.len()], image.as_slice(), "T{}", slot + 1);
+    }
+    let kinds = |with: bool| -> Vec<CommandKind> {
+        exchanges
+            .iter()
+            .filter(|exchange| (exchange.with != 0) == with)
+            .map(|exchange| exchange.frame.command.kind())
+            .collect()
+    };
+    // Every chunk once for the three: 5000 B in 64-byte chunks; each page's check and erase, the verify.
+    let shared = kinds(true);
+    let count = |kinds: &[CommandKind], kind| kinds.iter().filter(|k| **k == kind).count();
+    // Two whole pages and the last's 904 B.
+    assert_eq!(count(&shared, CommandKind::Write), 2 * 32 + 904usize.div_ceil(64));
+    assert_eq!(count(&shared, CommandKind::Erase), 3);
+    assert_eq!(count(&shared, CommandKind::Check), 3 + 1);
+    assert_eq!(count(&shared, CommandKind::Begin), 1);
+    assert!(exchanges.iter().filter(|e| e.with != 0).all(|e| e.slots().count() == 3));
+    // What is each thruster's own stays its own: what it runs, and the apply.
+    let alone = kinds(false);
+    assert!(
+        alone
+            .iter()
+            .all(|kind| matches!(kind, CommandKind::Version | CommandKind::Finish | CommandKind::Reboot))
+    );
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+}
+
+#[test]
+fn a_thruster_that_missed_a_shared_write_is_caught_by_its_own_reply_and_sent_the_chunk_alone() {
+    let image = payload(5000);
+    let mut courier = family_courier(0b111, &image);
+    let mut slots: Vec<(u8, Vec<u8>, bool)> = [0, 1, 2].map(|slot| (slot, vec![0u8; 8 * PAGE], false)).into();
+    // T2 misses the fifth chunk written to all three (its NACK hidden behind the others' ACK).
+    let fifth = |exchange: &Exchange| matches!(exchange.frame.command, Command::Write { offset: 256, .. });
+    let (said, exchanges) = carry_family_with(&mut courier, &image, &mut slots, 3, &mut |slot, exchange| {
+        slot == 1 && fifth(exchange)
+    });
+    // Sent to T2 alone, then T2 joins the others again at the next page.
+    let again = exchanges.iter().position(|e| e.with == 0 && e.slot == 1 && fifth(e));
+    assert!(again.is_some());
+    for (slot, dfu, _) in &slots {
+        assert_eq!(&dfu[..image.len()], image.as_slice(), "T{}", slot + 1);
+    }
+    let rejoined = exchanges[again.unwrap()..]
+        .iter()
+        .any(|e| e.slots().count() == 3 && matches!(e.frame.command, Command::Erase { .. }));
+    assert!(rejoined);
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+}
+
+#[test]
+fn a_shared_write_reaches_no_more_thrusters_than_the_bus_may_have_enabled_at_once() {
+    let image = payload(5000);
+    let mut courier = family_courier(0b1_1111, &image);
+    let mut slots: Vec<(u8, Vec<u8>, bool)> = (0..5).map(|slot| (slot, vec![0u8; 8 * PAGE], false)).collect();
+    let (said, exchanges) = carry_family_with(&mut courier, &image, &mut slots, 3, &mut |_, _| false);
+    let most = exchanges.iter().map(|e| e.slots().count()).max();
+    assert_eq!(most, Some(3));
+    for (slot, dfu, _) in &slots {
+        assert_eq!(&dfu[..image.len()], image.as_slice(), "T{}", slot + 1);
+    }
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
 }
