@@ -37,10 +37,11 @@ use crate::console::signing::{Refusal, SigningKey, SigningState};
 use crate::params::{PARAM_COUNT, Param};
 use crate::ports::UpdateSink;
 use crate::shared::{
-    Command, FtpReply, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction,
-    UpdateCommand, UpdateRequest,
+    Command, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction, UpdateCommand,
+    UpdateRequest,
 };
 use crate::thrusters::ThrusterTable;
+use crate::update::FtpAnswer;
 #[cfg(not(feature = "acceptance"))]
 use crate::update::Updates;
 #[cfg(not(feature = "acceptance"))]
@@ -393,16 +394,17 @@ fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Received, mavlink
 /// go to `sink` ([`Updates::serve`]). Reading never waits for the update sink or for room for an FTP reply: the
 /// operator's HEARTBEAT and MANUAL_CONTROL are read as they come whatever the update does.
 ///
-/// - A request that changes an upload or the images (every FTP opcode but ListDirectory, CalcFileCrc32 and those
-///   not served, and the update commands) is held, in order, and served as soon as the sink is
-///   [`UpdateSink::ready`] (at once when it is: the task looks before it reads on), one at a time; [`HELD`] of them
-///   at most, and the operator's (its system's) only once one is held. A request beyond them is dropped unanswered,
-///   which a ground station takes for a lost frame and sends again ([`ConsoleCounters::requests_dropped`]).
+/// - A request that changes an upload or the images, or a session (every FTP opcode but ListDirectory,
+///   CalcFileCrc32, ReadFile, BurstReadFile and those not served, and the update commands) is held, in order, and
+///   served as soon as the sink is [`UpdateSink::ready`] (at once when it is: the task looks before it reads on),
+///   one at a time; [`HELD`] of them at most, and the operator's (its system's) only once one is held. A request
+///   beyond them is dropped unanswered, which a ground station takes for a lost frame and sends again
+///   ([`ConsoleCounters::requests_dropped`]).
 /// - Its reply, when it is for the operator's system and the outbox is full, waits for room while reading goes on
 ///   (no held request is served meanwhile, so the replies keep their order); any other FTP reply (to a listing, a
-///   CRC, or to another system) is dropped when the outbox is full ([`ConsoleCounters::replies_dropped`]).
+///   CRC, a read, or to another system) is dropped when the outbox is full ([`ConsoleCounters::replies_dropped`]).
 /// - Requests that make the vehicle send more than they cost (the parameter list and reads, requested messages,
-///   FTP listings and CRCs) are limited per requester ([`limit`]), the operator's included; what is over its
+///   FTP listings, CRCs and reads) are limited per requester ([`limit`]), the operator's included; what is over its
 ///   allowance is dropped unanswered ([`ConsoleCounters::rate_limited`]).
 ///
 /// A frame begun when the line falls quiet for [`LINE_IDLE`] is given up and the bytes after its start read
@@ -592,7 +594,12 @@ impl Held {
     }
 }
 
-/// What a request that only reads (a listing, a CRC, an opcode not served) costs its requester's allowance
+/// The bytes of a reply to a listing, about: what a frame of a requester's allowance stands for ([`limit`]).
+#[cfg(not(feature = "acceptance"))]
+const LISTING_REPLY_BYTES: u32 = 48;
+
+/// What a request that only reads (a listing, a CRC, a read of the file a session opened, an opcode not served)
+/// costs its requester's allowance
 /// ([`limit`]); `None` for one that changes an upload or the images, which is served in order.
 #[cfg(not(feature = "acceptance"))]
 fn reads(request: &UpdateRequest) -> Option<u32> {
@@ -601,6 +608,10 @@ fn reads(request: &UpdateRequest) -> Option<u32> {
     };
     match Opcode::from_byte(payload.get(3).copied().unwrap_or(0)) {
         Opcode::ListDirectory | Opcode::CalcFileCrc32 => Some(1),
+        // Its reply carries up to the `size` bytes asked for: it costs what as many bytes of listing replies do.
+        Opcode::ReadFile | Opcode::BurstReadFile => {
+            Some(1 + u32::from(payload.get(4).copied().unwrap_or(0)) / LISTING_REPLY_BYTES)
+        }
         Opcode::None | Opcode::Other(_) => Some(0),
         _ => None,
     }
@@ -883,7 +894,7 @@ impl<W: Write> Output<'_, W> {
     }
 
     /// Frame an FTP reply (nothing in an image without the update server, which has none to send).
-    fn ftp_reply(&mut self, to: Sender, reply: &FtpReply) {
+    fn ftp_reply(&mut self, to: Sender, reply: &FtpAnswer) {
         #[cfg(not(feature = "acceptance"))]
         {
             let len = self.framer.frame_ftp(to, reply).len();

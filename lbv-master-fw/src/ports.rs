@@ -21,6 +21,7 @@ use crate::params::Settings;
 use crate::shared::{BUSES, Sender, Shared, UpdateHolds};
 use crate::update::ftp::Nak;
 use crate::update::header::ImageHeader;
+use crate::update::sys::Versions;
 use tmc_proto::Family;
 
 /// What a board gives the master's core: the type of each of its ports, one value of each in the
@@ -201,6 +202,11 @@ pub trait UpdateSink {
     /// been taken, so that an arm command read after it is refused. A sink that applies nothing holds nothing.
     fn publish(&self, holds: &UpdateHolds) {
         let _ = holds;
+    }
+    /// Tell `versions` what the master knows of each board's running image ([`Versions::set`], for
+    /// `@SYS/versions.txt`). A sink that reaches no board knows nothing of them.
+    fn boards(&self, versions: &mut Versions) {
+        let _ = versions;
     }
 }
 

@@ -158,7 +158,8 @@ pub enum UpdateCommand {
 
 /// The start of an FTP reply's payload: its 12-byte header and up to [`FTP_REPLY_DATA`] bytes of data (the rest
 /// of the 251 are zeros). The server's replies need no more (an ACK, a NAK's code, a CRC, one directory entry),
-/// and so fit in [`Outgoing`] beside the other messages for the console.
+/// and so fit in [`Outgoing`] beside the other messages for the console; a read's data is made as it is framed
+/// ([`FtpAnswer::Read`]).
 pub(crate) type FtpReply = [u8; 12 + FTP_REPLY_DATA];
 /// Data bytes an [`FtpReply`] carries.
 pub(crate) const FTP_REPLY_DATA: usize = 28;
@@ -426,8 +427,8 @@ pub enum Outgoing {
     Ftp {
         /// Who asked (the message's target system and component).
         to: Sender,
-        /// The payload's start.
-        reply: FtpReply,
+        /// The payload's start, or for a read what its data is made from.
+        reply: FtpAnswer,
     },
 }
 
@@ -791,4 +792,80 @@ mod tests {
             );
         }
     }
+}
+
+// What `@SYS/versions.txt` is made of (`update::sys`, which renders it), here because a read's reply carries it
+// in [`Outgoing`].
+
+/// What the master knows of a board's running image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum ImageState {
+    /// The master has not read it: its own bootloader's state, before its update task has looked (or on a board
+    /// without a bootloader).
+    #[default]
+    Unknown,
+    /// Runs a confirmed image and holds no update marked.
+    Confirmed,
+    /// Runs a new image on trial: it confirms itself, or its bootloader swaps the old one back.
+    OnTrial,
+    /// Holds an update marked for its bootloader, which swaps it in at the restart.
+    Marked,
+    /// A thruster that does not answer its polls.
+    Offline,
+    /// A thruster that answers and has not been asked yet what it runs since it came back (or the master started).
+    Unasked,
+    /// A thruster that answers without the field-update extension: it takes no update.
+    NoUpdates,
+}
+
+/// A board's running image, as the master knows it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Running {
+    /// Its version as the image info holds it (major, minor, patch u16 LE), once heard.
+    pub version: Option<[u8; 4]>,
+    /// Whether it is confirmed, on trial, marked, or the board is offline or not asked yet.
+    pub state: ImageState,
+}
+
+/// `versions.txt` as it stood when it was opened, packed into 49 bytes: a read's reply carries it to the console,
+/// whose outbox holds it beside the other messages (60 bytes each) without growing. Board 0 is the master, board
+/// `n + 1` the thruster of slot `n`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Versions {
+    /// The slots (bits) that have a thruster.
+    pub(crate) slots: u8,
+    /// The slots (bits) whose thruster is of the Legacy family.
+    pub(crate) legacy: u8,
+    /// The boards (bits of a u16, little-endian) whose version the master has heard.
+    pub(crate) heard: [u8; 2],
+    /// Each board's version, as the image info holds it; zeros where not heard.
+    pub(crate) versions: [[u8; 4]; 1 + MAX_THRUSTERS],
+    /// Each board's state.
+    pub(crate) states: [ImageState; 1 + MAX_THRUSTERS],
+}
+
+/// The reply to a ReadFile or BurstReadFile of `versions.txt`: what its header needs, and the snapshot its data is
+/// made from as it is framed (its 239 bytes do not fit beside the console's other messages,
+/// [`FtpReply`]). 56 bytes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FileRead {
+    /// The reply's sequence number (the request's + 1), little-endian.
+    pub(crate) seq: [u8; 2],
+    pub(crate) session: u8,
+    /// The request's opcode: ReadFile or BurstReadFile.
+    pub(crate) opcode: u8,
+    pub(crate) size: u8,
+    /// The offset read from, little-endian: within the text, which is shorter than 64 KiB.
+    pub(crate) offset: [u8; 2],
+    pub(crate) versions: Versions,
+}
+
+/// The server's answer to one FTP request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FtpAnswer {
+    /// A reply that carries its data.
+    Reply(FtpReply),
+    /// A read of `@SYS/versions.txt`, whose data is made as it is framed.
+    Read(FileRead),
 }

@@ -18,6 +18,7 @@ use crate::settings::Store;
 use crate::shared::{Sender, UpdateHolds};
 use crate::update::ImageHeader;
 use crate::update::ftp::Nak;
+use crate::update::sys::Versions;
 use embassy_time::Delay;
 use g431_hw::memory;
 use lbv_sim::Queue;
@@ -195,5 +196,9 @@ impl<S: UpdateSink> UpdateSink for Recorded<S> {
 
     fn publish(&self, holds: &UpdateHolds) {
         self.sink.publish(holds);
+    }
+
+    fn boards(&self, versions: &mut Versions) {
+        self.sink.boards(versions);
     }
 }

@@ -6,7 +6,8 @@
 //! MAVProxy's `ftp put FILE /update/thruster0.lbvu` and pymavlink's `MAVFTP` upload to it; `ftp list /update`
 //! lists the targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets
 //! them. MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 200 every SeaBotix thruster, 201 every Legacy one, 255
-//! the master: [`UpdateTarget::slot`]) then applies an image received whole.
+//! the master: [`UpdateTarget::slot`]) then applies an image received whole. The update files are write-only; the
+//! one file read is `@SYS/versions.txt`, what every board runs ([`sys`]): `ftp get @SYS/versions.txt`.
 //!
 //! The master keeps no image itself: each write goes on to an [`UpdateSink`] as it comes ([`VehicleSink`]): for a
 //! thruster, the thruster's DFU partition over its bus ([`crate::update::courier`]); for the master, its own DFU
@@ -37,9 +38,11 @@
 //! and the image kept.
 //!
 //! Rules:
-//! - One session at a time: a second open gets [`Nak::NoSessionsAvailable`] (MAVProxy waits and tries again)
-//!   unless the session in use has been idle for [`TAKEOVER_IDLE`] or its image is whole. Listing, CRC and
-//!   removal need no session; a reply carries the request's session, as the clients route them by it.
+//! - One session at a time, an upload's or a read's: a second open gets [`Nak::NoSessionsAvailable`] (MAVProxy
+//!   waits and tries again) unless the session in use has been idle for [`TAKEOVER_IDLE`] or its image is whole;
+//!   the operator's upload also takes over at once another system's read, so that no one else's read holds an
+//!   update back. Listing, CRC and removal need no session; a reply carries the request's session, as the clients
+//!   route them by it.
 //!   TerminateSession closes the session it names if it is the sender's, ResetSessions the sender's session; either
 //!   of a session that is not the sender's (another client's, or another session of its) is NAKed
 //!   [`Nak::InvalidSession`] and leaves it open (ArduPilot's answer for a request on a session other than the one
@@ -47,8 +50,9 @@
 //!   client is uploading (its session live, its image not whole) is refused ([`Nak::Fail`], "another component is
 //!   uploading it").
 //! - Only the operator's ground station (`SYSID_MYGCS`) may write, remove or apply ([`Nak::FileProtected`],
-//!   COMMAND_ACK DENIED); anyone may list and read CRCs. With a signing key set, unsigned FTP frames are refused
-//!   before they get here, as every unsigned frame is ([`crate::console::signing`]).
+//!   COMMAND_ACK DENIED); anyone may list, read CRCs and read `@SYS/versions.txt`, armed or not. Nothing in `@SYS`
+//!   is written, created or removed, nor has a CRC ([`Nak::FileProtected`]). With a signing key set, unsigned FTP
+//!   frames are refused before they get here, as every unsigned frame is ([`crate::console::signing`]).
 //! - Without a signing key anyone on the link can claim `SYSID_MYGCS`: nothing is written, removed or applied
 //!   ([`Nak::Fail`], COMMAND_ACK DENIED, and "refused, the link is not signed") unless `LBV_UPD_UNSIGNED` is 1
 //!   ([`crate::params::Param::UnsignedUpdates`], [`Context::unsigned`]).
@@ -67,6 +71,7 @@ pub mod courier;
 pub mod ftp;
 pub mod header;
 pub mod own;
+pub mod sys;
 
 pub(crate) use header::parse_header;
 pub use header::{HEADER_LEN, ImageHeader};
@@ -78,13 +83,15 @@ use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
 use crate::ports::{Applied, MASTER_SLOT, Refused, UpdateSink, UpdateTarget};
+pub use crate::shared::FtpAnswer;
 use crate::shared::{
-    AckResult, FTP_REPLY_DATA, FtpPayload, FtpReply, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction,
-    UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
+    AckResult, FTP_PAYLOAD, FTP_REPLY_DATA, FtpPayload, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared,
+    UpdateAction, UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
 use crate::thrusters::ThrusterTable;
 use crate::update::courier::{File, PROGRESS_PERIOD, Transfers, bit, family_file};
 use crate::update::own::{NotTaken, OwnImage};
+use crate::update::sys::{FileRead, Versions};
 use ftp::{ACK, Nak, Opcode, Request};
 use update_image::HeaderError;
 
@@ -127,6 +134,27 @@ fn kind_name(kind: u8) -> &'static str {
         1 => "SeaBotix",
         2 => "Legacy",
         _ => "master",
+    }
+}
+
+impl FtpAnswer {
+    /// The whole payload, as it goes out.
+    pub fn payload(&self) -> FtpPayload {
+        let mut payload = [0; FTP_PAYLOAD];
+        self.write_to(&mut payload);
+        payload
+    }
+
+    /// Write the payload into `into`, which is zeros.
+    pub(crate) fn write_to(&self, into: &mut [u8]) {
+        match self {
+            Self::Reply(reply) => {
+                if let Some(start) = into.get_mut(..reply.len()) {
+                    start.copy_from_slice(reply);
+                }
+            }
+            Self::Read(read) => read.write_to(into),
+        }
     }
 }
 
@@ -269,6 +297,15 @@ impl UpdateSink for VehicleSink<'_> {
         holds.set_thrusters(self.transfers.with(|courier| courier.hold()));
         holds.set_master(self.own.hold());
     }
+
+    fn boards(&self, versions: &mut Versions) {
+        versions.set(0, self.own.running());
+        self.transfers.with(|courier| {
+            for slot in 0..MAX_THRUSTERS as u8 {
+                versions.set(1 + usize::from(slot), courier.running(slot));
+            }
+        });
+    }
 }
 
 /// What the server must know of the vehicle for each request.
@@ -330,6 +367,21 @@ struct Session {
     reported: Instant,
 }
 
+/// What a request's path names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Node {
+    /// `/`.
+    Root,
+    /// `/update`.
+    Updates,
+    /// An update file.
+    Update(UpdateTarget),
+    /// `@SYS`.
+    Sys,
+    /// `@SYS/versions.txt`.
+    Versions,
+}
+
 /// Why an upload stops before its end.
 #[derive(Clone, Copy)]
 enum Stop {
@@ -362,6 +414,9 @@ pub struct UpdateServer {
     /// The last image received whole.
     held: Option<Image>,
     session: Option<Session>,
+    /// The session's file open for reading, `@SYS/versions.txt` as it stood when it was opened (a session either
+    /// reads this or uploads).
+    reading: Option<Versions>,
     /// Where the upload's CRC stood after each of its last writes ([`Marks`]).
     marks: Marks,
     counters: UpdateCounters,
@@ -426,6 +481,7 @@ impl UpdateServer {
             upload: None,
             held: None,
             session: None,
+            reading: None,
             marks: Marks::new(),
             counters: UpdateCounters::default(),
         }
@@ -470,15 +526,22 @@ impl UpdateServer {
         (slots != 0).then_some(UpdateTarget::Family { family, slots })
     }
 
-    /// The target a request's path names: `/update/thruster<slot>.lbvu` or `/update/master.lbvu` (the leading `/`
-    /// may be left out), or `None` for `/` (`Some(None)`: `/update`).
-    fn lookup(&self, path: &[u8]) -> Result<Option<Option<UpdateTarget>>, Nak> {
+    /// What a request's path names: `/`, `/update`, an update file (`/update/thruster<slot>.lbvu`,
+    /// `/update/master.lbvu`, a family's), `@SYS` or `@SYS/versions.txt` (the leading `/` may be left out).
+    fn lookup(&self, path: &[u8]) -> Result<Node, Nak> {
         let path = path.strip_prefix(b"/").unwrap_or(path);
         if path.is_empty() {
-            return Ok(None);
+            return Ok(Node::Root);
+        }
+        if let Some(name) = sys::in_dir(path) {
+            return match name {
+                b"" | b"/" => Ok(Node::Sys),
+                _ if name.strip_prefix(b"/") == Some(sys::VERSIONS.as_bytes()) => Ok(Node::Versions),
+                _ => Err(Nak::FileNotFound),
+            };
         }
         let target = match path.strip_prefix(b"update") {
-            Some(b"" | b"/") => return Ok(Some(None)),
+            Some(b"" | b"/") => return Ok(Node::Updates),
             Some(b"/master.lbvu") => Some(UpdateTarget::Master),
             Some(name) if let Some(family) = family_named(name) => self.family(family),
             Some(name) => match name.strip_prefix(b"/thruster") {
@@ -489,12 +552,26 @@ impl UpdateServer {
             },
             None => None,
         };
-        target.map(|target| Some(Some(target))).ok_or(Nak::FileNotFound)
+        target.map(Node::Update).ok_or(Nak::FileNotFound)
     }
 
-    /// The target a request's path names, which must be a file.
+    /// The update file a request's path names, to write, create, remove or checksum: nothing in `@SYS` is written.
     fn target(&self, request: &Request<'_>) -> Result<UpdateTarget, Nak> {
-        self.lookup(request.path()?)?.flatten().ok_or(Nak::FileNotFound)
+        let path = request.path()?;
+        if sys::is_sys(path) {
+            return Err(Nak::FileProtected);
+        }
+        match self.lookup(path)? {
+            Node::Update(target) => Ok(target),
+            _ => Err(Nak::FileNotFound),
+        }
+    }
+
+    /// `@SYS/versions.txt` as it stands now.
+    fn versions(&self, sink: &impl UpdateSink) -> Versions {
+        let mut versions = Versions::new(&self.slots);
+        sink.boards(&mut versions);
+        versions
     }
 
     /// Answer one FILE_TRANSFER_PROTOCOL payload from `from` at `now`; `out` takes the texts and progress. The
@@ -507,13 +584,15 @@ impl UpdateServer {
         payload: &FtpPayload,
         sink: &mut impl UpdateSink,
         out: &mut impl FnMut(Outgoing),
-    ) -> Option<FtpReply> {
-        if context.armed && self.session.is_some() {
+    ) -> Option<FtpAnswer> {
+        // Arming stops an upload; a read changes nothing, and goes on.
+        if context.armed && self.session.is_some() && self.reading.is_none() {
             self.stop(Stop::Armed, sink, out);
         }
         let request = Request::parse(payload);
         let ours = self.session.is_some_and(|s| s.owner == from && s.id == request.session);
         let mut data = Buf::default();
+        let mut read = None;
         let opcode = Opcode::from_byte(request.opcode);
         let answer = match opcode {
             // A reply sent to a server: answering it could set two servers talking.
@@ -531,16 +610,22 @@ impl UpdateServer {
             },
             Opcode::ListDirectory => request
                 .path()
-                .and_then(|path| self.list(path, request.offset, &mut data)),
+                .and_then(|path| self.list(path, request.offset, sink, &mut data)),
             Opcode::OpenFileRO => match request.path().and_then(|path| self.lookup(path)) {
-                Ok(Some(Some(_))) => Err(Nak::FileProtected),
+                Ok(Node::Versions) => self.open_read(now, from, &request, sink, out, &mut data),
+                Ok(Node::Update(_)) => Err(Nak::FileProtected),
                 Ok(_) | Err(_) => Err(Nak::FileNotFound),
             },
+            Opcode::ReadFile | Opcode::BurstReadFile if !ours => Err(Nak::InvalidSession),
+            Opcode::ReadFile | Opcode::BurstReadFile => self.read(now, &request).map(|file| read = Some(file)),
+            // `@SYS` has no CRC (FileProtected): its text is made at each opening, with nothing kept to compare.
             Opcode::CalcFileCrc32 => self.target(&request).map(|target| {
                 data.put(&self.received(target).1.to_le_bytes());
             }),
             Opcode::CreateFile | Opcode::OpenFileWO => self.open(now, context, from, &request, sink, out),
             Opcode::WriteFile if !ours => Err(Nak::InvalidSession),
+            // A session that reads `@SYS/versions.txt` writes nothing.
+            Opcode::WriteFile if self.reading.is_some() => Err(Nak::FileProtected),
             // The upload stops here, told why, rather than halfway through at the restart.
             Opcode::WriteFile if context.restarting || context.unsigned => match self.upload {
                 Some(image) => {
@@ -554,35 +639,44 @@ impl UpdateServer {
             Opcode::RemoveFile => self.remove(now, context, from, &request, sink, out),
             Opcode::Other(_) => Err(Nak::UnknownCommand),
         };
-        Some(match answer {
-            Ok(()) => ftp::reply(&request, ACK, data.as_bytes()),
-            Err(reason) => {
+        Some(match (answer, read) {
+            (Ok(()), Some(read)) => FtpAnswer::Read(read),
+            (Ok(()), None) => FtpAnswer::Reply(ftp::reply(&request, ACK, data.as_bytes())),
+            (Err(reason), _) => {
                 self.counters.naks = self.counters.naks.wrapping_add(1);
-                ftp::nak(&request, reason)
+                FtpAnswer::Reply(ftp::nak(&request, reason))
             }
         })
     }
 
-    /// The entries of `path` from entry `first` on, as ArduPilot lists them: `F<name>\t<size>\0` for a file (its
-    /// size the bytes held), `D<name>\0` for a directory, as many as fit in a reply (one: the clients ask for the
-    /// next from the offset after the last they got, until [`Nak::EndOfFile`]).
-    fn list(&self, path: &[u8], first: u32, data: &mut Buf) -> Result<(), Nak> {
+    /// The entries of `path` from entry `first` on, as ArduPilot lists them: `F<name>\t<size>\0` for a file (an
+    /// update file's size the bytes held, `versions.txt`'s its length now), `D<name>\0` for a directory (`@SYS`
+    /// after the others, as ArduPilot lists its own), as many as fit in a reply (the clients ask for the next from
+    /// the offset after the last they got, until [`Nak::EndOfFile`]).
+    fn list(&self, path: &[u8], first: u32, sink: &impl UpdateSink, data: &mut Buf) -> Result<(), Nak> {
         let first = usize::try_from(first).unwrap_or(usize::MAX);
-        let listed = match self.lookup(path)? {
-            Some(Some(_)) => return Err(Nak::FileNotFound),
-            None => usize::from(first == 0 && data.entry(format_args!("Dupdate\0"))),
-            Some(None) => {
-                let mut listed = 0;
+        match self.lookup(path)? {
+            Node::Update(_) | Node::Versions => return Err(Nak::FileNotFound),
+            Node::Root => {
+                for name in ["update", sys::DIR].get(first..).unwrap_or_default() {
+                    if !data.entry(format_args!("D{name}\0")) {
+                        break;
+                    }
+                }
+            }
+            Node::Updates => {
                 for target in self.targets().skip(first) {
                     if !data.entry(format_args!("F{}\t{}\0", target, self.received(target).0)) {
                         break;
                     }
-                    listed += 1;
                 }
-                listed
             }
-        };
-        if listed == 0 { Err(Nak::EndOfFile) } else { Ok(()) }
+            Node::Sys if first == 0 => {
+                data.entry(format_args!("F{}\t{}\0", sys::VERSIONS, self.versions(sink).len()));
+            }
+            Node::Sys => {}
+        }
+        if data.len == 0 { Err(Nak::EndOfFile) } else { Ok(()) }
     }
 
     /// Whether `from` may change `target`'s file now.
@@ -624,24 +718,7 @@ impl UpdateServer {
     ) -> Result<(), Nak> {
         let target = self.target(request)?;
         self.may_write(context, from, target, out)?;
-        if let Some(session) = self.session {
-            if session.owner == from && session.id == request.session {
-                // One file per session, as ArduPilot has it.
-                return Err(Nak::Fail);
-            }
-            // A session whose image is whole has nothing left to lose.
-            let whole = self.upload.is_some_and(|i| i.whole);
-            if !whole && now.saturating_duration_since(session.last) < TAKEOVER_IDLE {
-                return Err(Nak::NoSessionsAvailable);
-            }
-            self.stop(Stop::Closed, sink, out);
-        }
-        self.session = Some(Session {
-            owner: from,
-            id: request.session,
-            last: now,
-            reported: now,
-        });
+        self.new_session(now, from, request.session, true, sink, out)?;
         self.upload = Some(Image {
             target,
             whole: false,
@@ -651,6 +728,79 @@ impl UpdateServer {
         });
         self.marks = Marks::new();
         Ok(())
+    }
+
+    /// OpenFileRO of `@SYS/versions.txt`: a new session reads it as it stands now, its ACK carrying its length.
+    fn open_read(
+        &mut self,
+        now: Instant,
+        from: Sender,
+        request: &Request<'_>,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+        data: &mut Buf,
+    ) -> Result<(), Nak> {
+        self.new_session(now, from, request.session, false, sink, out)?;
+        let versions = self.versions(sink);
+        self.reading = Some(versions);
+        data.put(&versions.len().to_le_bytes());
+        Ok(())
+    }
+
+    /// Open session `id` for `from` at `now` (`upload`: to upload, otherwise to read), in place of the session
+    /// open if that one has nothing left to lose: idle for [`TAKEOVER_IDLE`], or its image whole; for the
+    /// operator's upload, a read of another system's too, which that system opens again (no one else's read holds
+    /// an update back). Otherwise [`Nak::NoSessionsAvailable`], and the same session opening again [`Nak::Fail`].
+    fn new_session(
+        &mut self,
+        now: Instant,
+        from: Sender,
+        id: u8,
+        upload: bool,
+        sink: &mut impl UpdateSink,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Result<(), Nak> {
+        if let Some(session) = self.session {
+            if session.owner == from && session.id == id {
+                // One file per session, as ArduPilot has it.
+                return Err(Nak::Fail);
+            }
+            let whole = self.upload.is_some_and(|i| i.whole);
+            let others_read = upload && self.reading.is_some() && session.owner.system != from.system;
+            if !whole && !others_read && now.saturating_duration_since(session.last) < TAKEOVER_IDLE {
+                return Err(Nak::NoSessionsAvailable);
+            }
+            self.stop(Stop::Closed, sink, out);
+        }
+        self.session = Some(Session {
+            owner: from,
+            id,
+            last: now,
+            reported: now,
+        });
+        Ok(())
+    }
+
+    /// ReadFile / BurstReadFile in the sender's session: as many bytes of the file it opened as the request's size
+    /// asks from its offset (fewer at the end), [`Nak::EndOfFile`] at or past the end, as ArduPilot answers. A
+    /// burst is this one reply, marked its last: MAVProxy and pymavlink take a reply shorter than they asked for as
+    /// the end and otherwise ask for the next burst where it ends, as QGroundControl does until EndOfFile.
+    fn read(&mut self, now: Instant, request: &Request<'_>) -> Result<FileRead, Nak> {
+        let (Some(session), Some(versions)) = (self.session.as_mut(), self.reading) else {
+            // An upload's session: its file is written, not read.
+            return Err(Nak::Fail);
+        };
+        session.last = now;
+        let asked = request.data.map_or(0, <[u8]>::len);
+        if asked == 0 {
+            return Err(Nak::InvalidDataSize);
+        }
+        let left = versions.len().saturating_sub(request.offset);
+        let size = u8::try_from(left.min(asked as u32)).unwrap_or(u8::MAX);
+        if size == 0 {
+            return Err(Nak::EndOfFile);
+        }
+        Ok(FileRead::new(request, size, versions))
     }
 
     /// WriteFile in the session: take its bytes in order. `None`: left unanswered (a gap).
@@ -834,6 +984,7 @@ impl UpdateServer {
     /// forgotten), and `why` says so.
     fn stop(&mut self, why: Stop, sink: &mut impl UpdateSink, out: &mut impl FnMut(Outgoing)) {
         self.session = None;
+        self.reading = None;
         let Some(image) = self.upload.take().filter(|i| !i.whole) else {
             return;
         };
@@ -1063,10 +1214,10 @@ impl<S: UpdateSink> Updates<S> {
         let UpdateRequest { from, what } = request;
         match what {
             UpdateCommand::Ftp(payload) => {
-                let reply = self
+                let answer = self
                     .server
                     .request(now, context, from, &payload, &mut self.sink, &mut out);
-                reply.map(|reply| Outgoing::Ftp { to: from, reply })
+                answer.map(|reply| Outgoing::Ftp { to: from, reply })
             }
             UpdateCommand::Apply(_) if context.unsigned && from.system == context.operator => {
                 answer(

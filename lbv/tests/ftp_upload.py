@@ -6,7 +6,10 @@
 Listens on 127.0.0.1:GCS_PORT like a ground station (`lbv bench --udp` sends there; the script answers to where
 the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operator (system 255):
 
-    list       ListDirectory `/` and `/update`: the directory, then one file per thruster slot and the master's
+    list       ListDirectory `/` and `/update`: the directories (`update`, `@SYS`), then one file per thruster slot and
+               the master's
+    versions   MAVFTP's get of `@SYS/versions.txt` (OpenFileRO, BurstReadFile of 80 bytes until a shorter reply,
+               TerminateSession) into WORK_DIR/versions.txt: what every board runs
     unsigned   a put over the link without signing: refused ("thruster0.lbvu: refused, the link is not signed");
                then PARAM_SET LBV_UPD_UNSIGNED 1 (the vehicle answers PARAM_VALUE 1), which allows updates over it
                (tests/integration/mavproxy_ftp.rs signs the link instead, as docs/field-update.md recommends)
@@ -164,6 +167,12 @@ def main():
         summary["root"] = listing(ret)
         ret = ftp.cmd_list(["/update"])
         summary["before"] = listing(ret)
+
+        versions = os.path.join(work, "versions.txt")
+        ftp.cmd_get(["@SYS/versions.txt", versions])
+        ret = ftp.process_ftp_reply("OpenFileRO", timeout=10)
+        with open(versions, encoding="ascii") as file:
+            summary["versions"] = {"error": int(ret.error_code), "text": file.read()}
 
         local = os.path.join(work, "thruster0.lbvu")
         since = len(ground.texts)

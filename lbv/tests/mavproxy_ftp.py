@@ -9,6 +9,9 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
 
     connect   MAVProxy sees the vehicle
     list      `ftp list /update`: one file per thruster slot, one per family and the master's, 0 bytes each
+    versions  `ftp list /` (`update` and `@SYS`), `ftp list @SYS` (`versions.txt` and its length) and `ftp get
+              @SYS/versions.txt WORK_DIR/versions-before.txt`: what every board runs before the updates (got again
+              until no thruster is left to be asked what it runs, as the master asks each once it answers)
     unsigned  `ftp put WORK_DIR/thruster2.lbvu /update/thruster2.lbvu` over the link without signing (the vehicle's
               LBV_UPD_UNSIGNED at its default, 0): refused at its CreateFile, "thruster2.lbvu: refused, the link is
               not signed"
@@ -38,6 +41,8 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
               SeaBotix thruster (T1, T3, T5) has it verified, `long MAV_CMD_USER_1 200`: COMMAND_ACK IN_PROGRESS,
               then IN_PROGRESS with its progress as the three restart and confirm ("thrusters-seabotix.lbvu: 1 of 3
               done, T3 60 %" at most once a second, as MAVProxy prints them), then ACCEPTED
+    versions_after  as versions, into WORK_DIR/versions-after.txt: the SeaBotix thrusters run 0.3.0 now (got again
+              until none is on trial or left to be asked)
 
 Prints a JSON summary;
 exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when pymavlink or MAVProxy is
@@ -113,6 +118,38 @@ class Session:
 
     def list(self):
         self.summary["list"] = self.listing()
+
+    def get_versions(self, name):
+        """`ftp list /`, `ftp list @SYS` and `ftp get @SYS/versions.txt` into WORK_DIR/`name`, got again until no
+        thruster is on trial or left to be asked what it runs: the listings, the text and the gets it took."""
+        since = time.monotonic()
+        self.mavproxy.type("ftp list /")
+        self.wait(lambda: self.lines(since, r"Total size"), 10.0, "the listing of /")
+        root = [m.group(1) for m in self.lines(since, r"^ D (\S+)$")]
+        since = time.monotonic()
+        self.mavproxy.type("ftp list @SYS")
+        self.wait(lambda: self.lines(since, r"Total size"), 10.0, "the listing of @SYS")
+        files = [[m.group(1), int(m.group(2))] for m in self.lines(since, r"^\s+(\S+\.txt)\t(\d+)")]
+        local = os.path.join(self.work, name)
+        for gets in range(1, 21):
+            since = time.monotonic()
+            self.mavproxy.type(f"ftp get @SYS/versions.txt {local}")
+            self.wait(lambda: self.lines(since, r"Wrote \d+ bytes to"), 10.0, "the get of @SYS/versions.txt")
+            with open(local, encoding="ascii") as file:
+                text = file.read()
+            if not re.search(r" (unasked|on-trial)$", text, re.M):
+                break
+            # Half a second between two gets, pumping the links meanwhile.
+            again = since + 0.5
+            self.wait(lambda: time.monotonic() >= again, 1.0, "the pause before the next get")
+        wrote = int(self.lines(since, r"Wrote (\d+) bytes to")[-1].group(1))
+        return {"root": root, "sys": files, "text": text, "wrote": wrote, "gets": gets}
+
+    def versions(self):
+        self.summary["versions"] = self.get_versions("versions-before.txt")
+
+    def versions_after(self):
+        self.summary["versions_after"] = self.get_versions("versions-after.txt")
 
     def put(self, name):
         """`ftp put` of WORK_DIR/`name` to thruster2's file; the vehicle's texts since."""
@@ -265,6 +302,7 @@ class Session:
     STEPS = [
         "connect",
         "list",
+        "versions",
         "unsigned",
         "signing",
         "older",
@@ -276,6 +314,7 @@ class Session:
         "version",
         "remove",
         "fleet",
+        "versions_after",
     ]
 
     def run(self):

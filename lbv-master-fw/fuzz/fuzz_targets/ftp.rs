@@ -1,10 +1,11 @@
 //! The update server's MAVLink FTP decoder and state machine: any FILE_TRANSFER_PROTOCOL payloads (raw bytes, or
-//! well-formed requests of the opcodes it serves, with paths and image bytes that reach every branch), from the
-//! operator or another system, armed or not, as time passes, with apply commands between, and at any moment the
-//! master marked to restart into its own update, and the link's signing going off and on. Nothing panics; every reply
-//! answers its request (sequence + 1, its session and opcode, ACK or NAK); the sink gets each image's bytes in order,
-//! from its header on, never beyond the length the header gives, nothing begun, written or applied once the master
-//! restarts, and nothing begun or written over a link without signing.
+//! well-formed requests of the opcodes it serves, with paths and image bytes that reach every branch, reads of
+//! `@SYS/versions.txt` among them), from the operator or another system, armed or not, as time passes, with apply
+//! commands between, and at any moment the master marked to restart into its own update, and the link's signing
+//! going off and on. Nothing panics; every reply answers its request (sequence + 1, its session and opcode, ACK or
+//! NAK), a read's data is the text's bytes at its offset; the sink gets each image's bytes in order, from its header
+//! on, never beyond the length the header gives, nothing begun, written or applied once the master restarts, and
+//! nothing begun or written over a link without signing.
 #![no_main]
 
 use arbitrary::Arbitrary;
@@ -13,7 +14,7 @@ use lbv_master_fw::config::VEHICLE;
 use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Outgoing, Sender};
 use lbv_master_fw::update::ftp::{ACK, NAK, Nak};
-use lbv_master_fw::update::{Context, HEADER_LEN, ImageHeader, UpdateServer};
+use lbv_master_fw::update::{Context, FtpAnswer, HEADER_LEN, ImageHeader, UpdateServer};
 // The host's time driver (the harness passes its own instants).
 use lbv_sim as _;
 use libfuzzer_sys::fuzz_target;
@@ -41,6 +42,9 @@ enum Opcode {
     Remove,
     OpenWo,
     Crc,
+    OpenRo,
+    Read,
+    Burst,
     Other(u8),
 }
 
@@ -58,6 +62,8 @@ enum Path {
     Master,
     Dir,
     Root,
+    Sys,
+    Versions,
 }
 
 /// A SeaBotix image of 1200 payload bytes.
@@ -133,6 +139,9 @@ fuzz_target!(|steps: Vec<Step>| {
     let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false };
     let mut now = Instant::from_ticks(0);
     let mut out = |_: Outgoing| {};
+    // What the fuzzing sink knows of the boards: nothing.
+    let unknown: String = (1..=6).map(|n| format!("T{n}     SeaBotix -        unknown\n")).collect();
+    let versions = format!("board  family   version  state\nmaster -        -        unknown\n{unknown}").into_bytes();
     for (n, step) in steps.into_iter().enumerate() {
         let seq = n as u16;
         let (from, request) = match step {
@@ -153,6 +162,9 @@ fuzz_target!(|steps: Vec<Step>| {
                     Opcode::Remove => 8,
                     Opcode::OpenWo => 11,
                     Opcode::Crc => 14,
+                    Opcode::OpenRo => 4,
+                    Opcode::Read => 5,
+                    Opcode::Burst => 15,
                     Opcode::Other(byte) => byte,
                 };
                 let bytes = match data {
@@ -160,6 +172,8 @@ fuzz_target!(|steps: Vec<Step>| {
                     Data::Path(Path::Master) => b"/update/master.lbvu".to_vec(),
                     Data::Path(Path::Dir) => b"/update".to_vec(),
                     Data::Path(Path::Root) => b"/".to_vec(),
+                    Data::Path(Path::Sys) => b"@SYS".to_vec(),
+                    Data::Path(Path::Versions) => b"@SYS/versions.txt".to_vec(),
                     Data::Image { at, len } => {
                         let at = usize::from(at).min(file.len());
                         file[at..(at + usize::from(len)).min(file.len())].to_vec()
@@ -191,12 +205,22 @@ fuzz_target!(|steps: Vec<Step>| {
                 continue;
             }
         };
-        if let Some(reply) = server.request(now, context, from, &request, &mut sink, &mut out) {
+        if let Some(answer) = server.request(now, context, from, &request, &mut sink, &mut out) {
+            let reply = answer.payload();
             let seq = u16::from_le_bytes([request[0], request[1]]);
             assert_eq!(u16::from_le_bytes([reply[0], reply[1]]), seq.wrapping_add(1));
             assert_eq!((reply[2], reply[5]), (request[2], request[3]));
             assert!(reply[3] == ACK || reply[3] == NAK);
-            assert!(usize::from(reply[4]) <= reply.len() - 12);
+            let size = usize::from(reply[4]);
+            assert!(size <= reply.len() - 12);
+            if let FtpAnswer::Read(_) = answer {
+                // The text's bytes from the offset asked, no more than asked.
+                assert_eq!(reply[3], ACK);
+                assert!(size > 0 && size <= usize::from(request[4]));
+                let offset = u32::from_le_bytes([reply[8], reply[9], reply[10], reply[11]]) as usize;
+                let text = versions.get(offset..offset + size).expect("within the text");
+                assert_eq!(&reply[12..12 + size], text);
+            }
         }
     }
 });

@@ -16,9 +16,10 @@ use super::lbv::{
 };
 use crate::params::{ParamId, ParamType};
 use crate::shared::{
-    ARDUSUB_MODE_MANUAL, AckResult, BatterySummary, FtpReply, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport,
+    ARDUSUB_MODE_MANUAL, AckResult, BatterySummary, FTP_PAYLOAD, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport,
     VehicleState,
 };
+use crate::update::FtpAnswer;
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
 
@@ -34,9 +35,9 @@ pub(crate) const PRODUCT_ID: u16 = 0x0469;
 /// What the master can do, as AUTOPILOT_VERSION announces it: MAVLink 2, COMMAND_INT (the same commands as
 /// COMMAND_LONG), and integer parameters carried as the float of their value (PARAM_ENCODE_C_CAST, what ArduPilot
 /// and ArduSub announce and do). No mission, fence or rally bits: there are none, so a ground station does not
-/// ask for them. No FTP bit either: the FTP server holds only the update files ([`crate::update`]), and the bit
-/// tells a ground station it may fetch its own files over FTP (ArduPilot's parameter and mission files); MAVProxy
-/// and pymavlink use FTP without looking at it.
+/// ask for them. No FTP bit either: the FTP server holds only the update files and `@SYS/versions.txt`
+/// ([`crate::update`]), and the bit tells a ground station it may fetch its own files over FTP (ArduPilot's
+/// parameter and mission files); MAVProxy and pymavlink use FTP without looking at it.
 pub(crate) const CAPABILITIES: MavProtocolCapability = MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_MAVLINK2
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_COMMAND_INT)
     .union(MavProtocolCapability::MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST);
@@ -686,18 +687,19 @@ impl Framer {
         self.finish(D::ID, D::EXTRA_CRC, len)
     }
 
-    /// Frame a FILE_TRANSFER_PROTOCOL carrying the update server's `reply` to `to` (network 0). Encoded by hand:
-    /// its fields are bytes in this order (target_network, target_system, target_component, payload), and the
-    /// generated encoder costs a kilobyte of flash for its 251-byte array.
-    pub fn frame_ftp(&mut self, to: Sender, reply: &FtpReply) -> &[u8] {
-        let fields = [0, to.system, to.component].into_iter().chain(reply.iter().copied());
+    /// Frame a FILE_TRANSFER_PROTOCOL carrying the update server's `reply` (its payload's start, or all of it) to
+    /// `to` (network 0). Encoded by hand: its fields are bytes in this order (target_network, target_system,
+    /// target_component, payload), and the generated encoder costs a kilobyte of flash for its 251-byte array.
+    pub fn frame_ftp(&mut self, to: Sender, reply: &FtpAnswer) -> &[u8] {
         let mut len = 0;
-        for (n, (slot, byte)) in self.frame.iter_mut().skip(HEADER_LEN).zip(fields).enumerate() {
-            *slot = byte;
-            // MAVLink 2 sends the payload without its trailing zeros.
-            if byte != 0 {
-                len = n + 1;
+        if let Some(payload) = self.frame.get_mut(HEADER_LEN..HEADER_LEN + 3 + FTP_PAYLOAD) {
+            payload.fill(0);
+            if let Some((targets, ftp)) = payload.split_first_chunk_mut::<3>() {
+                *targets = [0, to.system, to.component];
+                reply.write_to(ftp);
             }
+            // MAVLink 2 sends the payload without its trailing zeros.
+            len = payload.iter().rposition(|byte| *byte != 0).map_or(0, |last| last + 1);
         }
         self.finish(
             FILE_TRANSFER_PROTOCOL_DATA::ID,

@@ -68,6 +68,7 @@ use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Tar
 use crate::shared::{
     AckResult, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction, UpdateHold, text, texts, verdict_texts,
 };
+use crate::update::sys::{ImageState, Running};
 
 /// Progress reports (the upload's, a family apply's) come at most this often.
 pub(crate) const PROGRESS_PERIOD: Duration = Duration::from_secs(1);
@@ -453,6 +454,10 @@ pub struct Courier {
     query_seq: u8,
     /// Each slot's thruster, by its last `Version`.
     standing: [Standing; MAX_THRUSTERS],
+    /// The version each slot's thruster runs, by its last `Version` (`@SYS/versions.txt`).
+    running: [Option<[u8; 4]>; MAX_THRUSTERS],
+    /// The slots (bits) whose thrusters answer their polls, as the bus tasks last said ([`Courier::seen`]).
+    answering: u8,
     /// When the thrusters on trial are next asked.
     trial_ask: Instant,
 }
@@ -475,6 +480,8 @@ impl Courier {
             query: None,
             query_seq: 0,
             standing: [Standing::Away; MAX_THRUSTERS],
+            running: [None; MAX_THRUSTERS],
+            answering: 0,
             trial_ask: Instant::from_ticks(0),
         }
     }
@@ -593,6 +600,11 @@ impl Courier {
     /// Thruster `slot` answers its polls again (`true`: it may have reset, into a swap or a revert; it is asked
     /// what it runs), or it stopped answering (one never asked is not waited for; what one said stays).
     pub(crate) fn seen(&mut self, slot: u8, answering: bool) {
+        self.answering = if answering {
+            self.answering | bit(slot)
+        } else {
+            self.answering & !bit(slot)
+        };
         if let Some(standing) = self.standing.get_mut(usize::from(slot)) {
             *standing = match (*standing, answering) {
                 (_, true) => Standing::Unasked,
@@ -614,6 +626,24 @@ impl Courier {
             Standing::Unasked => Some(UpdateHold::Unasked(slot)),
             Standing::Away | Standing::Settled => None,
         })
+    }
+
+    /// What slot `slot`'s thruster runs, as its last `Version` said, and what it is now (`@SYS/versions.txt`).
+    pub(crate) fn running(&self, slot: u8) -> Running {
+        let index = usize::from(slot);
+        let version = self.running.get(index).copied().flatten();
+        let state = match self.standing.get(index) {
+            Some(Standing::Unasked) => ImageState::Unasked,
+            // What it said holds for arming while it is away, but it does not answer now.
+            _ if self.answering & bit(slot) == 0 => ImageState::Offline,
+            // Settled without a version: it answered without the extension.
+            Some(Standing::Settled) if version.is_none() => ImageState::NoUpdates,
+            Some(Standing::Settled) => ImageState::Confirmed,
+            Some(Standing::OnTrial) => ImageState::OnTrial,
+            Some(Standing::Marked) => ImageState::Marked,
+            Some(Standing::Away) | None => ImageState::Offline,
+        };
+        Running { version, state }
     }
 
     /// Who applies the image on its way to `slot`, if it is being applied there.
@@ -1015,10 +1045,15 @@ impl Courier {
         };
         // What the thruster's images are now, for arming (its first `Version` said whether it runs one on trial or
         // holds one marked, which `Begin` is refused for; once it is applied, the apply holds the vehicle).
-        if let ReplyBody::Version { on_trial, marked, .. } = body
+        if let ReplyBody::Version {
+            on_trial, marked, info, ..
+        } = body
             && let Some(standing) = self.standing.get_mut(usize::from(slot))
         {
             *standing = Standing::of(on_trial, marked);
+            if let Some(running) = self.running.get_mut(usize::from(slot)) {
+                *running = Some(version_in(&info));
+            }
         }
         let page_len = page.map_or(0, |(len, _)| len);
         transfer.step = match (transfer.step, body) {
@@ -1217,6 +1252,9 @@ impl Courier {
             }) if seq == query.seq => {
                 if let Some(standing) = standing {
                     *standing = Standing::of(on_trial, marked);
+                }
+                if let Some(running) = self.running.get_mut(usize::from(slot)) {
+                    *running = Some(version_in(&info));
                 }
                 if query.asker.is_some() {
                     let trial = if on_trial { ", on trial" } else { "" };

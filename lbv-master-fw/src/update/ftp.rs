@@ -9,7 +9,7 @@
 //! | 3      | opcode u8      | `Opcode`; a reply is [`ACK`] or [`NAK`]                        |
 //! | 4      | size u8        | bytes of `data` used, at most `DATA_LEN`                       |
 //! | 5      | req_opcode u8  | in a reply: the request's opcode                               |
-//! | 6      | burst_complete |                                                                |
+//! | 6      | burst_complete | in a reply to a burst read: its last reply                     |
 //! | 7      | padding        |                                                                |
 //! | 8      | offset u32     | file offset, or the first entry of a directory listing         |
 //! | 12     | data, 239      | a path, file bytes, a listing; a NAK's error code ([`Nak`])    |
@@ -38,10 +38,13 @@ pub(crate) enum Opcode {
     ResetSessions,
     /// 3: list a directory from entry `offset` on.
     ListDirectory,
-    /// 4: open a file for reading. No file here is readable: an update slot is NAKed [`Nak::FileProtected`],
-    /// anything else [`Nak::FileNotFound`], so a ground station that asks for a file the vehicle does not have
-    /// (QGroundControl's `@PARAM/param.pck`) falls back at once rather than after its retries.
+    /// 4: open a file for reading: only `@SYS/versions.txt` ([`crate::update::sys`]), its ACK carrying its length
+    /// (u32). An update slot is NAKed [`Nak::FileProtected`], anything else [`Nak::FileNotFound`], so a ground
+    /// station that asks for a file the vehicle does not have (QGroundControl's `@PARAM/param.pck`) falls back at
+    /// once rather than after its retries.
     OpenFileRO,
+    /// 5: read `size` bytes from `offset` of the file open for reading.
+    ReadFile,
     /// 6: open a file for writing, truncated.
     CreateFile,
     /// 7: write `data` at `offset`.
@@ -52,6 +55,9 @@ pub(crate) enum Opcode {
     OpenFileWO,
     /// 14: the CRC32 of a file.
     CalcFileCrc32,
+    /// 15: read from `offset` of the file open for reading, in replies of `size` bytes: here one reply, marked the
+    /// burst's last, and the client asks for the next from where it ends.
+    BurstReadFile,
     /// Any other byte.
     Other(u8),
 }
@@ -65,11 +71,13 @@ impl Opcode {
             2 => Self::ResetSessions,
             3 => Self::ListDirectory,
             4 => Self::OpenFileRO,
+            5 => Self::ReadFile,
             6 => Self::CreateFile,
             7 => Self::WriteFile,
             8 => Self::RemoveFile,
             11 => Self::OpenFileWO,
             14 => Self::CalcFileCrc32,
+            15 => Self::BurstReadFile,
             other => Self::Other(other),
         }
     }
@@ -81,17 +89,17 @@ impl Opcode {
 pub enum Nak {
     /// 1: failed (refused now: armed, a bad update file, a sink that could not take it).
     Fail = 1,
-    /// 3: `size` beyond [`DATA_LEN`], or a path that is empty or holds a NUL.
+    /// 3: `size` beyond [`DATA_LEN`], a path that is empty or holds a NUL, or a read of no bytes.
     InvalidDataSize = 3,
     /// 4: no such session open for this sender.
     InvalidSession = 4,
     /// 5: the one session is in use.
     NoSessionsAvailable = 5,
-    /// 6: a listing has no more entries.
+    /// 6: a listing has no more entries; a read at or past the end of its file.
     EndOfFile = 6,
     /// 7: an opcode this server does not implement.
     UnknownCommand = 7,
-    /// 9: only the operator's ground station may write; an update slot cannot be read.
+    /// 9: only the operator's ground station may write; an update slot cannot be read, nor `@SYS` written.
     FileProtected = 9,
     /// 10: no such file or directory.
     FileNotFound = 10,

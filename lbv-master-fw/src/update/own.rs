@@ -71,6 +71,7 @@ use crate::shared::{
 };
 use crate::update::ftp::DATA_LEN;
 use crate::update::header::{HEADER_LEN, ImageHeader};
+use crate::update::sys::{ImageState, Running};
 
 /// How long the image runs before a crash is no longer an early one: the count of early crashes is cleared then.
 pub(crate) const EARLY_WINDOW: Duration = Duration::from_secs(EARLY_WINDOW_SECS);
@@ -159,6 +160,8 @@ struct Incoming {
 /// Between the console's sink and the task.
 struct Stage {
     flash: Flash,
+    /// The running image's version, as its image info gives it (once the task has read it).
+    version: Option<[u8; 4]>,
     image: Option<Incoming>,
     /// Uploads begun so far.
     begun: u32,
@@ -199,6 +202,7 @@ impl OwnImage {
         Self {
             stage: BlockingMutex::new(RefCell::new(Stage {
                 flash: Flash::Unknown,
+                version: None,
                 image: None,
                 begun: 0,
                 buffer: [0; BUFFER],
@@ -324,6 +328,24 @@ impl OwnImage {
                 (_, None) => Flash::Unknown,
             }
         });
+    }
+
+    /// The task's side: the running image's version, as its image info gives it (`None`: no info there).
+    pub fn runs(&self, version: Option<Version>) {
+        self.with(|stage| stage.version = version.map(Version::to_bytes));
+    }
+
+    /// The running image, as the master knows it (`@SYS/versions.txt`).
+    pub(crate) fn running(&self) -> Running {
+        self.with(|stage| Running {
+            version: stage.version,
+            state: match stage.flash {
+                Flash::Ready { on_trial: true } => ImageState::OnTrial,
+                Flash::Ready { on_trial: false } => ImageState::Confirmed,
+                Flash::Marked => ImageState::Marked,
+                Flash::Unknown | Flash::WrongLayout => ImageState::Unknown,
+            },
+        })
     }
 
     /// The binding's side, before the tasks start: whether the chip's flash is in the layout the partitions are
@@ -557,6 +579,7 @@ pub(crate) async fn own_image_task<F: NorFlash, C: CrashRegister>(
         .read(IMAGE_INFO_OFFSET, &mut info)
         .await;
     let running = ImageInfo::parse(&info).ok();
+    own.runs(running.map(|info| info.version));
     let mut ticket_page = flash.partition(MASTER_PARTITIONS.ticket());
     let mut untold = untold_verdict(&mut ticket_page).await;
     let applier = applier_of(&mut ticket_page).await;

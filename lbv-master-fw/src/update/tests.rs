@@ -2,6 +2,7 @@ use super::*;
 use crate::config::{VEHICLE, devkit, lbv300_6};
 use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use crate::sim::{ReceivedImage, UpdateRecorder};
+use crate::update::sys::{ImageState, Running};
 use ftp::{DATA_LEN, NAK};
 use proptest::prelude::*;
 
@@ -76,26 +77,28 @@ struct Reply {
     session: u8,
     opcode: u8,
     req_opcode: u8,
+    burst_complete: bool,
     offset: u32,
     data: Vec<u8>,
 }
 
-fn read(reply: &FtpReply) -> Reply {
+fn read(reply: &[u8]) -> Reply {
     let size = usize::from(reply[4]);
     Reply {
         seq: u16::from_le_bytes([reply[0], reply[1]]),
         session: reply[2],
         opcode: reply[3],
         req_opcode: reply[5],
+        burst_complete: reply[6] == 1,
         offset: u32::from_le_bytes(reply[8..12].try_into().unwrap()),
         data: reply[12..12 + size].to_vec(),
     }
 }
 
 /// A server for the vehicle's table (six SeaBotix thrusters), its sink, and what it said.
-struct Server {
+struct Server<S = UpdateRecorder> {
     server: UpdateServer,
-    sink: UpdateRecorder,
+    sink: S,
     said: Vec<Outgoing>,
     seq: u16,
 }
@@ -106,9 +109,19 @@ impl Server {
     }
 
     fn with(table: &ThrusterTable) -> Self {
+        Self::with_sink(table, UpdateRecorder::default())
+    }
+
+    fn images(&self) -> Vec<ReceivedImage> {
+        self.sink.images()
+    }
+}
+
+impl<S: UpdateSink> Server<S> {
+    fn with_sink(table: &ThrusterTable, sink: S) -> Self {
         Self {
             server: UpdateServer::new(table),
-            sink: UpdateRecorder::default(),
+            sink,
             said: Vec::new(),
             seq: 0,
         }
@@ -121,7 +134,7 @@ impl Server {
             .server
             .request(t(ms), context, from, payload, &mut self.sink, &mut |o| said.push(o));
         self.said.extend(said);
-        reply.map(|r| read(&r))
+        reply.map(|r| read(&r.payload()))
     }
 
     /// Send a request from the operator, disarmed, with the next sequence number.
@@ -162,10 +175,6 @@ impl Server {
                 _ => None,
             })
             .collect()
-    }
-
-    fn images(&self) -> Vec<ReceivedImage> {
-        self.sink.images()
     }
 }
 
@@ -211,12 +220,14 @@ fn headers_are_read_as_update_image_lays_them_out() {
 #[test]
 fn the_listing_shows_the_directory_and_one_file_per_target() {
     let mut s = Server::new();
+    // Both directories in one reply, `@SYS` after `update` (ArduPilot lists its own after the real ones).
     let root = s.op(0, 0, LIST, 0, b"/").unwrap();
     assert_eq!(
         (root.opcode, root.req_opcode, root.data.as_slice()),
-        (ACK, LIST, &b"Dupdate\0"[..])
+        (ACK, LIST, &b"Dupdate\0D@SYS\0"[..])
     );
-    assert_eq!(nak(&s.op(0, 0, LIST, 1, b"/")), Some(Nak::EndOfFile as u8));
+    assert_eq!(s.op(0, 0, LIST, 1, b"/").unwrap().data, b"D@SYS\0");
+    assert_eq!(nak(&s.op(0, 0, LIST, 2, b"/")), Some(Nak::EndOfFile as u8));
     // One entry per reply, each at its offset, then the end.
     let mut names = Vec::new();
     for offset in 0.. {
@@ -278,6 +289,7 @@ fn a_put_goes_to_the_sink_byte_for_byte_in_order() {
                 session,
                 opcode: ACK,
                 req_opcode: CREATE,
+                burst_complete: false,
                 offset: 0,
                 data: vec![]
             },
@@ -809,12 +821,464 @@ fn a_file_opened_for_reading_is_not_found_or_protected() {
     }
 }
 
+/// A sink that knows the boards' images as it is told (the master's, then each slot's thruster's), and takes every
+/// image.
+#[derive(Default)]
+struct Fleet([Running; 1 + MAX_THRUSTERS]);
+
+impl UpdateSink for Fleet {
+    fn begin(&mut self, _: UpdateTarget, _: &ImageHeader) -> Result<(), Refused> {
+        Ok(())
+    }
+
+    fn write(&mut self, _: u32, _: &[u8]) -> Result<(), Refused> {
+        Ok(())
+    }
+
+    fn finish(&mut self, _: bool) -> Result<(), Refused> {
+        Ok(())
+    }
+
+    fn apply(&mut self, _: UpdateTarget, _: Sender) -> Result<Applied, Nak> {
+        Ok(Applied::NotWired)
+    }
+
+    fn boards(&self, versions: &mut Versions) {
+        for (board, running) in self.0.into_iter().enumerate() {
+            versions.set(board, running);
+        }
+    }
+}
+
+/// `versions.txt` of a table whose slots have `families`, its boards running `boards` (the master's first).
+fn versions_of(families: &[Option<Family>; MAX_THRUSTERS], boards: [Running; 1 + MAX_THRUSTERS]) -> Versions {
+    let mut versions = Versions::new(families);
+    Fleet(boards).boards(&mut versions);
+    versions
+}
+
+const VERSIONS: &[u8] = b"@SYS/versions.txt";
+const READ: u8 = 5;
+const BURST: u8 = 15;
+
+/// `version` as the image info holds it.
+fn v(major: u8, minor: u8, patch: u16) -> Option<[u8; 4]> {
+    Some(update_image::Version::new(major, minor, patch).to_bytes())
+}
+
+/// The mixed vehicle (SeaBotix and Legacy in turn) after its SeaBotix thrusters took 0.3.0: T3 still on trial, T4
+/// offline, T6 not asked yet since it came back.
+fn mixed_fleet() -> Server<Fleet> {
+    let running = |version, state| Running { version, state };
+    let mut boards = [Running::default(); 1 + MAX_THRUSTERS];
+    boards[..7].copy_from_slice(&[
+        running(v(0, 1, 0), ImageState::Confirmed),
+        running(v(0, 3, 0), ImageState::Confirmed),
+        running(v(0, 1, 0), ImageState::Confirmed),
+        running(v(0, 3, 0), ImageState::OnTrial),
+        running(v(0, 1, 0), ImageState::Offline),
+        running(v(0, 3, 0), ImageState::Marked),
+        running(None, ImageState::Unasked),
+    ]);
+    let table = lbv300_6([Family::SeaBotix, Family::Legacy].repeat(3).try_into().unwrap());
+    Server::with_sink(&table, Fleet(boards))
+}
+
+const MIXED_FLEET: &str = "\
+board  family   version  state
+master -        0.1.0    confirmed
+T1     SeaBotix 0.3.0    confirmed
+T2     Legacy   0.1.0    confirmed
+T3     SeaBotix 0.3.0    on-trial
+T4     Legacy   0.1.0    offline
+T5     SeaBotix 0.3.0    marked
+T6     Legacy   -        unasked
+";
+
+impl<S: UpdateSink> Server<S> {
+    /// OpenFileRO of `@SYS/versions.txt` in `session`, then reads of `size` bytes with `opcode` from where the
+    /// last ended, until EndOfFile (or a reply shorter than asked, after a burst: MAVProxy's end), then
+    /// TerminateSession: the length the open gave, and the bytes read.
+    fn get(&mut self, ms: u64, session: u8, opcode: u8, size: u8) -> (u32, Vec<u8>) {
+        let open = self.op(ms, session, OPEN_RO, 0, VERSIONS).unwrap();
+        assert_eq!((open.opcode, open.data.len()), (ACK, 4), "{open:?}");
+        let len = u32::from_le_bytes(open.data.try_into().unwrap());
+        let mut text = Vec::new();
+        loop {
+            let reply = self
+                .op(ms, session, opcode, text.len() as u32, &vec![0; usize::from(size)])
+                .unwrap();
+            if reply.opcode == NAK {
+                assert_eq!(reply.data, [Nak::EndOfFile as u8]);
+                break;
+            }
+            assert_eq!((reply.req_opcode, reply.offset), (opcode, text.len() as u32));
+            assert_eq!(reply.burst_complete, opcode == BURST, "a burst is one reply");
+            assert!(!reply.data.is_empty() && reply.data.len() <= usize::from(size));
+            let short = reply.data.len() < usize::from(size);
+            text.extend(reply.data);
+            if short && opcode == BURST {
+                break;
+            }
+        }
+        assert!(ack(&self.op(ms, session, TERMINATE, 0, &[])));
+        (len, text)
+    }
+}
+
+#[test]
+fn versions_txt_says_what_every_board_runs_in_columns() {
+    let mut s = mixed_fleet();
+    let (len, text) = s.get(0, 1, READ, 239);
+    assert_eq!(String::from_utf8(text).unwrap(), MIXED_FLEET);
+    assert_eq!(len as usize, MIXED_FLEET.len());
+    // What a sink that reaches no board knows: nothing.
+    let mut s = Server::new();
+    let (_, text) = s.get(0, 1, READ, 239);
+    let unknown: String = (1..=6)
+        .map(|n| format!("T{n}     SeaBotix -        unknown\n"))
+        .collect();
+    assert_eq!(
+        String::from_utf8(text).unwrap(),
+        format!("board  family   version  state\nmaster -        -        unknown\n{unknown}")
+    );
+    // The longest text: eight slots, the longest versions, the longest state.
+    let longest = Running {
+        version: v(255, 255, 65535),
+        state: ImageState::NoUpdates,
+    };
+    let text = versions_of(&[Some(Family::SeaBotix); MAX_THRUSTERS], [longest; 1 + MAX_THRUSTERS]);
+    assert_eq!(text.len(), sys::MAX_LEN);
+    // A version of 8 characters fills its column; a longer one is followed by one space. A slot without a thruster
+    // has no line.
+    let confirmed = |version| Running {
+        version,
+        state: ImageState::Confirmed,
+    };
+    let mut families = [None; MAX_THRUSTERS];
+    families[1] = Some(Family::Legacy);
+    let mut boards = [confirmed(v(10, 10, 100)); 1 + MAX_THRUSTERS];
+    boards[0] = confirmed(v(0, 10, 100));
+    let wide = versions_of(&families, boards);
+    let mut bytes = [0; 120];
+    let n = wide.read(0, &mut bytes);
+    assert_eq!(
+        String::from_utf8_lossy(&bytes[..n]),
+        "board  family   version  state\nmaster -        0.10.100 confirmed\nT2     Legacy   10.10.100 confirmed\n"
+    );
+    assert_eq!(wide.len() as usize, n);
+    // Read from an offset into a room smaller than the rest: the bytes there.
+    let mut some = [0; 5];
+    assert_eq!(wide.read(7, &mut some), 5);
+    assert_eq!(&some, b"famil");
+    let mut bytes = [0; 500];
+    let n = text.read(0, &mut bytes);
+    assert!(
+        String::from_utf8_lossy(&bytes[..n]).contains("\nT8     SeaBotix 255.255.65535 no-updates\n"),
+        "{:?}",
+        String::from_utf8_lossy(&bytes[..n])
+    );
+}
+
+#[test]
+fn versions_txt_is_read_whole_by_readfile_and_by_burst_as_each_client_asks() {
+    // ReadFile of 239 (QGroundControl fills gaps so), of 80 and of 1; BurstReadFile of 239 (MAVProxy, QGroundControl)
+    // and of 80 (pymavlink).
+    for (opcode, size) in [(READ, 239), (READ, 80), (READ, 1), (BURST, 239), (BURST, 80)] {
+        let mut s = mixed_fleet();
+        let (len, text) = s.get(0, 1, opcode, size);
+        assert_eq!(text, MIXED_FLEET.as_bytes(), "{opcode} {size}");
+        assert_eq!(len as usize, text.len());
+    }
+    // A burst that ends exactly at the end: the next is EndOfFile (QGroundControl's end).
+    let mut s = mixed_fleet();
+    assert!(ack(&s.op(0, 1, OPEN_RO, 0, VERSIONS)));
+    let len = MIXED_FLEET.len() as u32;
+    let last = s.op(0, 1, BURST, len - 10, &[0; 10]).unwrap();
+    assert_eq!((last.data.len(), last.burst_complete), (10, true));
+    assert_eq!(nak(&s.op(0, 1, BURST, len, &[0; 10])), Some(Nak::EndOfFile as u8));
+    // The listing shows its length. Made at each opening, it has no CRC to compare a copy with.
+    assert_eq!(
+        s.op(0, 5, LIST, 0, b"@SYS").unwrap().data,
+        format!("Fversions.txt\t{len}\0").as_bytes()
+    );
+    assert_eq!(nak(&s.op(0, 5, LIST, 1, b"/@SYS/")), Some(Nak::EndOfFile as u8));
+    assert_eq!(nak(&s.op(0, 5, CRC, 0, VERSIONS)), Some(Nak::FileProtected as u8));
+    // The same file, written as clients may write it; nothing else is in `@SYS`.
+    assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    assert!(ack(&s.op(0, 6, OPEN_RO, 0, b"/@SYS/versions.txt\0")));
+    assert!(ack(&s.op(0, 6, TERMINATE, 0, &[])));
+    for path in [
+        &b"@SYS/threads.txt"[..],
+        b"@SYS/versions.txt/",
+        b"@SYSversions.txt",
+        b"@SYS2",
+        b"/@SYS/x",
+    ] {
+        assert_eq!(
+            nak(&s.op(0, 5, LIST, 0, path)),
+            Some(Nak::FileNotFound as u8),
+            "{path:?}"
+        );
+        assert_eq!(
+            nak(&s.op(0, 7, OPEN_RO, 0, path)),
+            Some(Nak::FileNotFound as u8),
+            "{path:?}"
+        );
+    }
+    assert_eq!(
+        nak(&s.op(0, 5, LIST, 0, VERSIONS)),
+        Some(Nak::FileNotFound as u8),
+        "a file"
+    );
+    assert_eq!(
+        nak(&s.op(0, 7, OPEN_RO, 0, b"@SYS")),
+        Some(Nak::FileNotFound as u8),
+        "a directory"
+    );
+}
+
+#[test]
+fn a_read_is_of_the_text_as_it_stood_when_it_was_opened() {
+    let mut s = mixed_fleet();
+    assert!(ack(&s.op(0, 1, OPEN_RO, 0, VERSIONS)));
+    let first = s.op(0, 1, READ, 0, &[0; 100]).unwrap();
+    // T3 confirms and T6 answers between two reads: the open file does not change.
+    s.sink.0[3].state = ImageState::Confirmed;
+    s.sink.0[6] = Running {
+        version: v(0, 1, 0),
+        state: ImageState::Confirmed,
+    };
+    let rest = s.op(0, 1, READ, 100, &[0; 239]).unwrap();
+    assert_eq!([first.data, rest.data].concat(), MIXED_FLEET.as_bytes());
+    // A read sent again (its reply lost) gets the same bytes.
+    assert_eq!(
+        s.op(0, 1, READ, 100, &[0; 239]).unwrap().data,
+        MIXED_FLEET.as_bytes()[100..]
+    );
+    assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    // Opened again, it says what is now.
+    let (_, text) = s.get(0, 2, BURST, 239);
+    let now = String::from_utf8(text).unwrap();
+    assert!(now.contains("T3     SeaBotix 0.3.0    confirmed\n"), "{now}");
+    assert!(now.ends_with("T6     Legacy   0.1.0    confirmed\n"), "{now}");
+}
+
+#[test]
+fn bad_reads_get_their_naks() {
+    let mut s = mixed_fleet();
+    let len = MIXED_FLEET.len() as u32;
+    // No session open: nothing to read.
+    assert_eq!(nak(&s.op(0, 1, READ, 0, &[0; 10])), Some(Nak::InvalidSession as u8));
+    assert_eq!(nak(&s.op(0, 1, BURST, 0, &[0; 10])), Some(Nak::InvalidSession as u8));
+    assert!(ack(&s.op(0, 1, OPEN_RO, 0, VERSIONS)));
+    // The same session opening again: one file per session.
+    assert_eq!(nak(&s.op(0, 1, OPEN_RO, 0, VERSIONS)), Some(Nak::Fail as u8));
+    // At or past the end: EndOfFile, as ArduPilot answers.
+    for offset in [len, len + 1, u32::MAX] {
+        assert_eq!(
+            nak(&s.op(0, 1, READ, offset, &[0; 10])),
+            Some(Nak::EndOfFile as u8),
+            "{offset}"
+        );
+        assert_eq!(
+            nak(&s.op(0, 1, BURST, offset, &[0; 10])),
+            Some(Nak::EndOfFile as u8),
+            "{offset}"
+        );
+    }
+    // Nothing asked for.
+    assert_eq!(nak(&s.op(0, 1, READ, 0, &[])), Some(Nak::InvalidDataSize as u8));
+    assert_eq!(nak(&s.op(0, 1, BURST, 0, &[])), Some(Nak::InvalidDataSize as u8));
+    // More than a reply holds.
+    let mut p = payload(1, 1, READ, 0, &[]);
+    p[4] = DATA_LEN as u8 + 1;
+    assert_eq!(nak(&s.send(0, DISARMED, GCS, &p)), Some(Nak::InvalidDataSize as u8));
+    // Another session of the reader's, another component of its system, another system.
+    let mut operator_elsewhere = GCS;
+    operator_elsewhere.component = 1;
+    for (from, session) in [(GCS, 2), (operator_elsewhere, 1), (OTHER, 1)] {
+        let read = payload(1, session, READ, 0, &[0; 10]);
+        assert_eq!(
+            nak(&s.send(0, DISARMED, from, &read)),
+            Some(Nak::InvalidSession as u8),
+            "{from:?} {session}"
+        );
+    }
+    // The reader's own session still reads; once it is closed (TerminateSession, or QGroundControl's
+    // ResetSessions at the end of its download), it does not.
+    assert!(ack(&s.op(0, 1, READ, 0, &[0; 10])));
+    assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
+    assert_eq!(nak(&s.op(0, 1, READ, 0, &[0; 10])), Some(Nak::InvalidSession as u8));
+    assert!(ack(&s.op(0, 0, OPEN_RO, 0, VERSIONS)));
+    assert!(ack(&s.op(0, 0, RESET, 0, &[])));
+    assert_eq!(nak(&s.op(0, 0, BURST, 0, &[0; 239])), Some(Nak::InvalidSession as u8));
+    // An upload's session is not read.
+    assert!(ack(&s.op(0, 3, CREATE, 0, THRUSTER0.as_bytes())));
+    assert_eq!(nak(&s.op(0, 3, READ, 0, &[0; 10])), Some(Nak::Fail as u8));
+    assert!(s.texts().is_empty(), "{:?}", s.texts());
+}
+
+#[test]
+fn nothing_in_sys_is_written_created_or_removed() {
+    let mut s = mixed_fleet();
+    for path in [VERSIONS, b"/@SYS/versions.txt", b"@SYS/new.txt", b"@SYS", b"@SYS/"] {
+        for opcode in [CREATE, OPEN_WO, REMOVE] {
+            for from in [GCS, OTHER] {
+                assert_eq!(
+                    nak(&s.send(0, DISARMED, from, &payload(1, 1, opcode, 0, path))),
+                    Some(Nak::FileProtected as u8),
+                    "{path:?} {opcode} {from:?}"
+                );
+            }
+        }
+    }
+    // A session that reads writes nothing.
+    assert!(ack(&s.op(0, 1, OPEN_RO, 0, VERSIONS)));
+    assert_eq!(nak(&s.op(0, 1, WRITE, 0, b"board")), Some(Nak::FileProtected as u8));
+    assert_eq!(
+        s.op(0, 1, READ, 0, &[0; 239]).unwrap().data,
+        MIXED_FLEET.as_bytes()[..239]
+    );
+    // Refused before anything is said or counted as the operator's refusal.
+    assert!(s.texts().is_empty(), "{:?}", s.texts());
+    assert_eq!(s.server.counters().refused, 0);
+    // The update files stay write-only.
+    assert_eq!(
+        nak(&s.op(0, 2, OPEN_RO, 0, THRUSTER0.as_bytes())),
+        Some(Nak::FileProtected as u8)
+    );
+}
+
+#[test]
+fn a_read_session_and_an_upload_session_take_turns_as_any_two_sessions() {
+    let mut s = mixed_fleet();
+    let file = update_file(1, 2000);
+    let mut operator_elsewhere = GCS;
+    operator_elsewhere.component = 1;
+    // An upload under way: no read opens beside it, until it has been idle for 3 s.
+    assert!(ack(&s.op(0, 1, CREATE, 0, THRUSTER0.as_bytes())));
+    assert!(ack(&s.op(0, 1, WRITE, 0, &file[..239])));
+    for (from, session) in [(GCS, 2), (operator_elsewhere, 1), (OTHER, 1)] {
+        let open = payload(1, session, OPEN_RO, 0, VERSIONS);
+        assert_eq!(
+            nak(&s.send(2999, DISARMED, from, &open)),
+            Some(Nak::NoSessionsAvailable as u8),
+            "{from:?}"
+        );
+    }
+    assert!(ack(&s.op(3000, 2, OPEN_RO, 0, VERSIONS)));
+    assert_eq!(s.texts(), ["thruster0.lbvu: stopped at 239 of 2080 bytes"]);
+    assert_eq!(
+        nak(&s.op(3000, 1, WRITE, 239, &file[239..478])),
+        Some(Nak::InvalidSession as u8)
+    );
+    // A read under way holds the operator's own uploads back as any session does, each read keeping it live.
+    assert!(ack(&s.op(5000, 2, READ, 0, &[0; 10])));
+    for (from, session) in [(GCS, 3), (operator_elsewhere, 3)] {
+        let create = payload(1, session, CREATE, 0, THRUSTER0.as_bytes());
+        assert_eq!(
+            nak(&s.send(7999, DISARMED, from, &create)),
+            Some(Nak::NoSessionsAvailable as u8),
+            "{from:?}"
+        );
+    }
+    // Idle for 3 s: an upload takes over.
+    assert!(ack(&s.op(8000, 3, CREATE, 0, THRUSTER0.as_bytes())));
+    assert_eq!(nak(&s.op(8000, 2, READ, 10, &[0; 10])), Some(Nak::InvalidSession as u8));
+    // An image whole has nothing left to lose: a read opens at once.
+    for (n, chunk) in file.chunks(239).enumerate() {
+        assert!(ack(&s.op(8000, 3, WRITE, (n * 239) as u32, chunk)));
+    }
+    assert!(ack(&s.op(8001, 4, OPEN_RO, 0, VERSIONS)));
+    assert!(s.server.is_received(UpdateTarget::Thruster(0)), "the image is kept");
+    assert!(ack(&s.op(8001, 4, TERMINATE, 0, &[])));
+    // Another system's read holds no update back: the operator's upload takes over at once, and the reader opens
+    // again later.
+    let open = payload(1, 1, OPEN_RO, 0, VERSIONS);
+    assert!(ack(&s.send(9000, DISARMED, OTHER, &open)));
+    assert!(ack(&s.op(9001, 5, CREATE, 0, THRUSTER0.as_bytes())));
+    let read = payload(2, 1, READ, 0, &[0; 10]);
+    assert_eq!(
+        nak(&s.send(9001, DISARMED, OTHER, &read)),
+        Some(Nak::InvalidSession as u8)
+    );
+    // The upload, live, is not taken over by that system's read in turn: it waits, as for any live session.
+    assert_eq!(
+        nak(&s.send(9002, DISARMED, OTHER, &open)),
+        Some(Nak::NoSessionsAvailable as u8)
+    );
+}
+
+#[test]
+fn a_read_goes_on_while_armed_restarting_or_unsigned() {
+    let mut s = mixed_fleet();
+    for context in [
+        ARMED,
+        RESTARTING,
+        Context {
+            unsigned: true,
+            ..DISARMED
+        },
+    ] {
+        let open = payload(1, 1, OPEN_RO, 0, VERSIONS);
+        assert!(ack(&s.send(0, context, OTHER, &open)), "{context:?}");
+        let mut text = Vec::new();
+        for offset in [0, 239] {
+            let read = payload(2, 1, BURST, offset, &[0; 239]);
+            text.extend(s.send(0, context, OTHER, &read).unwrap().data);
+        }
+        assert_eq!(text, MIXED_FLEET.as_bytes(), "{context:?}");
+        assert!(ack(&s.send(0, context, OTHER, &payload(3, 1, TERMINATE, 0, &[]))));
+    }
+    assert!(s.texts().is_empty(), "{:?}", s.texts());
+}
+
+#[test]
+fn a_reads_reply_takes_no_more_room_in_the_outbox_than_a_text() {
+    // The console's outbox holds 16 messages, each as large as the largest: a STATUSTEXT (50 bytes and its length),
+    // 60 bytes on the target. A read's reply, with the snapshot its 239 bytes are made from, fits beside it.
+    assert_eq!(core::mem::size_of::<FtpAnswer>(), 56);
+    assert_eq!(core::mem::size_of::<Versions>(), 49);
+}
+
+#[test]
+fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
+    let shared = Shared::new();
+    let mut updates = Updates::new(&VEHICLE.thrusters, CheckOnly);
+    let ftp = |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
+        from: OTHER,
+        what: UpdateCommand::Ftp(payload(seq, 1, opcode, offset, data)),
+    };
+    let open = updates.serve(ftp(1, OPEN_RO, 0, VERSIONS), &shared);
+    let Some(Outgoing::Ftp {
+        to: OTHER,
+        reply: FtpAnswer::Reply(open),
+    }) = open
+    else {
+        panic!("the open's ACK: {open:?}");
+    };
+    assert_eq!((open[3], open[4]), (ACK, 4));
+    let read = updates.serve(ftp(2, BURST, 0, &[0; 239]), &shared);
+    let Some(Outgoing::Ftp {
+        to: OTHER,
+        reply: reply @ FtpAnswer::Read(_),
+    }) = read
+    else {
+        panic!("a read of versions.txt: {read:?}");
+    };
+    let payload = reply.payload();
+    assert_eq!(payload[..8], [3, 0, 1, ACK, 239, BURST, 1, 0]);
+    assert!(payload[12..].starts_with(b"board  family   version  state\nmaster -        -        unknown\n"));
+    assert_ne!(payload[250], 0, "the whole payload");
+}
+
 #[test]
 fn opcodes_it_does_not_serve_and_bad_payloads() {
     let mut s = Server::new();
-    // ReadFile, CreateDirectory, RemoveDirectory, TruncateFile, Rename, BurstReadFile, ListDirectoryWithTime
-    // (MAVProxy's first try), and bytes that are no opcode.
-    for opcode in [5, 9, 10, 12, 13, 15, 16, 17, 99, 127, 130, 255] {
+    // CreateDirectory, RemoveDirectory, TruncateFile, Rename, ListDirectoryWithTime (MAVProxy's first try), and
+    // bytes that are no opcode.
+    for opcode in [9, 10, 12, 13, 16, 17, 99, 127, 130, 255] {
         let reply = s.op(0, 0, opcode, 0, b"@PARAM/param.pck").unwrap();
         assert_eq!(
             (reply.opcode, reply.req_opcode, reply.data),
@@ -863,7 +1327,7 @@ fn opcodes_it_does_not_serve_and_bad_payloads() {
     }
     assert_eq!(nak(&s.op(0, 0, CREATE, 0, b"/update")), Some(Nak::FileNotFound as u8));
     assert!(s.texts().is_empty());
-    assert_eq!(s.server.counters().naks, 12 + 6 + 2 + 8 + 1);
+    assert_eq!(s.server.counters().naks, 10 + 6 + 2 + 8 + 1);
 }
 
 #[test]
@@ -1049,7 +1513,7 @@ fn the_apply_command_over_a_link_without_signing_is_denied_with_why() {
     );
     for (n, chunk) in file.chunks(239).enumerate() {
         let reply = updates.serve(ftp(2 + n as u16, WRITE, (n * 239) as u32, chunk), &shared);
-        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply[3] == ACK));
+        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply.payload()[3] == ACK));
     }
     let drain = || core::iter::from_fn(|| shared.outbox.try_receive().ok()).collect::<Vec<_>>();
     drain();
@@ -1209,7 +1673,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         assert_eq!(
             server
                 .request(t(0), DISARMED, GCS, &write, &mut Nowhere::default(), &mut out)
-                .map(|r| r[3]),
+                .map(|r| r.payload()[3]),
             Some(ACK)
         );
         let terminate = payload(3, 1, TERMINATE, 0, &[]);
@@ -1291,11 +1755,15 @@ fn a_sink_that_refuses_ends_the_upload() {
         for (n, chunk) in file.chunks(239).enumerate() {
             let write = payload(2 + n as u16, 1, WRITE, (n * 239) as u32, chunk);
             last = server.request(t(0), DISARMED, GCS, &write, &mut sink, &mut out);
-            if last.is_some_and(|r| r[3] == NAK) {
+            if last.is_some_and(|r| r.payload()[3] == NAK) {
                 break;
             }
         }
-        assert_eq!(last.map(|r| (r[3], r[12])), Some((NAK, Nak::Fail as u8)), "{refuse}");
+        assert_eq!(
+            last.map(|r| (r.payload()[3], r.payload()[12])),
+            Some((NAK, Nak::Fail as u8)),
+            "{refuse}"
+        );
         assert_eq!(texts, said, "{refuse}");
         assert_eq!(sink.finished, finished, "{refuse}");
         assert!(!server.is_received(UpdateTarget::Thruster(0)));
@@ -1315,7 +1783,7 @@ fn check_only_checks_and_applies_nothing() {
         assert_eq!(
             server
                 .request(t(0), DISARMED, GCS, &write, &mut CheckOnly, &mut out)
-                .map(|r| r[3]),
+                .map(|r| r.payload()[3]),
             Some(ACK)
         );
     }
@@ -1351,10 +1819,15 @@ fn step() -> impl Strategy<Value = Step> {
         Just(REMOVE),
         Just(OPEN_WO),
         Just(CRC),
+        Just(OPEN_RO),
+        Just(READ),
+        Just(BURST),
         any::<u8>()
     ];
     let path = prop_oneof![
         Just(THRUSTER0.as_bytes().to_vec()),
+        Just(VERSIONS.to_vec()),
+        Just(b"@SYS".to_vec()),
         Just(b"/update/thruster3.lbvu".to_vec()),
         Just(b"/update/master.lbvu".to_vec()),
         Just(b"/update".to_vec()),

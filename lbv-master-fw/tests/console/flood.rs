@@ -191,6 +191,7 @@ fn take_commands(shared: &Shared, into: &mut Vec<(Instant, Request)>) {
 fn take_replies(shared: &Shared, into: &mut Vec<(Sender, u8, u8, u16)>) {
     while let Ok(message) = shared.outbox.try_receive() {
         if let Outgoing::Ftp { to, reply } = message {
+            let reply = reply.payload();
             into.push((to, reply[3], reply[5], u16::from_le_bytes([reply[0], reply[1]])));
         }
     }

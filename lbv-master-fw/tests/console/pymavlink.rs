@@ -17,6 +17,7 @@ use lbv_master_fw::shared::{
     AckResult, BatterySummary, Command, Interval, LinkHealth, Message, Outgoing, Sender, Severity, Shared, Text,
     ThrusterReport, UpdateCommand, UpdateRequest, VehicleState,
 };
+use lbv_master_fw::update::FtpAnswer;
 use serde_json::Value;
 use tmc_proto::{Faults, MotorKind, SeaBotixStatus, Speed, Status};
 
@@ -411,9 +412,10 @@ fn pymavlink_decodes_what_the_console_sends() {
                         system: 255,
                         component: 190,
                     },
-                    reply,
+                    reply: FtpAnswer::Reply(reply),
                 })
                 .unwrap();
+            shared.outbox.try_send(versions_read()).unwrap();
         }
         if elapsed == Duration::from_millis(600) {
             shared.vehicle.sender().send(VehicleState {
@@ -548,7 +550,7 @@ fn pymavlink_decodes_what_the_console_sends() {
     assert_eq!(params[1]["param_type"], 4, "MAV_PARAM_TYPE_INT16");
 
     let ftp = of_type(&decoded, "FILE_TRANSFER_PROTOCOL");
-    assert_eq!(ftp.len(), 1);
+    assert_eq!(ftp.len(), 2);
     assert_eq!(
         (
             &ftp[0]["target_network"],
@@ -568,6 +570,16 @@ fn pymavlink_decodes_what_the_console_sends() {
     let entry: Vec<u8> = payload[12..33].iter().map(|b| *b as u8).collect();
     assert_eq!(entry, b"Fthruster0.lbvu\t4176\0");
     assert!(payload[33..].iter().all(|b| *b == 0));
+    // A read of `@SYS/versions.txt`: the whole payload, its data made as it was framed.
+    let payload: Vec<u8> = ftp[1]["payload"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b.as_u64().unwrap() as u8)
+        .collect();
+    assert_eq!(payload[..12], [3, 0, 3, 128, 239, 15, 1, 0, 0, 0, 0, 0]);
+    assert!(payload[12..].starts_with(b"board  family   version  state\nmaster -        -        unknown\n"));
+    assert!(payload[12..].iter().all(|b| b.is_ascii_graphic() || b" \n".contains(b)));
 
     let versions = of_type(&decoded, "AUTOPILOT_VERSION");
     assert_eq!(versions.len(), 1);
@@ -624,4 +636,36 @@ fn pymavlink_decodes_what_the_console_sends() {
         (&params[0]["param_index"], &params[0]["param_count"]),
         (&Value::from(4), &Value::from(9))
     );
+}
+
+/// The update server's reply to a BurstReadFile of `@SYS/versions.txt`'s first 239 bytes (its sink knowing nothing
+/// of the boards), to a MAVFTP client.
+fn versions_read() -> Outgoing {
+    use lbv_master_fw::config::VEHICLE;
+    use lbv_master_fw::update::{CheckOnly, Context, UpdateServer};
+    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let context = Context {
+        armed: false,
+        operator: 255,
+        restarting: false,
+        unsigned: false,
+    };
+    let gcs = Sender {
+        system: 255,
+        component: 190,
+    };
+    let request = |seq: u8, opcode: u8, size: u8, data: &[u8]| {
+        let mut payload = [0u8; 251];
+        payload[..5].copy_from_slice(&[seq, 0, 3, opcode, size]);
+        payload[12..12 + data.len()].copy_from_slice(data);
+        payload
+    };
+    let now = embassy_time::Instant::from_ticks(0);
+    let open = request(1, 4, 17, b"@SYS/versions.txt");
+    server.request(now, context, gcs, &open, &mut CheckOnly, &mut |_| {});
+    let read = request(2, 15, 239, &[]);
+    match server.request(now, context, gcs, &read, &mut CheckOnly, &mut |_| {}) {
+        Some(reply @ FtpAnswer::Read(_)) => Outgoing::Ftp { to: gcs, reply },
+        other => panic!("not a read: {other:?}"),
+    }
 }

@@ -1,4 +1,5 @@
 //! Field update with MAVProxy, a real ground station, over a lossy link (`tests/mavproxy_ftp.py`): `ftp list`,
+//! `ftp list /`, `ftp list @SYS` and `ftp get @SYS/versions.txt` (what every board runs),
 //! `ftp put` over the link without signing (refused, saying why), `signing setup PASSPHRASE` (the key sent to the
 //! vehicle, every frame signed from then on), `ftp put` of a validly signed image older than the one the thruster runs (refused with its reason at its first
 //! page) and of one with a payload bit flipped (written, applied, refused by the thruster's bootloader, which
@@ -9,7 +10,8 @@
 //! its bootloader swaps the image in, it runs it), `long MAV_CMD_USER_2 2` to ask what it runs, `ftp rm`. The
 //! bench writes what its master's update sink received (`--update-dir`), which must be the file, byte for byte.
 //! Last, one put to /update/thrusters-seabotix.lbvu and `long MAV_CMD_USER_1 200` update every SeaBotix thruster,
-//! the apply's progress in its COMMAND_ACKs and as MAVProxy prints the texts. Runs in real time (about 35 s).
+//! the apply's progress in its COMMAND_ACKs and as MAVProxy prints the texts; `@SYS/versions.txt` got again then
+//! says the SeaBotix thrusters run the new version, the others the old one. Runs in real time (about 40 s).
 //!
 //! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without them this test fails,
 //! it does not skip.
@@ -56,8 +58,21 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     assert_eq!(
         summary["steps"],
         serde_json::json!([
-            "connect", "list", "unsigned", "signing", "older", "flipped", "lossy", "crc", "listed", "apply", "version",
-            "remove", "fleet"
+            "connect",
+            "list",
+            "versions",
+            "unsigned",
+            "signing",
+            "older",
+            "flipped",
+            "lossy",
+            "crc",
+            "listed",
+            "apply",
+            "version",
+            "remove",
+            "fleet",
+            "versions_after"
         ]),
         "{summary}"
     );
@@ -74,6 +89,12 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         )
     };
     assert_eq!(summary["list"], files([0; 9]), "{summary}");
+    // `/` holds `update` and `@SYS` (MAVProxy prints a listing sorted), `@SYS` the versions file, whose length the
+    // listing gives and `ftp get` reads: the bench vehicle's six thrusters, SeaBotix and Legacy in turn, and its
+    // master, each on its first image.
+    let before = versions(&summary["versions"], &summary);
+    let first = ["0.1.0"; 6];
+    assert_eq!(before, boards(first), "{summary}");
     // Over the link without signing: refused at its CreateFile, saying why; then MAVProxy sets signing up.
     let unsigned = &summary["unsigned"];
     assert_eq!(
@@ -206,10 +227,56 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
             "{summary}"
         );
     }
+    // Got again after the fleet's apply: the SeaBotix thrusters (T1, T3, T5) run its 0.3.0, the Legacy ones their
+    // first image.
+    let after = versions(&summary["versions_after"], &summary);
+    assert_eq!(
+        after,
+        boards(["0.3.0", "0.1.0", "0.3.0", "0.1.0", "0.3.0", "0.1.0"]),
+        "{summary}"
+    );
     // Whatever was lost on the way, the sink got the file, byte for byte.
     let sent = std::fs::read(format!("{local}/thruster2.lbvu")).unwrap();
     let got = std::fs::read(format!("{received}/thruster2.lbvu")).unwrap();
     assert_eq!(sent.len(), 4176);
     assert!(got == sent, "the sink got {} bytes, not the file put", got.len());
     println!("mavproxy: {summary}\nbench:\n{bench_output}");
+}
+
+/// The lines of `@SYS/versions.txt` as a step of the script got it, each line's fields (board, family, version,
+/// state), after checking the listings that came with it: `/` and `@SYS` (its length, which `ftp get` wrote).
+fn versions(got: &serde_json::Value, summary: &serde_json::Value) -> Vec<[String; 4]> {
+    assert_eq!(got["root"], serde_json::json!(["@SYS", "update"]), "{summary}");
+    let text = got["text"].as_str().unwrap();
+    assert_eq!(
+        got["sys"],
+        serde_json::json!([["versions.txt", text.len()]]),
+        "{summary}"
+    );
+    assert_eq!(got["wrote"], text.len(), "{summary}");
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("board  family   version  state"), "{summary}");
+    lines
+        .map(|line| {
+            let fields: Vec<String> = line.split_whitespace().map(str::to_owned).collect();
+            fields
+                .try_into()
+                .unwrap_or_else(|fields| panic!("{fields:?}: {summary}"))
+        })
+        .collect()
+}
+
+/// The bench vehicle's boards, confirmed: its master on 0.1.0, T1 to T6 of SeaBotix and Legacy in turn on
+/// `thrusters`.
+fn boards(thrusters: [&str; 6]) -> Vec<[String; 4]> {
+    let line = |board: &str, family: &str, version: &str| [board, family, version, "confirmed"].map(str::to_owned);
+    let families = ["SeaBotix", "Legacy"].iter().cycle();
+    std::iter::once(line("master", "-", "0.1.0"))
+        .chain(
+            (1..)
+                .zip(families)
+                .zip(thrusters)
+                .map(|((n, family), version)| line(&format!("T{n}"), family, version)),
+        )
+        .collect()
 }

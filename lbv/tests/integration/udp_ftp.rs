@@ -1,6 +1,7 @@
 //! Field update from a ground station, with pymavlink's own MAVLink FTP client (`tests/ftp_upload.py`, on
-//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, sees a put refused over the link
-//! without signing and allows updates over it (`LBV_UPD_UNSIGNED` 1), puts a SeaBotix update file signed
+//! `pymavlink.mavftp`) against `lbv bench --udp`: it lists the update directory, gets `@SYS/versions.txt`, sees a
+//! put refused over the link without signing and allows updates over it (`LBV_UPD_UNSIGNED` 1), puts a SeaBotix
+//! update file signed
 //! with the development key to /update/thruster0.lbvu, reads its CRC32, sees the same file refused for the Legacy
 //! slot 1, and applies the image, which the thruster checks, swaps in and runs; then puts a master image to
 //! /update/master.lbvu and applies it: the master checks it, restarts into its bootloader's swap, and the new image
@@ -44,8 +45,13 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         "pymavlink",
         &["--update-dir", &received],
     );
-    // The directory, then one file per slot of the dive vehicle's table, one per family and the master's.
-    assert_eq!(summary["root"], serde_json::json!([["update", 0, true]]), "{summary}");
+    // The directories (in one reply, whose entries pymavlink sorts), then one file per slot of the dive vehicle's
+    // table, one per family and the master's.
+    assert_eq!(
+        summary["root"],
+        serde_json::json!([["@SYS", 0, true], ["update", 0, true]]),
+        "{summary}"
+    );
     let files = |sizes: [u64; 9]| {
         let families = ["thrusters-seabotix.lbvu", "thrusters-legacy.lbvu", "master.lbvu"];
         let names = (0..6)
@@ -59,6 +65,22 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
         )
     };
     assert_eq!(summary["before"], files([0; 9]), "{summary}");
+    // pymavlink's get of `@SYS/versions.txt` (80-byte bursts): a header, the master, then T1 to T6.
+    assert_eq!(summary["versions"]["error"], 0, "{summary}");
+    let text = summary["versions"]["text"].as_str().unwrap_or_default();
+    let boards: Vec<&str> = text
+        .lines()
+        .map(|line| line.split(' ').next().unwrap_or_default())
+        .collect();
+    assert_eq!(
+        boards,
+        ["board", "master", "T1", "T2", "T3", "T4", "T5", "T6"],
+        "{summary}"
+    );
+    assert!(
+        text.starts_with("board  family   version  state\nmaster -        "),
+        "{summary}"
+    );
     // Without signing: refused, saying why, until LBV_UPD_UNSIGNED allows it. pymavlink sends its first writes
     // before the CreateFile's answer, so it reports the NAK of its first write (InvalidSession, 4: no session was
     // opened) rather than the CreateFile's (Fail).

@@ -1405,3 +1405,49 @@ fn a_shared_write_reaches_no_more_thrusters_than_the_bus_may_have_enabled_at_onc
     }
     assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
 }
+
+#[test]
+fn what_each_thruster_runs_is_kept_for_versions_txt() {
+    let running = |courier: &Courier, slot: u8| {
+        let board = courier.running(slot);
+        (board.version, board.state)
+    };
+    let mut courier = Courier::new();
+    assert_eq!(
+        running(&courier, 0),
+        (None, ImageState::Offline),
+        "not in the table, or never heard"
+    );
+    // At the master's start: not asked yet, whether it answers its first poll or not yet.
+    courier.expect(2);
+    assert_eq!(running(&courier, 1), (None, ImageState::Unasked));
+    courier.seen(1, true);
+    let ask = courier.next(t(0), |slot| slot == 1).unwrap();
+    courier.on_result(t(0), &ask, standing(&ask, true, false), &mut |_| {});
+    assert_eq!(running(&courier, 1), (Some([0, 2, 0, 0]), ImageState::OnTrial));
+    let ask = courier.next(t(1_000), |slot| slot == 1).unwrap();
+    courier.on_result(t(1_000), &ask, standing(&ask, false, true), &mut |_| {});
+    assert_eq!(running(&courier, 1), (Some([0, 2, 0, 0]), ImageState::Marked));
+    // Away: offline, what it said last kept; back: not asked yet since; asked: what it runs now.
+    courier.seen(1, false);
+    assert_eq!(running(&courier, 1), (Some([0, 2, 0, 0]), ImageState::Offline));
+    courier.seen(1, true);
+    assert_eq!(running(&courier, 1), (Some([0, 2, 0, 0]), ImageState::Unasked));
+    let ask = courier.next(t(2_000), |slot| slot == 1).unwrap();
+    courier.on_result(t(2_000), &ask, standing(&ask, false, false), &mut |_| {});
+    assert_eq!(running(&courier, 1), (Some([0, 2, 0, 0]), ImageState::Confirmed));
+    // The ground station's query tells it too; an IDS-only controller takes no update.
+    courier.seen(0, true);
+    courier.query(0, GCS).unwrap();
+    let ask = courier.next(t(3_000), |_| true).unwrap();
+    courier.on_result(t(3_000), &ask, done(&ask, version(true, [0, 3, 1, 0])), &mut |_| {});
+    assert_eq!(running(&courier, 0), (Some([0, 3, 1, 0]), ImageState::Confirmed));
+    courier.seen(2, true);
+    let ask = courier.next(t(4_000), |slot| slot == 2).unwrap();
+    let status_frame = Err(ExchangeError::Frame(FrameError::MessageType {
+        expected: ext::EXT_REPLY_MT,
+        actual: 0x53,
+    }));
+    courier.on_result(t(4_000), &ask, status_frame, &mut |_| {});
+    assert_eq!(running(&courier, 2), (None, ImageState::NoUpdates));
+}

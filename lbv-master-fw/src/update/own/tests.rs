@@ -986,3 +986,21 @@ fn the_trial_limit_never_restarts_an_armed_vehicle_it_waits_for_the_disarm() {
     assert!(matches!(said.last(), Some(Outgoing::Reboot)));
     assert_eq!(state_of(&flash), State::Swap);
 }
+
+#[test]
+fn the_running_image_is_known_once_the_task_has_read_it() {
+    let (own, shared) = (OwnImage::new(), Shared::new());
+    assert_eq!(own.running(), Running::default(), "not read yet");
+    let flash = flashed();
+    on_trial(&flash);
+    let updating = OwnFlash::new(flash.clone());
+    let mut bench = Bench::new(&own, &shared, &updating);
+    let version = Some(Version::new(0, 1, 0).to_bytes());
+    let state = ImageState::OnTrial;
+    assert_eq!(own.running(), Running { version, state });
+    bench.hear_operator(true);
+    bench.run(Duration::from_millis(3300));
+    assert_eq!(own.running().state, ImageState::Confirmed);
+    own.mark();
+    assert_eq!(own.running().state, ImageState::Marked);
+}
