@@ -967,10 +967,10 @@ impl BusState<'_> {
     /// there was, and whether it was answered. A failed exchange is the courier's to retry; the bus is recovered as
     /// after a failed poll.
     ///
-    /// An exchange the courier gives to several thrusters behind the bus's TCA9548A ([`Exchange::with`]) is one
-    /// write with all their channels enabled (the TCA9548A's control register takes any set of channels; a write to
-    /// their family's address reaches each), then each reply read with its thruster's channel alone. The write's ACK is
-    /// wired-AND, so one thruster that missed it hides behind the others': its own reply, read alone, tells.
+    /// An exchange the courier gives to several thrusters behind the bus's TCA9548A ([`courier::Exchange::with`]) is
+    /// one write with all their channels enabled (the TCA9548A's control register takes any set of channels; a write
+    /// to their family's address reaches each), then each reply read with its thruster's channel alone. The write's
+    /// ACK is wired-AND, so one thruster that missed it hides behind the others': its own reply, read alone, tells.
     async fn carry<B: I2c + BusRecovery>(
         &mut self,
         bus: &mut B,
