@@ -545,7 +545,8 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
 /// The whole vehicle updated with one file per family: each put to its family's path and applied once, every
 /// thruster of the family taking it together; timed from the first put's first byte to the last confirmation. The
 /// bus is noisy for 2 s during the first put (every byte the thrusters send has bits flipped, every command's guard
-/// too): it costs time, not the update.
+/// too), and one of the family's thrusters is off for 1 s later in it (the writes shared meanwhile reach only the
+/// others): both cost time, not the update.
 pub fn fleet_update(run: &mut Run) {
     let key = dev_key();
     run.run_for(1.0);
