@@ -9,7 +9,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     g431_hw::link::link_image(env!("CARGO_PKG_NAME"))?;
 
     // The console's MAVLink dialect: only the messages it uses, so the image carries only their codecs.
-    let dialect = Path::new(env!("CARGO_MANIFEST_DIR")).join("mavlink/lbv.xml");
+    let dialect = manifest_dir()?.join("mavlink/lbv.xml");
     let generated = mavlink_bindgen::generate(mavlink_bindgen::XmlDefinitions::Files(vec![dialect]), &out_dir)?;
     mavlink_bindgen::emit_cargo_build_messages(&generated);
     build_info(Path::new(&out_dir))?;
@@ -67,12 +67,18 @@ fn build_info(out_dir: &Path) -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
+/// This crate's directory, as cargo gives it when it runs the script: not `env!`, which would keep the directory the
+/// script was compiled in, and cargo runs the same compiled script for another checkout sharing the target directory.
+fn manifest_dir() -> Result<PathBuf, std::env::VarError> {
+    std::env::var("CARGO_MANIFEST_DIR").map(PathBuf::from)
+}
+
 /// The first 8 hex digits of HEAD, rebuilding when HEAD moves.
 fn git_revision() -> Result<[u8; 8], String> {
     let git = |args: &[&str]| -> Result<String, String> {
         let output = Command::new("git")
             .args(args)
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .current_dir(manifest_dir().map_err(|error| error.to_string())?)
             .output()
             .map_err(|error| format!("git could not be run ({error})"))?;
         if !output.status.success() {
@@ -93,7 +99,9 @@ fn git_revision() -> Result<[u8; 8], String> {
     }
     for name in watched {
         if let Ok(path) = git(&["rev-parse", "--git-path", &name]) {
-            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(PathBuf::from(path));
+            let path = manifest_dir()
+                .map_err(|error| error.to_string())?
+                .join(PathBuf::from(path));
             // A path that does not exist would make every build rerun this script.
             if path.exists() {
                 println!("cargo:rerun-if-changed={}", path.display());
