@@ -258,6 +258,8 @@ pub enum Applied {
     NotWired,
     /// Nothing new: an apply of the target is under way already, for this sender, whose final answer it gets.
     Applying(Sender),
+    /// Nothing to do: every thruster the image went to runs it already.
+    Runs,
 }
 
 /// Why a sink did not take an upload's call: the upload stops.

@@ -272,11 +272,7 @@ impl UpdateSink for VehicleSink<'_> {
                 {
                     return Ok(Applied::Applying(by));
                 }
-                match courier.apply_to(slots, from) {
-                    Ok(true) => Ok(Applied::Started),
-                    Ok(false) => Ok(Applied::Pending),
-                    Err(_) => Err(Nak::Fail),
-                }
+                courier.apply_to(slots, from).map_err(|_| Nak::Fail)
             }),
             UpdateTarget::Master => match self.own.apply(from) {
                 Ok(()) => Ok(Applied::Started),
@@ -1031,6 +1027,7 @@ impl UpdateServer {
                 Ok(Applied::Applying(_)) => (AckResult::TemporarilyRejected, Some("applying")),
                 Ok(Applied::Pending) => (AckResult::TemporarilyRejected, Some("still on its way")),
                 Ok(Applied::NotWired) => (AckResult::Accepted, Some("valid; not sent, no I2C yet")),
+                Ok(Applied::Runs) => (AckResult::Accepted, Some("all run it already")),
                 Err(_) => (AckResult::Failed, Some("not on the target: send it again")),
             },
         };

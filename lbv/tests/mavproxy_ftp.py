@@ -41,8 +41,12 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
               SeaBotix thruster (T1, T3, T5) has it verified, `long MAV_CMD_USER_1 200`: COMMAND_ACK IN_PROGRESS,
               then IN_PROGRESS with its progress as the three restart and confirm ("thrusters-seabotix.lbvu: 1 of 3
               done, T3 60 %" at most once a second, as MAVProxy prints them), then ACCEPTED
-    versions_after  as versions, into WORK_DIR/versions-after.txt: the SeaBotix thrusters run 0.3.0 now (got again
+    fleet_legacy  as fleet, with WORK_DIR/fleet-legacy.lbvu (a Legacy 0.3.0) to /update/thrusters-legacy.lbvu and
+              `long MAV_CMD_USER_1 201` for the Legacy thrusters (T2, T4, T6)
+    versions_after  as versions, into WORK_DIR/versions-after.txt: every thruster runs 0.3.0 now (got again
               until none is on trial or left to be asked)
+    again     the same file put to /update/thrusters-seabotix.lbvu again: each SeaBotix thruster "runs 0.3.0 already"
+              and is left be; `long MAV_CMD_USER_1 200`: ACCEPTED at once, "all run it already"
 
 Prints a JSON summary;
 exit 0 when every step held, 1 with the reason on stderr when one did not, 3 when pymavlink or MAVProxy is
@@ -65,6 +69,7 @@ PASSPHRASE = "lbv-bench-mavproxy-ftp"
 QUERY_VERSION = 31011
 # The bench vehicle's SeaBotix thrusters (the mixed vehicle: SeaBotix and Legacy in turn), as the texts number them.
 SEABOTIX = (1, 3, 5)
+LEGACY = (2, 4, 6)
 IN_PROGRESS = 5
 
 
@@ -266,28 +271,55 @@ class Session:
         self.summary["version"] = {"results": self.acks(since, QUERY_VERSION), "texts": self.observer.texts(since)}
 
     def fleet(self):
+        self.summary["fleet"] = self.put_family("fleet.lbvu", "thrusters-seabotix.lbvu", 200, SEABOTIX)
+
+    def fleet_legacy(self):
+        self.summary["fleet_legacy"] = self.put_family("fleet-legacy.lbvu", "thrusters-legacy.lbvu", 201, LEGACY)
+
+    def put_family(self, local, name, apply_slot, members):
+        """`ftp put WORK_DIR/local /update/name`, then, once each of `members` has it verified, the family apply
+        `apply_slot`; what it answered and said."""
         since = time.monotonic()
-        self.mavproxy.type(f"ftp put {os.path.join(self.work, 'fleet.lbvu')} /update/thrusters-seabotix.lbvu")
+        self.mavproxy.type(f"ftp put {os.path.join(self.work, local)} /update/{name}")
 
         def verified():
             texts = self.observer.texts(since)
-            return all(f"T{n}: 4096 B verified, 0 pages kept" in texts for n in SEABOTIX)
+            return all(f"T{n}: 4096 B verified, 0 pages kept" in texts for n in members)
 
-        self.wait(verified, 30.0, "the family's image on every thruster")
+        self.wait(verified, 30.0, f"{name}'s image on every thruster")
         applied = time.monotonic()
-        self.mavproxy.type("long MAV_CMD_USER_1 200")
-        self.wait(lambda: self.ack(applied) is not None, 30.0, "the family apply's final COMMAND_ACK")
+        self.mavproxy.type(f"long MAV_CMD_USER_1 {apply_slot}")
+        self.wait(lambda: self.ack(applied) is not None, 30.0, f"{name}'s apply's final COMMAND_ACK")
         progress = [
             m.progress
             for _, m in self.observer.since(applied, "COMMAND_ACK")
             if m.command == APPLY_UPDATE and m.result == IN_PROGRESS
         ]
-        self.summary["fleet"] = {
+        return {
             "results": self.acks(applied),
             "progress": progress,
             "texts": self.observer.texts(since),
             # As MAVProxy prints the vehicle's STATUSTEXTs.
-            "printed": [m.group(0) for m in self.lines(applied, r"thrusters-seabotix\.lbvu: \d of 3 done.*")],
+            "printed": [m.group(0) for m in self.lines(applied, re.escape(name) + r": \d of 3 done.*")],
+        }
+
+    def again(self):
+        since = time.monotonic()
+        self.mavproxy.type(f"ftp put {os.path.join(self.work, 'fleet.lbvu')} /update/thrusters-seabotix.lbvu")
+        self.wait(lambda: self.lines(since, r"(Write|Create) failed|Sent file of length"), 10.0, "MAVProxy's put ends")
+        self.wait(
+            lambda: all(f"T{n}: runs 0.3.0 already" in self.observer.texts(since) for n in SEABOTIX),
+            5.0,
+            "each thruster running the image already",
+        )
+        applied = time.monotonic()
+        self.mavproxy.type("long MAV_CMD_USER_1 200")
+        self.wait(lambda: self.ack(applied) is not None, 5.0, "the apply's COMMAND_ACK")
+        self.wait(lambda: self.observer.texts(applied), 2.0, "the apply's STATUSTEXT")
+        self.summary["again"] = {
+            "put": [m.group(0) for m in self.lines(since, r"(Write|Create) failed|Sent file of length \d+")],
+            "results": self.acks(applied),
+            "texts": self.observer.texts(since),
         }
 
     def remove(self):
@@ -314,7 +346,9 @@ class Session:
         "version",
         "remove",
         "fleet",
+        "fleet_legacy",
         "versions_after",
+        "again",
     ]
 
     def run(self):

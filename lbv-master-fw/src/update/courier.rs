@@ -12,6 +12,9 @@
 //! An image for every thruster of a family (`thrusters-seabotix.lbvu`) has a transfer for each, which take turns on
 //! the bus, or share a write when they are at the same step ([`Courier::next_cast`]); the page stays in the buffer
 //! until each has it (or has ended), and one apply applies it to all, its final COMMAND_ACK once the last is done.
+//! A thruster that runs the image already, confirmed (its `Version`'s image info is the one the first page holds), is
+//! left be ([`Step::Runs`]): the family's file put again after one thruster was left behind, silent, goes to that
+//! one alone, and the master tells it when it answers again ([`Courier::answered`]).
 //!
 //! The [`Courier`] is the whole transfer as a state machine on explicit time, fed the exchanges' outcomes:
 //!
@@ -65,6 +68,7 @@ use tmc_proto::ext::{
 };
 use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Target, Version, check_upgrade};
 
+use crate::ports::Applied;
 use crate::shared::{
     AckResult, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared, UpdateAction, UpdateHold, text, texts, verdict_texts,
 };
@@ -141,6 +145,9 @@ enum Step {
     Trial { since: Instant, next: Instant },
     /// The thruster's running image is on trial, so it takes no update yet: begin again at this instant.
     Settle(Instant),
+    /// It runs this image already, confirmed (a family's file: its image info is the one the thruster's last
+    /// `Version` gave): nothing is written, and the apply leaves it be.
+    Runs,
 }
 
 /// The image on its way: what its update file's header gives, and the bytes the sink has handed on, which every
@@ -458,6 +465,9 @@ pub struct Courier {
     running: [Option<[u8; 4]>; MAX_THRUSTERS],
     /// The slots (bits) whose thrusters answer their polls, as the bus tasks last said ([`Courier::seen`]).
     answering: u8,
+    /// Each slot's thruster that a family's update left behind, silent, and the version the family was given: told
+    /// when it answers again on another ([`Courier::answered`]).
+    behind: [Option<(Family, [u8; 4])>; MAX_THRUSTERS],
     /// When the thrusters on trial are next asked.
     trial_ask: Instant,
 }
@@ -482,6 +492,7 @@ impl Courier {
             standing: [Standing::Away; MAX_THRUSTERS],
             running: [None; MAX_THRUSTERS],
             answering: 0,
+            behind: [None; MAX_THRUSTERS],
             trial_ask: Instant::from_ticks(0),
         }
     }
@@ -547,6 +558,11 @@ impl Courier {
         for (slot, transfer) in (0..).zip(self.transfers.iter_mut()) {
             *transfer = (slots & bit(slot) != 0).then(|| Transfer::new(slot));
         }
+        for (slot, behind) in (0..).zip(self.behind.iter_mut()) {
+            if slots & bit(slot) != 0 {
+                *behind = None;
+            }
+        }
         self.fill = 0;
         // The lowest slot first.
         self.turn = MAX_THRUSTERS - 1;
@@ -583,7 +599,7 @@ impl Courier {
     /// Whether no transfer has an exchange to make: none has, or each waits for its apply, or for its next page.
     fn quiet(&self) -> bool {
         self.live().all(|transfer| match transfer.step {
-            Step::Written => true,
+            Step::Written | Step::Runs => true,
             Step::Idle => self.page_for(transfer).is_none() && !self.image.is_some_and(|image| image.complete),
             _ => false,
         })
@@ -700,23 +716,50 @@ impl Courier {
     }
 
     /// The apply command for `slot`'s image, from `from`: see [`Courier::apply_to`].
-    pub fn apply(&mut self, slot: u8, from: Sender) -> Result<bool, NotTaken> {
+    pub fn apply(&mut self, slot: u8, from: Sender) -> Result<Applied, NotTaken> {
         self.apply_to(bit(slot), from)
     }
 
-    /// The apply command for the thrusters whose slots are the bits of `slots`, from `from`: `Ok(true)` when
-    /// every one of them that still has the image on its way has it written, and takes it now (the final
-    /// COMMAND_ACK goes to `from` once each is done), `Ok(false)` when the image is whole but still on its way to
-    /// some, an error when none has it (it failed, or never came).
-    pub fn apply_to(&mut self, slots: u8, from: Sender) -> Result<bool, NotTaken> {
+    /// The apply command for the thrusters whose slots are the bits of `slots`, from `from`: [`Applied::Started`]
+    /// when every one of them that still has the image on its way has it written, and takes it now (the final
+    /// COMMAND_ACK goes to `from` once each is done), [`Applied::Pending`] when the image is whole but still on its
+    /// way to some, [`Applied::Runs`] when each runs it already, an error when none has it (it failed, or never came).
+    pub fn apply_to(&mut self, slots: u8, from: Sender) -> Result<Applied, NotTaken> {
         let image = self.image.filter(|image| image.applier.is_none()).ok_or(NotTaken)?;
         let ours = |transfer: &Transfer| slots & bit(transfer.slot) != 0;
-        let targets = self.live().filter(|t| ours(t)).fold(0, |mask, t| mask | bit(t.slot));
+        let mask = |step: fn(&Transfer) -> bool| {
+            self.live()
+                .filter(|t| ours(t) && step(t))
+                .fold(0, |mask, t| mask | bit(t.slot))
+        };
+        let (targets, runs) = (mask(|_| true), mask(|t| t.step == Step::Runs));
         if targets == 0 {
             return Err(NotTaken);
         }
-        if self.live().filter(|t| ours(t)).any(|t| t.step != Step::Written) {
-            return if image.complete { Ok(false) } else { Err(NotTaken) };
+        if self
+            .live()
+            .filter(|t| ours(t))
+            .any(|t| !matches!(t.step, Step::Written | Step::Runs))
+        {
+            return if image.complete {
+                Ok(Applied::Pending)
+            } else {
+                Err(NotTaken)
+            };
+        }
+        // Those that run it already are done: each was told so when its first page came.
+        for transfer in self
+            .transfers
+            .iter_mut()
+            .filter(|t| t.is_some_and(|t| runs & bit(t.slot) != 0))
+        {
+            *transfer = None;
+        }
+        if runs == targets {
+            if self.transfers.iter().all(Option::is_none) {
+                self.drop_image();
+            }
+            return Ok(Applied::Runs);
         }
         for transfer in self.transfers.iter_mut().flatten().filter(|t| ours(t)) {
             transfer.step = Step::Finish;
@@ -725,9 +768,9 @@ impl Courier {
         }
         if let Some(image) = self.image.as_mut() {
             image.applier = Some(from);
-            image.applied = targets;
+            image.applied = targets & !runs;
         }
-        Ok(true)
+        Ok(Applied::Started)
     }
 
     /// Whether thruster `slot` has been told to restart into its update and has not answered since: silent while
@@ -847,7 +890,7 @@ impl Courier {
                 target: image.kind,
             },
             // Turned into `Begin` above once it is time.
-            Step::Idle | Step::Written | Step::Settle(_) => return None,
+            Step::Idle | Step::Written | Step::Settle(_) | Step::Runs => return None,
             Step::CheckPage => Command::Check {
                 offset: transfer.page_offset,
                 len: page?,
@@ -953,6 +996,14 @@ impl Courier {
             .transfer(slot)
             .filter(|transfer| transfer.page_offset == 0)
             .and_then(|transfer| image.check(first_page, &transfer.running, transfer.max_payload).err());
+        // A family's file goes to the thrusters that do not run it yet: one that runs this image info (version,
+        // security counter, flags), confirmed, is left be. A slot's own file is written whatever runs.
+        let runs_it = matches!(image.file, File::Family(_))
+            && self.standing.get(usize::from(slot)) == Some(&Standing::Settled)
+            && self.transfer(slot).is_some_and(|transfer| {
+                transfer.page_offset == 0
+                    && first_page.get(INFO_OFFSET..INFO_OFFSET + ext::INFO_LEN) == Some(&transfer.running[..])
+            });
         let name = image.file;
         let Some(transfer) = self.transfers.get_mut(usize::from(slot)).and_then(Option::as_mut) else {
             return;
@@ -1076,6 +1127,19 @@ impl Courier {
             (Step::Begin, ReplyBody::Begin { .. }) => {
                 transfer.settling_since = None;
                 if transfer.applied { Step::Finish } else { Step::Idle }
+            }
+            (Step::CheckPage, ReplyBody::Check { .. }) if runs_it => {
+                say(
+                    out,
+                    Severity::Info,
+                    name,
+                    slot,
+                    format_args!("runs {} already", Ver(image.version)),
+                );
+                transfer.step = Step::Runs;
+                // The buffer does not wait for it.
+                transfer.page_offset = image.payload_len;
+                return self.move_on();
             }
             // Nothing of the image has gone on yet: its info decides whether anything does.
             (Step::CheckPage, ReplyBody::Check { .. }) if let Some(refusal) = first_refused => {
@@ -1256,6 +1320,14 @@ impl Courier {
                 if let Some(running) = self.running.get_mut(usize::from(slot)) {
                     *running = Some(version_in(&info));
                 }
+                if let Some((family, version)) = self.behind.get_mut(usize::from(slot)).and_then(Option::take)
+                    && version_in(&info) != version
+                {
+                    // One STATUSTEXT: the version the family was given is in the operator's file.
+                    let (file, runs) = (family_file(family), Ver(version_in(&info)));
+                    let what = format_args!("runs {runs}, put {file} again");
+                    say(out, Severity::Warning, File::Family(family), slot, what);
+                }
                 if query.asker.is_some() {
                     let trial = if on_trial { ", on trial" } else { "" };
                     let updates = if checks_signatures { "" } else { ", no updates" };
@@ -1332,6 +1404,12 @@ impl Courier {
                 }
             }
             _ => say(out, Severity::Warning, image.file, slot, format_args!("{ending}")),
+        }
+        // Gone before its family's image reached it: told when it is back.
+        if let (File::Family(family), Ending::Silent | Ending::NotBack) = (image.file, ending)
+            && let Some(behind) = self.behind.get_mut(usize::from(slot))
+        {
+            *behind = Some((family, image.version));
         }
         self.close(slot, Some(ending), out);
     }

@@ -383,7 +383,7 @@ pub const SCENARIOS: &[Scenario] = &[
     },
     Scenario {
         name: "fleet-update",
-        about: "every thruster updated with one file per family, each applied once, over a 115200 baud console",
+        about: "every thruster updated with one file per family over a 115200 baud console; one left behind caught up",
         seconds: 120.0,
         vehicle: mixed_uart,
         run: fleet_update,

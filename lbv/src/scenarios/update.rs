@@ -24,7 +24,9 @@ const IN_PROGRESS: u8 = 5;
 const ACCEPTED: u8 = 0;
 const DENIED: u8 = 2;
 const FAILED: u8 = 4;
-/// The version the update brings (the bench's thrusters run 0.1.0).
+/// The version the bench's thrusters run.
+const OLD: Version = Version::new(0, 1, 0);
+/// The version the update brings.
 const NEW: Version = Version::new(0, 2, 0);
 
 /// A signed update file for `family`'s thrusters at `version`: a made-up payload of [`PAYLOAD_LEN`] bytes with its
@@ -546,7 +548,9 @@ fn master_resets_while_applied(run: &mut Run, family: Family, key: &[u8; 32]) {
 /// thruster of the family taking it together; timed from the first put's first byte to the last confirmation. The
 /// bus is noisy for 2 s during the first put (every byte the thrusters send has bits flipped, every command's guard
 /// too), and one of the family's thrusters is off for 1 s later in it (the writes shared meanwhile reach only the
-/// others): both cost time, not the update.
+/// others): both cost time, not the update. During the second put one thruster is off for 5 s, longer than the
+/// master waits for a silent thruster: it is left behind, the master tells the operator when it is back, and the
+/// family's file put again is written to it alone.
 pub fn fleet_update(run: &mut Run) {
     let key = dev_key();
     run.run_for(1.0);
@@ -560,6 +564,7 @@ pub fn fleet_update(run: &mut Run) {
         (Family::SeaBotix, "thrusters-seabotix.lbvu", 200),
         (Family::Legacy, "thrusters-legacy.lbvu", 201),
     ] {
+        let first = steps.is_empty();
         let members: Vec<usize> = (0..families.len()).filter(|i| families[*i] == family).collect();
         let begun = run.bench.now();
         let noise: Vec<Fault> = (0..families.len())
@@ -569,13 +574,14 @@ pub fn fleet_update(run: &mut Run) {
                     Fault::CorruptOrders { thruster, mask: 0x55 },
                 ]
             })
-            .filter(|_| steps.is_empty())
+            .filter(|_| first)
             .collect();
         let mut noise_from = None;
-        // During the first put, one thruster of the family loses power for a moment: the writes shared while it is
-        // off reach only the others, whose acknowledgement hides its absence; its own replies tell.
-        let blinking = members.get(1).copied().filter(|_| steps.is_empty());
-        let mut blink_from = None;
+        // During each put, one thruster of the family loses power: the writes shared while it is off reach only
+        // the others, whose acknowledgement hides its absence; its own replies tell. Off for a moment in the first
+        // put, it catches up; off for longer than the master waits in the second, it is left behind.
+        let (off, off_s) = (members[1], if first { BLINK_S } else { GONE_S });
+        let mut off_from = None;
         let (put_state, put_s) = put_until(
             run,
             &format!("/update/{name}"),
@@ -594,25 +600,34 @@ pub fn fleet_update(run: &mut Run) {
                     }
                     _ => {}
                 }
-                if let Some(thruster) = blinking {
-                    match blink_from {
-                        None if acked > 2 * PAYLOAD_LEN / 3 => {
-                            run.inject(Fault::PowerCut { thruster });
-                            blink_from = Some(now);
-                        }
-                        Some(from) if now >= from + BLINK_S => {
-                            run.clear(Fault::PowerCut { thruster });
-                            blink_from = Some(f64::INFINITY);
-                        }
-                        _ => {}
+                match off_from {
+                    None if acked > 2 * PAYLOAD_LEN / 3 => {
+                        run.inject(Fault::PowerCut { thruster: off });
+                        off_from = Some(now);
                     }
+                    Some(from) if now >= from + off_s => {
+                        run.clear(Fault::PowerCut { thruster: off });
+                        off_from = Some(f64::INFINITY);
+                    }
+                    _ => {}
                 }
                 false
             },
         );
-        // Every thruster of the family has the whole payload verified before the apply.
+        // Power back at its time, if the put ended before it.
+        let power_back = |run: &mut Run| {
+            if let Some(from) = off_from.filter(|from| from.is_finite()) {
+                run.run_for((from + off_s - run.bench.seconds()).max(0.0));
+                run.clear(Fault::PowerCut { thruster: off });
+            }
+        };
+        if first {
+            power_back(run);
+        }
+        // Every thruster of the family that is there has the whole payload verified before the apply.
+        let kept: Vec<usize> = members.iter().copied().filter(|i| first || *i != off).collect();
         let verified = |bench: &crate::bench::Bench| {
-            members.iter().all(|i| {
+            kept.iter().all(|i| {
                 let who = format!("T{}: ", i + 1);
                 said_since(bench, begun, |text| {
                     text.starts_with(&who) && text.contains("B verified")
@@ -632,13 +647,15 @@ pub fn fleet_update(run: &mut Run) {
         let progress_before = run.bench.ground.seen.progress.len();
         let applied = run.bench.now();
         let (acks, apply_s) = apply(run, slot, 60.0);
-        let runs_new = members.iter().all(|i| running(run, *i) == Some(NEW));
-        // IN_PROGRESS, then IN_PROGRESS with the progress as it goes, then ACCEPTED.
+        let runs_new = kept.iter().all(|i| running(run, *i) == Some(NEW));
+        // IN_PROGRESS, then IN_PROGRESS with the progress as it goes, then the final answer: FAILED when a
+        // thruster was left behind.
+        let last = if first { ACCEPTED } else { FAILED };
         let answered = acks.first() == Some(&IN_PROGRESS)
-            && acks.last() == Some(&ACCEPTED)
+            && acks.last() == Some(&last)
             && acks[1..acks.len() - 1].iter().all(|ack| *ack == IN_PROGRESS);
         run.check(
-            &format!("every {family:?} thruster is updated with one file and one apply"),
+            &format!("every {family:?} thruster there is updated with one file and one apply"),
             put_state == UploadState::Done && verified && answered && runs_new,
             format!("put {put_state:?} in {put_s} s, verified {verified}, apply acks {acks:?} in {apply_s} s"),
         );
@@ -659,25 +676,60 @@ pub fn fleet_update(run: &mut Run) {
                 && told as f64 <= apply_s + 1.0,
             format!("progress {progress:?}, {told} texts in {apply_s} s"),
         );
-        if let Some(thruster) = blinking {
+        steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s}));
+        if first {
             run.check(
                 &format!(
                     "T{} off for {BLINK_S} s during the put is caught up on its return",
-                    thruster + 1
+                    off + 1
                 ),
-                blink_from == Some(f64::INFINITY) && running(run, thruster) == Some(NEW),
-                format!(
-                    "power back: {}, runs {:?}",
-                    blink_from.is_some(),
-                    running(run, thruster)
-                ),
+                running(run, off) == Some(NEW),
+                format!("runs {:?}", running(run, off)),
             );
+            continue;
         }
-        steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s}));
+        // Back, on its old image: the master says so, and the file put again goes to it alone.
+        power_back(run);
+        let again = format!("T{}: runs {OLD}, put {name} again", off + 1);
+        let told = run
+            .run_until(10.0, |bench| said_since(bench, begun, |text| text == again))
+            .is_some();
+        let back = run.bench.now();
+        let (put_state, put_s) = put(run, &format!("/update/{name}"), update_file(family, NEW, &key), 60.0);
+        let skipped = kept.iter().all(|i| {
+            let runs = format!("T{}: runs {NEW} already", i + 1);
+            said_since(&run.bench, back, |text| text == runs)
+        });
+        let written = format!("T{}: ", off + 1);
+        let written = |bench: &crate::bench::Bench| {
+            said_since(bench, back, |text| {
+                text.starts_with(&written) && text.contains("B verified")
+            })
+        };
+        run.run_until(30.0, written);
+        let (acks, apply_s) = apply(run, slot, 60.0);
+        run.check(
+            &format!(
+                "T{} off for {GONE_S} s during the put is left behind, told on its return, and updated by the file \
+                 put again",
+                off + 1
+            ),
+            told && put_state == UploadState::Done
+                && skipped
+                && acks.first() == Some(&IN_PROGRESS)
+                && acks.last() == Some(&ACCEPTED)
+                && members.iter().all(|i| running(run, *i) == Some(NEW)),
+            format!(
+                "told {told}, put again {put_state:?} in {put_s} s, the others skipped {skipped}, apply \
+                 acks {acks:?} in {apply_s} s, runs {:?}",
+                running(run, off)
+            ),
+        );
+        steps.push(json!({"family": format!("{family:?}"), "put_s": put_s, "apply_s": apply_s, "again": true}));
     }
     run.check(
         "2 s of a noisy bus during the first put cost time, not the update",
-        spoiled > 0 && steps.len() == 2,
+        spoiled > 0 && steps.len() == 3,
         format!("{spoiled} thrusters' failsafes acted on the spoiled orders"),
     );
     let seconds = (run.bench.now() - start).as_micros() as f64 / 1e6;
@@ -686,6 +738,7 @@ pub fn fleet_update(run: &mut Run) {
         .zip(polls_of(run))
         .map(|(before, after)| round((after - before) as f64 / seconds, 1))
         .collect();
+    // The thruster off for 5 s answered none meanwhile: its rate counts the whole time all the same.
     run.check(
         "every thruster is polled more than 10 times a second throughout",
         rates.iter().all(|rate| *rate > 10.0),
@@ -706,6 +759,8 @@ pub fn fleet_update(run: &mut Run) {
 const NOISE_S: f64 = 2.0;
 /// How long a thruster is off during the fleet update's first put: it is back within the 3 s.
 const BLINK_S: f64 = 1.0;
+/// How long a thruster is off during the fleet update's second put: longer than the 3 s, it is left behind.
+const GONE_S: f64 = 5.0;
 
 /// Each thruster's answered polls so far.
 fn polls_of(run: &Run) -> Vec<u64> {

@@ -10,8 +10,10 @@
 //! its bootloader swaps the image in, it runs it), `long MAV_CMD_USER_2 2` to ask what it runs, `ftp rm`. The
 //! bench writes what its master's update sink received (`--update-dir`), which must be the file, byte for byte.
 //! Last, one put to /update/thrusters-seabotix.lbvu and `long MAV_CMD_USER_1 200` update every SeaBotix thruster,
-//! the apply's progress in its COMMAND_ACKs and as MAVProxy prints the texts; `@SYS/versions.txt` got again then
-//! says the SeaBotix thrusters run the new version, the others the old one. Runs in real time (about 40 s).
+//! and one to /update/thrusters-legacy.lbvu and `long MAV_CMD_USER_1 201` every Legacy one, each apply's progress in
+//! its COMMAND_ACKs and as MAVProxy prints the texts; `@SYS/versions.txt` got again then says every thruster runs
+//! the new version; the same file put again is written to
+//! none of them, and its apply answers ACCEPTED at once. Runs in real time (about 45 s).
 //!
 //! Needs python3 with MAVProxy and pymavlink (requirements.txt, which `./test.sh` sets up in target/python); without them this test fails,
 //! it does not skip.
@@ -40,6 +42,9 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
     std::fs::write(format!("{local}/flipped.lbvu"), flipped).unwrap();
     let fleet = support::update_file(seabotix, update_image::Version::new(0, 3, 0), None);
     std::fs::write(format!("{local}/fleet.lbvu"), fleet).unwrap();
+    let legacy = update_image::Target::ThrusterLegacy;
+    let fleet_legacy = support::update_file(legacy, update_image::Version::new(0, 3, 0), None);
+    std::fs::write(format!("{local}/fleet-legacy.lbvu"), fleet_legacy).unwrap();
     let args = [
         gcs.to_string(),
         observer.to_string(),
@@ -72,7 +77,9 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
             "version",
             "remove",
             "fleet",
-            "versions_after"
+            "fleet_legacy",
+            "versions_after",
+            "again"
         ]),
         "{summary}"
     );
@@ -196,45 +203,59 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
             || *removed == serde_json::json!(["thruster2.lbvu: removed", "thruster2.lbvu: nothing to apply"]),
         "{summary}"
     );
-    // One put and one apply for the bench vehicle's three SeaBotix thrusters: IN_PROGRESS, its progress as they
-    // restart and confirm, ACCEPTED.
-    let fleet = &summary["fleet"];
-    let results = fleet["results"].as_array().unwrap();
-    assert!(
-        results.first() == Some(&5.into())
-            && results.last() == Some(&0.into())
-            && results[1..results.len() - 1].iter().all(|r| *r == 5),
-        "{summary}"
-    );
-    let progress: Vec<u64> = fleet["progress"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|p| p.as_u64())
-        .collect();
-    assert!(
-        progress.windows(2).all(|pair| pair[0] <= pair[1]) && progress.iter().any(|p| *p > 0),
-        "{summary}"
-    );
-    assert!(
-        fleet["printed"].as_array().is_some_and(|printed| !printed.is_empty()),
-        "{summary}"
-    );
-    for n in [1, 3, 5] {
-        let confirmed = format!("T{n}: 0.3.0 confirmed");
+    // One put and one apply per family, three thrusters each: IN_PROGRESS, its progress as they restart and
+    // confirm, ACCEPTED.
+    for (step, members) in [("fleet", [1, 3, 5]), ("fleet_legacy", [2, 4, 6])] {
+        let fleet = &summary[step];
+        let results = fleet["results"].as_array().unwrap();
         assert!(
-            fleet["texts"].as_array().unwrap().contains(&confirmed.into()),
-            "{summary}"
+            results.first() == Some(&5.into())
+                && results.last() == Some(&0.into())
+                && results[1..results.len() - 1].iter().all(|r| *r == 5),
+            "{step}: {summary}"
         );
+        let progress: Vec<u64> = fleet["progress"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|p| p.as_u64())
+            .collect();
+        assert!(
+            progress.windows(2).all(|pair| pair[0] <= pair[1]) && progress.iter().any(|p| *p > 0),
+            "{step}: {summary}"
+        );
+        assert!(
+            fleet["printed"].as_array().is_some_and(|printed| !printed.is_empty()),
+            "{step}: {summary}"
+        );
+        for n in members {
+            let confirmed = format!("T{n}: 0.3.0 confirmed");
+            assert!(
+                fleet["texts"].as_array().unwrap().contains(&confirmed.into()),
+                "{step}: {summary}"
+            );
+        }
     }
-    // Got again after the fleet's apply: the SeaBotix thrusters (T1, T3, T5) run its 0.3.0, the Legacy ones their
-    // first image.
+    // Got again after the families' applies: every thruster runs 0.3.0.
     let after = versions(&summary["versions_after"], &summary);
+    assert_eq!(after, boards(["0.3.0"; 6]), "{summary}");
+    // The same file put again: every SeaBotix thruster runs it, so nothing is written and the apply has nothing to do.
+    let again = &summary["again"];
     assert_eq!(
-        after,
-        boards(["0.3.0", "0.1.0", "0.3.0", "0.1.0", "0.3.0", "0.1.0"]),
+        again["put"],
+        serde_json::json!(["Sent file of length 4176"]),
         "{summary}"
     );
+    assert_eq!(again["results"], serde_json::json!([0]), "{summary}");
+    let texts = again["texts"].as_array().unwrap();
+    for told in [
+        "T1: runs 0.3.0 already",
+        "T3: runs 0.3.0 already",
+        "T5: runs 0.3.0 already",
+        "thrusters-seabotix.lbvu: all run it already",
+    ] {
+        assert!(texts.contains(&told.into()), "{summary}");
+    }
     // Whatever was lost on the way, the sink got the file, byte for byte.
     let sent = std::fs::read(format!("{local}/thruster2.lbvu")).unwrap();
     let got = std::fs::read(format!("{received}/thruster2.lbvu")).unwrap();

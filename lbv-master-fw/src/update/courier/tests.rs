@@ -207,7 +207,7 @@ fn an_image_is_written_page_by_page_verified_then_applied() {
         .map(count),
         [1, 1, 3, 79, 4]
     );
-    assert_eq!(courier.apply(0, GCS), Ok(true));
+    assert_eq!(courier.apply(0, GCS), Ok(Applied::Started));
     let (said, sent) = carry(&mut courier, &[], &mut dfu, [0, 2, 0, 0]);
     assert_eq!(sent, [CommandKind::Finish, CommandKind::Reboot, CommandKind::Version]);
     assert_eq!(
@@ -231,7 +231,7 @@ fn a_thruster_that_comes_back_on_its_old_image_fails_the_apply() {
     let mut courier = begun(&image);
     let mut dfu = vec![0u8; 8 * PAGE];
     carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
-    assert_eq!(courier.apply(0, GCS), Ok(true));
+    assert_eq!(courier.apply(0, GCS), Ok(Applied::Started));
     let (said, _) = carry(&mut courier, &[], &mut dfu, [0, 1, 0, 0]);
     assert_eq!(
         texts(&said),
@@ -1059,7 +1059,7 @@ fn a_version_query_is_answered_while_an_image_written_whole_waits_for_its_apply(
     }
     // An apply taken while a query runs waits for its end, then goes on.
     courier.query(0, GCS).unwrap();
-    assert_eq!(courier.apply(0, GCS), Ok(true));
+    assert_eq!(courier.apply(0, GCS), Ok(Applied::Started));
     let ask = courier.next(t(0), |_| true).unwrap();
     assert_eq!(ask.frame.command, Command::Version);
     courier.on_result(t(0), &ask, running(&ask, [0, 1, 0, 0], false), &mut |_| {});
@@ -1076,7 +1076,7 @@ fn an_apply_holds_the_vehicle_from_the_command_to_the_confirmation_or_until_the_
     carry(&mut courier, &image, &mut dfu, [0, 1, 0, 0]);
     assert_eq!(courier.hold(), None, "written, not applied");
     assert_eq!(courier.applier(0), None);
-    assert_eq!(courier.apply(0, GCS), Ok(true));
+    assert_eq!(courier.apply(0, GCS), Ok(Applied::Started));
     // The same apply again while it runs: the one under way, for its applier; the transfer stays where it is.
     assert_eq!(courier.applier(0), Some(GCS));
     assert_eq!(courier.applier(1), None);
@@ -1179,7 +1179,7 @@ fn carry_family_with(
                 courier.finish(true).unwrap();
             }
         }
-        if !applied && courier.apply_to(mask, GCS) == Ok(true) {
+        if !applied && courier.apply_to(mask, GCS) == Ok(Applied::Started) {
             applied = true;
         }
         let Some(exchange) = courier.next_cast(t(ms), |_| true, |_| true, most) else {
@@ -1281,6 +1281,20 @@ fn a_thruster_of_the_family_that_stops_answering_is_left_behind_and_the_apply_fa
     assert_eq!(texts.last().unwrap(), "thrusters-seabotix.lbvu: failed: T3");
     assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Failed)]);
     assert!(courier.image.is_none());
+    // T3 answers its polls again, on its old image: the master's look tells the operator what to do, once.
+    let mut said = Vec::new();
+    for _ in 0..2 {
+        courier.seen(2, true);
+        let look = courier.next(t(300_000), |_| true).unwrap();
+        assert_eq!((look.slot, look.frame.command), (2, Command::Version));
+        courier.on_result(t(300_000), &look, running(&look, [0, 1, 0, 0], false), &mut |o| {
+            said.push(o)
+        });
+    }
+    assert_eq!(
+        super::tests::texts(&said),
+        ["T3: runs 0.1.0, put thrusters-seabotix.lbvu again"]
+    );
 }
 
 #[test]
@@ -1304,6 +1318,95 @@ fn a_family_image_is_dropped_once_every_thruster_has_ended_and_the_upload_is_ref
     assert_eq!(courier.write(0, &image[..MAX_WRITE]), Err(NotTaken));
 }
 
+/// Carry a SeaBotix family's `image` to the thrusters of `slots`, each `(slot, running)` running `running` (its
+/// image info) until it restarts into the update, one exchange per 20 ms, each thruster by its own write; apply it
+/// once every one has it; returns what was said, the apply's answer and the slots written to.
+fn carry_to_runners(image: &[u8], slots: &[(u8, ImageInfo)]) -> (Vec<Outgoing>, Option<Applied>, u8) {
+    let mask = slots.iter().fold(0, |mask, (slot, _)| mask | bit(*slot));
+    let mut courier = family_courier(mask, image);
+    let mut dfus = vec![vec![0u8; 8 * PAGE]; MAX_THRUSTERS];
+    let (mut said, mut applied, mut written, mut offset) = (Vec::new(), None, 0, 0);
+    for ms in (0..100_000).step_by(20) {
+        while offset < image.len() && courier.has_room() {
+            let end = (offset + MAX_WRITE).min(image.len());
+            courier.write(offset as u32, &image[offset..end]).unwrap();
+            offset = end;
+            if offset == image.len() {
+                courier.finish(true).unwrap();
+            }
+        }
+        if applied.is_none() && offset == image.len() {
+            applied = courier.apply_to(mask, GCS).ok().filter(|a| *a != Applied::Pending);
+        }
+        let Some(exchange) = courier.next(t(ms), |_| true) else {
+            if courier.image.is_none() {
+                break;
+            }
+            continue;
+        };
+        if exchange.frame.command.kind() == CommandKind::Write {
+            written |= bit(exchange.slot);
+        }
+        let running = match applied {
+            Some(Applied::Started) => info_of([0, 2, 0, 0]),
+            _ => slots.iter().find(|(slot, _)| *slot == exchange.slot).unwrap().1,
+        };
+        let result = answer_as(&mut dfus[usize::from(exchange.slot)], &exchange, running);
+        courier.on_result(t(ms), &exchange, result, &mut |o| said.push(o));
+    }
+    assert!(courier.image.is_none(), "the image is done with");
+    (said, applied, written)
+}
+
+#[test]
+fn a_family_file_is_written_only_to_the_thrusters_that_do_not_run_it_yet() {
+    let image = payload(5000);
+    let (new, old) = (info_of([0, 2, 0, 0]), info_of([0, 1, 0, 0]));
+    // T3 was off during the family's update: the file put again goes to it alone, and the apply restarts it alone.
+    let (said, applied, written) = carry_to_runners(&image, &[(0, new), (2, old), (4, new)]);
+    assert_eq!((applied, written), (Some(Applied::Started), bit(2)));
+    let told = texts(&said);
+    for expected in [
+        "T1: runs 0.2.0 already",
+        "T5: runs 0.2.0 already",
+        "T3: 0.2.0 confirmed",
+    ] {
+        assert!(told.contains(&expected.to_owned()), "{told:?}");
+    }
+    assert!(
+        !told
+            .iter()
+            .any(|t| t.starts_with("T1: marked") || t.starts_with("T5: marked")),
+        "{told:?}"
+    );
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_APPLY_UPDATE, AckResult::Accepted)]);
+
+    // Every thruster runs it: nothing is written or applied, and the apply says so at once.
+    let (said, applied, written) = carry_to_runners(&image, &[(0, new), (1, new)]);
+    assert_eq!((applied, written), (Some(Applied::Runs), 0));
+    assert_eq!(texts(&said), ["T1: runs 0.2.0 already", "T2: runs 0.2.0 already"]);
+    assert!(acks(&said).is_empty(), "the server answers the apply");
+
+    // Another image info (here the flag of an image signed as a rollback) is another image: written.
+    let rolled_back = ImageInfo { rollback: true, ..new };
+    let (_, applied, written) = carry_to_runners(&image, &[(0, rolled_back)]);
+    assert_eq!((applied, written), (Some(Applied::Started), bit(0)));
+}
+
+#[test]
+fn a_slots_own_file_is_written_even_to_a_thruster_that_runs_it() {
+    let image = payload(SMALL);
+    let mut courier = begun(&image);
+    let mut dfu = vec![0u8; 8 * PAGE];
+    let (said, sent) = carry(&mut courier, &image, &mut dfu, [0, 2, 0, 0]);
+    assert!(sent.contains(&CommandKind::Write), "{sent:?}");
+    assert_eq!(
+        texts(&said),
+        [format!("thruster0.lbvu: {SMALL} B verified, 0 pages kept")]
+    );
+    assert_eq!(courier.apply(0, GCS), Ok(Applied::Started));
+}
+
 #[test]
 fn a_family_apply_sent_again_or_a_new_image_while_it_runs_starts_nothing() {
     let image = payload(SMALL);
@@ -1320,7 +1423,7 @@ fn a_family_apply_sent_again_or_a_new_image_while_it_runs_starts_nothing() {
         let result = answer(&mut dfus[usize::from(exchange.slot)], &exchange, [0, 1, 0, 0]);
         courier.on_result(t(ms), &exchange, result, &mut |_| {});
     }
-    assert_eq!(courier.apply_to(0b11, GCS), Ok(true));
+    assert_eq!(courier.apply_to(0b11, GCS), Ok(Applied::Started));
     // The same apply again: the one under way, whose applier each thruster names (the server answers IN_PROGRESS).
     assert_eq!(courier.apply_to(0b11, GCS), Err(NotTaken));
     assert_eq!([courier.applier(0), courier.applier(1)], [Some(GCS), Some(GCS)]);
