@@ -69,6 +69,8 @@ REGION = 0x100
 CODE_PAGE_BITS = 11
 
 # What a spinning loop must leave unchanged from one pass to the next.
+# xPSR's IT state: IT[1:0] at bits 26:25, IT[7:2] at bits 15:10 (ARMv7-M B1.4.2).
+ITSTATE = 0x0600_FC00
 SPIN_REGISTERS = [getattr(arm, f"UC_ARM_REG_R{n}") for n in range(13)] + [arm.UC_ARM_REG_SP, arm.UC_ARM_REG_XPSR]
 
 
@@ -483,11 +485,19 @@ class Core:
             # (`nvic.ready` first: most blocks run with nothing pending, and it spares them the call.)
             nvic = self.nvic
             if (self._attention or self.cycles >= self._stop_at
-                    or (nvic is not None and nvic.ready and nvic.wants_attention())):
+                    or (nvic is not None and nvic.ready and nvic.wants_attention())) and not self.in_it_block():
                 self._attention = False
                 self._stop()
         except BaseException as error:
             self._callback_failed(error)
+
+    def in_it_block(self):
+        """Whether the next instruction is inside an IT block (xPSR's ITSTATE, bits 26:25 and 15:10, ARMv7-M
+        B1.4.2). The run stops only outside one: Unicorn starts again from a PC without the IT state it was in, so
+        the block's remaining instructions would run unconditionally (an exception taken after the LPUART1
+        handler's ITT made it call through a register it should have skipped). The silicon takes an exception
+        inside an IT block and stacks ITSTATE; here it comes at most four instructions later."""
+        return bool(self.registers.read(arm.UC_ARM_REG_XPSR) & ITSTATE)
 
     def code_written(self, address, length):
         """Memory was rewritten (flash programmed or erased): code translated from it before is forgotten, Unicorn's
