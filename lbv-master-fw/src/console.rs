@@ -722,7 +722,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
         out.key = signing_room(shared, stats).await;
         for (message, due) in PACED.into_iter().zip(schedule.tick()) {
             if due {
-                out.send(message, config, shared, &mut last);
+                out.send(message, None, config, shared, &mut last);
             }
         }
         out.flush().await;
@@ -762,7 +762,12 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                 }
                 Outgoing::Text(severity, text) => out.push(&outbound::statustext(severity, &text)),
                 Outgoing::MissionCount { to, mission_type } => out.push(&outbound::mission_count(to, mission_type)),
-                Outgoing::Message(message) => out.send(message, config, shared, &mut last),
+                Outgoing::MissionAck {
+                    to,
+                    mission_type,
+                    accepted,
+                } => out.push(&outbound::mission_ack(to, mission_type, accepted)),
+                Outgoing::Message { message, first } => out.send(message, Some(first), config, shared, &mut last),
                 Outgoing::Interval(message, interval) => schedule.set(message, interval),
                 Outgoing::Ftp { to, reply } => out.ftp_reply(to, &reply),
                 Outgoing::Reboot => {
@@ -832,8 +837,16 @@ struct Output<'a, W> {
 
 impl<W: Write> Output<'_, W> {
     /// Frame one of the periodic (or requested) messages, built from the state now; `last` is the counters at the
-    /// last SYS_STATUS (its drop rate covers the time since).
-    fn send(&mut self, message: Message, config: &ConsoleConfig, shared: &Shared, last: &mut ConsoleCounters) {
+    /// last SYS_STATUS (its drop rate covers the time since). ESC_INFO and ESC_STATUS go for every block of four
+    /// thrusters, or the one from `first` alone (a request's).
+    fn send(
+        &mut self,
+        message: Message,
+        first: Option<u8>,
+        config: &ConsoleConfig,
+        shared: &Shared,
+        last: &mut ConsoleCounters,
+    ) {
         let thrusters = config.thruster_count();
         let reports: Reports = core::array::from_fn(|i| {
             shared
@@ -844,7 +857,9 @@ impl<W: Write> Output<'_, W> {
         });
         let time_usec = embassy_time::Instant::now().as_micros();
         // The blocks of four thrusters that have at least one configured.
-        let blocks = (0..MAX_THRUSTERS).step_by(4).filter(|first| *first < thrusters.max(1));
+        let blocks = (0..MAX_THRUSTERS)
+            .step_by(4)
+            .filter(|block| *block < thrusters.max(1) && first.is_none_or(|first| usize::from(first) == *block));
         match message {
             Message::Heartbeat => self.push(&outbound::heartbeat(shared.vehicle.try_get())),
             Message::SysStatus => {

@@ -239,8 +239,10 @@ pub enum Command {
     RequestMessage {
         /// The MAV_CMD it came as (the COMMAND_ACK names it).
         command: u16,
-        /// The message, `None` when the master does not send the one asked for.
+        /// The message, `None` when the master does not send the one asked for (or not the block of it asked).
         message: Option<Message>,
+        /// ESC_INFO's and ESC_STATUS's block: the index of its first thruster (param2: 0, 4), 0 for the others.
+        first: u8,
     },
     /// MAV_CMD_SET_MESSAGE_INTERVAL (511): how often to send a periodic message.
     MessageInterval {
@@ -271,6 +273,20 @@ pub enum Command {
     MissionRequestList {
         /// MISSION_REQUEST_LIST.mission_type, echoed.
         mission_type: u8,
+    },
+    /// MISSION_CLEAR_ALL of `mission_type`: there is nothing to clear, and it is done (MISSION_ACK accepted).
+    MissionClear {
+        /// MISSION_CLEAR_ALL.mission_type, echoed.
+        mission_type: u8,
+    },
+    /// MISSION_COUNT from a ground station: the start of an upload of `count` items of `mission_type`. The master
+    /// takes none (MISSION_ACK MAV_MISSION_UNSUPPORTED), as a vehicle without missions should; an empty one is
+    /// the plan it has (accepted).
+    MissionUpload {
+        /// MISSION_COUNT.mission_type, echoed.
+        mission_type: u8,
+        /// MISSION_COUNT.count.
+        count: u16,
     },
     /// PARAM_REQUEST_READ by name (index -1) or index.
     ParamRequestRead {
@@ -417,8 +433,23 @@ pub enum Outgoing {
         /// The type asked for.
         mission_type: u8,
     },
-    /// One of the periodic messages (or AUTOPILOT_VERSION), now: the answer to a MAV_CMD_REQUEST_MESSAGE.
-    Message(Message),
+    /// MISSION_ACK of a clear or an upload of `mission_type`.
+    MissionAck {
+        /// Who asked.
+        to: Sender,
+        /// The type asked for.
+        mission_type: u8,
+        /// Taken (MAV_MISSION_ACCEPTED), or not (MAV_MISSION_UNSUPPORTED).
+        accepted: bool,
+    },
+    /// One of the periodic messages (or AUTOPILOT_VERSION), now: the answer to a MAV_CMD_REQUEST_MESSAGE, or the pilot
+    /// gain on a change. ESC_INFO and ESC_STATUS go for the block of four thrusters from `first` alone.
+    Message {
+        /// The message.
+        message: Message,
+        /// The first thruster of the block, for ESC_INFO and ESC_STATUS.
+        first: u8,
+    },
     /// Send a periodic message at this interval from now on.
     Interval(Message, Interval),
     /// Restart the master once everything queued before this has been sent (the reboot's COMMAND_ACK).

@@ -244,6 +244,16 @@ impl Vehicle {
         match command {
             Command::ParamRequestList => out(Outgoing::ParamList),
             Command::MissionRequestList { mission_type } => out(Outgoing::MissionCount { to: from, mission_type }),
+            Command::MissionClear { mission_type } => out(Outgoing::MissionAck {
+                to: from,
+                mission_type,
+                accepted: true,
+            }),
+            Command::MissionUpload { mission_type, count } => out(Outgoing::MissionAck {
+                to: from,
+                mission_type,
+                accepted: count == 0,
+            }),
             Command::ParamRequestRead { id, index } => {
                 let param = match u16::try_from(index) {
                     Ok(index) => Param::from_index(index),
@@ -253,10 +263,14 @@ impl Vehicle {
                     self.param_value(param, out);
                 }
             }
-            Command::RequestMessage { command, message } => match message {
+            Command::RequestMessage {
+                command,
+                message,
+                first,
+            } => match message {
                 Some(message) => {
                     ack(out, command, AckResult::Accepted, from);
-                    out(Outgoing::Message(message));
+                    out(Outgoing::Message { message, first });
                 }
                 None => ack(out, command, AckResult::Denied, from),
             },
@@ -560,7 +574,7 @@ impl Vehicle {
         };
         if stepped != gain && self.settings.params.set(Param::Gain, i32::from(stepped)) {
             self.param_value(Param::Gain, out);
-            out(Outgoing::Message(Message::NamedValueFloat));
+            out(PILOT_GAIN);
         }
         say(out, Severity::Info, format_args!("Pilot gain {stepped} %"));
     }
@@ -640,7 +654,7 @@ impl Vehicle {
         }
         self.param_value(param, out);
         if set && param == Param::Gain {
-            out(Outgoing::Message(Message::NamedValueFloat));
+            out(PILOT_GAIN);
         }
     }
 
@@ -673,11 +687,19 @@ fn command_long(command: &Command) -> Option<u16> {
         | Command::Manual(..)
         | Command::ParamRequestList
         | Command::MissionRequestList { .. }
+        | Command::MissionClear { .. }
+        | Command::MissionUpload { .. }
         | Command::ParamRequestRead { .. }
         | Command::ParamSet { .. }
         | Command::SetupSigning { .. } => None,
     }
 }
+
+/// The pilot gain's NAMED_VALUE_FLOAT, sent at once on a change.
+const PILOT_GAIN: Outgoing = Outgoing::Message {
+    message: Message::NamedValueFloat,
+    first: 0,
+};
 
 fn ack(out: &mut impl FnMut(Outgoing), command: u16, result: AckResult, to: Sender) {
     out(Outgoing::CommandAck { command, result, to });

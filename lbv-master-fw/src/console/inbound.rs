@@ -9,9 +9,9 @@ use super::ConsoleConfig;
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, COMMAND_INT_DATA,
     COMMAND_LONG_DATA, ESC_INFO_DATA, ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA,
-    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA,
-    MavType, NAMED_VALUE_FLOAT_DATA, PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA,
-    PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MANUAL_CONTROL_DATA, MISSION_ACK_DATA, MISSION_CLEAR_ALL_DATA,
+    MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA, MavType, NAMED_VALUE_FLOAT_DATA, PARAM_REQUEST_LIST_DATA,
+    PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, PARAM_VALUE_DATA, SETUP_SIGNING_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::console::framing::{Frame, Version};
 use crate::mixer::ManualInput;
@@ -35,7 +35,7 @@ const MOTOR_TEST_THROTTLE_PERCENT: f32 = 0.0;
 const MOTOR_TEST_MAX_SECONDS: f32 = 10.0;
 
 /// Message id and CRC_EXTRA of every message of the dialect.
-const MESSAGES: [(u32, u8); 23] = [
+const MESSAGES: [(u32, u8); 25] = [
     (HEARTBEAT_DATA::ID, HEARTBEAT_DATA::EXTRA_CRC),
     (SYS_STATUS_DATA::ID, SYS_STATUS_DATA::EXTRA_CRC),
     (PARAM_REQUEST_READ_DATA::ID, PARAM_REQUEST_READ_DATA::EXTRA_CRC),
@@ -44,6 +44,8 @@ const MESSAGES: [(u32, u8); 23] = [
     (PARAM_SET_DATA::ID, PARAM_SET_DATA::EXTRA_CRC),
     (MISSION_REQUEST_LIST_DATA::ID, MISSION_REQUEST_LIST_DATA::EXTRA_CRC),
     (MISSION_COUNT_DATA::ID, MISSION_COUNT_DATA::EXTRA_CRC),
+    (MISSION_CLEAR_ALL_DATA::ID, MISSION_CLEAR_ALL_DATA::EXTRA_CRC),
+    (MISSION_ACK_DATA::ID, MISSION_ACK_DATA::EXTRA_CRC),
     (MANUAL_CONTROL_DATA::ID, MANUAL_CONTROL_DATA::EXTRA_CRC),
     (COMMAND_INT_DATA::ID, COMMAND_INT_DATA::EXTRA_CRC),
     (COMMAND_LONG_DATA::ID, COMMAND_LONG_DATA::EXTRA_CRC),
@@ -80,7 +82,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 /// - COMMAND_LONG or COMMAND_INT (the same commands: none of them takes a position) to our system and component
 ///   (or 0): 400 gives [`Command::Arm`] (arm when param1 is exactly 1, disarm when exactly 0, any other value
 ///   [`Command::Unsupported`] as ArduPilot answers it: a half-received 0.5 or a NaN must not disarm a diving
-///   vehicle); 512 gives [`Command::RequestMessage`] of the message param1 names, 520 of AUTOPILOT_VERSION; 511
+///   vehicle); 512 gives [`Command::RequestMessage`] of the message param1 names (ESC_INFO and ESC_STATUS of the
+///   block of four thrusters whose first param2 names, 0 or 4: another, none), 520 of AUTOPILOT_VERSION; 511
 ///   gives [`Command::MessageInterval`] (param1 the message, param2 the interval: 0 default, -1 off, else µs
 ///   clamped to [`MIN_INTERVAL_MS`]..=[`MAX_INTERVAL_MS`]); 209 gives [`Command::MotorTest`] for throttle type MOTOR_TEST_THROTTLE_PERCENT (param1
 ///   motor number, param3 percent clamped to -100..=100, param4 seconds clamped to 0..=10, NaN reads as 0), and
@@ -94,7 +97,8 @@ pub fn extra_crc(message_id: u32) -> Option<u8> {
 /// - PARAM_REQUEST_LIST / PARAM_REQUEST_READ / PARAM_SET to our system and component (or 0): the matching
 ///   command; PARAM_SET carries its param_type, which the vehicle checks against the parameter's.
 /// - MISSION_REQUEST_LIST to our system and component (or 0): [`Command::MissionRequestList`] of its mission type
-///   (a mission, a fence, rally points: the master keeps none of them).
+///   (a mission, a fence, rally points: the master keeps none of them); MISSION_CLEAR_ALL
+///   [`Command::MissionClear`], and MISSION_COUNT (an upload's start) [`Command::MissionUpload`], of theirs.
 pub(crate) fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option<Command>, ParserError> {
     let version = match frame.version {
         Version::V1 => mavlink_core::MavlinkVersion::V1,
@@ -146,6 +150,19 @@ pub(crate) fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Option
             let m = MISSION_REQUEST_LIST_DATA::deser(version, payload)?;
             for_us(m.target_system, m.target_component).then_some(Command::MissionRequestList {
                 mission_type: m.mission_type,
+            })
+        }
+        MISSION_CLEAR_ALL_DATA::ID => {
+            let m = MISSION_CLEAR_ALL_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then_some(Command::MissionClear {
+                mission_type: m.mission_type,
+            })
+        }
+        MISSION_COUNT_DATA::ID => {
+            let m = MISSION_COUNT_DATA::deser(version, payload)?;
+            for_us(m.target_system, m.target_component).then_some(Command::MissionUpload {
+                mission_type: m.mission_type,
+                count: m.count,
             })
         }
         SETUP_SIGNING_DATA::ID => {
@@ -236,13 +253,29 @@ fn command(command: u16, [param1, param2, param3, param4]: [f32; 4], config: &Co
         // and answers MAV_RESULT_UNSUPPORTED for anything else.
         MAV_CMD_COMPONENT_ARM_DISARM if param1 == 1.0 => Command::Arm(true),
         MAV_CMD_COMPONENT_ARM_DISARM if param1 == 0.0 => Command::Arm(false),
-        MAV_CMD_REQUEST_MESSAGE => Command::RequestMessage {
-            command,
-            message: message(param1, config),
-        },
+        MAV_CMD_REQUEST_MESSAGE => {
+            // ESC_INFO's and ESC_STATUS's param2 is the index of the block's first thruster (MAVLink's "index ID"):
+            // a block the vehicle has, or no message.
+            let first = param2 as u8;
+            let block =
+                f32::from(first) == param2 && first.is_multiple_of(4) && usize::from(first) < config.thruster_count();
+            match message(param1, config) {
+                Some(Message::EscInfo | Message::EscStatus) if !block => Command::RequestMessage {
+                    command,
+                    message: None,
+                    first: 0,
+                },
+                message => Command::RequestMessage {
+                    command,
+                    message,
+                    first: if block { first } else { 0 },
+                },
+            }
+        }
         MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES => Command::RequestMessage {
             command,
             message: Some(Message::AutopilotVersion),
+            first: 0,
         },
         MAV_CMD_SET_MESSAGE_INTERVAL => Command::MessageInterval {
             message: message(param1, config),
@@ -352,6 +385,10 @@ mod tests {
             (11030, 144),
             (11031, 133),
             (110, 84),
+            (43, 132),
+            (44, 221),
+            (45, 232),
+            (47, 153),
         ] {
             assert_eq!(extra_crc(id), Some(crc), "message {id}");
         }
@@ -462,7 +499,13 @@ mod tests {
     #[test]
     fn requested_messages_and_intervals() {
         let request = |id: f32| decode_long(&long(512, [id, 0.0, 0.0, 0.0]));
-        let asked = |message| Some(Command::RequestMessage { command: 512, message });
+        let asked = |message| {
+            Some(Command::RequestMessage {
+                command: 512,
+                message,
+                first: 0,
+            })
+        };
         assert_eq!(request(148.0), asked(Some(Message::AutopilotVersion)));
         assert_eq!(request(435.0), asked(Some(Message::AvailableModes)));
         assert_eq!(request(0.0), asked(Some(Message::Heartbeat)));
@@ -480,9 +523,36 @@ mod tests {
             decode_long(&long(520, [1.0, 0.0, 0.0, 0.0])),
             Some(Command::RequestMessage {
                 command: 520,
-                message: Some(Message::AutopilotVersion)
+                message: Some(Message::AutopilotVersion),
+                first: 0,
             })
         );
+        // ESC_INFO and ESC_STATUS: param2 names the block of four by its first thruster, one the vehicle has.
+        let block = |id: f32, param2: f32| decode_long(&long(512, [id, param2, 0.0, 0.0]));
+        for (id, message) in [(290.0, Message::EscInfo), (291.0, Message::EscStatus)] {
+            let asked = |first| {
+                Some(Command::RequestMessage {
+                    command: 512,
+                    message: Some(message),
+                    first,
+                })
+            };
+            assert_eq!(block(id, 4.0), asked(4));
+            assert_eq!(block(id, 0.0), asked(0));
+            for beyond in [2.0, 4.5, 8.0, 255.0, -4.0, f32::NAN] {
+                assert_eq!(
+                    block(id, beyond),
+                    asked(0).map(|_| Command::RequestMessage {
+                        command: 512,
+                        message: None,
+                        first: 0
+                    }),
+                    "{beyond}"
+                );
+            }
+        }
+        // Another message's param2 is not read.
+        assert_eq!(block(148.0, 3.0), asked(Some(Message::AutopilotVersion)));
         // Four thrusters: no ESC_TELEMETRY_5_TO_8.
         let four = ConsoleConfig {
             thrusters: 4,

@@ -35,13 +35,17 @@ pub const BURST: u32 = 40;
 /// Requesters kept apart; the others share one allowance.
 pub(crate) const REQUESTERS: usize = 4;
 
-/// The frames the vehicle sends for `command`: the parameter list's values, a parameter's value, a MISSION_COUNT,
+/// The frames the vehicle sends for `command`: the parameter list's values, a parameter's value, a MISSION_COUNT or
+/// MISSION_ACK,
 /// a requested message and its COMMAND_ACK (a message it does not send: the COMMAND_ACK alone); 0 for commands answered with
 /// at most one frame smaller than the request (a COMMAND_ACK for a COMMAND_LONG), or not at all.
 pub(crate) const fn cost(command: &Command) -> u32 {
     match command {
         Command::ParamRequestList => PARAM_COUNT as u32,
-        Command::ParamRequestRead { .. } | Command::MissionRequestList { .. } => 1,
+        Command::ParamRequestRead { .. }
+        | Command::MissionRequestList { .. }
+        | Command::MissionClear { .. }
+        | Command::MissionUpload { .. } => 1,
         Command::RequestMessage { message: Some(_), .. } => 2,
         Command::RequestMessage { message: None, .. } => 1,
         _ => 0,

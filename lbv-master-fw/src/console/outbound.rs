@@ -9,10 +9,10 @@ use tmc_proto::{MaxPower, MotorKind, Status};
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA,
     ESC_STATUS_DATA, ESC_TELEMETRY_1_TO_4_DATA, ESC_TELEMETRY_5_TO_8_DATA, EscConnectionType, EscFailureFlags,
-    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MISSION_COUNT_DATA, MavAutopilot, MavBatteryChargeState,
-    MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag, MavParamType,
-    MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor, MavSysStatusSensorExtended, MavType,
-    NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MISSION_ACK_DATA, MISSION_COUNT_DATA, MavAutopilot,
+    MavBatteryChargeState, MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag,
+    MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
+    MavSysStatusSensorExtended, MavType, NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::params::{ParamId, ParamType};
 use crate::shared::{
@@ -616,6 +616,18 @@ pub(crate) fn mission_count(to: Sender, mission_type: u8) -> MISSION_COUNT_DATA 
         target_system: to.system,
         target_component: to.component,
         count: 0,
+        mission_type,
+        opaque_id: 0,
+    }
+}
+
+/// MISSION_ACK of a clear or an upload of `mission_type`, addressed to who asked: MAV_MISSION_ACCEPTED (0), or
+/// MAV_MISSION_UNSUPPORTED (3) for an upload the master does not take (opaque_id 0: it keeps no plan to identify).
+pub(crate) fn mission_ack(to: Sender, mission_type: u8, accepted: bool) -> MISSION_ACK_DATA {
+    MISSION_ACK_DATA {
+        target_system: to.system,
+        target_component: to.component,
+        mavtype: if accepted { 0 } else { 3 },
         mission_type,
         opaque_id: 0,
     }

@@ -224,13 +224,20 @@ fn a_failsafe_in_force_shows_until_the_pilot_is_back() {
 #[test]
 fn message_requests_and_intervals() {
     let mut bench = Bench::new(VehicleConfig::default());
-    let request = |message| Command::RequestMessage { command: 512, message };
+    let request = |message| Command::RequestMessage {
+        command: 512,
+        message,
+        first: 0,
+    };
     // Anyone may ask for a message.
     assert_eq!(
         bench.command_from(0, OTHER, request(Some(Message::AutopilotVersion))),
         [
             ack_to(512, AckResult::Accepted, OTHER),
-            Outgoing::Message(Message::AutopilotVersion)
+            Outgoing::Message {
+                message: Message::AutopilotVersion,
+                first: 0
+            }
         ]
     );
     assert_eq!(bench.command(0, request(None)), [ack(512, AckResult::Denied)]);
@@ -1133,7 +1140,10 @@ fn parameter_set_of_another_type_is_answered_unchanged_and_counted() {
 #[test]
 fn parameter_set_in_and_out_of_range() {
     let mut bench = Bench::new(VehicleConfig::default());
-    let pilot_gain = Outgoing::Message(Message::NamedValueFloat);
+    let pilot_gain = Outgoing::Message {
+        message: Message::NamedValueFloat,
+        first: 0,
+    };
     assert_eq!(
         bench.command(0, set("LBV_GAIN", 80.0)),
         [value(Param::Gain, 80.0), pilot_gain],
@@ -1265,7 +1275,10 @@ const GAIN_DOWN: u16 = 1 << 12;
 fn gain_moved(percent: u8) -> Vec<Outgoing> {
     vec![
         value(Param::Gain, f32::from(percent)),
-        Outgoing::Message(Message::NamedValueFloat),
+        Outgoing::Message {
+            message: Message::NamedValueFloat,
+            first: 0,
+        },
         gain_said(percent),
     ]
 }

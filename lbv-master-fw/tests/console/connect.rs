@@ -11,9 +11,9 @@ use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::{
-    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MISSION_REQUEST_LIST_DATA,
-    MavMessage, MavModeFlag, MavParamType, MavProtocolCapability, MavResult, MavSysStatusSensor,
-    PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
+    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MISSION_ACK_DATA,
+    MISSION_CLEAR_ALL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA, MavMessage, MavModeFlag, MavParamType,
+    MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
 };
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::Shared;
@@ -439,6 +439,58 @@ fn qgroundcontrol_initial_connect_then_arm() {
 const SET_MODE: u16 = 176;
 
 #[test]
+fn a_plan_is_cleared_at_once_and_an_upload_refused_as_a_vehicle_without_missions_does() {
+    let mut sent = false;
+    let station = connect(Duration::from_secs(2), |gcs| {
+        if !sent {
+            gcs.heartbeat();
+            // QGroundControl's "clear" of the mission, the fence and the rally points; an upload of two items; an
+            // empty upload, which is the plan the vehicle has.
+            for mission_type in [0, 1, 2] {
+                gcs.send(&MISSION_CLEAR_ALL_DATA {
+                    target_system: 1,
+                    target_component: 1,
+                    mission_type,
+                });
+            }
+            for count in [2, 0] {
+                gcs.send(&MISSION_COUNT_DATA {
+                    target_system: 1,
+                    target_component: 1,
+                    count,
+                    mission_type: 0,
+                    opaque_id: 0,
+                });
+            }
+            sent = true;
+        }
+        Instant::now() >= Instant::from_millis(500)
+    });
+    let acks: Vec<(u8, u8, u8, u8)> = station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::MISSION_ACK(a) => Some((a.target_system, a.target_component, a.mavtype, a.mission_type)),
+            _ => None,
+        })
+        .collect();
+    // MAV_MISSION_ACCEPTED for each clear and the empty upload, MAV_MISSION_UNSUPPORTED for the other, each to
+    // who asked, of the type asked; at once, so nothing waits for a retry.
+    assert_eq!(
+        acks,
+        [
+            (255, 190, 0, 0),
+            (255, 190, 0, 1),
+            (255, 190, 0, 2),
+            (255, 190, 3, 0),
+            (255, 190, 0, 0)
+        ]
+    );
+    // The CRC_EXTRA the MAVLink generator gives the official definitions (pymavlink's common dialect).
+    assert_eq!(<MISSION_ACK_DATA as mavlink_core::MessageData>::EXTRA_CRC, 153);
+    assert_eq!(<MISSION_CLEAR_ALL_DATA as mavlink_core::MessageData>::EXTRA_CRC, 232);
+}
+
+#[test]
 fn the_mode_menu_shows_the_one_mode_there_is_and_takes_only_it() {
     let mut phase = 0;
     let station = connect(Duration::from_secs(3), |gcs| {
@@ -598,6 +650,46 @@ fn request_message_and_message_intervals_as_an_sdk_uses_them() {
     assert!((22..=25).contains(&sys), "about 5 Hz over 4.9 s: {sys}");
     let hb = later(0);
     assert!((4..=5).contains(&hb), "1 Hz: {hb}");
+}
+
+#[test]
+fn an_esc_block_is_asked_for_by_its_index() {
+    let mut sent = false;
+    let station = connect(Duration::from_secs(1), |gcs| {
+        if !sent {
+            gcs.heartbeat();
+            // Stop the periodic ESC messages, then ask for each block of the six thrusters, ESC_INFO by REQUEST_MESSAGE's
+            // param2, and for one that is no block (2) and one beyond them (8).
+            gcs.command(SET_MESSAGE_INTERVAL, [290.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            gcs.command(SET_MESSAGE_INTERVAL, [291.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            for (id, index) in [(290.0, 4.0), (290.0, 0.0), (291.0, 4.0), (290.0, 2.0), (291.0, 8.0)] {
+                gcs.command(REQUEST_MESSAGE, [id, index, 0.0, 0.0, 0.0, 0.0, 0.0]);
+            }
+            sent = true;
+        }
+        Instant::now() >= Instant::from_millis(500)
+    });
+    // From the periodic ones' end on.
+    let stopped =
+        find(&station, 0, ack(SET_MESSAGE_INTERVAL)).and_then(|at| find(&station, at + 1, ack(SET_MESSAGE_INTERVAL)));
+    let got: Vec<(u32, u8)> = station
+        .since(stopped.unwrap())
+        .filter_map(|m| match m {
+            MavMessage::ESC_INFO(m) => Some((290, m.index)),
+            MavMessage::ESC_STATUS(m) => Some((291, m.index)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(got, [(290, 4), (290, 0), (291, 4)]);
+    let results: Vec<MavResult> = station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::COMMAND_ACK(a) if a.command == REQUEST_MESSAGE => Some(a.result),
+            _ => None,
+        })
+        .collect();
+    use MavResult::{MAV_RESULT_ACCEPTED as OK, MAV_RESULT_DENIED as NO};
+    assert_eq!(results, [OK, OK, OK, NO, NO]);
 }
 
 #[test]

@@ -219,6 +219,7 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             Some(Command::RequestMessage {
                 command: 512,
                 message: Some(Message::AutopilotVersion),
+                first: 0,
             }),
         ),
         (
@@ -226,6 +227,7 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             Some(Command::RequestMessage {
                 command: 512,
                 message: Some(Message::AutopilotVersion),
+                first: 0,
             }),
         ),
         (
@@ -233,6 +235,7 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             Some(Command::RequestMessage {
                 command: 520,
                 message: Some(Message::AutopilotVersion),
+                first: 0,
             }),
         ),
         (
@@ -240,6 +243,7 @@ fn frames_built_by_pymavlink_give_the_right_commands() {
             Some(Command::RequestMessage {
                 command: 512,
                 message: None,
+                first: 0,
             }),
         ),
         (
@@ -389,7 +393,10 @@ fn pymavlink_decodes_what_the_console_sends() {
                 .unwrap();
             shared
                 .outbox
-                .try_send(Outgoing::Message(Message::AutopilotVersion))
+                .try_send(Outgoing::Message {
+                    message: Message::AutopilotVersion,
+                    first: 0,
+                })
                 .unwrap();
             shared
                 .outbox

@@ -447,7 +447,10 @@ fn pilot_gain_goes_at_1_hz_as_the_fraction_ardusub_sends_and_at_once_when_asked(
                 shared.settings.sender().send(settings);
                 shared
                     .outbox
-                    .try_send(Outgoing::Message(Message::NamedValueFloat))
+                    .try_send(Outgoing::Message {
+                        message: Message::NamedValueFloat,
+                        first: 0,
+                    })
                     .unwrap();
             }
         },
