@@ -137,6 +137,29 @@ fn ack(command: u16) -> impl Fn(&MavMessage) -> bool {
     move |m| matches!(m, MavMessage::COMMAND_ACK(a) if a.command == command)
 }
 
+/// The station after it has sent a heartbeat and what `send` sends, once, and listened for `listen`.
+fn heard_after(listen: Duration, send: impl FnOnce(&mut Station)) -> Station {
+    let mut send = Some(send);
+    connect(listen + Duration::from_millis(500), |gcs| {
+        if let Some(send) = send.take() {
+            gcs.heartbeat();
+            send(gcs);
+        }
+        Instant::now() >= Instant::from_ticks(0) + listen
+    })
+}
+
+/// The results of every COMMAND_ACK of `command`, in order.
+fn ack_results(station: &Station, command: u16) -> Vec<MavResult> {
+    station
+        .since(0)
+        .filter_map(|m| match m {
+            MavMessage::COMMAND_ACK(a) if a.command == command => Some(a.result),
+            _ => None,
+        })
+        .collect()
+}
+
 fn ack_result(station: &Station, at: usize) -> MavResult {
     match &station.received[at].2 {
         MavMessage::COMMAND_ACK(a) => {
@@ -440,31 +463,25 @@ const SET_MODE: u16 = 176;
 
 #[test]
 fn a_plan_is_cleared_at_once_and_an_upload_refused_as_a_vehicle_without_missions_does() {
-    let mut sent = false;
-    let station = connect(Duration::from_secs(2), |gcs| {
-        if !sent {
-            gcs.heartbeat();
-            // QGroundControl's "clear" of the mission, the fence and the rally points; an upload of two items; an
-            // empty upload, which is the plan the vehicle has.
-            for mission_type in [0, 1, 2] {
-                gcs.send(&MISSION_CLEAR_ALL_DATA {
-                    target_system: 1,
-                    target_component: 1,
-                    mission_type,
-                });
-            }
-            for count in [2, 0] {
-                gcs.send(&MISSION_COUNT_DATA {
-                    target_system: 1,
-                    target_component: 1,
-                    count,
-                    mission_type: 0,
-                    opaque_id: 0,
-                });
-            }
-            sent = true;
+    let station = heard_after(Duration::from_millis(500), |gcs| {
+        // QGroundControl's "clear" of the mission, the fence and the rally points; an upload of two items; an
+        // empty upload, which is the plan the vehicle has.
+        for mission_type in [0, 1, 2] {
+            gcs.send(&MISSION_CLEAR_ALL_DATA {
+                target_system: 1,
+                target_component: 1,
+                mission_type,
+            });
         }
-        Instant::now() >= Instant::from_millis(500)
+        for count in [2, 0] {
+            gcs.send(&MISSION_COUNT_DATA {
+                target_system: 1,
+                target_component: 1,
+                count,
+                mission_type: 0,
+                opaque_id: 0,
+            });
+        }
     });
     let acks: Vec<(u8, u8, u8, u8)> = station
         .since(0)
@@ -529,14 +546,10 @@ fn the_mode_menu_shows_the_one_mode_there_is_and_takes_only_it() {
         134,
         "the CRC_EXTRA the MAVLink generator gives the official definition"
     );
-    let results: Vec<MavResult> = station
-        .since(0)
-        .filter_map(|m| match m {
-            MavMessage::COMMAND_ACK(a) if a.command == SET_MODE => Some(a.result),
-            _ => None,
-        })
-        .collect();
-    assert_eq!(results, [MavResult::MAV_RESULT_ACCEPTED, MavResult::MAV_RESULT_DENIED]);
+    assert_eq!(
+        ack_results(&station, SET_MODE),
+        [MavResult::MAV_RESULT_ACCEPTED, MavResult::MAV_RESULT_DENIED]
+    );
     let said: Vec<String> = station
         .since(0)
         .filter_map(|m| match m {
@@ -654,20 +667,14 @@ fn request_message_and_message_intervals_as_an_sdk_uses_them() {
 
 #[test]
 fn an_esc_block_is_asked_for_by_its_index() {
-    let mut sent = false;
-    let station = connect(Duration::from_secs(1), |gcs| {
-        if !sent {
-            gcs.heartbeat();
-            // Stop the periodic ESC messages, then ask for each block of the six thrusters, ESC_INFO by REQUEST_MESSAGE's
-            // param2, and for one that is no block (2) and one beyond them (8).
-            gcs.command(SET_MESSAGE_INTERVAL, [290.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
-            gcs.command(SET_MESSAGE_INTERVAL, [291.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
-            for (id, index) in [(290.0, 4.0), (290.0, 0.0), (291.0, 4.0), (290.0, 2.0), (291.0, 8.0)] {
-                gcs.command(REQUEST_MESSAGE, [id, index, 0.0, 0.0, 0.0, 0.0, 0.0]);
-            }
-            sent = true;
+    let station = heard_after(Duration::from_millis(500), |gcs| {
+        // Stop the periodic ESC messages, then ask for each block of the six thrusters, ESC_INFO by REQUEST_MESSAGE's
+        // param2, and for one that is no block (2) and one beyond them (8).
+        gcs.command(SET_MESSAGE_INTERVAL, [290.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        gcs.command(SET_MESSAGE_INTERVAL, [291.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        for (id, index) in [(290.0, 4.0), (290.0, 0.0), (291.0, 4.0), (290.0, 2.0), (291.0, 8.0)] {
+            gcs.command(REQUEST_MESSAGE, [id, index, 0.0, 0.0, 0.0, 0.0, 0.0]);
         }
-        Instant::now() >= Instant::from_millis(500)
     });
     // From the periodic ones' end on.
     let stopped =
@@ -681,15 +688,8 @@ fn an_esc_block_is_asked_for_by_its_index() {
         })
         .collect();
     assert_eq!(got, [(290, 4), (290, 0), (291, 4)]);
-    let results: Vec<MavResult> = station
-        .since(0)
-        .filter_map(|m| match m {
-            MavMessage::COMMAND_ACK(a) if a.command == REQUEST_MESSAGE => Some(a.result),
-            _ => None,
-        })
-        .collect();
     use MavResult::{MAV_RESULT_ACCEPTED as OK, MAV_RESULT_DENIED as NO};
-    assert_eq!(results, [OK, OK, OK, NO, NO]);
+    assert_eq!(ack_results(&station, REQUEST_MESSAGE), [OK, OK, OK, NO, NO]);
 }
 
 #[test]
