@@ -13,6 +13,9 @@ message for the detailed checks (it never sends). The steps:
                    SYSID_MYGCS INT16, the others INT8)
     version        `version`: MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION is accepted and answered (MAVLink 2,
                    COMMAND_INT and C_CAST parameters, no mission or FTP, the bench's unique id)
+    plans          `wp list`, `fence list`, `rally list`: MAVProxy asks for each plan and is told it holds
+                   nothing ("Requesting 0 waypoints", "0 fence items", "0 rally items"); `wp clear`: MISSION_ACK
+                   accepted, of the mission type
     param set      `param set LBV_GAIN 80`: the vehicle answers PARAM_VALUE 80
     arm            `arm throttle`: COMMAND_ACK accepted, HEARTBEAT armed
     hold           8 s armed with nothing from the pilot: every HEARTBEAT armed, no failsafe text (MAVProxy sends
@@ -222,6 +225,19 @@ class Pilot:
         if uid2 != BENCH_UID + bytes(6):
             raise Failed(f"uid2 {uid2!r}, not the bench's {BENCH_UID!r}")
 
+    def plans(self):
+        since = time.monotonic()
+        for plan, items in [("wp", "waypoints"), ("fence", "fence items"), ("rally", "rally items")]:
+            self.mavproxy.type(f"{plan} list")
+            self.wait(lambda: self.mavproxy.said(f"Requesting 0 {items}", since), 5.0, f"MAVProxy's `{plan} list`")
+        cleared = time.monotonic()
+        self.mavproxy.type("wp clear")
+        self.wait(lambda: self.observer.since(cleared, "MISSION_ACK"), 5.0, "the MISSION_ACK of `wp clear`")
+        ack = self.observer.since(cleared, "MISSION_ACK")[-1][1]
+        self.summary["plans"] = {"clear": [ack.type, ack.mission_type]}
+        if (ack.type, ack.mission_type) != (mav.MAV_MISSION_ACCEPTED, mav.MAV_MISSION_TYPE_MISSION):
+            raise Failed(f"`wp clear`: MISSION_ACK {ack.type} of mission type {ack.mission_type}")
+
     def param_set(self):
         since = time.monotonic()
         self.mavproxy.type("param set LBV_GAIN 80")
@@ -332,7 +348,19 @@ class Pilot:
             "peak_rpm": max(m.rpm[0] for _, m in self.observer.since(since, "ESC_TELEMETRY_1_TO_4")),
         }
 
-    STEPS = ["connect", "params", "version", "param_set", "arm", "hold", "disarm", "reboot", "persisted", "motortest"]
+    STEPS = [
+        "connect",
+        "params",
+        "version",
+        "plans",
+        "param_set",
+        "arm",
+        "hold",
+        "disarm",
+        "reboot",
+        "persisted",
+        "motortest",
+    ]
 
     def fly(self):
         for step in self.STEPS:

@@ -1,6 +1,7 @@
 //! The bench flown by MAVProxy, a real ground station, as a pilot flies (`tests/mavproxy_pilot.py`): MAVProxy
 //! connects to `lbv bench --udp`, downloads the parameters itself (each with its type), asks the vehicle's
-//! AUTOPILOT_VERSION (`version`), sets one parameter, arms, holds the vehicle armed for
+//! AUTOPILOT_VERSION (`version`), lists the mission, the fence and the rally points (none) and clears the mission,
+//! sets one parameter, arms, holds the vehicle armed for
 //! 8 s on its own 1 Hz heartbeats, disarms, reboots the master (the bench restarts its core with its flash kept),
 //! finds the parameter still set, and runs a motor test; pymavlink watches what the vehicle sends. Runs in real
 //! time (about 35 s).
@@ -27,6 +28,7 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
             "connect",
             "params",
             "version",
+            "plans",
             "param_set",
             "arm",
             "hold",
@@ -38,6 +40,8 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
         "{summary}"
     );
     assert_eq!(summary["hold"]["all_armed"], true, "{summary}");
+    // MAV_MISSION_ACCEPTED, MAV_MISSION_TYPE_MISSION.
+    assert_eq!(summary["plans"]["clear"], serde_json::json!([0, 0]), "{summary}");
     // MAVLINK2 | COMMAND_INT | PARAM_ENCODE_C_CAST; the crate version; the bench's unique id.
     assert_eq!(summary["version"]["capabilities"], 0x2_2008, "{summary}");
     let version = summary["version"]["flight_sw_version"].as_u64().unwrap_or(0);
