@@ -34,6 +34,7 @@ use mavlink_core::MessageData;
 
 use crate::console::framing::{Event, Frame, FrameParser};
 use crate::console::signing::{Refusal, SigningKey, SigningState};
+use crate::mixer::FrameKind;
 use crate::params::{PARAM_COUNT, Param};
 use crate::ports::UpdateSink;
 use crate::shared::{
@@ -419,14 +420,15 @@ pub async fn console_rx_task<R: Read, U: UpdateSink>(
     shared: &Shared,
     stats: &ConsoleStats,
     thrusters: &ThrusterTable,
+    frame: FrameKind,
     sink: U,
 ) -> ! {
     #[cfg(not(feature = "acceptance"))]
-    let mut updates = Updates::new(thrusters, sink);
+    let mut updates = Updates::new(thrusters, frame, sink);
     #[cfg(not(feature = "acceptance"))]
     let mut held = Held::new();
     #[cfg(feature = "acceptance")]
-    let _ = (thrusters, sink);
+    let _ = (thrusters, frame, sink);
     let mut limiter = Limiter::new();
     let mut receiver = Receiver::new();
     let mut chunk = [0u8; 64];
@@ -769,7 +771,7 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                 } => out.push(&outbound::mission_ack(to, mission_type, accepted)),
                 Outgoing::Message { message, first } => out.send(message, Some(first), config, shared, &mut last),
                 Outgoing::Interval(message, interval) => schedule.set(message, interval),
-                Outgoing::Ftp { to, reply } => out.ftp_reply(to, &reply),
+                Outgoing::Ftp { to, reply } => out.ftp_reply(to, &reply, shared),
                 Outgoing::Reboot => {
                     out.flush().await;
                     // The acknowledgement must leave the port before the restart cuts it off.
@@ -908,14 +910,16 @@ impl<W: Write> Output<'_, W> {
         }
     }
 
-    /// Frame an FTP reply (nothing in an image without the update server, which has none to send).
-    fn ftp_reply(&mut self, to: Sender, reply: &FtpAnswer) {
+    /// Frame an FTP reply, a read of `param.pck` with the parameters in force now (nothing in an image without
+    /// the update server, which has none to send).
+    fn ftp_reply(&mut self, to: Sender, reply: &FtpAnswer, shared: &Shared) {
         #[cfg(not(feature = "acceptance"))]
         {
-            let len = self.framer.frame_ftp(to, reply).len();
+            let params = shared.settings.try_get().map(|settings| settings.params);
+            let len = self.framer.frame_ftp(to, reply, params.as_ref()).len();
             self.append(len, lbv::FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC);
         }
-        let _ = (to, reply);
+        let _ = (to, reply, shared);
     }
 
     /// Frame `message` into the batch, signed when a key is in force; a frame that does not fit is counted as a

@@ -180,6 +180,7 @@ pub async fn run<P: Board>(ports: Ports<P>, config: &MasterConfig, shared: &Shar
                 shared,
                 console,
                 &config.thrusters,
+                config.vehicle.frame,
                 update,
             ),
             console_tx_task(&mut console_tx, &config.console, shared, console),

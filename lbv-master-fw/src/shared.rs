@@ -15,7 +15,7 @@ use embassy_sync::watch::Watch;
 use embassy_time::Duration;
 use tmc_proto::{Order, Status};
 
-use crate::mixer::ManualInput;
+use crate::mixer::{FrameKind, ManualInput};
 use crate::params::{ParamId, ParamType, Settings};
 
 /// Most thrusters one master drives (the LBV300 has 6; two spare).
@@ -825,8 +825,8 @@ mod tests {
     }
 }
 
-// What `@SYS/versions.txt` is made of (`update::sys`, which renders it), here because a read's reply carries it
-// in [`Outgoing`].
+// What the files read over FTP are made of (`update::sys` and `update::param_pck` render them), here because a
+// read's reply carries it in [`Outgoing`].
 
 /// What the master knows of a board's running image.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -876,9 +876,32 @@ pub struct Versions {
     pub(crate) states: [ImageState; 1 + MAX_THRUSTERS],
 }
 
-/// The reply to a ReadFile or BurstReadFile of `versions.txt`: what its header needs, and the snapshot its data is
-/// made from as it is framed (its 239 bytes do not fit beside the console's other messages,
-/// [`FtpReply`]). 56 bytes.
+/// `@PARAM/param.pck` as it was opened (`update::param_pck`, which renders it). Its values are read from the
+/// settings in force as each read is framed; the CRC tells whether they are still those it was opened with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ParamFile {
+    /// A parameter whose value is not its default carries its default too (`?withdefaults=1`).
+    pub(crate) with_defaults: bool,
+    /// The build's frame: `LBV_FRAME`'s default.
+    pub(crate) frame: FrameKind,
+    /// Its length in bytes, little-endian.
+    pub(crate) len: [u8; 2],
+    /// The CRC-32 of the values it was opened with, little-endian (bytes, so that a read's reply stays the size
+    /// of `versions.txt`'s).
+    pub(crate) crc: [u8; 4],
+}
+
+/// What a read session reads, as it was opened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OpenFile {
+    /// `@SYS/versions.txt`.
+    Versions(Versions),
+    /// `@PARAM/param.pck`.
+    Params(ParamFile),
+}
+
+/// The reply to a ReadFile or BurstReadFile: what its header needs, and what its data is made from as it is framed
+/// (its 239 bytes do not fit beside the console's other messages, [`FtpReply`]). 56 bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FileRead {
     /// The reply's sequence number (the request's + 1), little-endian.
@@ -887,9 +910,9 @@ pub struct FileRead {
     /// The request's opcode: ReadFile or BurstReadFile.
     pub(crate) opcode: u8,
     pub(crate) size: u8,
-    /// The offset read from, little-endian: within the text, which is shorter than 64 KiB.
+    /// The offset read from, little-endian: within the file, which is shorter than 64 KiB.
     pub(crate) offset: [u8; 2],
-    pub(crate) versions: Versions,
+    pub(crate) file: OpenFile,
 }
 
 /// The server's answer to one FTP request.
@@ -897,6 +920,6 @@ pub struct FileRead {
 pub enum FtpAnswer {
     /// A reply that carries its data.
     Reply(FtpReply),
-    /// A read of `@SYS/versions.txt`, whose data is made as it is framed.
+    /// A read of a file, whose data is made as it is framed.
     Read(FileRead),
 }

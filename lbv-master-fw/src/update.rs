@@ -6,8 +6,9 @@
 //! MAVProxy's `ftp put FILE /update/thruster0.lbvu` and pymavlink's `MAVFTP` upload to it; `ftp list /update`
 //! lists the targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets
 //! them. MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 200 every SeaBotix thruster, 201 every Legacy one, 255
-//! the master: [`UpdateTarget::slot`]) then applies an image received whole. The update files are write-only; the
-//! one file read is `@SYS/versions.txt`, what every board runs ([`sys`]): `ftp get @SYS/versions.txt`.
+//! the master: [`UpdateTarget::slot`]) then applies an image received whole. The update files are write-only; two
+//! files are read: `@SYS/versions.txt`, what every board runs ([`sys`]), and `@PARAM/param.pck`, the parameters
+//! as ArduPilot packs them ([`param_pck`]), which QGroundControl and MAVProxy read when they connect.
 //!
 //! The master keeps no image itself: each write goes on to an [`UpdateSink`] as it comes ([`VehicleSink`]): for a
 //! thruster, the thruster's DFU partition over its bus ([`crate::update::courier`]); for the master, its own DFU
@@ -50,8 +51,8 @@
 //!   client is uploading (its session live, its image not whole) is refused ([`Nak::Fail`], "another component is
 //!   uploading it").
 //! - Only the operator's ground station (`SYSID_MYGCS`) may write, remove or apply ([`Nak::FileProtected`],
-//!   COMMAND_ACK DENIED); anyone may list, read CRCs and read `@SYS/versions.txt`, armed or not. Nothing in `@SYS`
-//!   is written, created or removed, nor has a CRC ([`Nak::FileProtected`]). With a signing key set, unsigned FTP
+//!   COMMAND_ACK DENIED); anyone may list, read CRCs and read the two files, armed or not. Nothing in `@SYS` or
+//!   `@PARAM` is written, created or removed, nor has a CRC ([`Nak::FileProtected`]). With a signing key set, unsigned FTP
 //!   frames are refused before they get here, as every unsigned frame is ([`crate::console::signing`]).
 //! - Without a signing key anyone on the link can claim `SYSID_MYGCS`: nothing is written, removed or applied
 //!   ([`Nak::Fail`], COMMAND_ACK DENIED, and "refused, the link is not signed") unless `LBV_UPD_UNSIGNED` is 1
@@ -71,6 +72,7 @@ pub mod courier;
 pub mod ftp;
 pub mod header;
 pub mod own;
+pub mod param_pck;
 pub mod sys;
 
 pub(crate) use header::parse_header;
@@ -82,16 +84,19 @@ use core::sync::atomic::Ordering;
 use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
+use crate::mixer::FrameKind;
+use crate::params::Params;
 use crate::ports::{Applied, MASTER_SLOT, Refused, UpdateSink, UpdateTarget};
-pub use crate::shared::FtpAnswer;
 use crate::shared::{
     AckResult, FTP_PAYLOAD, FTP_REPLY_DATA, FtpPayload, MAX_THRUSTERS, Outgoing, Sender, Severity, Shared,
     UpdateAction, UpdateCommand, UpdateCounters, UpdateHolds, UpdateRequest, text,
 };
+pub use crate::shared::{FileRead, FtpAnswer, OpenFile};
 use crate::thrusters::ThrusterTable;
 use crate::update::courier::{File, PROGRESS_PERIOD, Transfers, bit, family_file};
 use crate::update::own::{NotTaken, OwnImage};
-use crate::update::sys::{FileRead, Versions};
+use crate::update::param_pck::ParamFile;
+use crate::update::sys::Versions;
 use ftp::{ACK, Nak, Opcode, Request};
 use update_image::HeaderError;
 
@@ -138,22 +143,22 @@ fn kind_name(kind: u8) -> &'static str {
 }
 
 impl FtpAnswer {
-    /// The whole payload, as it goes out.
-    pub fn payload(&self) -> FtpPayload {
+    /// The whole payload, as it goes out with `params` in force ([`FileRead::write_to`]).
+    pub fn payload(&self, params: Option<&Params>) -> FtpPayload {
         let mut payload = [0; FTP_PAYLOAD];
-        self.write_to(&mut payload);
+        self.write_to(&mut payload, params);
         payload
     }
 
     /// Write the payload into `into`, which is zeros.
-    pub(crate) fn write_to(&self, into: &mut [u8]) {
+    pub(crate) fn write_to(&self, into: &mut [u8], params: Option<&Params>) {
         match self {
             Self::Reply(reply) => {
                 if let Some(start) = into.get_mut(..reply.len()) {
                     start.copy_from_slice(reply);
                 }
             }
-            Self::Read(read) => read.write_to(into),
+            Self::Read(read) => read.write_to(into, params),
         }
     }
 }
@@ -306,7 +311,6 @@ impl UpdateSink for VehicleSink<'_> {
 
 /// What the server must know of the vehicle for each request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct Context {
     /// The vehicle is armed.
     pub armed: bool,
@@ -318,6 +322,8 @@ pub struct Context {
     /// No signing key is in force, so anyone on the link can claim `SYSID_MYGCS`, and `LBV_UPD_UNSIGNED` does not
     /// allow updates without one: nothing is written, removed or applied.
     pub unsigned: bool,
+    /// The parameters in force, once the settings are published: what `@PARAM/param.pck` is opened with.
+    pub params: Option<Params>,
 }
 
 impl Context {
@@ -332,6 +338,7 @@ impl Context {
             operator: vehicle.map_or(0, |v| v.operator),
             restarting: shared.restarting.load(Ordering::Relaxed),
             unsigned: settings.is_none_or(|s| s.signing.is_none() && !s.params.unsigned_updates()),
+            params: settings.map(|s| s.params),
         }
     }
 }
@@ -376,6 +383,10 @@ enum Node {
     Sys,
     /// `@SYS/versions.txt`.
     Versions,
+    /// `@PARAM`.
+    ParamDir,
+    /// `@PARAM/param.pck`, with a query or none.
+    Params,
 }
 
 /// Why an upload stops before its end.
@@ -405,14 +416,15 @@ enum Stop {
 pub struct UpdateServer {
     /// The family of each slot of the thruster table.
     slots: [Option<Family>; MAX_THRUSTERS],
+    /// The build's frame, for the parameters' defaults.
+    frame: FrameKind,
     /// The session's upload (once opened; whole once received whole, until the session closes).
     upload: Option<Image>,
     /// The last image received whole.
     held: Option<Image>,
     session: Option<Session>,
-    /// The session's file open for reading, `@SYS/versions.txt` as it stood when it was opened (a session either
-    /// reads this or uploads).
-    reading: Option<Versions>,
+    /// The session's file open for reading, as it was opened (a session either reads or uploads).
+    reading: Option<OpenFile>,
     /// Where the upload's CRC stood after each of its last writes ([`Marks`]).
     marks: Marks,
     counters: UpdateCounters,
@@ -467,13 +479,14 @@ impl Marks {
 
 impl UpdateServer {
     /// No image, no session, for a master with `thrusters`.
-    pub fn new(thrusters: &ThrusterTable) -> Self {
+    pub fn new(thrusters: &ThrusterTable, frame: FrameKind) -> Self {
         let mut slots = [None; MAX_THRUSTERS];
         for (slot, thruster) in slots.iter_mut().zip(thrusters.as_slice()) {
             *slot = Some(thruster.family);
         }
         Self {
             slots,
+            frame,
             upload: None,
             held: None,
             session: None,
@@ -523,11 +536,15 @@ impl UpdateServer {
     }
 
     /// What a request's path names: `/`, `/update`, an update file (`/update/thruster<slot>.lbvu`,
-    /// `/update/master.lbvu`, a family's), `@SYS` or `@SYS/versions.txt` (the leading `/` may be left out).
+    /// `/update/master.lbvu`, a family's), `@SYS`, `@SYS/versions.txt`, `@PARAM` or `@PARAM/param.pck` with a
+    /// query (the leading `/` may be left out).
     fn lookup(&self, path: &[u8]) -> Result<Node, Nak> {
         let path = path.strip_prefix(b"/").unwrap_or(path);
         if path.is_empty() {
             return Ok(Node::Root);
+        }
+        if let Some(file) = param_pck::in_dir(path) {
+            return Ok(if file.is_some() { Node::Params } else { Node::ParamDir });
         }
         if let Some(name) = sys::in_dir(path) {
             return match name {
@@ -559,6 +576,7 @@ impl UpdateServer {
         }
         match self.lookup(path)? {
             Node::Update(target) => Ok(target),
+            Node::Params => Err(Nak::FileProtected),
             _ => Err(Nak::FileNotFound),
         }
     }
@@ -606,12 +624,13 @@ impl UpdateServer {
             },
             Opcode::ListDirectory => request
                 .path()
-                .and_then(|path| self.list(path, request.offset, sink, &mut data)),
-            Opcode::OpenFileRO => match request.path().and_then(|path| self.lookup(path)) {
-                Ok(Node::Versions) => self.open_read(now, from, &request, sink, out, &mut data),
-                Ok(Node::Update(_)) => Err(Nak::FileProtected),
-                Ok(_) | Err(_) => Err(Nak::FileNotFound),
-            },
+                .and_then(|path| self.list(path, request.offset, context.params, sink, &mut data)),
+            Opcode::OpenFileRO => self
+                .readable(&request, context, sink)
+                .and_then(|file| self.open_read(now, from, &request, file, sink, out))
+                .map(|len| {
+                    data.put(&len.to_le_bytes());
+                }),
             Opcode::ReadFile | Opcode::BurstReadFile if !ours => Err(Nak::InvalidSession),
             Opcode::ReadFile | Opcode::BurstReadFile => self.read(now, &request).map(|file| read = Some(file)),
             // `@SYS` has no CRC (FileProtected): its text is made at each opening, with nothing kept to compare.
@@ -620,7 +639,7 @@ impl UpdateServer {
             }),
             Opcode::CreateFile | Opcode::OpenFileWO => self.open(now, context, from, &request, sink, out),
             Opcode::WriteFile if !ours => Err(Nak::InvalidSession),
-            // A session that reads `@SYS/versions.txt` writes nothing.
+            // A session that reads writes nothing.
             Opcode::WriteFile if self.reading.is_some() => Err(Nak::FileProtected),
             // The upload stops here, told why, rather than halfway through at the restart.
             Opcode::WriteFile if context.restarting || context.unsigned => match self.upload {
@@ -649,12 +668,19 @@ impl UpdateServer {
     /// update file's size the bytes held, `versions.txt`'s its length now), `D<name>\0` for a directory (`@SYS`
     /// after the others, as ArduPilot lists its own), as many as fit in a reply (the clients ask for the next from
     /// the offset after the last they got, until [`Nak::EndOfFile`]).
-    fn list(&self, path: &[u8], first: u32, sink: &impl UpdateSink, data: &mut Buf) -> Result<(), Nak> {
+    fn list(
+        &self,
+        path: &[u8],
+        first: u32,
+        context_params: Option<Params>,
+        sink: &impl UpdateSink,
+        data: &mut Buf,
+    ) -> Result<(), Nak> {
         let first = usize::try_from(first).unwrap_or(usize::MAX);
         match self.lookup(path)? {
-            Node::Update(_) | Node::Versions => return Err(Nak::FileNotFound),
+            Node::Update(_) | Node::Versions | Node::Params => return Err(Nak::FileNotFound),
             Node::Root => {
-                for name in ["update", sys::DIR].get(first..).unwrap_or_default() {
+                for name in ["update", sys::DIR, param_pck::DIR].get(first..).unwrap_or_default() {
                     if !data.entry(format_args!("D{name}\0")) {
                         break;
                     }
@@ -671,6 +697,13 @@ impl UpdateServer {
                 data.entry(format_args!("F{}\t{}\0", sys::VERSIONS, self.versions(sink).len()));
             }
             Node::Sys => {}
+            Node::ParamDir if first == 0 => {
+                let len = context_params.map_or(0, |params| {
+                    ParamFile::open(&[], &params, self.frame).map_or(0, |file| u16::from_le_bytes(file.len))
+                });
+                data.entry(format_args!("F{}\t{len}\0", param_pck::NAME));
+            }
+            Node::ParamDir => {}
         }
         if data.len == 0 { Err(Nak::EndOfFile) } else { Ok(()) }
     }
@@ -726,21 +759,39 @@ impl UpdateServer {
         Ok(())
     }
 
-    /// OpenFileRO of `@SYS/versions.txt`: a new session reads it as it stands now, its ACK carrying its length.
+    /// The file an OpenFileRO of `request` reads, as it stands now: `@SYS/versions.txt`, or `@PARAM/param.pck`
+    /// with the parameters in force ([`Nak::Fail`] for a query it cannot serve, or before the settings are
+    /// published). An update file is write-only ([`Nak::FileProtected`]).
+    fn readable(&self, request: &Request<'_>, context: Context, sink: &impl UpdateSink) -> Result<OpenFile, Nak> {
+        let path = request.path().map_err(|_| Nak::FileNotFound)?;
+        match self.lookup(path)? {
+            Node::Versions => Ok(OpenFile::Versions(self.versions(sink))),
+            Node::Params => {
+                let query = path.iter().position(|byte| *byte == b'?').and_then(|at| path.get(at..));
+                context
+                    .params
+                    .and_then(|params| ParamFile::open(query.unwrap_or_default(), &params, self.frame))
+                    .map(OpenFile::Params)
+                    .ok_or(Nak::Fail)
+            }
+            Node::Update(_) => Err(Nak::FileProtected),
+            _ => Err(Nak::FileNotFound),
+        }
+    }
+
+    /// OpenFileRO: a new session reads `file`; its length, which the ACK carries.
     fn open_read(
         &mut self,
         now: Instant,
         from: Sender,
         request: &Request<'_>,
+        file: OpenFile,
         sink: &mut impl UpdateSink,
         out: &mut impl FnMut(Outgoing),
-        data: &mut Buf,
-    ) -> Result<(), Nak> {
+    ) -> Result<u32, Nak> {
         self.new_session(now, from, request.session, false, sink, out)?;
-        let versions = self.versions(sink);
-        self.reading = Some(versions);
-        data.put(&versions.len().to_le_bytes());
-        Ok(())
+        self.reading = Some(file);
+        Ok(file.len())
     }
 
     /// Open session `id` for `from` at `now` (`upload`: to upload, otherwise to read), in place of the session
@@ -782,7 +833,7 @@ impl UpdateServer {
     /// burst is this one reply, marked its last: MAVProxy and pymavlink take a reply shorter than they asked for as
     /// the end and otherwise ask for the next burst where it ends, as QGroundControl does until EndOfFile.
     fn read(&mut self, now: Instant, request: &Request<'_>) -> Result<FileRead, Nak> {
-        let (Some(session), Some(versions)) = (self.session.as_mut(), self.reading) else {
+        let (Some(session), Some(file)) = (self.session.as_mut(), self.reading) else {
             // An upload's session: its file is written, not read.
             return Err(Nak::Fail);
         };
@@ -791,12 +842,12 @@ impl UpdateServer {
         if asked == 0 {
             return Err(Nak::InvalidDataSize);
         }
-        let left = versions.len().saturating_sub(request.offset);
+        let left = file.len().saturating_sub(request.offset);
         let size = u8::try_from(left.min(asked as u32)).unwrap_or(u8::MAX);
         if size == 0 {
             return Err(Nak::EndOfFile);
         }
-        Ok(FileRead::new(request, size, versions))
+        Ok(FileRead::new(request, size, file))
     }
 
     /// WriteFile in the session: take its bytes in order. `None`: left unanswered (a gap).
@@ -1179,6 +1230,105 @@ impl fmt::Write for Buf {
     }
 }
 
+/// A writer that keeps the bytes from `skip` on that fit `into`, and counts every byte: a file made again at
+/// each read keeps the bytes the read asks for.
+pub(crate) struct Window<'a> {
+    skip: u32,
+    into: &'a mut [u8],
+    /// Bytes kept.
+    pub(crate) filled: usize,
+    /// Bytes written, kept or not.
+    pub(crate) total: u32,
+}
+
+impl<'a> Window<'a> {
+    pub(crate) fn new(skip: u32, into: &'a mut [u8]) -> Self {
+        Self {
+            skip,
+            into,
+            filled: 0,
+            total: 0,
+        }
+    }
+
+    pub(crate) fn put(&mut self, bytes: &[u8]) {
+        for byte in bytes {
+            if self.total >= self.skip
+                && let Some(slot) = self.into.get_mut(self.filled)
+            {
+                *slot = *byte;
+                self.filled += 1;
+            }
+            self.total = self.total.saturating_add(1);
+        }
+    }
+
+    pub(crate) fn zeros(&mut self, n: u32) {
+        for _ in 0..n {
+            self.put(&[0]);
+        }
+    }
+}
+
+impl fmt::Write for Window<'_> {
+    fn write_str(&mut self, s: &str) -> fmt::Result {
+        self.put(s.as_bytes());
+        Ok(())
+    }
+}
+
+impl OpenFile {
+    /// Its length in bytes.
+    fn len(&self) -> u32 {
+        match self {
+            Self::Versions(versions) => versions.len(),
+            Self::Params(file) => u16::from_le_bytes(file.len).into(),
+        }
+    }
+}
+
+impl FileRead {
+    /// The ACK of `request`: `size` bytes of `file` from the request's offset, which is within it.
+    fn new(request: &Request<'_>, size: u8, file: OpenFile) -> Self {
+        let [o0, o1, ..] = request.offset.to_le_bytes();
+        Self {
+            seq: request.seq.wrapping_add(1).to_le_bytes(),
+            session: request.session,
+            opcode: request.opcode,
+            size,
+            offset: [o0, o1],
+            file,
+        }
+    }
+
+    /// Write its payload into `into`, which is zeros: its header, then the bytes it names, made from `params` (the
+    /// settings in force) for `param.pck`. A BurstReadFile's reply is its burst's last. A read of `param.pck` whose
+    /// values have changed since it was opened is NAKed [`Nak::Fail`] instead.
+    pub(crate) fn write_to(&self, into: &mut [u8], params: Option<&Params>) {
+        let [s0, s1] = self.seq;
+        let [o0, o1] = self.offset;
+        let burst = u8::from(Opcode::from_byte(self.opcode) == Opcode::BurstReadFile);
+        let Some((head, data)) = into.split_first_chunk_mut::<{ ftp::HEADER_LEN }>() else {
+            return;
+        };
+        let offset = u16::from_le_bytes(self.offset).into();
+        let read = data.get_mut(..usize::from(self.size)).and_then(|data| match self.file {
+            OpenFile::Versions(versions) => Some(versions.read(offset, data)),
+            OpenFile::Params(file) => params.and_then(|params| file.read(offset, data, params)),
+        });
+        let (opcode, size) = match read {
+            Some(_) => (ACK, self.size),
+            None => {
+                if let Some(first) = data.first_mut() {
+                    *first = Nak::Fail as u8;
+                }
+                (ftp::NAK, 1)
+            }
+        };
+        *head = [s0, s1, self.session, opcode, size, self.opcode, burst, 0, o0, o1, 0, 0];
+    }
+}
+
 /// The update server and where its images go: what the console's receive task serves MAVLink FTP and the apply
 /// command with.
 #[derive(Debug)]
@@ -1191,9 +1341,9 @@ pub struct Updates<S> {
 
 impl<S: UpdateSink> Updates<S> {
     /// The server for `thrusters`, with `sink`.
-    pub fn new(thrusters: &ThrusterTable, sink: S) -> Self {
+    pub fn new(thrusters: &ThrusterTable, frame: FrameKind, sink: S) -> Self {
         Self {
-            server: UpdateServer::new(thrusters),
+            server: UpdateServer::new(thrusters, frame),
             sink,
         }
     }

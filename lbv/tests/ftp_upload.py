@@ -6,7 +6,7 @@
 Listens on 127.0.0.1:GCS_PORT like a ground station (`lbv bench --udp` sends there; the script answers to where
 the datagrams come from, which must be 127.0.0.1:BENCH_PORT) and, as the operator (system 255):
 
-    list       ListDirectory `/` and `/update`: the directories (`update`, `@SYS`), then one file per thruster slot and
+    list       ListDirectory `/` and `/update`: the directories (`update`, `@SYS`, `@PARAM`), then one file per thruster slot and
                the master's
     versions   MAVFTP's get of `@SYS/versions.txt` (OpenFileRO, BurstReadFile of 80 bytes until a shorter reply,
                TerminateSession) into WORK_DIR/versions.txt: what every board runs

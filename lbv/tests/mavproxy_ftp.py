@@ -9,7 +9,7 @@ STATUSTEXTs and COMMAND_ACKs (it never sends). The steps, as a person would type
 
     connect   MAVProxy sees the vehicle
     list      `ftp list /update`: one file per thruster slot, one per family and the master's, 0 bytes each
-    versions  `ftp list /` (`update` and `@SYS`), `ftp list @SYS` (`versions.txt` and its length) and `ftp get
+    versions  `ftp list /` (`update`, `@SYS` and `@PARAM`), `ftp list @SYS` (`versions.txt` and its length) and `ftp get
               @SYS/versions.txt WORK_DIR/versions-before.txt`: what every board runs before the updates (got again
               until no thruster is left to be asked what it runs, as the master asks each once it answers)
     unsigned  `ftp put WORK_DIR/thruster2.lbvu /update/thruster2.lbvu` over the link without signing (the vehicle's

@@ -9,8 +9,9 @@ its prompt would. MAVProxy forwards what the vehicle sends to OBSERVER_PORT, whe
 message for the detailed checks (it never sends). The steps:
 
     connect        MAVProxy sees the vehicle (HEARTBEAT of a submarine)
-    params         MAVProxy's own parameter download gets all 27, each with its type (the timeouts REAL32,
-                   SYSID_MYGCS INT16, the others INT8)
+    params         MAVProxy's own parameter download gets all 27 over FTP (`@PARAM/param.pck`, decoded by
+                   MAVProxy); then `param fetch` without FTP: the PARAM_VALUE list has the same values, each with
+                   its type (the timeouts REAL32, SYSID_MYGCS INT16, the others INT8)
     version        `version`: MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION is accepted and answered (MAVLink 2,
                    COMMAND_INT and C_CAST parameters, no mission or FTP, the bench's unique id)
     plans          `wp list`, `fence list`, `rally list`: MAVProxy asks for each plan and is told it holds
@@ -185,9 +186,38 @@ class Pilot:
             raise Failed(f"HEARTBEAT type {beats[-1][1].type}, not a submarine")
 
     def params(self):
-        self.wait(lambda: self.mavproxy.said(f"Received {PARAMS} parameters"), 30.0, "MAVProxy's parameter download")
+        # MAVProxy asks for `@PARAM/param.pck?withdefaults=1` over FTP first and decodes it itself.
+        self.wait(
+            lambda: self.mavproxy.said(f"Received {PARAMS} parameters (ftp)"), 30.0, "MAVProxy's download over FTP"
+        )
         self.summary["params_at_s"] = self.elapsed()
-        types = {m.param_id: m.param_type for _, m in self.observer.since(0.0, "PARAM_VALUE")}
+        shown = time.monotonic()
+        self.mavproxy.type("param show *")
+        ftp = {}
+
+        def all_shown():
+            for t, line in self.mavproxy.log:
+                # "NAME value", the first after MAVProxy's prompt.
+                words = line.split()[-2:]
+                if t >= shown and len(words) == 2 and words[0].isupper():
+                    try:
+                        ftp[words[0]] = float(words[1])
+                    except ValueError:
+                        pass
+            return len(ftp) == PARAMS
+
+        self.wait(all_shown, 5.0, "`param show *` of the parameters MAVProxy read over FTP")
+        # The list the slow way (MAVProxy's `param fetch` without FTP: PARAM_REQUEST_LIST), each PARAM_VALUE with
+        # its type, and each value what MAVProxy read in the file.
+        fetched = time.monotonic()
+        self.mavproxy.type("set param_ftp 0")
+        self.mavproxy.type("param fetch")
+
+        def listed():
+            return {m.param_id: m for _, m in self.observer.since(fetched, "PARAM_VALUE")}
+
+        self.wait(lambda: len(listed()) == PARAMS, 10.0, "the parameter list")
+        types = {name: m.param_type for name, m in listed().items()}
         self.summary["param_types"] = types
         for name, param_type in types.items():
             if name in REAL32_PARAMS:
@@ -198,8 +228,10 @@ class Pilot:
                 wanted = mav.MAV_PARAM_TYPE_INT8
             if param_type != wanted:
                 raise Failed(f"PARAM_VALUE {name}: type {param_type}, not {wanted}")
-        if len(types) != PARAMS:
-            raise Failed(f"the observer saw {len(types)} parameters, not {PARAMS}")
+        values = {name: round(m.param_value, 4) for name, m in listed().items()}
+        self.summary["ftp_params"] = ftp
+        if {name: round(value, 4) for name, value in ftp.items()} != values:
+            raise Failed(f"param.pck read by MAVProxy {ftp} is not the list {values}")
 
     def version(self):
         since = time.monotonic()

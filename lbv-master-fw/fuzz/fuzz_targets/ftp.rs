@@ -1,9 +1,10 @@
 //! The update server's MAVLink FTP decoder and state machine: any FILE_TRANSFER_PROTOCOL payloads (raw bytes, or
 //! well-formed requests of the opcodes it serves, with paths and image bytes that reach every branch, reads of
-//! `@SYS/versions.txt` among them), from the operator or another system, armed or not, as time passes, with apply
-//! commands between, and at any moment the master marked to restart into its own update, and the link's signing
-//! going off and on. Nothing panics; every reply answers its request (sequence + 1, its session and opcode, ACK or
-//! NAK), a read's data is the text's bytes at its offset; the sink gets each image's bytes in order, from its header
+//! `@SYS/versions.txt` and `@PARAM/param.pck` with any query among them), from the operator or another system,
+//! armed or not, as time passes, with apply commands and parameters set between, and at any moment the master
+//! marked to restart into its own update, and the link's signing going off and on. Nothing panics; every reply
+//! answers its request (sequence + 1, its session and opcode, ACK or NAK), a read of `versions.txt` is the text's
+//! bytes at its offset, a read of `param.pck` is NAKed once a parameter has changed since it was opened; the sink gets each image's bytes in order, from its header
 //! on, never beyond the length the header gives, nothing begun, written or applied once the master restarts, and
 //! nothing begun or written over a link without signing.
 #![no_main]
@@ -11,6 +12,8 @@
 use arbitrary::Arbitrary;
 use embassy_time::Instant;
 use lbv_master_fw::config::VEHICLE;
+use lbv_master_fw::mixer::FrameKind;
+use lbv_master_fw::params::Param;
 use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Outgoing, Sender};
 use lbv_master_fw::update::ftp::{ACK, NAK, Nak};
@@ -30,6 +33,8 @@ enum Step {
     Restart,
     /// The link's signing goes off (`true`: updates over it refused) or on.
     Unsigned(bool),
+    /// A parameter is set (to a value it takes).
+    SetParam { index: u8, value: i32 },
 }
 
 #[derive(Arbitrary, Debug, Clone, Copy)]
@@ -64,6 +69,9 @@ enum Path {
     Root,
     Sys,
     Versions,
+    ParamDir,
+    /// `@PARAM/param.pck` and these bytes after it.
+    Params(Vec<u8>),
 }
 
 /// A SeaBotix image of 1200 payload bytes.
@@ -134,9 +142,12 @@ fuzz_target!(|steps: Vec<Step>| {
     let gcs = Sender { system: 255, component: 190 };
     let other = Sender { system: 7, component: 1 };
     let file = image();
-    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let mut sink = Sink::default();
-    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false };
+    let mut params = VEHICLE.vehicle.defaults().params;
+    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params) };
+    // What the last file opened for reading is: param.pck (with the values it was opened with) or versions.txt.
+    let mut opened = None;
     let mut now = Instant::from_ticks(0);
     let mut out = |_: Outgoing| {};
     // What the fuzzing sink knows of the boards: nothing.
@@ -174,6 +185,8 @@ fuzz_target!(|steps: Vec<Step>| {
                     Data::Path(Path::Root) => b"/".to_vec(),
                     Data::Path(Path::Sys) => b"@SYS".to_vec(),
                     Data::Path(Path::Versions) => b"@SYS/versions.txt".to_vec(),
+                    Data::Path(Path::ParamDir) => b"@PARAM".to_vec(),
+                    Data::Path(Path::Params(query)) => [&b"@PARAM/param.pck"[..], &query].concat(),
                     Data::Image { at, len } => {
                         let at = usize::from(at).min(file.len());
                         file[at..(at + usize::from(len)).min(file.len())].to_vec()
@@ -204,22 +217,40 @@ fuzz_target!(|steps: Vec<Step>| {
                 sink.unsigned = unsigned;
                 continue;
             }
+            Step::SetParam { index, value } => {
+                params.set(Param::ALL[usize::from(index) % Param::ALL.len()], value);
+                context.params = Some(params);
+                continue;
+            }
         };
         if let Some(answer) = server.request(now, context, from, &request, &mut sink, &mut out) {
-            let reply = answer.payload();
+            let reply = answer.payload(context.params.as_ref());
             let seq = u16::from_le_bytes([request[0], request[1]]);
             assert_eq!(u16::from_le_bytes([reply[0], reply[1]]), seq.wrapping_add(1));
             assert_eq!((reply[2], reply[5]), (request[2], request[3]));
             assert!(reply[3] == ACK || reply[3] == NAK);
             let size = usize::from(reply[4]);
             assert!(size <= reply.len() - 12);
-            if let FtpAnswer::Read(_) = answer {
-                // The text's bytes from the offset asked, no more than asked.
-                assert_eq!(reply[3], ACK);
-                assert!(size > 0 && size <= usize::from(request[4]));
-                let offset = u32::from_le_bytes([reply[8], reply[9], reply[10], reply[11]]) as usize;
-                let text = versions.get(offset..offset + size).expect("within the text");
-                assert_eq!(&reply[12..12 + size], text);
+            if request[3] == 4 && reply[3] == ACK {
+                opened = Some(request[12..].starts_with(b"@PARAM").then_some(params));
+            }
+            match (answer, opened) {
+                (FtpAnswer::Read(_), Some(Some(at_open))) if at_open != params => {
+                    assert_eq!((reply[3], reply[12]), (NAK, Nak::Fail as u8), "a read of a file since changed");
+                }
+                (FtpAnswer::Read(_), Some(Some(_))) => {
+                    assert_eq!(reply[3], ACK);
+                    assert!(size > 0 && size <= usize::from(request[4]));
+                }
+                (FtpAnswer::Read(_), _) => {
+                    // The text's bytes from the offset asked, no more than asked.
+                    assert_eq!(reply[3], ACK);
+                    assert!(size > 0 && size <= usize::from(request[4]));
+                    let offset = u32::from_le_bytes([reply[8], reply[9], reply[10], reply[11]]) as usize;
+                    let text = versions.get(offset..offset + size).expect("within the text");
+                    assert_eq!(&reply[12..12 + size], text);
+                }
+                _ => {}
             }
         }
     }

@@ -38,10 +38,10 @@ pub(crate) enum Opcode {
     ResetSessions,
     /// 3: list a directory from entry `offset` on.
     ListDirectory,
-    /// 4: open a file for reading: only `@SYS/versions.txt` ([`crate::update::sys`]), its ACK carrying its length
-    /// (u32). An update slot is NAKed [`Nak::FileProtected`], anything else [`Nak::FileNotFound`], so a ground
-    /// station that asks for a file the vehicle does not have (QGroundControl's `@PARAM/param.pck`) falls back at
-    /// once rather than after its retries.
+    /// 4: open a file for reading: `@SYS/versions.txt` ([`crate::update::sys`]) or `@PARAM/param.pck`
+    /// ([`crate::update::param_pck`]), its ACK carrying its length (u32). An update slot is NAKed
+    /// [`Nak::FileProtected`], anything else [`Nak::FileNotFound`], so a ground station that asks for a file the
+    /// vehicle does not have falls back at once rather than after its retries.
     OpenFileRO,
     /// 5: read `size` bytes from `offset` of the file open for reading.
     ReadFile,

@@ -33,8 +33,8 @@ use tmc_proto::Family;
 use update_image::Version;
 
 use crate::shared::MAX_THRUSTERS;
-pub use crate::shared::{FileRead, ImageState, Running, Versions};
-use crate::update::ftp::{self, ACK, Opcode, Request};
+pub use crate::shared::{ImageState, Running, Versions};
+use crate::update::Window;
 
 /// The directory, as a request names it (after a leading `/`, which may be left out).
 pub(crate) const DIR: &str = "@SYS";
@@ -153,12 +153,7 @@ impl Versions {
 
     /// The text's bytes from `offset` that fit `into`: how many, and the text's length.
     fn window(&self, offset: u32, into: &mut [u8]) -> (usize, u32) {
-        let mut window = Window {
-            skip: offset,
-            into,
-            filled: 0,
-            total: 0,
-        };
+        let mut window = Window::new(offset, into);
         // A window takes every byte it is given: the text is never cut.
         let _ = self.write_to(&mut window);
         (window.filled, window.total)
@@ -180,69 +175,3 @@ fn line(out: &mut Window<'_>, running: Running) -> fmt::Result {
 
 /// The version column (8 wide) and the space after it; a longer version is followed by one space.
 const SPACES: &str = "         ";
-
-/// A writer that keeps the bytes from `skip` on that fit `into`, and counts every byte.
-struct Window<'a> {
-    skip: u32,
-    into: &'a mut [u8],
-    filled: usize,
-    total: u32,
-}
-
-impl Write for Window<'_> {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        for byte in s.bytes() {
-            if self.total >= self.skip
-                && let Some(slot) = self.into.get_mut(self.filled)
-            {
-                *slot = byte;
-                self.filled += 1;
-            }
-            self.total = self.total.saturating_add(1);
-        }
-        Ok(())
-    }
-}
-
-impl FileRead {
-    /// The ACK of `request`: `size` bytes of `versions`' text from the request's offset, which is within it.
-    pub(crate) fn new(request: &Request<'_>, size: u8, versions: Versions) -> Self {
-        let [o0, o1, ..] = request.offset.to_le_bytes();
-        Self {
-            seq: request.seq.wrapping_add(1).to_le_bytes(),
-            session: request.session,
-            opcode: request.opcode,
-            size,
-            offset: [o0, o1],
-            versions,
-        }
-    }
-
-    /// Write its payload into `into`, which is zeros: its header, then the bytes it names. A BurstReadFile's reply
-    /// is its burst's last.
-    pub(crate) fn write_to(&self, into: &mut [u8]) {
-        let [s0, s1] = self.seq;
-        let [o0, o1] = self.offset;
-        let burst = u8::from(Opcode::from_byte(self.opcode) == Opcode::BurstReadFile);
-        let header = [
-            s0,
-            s1,
-            self.session,
-            ACK,
-            self.size,
-            self.opcode,
-            burst,
-            0,
-            o0,
-            o1,
-            0,
-            0,
-        ];
-        if let Some((head, data)) = into.split_first_chunk_mut::<{ ftp::HEADER_LEN }>()
-            && let Some(data) = data.get_mut(..usize::from(self.size))
-        {
-            *head = header;
-            self.versions.read(u16::from_le_bytes(self.offset).into(), data);
-        }
-    }
-}

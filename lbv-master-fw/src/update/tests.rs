@@ -1,5 +1,6 @@
 use super::*;
 use crate::config::{VEHICLE, devkit, lbv300_6};
+use crate::params::{Param, Params};
 use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use crate::sim::{ReceivedImage, UpdateRecorder};
 use crate::update::sys::{ImageState, Running};
@@ -24,6 +25,7 @@ const DISARMED: Context = Context {
     operator: 255,
     restarting: false,
     unsigned: false,
+    params: None,
 };
 const ARMED: Context = Context {
     armed: true,
@@ -120,7 +122,7 @@ impl Server {
 impl<S: UpdateSink> Server<S> {
     fn with_sink(table: &ThrusterTable, sink: S) -> Self {
         Self {
-            server: UpdateServer::new(table),
+            server: UpdateServer::new(table, FrameKind::Lbv300_6),
             sink,
             said: Vec::new(),
             seq: 0,
@@ -134,7 +136,8 @@ impl<S: UpdateSink> Server<S> {
             .server
             .request(t(ms), context, from, payload, &mut self.sink, &mut |o| said.push(o));
         self.said.extend(said);
-        reply.map(|r| read(&r.payload()))
+        // A read is framed with the parameters the request came with.
+        reply.map(|r| read(&r.payload(context.params.as_ref())))
     }
 
     /// Send a request from the operator, disarmed, with the next sequence number.
@@ -220,14 +223,15 @@ fn headers_are_read_as_update_image_lays_them_out() {
 #[test]
 fn the_listing_shows_the_directory_and_one_file_per_target() {
     let mut s = Server::new();
-    // Both directories in one reply, `@SYS` after `update` (ArduPilot lists its own after the real ones).
+    // The directories in one reply, `@SYS` and `@PARAM` after `update` (ArduPilot lists its own after the real
+    // ones).
     let root = s.op(0, 0, LIST, 0, b"/").unwrap();
     assert_eq!(
         (root.opcode, root.req_opcode, root.data.as_slice()),
-        (ACK, LIST, &b"Dupdate\0D@SYS\0"[..])
+        (ACK, LIST, &b"Dupdate\0D@SYS\0D@PARAM\0"[..])
     );
-    assert_eq!(s.op(0, 0, LIST, 1, b"/").unwrap().data, b"D@SYS\0");
-    assert_eq!(nak(&s.op(0, 0, LIST, 2, b"/")), Some(Nak::EndOfFile as u8));
+    assert_eq!(s.op(0, 0, LIST, 1, b"/").unwrap().data, b"D@SYS\0D@PARAM\0");
+    assert_eq!(nak(&s.op(0, 0, LIST, 3, b"/")), Some(Nak::EndOfFile as u8));
     // One entry per reply, each at its offset, then the end.
     let mut names = Vec::new();
     for offset in 0.. {
@@ -792,13 +796,17 @@ fn the_context_says_when_the_master_restarts_into_its_update() {
     assert!(Context::of(&shared).restarting);
 }
 
-/// QGroundControl asks every ArduPilot vehicle for `@PARAM/param.pck` before PARAM_REQUEST_LIST, and waits out its
-/// retries on any answer but FileNotFound: a file that is not here is FileNotFound, an update slot cannot be read.
+/// A ground station that asks for a file the vehicle does not have falls back at once on FileNotFound, and waits
+/// out its retries on any other answer: a file that is not here is FileNotFound, an update slot cannot be read.
 #[test]
 fn a_file_opened_for_reading_is_not_found_or_protected() {
     let mut s = Server::new();
     for path in [
-        &b"@PARAM/param.pck"[..],
+        &b"@PARAM/params.pck"[..],
+        b"@PARAM/param.pckx",
+        b"@PARAM/param.pck/",
+        b"@PARAMS/param.pck",
+        b"@PARAM",
         b"/APM/LOGS/00000001.BIN",
         b"/update/nothing",
         b"",
@@ -900,14 +908,30 @@ impl<S: UpdateSink> Server<S> {
     /// last ended, until EndOfFile (or a reply shorter than asked, after a burst: MAVProxy's end), then
     /// TerminateSession: the length the open gave, and the bytes read.
     fn get(&mut self, ms: u64, session: u8, opcode: u8, size: u8) -> (u32, Vec<u8>) {
-        let open = self.op(ms, session, OPEN_RO, 0, VERSIONS).unwrap();
+        self.get_file(ms, DISARMED, session, VERSIONS, opcode, size)
+    }
+
+    /// [`Server::get`] of the file at `path`, with `context`, from another system than the operator's.
+    fn get_file(
+        &mut self,
+        ms: u64,
+        context: Context,
+        session: u8,
+        path: &[u8],
+        opcode: u8,
+        size: u8,
+    ) -> (u32, Vec<u8>) {
+        let mut seq = 0;
+        let mut send = |s: &mut Self, opcode, offset, data: &[u8]| {
+            seq += 1;
+            s.send(ms, context, OTHER, &payload(seq, session, opcode, offset, data))
+        };
+        let open = send(self, OPEN_RO, 0, path).unwrap();
         assert_eq!((open.opcode, open.data.len()), (ACK, 4), "{open:?}");
         let len = u32::from_le_bytes(open.data.try_into().unwrap());
         let mut text = Vec::new();
         loop {
-            let reply = self
-                .op(ms, session, opcode, text.len() as u32, &vec![0; usize::from(size)])
-                .unwrap();
+            let reply = send(self, opcode, text.len() as u32, &vec![0; usize::from(size)]).unwrap();
             if reply.opcode == NAK {
                 assert_eq!(reply.data, [Nak::EndOfFile as u8]);
                 break;
@@ -921,7 +945,7 @@ impl<S: UpdateSink> Server<S> {
                 break;
             }
         }
-        assert!(ack(&self.op(ms, session, TERMINATE, 0, &[])));
+        assert!(ack(&send(self, TERMINATE, 0, &[])));
         (len, text)
     }
 }
@@ -1234,6 +1258,245 @@ fn a_read_goes_on_while_armed_restarting_or_unsigned() {
     assert!(s.texts().is_empty(), "{:?}", s.texts());
 }
 
+/// `param.pck` as ArduPilot's AP_Filesystem README describes it, read back without the encoder: the header, then
+/// each parameter's name, type code, value and default, zeros skipped before a parameter.
+#[derive(Debug)]
+struct Unpacked {
+    magic: u16,
+    count: u16,
+    total: u16,
+    params: Vec<Packed>,
+    /// Where each parameter's value (and default) lie in the file.
+    data: Vec<std::ops::Range<usize>>,
+}
+
+/// A parameter's name, type code, value bytes and default bytes.
+type Packed = (String, u8, Vec<u8>, Option<Vec<u8>>);
+
+fn unpack(file: &[u8]) -> Unpacked {
+    let word = |at: usize| u16::from_le_bytes([file[at], file[at + 1]]);
+    let mut unpacked = Unpacked {
+        magic: word(0),
+        count: word(2),
+        total: word(4),
+        params: Vec::new(),
+        data: Vec::new(),
+    };
+    let mut at = 6;
+    let mut last: Vec<u8> = Vec::new();
+    while at < file.len() {
+        if file[at] == 0 {
+            at += 1;
+            continue;
+        }
+        let (code, flags) = (file[at] & 0x0F, file[at] >> 4);
+        let (common, own) = (usize::from(file[at + 1] & 0x0F), usize::from(file[at + 1] >> 4) + 1);
+        let mut name = last[..common].to_vec();
+        name.extend(&file[at + 2..at + 2 + own]);
+        let size = match code {
+            1 => 1,
+            2 => 2,
+            3 | 4 => 4,
+            _ => panic!("type {code} at {at}"),
+        };
+        let start = at + 2 + own;
+        let value = file[start..start + size].to_vec();
+        let default =
+            (unpacked.magic == 0x671C && flags & 1 == 1).then(|| file[start + size..start + 2 * size].to_vec());
+        let end = start + size * (1 + usize::from(default.is_some()));
+        unpacked.data.push(start..end);
+        unpacked
+            .params
+            .push((String::from_utf8(name.clone()).unwrap(), code, value, default));
+        last = name;
+        at = end;
+    }
+    unpacked
+}
+
+/// The vehicle's defaults (the LBV300-6's) with a few changed: the operator's gain, a timeout, the operator's
+/// system and the frame.
+fn changed_params() -> Params {
+    let mut params = Params::defaults(FrameKind::Lbv300_6);
+    assert!(params.set(Param::Gain, 70));
+    assert!(params.set(Param::GcsTimeout, 100));
+    assert!(params.set(Param::OperatorId, 200));
+    assert!(params.set(Param::Frame, 4));
+    params
+}
+
+fn with_params(params: Params) -> Context {
+    Context {
+        params: Some(params),
+        ..DISARMED
+    }
+}
+
+const PARAM_PCK: &[u8] = b"@PARAM/param.pck";
+
+#[test]
+fn param_pck_lists_every_parameter_as_ardupilot_packs_them() {
+    let mut s = Server::new();
+    let (len, file) = s.get_file(0, with_params(changed_params()), 1, PARAM_PCK, BURST, 239);
+    assert_eq!(len as usize, file.len());
+    let unpacked = unpack(&file);
+    assert_eq!((unpacked.magic, unpacked.count, unpacked.total), (0x671B, 27, 27));
+    let names: Vec<&str> = unpacked.params.iter().map(|(name, ..)| name.as_str()).collect();
+    let expected: Vec<&str> = Param::ALL.iter().map(|param| param.name()).collect();
+    assert_eq!(names, expected);
+    let find = |name: &str| unpacked.params.iter().find(|(n, ..)| n == name).unwrap().clone();
+    // Each type as AP_Param numbers it, with the value in the displayed unit.
+    assert_eq!(find("LBV_GAIN"), ("LBV_GAIN".into(), 1, vec![70], None));
+    assert_eq!(
+        find("SYSID_MYGCS"),
+        ("SYSID_MYGCS".into(), 2, 200u16.to_le_bytes().to_vec(), None)
+    );
+    assert_eq!(
+        find("FS_GCS_TIMEOUT"),
+        ("FS_GCS_TIMEOUT".into(), 4, 10.0f32.to_le_bytes().to_vec(), None)
+    );
+    assert_eq!(find("FS_PILOT_TIMEOUT").2, 3.0f32.to_le_bytes());
+    assert_eq!(find("LBV_FRAME").2, [4]);
+    // A name shares its start with the one before: BTN1_FUNCTION sends "1_FUNCTION" after "BTN".
+    assert!(
+        file.windows(12).any(|w| w == b"\x01\x931_FUNCTION"),
+        "type 1, 3 bytes shared, 10 of its own"
+    );
+    // It spans two blocks of 239 bytes, and no value crosses from one to the next.
+    assert!(file.len() > 239, "{}", file.len());
+    for data in &unpacked.data {
+        assert_eq!(data.start / 239, (data.end - 1) / 239, "{data:?}");
+    }
+}
+
+#[test]
+fn param_pck_with_defaults_carries_the_default_of_each_parameter_changed() {
+    let mut s = Server::new();
+    let path = b"@PARAM/param.pck?withdefaults=1";
+    let (len, file) = s.get_file(0, with_params(changed_params()), 1, path, BURST, 239);
+    assert_eq!(len as usize, file.len());
+    let unpacked = unpack(&file);
+    assert_eq!((unpacked.magic, unpacked.count), (0x671C, 27));
+    let with_defaults: Vec<(&str, &[u8])> = unpacked
+        .params
+        .iter()
+        .filter_map(|(name, _, _, default)| Some((name.as_str(), default.as_deref()?)))
+        .collect();
+    assert_eq!(
+        with_defaults,
+        [
+            ("FS_GCS_TIMEOUT", &5.0f32.to_le_bytes()[..]),
+            ("SYSID_MYGCS", &255u16.to_le_bytes()[..]),
+            ("LBV_GAIN", &[50][..]),
+            // The build's frame.
+            ("LBV_FRAME", &[6][..]),
+        ]
+    );
+    for data in &unpacked.data {
+        assert_eq!(data.start / 239, (data.end - 1) / 239, "{data:?}");
+    }
+    // The same file whatever the client reads it in: ReadFile of 239, 80 and 1 (a value split across two reads is
+    // still the value it was opened with), BurstReadFile of 80.
+    for (opcode, size) in [(READ, 239), (READ, 80), (READ, 1), (BURST, 80)] {
+        let (_, again) = s.get_file(0, with_params(changed_params()), 2, path, opcode, size);
+        assert_eq!(again, file, "{opcode} {size}");
+    }
+}
+
+#[test]
+fn param_pck_takes_ardupilots_query_and_refuses_what_it_cannot_serve() {
+    let mut s = Server::new();
+    let context = with_params(changed_params());
+    let magic = |path: &[u8], s: &mut Server| {
+        let (_, file) = s.get_file(0, context, 1, path, BURST, 239);
+        let unpacked = unpack(&file);
+        assert_eq!((unpacked.count, unpacked.total, unpacked.params.len()), (27, 27, 27));
+        unpacked.magic
+    };
+    assert_eq!(magic(b"@PARAM/param.pck?withdefaults=0", &mut s), 0x671B);
+    assert_eq!(magic(b"/@PARAM/param.pck?withdefaults=1", &mut s), 0x671C);
+    // Keys it does not know are ignored, as ArduPilot ignores them (its `start` and `count` among them: the whole
+    // list comes, and says so); so is an empty query.
+    assert_eq!(magic(b"@PARAM/param.pck?format=2&withdefaults=1&x", &mut s), 0x671C);
+    assert_eq!(magic(b"@PARAM/param.pck?start=10&count=5", &mut s), 0x671B);
+    assert_eq!(magic(b"@PARAM/param.pck?", &mut s), 0x671B);
+    for path in [
+        &b"@PARAM/param.pck?withdefaults=2"[..],
+        b"@PARAM/param.pck?withdefaults",
+        b"@PARAM/param.pck?withdefaults=",
+        b"@PARAM/param.pck?withdefaults=01",
+    ] {
+        assert_eq!(
+            nak(&s.send(0, context, OTHER, &payload(1, 3, OPEN_RO, 0, path))),
+            Some(Nak::Fail as u8),
+            "{}",
+            String::from_utf8_lossy(path)
+        );
+    }
+    // Before the settings are published there are no values to list.
+    assert_eq!(nak(&s.op(0, 3, OPEN_RO, 0, PARAM_PCK)), Some(Nak::Fail as u8));
+    // Read-only: the operator may not write, create, remove or checksum it.
+    for opcode in [CREATE, OPEN_WO, REMOVE, CRC] {
+        assert_eq!(
+            nak(&s.send(0, context, GCS, &payload(1, 4, opcode, 0, PARAM_PCK))),
+            Some(Nak::FileProtected as u8),
+            "{opcode}"
+        );
+    }
+    // `@PARAM` lists it with its length (without a query); nothing else is there.
+    let (len, _) = s.get_file(0, context, 1, PARAM_PCK, BURST, 239);
+    let listed = s.send(0, context, OTHER, &payload(1, 5, LIST, 0, b"@PARAM")).unwrap();
+    assert_eq!(listed.data, format!("Fparam.pck\t{len}\0").as_bytes());
+    assert_eq!(
+        nak(&s.send(0, context, OTHER, &payload(2, 5, LIST, 1, b"/@PARAM/"))),
+        Some(Nak::EndOfFile as u8)
+    );
+    assert_eq!(
+        nak(&s.send(0, context, OTHER, &payload(3, 5, LIST, 0, PARAM_PCK))),
+        Some(Nak::FileNotFound as u8)
+    );
+}
+
+#[test]
+fn a_parameter_set_while_param_pck_is_read_fails_the_reads_until_it_is_opened_again() {
+    let mut s = Server::new();
+    let before = with_params(changed_params());
+    assert!(ack(&s.send(0, before, OTHER, &payload(1, 1, OPEN_RO, 0, PARAM_PCK))));
+    let first = s.send(0, before, OTHER, &payload(2, 1, BURST, 0, &[0; 239])).unwrap();
+    assert_eq!((first.opcode, first.data.len()), (ACK, 239));
+    // LBV_GAIN set between the two reads: the rest of the file would not be the file begun.
+    let mut params = changed_params();
+    assert!(params.set(Param::Gain, 71));
+    let after = with_params(params);
+    let second = s.send(0, after, OTHER, &payload(3, 1, BURST, 239, &[0; 239]));
+    assert_eq!(nak(&second), Some(Nak::Fail as u8));
+    // The same read, made when the value has gone back, is the file again.
+    let again = s.send(0, before, OTHER, &payload(4, 1, BURST, 239, &[0; 239])).unwrap();
+    assert_eq!(again.opcode, ACK);
+    // Opened again, the file has the new value.
+    assert!(ack(&s.send(0, after, OTHER, &payload(5, 1, TERMINATE, 0, &[]))));
+    let (_, file) = s.get_file(0, after, 2, PARAM_PCK, BURST, 239);
+    let gain = unpack(&file)
+        .params
+        .into_iter()
+        .find(|(name, ..)| name == "LBV_GAIN")
+        .unwrap();
+    assert_eq!(gain.2, [71]);
+}
+
+#[test]
+fn param_pck_never_panics_on_a_query_or_a_read() {
+    proptest!(|(query in proptest::collection::vec(any::<u8>(), 0..40), offset in any::<u32>(), size in 0usize..300)| {
+        let params = changed_params();
+        if let Some(file) = ParamFile::open(&query, &params, FrameKind::Lbv300_6) {
+            let mut into = vec![0; size];
+            let filled = file.read(offset, &mut into, &params).unwrap();
+            let len = u32::from(u16::from_le_bytes(file.len));
+            prop_assert_eq!(filled as u32, len.saturating_sub(offset).min(size as u32));
+        }
+    });
+}
+
 #[test]
 fn a_reads_reply_takes_no_more_room_in_the_outbox_than_a_text() {
     // The console's outbox holds 16 messages, each as large as the largest: a STATUSTEXT (50 bytes and its length),
@@ -1245,7 +1508,7 @@ fn a_reads_reply_takes_no_more_room_in_the_outbox_than_a_text() {
 #[test]
 fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
     let shared = Shared::new();
-    let mut updates = Updates::new(&VEHICLE.thrusters, CheckOnly);
+    let mut updates = Updates::new(&VEHICLE.thrusters, FrameKind::Lbv300_6, CheckOnly);
     let ftp = |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
         from: OTHER,
         what: UpdateCommand::Ftp(payload(seq, 1, opcode, offset, data)),
@@ -1267,10 +1530,29 @@ fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
     else {
         panic!("a read of versions.txt: {read:?}");
     };
-    let payload = reply.payload();
+    let payload = reply.payload(None);
     assert_eq!(payload[..8], [3, 0, 1, ACK, 239, BURST, 1, 0]);
     assert!(payload[12..].starts_with(b"board  family   version  state\nmaster -        -        unknown\n"));
     assert_ne!(payload[250], 0, "the whole payload");
+    // param.pck: not before the settings are published; then made from the parameters in force as it is framed.
+    let open = updates.serve(ftp(3, TERMINATE, 0, &[]), &shared);
+    assert!(matches!(open, Some(Outgoing::Ftp { reply: FtpAnswer::Reply(r), .. }) if r[3] == ACK));
+    let refused = updates.serve(ftp(4, OPEN_RO, 0, PARAM_PCK), &shared);
+    assert!(matches!(refused, Some(Outgoing::Ftp { reply: FtpAnswer::Reply(r), .. }) if r[3] == NAK));
+    let settings = crate::params::Settings::defaults(FrameKind::Lbv300_6);
+    shared.settings.sender().send(settings);
+    let open = updates.serve(ftp(5, OPEN_RO, 0, PARAM_PCK), &shared);
+    assert!(matches!(open, Some(Outgoing::Ftp { reply: FtpAnswer::Reply(r), .. }) if r[3] == ACK));
+    let Some(Outgoing::Ftp { reply, .. }) = updates.serve(ftp(6, BURST, 0, &[0; 239]), &shared) else {
+        panic!("a read of param.pck");
+    };
+    assert_eq!(reply.payload(Some(&settings.params))[..6], [7, 0, 1, ACK, 239, BURST]);
+    assert_eq!(
+        reply.payload(Some(&settings.params))[12..18],
+        [0x1B, 0x67, 27, 0, 27, 0]
+    );
+    // The console without the settings (never, once the file is open) sends a NAK rather than other values.
+    assert_eq!(reply.payload(None)[..6], [7, 0, 1, NAK, 1, BURST]);
 }
 
 #[test]
@@ -1500,7 +1782,7 @@ fn the_apply_command_over_a_link_without_signing_is_denied_with_why() {
     let mut allowed = defaults;
     assert!(allowed.params.set(Param::UnsignedUpdates, 1));
     publish(&shared, allowed);
-    let mut updates = Updates::new(&VEHICLE.thrusters, CheckOnly);
+    let mut updates = Updates::new(&VEHICLE.thrusters, FrameKind::Lbv300_6, CheckOnly);
     let file = update_file(1, 1000);
     let ftp = |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
         from: GCS,
@@ -1513,7 +1795,7 @@ fn the_apply_command_over_a_link_without_signing_is_denied_with_why() {
     );
     for (n, chunk) in file.chunks(239).enumerate() {
         let reply = updates.serve(ftp(2 + n as u16, WRITE, (n * 239) as u32, chunk), &shared);
-        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply.payload()[3] == ACK));
+        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply.payload(None)[3] == ACK));
     }
     let drain = || core::iter::from_fn(|| shared.outbox.try_receive().ok()).collect::<Vec<_>>();
     drain();
@@ -1643,7 +1925,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         Some(AckResult::Denied)
     );
     // The sink may fail it, or say it started.
-    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     for (target, path, kind, result, text) in [
         (
             UpdateTarget::Thruster(0),
@@ -1673,7 +1955,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         assert_eq!(
             server
                 .request(t(0), DISARMED, GCS, &write, &mut Nowhere::default(), &mut out)
-                .map(|r| r.payload()[3]),
+                .map(|r| r.payload(None)[3]),
             Some(ACK)
         );
         let terminate = payload(3, 1, TERMINATE, 0, &[]);
@@ -1734,7 +2016,7 @@ fn a_sink_that_refuses_ends_the_upload() {
         (2, vec![false], vec![]),
         (3, vec![true, false], vec!["thruster0.lbvu: picky"]),
     ] {
-        let mut server = UpdateServer::new(&VEHICLE.thrusters);
+        let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
         let mut sink = Picky {
             refuse,
             ..Picky::default()
@@ -1755,12 +2037,12 @@ fn a_sink_that_refuses_ends_the_upload() {
         for (n, chunk) in file.chunks(239).enumerate() {
             let write = payload(2 + n as u16, 1, WRITE, (n * 239) as u32, chunk);
             last = server.request(t(0), DISARMED, GCS, &write, &mut sink, &mut out);
-            if last.is_some_and(|r| r.payload()[3] == NAK) {
+            if last.is_some_and(|r| r.payload(None)[3] == NAK) {
                 break;
             }
         }
         assert_eq!(
-            last.map(|r| (r.payload()[3], r.payload()[12])),
+            last.map(|r| (r.payload(None)[3], r.payload(None)[12])),
             Some((NAK, Nak::Fail as u8)),
             "{refuse}"
         );
@@ -1772,7 +2054,7 @@ fn a_sink_that_refuses_ends_the_upload() {
 
 #[test]
 fn check_only_checks_and_applies_nothing() {
-    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let file = update_file(1, 1000);
     let mut said = Vec::new();
     let mut out = |o| said.push(o);
@@ -1783,7 +2065,7 @@ fn check_only_checks_and_applies_nothing() {
         assert_eq!(
             server
                 .request(t(0), DISARMED, GCS, &write, &mut CheckOnly, &mut out)
-                .map(|r| r.payload()[3]),
+                .map(|r| r.payload(None)[3]),
             Some(ACK)
         );
     }
@@ -1912,7 +2194,7 @@ proptest! {
 
 #[test]
 fn a_version_query_goes_to_the_sink_for_the_operator_and_a_thruster_slot_only() {
-    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let mut sink = Nowhere::default();
     let mut ask = |context, from, slot| {
         let mut said = Vec::new();
@@ -1992,7 +2274,7 @@ impl UpdateSink for UnderWay {
 
 #[test]
 fn a_second_apply_while_one_runs_is_answered_as_the_one_under_way_never_failed() {
-    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let mut sink = UnderWay {
         by: GCS,
         published: core::cell::Cell::new(0),
@@ -2048,6 +2330,7 @@ fn the_update_server_has_the_sink_publish_its_holds_as_soon_as_an_apply_command_
     let shared = Shared::new();
     let mut updates = Updates::new(
         &VEHICLE.thrusters,
+        FrameKind::Lbv300_6,
         UnderWay {
             by: GCS,
             published: core::cell::Cell::new(0),

@@ -11,9 +11,9 @@ use embassy_futures::select::select;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant};
 use lbv_master_fw::console::lbv::{
-    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, MISSION_ACK_DATA,
-    MISSION_CLEAR_ALL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA, MavMessage, MavModeFlag, MavParamType,
-    MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
+    AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, COMMAND_INT_DATA, COMMAND_LONG_DATA, FILE_TRANSFER_PROTOCOL_DATA,
+    MISSION_ACK_DATA, MISSION_CLEAR_ALL_DATA, MISSION_COUNT_DATA, MISSION_REQUEST_LIST_DATA, MavMessage, MavModeFlag,
+    MavParamType, MavProtocolCapability, MavResult, MavSysStatusSensor, PARAM_REQUEST_LIST_DATA, PARAM_SET_DATA,
 };
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, console_rx_task, console_tx_task};
 use lbv_master_fw::shared::Shared;
@@ -42,6 +42,22 @@ impl Station {
 
     fn heartbeat(&mut self) {
         self.send(&GCS_HEARTBEAT);
+    }
+
+    /// A MAVLink FTP request: sequence `seq`, session 0, `opcode`, `offset`, `data` (its length the size).
+    fn ftp(&mut self, seq: u16, opcode: u8, offset: u32, data: &[u8]) {
+        let mut payload = [0; 251];
+        payload[..2].copy_from_slice(&seq.to_le_bytes());
+        payload[3] = opcode;
+        payload[4] = data.len() as u8;
+        payload[8..12].copy_from_slice(&offset.to_le_bytes());
+        payload[12..12 + data.len()].copy_from_slice(data);
+        self.send(&FILE_TRANSFER_PROTOCOL_DATA {
+            target_network: 0,
+            target_system: 1,
+            target_component: 1,
+            payload,
+        });
     }
 
     fn command(&mut self, command: u16, params: [f32; 7]) {
@@ -102,6 +118,7 @@ fn connect(limit: Duration, mut script: impl FnMut(&mut Station) -> bool) -> Sta
             &shared,
             &stats,
             &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::mixer::FrameKind::Lbv300_6,
             lbv_master_fw::update::CheckOnly,
         ),
         console_tx_task(&mut tx, &config, &shared, &stats),
@@ -238,8 +255,20 @@ fn check_autopilot_version(v: &AUTOPILOT_VERSION_DATA) {
     assert_eq!(v.uid, u64::from(word(0)) | u64::from(word(1) ^ word(2)) << 32);
 }
 
+/// QGroundControl's connect on an ArduPilot vehicle: the parameters from `@PARAM/param.pck` over MAVLink FTP.
 #[test]
 fn qgroundcontrol_initial_connect_then_arm() {
+    qgroundcontrol_connect_then_arm(true);
+}
+
+/// QGroundControl's connect without the parameter file (a vehicle without MAVLink FTP, or a download that failed):
+/// the parameter list.
+#[test]
+fn qgroundcontrol_initial_connect_by_the_parameter_list_then_arm() {
+    qgroundcontrol_connect_then_arm(false);
+}
+
+fn qgroundcontrol_connect_then_arm(with_file: bool) {
     #[derive(Debug, Clone, Copy, PartialEq)]
     enum Step {
         /// Listen before saying anything: the vehicle's heartbeat, and its pre-arm check unhealthy without a
@@ -257,7 +286,13 @@ fn qgroundcontrol_initial_connect_then_arm() {
         RequestCapabilities {
             sent: usize,
         },
-        /// ParameterManager::refreshAllParameters: PARAM_REQUEST_LIST, then every PARAM_VALUE.
+        /// ParameterManager on an ArduPilot vehicle: `@PARAM/param.pck?withdefaults=1` over MAVLink FTP
+        /// (OpenFileRO, BurstReadFile from where each reply ends until EndOfFile, TerminateSession).
+        ParamFile {
+            sent: usize,
+        },
+        /// ParameterManager::refreshAllParameters, QGroundControl's way without the file: PARAM_REQUEST_LIST, then
+        /// every PARAM_VALUE.
         Parameters {
             sent: usize,
         },
@@ -281,6 +316,11 @@ fn qgroundcontrol_initial_connect_then_arm() {
     let mut step = Step::Listen;
     let mut last_heartbeat: Option<Instant> = None;
     let mut versions = 0;
+    // param.pck: its length by the open's ACK, its bytes, and the FTP requests' sequence.
+    let mut pck_len = None;
+    let mut pck = Vec::new();
+    let mut ftp_seq = 0u16;
+    let mut connected = None;
     let station = connect(Duration::from_secs(20), |gcs| {
         let now = Instant::now();
         let talking = !matches!(step, Step::Listen | Step::ArmTooEarly { .. });
@@ -336,6 +376,11 @@ fn qgroundcontrol_initial_connect_then_arm() {
                             Step::RequestCapabilities {
                                 sent: gcs.received.len(),
                             }
+                        } else if with_file {
+                            gcs.ftp(ftp_seq, OPEN_RO, 0, b"@PARAM/param.pck?withdefaults=1");
+                            Step::ParamFile {
+                                sent: gcs.received.len(),
+                            }
                         } else {
                             gcs.send(&PARAM_REQUEST_LIST_DATA {
                                 target_system: 1,
@@ -349,6 +394,55 @@ fn qgroundcontrol_initial_connect_then_arm() {
                     _ => step,
                 }
             }
+            Step::ParamFile { sent } => match find(gcs, sent, |m| matches!(m, MavMessage::FILE_TRANSFER_PROTOCOL(_))) {
+                Some(at) => {
+                    let MavMessage::FILE_TRANSFER_PROTOCOL(reply) = &gcs.received[at].2 else {
+                        unreachable!()
+                    };
+                    let reply = reply.payload;
+                    let (opcode, size, asked) = (reply[3], usize::from(reply[4]), reply[5]);
+                    assert_eq!(
+                        u16::from_le_bytes([reply[0], reply[1]]),
+                        ftp_seq + 1,
+                        "answers the request"
+                    );
+                    let data = &reply[12..12 + size];
+                    ftp_seq += 1;
+                    match (opcode, asked) {
+                        (ACK, OPEN_RO) => {
+                            pck_len = Some(u32::from_le_bytes(data.try_into().unwrap()) as usize);
+                            gcs.ftp(ftp_seq, BURST, 0, &[0; 239]);
+                        }
+                        (ACK, BURST) => {
+                            pck.extend_from_slice(data);
+                            gcs.ftp(ftp_seq, BURST, pck.len() as u32, &[0; 239]);
+                        }
+                        (NAK, BURST) => {
+                            assert_eq!(data, [EOF], "the end of the file");
+                            assert_eq!(Some(pck.len()), pck_len, "the length the open gave");
+                            // With defaults; 27 parameters of 27; the first, FS_GCS_ENABLE 2, at its default.
+                            assert_eq!(pck[..6], [0x1C, 0x67, 27, 0, 27, 0]);
+                            assert_eq!(pck[6..22], *b"\x01\xC0FS_GCS_ENABLE\x02");
+                            gcs.ftp(ftp_seq, TERMINATE, 0, &[]);
+                        }
+                        (ACK, TERMINATE) => {
+                            gcs.send(&MISSION_REQUEST_LIST_DATA {
+                                target_system: 1,
+                                target_component: 1,
+                                mission_type: 0,
+                            });
+                        }
+                        other => panic!("param.pck: {other:?} {data:?}"),
+                    }
+                    let sent = gcs.received.len();
+                    if (opcode, asked) == (ACK, TERMINATE) {
+                        Step::Mission { sent }
+                    } else {
+                        Step::ParamFile { sent }
+                    }
+                }
+                None => step,
+            },
             Step::Parameters { sent } => {
                 let values: Vec<_> = gcs
                     .since(sent)
@@ -412,6 +506,7 @@ fn qgroundcontrol_initial_connect_then_arm() {
                         gcs.received[at].0 - gcs.received[sent.saturating_sub(1)].0 < Duration::from_millis(100),
                         "answered at once: QGroundControl waits for nothing"
                     );
+                    connected = Some(gcs.received[at].0);
                     Step::WaitArmable {
                         from: gcs.received.len(),
                     }
@@ -449,6 +544,16 @@ fn qgroundcontrol_initial_connect_then_arm() {
         step == Step::Done
     });
     assert_eq!(versions, 2);
+    // The connect (up to the mission list) within 5 s of the vehicle's first heartbeat: nothing waited for a
+    // timeout. (This link carries frames at once; the time a 115200 baud line takes is the bench's to tell.)
+    let first_heartbeat = station
+        .received
+        .iter()
+        .find(|(_, _, m)| matches!(m, MavMessage::HEARTBEAT(_)))
+        .map(|(at, ..)| *at)
+        .unwrap();
+    let connect_time = connected.unwrap() - first_heartbeat;
+    assert!(connect_time < Duration::from_secs(5), "{connect_time:?}");
     // Every frame came from the vehicle's own system and component.
     assert!(
         station
@@ -460,6 +565,14 @@ fn qgroundcontrol_initial_connect_then_arm() {
 
 /// MAV_CMD_DO_SET_MODE.
 const SET_MODE: u16 = 176;
+
+// MAVLink FTP's opcodes, replies and EndOfFile.
+const TERMINATE: u8 = 1;
+const OPEN_RO: u8 = 4;
+const BURST: u8 = 15;
+const ACK: u8 = 128;
+const NAK: u8 = 129;
+const EOF: u8 = 6;
 
 #[test]
 fn a_plan_is_cleared_at_once_and_an_upload_refused_as_a_vehicle_without_missions_does() {

@@ -21,6 +21,7 @@ use lbv_master_fw::console::lbv::{
 };
 use lbv_master_fw::console::limit::BURST;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, HELD, console_rx_task};
+use lbv_master_fw::mixer::FrameKind;
 use lbv_master_fw::params::{PARAM_COUNT, Param, Settings};
 use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Sender, Severity, Shared, text};
@@ -165,7 +166,7 @@ fn run_rx(
     let config = ConsoleConfig::DEFAULT;
     let table = lbv_master_fw::config::VEHICLE.thrusters;
     block_on(select(
-        console_rx_task(&mut rx, &config, &shared, &stats, &table, sink),
+        console_rx_task(&mut rx, &config, &shared, &stats, &table, FrameKind::Lbv300_6, sink),
         async {
             let end = Instant::now() + run_for;
             while Instant::now() < end {
@@ -191,7 +192,7 @@ fn take_commands(shared: &Shared, into: &mut Vec<(Instant, Request)>) {
 fn take_replies(shared: &Shared, into: &mut Vec<(Sender, u8, u8, u16)>) {
     while let Ok(message) = shared.outbox.try_receive() {
         if let Outgoing::Ftp { to, reply } = message {
-            let reply = reply.payload();
+            let reply = reply.payload(None);
             into.push((to, reply[3], reply[5], u16::from_le_bytes([reply[0], reply[1]])));
         }
     }

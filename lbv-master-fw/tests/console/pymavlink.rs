@@ -650,12 +650,13 @@ fn pymavlink_decodes_what_the_console_sends() {
 fn versions_read() -> Outgoing {
     use lbv_master_fw::config::VEHICLE;
     use lbv_master_fw::update::{CheckOnly, Context, UpdateServer};
-    let mut server = UpdateServer::new(&VEHICLE.thrusters);
+    let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let context = Context {
         armed: false,
         operator: 255,
         restarting: false,
         unsigned: false,
+        params: None,
     };
     let gcs = Sender {
         system: 255,

@@ -95,6 +95,7 @@ pub fn run_rx_requests(
             shared,
             &stats,
             &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::mixer::FrameKind::Lbv300_6,
             lbv_master_fw::update::CheckOnly,
         ),
         async {
@@ -262,6 +263,7 @@ pub fn run_console(
             &shared,
             &stats,
             &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::mixer::FrameKind::Lbv300_6,
             lbv_master_fw::update::CheckOnly,
         ),
         console_tx_task(&mut tx, &config, &shared, &stats),

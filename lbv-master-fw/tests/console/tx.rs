@@ -284,6 +284,7 @@ fn drop_rate_comes_from_the_receive_counters() {
             &shared,
             &stats,
             &lbv_master_fw::config::VEHICLE.thrusters,
+            lbv_master_fw::mixer::FrameKind::Lbv300_6,
             lbv_master_fw::update::CheckOnly,
         ),
         lbv_master_fw::console::console_tx_task(&mut tx, &config, &shared, &stats),

@@ -1,5 +1,6 @@
 //! The bench flown by MAVProxy, a real ground station, as a pilot flies (`tests/mavproxy_pilot.py`): MAVProxy
-//! connects to `lbv bench --udp`, downloads the parameters itself (each with its type), asks the vehicle's
+//! connects to `lbv bench --udp`, downloads the parameters itself over FTP (`@PARAM/param.pck`) and again as the
+//! PARAM_VALUE list (each with its type, each value the file's), asks the vehicle's
 //! AUTOPILOT_VERSION (`version`), lists the mission, the fence and the rally points (none) and clears the mission,
 //! sets one parameter, arms, holds the vehicle armed for
 //! 8 s on its own 1 Hz heartbeats, disarms, reboots the master (the bench restarts its core with its flash kept),
@@ -58,6 +59,9 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
     assert_eq!(summary["param_types"]["SYSID_MYGCS"], 4, "INT16: {summary}");
     assert_eq!(summary["param_types"]["FS_PILOT_INPUT"], 2, "INT8: {summary}");
     assert_eq!(summary["param_types"]["FS_GCS_TIMEOUT"], 9, "REAL32: {summary}");
+    // What MAVProxy decoded from param.pck: the defaults (its gain, its heartbeat timeout in seconds).
+    assert_eq!(summary["ftp_params"]["LBV_GAIN"], 50.0, "{summary}");
+    assert_eq!(summary["ftp_params"]["FS_GCS_TIMEOUT"], 5.0, "{summary}");
     assert_eq!(summary["persisted"]["LBV_GAIN"], 80.0, "{summary}");
     assert!(summary["reboot"]["sequence_restarts"].as_u64() >= Some(1), "{summary}");
     println!("pilot: {summary}\nbench:\n{bench_output}");

@@ -96,7 +96,7 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
         )
     };
     assert_eq!(summary["list"], files([0; 9]), "{summary}");
-    // `/` holds `update` and `@SYS` (MAVProxy prints a listing sorted), `@SYS` the versions file, whose length the
+    // `/` holds `update`, `@SYS` and `@PARAM` (MAVProxy prints a listing sorted), `@SYS` the versions file, whose length the
     // listing gives and `ftp get` reads: the bench vehicle's six thrusters, SeaBotix and Legacy in turn, and its
     // master, each on its first image.
     let before = versions(&summary["versions"], &summary);
@@ -267,7 +267,11 @@ fn mavproxy_puts_an_update_file_over_a_lossy_link_and_the_sink_gets_it_byte_for_
 /// The lines of `@SYS/versions.txt` as a step of the script got it, each line's fields (board, family, version,
 /// state), after checking the listings that came with it: `/` and `@SYS` (its length, which `ftp get` wrote).
 fn versions(got: &serde_json::Value, summary: &serde_json::Value) -> Vec<[String; 4]> {
-    assert_eq!(got["root"], serde_json::json!(["@SYS", "update"]), "{summary}");
+    assert_eq!(
+        got["root"],
+        serde_json::json!(["@PARAM", "@SYS", "update"]),
+        "{summary}"
+    );
     let text = got["text"].as_str().unwrap();
     assert_eq!(
         got["sys"],

@@ -49,7 +49,7 @@ fn pymavlink_puts_an_update_file_that_the_sink_gets_byte_for_byte_and_applies_it
     // table, one per family and the master's.
     assert_eq!(
         summary["root"],
-        serde_json::json!([["@SYS", 0, true], ["update", 0, true]]),
+        serde_json::json!([["@PARAM", 0, true], ["@SYS", 0, true], ["update", 0, true]]),
         "{summary}"
     );
     let files = |sizes: [u64; 9]| {
