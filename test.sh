@@ -132,7 +132,7 @@ fi
 
 step "clippy (host)"
 cargo clippy --workspace --all-targets --locked -- -D warnings
-cargo clippy -p tmc-proto -p bat-proto -p update-image --all-targets --features defmt --locked -- -D warnings
+cargo clippy -p tmc-proto -p bat-proto -p crash-record -p update-image --all-targets --features defmt --locked -- -D warnings
 
 if $quick; then
   finish "setting up the Python tools" "$packages" target/packages.log
@@ -166,7 +166,7 @@ fuzz_check() {
   # libFuzzer's C++ sources need not be compiled: libfuzzer-sys takes the library's path instead, and no link ever
   # asks for it.
   rustup toolchain list | grep -q '^nightly' || { echo "no nightly toolchain: skipped"; return 0; }
-  for fuzz in tmc-proto/fuzz bat-proto/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
+  for fuzz in tmc-proto/fuzz bat-proto/fuzz crash-record/fuzz lbv-master-fw/fuzz lbv/fuzz update-image/fuzz; do
     CUSTOM_LIBFUZZER_PATH="$PWD/target/fuzz/not-built/libfuzzer.a" \
       cargo +nightly check --manifest-path "$fuzz/Cargo.toml" --bins --quiet --target-dir target/fuzz
   done

@@ -32,7 +32,7 @@ enum Command {
     /// The virtual bench: the whole vehicle (the real firmware cores, simulated buses, motors and battery) on
     /// virtual time; with --udp, in real time for a ground station to fly
     Bench(BenchArgs),
-    /// Decode what people capture on the bench: I2C annotations from sigrok, candump logs
+    /// Decode what people capture on the bench: I2C annotations from sigrok, candump logs, crash records
     #[command(subcommand)]
     Decode(decode::Command),
     /// Write a board from nothing: its bootloader, then its image, run with its log streamed

@@ -1,7 +1,8 @@
-//! `lbv decode`: read what people capture on the bench (logic-analyser I2C exports, candump logs) and print it
-//! decoded with the project's protocol crates.
+//! `lbv decode`: read what people capture on the bench (logic-analyser I2C exports, candump logs, a board's
+//! post-mortem record) and print it decoded with the project's protocol crates.
 
 pub mod can;
+pub mod crash;
 pub mod i2c;
 
 use std::fs::File;
@@ -16,6 +17,8 @@ pub enum Command {
     I2c(i2c::Args),
     /// The BAT board's frames from candump logs
     Can(can::Args),
+    /// A board's post-mortem record (panic, fault, watchdog), with the image's ELF for functions and lines
+    Crash(crash::Args),
 }
 
 /// `lbv decode ...`
@@ -23,6 +26,7 @@ pub fn main(command: Command) -> ExitCode {
     match command {
         Command::I2c(args) => i2c::main(&args),
         Command::Can(args) => can::main(&args),
+        Command::Crash(args) => crash::main(&args),
     }
 }
 

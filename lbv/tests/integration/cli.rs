@@ -31,6 +31,7 @@ fn every_command_answers_help_with_zero_and_its_exit_statuses() {
         &["decode"],
         &["decode", "i2c"],
         &["decode", "can"],
+        &["decode", "crash"],
         &["hil"],
         &["image"],
         &["image", "keygen"],
@@ -148,6 +149,20 @@ fn bad_values_are_refused_with_two() {
             "cannot open /nonexistent/candump.log",
         ),
         (vec!["decode", "can", "a.log", "b.log"], "unexpected argument"),
+        (
+            vec!["decode", "crash", "/nonexistent/record.bin"],
+            "cannot open /nonexistent/record.bin",
+        ),
+        (vec!["decode", "crash", "a.bin", "b.bin"], "unexpected argument"),
+        (vec!["decode", "crash", "/dev/null", "--elf"], "a value is required"),
+        (
+            vec!["decode", "crash", "/dev/null", "--elf", "/nonexistent/image.elf"],
+            "cannot open /nonexistent/image.elf",
+        ),
+        (
+            vec!["decode", "crash", "/dev/null", "--elf", "/dev/null"],
+            "/dev/null: not an ELF file",
+        ),
     ];
     for (args, says) in &cases {
         let output = lbv(args);
@@ -184,6 +199,87 @@ fn edge_values_are_taken() {
     }
     let output = lbv(&["decode", "i2c", "--samplerate", "1e12", "/dev/null"]);
     assert_eq!(output.status.code(), Some(0), "{}", text(&output.stderr));
+}
+
+/// `lbv decode crash`: a record prints with exit status 0, with or without an ELF (here lbv's own); what is not one
+/// (empty, cut short, one bit flipped, larger than a record file may be) is refused with 1 and the reason.
+#[test]
+fn decode_crash_prints_a_record_and_refuses_what_is_not_one() {
+    use crash_record::{FaultStatus, Frame, Image, Kind, Region, ResetCause, Stop};
+    let dir = std::env::temp_dir().join(format!("lbv-cli-crash-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut region = Region::new();
+    let image = Image {
+        target: 1,
+        version: [0, 2, 7, 0],
+    };
+    region.start(ResetCause(1 << 27), image);
+    let stop = Stop {
+        kind: Kind::HardFault,
+        frame: Frame {
+            pc: 0x0800_4321,
+            lr: 0xFFFF_FFF9,
+            xpsr: 0x6100_0003,
+            sp: 0x2000_7F00,
+        },
+        faults: FaultStatus {
+            cfsr: 1 << 25,
+            hfsr: 1 << 30,
+            mmfar: 0,
+            bfar: 0,
+        },
+        exception: 3,
+        panic: None,
+        uptime_ms: 5_001,
+    };
+    region.record(stop, image);
+    let record = region.record;
+    let file = |name: &str, bytes: &[u8]| {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes).unwrap();
+        path.display().to_string()
+    };
+    let good = file("good.bin", &record);
+    let exe = env!("CARGO_BIN_EXE_lbv");
+    for args in [
+        vec!["decode", "crash", &good],
+        vec!["decode", "crash", &good, "--elf", exe],
+    ] {
+        let output = lbv(&args);
+        let out = text(&output.stdout);
+        assert_eq!(output.status.code(), Some(0), "lbv {args:?}: {}", text(&output.stderr));
+        for line in [
+            "kind       HardFault\n",
+            "target     SeaBotix thruster\n",
+            "version    0.2.7\n",
+            "uptime     5.001 s\n",
+            "exception  3 HardFault\n",
+            "LR         0xfffffff9  EXC_RETURN: no call site\n",
+            "CFSR       0x02000000  DIVBYZERO\n",
+            "  +000.000 s  started (reset flags 0x08, RCC_CSR's top byte)\n",
+        ] {
+            assert!(out.contains(line), "lbv {args:?}: {line:?} in {out}");
+        }
+    }
+    let mut flipped = record;
+    flipped[20] ^= 0x10;
+    for (bytes, says) in [
+        (&[][..], "0 bytes, not a record's 128"),
+        (&record[..100], "100 bytes, not a record's 128"),
+        (&flipped[..], "its CRC does not match"),
+        (&[0x55; 4097][..], "larger than 4096 bytes"),
+    ] {
+        let path = file("bad.bin", bytes);
+        let output = lbv(&["decode", "crash", &path]);
+        let err = text(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "{says}: {err}");
+        assert!(
+            err.contains(&format!("lbv decode crash: {path}: {says}")),
+            "{says} in {err}"
+        );
+        assert!(output.stdout.is_empty() && !err.contains("panicked"), "{err}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `lbv bench --plot` writes a PNG or an SVG by the file's extension.

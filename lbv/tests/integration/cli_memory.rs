@@ -91,6 +91,35 @@ fn decode_can_keeps_a_bounded_number_of_interfaces() {
 }
 
 #[test]
+fn decode_crash_reads_no_more_than_a_record_file_may_hold() {
+    // An endless stream where a 128-byte record belongs: refused once it passes 4 KiB. The tool ends before the
+    // writer does, so its memory is not read from /proc: what it reads bounds what it holds, and the writer sees
+    // the pipe close after its buffer's worth.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_lbv"))
+        .args(["decode", "crash"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("lbv runs");
+    let mut pipe = child.stdin.take().expect("a pipe");
+    let block = vec![0x55u8; 1 << 16];
+    let mut written = 0usize;
+    while written < 256 << 20 {
+        match pipe.write(&block) {
+            Ok(count) => written += count,
+            Err(_) => break,
+        }
+    }
+    drop(pipe);
+    let output = child.wait_with_output().expect("lbv ends");
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(written < 4 << 20, "lbv read {written} bytes of a stream");
+    assert_eq!(output.status.code(), Some(1), "{err}");
+    assert!(err.contains("larger than 4096 bytes"), "{err}");
+}
+
+#[test]
 fn hil_replay_keeps_counts_not_lines() {
     // A start, 60 000 failed steps, then the verdict once the peak is read.
     let step = "INFO  ACCEPT step=speed-forward family=seabotix result=FAIL steps=102 ok=101 worst_ms=1001 \
