@@ -133,6 +133,18 @@ pub enum Boot {
     Application(&'static Partitions),
 }
 
+/// The post-mortem record's region (`crash_record::Region`: the record, then the ring of the last events) at the
+/// very bottom of RAM, on either chip. That is SRAM1, which has no parity to trip on what a power-on leaves there
+/// (RM0440 2.4: SRAM2 and CCM SRAM have parity) and keeps its content over a system reset (RM0440 2.3.1). Nothing
+/// is linked there and neither the start-up code nor a bootloader writes there: with flip-link the stack grows down
+/// from below the statics at the top of RAM, and reaches it only after using all but its last bytes, which every
+/// image's stack budget keeps it far from (`images`). The `RAM` region still begins there, so flip-link's guard, a
+/// fault at the bottom of RAM, stays where it was.
+pub const CRASH: Span = Span {
+    origin: 0x2000_0000,
+    length: 192,
+};
+
 /// Where an application image keeps its information record (update-image's `ImageInfo`: target, version), from
 /// the image's start: just past the vector table (16 + 102 words on the G431, RM0440 Table 97), where the update
 /// tools and a thruster receiving an image look for it.

@@ -910,13 +910,18 @@ impl<W: Write> Output<'_, W> {
         }
     }
 
-    /// Frame an FTP reply, a read of `param.pck` with the parameters in force now (nothing in an image without
-    /// the update server, which has none to send).
+    /// Frame an FTP reply, a read with the parameters and the crash record as they are now (nothing in an image
+    /// without the update server, which has none to send).
     fn ftp_reply(&mut self, to: Sender, reply: &FtpAnswer, shared: &Shared) {
         #[cfg(not(feature = "acceptance"))]
         {
             let params = shared.settings.try_get().map(|settings| settings.params);
-            let len = self.framer.frame_ftp(to, reply, params.as_ref()).len();
+            let crash = shared.crash_bytes();
+            let contents = crate::update::Contents {
+                params: params.as_ref(),
+                crash: crash.as_ref(),
+            };
+            let len = self.framer.frame_ftp(to, reply, &contents).len();
             self.append(len, lbv::FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC);
         }
         let _ = (to, reply, shared);

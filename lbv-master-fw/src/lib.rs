@@ -162,6 +162,7 @@ pub async fn run<P: Board>(ports: Ports<P>, config: &MasterConfig, shared: &Shar
     if settings.writes_refused() {
         shared.say(Severity::Error, text(format_args!("{NOT_DUAL_BANK_TEXT}")));
     }
+    tell_crash(shared);
     shared.settings.sender().send(stored);
     // Until the own update has read whether the running image is on trial, no arm is taken ([`update::own`]).
     shared.holds.set_master(Some(shared::UpdateHold::MasterStarting));
@@ -191,6 +192,32 @@ pub async fn run<P: Board>(ports: Ports<P>, config: &MasterConfig, shared: &Shar
     )
     .await;
     never
+}
+
+/// Tell the operator, once, of the stop before this start that the post-mortem region holds
+/// ([`Shared::keep_crash`]), and where to read its record.
+fn tell_crash(shared: &Shared) {
+    let Some(record) = shared.crash_record().filter(|record| !record.told) else {
+        return;
+    };
+    let what = record.kind.name();
+    shared.say(
+        Severity::Critical,
+        match (record.kind, record.panic) {
+            (crash_record::Kind::Watchdog, _) => text(format_args!("Crash before this start: {what}")),
+            // Its file is an address in the image, which `lbv decode crash --elf` reads.
+            (_, Some(at)) => text(format_args!("Crash before this start: {what}, line {}", at.line)),
+            _ => text(format_args!(
+                "Crash before this start: {what} at {:#010x}",
+                record.frame.pc
+            )),
+        },
+    );
+    shared.say(
+        Severity::Critical,
+        text(format_args!("Its record: ftp get @SYS/crash/master.bin")),
+    );
+    shared.crash_told();
 }
 
 #[cfg(test)]

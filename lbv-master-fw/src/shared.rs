@@ -3,10 +3,11 @@
 //! talks to the others only through [`Shared`]. The tasks' modules build on this one; it builds on none of them,
 //! only on [`crate::params`] and [`crate::mixer`] for the settings and the pilot's sticks it carries.
 
-use core::cell::Cell;
-use core::sync::atomic::AtomicBool;
+use core::cell::{Cell, RefCell};
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
+use crash_record::{Event, Record, Region, What};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
@@ -704,6 +705,12 @@ pub struct Shared {
     pub(crate) restarting: AtomicBool,
     /// The master's own update, the courier's users -> vehicle: what keeps the vehicle from arming.
     pub(crate) holds: UpdateHolds,
+    /// The post-mortem region ([`crash_record`]), once the binding has handed it over ([`Shared::keep_crash`]): the
+    /// record of the stop before this start, served as `@SYS/crash/master.bin`, and the ring of the events noted
+    /// since ([`Shared::note`]).
+    crash: BlockingMutex<CriticalSectionRawMutex, RefCell<Option<&'static mut Region>>>,
+    /// The region held a record when it was handed over; it gets no other until the next start.
+    crash_held: AtomicBool,
 }
 
 impl Shared {
@@ -722,7 +729,55 @@ impl Shared {
             reboot: Signal::new(),
             restarting: AtomicBool::new(false),
             holds: UpdateHolds::new(),
+            crash: BlockingMutex::new(RefCell::new(None)),
+            crash_held: AtomicBool::new(false),
         }
+    }
+
+    /// Keep the post-mortem region, its start done ([`Region::start`]): from now on events are noted in it.
+    pub fn keep_crash(&self, region: &'static mut Region) {
+        self.crash_held.store(region.read().is_some(), Ordering::Relaxed);
+        self.crash.lock(|crash| *crash.borrow_mut() = Some(region));
+    }
+
+    /// Whether the region holds a record of the stop before this start.
+    pub(crate) fn crash_held(&self) -> bool {
+        self.crash_held.load(Ordering::Relaxed)
+    }
+
+    /// Note `what` in the ring of the last events, with the time since the start (nothing without the region).
+    #[inline(never)]
+    pub fn note(&self, what: What) {
+        let at_ms = embassy_time::Instant::now().as_millis() as u32;
+        self.with_crash(|region| region.note(Event { at_ms, what }));
+    }
+
+    /// The record of the stop before this start, if the region holds one.
+    pub fn crash_record(&self) -> Option<Record> {
+        self.with_crash(|region| region.read()).flatten()
+    }
+
+    /// The record's bytes, if the region holds one (for the update server's reads, which the acceptance image has
+    /// none of).
+    #[cfg_attr(feature = "acceptance", allow(dead_code))]
+    pub(crate) fn crash_bytes(&self) -> Option<[u8; crash_record::LEN]> {
+        self.with_crash(|region| region.read().map(|_| region.record)).flatten()
+    }
+
+    /// The ring's bytes (for the tests).
+    #[cfg(test)]
+    pub(crate) fn crash_ring(&self) -> Option<[u8; crash_record::RING_LEN]> {
+        self.with_crash(|region| region.ring)
+    }
+
+    /// The record has been told.
+    pub(crate) fn crash_told(&self) {
+        self.with_crash(|region| region.mark_told());
+    }
+
+    fn with_crash<R>(&self, f: impl FnOnce(&mut Region) -> R) -> Option<R> {
+        self.crash
+            .lock(|crash| crash.try_borrow_mut().ok()?.as_deref_mut().map(f))
     }
 
     /// Queue a text for the console; when the outbox is full the text is dropped rather than stalling a task.
@@ -898,6 +953,8 @@ pub enum OpenFile {
     Versions(Versions),
     /// `@PARAM/param.pck`.
     Params(ParamFile),
+    /// `@SYS/crash/master.bin`: the post-mortem record the region holds.
+    Crash,
 }
 
 /// The reply to a ReadFile or BurstReadFile: what its header needs, and what its data is made from as it is framed

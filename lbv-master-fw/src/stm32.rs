@@ -3,6 +3,7 @@
 use core::num::{NonZeroU8, NonZeroU16};
 use core::sync::atomic::{AtomicU32, Ordering};
 
+use crash_record::{FaultStatus, Frame, Image, Kind, PanicAt, Region, ResetCause, Stop};
 use defmt::{info, unwrap, warn};
 use defmt_rtt as _;
 use embassy_embedded_hal::flash::partition::Partition;
@@ -101,10 +102,75 @@ fn work_and_sink(_own: &'static OwnImage) -> (Work, Sink) {
     )
 }
 
+/// The image as its post-mortem record keeps it: the master, the crate's version.
+const CRASH_IMAGE: Image = Image {
+    target: 0,
+    version: match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
+        Some(version) => version.to_bytes(),
+        None => [0; 4],
+    },
+};
+
+// Any bytes there are a region; it fills the room kept for it.
+const _: () = assert!(core::mem::size_of::<Region>() == g431_hw::memory::CRASH.length as usize);
+
+/// The post-mortem region at the bottom of RAM (`g431_hw::memory::CRASH`).
+#[allow(unsafe_code)]
+fn crash_region() -> &'static mut Region {
+    // SAFETY: that RAM is linked to nothing and no stack within its budget reaches it; any bytes are a `Region`
+    // (alignment 1). The start takes it once and hands it to the core; the handlers below take it again only once
+    // every other context has stopped for good.
+    unsafe { &mut *(g431_hw::memory::CRASH.origin as *mut Region) }
+}
+
+/// Record a stop in the post-mortem region, with the fault status registers (ARMv7-M B3.2.15-B3.2.18) and the
+/// active exception (ICSR.VECTACTIVE, B3.2.4); the watchdog resets the chip afterwards.
+fn record_stop(kind: Kind, frame: Frame, panic: Option<PanicAt>) {
+    // SAFETY: SCB's registers, read only.
+    #[allow(unsafe_code)]
+    let scb = unsafe { &*cortex_m::peripheral::SCB::PTR };
+    let faults = FaultStatus {
+        cfsr: scb.cfsr.read(),
+        hfsr: scb.hfsr.read(),
+        mmfar: scb.mmfar.read(),
+        bfar: scb.bfar.read(),
+    };
+    let stop = Stop {
+        kind,
+        frame,
+        faults,
+        exception: (scb.icsr.read() & 0x1FF) as u16,
+        panic,
+        uptime_ms: embassy_time::Instant::now().as_millis() as u32,
+    };
+    crash_region().record(stop, CRASH_IMAGE);
+}
+
+/// The registers an exception stacked, and the stack pointer before it (its frame is eight words; an FPU frame's
+/// 18 more words and an alignment word are not counted: the SP is where the frame begins plus 32).
+fn stacked(frame: &cortex_m_rt::ExceptionFrame) -> Frame {
+    Frame {
+        pc: frame.pc(),
+        lr: frame.lr(),
+        xpsr: frame.xpsr(),
+        sp: (frame as *const cortex_m_rt::ExceptionFrame as u32).wrapping_add(32),
+    }
+}
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     // The chip as the image's description (`g431_hw::images`) gives it: nothing else of it is in reach.
     let chip = embassy_stm32::init(clocks());
+    // The stop before this start, read before anything else writes RAM there and before `CrashRegister::open`
+    // clears why the chip reset (RCC_CSR, RM0440 7.4.30).
+    let crash = crash_region();
+    if let Some(record) = crash.start(ResetCause(pac::RCC.csr().read().0), CRASH_IMAGE) {
+        warn!(
+            "stopped before this start: {=str} at {:#010x}",
+            record.kind.name(),
+            record.frame.pc
+        );
+    }
     // The switch to 170 MHz in RM0440's order, after `init`'s (docs/hardware.md "The switch to 170 MHz").
     if !g431_hw::boost_to_170_mhz!() {
         warn!("TIM15's prescaler was not embassy's for 85 MHz: the time driver's tick is off");
@@ -233,7 +299,8 @@ async fn main(spawner: Spawner) {
             update,
             own,
         },
-        config
+        config,
+        crash
     )));
 }
 
@@ -295,9 +362,10 @@ impl Board for Nucleo {
 /// the stack with the rest of it when the task is spawned (embassy-executor's `write_in_place` materialises the
 /// whole future there), which overflowed the 15 KiB stack at boot.
 #[embassy_executor::task]
-async fn master(ports: Ports<Nucleo>, config: &'static MasterConfig) -> ! {
+async fn master(ports: Ports<Nucleo>, config: &'static MasterConfig, crash: &'static mut Region) -> ! {
     static SHARED: StaticCell<Shared> = StaticCell::new();
     let shared = SHARED.init_with(Shared::new);
+    shared.keep_crash(crash);
     lbv_master_fw::run(ports, config, shared, &CONSOLE_STATS).await
 }
 
@@ -309,6 +377,14 @@ async fn master(ports: Ports<Nucleo>, config: &'static MasterConfig) -> ! {
 fn panic(info: &core::panic::PanicInfo) -> ! {
     cortex_m::interrupt::disable();
     let (file, line) = info.location().map_or(("?", 0), |at| (at.file(), at.line()));
+    // Where: the path's address in flash, which `lbv decode crash --elf` reads back.
+    let at = PanicAt {
+        file: file.as_ptr() as u32,
+        file_len: file.len() as u16,
+        line,
+    };
+    let sp = cortex_m::register::msp::read();
+    record_stop(Kind::Panic, Frame { sp, ..Frame::default() }, Some(at));
     match info.message().as_str() {
         Some(message) => defmt::error!("panicked at {=str}:{=u32}: {=str}", file, line, message),
         None => defmt::error!("panicked at {=str}:{=u32}", file, line),
@@ -319,7 +395,32 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 /// defmt's `panic!` / `unwrap!` take the same way out.
 #[defmt::panic_handler]
 fn defmt_panic() -> ! {
+    let sp = cortex_m::register::msp::read();
+    record_stop(Kind::Panic, Frame { sp, ..Frame::default() }, None);
     cortex_m::asm::udf()
+}
+
+/// A HardFault (a panic's undefined instruction, a bus or usage fault, a stack overflow with flip-link) is recorded,
+/// then the master waits for the watchdog: the thrusters stop by their link failsafe meanwhile. A panic recorded
+/// first stays the record ([`Region::record`]).
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    record_stop(Kind::HardFault, stacked(frame), None);
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// An interrupt the image never enables: recorded, then the watchdog resets (cortex-m-rt's default handler would
+/// spin unrecorded).
+#[cortex_m_rt::exception]
+#[allow(unsafe_code)]
+unsafe fn DefaultHandler(_irqn: i16) -> ! {
+    record_stop(Kind::StrayInterrupt, Frame::default(), None);
+    loop {
+        cortex_m::asm::nop();
+    }
 }
 
 /// ECC double errors in the settings pages the NMI handler let pass since the start (for a debugger).
@@ -338,9 +439,12 @@ unsafe fn NonMaskableInt() {
             pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear));
             SETTINGS_ECC_ERRORS.fetch_add(1, Ordering::Relaxed);
         }
-        NmiAction::Stop => loop {
-            cortex_m::asm::nop();
-        },
+        NmiAction::Stop => {
+            record_stop(Kind::Nmi, Frame::default(), None);
+            loop {
+                cortex_m::asm::nop();
+            }
+        }
     }
 }
 

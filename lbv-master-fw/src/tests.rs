@@ -432,3 +432,61 @@ fn a_master_whose_flash_is_not_dual_bank_says_so_once_and_writes_neither_setting
     );
     assert_eq!(flash.stats(), FlashStats::default(), "nothing erased or programmed");
 }
+
+/// The stop before this start is told once, as two texts, and the record marked told; events are noted in the ring
+/// with the time since the start.
+#[test]
+fn the_crash_before_this_start_is_told_once_and_events_are_noted() {
+    use crash_record::{Frame, Image, Kind, Region, ResetCause, Stop, What};
+    let clock = clock::take();
+    let shared = Shared::new();
+    // Nothing held: nothing told, and notes go nowhere.
+    super::tell_crash(&shared);
+    shared.note(What::Armed);
+    assert!(shared.outbox.try_receive().is_err());
+    let image = Image {
+        target: 0,
+        version: [0, 1, 0, 0],
+    };
+    let region = Box::leak(Box::new(Region::new()));
+    region.start(ResetCause(1 << 27), image);
+    let stop = Stop {
+        kind: Kind::HardFault,
+        frame: Frame {
+            pc: 0x0800_2468,
+            ..Frame::default()
+        },
+        faults: Default::default(),
+        exception: 3,
+        panic: None,
+        uptime_ms: 1234,
+    };
+    region.record(stop, image);
+    assert!(region.start(ResetCause(1 << 28), image).is_some());
+    shared.keep_crash(region);
+    super::tell_crash(&shared);
+    super::tell_crash(&shared);
+    let mut texts = Vec::new();
+    while let Ok(crate::shared::Outgoing::Text(severity, text)) = shared.outbox.try_receive() {
+        texts.push((severity, text.to_string()));
+    }
+    assert_eq!(
+        texts,
+        [
+            (
+                crate::shared::Severity::Critical,
+                "Crash before this start: HardFault at 0x08002468".to_owned()
+            ),
+            (
+                crate::shared::Severity::Critical,
+                "Its record: ftp get @SYS/crash/master.bin".to_owned()
+            ),
+        ]
+    );
+    assert!(shared.crash_record().unwrap().told);
+    clock.advance(Duration::from_millis(2500));
+    shared.note(What::ThrusterLost(2));
+    let (events, held) = crash_record::Ring::from_bytes(shared.crash_ring().unwrap()).events();
+    let last = events[usize::from(held) - 1];
+    assert_eq!((last.what, last.at_ms), (What::ThrusterLost(2), 2500));
+}

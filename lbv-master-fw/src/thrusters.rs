@@ -22,6 +22,7 @@
 
 use core::cell::Cell;
 
+use crash_record::What;
 use embassy_futures::yield_now;
 use embassy_time::{Duration, Instant, Timer};
 use embedded_hal::i2c::ErrorKind;
@@ -918,6 +919,12 @@ impl BusState<'_> {
                     });
                 let (severity, text) = link_text(index, change, restarting);
                 shared.say(severity, text);
+                let slot = u8::try_from(index).unwrap_or(u8::MAX);
+                match change {
+                    LinkChange::Online => shared.note(What::ThrusterBack(slot)),
+                    LinkChange::Offline(_) => shared.note(What::ThrusterLost(slot)),
+                    _ => {}
+                }
             }
             // The status tells a SeaBotix thruster's failsafe stop (FAULT bit 5); the Legacy status has no bit for
             // it, so the master tells it from how long it could not deliver an order.

@@ -6,9 +6,11 @@
 //! MAVProxy's `ftp put FILE /update/thruster0.lbvu` and pymavlink's `MAVFTP` upload to it; `ftp list /update`
 //! lists the targets with the bytes received for each; `ftp crc` gives the CRC32 of those bytes; `ftp rm` forgets
 //! them. MAV_CMD_LBV_APPLY_UPDATE (31010, param1 the slot, 200 every SeaBotix thruster, 201 every Legacy one, 255
-//! the master: [`UpdateTarget::slot`]) then applies an image received whole. The update files are write-only; two
-//! files are read: `@SYS/versions.txt`, what every board runs ([`sys`]), and `@PARAM/param.pck`, the parameters
-//! as ArduPilot packs them ([`param_pck`]), which QGroundControl and MAVProxy read when they connect.
+//! the master: [`UpdateTarget::slot`]) then applies an image received whole. The update files are write-only; the
+//! files read are `@SYS/versions.txt`, what every board runs ([`sys`]), `@PARAM/param.pck`, the parameters as
+//! ArduPilot packs them ([`param_pck`]), which QGroundControl and MAVProxy read when they connect, and, while the
+//! post-mortem region holds one, `@SYS/crash/master.bin`, the record of the stop before this start
+//! ([`crash_record`]).
 //!
 //! The master keeps no image itself: each write goes on to an [`UpdateSink`] as it comes ([`VehicleSink`]): for a
 //! thruster, the thruster's DFU partition over its bus ([`crate::update::courier`]); for the master, its own DFU
@@ -51,7 +53,7 @@
 //!   client is uploading (its session live, its image not whole) is refused ([`Nak::Fail`], "another component is
 //!   uploading it").
 //! - Only the operator's ground station (`SYSID_MYGCS`) may write, remove or apply ([`Nak::FileProtected`],
-//!   COMMAND_ACK DENIED); anyone may list, read CRCs and read the two files, armed or not. Nothing in `@SYS` or
+//!   COMMAND_ACK DENIED); anyone may list, read CRCs and read the files, armed or not. Nothing in `@SYS` or
 //!   `@PARAM` is written, created or removed, nor has a CRC ([`Nak::FileProtected`]). With a signing key set, unsigned FTP
 //!   frames are refused before they get here, as every unsigned frame is ([`crate::console::signing`]).
 //! - Without a signing key anyone on the link can claim `SYSID_MYGCS`: nothing is written, removed or applied
@@ -143,22 +145,22 @@ fn kind_name(kind: u8) -> &'static str {
 }
 
 impl FtpAnswer {
-    /// The whole payload, as it goes out with `params` in force ([`FileRead::write_to`]).
-    pub fn payload(&self, params: Option<&Params>) -> FtpPayload {
+    /// The whole payload, as it goes out with `contents` ([`FileRead::write_to`]).
+    pub fn payload(&self, contents: &Contents<'_>) -> FtpPayload {
         let mut payload = [0; FTP_PAYLOAD];
-        self.write_to(&mut payload, params);
+        self.write_to(&mut payload, contents);
         payload
     }
 
     /// Write the payload into `into`, which is zeros.
-    pub(crate) fn write_to(&self, into: &mut [u8], params: Option<&Params>) {
+    pub(crate) fn write_to(&self, into: &mut [u8], contents: &Contents<'_>) {
         match self {
             Self::Reply(reply) => {
                 if let Some(start) = into.get_mut(..reply.len()) {
                     start.copy_from_slice(reply);
                 }
             }
-            Self::Read(read) => read.write_to(into, params),
+            Self::Read(read) => read.write_to(into, contents),
         }
     }
 }
@@ -324,6 +326,8 @@ pub struct Context {
     pub unsigned: bool,
     /// The parameters in force, once the settings are published: what `@PARAM/param.pck` is opened with.
     pub params: Option<Params>,
+    /// The post-mortem region holds a record: `@SYS/crash/master.bin` is there.
+    pub crash: bool,
 }
 
 impl Context {
@@ -339,6 +343,7 @@ impl Context {
             restarting: shared.restarting.load(Ordering::Relaxed),
             unsigned: settings.is_none_or(|s| s.signing.is_none() && !s.params.unsigned_updates()),
             params: settings.map(|s| s.params),
+            crash: shared.crash_held(),
         }
     }
 }
@@ -387,6 +392,10 @@ enum Node {
     ParamDir,
     /// `@PARAM/param.pck`, with a query or none.
     Params,
+    /// `@SYS/crash`.
+    CrashDir,
+    /// `@SYS/crash/master.bin`.
+    Crash,
 }
 
 /// Why an upload stops before its end.
@@ -550,6 +559,8 @@ impl UpdateServer {
             return match name {
                 b"" | b"/" => Ok(Node::Sys),
                 _ if name.strip_prefix(b"/") == Some(sys::VERSIONS.as_bytes()) => Ok(Node::Versions),
+                b"/crash" | b"/crash/" => Ok(Node::CrashDir),
+                b"/crash/master.bin" => Ok(Node::Crash),
                 _ => Err(Nak::FileNotFound),
             };
         }
@@ -624,7 +635,7 @@ impl UpdateServer {
             },
             Opcode::ListDirectory => request
                 .path()
-                .and_then(|path| self.list(path, request.offset, context.params, sink, &mut data)),
+                .and_then(|path| self.list(path, request.offset, context, sink, &mut data)),
             Opcode::OpenFileRO => self
                 .readable(&request, context, sink)
                 .and_then(|file| self.open_read(now, from, &request, file, sink, out))
@@ -672,13 +683,13 @@ impl UpdateServer {
         &self,
         path: &[u8],
         first: u32,
-        context_params: Option<Params>,
+        context: Context,
         sink: &impl UpdateSink,
         data: &mut Buf,
     ) -> Result<(), Nak> {
         let first = usize::try_from(first).unwrap_or(usize::MAX);
         match self.lookup(path)? {
-            Node::Update(_) | Node::Versions | Node::Params => return Err(Nak::FileNotFound),
+            Node::Update(_) | Node::Versions | Node::Params | Node::Crash => return Err(Nak::FileNotFound),
             Node::Root => {
                 for name in ["update", sys::DIR, param_pck::DIR].get(first..).unwrap_or_default() {
                     if !data.entry(format_args!("D{name}\0")) {
@@ -693,12 +704,20 @@ impl UpdateServer {
                     }
                 }
             }
-            Node::Sys if first == 0 => {
-                data.entry(format_args!("F{}\t{}\0", sys::VERSIONS, self.versions(sink).len()));
+            Node::Sys => {
+                if first == 0 {
+                    data.entry(format_args!("F{}\t{}\0", sys::VERSIONS, self.versions(sink).len()));
+                }
+                if first <= 1 {
+                    data.entry(format_args!("Dcrash\0"));
+                }
             }
-            Node::Sys => {}
+            Node::CrashDir if first == 0 && context.crash => {
+                data.entry(format_args!("Fmaster.bin\t{}\0", crash_record::LEN));
+            }
+            Node::CrashDir => {}
             Node::ParamDir if first == 0 => {
-                let len = context_params.map_or(0, |params| {
+                let len = context.params.map_or(0, |params| {
                     ParamFile::open(&[], &params, self.frame).map_or(0, |file| u16::from_le_bytes(file.len))
                 });
                 data.entry(format_args!("F{}\t{len}\0", param_pck::NAME));
@@ -774,6 +793,7 @@ impl UpdateServer {
                     .map(OpenFile::Params)
                     .ok_or(Nak::Fail)
             }
+            Node::Crash if context.crash => Ok(OpenFile::Crash),
             Node::Update(_) => Err(Nak::FileProtected),
             _ => Err(Nak::FileNotFound),
         }
@@ -1277,12 +1297,29 @@ impl fmt::Write for Window<'_> {
     }
 }
 
+/// What the files read are made of as a read's reply is framed: the parameters in force and the crash record
+/// held (the console's transmit task takes them from [`Shared`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Contents<'a> {
+    pub params: Option<&'a Params>,
+    pub crash: Option<&'a [u8; crash_record::LEN]>,
+}
+
+impl Contents<'_> {
+    /// Nothing: a read of `param.pck` or of the crash record is NAKed.
+    pub const NOTHING: Contents<'static> = Contents {
+        params: None,
+        crash: None,
+    };
+}
+
 impl OpenFile {
     /// Its length in bytes.
     fn len(&self) -> u32 {
         match self {
             Self::Versions(versions) => versions.len(),
             Self::Params(file) => u16::from_le_bytes(file.len).into(),
+            Self::Crash => crash_record::LEN as u32,
         }
     }
 }
@@ -1301,10 +1338,10 @@ impl FileRead {
         }
     }
 
-    /// Write its payload into `into`, which is zeros: its header, then the bytes it names, made from `params` (the
-    /// settings in force) for `param.pck`. A BurstReadFile's reply is its burst's last. A read of `param.pck` whose
-    /// values have changed since it was opened is NAKed [`Nak::Fail`] instead.
-    pub(crate) fn write_to(&self, into: &mut [u8], params: Option<&Params>) {
+    /// Write its payload into `into`, which is zeros: its header, then the bytes it names, made from `contents`
+    /// for `param.pck` and the crash record. A BurstReadFile's reply is its burst's last. A read of `param.pck` whose
+    /// values have changed since it was opened, or of a record no longer held, is NAKed [`Nak::Fail`] instead.
+    pub(crate) fn write_to(&self, into: &mut [u8], contents: &Contents<'_>) {
         let [s0, s1] = self.seq;
         let [o0, o1] = self.offset;
         let burst = u8::from(Opcode::from_byte(self.opcode) == Opcode::BurstReadFile);
@@ -1314,7 +1351,12 @@ impl FileRead {
         let offset = u16::from_le_bytes(self.offset).into();
         let read = data.get_mut(..usize::from(self.size)).and_then(|data| match self.file {
             OpenFile::Versions(versions) => Some(versions.read(offset, data)),
-            OpenFile::Params(file) => params.and_then(|params| file.read(offset, data, params)),
+            OpenFile::Params(file) => contents.params.and_then(|params| file.read(offset, data, params)),
+            OpenFile::Crash => contents.crash.map(|record| {
+                let mut window = Window::new(offset, data);
+                window.put(record);
+                window.filled
+            }),
         });
         let (opcode, size) = match read {
             Some(_) => (ACK, self.size),

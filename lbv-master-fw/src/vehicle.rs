@@ -72,6 +72,7 @@
 
 use core::fmt;
 
+use crash_record::What;
 use embassy_futures::select::{Either, select};
 use embassy_time::{Duration, Instant, Ticker, with_deadline};
 use tmc_proto::{Order, Speed};
@@ -729,6 +730,8 @@ pub async fn vehicle_task(config: VehicleConfig, settings: Settings, shared: &Sh
     let mut settings = *vehicle.settings();
     published.send(settings);
     let mut ticker = Ticker::every(TICK);
+    // What the post-mortem ring was last told: armed, and the operator's heartbeats lost.
+    let mut noted = (false, false);
     loop {
         let request = match select(shared.commands.receive(), ticker.next()).await {
             Either::First(request) => Some(request),
@@ -745,7 +748,20 @@ pub async fn vehicle_task(config: VehicleConfig, settings: Settings, shared: &Sh
             vehicle.on_request(now, request, &mut push);
         }
         orders.send(vehicle.orders(now, &mut push));
-        state.send(vehicle.state(now));
+        let published_state = vehicle.state(now);
+        let now_noted = (published_state.armed, vehicle.gcs_lost);
+        if now_noted.0 != noted.0 {
+            shared.note(if now_noted.0 { What::Armed } else { What::Disarmed(0) });
+        }
+        if now_noted.1 != noted.1 {
+            shared.note(if now_noted.1 {
+                What::OperatorLost
+            } else {
+                What::OperatorBack
+            });
+        }
+        noted = now_noted;
+        state.send(published_state);
         if *vehicle.settings() != settings {
             settings = *vehicle.settings();
             published.send(settings);

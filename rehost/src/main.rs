@@ -460,6 +460,7 @@ fn expected() -> Value {
         "statuses": statuses(),
         "forward_direction": format!("{:?}", Direction::Forward),
         "boot": boot(),
+        "crash_region": span(g431_hw::memory::CRASH),
     })
 }
 

@@ -13,7 +13,7 @@ import pytest
 from conftest import image, rehost
 from g431.chip import Stm32g4
 from g431.core import FLASH_BASE
-from master import mavlink
+from master import Ftp, mavlink
 from master import start as start_master
 from thruster import exchange, set_analog, set_halls
 
@@ -121,51 +121,8 @@ def test_the_thruster_marks_a_payload_with_its_ticket_and_its_bootloader_judges_
 
 
 # MAVLink FTP (the wire format lbv-master-fw/src/update/ftp.rs serves): opcodes and the payload's header.
-FTP_TERMINATE, FTP_CREATE, FTP_WRITE, FTP_ACK = 1, 6, 7, 128
-FTP_DATA = 239
 APPLY_UPDATE = 31010
 IN_PROGRESS, FAILED = 5, 4
-
-
-class Ftp:
-    """An operator's MAVLink FTP client on the modelled VCP, one request at a time. As a ground station's client
-    does, it sends a request again, with the same sequence number, when no reply comes within `RESEND_S`; `resent`
-    counts the requests it had to send again."""
-
-    RESEND_S = 0.5
-    TRIES = 3
-
-    def __init__(self, chip, ground):
-        self.chip, self.ground, self.seq, self.resent = chip, ground, 0, 0
-
-    def request(self, opcode, session=0, offset=0, data=b""):
-        self.seq += 1
-        seq = self.seq
-        header = struct.pack("<HBBBBBBI", seq, session, opcode, len(data), 0, 0, 0, offset)
-        payload = (header + data).ljust(251, b"\0")
-
-        def answered():
-            replies = self.ground.of("FILE_TRANSFER_PROTOCOL")
-            return [m for m in replies if struct.unpack_from("<H", bytes(m.payload))[0] == seq + 1]
-
-        for attempt in range(self.TRIES):
-            self.ground.send(mavlink.MAVLink_file_transfer_protocol_message(0, 1, 1, list(payload)))
-            end = self.chip.core.cycles + int(self.RESEND_S * self.chip.core.hz)
-            self.chip.core.run(until_cycle=end, until=answered)
-            if answered():
-                break
-            self.resent += 1
-        else:
-            raise AssertionError(f"opcode {opcode} at {offset}: no reply to {self.TRIES} tries")
-        reply = bytes(answered()[-1].payload)
-        assert reply[3] == FTP_ACK, f"opcode {opcode}: NAK {reply[12]}"
-        return reply[2]
-
-    def put(self, path, file):
-        session = self.request(FTP_CREATE, data=path.encode())
-        for offset in range(0, len(file), FTP_DATA):
-            self.request(FTP_WRITE, session, offset, file[offset : offset + FTP_DATA])
-        self.request(FTP_TERMINATE, session)
 
 
 def apply_master(chip, ground):

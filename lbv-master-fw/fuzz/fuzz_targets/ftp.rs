@@ -17,7 +17,7 @@ use lbv_master_fw::params::Param;
 use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Outgoing, Sender};
 use lbv_master_fw::update::ftp::{ACK, NAK, Nak};
-use lbv_master_fw::update::{Context, FtpAnswer, HEADER_LEN, ImageHeader, UpdateServer};
+use lbv_master_fw::update::{Context, Contents, FtpAnswer, HEADER_LEN, ImageHeader, UpdateServer};
 // The host's time driver (the harness passes its own instants).
 use lbv_sim as _;
 use libfuzzer_sys::fuzz_target;
@@ -145,7 +145,7 @@ fuzz_target!(|steps: Vec<Step>| {
     let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let mut sink = Sink::default();
     let mut params = VEHICLE.vehicle.defaults().params;
-    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params) };
+    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params), crash: false };
     // What the last file opened for reading is: param.pck (with the values it was opened with) or versions.txt.
     let mut opened = None;
     let mut now = Instant::from_ticks(0);
@@ -224,7 +224,7 @@ fuzz_target!(|steps: Vec<Step>| {
             }
         };
         if let Some(answer) = server.request(now, context, from, &request, &mut sink, &mut out) {
-            let reply = answer.payload(context.params.as_ref());
+            let reply = answer.payload(&Contents { params: context.params.as_ref(), crash: None });
             let seq = u16::from_le_bytes([request[0], request[1]]);
             assert_eq!(u16::from_le_bytes([reply[0], reply[1]]), seq.wrapping_add(1));
             assert_eq!((reply[2], reply[5]), (request[2], request[3]));

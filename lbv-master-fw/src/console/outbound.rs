@@ -14,12 +14,12 @@ use super::lbv::{
     MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
     MavSysStatusSensorExtended, MavType, NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
-use crate::params::{ParamId, ParamType, Params};
+use crate::params::{ParamId, ParamType};
 use crate::shared::{
     ARDUSUB_MODE_MANUAL, AckResult, BatterySummary, FTP_PAYLOAD, MAX_THRUSTERS, Sender, Severity, Text, ThrusterReport,
     VehicleState,
 };
-use crate::update::FtpAnswer;
+use crate::update::{Contents, FtpAnswer};
 use bat_proto::BmsAlarms;
 use tmc_proto::Faults;
 
@@ -700,15 +700,15 @@ impl Framer {
     }
 
     /// Frame a FILE_TRANSFER_PROTOCOL carrying the update server's `reply` (its payload's start, or all of it; a
-    /// read of `param.pck` made from `params`, the parameters in force) to `to` (network 0). Encoded by hand: its fields are bytes in this order (target_network, target_system,
+    /// read made from `contents`) to `to` (network 0). Encoded by hand: its fields are bytes in this order (target_network, target_system,
     /// target_component, payload), and the generated encoder costs a kilobyte of flash for its 251-byte array.
-    pub fn frame_ftp(&mut self, to: Sender, reply: &FtpAnswer, params: Option<&Params>) -> &[u8] {
+    pub fn frame_ftp(&mut self, to: Sender, reply: &FtpAnswer, contents: &Contents<'_>) -> &[u8] {
         let mut len = 0;
         if let Some(payload) = self.frame.get_mut(HEADER_LEN..HEADER_LEN + 3 + FTP_PAYLOAD) {
             payload.fill(0);
             if let Some((targets, ftp)) = payload.split_first_chunk_mut::<3>() {
                 *targets = [0, to.system, to.component];
-                reply.write_to(ftp, params);
+                reply.write_to(ftp, contents);
             }
             // MAVLink 2 sends the payload without its trailing zeros.
             len = payload.iter().rposition(|byte| *byte != 0).map_or(0, |last| last + 1);

@@ -26,6 +26,7 @@ const DISARMED: Context = Context {
     restarting: false,
     unsigned: false,
     params: None,
+    crash: false,
 };
 const ARMED: Context = Context {
     armed: true,
@@ -137,7 +138,12 @@ impl<S: UpdateSink> Server<S> {
             .request(t(ms), context, from, payload, &mut self.sink, &mut |o| said.push(o));
         self.said.extend(said);
         // A read is framed with the parameters the request came with.
-        reply.map(|r| read(&r.payload(context.params.as_ref())))
+        reply.map(|r| {
+            read(&r.payload(&Contents {
+                params: context.params.as_ref(),
+                crash: None,
+            }))
+        })
     }
 
     /// Send a request from the operator, disarmed, with the next sequence number.
@@ -1021,12 +1027,14 @@ fn versions_txt_is_read_whole_by_readfile_and_by_burst_as_each_client_asks() {
     let last = s.op(0, 1, BURST, len - 10, &[0; 10]).unwrap();
     assert_eq!((last.data.len(), last.burst_complete), (10, true));
     assert_eq!(nak(&s.op(0, 1, BURST, len, &[0; 10])), Some(Nak::EndOfFile as u8));
-    // The listing shows its length. Made at each opening, it has no CRC to compare a copy with.
+    // The listing shows its length, then the crash records' directory. Made at each opening, it has no CRC to
+    // compare a copy with.
     assert_eq!(
         s.op(0, 5, LIST, 0, b"@SYS").unwrap().data,
-        format!("Fversions.txt\t{len}\0").as_bytes()
+        format!("Fversions.txt\t{len}\0Dcrash\0").as_bytes()
     );
-    assert_eq!(nak(&s.op(0, 5, LIST, 1, b"/@SYS/")), Some(Nak::EndOfFile as u8));
+    assert_eq!(s.op(0, 5, LIST, 1, b"/@SYS/").unwrap().data, b"Dcrash\0");
+    assert_eq!(nak(&s.op(0, 5, LIST, 2, b"/@SYS/")), Some(Nak::EndOfFile as u8));
     assert_eq!(nak(&s.op(0, 5, CRC, 0, VERSIONS)), Some(Nak::FileProtected as u8));
     // The same file, written as clients may write it; nothing else is in `@SYS`.
     assert!(ack(&s.op(0, 1, TERMINATE, 0, &[])));
@@ -1497,6 +1505,109 @@ fn param_pck_never_panics_on_a_query_or_a_read() {
     });
 }
 
+/// A record as a master's region holds one after a panic.
+fn a_crash_record() -> [u8; crash_record::LEN] {
+    let mut region = crash_record::Region::new();
+    let image = crash_record::Image {
+        target: 0,
+        version: [0, 1, 0, 0],
+    };
+    region.start(crash_record::ResetCause(1 << 27), image);
+    region.note(crash_record::Event {
+        at_ms: 500,
+        what: crash_record::What::Armed,
+    });
+    region.record(
+        crash_record::Stop {
+            kind: crash_record::Kind::Panic,
+            frame: crash_record::Frame {
+                pc: 0x0800_1001,
+                ..Default::default()
+            },
+            faults: Default::default(),
+            exception: 0,
+            panic: None,
+            uptime_ms: 900,
+        },
+        image,
+    );
+    region.record
+}
+
+const CRASH: &[u8] = b"@SYS/crash/master.bin";
+
+#[test]
+fn the_crash_record_is_served_read_only_while_the_region_holds_one() {
+    let record = a_crash_record();
+    let held = Context {
+        crash: true,
+        ..DISARMED
+    };
+    let mut s = Server::new();
+    // None held: the directory is empty and the file is not there.
+    assert_eq!(nak(&s.op(0, 1, LIST, 0, b"@SYS/crash")), Some(Nak::EndOfFile as u8));
+    assert_eq!(nak(&s.op(0, 1, OPEN_RO, 0, CRASH)), Some(Nak::FileNotFound as u8));
+    // Held: listed with its length, opened, read whole by anyone, as MAVProxy's `ftp get` reads it.
+    let listed = s
+        .send(0, held, OTHER, &payload(1, 1, LIST, 0, b"/@SYS/crash/"))
+        .unwrap();
+    assert_eq!(listed.data, b"Fmaster.bin\t128\0");
+    let open = s.send(0, held, OTHER, &payload(2, 1, OPEN_RO, 0, CRASH)).unwrap();
+    assert_eq!((open.opcode, open.data.clone()), (ACK, 128u32.to_le_bytes().to_vec()));
+    let contents = Contents {
+        params: None,
+        crash: Some(&record),
+    };
+    let mut got = Vec::new();
+    for (seq, offset) in [(3, 0), (4, 80)] {
+        let mut said = Vec::new();
+        let answer = s
+            .server
+            .request(
+                t(0),
+                held,
+                OTHER,
+                &payload(seq, 1, READ, offset, &[0; 80]),
+                &mut s.sink,
+                &mut |o| said.push(o),
+            )
+            .unwrap();
+        got.extend(read(&answer.payload(&contents)).data);
+        // A read framed once the record is gone (never, while the session is open) is refused, not made up.
+        assert_eq!(read(&answer.payload(&Contents::NOTHING)).opcode, NAK);
+    }
+    assert_eq!(got, record);
+    assert_eq!(
+        crash_record::Record::decode(&got).unwrap().kind,
+        crash_record::Kind::Panic
+    );
+    assert_eq!(
+        nak(&s.send(0, held, OTHER, &payload(5, 1, READ, 128, &[0; 80]))),
+        Some(Nak::EndOfFile as u8)
+    );
+    // Nobody writes, removes or checksums it, the operator included.
+    for opcode in [CREATE, OPEN_WO, REMOVE, CRC] {
+        assert_eq!(
+            nak(&s.send(0, held, GCS, &payload(6, 2, opcode, 0, CRASH))),
+            Some(Nak::FileProtected as u8),
+            "{opcode}"
+        );
+    }
+}
+
+#[test]
+fn the_context_tells_whether_the_region_holds_a_record() {
+    let shared = Shared::new();
+    assert!(!Context::of(&shared).crash);
+    let region = Box::leak(Box::new(crash_record::Region {
+        record: a_crash_record(),
+        ring: [0; crash_record::RING_LEN],
+    }));
+    shared.keep_crash(region);
+    assert!(Context::of(&shared).crash);
+    assert_eq!(shared.crash_bytes(), Some(a_crash_record()));
+}
+
 #[test]
 fn a_reads_reply_takes_no_more_room_in_the_outbox_than_a_text() {
     // The console's outbox holds 16 messages, each as large as the largest: a STATUSTEXT (50 bytes and its length),
@@ -1530,7 +1641,7 @@ fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
     else {
         panic!("a read of versions.txt: {read:?}");
     };
-    let payload = reply.payload(None);
+    let payload = reply.payload(&Contents::NOTHING);
     assert_eq!(payload[..8], [3, 0, 1, ACK, 239, BURST, 1, 0]);
     assert!(payload[12..].starts_with(b"board  family   version  state\nmaster -        -        unknown\n"));
     assert_ne!(payload[250], 0, "the whole payload");
@@ -1546,13 +1657,22 @@ fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
     let Some(Outgoing::Ftp { reply, .. }) = updates.serve(ftp(6, BURST, 0, &[0; 239]), &shared) else {
         panic!("a read of param.pck");
     };
-    assert_eq!(reply.payload(Some(&settings.params))[..6], [7, 0, 1, ACK, 239, BURST]);
     assert_eq!(
-        reply.payload(Some(&settings.params))[12..18],
+        reply.payload(&Contents {
+            params: Some(&settings.params),
+            crash: None
+        })[..6],
+        [7, 0, 1, ACK, 239, BURST]
+    );
+    assert_eq!(
+        reply.payload(&Contents {
+            params: Some(&settings.params),
+            crash: None
+        })[12..18],
         [0x1B, 0x67, 27, 0, 27, 0]
     );
     // The console without the settings (never, once the file is open) sends a NAK rather than other values.
-    assert_eq!(reply.payload(None)[..6], [7, 0, 1, NAK, 1, BURST]);
+    assert_eq!(reply.payload(&Contents::NOTHING)[..6], [7, 0, 1, NAK, 1, BURST]);
 }
 
 #[test]
@@ -1795,7 +1915,7 @@ fn the_apply_command_over_a_link_without_signing_is_denied_with_why() {
     );
     for (n, chunk) in file.chunks(239).enumerate() {
         let reply = updates.serve(ftp(2 + n as u16, WRITE, (n * 239) as u32, chunk), &shared);
-        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply.payload(None)[3] == ACK));
+        assert!(matches!(reply, Some(Outgoing::Ftp { reply, .. }) if reply.payload(&Contents::NOTHING)[3] == ACK));
     }
     let drain = || core::iter::from_fn(|| shared.outbox.try_receive().ok()).collect::<Vec<_>>();
     drain();
@@ -1955,7 +2075,7 @@ fn apply_checks_its_preconditions_then_hands_the_image_to_the_sink() {
         assert_eq!(
             server
                 .request(t(0), DISARMED, GCS, &write, &mut Nowhere::default(), &mut out)
-                .map(|r| r.payload(None)[3]),
+                .map(|r| r.payload(&Contents::NOTHING)[3]),
             Some(ACK)
         );
         let terminate = payload(3, 1, TERMINATE, 0, &[]);
@@ -2037,12 +2157,12 @@ fn a_sink_that_refuses_ends_the_upload() {
         for (n, chunk) in file.chunks(239).enumerate() {
             let write = payload(2 + n as u16, 1, WRITE, (n * 239) as u32, chunk);
             last = server.request(t(0), DISARMED, GCS, &write, &mut sink, &mut out);
-            if last.is_some_and(|r| r.payload(None)[3] == NAK) {
+            if last.is_some_and(|r| r.payload(&Contents::NOTHING)[3] == NAK) {
                 break;
             }
         }
         assert_eq!(
-            last.map(|r| (r.payload(None)[3], r.payload(None)[12])),
+            last.map(|r| (r.payload(&Contents::NOTHING)[3], r.payload(&Contents::NOTHING)[12])),
             Some((NAK, Nak::Fail as u8)),
             "{refuse}"
         );
@@ -2065,7 +2185,7 @@ fn check_only_checks_and_applies_nothing() {
         assert_eq!(
             server
                 .request(t(0), DISARMED, GCS, &write, &mut CheckOnly, &mut out)
-                .map(|r| r.payload(None)[3]),
+                .map(|r| r.payload(&Contents::NOTHING)[3]),
             Some(ACK)
         );
     }

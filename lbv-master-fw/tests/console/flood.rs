@@ -25,7 +25,7 @@ use lbv_master_fw::mixer::FrameKind;
 use lbv_master_fw::params::{PARAM_COUNT, Param, Settings};
 use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Sender, Severity, Shared, text};
-use lbv_master_fw::update::{ImageHeader, ftp};
+use lbv_master_fw::update::{Contents, ImageHeader, ftp};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
 use lbv_station::GCS_HEARTBEAT;
 
@@ -192,7 +192,7 @@ fn take_commands(shared: &Shared, into: &mut Vec<(Instant, Request)>) {
 fn take_replies(shared: &Shared, into: &mut Vec<(Sender, u8, u8, u16)>) {
     while let Ok(message) = shared.outbox.try_receive() {
         if let Outgoing::Ftp { to, reply } = message {
-            let reply = reply.payload(None);
+            let reply = reply.payload(&Contents::NOTHING);
             into.push((to, reply[3], reply[5], u16::from_le_bytes([reply[0], reply[1]])));
         }
     }

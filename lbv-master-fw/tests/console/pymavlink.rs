@@ -657,6 +657,7 @@ fn versions_read() -> Outgoing {
         restarting: false,
         unsigned: false,
         params: None,
+        crash: false,
     };
     let gcs = Sender {
         system: 255,

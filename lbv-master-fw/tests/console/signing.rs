@@ -281,5 +281,12 @@ fn with_a_key_an_unsigned_ftp_request_or_apply_is_refused_like_any_unsigned_fram
     let [Outgoing::Ftp { reply, .. }] = served.as_slice() else {
         panic!("{served:?}");
     };
-    assert_eq!([reply.payload(None)[3], reply.payload(None)[5]], [128, 3], "{served:?}");
+    assert_eq!(
+        [
+            reply.payload(&lbv_master_fw::update::Contents::NOTHING)[3],
+            reply.payload(&lbv_master_fw::update::Contents::NOTHING)[5]
+        ],
+        [128, 3],
+        "{served:?}"
+    );
 }

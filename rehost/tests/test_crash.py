@@ -1,0 +1,159 @@
+"""The master's post-mortem record on the chip: each way the image stops (a panic, a HardFault, an NMI, an interrupt
+it never enables, the watchdog) leaves a record at the bottom of RAM that the next start reads, tells the ground
+station of (STATUSTEXT) and serves over MAVLink FTP as `@SYS/crash/master.bin`. The record is read here as its
+format is documented (crash-record's lib.rs: little-endian fields, zlib's CRC-32), not by the crate that writes it.
+A power-on start shows none, whatever RAM held; a record torn in RAM is refused by its CRC."""
+
+import struct
+import zlib
+
+import pytest
+from unicorn import arm_const as arm
+
+from g431.chip import CRASH_REGION
+from g431.core import IRQ0, NMI, SRAM_BASE
+from master import Ftp, start
+
+CRASH = "@SYS/crash/master.bin"
+KINDS = {"panic": 1, "hard fault": 2, "nmi": 3, "stray interrupt": 4, "watchdog": 5}
+# RCC_CSR's IWDGRSTF (RM0440 7.4.30): every stop ends in the watchdog's reset.
+IWDGRSTF = 1 << 29
+# Events (crash-record's `What`): the image started, a thruster answers again.
+STARTED, THRUSTER_BACK = 1, 5
+# Where the test puts what it injects: RAM far below any stack's reach, above the record's region.
+SCRATCH = SRAM_BASE + 0x1000
+FILE, LINE = b"src/injected.rs", 42
+# FileNotFound (MAVLink FTP's NAK code 10).
+FILE_NOT_FOUND = 10
+
+
+def decode(data):
+    """The record as its format says: refused (None) unless magic, format and CRC hold."""
+    if len(data) != 128 or data[:4] != b"LBVC" or data[4] != 1:
+        return None
+    if struct.unpack_from("<I", data, 124)[0] != zlib.crc32(data[:124]):
+        return None
+    words = struct.unpack_from("<12I", data, 12)
+    names = ("pc", "lr", "xpsr", "sp", "cfsr", "hfsr", "mmfar", "bfar", "reset_cause", "uptime_ms", "file", "line")
+    record = dict(zip(names, words), kind=data[5], target=data[6], told=bool(data[7] & 1))
+    record["file_len"], record["exception"] = struct.unpack_from("<HH", data, 60)
+    record["events"] = [struct.unpack_from("<IHH", data, 68 + 8 * n) for n in range(data[64])]
+    return record
+
+
+def in_thread_mode(chip):
+    chip.run_until(lambda: not chip.core.active and not chip.core.sleeping, 0.01, "thread mode")
+
+
+def inject(chip, fault):
+    """Stops the master as `fault` would; the PC it stopped at (None where no frame is stacked)."""
+    uc = chip.core.uc
+    in_thread_mode(chip)
+    pc = chip.core.pc
+    if fault == "panic":
+        # core::panicking::panic_bounds_check(index, len, &Location) from a task, its Location (file, line, column)
+        # and path laid in RAM.
+        path_at, location_at = SCRATCH, SCRATCH + 0x40
+        uc.mem_write(path_at, FILE)
+        uc.mem_write(location_at, struct.pack("<IIII", path_at, len(FILE), LINE, 7))
+        function = next(a for n, a in chip.image.symbols.items() if n.endswith("9panicking18panic_bounds_check"))
+        uc.reg_write(arm.UC_ARM_REG_R0, 5)
+        uc.reg_write(arm.UC_ARM_REG_R1, 3)
+        uc.reg_write(arm.UC_ARM_REG_R2, location_at)
+        uc.reg_write(arm.UC_ARM_REG_LR, pc | 1)
+        chip.core.pc = function & ~1
+        return None
+    if fault == "hard fault":
+        chip.core.enter_fault("a bus fault injected by the test", pc)
+        return pc
+    if fault == "nmi":
+        chip.core.pend(NMI)
+        return None
+    if fault == "stray interrupt":
+        # WWDG's interrupt, which the image never enables: enabled and pended as a wild write would.
+        chip.nvic.enabled.add(IRQ0 + 0)
+        chip.nvic.set_pending(IRQ0 + 0)
+        return None
+    # A task that never yields, interrupts masked: `b .` in RAM, and nothing feeds the watchdog.
+    uc.mem_write(SCRATCH, bytes([0xFE, 0xE7]))
+    uc.reg_write(arm.UC_ARM_REG_PRIMASK, 1)
+    chip.core.pc = SCRATCH
+    return None
+
+
+def crashed(chip, ground, fault):
+    """Injects `fault` into a master that has polled its thrusters for half a second, and runs it until the
+    watchdog has reset it and the image has started again."""
+    chip.run_for(0.5)
+    resets = len(chip.resets)
+    pc = inject(chip, fault)
+    chip.run_until(lambda: len(chip.resets) > resets, 2.5, f"the watchdog's reset after the {fault}")
+    assert chip.resets[-1][1] == "watchdog", chip.resets
+    return pc
+
+
+def told(ground):
+    return [m.text for m in ground.of("STATUSTEXT") if "Crash before this start" in m.text or "Its record" in m.text]
+
+
+@pytest.mark.parametrize("fault", list(KINDS))
+def test_each_stop_leaves_a_record_the_next_start_tells_and_serves(fault, expected):
+    chip, _, ground = start("lbv-master-fw", expected)
+    pc = crashed(chip, ground, fault)
+    before = len(ground.of("STATUSTEXT"))
+    chip.run_until(lambda: len(told(ground)) >= 2, 1.0, "the record told")
+    texts = told(ground)
+    assert texts[-1] == "Its record: ftp get @SYS/crash/master.bin", texts
+    record = decode(Ftp(chip, ground).get(CRASH))
+    assert record is not None, "a record the documented format refuses"
+    assert record["kind"] == KINDS[fault], record
+    assert record["target"] == 0 and record["told"], record
+    assert record["reset_cause"] & IWDGRSTF, f"{record['reset_cause']:#x}"
+    # The last events before it: the start, then the thrusters answering (T1 at least).
+    codes = [(code, arg) for _, code, arg in record["events"]]
+    assert codes[0][0] == STARTED, codes
+    assert (THRUSTER_BACK, 0) in codes, codes
+    assert 400 <= record["uptime_ms"] <= 2000 or fault == "watchdog", record["uptime_ms"]
+    if fault == "panic":
+        assert (record["file"], record["file_len"], record["line"]) == (SCRATCH, len(FILE), LINE), record
+    elif fault == "hard fault":
+        assert record["pc"] == pc, f"{record['pc']:#x} {pc:#x}"
+        assert record["exception"] == 3, record
+    elif fault == "nmi":
+        assert record["exception"] == 2, record
+    elif fault == "stray interrupt":
+        assert record["exception"] == 16 + 0, record
+    else:
+        assert record["pc"] == 0 and record["exception"] == 0, record
+    # Told once: a later reset serves it still, untold again.
+    chip.request_reset("software")
+    chip.run_for(0.5)
+    assert len(told(ground)) == len(texts), told(ground)
+    assert decode(Ftp(chip, ground).get(CRASH))["kind"] == KINDS[fault]
+    assert len(ground.of("STATUSTEXT")) > before
+
+
+def test_a_power_on_start_shows_no_record_and_a_torn_one_is_refused(expected):
+    chip, _, ground = start("lbv-master-fw", expected)
+    ftp = Ftp(chip, ground)
+    assert ftp.get(CRASH) is None and ftp.refused == FILE_NOT_FOUND, "a record at the first power-on"
+    assert len(bytes(chip.core.uc.mem_read(SRAM_BASE, CRASH_REGION))) == expected["crash_region"]["length"]
+    crashed(chip, ground, "hard fault")
+    chip.run_until(lambda: len(told(ground)) >= 2, 1.0, "the record told")
+    assert ftp.get(CRASH) is not None
+    # A byte of the record changed in RAM (as a cut or a stray write would): the next start refuses it.
+    byte = chip.core.uc.mem_read(SRAM_BASE + 20, 1)[0]
+    chip.core.uc.mem_write(SRAM_BASE + 20, bytes([byte ^ 0x10]))
+    chip.request_reset("software")
+    chip.run_for(0.5)
+    assert ftp.get(CRASH) is None and ftp.refused == FILE_NOT_FOUND
+    # A record left in RAM does not survive a power cycle (RAM holds noise then, which is never taken for one).
+    crashed(chip, ground, "panic")
+    chip.run_for(0.5)
+    assert ftp.get(CRASH) is not None
+    chip.power_on()
+    chip.run_until(chip.idle, seconds=0.2, what="idle after the power cycle")
+    chip.run_for(0.5)
+    assert ftp.get(CRASH) is None and ftp.refused == FILE_NOT_FOUND
+    listed = ftp.reply(3, data=b"@SYS/crash")
+    assert listed[3] == 129, "an empty @SYS/crash"
