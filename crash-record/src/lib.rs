@@ -16,7 +16,7 @@
 //! | 0-3 | magic `LBVC` |
 //! | 4 | format, 1 |
 //! | 5 | [`Kind`] |
-//! | 6 | target: 0 the master, 1 a SeaBotix thruster, 2 a Legacy one (the update file's target kind) |
+//! | 6 | target: the update file's target byte (1 a SeaBotix thruster, 2 a Legacy one, 3 the master) |
 //! | 7 | flags: bit 0, the board has told it since |
 //! | 8-11 | the running image's version (major, minor, patch u16) |
 //! | 12-27 | the stacked PC, LR, xPSR, and SP before the exception ([`Frame`]; 0 where there is none) |
@@ -282,7 +282,7 @@ impl fmt::Display for Error {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Record {
     pub kind: Kind,
-    /// 0 the master, 1 a SeaBotix thruster, 2 a Legacy one.
+    /// The update file's target byte: 1 a SeaBotix thruster, 2 a Legacy one, 3 the master.
     pub target: u8,
     /// The board has told it since (a STATUSTEXT, or the master has fetched it).
     pub told: bool,
@@ -661,6 +661,9 @@ pub fn crc32(bytes: &[u8]) -> u32 {
         })
     })
 }
+
+#[cfg(feature = "cortex-m")]
+pub mod cortex_m;
 
 #[cfg(test)]
 mod tests;

@@ -8,7 +8,7 @@ fn event(at_ms: u32, what: What) -> Event {
 }
 
 const IMAGE: Image = Image {
-    target: 0,
+    target: 3,
     version: [0, 0, 3, 0],
 };
 

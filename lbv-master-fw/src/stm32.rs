@@ -3,7 +3,7 @@
 use core::num::{NonZeroU8, NonZeroU16};
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use crash_record::{FaultStatus, Frame, Image, Kind, PanicAt, Region, ResetCause, Stop};
+use crash_record::{Frame, Image, Kind, PanicAt, Region, ResetCause};
 use defmt::{info, unwrap, warn};
 use defmt_rtt as _;
 use embassy_embedded_hal::flash::partition::Partition;
@@ -104,57 +104,28 @@ fn work_and_sink(_own: &'static OwnImage) -> (Work, Sink) {
 
 /// The image as its post-mortem record keeps it: the master, the crate's version.
 const CRASH_IMAGE: Image = Image {
-    target: 0,
+    target: update_image::Target::Master.to_byte(),
     version: match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
         Some(version) => version.to_bytes(),
         None => [0; 4],
     },
 };
 
-// Any bytes there are a region; it fills the room kept for it.
+// The region fills the room kept for it.
 const _: () = assert!(core::mem::size_of::<Region>() == g431_hw::memory::CRASH.length as usize);
 
 /// The post-mortem region at the bottom of RAM (`g431_hw::memory::CRASH`).
 #[allow(unsafe_code)]
 fn crash_region() -> &'static mut Region {
-    // SAFETY: that RAM is linked to nothing and no stack within its budget reaches it; any bytes are a `Region`
-    // (alignment 1). The start takes it once and hands it to the core; the handlers below take it again only once
-    // every other context has stopped for good.
-    unsafe { &mut *(g431_hw::memory::CRASH.origin as *mut Region) }
+    // SAFETY: that RAM is linked to nothing and no stack within its budget reaches it. The start takes it once and
+    // hands it to the core; `record_stop` takes it again only once every other context has stopped for good.
+    unsafe { crash_record::cortex_m::region(g431_hw::memory::CRASH.origin) }
 }
 
-/// Record a stop in the post-mortem region, with the fault status registers (ARMv7-M B3.2.15-B3.2.18) and the
-/// active exception (ICSR.VECTACTIVE, B3.2.4); the watchdog resets the chip afterwards.
+/// Record a stop in the post-mortem region; the watchdog resets the chip afterwards.
 fn record_stop(kind: Kind, frame: Frame, panic: Option<PanicAt>) {
-    // SAFETY: SCB's registers, read only.
-    #[allow(unsafe_code)]
-    let scb = unsafe { &*cortex_m::peripheral::SCB::PTR };
-    let faults = FaultStatus {
-        cfsr: scb.cfsr.read(),
-        hfsr: scb.hfsr.read(),
-        mmfar: scb.mmfar.read(),
-        bfar: scb.bfar.read(),
-    };
-    let stop = Stop {
-        kind,
-        frame,
-        faults,
-        exception: (scb.icsr.read() & 0x1FF) as u16,
-        panic,
-        uptime_ms: embassy_time::Instant::now().as_millis() as u32,
-    };
-    crash_region().record(stop, CRASH_IMAGE);
-}
-
-/// The registers an exception stacked, and the stack pointer before it (its frame is eight words; an FPU frame's
-/// 18 more words and an alignment word are not counted: the SP is where the frame begins plus 32).
-fn stacked(frame: &cortex_m_rt::ExceptionFrame) -> Frame {
-    Frame {
-        pc: frame.pc(),
-        lr: frame.lr(),
-        xpsr: frame.xpsr(),
-        sp: (frame as *const cortex_m_rt::ExceptionFrame as u32).wrapping_add(32),
-    }
+    let uptime_ms = embassy_time::Instant::now().as_millis() as u32;
+    crash_region().record(crash_record::cortex_m::stop(kind, frame, panic, uptime_ms), CRASH_IMAGE);
 }
 
 #[embassy_executor::main]
@@ -383,8 +354,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
         file_len: file.len() as u16,
         line,
     };
-    let sp = cortex_m::register::msp::read();
-    record_stop(Kind::Panic, Frame { sp, ..Frame::default() }, Some(at));
+    record_stop(Kind::Panic, crash_record::cortex_m::stack_pointer(), Some(at));
     match info.message().as_str() {
         Some(message) => defmt::error!("panicked at {=str}:{=u32}: {=str}", file, line, message),
         None => defmt::error!("panicked at {=str}:{=u32}", file, line),
@@ -395,8 +365,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 /// defmt's `panic!` / `unwrap!` take the same way out.
 #[defmt::panic_handler]
 fn defmt_panic() -> ! {
-    let sp = cortex_m::register::msp::read();
-    record_stop(Kind::Panic, Frame { sp, ..Frame::default() }, None);
+    record_stop(Kind::Panic, crash_record::cortex_m::stack_pointer(), None);
     cortex_m::asm::udf()
 }
 
@@ -406,7 +375,7 @@ fn defmt_panic() -> ! {
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
 unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
-    record_stop(Kind::HardFault, stacked(frame), None);
+    record_stop(Kind::HardFault, crash_record::cortex_m::stacked(frame), None);
     loop {
         cortex_m::asm::nop();
     }

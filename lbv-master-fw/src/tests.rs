@@ -445,7 +445,7 @@ fn the_crash_before_this_start_is_told_once_and_events_are_noted() {
     shared.note(What::Armed);
     assert!(shared.outbox.try_receive().is_err());
     let image = Image {
-        target: 0,
+        target: 3,
         version: [0, 1, 0, 0],
     };
     let region = Box::leak(Box::new(Region::new()));

@@ -1,5 +1,6 @@
 //! Interrupts, clocks, peripheral set-up, the panic and fault handlers, and tasks of the thruster image.
 
+use crash_record::{Frame, Image, Kind, Region, ResetCause};
 use defmt::{info, unwrap, warn};
 use defmt_rtt as _;
 use embassy_executor::{InterruptExecutor, Spawner};
@@ -39,15 +40,43 @@ unsafe fn UART4() {
     unsafe { COMMUTATION_EXECUTOR.on_interrupt() }
 }
 
+/// The image as its post-mortem record keeps it: this family's thruster, the crate's version.
+const CRASH_IMAGE: Image = Image {
+    target: update_image::Target::thruster(FAMILY).to_byte(),
+    version: match update_image::Version::parse(env!("CARGO_PKG_VERSION")) {
+        Some(version) => version.to_bytes(),
+        None => [0; 4],
+    },
+};
+
+// The region fills the room kept for it.
+const _: () = assert!(core::mem::size_of::<Region>() == g431_hw::memory::CRASH.length as usize);
+
+/// The post-mortem region at the bottom of RAM (`g431_hw::memory::CRASH`).
+#[allow(unsafe_code)]
+fn crash_region() -> &'static mut Region {
+    // SAFETY: that RAM is linked to nothing and no stack within its budget reaches it. The start takes it once;
+    // `record_stop` takes it again only once every other context has stopped for good.
+    unsafe { crash_record::cortex_m::region(g431_hw::memory::CRASH.origin) }
+}
+
+/// Record a stop in the post-mortem region (after the bridge is off); the watchdog resets the chip afterwards.
+fn record_stop(kind: Kind, frame: Frame) {
+    let uptime_ms = embassy_time::Instant::now().as_millis() as u32;
+    crash_region().record(crash_record::cortex_m::stop(kind, frame, None, uptime_ms), CRASH_IMAGE);
+}
+
 /// A panic stops the bridge before anything else: the watchdog would take up to its timeout to do it. It reads
 /// nothing of the panic: a handler that looks at its location or message keeps every panic site's arguments in the
 /// image (each site's `Location` and source path, core::fmt for a bounds check's numbers: 7.6 KiB), where one that
 /// ignores them lets fat LTO drop them. Where it panicked is in probe-rs's backtrace at the fault the undefined
-/// instruction raises, read from the ELF's debug information (the frames under `core::panicking`).
+/// instruction raises, read from the ELF's debug information (the frames under `core::panicking`); the record
+/// keeps that it was a panic, and where the stack stood.
 #[panic_handler]
 fn panic(_info: &core::panic::PanicInfo) -> ! {
     board::stop_bridge();
     cortex_m::interrupt::disable();
+    record_stop(Kind::Panic, crash_record::cortex_m::stack_pointer());
     defmt::error!("panicked");
     // An undefined instruction: probe-rs reports the panic; without a probe the watchdog resets the chip.
     cortex_m::asm::udf()
@@ -57,14 +86,16 @@ fn panic(_info: &core::panic::PanicInfo) -> ! {
 #[defmt::panic_handler]
 fn defmt_panic() -> ! {
     board::stop_bridge();
+    record_stop(Kind::Panic, crash_record::cortex_m::stack_pointer());
     cortex_m::asm::udf()
 }
 
 /// A hard fault (flip-link turns a stack overflow into one) stops the bridge too; the watchdog then resets.
 #[cortex_m_rt::exception]
 #[allow(unsafe_code)]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
     board::stop_bridge();
+    record_stop(Kind::HardFault, crash_record::cortex_m::stacked(frame));
     loop {
         cortex_m::asm::nop();
     }
@@ -76,6 +107,7 @@ unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
 #[allow(unsafe_code)]
 unsafe fn DefaultHandler(_irqn: i16) -> ! {
     board::stop_bridge();
+    record_stop(Kind::StrayInterrupt, Frame::default());
     loop {
         cortex_m::asm::nop();
     }
@@ -100,6 +132,7 @@ unsafe fn NonMaskableInt() {
         NmiAction::PassDataRead { clear } => pac::FLASH.eccr().write_value(pac::flash::regs::Eccr(clear)),
         NmiAction::Stop => {
             board::stop_bridge();
+            record_stop(Kind::Nmi, Frame::default());
             loop {
                 cortex_m::asm::nop();
             }
@@ -135,6 +168,15 @@ async fn main(spawner: Spawner) {
     #[cfg(feature = "motorless")]
     let chip = g431_hw::chip!(thruster_motorless_image, chip);
     let shared: &'static Shared = SHARED.init(Shared::new());
+    // The stop before this start, read before anything else writes RAM there and before `reset_cause` clears why
+    // the chip reset (RCC_CSR, RM0440 7.4.30). It stays there for a debugger, until the next stop or power cycle.
+    if let Some(record) = crash_region().start(ResetCause(pac::RCC.csr().read().0), CRASH_IMAGE) {
+        warn!(
+            "stopped before this start: {=str} at {:#010x}",
+            record.kind.name(),
+            record.frame.pc
+        );
+    }
     let reset = reset_cause();
     let latch = BackupLatch::open(reset);
     info!(

@@ -1509,7 +1509,7 @@ fn param_pck_never_panics_on_a_query_or_a_read() {
 fn a_crash_record() -> [u8; crash_record::LEN] {
     let mut region = crash_record::Region::new();
     let image = crash_record::Image {
-        target: 0,
+        target: 3,
         version: [0, 1, 0, 0],
     };
     region.start(crash_record::ResetCause(1 << 27), image);

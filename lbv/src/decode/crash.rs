@@ -324,24 +324,19 @@ impl<'data> Elf<'data> {
     }
 }
 
-/// The record's target byte in words.
+/// The record's target byte (the update file's) in words.
 fn target_name(target: u8) -> String {
-    match target {
-        0 => "master".into(),
-        1 => "SeaBotix thruster".into(),
-        2 => "Legacy thruster".into(),
-        other => format!("{other} (not a known target)"),
+    match Target::from_byte(target) {
+        Some(Target::Master) => "master".into(),
+        Some(Target::ThrusterSeabotix) => "SeaBotix thruster".into(),
+        Some(Target::ThrusterLegacy) => "Legacy thruster".into(),
+        None => format!("{target} (not a known target)"),
     }
 }
 
 /// The update-image target of the record's target byte, to compare with an ELF's image info.
 fn update_target(target: u8) -> Option<Target> {
-    match target {
-        0 => Some(Target::Master),
-        1 => Some(Target::ThrusterSeabotix),
-        2 => Some(Target::ThrusterLegacy),
-        _ => None,
-    }
+    Target::from_byte(target)
 }
 
 /// RCC_CSR's reset flags: bit, name, what reset the chip (RM0440 7.4.30 RCC_CSR).
@@ -594,7 +589,7 @@ mod tests {
     const POWER_ON: ResetCause = ResetCause(1 << 27 | 1 << 26);
     const SOFTWARE: ResetCause = ResetCause(1 << 28 | 1 << 26);
     const MASTER: Image = Image {
-        target: 0,
+        target: 3,
         version: [0, 3, 0x2C, 0x01],
     };
 
@@ -718,12 +713,12 @@ events     3, oldest first
             ]
         );
         assert_eq!(
-            [0, 1, 2, 3].map(target_name),
+            [3, 1, 2, 0].map(target_name),
             [
                 "master",
                 "SeaBotix thruster",
                 "Legacy thruster",
-                "3 (not a known target)"
+                "0 (not a known target)"
             ]
         );
     }
