@@ -76,6 +76,7 @@ pub mod header;
 pub mod own;
 pub mod param_pck;
 pub mod sys;
+mod window;
 
 pub(crate) use header::parse_header;
 pub use header::{HEADER_LEN, ImageHeader};
@@ -99,6 +100,7 @@ use crate::update::courier::{File, PROGRESS_PERIOD, Transfers, bit, family_file}
 use crate::update::own::{NotTaken, OwnImage};
 use crate::update::param_pck::ParamFile;
 use crate::update::sys::Versions;
+use crate::update::window::Window;
 use ftp::{ACK, Nak, Opcode, Request};
 use update_image::HeaderError;
 
@@ -1247,53 +1249,6 @@ impl fmt::Write for Buf {
         } else {
             Err(fmt::Error)
         }
-    }
-}
-
-/// A writer that keeps the bytes from `skip` on that fit `into`, and counts every byte: a file made again at
-/// each read keeps the bytes the read asks for.
-pub(crate) struct Window<'a> {
-    skip: u32,
-    into: &'a mut [u8],
-    /// Bytes kept.
-    pub(crate) filled: usize,
-    /// Bytes written, kept or not.
-    pub(crate) total: u32,
-}
-
-impl<'a> Window<'a> {
-    pub(crate) fn new(skip: u32, into: &'a mut [u8]) -> Self {
-        Self {
-            skip,
-            into,
-            filled: 0,
-            total: 0,
-        }
-    }
-
-    pub(crate) fn put(&mut self, bytes: &[u8]) {
-        for byte in bytes {
-            if self.total >= self.skip
-                && let Some(slot) = self.into.get_mut(self.filled)
-            {
-                *slot = *byte;
-                self.filled += 1;
-            }
-            self.total = self.total.saturating_add(1);
-        }
-    }
-
-    pub(crate) fn zeros(&mut self, n: u32) {
-        for _ in 0..n {
-            self.put(&[0]);
-        }
-    }
-}
-
-impl fmt::Write for Window<'_> {
-    fn write_str(&mut self, s: &str) -> fmt::Result {
-        self.put(s.as_bytes());
-        Ok(())
     }
 }
 

@@ -232,6 +232,10 @@ class Pilot:
         self.summary["ftp_params"] = ftp
         if {name: round(value, 4) for name, value in ftp.items()} != values:
             raise Failed(f"param.pck read by MAVProxy {ftp} is not the list {values}")
+        # The list cost MAVProxy 27 frames of its 40-frame allowance (lbv-master-fw's console::limit, 10 frames a
+        # second back): a pilot's next requests come seconds later, and so do the next steps'.
+        rested = time.monotonic() + 3.0
+        self.wait(lambda: time.monotonic() >= rested, 4.0, "the allowance refilled")
 
     def version(self):
         since = time.monotonic()

@@ -28,8 +28,8 @@
 use crate::mixer::FrameKind;
 use crate::params::{PARAM_COUNT, Param, ParamType, Params};
 pub use crate::shared::ParamFile;
-use crate::update::Window;
 use crate::update::ftp::crc32;
+use crate::update::window::Window;
 
 /// The directory, as a request names it (after a leading `/`, which may be left out).
 pub(crate) const DIR: &str = "@PARAM";

@@ -34,7 +34,7 @@ use update_image::Version;
 
 use crate::shared::MAX_THRUSTERS;
 pub use crate::shared::{ImageState, Running, Versions};
-use crate::update::Window;
+use crate::update::window::Window;
 
 /// The directory, as a request names it (after a leading `/`, which may be left out).
 pub(crate) const DIR: &str = "@SYS";
