@@ -286,6 +286,11 @@ fn qgroundcontrol_connect_then_arm(with_file: bool) {
         RequestCapabilities {
             sent: usize,
         },
+        /// What QGroundControl asks for after AUTOPILOT_VERSION ([`ASKED`]), each answered at once.
+        Ask {
+            sent: usize,
+            n: usize,
+        },
         /// ParameterManager on an ArduPilot vehicle: `@PARAM/param.pck?withdefaults=1` over MAVLink FTP
         /// (OpenFileRO, BurstReadFile from where each reply ends until EndOfFile, TerminateSession).
         ParamFile {
@@ -376,24 +381,53 @@ fn qgroundcontrol_connect_then_arm(with_file: bool) {
                             Step::RequestCapabilities {
                                 sent: gcs.received.len(),
                             }
-                        } else if with_file {
-                            gcs.ftp(ftp_seq, OPEN_RO, 0, b"@PARAM/param.pck?withdefaults=1");
-                            Step::ParamFile {
-                                sent: gcs.received.len(),
-                            }
                         } else {
-                            gcs.send(&PARAM_REQUEST_LIST_DATA {
-                                target_system: 1,
-                                target_component: 1,
-                            });
-                            Step::Parameters {
+                            gcs.command(REQUEST_MESSAGE, [ASKED[0].0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                            Step::Ask {
                                 sent: gcs.received.len(),
+                                n: 0,
                             }
                         }
                     }
                     _ => step,
                 }
             }
+            Step::Ask { sent, n } => match find(gcs, sent, ack(REQUEST_MESSAGE)) {
+                Some(at) => {
+                    let (message, accepted) = ASKED[n];
+                    let result = ack_result(gcs, at);
+                    assert_eq!(
+                        result == MavResult::MAV_RESULT_ACCEPTED,
+                        accepted,
+                        "{message}: {result:?}"
+                    );
+                    assert!(
+                        gcs.received[at].0 - gcs.received[sent.saturating_sub(1)].0 < Duration::from_millis(100),
+                        "{message} answered at once"
+                    );
+                    if let Some(&(next, _)) = ASKED.get(n + 1) {
+                        gcs.command(REQUEST_MESSAGE, [next, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+                        Step::Ask {
+                            sent: gcs.received.len(),
+                            n: n + 1,
+                        }
+                    } else if with_file {
+                        gcs.ftp(ftp_seq, OPEN_RO, 0, b"@PARAM/param.pck?withdefaults=1");
+                        Step::ParamFile {
+                            sent: gcs.received.len(),
+                        }
+                    } else {
+                        gcs.send(&PARAM_REQUEST_LIST_DATA {
+                            target_system: 1,
+                            target_component: 1,
+                        });
+                        Step::Parameters {
+                            sent: gcs.received.len(),
+                        }
+                    }
+                }
+                None => step,
+            },
             Step::ParamFile { sent } => match find(gcs, sent, |m| matches!(m, MavMessage::FILE_TRANSFER_PROTOCOL(_))) {
                 Some(at) => {
                     let MavMessage::FILE_TRANSFER_PROTOCOL(reply) = &gcs.received[at].2 else {
@@ -565,6 +599,12 @@ fn qgroundcontrol_connect_then_arm(with_file: bool) {
 
 /// MAV_CMD_DO_SET_MODE.
 const SET_MODE: u16 = 176;
+
+/// What QGroundControl asks for after AUTOPILOT_VERSION, in its InitialConnectStateMachine's order, and whether the
+/// vehicle has it: AVAILABLE_MODES (435, StandardModes: the mode menu), then its component metadata
+/// (COMPONENT_METADATA, 397) and the older COMPONENT_INFORMATION (395) it falls back to. The vehicle has no
+/// metadata to give: a refusal at once lets QGroundControl go on without waiting out its retries.
+const ASKED: [(f32, bool); 3] = [(435.0, true), (397.0, false), (395.0, false)];
 
 // MAVLink FTP's opcodes, replies and EndOfFile.
 const TERMINATE: u8 = 1;
