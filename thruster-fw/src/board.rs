@@ -32,7 +32,7 @@ use thruster_fw::ports::{BootState, I2cTarget, LatchStore, MarkError, Request, U
 use thruster_fw::update::{mark_for_swap, verdict_in};
 use thruster_fw::{CONFIG, FAMILY};
 use tmc_proto::Faults;
-use tmc_proto::ext::INFO_LEN;
+use tmc_proto::ext::{INFO_LEN, RECORD_LEN};
 use update_image::{Ticket, Verdict};
 
 #[cfg(not(feature = "motorless"))]
@@ -217,12 +217,16 @@ pub fn dfu(flash: &'static SharedFlash) -> Dfu {
 /// The field update's bootloader side: the running image's record from its own flash, the ticket and the mark
 /// that hand a payload in DFU to the bootloader (which checks its signature before it swaps it in), the
 /// bootloader's verdict on the last one, and the system reset.
-pub struct ImageSwap(&'static SharedFlash);
+pub struct ImageSwap {
+    flash: &'static SharedFlash,
+    /// The post-mortem record the start found in RAM, encoded.
+    post_mortem: Option<[u8; RECORD_LEN]>,
+}
 
 impl ImageSwap {
-    /// On the flash's partitions.
-    pub fn new(flash: &'static SharedFlash) -> Self {
-        ImageSwap(flash)
+    /// On the flash's partitions, with the post-mortem record the start found.
+    pub fn new(flash: &'static SharedFlash, post_mortem: Option<[u8; RECORD_LEN]>) -> Self {
+        ImageSwap { flash, post_mortem }
     }
 }
 
@@ -230,7 +234,7 @@ impl Updater for ImageSwap {
     fn running_info(&mut self) -> [u8; INFO_LEN] {
         let mut info = [0xFF; INFO_LEN];
         // A read inside ACTIVE cannot fail; were it to, the erased bytes say "no record".
-        let _ = partition(self.0, THRUSTER_PARTITIONS.active).read(memory::IMAGE_INFO_OFFSET, &mut info);
+        let _ = partition(self.flash, THRUSTER_PARTITIONS.active).read(memory::IMAGE_INFO_OFFSET, &mut info);
         info
     }
 
@@ -239,17 +243,21 @@ impl Updater for ImageSwap {
     }
 
     fn mark_updated(&mut self, ticket: &Ticket) -> Result<(), MarkError> {
-        let mut ticket_page = partition(self.0, THRUSTER_PARTITIONS.ticket());
-        let mut state = partition(self.0, THRUSTER_PARTITIONS.state);
+        let mut ticket_page = partition(self.flash, THRUSTER_PARTITIONS.ticket());
+        let mut state = partition(self.flash, THRUSTER_PARTITIONS.state);
         mark_for_swap(&mut ticket_page, &mut state, ticket)
     }
 
     fn verdict(&mut self) -> Option<Verdict> {
-        verdict_in(&mut partition(self.0, THRUSTER_PARTITIONS.ticket()))
+        verdict_in(&mut partition(self.flash, THRUSTER_PARTITIONS.ticket()))
     }
 
     fn reboot(&mut self) {
         cortex_m::peripheral::SCB::sys_reset()
+    }
+
+    fn post_mortem(&self) -> Option<[u8; RECORD_LEN]> {
+        self.post_mortem
     }
 }
 

@@ -13,7 +13,7 @@
 
 use embedded_storage::nor_flash::NorFlash;
 use tmc_proto::Faults;
-use tmc_proto::ext::INFO_LEN;
+use tmc_proto::ext::{INFO_LEN, RECORD_LEN};
 use update_image::{Ticket, Verdict};
 
 use crate::commutation::BridgeDrive;
@@ -195,6 +195,10 @@ pub trait Updater {
 
     /// Reset the chip, so that the bootloader swaps the marked payload in. On the chip it does not return.
     fn reboot(&mut self);
+
+    /// The post-mortem record of the stop before this start (the crash-record crate's, encoded), if the start
+    /// found one: the master fetches it ([`Command::PostMortem`](tmc_proto::ext::Command::PostMortem)).
+    fn post_mortem(&self) -> Option<[u8; RECORD_LEN]>;
 }
 
 /// The water-sensor ADC pin, which stays real in the motor-less controller.

@@ -14,7 +14,7 @@ use g431_hw::memory::{PAGE, THRUSTER_PARTITIONS};
 use lbv_sim::flash::Flash;
 use lbv_sim::i2c::{Target, TargetError};
 use tmc_proto::Family;
-use tmc_proto::ext::INFO_LEN;
+use tmc_proto::ext::{INFO_LEN, RECORD_LEN};
 use update_image::{ImageInfo, Ticket, Verdict, Version};
 
 /// A firmware slave port on a simulated bus ([`lbv_sim::i2c::Bus::target`]), as the controller's I2C task takes it.
@@ -85,6 +85,8 @@ pub struct BootUpdater {
     pub info: [u8; INFO_LEN],
     /// Reboots asked for (clones share the count).
     pub reboots: Rc<Cell<u32>>,
+    /// The post-mortem record the chip's start found, as the bench leaves it after a stop it models.
+    pub post_mortem: Option<[u8; RECORD_LEN]>,
 }
 
 impl BootUpdater {
@@ -95,6 +97,7 @@ impl BootUpdater {
             state,
             info: info_record(family, Version::new(0, 1, 0)),
             reboots: Rc::new(Cell::new(0)),
+            post_mortem: None,
         }
     }
 }
@@ -123,5 +126,9 @@ impl Updater for BootUpdater {
 
     fn reboot(&mut self) {
         self.reboots.set(self.reboots.get() + 1);
+    }
+
+    fn post_mortem(&self) -> Option<[u8; RECORD_LEN]> {
+        self.post_mortem
     }
 }

@@ -49,8 +49,9 @@ const CRASH_IMAGE: Image = Image {
     },
 };
 
-// The region fills the room kept for it.
+// The region fills the room kept for it, and its record is the one the master fetches.
 const _: () = assert!(core::mem::size_of::<Region>() == g431_hw::memory::CRASH.length as usize);
+const _: () = assert!(crash_record::LEN == tmc_proto::ext::RECORD_LEN);
 
 /// The post-mortem region at the bottom of RAM (`g431_hw::memory::CRASH`).
 #[allow(unsafe_code)]
@@ -170,7 +171,8 @@ async fn main(spawner: Spawner) {
     let shared: &'static Shared = SHARED.init(Shared::new());
     // The stop before this start, read before anything else writes RAM there and before `reset_cause` clears why
     // the chip reset (RCC_CSR, RM0440 7.4.30). It stays there for a debugger, until the next stop or power cycle.
-    if let Some(record) = crash_region().start(ResetCause(pac::RCC.csr().read().0), CRASH_IMAGE) {
+    let post_mortem = crash_region().start(ResetCause(pac::RCC.csr().read().0), CRASH_IMAGE);
+    if let Some(record) = &post_mortem {
         warn!(
             "stopped before this start: {=str} at {:#010x}",
             record.kind.name(),
@@ -278,7 +280,8 @@ async fn main(spawner: Spawner) {
             latch,
             boot: BootRecord::open(flash),
             dfu: board::dfu(flash),
-            updater: ImageSwap::new(flash),
+            // The master fetches the record (`tmc_proto::ext::Command::PostMortem`).
+            updater: ImageSwap::new(flash, post_mortem.map(|record| record.encode())),
         },
         shared
     )));

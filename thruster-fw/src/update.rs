@@ -27,8 +27,8 @@ use embedded_storage::nor_flash::{ErrorType, NorFlash, NorFlashErrorKind, ReadNo
 use g431_hw::memory::{IMAGE_INFO_OFFSET, THRUSTER_PARTITIONS};
 use tmc_proto::Family;
 use tmc_proto::ext::{
-    Command, CommandFrame, Crc32, INFO_LEN, MAX_CHUNK, PAGE_LEN, PROTOCOL_VERSION, Refusal, Reply, ReplyBody,
-    WRITE_UNIT,
+    Command, CommandFrame, Crc32, INFO_LEN, MAX_CHUNK, PAGE_LEN, PROTOCOL_VERSION, RECORD_LEN, Refusal, Reply,
+    ReplyBody, WRITE_UNIT,
 };
 use update_image::{
     INFO_FORMAT, ImageInfo, Refusal as ImageRefusal, SLOTS, Slots, TICKET_OFFSET, Target, Ticket, VERDICT_OFFSET,
@@ -112,6 +112,10 @@ impl Updater for NoUpdate {
     }
 
     fn reboot(&mut self) {}
+
+    fn post_mortem(&self) -> Option<[u8; RECORD_LEN]> {
+        None
+    }
 }
 
 impl ErrorType for NoUpdate {
@@ -281,8 +285,8 @@ impl Receiver {
             warn!("update dropped: the master ordered a non-zero speed");
             self.stage = Stage::Idle;
         }
-        // Only `Version` is answered whatever the motor does: the rest may touch the flash.
-        if !motion.at_rest && !matches!(command, Command::Version) {
+        // Only `Version` and `PostMortem` are answered whatever the motor does: the rest may touch the flash.
+        if !motion.at_rest && !matches!(command, Command::Version | Command::PostMortem { .. }) {
             return Next::Reply(Err(Refusal::Driving));
         }
         Next::Reply(match *command {
@@ -334,6 +338,7 @@ impl Receiver {
                 Stage::Finished => Ok(ReplyBody::Reboot),
                 _ => Err(Refusal::NotFinished),
             },
+            Command::PostMortem { offset } => post_mortem_part(updater.post_mortem().as_ref(), offset),
         })
     }
 
@@ -415,6 +420,22 @@ enum Next {
 /// flash already holds is not written again, so that a master that lost a reply can send the command again.
 // Out of line, as `Receiver::prepare`.
 #[inline(never)]
+/// The part of `record` (none: a record of length 0) from `offset`, zero past its end; an offset past the end is
+/// refused.
+fn post_mortem_part(record: Option<&[u8; RECORD_LEN]>, offset: u8) -> Result<ReplyBody, Refusal> {
+    let held: &[u8] = record.map_or(&[], |record| record);
+    let rest = held.get(usize::from(offset)..).ok_or(Refusal::OutOfRange)?;
+    let mut data = [0; MAX_CHUNK];
+    for (to, from) in data.iter_mut().zip(rest) {
+        *to = *from;
+    }
+    Ok(ReplyBody::PostMortem {
+        len: held.len() as u8,
+        offset,
+        data,
+    })
+}
+
 fn write_chunk<D: NorFlash>(dfu: &mut D, session: Session, offset: u32, data: &[u8]) -> Result<ReplyBody, Refusal> {
     if !offset.is_multiple_of(WRITE_UNIT) {
         return Err(Refusal::Unaligned);

@@ -79,9 +79,10 @@ pub const EXT_MT: u8 = 0x80;
 /// Byte 0 of every reply a thruster sends.
 pub const EXT_REPLY_MT: u8 = 0x81;
 
-/// The extension's version, in [`ReplyBody::Version`]: a master refuses a thruster whose version it does not
-/// know.
-pub const PROTOCOL_VERSION: u8 = 1;
+/// The extension's version, in [`ReplyBody::Version`]: what a thruster takes. 1: the update's commands;
+/// 2 adds [`Command::PostMortem`], which a master sends only to a thruster of version 2 or more. Nothing else
+/// changed, so masters of either version update thrusters of either.
+pub const PROTOCOL_VERSION: u8 = 2;
 
 /// The longest frame either way, in bytes (a [`Command::Write`] of [`MAX_CHUNK`] bytes is 77).
 pub const MAX_FRAME_LEN: usize = 80;
@@ -94,6 +95,9 @@ pub const SIGNATURE_LEN: usize = 64;
 
 /// The length of an image's information record (update-image's `ImageInfo`).
 pub const INFO_LEN: usize = 32;
+
+/// The length of a post-mortem record ([`Command::PostMortem`]): the crash-record crate's `LEN`.
+pub const RECORD_LEN: usize = 128;
 
 /// The unit of [`Command::Erase`]: one page of the STM32G431's flash (RM0440 3.3.1: 2 KiB pages).
 pub const PAGE_LEN: u32 = 2048;
@@ -192,11 +196,13 @@ pub enum CommandKind {
     Finish = 6,
     /// [`Command::Reboot`].
     Reboot = 7,
+    /// [`Command::PostMortem`] (protocol 2).
+    PostMortem = 8,
 }
 
 impl CommandKind {
     /// Every command.
-    pub const ALL: [CommandKind; 7] = [
+    pub const ALL: [CommandKind; 8] = [
         CommandKind::Version,
         CommandKind::Begin,
         CommandKind::Erase,
@@ -204,6 +210,7 @@ impl CommandKind {
         CommandKind::Check,
         CommandKind::Finish,
         CommandKind::Reboot,
+        CommandKind::PostMortem,
     ];
 
     /// Its byte.
@@ -221,6 +228,7 @@ impl CommandKind {
             5 => Some(CommandKind::Check),
             6 => Some(CommandKind::Finish),
             7 => Some(CommandKind::Reboot),
+            8 => Some(CommandKind::PostMortem),
             _ => None,
         }
     }
@@ -235,6 +243,7 @@ impl CommandKind {
             CommandKind::Check => "check",
             CommandKind::Finish => "finish",
             CommandKind::Reboot => "reboot",
+            CommandKind::PostMortem => "post-mortem",
         }
     }
 
@@ -248,6 +257,7 @@ impl CommandKind {
             CommandKind::Write => 4 + 1 + 4,
             CommandKind::Check => 4 + 4 + 4,
             CommandKind::Reboot => 0,
+            CommandKind::PostMortem => 2 + MAX_CHUNK,
         }
     }
 }
@@ -355,6 +365,13 @@ pub enum Command {
     },
     /// Reset, so that the bootloader swaps the new image in; only after a successful [`Command::Finish`].
     Reboot,
+    /// Up to [`MAX_CHUNK`] bytes of the post-mortem record the thruster kept from the stop before its start (the
+    /// crash-record crate's [`RECORD_LEN`]-byte record), from `offset`. Protocol 2 on: a master asks only a thruster
+    /// whose `Version` says [`PROTOCOL_VERSION`] 2 or more. Answered in any state: it reads RAM, nothing else.
+    PostMortem {
+        /// Where in the record.
+        offset: u8,
+    },
 }
 
 impl Command {
@@ -368,6 +385,7 @@ impl Command {
             Command::Check { .. } => CommandKind::Check,
             Command::Finish { .. } => CommandKind::Finish,
             Command::Reboot => CommandKind::Reboot,
+            Command::PostMortem { .. } => CommandKind::PostMortem,
         }
     }
 }
@@ -574,6 +592,16 @@ pub enum ReplyBody {
     },
     /// To [`Command::Reboot`]: the thruster resets once this reply has been read.
     Reboot,
+    /// To [`Command::PostMortem`]: the record's length (0: the thruster holds none, [`RECORD_LEN`] otherwise), and
+    /// its bytes from `offset`, zero past its end.
+    PostMortem {
+        /// The record's length: 0 or [`RECORD_LEN`].
+        len: u8,
+        /// As in the command.
+        offset: u8,
+        /// The bytes.
+        data: [u8; MAX_CHUNK],
+    },
 }
 
 impl ReplyBody {
@@ -587,6 +615,7 @@ impl ReplyBody {
             ReplyBody::Check { .. } => CommandKind::Check,
             ReplyBody::Finish { .. } => CommandKind::Finish,
             ReplyBody::Reboot => CommandKind::Reboot,
+            ReplyBody::PostMortem { .. } => CommandKind::PostMortem,
         }
     }
 }
@@ -838,6 +867,7 @@ impl CommandFrame {
                 out.put(&payload_len.to_le_bytes());
                 out.put(signature);
             }
+            Command::PostMortem { offset } => out.put(&[*offset]),
         }
         out.seal()
     }
@@ -925,6 +955,10 @@ impl CommandFrame {
                     signature: fields.array(),
                 }
             }
+            CommandKind::PostMortem => {
+                expected_len(1)?;
+                Command::PostMortem { offset: fields.u8() }
+            }
         };
         Ok(CommandFrame { seq: *seq, command })
     }
@@ -980,6 +1014,10 @@ impl Reply {
                     out.put(&crc.to_le_bytes());
                 }
                 ReplyBody::Reboot => {}
+                ReplyBody::PostMortem { len, offset, data } => {
+                    out.put(&[*len, *offset]);
+                    out.put(data);
+                }
             },
             Reply::Busy { .. } | Reply::Refused { .. } => {
                 for _ in 0..kind.reply_fields_len() {
@@ -1065,6 +1103,11 @@ impl Reply {
                 payload_len: fields.u32(),
             },
             CommandKind::Reboot => ReplyBody::Reboot,
+            CommandKind::PostMortem => ReplyBody::PostMortem {
+                len: fields.u8(),
+                offset: fields.u8(),
+                data: fields.array(),
+            },
         };
         Ok(Reply::Done { seq, body })
     }
@@ -1078,7 +1121,7 @@ mod tests {
         CommandFrame { seq: 0x42, command }
     }
 
-    fn every_command() -> [Command; 7] {
+    fn every_command() -> [Command; 8] {
         [
             Command::Version,
             Command::Begin {
@@ -1096,6 +1139,7 @@ mod tests {
                 signature: [0x3C; SIGNATURE_LEN],
             },
             Command::Reboot,
+            Command::PostMortem { offset: 64 },
         ]
     }
 
@@ -1122,9 +1166,9 @@ mod tests {
     #[test]
     fn lengths_are_as_documented() {
         let lengths = every_command().map(|command| frame(command).encode().as_bytes().len());
-        assert_eq!(lengths, [8, 13, 10, 77, 16, 76, 8]);
+        assert_eq!(lengths, [8, 13, 10, 77, 16, 76, 8, 9]);
         let replies = CommandKind::ALL.map(reply_len);
-        assert_eq!(replies, [46, 12, 10, 17, 20, 12, 8]);
+        assert_eq!(replies, [46, 12, 10, 17, 20, 12, 8, 74]);
         assert!(lengths.iter().chain(&replies).all(|len| *len <= MAX_FRAME_LEN));
     }
 
@@ -1228,6 +1272,11 @@ mod tests {
             },
             ReplyBody::Finish { payload_len: 32768 },
             ReplyBody::Reboot,
+            ReplyBody::PostMortem {
+                len: RECORD_LEN as u8,
+                offset: 64,
+                data: [0x5A; MAX_CHUNK],
+            },
         ];
         for body in bodies {
             let command = body.kind();

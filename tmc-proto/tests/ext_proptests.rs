@@ -25,6 +25,7 @@ fn command() -> impl Strategy<Value = Command> {
         (any::<u32>(), any::<u32>()).prop_map(|(offset, len)| Command::Check { offset, len }),
         (any::<u32>(), signature()).prop_map(|(payload_len, signature)| Command::Finish { payload_len, signature }),
         Just(Command::Reboot),
+        any::<u8>().prop_map(|offset| Command::PostMortem { offset }),
     ]
 }
 
@@ -59,6 +60,18 @@ fn body() -> impl Strategy<Value = ReplyBody> {
         (any::<u32>(), any::<u32>(), any::<u32>()).prop_map(|(offset, len, crc)| ReplyBody::Check { offset, len, crc }),
         any::<u32>().prop_map(|payload_len| ReplyBody::Finish { payload_len }),
         Just(ReplyBody::Reboot),
+        (
+            any::<u8>(),
+            any::<u8>(),
+            prop::array::uniform32(any::<u8>()),
+            prop::array::uniform32(any::<u8>())
+        )
+            .prop_map(|(len, offset, low, high)| {
+                let mut data = [0; MAX_CHUNK];
+                data[..32].copy_from_slice(&low);
+                data[32..].copy_from_slice(&high);
+                ReplyBody::PostMortem { len, offset, data }
+            }),
     ]
 }
 

@@ -202,6 +202,42 @@ fn a_turning_order_or_a_duty_refuses_everything_but_version_and_drops_the_update
 }
 
 #[test]
+fn the_post_mortem_record_is_read_in_parts_whatever_the_motor_does() {
+    let mut rig = Rig::new();
+    let driving = Motion {
+        at_rest: false,
+        turning_orders: 3,
+    };
+    // None held: a record of length 0, and nothing to read past its start.
+    assert_eq!(
+        rig.run(Command::PostMortem { offset: 0 }, driving),
+        Ok(ReplyBody::PostMortem {
+            len: 0,
+            offset: 0,
+            data: [0; MAX_CHUNK]
+        })
+    );
+    assert_eq!(rig.at_rest(Command::PostMortem { offset: 1 }), Err(Refusal::OutOfRange));
+    let record: [u8; RECORD_LEN] = core::array::from_fn(|i| i as u8 + 1);
+    rig.updater.post_mortem = Some(record);
+    let part = |rig: &mut Rig, offset: u8| match rig.run(Command::PostMortem { offset }, driving) {
+        Ok(ReplyBody::PostMortem { len, offset: at, data }) => {
+            assert_eq!((len, at), (RECORD_LEN as u8, offset));
+            Ok(data)
+        }
+        other => other.map(|_| unreachable!("{other:?}")),
+    };
+    assert_eq!(part(&mut rig, 0).unwrap(), record[..64]);
+    assert_eq!(part(&mut rig, 64).unwrap(), record[64..]);
+    // The last bytes, zero past the end; the end itself is empty; past it is refused.
+    assert_eq!(part(&mut rig, 100).unwrap()[..28], record[100..]);
+    assert_eq!(part(&mut rig, 100).unwrap()[28..], [0; 36]);
+    assert_eq!(part(&mut rig, 128).unwrap(), [0; MAX_CHUNK]);
+    assert_eq!(part(&mut rig, 129), Err(Refusal::OutOfRange));
+    assert_eq!(rig.dfu.stats().erases, 0);
+}
+
+#[test]
 fn motion_comes_from_the_last_order_and_the_duty() {
     let shared = Shared::new();
     assert_eq!(Motion::of(&shared), REST, "stopped before any order");
