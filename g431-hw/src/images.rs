@@ -407,8 +407,9 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
         image: &MASTER,
         layout: &memory::MASTER,
         flash_budget,
-        // Of the G474's 128 KiB: the rest is stack.
-        ram_budget: 32 * KIB,
+        // Of the G474's 128 KiB: the rest is stack. 32 KiB until the thrusters' post-mortem records, which the
+        // master keeps one per slot (8 x 128 B, and the one being fetched).
+        ram_budget: 34 * KIB,
         // About 19 KiB measured: embassy-executor materialises the node's task, ports and all, on the stack when
         // it spawns it (`stm32.rs`, "write_in_place").
         stack_budget: 24 * KIB,

@@ -916,7 +916,13 @@ impl<W: Write> Output<'_, W> {
         #[cfg(not(feature = "acceptance"))]
         {
             let params = shared.settings.try_get().map(|settings| settings.params);
-            let crash = shared.crash_bytes();
+            let crash = match reply {
+                FtpAnswer::Read(crate::update::FileRead {
+                    file: crate::update::OpenFile::Crash(crate::update::sys::CrashFile(board)),
+                    ..
+                }) => board.map_or_else(|| shared.crash_bytes(), |slot| shared.post_mortem(slot)),
+                _ => None,
+            };
             let contents = crate::update::Contents {
                 params: params.as_ref(),
                 crash: crash.as_ref(),

@@ -200,24 +200,42 @@ fn tell_crash(shared: &Shared) {
     let Some(record) = shared.crash_record().filter(|record| !record.told) else {
         return;
     };
+    tell_stop(shared, None, &record);
+    shared.crash_told();
+}
+
+/// Tell the operator of the stop `record` says `board` made before its start (the master's own, or a thruster's
+/// by its slot), and where to read the record.
+pub(crate) fn tell_stop(shared: &Shared, board: Option<u8>, record: &crash_record::Record) {
     let what = record.kind.name();
+    let who = StopOf(board);
     shared.say(
         Severity::Critical,
-        match (record.kind, record.panic) {
-            (crash_record::Kind::Watchdog, _) => text(format_args!("Crash before this start: {what}")),
+        match (record.kind, record.panic, record.frame.pc) {
+            // A watchdog's stop has no frame, and a thruster's panic keeps none.
+            (crash_record::Kind::Watchdog, _, _) | (_, None, 0) => text(format_args!("{who}: {what}")),
             // Its file is an address in the image, which `lbv decode crash --elf` reads.
-            (_, Some(at)) => text(format_args!("Crash before this start: {what}, line {}", at.line)),
-            _ => text(format_args!(
-                "Crash before this start: {what} at {:#010x}",
-                record.frame.pc
-            )),
+            (_, Some(at), _) => text(format_args!("{who}: {what}, line {}", at.line)),
+            (_, None, pc) => text(format_args!("{who}: {what} at {pc:#010x}")),
         },
     );
+    let file = update::sys::CrashFile(board);
     shared.say(
         Severity::Critical,
-        text(format_args!("Its record: ftp get @SYS/crash/master.bin")),
+        text(format_args!("Its record: ftp get @SYS/crash/{file}")),
     );
-    shared.crash_told();
+}
+
+/// Whose stop a text tells: `Crash before this start` (the master's), `T2: crash before its start`.
+struct StopOf(Option<u8>);
+
+impl core::fmt::Display for StopOf {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.0 {
+            None => f.write_str("Crash before this start"),
+            Some(slot) => write!(f, "T{}: crash before its start", u16::from(slot) + 1),
+        }
+    }
 }
 
 #[cfg(test)]

@@ -4,10 +4,10 @@
 //! only on [`crate::params`] and [`crate::mixer`] for the settings and the pilot's sticks it carries.
 
 use core::cell::{Cell, RefCell};
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 
 use bat_proto::{BatteryInfo, BmsAlarms, DcdcStatus};
-use crash_record::{Event, Record, Region, What};
+use crash_record::{Event, LEN as RECORD_LEN, Record, Region, What};
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
@@ -711,6 +711,11 @@ pub struct Shared {
     crash: BlockingMutex<CriticalSectionRawMutex, RefCell<Option<&'static mut Region>>>,
     /// The region held a record when it was handed over; it gets no other until the next start.
     crash_held: AtomicBool,
+    /// Bus tasks -> update server: each slot's thruster's post-mortem record, as last fetched
+    /// ([`Shared::keep_post_mortem`]), served as `@SYS/crash/thruster<slot>.bin`; kept until the master's next start.
+    post_mortems: BlockingMutex<CriticalSectionRawMutex, RefCell<[Option<[u8; RECORD_LEN]>; MAX_THRUSTERS]>>,
+    /// The slots (bits) that have a record there.
+    post_mortems_held: AtomicU8,
 }
 
 impl Shared {
@@ -731,6 +736,8 @@ impl Shared {
             holds: UpdateHolds::new(),
             crash: BlockingMutex::new(RefCell::new(None)),
             crash_held: AtomicBool::new(false),
+            post_mortems: BlockingMutex::new(RefCell::new([None; MAX_THRUSTERS])),
+            post_mortems_held: AtomicU8::new(0),
         }
     }
 
@@ -773,6 +780,39 @@ impl Shared {
     /// The record has been told.
     pub(crate) fn crash_told(&self) {
         self.with_crash(|region| region.mark_told());
+    }
+
+    /// Keep `record`, the post-mortem record fetched from slot `slot`'s thruster: the record decoded when it is new
+    /// (not the one kept for that slot), `None` when it is the one kept, an error when it does not check (it is not
+    /// kept: a thruster that reset between the record's parts mixes two).
+    pub(crate) fn keep_post_mortem(
+        &self,
+        slot: u8,
+        record: &[u8; RECORD_LEN],
+    ) -> Result<Option<Record>, crash_record::Error> {
+        let decoded = Record::decode(record)?;
+        let new = self.post_mortems.lock(|kept| {
+            let mut kept = kept.borrow_mut();
+            let held = kept.get_mut(usize::from(slot))?;
+            (held.as_ref() != Some(record)).then(|| *held = Some(*record))
+        });
+        if new.is_some() {
+            let bit = 1u8.checked_shl(slot.into()).unwrap_or(0);
+            self.post_mortems_held.fetch_or(bit, Ordering::Relaxed);
+        }
+        Ok(new.map(|()| decoded))
+    }
+
+    /// The slots (bits) whose thrusters' post-mortem records are kept.
+    pub(crate) fn post_mortems_held(&self) -> u8 {
+        self.post_mortems_held.load(Ordering::Relaxed)
+    }
+
+    /// Slot `slot`'s thruster's post-mortem record, if one is kept (for the update server's reads).
+    #[cfg_attr(feature = "acceptance", allow(dead_code))]
+    pub(crate) fn post_mortem(&self, slot: u8) -> Option<[u8; RECORD_LEN]> {
+        self.post_mortems
+            .lock(|kept| kept.borrow().get(usize::from(slot)).copied().flatten())
     }
 
     fn with_crash<R>(&self, f: impl FnOnce(&mut Region) -> R) -> Option<R> {
@@ -953,8 +993,8 @@ pub enum OpenFile {
     Versions(Versions),
     /// `@PARAM/param.pck`.
     Params(ParamFile),
-    /// `@SYS/crash/master.bin`: the post-mortem record the region holds.
-    Crash,
+    /// A post-mortem record in `@SYS/crash`: the master's, the region holds, or a thruster's, as fetched.
+    Crash(crate::update::sys::CrashFile),
 }
 
 /// The reply to a ReadFile or BurstReadFile: what its header needs, and what its data is made from as it is framed

@@ -1044,7 +1044,9 @@ impl BusState<'_> {
                 let _ = bus.recover().await;
             }
             answered &= result.is_ok();
-            transfers.done(sent, result, &mut out);
+            if let Some(fetched) = transfers.done(sent, result, &mut out) {
+                keep_post_mortem(shared, fetched);
+            }
         }
         transfers.publish(shared);
         Some(answered)
@@ -1058,6 +1060,21 @@ impl BusState<'_> {
             .filter(|(slot, _)| slot.bus == bus_index)
             .filter_map(|(_, entry)| entry.get().0.retry_at())
             .min()
+    }
+}
+
+/// Keep the post-mortem record fetched from a thruster, and tell a new one: the stop it made and where to read it.
+fn keep_post_mortem(shared: &Shared, fetched: courier::PostMortem) {
+    match shared.keep_post_mortem(fetched.slot, &fetched.record) {
+        Ok(Some(record)) => crate::tell_stop(shared, Some(fetched.slot), &record),
+        Ok(None) => {}
+        Err(_) => {
+            let who = u16::from(fetched.slot) + 1;
+            shared.say(
+                Severity::Warning,
+                text(format_args!("T{who}: its post-mortem record does not check")),
+            );
+        }
     }
 }
 

@@ -99,6 +99,7 @@ use crate::thrusters::ThrusterTable;
 use crate::update::courier::{File, PROGRESS_PERIOD, Transfers, bit, family_file};
 use crate::update::own::{NotTaken, OwnImage};
 use crate::update::param_pck::ParamFile;
+use crate::update::sys::CrashFile;
 use crate::update::sys::Versions;
 use crate::update::window::Window;
 use ftp::{ACK, Nak, Opcode, Request};
@@ -330,6 +331,18 @@ pub struct Context {
     pub params: Option<Params>,
     /// The post-mortem region holds a record: `@SYS/crash/master.bin` is there.
     pub crash: bool,
+    /// The slots (bits) whose thrusters' post-mortem records the master has fetched: `@SYS/crash/thruster<slot>.bin`.
+    pub post_mortems: u8,
+}
+
+impl Context {
+    /// Whether `file` is there.
+    fn holds(&self, file: CrashFile) -> bool {
+        match file.0 {
+            None => self.crash,
+            Some(slot) => self.post_mortems & bit(slot) != 0,
+        }
+    }
 }
 
 impl Context {
@@ -346,6 +359,7 @@ impl Context {
             unsigned: settings.is_none_or(|s| s.signing.is_none() && !s.params.unsigned_updates()),
             params: settings.map(|s| s.params),
             crash: shared.crash_held(),
+            post_mortems: shared.post_mortems_held(),
         }
     }
 }
@@ -396,8 +410,8 @@ enum Node {
     Params,
     /// `@SYS/crash`.
     CrashDir,
-    /// `@SYS/crash/master.bin`.
-    Crash,
+    /// A post-mortem record in `@SYS/crash`.
+    Crash(CrashFile),
 }
 
 /// Why an upload stops before its end.
@@ -562,8 +576,11 @@ impl UpdateServer {
                 b"" | b"/" => Ok(Node::Sys),
                 _ if name.strip_prefix(b"/") == Some(sys::VERSIONS.as_bytes()) => Ok(Node::Versions),
                 b"/crash" | b"/crash/" => Ok(Node::CrashDir),
-                b"/crash/master.bin" => Ok(Node::Crash),
-                _ => Err(Nak::FileNotFound),
+                _ => name
+                    .strip_prefix(b"/crash/")
+                    .and_then(CrashFile::named)
+                    .map(Node::Crash)
+                    .ok_or(Nak::FileNotFound),
             };
         }
         let target = match path.strip_prefix(b"update") {
@@ -691,7 +708,7 @@ impl UpdateServer {
     ) -> Result<(), Nak> {
         let first = usize::try_from(first).unwrap_or(usize::MAX);
         match self.lookup(path)? {
-            Node::Update(_) | Node::Versions | Node::Params | Node::Crash => return Err(Nak::FileNotFound),
+            Node::Update(_) | Node::Versions | Node::Params | Node::Crash(_) => return Err(Nak::FileNotFound),
             Node::Root => {
                 for name in ["update", sys::DIR, param_pck::DIR].get(first..).unwrap_or_default() {
                     if !data.entry(format_args!("D{name}\0")) {
@@ -714,10 +731,17 @@ impl UpdateServer {
                     data.entry(format_args!("Dcrash\0"));
                 }
             }
-            Node::CrashDir if first == 0 && context.crash => {
-                data.entry(format_args!("Fmaster.bin\t{}\0", crash_record::LEN));
+            Node::CrashDir => {
+                let held = [None]
+                    .into_iter()
+                    .chain((0..MAX_THRUSTERS as u8).map(Some))
+                    .map(CrashFile);
+                for file in held.filter(|file| context.holds(*file)).skip(first) {
+                    if !data.entry(format_args!("F{file}\t{}\0", crash_record::LEN)) {
+                        break;
+                    }
+                }
             }
-            Node::CrashDir => {}
             Node::ParamDir if first == 0 => {
                 let len = context.params.map_or(0, |params| {
                     ParamFile::open(&[], &params, self.frame).map_or(0, |file| u16::from_le_bytes(file.len))
@@ -795,7 +819,7 @@ impl UpdateServer {
                     .map(OpenFile::Params)
                     .ok_or(Nak::Fail)
             }
-            Node::Crash if context.crash => Ok(OpenFile::Crash),
+            Node::Crash(file) if context.holds(file) => Ok(OpenFile::Crash(file)),
             Node::Update(_) => Err(Nak::FileProtected),
             _ => Err(Nak::FileNotFound),
         }
@@ -1274,7 +1298,7 @@ impl OpenFile {
         match self {
             Self::Versions(versions) => versions.len(),
             Self::Params(file) => u16::from_le_bytes(file.len).into(),
-            Self::Crash => crash_record::LEN as u32,
+            Self::Crash(_) => crash_record::LEN as u32,
         }
     }
 }
@@ -1307,7 +1331,7 @@ impl FileRead {
         let read = data.get_mut(..usize::from(self.size)).and_then(|data| match self.file {
             OpenFile::Versions(versions) => Some(versions.read(offset, data)),
             OpenFile::Params(file) => contents.params.and_then(|params| file.read(offset, data, params)),
-            OpenFile::Crash => contents.crash.map(|record| {
+            OpenFile::Crash(_) => contents.crash.map(|record| {
                 let mut window = Window::new(offset, data);
                 window.put(record);
                 window.filled

@@ -145,7 +145,7 @@ fuzz_target!(|steps: Vec<Step>| {
     let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let mut sink = Sink::default();
     let mut params = VEHICLE.vehicle.defaults().params;
-    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params), crash: false };
+    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params), crash: false, post_mortems: 0b101 };
     // What the last file opened for reading is: param.pck (with the values it was opened with) or versions.txt.
     let mut opened = None;
     let mut now = Instant::from_ticks(0);

@@ -63,8 +63,8 @@ use embassy_time::{Duration, Instant, Timer};
 use embedded_hal_async::i2c::I2c;
 use tmc_proto::Family;
 use tmc_proto::ext::{
-    self, Chunk, Command, CommandFrame, CommandKind, Crc32, FrameError, MAX_CHUNK, Refusal, Reply, ReplyBody,
-    SIGNATURE_LEN,
+    self, Chunk, Command, CommandFrame, CommandKind, Crc32, FrameError, MAX_CHUNK, RECORD_LEN, Refusal, Reply,
+    ReplyBody, SIGNATURE_LEN,
 };
 use update_image::{Header, HeaderError, INFO_OFFSET, ImageInfo, MIN_PAYLOAD, Target, Version, check_upgrade};
 
@@ -434,10 +434,40 @@ impl Standing {
     }
 }
 
-/// A `Version` asked alone: the ground station's version query, or the master's own look at a thruster.
+/// What a [`Query`] reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Look {
+    /// What runs: `Version`.
+    Version,
+    /// The post-mortem record's part from this offset: `PostMortem`.
+    PostMortem(u8),
+}
+
+impl Look {
+    fn command(self) -> Command {
+        match self {
+            Look::Version => Command::Version,
+            Look::PostMortem(offset) => Command::PostMortem { offset },
+        }
+    }
+}
+
+/// A post-mortem record a thruster kept from the stop before its start, fetched whole ([`Courier::on_result`]):
+/// its CRC is not checked yet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PostMortem {
+    /// The thruster's slot.
+    pub slot: u8,
+    /// The record's bytes.
+    pub record: [u8; RECORD_LEN],
+}
+
+/// An exchange of the master's own, one at a time: the ground station's version query, the master's look at what a
+/// thruster runs, or its fetch of a thruster's post-mortem record.
 #[derive(Debug, Clone, Copy)]
 struct Query {
     slot: u8,
+    look: Look,
     seq: u8,
     /// Who asked (MAV_CMD_LBV_QUERY_VERSION), told what runs; `None`: the master's own look, asked once per turn.
     asker: Option<Sender>,
@@ -470,6 +500,11 @@ pub struct Courier {
     behind: [Option<(Family, [u8; 4])>; MAX_THRUSTERS],
     /// When the thrusters on trial are next asked.
     trial_ask: Instant,
+    /// The slots (bits) whose post-mortem records are to be fetched: each thruster that speaks `PostMortem`, once
+    /// after it answers again (it may have stopped and reset).
+    post_mortem_due: u8,
+    /// The record being fetched, its parts read so far.
+    fetching: [u8; RECORD_LEN],
 }
 
 impl Default for Courier {
@@ -494,6 +529,8 @@ impl Courier {
             answering: 0,
             behind: [None; MAX_THRUSTERS],
             trial_ask: Instant::from_ticks(0),
+            post_mortem_due: 0,
+            fetching: [0; RECORD_LEN],
         }
     }
 
@@ -581,15 +618,16 @@ impl Courier {
             return Err("wait: another query is under way");
         }
         // It takes the place of the master's own look, which asks again at its next turn.
-        self.ask(slot, Some(from));
+        self.ask(slot, Look::Version, Some(from));
         Ok(())
     }
 
     /// A query of `slot` begins.
-    fn ask(&mut self, slot: u8, asker: Option<Sender>) {
+    fn ask(&mut self, slot: u8, look: Look, asker: Option<Sender>) {
         self.query_seq = self.query_seq.wrapping_add(1);
         self.query = Some(Query {
             slot,
+            look,
             seq: self.query_seq,
             asker,
             silent_since: None,
@@ -824,12 +862,16 @@ impl Courier {
                 .zip(self.standing)
                 .find(|(slot, standing)| ours(*slot) && due(*standing));
             if let Some((slot, _)) = slot {
-                self.ask(slot, None);
+                self.ask(slot, Look::Version, None);
+            } else if let Some(slot) =
+                (0..MAX_THRUSTERS as u8).find(|slot| ours(*slot) && self.post_mortem_due & bit(*slot) != 0)
+            {
+                self.ask(slot, Look::PostMortem(0), None);
             }
         }
         // One at a time: the transfers wait for the query's end.
         if let Some(query) = self.query {
-            return ours(query.slot).then(|| exchange_of(query.slot, query.seq, Command::Version));
+            return ours(query.slot).then(|| exchange_of(query.slot, query.seq, query.look.command()));
         }
         let image = self.image?;
         let count = self.transfers.len();
@@ -928,9 +970,24 @@ impl Courier {
         exchange: impl Into<Sent>,
         result: Result<Reply, ExchangeError>,
         out: &mut impl FnMut(Outgoing),
-    ) {
-        self.take(now, exchange.into(), result, out);
+    ) -> Option<PostMortem> {
+        let exchange = exchange.into();
+        let fetch = self
+            .query
+            .filter(|query| query.slot == exchange.slot)
+            .and_then(|query| match query.look {
+                Look::PostMortem(offset) if exchange.command == CommandKind::PostMortem => Some((query, offset)),
+                _ => None,
+            });
+        let fetched = match fetch {
+            Some((query, offset)) => self.fetched(now, query, offset, result),
+            None => {
+                self.take(now, exchange, result, out);
+                None
+            }
+        };
         self.report(now, out);
+        fetched
     }
 
     /// At most once a [`PROGRESS_PERIOD`] while a family's image is applied: how far, as the
@@ -977,10 +1034,9 @@ impl Courier {
         result: Result<Reply, ExchangeError>,
         out: &mut impl FnMut(Outgoing),
     ) {
-        if let Some(query) = self
-            .query
-            .filter(|query| query.slot == exchange.slot && exchange.command == CommandKind::Version)
-        {
+        if let Some(query) = self.query.filter(|query| {
+            query.slot == exchange.slot && query.look == Look::Version && exchange.command == CommandKind::Version
+        }) {
             return self.answered(now, query, result, out);
         }
         let Some(image) = self.image else {
@@ -1306,6 +1362,7 @@ impl Courier {
                 seq,
                 body:
                     ReplyBody::Version {
+                        protocol,
                         info,
                         on_trial,
                         checks_signatures,
@@ -1315,6 +1372,10 @@ impl Courier {
                     },
             }) if seq == query.seq => {
                 if let Some(standing) = standing {
+                    // Its first answer since it came back: fetch the record of a stop before its start.
+                    if *standing == Standing::Unasked && protocol >= 2 {
+                        self.post_mortem_due |= bit(slot);
+                    }
                     *standing = Standing::of(on_trial, marked);
                 }
                 if let Some(running) = self.running.get_mut(usize::from(slot)) {
@@ -1380,6 +1441,59 @@ impl Courier {
                 to,
             });
         }
+    }
+
+    /// What a fetch's `PostMortem` for the part at `offset` got, at `now`: the next part is asked, or the record is
+    /// whole (returned), or the thruster holds none. A reply that does not come is asked again until the thruster
+    /// has been silent for [`SILENCE_LIMIT`]; one that says something else (a status frame: no extension after all;
+    /// a refusal; a length this master does not know) ends the fetch with nothing.
+    fn fetched(
+        &mut self,
+        now: Instant,
+        query: Query,
+        offset: u8,
+        result: Result<Reply, ExchangeError>,
+    ) -> Option<PostMortem> {
+        let slot = query.slot;
+        let start = usize::from(offset);
+        let whole = match result {
+            Ok(Reply::Done {
+                seq,
+                body: ReplyBody::PostMortem { len, offset: at, data },
+            }) if seq == query.seq && at == offset => {
+                let part = self.fetching.get_mut(start..).map(|rest| rest.iter_mut().zip(data));
+                match usize::from(len) {
+                    RECORD_LEN if start + MAX_CHUNK < RECORD_LEN => {
+                        part.into_iter().flatten().for_each(|(to, from)| *to = from);
+                        self.ask(slot, Look::PostMortem((start + MAX_CHUNK) as u8), None);
+                        return None;
+                    }
+                    RECORD_LEN => {
+                        part.into_iter().flatten().for_each(|(to, from)| *to = from);
+                        true
+                    }
+                    _ => false,
+                }
+            }
+            Ok(Reply::Refused { seq, .. }) if seq == query.seq => false,
+            Err(ExchangeError::Frame(FrameError::MessageType { .. })) => false,
+            _ => {
+                let since = self
+                    .query
+                    .as_mut()
+                    .map_or(now, |query| *query.silent_since.get_or_insert(now));
+                if now < since + SILENCE_LIMIT {
+                    return None;
+                }
+                false
+            }
+        };
+        self.post_mortem_due &= !bit(slot);
+        self.query = None;
+        whole.then_some(PostMortem {
+            slot,
+            record: self.fetching,
+        })
     }
 
     /// Slot `slot`'s transfer ends early: the operator is told why. A thruster that was being applied the image is
@@ -1565,9 +1679,16 @@ impl Transfers {
     }
 
     /// What `exchange` got: `out` takes the texts and acknowledgements; the sink hears that the courier moved on.
-    pub(crate) fn done(&self, exchange: Sent, result: Result<Reply, ExchangeError>, out: &mut impl FnMut(Outgoing)) {
-        self.with(|courier| courier.on_result(Instant::now(), exchange, result, out));
+    /// A thruster's post-mortem record fetched whole comes back.
+    pub(crate) fn done(
+        &self,
+        exchange: Sent,
+        result: Result<Reply, ExchangeError>,
+        out: &mut impl FnMut(Outgoing),
+    ) -> Option<PostMortem> {
+        let fetched = self.with(|courier| courier.on_result(Instant::now(), exchange, result, out));
         self.moved.signal(());
+        fetched
     }
 
     /// Wait until the sink may hand on one more write's bytes.

@@ -1,6 +1,9 @@
 //! `@SYS/`: read-only files the master makes when they are opened, as ArduPilot serves its own `@SYS/` files
 //! (`AP_Filesystem_Sys`): OpenFileRO fixes the content and answers its length, ReadFile and BurstReadFile read it by
-//! offset until EndOfFile. One file: `versions.txt`, what every board runs, as the master knows it.
+//! offset until EndOfFile. `versions.txt`, what every board runs, as the master knows it; and in `crash/` the
+//! post-mortem records held, each as the board kept it ([`crash_record`]): `master.bin`, the master's own stop
+//! before this start, and `thruster<slot>.bin`, each thruster's, as the master fetched it (slots from 0, as the
+//! update files count them: `thruster0.bin` is T1's).
 //!
 //! Its text, one line per board after a header line, each line ending in `\n`, its fields apart by spaces and
 //! padded into columns (board 6 wide, family 8, version 8, so a longer version pushes the state out):
@@ -44,6 +47,47 @@ pub(crate) const VERSIONS: &str = "versions.txt";
 pub const MAX_LEN: u32 = 31 + 9 * 41;
 
 const HEADER: &str = "board  family   version  state\n";
+
+/// A post-mortem record's file in `@SYS/crash`: the master's (`None`) or slot `slot`'s thruster's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct CrashFile(pub Option<u8>);
+
+impl CrashFile {
+    /// The file `name` names, if it is one: `master.bin`, `thruster0.bin` to `thruster7.bin`.
+    pub(crate) fn named(name: &[u8]) -> Option<Self> {
+        match name {
+            b"master.bin" => Some(CrashFile(None)),
+            [
+                b't',
+                b'h',
+                b'r',
+                b'u',
+                b's',
+                b't',
+                b'e',
+                b'r',
+                digit,
+                b'.',
+                b'b',
+                b'i',
+                b'n',
+            ] => {
+                let slot = digit.wrapping_sub(b'0');
+                (usize::from(slot) < MAX_THRUSTERS).then_some(CrashFile(Some(slot)))
+            }
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for CrashFile {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.0 {
+            None => f.write_str("master.bin"),
+            Some(slot) => write!(f, "thruster{slot}.bin"),
+        }
+    }
+}
 
 /// What follows `@SYS` in `path` (its leading `/` taken off), if it begins so.
 pub(crate) fn in_dir(path: &[u8]) -> Option<&[u8]> {

@@ -27,6 +27,7 @@ const DISARMED: Context = Context {
     unsigned: false,
     params: None,
     crash: false,
+    post_mortems: 0,
 };
 const ARMED: Context = Context {
     armed: true,
@@ -1593,6 +1594,71 @@ fn the_crash_record_is_served_read_only_while_the_region_holds_one() {
             "{opcode}"
         );
     }
+}
+
+#[test]
+fn the_thrusters_records_are_listed_after_the_masters_and_read_by_their_slot() {
+    let held = Context {
+        crash: true,
+        post_mortems: 0b1000_0100,
+        ..DISARMED
+    };
+    let mut s = Server::new();
+    // As many entries as a reply holds (28 bytes: one here), the next from the offset after the last.
+    let entries: Vec<Vec<u8>> = (0..3)
+        .map(|first| {
+            s.send(0, held, OTHER, &payload(1, 1, LIST, first, b"@SYS/crash"))
+                .unwrap()
+                .data
+        })
+        .collect();
+    assert_eq!(
+        entries,
+        [
+            &b"Fmaster.bin\t128\0"[..],
+            b"Fthruster2.bin\t128\0",
+            b"Fthruster7.bin\t128\0"
+        ]
+    );
+    assert_eq!(
+        nak(&s.send(0, held, OTHER, &payload(3, 1, LIST, 3, b"@SYS/crash"))),
+        Some(Nak::EndOfFile as u8)
+    );
+    for (path, open) in [
+        (&b"@SYS/crash/thruster2.bin"[..], true),
+        (b"/@SYS/crash/thruster7.bin", true),
+        (b"@SYS/crash/thruster1.bin", false),
+        (b"@SYS/crash/thruster8.bin", false),
+        (b"@SYS/crash/thruster22.bin", false),
+        (b"@SYS/crash/thruster.bin", false),
+    ] {
+        let reply = s.send(0, held, OTHER, &payload(4, 1, OPEN_RO, 0, path)).unwrap();
+        let expected = if open { ACK } else { NAK };
+        assert_eq!(reply.opcode, expected, "{}", String::from_utf8_lossy(path));
+        let _ = s.send(0, held, OTHER, &payload(5, 1, TERMINATE, 0, b""));
+    }
+}
+
+#[test]
+fn the_master_keeps_each_thrusters_record_once_and_refuses_one_that_does_not_check() {
+    let shared = Shared::new();
+    let record = a_crash_record();
+    assert_eq!(shared.post_mortem(3), None);
+    let decoded = shared.keep_post_mortem(3, &record).unwrap().unwrap();
+    assert_eq!(decoded.kind, crash_record::Kind::Panic);
+    assert_eq!(
+        (Context::of(&shared).post_mortems, shared.post_mortem(3)),
+        (0b1000, Some(record))
+    );
+    // The same record fetched again (the thruster reset once more) is not new.
+    assert_eq!(shared.keep_post_mortem(3, &record), Ok(None));
+    let mut torn = record;
+    torn[40] ^= 1;
+    assert!(shared.keep_post_mortem(3, &torn).is_err());
+    assert_eq!(shared.post_mortem(3), Some(record));
+    // A slot past the table's largest keeps nothing.
+    assert_eq!(shared.keep_post_mortem(8, &record), Ok(None));
+    assert_eq!(Context::of(&shared).post_mortems, 0b1000);
 }
 
 #[test]

@@ -658,6 +658,7 @@ fn versions_read() -> Outgoing {
         unsigned: false,
         params: None,
         crash: false,
+        post_mortems: 0,
     };
     let gcs = Sender {
         system: 255,

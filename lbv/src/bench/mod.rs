@@ -337,6 +337,14 @@ impl Bench {
         }
     }
 
+    /// Thruster `index`'s controller stops as its fault handlers stop it on a `kind` of stop (a panic, say); its
+    /// watchdog then resets it, and it starts again with the record of the stop ([`ThrusterBoard::stop`]).
+    pub fn stop_thruster(&mut self, index: usize, kind: crash_record::Kind) {
+        if let Some(thruster) = self.thrusters.get_mut(index) {
+            thruster.stop(&mut self.executor, kind);
+        }
+    }
+
     /// Reset the master: it boots again with fresh state; the thrusters, the buses and the links stay as they are.
     pub fn reboot_master(&mut self) {
         self.master.reboot(&self.wiring, &mut self.executor);
@@ -409,6 +417,13 @@ impl Bench {
         while let Some(index) = self.thrusters.iter().position(ThrusterBoard::reboot_requested) {
             self.note(format!("T{}: reboots", index + 1));
             self.power(index, false);
+            self.power(index, true);
+            self.executor.run_until_idle();
+        }
+        // A thruster stopped by a fault handler: its watchdog resets it, and it starts with the record of the stop.
+        let now = self.now();
+        while let Some(index) = self.thrusters.iter().position(|t| t.watchdog_reset_due(now)) {
+            self.note(format!("T{}: its watchdog resets it", index + 1));
             self.power(index, true);
             self.executor.run_until_idle();
         }

@@ -10,11 +10,22 @@
 //! embassy-boot's swap and revert) before the controller starts, from whatever image ACTIVE then holds; the
 //! controller's field update writes the DFU partition and marks the state partition, and its reset request
 //! ([`BootUpdater::reboot`]) has the bench reset the board.
+//!
+//! So does the RAM at the bottom of the chip that a reset keeps and a power cut loses: the post-mortem region
+//! (`g431_hw::memory::CRASH`, the crash-record crate's [`Region`]). A controller stopped as the image's fault
+//! handlers stop it ([`ThrusterBoard::stop`]) leaves its record there, and its watchdog resets the chip; every boot
+//! starts the region as the image's start does, with the reset's cause, and hands the record found to the
+//! controller's updater, which serves it to the master (`PostMortem`). What the model leaves out: the stopped chip's
+//! I2C peripheral, which on the G431 acknowledges its address and stretches the clock until the master's timeout,
+//! here answers nothing (the master loses the thruster either way); the record's registers, which the bench has
+//! none of (its frame is empty); and what the backup domain keeps across a reset on the chip (the bootloader's
+//! count of early crashes, the Legacy family's latched faults), which a bench thruster starts without.
 
 use core::cell::{Cell, RefCell};
 use core::ops::Deref;
 use std::rc::Rc;
 
+use crash_record::{FaultStatus, Frame, Kind, Region, ResetCause, Stop};
 use embassy_boot::{BlockingFirmwareState, State};
 use embassy_sync::blocking_mutex::raw::NoopRawMutex;
 use embassy_sync::signal::Signal;
@@ -230,7 +241,19 @@ pub struct ThrusterBoard {
     /// board then stays off until the next boot.
     pub cut_in_bootloader: Option<usize>,
     tasks: Vec<TaskId>,
+    /// The post-mortem region: RAM that a reset keeps and a power cut loses.
+    crash_ram: Region,
+    /// Why the next boot's reset comes (RCC_CSR's flags): a power-on, unless a stop's watchdog resets it.
+    next_reset: ResetCause,
+    /// When the controller last started, and when it stopped (its watchdog then resets it).
+    started: Instant,
+    stopped: Option<Instant>,
 }
+
+/// RCC_CSR after a power-on: BORRSTF and PINRSTF (RM0440 7.4.30; the reset pin follows every reset).
+const POWER_ON: ResetCause = ResetCause(1 << 27 | 1 << 26);
+/// RCC_CSR after the independent watchdog's reset: IWDGRSTF and PINRSTF.
+const WATCHDOG_RESET: ResetCause = ResetCause(1 << 29 | 1 << 26);
 
 impl Deref for ThrusterBoard {
     type Target = ThrusterIo;
@@ -295,6 +318,10 @@ impl ThrusterBoard {
             boot_outcome: None,
             cut_in_bootloader: None,
             tasks: Vec::new(),
+            crash_ram: Region::new(),
+            next_reset: POWER_ON,
+            started: Instant::from_ticks(0),
+            stopped: None,
         }
     }
 
@@ -330,6 +357,14 @@ impl ThrusterBoard {
         let starts = Instant::now() + FlashTiming::G431.work_time(before, self.flash.stats());
         let in_bootloader = starts > Instant::now();
         self.updater.info = self.read_running_info();
+        // The image's start, first of all: the record of the stop before it, if the reset kept one.
+        let image = crash_record::Image {
+            target: Target::thruster(self.config.family).to_byte(),
+            version: self.running_image().map_or([0; 4], |info| info.version.to_bytes()),
+        };
+        let cause = core::mem::replace(&mut self.next_reset, POWER_ON);
+        self.updater.post_mortem = self.crash_ram.start(cause, image).map(|record| record.encode());
+        (self.started, self.stopped) = (starts, None);
         // A reset asked for before this boot is the one this boot is.
         self.reboots_served = self.updater.reboots.get();
 
@@ -404,6 +439,38 @@ impl ThrusterBoard {
         self.io.break_flag.set(false);
         self.io.disturbed();
         self.shared = Rc::new(Shared::new());
+        (self.next_reset, self.stopped) = (POWER_ON, None);
+    }
+
+    /// Stop the controller as the image's fault handlers do on a `kind` of stop (a panic, say): the bridge off first,
+    /// every task stopped where it is, and the post-mortem record written; its slave port answers nothing from then
+    /// on, and its watchdog resets it once its timeout has run out ([`ThrusterBoard::watchdog_reset_due`]).
+    pub fn stop(&mut self, executor: &mut Executor<'static>, kind: Kind) {
+        if !self.powered() {
+            return;
+        }
+        let now = Instant::now();
+        self.power_off(executor);
+        let stop = Stop {
+            kind,
+            frame: Frame::default(),
+            faults: FaultStatus::default(),
+            exception: 0,
+            panic: None,
+            uptime_ms: now.saturating_duration_since(self.started).as_millis() as u32,
+        };
+        let image = crash_record::Image {
+            target: Target::thruster(self.config.family).to_byte(),
+            version: self.running_image().map_or([0; 4], |info| info.version.to_bytes()),
+        };
+        self.crash_ram.record(stop, image);
+        (self.next_reset, self.stopped) = (WATCHDOG_RESET, Some(now));
+    }
+
+    /// Whether the controller stopped and its watchdog's timeout has run out at `now`: the chip resets.
+    pub fn watchdog_reset_due(&self, now: Instant) -> bool {
+        self.stopped
+            .is_some_and(|stopped| now >= stopped + self.config.watchdog.timeout)
     }
 
     /// Hang the controller: its thread-mode tasks stop where they are (a lock-up) while it stays powered and its
@@ -451,9 +518,12 @@ impl ThrusterBoard {
     /// deadline).
     pub fn next_event(&self) -> Option<Instant> {
         let plant = self.io.lazy.as_ref().and_then(|lazy| lazy.next.get());
-        let watchdog = self
-            .powered()
-            .then(|| self.io.last_feed.get() + self.config.watchdog.timeout + Duration::from_ticks(1));
+        let watchdog = match self.stopped {
+            Some(stopped) => Some(stopped + self.config.watchdog.timeout),
+            None => self
+                .powered()
+                .then(|| self.io.last_feed.get() + self.config.watchdog.timeout + Duration::from_ticks(1)),
+        };
         match (plant, watchdog) {
             (Some(a), Some(b)) => Some(a.min(b)),
             (a, b) => a.or(b),

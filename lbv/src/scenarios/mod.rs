@@ -42,7 +42,7 @@ use thruster_faults::{
     overcurrent_intermittent, overtemp, rocking_rotor, stall, stall_brushed, water, water_threshold,
 };
 use update::{field_update, fleet_update, master_update};
-use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot};
+use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot, thruster_crash};
 
 /// `lbv bench`'s default seed, which the tests run every scenario with.
 #[cfg(test)]
@@ -295,6 +295,14 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 6.0,
         vehicle: lbv300,
         run: master_reboot,
+    },
+    Scenario {
+        name: "thruster-crash",
+        about: "a thruster's core panics mid-dive: its bridge is off at once, its watchdog resets it, the master \
+                drives it again, tells the stop and serves its post-mortem record over MAVLink FTP",
+        seconds: 6.0,
+        vehicle: lbv300,
+        run: thruster_crash,
     },
     Scenario {
         name: "battery-lost",

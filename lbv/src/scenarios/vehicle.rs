@@ -241,3 +241,104 @@ pub fn master_reboot(run: &mut Run) {
         format!("rpm {rpm:?}"),
     );
 }
+
+/// Read `path` from the master over MAVLink FTP as a ground station's `ftp get` does (OpenFileRO, ReadFile at
+/// each offset, TerminateSession); `None` when a request is refused or unanswered.
+fn ftp_get(run: &mut Run, path: &str) -> Option<Vec<u8>> {
+    const TERMINATE: u8 = 1;
+    const OPEN_RO: u8 = 4;
+    const READ: u8 = 5;
+    const ACK: u8 = 128;
+    let ask = |run: &mut Run, seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]| {
+        run.bench.ground.seen.ftp.clear();
+        let frame = run.bench.ground.ftp_request(seq, session, opcode, offset, data);
+        run.bench.send(frame);
+        run.run_until(1.0, |bench| !bench.ground.seen.ftp.is_empty());
+        let reply = *run.bench.ground.seen.ftp.first()?;
+        (reply[3] == ACK).then_some(reply)
+    };
+    let open = ask(run, 0x5000, 0, OPEN_RO, 0, path.as_bytes())?;
+    let (session, len) = (open[2], u32::from_le_bytes([open[12], open[13], open[14], open[15]]));
+    let mut file = Vec::new();
+    while (file.len() as u32) < len {
+        let seq = 0x5001 + file.len() as u16;
+        let read = ask(run, seq, session, READ, file.len() as u32, &[0; 200])?;
+        let size = usize::from(read[4]);
+        file.extend_from_slice(read.get(12..12 + size)?);
+    }
+    ask(run, 0x5fff, session, TERMINATE, 0, &[]);
+    Some(file)
+}
+
+/// One thruster's core panics mid-dive (T2, as its panic handler stops it): its bridge is off at once, its watchdog
+/// resets it, the master finds it again and drives it, tells the stop, fetches its post-mortem record and serves it
+/// over MAVLink FTP, where `lbv decode crash` reads it.
+pub fn thruster_crash(run: &mut Run) {
+    run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    let rpm_before = round(run.rpm(1), 0);
+    run.bench.note("T2's core panics");
+    run.bench.stop_thruster(1, crash_record::Kind::Panic);
+    run.check(
+        "T2's bridge is off at once",
+        run.duty(1) == 0 && run.bench.thrusters[1].drive().1.value() == 0,
+        format!("duty {}", run.duty(1)),
+    );
+    let told = run.run_until(3.0, |bench| {
+        bench
+            .ground
+            .seen
+            .texts
+            .iter()
+            .any(|(_, text)| text == "T2: crash before its start: panic")
+    });
+    run.metric("told_after_s", json!(told.map(|s| round(s, 2))));
+    run.check(
+        "the master tells the stop once T2 is back, and where its record is",
+        told.is_some() && run.said("Its record: ftp get @SYS/crash/thruster1.bin"),
+        format!("after {told:?} s"),
+    );
+    run.run_for(1.5);
+    let rpm: Vec<f64> = (0..4).map(|i| round(run.rpm(i), 0)).collect();
+    run.check(
+        "T2 drives again, the others never stopped",
+        rpm.iter().all(|r| *r > 800.0),
+        format!("rpm {rpm:?} (T2 {rpm_before} before)"),
+    );
+    let record = ftp_get(run, "@SYS/crash/thruster1.bin");
+    let decoded = record.as_deref().map(crash_record::Record::decode);
+    let stop = match &decoded {
+        Some(Ok(record)) => format!(
+            "{} of target {}, reset flags {:#010x}",
+            record.kind.name(),
+            record.target,
+            record.reset_cause
+        ),
+        other => format!("{other:?}"),
+    };
+    run.check(
+        "an FTP client gets the record: a panic of a SeaBotix thruster, reset by its watchdog",
+        matches!(&decoded, Some(Ok(record)) if record.kind == crash_record::Kind::Panic
+            && record.target == update_image::Target::ThrusterSeabotix.to_byte()
+            && record.reset_cause & 1 << 29 != 0),
+        stop,
+    );
+    let printed = match &decoded {
+        Some(Ok(record)) => crate::decode::crash::describe(record, None),
+        _ => String::new(),
+    };
+    run.check(
+        "lbv decode crash prints it",
+        printed.contains("panic"),
+        printed.lines().next().unwrap_or_default(),
+    );
+    let crashes = run
+        .bench
+        .ground
+        .seen
+        .texts
+        .iter()
+        .filter(|(_, text)| text.contains("crash before"))
+        .count();
+    run.check("told once", crashes == 1, format!("{crashes} texts"));
+}

@@ -115,6 +115,11 @@ fn answer_as(dfu: &mut [u8], exchange: &Exchange, running: ImageInfo) -> Result<
         },
         Command::Finish { payload_len, .. } => ReplyBody::Finish { payload_len },
         Command::Reboot => ReplyBody::Reboot,
+        Command::PostMortem { offset } => ReplyBody::PostMortem {
+            len: 0,
+            offset,
+            data: [0; MAX_CHUNK],
+        },
     };
     done(exchange, body)
 }
@@ -1553,4 +1558,150 @@ fn what_each_thruster_runs_is_kept_for_versions_txt() {
     }));
     courier.on_result(t(4_000), &ask, status_frame, &mut |_| {});
     assert_eq!(running(&courier, 2), (None, ImageState::NoUpdates));
+}
+
+/// A thruster of protocol 2 (it takes `PostMortem`) answering a `Version`, confirmed.
+fn version_2(exchange: &Exchange) -> Result<Reply, ExchangeError> {
+    let mut body = version(true, [0, 3, 0, 0]);
+    if let ReplyBody::Version { protocol, .. } = &mut body {
+        *protocol = 2;
+    }
+    done(exchange, body)
+}
+
+/// What a thruster holding `record` answers a `PostMortem`.
+fn part_of(exchange: &Exchange, record: Option<&[u8; RECORD_LEN]>) -> Result<Reply, ExchangeError> {
+    let Command::PostMortem { offset } = exchange.frame.command else {
+        panic!("{:?}", exchange.frame.command)
+    };
+    let held: &[u8] = record.map_or(&[], |record| record);
+    let mut data = [0; MAX_CHUNK];
+    for (to, from) in data.iter_mut().zip(&held[usize::from(offset)..]) {
+        *to = *from;
+    }
+    done(
+        exchange,
+        ReplyBody::PostMortem {
+            len: held.len() as u8,
+            offset,
+            data,
+        },
+    )
+}
+
+#[test]
+fn a_thruster_back_is_asked_for_its_post_mortem_record_once_after_its_version() {
+    let record: [u8; RECORD_LEN] = core::array::from_fn(|i| (i * 7) as u8);
+    let mut courier = Courier::new();
+    let quiet = |o: Outgoing| panic!("a fetch says nothing: {o:?}");
+    courier.seen(4, true);
+    let ask = courier.next(t(0), |_| true).unwrap();
+    assert_eq!(ask.frame.command, Command::Version);
+    assert_eq!(courier.on_result(t(0), &ask, version_2(&ask), &mut quiet.clone()), None);
+    // Two parts, each retried with its own sequence number through a lost reply; the record comes back whole.
+    let first = courier.next(t(20), |slot| slot == 4).unwrap();
+    assert_eq!(
+        (first.slot, first.frame.command),
+        (4, Command::PostMortem { offset: 0 })
+    );
+    assert!(courier.next(t(20), |slot| slot != 4).is_none(), "another bus's task");
+    assert_eq!(
+        courier.on_result(t(20), &first, Err(ExchangeError::Bus), &mut quiet.clone()),
+        None
+    );
+    let again = courier.next(t(40), |_| true).unwrap();
+    assert_eq!(again.frame, first.frame);
+    assert_eq!(
+        courier.on_result(t(40), &again, part_of(&again, Some(&record)), &mut quiet.clone()),
+        None
+    );
+    let second = courier.next(t(60), |_| true).unwrap();
+    assert_eq!(second.frame.command, Command::PostMortem { offset: 64 });
+    assert_ne!(second.frame.seq, first.frame.seq);
+    let fetched = courier.on_result(t(60), &second, part_of(&second, Some(&record)), &mut quiet.clone());
+    assert_eq!(fetched, Some(PostMortem { slot: 4, record }));
+    // Once: nothing more is asked until it answers again.
+    assert!(
+        (80..5_000)
+            .step_by(20)
+            .all(|ms| courier.next(t(ms), |_| true).is_none())
+    );
+    courier.seen(4, false);
+    courier.seen(4, true);
+    let ask = courier.next(t(5_000), |_| true).unwrap();
+    courier.on_result(t(5_000), &ask, version_2(&ask), &mut quiet.clone());
+    // None held now (a power cycle): one exchange, nothing fetched.
+    let first = courier.next(t(5_020), |_| true).unwrap();
+    assert_eq!(
+        courier.on_result(t(5_020), &first, part_of(&first, None), &mut quiet.clone()),
+        None
+    );
+    assert!(courier.next(t(5_040), |_| true).is_none());
+}
+
+#[test]
+fn a_post_mortem_fetch_is_not_asked_of_protocol_1_and_ends_on_anything_but_its_part() {
+    let mut courier = Courier::new();
+    // Protocol 1: the update's commands only.
+    courier.seen(0, true);
+    let ask = courier.next(t(0), |_| true).unwrap();
+    courier.on_result(t(0), &ask, done(&ask, version(true, [0, 1, 0, 0])), &mut |_| {});
+    assert!(courier.next(t(20), |_| true).is_none());
+    let status_frame = Err(ExchangeError::Frame(FrameError::MessageType {
+        expected: ext::EXT_REPLY_MT,
+        actual: 0x53,
+    }));
+    let endings = [
+        status_frame,
+        Ok(Reply::Refused {
+            seq: 0,
+            command: CommandKind::PostMortem,
+            refusal: Refusal::OutOfRange,
+        }),
+        // A length this master does not know.
+        Ok(Reply::Done {
+            seq: 0,
+            body: ReplyBody::PostMortem {
+                len: 200,
+                offset: 0,
+                data: [0; MAX_CHUNK],
+            },
+        }),
+    ];
+    for (n, ending) in endings.into_iter().enumerate() {
+        let ms = 1_000 * (n as u64 + 1);
+        courier.seen(1, false);
+        courier.seen(1, true);
+        let ask = courier.next(t(ms), |_| true).unwrap();
+        courier.on_result(t(ms), &ask, version_2(&ask), &mut |_| {});
+        let fetch = courier.next(t(ms + 20), |_| true).unwrap();
+        let ending = ending.map(|reply| match reply {
+            Reply::Refused { command, refusal, .. } => Reply::Refused {
+                seq: fetch.frame.seq,
+                command,
+                refusal,
+            },
+            Reply::Done { body, .. } => Reply::Done {
+                seq: fetch.frame.seq,
+                body,
+            },
+            busy => busy,
+        });
+        assert_eq!(courier.on_result(t(ms + 20), &fetch, ending, &mut |_| {}), None);
+        assert!(courier.next(t(ms + 40), |_| true).is_none(), "ending {n}");
+    }
+    // Silent: asked again until the silence limit, then given up; the transfers wait meanwhile.
+    courier.seen(1, false);
+    courier.seen(1, true);
+    let ask = courier.next(t(10_000), |_| true).unwrap();
+    courier.on_result(t(10_000), &ask, version_2(&ask), &mut |_| {});
+    let mut asked = 0;
+    let mut ms = 10_020;
+    while let Some(fetch) = courier.next(t(ms), |_| true) {
+        assert_eq!(fetch.frame.command, Command::PostMortem { offset: 0 });
+        courier.on_result(t(ms), &fetch, Err(ExchangeError::Bus), &mut |_| {});
+        asked += 1;
+        ms += 100;
+    }
+    assert_eq!((asked, ms), (31, 13_120));
 }
