@@ -124,6 +124,8 @@ firmware() {
   dev_key_refused
 }
 if ! $quick; then
+  # A run from nothing: incremental compilation would only write caches that no later build of this run reads.
+  export CARGO_INCREMENTAL=0
   builds=$(cargo run --quiet --locked -p g431-hw --bin images -- builds)
   partitions=$(cargo run --quiet --locked -p g431-hw --bin images -- partitions)
   firmware >target/firmware.log 2>&1 &
@@ -146,10 +148,12 @@ step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
 # With the private items: the firmware crates' docs are for those who work on them, and link to what is theirs.
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --document-private-items --locked --quiet
 
-# The bench, rehost's and QEMU's tools, built before the host tests (the QEMU image comes with the firmware's):
-# the steps beside the host tests then need no cargo, which would wait for theirs (one at a time holds a target
-# directory; LBV_TOOLS_BUILT tells rehost/run.sh and qemu-m4/run.sh).
-cargo build --quiet --locked --profile test --workspace --bin rehost --bin lbv
+# Every host test and tool in one build, as `cargo test` builds them (its profile, and the dev-dependencies'
+# features unified in: a build of the tools alone would resolve some crates' features otherwise and compile them
+# twice). The steps beside the host tests then need no cargo, which would wait for theirs (one at a time holds a
+# target directory; LBV_TOOLS_BUILT tells rehost/run.sh and qemu-m4/run.sh; the QEMU image comes with the
+# firmware's).
+cargo build --quiet --locked --profile test --workspace --all-targets
 export LBV_TOOLS_BUILT=1
 finish "installing the Debian and Python packages" "$packages" target/packages.log
 
