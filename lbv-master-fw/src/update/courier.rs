@@ -653,7 +653,7 @@ impl Courier {
 
     /// Thruster `slot` answers its polls again (`true`: it may have reset, into a swap or a revert; it is asked
     /// what it runs), or it stopped answering (one never asked is not waited for; what one said stays).
-    pub(crate) fn seen(&mut self, slot: u8, answering: bool) {
+    pub fn seen(&mut self, slot: u8, answering: bool) {
         self.answering = if answering {
             self.answering | bit(slot)
         } else {
