@@ -558,7 +558,8 @@ fn decode_order(family: Family, hex: &str) -> Result<Value, String> {
 /// A field update for a `family` thruster, for the image built with the development key (test.sh builds them so):
 /// a 4 KiB payload ([`signed_file`]) signed with keys/dev.key, where it goes (the DFU partition) and where the
 /// thruster hands it to its bootloader (the state, the record's ticket page), the extension's `Begin` and `Finish`
-/// frames, `Finish` also with a signature one bit off, `Version` and `Reboot`, and the ticket each `Finish` leaves.
+/// frames, `Finish` also with a signature one bit off, `Version`, `Reboot` and the two `PostMortem` parts, and the
+/// ticket each `Finish` leaves.
 fn update(family: Family) -> Result<Value, String> {
     let file = signed_file(Target::thruster(family), memory::THRUSTER_PARTITIONS.active.origin)?;
     let (header, payload) = file.split_at(HEADER_LEN);
@@ -586,10 +587,12 @@ fn update(family: Family) -> Result<Value, String> {
         "finish": frame(3, Command::Finish { payload_len, signature: header.signature }),
         "version": frame(4, Command::Version),
         "reboot": frame(5, Command::Reboot),
+        "post_mortem": [frame(6, Command::PostMortem { offset: 0 }), frame(7, Command::PostMortem { offset: 64 })],
         "begin_reply_len": ext::reply_len(ext::CommandKind::Begin),
         "finish_reply_len": ext::reply_len(ext::CommandKind::Finish),
         "version_reply_len": ext::reply_len(ext::CommandKind::Version),
         "reboot_reply_len": ext::reply_len(ext::CommandKind::Reboot),
+        "post_mortem_reply_len": ext::reply_len(ext::CommandKind::PostMortem),
         "finish_wait_ms": ext::FINISH_WAIT_MS,
     }))
 }
@@ -681,10 +684,10 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|byte| format!("{byte:02x}")).collect()
 }
 
-/// An extension reply: its command, sequence number and result ("done", "busy", or the refusal's name), and a
-/// `Version` reply's flags, the bootloader's verdict by its name.
-fn decode_reply(hex: &str) -> Result<Value, String> {
-    let reply = Reply::decode(&bytes_of(hex)?).map_err(|error| error.to_string())?;
+/// An extension reply: its command, sequence number and result ("done", "busy", or the refusal's name), a
+/// `Version` reply's protocol and flags, the bootloader's verdict by its name, and a `PostMortem` reply's part.
+fn decode_reply(reply_hex: &str) -> Result<Value, String> {
+    let reply = Reply::decode(&bytes_of(reply_hex)?).map_err(|error| error.to_string())?;
     let result = match reply {
         Reply::Done { .. } => "done".to_string(),
         Reply::Busy { .. } => "busy".to_string(),
@@ -694,6 +697,7 @@ fn decode_reply(hex: &str) -> Result<Value, String> {
         Reply::Done {
             body:
                 ext::ReplyBody::Version {
+                    protocol,
                     on_trial,
                     checks_signatures,
                     marked,
@@ -703,13 +707,21 @@ fn decode_reply(hex: &str) -> Result<Value, String> {
                 },
             ..
         } => json!({
-            "on_trial": on_trial, "checks_signatures": checks_signatures, "marked": marked, "dev_key": dev_key,
-            "verdict_code": verdict,
+            "protocol": protocol, "on_trial": on_trial, "checks_signatures": checks_signatures, "marked": marked,
+            "dev_key": dev_key, "verdict_code": verdict,
             "verdict": Verdict::from_code(verdict).map(|verdict| format!("{verdict:?}")),
         }),
         _ => Value::Null,
     };
+    let post_mortem = match reply {
+        Reply::Done {
+            body: ext::ReplyBody::PostMortem { len, offset, data },
+            ..
+        } => json!({ "len": len, "offset": offset, "data": hex(&data) }),
+        _ => Value::Null,
+    };
     Ok(json!({
         "command": format!("{:?}", reply.command()), "seq": reply.seq(), "result": result, "version": version,
+        "post_mortem": post_mortem,
     }))
 }

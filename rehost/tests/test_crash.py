@@ -16,6 +16,8 @@ from g431.core import IRQ0, NMI, SRAM_BASE
 from master import Ftp, start
 from test_faults import call, driving, symbol_ending
 from thruster import set_analog
+from conftest import rehost
+from test_update import FAMILIES, command
 
 CRASH = "@SYS/crash/master.bin"
 KINDS = {"panic": 1, "hard fault": 2, "nmi": 3, "stray interrupt": 4, "watchdog": 5}
@@ -203,3 +205,11 @@ def test_each_stop_of_a_thruster_leaves_a_record_its_next_start_reads(fault, exp
     name = {"panic": "panic", "hard fault": "HardFault", "nmi": "NMI", "stray interrupt": "stray interrupt",
             "watchdog": "watchdog reset"}[fault]
     assert said and name in said[-1], chip.log_text()
+    # And a master reads it over the bus, as the courier does: `Version` says protocol 2, then two parts of 64.
+    update = rehost("update", FAMILIES["thruster-fw"])
+    version = command(chip, spec, update["version"], update["version_reply_len"])
+    assert version["version"]["protocol"] == 2, version
+    parts = [command(chip, spec, frame, update["post_mortem_reply_len"]) for frame in update["post_mortem"]]
+    assert [(p["result"], p["post_mortem"]["len"], p["post_mortem"]["offset"]) for p in parts] == [
+        ("done", 128, 0), ("done", 128, 64)], parts
+    assert b"".join(bytes.fromhex(p["post_mortem"]["data"]) for p in parts) == region(chip)
