@@ -53,6 +53,10 @@
 //! has confirmed itself. These looks, and the ground station's version queries, go on the bus when no transfer has an
 //! exchange to make (none, one written whole and waiting for its apply, or one waiting for its next page), one at a
 //! time, and a transfer's exchanges wait while one is under way.
+//!
+//! The first `Version` a thruster answers after it came back, if it says extension protocol 2, is followed the same
+//! way by the fetch of its post-mortem record: two `PostMortem` looks of 64 bytes each. [`Courier::on_result`]
+//! returns the record whole ([`PostMortem`]); the bus task keeps it and tells it (`Shared::keep_post_mortem`).
 
 use core::cell::RefCell;
 
