@@ -39,7 +39,7 @@ enum Answer {
     /// Bytes off the bus.
     Raw(Vec<u8>),
     /// A `Version` done, with the exchange's sequence number.
-    Version { protocol: u8, flags: u8, info: [u8; 32] },
+    Version { protocol: u8, on_trial: bool, checks_signatures: bool, marked: bool, dev_key: bool, verdict: u8, info: [u8; 32] },
     /// A part of a post-mortem record, with the exchange's sequence number.
     PostMortem { len: u8, offset: u8, data: [u8; 32] },
 }
@@ -115,16 +115,18 @@ fuzz_target!(|steps: Vec<Step>| {
                     let made = |body| Reply::Done { seq, body }.encode().as_bytes().to_vec();
                     let bytes = replies.next().flatten().map(|answer| match answer {
                         Answer::Raw(bytes) => bytes,
-                        Answer::Version { protocol, flags, info } => made(ReplyBody::Version {
-                            protocol,
-                            on_trial: flags & 1 != 0,
-                            checks_signatures: flags & 2 != 0,
-                            marked: flags & 4 != 0,
-                            dev_key: flags & 8 != 0,
-                            verdict: flags >> 4,
-                            max_payload: 58 * 1024,
-                            info,
-                        }),
+                        Answer::Version { protocol, on_trial, checks_signatures, marked, dev_key, verdict, info } => {
+                            made(ReplyBody::Version {
+                                protocol,
+                                on_trial,
+                                checks_signatures,
+                                marked,
+                                dev_key,
+                                verdict,
+                                max_payload: 58 * 1024,
+                                info,
+                            })
+                        }
                         Answer::PostMortem { len, offset, data } => made(ReplyBody::PostMortem {
                             len,
                             offset,

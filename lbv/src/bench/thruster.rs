@@ -358,10 +358,7 @@ impl ThrusterBoard {
         let in_bootloader = starts > Instant::now();
         self.updater.info = self.read_running_info();
         // The image's start, first of all: the record of the stop before it, if the reset kept one.
-        let image = crash_record::Image {
-            target: Target::thruster(self.config.family).to_byte(),
-            version: self.running_image().map_or([0; 4], |info| info.version.to_bytes()),
-        };
+        let image = self.crash_image();
         let cause = core::mem::replace(&mut self.next_reset, POWER_ON);
         self.updater.post_mortem = self.crash_ram.start(cause, image).map(|record| record.encode());
         (self.started, self.stopped) = (starts, None);
@@ -459,12 +456,16 @@ impl ThrusterBoard {
             panic: None,
             uptime_ms: now.saturating_duration_since(self.started).as_millis() as u32,
         };
-        let image = crash_record::Image {
+        self.crash_ram.record(stop, self.crash_image());
+        (self.next_reset, self.stopped) = (WATCHDOG_RESET, Some(now));
+    }
+
+    /// The image as its post-mortem record keeps it: this family's thruster, the version ACTIVE holds.
+    fn crash_image(&self) -> crash_record::Image {
+        crash_record::Image {
             target: Target::thruster(self.config.family).to_byte(),
             version: self.running_image().map_or([0; 4], |info| info.version.to_bytes()),
-        };
-        self.crash_ram.record(stop, image);
-        (self.next_reset, self.stopped) = (WATCHDOG_RESET, Some(now));
+        }
     }
 
     /// Whether the controller stopped and its watchdog's timeout has run out at `now`: the chip resets.
