@@ -1705,3 +1705,36 @@ fn a_post_mortem_fetch_is_not_asked_of_protocol_1_and_ends_on_anything_but_its_p
     }
     assert_eq!((asked, ms), (31, 13_120));
 }
+
+#[test]
+fn a_version_query_in_the_middle_of_a_fetch_takes_its_place_and_the_fetch_starts_again() {
+    let record: [u8; RECORD_LEN] = core::array::from_fn(|i| (i * 3) as u8);
+    let mut courier = Courier::new();
+    courier.seen(2, true);
+    let ask = courier.next(t(0), |_| true).unwrap();
+    courier.on_result(t(0), &ask, version_2(&ask), &mut |_| {});
+    let first = courier.next(t(20), |_| true).unwrap();
+    assert_eq!(
+        courier.on_result(t(20), &first, part_of(&first, Some(&record)), &mut |_| {}),
+        None
+    );
+    // The ground station asks what T3 runs: its query goes first, answered and told.
+    courier.query(2, GCS).unwrap();
+    let query = courier.next(t(40), |_| true).unwrap();
+    assert_eq!(query.frame.command, Command::Version);
+    let mut said = Vec::new();
+    courier.on_result(t(40), &query, version_2(&query), &mut |o| said.push(o));
+    assert_eq!(acks(&said), [(MAV_CMD_LBV_QUERY_VERSION, AckResult::Accepted)]);
+    // Then the fetch again from its first part, and the record comes whole; a stale second part is not taken.
+    let again = courier.next(t(60), |_| true).unwrap();
+    assert_eq!(again.frame.command, Command::PostMortem { offset: 0 });
+    let stale = courier.on_result(t(60), &again, part_of(&first, Some(&record)), &mut |_| {});
+    assert_eq!(stale, None);
+    let again = courier.next(t(80), |_| true).unwrap();
+    assert_eq!(again.frame.command, Command::PostMortem { offset: 0 });
+    courier.on_result(t(80), &again, part_of(&again, Some(&record)), &mut |_| {});
+    let second = courier.next(t(100), |_| true).unwrap();
+    let fetched = courier.on_result(t(100), &second, part_of(&second, Some(&record)), &mut |_| {});
+    assert_eq!(fetched, Some(PostMortem { slot: 2, record }));
+    assert!(courier.next(t(120), |_| true).is_none());
+}
