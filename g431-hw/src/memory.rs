@@ -145,6 +145,15 @@ pub const CRASH: Span = Span {
     length: 192,
 };
 
+/// The master's black box (lbv-master-fw's `blackbox`: the vehicle's last minutes, which a warm reset keeps), just
+/// above [`CRASH`], on the G474 only: 64 KiB of SRAM1 (80 KiB from the bottom of RAM, RM0440 2.4), linked to nothing
+/// and written by nothing else, as [`CRASH`] is. The stack grows down towards it: the master's static RAM and stack
+/// budgets leave room below them for both regions (`images`, which checks it).
+pub const BLACK_BOX: Span = Span {
+    origin: CRASH.origin + CRASH.length,
+    length: 64 * KIB,
+};
+
 /// Where an application image keeps its information record (update-image's `ImageInfo`: target, version), from
 /// the image's start: just past the vector table (16 + 102 words on the G431, RM0440 Table 97), where the update
 /// tools and a thruster receiving an image look for it.

@@ -54,6 +54,7 @@ pub mod inbound;
 pub mod limit;
 pub mod outbound;
 pub mod signing;
+pub(crate) mod tlog;
 
 include!(concat!(env!("OUT_DIR"), "/lbv_dialect.rs"));
 
@@ -405,8 +406,9 @@ fn decode(frame: &Frame<'_>, config: &ConsoleConfig) -> Result<Received, mavlink
 ///   (no held request is served meanwhile, so the replies keep their order); any other FTP reply (to a listing, a
 ///   CRC, a read, or to another system) is dropped when the outbox is full ([`ConsoleCounters::replies_dropped`]).
 /// - Requests that make the vehicle send more than they cost (the parameter list and reads, requested messages,
-///   FTP listings, CRCs and reads) are limited per requester ([`limit`]), the operator's included; what is over its
-///   allowance is dropped unanswered ([`ConsoleCounters::rate_limited`]).
+///   FTP listings, CRCs and reads) are limited per requester ([`limit`]), the operator's included (its system's
+///   file reads from an allowance of their own, half the line); what is over its allowance is dropped unanswered
+///   ([`ConsoleCounters::rate_limited`]).
 ///
 /// A frame begun when the line falls quiet for [`LINE_IDLE`] is given up and the bytes after its start read
 /// again, so noise never hides the frames behind it for longer. Frames from any system are read; only messages
@@ -542,14 +544,18 @@ impl Held {
         stats: &ConsoleStats,
     ) {
         let operator = operator(shared);
-        let Some(cost) = reads(&request) else {
+        let Some((cost, read)) = reads(&request) else {
             let room = self.requests.is_empty() || request.from.system == operator;
             if !room || self.requests.push_back(request).is_err() {
                 ConsoleStats::count(&stats.requests_dropped, 1);
             }
             return;
         };
-        if !limiter.allow(request.from, cost, operator, Instant::now()) {
+        let allowed = match read {
+            Some(bytes) if request.from.system == operator => limiter.allow_read(bytes, Instant::now()),
+            _ => limiter.allow(request.from, cost, operator, Instant::now()),
+        };
+        if !allowed {
             return ConsoleStats::count(&stats.rate_limited, 1);
         }
         if let Some(reply) = updates.serve(request, shared)
@@ -601,20 +607,23 @@ impl Held {
 const LISTING_REPLY_BYTES: u32 = 48;
 
 /// What a request that only reads (a listing, a CRC, a read of the file a session opened, an opcode not served)
-/// costs its requester's allowance
-/// ([`limit`]); `None` for one that changes an upload or the images, which is served in order.
+/// costs its requester's allowance ([`limit`]), in frames, and for a read the bytes of its reply, which the
+/// operator's system's reads take from their own ([`limit::Limiter::allow_read`]); `None` for one that changes an
+/// upload or the images, which is served in order.
 #[cfg(not(feature = "acceptance"))]
-fn reads(request: &UpdateRequest) -> Option<u32> {
+fn reads(request: &UpdateRequest) -> Option<(u32, Option<u32>)> {
     let UpdateCommand::Ftp(payload) = &request.what else {
         return None;
     };
     match Opcode::from_byte(payload.get(3).copied().unwrap_or(0)) {
-        Opcode::ListDirectory | Opcode::CalcFileCrc32 => Some(1),
-        // Its reply carries up to the `size` bytes asked for: it costs what as many bytes of listing replies do.
+        Opcode::ListDirectory | Opcode::CalcFileCrc32 => Some((1, None)),
+        // Its reply carries up to the `size` bytes asked for: it costs what as many bytes of listing replies do,
+        // and for the operator's system the bytes of its frame (header, FTP header, data, CRC).
         Opcode::ReadFile | Opcode::BurstReadFile => {
-            Some(1 + u32::from(payload.get(4).copied().unwrap_or(0)) / LISTING_REPLY_BYTES)
+            let size = u32::from(payload.get(4).copied().unwrap_or(0));
+            Some((1 + size / LISTING_REPLY_BYTES, Some(12 + 3 + 12 + size)))
         }
-        Opcode::None | Opcode::Other(_) => Some(0),
+        Opcode::None | Opcode::Other(_) => Some((0, None)),
         _ => None,
     }
 }
@@ -899,12 +908,15 @@ impl<W: Write> Output<'_, W> {
             Message::EscInfo | Message::EscStatus if !ESC_DETAIL => {}
             Message::EscInfo => {
                 for first in blocks {
-                    self.push(&outbound::esc_info(thrusters, &reports, first, time_usec));
+                    let escs = outbound::Esc::block(thrusters, &reports, first);
+                    let counters = outbound::EscCounters::of(thrusters, &reports, first);
+                    self.push(&outbound::esc_info(thrusters, first, &escs, &counters, time_usec));
                 }
             }
             Message::EscStatus => {
                 for first in blocks {
-                    self.push(&outbound::esc_status(thrusters, &reports, first, time_usec));
+                    let escs = outbound::Esc::block(thrusters, &reports, first);
+                    self.push(&outbound::esc_status(first, &escs, time_usec));
                 }
             }
         }
@@ -923,9 +935,12 @@ impl<W: Write> Output<'_, W> {
                 }) => board.map_or_else(|| shared.crash_bytes(), |slot| shared.post_mortem(slot)),
                 _ => None,
             };
+            let ids = self.framer.ids();
+            let black_box = |file: &_, offset, into: &mut [u8]| tlog::read(&shared.black_box, file, offset, into, ids);
             let contents = crate::update::Contents {
                 params: params.as_ref(),
                 crash: crash.as_ref(),
+                black_box: Some(&black_box),
             };
             let len = self.framer.frame_ftp(to, reply, &contents).len();
             self.append(len, lbv::FILE_TRANSFER_PROTOCOL_DATA::EXTRA_CRC);

@@ -14,6 +14,7 @@
 
 pub mod acceptance;
 pub(crate) mod battery;
+pub mod blackbox;
 pub mod config;
 pub mod console;
 pub(crate) mod follow;
@@ -28,7 +29,7 @@ pub mod thrusters;
 pub mod update;
 pub mod vehicle;
 
-use embassy_futures::join::{join3, join5};
+use embassy_futures::join::{join, join3, join5};
 use embedded_hal_async::i2c::I2c;
 
 pub use config::{CONFIG, MasterConfig};
@@ -188,10 +189,21 @@ pub async fn run<P: Board>(ports: Ports<P>, config: &MasterConfig, shared: &Shar
             vehicle_task(config.vehicle, stored, shared),
         ),
         settings_task(&mut settings, shared, &mut reboot),
-        own.run(if P::Work::POLLS { config.thrusters.count() } else { 0 }, shared),
+        join(
+            own.run(if P::Work::POLLS { config.thrusters.count() } else { 0 }, shared),
+            black_box(config, shared),
+        ),
     )
     .await;
     never
+}
+
+/// The black box's task ([`console::tlog`]); none in the acceptance image, which serves no files.
+async fn black_box(config: &MasterConfig, shared: &Shared) {
+    #[cfg(not(feature = "acceptance"))]
+    console::tlog::black_box_task(shared, usize::from(config.thrusters.count())).await;
+    #[cfg(feature = "acceptance")]
+    let _ = (config, shared);
 }
 
 /// Tell the operator, once, of the stop before this start that the post-mortem region holds

@@ -714,6 +714,9 @@ pub struct Shared {
     /// Bus tasks -> update server: each slot's thruster's post-mortem record, as last fetched
     /// ([`Shared::keep_post_mortem`]), served as `@SYS/crash/thruster<slot>.bin`; kept until the master's next start.
     post_mortems: BlockingMutex<CriticalSectionRawMutex, RefCell<[Option<[u8; RECORD_LEN]>; MAX_THRUSTERS]>>,
+    /// The black box's task -> update server, console: the vehicle's last minutes ([`crate::blackbox`]), once the
+    /// binding hands its region over ([`crate::blackbox::Recorder::keep`]).
+    pub black_box: crate::blackbox::Recorder,
     /// The slots (bits) that have a record there.
     post_mortems_held: AtomicU8,
 }
@@ -738,6 +741,7 @@ impl Shared {
             crash_held: AtomicBool::new(false),
             post_mortems: BlockingMutex::new(RefCell::new([None; MAX_THRUSTERS])),
             post_mortems_held: AtomicU8::new(0),
+            black_box: crate::blackbox::Recorder::new(),
         }
     }
 
@@ -955,7 +959,7 @@ pub struct Running {
 }
 
 /// `versions.txt` as it stood when it was opened, packed into 49 bytes: a read's reply carries it to the console,
-/// whose outbox holds it beside the other messages (60 bytes each) without growing. Board 0 is the master, board
+/// whose outbox holds it beside the other messages (64 bytes each) without growing. Board 0 is the master, board
 /// `n + 1` the thruster of slot `n`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Versions {
@@ -995,10 +999,12 @@ pub enum OpenFile {
     Params(ParamFile),
     /// A post-mortem record in `@SYS/crash`: the master's, the region holds, or a thruster's, as fetched.
     Crash(crate::update::sys::CrashFile),
+    /// `@SYS/blackbox.tlog`: the samples it holds.
+    BlackBox(crate::blackbox::TlogFile),
 }
 
 /// The reply to a ReadFile or BurstReadFile: what its header needs, and what its data is made from as it is framed
-/// (its 239 bytes do not fit beside the console's other messages, [`FtpReply`]). 56 bytes.
+/// (its 239 bytes do not fit beside the console's other messages, [`FtpReply`]). 58 bytes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FileRead {
     /// The reply's sequence number (the request's + 1), little-endian.
@@ -1007,8 +1013,8 @@ pub struct FileRead {
     /// The request's opcode: ReadFile or BurstReadFile.
     pub(crate) opcode: u8,
     pub(crate) size: u8,
-    /// The offset read from, little-endian: within the file, which is shorter than 64 KiB.
-    pub(crate) offset: [u8; 2],
+    /// The offset read from, little-endian: within the file.
+    pub(crate) offset: [u8; 4],
     pub(crate) file: OpenFile,
 }
 
@@ -1020,3 +1026,7 @@ pub enum FtpAnswer {
     /// A read of a file, whose data is made as it is framed.
     Read(FileRead),
 }
+// The outbox holds 16 of them: 64 bytes each on the target, a read's reply (58 bytes, its offset 4 of them) and
+// its addressee. Larger, and every message queued would cost the more.
+#[cfg(target_os = "none")]
+const _: () = assert!(core::mem::size_of::<Outgoing>() == 64);

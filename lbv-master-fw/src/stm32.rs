@@ -122,6 +122,20 @@ fn crash_region() -> &'static mut Region {
     unsafe { crash_record::cortex_m::region(g431_hw::memory::CRASH.origin) }
 }
 
+// The black box fills the room kept for it.
+const _: () =
+    assert!(core::mem::size_of::<lbv_master_fw::blackbox::BlackBox>() == g431_hw::memory::BLACK_BOX.length as usize);
+
+/// The black box's region above the post-mortem region (`g431_hw::memory::BLACK_BOX`), as a reset left it.
+#[cfg(not(feature = "acceptance"))]
+#[allow(unsafe_code)]
+fn black_box_region() -> &'static mut lbv_master_fw::blackbox::BlackBox {
+    // SAFETY: that RAM is linked to nothing, no stack within its budget reaches it (`g431_hw::images::kept_ram`),
+    // and the start takes it once. Every byte pattern is a `BlackBox` (arrays of bytes): its header's check, not
+    // the type, refuses what a power-on leaves.
+    unsafe { &mut *(g431_hw::memory::BLACK_BOX.origin as *mut lbv_master_fw::blackbox::BlackBox) }
+}
+
 /// Record a stop in the post-mortem region; the watchdog resets the chip afterwards.
 fn record_stop(kind: Kind, frame: Frame, panic: Option<PanicAt>) {
     let uptime_ms = embassy_time::Instant::now().as_millis() as u32;
@@ -337,6 +351,13 @@ async fn master(ports: Ports<Nucleo>, config: &'static MasterConfig, crash: &'st
     static SHARED: StaticCell<Shared> = StaticCell::new();
     let shared = SHARED.init_with(Shared::new);
     shared.keep_crash(crash);
+    #[cfg(not(feature = "acceptance"))]
+    {
+        let thrusters = usize::from(config.thrusters.count());
+        shared
+            .black_box
+            .keep(black_box_region(), embassy_time::Instant::now(), thrusters);
+    }
     lbv_master_fw::run(ports, config, shared, &CONSOLE_STATS).await
 }
 

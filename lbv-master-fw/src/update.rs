@@ -76,7 +76,7 @@ pub mod header;
 pub mod own;
 pub mod param_pck;
 pub mod sys;
-mod window;
+pub(crate) mod window;
 
 pub(crate) use header::parse_header;
 pub use header::{HEADER_LEN, ImageHeader};
@@ -87,6 +87,7 @@ use core::sync::atomic::Ordering;
 use embassy_time::{Duration, Instant};
 use tmc_proto::Family;
 
+use crate::blackbox::TlogFile;
 use crate::mixer::FrameKind;
 use crate::params::Params;
 use crate::ports::{Applied, MASTER_SLOT, Refused, UpdateSink, UpdateTarget};
@@ -333,6 +334,8 @@ pub struct Context {
     pub crash: bool,
     /// The slots (bits) whose thrusters' post-mortem records the master has fetched: `@SYS/crash/thruster<slot>.bin`.
     pub post_mortems: u8,
+    /// `@SYS/blackbox.tlog` as it stands, when the master has a black box ([`crate::blackbox`]).
+    pub black_box: Option<TlogFile>,
 }
 
 impl Context {
@@ -360,6 +363,7 @@ impl Context {
             params: settings.map(|s| s.params),
             crash: shared.crash_held(),
             post_mortems: shared.post_mortems_held(),
+            black_box: shared.black_box.open(),
         }
     }
 }
@@ -412,6 +416,8 @@ enum Node {
     CrashDir,
     /// A post-mortem record in `@SYS/crash`.
     Crash(CrashFile),
+    /// `@SYS/blackbox.tlog`.
+    BlackBox,
 }
 
 /// Why an upload stops before its end.
@@ -575,6 +581,7 @@ impl UpdateServer {
             return match name {
                 b"" | b"/" => Ok(Node::Sys),
                 _ if name.strip_prefix(b"/") == Some(sys::VERSIONS.as_bytes()) => Ok(Node::Versions),
+                _ if name.strip_prefix(b"/") == Some(sys::BLACK_BOX.as_bytes()) => Ok(Node::BlackBox),
                 b"/crash" | b"/crash/" => Ok(Node::CrashDir),
                 _ => name
                     .strip_prefix(b"/crash/")
@@ -708,7 +715,9 @@ impl UpdateServer {
     ) -> Result<(), Nak> {
         let first = usize::try_from(first).unwrap_or(usize::MAX);
         match self.lookup(path)? {
-            Node::Update(_) | Node::Versions | Node::Params | Node::Crash(_) => return Err(Nak::FileNotFound),
+            Node::Update(_) | Node::Versions | Node::Params | Node::Crash(_) | Node::BlackBox => {
+                return Err(Nak::FileNotFound);
+            }
             Node::Root => {
                 for name in ["update", sys::DIR, param_pck::DIR].get(first..).unwrap_or_default() {
                     if !data.entry(format_args!("D{name}\0")) {
@@ -729,6 +738,9 @@ impl UpdateServer {
                 }
                 if first <= 1 {
                     data.entry(format_args!("Dcrash\0"));
+                }
+                if let Some(file) = context.black_box.filter(|_| first <= 2) {
+                    data.entry(format_args!("F{}\t{}\0", sys::BLACK_BOX, file.len()));
                 }
             }
             Node::CrashDir => {
@@ -820,6 +832,7 @@ impl UpdateServer {
                     .ok_or(Nak::Fail)
             }
             Node::Crash(file) if context.holds(file) => Ok(OpenFile::Crash(file)),
+            Node::BlackBox => context.black_box.map(OpenFile::BlackBox).ok_or(Nak::FileNotFound),
             Node::Update(_) => Err(Nak::FileProtected),
             _ => Err(Nak::FileNotFound),
         }
@@ -872,6 +885,15 @@ impl UpdateServer {
             reported: now,
         });
         Ok(())
+    }
+
+    /// When the session reading `@SYS/blackbox.tlog` last asked something, while one does: the black box holds
+    /// its samples for it ([`crate::blackbox::Recorder::hold`]).
+    pub(crate) fn black_box_read(&self) -> Option<Instant> {
+        match (self.session, self.reading) {
+            (Some(session), Some(OpenFile::BlackBox(_))) => Some(session.last),
+            _ => None,
+        }
     }
 
     /// ReadFile / BurstReadFile in the sender's session: as many bytes of the file it opened as the request's size
@@ -1278,10 +1300,26 @@ impl fmt::Write for Buf {
 
 /// What the files read are made of as a read's reply is framed: the parameters in force and the crash record
 /// held (the console's transmit task takes them from [`Shared`]).
-#[derive(Debug, Clone, Copy, Default)]
+#[derive(Clone, Copy, Default)]
 pub struct Contents<'a> {
     pub params: Option<&'a Params>,
     pub crash: Option<&'a [u8; crash_record::LEN]>,
+    /// The black box's file: what writes its bytes from an offset ([`ReadTlog`]).
+    pub black_box: Option<&'a ReadTlog<'a>>,
+}
+
+/// What writes the bytes of `@SYS/blackbox.tlog` as it was opened from an offset, as many as fit: how many, or
+/// `None` when its samples are gone ([`crate::console::tlog::read`]).
+pub type ReadTlog<'a> = dyn Fn(&TlogFile, u32, &mut [u8]) -> Option<usize> + 'a;
+
+impl core::fmt::Debug for Contents<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Contents")
+            .field("params", &self.params)
+            .field("crash", &self.crash)
+            .field("black_box", &self.black_box.is_some())
+            .finish()
+    }
 }
 
 impl Contents<'_> {
@@ -1289,6 +1327,7 @@ impl Contents<'_> {
     pub const NOTHING: Contents<'static> = Contents {
         params: None,
         crash: None,
+        black_box: None,
     };
 }
 
@@ -1299,6 +1338,7 @@ impl OpenFile {
             Self::Versions(versions) => versions.len(),
             Self::Params(file) => u16::from_le_bytes(file.len).into(),
             Self::Crash(_) => crash_record::LEN as u32,
+            Self::BlackBox(file) => file.len(),
         }
     }
 }
@@ -1306,13 +1346,12 @@ impl OpenFile {
 impl FileRead {
     /// The ACK of `request`: `size` bytes of `file` from the request's offset, which is within it.
     fn new(request: &Request<'_>, size: u8, file: OpenFile) -> Self {
-        let [o0, o1, ..] = request.offset.to_le_bytes();
         Self {
             seq: request.seq.wrapping_add(1).to_le_bytes(),
             session: request.session,
             opcode: request.opcode,
             size,
-            offset: [o0, o1],
+            offset: request.offset.to_le_bytes(),
             file,
         }
     }
@@ -1322,12 +1361,12 @@ impl FileRead {
     /// values have changed since it was opened, or of a record no longer held, is NAKed [`Nak::Fail`] instead.
     pub(crate) fn write_to(&self, into: &mut [u8], contents: &Contents<'_>) {
         let [s0, s1] = self.seq;
-        let [o0, o1] = self.offset;
+        let [o0, o1, o2, o3] = self.offset;
         let burst = u8::from(Opcode::from_byte(self.opcode) == Opcode::BurstReadFile);
         let Some((head, data)) = into.split_first_chunk_mut::<{ ftp::HEADER_LEN }>() else {
             return;
         };
-        let offset = u16::from_le_bytes(self.offset).into();
+        let offset = u32::from_le_bytes(self.offset);
         let read = data.get_mut(..usize::from(self.size)).and_then(|data| match self.file {
             OpenFile::Versions(versions) => Some(versions.read(offset, data)),
             OpenFile::Params(file) => contents.params.and_then(|params| file.read(offset, data, params)),
@@ -1336,6 +1375,7 @@ impl FileRead {
                 window.put(record);
                 window.filled
             }),
+            OpenFile::BlackBox(file) => contents.black_box.and_then(|read| read(&file, offset, data)),
         });
         let (opcode, size) = match read {
             Some(_) => (ACK, self.size),
@@ -1346,7 +1386,20 @@ impl FileRead {
                 (ftp::NAK, 1)
             }
         };
-        *head = [s0, s1, self.session, opcode, size, self.opcode, burst, 0, o0, o1, 0, 0];
+        *head = [
+            s0,
+            s1,
+            self.session,
+            opcode,
+            size,
+            self.opcode,
+            burst,
+            0,
+            o0,
+            o1,
+            o2,
+            o3,
+        ];
     }
 }
 
@@ -1385,6 +1438,7 @@ impl<S: UpdateSink> Updates<S> {
                 let answer = self
                     .server
                     .request(now, context, from, &payload, &mut self.sink, &mut out);
+                shared.black_box.hold(self.server.black_box_read());
                 answer.map(|reply| Outgoing::Ftp { to: from, reply })
             }
             UpdateCommand::Apply(_) if context.unsigned && from.system == context.operator => {

@@ -20,8 +20,16 @@ UID = bytes.fromhex("2a0031000e50434b38363820")
 STACK_PAINT = 0xCD
 # The bottom of RAM the images keep for their post-mortem record (g431_hw::memory::CRASH; test_crash checks the
 # length against it), which no stack within its budget reaches: the paint, a measuring aid the silicon does not
-# have, leaves it as a reset leaves RAM, and the high-water mark is read above it.
+# have, leaves it as a reset leaves RAM, and the high-water mark is read above it (and above the black box).
 CRASH_REGION = 192
+# On the master's G474, its black box above the record (g431_hw::memory::BLACK_BOX; test_black_box checks the
+# length against it), kept as the record is.
+BLACK_BOX = 64 * 1024
+
+
+def kept_ram(part):
+    """The bytes at the bottom of `part`'s RAM the images keep over a reset (g431_hw::images::kept_ram)."""
+    return CRASH_REGION + (BLACK_BOX if part.sram_size == 128 * 1024 else 0)
 
 
 class Image:
@@ -182,7 +190,7 @@ class Stm32g4:
     def stack_high_water(self):
         """Bytes of stack ever used: flip-link puts the stack below the statics, growing down to RAM's start."""
         top = self.image.symbol("_stack_start")
-        bottom = SRAM_BASE + CRASH_REGION
+        bottom = SRAM_BASE + kept_ram(self.part)
         data = bytes(self.core.uc.mem_read(bottom, top - bottom))
         for offset, value in enumerate(data):
             if value != STACK_PAINT:
@@ -210,7 +218,7 @@ class Stm32g4:
 
     def _paint_stack(self):
         top = self.image.symbols.get("_stack_start", SRAM_BASE)
-        bottom = SRAM_BASE + CRASH_REGION
+        bottom = SRAM_BASE + kept_ram(self.part)
         if top > bottom:
             self.core.uc.mem_write(bottom, bytes([STACK_PAINT]) * (top - bottom))
 

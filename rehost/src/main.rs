@@ -461,6 +461,7 @@ fn expected() -> Value {
         "forward_direction": format!("{:?}", Direction::Forward),
         "boot": boot(),
         "crash_region": span(g431_hw::memory::CRASH),
+        "black_box": span(g431_hw::memory::BLACK_BOX),
     })
 }
 

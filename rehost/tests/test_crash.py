@@ -11,8 +11,8 @@ import zlib
 import pytest
 from unicorn import arm_const as arm
 
-from g431.chip import CRASH_REGION
-from g431.core import IRQ0, NMI, SRAM_BASE
+from g431.chip import CRASH_REGION, kept_ram
+from g431.core import G474RE, IRQ0, NMI, SRAM_BASE
 from master import Ftp, start
 from test_faults import call, driving, symbol_ending
 from thruster import set_analog
@@ -25,8 +25,8 @@ KINDS = {"panic": 1, "hard fault": 2, "nmi": 3, "stray interrupt": 4, "watchdog"
 IWDGRSTF = 1 << 29
 # Events (crash-record's `What`): the image started, a thruster answers again.
 STARTED, THRUSTER_BACK = 1, 5
-# Where the test puts what it injects: RAM far below any stack's reach, above the record's region.
-SCRATCH = SRAM_BASE + 0x1000
+# Where the test puts what it injects: RAM far below any stack's reach, above what the master keeps there.
+SCRATCH = SRAM_BASE + kept_ram(G474RE) + 0x800
 FILE, LINE = b"src/injected.rs", 42
 # FileNotFound (MAVLink FTP's NAK code 10).
 FILE_NOT_FOUND = 10

@@ -145,7 +145,7 @@ fuzz_target!(|steps: Vec<Step>| {
     let mut server = UpdateServer::new(&VEHICLE.thrusters, FrameKind::Lbv300_6);
     let mut sink = Sink::default();
     let mut params = VEHICLE.vehicle.defaults().params;
-    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params), crash: false, post_mortems: 0b101 };
+    let mut context = Context { armed: false, operator: 255, restarting: false, unsigned: false, params: Some(params), crash: false, post_mortems: 0b101, black_box: None };
     // What the last file opened for reading is: param.pck (with the values it was opened with) or versions.txt.
     let mut opened = None;
     let mut now = Instant::from_ticks(0);
@@ -224,7 +224,7 @@ fuzz_target!(|steps: Vec<Step>| {
             }
         };
         if let Some(answer) = server.request(now, context, from, &request, &mut sink, &mut out) {
-            let reply = answer.payload(&Contents { params: context.params.as_ref(), crash: None });
+            let reply = answer.payload(&Contents { params: context.params.as_ref(), crash: None, black_box: None });
             let seq = u16::from_le_bytes([request[0], request[1]]);
             assert_eq!(u16::from_le_bytes([reply[0], reply[1]]), seq.wrapping_add(1));
             assert_eq!((reply[2], reply[5]), (request[2], request[3]));

@@ -18,7 +18,14 @@
 //! 370 bytes a second (500 signed), 3-4 % of the console's 115200 baud. [`REQUESTERS`] (4) requesters
 //! are kept apart (the operator's ground station, a companion computer, a second station and one more); any
 //! others share one more allowance, so that a flood from ever new system ids gets five allowances at most: some
-//! 20 % of the line, which leaves the operator's own traffic and the telemetry (about 12 %) room. A requester not
+//! 20 % of the line, which leaves the operator's own traffic and the telemetry (about 12 %) room.
+//!
+//! The operator's system (`SYSID_MYGCS`) reads files over MAVLink FTP from an allowance of its own, counted in
+//! bytes: [`READ_RATE`] bytes a second, half the console's 115200-baud line, so that the black box (hundreds of
+//! kilobytes) downloads in a minute or two rather than the quarter of an hour its share of frames would take
+//! ([`Limiter::allow_read`]). Its clients ask for one reply at a time, so the allowance paces them without a loss
+//! in the usual run; a flood that claims the operator's system id (a link without signing) gets that half of the
+//! line, and the other half stays for the telemetry and the rest. A requester not
 //! kept takes the place of one whose allowance is full (it has asked nothing for four seconds, so nothing of it is
 //! lost), or, when it is of the operator's system (`SYSID_MYGCS`), that of another system, so that floods from
 //! other systems never leave the operator's ground station to the shared allowance.
@@ -34,6 +41,13 @@ pub(crate) const FRAME_COST: Duration = Duration::from_millis(100);
 pub const BURST: u32 = 40;
 /// Requesters kept apart; the others share one allowance.
 pub(crate) const REQUESTERS: usize = 4;
+/// The bytes a second of the operator's file reads: half of what the console's 115200-baud line carries (11,520
+/// bytes a second, ten bits a byte).
+#[cfg(not(feature = "acceptance"))]
+pub(crate) const READ_RATE: u32 = 5_760;
+/// The bytes the operator's read allowance holds when full: sixteen 251-byte FTP replies.
+#[cfg(not(feature = "acceptance"))]
+pub(crate) const READ_BURST: u32 = 16 * 251;
 
 /// The frames the vehicle sends for `command`: the parameter list's values, a parameter's value, a MISSION_COUNT or
 /// MISSION_ACK,
@@ -69,6 +83,9 @@ pub(crate) struct Limiter {
     requesters: [Allowance; REQUESTERS],
     /// The allowance the requesters not kept share: when it is full again.
     others: Instant,
+    /// The operator's file reads' allowance: when it is full again.
+    #[cfg(not(feature = "acceptance"))]
+    reads: Instant,
 }
 
 impl Default for Limiter {
@@ -86,7 +103,22 @@ impl Limiter {
                 full_at: Instant::from_ticks(0),
             }; REQUESTERS],
             others: Instant::from_ticks(0),
+            #[cfg(not(feature = "acceptance"))]
+            reads: Instant::from_ticks(0),
         }
+    }
+
+    /// Whether the operator's system may have a file read's reply of `bytes` at `now` (taking them from its read
+    /// allowance if so). The acceptance image serves no files.
+    #[cfg(not(feature = "acceptance"))]
+    pub(crate) fn allow_read(&mut self, bytes: u32, now: Instant) -> bool {
+        let cost = |bytes: u32| Duration::from_micros(u64::from(bytes) * 1_000_000 / u64::from(READ_RATE));
+        let after = self.reads.max(now) + cost(bytes);
+        if after > now + cost(READ_BURST) {
+            return false;
+        }
+        self.reads = after;
+        true
     }
 
     /// Whether `from` may have the vehicle send `frames` frames at `now` (taking them from its allowance if so);
@@ -179,6 +211,23 @@ mod tests {
         assert_eq!(cost(&Command::Heartbeat), 0);
         assert_eq!(cost(&Command::Arm(true)), 0);
         assert_eq!(through(&mut limiter, GCS, 0, at(20_000), 1000), 1000);
+    }
+
+    #[test]
+    fn the_operators_reads_take_half_the_line() {
+        let mut limiter = Limiter::new();
+        // A burst of sixteen whole replies at once, not a seventeenth.
+        assert_eq!((0..20).filter(|_| limiter.allow_read(251, at(1000))).count(), 16);
+        // Sustained, one reply at a time as the clients ask: READ_RATE bytes a second.
+        let mut bytes = 0;
+        for ms in (2_000..12_000).step_by(5) {
+            if limiter.allow_read(251, at(ms)) {
+                bytes += 251;
+            }
+        }
+        assert!((57_600..=57_600 + READ_BURST).contains(&bytes), "{bytes} bytes in 10 s");
+        // The frames' allowances are apart: a parameter list still goes at once.
+        assert!(limiter.allow(GCS, 27, 255, at(12_000)));
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! flag, not empty (a default HEARTBEAT would claim to be armed).
 
 use mavlink_core::MessageData;
-use tmc_proto::{MaxPower, MotorKind, Status};
+use tmc_proto::{MaxPower, MotorKind, Speed, Status};
 
 use super::lbv::{
     AUTOPILOT_VERSION_DATA, AVAILABLE_MODES_DATA, BATTERY_STATUS_DATA, COMMAND_ACK_DATA, ESC_INFO_DATA,
@@ -12,7 +12,8 @@ use super::lbv::{
     FILE_TRANSFER_PROTOCOL_DATA, HEARTBEAT_DATA, MISSION_ACK_DATA, MISSION_COUNT_DATA, MavAutopilot,
     MavBatteryChargeState, MavBatteryFault, MavBatteryFunction, MavBatteryMode, MavBatteryType, MavModeFlag,
     MavParamType, MavProtocolCapability, MavResult, MavSeverity, MavState, MavSysStatusSensor,
-    MavSysStatusSensorExtended, MavType, NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, STATUSTEXT_DATA, SYS_STATUS_DATA,
+    MavSysStatusSensorExtended, MavType, NAMED_VALUE_FLOAT_DATA, PARAM_VALUE_DATA, SERVO_OUTPUT_RAW_DATA,
+    STATUSTEXT_DATA, SYS_STATUS_DATA,
 };
 use crate::params::{ParamId, ParamType};
 use crate::shared::{
@@ -90,7 +91,11 @@ pub(crate) type Reports = [Option<ThrusterReport>; MAX_THRUSTERS];
 /// the familiar mode), in ArduSub's MANUAL mode, armed or not as the vehicle task says (not armed when it has not
 /// said anything yet).
 pub(crate) fn heartbeat(vehicle: Option<VehicleState>) -> HEARTBEAT_DATA {
-    let armed = vehicle.is_some_and(|v| v.armed);
+    heartbeat_of(vehicle.is_some_and(|v| v.armed))
+}
+
+/// HEARTBEAT of a vehicle `armed` or not ([`heartbeat`]).
+pub(crate) fn heartbeat_of(armed: bool) -> HEARTBEAT_DATA {
     let mut base_mode =
         MavModeFlag::MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MavModeFlag::MAV_MODE_FLAG_MANUAL_INPUT_ENABLED;
     base_mode.set(MavModeFlag::MAV_MODE_FLAG_SAFETY_ARMED, armed);
@@ -299,46 +304,80 @@ fn battery_faults(alarms: BmsAlarms) -> MavBatteryFault {
 /// names the alarms MAVLink has a bit for: low voltage as DEEP_DISCHARGE, over-current, over- and
 /// under-temperature); LOW with only the BMS low-charge alarm; CHARGING when the current is negative; else OK.
 pub(crate) fn battery_status(battery: Option<&BatterySummary>) -> BATTERY_STATUS_DATA {
-    let fresh = fresh(battery);
-    let info = fresh.and_then(|b| b.info);
-    let alarms = fresh.and_then(BatterySummary::fresh_alarms).unwrap_or(BmsAlarms::NONE);
-    let dcdc_fault = fresh
-        .and_then(BatterySummary::fresh_status)
-        .is_some_and(|s| s.has_fault());
-    let current = info.and_then(|i| i.current_deciamps).map_or(-1, centiamps);
-    let serious_alarm = alarms.bits() & !BmsAlarms::LOW_CHARGE.bits() != 0;
-    let charge_state = match info {
-        None => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNDEFINED,
-        Some(_) if dcdc_fault || serious_alarm => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNHEALTHY,
-        Some(_) if alarms.contains(BmsAlarms::LOW_CHARGE) => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_LOW,
-        Some(i) if i.current_deciamps.is_some_and(|c| c < 0) => {
-            MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_CHARGING
+    BatteryFields::of(battery).message()
+}
+
+/// What BATTERY_STATUS says of the pack that changes ([`battery_status`]), each field in the message's unit with its
+/// "unknown" value: what the black box keeps of the battery ([`crate::blackbox`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct BatteryFields {
+    /// Pack voltage, mV (UINT16_MAX unknown).
+    pub(crate) millivolts: u16,
+    /// Current, cA (-1 unknown).
+    pub(crate) centiamps: i16,
+    /// Charge, % (-1 unknown).
+    pub(crate) remaining: i8,
+    /// Temperature, cdegC (INT16_MAX unknown).
+    pub(crate) temperature: i16,
+    pub(crate) charge_state: MavBatteryChargeState,
+    pub(crate) faults: MavBatteryFault,
+}
+
+impl BatteryFields {
+    /// The fields of the master's battery summary.
+    pub(crate) fn of(battery: Option<&BatterySummary>) -> Self {
+        let fresh = fresh(battery);
+        let info = fresh.and_then(|b| b.info);
+        let alarms = fresh.and_then(BatterySummary::fresh_alarms).unwrap_or(BmsAlarms::NONE);
+        let dcdc_fault = fresh
+            .and_then(BatterySummary::fresh_status)
+            .is_some_and(|s| s.has_fault());
+        let serious_alarm = alarms.bits() & !BmsAlarms::LOW_CHARGE.bits() != 0;
+        let charge_state = match info {
+            None => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNDEFINED,
+            Some(_) if dcdc_fault || serious_alarm => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_UNHEALTHY,
+            Some(_) if alarms.contains(BmsAlarms::LOW_CHARGE) => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_LOW,
+            Some(i) if i.current_deciamps.is_some_and(|c| c < 0) => {
+                MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_CHARGING
+            }
+            Some(_) => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_OK,
+        };
+        Self {
+            millivolts: info.map_or(u16::MAX, |i| millivolts(i.voltage_decivolts)),
+            centiamps: info.and_then(|i| i.current_deciamps).map_or(-1, centiamps),
+            remaining: info
+                .and_then(|i| i.charge_percent)
+                .map_or(-1, |charge| charge.min(100) as i8),
+            temperature: info.and_then(|i| i.temperature_decicelsius).map_or(i16::MAX, |t| {
+                (i32::from(t) * 10).clamp(i32::from(i16::MIN), i32::from(i16::MAX - 1)) as i16
+            }),
+            charge_state,
+            faults: battery_faults(alarms),
         }
-        Some(_) => MavBatteryChargeState::MAV_BATTERY_CHARGE_STATE_OK,
-    };
-    let mut voltages = [u16::MAX; 10];
-    if let (Some(i), Some(first)) = (info, voltages.first_mut()) {
-        *first = millivolts(i.voltage_decivolts);
     }
-    BATTERY_STATUS_DATA {
-        id: 0,
-        battery_function: MavBatteryFunction::MAV_BATTERY_FUNCTION_ALL,
-        mavtype: MavBatteryType::MAV_BATTERY_TYPE_LION,
-        temperature: info.and_then(|i| i.temperature_decicelsius).map_or(i16::MAX, |t| {
-            (i32::from(t) * 10).clamp(i32::from(i16::MIN), i32::from(i16::MAX - 1)) as i16
-        }),
-        voltages,
-        current_battery: current,
-        current_consumed: -1,
-        energy_consumed: -1,
-        battery_remaining: info
-            .and_then(|i| i.charge_percent)
-            .map_or(-1, |charge| charge.min(100) as i8),
-        time_remaining: 0,
-        charge_state,
-        voltages_ext: [0; 4],
-        mode: MavBatteryMode::MAV_BATTERY_MODE_UNKNOWN,
-        fault_bitmask: battery_faults(alarms),
+
+    /// Its BATTERY_STATUS.
+    pub(crate) fn message(&self) -> BATTERY_STATUS_DATA {
+        let mut voltages = [u16::MAX; 10];
+        if let Some(first) = voltages.first_mut() {
+            *first = self.millivolts;
+        }
+        BATTERY_STATUS_DATA {
+            id: 0,
+            battery_function: MavBatteryFunction::MAV_BATTERY_FUNCTION_ALL,
+            mavtype: MavBatteryType::MAV_BATTERY_TYPE_LION,
+            temperature: self.temperature,
+            voltages,
+            current_battery: self.centiamps,
+            current_consumed: -1,
+            energy_consumed: -1,
+            battery_remaining: self.remaining,
+            time_remaining: 0,
+            charge_state: self.charge_state,
+            voltages_ext: [0; 4],
+            mode: MavBatteryMode::MAV_BATTERY_MODE_UNKNOWN,
+            fault_bitmask: self.faults,
+        }
     }
 }
 
@@ -362,32 +401,25 @@ pub(crate) struct EscEntry {
 /// of these fields; ArduPilot sends 0 for data an ESC does not report, and so does the master. ESC_INFO and
 /// ESC_STATUS say what is not known where their fields can ([`esc_info`], [`esc_status`]).
 pub(crate) fn esc_entry(report: Option<&ThrusterReport>) -> EscEntry {
-    let Some(report) = report.filter(|r| reporting(r)) else {
-        return EscEntry::default();
-    };
-    let count = report.health.good as u16;
-    match report.status {
-        Some(Status::SeaBotix(s)) => EscEntry {
-            temperature: s.temperature_c,
-            current: u16::from(s.current_deciamps) * 10,
-            rpm: match s.motor {
-                MotorKind::Brushless => u16::try_from(s.speed.rpm().unsigned_abs()).unwrap_or(u16::MAX),
-                MotorKind::Brushed => 0,
-            },
+    report.map_or_else(EscEntry::default, |r| {
+        EscEntry::of(&Esc::of_report(r), r.health.good as u16)
+    })
+}
+
+impl EscEntry {
+    /// The entry of a thruster that reports `esc`, `count` its good polls ([`esc_entry`]).
+    pub(crate) fn of(esc: &Esc, count: u16) -> Self {
+        if !esc.reporting {
+            return Self::default();
+        }
+        Self {
+            temperature: esc.temperature_c.unwrap_or(0),
+            current: esc.current_deciamps.map_or(0, |deciamps| u16::from(deciamps) * 10),
+            rpm: esc
+                .speed
+                .map_or(0, |speed| u16::try_from(speed.rpm().unsigned_abs()).unwrap_or(u16::MAX)),
             count,
-        },
-        Some(Status::Legacy(s)) => EscEntry {
-            current: match s.max_power {
-                MaxPower::Current { deciamps } => u16::from(deciamps) * 10,
-                MaxPower::Power(_) | MaxPower::Raw(_) => 0,
-            },
-            count,
-            ..EscEntry::default()
-        },
-        None => EscEntry {
-            count,
-            ..EscEntry::default()
-        },
+        }
     }
 }
 
@@ -405,7 +437,11 @@ fn esc_block(thrusters: usize, reports: &Reports, first: usize) -> [EscEntry; 4]
 
 /// ESC_TELEMETRY_1_TO_4 of thrusters 1..=4.
 pub(crate) fn esc_telemetry_1_to_4(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_1_TO_4_DATA {
-    let e = esc_block(thrusters, reports, 0);
+    esc_telemetry_of(&esc_block(thrusters, reports, 0))
+}
+
+/// ESC_TELEMETRY_1_TO_4 of four entries (ESC_TELEMETRY_5_TO_8 has the same fields: [`esc_telemetry_5_to_8`]).
+pub(crate) fn esc_telemetry_of(e: &[EscEntry; 4]) -> ESC_TELEMETRY_1_TO_4_DATA {
     ESC_TELEMETRY_1_TO_4_DATA {
         temperature: e.map(|e| e.temperature),
         voltage: [0; 4],
@@ -418,34 +454,19 @@ pub(crate) fn esc_telemetry_1_to_4(thrusters: usize, reports: &Reports) -> ESC_T
 
 /// ESC_TELEMETRY_5_TO_8 of thrusters 5..=8.
 pub(crate) fn esc_telemetry_5_to_8(thrusters: usize, reports: &Reports) -> ESC_TELEMETRY_5_TO_8_DATA {
-    let e = esc_block(thrusters, reports, 4);
+    esc_telemetry_5_to_8_of(&esc_block(thrusters, reports, 4))
+}
+
+/// ESC_TELEMETRY_5_TO_8 of four entries.
+pub(crate) fn esc_telemetry_5_to_8_of(e: &[EscEntry; 4]) -> ESC_TELEMETRY_5_TO_8_DATA {
+    let m = esc_telemetry_of(e);
     ESC_TELEMETRY_5_TO_8_DATA {
-        temperature: e.map(|e| e.temperature),
-        voltage: [0; 4],
-        current: e.map(|e| e.current),
-        totalcurrent: [0; 4],
-        rpm: e.map(|e| e.rpm),
-        count: e.map(|e| e.count),
-    }
-}
-
-/// The reported speed (negative astern) of a thruster that reports one: a brushless SeaBotix.
-fn reported_rpm(report: &ThrusterReport) -> Option<i32> {
-    match report.status {
-        Some(Status::SeaBotix(s)) if s.motor == MotorKind::Brushless => Some(s.speed.rpm()),
-        _ => None,
-    }
-}
-
-/// The motor current, A, of a thruster that reports one.
-fn reported_current(report: &ThrusterReport) -> Option<f32> {
-    match report.status {
-        Some(Status::SeaBotix(s)) => Some(f32::from(s.current_deciamps) / 10.0),
-        Some(Status::Legacy(s)) => match s.max_power {
-            MaxPower::Current { deciamps } => Some(f32::from(deciamps) / 10.0),
-            MaxPower::Power(_) | MaxPower::Raw(_) => None,
-        },
-        None => None,
+        temperature: m.temperature,
+        voltage: m.voltage,
+        current: m.current,
+        totalcurrent: m.totalcurrent,
+        rpm: m.rpm,
+        count: m.count,
     }
 }
 
@@ -461,13 +482,61 @@ fn driving(report: &ThrusterReport) -> bool {
     reporting(report) && !report.health.not_following
 }
 
-/// The current report of configured thruster `n` ([`reporting`]).
-fn online_report(thrusters: usize, reports: &Reports, n: usize) -> Option<&ThrusterReport> {
-    reports
-        .get(n)
-        .filter(|_| n < thrusters)
-        .and_then(Option::as_ref)
-        .filter(|r| reporting(r))
+/// What ESC_STATUS and ESC_INFO say of one thruster ([`esc_status`], [`esc_info`]): what the black box keeps of it
+/// too ([`crate::blackbox`]). What a thruster does not report, or not now, is `None`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct Esc {
+    /// Online, and its status readable ([`reporting`]).
+    pub(crate) reporting: bool,
+    /// The speed a brushless SeaBotix thruster reports, negative astern.
+    pub(crate) speed: Option<Speed>,
+    /// The motor current, 0.1 A: the SeaBotix CURRENT or the brushless Legacy MAX POWER byte.
+    pub(crate) current_deciamps: Option<u8>,
+    /// The SeaBotix temperature, °C.
+    pub(crate) temperature_c: Option<u8>,
+    /// The last status's faults, whether the thruster reports now or not.
+    pub(crate) faults: Faults,
+}
+
+impl Esc {
+    /// What thruster `n` of the `thrusters` configured reports (nothing for one past them).
+    pub(crate) fn of(thrusters: usize, reports: &Reports, n: usize) -> Self {
+        reports
+            .get(n)
+            .filter(|_| n < thrusters)
+            .and_then(Option::as_ref)
+            .map_or_else(Self::default, Self::of_report)
+    }
+
+    /// What a thruster's report says of it.
+    pub(crate) fn of_report(report: &ThrusterReport) -> Self {
+        let faults = report.status.map_or(Faults::NONE, |s| s.faults());
+        let status = report.status.filter(|_| reporting(report));
+        let (speed, current_deciamps, temperature_c) = match status {
+            Some(Status::SeaBotix(s)) => (
+                (s.motor == MotorKind::Brushless).then_some(s.speed),
+                Some(s.current_deciamps),
+                Some(s.temperature_c),
+            ),
+            Some(Status::Legacy(s)) => match s.max_power {
+                MaxPower::Current { deciamps } => (None, Some(deciamps), None),
+                MaxPower::Power(_) | MaxPower::Raw(_) => (None, None, None),
+            },
+            None => (None, None, None),
+        };
+        Self {
+            reporting: reporting(report),
+            speed,
+            current_deciamps,
+            temperature_c,
+            faults,
+        }
+    }
+
+    /// Thrusters `first..first + 4`.
+    pub(crate) fn block(thrusters: usize, reports: &Reports, first: usize) -> [Self; 4] {
+        core::array::from_fn(|i| Self::of(thrusters, reports, first + i))
+    }
 }
 
 /// ESC_STATUS of thrusters `first..first + 4` (index `first`, time since boot).
@@ -476,14 +545,13 @@ fn online_report(thrusters: usize, reports: &Reports, n: usize) -> Option<&Thrus
 /// so a thruster that reports none (brushed SeaBotix, Legacy 0x54/0x55, offline, not configured) reads 0, as
 /// ArduPilot fills rpm it does not have. voltage: not measured per thruster, NaN (MAVLink's "invalid" for a float
 /// field). current: the reported motor current in A, NaN where none is reported.
-pub(crate) fn esc_status(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_STATUS_DATA {
-    let online = |i: usize| online_report(thrusters, reports, first + i);
+pub(crate) fn esc_status(first: usize, escs: &[Esc; 4], time_usec: u64) -> ESC_STATUS_DATA {
     ESC_STATUS_DATA {
         index: first as u8,
         time_usec,
-        rpm: core::array::from_fn(|i| online(i).and_then(reported_rpm).unwrap_or(0)),
+        rpm: escs.map(|e| e.speed.map_or(0, Speed::rpm)),
         voltage: [f32::NAN; 4],
-        current: core::array::from_fn(|i| online(i).and_then(reported_current).unwrap_or(f32::NAN)),
+        current: escs.map(|e| e.current_deciamps.map_or(f32::NAN, |d| f32::from(d) / 10.0)),
     }
 }
 
@@ -503,34 +571,98 @@ fn esc_failures(faults: Faults) -> u16 {
     flags.bits()
 }
 
-/// ESC_INFO of thrusters `first..first + 4` (index `first`, time since boot): count the configured thrusters,
-/// connection I2C, info bit n set when thruster `first + n` is online, counter the good polls of the block
-/// (wrapping), failure_flags from the last status's faults, error_count the link errors, temperature the SeaBotix
-/// temperature in cdegC and INT16_MAX (common.xml's "not supplied") for Legacy, offline or absent thrusters.
-pub(crate) fn esc_info(thrusters: usize, reports: &Reports, first: usize, time_usec: u64) -> ESC_INFO_DATA {
-    let report = |i: usize| {
-        let n = first + i;
-        reports.get(n).filter(|_| n < thrusters).and_then(Option::as_ref)
-    };
-    let online = |i: usize| online_report(thrusters, reports, first + i);
-    let info = (0..4).fold(0u8, |bits, i| if online(i).is_some() { bits | 1 << i } else { bits });
+/// The link counters ESC_INFO carries of a block of thrusters: the good polls of the block (wrapping), and each
+/// one's link errors.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct EscCounters {
+    pub(crate) counter: u16,
+    pub(crate) errors: [u32; 4],
+}
+
+impl EscCounters {
+    /// Thrusters `first..first + 4`'s counters.
+    pub(crate) fn of(thrusters: usize, reports: &Reports, first: usize) -> Self {
+        let report = |i: usize| {
+            let n = first + i;
+            reports.get(n).filter(|_| n < thrusters).and_then(Option::as_ref)
+        };
+        Self {
+            counter: (0..4)
+                .filter_map(report)
+                .fold(0u16, |sum, r| sum.wrapping_add(r.health.good as u16)),
+            errors: core::array::from_fn(|i| report(i).map_or(0, link_errors)),
+        }
+    }
+}
+
+/// ESC_INFO of thrusters `first..first + 4` of `thrusters` (index `first`, time since boot): count the configured
+/// thrusters, connection I2C, info bit n set when thruster `first + n` is reporting, counter and error_count from
+/// `counters`, failure_flags from the last status's faults, temperature the SeaBotix temperature in cdegC and
+/// INT16_MAX (common.xml's "not supplied") for Legacy, offline or absent thrusters.
+pub(crate) fn esc_info(
+    thrusters: usize,
+    first: usize,
+    escs: &[Esc; 4],
+    counters: &EscCounters,
+    time_usec: u64,
+) -> ESC_INFO_DATA {
     ESC_INFO_DATA {
         index: first as u8,
         time_usec,
-        counter: (0..4)
-            .filter_map(report)
-            .fold(0u16, |sum, r| sum.wrapping_add(r.health.good as u16)),
+        counter: counters.counter,
         count: thrusters.min(MAX_THRUSTERS) as u8,
         connection_type: EscConnectionType::ESC_CONNECTION_TYPE_I2C,
-        info,
-        failure_flags: core::array::from_fn(|i| {
-            report(i).and_then(|r| r.status).map_or(0, |s| esc_failures(s.faults()))
+        info: (0..4).fold(0u8, |bits, i| {
+            if escs.get(i).is_some_and(|e| e.reporting) {
+                bits | 1 << i
+            } else {
+                bits
+            }
         }),
-        error_count: core::array::from_fn(|i| report(i).map_or(0, link_errors)),
-        temperature: core::array::from_fn(|i| match online(i).and_then(|r| r.status) {
-            Some(Status::SeaBotix(s)) => i16::from(s.temperature_c) * 100,
-            _ => i16::MAX,
-        }),
+        failure_flags: escs.map(|e| esc_failures(e.faults)),
+        error_count: counters.errors,
+        temperature: escs.map(|e| e.temperature_c.map_or(i16::MAX, |t| i16::from(t) * 100)),
+    }
+}
+
+/// `n / d` rounded to the nearest whole number, halves away from zero (`d` > 0).
+pub const fn rounded_div(n: i32, d: i32) -> i32 {
+    if n >= 0 { (n + d / 2) / d } else { (n - d / 2) / d }
+}
+
+/// SERVO_OUTPUT_RAW of the orders to the `thrusters` configured: each as the pulse ArduSub would give a thruster
+/// for it, 1500 us stopped and 400 us either way at full speed (its MOT_PWM_MIN/MAX defaults, 1100 and 1900), so
+/// a ground station's log tools draw them as ArduSub's motor outputs. Outputs past the thrusters read 0, as
+/// ArduPilot sends them for outputs it does not use.
+pub(crate) fn servo_output_raw(
+    thrusters: usize,
+    orders: &[Speed; MAX_THRUSTERS],
+    time_usec: u32,
+) -> SERVO_OUTPUT_RAW_DATA {
+    let pulse = |n: usize| match orders.get(n).filter(|_| n < thrusters) {
+        // Rounded to the nearest microsecond: a step is 3.9 us, so each pulse reads back as its step.
+        Some(speed) => (1500 + rounded_div(i32::from(speed.step()) * 400, i32::from(Speed::MAX_STEP))) as u16,
+        None => 0,
+    };
+    SERVO_OUTPUT_RAW_DATA {
+        time_usec,
+        port: 0,
+        servo1_raw: pulse(0),
+        servo2_raw: pulse(1),
+        servo3_raw: pulse(2),
+        servo4_raw: pulse(3),
+        servo5_raw: pulse(4),
+        servo6_raw: pulse(5),
+        servo7_raw: pulse(6),
+        servo8_raw: pulse(7),
+        servo9_raw: 0,
+        servo10_raw: 0,
+        servo11_raw: 0,
+        servo12_raw: 0,
+        servo13_raw: 0,
+        servo14_raw: 0,
+        servo15_raw: 0,
+        servo16_raw: 0,
     }
 }
 
@@ -697,6 +829,23 @@ impl Framer {
             None => 0,
         };
         self.finish(D::ID, D::EXTRA_CRC, len)
+    }
+
+    /// The system and component ids of its frames.
+    #[cfg(not(feature = "acceptance"))]
+    pub(crate) fn ids(&self) -> (u8, u8) {
+        (self.system_id, self.component_id)
+    }
+
+    /// Frame one message with its payload whole, not cut at its trailing zeros, as sequence number `sequence`: a
+    /// frame whose length does not depend on its values, for a file whose every part is found by counting
+    /// ([`crate::blackbox`]). MAVLink 2 receivers take a whole payload as they take a cut one.
+    pub(crate) fn frame_whole<D: MessageData>(&mut self, message: &D, sequence: u8) -> &[u8] {
+        if let Some(payload) = self.frame.get_mut(HEADER_LEN..HEADER_LEN + D::ENCODED_LEN) {
+            message.ser(mavlink_core::MavlinkVersion::V2, payload);
+        }
+        self.sequence = sequence;
+        self.finish(D::ID, D::EXTRA_CRC, D::ENCODED_LEN)
     }
 
     /// Frame a FILE_TRANSFER_PROTOCOL carrying the update server's `reply` (its payload's start, or all of it; a
@@ -972,7 +1121,7 @@ mod tests {
         off.as_mut().unwrap().health.online = false;
         reports[3] = off;
         reports[4] = online(Some(seabotix(51, 5, 20)), 1);
-        let s = esc_status(6, &reports, 0, 123_456);
+        let s = esc_status(0, &Esc::block(6, &reports, 0), 123_456);
         assert_eq!((s.index, s.time_usec), (0, 123_456));
         // Astern is negative; Legacy, no status yet and offline report no rpm: 0 (no "unknown" is defined).
         assert_eq!(s.rpm, [-4500, 0, 0, 0]);
@@ -980,7 +1129,7 @@ mod tests {
         assert_eq!(s.current[0], 2.3);
         assert_eq!(s.current[1], 1.2, "Legacy MAX POWER as current");
         assert!(s.current[2].is_nan() && s.current[3].is_nan());
-        let b = esc_status(6, &reports, 4, 0);
+        let b = esc_status(4, &Esc::block(6, &reports, 4), 0);
         assert_eq!((b.index, b.rpm), (4, [2250, 0, 0, 0]));
         assert!(
             b.current[1..].iter().all(|c| c.is_nan()),
@@ -1009,7 +1158,7 @@ mod tests {
         let mut off = online(Some(seabotix(0, 0, 25)), 9);
         off.as_mut().unwrap().health.online = false;
         reports[2] = off;
-        let i = esc_info(6, &reports, 0, 99);
+        let i = esc_info(6, 0, &Esc::block(6, &reports, 0), &EscCounters::of(6, &reports, 0), 99);
         assert_eq!((i.index, i.time_usec, i.count), (0, 99, 6));
         assert_eq!(i.connection_type, EscConnectionType::ESC_CONNECTION_TYPE_I2C);
         assert_eq!(i.info, 0b0011, "thrusters 1 and 2 online");
@@ -1022,7 +1171,7 @@ mod tests {
         assert_eq!(i.error_count, [0, 5, 0, 0]);
         // SeaBotix in cdegC; Legacy has no sensor, thruster 3 is offline, 4 unheard: INT16_MAX.
         assert_eq!(i.temperature, [4100, i16::MAX, i16::MAX, i16::MAX]);
-        let b = esc_info(6, &reports, 4, 99);
+        let b = esc_info(6, 4, &Esc::block(6, &reports, 4), &EscCounters::of(6, &reports, 4), 99);
         assert_eq!((b.index, b.info, b.temperature), (4, 0, [i16::MAX; 4]));
     }
 

@@ -3,7 +3,8 @@
 //! offset until EndOfFile. `versions.txt`, what every board runs, as the master knows it; and in `crash/` the
 //! post-mortem records held, each as the board kept it ([`crash_record`]): `master.bin`, the master's own stop
 //! before this start, and `thruster<slot>.bin`, each thruster's, as the master fetched it (slots from 0, as the
-//! update files count them: `thruster0.bin` is T1's).
+//! update files count them: `thruster0.bin` is T1's). And `blackbox.tlog`, the vehicle's last minutes as a
+//! telemetry log ([`crate::blackbox`]), when the master has a black box.
 //!
 //! Its text, one line per board after a header line, each line ending in `\n`, its fields apart by spaces and
 //! padded into columns (board 6 wide, family 8, version 8, so a longer version pushes the state out):
@@ -43,6 +44,8 @@ use crate::update::window::Window;
 pub(crate) const DIR: &str = "@SYS";
 /// `versions.txt`'s name in its directory.
 pub(crate) const VERSIONS: &str = "versions.txt";
+/// The black box's file in the directory ([`crate::blackbox`]).
+pub(crate) const BLACK_BOX: &str = "blackbox.tlog";
 /// The longest text: the header line and nine lines of 41 bytes (the longest version, 13 bytes, and `no-updates`).
 pub const MAX_LEN: u32 = 31 + 9 * 41;
 

@@ -28,6 +28,7 @@ const DISARMED: Context = Context {
     params: None,
     crash: false,
     post_mortems: 0,
+    black_box: None,
 };
 const ARMED: Context = Context {
     armed: true,
@@ -143,6 +144,7 @@ impl<S: UpdateSink> Server<S> {
             read(&r.payload(&Contents {
                 params: context.params.as_ref(),
                 crash: None,
+                black_box: None,
             }))
         })
     }
@@ -1558,6 +1560,7 @@ fn the_crash_record_is_served_read_only_while_the_region_holds_one() {
     let contents = Contents {
         params: None,
         crash: Some(&record),
+        black_box: None,
     };
     let mut got = Vec::new();
     for (seq, offset) in [(3, 0), (4, 80)] {
@@ -1675,10 +1678,11 @@ fn the_context_tells_whether_the_region_holds_a_record() {
 }
 
 #[test]
-fn a_reads_reply_takes_no_more_room_in_the_outbox_than_a_text() {
-    // The console's outbox holds 16 messages, each as large as the largest: a STATUSTEXT (50 bytes and its length),
-    // 60 bytes on the target. A read's reply, with the snapshot its 239 bytes are made from, fits beside it.
-    assert_eq!(core::mem::size_of::<FtpAnswer>(), 56);
+fn a_reads_reply_stays_the_size_of_an_outbox_slot() {
+    // The console's outbox holds 16 messages, each as large as the largest: a read's reply, with the snapshot its
+    // 239 bytes are made from, and a 4-byte offset (the black box is larger than 64 KiB): 64 bytes on the target
+    // (`shared.rs` holds it there), beside a STATUSTEXT's 60.
+    assert_eq!(core::mem::size_of::<FtpAnswer>(), 58);
     assert_eq!(core::mem::size_of::<Versions>(), 49);
 }
 
@@ -1726,14 +1730,16 @@ fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
     assert_eq!(
         reply.payload(&Contents {
             params: Some(&settings.params),
-            crash: None
+            crash: None,
+            black_box: None,
         })[..6],
         [7, 0, 1, ACK, 239, BURST]
     );
     assert_eq!(
         reply.payload(&Contents {
             params: Some(&settings.params),
-            crash: None
+            crash: None,
+            black_box: None,
         })[12..18],
         [0x1B, 0x67, 27, 0, 27, 0]
     );
@@ -2537,4 +2543,76 @@ fn the_update_server_has_the_sink_publish_its_holds_as_soon_as_an_apply_command_
     };
     updates.serve(query, &shared);
     assert_eq!(updates.sink.published.get(), 1);
+}
+
+#[test]
+fn the_black_box_is_listed_read_past_64_kib_and_held_while_its_session_reads() {
+    use crate::blackbox::{BlackBox, HOLD, PERIOD};
+    use crate::console::tlog::{Event, layout, record, tests::sample};
+    let shared = Shared::new();
+    let mut updates = Updates::new(&VEHICLE.thrusters, FrameKind::Lbv300_6, CheckOnly);
+    let ftp = |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
+        from: OTHER,
+        what: UpdateCommand::Ftp(payload(seq, 1, opcode, offset, data)),
+    };
+    let ack_data = |answer: Option<Outgoing>| match answer {
+        Some(Outgoing::Ftp {
+            reply: FtpAnswer::Reply(r),
+            ..
+        }) => (r[3], r[12..12 + usize::from(r[4])].to_vec()),
+        other => panic!("a reply: {other:?}"),
+    };
+    // Without a region there is no file.
+    assert_eq!(ack_data(updates.serve(ftp(1, LIST, 2, b"@SYS"), &shared)).0, NAK);
+    assert_eq!(
+        ack_data(updates.serve(ftp(2, OPEN_RO, 0, b"@SYS/blackbox.tlog"), &shared)).0,
+        NAK
+    );
+    shared
+        .black_box
+        .keep(Box::leak(Box::new(BlackBox::new())), Instant::from_ticks(0), 6);
+    shared.black_box.lay_out(layout(6));
+    // A minute of samples, with the master's start marked: a file past 64 KiB.
+    let t0 = Instant::from_secs(1);
+    for n in 0..600 {
+        let event = (n == 0).then_some(Event::Started);
+        assert!(record(&shared.black_box, t0 + PERIOD * n, sample(n, event)));
+    }
+    let (answer, listed) = ack_data(updates.serve(ftp(3, LIST, 2, b"@SYS"), &shared));
+    let len = shared.black_box.open().unwrap().len();
+    assert!(len > 64 * 1024);
+    assert_eq!((answer, listed), (ACK, format!("Fblackbox.tlog\t{len}\0").into_bytes()));
+    let (answer, opened) = ack_data(updates.serve(ftp(4, OPEN_RO, 0, b"@SYS/blackbox.tlog"), &shared));
+    assert_eq!((answer, opened), (ACK, len.to_le_bytes().to_vec()));
+    // From the open on, the samples are held: none is recorded.
+    let now = Instant::now();
+    assert!(!record(&shared.black_box, now + PERIOD, sample(600, None)));
+    // A read past 64 KiB: the offset whole in the reply's header, the bytes those of the file there.
+    let offset = 70_000;
+    let Some(Outgoing::Ftp { reply, .. }) = updates.serve(ftp(5, BURST, offset, &[0; 239]), &shared) else {
+        panic!("a read of the black box");
+    };
+    let read =
+        |file: &_, offset, into: &mut [u8]| crate::console::tlog::read(&shared.black_box, file, offset, into, (1, 1));
+    let contents = Contents {
+        black_box: Some(&read),
+        ..Contents::NOTHING
+    };
+    let framed = reply.payload(&contents);
+    assert_eq!(framed[..12], [6, 0, 1, ACK, 239, BURST, 1, 0, 0x70, 0x11, 0x01, 0]);
+    let file = shared.black_box.open().unwrap();
+    let mut expected = [0u8; 239];
+    assert_eq!(read(&file, offset, &mut expected), Some(239));
+    assert_eq!(framed[12..251], expected);
+    // The session's end lets the recording go on.
+    assert_eq!(ack_data(updates.serve(ftp(6, TERMINATE, 0, &[]), &shared)).0, ACK);
+    assert!(record(&shared.black_box, now + PERIOD, sample(600, None)));
+    // A session that reads on holds them until HOLD after its last read.
+    assert_eq!(
+        ack_data(updates.serve(ftp(7, OPEN_RO, 0, b"@SYS/blackbox.tlog"), &shared)).0,
+        ACK
+    );
+    let read_at = Instant::now();
+    assert!(!record(&shared.black_box, read_at + HOLD - PERIOD, sample(601, None)));
+    assert!(record(&shared.black_box, read_at + HOLD, sample(601, None)));
 }

@@ -34,6 +34,11 @@ impl<'a> Window<'a> {
         }
     }
 
+    /// The bytes it can keep.
+    pub(crate) fn capacity(&self) -> usize {
+        self.into.len()
+    }
+
     pub(crate) fn zeros(&mut self, n: u32) {
         for _ in 0..n {
             self.put(&[0]);

@@ -659,6 +659,7 @@ fn versions_read() -> Outgoing {
         params: None,
         crash: false,
         post_mortems: 0,
+        black_box: None,
     };
     let gcs = Sender {
         system: 255,
