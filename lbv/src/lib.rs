@@ -1,12 +1,15 @@
 //! The parts of the `lbv` host tools that read outside input: the capture decoders (`lbv decode`), the dev-kit
 //! bench-test runner (`lbv hil`), the bounded line reader under them, and the update files and firmware ELFs of
-//! `lbv image`. A library, so that the fuzz targets in `lbv/fuzz` reach the same parsers the command runs.
+//! `lbv image`, and the bench's trace and its plots, which `lbv decode tlog` draws a telemetry log with. A library,
+//! so that the fuzz targets in `lbv/fuzz` reach the same parsers the command runs.
 
 pub mod decode;
 pub mod flash;
 pub mod hil;
 pub mod image;
 pub mod lines;
+pub mod plot;
+pub mod trace;
 
 /// Refuse a command line as clap does (the message, the command's usage, exit status 2): for the rules between
 /// options that clap's attributes do not say.

@@ -15,8 +15,8 @@ use clap::{Parser, Subcommand};
 use lbv::{decode, exit, flash, hil, image};
 
 use bench::Engine;
-use bench::plot::Format;
-use bench::trace::Sample;
+use lbv::plot::Format;
+use lbv::trace::Sample;
 use scenarios::{Report, SCENARIOS, Scenario};
 
 /// Host tools for the LBV propulsion: the virtual bench, capture decoders, the dev-kit bench test.
@@ -101,7 +101,7 @@ struct BenchArgs {
     #[arg(long, value_name = "FILE")]
     json: Option<PathBuf>,
     /// Draw rpm, current, temperature, faults and events over time, as SVG or PNG by the file's extension
-    #[arg(long, value_name = "FILE.svg|FILE.png", value_parser = plot_file)]
+    #[arg(long, value_name = "FILE.svg|FILE.png", value_parser = lbv::plot::file)]
     plot: Option<(PathBuf, Format)>,
     /// No live view (with --udp: no status lines)
     #[arg(long)]
@@ -144,17 +144,6 @@ fn duration_seconds(text: &str) -> Result<f64, String> {
         Ok(seconds)
     } else {
         Err(format!("{text} is outside 0 < SECONDS <= {MAX_DURATION_S}"))
-    }
-}
-
-/// `--plot`: a file name ending in .svg or .png (the picture's format).
-fn plot_file(text: &str) -> Result<(PathBuf, Format), String> {
-    let path = PathBuf::from(text);
-    let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    match extension.as_deref() {
-        Some("svg") => Ok((path, Format::Svg)),
-        Some("png") => Ok((path, Format::Png)),
-        _ => Err(format!("{text} does not end in .svg or .png")),
     }
 }
 
@@ -293,9 +282,9 @@ fn bench_main(options: &BenchArgs) -> ExitCode {
 }
 
 /// Draw `trace` as `--plot` asks.
-fn plot(report: &Report, trace: &bench::trace::Trace, file: &std::path::Path, format: Format) -> Result<(), String> {
+fn plot(report: &Report, trace: &lbv::trace::Trace, file: &std::path::Path, format: Format) -> Result<(), String> {
     let title = format!("lbv bench: {} (seed {})", report.scenario, report.seed);
-    bench::plot::write(trace, &title, file, format)
+    lbv::plot::write(trace, &title, file, format)
 }
 
 /// `--report-only`: the scenario's report as JSON on standard output (and its plot if asked for).

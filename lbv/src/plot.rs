@@ -9,7 +9,7 @@
 //! cut down to at most [`MAX_POINTS`] points by keeping each bucket's minimum and maximum, so a one-sample spike
 //! survives; values that are NaN or infinite are skipped.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 use ab_glyph::{Font, FontRef, ScaleFont, point};
@@ -21,7 +21,7 @@ use plotters_backend::{BackendColor, BackendCoord, DrawingErrorKind};
 use thruster_fw::faults::Thresholds;
 use tmc_proto::{Faults, Speed};
 
-use super::trace::{Event, Sample, Trace};
+use crate::trace::{Event, Sample, Trace};
 
 /// Most points drawn for one series; longer series are decimated by min/max per bucket.
 pub const MAX_POINTS: usize = 2000;
@@ -81,6 +81,17 @@ const FAULT_COLOURS: [RGBColor; 5] = [
     RGBColor(0x5f, 0x3d, 0xc4),
     RGBColor(0x1c, 0x7e, 0xd6),
 ];
+
+/// `--plot`: a file name ending in .svg or .png (the picture's format).
+pub fn file(text: &str) -> Result<(PathBuf, Format), String> {
+    let path = PathBuf::from(text);
+    let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    match extension.as_deref() {
+        Some("svg") => Ok((path, Format::Svg)),
+        Some("png") => Ok((path, Format::Png)),
+        _ => Err(format!("{text} does not end in .svg or .png")),
+    }
+}
 
 /// Draw `trace` into the file at `path`.
 pub fn write(trace: &Trace, title: &str, path: &Path, format: Format) -> Result<(), String> {
@@ -840,7 +851,7 @@ fn decimate(points: &[(f64, f64)], max: usize) -> Vec<(f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::trace::ThrusterSample;
+    use crate::trace::ThrusterSample;
 
     /// Two thrusters over 20 s at 100 Hz: T1 runs and stalls, T2 drops offline; armed from 1 s; a few events.
     fn trace() -> Trace {

@@ -25,6 +25,7 @@ use g431_hw::memory::MASTER_PARTITIONS;
 use lbv_boot::{CrashCount, Outcome};
 use lbv_master_fw::acceptance::report::{Prompt, StepResult, Verdict};
 use lbv_master_fw::acceptance::{Operator, Script};
+use lbv_master_fw::blackbox::BlackBox;
 use lbv_master_fw::console::ConsoleStats;
 use lbv_master_fw::ports::{Board, BusWork, CanFrame, CrashRegister, OwnUpdate, Ports, UpdateSink};
 use lbv_master_fw::settings::Store;
@@ -212,6 +213,9 @@ pub struct MasterBoard {
     watchdog_reset: bool,
     reboot: RebootRequest,
     task: Option<TaskId>,
+    /// The black box's RAM between two starts (`g431_hw::memory::BLACK_BOX`): a reset keeps it, a power cut
+    /// clears it. While the master runs, its `Shared` holds it.
+    black_box: Option<&'static mut BlackBox>,
 }
 
 /// A backup register on the bench: a word kept over resets.
@@ -261,6 +265,7 @@ impl MasterBoard {
             watchdog_reset: false,
             reboot: RebootRequest::default(),
             task: None,
+            black_box: Some(Box::leak(Box::new(BlackBox::new()))),
         };
         board.start(wiring, executor);
         board
@@ -290,6 +295,7 @@ impl MasterBoard {
         if let Some(task) = self.task.take() {
             executor.remove(task);
         }
+        self.black_box = self.shared.black_box.release().or(self.black_box.take());
         self.shared = Rc::new(Shared::new());
         self.console_stats = Rc::new(ConsoleStats::new());
         wiring.can.clear();
@@ -299,6 +305,9 @@ impl MasterBoard {
         self.cpu.reset();
         if !self.flash.powered() {
             self.crash_register.set(0);
+            if let Some(black_box) = self.black_box.as_deref_mut() {
+                *black_box = BlackBox::new();
+            }
         }
         self.flash.power_on();
         self.start(wiring, executor);
@@ -346,6 +355,15 @@ impl MasterBoard {
             self.desk = Some(desk.clone());
             Script(DeskOperator(desk))
         });
+        // The image's start hands the black box its RAM; the acceptance image has none.
+        if !self.acceptance
+            && let Some(black_box) = self.black_box.take()
+        {
+            let thrusters = usize::from(self.config.thrusters.count());
+            self.shared
+                .black_box
+                .keep(black_box, embassy_time::Instant::now(), thrusters);
+        }
         self.task = Some(self.spawn(wiring, executor, script));
     }
 

@@ -14,10 +14,8 @@
 pub mod battery;
 pub mod master;
 pub mod plant;
-pub mod plot;
 pub mod shunts;
 pub mod thruster;
-pub mod trace;
 pub mod udp;
 
 use std::rc::Rc;
@@ -33,10 +31,10 @@ use lbv_station::GroundStation;
 use tmc_proto::Family;
 
 use battery::{BatteryBoard, Rail};
+use lbv::trace::{Event, Recorder, Sample, ThrusterSample, Trace};
 use master::{ConsoleLine, MasterBoard, Wiring};
 pub use thruster::Motor;
 use thruster::ThrusterBoard;
-use trace::{Event, Recorder, Sample, ThrusterSample, Trace};
 
 /// The plant and bus step.
 pub const STEP: Duration = Duration::from_micros(50);

@@ -4,6 +4,7 @@
 pub mod can;
 pub mod crash;
 pub mod i2c;
+pub mod tlog;
 
 use std::fs::File;
 use std::io::{self, BufRead, BufReader};
@@ -19,6 +20,8 @@ pub enum Command {
     Can(can::Args),
     /// A board's post-mortem record (panic, fault, watchdog), with the image's ELF for functions and lines
     Crash(crash::Args),
+    /// A telemetry log (the master's black box, a ground station's .tlog), printed or plotted
+    Tlog(tlog::Args),
 }
 
 /// `lbv decode ...`
@@ -27,6 +30,7 @@ pub fn main(command: Command) -> ExitCode {
         Command::I2c(args) => i2c::main(&args),
         Command::Can(args) => can::main(&args),
         Command::Crash(args) => crash::main(&args),
+        Command::Tlog(args) => tlog::main(&args),
     }
 }
 

@@ -7,8 +7,8 @@ use serde_json::{Map, Value, json};
 use tmc_proto::{Family, Faults, MotorKind};
 
 use super::fault::Fault;
-use crate::bench::trace::Trace;
 use crate::bench::{Bench, BenchConfig, Engine, Motor, STEP};
+use lbv::trace::Trace;
 use lbv_master_fw::mixer::ManualInput;
 use lbv_master_fw::shared::LinkHealth;
 

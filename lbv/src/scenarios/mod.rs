@@ -42,7 +42,7 @@ use thruster_faults::{
     overcurrent_intermittent, overtemp, rocking_rotor, stall, stall_brushed, water, water_threshold,
 };
 use update::{field_update, fleet_update, master_update};
-use vehicle::{battery_bits, battery_lost, console_silence, dive, master_reboot, thruster_crash};
+use vehicle::{battery_bits, battery_lost, black_box, console_silence, dive, master_reboot, thruster_crash};
 
 /// `lbv bench`'s default seed, which the tests run every scenario with.
 #[cfg(test)]
@@ -303,6 +303,14 @@ pub const SCENARIOS: &[Scenario] = &[
         seconds: 6.0,
         vehicle: lbv300,
         run: thruster_crash,
+    },
+    Scenario {
+        name: "black-box",
+        about: "a dive that ends in the master's watchdog reset: the black box keeps it across the reset and an FTP \
+                client reads it as a telemetry log whose rpm, orders and arming are the bench's",
+        seconds: 9.0,
+        vehicle: lbv300,
+        run: black_box,
     },
     Scenario {
         name: "battery-lost",

@@ -78,6 +78,7 @@ scenario_tests! {
     console_silence: "console-silence",
     master_reboot: "master-reboot",
     thruster_crash: "thruster-crash",
+    black_box: "black-box",
     battery_lost: "battery-lost",
     battery_bits: "battery-bits",
     ground_station_1hz: "ground-station-1hz",

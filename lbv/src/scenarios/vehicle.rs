@@ -249,13 +249,20 @@ fn ftp_get(run: &mut Run, path: &str) -> Option<Vec<u8>> {
     const OPEN_RO: u8 = 4;
     const READ: u8 = 5;
     const ACK: u8 = 128;
+    // A request whose reply does not come within a second is sent again, as the clients do: the master drops a
+    // read's request past its requester's allowance (ten replies a second, `console::limit`), and its reply when
+    // its outbox is full.
     let ask = |run: &mut Run, seq: u16, session: u8, opcode: u8, offset: u32, data: &[u8]| {
-        run.bench.ground.seen.ftp.clear();
-        let frame = run.bench.ground.ftp_request(seq, session, opcode, offset, data);
-        run.bench.send(frame);
-        run.run_until(1.0, |bench| !bench.ground.seen.ftp.is_empty());
-        let reply = *run.bench.ground.seen.ftp.first()?;
-        (reply[3] == ACK).then_some(reply)
+        for _ in 0..5 {
+            run.bench.ground.seen.ftp.clear();
+            let frame = run.bench.ground.ftp_request(seq, session, opcode, offset, data);
+            run.bench.send(frame);
+            run.run_until(1.0, |bench| !bench.ground.seen.ftp.is_empty());
+            if let Some(reply) = run.bench.ground.seen.ftp.first() {
+                return (reply[3] == ACK).then_some(*reply);
+            }
+        }
+        None
     };
     let open = ask(run, 0x5000, 0, OPEN_RO, 0, path.as_bytes())?;
     let (session, len) = (open[2], u32::from_le_bytes([open[12], open[13], open[14], open[15]]));
@@ -268,6 +275,100 @@ fn ftp_get(run: &mut Run, path: &str) -> Option<Vec<u8>> {
     }
     ask(run, 0x5fff, session, TERMINATE, 0, &[]);
     Some(file)
+}
+
+/// The master's black box after a dive that ends in the master's reset: an FTP client gets `@SYS/blackbox.tlog`
+/// and `lbv decode tlog`'s reader reads it back; each sample's rpm, order and arm state are the bench's own, and the
+/// samples before the reset are kept across it.
+pub fn black_box(run: &mut Run) {
+    run.bench.keep_samples(true);
+    run.arm_and_go(AHEAD);
+    run.run_for(3.0);
+    run.bench.note("the pilot turns");
+    run.bench.ground.sticks = Some(ManualInput { r: 500, ..AHEAD });
+    run.run_for(2.0);
+    let reset_at = run.bench.now().as_micros() as f64 / 1e6;
+    run.bench.note("master reset (watchdog)");
+    run.bench.crash_master();
+    run.run_for(2.0);
+    let bytes = ftp_get(run, "@SYS/blackbox.tlog");
+    let read = bytes
+        .as_deref()
+        .map(|bytes| lbv::decode::tlog::read_trace(bytes, |_| Ok(())).map_err(|error| format!("{error:?}")));
+    let (log, stats) = match read {
+        Some(Ok(read)) => read,
+        other => {
+            run.check("an FTP client gets the black box", false, format!("{other:?}"));
+            return;
+        }
+    };
+    run.metric("file_bytes", json!(bytes.as_ref().map_or(0, Vec::len)));
+    run.metric("frames", json!(stats.frames));
+    run.metric("samples", json!(log.samples.len()));
+    run.check(
+        "an FTP client gets @SYS/blackbox.tlog, every frame's CRC checks",
+        stats.frames > 0 && stats.skipped == 0,
+        format!("{} frames, {} bytes skipped", stats.frames, stats.skipped),
+    );
+    let starts: Vec<f64> = log
+        .events
+        .iter()
+        .filter(|event| event.text == "Black box: master started")
+        .map(|event| round(event.t, 2))
+        .collect();
+    run.check(
+        "it holds the dive from the master's start, and the reset: two starts marked",
+        starts.len() == 2 && starts[0] <= 0.2 && log.samples.first().is_some_and(|s| s.t <= 0.2),
+        format!("starts at {starts:?} s"),
+    );
+    // Before the reset the log's clock is the bench's: compare each of its samples with the bench's samples of the
+    // 100 ms before it (the master's sample takes each thruster's last status, and the thruster measured its
+    // speed before that), the order and the arming with the last of them. The log's rpm is ESC_TELEMETRY's, a
+    // magnitude.
+    let trace = &run.bench.trace.samples;
+    let before: Vec<_> = log.samples.iter().filter(|s| s.t < reset_at).collect();
+    let mut worst_rpm = 0f64;
+    let mut orders_differ = 0usize;
+    let mut armed_differ = 0usize;
+    for sample in &before {
+        let window: Vec<_> = trace
+            .iter()
+            .filter(|b| b.t <= sample.t && b.t >= sample.t - 0.1)
+            .collect();
+        let Some(last) = window.last() else { continue };
+        for (i, logged) in sample.thrusters.iter().enumerate() {
+            let error = window
+                .iter()
+                .filter_map(|b| b.thrusters.get(i))
+                .map(|bench| (bench.rpm.abs() - logged.rpm).abs())
+                .fold(f64::INFINITY, f64::min);
+            worst_rpm = worst_rpm.max(error);
+            orders_differ += usize::from(last.thrusters.get(i).map(|b| b.ordered_step) != Some(logged.ordered_step));
+        }
+        armed_differ += usize::from(last.armed != sample.armed);
+    }
+    run.metric("worst_rpm_error", json!(round(worst_rpm, 1)));
+    // A status says the speed in steps of 44 rpm; the shaft moves on while it is on its way (half a step here).
+    let step = f64::from(tmc_proto::Speed::FULL_SCALE_RPM) / f64::from(tmc_proto::Speed::MAX_STEP);
+    run.check(
+        "before the reset, each thruster's speed is the bench's within 1.5 steps, its order and the arming the same",
+        before.len() >= 50 && worst_rpm <= 1.5 * step && orders_differ == 0 && armed_differ == 0,
+        format!(
+            "{} samples: rpm off by {:.1} at most (a step is {step:.1}), {orders_differ} orders and \
+             {armed_differ} arm states not the bench's",
+            before.len(),
+            worst_rpm
+        ),
+    );
+    let after: Vec<_> = log.samples.iter().filter(|s| s.t >= reset_at).collect();
+    run.check(
+        "after the reset: samples on, disarmed, every order a stop",
+        after.len() >= 10
+            && after
+                .iter()
+                .all(|s| !s.armed && s.thrusters.iter().all(|t| t.ordered_step == 0)),
+        format!("{} samples after the reset", after.len()),
+    );
 }
 
 /// One thruster's core panics mid-dive (T2, as its panic handler stops it): its bridge is off at once, its watchdog

@@ -66,3 +66,27 @@ fn mavproxy_holds_the_vehicle_armed_on_its_heartbeats_and_flies_it() {
     assert!(summary["reboot"]["sequence_restarts"].as_u64() >= Some(1), "{summary}");
     println!("pilot: {summary}\nbench:\n{bench_output}");
 }
+
+const BLACK_BOX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_blackbox.py");
+
+/// After a motor test, MAVProxy fetches the master's black box (`ftp get @SYS/blackbox.tlog`) and pymavlink's
+/// `mavlogdump.py` reads every frame of it: a sample every 100 ms, thruster 1 turning in 2 s of them at the rpm
+/// the live telemetry showed (`tests/mavproxy_blackbox.py`).
+#[test]
+fn mavproxy_fetches_the_black_box_and_mavlogdump_reads_it() {
+    let [gcs, bench_port, observer] = support::free_ports();
+    let work = support::TempDir::new("mavproxy-blackbox");
+    let args = [
+        gcs.to_string(),
+        observer.to_string(),
+        work.0.display().to_string(),
+        PILOT_SECONDS.to_string(),
+    ];
+    let (summary, bench_output) = support::fly(BLACK_BOX, &args, BENCH_SECONDS, gcs, bench_port, "mavproxy pymavlink");
+    assert_eq!(
+        summary["steps"],
+        serde_json::json!(["connect", "ready", "motortest", "blackbox"]),
+        "{summary}"
+    );
+    println!("black box: {summary}\nbench:\n{bench_output}");
+}
