@@ -23,7 +23,7 @@ import shutil
 import subprocess
 import sys
 
-from mavproxy_pilot import Failed, Pilot
+from mavproxy_pilot import Failed, Pilot, run
 
 # A speed step of a SeaBotix status: 4500 rpm over 102 steps.
 STEP_RPM = 4500 / 102
@@ -94,22 +94,7 @@ def main():
         return 2
     gcs_port, observer_port, work_dir = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
     timeout = float(sys.argv[4]) if len(sys.argv) > 4 else 90.0
-    pilot = BlackBoxPilot(gcs_port, observer_port, work_dir, timeout)
-    try:
-        pilot.fly()
-    except Failed as failure:
-        pilot.mavproxy.drain()
-        pilot.summary.update(failed=str(failure), elapsed_s=pilot.elapsed())
-        pilot.summary["mavproxy"] = [line for _, line in pilot.mavproxy.log][-40:]
-        print(json.dumps(pilot.summary))
-        print(f"mavproxy_blackbox: {failure}", file=sys.stderr)
-        return 1
-    finally:
-        pilot.mavproxy.stop()
-        shutil.rmtree(pilot.state_dir, ignore_errors=True)
-    pilot.summary["passed"] = True
-    print(json.dumps(pilot.summary))
-    return 0
+    return run(BlackBoxPilot(gcs_port, observer_port, work_dir, timeout), "mavproxy_blackbox")
 
 
 if __name__ == "__main__":

@@ -405,13 +405,8 @@ class Pilot:
         self.summary["elapsed_s"] = self.elapsed()
 
 
-def main():
-    if len(sys.argv) < 3:
-        print(__doc__, file=sys.stderr)
-        return 2
-    gcs_port, observer_port = int(sys.argv[1]), int(sys.argv[2])
-    timeout = float(sys.argv[3]) if len(sys.argv) > 3 else 90.0
-    pilot = Pilot(gcs_port, observer_port, timeout)
+def run(pilot, name):
+    """Fly `pilot`'s steps and print its JSON summary: the exit status (0 every step held, 1 one did not)."""
     try:
         pilot.fly()
     except Failed as failure:
@@ -419,7 +414,7 @@ def main():
         pilot.summary.update(failed=str(failure), elapsed_s=pilot.elapsed())
         pilot.summary["mavproxy"] = [line for _, line in pilot.mavproxy.log][-40:]
         print(json.dumps(pilot.summary))
-        print(f"mavproxy_pilot: {failure}", file=sys.stderr)
+        print(f"{name}: {failure}", file=sys.stderr)
         return 1
     finally:
         pilot.mavproxy.stop()
@@ -427,6 +422,15 @@ def main():
     pilot.summary["passed"] = True
     print(json.dumps(pilot.summary))
     return 0
+
+
+def main():
+    if len(sys.argv) < 3:
+        print(__doc__, file=sys.stderr)
+        return 2
+    gcs_port, observer_port = int(sys.argv[1]), int(sys.argv[2])
+    timeout = float(sys.argv[3]) if len(sys.argv) > 3 else 90.0
+    return run(Pilot(gcs_port, observer_port, timeout), "mavproxy_pilot")
 
 
 if __name__ == "__main__":
