@@ -411,8 +411,8 @@ const fn master(name: &'static str, features: &'static str, flash_budget: u32) -
         // the thrusters' post-mortem records, which the master keeps one per slot (8 x 128 B, and the one being
         // fetched).
         ram_budget: 34 * KIB,
-        // 22.4 KiB measured with the black box (rehost, at idle and polling; about 19 before it): embassy-executor
-        // materialises the node's task, ports and all, on the stack when it spawns it (`stm32.rs`, "write_in_place").
+        // 22.4 KiB measured (rehost, at idle and polling; 22.1 before the black box): embassy-executor materialises
+        // the node's task, ports and all, on the stack when it spawns it (`stm32.rs`, "write_in_place").
         stack_budget: 24 * KIB,
     }
 }
