@@ -392,7 +392,8 @@ const fn thruster(name: &'static str, features: &'static str, image: &'static Im
 /// own update carries. ACTIVE holds 228 KiB; the budget keeps each step of growth deliberate (148 KiB until the
 /// courier carried one image to every thruster of a family and told the apply's progress, 3.2 KiB of code; 156 KiB
 /// until the parameters were served as `@PARAM/param.pck`, 1.5 KiB, and the post-mortem record was kept, told and
-/// served, 4 KiB; 164 KiB until the black box, 7.2 KiB: its recording, and the telemetry log made from it).
+/// served, 4 KiB; 164 KiB until the black box, 8.4 KiB: its recording, the telemetry log made from it, and the
+/// operator's own allowance for file reads).
 pub const MASTER_FLASH_BUDGET: u32 = 172 * KIB;
 
 /// The acceptance images' flash budget: the master's core without the update server, with the acceptance script

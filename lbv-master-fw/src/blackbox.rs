@@ -10,9 +10,10 @@
 //! a reset it runs on by the time since the new start (how long the reset itself took is not known).
 //!
 //! **Reading.** The file is made again at every read from the ring: a sample's place in it follows from its number
-//! and the events before it ([`FileLayout`]), found by a binary search. The ring records nothing while a ground
-//! station reads it (until [`HOLD`] after its last read, or its session's end), so the file does not change under
-//! the reader; a file whose samples the ring has since dropped is refused rather than read with others.
+//! and the events before it ([`FileLayout`]), found by a binary search. The ring records nothing while the
+//! operator's ground station reads it (until [`HOLD`] after its last read, or its session's end), so the file does
+//! not change under the reader; another system's read holds nothing (else anyone on the link could stop the
+//! recording), and a file whose samples the ring has since dropped is refused rather than read with others.
 
 // The acceptance image records nothing and serves no file: it keeps no region, and what only the recording uses is
 // left out of it.

@@ -887,11 +887,13 @@ impl UpdateServer {
         Ok(())
     }
 
-    /// When the session reading `@SYS/blackbox.tlog` last asked something, while one does: the black box holds
-    /// its samples for it ([`crate::blackbox::Recorder::hold`]).
-    pub(crate) fn black_box_read(&self) -> Option<Instant> {
+    /// When the session reading `@SYS/blackbox.tlog` last asked something, while one of the operator's system
+    /// (`operator`) does: the black box holds its samples for it ([`crate::blackbox::Recorder::hold`]). Another
+    /// system's read holds nothing, or anyone on the link could keep the vehicle from recording by reading on; its
+    /// file is refused once the ring has dropped its first samples.
+    pub(crate) fn black_box_read(&self, operator: u8) -> Option<Instant> {
         match (self.session, self.reading) {
-            (Some(session), Some(OpenFile::BlackBox(_))) => Some(session.last),
+            (Some(session), Some(OpenFile::BlackBox(_))) if session.owner.system == operator => Some(session.last),
             _ => None,
         }
     }
@@ -1438,7 +1440,7 @@ impl<S: UpdateSink> Updates<S> {
                 let answer = self
                     .server
                     .request(now, context, from, &payload, &mut self.sink, &mut out);
-                shared.black_box.hold(self.server.black_box_read());
+                shared.black_box.hold(self.server.black_box_read(context.operator));
                 answer.map(|reply| Outgoing::Ftp { to: from, reply })
             }
             UpdateCommand::Apply(_) if context.unsigned && from.system == context.operator => {

@@ -2546,15 +2546,28 @@ fn the_update_server_has_the_sink_publish_its_holds_as_soon_as_an_apply_command_
 }
 
 #[test]
-fn the_black_box_is_listed_read_past_64_kib_and_held_while_its_session_reads() {
+fn the_black_box_is_listed_read_past_64_kib_and_held_while_the_operator_reads_it() {
     use crate::blackbox::{BlackBox, HOLD, PERIOD};
     use crate::console::tlog::{Event, layout, record, tests::sample};
     let shared = Shared::new();
+    // The operator's ground station is GCS's system.
+    shared.vehicle.sender().send(crate::shared::VehicleState {
+        armed: false,
+        console_alive: true,
+        refused: 0,
+        armable: true,
+        failsafe: false,
+        param_type_mismatches: 0,
+        operator: GCS.system,
+    });
     let mut updates = Updates::new(&VEHICLE.thrusters, FrameKind::Lbv300_6, CheckOnly);
-    let ftp = |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
-        from: OTHER,
-        what: UpdateCommand::Ftp(payload(seq, 1, opcode, offset, data)),
+    let from = |from: Sender| {
+        move |seq, opcode, offset: u32, data: &[u8]| UpdateRequest {
+            from,
+            what: UpdateCommand::Ftp(payload(seq, 1, opcode, offset, data)),
+        }
     };
+    let ftp = from(GCS);
     let ack_data = |answer: Option<Outgoing>| match answer {
         Some(Outgoing::Ftp {
             reply: FtpAnswer::Reply(r),
@@ -2615,4 +2628,19 @@ fn the_black_box_is_listed_read_past_64_kib_and_held_while_its_session_reads() {
     let read_at = Instant::now();
     assert!(!record(&shared.black_box, read_at + HOLD - PERIOD, sample(601, None)));
     assert!(record(&shared.black_box, read_at + HOLD, sample(601, None)));
+    assert_eq!(ack_data(updates.serve(ftp(8, TERMINATE, 0, &[]), &shared)).0, ACK);
+    // Another system reads it too, and holds nothing: it cannot keep the vehicle from recording.
+    let other = from(OTHER);
+    assert_eq!(
+        ack_data(updates.serve(other(9, OPEN_RO, 0, b"@SYS/blackbox.tlog"), &shared)).0,
+        ACK
+    );
+    assert!(matches!(
+        updates.serve(other(10, BURST, 0, &[0; 239]), &shared),
+        Some(Outgoing::Ftp {
+            reply: FtpAnswer::Read(_),
+            ..
+        })
+    ));
+    assert!(record(&shared.black_box, read_at + HOLD + PERIOD, sample(602, None)));
 }
