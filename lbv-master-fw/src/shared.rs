@@ -586,6 +586,21 @@ pub struct VehicleState {
     pub operator: u8,
 }
 
+#[cfg(test)]
+impl VehicleState {
+    /// The tests' vehicle: disarmed, armable, no failsafe, the operator (system 255, QGroundControl's and MAVProxy's)
+    /// heard.
+    pub(crate) const READY: Self = Self {
+        armed: false,
+        console_alive: true,
+        refused: 0,
+        armable: true,
+        failsafe: false,
+        param_type_mismatches: 0,
+        operator: 255,
+    };
+}
+
 type Mutex = CriticalSectionRawMutex;
 
 /// What of a field update keeps the vehicle from arming ([`crate::vehicle::Vehicle::arm_check`]): a reset that is

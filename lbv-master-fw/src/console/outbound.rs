@@ -954,15 +954,7 @@ mod tests {
     }
 
     /// Disarmed, armable, no failsafe.
-    const READY: VehicleState = VehicleState {
-        armed: false,
-        console_alive: true,
-        refused: 0,
-        armable: true,
-        failsafe: false,
-        param_type_mismatches: 0,
-        operator: 255,
-    };
+    const READY: VehicleState = VehicleState::READY;
 
     #[test]
     fn sys_status_prearm_and_failsafe_follow_the_vehicle() {

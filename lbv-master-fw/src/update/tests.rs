@@ -2552,13 +2552,8 @@ fn the_black_box_is_listed_read_past_64_kib_and_held_while_the_operator_reads_it
     let shared = Shared::new();
     // The operator's ground station is GCS's system.
     shared.vehicle.sender().send(crate::shared::VehicleState {
-        armed: false,
-        console_alive: true,
-        refused: 0,
-        armable: true,
-        failsafe: false,
-        param_type_mismatches: 0,
         operator: GCS.system,
+        ..crate::shared::VehicleState::READY
     });
     let mut updates = Updates::new(&VEHICLE.thrusters, FrameKind::Lbv300_6, CheckOnly);
     let from = |from: Sender| {

@@ -226,13 +226,9 @@ impl<'a> Bench<'a> {
 
     fn hear_operator(&self, alive: bool) {
         self.shared.vehicle.sender().send(VehicleState {
-            armed: false,
             console_alive: alive,
-            refused: 0,
-            armable: true,
-            failsafe: false,
-            param_type_mismatches: 0,
             operator: OPERATOR.system,
+            ..VehicleState::READY
         });
     }
 }
@@ -966,11 +962,9 @@ fn the_trial_limit_never_restarts_an_armed_vehicle_it_waits_for_the_disarm() {
     shared.vehicle.sender().send(VehicleState {
         armed: true,
         console_alive: false,
-        refused: 0,
         armable: false,
-        failsafe: false,
-        param_type_mismatches: 0,
         operator: OPERATOR.system,
+        ..VehicleState::READY
     });
     let mut bench = Bench::new(&own, &shared, &updating);
     assert_eq!(texts(&bench.said()), ["master.lbvu: runs 0.1.0, on trial"]);
