@@ -35,7 +35,7 @@ use mavlink_core::MessageData;
 use crate::console::framing::{Event, Frame, FrameParser};
 use crate::console::signing::{Refusal, SigningKey, SigningState};
 use crate::mixer::FrameKind;
-use crate::params::{PARAM_COUNT, Param};
+use crate::params::{LISTED_COUNT, Listed};
 use crate::ports::UpdateSink;
 use crate::shared::{
     Command, Interval, MAX_THRUSTERS, Message, Outgoing, Request, Sender, Shared, UpdateAction, UpdateCommand,
@@ -753,19 +753,20 @@ pub async fn console_tx_task<W: Write>(tx: &mut W, config: &ConsoleConfig, share
                     count,
                 } => out.push(&outbound::param_value(&id, value, param_type, index, count)),
                 Outgoing::ParamList => {
-                    for param in Param::ALL {
+                    // By index: an iterator held over the awaits would sit in the task's static storage.
+                    for listed in (0..LISTED_COUNT as u16).filter_map(Listed::from_index) {
                         out.key = signing_room(shared, stats).await;
                         // The value alone, not the settings, is held over the write.
                         let value = match shared.settings.try_get() {
-                            Some(settings) => param.to_float(settings.params.get(param)),
+                            Some(settings) => listed.to_float(listed.value(&settings.params)),
                             None => break,
                         };
-                        let count = PARAM_COUNT as u16;
+                        let count = LISTED_COUNT as u16;
                         out.push(&outbound::param_value(
-                            &param.id(),
+                            &listed.id(),
                             value,
-                            param.param_type(),
-                            param.index(),
+                            listed.param_type(),
+                            listed.index(),
                             count,
                         ));
                         out.flush().await;

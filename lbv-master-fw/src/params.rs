@@ -43,6 +43,10 @@
 //! signing whoever can send can set it too: it keeps an update from happening by mistake, not from someone who
 //! sets out to; signing does that.
 //!
+//! After these settings a ground station finds read-only stand-ins ([`STAND_INS`]): ArduSub parameters for sensors
+//! and functions the vehicle does not have, which QGroundControl's setup pages read from every ArduSub vehicle; each
+//! says what the vehicle has ("none", "disabled", MANUAL). [`Listed`] is either kind, in index order.
+//!
 //! Values are kept as integers in a parameter's own unit (the timeouts in tenths of a second) and go over MAVLink
 //! as floats in the displayed unit, with their type ([`Param::param_type`]): the two timeouts REAL32, SYSID_MYGCS
 //! INT16, the others INT8, an integer's float holding its value (MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST).
@@ -91,6 +95,8 @@ pub enum ParamType {
     Int8,
     /// MAV_PARAM_TYPE_INT16 (4).
     Int16,
+    /// MAV_PARAM_TYPE_INT32 (6): only the read-only compass ids ([`STAND_INS`]), AP_Int32 in ArduSub.
+    Int32,
     /// MAV_PARAM_TYPE_REAL32 (9).
     Real32,
 }
@@ -101,6 +107,7 @@ impl ParamType {
         match self {
             Self::Int8 => 2,
             Self::Int16 => 4,
+            Self::Int32 => 6,
             Self::Real32 => 9,
         }
     }
@@ -359,20 +366,9 @@ impl Param {
         Self::ALL.into_iter().find(|param| param.index() == index)
     }
 
-    /// The parameter of a NUL-padded MAVLink name (exact, case-sensitive, as ArduPilot matches).
-    pub(crate) fn from_id(id: &ParamId) -> Option<Param> {
-        let len = id.iter().position(|byte| *byte == 0).unwrap_or(id.len());
-        let name = id.get(..len)?;
-        Self::ALL.into_iter().find(|param| param.name().as_bytes() == name)
-    }
-
     /// The NUL-padded MAVLink name.
     pub fn id(self) -> ParamId {
-        let mut id = [0; 16];
-        for (slot, byte) in id.iter_mut().zip(self.name().bytes()) {
-            *slot = byte;
-        }
-        id
+        Listed::Setting(self).id()
     }
 
     /// Whether `value` (own unit) is a valid setting.
@@ -412,6 +408,171 @@ impl Param {
     /// formatting an `f32` would add some 10 KiB to the image.
     pub(crate) fn shown(self, value: i32) -> impl fmt::Display {
         Shown(self.scale(), value)
+    }
+}
+
+/// A read-only parameter: one of ArduSub's that QGroundControl's setup pages read from every ArduSub vehicle, for a
+/// sensor or a function this vehicle does not have. It holds the value by which ArduSub says "none", "disabled" or
+/// what this vehicle does instead; it is not kept in flash, and a PARAM_SET of it is refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub struct StandIn {
+    /// ArduSub's name.
+    pub name: &'static str,
+    /// ArduSub's type for it.
+    pub param_type: ParamType,
+    /// Its value (every one is a whole number, the floats' too).
+    pub value: i8,
+}
+
+const fn stand_in(name: &'static str, param_type: ParamType, value: i8) -> StandIn {
+    StandIn {
+        name,
+        param_type,
+        value,
+    }
+}
+
+/// The stand-ins, after the settings in index order. Why each holds its value (QGroundControl's reading of it in
+/// brackets):
+/// - `INS_ACCOFFS_*` 0.0: no accelerometer, so no calibration (its Sensors page says "Setup required": there is
+///   nothing to calibrate, but a nonzero offset would claim a calibration);
+/// - `COMPASS_DEV_ID*` 0: no compass ("Not installed"); its offsets and declination 0.0, unused;
+/// - `FLTMODE1`-`6` 19: every mode slot is ArduSub's MANUAL, the one mode there is;
+/// - `FS_EKF_ACTION`, `FS_TEMP_ENABLE`, `FS_PRESS_ENABLE` 0: no estimator, no internal temperature or pressure
+///   sensor, so no such failsafe ("Disabled");
+/// - `FS_LEAK_ENABLE` 1: a thruster that senses water stops itself (its interface's fault reaction) and the master
+///   warns the pilot, no more ("Warn only");
+/// - `SERVO5`-`14_FUNCTION` 0: no servo outputs ("Disabled"), so no lights or camera mount on them;
+/// - `BATT_MONITOR` -1: ArduPilot has no number for the BAT board on CAN, and -1 is none of its numbers (a blank
+///   label, not a wrong one); the battery itself is in BATTERY_STATUS.
+pub const STAND_INS: [StandIn; 37] = {
+    use ParamType::{Int8, Int16, Int32, Real32};
+    [
+        stand_in("INS_ACCOFFS_X", Real32, 0),
+        stand_in("INS_ACCOFFS_Y", Real32, 0),
+        stand_in("INS_ACCOFFS_Z", Real32, 0),
+        stand_in("COMPASS_DEV_ID", Int32, 0),
+        stand_in("COMPASS_DEV_ID2", Int32, 0),
+        stand_in("COMPASS_DEV_ID3", Int32, 0),
+        stand_in("COMPASS_OFS_X", Real32, 0),
+        stand_in("COMPASS_OFS_Y", Real32, 0),
+        stand_in("COMPASS_OFS_Z", Real32, 0),
+        stand_in("COMPASS_OFS2_X", Real32, 0),
+        stand_in("COMPASS_OFS2_Y", Real32, 0),
+        stand_in("COMPASS_OFS2_Z", Real32, 0),
+        stand_in("COMPASS_OFS3_X", Real32, 0),
+        stand_in("COMPASS_OFS3_Y", Real32, 0),
+        stand_in("COMPASS_OFS3_Z", Real32, 0),
+        stand_in("COMPASS_DEC", Real32, 0),
+        stand_in("FLTMODE1", Int8, 19),
+        stand_in("FLTMODE2", Int8, 19),
+        stand_in("FLTMODE3", Int8, 19),
+        stand_in("FLTMODE4", Int8, 19),
+        stand_in("FLTMODE5", Int8, 19),
+        stand_in("FLTMODE6", Int8, 19),
+        stand_in("FS_EKF_ACTION", Int8, 0),
+        stand_in("FS_LEAK_ENABLE", Int8, 1),
+        stand_in("FS_TEMP_ENABLE", Int8, 0),
+        stand_in("FS_PRESS_ENABLE", Int8, 0),
+        stand_in("SERVO5_FUNCTION", Int16, 0),
+        stand_in("SERVO6_FUNCTION", Int16, 0),
+        stand_in("SERVO7_FUNCTION", Int16, 0),
+        stand_in("SERVO8_FUNCTION", Int16, 0),
+        stand_in("SERVO9_FUNCTION", Int16, 0),
+        stand_in("SERVO10_FUNCTION", Int16, 0),
+        stand_in("SERVO11_FUNCTION", Int16, 0),
+        stand_in("SERVO12_FUNCTION", Int16, 0),
+        stand_in("SERVO13_FUNCTION", Int16, 0),
+        stand_in("SERVO14_FUNCTION", Int16, 0),
+        stand_in("BATT_MONITOR", Int8, -1),
+    ]
+};
+
+/// How many parameters a ground station sees: the settings, then the stand-ins.
+pub const LISTED_COUNT: usize = PARAM_COUNT + STAND_INS.len();
+
+/// A parameter as a ground station sees it: a setting (index 0..[`PARAM_COUNT`]) or a stand-in after them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Listed {
+    Setting(Param),
+    StandIn { index: u16, stand_in: StandIn },
+}
+
+impl Listed {
+    /// Every one, in index order.
+    pub fn all() -> impl Iterator<Item = Listed> {
+        let stand_ins = (PARAM_COUNT as u16..).zip(STAND_INS);
+        Param::ALL
+            .into_iter()
+            .map(Self::Setting)
+            .chain(stand_ins.map(|(index, stand_in)| Self::StandIn { index, stand_in }))
+    }
+
+    /// The one at an index.
+    pub fn from_index(index: u16) -> Option<Listed> {
+        let Some(n) = usize::from(index).checked_sub(PARAM_COUNT) else {
+            return Param::from_index(index).map(Self::Setting);
+        };
+        let stand_in = *STAND_INS.get(n)?;
+        Some(Self::StandIn { index, stand_in })
+    }
+
+    /// The one of a NUL-padded MAVLink name (exact, case-sensitive, as ArduPilot matches).
+    pub(crate) fn from_id(id: &ParamId) -> Option<Listed> {
+        let len = id.iter().position(|byte| *byte == 0).unwrap_or(id.len());
+        let name = id.get(..len)?;
+        Self::all().find(|listed| listed.name().as_bytes() == name)
+    }
+
+    /// The MAVLink name (at most 16 characters).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Setting(param) => param.name(),
+            Self::StandIn { stand_in, .. } => stand_in.name,
+        }
+    }
+
+    /// The NUL-padded MAVLink name.
+    pub fn id(self) -> ParamId {
+        let mut id = [0; 16];
+        for (slot, byte) in id.iter_mut().zip(self.name().bytes()) {
+            *slot = byte;
+        }
+        id
+    }
+
+    /// The index in PARAM_VALUE.
+    pub fn index(self) -> u16 {
+        match self {
+            Self::Setting(param) => param.index(),
+            Self::StandIn { index, .. } => index,
+        }
+    }
+
+    /// Its MAVLink type.
+    pub fn param_type(self) -> ParamType {
+        match self {
+            Self::Setting(param) => param.param_type(),
+            Self::StandIn { stand_in, .. } => stand_in.param_type,
+        }
+    }
+
+    /// Its value in its own unit, with `params` in force.
+    pub fn value(self, params: &Params) -> i32 {
+        match self {
+            Self::Setting(param) => params.get(param),
+            Self::StandIn { stand_in, .. } => i32::from(stand_in.value),
+        }
+    }
+
+    /// A value in its own unit as MAVLink carries it.
+    pub fn to_float(self, value: i32) -> f32 {
+        match self {
+            Self::Setting(param) => param.to_float(value),
+            Self::StandIn { .. } => value as f32,
+        }
     }
 }
 
@@ -562,6 +723,13 @@ impl Settings {
 mod tests {
     use super::*;
 
+    fn setting(id: &ParamId) -> Option<Param> {
+        match Listed::from_id(id)? {
+            Listed::Setting(param) => Some(param),
+            Listed::StandIn { .. } => None,
+        }
+    }
+
     fn id(name: &str) -> ParamId {
         let mut id = [0; 16];
         id[..name.len()].copy_from_slice(name.as_bytes());
@@ -574,14 +742,14 @@ mod tests {
             assert_eq!(usize::from(param.index()), n);
             assert_eq!(Param::from_index(param.index()), Some(param));
             assert!(param.name().len() <= 16);
-            assert_eq!(Param::from_id(&param.id()), Some(param));
+            assert_eq!(setting(&param.id()), Some(param));
             assert!(param.accepts(param.default_value()), "{param:?}");
         }
         assert_eq!(Param::from_index(PARAM_COUNT as u16), None);
-        assert_eq!(Param::from_id(&id("fs_gcs_enable")), None, "case-sensitive");
-        assert_eq!(Param::from_id(&id("FS_GCS_ENABLEX")), None);
+        assert_eq!(setting(&id("fs_gcs_enable")), None, "case-sensitive");
+        assert_eq!(setting(&id("FS_GCS_ENABLEX")), None);
         assert_eq!(
-            Param::from_id(b"FS_PILOT_TIMEOUT"),
+            setting(b"FS_PILOT_TIMEOUT"),
             Some(Param::PilotTimeout),
             "16 bytes, no NUL"
         );
@@ -605,7 +773,7 @@ mod tests {
     #[test]
     fn updates_over_a_link_without_signing_are_refused_unless_allowed_while_disarmed() {
         let mut params = Params::defaults(FrameKind::Lbv300_6);
-        assert_eq!(Param::from_id(&id("LBV_UPD_UNSIGNED")), Some(Param::UnsignedUpdates));
+        assert_eq!(setting(&id("LBV_UPD_UNSIGNED")), Some(Param::UnsignedUpdates));
         assert!(!params.unsigned_updates(), "refused by default");
         assert!(params.set(Param::UnsignedUpdates, 1));
         assert!(params.unsigned_updates());
@@ -655,7 +823,7 @@ mod tests {
         assert!(params.set(Param::GcsFailsafe, 1));
         assert_eq!(params.gcs_failsafe(), GcsFailsafe::Warn);
         // Earlier images' 3 (neutral) is 1 with LBV_GCS_NEUTRAL.
-        assert_eq!(Param::from_id(&id("LBV_GCS_NEUTRAL")), Some(Param::GcsNeutral));
+        assert_eq!(setting(&id("LBV_GCS_NEUTRAL")), Some(Param::GcsNeutral));
         assert_eq!(Param::GcsNeutral.default_value(), 0);
         assert!(!Param::GcsNeutral.is_button() && !Param::GcsNeutral.only_disarmed());
         assert!(params.set(Param::GcsNeutral, 1));
@@ -758,10 +926,59 @@ mod tests {
             let fits = match param.param_type() {
                 ParamType::Int8 => i32::from(i8::MIN) <= min && max <= i32::from(i8::MAX),
                 ParamType::Int16 => i32::from(i16::MIN) <= min && max <= i32::from(i16::MAX),
-                ParamType::Real32 => true,
+                ParamType::Int32 | ParamType::Real32 => true,
             };
             assert!(fits, "{param:?}");
         }
+    }
+
+    #[test]
+    fn the_stand_ins_follow_the_settings_and_say_absent_disabled_or_manual() {
+        let params = Params::defaults(FrameKind::Lbv300_6);
+        let all: Vec<Listed> = Listed::all().collect();
+        assert_eq!(all.len(), LISTED_COUNT);
+        for (n, listed) in all.iter().enumerate() {
+            assert_eq!(usize::from(listed.index()), n);
+            assert_eq!(Listed::from_index(n as u16), Some(*listed));
+            assert_eq!(Listed::from_id(&listed.id()), Some(*listed), "names are unique");
+            assert!(listed.name().len() <= 16);
+            assert_eq!(matches!(listed, Listed::Setting(_)), n < PARAM_COUNT);
+        }
+        assert_eq!(Listed::from_index(LISTED_COUNT as u16), None);
+        let value = |name: &str| {
+            let listed = Listed::from_id(&id(name)).unwrap();
+            assert!(matches!(listed, Listed::StandIn { .. }), "{name}");
+            (listed.to_float(listed.value(&params)), listed.param_type())
+        };
+        // What QGroundControl's sensors check reads: no accelerometer calibration is claimed, no compass is there.
+        for axis in ["X", "Y", "Z"] {
+            assert_eq!(value(&format!("INS_ACCOFFS_{axis}")), (0.0, ParamType::Real32));
+            for compass in ["", "2", "3"] {
+                assert_eq!(value(&format!("COMPASS_OFS{compass}_{axis}")), (0.0, ParamType::Real32));
+            }
+        }
+        for id in ["COMPASS_DEV_ID", "COMPASS_DEV_ID2", "COMPASS_DEV_ID3"] {
+            assert_eq!(value(id), (0.0, ParamType::Int32), "AP_Int32, 0: no compass");
+        }
+        assert_eq!(value("COMPASS_DEC"), (0.0, ParamType::Real32));
+        // Every mode slot is MANUAL (ArduSub's 19), the one mode there is.
+        for n in 1..=6 {
+            assert_eq!(value(&format!("FLTMODE{n}")), (19.0, ParamType::Int8));
+        }
+        // No estimator, no internal temperature or pressure sensor; a thruster's water is warned of.
+        assert_eq!(value("FS_EKF_ACTION"), (0.0, ParamType::Int8));
+        assert_eq!(value("FS_TEMP_ENABLE"), (0.0, ParamType::Int8));
+        assert_eq!(value("FS_PRESS_ENABLE"), (0.0, ParamType::Int8));
+        assert_eq!(value("FS_LEAK_ENABLE"), (1.0, ParamType::Int8), "warn only");
+        for n in 5..=14 {
+            assert_eq!(value(&format!("SERVO{n}_FUNCTION")), (0.0, ParamType::Int16));
+        }
+        assert_eq!(
+            value("BATT_MONITOR"),
+            (-1.0, ParamType::Int8),
+            "none of ArduPilot's numbers"
+        );
+        assert_eq!(setting(&id("INS_ACCOFFS_X")), None, "not a setting");
     }
 
     #[test]

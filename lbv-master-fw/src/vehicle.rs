@@ -79,7 +79,9 @@ use tmc_proto::{Order, Speed};
 
 use crate::console::signing::SigningKey;
 use crate::mixer::{FrameKind, ManualInput, mix, round_div};
-use crate::params::{BUTTONS, ButtonFunction, GAIN_STEP, GcsFailsafe, PARAM_COUNT, Param, PilotFailsafe, Settings};
+use crate::params::{
+    BUTTONS, ButtonFunction, GAIN_STEP, GcsFailsafe, LISTED_COUNT, Listed, Param, PilotFailsafe, Settings,
+};
 use crate::shared::{
     ARDUSUB_MODE_MANUAL, AckResult, Command, MAV_CMD_COMPONENT_ARM_DISARM, MAV_CMD_DO_MOTOR_TEST, MAV_CMD_DO_SET_MODE,
     MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, MAV_CMD_SET_MESSAGE_INTERVAL, MAX_THRUSTERS, Message, Outgoing, Request, Sender,
@@ -256,12 +258,12 @@ impl Vehicle {
                 accepted: count == 0,
             }),
             Command::ParamRequestRead { id, index } => {
-                let param = match u16::try_from(index) {
-                    Ok(index) => Param::from_index(index),
-                    Err(_) => Param::from_id(&id),
+                let listed = match u16::try_from(index) {
+                    Ok(index) => Listed::from_index(index),
+                    Err(_) => Listed::from_id(&id),
                 };
-                if let Some(param) = param {
-                    self.param_value(param, out);
+                if let Some(listed) = listed {
+                    self.param_value(listed, out);
                 }
             }
             Command::RequestMessage {
@@ -345,17 +347,21 @@ impl Vehicle {
             }
             // Only an image without the update server sends it here (the console hands it to the update task).
             Command::Update { action, .. } => ack(out, action.command(), AckResult::Unsupported, from),
-            Command::ParamSet { id, value, param_type } => match Param::from_id(&id) {
-                Some(param) if !param.takes_type(param_type) => {
+            Command::ParamSet { id, value, param_type } => match Listed::from_id(&id) {
+                Some(stand_in @ Listed::StandIn { .. }) => {
+                    say(out, Severity::Warning, format_args!("{}: read-only", stand_in.name()));
+                    self.param_value(stand_in, out);
+                }
+                Some(Listed::Setting(param)) if !param.takes_type(param_type) => {
                     self.param_type_mismatches = self.param_type_mismatches.wrapping_add(1);
                     say(
                         out,
                         Severity::Warning,
                         format_args!("{}: wrong param_type", param.name()),
                     );
-                    self.param_value(param, out);
+                    self.param_value(Listed::Setting(param), out);
                 }
-                Some(param) => self.param_set(param, value, out),
+                Some(Listed::Setting(param)) => self.param_set(param, value, out),
                 None => {}
             },
             Command::SetupSigning { key, timestamp } => self.setup_signing(key, timestamp, out),
@@ -574,7 +580,7 @@ impl Vehicle {
             gain.saturating_sub(GAIN_STEP).max(GAIN_STEP).min(gain)
         };
         if stepped != gain && self.settings.params.set(Param::Gain, i32::from(stepped)) {
-            self.param_value(Param::Gain, out);
+            self.param_value(Listed::Setting(Param::Gain), out);
             out(PILOT_GAIN);
         }
         say(out, Severity::Info, format_args!("Pilot gain {stepped} %"));
@@ -625,13 +631,13 @@ impl Vehicle {
         );
     }
 
-    fn param_value(&self, param: Param, out: &mut impl FnMut(Outgoing)) {
+    fn param_value(&self, listed: Listed, out: &mut impl FnMut(Outgoing)) {
         out(Outgoing::ParamValue {
-            id: param.id(),
-            value: param.to_float(self.settings.params.get(param)),
-            param_type: param.param_type(),
-            index: param.index(),
-            count: PARAM_COUNT as u16,
+            id: listed.id(),
+            value: listed.to_float(listed.value(&self.settings.params)),
+            param_type: listed.param_type(),
+            index: listed.index(),
+            count: LISTED_COUNT as u16,
         });
     }
 
@@ -653,7 +659,7 @@ impl Vehicle {
             ),
             _ => say(out, Severity::Warning, format_args!("{name}: range {min}..{max}")),
         }
-        self.param_value(param, out);
+        self.param_value(Listed::Setting(param), out);
         if set && param == Param::Gain {
             out(PILOT_GAIN);
         }

@@ -9,9 +9,10 @@ its prompt would. MAVProxy forwards what the vehicle sends to OBSERVER_PORT, whe
 message for the detailed checks (it never sends). The steps:
 
     connect        MAVProxy sees the vehicle (HEARTBEAT of a submarine)
-    params         MAVProxy's own parameter download gets all 27 over FTP (`@PARAM/param.pck`, decoded by
+    params         MAVProxy's own parameter download gets all 64 over FTP (`@PARAM/param.pck`, decoded by
                    MAVProxy); then `param fetch` without FTP: the PARAM_VALUE list has the same values, each with
-                   its type (the timeouts REAL32, SYSID_MYGCS INT16, the others INT8)
+                   its type: ArduSub's for the ArduSub names (the timeouts and the read-only sensor offsets REAL32,
+                   SYSID_MYGCS and SERVOn_FUNCTION INT16, the compass ids INT32), INT8 for the others
     version        `version`: MAV_CMD_REQUEST_MESSAGE AUTOPILOT_VERSION is accepted and answered (MAVLink 2,
                    COMMAND_INT and C_CAST parameters, no mission or FTP, the bench's unique id)
     plans          `wp list`, `fence list`, `rally list`: MAVProxy asks for each plan and is told it holds
@@ -49,11 +50,24 @@ except ImportError as error:
     sys.exit(3)
 
 VEHICLE = 1
-PARAMS = 27
+# The 27 settings and the 37 read-only stand-ins for ArduSub's (lbv-master-fw's params::STAND_INS).
+PARAMS = 64
 HOLD_S = 8.0
-# The parameters' MAVLink types as the vehicle declares them.
-REAL32_PARAMS = ("FS_GCS_TIMEOUT", "FS_PILOT_TIMEOUT")
-INT16_PARAMS = ("SYSID_MYGCS",)
+
+
+def param_type(name):
+    """A parameter's MAVLink type, as ArduSub declares the parameter of that name (AP_Float, AP_Vector3f, AP_Int16,
+    AP_Int32), INT8 for the rest."""
+    floats = ("FS_GCS_TIMEOUT", "FS_PILOT_TIMEOUT", "COMPASS_DEC")
+    if name in floats or name.startswith(("INS_ACCOFFS_", "COMPASS_OFS")):
+        return mav.MAV_PARAM_TYPE_REAL32
+    if name == "SYSID_MYGCS" or (name.startswith("SERVO") and name.endswith("_FUNCTION")):
+        return mav.MAV_PARAM_TYPE_INT16
+    if name.startswith("COMPASS_DEV_ID"):
+        return mav.MAV_PARAM_TYPE_INT32
+    return mav.MAV_PARAM_TYPE_INT8
+
+
 # AUTOPILOT_VERSION: MAVLINK2 | COMMAND_INT | PARAM_ENCODE_C_CAST, and the unique id `lbv bench` gives its master.
 CAPABILITIES = 0x2000 | 0x8 | 0x20000
 BENCH_UID = b"LBV bench 01"
@@ -219,20 +233,14 @@ class Pilot:
         self.wait(lambda: len(listed()) == PARAMS, 10.0, "the parameter list")
         types = {name: m.param_type for name, m in listed().items()}
         self.summary["param_types"] = types
-        for name, param_type in types.items():
-            if name in REAL32_PARAMS:
-                wanted = mav.MAV_PARAM_TYPE_REAL32
-            elif name in INT16_PARAMS:
-                wanted = mav.MAV_PARAM_TYPE_INT16
-            else:
-                wanted = mav.MAV_PARAM_TYPE_INT8
-            if param_type != wanted:
-                raise Failed(f"PARAM_VALUE {name}: type {param_type}, not {wanted}")
+        for name, declared in types.items():
+            if declared != param_type(name):
+                raise Failed(f"PARAM_VALUE {name}: type {declared}, not {param_type(name)}")
         values = {name: round(m.param_value, 4) for name, m in listed().items()}
         self.summary["ftp_params"] = ftp
         if {name: round(value, 4) for name, value in ftp.items()} != values:
             raise Failed(f"param.pck read by MAVProxy {ftp} is not the list {values}")
-        # The list cost MAVProxy 27 frames of its 40-frame allowance (lbv-master-fw's console::limit, 10 frames a
+        # The list cost MAVProxy 64 frames of its 80-frame allowance (lbv-master-fw's console::limit, 10 frames a
         # second back): a pilot's next requests come seconds later, and so do the next steps'.
         rested = time.monotonic() + 3.0
         self.wait(lambda: time.monotonic() >= rested, 4.0, "the allowance refilled")

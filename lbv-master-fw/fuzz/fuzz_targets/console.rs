@@ -19,7 +19,7 @@ use lbv_master_fw::console::lbv::{
     PARAM_REQUEST_LIST_DATA, PARAM_REQUEST_READ_DATA, PARAM_SET_DATA, SETUP_SIGNING_DATA,
 };
 use lbv_master_fw::console::{ConsoleConfig, ConsoleCounters, ConsoleStats, Received, Receiver};
-use lbv_master_fw::params::{Param, Settings};
+use lbv_master_fw::params::{LISTED_COUNT, Listed, Param, Settings};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Shared};
 use lbv_master_fw::console::signing::{SIGNATURE_LEN, SigningState, TIMESTAMP_MAX, reservation_after};
 use lbv_master_fw::vehicle::{Vehicle, VehicleConfig};
@@ -133,7 +133,8 @@ const CONFIG: ConsoleConfig = ConsoleConfig::DEFAULT;
 
 fn id(name: Name) -> [u8; 16] {
     match name {
-        Name::Known(n) => Param::ALL[usize::from(n) % Param::ALL.len()].id(),
+        // A setting's name, or a read-only stand-in's.
+        Name::Known(n) => Listed::from_index(u16::from(n) % LISTED_COUNT as u16).map_or([0; 16], Listed::id),
         Name::Raw(raw) => raw,
     }
 }

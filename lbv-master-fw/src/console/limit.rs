@@ -12,9 +12,9 @@
 //! on the link is, and counted ([`crate::console::ConsoleCounters::rate_limited`]); a ground station asks again.
 //! What a request costs is [`cost`].
 //!
-//! The numbers: [`BURST`] (40 frames) holds what a ground station asks at once when it connects (the parameter
-//! list, now 27 frames, AUTOPILOT_VERSION and a few messages, or an SDK's ten REQUEST_MESSAGEs), and a listing of
-//! the update directory (eight requests); one frame every 100 ms is a whole parameter list every 2.7 s, some
+//! The numbers: [`BURST`] (80 frames) holds what a ground station asks at once when it connects (the parameter
+//! list, now 64 frames, AUTOPILOT_VERSION and a few messages, or an SDK's ten REQUEST_MESSAGEs), and a listing of
+//! the update directory (eight requests); one frame every 100 ms is a whole parameter list every 6.4 s, some
 //! 370 bytes a second (500 signed), 3-4 % of the console's 115200 baud. [`REQUESTERS`] (4) requesters
 //! are kept apart (the operator's ground station, a companion computer, a second station and one more); any
 //! others share one more allowance, so that a flood from ever new system ids gets five allowances at most: some
@@ -32,13 +32,13 @@
 
 use embassy_time::{Duration, Instant};
 
-use crate::params::PARAM_COUNT;
+use crate::params::LISTED_COUNT;
 use crate::shared::{Command, Sender};
 
 /// What one frame sent costs a requester's allowance: it refills at ten frames a second.
 pub(crate) const FRAME_COST: Duration = Duration::from_millis(100);
 /// The frames a full allowance holds.
-pub const BURST: u32 = 40;
+pub const BURST: u32 = 80;
 /// Requesters kept apart; the others share one allowance.
 pub(crate) const REQUESTERS: usize = 4;
 /// The bytes a second of the operator's file reads: half of what the console's 115200-baud line carries (11,520
@@ -55,7 +55,7 @@ pub(crate) const READ_BURST: u32 = 16 * 251;
 /// at most one frame smaller than the request (a COMMAND_ACK for a COMMAND_LONG), or not at all.
 pub(crate) const fn cost(command: &Command) -> u32 {
     match command {
-        Command::ParamRequestList => PARAM_COUNT as u32,
+        Command::ParamRequestList => LISTED_COUNT as u32,
         Command::ParamRequestRead { .. }
         | Command::MissionRequestList { .. }
         | Command::MissionClear { .. }
@@ -190,27 +190,27 @@ mod tests {
     fn a_full_allowance_takes_a_burst_then_refills_at_ten_frames_a_second() {
         let mut limiter = Limiter::new();
         let list = cost(&Command::ParamRequestList);
-        assert_eq!(list, 27);
-        // A parameter list at once, with 13 frames to spare (AUTOPILOT_VERSION and a few messages), not a second.
+        assert_eq!(list, 64);
+        // A parameter list at once, with 16 frames to spare (AUTOPILOT_VERSION and a few messages), not a second.
         assert_eq!(through(&mut limiter, GCS, list, at(1000), 10), 1);
-        assert_eq!(through(&mut limiter, GCS, 13, at(1000), 10), 1);
-        // One more each 2.7 s.
-        assert_eq!(through(&mut limiter, GCS, list, at(3699), 10), 0);
-        assert_eq!(through(&mut limiter, GCS, list, at(3700), 10), 1);
-        assert_eq!(through(&mut limiter, GCS, 1, at(3800), 10), 1);
-        // Idle for four seconds: full again.
-        assert_eq!(through(&mut limiter, GCS, list, at(7800), 10), 1);
-        assert_eq!(through(&mut limiter, GCS, 13, at(7800), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 16, at(1000), 10), 1);
+        // One more each 6.4 s.
+        assert_eq!(through(&mut limiter, GCS, list, at(7399), 10), 0);
+        assert_eq!(through(&mut limiter, GCS, list, at(7400), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 1, at(7500), 10), 1);
+        // Idle for eight seconds: full again.
+        assert_eq!(through(&mut limiter, GCS, list, at(15_500), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 16, at(15_500), 10), 1);
         // Sustained: 10 frames a second, whatever is asked.
         let mut sent = 0;
-        for ms in (10_000..20_000).step_by(10) {
+        for ms in (20_000..30_000).step_by(10) {
             sent += through(&mut limiter, GCS, 2, at(ms), 5) * 2;
         }
         assert!((100..=100 + BURST).contains(&sent), "{sent} frames in 10 s");
         // Commands answered with one small frame, or none, cost nothing.
         assert_eq!(cost(&Command::Heartbeat), 0);
         assert_eq!(cost(&Command::Arm(true)), 0);
-        assert_eq!(through(&mut limiter, GCS, 0, at(20_000), 1000), 1000);
+        assert_eq!(through(&mut limiter, GCS, 0, at(30_000), 1000), 1000);
     }
 
     #[test]
@@ -227,7 +227,7 @@ mod tests {
         }
         assert!((57_600..=57_600 + READ_BURST).contains(&bytes), "{bytes} bytes in 10 s");
         // The frames' allowances are apart: a parameter list still goes at once.
-        assert!(limiter.allow(GCS, 27, 255, at(12_000)));
+        assert!(limiter.allow(GCS, cost(&Command::ParamRequestList), 255, at(12_000)));
     }
 
     #[test]
@@ -236,15 +236,15 @@ mod tests {
         let now = at(500);
         // Four requesters, each its own allowance, the operator's station among them.
         for requester in [GCS, sender(255, 1), sender(77, 1), sender(77, 2)] {
-            assert_eq!(through(&mut limiter, requester, 10, now, 10), 4, "{requester:?}");
+            assert_eq!(through(&mut limiter, requester, 20, now, 10), 4, "{requester:?}");
         }
         // Any more share one: a flood from new ids gets one allowance more, no more.
         let shared: u32 = (0..50)
-            .map(|n| through(&mut limiter, sender(100 + n, 1), 10, now, 10))
+            .map(|n| through(&mut limiter, sender(100 + n, 1), 20, now, 10))
             .sum();
         assert_eq!(shared, 4);
         // The operator's station keeps its own, empty for now, and refills.
-        assert_eq!(through(&mut limiter, GCS, 10, at(1500), 10), 1);
+        assert_eq!(through(&mut limiter, GCS, 20, at(2500), 10), 1);
     }
 
     #[test]
@@ -253,22 +253,22 @@ mod tests {
         let now = at(500);
         // Four other systems take every place, and keep asking.
         for system in 1..=4 {
-            assert_eq!(through(&mut limiter, sender(system, 1), 10, now, 10), 4);
+            assert_eq!(through(&mut limiter, sender(system, 1), 20, now, 10), 4);
         }
         // The shared allowance drained by a fifth.
-        assert_eq!(through(&mut limiter, sender(9, 1), 10, now, 10), 4);
+        assert_eq!(through(&mut limiter, sender(9, 1), 20, now, 10), 4);
         // The operator's station takes the place of another system's, with a full allowance.
-        assert_eq!(through(&mut limiter, GCS, 10, now, 10), 4);
+        assert_eq!(through(&mut limiter, GCS, 20, now, 10), 4);
         // The system it displaced goes to the shared allowance, which is empty.
-        assert_eq!(through(&mut limiter, sender(1, 1), 10, now, 10), 0);
+        assert_eq!(through(&mut limiter, sender(1, 1), 20, now, 10), 0);
         // A requester whose allowance is full gives its place up to a new one, losing nothing.
         let mut limiter = Limiter::new();
         for system in 1..=4 {
             assert_eq!(through(&mut limiter, sender(system, 1), 1, now, 1), 1);
         }
-        assert_eq!(through(&mut limiter, sender(5, 1), 10, at(700), 10), 4);
+        assert_eq!(through(&mut limiter, sender(5, 1), 20, at(700), 10), 4);
         assert_eq!(
-            through(&mut limiter, sender(6, 1), 10, at(700), 10),
+            through(&mut limiter, sender(6, 1), 20, at(700), 10),
             4,
             "another idle one's"
         );

@@ -773,6 +773,7 @@ pub(crate) fn param_value(id: &ParamId, value: f32, param_type: ParamType, index
         param_type: match param_type {
             ParamType::Int8 => MavParamType::MAV_PARAM_TYPE_INT8,
             ParamType::Int16 => MavParamType::MAV_PARAM_TYPE_INT16,
+            ParamType::Int32 => MavParamType::MAV_PARAM_TYPE_INT32,
             ParamType::Real32 => MavParamType::MAV_PARAM_TYPE_REAL32,
         },
         param_count: count,

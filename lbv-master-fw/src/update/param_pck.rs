@@ -5,9 +5,9 @@
 //!
 //! The file, all little-endian:
 //! - a 6-byte header: magic 0x671B (0x671C with defaults), how many parameters follow, how many the vehicle has;
-//! - per parameter, in index order: a byte of its type (low nibble: 1 INT8, 2 INT16, 4 FLOAT, as AP_Param numbers
-//!   them; MAVLink's own types are in [`crate::params::ParamType`]) and flags (high nibble: bit 0, a default
-//!   follows the value); a byte of how many leading name bytes it shares with the previous parameter's (low
+//! - per parameter, in index order: a byte of its type (low nibble: 1 INT8, 2 INT16, 3 INT32, 4 FLOAT, as
+//!   AP_Param numbers them; MAVLink's own types are in [`crate::params::ParamType`]) and flags (high nibble: bit 0,
+//!   a default follows the value); a byte of how many leading name bytes it shares with the previous parameter's (low
 //!   nibble, at most 15) and how many follow, less one (high nibble); those name bytes; the value; with defaults,
 //!   for a parameter whose value is not its default, the default;
 //! - zero bytes before a parameter wherever its value and default would otherwise cross a 239-byte block (FTP's
@@ -26,7 +26,7 @@
 //! download is the parameters as they stood at one moment, never a value torn between two.
 
 use crate::mixer::FrameKind;
-use crate::params::{PARAM_COUNT, Param, ParamType, Params};
+use crate::params::{LISTED_COUNT, Listed, Param, ParamType, Params};
 pub use crate::shared::ParamFile;
 use crate::update::ftp::crc32;
 use crate::update::window::Window;
@@ -99,18 +99,18 @@ impl ParamFile {
         let defaults = Params::defaults(self.frame);
         let magic = if self.with_defaults { MAGIC_WITH_DEFAULTS } else { MAGIC };
         let [m0, m1] = magic.to_le_bytes();
-        let [c0, c1] = (PARAM_COUNT as u16).to_le_bytes();
+        let [c0, c1] = (LISTED_COUNT as u16).to_le_bytes();
         // How many it lists, then how many there are: all of them.
         out.put(&[m0, m1, c0, c1, c0, c1]);
         let mut previous: &[u8] = &[];
-        for param in Param::ALL {
-            let name = param.name().as_bytes();
+        for listed in Listed::all() {
+            let name = listed.name().as_bytes();
             // At most 15 bytes shared (a nibble), and at least one of its own.
             let shared = previous.iter().zip(name).take_while(|(a, b)| a == b).count();
             let shared = shared.min(15).min(name.len().saturating_sub(1));
             let own = name.get(shared..).unwrap_or_default();
-            let (kind, value) = packed(param, params.get(param));
-            let (_, default) = packed(param, defaults.get(param));
+            let (kind, value) = packed(listed, listed.value(params));
+            let (_, default) = packed(listed, listed.value(&defaults));
             let with_default = self.with_defaults && value != default;
             let size = kind.size();
             let data = size * (1 + u32::from(with_default));
@@ -138,6 +138,7 @@ impl ParamFile {
 enum Kind {
     Int8,
     Int16,
+    Int32,
     Float,
 }
 
@@ -146,6 +147,7 @@ impl Kind {
         match self {
             Self::Int8 => 1,
             Self::Int16 => 2,
+            Self::Int32 => 3,
             Self::Float => 4,
         }
     }
@@ -154,21 +156,22 @@ impl Kind {
         match self {
             Self::Int8 => 1,
             Self::Int16 => 2,
-            Self::Float => 4,
+            Self::Int32 | Self::Float => 4,
         }
     }
 }
 
 /// `value` (the parameter's own unit) as the file carries it: its type, and its bytes (the first [`Kind::size`]).
 /// An integer parameter's value is in its type's range ([`Params`] keeps every value in the parameter's).
-fn packed(param: Param, value: i32) -> (Kind, [u8; 4]) {
-    match param.param_type() {
+fn packed(listed: Listed, value: i32) -> (Kind, [u8; 4]) {
+    match listed.param_type() {
         ParamType::Int8 => (Kind::Int8, [value as i8 as u8, 0, 0, 0]),
         ParamType::Int16 => {
             let [b0, b1] = (value as i16).to_le_bytes();
             (Kind::Int16, [b0, b1, 0, 0])
         }
-        ParamType::Real32 => (Kind::Float, param.to_float(value).to_le_bytes()),
+        ParamType::Int32 => (Kind::Int32, value.to_le_bytes()),
+        ParamType::Real32 => (Kind::Float, listed.to_float(value).to_le_bytes()),
     }
 }
 

@@ -1,6 +1,6 @@
 use super::*;
 use crate::config::{VEHICLE, devkit, lbv300_6};
-use crate::params::{Param, Params};
+use crate::params::{LISTED_COUNT, Listed, Param, Params};
 use crate::shared::{MAV_CMD_LBV_APPLY_UPDATE, MAV_CMD_LBV_QUERY_VERSION};
 use crate::sim::{ReceivedImage, UpdateRecorder};
 use crate::update::sys::{ImageState, Running};
@@ -1351,9 +1351,13 @@ fn param_pck_lists_every_parameter_as_ardupilot_packs_them() {
     let (len, file) = s.get_file(0, with_params(changed_params()), 1, PARAM_PCK, BURST, 239);
     assert_eq!(len as usize, file.len());
     let unpacked = unpack(&file);
-    assert_eq!((unpacked.magic, unpacked.count, unpacked.total), (0x671B, 27, 27));
+    let listed = LISTED_COUNT as u16;
+    assert_eq!(
+        (unpacked.magic, unpacked.count, unpacked.total),
+        (0x671B, listed, listed)
+    );
     let names: Vec<&str> = unpacked.params.iter().map(|(name, ..)| name.as_str()).collect();
-    let expected: Vec<&str> = Param::ALL.iter().map(|param| param.name()).collect();
+    let expected: Vec<&str> = Listed::all().map(|listed| listed.name()).collect();
     assert_eq!(names, expected);
     let find = |name: &str| unpacked.params.iter().find(|(n, ..)| n == name).unwrap().clone();
     // Each type as AP_Param numbers it, with the value in the displayed unit.
@@ -1368,6 +1372,12 @@ fn param_pck_lists_every_parameter_as_ardupilot_packs_them() {
     );
     assert_eq!(find("FS_PILOT_TIMEOUT").2, 3.0f32.to_le_bytes());
     assert_eq!(find("LBV_FRAME").2, [4]);
+    // The read-only stand-ins after the settings, INT32 among them.
+    assert_eq!(find("COMPASS_DEV_ID2"), ("COMPASS_DEV_ID2".into(), 3, vec![0; 4], None));
+    assert_eq!(find("INS_ACCOFFS_Z").2, 0.0f32.to_le_bytes());
+    assert_eq!(find("FLTMODE6").2, [19]);
+    assert_eq!(find("SERVO14_FUNCTION").1, 2);
+    assert_eq!(find("BATT_MONITOR").2, [0xFF], "-1");
     // A name shares its start with the one before: BTN1_FUNCTION sends "1_FUNCTION" after "BTN".
     assert!(
         file.windows(12).any(|w| w == b"\x01\x931_FUNCTION"),
@@ -1387,7 +1397,7 @@ fn param_pck_with_defaults_carries_the_default_of_each_parameter_changed() {
     let (len, file) = s.get_file(0, with_params(changed_params()), 1, path, BURST, 239);
     assert_eq!(len as usize, file.len());
     let unpacked = unpack(&file);
-    assert_eq!((unpacked.magic, unpacked.count), (0x671C, 27));
+    assert_eq!((unpacked.magic, unpacked.count), (0x671C, LISTED_COUNT as u16));
     let with_defaults: Vec<(&str, &[u8])> = unpacked
         .params
         .iter()
@@ -1421,7 +1431,11 @@ fn param_pck_takes_ardupilots_query_and_refuses_what_it_cannot_serve() {
     let magic = |path: &[u8], s: &mut Server| {
         let (_, file) = s.get_file(0, context, 1, path, BURST, 239);
         let unpacked = unpack(&file);
-        assert_eq!((unpacked.count, unpacked.total, unpacked.params.len()), (27, 27, 27));
+        let listed = LISTED_COUNT as u16;
+        assert_eq!(
+            (unpacked.count, unpacked.total, unpacked.params.len()),
+            (listed, listed, LISTED_COUNT)
+        );
         unpacked.magic
     };
     assert_eq!(magic(b"@PARAM/param.pck?withdefaults=0", &mut s), 0x671B);
@@ -1741,7 +1755,7 @@ fn a_read_is_served_to_the_console_with_its_snapshot_and_framed_whole() {
             crash: None,
             black_box: None,
         })[12..18],
-        [0x1B, 0x67, 27, 0, 27, 0]
+        [0x1B, 0x67, 64, 0, 64, 0]
     );
     // The console without the settings (never, once the file is open) sends a NAK rather than other values.
     assert_eq!(reply.payload(&Contents::NOTHING)[..6], [7, 0, 1, NAK, 1, BURST]);

@@ -1,6 +1,6 @@
 use super::*;
 use crate::battery::tests::elapse;
-use crate::params::{ParamId, Params};
+use crate::params::{PARAM_COUNT, ParamId, Params};
 use crate::shared::{Interval, Message};
 use embassy_futures::block_on;
 
@@ -106,14 +106,14 @@ fn value(param: Param, value: f32) -> Outgoing {
         value,
         param_type: param.param_type(),
         index: param.index(),
-        count: PARAM_COUNT as u16,
+        count: LISTED_COUNT as u16,
     }
 }
 
 /// PARAM_SET with the parameter's own type (REAL32 for an unknown name), as a ground station sends it after
 /// reading the parameters.
 fn set(name: &str, value: f32) -> Command {
-    let param_type = Param::from_id(&id(name)).map_or(9, |param| param.param_type().mav());
+    let param_type = Listed::from_id(&id(name)).map_or(9, |listed| listed.param_type().mav());
     Command::ParamSet {
         id: id(name),
         value,
@@ -1077,7 +1077,7 @@ fn parameter_list_and_read() {
         ("LBV_GAINS", -1),
         ("lbv_gain", -1),
         ("", -1),
-        ("LBV_GAIN", PARAM_COUNT as i16),
+        ("LBV_GAIN", LISTED_COUNT as i16),
         ("LBV_GAIN", 300),
     ] {
         assert!(
@@ -1086,6 +1086,61 @@ fn parameter_list_and_read() {
                 .is_empty()
         );
     }
+}
+
+#[test]
+fn a_stand_in_is_read_like_a_setting_and_never_set() {
+    let mut bench = Bench::new(VehicleConfig::default());
+    let before = *bench.params();
+    let answer = |name: &str, value: f32| {
+        let listed = Listed::from_id(&id(name)).unwrap();
+        Outgoing::ParamValue {
+            id: id(name),
+            value,
+            param_type: listed.param_type(),
+            index: listed.index(),
+            count: LISTED_COUNT as u16,
+        }
+    };
+    let fltmode1 = answer("FLTMODE1", 19.0);
+    let Outgoing::ParamValue { index, .. } = fltmode1 else {
+        unreachable!()
+    };
+    assert!(usize::from(index) >= PARAM_COUNT, "after the settings");
+    for request in [
+        Command::ParamRequestRead {
+            id: id("FLTMODE1"),
+            index: -1,
+        },
+        Command::ParamRequestRead {
+            id: id("WRONG"),
+            index: index as i16,
+        },
+    ] {
+        assert_eq!(bench.command(0, request), std::slice::from_ref(&fltmode1));
+    }
+    // A set of any value, of any type, is refused with the value it holds; nothing is stored, nothing counted.
+    for (name, value, held, param_type) in [
+        ("FLTMODE1", 0.0, 19.0, 2),
+        ("INS_ACCOFFS_X", 0.25, 0.0, 9),
+        ("COMPASS_DEV_ID", 97539.0, 0.0, 6),
+        ("BATT_MONITOR", 4.0, -1.0, 9),
+    ] {
+        let set = Command::ParamSet {
+            id: id(name),
+            value,
+            param_type,
+        };
+        assert_eq!(
+            bench.command(0, set),
+            [
+                text(Severity::Warning, &format!("{name}: read-only")),
+                answer(name, held)
+            ]
+        );
+    }
+    assert_eq!(*bench.params(), before);
+    assert_eq!(bench.vehicle.state(t(0)).param_type_mismatches, 0);
 }
 
 #[test]

@@ -454,9 +454,12 @@ fn qgroundcontrol_connect_then_arm(with_file: bool) {
                         (NAK, BURST) => {
                             assert_eq!(data, [EOF], "the end of the file");
                             assert_eq!(Some(pck.len()), pck_len, "the length the open gave");
-                            // With defaults; 27 parameters of 27; the first, FS_GCS_ENABLE 2, at its default.
-                            assert_eq!(pck[..6], [0x1C, 0x67, 27, 0, 27, 0]);
+                            // With defaults; 64 parameters of 64; the first, FS_GCS_ENABLE 2, at its default.
+                            assert_eq!(pck[..6], [0x1C, 0x67, 64, 0, 64, 0]);
                             assert_eq!(pck[6..22], *b"\x01\xC0FS_GCS_ENABLE\x02");
+                            let names = pck_names(&pck);
+                            assert_eq!(names.len(), 64);
+                            setup_reads_nothing_missing(&names);
                             gcs.ftp(ftp_seq, TERMINATE, 0, &[]);
                         }
                         (ACK, TERMINATE) => {
@@ -488,21 +491,23 @@ fn qgroundcontrol_connect_then_arm(with_file: bool) {
                 match values.first() {
                     Some(first) if values.len() == usize::from(first.param_count) => {
                         // Ten of the vehicle's, the sixteen joystick buttons' functions (BTNn_FUNCTION), which
-                        // QGroundControl's ArduSub joystick setup shows, and LBV_GCS_NEUTRAL.
-                        assert_eq!(first.param_count, 27);
+                        // QGroundControl's ArduSub joystick setup shows, LBV_GCS_NEUTRAL, and 37 read-only
+                        // stand-ins for what its setup pages read.
+                        assert_eq!(first.param_count, 64);
                         for (n, p) in values.iter().enumerate() {
                             assert_eq!(usize::from(p.param_index), n);
                             let name = p.param_id.to_str().unwrap();
-                            let expected = match name {
-                                "FS_GCS_TIMEOUT" | "FS_PILOT_TIMEOUT" => MavParamType::MAV_PARAM_TYPE_REAL32,
-                                "SYSID_MYGCS" => MavParamType::MAV_PARAM_TYPE_INT16,
-                                _ => MavParamType::MAV_PARAM_TYPE_INT8,
-                            };
+                            let expected = ardusub_type(name);
                             assert_eq!(p.param_type, expected, "{name}");
                             if expected != MavParamType::MAV_PARAM_TYPE_REAL32 {
                                 assert_eq!(p.param_value.fract(), 0.0, "C_CAST: the float is the integer");
                             }
                         }
+                        let names: Vec<String> = values
+                            .iter()
+                            .map(|p| p.param_id.to_str().unwrap().to_string())
+                            .collect();
+                        setup_reads_nothing_missing(&names);
                         let value = |name: &str| {
                             values
                                 .iter()
@@ -599,6 +604,84 @@ fn qgroundcontrol_connect_then_arm(with_file: bool) {
 
 /// MAV_CMD_DO_SET_MODE.
 const SET_MODE: u16 = 176;
+
+/// What QGroundControl's ArduPilot plugin reads, on an ArduSub below 3.5, once the parameters are in: the sensors
+/// check that decides whether it opens Vehicle Setup (APMSensorsComponent: the accelerometer's offsets, the compass
+/// ids) and the setup pages' summaries (APMSensorParams, the flight modes, safety, lights and power summaries).
+/// Any of them missing raises "Parameters are missing from firmware".
+fn setup_reads() -> Vec<String> {
+    let mut names: Vec<String> = ["COMPASS_DEV_ID", "COMPASS_DEV_ID2", "COMPASS_DEV_ID3", "COMPASS_DEC"]
+        .into_iter()
+        .chain([
+            "FS_EKF_ACTION",
+            "FS_LEAK_ENABLE",
+            "FS_TEMP_ENABLE",
+            "FS_PRESS_ENABLE",
+            "BATT_MONITOR",
+        ])
+        .chain(["FS_GCS_ENABLE", "FS_PILOT_INPUT", "FS_PILOT_TIMEOUT"])
+        .map(String::from)
+        .collect();
+    for axis in ["X", "Y", "Z"] {
+        names.push(format!("INS_ACCOFFS_{axis}"));
+        names.extend(["", "2", "3"].map(|n| format!("COMPASS_OFS{n}_{axis}")));
+    }
+    names.extend((1..=6).map(|n| format!("FLTMODE{n}")));
+    names.extend((5..=14).map(|n| format!("SERVO{n}_FUNCTION")));
+    names
+}
+
+/// Every name QGroundControl's setup reads is among `names`, and its sensors check finds the vehicle without a
+/// compass (every id 0: nothing to calibrate).
+fn setup_reads_nothing_missing(names: &[String]) {
+    let missing: Vec<String> = setup_reads().into_iter().filter(|n| !names.contains(n)).collect();
+    assert!(missing.is_empty(), "missing from the vehicle's parameters: {missing:?}");
+}
+
+/// A parameter's MAVLink type as ArduSub declares the parameter of that name (AP_Float and AP_Vector3f REAL32,
+/// AP_Int16, AP_Int32), INT8 for the others.
+fn ardusub_type(name: &str) -> MavParamType {
+    let float = ["FS_GCS_TIMEOUT", "FS_PILOT_TIMEOUT", "COMPASS_DEC"].contains(&name)
+        || name.starts_with("INS_ACCOFFS_")
+        || name.starts_with("COMPASS_OFS");
+    if float {
+        MavParamType::MAV_PARAM_TYPE_REAL32
+    } else if name == "SYSID_MYGCS" || (name.starts_with("SERVO") && name.ends_with("_FUNCTION")) {
+        MavParamType::MAV_PARAM_TYPE_INT16
+    } else if name.starts_with("COMPASS_DEV_ID") {
+        MavParamType::MAV_PARAM_TYPE_INT32
+    } else {
+        MavParamType::MAV_PARAM_TYPE_INT8
+    }
+}
+
+/// The names in a `param.pck` file, read as ArduPilot's `param_unpack.py` reads it: zeros between parameters are
+/// padding; a type byte (low nibble: 1 INT8, 2 INT16, 3 INT32, 4 FLOAT; bit 4, a default follows), a byte of the
+/// name bytes shared with the previous name and those of its own, less one, the name's own bytes, the value.
+fn pck_names(file: &[u8]) -> Vec<String> {
+    let with_defaults = file[..2] == [0x1C, 0x67];
+    let (mut at, mut names, mut last) = (6, Vec::new(), Vec::new());
+    while at < file.len() {
+        if file[at] == 0 {
+            at += 1;
+            continue;
+        }
+        let size = match file[at] & 0x0F {
+            1 => 1,
+            2 => 2,
+            3 | 4 => 4,
+            other => panic!("type {other} at {at}"),
+        };
+        let defaulted = with_defaults && file[at] & 0x10 != 0;
+        let (shared, own) = (usize::from(file[at + 1] & 0x0F), usize::from(file[at + 1] >> 4) + 1);
+        let mut name: Vec<u8> = last[..shared].to_vec();
+        name.extend_from_slice(&file[at + 2..at + 2 + own]);
+        at += 2 + own + size * (1 + usize::from(defaulted));
+        names.push(String::from_utf8(name.clone()).unwrap());
+        last = name;
+    }
+    names
+}
 
 /// What QGroundControl asks for after AUTOPILOT_VERSION, in its InitialConnectStateMachine's order, and whether the
 /// vehicle has it: AVAILABLE_MODES (435, StandardModes: the mode menu), then its component metadata

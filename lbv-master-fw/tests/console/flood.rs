@@ -22,7 +22,7 @@ use lbv_master_fw::console::lbv::{
 use lbv_master_fw::console::limit::BURST;
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats, HELD, console_rx_task};
 use lbv_master_fw::mixer::FrameKind;
-use lbv_master_fw::params::{PARAM_COUNT, Param, Settings};
+use lbv_master_fw::params::{LISTED_COUNT, Param, Settings};
 use lbv_master_fw::ports::{Applied, Refused, UpdateSink, UpdateTarget};
 use lbv_master_fw::shared::{Command, Outgoing, Request, Sender, Severity, Shared, text};
 use lbv_master_fw::update::{Contents, ImageHeader, ftp};
@@ -370,15 +370,15 @@ fn requests_that_make_the_vehicle_send_more_than_they_cost_are_limited_per_reque
             })
             .count() as u32
     };
-    // The allowance of each (40 frames), then ten frames a second: for system 77 a list of 27 PARAM_VALUEs at once
-    // and one more when 14 frames more have come back, at 1.4 s (the next would be at 4.1 s), and the operator's
-    // list; 20 + 9 HEARTBEATs for the companion, each with its COMMAND_ACK.
-    let list = PARAM_COUNT as u32;
+    // The allowance of each (80 frames), then ten frames a second: for system 77 a list of 64 PARAM_VALUEs at once
+    // (the next when 48 frames more have come back, at 4.8 s), and the operator's list; 40 + 9 HEARTBEATs for the
+    // companion, each with its COMMAND_ACK.
+    let list = LISTED_COUNT as u32;
     assert!(list < BURST && 2 * list > BURST);
     let values = of("PARAM_VALUE");
-    assert_eq!(values, 2 * list + list, "PARAM_VALUEs");
+    assert_eq!(values, list + list, "PARAM_VALUEs");
     let acks = of("COMMAND_ACK");
-    assert!((28..=30).contains(&acks), "{acks} COMMAND_ACKs");
+    assert!((48..=50).contains(&acks), "{acks} COMMAND_ACKs");
     // Every one of the operator's listings answered.
     let listings = frames
         .iter()

@@ -6,7 +6,7 @@ use embassy_time::Duration;
 use lbv_master_fw::console::lbv::{MavMessage, MavModeFlag, MavResult, MavSeverity, MavState, MavType};
 use lbv_master_fw::console::{ConsoleConfig, ConsoleStats};
 use lbv_master_fw::mixer::FrameKind;
-use lbv_master_fw::params::{PARAM_COUNT, Param, ParamType, Settings};
+use lbv_master_fw::params::{LISTED_COUNT, Listed, Param, ParamType, Settings};
 use lbv_master_fw::shared::{
     AckResult, BatterySummary, LinkHealth, Message, Outgoing, Sender, Severity, Shared, Text, ThrusterReport,
     VehicleState,
@@ -497,14 +497,18 @@ fn the_parameter_list_goes_one_value_at_a_time_with_the_values_in_force() {
             _ => None,
         })
         .collect();
-    assert_eq!(values.len(), PARAM_COUNT);
-    for (p, param) in values.iter().zip(Param::ALL) {
-        assert_eq!(p.param_id.to_str().unwrap(), param.name());
+    assert_eq!(values.len(), LISTED_COUNT);
+    for (p, listed) in values.iter().zip(Listed::all()) {
+        assert_eq!(p.param_id.to_str().unwrap(), listed.name());
         assert_eq!(
             (usize::from(p.param_index), usize::from(p.param_count)),
-            (param.index().into(), PARAM_COUNT)
+            (listed.index().into(), LISTED_COUNT)
         );
-        assert_eq!(p.param_value, param.to_float(settings.params.get(param)), "{param:?}");
+        assert_eq!(
+            p.param_value,
+            listed.to_float(listed.value(&settings.params)),
+            "{listed:?}"
+        );
     }
     assert_eq!(values[Param::Button0.index() as usize].param_value, 42.0);
 }

@@ -8,7 +8,7 @@ use g431_hw::flash::{NmiAction, eccr, eccr_address, nmi_action};
 use g431_hw::memory::FLASH_ORIGIN;
 use lbv_master_fw::console::signing::TIMESTAMP_MAX;
 use lbv_master_fw::console::{ConsoleCounters, LINE_IDLE};
-use lbv_master_fw::params::{PARAM_COUNT, Settings};
+use lbv_master_fw::params::{LISTED_COUNT, Settings};
 use lbv_master_fw::settings::DATA_PAGES;
 use lbv_master_fw::shared::{
     MAV_CMD_COMPONENT_ARM_DISARM as ARM_DISARM, MAV_CMD_DO_MOTOR_TEST as MOTOR_TEST,
@@ -108,10 +108,10 @@ pub(super) fn read_params(run: &mut Run) -> BTreeMap<String, f32> {
     let frame = run.bench.ground.param_list();
     run.bench.send(frame);
     run.run_for(0.3);
-    // A list asked again within 1.2 s of the last is over the station's allowance (40 frames, a list is 27) and
+    // A list asked again within 4.8 s of the last is over the station's allowance (80 frames, a list is 64) and
     // dropped unanswered: ask again once it has refilled, as a ground station does.
-    for _ in 0..2 {
-        if run.bench.ground.seen.params.len() >= PARAM_COUNT {
+    for _ in 0..5 {
+        if run.bench.ground.seen.params.len() >= LISTED_COUNT {
             break;
         }
         run.run_for(1.0);
@@ -586,7 +586,7 @@ pub fn settings_persist(run: &mut Run) {
     let read = read_params(run);
     run.check(
         "the parameters are still set after the reboot",
-        holds(&read, &expected) && read.len() == PARAM_COUNT,
+        holds(&read, &expected) && read.len() == LISTED_COUNT,
         format!("{read:?}"),
     );
 
@@ -734,7 +734,7 @@ fn cut_during(
     let lost = after.get(name) != Some(&value);
     let as_before = |n: &str| after.contains_key(n) && after.get(n) == before.get(n);
     let ok = cut
-        && after.len() == PARAM_COUNT
+        && after.len() == LISTED_COUNT
         && after.keys().filter(|n| *n != name).all(|n| as_before(n))
         && (!lost || as_before(name));
     if !lost {
