@@ -12,6 +12,7 @@ mod hil_replay;
 mod image;
 mod mavproxy;
 mod mavproxy_ftp;
+mod mavsdk;
 mod module_cycles;
 mod support;
 mod udp_flood;
