@@ -38,6 +38,15 @@ rustup component add rustfmt clippy >/dev/null 2>&1 || true
 rustup target list --installed | grep -qx "$TARGET" || rustup target add "$TARGET"
 # flip-link links the firmware images (.cargo/config.toml): a stack overflow faults instead of corrupting RAM.
 command -v flip-link >/dev/null || cargo install flip-link --locked
+# Clippy lints what the builds compile. clippy-driver is rustc with clippy's lints (clippy's README: run it "with
+# the same arguments you use for rustc"); as the compiler of the workspace's own crates (RUSTC_WORKSPACE_WRAPPER) it
+# lints each as a build compiles it, so a crate is compiled once, linted and built, where `cargo clippy` and then a
+# build would compile it twice. Warnings are errors. Only the commands that say `linted` use it: a build without it
+# would compile the workspace's crates again, and the fuzz targets' nightly check must not use a stable driver.
+mkdir -p target
+printf '#!/bin/sh\nexec "%s" "$@" -D warnings\n' "$(rustup which clippy-driver)" >target/clippy-rustc
+chmod +x target/clippy-rustc
+linted() { RUSTC_WORKSPACE_WRAPPER="$PWD/target/clippy-rustc" "$@"; }
 # The Python tools (requirements.txt, pinned) live in a virtual environment under target/: no root, and no clash
 # with a system Python that keeps pip out (PEP 668). It sees the system's packages, so a machine that has the pinned
 # versions installs nothing, and once it is set up pip needs no network. Every python3 below is its.
@@ -63,7 +72,6 @@ system_packages() {
   fi
   python_tools
 }
-mkdir -p target
 if $quick; then python_tools; else system_packages; fi >target/packages.log 2>&1 &
 packages=$!
 cargo --version
@@ -72,36 +80,27 @@ step "rustfmt, and every link in the Markdown docs"
 cargo fmt --all -- --check
 python3 docs/check-links.py
 
-# The firmware (its clippy, its images, then the development key's refusal, which rebuilds the key's crate) goes on
-# beside the host steps below, in a target directory of its own: it shares no compiled crate with them, and one cargo
-# at a time holds a target directory. An image's fat LTO keeps one core busy while it links, and the host steps fill
-# the other. The builds are data, g431_hw::images::BUILDS: one line each of name, crate, features ("-" for none),
-# flash and static RAM budgets, the size of the flash region it is linked into and the stack budget, in bytes.
+# The firmware (its images, linted as they are built, then the development key's refusal, which rebuilds the key's
+# crate) goes on beside the host steps below, in a target directory of its own: it shares no compiled crate with
+# them, and one cargo at a time holds a target directory. An image's fat LTO keeps one core busy while it links, and
+# the host steps fill the other. The builds are data, g431_hw::images::BUILDS: one line each of name, crate, features
+# ("-" for none), flash and static RAM budgets, the size of the flash region it is linked into and the stack budget,
+# in bytes.
 export LBV_FIRMWARE_TARGET_DIR=target/firmware
-firmware_lints() {
-  export CARGO_TARGET_DIR=$LBV_FIRMWARE_TARGET_DIR
-  step "clippy ($TARGET)"
-  # Every image, one chip per invocation; then the cores on QEMU, and the update image's checks and streaming
-  # verification as the firmware builds them (no_std).
-  while read -r _ package features _; do
-    if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
-    cargo clippy --release --target "$TARGET" -p "$package" "${flags[@]}" --locked -- -D warnings
-  done <<<"$builds"
-  cargo clippy --release --target "$TARGET" -p qemu-m4 --locked -- -D warnings
-  cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
-}
 firmware_images() {
   export CARGO_TARGET_DIR=$LBV_FIRMWARE_TARGET_DIR
-  step "firmware images (release, $TARGET)"
+  step "firmware images, clippy linting each as it is built (release, $TARGET)"
   # Each image is kept under target/images/ (a crate's feature builds overwrite one another's ELF); then the cores'
-  # image for QEMU.
+  # image for QEMU, and clippy on the update image's checks and streaming verification as the firmware builds them
+  # (no_std), which is no image of its own.
   mkdir -p target/images
   while read -r name package features _; do
     if [ "$features" = - ]; then flags=(); else flags=(--features "$features"); fi
-    cargo build --release --target "$TARGET" -p "$package" "${flags[@]}" --locked
+    linted cargo build --release --target "$TARGET" -p "$package" "${flags[@]}" --locked
     cp "$LBV_FIRMWARE_TARGET_DIR/$TARGET/release/$package" "target/images/$name"
   done <<<"$builds"
-  cargo build --release --target "$TARGET" -p qemu-m4 --locked
+  linted cargo build --release --target "$TARGET" -p qemu-m4 --locked
+  cargo clippy --release --target "$TARGET" -p update-image --features verify,defmt --locked -- -D warnings
 }
 dev_key_refused() {
   export CARGO_TARGET_DIR=$LBV_FIRMWARE_TARGET_DIR
@@ -119,7 +118,6 @@ dev_key_refused() {
   echo "refused: $(grep -o 'a firmware build would accept[^(]*' target/dev-key.log | head -1)"
 }
 firmware() {
-  firmware_lints
   firmware_images
   dev_key_refused
 }
@@ -132,36 +130,35 @@ if ! $quick; then
   firmware=$!
 fi
 
-step "clippy (host)"
-cargo clippy --workspace --all-targets --locked -- -D warnings
+# Every host test and tool in one build, as `cargo test` builds them (its profile, and the dev-dependencies'
+# features unified in: a build of the tools alone would resolve some crates' features otherwise and compile them
+# twice), clippy linting every target as it is compiled; then the protocol crates with their firmware's defmt
+# feature, which no host build has. The steps beside the host tests then need no cargo, which would wait for theirs
+# (one at a time holds a target directory; LBV_TOOLS_BUILT tells rehost/run.sh and qemu-m4/run.sh; the QEMU image
+# comes with the firmware's).
+step "clippy (host), linting the host tests' build"
+linted cargo build --quiet --locked --profile test --workspace --all-targets
 cargo clippy -p tmc-proto -p bat-proto -p crash-record -p update-image --all-targets --features defmt --locked -- -D warnings
 
 if $quick; then
   finish "setting up the Python tools" "$packages" target/packages.log
   step "host tests"
-  cargo test --workspace --locked
+  linted cargo test --workspace --locked
   step "quick checks passed (the whole suite: ./test.sh)"
   exit 0
 fi
+export LBV_TOOLS_BUILT=1
 
 step "docs (rustdoc, warnings denied: every intra-doc link resolves)"
 # With the private items: the firmware crates' docs are for those who work on them, and link to what is theirs.
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --document-private-items --locked --quiet
-
-# Every host test and tool in one build, as `cargo test` builds them (its profile, and the dev-dependencies'
-# features unified in: a build of the tools alone would resolve some crates' features otherwise and compile them
-# twice). The steps beside the host tests then need no cargo, which would wait for theirs (one at a time holds a
-# target directory; LBV_TOOLS_BUILT tells rehost/run.sh and qemu-m4/run.sh; the QEMU image comes with the
-# firmware's).
-cargo build --quiet --locked --profile test --workspace --all-targets
-export LBV_TOOLS_BUILT=1
 finish "installing the Debian and Python packages" "$packages" target/packages.log
 
 # The host tests, and beside them whatever else is ready: an hour of random faults and traffic on the bench (the
 # soak: every order held, no watchdog bite, no panic) and the fuzz targets' build, both niced to fill what the
 # host tests leave idle, then the firmware's images under rehost's models and the cores on QEMU. Each goes to its
 # log, shown below.
-cargo test --workspace --locked >target/host-tests.log 2>&1 &
+linted cargo test --workspace --locked >target/host-tests.log 2>&1 &
 host_tests=$!
 nice target/debug/lbv bench --scenario soak --duration 3600 --quiet >target/soak.log 2>&1 &
 soak=$!
