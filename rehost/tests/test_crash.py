@@ -23,8 +23,11 @@ CRASH = "@SYS/crash/master.bin"
 KINDS = {"panic": 1, "hard fault": 2, "nmi": 3, "stray interrupt": 4, "watchdog": 5}
 # RCC_CSR's IWDGRSTF (RM0440 7.4.30): every stop ends in the watchdog's reset.
 IWDGRSTF = 1 << 29
-# Events (crash-record's `What`): the image started, a thruster answers again.
-STARTED, THRUSTER_BACK = 1, 5
+# Events (crash-record's `What`): the image started, a thruster answers again, a thruster's orders lost (its link
+# failsafe tripped), a fault stopped a thruster's motor (its FAULT bits).
+STARTED, THRUSTER_BACK, ORDERS_LOST, FAULT_LATCHED = 1, 5, 9, 10
+# tmc-proto's Faults: a stalled motor.
+STALL = 1 << 1
 # Where the test puts what it injects: RAM far below any stack's reach, above what the master keeps there.
 SCRATCH = SRAM_BASE + kept_ram(G474RE) + 0x800
 FILE, LINE = b"src/injected.rs", 42
@@ -213,3 +216,24 @@ def test_each_stop_of_a_thruster_leaves_a_record_its_next_start_reads(fault, exp
     assert [(p["result"], p["post_mortem"]["len"], p["post_mortem"]["offset"]) for p in parts] == [
         ("done", 128, 0), ("done", 128, 64)], parts
     assert b"".join(bytes.fromhex(p["post_mortem"]["data"]) for p in parts) == region(chip)
+
+
+def test_a_thruster_notes_a_stall_and_its_orders_lost_and_its_record_keeps_them(expected):
+    """The binding hands the region to the tasks: what they note reaches the record of the next stop."""
+    chip, spec = driving(expected)
+    # One order, then nothing: the held rotor stalls (its 400 ms window), then the link failsafe trips (1 s).
+    chip.run_for(1.1)
+    resets = len(chip.resets)
+    inject(chip, "hard fault")
+    timeout = spec["watchdog_timeout_us"] / 1e6
+    chip.run_until(lambda: len(chip.resets) > resets, timeout * 1.5, "the watchdog's reset after the hard fault")
+    set_analog(chip, spec)
+    chip.run_until(chip.idle, 0.05, "idle after the reset")
+    record = decode(region(chip))
+    assert record is not None, region(chip).hex()
+    codes = [code for _, code, _ in record["events"]]
+    assert codes == [STARTED, FAULT_LATCHED, ORDERS_LOST], record["events"]
+    _, _, bits = record["events"][1]
+    assert bits & STALL, record["events"]
+    stalled_at, lost_at = record["events"][1][0], record["events"][2][0]
+    assert 0.4 <= stalled_at / 1000 < 1.0 and lost_at > stalled_at, record["events"]

@@ -102,7 +102,6 @@ impl Control {
     }
 
     /// How often the link failsafe has stopped the motor.
-    #[cfg(test)]
     pub(crate) fn failsafe_trips(&self) -> u32 {
         self.failsafe.trips()
     }

@@ -1,7 +1,9 @@
 //! The channels between one controller's tasks ([`Shared`]), and which of them report to the watchdog (`TaskId`).
 
-use core::cell::Cell;
+use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, Ordering};
+
+use crash_record::{Event, Region, What};
 
 use embassy_sync::blocking_mutex::Mutex as BlockingMutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
@@ -56,6 +58,9 @@ pub struct Shared {
     unread: BlockingMutex<Mutex, Cell<u8>>,
     /// Task heartbeats for the watchdog.
     pub health: Health,
+    /// The post-mortem region ([`crash_record`]), once the binding has handed it over ([`Shared::keep_crash`]): the
+    /// ring of the events noted since the start ([`Shared::note`]), which the record of a stop keeps.
+    crash: BlockingMutex<Mutex, RefCell<Option<&'static mut Region>>>,
 }
 
 impl Shared {
@@ -71,7 +76,31 @@ impl Shared {
             replies: Replies::new(),
             unread: BlockingMutex::new(Cell::new(0)),
             health: Health::new(TASKS),
+            crash: BlockingMutex::new(RefCell::new(None)),
         }
+    }
+
+    /// Keep the post-mortem region, its start done ([`Region::start`]): from now on events are noted in its ring.
+    pub fn keep_crash(&self, region: &'static mut Region) {
+        self.crash.lock(|crash| *crash.borrow_mut() = Some(region));
+    }
+
+    /// Hand the region back: its events stop here (the bench's power cut, which gives it to the next start).
+    pub fn take_crash(&self) -> Option<&'static mut Region> {
+        self.crash.lock(|crash| crash.borrow_mut().take())
+    }
+
+    /// Note `what` in the ring of the last events, with the time since the start (nothing without the region).
+    #[inline(never)]
+    pub(crate) fn note(&self, what: What) {
+        let at_ms = embassy_time::Instant::now().as_millis() as u32;
+        self.crash.lock(|crash| {
+            if let Ok(mut crash) = crash.try_borrow_mut()
+                && let Some(region) = crash.as_deref_mut()
+            {
+                region.note(Event { at_ms, what });
+            }
+        });
     }
 
     /// Fault bits (the status's fault field) set now. They go into every status read until one read has carried

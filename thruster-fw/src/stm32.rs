@@ -56,8 +56,9 @@ const _: () = assert!(crash_record::LEN == tmc_proto::ext::RECORD_LEN);
 /// The post-mortem region at the bottom of RAM (`g431_hw::memory::CRASH`).
 #[allow(unsafe_code)]
 fn crash_region() -> &'static mut Region {
-    // SAFETY: that RAM is linked to nothing and no stack within its budget reaches it. The start takes it once;
-    // `record_stop` takes it again only once every other context has stopped for good.
+    // SAFETY: that RAM is linked to nothing and no stack within its budget reaches it. The start takes it once and
+    // hands it to the tasks' `Shared`; `record_stop` takes it again only once every other context has stopped for
+    // good.
     unsafe { crash_record::cortex_m::region(g431_hw::memory::CRASH.origin) }
 }
 
@@ -171,7 +172,10 @@ async fn main(spawner: Spawner) {
     let shared: &'static Shared = SHARED.init(Shared::new());
     // The stop before this start, read before anything else writes RAM there and before `reset_cause` clears why
     // the chip reset (RCC_CSR, RM0440 7.4.30). It stays there for a debugger, until the next stop or power cycle.
-    let post_mortem = crash_region().start(ResetCause(pac::RCC.csr().read().0), CRASH_IMAGE);
+    let crash = crash_region();
+    let post_mortem = crash.start(ResetCause(pac::RCC.csr().read().0), CRASH_IMAGE);
+    // From here on the tasks note their events in its ring.
+    shared.keep_crash(crash);
     if let Some(record) = &post_mortem {
         warn!(
             "stopped before this start: {=str} at {:#010x}",

@@ -3,6 +3,8 @@
 //! the host tests all run the controller through [`run`] and [`run_commutation`].
 
 use core::cell::Cell;
+
+use crash_record::What;
 use embassy_futures::join::{join, join5};
 use embassy_futures::select::select3;
 
@@ -256,12 +258,13 @@ pub(crate) async fn fault_task<S: Sensors, L: LatchStore>(
             halls_normal,
         };
         let faults = monitor.update(sample, stalled);
-        shared.note_unread(faults.bits());
+        let mut fault_bits = faults.bits();
         // SeaBotix FAULT bit 6 (this project's): the Legacy STATUS byte has no spare bit
         // (docs/thruster.md, "Sustained overcurrent").
         if config.family == Family::SeaBotix && overcurrent {
-            shared.note_unread(SeaBotixStatus::FAULT_OVERCURRENT);
+            fault_bits |= SeaBotixStatus::FAULT_OVERCURRENT;
         }
+        shared.note_unread(fault_bits);
         if monitor.latched() != saved {
             saved = monitor.latched();
             latch.save(saved);
@@ -277,7 +280,8 @@ pub(crate) async fn fault_task<S: Sensors, L: LatchStore>(
         shared.sensed.sender().send(sensed);
         if sensed.drive_allowed != allowed || overcurrent != was_overcurrent {
             if sensed.drive_allowed != allowed && !sensed.drive_allowed {
-                warn!("fault: stopping the motor ({})", faults.bits());
+                warn!("fault: stopping the motor ({})", fault_bits);
+                shared.note(What::FaultLatched(fault_bits.into()));
             }
             allowed = sensed.drive_allowed;
             shared.wake.signal(());
@@ -297,7 +301,11 @@ pub(crate) async fn control_task(config: &Config, shared: &Shared) -> ! {
         let now = Instant::now();
         let rpm = shared.hall.try_get().map_or(0, |hall| hall.rpm(now));
         let sensed = shared.sensed.try_get().unwrap_or(Sensed::UNKNOWN);
+        let trips = control.failsafe_trips();
         let duty = control.tick(now, shared.link.try_get(), sensed, rpm);
+        if control.failsafe_trips() != trips {
+            shared.note(What::OrdersLost);
+        }
         // SeaBotix FAULT bit 5: the failsafe holds the motor stopped (the Legacy STATUS byte has no spare bit).
         if config.family == Family::SeaBotix && control.failsafe_holding() {
             shared.note_unread(SeaBotixStatus::FAULT_LINK_FAILSAFE);

@@ -241,8 +241,9 @@ pub struct ThrusterBoard {
     /// board then stays off until the next boot.
     pub cut_in_bootloader: Option<usize>,
     tasks: Vec<TaskId>,
-    /// The post-mortem region: RAM that a reset keeps and a power cut loses.
-    crash_ram: Region,
+    /// The post-mortem region: RAM that a reset keeps and a power cut loses. The board's while the controller is
+    /// off; its controller's `Shared` has it while it runs, and notes its events in it.
+    crash_ram: Option<&'static mut Region>,
     /// Why the next boot's reset comes (RCC_CSR's flags): a power-on, unless a stop's watchdog resets it.
     next_reset: ResetCause,
     /// When the controller last started, and when it stopped (its watchdog then resets it).
@@ -318,7 +319,8 @@ impl ThrusterBoard {
             boot_outcome: None,
             cut_in_bootloader: None,
             tasks: Vec::new(),
-            crash_ram: Region::new(),
+            // A board's own RAM, for as long as the bench runs.
+            crash_ram: Some(Box::leak(Box::new(Region::new()))),
             next_reset: POWER_ON,
             started: Instant::from_ticks(0),
             stopped: None,
@@ -360,7 +362,10 @@ impl ThrusterBoard {
         // The image's start, first of all: the record of the stop before it, if the reset kept one.
         let image = self.crash_image();
         let cause = core::mem::replace(&mut self.next_reset, POWER_ON);
-        self.updater.post_mortem = self.crash_ram.start(cause, image).map(|record| record.encode());
+        if let Some(region) = self.crash_ram.take() {
+            self.updater.post_mortem = region.start(cause, image).map(|record| record.encode());
+            self.shared.keep_crash(region);
+        }
         (self.started, self.stopped) = (starts, None);
         // A reset asked for before this boot is the one this boot is.
         self.reboots_served = self.updater.reboots.get();
@@ -435,6 +440,9 @@ impl ThrusterBoard {
         self.io.held_off.set(false);
         self.io.break_flag.set(false);
         self.io.disturbed();
+        if let Some(region) = self.shared.take_crash() {
+            self.crash_ram = Some(region);
+        }
         self.shared = Rc::new(Shared::new());
         (self.next_reset, self.stopped) = (POWER_ON, None);
     }
@@ -456,7 +464,10 @@ impl ThrusterBoard {
             panic: None,
             uptime_ms: now.saturating_duration_since(self.started).as_millis() as u32,
         };
-        self.crash_ram.record(stop, self.crash_image());
+        let image = self.crash_image();
+        if let Some(region) = self.crash_ram.as_deref_mut() {
+            region.record(stop, image);
+        }
         (self.next_reset, self.stopped) = (WATCHDOG_RESET, Some(now));
     }
 

@@ -373,9 +373,18 @@ pub fn black_box(run: &mut Run) {
 
 /// One thruster's core panics mid-dive (T2, as its panic handler stops it): its bridge is off at once, its watchdog
 /// resets it, the master finds it again and drives it, tells the stop, fetches its post-mortem record and serves it
-/// over MAVLink FTP, where `lbv decode crash` reads it.
+/// over MAVLink FTP, where `lbv decode crash` reads it. Before the panic T2's orders come corrupted for a while, and
+/// its record's events say so.
 pub fn thruster_crash(run: &mut Run) {
     run.arm_and_go(AHEAD);
+    run.run_for(1.5);
+    let corrupted = Fault::CorruptOrders {
+        thruster: 1,
+        mask: 0x01,
+    };
+    corrupted.inject(&mut run.bench);
+    run.run_for(1.5);
+    corrupted.clear(&mut run.bench);
     run.run_for(1.5);
     let rpm_before = round(run.rpm(1), 0);
     run.bench.note("T2's core panics");
@@ -423,6 +432,18 @@ pub fn thruster_crash(run: &mut Run) {
             && record.target == update_image::Target::ThrusterSeabotix.to_byte()
             && record.reset_cause & 1 << 29 != 0),
         stop,
+    );
+    let events: Vec<crash_record::What> = match &decoded {
+        Some(Ok(record)) => record.events().iter().map(|event| event.what).collect(),
+        _ => Vec::new(),
+    };
+    run.check(
+        "its events: T2's start, then its orders lost while they came corrupted",
+        matches!(
+            events[..],
+            [crash_record::What::Started(_), crash_record::What::OrdersLost]
+        ),
+        format!("{events:?}"),
     );
     let printed = match &decoded {
         Some(Ok(record)) => crate::decode::crash::describe(record, None),

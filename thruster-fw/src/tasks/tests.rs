@@ -531,6 +531,59 @@ fn a_ground_fault_coasts_the_bridge_within_three_samples_and_latches() {
     }
 }
 
+/// The post-mortem ring, where the binding's handlers find what happened before a stop: the tasks note the link
+/// failsafe's trip and a fault's stop of the motor, once each.
+#[test]
+fn orders_lost_and_a_faults_stop_are_noted_in_the_post_mortem_ring() {
+    for family in Family::ALL {
+        let mut bench = Bench::new(family);
+        let region = Box::leak(Box::new(crash_record::Region::new()));
+        let image = crash_record::Image {
+            target: 0,
+            version: [0; 4],
+        };
+        assert_eq!(region.start(crash_record::ResetCause(0), image), None);
+        bench.shared.keep_crash(region);
+        // Silence for its timeout: the failsafe trips once, however long the silence lasts.
+        bench.order(60);
+        bench.turn(Duration::from_millis(100));
+        assert!(bench.duty().value() > 0, "{family:?}");
+        bench.turn_until(|bench| bench.duty() == Duty::ZERO);
+        let lost_at = now_ms();
+        bench.turn(Duration::from_millis(500));
+        // Driving again, then a ground fault stops the motor (and stays latched).
+        bench.order(60);
+        bench.turn(Duration::from_millis(100));
+        assert!(bench.duty().value() > 0, "{family:?}");
+        let grounded = RawSample {
+            water: bench.config.water.raw_at(50_000),
+            ..bench.inputs.get()
+        };
+        bench.inputs.set(grounded);
+        bench.turn_until(|bench| bench.bridge.get().0 == COAST);
+        let stopped_at = now_ms();
+        bench.turn(Duration::from_millis(100));
+
+        let region = bench.shared.take_crash().expect("the region");
+        let (events, held) = crash_record::Ring::from_bytes(region.ring).events();
+        let noted: Vec<(u64, What)> = events
+            .iter()
+            .take(usize::from(held))
+            .map(|event| (u64::from(event.at_ms), event.what))
+            .collect();
+        assert_eq!(noted.len(), 3, "{family:?}: {noted:?}");
+        assert_eq!(noted[0].1, What::Started(0));
+        assert_eq!(noted[1], (lost_at, What::OrdersLost), "{family:?}");
+        // 50 kohm is a ground fault, and below the water threshold too.
+        let wet = What::FaultLatched(Faults::GROUND.union(Faults::WATER).bits().into());
+        assert_eq!(noted[2].1, wet, "{family:?}: {noted:?}");
+        assert!(
+            noted[2].0 <= stopped_at && stopped_at - noted[2].0 <= 1,
+            "{family:?}: {noted:?}"
+        );
+    }
+}
+
 #[test]
 fn latches_outlast_a_reset_but_not_a_power_cycle() {
     for family in Family::ALL {
