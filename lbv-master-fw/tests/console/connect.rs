@@ -631,8 +631,7 @@ fn setup_reads() -> Vec<String> {
     names
 }
 
-/// Every name QGroundControl's setup reads is among `names`, and its sensors check finds the vehicle without a
-/// compass (every id 0: nothing to calibrate).
+/// Every name QGroundControl's setup reads is among `names` (their values: the vehicle's tests of the stand-ins).
 fn setup_reads_nothing_missing(names: &[String]) {
     let missing: Vec<String> = setup_reads().into_iter().filter(|n| !names.contains(n)).collect();
     assert!(missing.is_empty(), "missing from the vehicle's parameters: {missing:?}");
