@@ -128,6 +128,11 @@ struct BenchArgs {
     /// /update/thruster0.lbvu: DIR/thruster0.lbvu) once it is whole or stopped (a stopped one ends in .stopped)
     #[arg(long, value_name = "DIR", requires = "udp")]
     update_dir: Option<PathBuf>,
+    /// With --udp: write the bench's trace to FILE as the run goes, a line of JSON each 10 ms (virtual time t in
+    /// s, each thruster's rpm, current, temperature, faults and order, the battery, armed): what the plant did, to
+    /// hold a ground station's log against
+    #[arg(long, value_name = "FILE", requires = "udp")]
+    trace: Option<PathBuf>,
     /// Write the one scenario's report as JSON on standard output and nothing else: how --all runs each scenario,
     /// in a process of its own
     #[arg(long, hide = true, conflicts_with_all = ["all", "udp", "list", "json"])]
@@ -392,6 +397,16 @@ fn udp(options: &BenchArgs) -> ExitCode {
         }
     };
     let listening = link.local_addr().unwrap_or(listen);
+    let mut trace = match &options.trace {
+        Some(path) => match std::fs::File::create(path) {
+            Ok(file) => Some(std::io::BufWriter::new(file)),
+            Err(error) => {
+                eprintln!("lbv: cannot write {}: {error}", path.display());
+                return ExitCode::from(exit::TROUBLE);
+            }
+        },
+        None => None,
+    };
     let mut config = (dive.vehicle)(options.seed);
     // The console's UART as the binding has it: a flood is dropped there and in the bridge's inboxes, not queued.
     config.console_baud = Some(bench::udp::CONSOLE_BAUD);
@@ -407,6 +422,7 @@ fn udp(options: &BenchArgs) -> ExitCode {
         }
     );
     let mut bench = bench::Bench::new(&config, options.engine());
+    bench.keep_samples(trace.is_some());
     let duration = options
         .duration
         .map(|seconds| embassy_time::Duration::from_micros((seconds * 1e6) as u64));
@@ -416,6 +432,7 @@ fn udp(options: &BenchArgs) -> ExitCode {
         duration,
         !options.quiet,
         options.update_dir.as_deref(),
+        trace.as_mut().map(|out| out as &mut dyn std::io::Write),
     ) {
         Ok(clock) => clock,
         Err(error) => {

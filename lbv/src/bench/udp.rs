@@ -17,7 +17,7 @@
 
 use std::cell::{Cell, RefCell};
 use std::collections::VecDeque;
-use std::io::{self, ErrorKind, Write as _};
+use std::io::{self, ErrorKind, Write};
 use std::net::{Ipv4Addr, SocketAddr, SocketAddrV4, UdpSocket};
 use std::path::Path;
 use std::rc::Rc;
@@ -348,14 +348,16 @@ impl WallClock {
 
 /// Run the bench in real time with its console on `link`, for `duration` of virtual time or until the process
 /// is stopped; with `status`, print a line every second (armed, each thruster's rpm, datagrams); with
-/// `update_dir`, write there each update image the master's sink has finished ([`write_images`]). Returns the
-/// pacing.
+/// `update_dir`, write there each update image the master's sink has finished ([`write_images`]); with `trace`,
+/// write there each sample of the trace as a line of JSON as it comes (the bench must keep its samples:
+/// [`Bench::keep_samples`]). Returns the pacing.
 pub fn serve(
     bench: &mut Bench,
     link: &UdpLink,
     duration: Option<Duration>,
     status: bool,
     update_dir: Option<&Path>,
+    mut trace: Option<&mut dyn Write>,
 ) -> io::Result<WallClock> {
     link.attach(bench)?;
     let end = duration.map(|duration| bench.now() + duration);
@@ -365,7 +367,14 @@ pub fn serve(
     while end.is_none_or(|end| bench.now() < end) {
         link.receive(bench);
         bench.run_for(SLICE);
-        // Nothing reads the trace of a live run: keep memory flat however long it runs.
+        // Samples go to the trace file, if any, and are not kept: memory stays flat however long it runs.
+        if let Some(out) = trace.as_deref_mut() {
+            for sample in &bench.trace.samples {
+                serde_json::to_writer(&mut *out, sample)?;
+                out.write_all(b"\n")?;
+            }
+            out.flush()?;
+        }
         bench.trace.samples.clear();
         if status && bench.now() >= next_status {
             next_status += Duration::from_secs(1);

@@ -109,6 +109,18 @@ fn bad_values_are_refused_with_two() {
             vec!["bench", "--udp", "--scenario", "water-legacy"],
             "does not go with it",
         ),
+        (vec!["bench", "--trace", "trace.jsonl"], "--udp"),
+        (
+            vec![
+                "bench",
+                "--udp",
+                "--udp-listen",
+                "127.0.0.1:0",
+                "--trace",
+                "/nonexistent/trace.jsonl",
+            ],
+            "cannot write /nonexistent/trace.jsonl",
+        ),
         (
             vec!["bench", "--scenario", "no-such-scenario"],
             "no scenario called no-such-scenario",

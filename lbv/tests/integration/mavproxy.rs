@@ -71,7 +71,8 @@ const BLACK_BOX: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/mavproxy_bla
 
 /// After a motor test, MAVProxy fetches the master's black box (`ftp get @SYS/blackbox.tlog`) and pymavlink's
 /// `mavlogdump.py` reads every frame of it: a sample every 100 ms, thruster 1 turning in 2 s of them at the rpm
-/// the live telemetry showed (`tests/mavproxy_blackbox.py`).
+/// the live telemetry showed, and every thruster's rpm in every sample the bench's own, from the trace the bench
+/// writes as it runs (`lbv bench --udp --trace`; `tests/mavproxy_blackbox.py`).
 #[test]
 fn mavproxy_fetches_the_black_box_and_mavlogdump_reads_it() {
     let [gcs, bench_port, observer] = support::free_ports();
@@ -82,7 +83,17 @@ fn mavproxy_fetches_the_black_box_and_mavlogdump_reads_it() {
         work.0.display().to_string(),
         PILOT_SECONDS.to_string(),
     ];
-    let (summary, bench_output) = support::fly(BLACK_BOX, &args, BENCH_SECONDS, gcs, bench_port, "mavproxy pymavlink");
+    let trace = work.join("trace.jsonl");
+    let bench_args = ["--trace", trace.as_str()];
+    let (summary, bench_output) = support::fly_with(
+        BLACK_BOX,
+        &args,
+        BENCH_SECONDS,
+        gcs,
+        bench_port,
+        "mavproxy pymavlink",
+        &bench_args,
+    );
     assert_eq!(
         summary["steps"],
         serde_json::json!(["connect", "ready", "motortest", "blackbox"]),
