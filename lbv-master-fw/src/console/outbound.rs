@@ -1029,30 +1029,14 @@ mod tests {
 
     #[test]
     fn heartbeat_is_disarmed_unless_the_vehicle_says_armed() {
-        for vehicle in [
-            None,
-            Some(VehicleState {
-                armed: false,
-                console_alive: true,
-                refused: 0,
-                armable: true,
-                failsafe: false,
-                param_type_mismatches: 0,
-                operator: 255,
-            }),
-        ] {
+        for vehicle in [None, Some(VehicleState::READY)] {
             let hb = heartbeat(vehicle);
             assert_eq!(hb.base_mode.bits(), 0x41);
             assert_eq!(hb.system_status, MavState::MAV_STATE_STANDBY);
         }
         let hb = heartbeat(Some(VehicleState {
             armed: true,
-            console_alive: true,
-            refused: 0,
-            armable: true,
-            failsafe: false,
-            param_type_mismatches: 0,
-            operator: 255,
+            ..VehicleState::READY
         }));
         assert_eq!(hb.base_mode.bits(), 0xC1);
         assert_eq!(hb.system_status, MavState::MAV_STATE_ACTIVE);
