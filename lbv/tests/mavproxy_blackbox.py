@@ -98,6 +98,10 @@ class BlackBoxPilot(Pilot):
         since = self.elapsed()
         self.mavproxy.type(f"ftp get @SYS/blackbox.tlog {path}")
         self.wait(lambda: self.mavproxy.said(f"bytes to {path}"), 60.0, "the black box fetched")
+        # MAVProxy says how much it wrote before it has closed the file: read it once it is all there.
+        said = [line for _, line in self.mavproxy.log if f"bytes to {path}" in line][-1]
+        wrote = int(said.split("Wrote ")[1].split()[0])
+        self.wait(lambda: os.path.getsize(path) >= wrote, 5.0, "the black box whole on disk")
         tool = shutil.which("mavlogdump.py")
         if tool is None:
             raise Failed("mavlogdump.py is not on PATH (pymavlink installs it)")

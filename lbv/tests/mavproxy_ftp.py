@@ -140,6 +140,9 @@ class Session:
             since = time.monotonic()
             self.mavproxy.type(f"ftp get @SYS/versions.txt {local}")
             self.wait(lambda: self.lines(since, r"Wrote \d+ bytes to"), 10.0, "the get of @SYS/versions.txt")
+            # MAVProxy says how much it wrote before it has closed the file: read it once it is all there.
+            wrote = int(self.lines(since, r"Wrote (\d+) bytes to")[-1].group(1))
+            self.wait(lambda: os.path.getsize(local) >= wrote, 5.0, "versions.txt whole on disk")
             with open(local, encoding="ascii") as file:
                 text = file.read()
             if not re.search(r" (unasked|on-trial)$", text, re.M):
@@ -147,7 +150,6 @@ class Session:
             # Half a second between two gets, pumping the links meanwhile.
             again = since + 0.5
             self.wait(lambda: time.monotonic() >= again, 1.0, "the pause before the next get")
-        wrote = int(self.lines(since, r"Wrote (\d+) bytes to")[-1].group(1))
         return {"root": root, "sys": files, "text": text, "wrote": wrote, "gets": gets}
 
     def versions(self):
